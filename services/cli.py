@@ -1,0 +1,52 @@
+"""The ``skynet`` command: one subcommand per service or tool.
+
+Each subcommand lives in its own module and exposes ``main(argv: list[str] | None) -> int``;
+this module only dispatches, importing the target lazily so that ``skynet gateway`` never pays
+for OpenCV or the planner's imports.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+#: subcommand -> (module, help line). The module's ``main(argv)`` receives the remaining args.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "gateway": ("services.gateway.service", "run the gateway router relay (SkyNet <-> Internet)"),
+    "edge": ("edge.board", "run one UAV's IoT board (vehicle driver, SkyNet, camera)"),
+    "planner": ("services.planner.service", "run the planner RCU service (plan requests)"),
+    "plan": ("services.planner.cli", "plan offline: compare algorithms, export missions, bench"),
+    "detector": ("services.detector.service", "run the detector RCU service (imagery -> defects)"),
+    "detect": ("services.detector.cli", "detect defects in images, evaluate on data sets, bench"),
+    "gcs": ("services.gcs.cli", "ground control station: run a mission over the bus"),
+    "up": ("services.launcher", "start the whole network on this machine"),
+    "mission": ("services.launcher", "start the network, run the default mission, write the report"),
+    "demo": ("services.demo", "gateway + a demo publisher/subscriber pair, printing what flows"),
+    "bench": ("services.bench", "benchmarks: bus, sim, plan, detect, mission"),
+}
+
+
+def usage() -> str:
+    width = max(map(len, COMMANDS))
+    lines = ["usage: skynet <command> [options]", "", "commands:"]
+    lines += [f"  {name:<{width}}  {help_}" for name, (_, help_) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args or args[0] in {"-h", "--help", "help"}:
+        print(usage())
+        return 0
+    name, rest = args[0], args[1:]
+    if name not in COMMANDS:
+        print(f"skynet: unknown command {name!r}\n\n{usage()}", file=sys.stderr)
+        return 2
+    module = importlib.import_module(COMMANDS[name][0])
+    if name in {"up", "mission"}:
+        return int(module.main([name, *rest]) or 0)
+    return int(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
