@@ -1,0 +1,146 @@
+"""The key space: the only module that spells Zenoh key expressions.
+
+Layout (DESIGN.md, "Key space")::
+
+    skynet/<fleet>/uav/<id>/state       telemetry: VehicleState
+    skynet/<fleet>/uav/<id>/cmd         command queryable: Command -> CommandAck
+    skynet/<fleet>/uav/<id>/camera      imagery: RTP frame (ImageMeta + JPEG)
+    skynet/<fleet>/uav/<id>/event       events of one UAV
+    skynet/<fleet>/uav/<id>/alive       liveliness token of one UAV
+    skynet/<fleet>/gcs/heartbeat        the ground station's command-link heartbeat
+    skynet/<fleet>/gcs/event            events of the ground station
+    skynet/<fleet>/rcu/planner/plan     planner queryable: PlanRequest -> MissionPlan
+    skynet/<fleet>/rcu/detector/defects defect reports
+    skynet/<fleet>/rcu/<name>/alive     liveliness token of a remote computational unit
+    skynet/<fleet>/rcu/<name>/event     events of a remote computational unit
+    skynet/<fleet>/gateway/<id>/stats   the gateway's link statistics
+
+Fleet names and service names are single chunks of ``[A-Za-z0-9_-]``; UAV ids are 1..255.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+ROOT = "skynet"
+DEFAULT_FLEET = "demo"
+_CHUNK = re.compile(r"^[A-Za-z0-9_-]+$")
+UAV_TOPICS = ("state", "cmd", "camera", "event", "alive")
+RCU_TOPICS = {"planner": "plan", "detector": "defects"}
+
+
+class KeyError_(ValueError):
+    """A key expression that is not part of the key space."""
+
+
+def _chunk(value: str, what: str) -> str:
+    if not isinstance(value, str) or not _CHUNK.match(value):
+        raise KeyError_(f"{what} must match [A-Za-z0-9_-]+, got {value!r}")
+    return value
+
+
+def _uav(uav: int | str) -> str:
+    if uav == "*":
+        return "*"
+    if not isinstance(uav, int) or isinstance(uav, bool) or not 1 <= uav <= 255:
+        raise KeyError_(f"UAV id must be an int in 1..255, got {uav!r}")
+    return str(uav)
+
+
+def fleet_root(fleet: str) -> str:
+    return f"{ROOT}/{_chunk(fleet, 'fleet')}"
+
+
+def uav_key(fleet: str, uav: int | str, topic: str) -> str:
+    """``skynet/<fleet>/uav/<id>/<topic>``; ``uav="*"`` gives the all-UAV wildcard."""
+    if topic not in UAV_TOPICS:
+        raise KeyError_(f"unknown UAV topic {topic!r}; expected one of {UAV_TOPICS}")
+    return f"{fleet_root(fleet)}/uav/{_uav(uav)}/{topic}"
+
+
+def state(fleet: str, uav: int | str) -> str:
+    return uav_key(fleet, uav, "state")
+
+
+def cmd(fleet: str, uav: int | str) -> str:
+    return uav_key(fleet, uav, "cmd")
+
+
+def camera(fleet: str, uav: int | str) -> str:
+    return uav_key(fleet, uav, "camera")
+
+
+def event(fleet: str, uav: int | str) -> str:
+    return uav_key(fleet, uav, "event")
+
+
+def alive(fleet: str, uav: int | str) -> str:
+    return uav_key(fleet, uav, "alive")
+
+
+def heartbeat(fleet: str) -> str:
+    return f"{fleet_root(fleet)}/gcs/heartbeat"
+
+
+def gcs_event(fleet: str) -> str:
+    return f"{fleet_root(fleet)}/gcs/event"
+
+
+def planner(fleet: str) -> str:
+    return f"{fleet_root(fleet)}/rcu/planner/plan"
+
+
+def defects(fleet: str) -> str:
+    return f"{fleet_root(fleet)}/rcu/detector/defects"
+
+
+def rcu_alive(fleet: str, name: str) -> str:
+    return f"{fleet_root(fleet)}/rcu/{_chunk(name, 'service name')}/alive"
+
+
+def rcu_event(fleet: str, name: str) -> str:
+    return f"{fleet_root(fleet)}/rcu/{_chunk(name, 'service name')}/event"
+
+
+def gateway_stats(fleet: str, gateway_id: str | int = "*") -> str:
+    gid = "*" if gateway_id == "*" else _chunk(str(gateway_id), "gateway id")
+    return f"{fleet_root(fleet)}/gateway/{gid}/stats"
+
+
+def all_events(fleet: str) -> str:
+    """Every event of the fleet: UAVs, ground station and RCUs."""
+    return f"{fleet_root(fleet)}/**/event"
+
+
+def fleet_all(fleet: str) -> str:
+    return f"{fleet_root(fleet)}/**"
+
+
+@dataclass(frozen=True)
+class KeyInfo:
+    fleet: str
+    area: str  # "uav", "gcs", "rcu", "gateway"
+    topic: str  # "state", "cmd", ..., "plan", "defects", "stats", "heartbeat"
+    uav: int | None = None
+    name: str | None = None  # rcu or gateway id
+
+
+def parse(key: str) -> KeyInfo:
+    """Parse a concrete key of the key space; raises :class:`KeyError_` otherwise."""
+    parts = str(key).split("/")
+    if len(parts) < 4 or parts[0] != ROOT or not _CHUNK.match(parts[1]):
+        raise KeyError_(f"not a SkyNet key: {key!r}")
+    fleet, area, rest = parts[1], parts[2], parts[3:]
+    if area == "uav" and len(rest) == 2 and rest[1] in UAV_TOPICS and rest[0].isdigit():
+        uav = int(rest[0])
+        if 1 <= uav <= 255:
+            return KeyInfo(fleet, "uav", rest[1], uav=uav)
+    elif area == "gcs" and rest in (["heartbeat"], ["event"]):
+        return KeyInfo(fleet, "gcs", rest[0])
+    elif area == "rcu" and len(rest) == 2 and _CHUNK.match(rest[0]):
+        if rest[1] in ("alive", "event") or RCU_TOPICS.get(rest[0]) == rest[1]:
+            return KeyInfo(fleet, "rcu", rest[1], name=rest[0])
+    elif area == "gateway" and len(rest) == 2 and rest[1] == "stats" and _CHUNK.match(rest[0]):
+        return KeyInfo(fleet, "gateway", "stats", name=rest[0])
+    raise KeyError_(f"not a SkyNet key: {key!r}")
