@@ -1,0 +1,394 @@
+"""Formation geometry of the UAV triangle: frames, offsets, errors and on-board keeping.
+
+Pure numpy, no bus code. Equations from PAPER.md Section 4: centroid (P6), rotation from the
+formation frame to the inertial frame (P7), position errors in the formation frame (P8) and the
+per-UAV trajectories ``T_Fn = T_F + ΔT_n`` (P9).
+
+Frame convention
+----------------
+Inertial frame: local ENU metres (x east, y north, z up).
+Formation frame F: origin at the formation centroid, **x along the direction of travel** (the
+heading ``ψ = atan2(dy, dx)`` of the centroid path), **y to the left**, **z up**; it is the
+inertial frame rotated by the ZYX Euler angles (φ, θ, ψ) of the shape, ``p_O = R_OF p_F`` (P7).
+With φ = θ = 0 (the default) only the heading rotates the shape, so the default offsets
+:data:`DEFAULT_OFFSETS` (P9) ``ΔT_1 = (0, 0, 2)``, ``ΔT_2 = (3, 0, -1)``, ``ΔT_3 = (-3, 0, -1)`` m
+make a triangle in the vertical plane that contains the path: UAV 1 above the centroid, UAV 2
+three metres ahead and one below, UAV 3 three metres behind and one below. These offsets sum to
+zero, so the centroid of the three slots is the path point itself (P6).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "DEFAULT_OFFSETS",
+    "MAX_CORRECTION_M",
+    "rotation_of",
+    "errors_in_formation",
+    "errors_to_inertial",
+    "uav_positions",
+    "centroid_of",
+    "headings",
+    "formation_reference",
+    "formation_error",
+]
+
+#: Desired offsets ΔT_n of UAVs 1, 2, 3 in the formation frame, metres (P9); row n-1 is UAV n.
+DEFAULT_OFFSETS: NDArray[np.float64] = np.array(
+    [[0.0, 0.0, 2.0], [3.0, 0.0, -1.0], [-3.0, 0.0, -1.0]], dtype=float
+)
+DEFAULT_OFFSETS.setflags(write=False)
+
+#: Default bound on the on-board formation correction, metres (our choice; the paper is silent).
+MAX_CORRECTION_M = 3.0
+
+
+def _finite(a: ArrayLike, name: str) -> NDArray[np.float64]:
+    arr = np.asarray(a, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite (got NaN or inf)")
+    return arr
+
+
+def _vec3(a: ArrayLike, name: str) -> NDArray[np.float64]:
+    arr = _finite(a, name)
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must have shape (3,), got {arr.shape}")
+    return arr
+
+
+def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np.float64]:
+    """Rotation ``R_OF`` from the formation frame to the inertial frame (P7), ZYX Euler angles.
+
+    ``R_OF = Rz(ψ) Ry(θ) Rx(φ)``, written out as in (P7)::
+
+        [[cψcθ, cψsθsφ − sψcφ, cψsθcφ + sψsφ],
+         [sψcθ, sψsθsφ + cψcφ, sψsθcφ − cψsφ],
+         [−sθ,  cθsφ,          cθcφ         ]]
+
+    Parameters
+    ----------
+    roll, pitch, yaw : float or array_like
+        φ, θ, ψ in radians; broadcast against each other.
+
+    Returns
+    -------
+    ndarray, shape ``broadcast_shape + (3, 3)``
+        ``(3, 3)`` for scalars; ``(N, 3, 3)`` for arrays of N angles.
+
+    Examples
+    --------
+    >>> R = rotation_of(0.0, 0.0, np.pi / 2)
+    >>> np.round(R @ [1.0, 0.0, 0.0], 12)
+    array([0., 1., 0.])
+    """
+    phi, theta, psi = np.broadcast_arrays(
+        _finite(roll, "roll"), _finite(pitch, "pitch"), _finite(yaw, "yaw")
+    )
+    cf, sf = np.cos(phi), np.sin(phi)
+    ct, st = np.cos(theta), np.sin(theta)
+    cp, sp = np.cos(psi), np.sin(psi)
+    R = np.empty(phi.shape + (3, 3))
+    R[..., 0, 0] = cp * ct
+    R[..., 0, 1] = cp * st * sf - sp * cf
+    R[..., 0, 2] = cp * st * cf + sp * sf
+    R[..., 1, 0] = sp * ct
+    R[..., 1, 1] = sp * st * sf + cp * cf
+    R[..., 1, 2] = sp * st * cf - cp * sf
+    R[..., 2, 0] = -st
+    R[..., 2, 1] = ct * sf
+    R[..., 2, 2] = ct * cf
+    return R
+
+
+def errors_in_formation(
+    desired: ArrayLike, actual: ArrayLike, R_OF: ArrayLike
+) -> NDArray[np.float64]:
+    """Position errors in the formation frame, ``e^F = R_OF^T (P_d − P)`` (P8).
+
+    Parameters
+    ----------
+    desired, actual : array_like, shape (..., 3)
+        Desired and actual inertial positions, metres.
+    R_OF : array_like, shape (3, 3) or (..., 3, 3)
+        Formation-to-inertial rotation (:func:`rotation_of`), broadcast against the positions.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``e^F`` in the formation frame (x along travel, y left, z up).
+    """
+    d = _finite(desired, "desired")
+    a = _finite(actual, "actual")
+    R = _finite(R_OF, "R_OF")
+    if d.shape[-1:] != (3,) or a.shape[-1:] != (3,) or R.shape[-2:] != (3, 3):
+        raise ValueError("positions must end in axis 3 and R_OF in (3, 3)")
+    e = d - a
+    return np.einsum("...ji,...j->...i", R, e)
+
+
+def errors_to_inertial(e_F: ArrayLike, R_OF: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of :func:`errors_in_formation`: ``e = R_OF e^F`` (P8).
+
+    Parameters
+    ----------
+    e_F : array_like, shape (..., 3)
+        Errors in the formation frame, metres.
+    R_OF : array_like, shape (3, 3) or (..., 3, 3)
+        Formation-to-inertial rotation.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        Inertial errors ``P_d − P``.
+    """
+    e = _finite(e_F, "e_F")
+    R = _finite(R_OF, "R_OF")
+    if e.shape[-1:] != (3,) or R.shape[-2:] != (3, 3):
+        raise ValueError("e_F must end in axis 3 and R_OF in (3, 3)")
+    return np.einsum("...ij,...j->...i", R, e)
+
+
+def uav_positions(
+    centroid: ArrayLike,
+    yaw: ArrayLike,
+    offsets: ArrayLike = DEFAULT_OFFSETS,
+    roll: ArrayLike = 0.0,
+    pitch: ArrayLike = 0.0,
+) -> NDArray[np.float64]:
+    """Slots of every UAV along a centroid path, ``P_n = P_F + R_OF ΔT_n`` (P9).
+
+    Parameters
+    ----------
+    centroid : array_like, shape (N, 3)
+        Centroid path ``P_F`` (inertial, metres). A single point ``(3,)`` is accepted as N = 1.
+    yaw : array_like, shape (N,) or scalar
+        Heading ψ of the formation at each point (see :func:`headings`), radians.
+    offsets : array_like, shape (M, 3)
+        Offsets ΔT_n in the formation frame (default :data:`DEFAULT_OFFSETS`).
+    roll, pitch : float or array_like, shape (N,)
+        Optional tilt of the shape (P7); default 0.
+
+    Returns
+    -------
+    ndarray, shape (N, M, 3)
+        ``out[i, n]`` is UAV n's position at path point i.
+    """
+    c = np.atleast_2d(_finite(centroid, "centroid"))
+    if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] == 0:
+        raise ValueError(f"centroid must have shape (N, 3) with N >= 1, got {c.shape}")
+    off = np.atleast_2d(_finite(offsets, "offsets"))
+    if off.ndim != 2 or off.shape[1] != 3 or off.shape[0] == 0:
+        raise ValueError(f"offsets must have shape (M, 3) with M >= 1, got {off.shape}")
+    n = c.shape[0]
+    try:
+        angles = np.broadcast_arrays(
+            *(np.broadcast_to(np.asarray(a, float), (n,)) for a in (roll, pitch, yaw))
+        )
+    except ValueError:
+        raise ValueError(f"roll, pitch and yaw must be scalars or have shape ({n},)") from None
+    R = rotation_of(*angles)  # (N, 3, 3)
+    return c[:, None, :] + np.einsum("nij,mj->nmi", R, off)
+
+
+def centroid_of(positions: ArrayLike) -> NDArray[np.float64]:
+    """Formation centroid ``P_F = (1/M) Σ P_n`` (P6).
+
+    Parameters
+    ----------
+    positions : array_like, shape (M, 3)
+        Positions of the M UAVs, metres.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+    """
+    p = np.atleast_2d(_finite(positions, "positions"))
+    if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
+        raise ValueError(f"positions must have shape (M, 3) with M >= 1, got {p.shape}")
+    return p.mean(axis=0)
+
+
+def headings(path: ArrayLike) -> NDArray[np.float64]:
+    """Heading ψ of the formation at each point of a path, from the path tangent.
+
+    The tangent is the central difference ``(P_{i+1} − P_{i−1}) / 2`` (one-sided at the ends,
+    :func:`numpy.gradient`), so at a corner the heading is the mean of the directions of the
+    two segments that meet there (smooth turns rather than a jump). Points whose horizontal
+    tangent vanishes (vertical climbs, repeated points) take the heading of the nearest point
+    before them that has one (or after, at the start); a path with no horizontal motion at all
+    has heading 0 (x of the formation frame pointing east).
+
+    Parameters
+    ----------
+    path : array_like, shape (N, 3)
+        Centroid path, inertial metres, N >= 1.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        ``ψ_i = atan2(dy_i, dx_i)`` in (−π, π].
+    """
+    p = _finite(path, "path")
+    if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
+        raise ValueError(f"path must have shape (N, 3) with N >= 1, got {p.shape}")
+    n = p.shape[0]
+    if n == 1:
+        return np.zeros(1)
+    d = np.gradient(p[:, :2], axis=0)
+    norm = np.hypot(d[:, 0], d[:, 1])
+    scale = max(float(np.max(np.abs(p[:, :2]))), 1.0)
+    valid = norm > 1e-9 * scale
+    if not np.any(valid):
+        return np.zeros(n)
+    idx = np.where(valid, np.arange(n), -1)
+    idx = np.maximum.accumulate(idx)  # last valid index at or before i
+    first = int(np.argmax(valid))
+    idx[idx < 0] = first
+    return np.arctan2(d[idx, 1], d[idx, 0])
+
+
+def _offset_of(offsets: Mapping[int, ArrayLike], uav: int) -> NDArray[np.float64]:
+    if uav not in offsets:
+        raise ValueError(f"no formation offset for UAV {uav}")
+    return _vec3(offsets[uav], f"offset of UAV {uav}")
+
+
+def formation_reference(
+    uav: int,
+    planned_slot: ArrayLike,
+    planned_centroid: ArrayLike,
+    yaw: float,
+    offsets: Mapping[int, ArrayLike],
+    neighbours: Mapping[int, tuple[ArrayLike, float]],
+    stale_after_s: float = 1.0,
+    gain: float = 0.5,
+    max_correction: float = MAX_CORRECTION_M,
+) -> NDArray[np.float64]:
+    """Own position reference corrected from the neighbours' states (on-board keeping, P8-P9).
+
+    Each fresh neighbour j (state age ``<= stale_after_s``) implies where the formation's
+    centroid actually is: ``ĉ_j = P_j − R_OF(ψ) ΔT_j``. Their mean ``ĉ`` is compared with the
+    planned centroid and the own reference is moved toward the slot of the actual triangle,
+    ``ĉ + R_OF ΔT_own``, by the fraction ``gain``::
+
+        r = planned_slot + clip(gain · (ĉ − planned_centroid), max_correction)
+
+    (for a consistent plan, ``planned_slot = planned_centroid + R_OF ΔT_own``, so this is
+    ``planned_slot + gain · (ĉ + R_OF ΔT_own − planned_slot)``). The correction vector is
+    bounded in norm by ``max_correction`` so a wild neighbour cannot drag the vehicle away.
+    When a neighbour lags behind its slot, the others therefore slow down toward it and the
+    triangle holds; the lagging vehicle, seeing the others on plan, keeps its planned slot.
+
+    Parameters
+    ----------
+    uav : int
+        Own UAV id (a key of ``offsets``).
+    planned_slot : array_like, shape (3,)
+        Own reference from the uploaded trajectory at this time, metres.
+    planned_centroid : array_like, shape (3,)
+        Planned formation centroid at this time, metres.
+    yaw : float
+        Formation heading ψ at this time, radians (roll = pitch = 0).
+    offsets : mapping int -> (3,)
+        ΔT_n of every UAV in the formation frame.
+    neighbours : mapping int -> (position (3,), age_s)
+        Latest state of every other UAV heard over SkyNet and its age in seconds. The own id
+        and ids without an offset are ignored.
+    stale_after_s : float
+        Neighbour states older than this are ignored.
+    gain : float
+        Fraction of the centroid discrepancy applied, in [0, 1].
+    max_correction : float
+        Bound on the norm of the correction, metres (>= 0).
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The corrected reference; ``planned_slot`` unchanged when no neighbour is fresh.
+    """
+    slot = _vec3(planned_slot, "planned_slot")
+    pc = _vec3(planned_centroid, "planned_centroid")
+    if not math.isfinite(yaw):
+        raise ValueError("yaw must be finite")
+    if not (math.isfinite(stale_after_s) and stale_after_s >= 0.0):
+        raise ValueError("stale_after_s must be finite and >= 0")
+    if not (0.0 <= gain <= 1.0):
+        raise ValueError("gain must be in [0, 1]")
+    if not (math.isfinite(max_correction) and max_correction >= 0.0):
+        raise ValueError("max_correction must be finite and >= 0")
+    _offset_of(offsets, uav)  # own offset must exist
+    R = rotation_of(0.0, 0.0, yaw)
+    implied = []
+    for j, (pos, age) in neighbours.items():
+        if j == uav or j not in offsets:
+            continue
+        age = float(age)
+        if math.isnan(age):
+            raise ValueError(f"age of UAV {j}'s state is NaN")
+        if age > stale_after_s:
+            continue
+        implied.append(_vec3(pos, f"position of UAV {j}") - R @ _offset_of(offsets, j))
+    if not implied:
+        return slot.copy()
+    c_hat = np.mean(implied, axis=0)
+    corr = gain * (c_hat - pc)
+    norm = float(np.linalg.norm(corr))
+    if norm > max_correction:
+        corr *= max_correction / norm
+    return slot + corr
+
+
+def formation_error(
+    positions: Mapping[int, ArrayLike],
+    centroid: ArrayLike | None,
+    yaw: float,
+    offsets: Mapping[int, ArrayLike],
+) -> float:
+    """RMS shape error of the formation, metres.
+
+    Compares the UAVs' positions relative to their own centroid (P6) with the rotated offsets
+    ``R_OF(ψ) ΔT_n`` relative to *their* centroid, over the UAVs present in both mappings:
+    ``sqrt(mean_n |(P_n − P̄) − R_OF (ΔT_n − ΔT̄)|²)``. Translation of the whole formation does
+    not count, only its shape and orientation.
+
+    With a single UAV there is no shape; the error is then its distance to its absolute slot
+    ``centroid + R_OF ΔT_n``, which needs ``centroid`` (otherwise 0 is returned).
+
+    Parameters
+    ----------
+    positions : mapping int -> (3,)
+        Actual positions by UAV id, metres.
+    centroid : array_like, shape (3,), or None
+        Planned centroid (used only in the single-UAV case).
+    yaw : float
+        Formation heading ψ, radians.
+    offsets : mapping int -> (3,)
+        ΔT_n by UAV id.
+
+    Returns
+    -------
+    float
+        RMS error in metres.
+    """
+    if not math.isfinite(yaw):
+        raise ValueError("yaw must be finite")
+    ids = sorted(i for i in positions if i in offsets)
+    if not ids:
+        raise ValueError("no UAV has both a position and an offset")
+    P = np.array([_vec3(positions[i], f"position of UAV {i}") for i in ids])
+    D = np.array([_offset_of(offsets, i) for i in ids])
+    R = rotation_of(0.0, 0.0, yaw)
+    if len(ids) == 1:
+        if centroid is None:
+            return 0.0
+        c = _vec3(centroid, "centroid")
+        return float(np.linalg.norm(P[0] - (c + R @ D[0])))
+    rel_p = P - P.mean(axis=0)
+    rel_d = (D - D.mean(axis=0)) @ R.T
+    return float(np.sqrt(np.mean(np.sum((rel_p - rel_d) ** 2, axis=1))))

@@ -1,0 +1,197 @@
+"""Tests of edge.formation: (P6)-(P9) geometry and on-board formation keeping."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from edge.formation import (
+    DEFAULT_OFFSETS,
+    centroid_of,
+    errors_in_formation,
+    errors_to_inertial,
+    formation_error,
+    formation_reference,
+    headings,
+    rotation_of,
+    uav_positions,
+)
+
+angles = st.floats(-math.pi, math.pi, allow_nan=False)
+OFFSETS = {i + 1: DEFAULT_OFFSETS[i] for i in range(3)}
+
+
+@given(angles, st.floats(-1.5, 1.5), angles)
+@settings(max_examples=50, deadline=None)
+def test_rotation_is_orthonormal_with_det_one(phi, theta, psi):
+    R = rotation_of(phi, theta, psi)
+    assert R.shape == (3, 3)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_rotation_matches_zyx_composition():
+    phi, theta, psi = 0.3, -0.4, 1.1
+    c, s = math.cos, math.sin
+    Rx = np.array([[1, 0, 0], [0, c(phi), -s(phi)], [0, s(phi), c(phi)]])
+    Ry = np.array([[c(theta), 0, s(theta)], [0, 1, 0], [-s(theta), 0, c(theta)]])
+    Rz = np.array([[c(psi), -s(psi), 0], [s(psi), c(psi), 0], [0, 0, 1]])
+    np.testing.assert_allclose(rotation_of(phi, theta, psi), Rz @ Ry @ Rx, atol=1e-14)
+
+
+def test_rotation_vectorised_over_yaw():
+    yaws = np.linspace(-3, 3, 7)
+    R = rotation_of(0.0, 0.0, yaws)
+    assert R.shape == (7, 3, 3)
+    for k, y in enumerate(yaws):
+        np.testing.assert_allclose(R[k], rotation_of(0.0, 0.0, y))
+
+
+def test_errors_transform_back_and_forth():
+    rng = np.random.default_rng(1)
+    d, a = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    R = rotation_of(rng.normal(size=5), rng.normal(size=5), rng.normal(size=5))
+    eF = errors_in_formation(d, a, R)
+    np.testing.assert_allclose(errors_to_inertial(eF, R), d - a, atol=1e-12)
+    # the norm is frame-independent
+    np.testing.assert_allclose(np.linalg.norm(eF, axis=1), np.linalg.norm(d - a, axis=1))
+
+
+def test_error_along_travel_is_formation_x():
+    # heading north: a desired point 1 m further north is +x in the formation frame
+    eF = errors_in_formation([0, 1, 0], [0, 0, 0], rotation_of(0, 0, math.pi / 2))
+    np.testing.assert_allclose(eF, [1, 0, 0], atol=1e-12)
+
+
+def test_default_offsets_make_triangle_in_vertical_plane_of_path():
+    path = np.array([[0, 0, 30], [10, 10, 30], [20, 20, 30.0]])
+    psi = headings(path)
+    np.testing.assert_allclose(psi, math.pi / 4)
+    P = uav_positions(path, psi)
+    assert P.shape == (3, 3, 3)
+    for i in range(3):
+        np.testing.assert_allclose(centroid_of(P[i]), path[i], atol=1e-12)  # (P6)
+        # UAV 1 2 m above, 2 and 3 ahead/behind 3 m along the path, 1 m below
+        np.testing.assert_allclose(P[i, 0], path[i] + [0, 0, 2], atol=1e-12)
+        np.testing.assert_allclose(P[i, 1], path[i] + [3 / math.sqrt(2), 3 / math.sqrt(2), -1])
+        np.testing.assert_allclose(P[i, 2], path[i] + [-3 / math.sqrt(2), -3 / math.sqrt(2), -1])
+        # all in the vertical plane containing the path: no cross-track component
+        d = np.array([1, 1, 0]) / math.sqrt(2)
+        left = np.array([-1, 1, 0]) / math.sqrt(2)
+        np.testing.assert_allclose((P[i] - path[i]) @ left, 0, atol=1e-12)
+        assert (P[i, 1] - path[i]) @ d == pytest.approx(3.0)
+    # side lengths of the triangle
+    sides = sorted(np.linalg.norm(P[0, a] - P[0, b]) for a, b in ((0, 1), (1, 2), (0, 2)))
+    np.testing.assert_allclose(sides, [math.hypot(3, 3), math.hypot(3, 3), 6.0])
+
+
+def test_headings_smooth_at_corner_and_carry_over_vertical():
+    path = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [10, 10, 5], [10, 20, 5.0]])
+    psi = headings(path)
+    assert psi[0] == pytest.approx(0.0)
+    assert psi[1] == pytest.approx(math.pi / 4)  # mean of east and north at the corner
+    assert psi[2] == pytest.approx(math.pi / 2)
+    assert psi[3] == pytest.approx(math.pi / 2)
+    assert psi[4] == pytest.approx(math.pi / 2)
+    assert headings(np.array([[0, 0, 0], [0, 0, 5.0]])).tolist() == [0.0, 0.0]
+    assert headings(np.zeros((1, 3))).tolist() == [0.0]
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [np.zeros((0, 3)), np.zeros((4, 2)), np.array([[0, 0, np.nan], [1, 1, 1]])],
+)
+def test_bad_paths_raise(bad):
+    with pytest.raises(ValueError):
+        headings(bad)
+    with pytest.raises(ValueError):
+        uav_positions(bad, 0.0)
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(ValueError):
+        rotation_of(np.nan, 0, 0)
+    with pytest.raises(ValueError):
+        centroid_of(np.zeros((0, 3)))
+    with pytest.raises(ValueError):
+        uav_positions(np.zeros((3, 3)), np.zeros(2))
+    with pytest.raises(ValueError):
+        formation_reference(4, [0, 0, 0], [0, 0, 0], 0.0, OFFSETS, {})
+    with pytest.raises(ValueError):
+        formation_reference(1, [0, 0, 0], [0, 0, 0], 0.0, OFFSETS, {2: ([0, 0, 0], np.nan)})
+    with pytest.raises(ValueError):
+        formation_reference(1, [0, 0, np.inf], [0, 0, 0], 0.0, OFFSETS, {})
+    with pytest.raises(ValueError):
+        formation_reference(1, [0, 0, 0], [0, 0, 0], 0.0, OFFSETS, {}, gain=2.0)
+
+
+def _slots(c, yaw):
+    return uav_positions(np.asarray(c, float), yaw)[0]
+
+
+def test_formation_reference_moves_toward_lagging_neighbour():
+    yaw = 0.3
+    c_plan = np.array([50.0, 20.0, 30.0])
+    slots = _slots(c_plan, yaw)
+    lag = np.array([-2.0 * math.cos(yaw), -2.0 * math.sin(yaw), 0.0])  # UAV 3 is 2 m behind
+    neighbours = {2: (slots[1], 0.1), 3: (slots[2] + lag, 0.2)}
+    ref = formation_reference(1, slots[0], c_plan, yaw, OFFSETS, neighbours, gain=0.5)
+    corr = ref - slots[0]
+    # estimated centroid is 1 m behind (mean of the two implied ones); half of that applied
+    np.testing.assert_allclose(corr, 0.5 * lag / 2, atol=1e-12)
+    # moved toward the lagging neighbour
+    assert np.linalg.norm(ref - (slots[2] + lag)) < np.linalg.norm(slots[0] - (slots[2] + lag))
+
+
+def test_formation_reference_unchanged_when_on_plan():
+    c_plan = np.array([0.0, 0.0, 20.0])
+    slots = _slots(c_plan, 1.0)
+    ref = formation_reference(2, slots[1], c_plan, 1.0, OFFSETS, {1: (slots[0], 0), 3: (slots[2], 0)})
+    np.testing.assert_allclose(ref, slots[1], atol=1e-12)
+
+
+def test_formation_reference_ignores_stale_and_falls_back():
+    c_plan = np.array([0.0, 0.0, 20.0])
+    slots = _slots(c_plan, 0.0)
+    far = slots[2] + [-5.0, 0, 0]
+    stale = {3: (far, 1.5)}
+    ref = formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, stale, stale_after_s=1.0)
+    np.testing.assert_allclose(ref, slots[0])
+    # the same neighbour when fresh does pull
+    ref2 = formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, {3: (far, 0.5)}, stale_after_s=1.0)
+    assert ref2[0] == pytest.approx(slots[0][0] - 2.5)
+    # no neighbours at all
+    np.testing.assert_allclose(formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, {}), slots[0])
+    # own id and unknown ids are ignored
+    ref3 = formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, {1: (far, 0), 9: (far, 0)})
+    np.testing.assert_allclose(ref3, slots[0])
+
+
+def test_formation_reference_bounded():
+    c_plan = np.zeros(3)
+    slots = _slots(c_plan, 0.0)
+    wild = {2: (slots[1] + [100.0, -50.0, 7.0], 0.0)}
+    ref = formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, wild, gain=1.0, max_correction=3.0)
+    assert np.linalg.norm(ref - slots[0]) == pytest.approx(3.0)
+
+
+def test_formation_error_metric():
+    c = np.array([10.0, 5.0, 30.0])
+    slots = _slots(c, 0.7)
+    pos = {i + 1: slots[i] for i in range(3)}
+    assert formation_error(pos, c, 0.7, OFFSETS) == pytest.approx(0.0, abs=1e-12)
+    # translating the whole formation does not change the shape error
+    moved = {k: v + [4.0, -3.0, 1.0] for k, v in pos.items()}
+    assert formation_error(moved, c, 0.7, OFFSETS) == pytest.approx(0.0, abs=1e-12)
+    # one UAV 3 m off: deviations from the common centroid are (2, -1, -1) m -> rms sqrt(2)
+    bad = dict(pos)
+    bad[3] = pos[3] + [3.0, 0, 0]
+    assert formation_error(bad, c, 0.7, OFFSETS) == pytest.approx(math.sqrt(2.0))
+    # single UAV: absolute slot error
+    assert formation_error({2: slots[1] + [0, 0, 1.5]}, c, 0.7, OFFSETS) == pytest.approx(1.5)
+    with pytest.raises(ValueError):
+        formation_error({7: slots[0]}, c, 0.7, OFFSETS)
