@@ -1,0 +1,531 @@
+"""RTP-style sequenced frames for the imagery link class (RFC 3550 fixed header).
+
+The paper streams photos over RTP "for jitter compensation and detection of out-of-sequence
+arrival" (PAPER.md, section 1; DESIGN.md, "The three link classes"). Each encoded camera image
+(JPEG bytes) travels as *one* RTP packet: the 12-byte fixed header of RFC 3550 section 5.1
+followed by the whole JPEG. The bus (Zenoh) fragments and reassembles large messages itself, so
+there is no RFC 2435 JPEG payload header and no per-fragment packetisation; the marker bit is
+set on every packet because every packet is the last (only) one of its frame.
+
+Wire layout (RFC 3550, section 5.1)::
+
+     0                   1                   2                   3
+     0 1 2 3 4 5 6 7 8 9 0 1 2 3 4 5 6 7 8 9 0 1 2 3 4 5 6 7 8 9 0 1
+    +-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+
+    |V=2|P|X|  CC   |M|     PT      |       sequence number         |
+    +-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+
+    |                           timestamp                           |
+    +-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+
+    |           synchronization source (SSRC) identifier            |
+    +=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+
+    |            contributing source (CSRC) identifiers             |
+    |                             ....                              |
+    +-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+
+
+Our sender emits only the fixed header (no padding, no extension, no CSRC list); the parser
+accepts all three, as any RFC 3550 receiver must, and skips them.
+
+Choices where the paper is silent
+---------------------------------
+- Payload type 26: the static RTP/AVP payload type of JPEG (RFC 3551, table 5), because the
+  payload *is* a JPEG image. Any 0..127 value is accepted.
+- Media clock 90 kHz, the video clock of RFC 3551 (section 5); the timestamp is the capture
+  time times the clock rate, modulo 2**32, with no random offset (RFC 3550 section 5.1 suggests
+  one against known-plaintext attacks on encrypted streams; we do not encrypt at this layer and
+  want a receiver to read the capture time back without RTCP sender reports).
+- SSRC: a stable, documented value per camera (:func:`ssrc_for`) instead of a random one, so a
+  restarted edge keeps its identity and the detector can name the UAV from the header alone.
+  Ids are unique within the fleet, so no SSRC collisions can occur (RFC 3550 section 8).
+- Initial sequence number: random (RFC 3550 section 5.1) unless given.
+
+References
+----------
+.. [1] H. Schulzrinne et al., "RTP: A Transport Protocol for Real-Time Applications",
+   RFC 3550, 2003.
+.. [2] H. Schulzrinne, S. Casner, "RTP Profile for Audio and Video Conferences with Minimal
+   Control", RFC 3551, 2003.
+.. [3] R. Elz, R. Bush, "Serial Number Arithmetic", RFC 1982, 1996.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "JPEG_PAYLOAD_TYPE",
+    "RTP_HEADER_LENGTH",
+    "RTP_VERSION",
+    "VIDEO_CLOCK_RATE",
+    "RtpError",
+    "RtpHeader",
+    "RtpSender",
+    "media_timestamp",
+    "pack_frame",
+    "parse_ssrc",
+    "seq_add",
+    "seq_diff",
+    "seq_gt",
+    "seq_lt",
+    "ssrc_for",
+    "ts_add",
+    "ts_diff",
+    "unpack_frame",
+    "unwrap_sequence",
+]
+
+RTP_VERSION = 2
+RTP_HEADER_LENGTH = 12
+JPEG_PAYLOAD_TYPE = 26  # RFC 3551, table 5: JPEG, clock 90 kHz
+VIDEO_CLOCK_RATE = 90_000  # RFC 3551, section 5
+
+SEQ_MOD = 1 << 16
+TS_MOD = 1 << 32
+_SEQ_MASK = SEQ_MOD - 1
+_TS_MASK = TS_MOD - 1
+_SEQ_HALF = SEQ_MOD >> 1
+_TS_HALF = TS_MOD >> 1
+
+_HEADER = struct.Struct("!BBHII")
+_EXT_HEADER = struct.Struct("!HH")
+
+SSRC_TAG = 0x534B  # "SK": upper 16 bits of every SkyNet camera SSRC
+
+
+class RtpError(ValueError):
+    """A packet or header that is not valid RTP (RFC 3550, section 5.1)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Serial-number arithmetic (RFC 1982) on 16-bit sequence numbers and 32-bit timestamps
+# --------------------------------------------------------------------------------------------
+
+
+def _check_u(value: int, mask: int, what: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{what} must be an int, got {type(value).__name__}")
+    if not 0 <= value <= mask:
+        raise ValueError(f"{what} must be in 0..{mask}, got {value}")
+
+
+def seq_add(a: int, n: int) -> int:
+    """Sequence number ``a`` advanced by ``n`` (any sign), modulo 2**16 (RFC 1982, 3.1).
+
+    Examples
+    --------
+    >>> seq_add(65535, 1)
+    0
+    >>> seq_add(0, -1)
+    65535
+    """
+    _check_u(a, _SEQ_MASK, "sequence number")
+    return (a + int(n)) & _SEQ_MASK
+
+
+def seq_diff(a: int, b: int) -> int:
+    """Signed distance ``a - b`` between two 16-bit sequence numbers, in [-32768, 32767].
+
+    The shortest way round the circle (RFC 1982, section 3.2). At exactly half the circle the
+    comparison is undefined in RFC 1982; this function then returns -32768 for both orders.
+
+    Examples
+    --------
+    >>> seq_diff(2, 65534)
+    4
+    >>> seq_diff(65534, 2)
+    -4
+    """
+    _check_u(a, _SEQ_MASK, "sequence number")
+    _check_u(b, _SEQ_MASK, "sequence number")
+    return ((a - b + _SEQ_HALF) & _SEQ_MASK) - _SEQ_HALF
+
+
+def seq_lt(a: int, b: int) -> bool:
+    """``a`` precedes ``b`` in 16-bit serial-number order (RFC 1982, section 3.2)."""
+    return seq_diff(a, b) < 0
+
+
+def seq_gt(a: int, b: int) -> bool:
+    """``a`` follows ``b`` in 16-bit serial-number order (RFC 1982, section 3.2)."""
+    return seq_diff(a, b) > 0
+
+
+def ts_add(a: int, n: int) -> int:
+    """32-bit RTP timestamp ``a`` advanced by ``n`` ticks, modulo 2**32."""
+    _check_u(a, _TS_MASK, "timestamp")
+    return (a + int(n)) & _TS_MASK
+
+
+def ts_diff(a: int, b: int) -> int:
+    """Signed distance ``a - b`` between two 32-bit RTP timestamps, in [-2**31, 2**31 - 1].
+
+    Used for the transit-time differences of the interarrival jitter (RFC 3550, A.8) so that a
+    timestamp wrap (every 13.25 h at 90 kHz) does not produce a spurious jump.
+    """
+    _check_u(a, _TS_MASK, "timestamp")
+    _check_u(b, _TS_MASK, "timestamp")
+    return ((a - b + _TS_HALF) & _TS_MASK) - _TS_HALF
+
+
+def unwrap_sequence(seqs: np.ndarray | list[int]) -> np.ndarray:
+    """Extended (unwrapped) sequence numbers of a series of 16-bit sequence numbers.
+
+    Each step is taken the short way round (RFC 1982), so the result is what RFC 3550 A.1
+    calls the extended sequence number (cycles * 2**16 + seq), relative to the first
+    element's cycle 0. Vectorised; meant for analysing captured streams and logs.
+
+    Parameters
+    ----------
+    seqs : array_like of int
+        Sequence numbers in 0..65535, in arrival order.
+
+    Returns
+    -------
+    numpy.ndarray of int64
+        Same length; ``out[0] == seqs[0]``.
+
+    Examples
+    --------
+    >>> unwrap_sequence([65534, 65535, 0, 2, 1]).tolist()
+    [65534, 65535, 65536, 65538, 65537]
+    """
+    s = np.asarray(seqs)
+    if s.ndim != 1:
+        raise ValueError(f"sequence numbers must be 1-D, got shape {s.shape}")
+    if s.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    if not np.issubdtype(s.dtype, np.integer):
+        raise ValueError(f"sequence numbers must be integers, got dtype {s.dtype}")
+    s = s.astype(np.int64)
+    if s.min() < 0 or s.max() > _SEQ_MASK:
+        raise ValueError("sequence numbers must be in 0..65535")
+    steps = ((np.diff(s) + _SEQ_HALF) & _SEQ_MASK) - _SEQ_HALF
+    out = np.empty_like(s)
+    out[0] = s[0]
+    np.cumsum(steps, out=out[1:])
+    out[1:] += s[0]
+    return out
+
+
+def media_timestamp(t_seconds: float, clock_rate: int = VIDEO_CLOCK_RATE) -> int:
+    """RTP media timestamp of a time in seconds: ``round(t * clock_rate) mod 2**32``.
+
+    RFC 3550 section 5.1: the timestamp reflects the sampling instant of the first octet of
+    the payload, in units of the media clock (90 kHz for video, RFC 3551 section 5).
+
+    Parameters
+    ----------
+    t_seconds : float
+        Capture time (any epoch; negative times wrap like any other).
+    clock_rate : int
+        Media clock in Hz, > 0.
+
+    Raises
+    ------
+    ValueError
+        Non-finite time or a non-positive clock rate.
+
+    Examples
+    --------
+    >>> media_timestamp(1.5)
+    135000
+    >>> media_timestamp(2**32 / 90000)
+    0
+    """
+    if isinstance(clock_rate, bool) or not isinstance(clock_rate, (int, np.integer)) or clock_rate <= 0:
+        raise ValueError(f"clock_rate must be a positive int, got {clock_rate!r}")
+    t = float(t_seconds)
+    if not math.isfinite(t):
+        raise ValueError(f"time must be finite, got {t_seconds!r}")
+    return math.floor(t * int(clock_rate) + 0.5) & _TS_MASK
+
+
+# --------------------------------------------------------------------------------------------
+# Header, pack, unpack
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class RtpHeader:
+    """The RFC 3550 (section 5.1) fixed header of one packet.
+
+    Attributes
+    ----------
+    sequence : int
+        0..65535, +1 per packet, wraps.
+    timestamp : int
+        0..2**32-1, media clock ticks (90 kHz for our imagery).
+    ssrc : int
+        0..2**32-1, synchronisation source: one per camera (:func:`ssrc_for`).
+    marker : bool
+        M bit; for video, the last packet of a frame. Our frames are one packet each.
+    payload_type : int
+        0..127; default 26 = JPEG (RFC 3551, table 5).
+    version : int
+        Always 2.
+    padding, extension : bool
+        P and X bits *as seen on the wire*. :func:`unpack_frame` strips the padding and skips
+        the extension; :func:`pack_frame` emits neither and rejects a header that sets them.
+    csrc_count : int
+        CC, 0..15, as seen on the wire; the CSRC list is skipped by :func:`unpack_frame`.
+    """
+
+    sequence: int
+    timestamp: int
+    ssrc: int
+    marker: bool = True
+    payload_type: int = JPEG_PAYLOAD_TYPE
+    version: int = RTP_VERSION
+    padding: bool = False
+    extension: bool = False
+    csrc_count: int = 0
+
+    def __post_init__(self) -> None:
+        if self.version != RTP_VERSION:
+            raise RtpError(f"RTP version must be 2, got {self.version!r}")
+        for name in ("marker", "padding", "extension"):
+            if not isinstance(getattr(self, name), bool):
+                raise RtpError(f"{name} must be a bool, got {getattr(self, name)!r}")
+        for name, mask in (
+            ("sequence", _SEQ_MASK),
+            ("timestamp", _TS_MASK),
+            ("ssrc", _TS_MASK),
+            ("payload_type", 0x7F),
+            ("csrc_count", 0x0F),
+        ):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise RtpError(f"{name} must be an int, got {value!r}")
+            if not 0 <= value <= mask:
+                raise RtpError(f"{name} must be in 0..{mask}, got {value}")
+            if type(value) is not int:
+                object.__setattr__(self, name, int(value))
+
+
+def _new_header(b0: int, b1: int, seq: int, ts: int, ssrc: int) -> RtpHeader:
+    # Fields come straight from the bit fields of the wire, so they are in range by
+    # construction: skip __post_init__ on the hot path.
+    h = object.__new__(RtpHeader)
+    object.__setattr__(h, "sequence", seq)
+    object.__setattr__(h, "timestamp", ts)
+    object.__setattr__(h, "ssrc", ssrc)
+    object.__setattr__(h, "marker", bool(b1 & 0x80))
+    object.__setattr__(h, "payload_type", b1 & 0x7F)
+    object.__setattr__(h, "version", RTP_VERSION)
+    object.__setattr__(h, "padding", bool(b0 & 0x20))
+    object.__setattr__(h, "extension", bool(b0 & 0x10))
+    object.__setattr__(h, "csrc_count", b0 & 0x0F)
+    return h
+
+
+def pack_frame(header: RtpHeader, payload: bytes | bytearray | memoryview) -> bytes:
+    """Serialise one frame: the 12-byte fixed header followed by the payload.
+
+    Parameters
+    ----------
+    header : RtpHeader
+        Must not set padding, extension or a CSRC count (this sender emits none of them; to
+        re-send a received header, ``dataclasses.replace`` those fields to their defaults).
+    payload : bytes-like
+        The encoded image (JPEG bytes); may be empty.
+
+    Returns
+    -------
+    bytes
+        ``len(payload) + 12`` bytes.
+
+    Raises
+    ------
+    RtpError
+        A header that is not an :class:`RtpHeader` or asks for P, X or CC.
+    """
+    if not isinstance(header, RtpHeader):
+        raise RtpError(f"header must be an RtpHeader, got {type(header).__name__}")
+    if header.padding or header.extension or header.csrc_count:
+        raise RtpError("pack_frame emits the fixed header only: padding, extension and csrc_count must be unset")
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise RtpError(f"payload must be bytes-like, got {type(payload).__name__}")
+    head = _HEADER.pack(
+        0x80,  # V=2, P=0, X=0, CC=0
+        (0x80 if header.marker else 0) | header.payload_type,
+        header.sequence,
+        header.timestamp,
+        header.ssrc,
+    )
+    return b"".join((head, payload))
+
+
+def unpack_frame(data: bytes | bytearray | memoryview) -> tuple[RtpHeader, memoryview]:
+    """Parse one packet into its header and a zero-copy view of its payload.
+
+    Validation follows RFC 3550 section 5.1 and the receiver checks of A.1: at least 12
+    bytes, version 2; the CSRC list (4 * CC bytes) and the header extension (4-byte
+    profile/length word + 4 * length bytes, section 5.3.1) are skipped and must fit; with the
+    P bit set the last octet counts the padding octets *including itself*, which must be at
+    least 1 and fit in what follows the headers.
+
+    Parameters
+    ----------
+    data : bytes-like
+        One received packet.
+
+    Returns
+    -------
+    header : RtpHeader
+        The fixed header; ``padding``, ``extension`` and ``csrc_count`` report the wire bits.
+    payload : memoryview
+        A read-only view into ``data`` (no copy of the image); ``bytes(payload)`` to keep it
+        beyond the lifetime of ``data``.
+
+    Raises
+    ------
+    RtpError
+        Anything that is not a well-formed RTP packet.
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise RtpError(f"RTP packet must be bytes-like, got {type(data).__name__}")
+    view = memoryview(data)
+    if not view.c_contiguous:
+        view = memoryview(view.tobytes())
+    if view.ndim != 1 or view.format != "B":
+        view = view.cast("B")
+    n = view.nbytes
+    if n < RTP_HEADER_LENGTH:
+        raise RtpError(f"RTP packet too short: {n} bytes, the fixed header alone is 12")
+    b0, b1, seq, ts, ssrc = _HEADER.unpack_from(view, 0)
+    if b0 >> 6 != RTP_VERSION:
+        raise RtpError(f"RTP version must be 2, got {b0 >> 6}")
+    pos = RTP_HEADER_LENGTH + 4 * (b0 & 0x0F)
+    if pos > n:
+        raise RtpError(f"RTP CSRC list truncated: CC={b0 & 0x0F} needs {pos} bytes, packet has {n}")
+    if b0 & 0x10:
+        if pos + 4 > n:
+            raise RtpError(f"RTP header extension truncated: no room for its 4-byte header at offset {pos}")
+        _profile, words = _EXT_HEADER.unpack_from(view, pos)
+        pos += 4 + 4 * words
+        if pos > n:
+            raise RtpError(f"RTP header extension truncated: length {words} words needs {pos} bytes, packet has {n}")
+    end = n
+    if b0 & 0x20:
+        if end == pos:
+            raise RtpError("RTP padding bit set but there is no padding octet")
+        pad = view[end - 1]
+        if pad == 0:
+            raise RtpError("RTP padding count is 0; it must count at least the count octet itself")
+        if pad > end - pos:
+            raise RtpError(f"RTP padding of {pad} octets exceeds the {end - pos} octets after the header")
+        end -= pad
+    return _new_header(b0, b1, seq, ts, ssrc), view[pos:end].toreadonly()
+
+
+# --------------------------------------------------------------------------------------------
+# Sender side
+# --------------------------------------------------------------------------------------------
+
+
+def ssrc_for(uav_id: int, camera: int = 0) -> int:
+    """Stable SSRC of one camera: ``0x534B0000 | uav_id << 8 | camera``.
+
+    Layout (hex digits ``534B UU CC``): the upper 16 bits are the ASCII tag "SK", then the UAV
+    id (1..255, as in the key space of ``protocol.keys``), then the camera index (0..255). So
+    UAV 1's main camera is ``0x534B0100`` and the SSRC reads back with :func:`parse_ssrc`.
+    RFC 3550 (section 8) picks SSRCs at random to avoid collisions between independent
+    sources; in a fleet the UAV ids are already unique, so this mapping is collision-free and
+    survives a restart of the edge process.
+
+    Examples
+    --------
+    >>> hex(ssrc_for(3, 1))
+    '0x534b0301'
+    """
+    for name, value, lo in (("uav_id", uav_id, 1), ("camera", camera, 0)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= 255:
+            raise ValueError(f"{name} must be an int in {lo}..255, got {value!r}")
+    return (SSRC_TAG << 16) | (int(uav_id) << 8) | int(camera)
+
+
+def parse_ssrc(ssrc: int) -> tuple[int, int]:
+    """Inverse of :func:`ssrc_for`: ``(uav_id, camera)``; ValueError for a foreign SSRC."""
+    _check_u(ssrc, _TS_MASK, "ssrc")
+    uav, camera = (ssrc >> 8) & 0xFF, ssrc & 0xFF
+    if ssrc >> 16 != SSRC_TAG or uav == 0:
+        raise ValueError(f"SSRC {ssrc:#010x} is not a SkyNet camera SSRC (0x534BUUCC, UU >= 1)")
+    return uav, camera
+
+
+class RtpSender:
+    """Stamps consecutive frames of one source with sequence number and media timestamp.
+
+    Parameters
+    ----------
+    ssrc : int
+        32-bit source id, normally ``ssrc_for(uav_id, camera)``.
+    payload_type : int
+        0..127, default 26 (JPEG, RFC 3551).
+    clock_rate : int
+        Media clock in Hz, default 90 000.
+    initial_seq : int or None
+        First sequence number; None draws it at random (RFC 3550, section 5.1).
+    rng : numpy.random.Generator or None
+        Source of the random initial sequence number; None uses a fresh default generator.
+
+    Examples
+    --------
+    >>> s = RtpSender(ssrc_for(1), initial_seq=65535)
+    >>> [unpack_frame(s.frame(b"jpeg", t))[0].sequence for t in (0.0, 0.1)]
+    [65535, 0]
+    """
+
+    __slots__ = ("ssrc", "payload_type", "clock_rate", "_seq", "packets_sent", "octets_sent")
+
+    def __init__(
+        self,
+        ssrc: int,
+        payload_type: int = JPEG_PAYLOAD_TYPE,
+        clock_rate: int = VIDEO_CLOCK_RATE,
+        initial_seq: int | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        _check_u(ssrc, _TS_MASK, "ssrc")
+        _check_u(payload_type, 0x7F, "payload_type")
+        media_timestamp(0.0, clock_rate)  # validates clock_rate
+        if initial_seq is None:
+            gen = rng if rng is not None else np.random.default_rng()
+            initial_seq = int(gen.integers(0, SEQ_MOD))
+        _check_u(initial_seq, _SEQ_MASK, "initial_seq")
+        self.ssrc = int(ssrc)
+        self.payload_type = int(payload_type)
+        self.clock_rate = int(clock_rate)
+        self._seq = int(initial_seq)
+        self.packets_sent = 0  # RFC 3550 sender report: packet count
+        self.octets_sent = 0  # RFC 3550 sender report: payload octet count
+
+    @property
+    def next_sequence(self) -> int:
+        """The sequence number the next frame will carry."""
+        return self._seq
+
+    def header(self, capture_time_s: float, marker: bool = True) -> RtpHeader:
+        """Header of the next frame without consuming its sequence number."""
+        return RtpHeader(
+            sequence=self._seq,
+            timestamp=media_timestamp(capture_time_s, self.clock_rate),
+            ssrc=self.ssrc,
+            marker=bool(marker),
+            payload_type=self.payload_type,
+        )
+
+    def frame(self, payload: bytes | bytearray | memoryview, capture_time_s: float, marker: bool = True) -> bytes:
+        """Packet for one encoded image captured at ``capture_time_s`` (seconds).
+
+        Stamps the media timestamp of the capture time (:func:`media_timestamp`), the current
+        sequence number, and then advances the sequence number by one modulo 2**16.
+        """
+        packet = pack_frame(self.header(capture_time_s, marker), payload)
+        self._seq = (self._seq + 1) & _SEQ_MASK
+        self.packets_sent += 1
+        self.octets_sent += len(packet) - RTP_HEADER_LENGTH
+        return packet
