@@ -1,0 +1,492 @@
+"""The bus layer: Zenoh sessions from a typed config, typed pub/sub by link class,
+request/reply with acknowledgement semantics, liveliness, and clean shutdown.
+
+What it adds to zenoh-python, and nothing more:
+
+* :class:`BusConfig` — mode, endpoints, scouting, lease, shared memory and the multilink
+  setup that puts reliable traffic on a TCP link and best-effort traffic on a UDP link
+  (ZENOH.md, "One link per reliability class"); :func:`add_bus_args` gives every service the
+  command-line options of zenoh-python's examples (``--mode``, ``--connect``, ``--listen``,
+  ``--config``).
+* :class:`Bus` — ``publisher(key, link)`` with the link class's QoS, ``subscribe(key, cb,
+  expect=...)`` that decodes on Zenoh's callback thread and *counts* decoding failures per key
+  and kind (logged once per kind, never raised into Zenoh), an optional bounded drop-oldest ring
+  per subscriber so that a slow consumer cannot stall the others, ``request`` where only an ok
+  reply counts as acknowledged, ``serve`` for queryables, liveliness tokens and watchers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import logging
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Literal, Sequence
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+from . import codec
+from .links import COMMAND, LinkClass
+from .messages import ErrorReply, Message
+
+log = logging.getLogger("skynet.bus")
+
+Mode = Literal["peer", "client", "router"]
+
+
+# ----------------------------------------------------------------------------- configuration
+class BusConfig(BaseModel):
+    """Everything needed to open a session; turned into a ``zenoh.Config`` by :meth:`to_zenoh`."""
+
+    model_config = ConfigDict(extra="forbid")
+    mode: Mode = "peer"
+    listen: list[str] = []
+    connect: list[str] = []
+    config_file: str | None = Field(default=None, description="a Zenoh JSON5 file applied first")
+    multicast_scouting: bool = False
+    gossip: bool = True
+    lease_s: float | None = Field(default=None, gt=0.0, le=3600.0, description="transport/link/tx/lease")
+    shared_memory: bool = False
+    multilink: bool = False
+    connect_timeout_s: float = Field(default=10.0, ge=0.0, le=3600.0)
+
+    def to_zenoh(self) -> zenoh.Config:
+        conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
+
+        def put(path: str, value: Any) -> None:
+            conf.insert_json5(path, json.dumps(value))
+
+        put("mode", self.mode)
+        if self.listen:
+            put("listen/endpoints", self.listen)
+        if self.connect:
+            endpoints: list[Any] = list(self.connect)
+            if self.mode == "client" and self.multilink and len(endpoints) > 1:
+                # a client opens only its first endpoint unless they are grouped (ZENOH.md)
+                endpoints = [{"strategy": "allOf", "locators": endpoints}]
+            put("connect/endpoints", endpoints)
+        put("scouting/multicast/enabled", self.multicast_scouting)
+        put("scouting/gossip/enabled", self.gossip)
+        if self.lease_s is not None:
+            put("transport/link/tx/lease", int(self.lease_s * 1000))
+        put("transport/shared_memory/enabled", self.shared_memory)
+        if self.multilink:
+            put("transport/unicast/max_links", 2)
+        if self.mode == "client":
+            put("connect/timeout_ms", int(self.connect_timeout_s * 1000))
+        return conf
+
+
+def multilink_endpoints(host: str, tcp_port: int, udp_port: int) -> list[str]:
+    """The endpoint pair of the multilink setup: reliable on TCP, best-effort on UDP."""
+    return [f"tcp/{host}:{tcp_port}?rel=1", f"udp/{host}:{udp_port}?rel=0"]
+
+
+def add_bus_args(parser: argparse.ArgumentParser, mode: Mode = "peer") -> None:
+    """The options of zenoh-python's examples, plus the fleet name and our session switches."""
+    g = parser.add_argument_group("bus")
+    g.add_argument("--mode", "-m", choices=["peer", "client", "router"], default=mode)
+    g.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT")
+    g.add_argument("--listen", "-l", action="append", default=[], metavar="ENDPOINT")
+    g.add_argument("--config", "-c", default=None, metavar="FILE", help="Zenoh JSON5 config applied first")
+    g.add_argument("--fleet", default="demo", help="fleet name (key space prefix)")
+    g.add_argument("--lease", type=float, default=None, metavar="S", help="link lease, seconds")
+    g.add_argument("--multilink", action="store_true", help="reliable on TCP, best-effort on UDP")
+    g.add_argument("--shm", action="store_true", help="enable shared-memory transport")
+    g.add_argument("--scouting", action="store_true", help="enable multicast scouting")
+
+
+def config_from_args(args: argparse.Namespace, **overrides: Any) -> BusConfig:
+    values = dict(
+        mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config,
+        lease_s=args.lease, multilink=args.multilink, shared_memory=args.shm,
+        multicast_scouting=args.scouting,
+    )
+    values.update({k: v for k, v in overrides.items() if v is not None})
+    return BusConfig(**values)
+
+
+# ----------------------------------------------------------------------------- counters
+@dataclass
+class Counters:
+    """Per-session traffic and rejection counters (thread-safe enough: CPython int += is atomic
+    per bytecode under the GIL only approximately, so updates take a lock)."""
+
+    sent: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(lambda: [0, 0]))
+    received: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(lambda: [0, 0]))
+    rejected: dict[tuple[str, str], int] = field(default_factory=lambda: collections.defaultdict(int))
+    dropped: dict[str, int] = field(default_factory=lambda: collections.defaultdict(int))
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def add(self, table: dict, key: str, nbytes: int) -> None:
+        with self.lock:
+            row = table[key]
+            row[0] += 1
+            row[1] += nbytes
+
+    def reject(self, key: str, kind: str) -> bool:
+        """Count a rejection; True the first time this (key, kind) is seen (log it once)."""
+        with self.lock:
+            first = (key, kind) not in self.rejected
+            self.rejected[(key, kind)] += 1
+            return first
+
+    def snapshot(self) -> dict[str, Any]:
+        with self.lock:
+            return {
+                "sent": {k: {"samples": v[0], "bytes": v[1]} for k, v in self.sent.items()},
+                "received": {k: {"samples": v[0], "bytes": v[1]} for k, v in self.received.items()},
+                "rejected": {f"{k}|{kind}": n for (k, kind), n in self.rejected.items()},
+                "dropped": dict(self.dropped),
+            }
+
+
+# ----------------------------------------------------------------------------- ring worker
+class Ring:
+    """A bounded drop-oldest queue with its own consumer thread.
+
+    Zenoh runs callbacks on one thread per session fed by a bounded queue; a slow callback
+    stalls every other subscriber (ZENOH.md, "Python runtime"). Subscribers that do slow work
+    get a Ring: the Zenoh callback only appends, the ring's thread does the work, and overflow
+    drops the *oldest* item and counts it.
+    """
+
+    def __init__(self, capacity: int, worker: Callable[[Any], None], name: str = "ring"):
+        if capacity < 1:
+            raise ValueError("ring capacity must be >= 1")
+        self._items: collections.deque = collections.deque()
+        self._capacity = capacity
+        self._cond = threading.Condition()
+        self._worker = worker
+        self._closed = False
+        self.dropped = 0
+        self.processed = 0
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def push(self, item: Any) -> None:
+        with self._cond:
+            if self._closed:
+                return
+            if len(self._items) >= self._capacity:
+                self._items.popleft()
+                self.dropped += 1
+            self._items.append(item)
+            self._cond.notify()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._items and not self._closed:
+                    self._cond.wait()
+                if not self._items and self._closed:
+                    return
+                item = self._items.popleft()
+            try:
+                self._worker(item)
+            except Exception:  # a worker bug must not kill the ring
+                log.exception("ring worker failed")
+            self.processed += 1
+
+    def close(self, timeout: float = 2.0) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout)
+
+
+# ----------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class Reply:
+    """The outcome of :meth:`Bus.request`: ``ok`` only when an ok reply decoded as expected."""
+
+    ok: bool
+    message: Message | None = None
+    error: str = ""
+    elapsed_s: float = 0.0
+
+
+class Rejected(Exception):
+    """Raised by a :meth:`Bus.serve` handler to answer with ``reply_err`` and a reason."""
+
+    def __init__(self, reason: str, code: str = "rejected"):
+        super().__init__(reason)
+        self.reason = reason
+        self.code = code
+
+
+class Publisher:
+    """A declared publisher bound to one key and one link class."""
+
+    def __init__(self, bus: "Bus", key: str, link: LinkClass):
+        self.key = key
+        self.link = link
+        self._bus = bus
+        self._pub = bus.session.declare_publisher(key, **link.publisher_qos())
+
+    def put(self, msg: Message) -> int:
+        return self.put_bytes(codec.encode(msg))
+
+    def put_bytes(self, data: bytes) -> int:
+        self._pub.put(data)
+        self._bus.counters.add(self._bus.counters.sent, self.link.name, len(data))
+        return len(data)
+
+    def matching(self) -> bool:
+        return bool(self._pub.matching_status.matching)
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+
+# ----------------------------------------------------------------------------- the bus
+class Bus:
+    """One Zenoh session with typed helpers. Use as a context manager or call :meth:`close`."""
+
+    def __init__(self, config: BusConfig | None = None, fleet: str = "demo", name: str = "node"):
+        self.config = config or BusConfig()
+        self.fleet = fleet
+        self.name = name
+        self.counters = Counters()
+        self.session = zenoh.open(self.config.to_zenoh())
+        self._entities: list[Any] = []
+        self._rings: list[Ring] = []
+        self._closed = False
+        self._close_lock = threading.Lock()
+
+    # -- context management
+    def __enter__(self) -> "Bus":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        with self._close_lock:
+            if self._closed:
+                return
+            self._closed = True
+        for ring in self._rings:
+            ring.close()
+        try:
+            self.session.close()
+        except Exception:  # closing twice or after a transport error is harmless
+            log.debug("session close", exc_info=True)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # -- publish
+    def publisher(self, key: str, link: LinkClass) -> Publisher:
+        return Publisher(self, key, link)
+
+    # -- subscribe
+    def _decode_or_count(self, key: str, data: bytes, expect: Any) -> Message | None:
+        try:
+            return codec.decode(data, expect)
+        except codec.CodecError as exc:
+            if self.counters.reject(key, exc.kind):
+                log.warning("%s: rejected sample on %s (%s); further ones of this kind are only counted",
+                            self.name, key, exc)
+            return None
+
+    def subscribe(
+        self,
+        key: str,
+        callback: Callable[[Message, zenoh.Sample], None],
+        expect: type[Message] | tuple[type[Message], ...] | None = None,
+        link: LinkClass | None = None,
+        ring: int | None = None,
+    ) -> Any:
+        """Subscribe with decoding; ``ring=N`` hands samples to a worker through a drop-oldest ring."""
+        counters = self.counters
+        cls_name = link.name if link else "any"
+
+        def handle(sample: zenoh.Sample) -> None:
+            data = sample.payload.to_bytes()
+            counters.add(counters.received, cls_name, len(data))
+            msg = self._decode_or_count(str(sample.key_expr), data, expect)
+            if msg is not None:
+                callback(msg, sample)
+
+        return self.subscribe_raw(key, handle, ring=ring)
+
+    def subscribe_raw(
+        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None
+    ) -> Any:
+        """Subscribe to raw samples (e.g. RTP frames); the callback must not raise for bad input."""
+        target = callback
+        if ring is not None:
+            r = Ring(ring, callback, name=f"ring:{key}")
+            self._rings.append(r)
+            target = r.push
+
+        def guarded(sample: zenoh.Sample) -> None:
+            if self._closed:
+                return
+            try:
+                target(sample)
+            except Exception:
+                if self.counters.reject(str(sample.key_expr), "handler-error"):
+                    log.exception("%s: subscriber on %s failed", self.name, key)
+
+        sub = self.session.declare_subscriber(key, guarded)
+        self._entities.append(sub)
+        return sub
+
+    def ring_stats(self) -> dict[str, dict[str, int]]:
+        return {r._thread.name: {"dropped": r.dropped, "processed": r.processed, "queued": len(r)} for r in self._rings}
+
+    # -- request / reply
+    def request(
+        self,
+        key: str,
+        msg: Message,
+        expect: type[Message] | tuple[type[Message], ...] | None = None,
+        timeout: float = 2.0,
+        link: LinkClass = COMMAND,
+    ) -> Reply:
+        """Send a query; acknowledged (``ok``) only by an ok reply that decodes as ``expect``.
+
+        Nobody listening, a crashed queryable, a timeout or an error reply all give ``ok=False``
+        with the reason (ZENOH.md, "Liveliness, queries").
+        """
+        t0 = time.perf_counter()
+        payload = codec.encode(msg)
+        self.counters.add(self.counters.sent, link.name, len(payload))
+        try:
+            replies = self.session.get(key, payload=payload, timeout=timeout, **link.request_qos())
+            for reply in replies:
+                if reply.ok is not None:
+                    data = reply.ok.payload.to_bytes()
+                    try:
+                        answer = codec.decode(data, expect)
+                    except codec.CodecError as exc:
+                        self.counters.reject(key, exc.kind)
+                        return Reply(False, None, f"bad reply: {exc}", time.perf_counter() - t0)
+                    return Reply(True, answer, "", time.perf_counter() - t0)
+                err = reply.err
+                text = err.payload.to_bytes() if err is not None else b""
+                try:
+                    reason = codec.decode(text, ErrorReply).reason
+                except codec.CodecError:
+                    reason = text.decode("utf-8", "replace") or "error reply"
+                return Reply(False, None, reason, time.perf_counter() - t0)
+        except zenoh.ZError as exc:
+            return Reply(False, None, f"query failed: {exc}", time.perf_counter() - t0)
+        return Reply(False, None, f"no reply from {key} (nobody listening)", time.perf_counter() - t0)
+
+    def serve(
+        self,
+        key: str,
+        handler: Callable[[Message], Message],
+        expect: type[Message] | tuple[type[Message], ...] | None = None,
+        ring: int | None = None,
+    ) -> Any:
+        """Declare a queryable: decode, call ``handler``, reply ok with its answer.
+
+        Decoding failures and :class:`Rejected` answer with ``reply_err`` and an
+        :class:`ErrorReply`; any other handler exception answers ``internal`` (and is logged),
+        so a query never hangs until its timeout because of a bug.
+        """
+
+        def answer(query: zenoh.Query) -> None:
+            qkey = str(query.key_expr)
+            try:
+                data = query.payload.to_bytes() if query.payload is not None else b""
+                self.counters.add(self.counters.received, COMMAND.name, len(data))
+                try:
+                    msg = codec.decode(data, expect)
+                except codec.CodecError as exc:
+                    self.counters.reject(qkey, exc.kind)
+                    query.reply_err(codec.encode(ErrorReply(code=exc.kind, reason=str(exc))))
+                    return
+                try:
+                    result = handler(msg)
+                except Rejected as exc:
+                    query.reply_err(codec.encode(ErrorReply(code=exc.code, reason=exc.reason)))
+                    return
+                except Exception as exc:
+                    log.exception("%s: handler on %s failed", self.name, qkey)
+                    query.reply_err(codec.encode(ErrorReply(code="internal", reason=f"{type(exc).__name__}: {exc}"[:500])))
+                    return
+                out = codec.encode(result)
+                self.counters.add(self.counters.sent, COMMAND.name, len(out))
+                query.reply(query.key_expr, out)
+            finally:
+                query.drop()
+
+        if ring is not None:
+            r = Ring(ring, answer, name=f"ring:{key}")
+            self._rings.append(r)
+            q = self.session.declare_queryable(key, r.push)
+        else:
+            q = self.session.declare_queryable(key, answer)
+        self._entities.append(q)
+        return q
+
+    # -- liveliness
+    def token(self, key: str) -> Any:
+        tok = self.session.liveliness().declare_token(key)
+        self._entities.append(tok)
+        return tok
+
+    def watch_alive(self, key: str, on_change: Callable[[str, bool], None]) -> Any:
+        """``on_change(key, alive)`` for every token matching ``key``, current ones first."""
+
+        def handle(sample: zenoh.Sample) -> None:
+            if self._closed:
+                return
+            on_change(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+        sub = self.session.liveliness().declare_subscriber(key, handle, history=True)
+        self._entities.append(sub)
+        return sub
+
+    def alive(self, key: str, timeout: float = 1.0) -> list[str]:
+        """Keys of the liveliness tokens currently matching ``key``."""
+        found = []
+        for reply in self.session.liveliness().get(key, timeout=timeout):
+            if reply.ok is not None:
+                found.append(str(reply.ok.key_expr))
+        return found
+
+    # -- introspection
+    def links(self) -> list[Any]:
+        return list(self.session.info.links())
+
+    def peers(self) -> list[str]:
+        return [str(z) for z in self.session.info.peers_zid()]
+
+    def routers(self) -> list[str]:
+        return [str(z) for z in self.session.info.routers_zid()]
+
+
+# ----------------------------------------------------------------------------- process helpers
+def stop_event_on_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> threading.Event:
+    """An event set by SIGINT/SIGTERM, so a service's main loop can close its session cleanly."""
+    stop = threading.Event()
+
+    def handler(signum: int, frame: Any) -> None:
+        stop.set()
+
+    for s in signals:
+        signal.signal(s, handler)
+    return stop
+
+
+def setup_logging(name: str, level: str = "INFO") -> logging.Logger:
+    logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO),
+                        format=f"%(asctime)s {name} %(levelname)s %(message)s", datefmt="%H:%M:%S")
+    zenoh.init_log_from_env_or("error")
+    return logging.getLogger(f"skynet.{name}")

@@ -1,0 +1,72 @@
+"""The paper's three link classes, one definition each (PAPER.md §1, DESIGN.md table).
+
+==========  =====  ==============  ===============  ===========  ========================
+class       paper  reliability     congestion       priority     express (no batching)
+==========  =====  ==============  ===============  ===========  ========================
+command     TCP    reliable        block            interactive  no
+telemetry   UDP    best-effort     drop             data-high    yes
+imagery     RTP    best-effort     drop             data-low     no
+==========  =====  ==============  ===============  ===========  ========================
+
+Reliability also picks the transport link when a session runs the multilink setup
+(:mod:`protocol.bus`): reliable traffic travels on the ``tcp/...?rel=1`` link, best-effort
+traffic on the ``udp/...?rel=0`` link. Imagery adds RTP-style sequencing on top
+(:mod:`protocol.rtp`, :mod:`protocol.jitter`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import zenoh
+
+Congestion = Literal["block", "drop", "block_first"]
+
+
+@dataclass(frozen=True)
+class LinkClass:
+    name: str
+    reliable: bool
+    congestion: Congestion
+    priority: str  # zenoh.Priority member name: REAL_TIME ... DATA ... BACKGROUND
+    express: bool
+
+    def publisher_qos(self) -> dict[str, Any]:
+        """Keyword arguments for ``Session.declare_publisher``."""
+        return {
+            "reliability": zenoh.Reliability.RELIABLE if self.reliable else zenoh.Reliability.BEST_EFFORT,
+            "congestion_control": _CONGESTION[self.congestion],
+            "priority": getattr(zenoh.Priority, self.priority),
+            "express": self.express,
+        }
+
+    def request_qos(self) -> dict[str, Any]:
+        """Keyword arguments for ``Session.get`` (queries have no reliability knob)."""
+        return {
+            "congestion_control": _CONGESTION[self.congestion],
+            "priority": getattr(zenoh.Priority, self.priority),
+            "express": self.express,
+        }
+
+
+_CONGESTION = {
+    "block": zenoh.CongestionControl.BLOCK,
+    "drop": zenoh.CongestionControl.DROP,
+    "block_first": zenoh.CongestionControl.BLOCK_FIRST,
+}
+
+COMMAND = LinkClass("command", reliable=True, congestion="block", priority="INTERACTIVE_HIGH", express=False)
+TELEMETRY = LinkClass("telemetry", reliable=False, congestion="drop", priority="DATA_HIGH", express=True)
+IMAGERY = LinkClass("imagery", reliable=False, congestion="drop", priority="DATA_LOW", express=False)
+
+LINK_CLASSES: dict[str, LinkClass] = {c.name: c for c in (COMMAND, TELEMETRY, IMAGERY)}
+
+
+def class_of_topic(topic: str) -> LinkClass:
+    """The link class a key-space topic travels on (see :mod:`protocol.keys`)."""
+    if topic in ("state", "stats"):
+        return TELEMETRY
+    if topic == "camera":
+        return IMAGERY
+    return COMMAND

@@ -1,0 +1,89 @@
+"""The gateway router relay: SkyNet (UAV peers) <-> the Internet (RCU and GCS clients).
+
+A Zenoh *router* session (DESIGN.md, "The network") listening on TCP and UDP with the
+multilink setup, so reliable traffic rides TCP and best-effort traffic UDP. Once a second it
+publishes :class:`~protocol.messages.LinkStats` on ``skynet/<fleet>/gateway/<id>/stats``:
+connected sessions by kind and samples/bytes per link class seen on the fleet's keys.
+
+    skynet gateway --listen tcp/0.0.0.0:7447?rel=1 --listen udp/0.0.0.0:7448?rel=0
+    skynet gateway --port 7447           # the same, TCP on 7447 and UDP on 7448
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import Counter
+
+from protocol import keys
+from protocol.bus import Bus, add_bus_args, config_from_args, multilink_endpoints, setup_logging, stop_event_on_signals
+from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
+from protocol.messages import ClassCounters, LinkStats
+
+
+class TrafficMeter:
+    """Samples and bytes per link class for the fleet's keys (pure; fed by the subscriber)."""
+
+    def __init__(self) -> None:
+        self.samples: Counter[str] = Counter()
+        self.bytes: Counter[str] = Counter()
+        self.unknown = 0
+
+    def observe(self, key: str, nbytes: int) -> None:
+        try:
+            info = keys.parse(key)
+        except keys.KeyError_:
+            self.unknown += 1
+            return
+        name = class_of_topic(info.topic).name
+        self.samples[name] += 1
+        self.bytes[name] += nbytes
+
+    def classes(self) -> dict[str, ClassCounters]:
+        return {n: ClassCounters(samples=self.samples[n], bytes=self.bytes[n]) for n in LINK_CLASSES}
+
+
+def session_counts(bus: Bus) -> dict[str, int]:
+    counts: Counter[str] = Counter()
+    for tr in bus.session.info.transports():
+        counts[str(tr.whatami).split(".")[-1].lower()] += 1
+    return dict(counts)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="skynet gateway", description=__doc__.split("\n\n")[0])
+    add_bus_args(parser, mode="router")
+    parser.add_argument("--id", default="1", help="gateway id (key space)")
+    parser.add_argument("--host", default="127.0.0.1", help="listen host when --port is used")
+    parser.add_argument("--port", type=int, default=None, help="TCP port; UDP uses port+1 (multilink)")
+    parser.add_argument("--period", type=float, default=1.0, help="statistics period, s")
+    args = parser.parse_args(argv)
+    log = setup_logging(f"gateway-{args.id}")
+    listen = list(args.listen)
+    multilink = args.multilink
+    if args.port is not None:
+        listen += multilink_endpoints(args.host, args.port, args.port + 1)
+        multilink = True
+    if not listen and not args.config:
+        listen = multilink_endpoints(args.host, 7447, 7448)
+        multilink = True
+    config = config_from_args(args, listen=listen, multilink=multilink)
+    stop = stop_event_on_signals()
+    meter = TrafficMeter()
+    with Bus(config, fleet=args.fleet, name="gateway") as bus:
+        log.info("router up, listening on %s", ", ".join(listen) or "(config file)")
+        bus.subscribe_raw(keys.fleet_all(args.fleet), lambda s: meter.observe(str(s.key_expr), len(s.payload)))
+        stats_key = keys.gateway_stats(args.fleet, args.id)
+        pub = bus.publisher(stats_key, TELEMETRY)
+        t0 = time.time()
+        while not stop.wait(args.period):
+            snap = bus.counters.snapshot()
+            rejected = {"unknown-key": meter.unknown, **{k: v for k, v in snap["rejected"].items()}}
+            pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - t0,
+                              sessions=session_counts(bus), classes=meter.classes(), rejected=rejected))
+        log.info("shutting down")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

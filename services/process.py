@@ -1,0 +1,117 @@
+"""Running services as child processes: free ports, log prefixing, clean shutdown.
+
+Used by the launcher (``skynet up``), the demo and the tests, so that all of them start the
+network the same way: ``python -m services.cli <command> ...`` per service, each line of its
+output prefixed with the service's name, SIGINT then SIGTERM then SIGKILL on the way out.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import IO, Callable
+
+
+def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def free_port_pair(host: str = "127.0.0.1") -> tuple[int, int]:
+    """A TCP port and a UDP port, both free (for the multilink endpoints)."""
+    return free_port(socket.SOCK_STREAM, host), free_port(socket.SOCK_DGRAM, host)
+
+
+@dataclass
+class Service:
+    name: str
+    proc: subprocess.Popen
+    lines: list[str] = field(default_factory=list)
+    _reader: threading.Thread | None = None
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def wait_for(self, text: str, timeout: float = 20.0) -> bool:
+        """Wait until a line containing ``text`` was printed (or the process ended)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if any(text in line for line in list(self.lines)):
+                return True
+            if not self.alive():
+                return any(text in line for line in list(self.lines))
+            time.sleep(0.05)
+        return False
+
+
+class ProcessGroup:
+    """Child services of one run; ``stop()`` ends them all, no orphans."""
+
+    def __init__(self, echo: IO[str] | None = sys.stdout, env: dict[str, str] | None = None):
+        self.services: list[Service] = []
+        self.echo = echo
+        self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
+        self._echo_lock = threading.Lock()
+        width = 10
+        self._width = width
+
+    def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None) -> Service:
+        cmd = [sys.executable, "-m", "services.cli", *args]
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            text=True, bufsize=1, env=self.env, start_new_session=True,
+        )
+        svc = Service(name, proc)
+
+        def pump() -> None:
+            assert proc.stdout is not None
+            for line in proc.stdout:
+                line = line.rstrip("\n")
+                svc.lines.append(line)
+                if len(svc.lines) > 5000:
+                    del svc.lines[:1000]
+                if on_line:
+                    on_line(name, line)
+                if self.echo is not None:
+                    with self._echo_lock:
+                        print(f"{name:>{self._width}} | {line}", file=self.echo, flush=True)
+
+        svc._reader = threading.Thread(target=pump, name=f"log:{name}", daemon=True)
+        svc._reader.start()
+        self.services.append(svc)
+        return svc
+
+    def stop(self, grace: float = 5.0) -> dict[str, int | None]:
+        """SIGINT everyone (sessions close cleanly), then SIGTERM, then SIGKILL stragglers."""
+        for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+            live = [s for s in self.services if s.alive()]
+            if not live:
+                break
+            for s in live:
+                try:
+                    os.killpg(s.proc.pid, sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + wait
+            for s in live:
+                try:
+                    s.proc.wait(max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    pass
+        for s in self.services:
+            if s._reader:
+                s._reader.join(1.0)
+        return {s.name: s.proc.returncode for s in self.services}
+
+    def __enter__(self) -> "ProcessGroup":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

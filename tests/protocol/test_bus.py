@@ -1,0 +1,186 @@
+"""The bus layer across real processes through a real gateway router (no mock of the bus)."""
+
+import signal
+import threading
+import time
+
+import pytest
+import zenoh
+
+from protocol import keys
+from protocol.bus import Bus, BusConfig, Rejected
+from protocol.links import COMMAND, TELEMETRY
+from protocol.messages import CommandAck, Hold, Land, Mode, VehicleState
+from tests.conftest import spawn_node
+
+FLEET = "test"
+
+
+def _peer_code(endpoints, body):
+    return f"""
+import time, sys
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.links import TELEMETRY
+from protocol.messages import *
+bus = Bus(BusConfig(mode="peer", connect={endpoints!r}, listen=["tcp/127.0.0.1:0"], multilink=True), "{FLEET}", "peer")
+print("ready", flush=True)
+{body}
+bus.close()
+"""
+
+
+def _client(endpoints):
+    return Bus(BusConfig(mode="client", connect=endpoints, multilink=True), FLEET, "client")
+
+
+def _state(seq):
+    return VehicleState(uav=4, seq=seq, t=seq * 0.05, stamp=time.time(), pos=(1, 2, 3), vel=(0, 0, 0), att=(0, 0, 0),
+                        rates=(0, 0, 0), mode=Mode.HOLD)
+
+
+def _wait(pred, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.02)
+    return pred()
+
+
+def test_peer_telemetry_reaches_client_through_gateway(gateway):
+    got = []
+    with _client(gateway) as client:
+        client.subscribe(keys.state(FLEET, "*"), lambda m, s: got.append(m), expect=VehicleState, link=TELEMETRY)
+        node = spawn_node(_peer_code(gateway, f"""
+pub = bus.publisher(keys.state("{FLEET}", 4), TELEMETRY)
+time.sleep(1.0)
+for i in range(200):
+    pub.put(VehicleState(uav=4, seq=i, t=i*0.01, stamp=time.time(), pos=(1,2,3), vel=(0,0,0), att=(0,0,0),
+                         rates=(0,0,0), mode="hold"))
+    pub.put_bytes(b"not a message")
+    time.sleep(0.005)
+time.sleep(0.5)
+"""))
+        try:
+            assert _wait(lambda: len(got) >= 150, 20), f"only {len(got)} states"
+        finally:
+            out = node.communicate(timeout=20)[0]
+        assert node.returncode == 0, out
+        seqs = [m.seq for m in got]
+        assert seqs == sorted(seqs)
+        assert all(m.uav == 4 for m in got)
+        rejected = client.counters.snapshot()["rejected"]
+        assert rejected[f"{keys.state(FLEET, 4)}|bad-bytes"] >= 150
+
+
+def test_command_ack_and_nobody_listening(gateway):
+    node = spawn_node(_peer_code(gateway, f"""
+def handle(cmd):
+    if cmd.kind == "land":
+        raise Rejected("not flying")
+    return CommandAck(uav=5, cmd_id=cmd.cmd_id, accepted=True, reason="ok")
+from protocol.bus import Rejected
+bus.serve(keys.cmd("{FLEET}", 5), handle)
+bus.token(keys.alive("{FLEET}", 5))
+time.sleep(30)
+"""))
+    try:
+        with _client(gateway) as client:
+            assert _wait(lambda: client.alive(keys.alive(FLEET, 5)) != [], 20)
+            reply = client.request(keys.cmd(FLEET, 5), Hold(uav=5, cmd_id=11), expect=CommandAck)
+            assert reply.ok and reply.message.cmd_id == 11 and reply.message.accepted
+            refused = client.request(keys.cmd(FLEET, 5), Land(uav=5, cmd_id=12), expect=CommandAck)
+            assert not refused.ok and "not flying" in refused.error
+            nobody = client.request(keys.cmd(FLEET, 6), Hold(uav=6, cmd_id=13), expect=CommandAck, timeout=1.0)
+            assert not nobody.ok and "nobody" in nobody.error
+            wrong = client.request(keys.cmd(FLEET, 5), _state(1), expect=CommandAck)
+            # a handler bug (no .kind on a state) still answers, with the reason, instead of a timeout
+            assert not wrong.ok and "AttributeError" in wrong.error and wrong.elapsed_s < 1.0
+    finally:
+        node.kill()
+        node.communicate()
+
+
+def test_queryable_rejects_malformed_requests_with_reason(gateway):
+    with _client(gateway) as server, _client(gateway) as client:
+        server.serve(keys.cmd(FLEET, 7), lambda m: CommandAck(uav=7, cmd_id=m.cmd_id, accepted=True), expect=(Hold, Land))
+        time.sleep(0.5)
+        bad = client.request(keys.cmd(FLEET, 7), _state(1), expect=CommandAck)
+        assert not bad.ok and "wrong-type" in bad.error
+        raw = list(client.session.get(keys.cmd(FLEET, 7), payload=b"\xc1\xc1", timeout=2))
+        assert raw and raw[0].err is not None
+        good = client.request(keys.cmd(FLEET, 7), Hold(uav=7, cmd_id=1), expect=CommandAck)
+        assert good.ok
+
+
+def test_multilink_puts_reliable_on_tcp_and_best_effort_on_udp(gateway):
+    with _client(gateway) as client:
+        links = client.links()
+        by_rel = {str(l.reliability).split(".")[-1]: str(l.dst) for l in links}
+        assert by_rel["RELIABLE"].startswith("tcp/")
+        assert by_rel["BEST_EFFORT"].startswith("udp/")
+
+
+def test_slow_subscriber_gets_a_ring_and_does_not_stall_others(gateway):
+    fast, slow_seen = [], []
+
+    def slow(msg, sample):
+        slow_seen.append(msg.seq)
+        time.sleep(0.05)
+
+    with _client(gateway) as sub, _client(gateway) as pub_bus:
+        sub.subscribe(keys.state(FLEET, 4), slow, expect=VehicleState, ring=4)
+        sub.subscribe(keys.state(FLEET, 4), lambda m, s: fast.append(m.seq), expect=VehicleState)
+        time.sleep(0.5)
+        pub = pub_bus.publisher(keys.state(FLEET, 4), COMMAND)  # reliable: nothing lost on the way
+        for i in range(300):
+            pub.put(_state(i))
+        assert _wait(lambda: len(fast) == 300, 10)
+        # the fast subscriber got everything while the slow one (50 ms each) had done only a few
+        assert len(slow_seen) < 100
+
+        def ring():
+            return next(iter(sub.ring_stats().values()))
+
+        assert _wait(lambda: ring()["dropped"] + ring()["processed"] == 300, 5), ring()
+        assert ring()["dropped"] > 0 and ring()["queued"] == 0
+        assert slow_seen[-1] == 299  # drop-oldest keeps the newest
+
+
+def test_liveliness_sees_a_killed_process_go(gateway):
+    events = []
+    with _client(gateway) as watcher:
+        watcher.watch_alive(keys.alive(FLEET, "*"), lambda k, alive: events.append((k, alive)))
+        node = spawn_node(_peer_code(gateway, f"""
+bus.token(keys.alive("{FLEET}", 9))
+time.sleep(60)
+"""))
+        try:
+            assert _wait(lambda: (keys.alive(FLEET, 9), True) in events, 20), events
+        finally:
+            node.kill()
+            node.communicate()
+        assert _wait(lambda: (keys.alive(FLEET, 9), False) in events, 10), events
+
+
+def test_sigint_closes_the_gateway_cleanly(group, gateway):
+    gw = group.services[0]
+    gw.proc.send_signal(signal.SIGINT)
+    assert gw.proc.wait(10) == 0
+    assert gw.wait_for("shutting down", 2)
+
+
+def test_gateway_publishes_stats(gateway):
+    from protocol.messages import LinkStats
+    stats = []
+    with _client(gateway) as client:
+        client.subscribe(keys.gateway_stats(FLEET), lambda m, s: stats.append(m), expect=LinkStats)
+        pub = client.publisher(keys.state(FLEET, 4), TELEMETRY)
+        time.sleep(0.3)
+        for i in range(20):
+            pub.put(_state(i))
+        assert _wait(lambda: any(s.classes["telemetry"].samples >= 20 for s in stats), 10), stats[-1:]
+        last = stats[-1]
+        assert last.sessions.get("client", 0) >= 1
+        assert last.classes["telemetry"].bytes > 20 * 100

@@ -1,0 +1,47 @@
+import pytest
+
+from protocol import keys
+from protocol.links import COMMAND, IMAGERY, TELEMETRY, class_of_topic
+
+
+def test_builders_follow_the_key_space():
+    assert keys.state("f", 3) == "skynet/f/uav/3/state"
+    assert keys.cmd("f", 1) == "skynet/f/uav/1/cmd"
+    assert keys.camera("f", "*") == "skynet/f/uav/*/camera"
+    assert keys.planner("f") == "skynet/f/rcu/planner/plan"
+    assert keys.defects("f") == "skynet/f/rcu/detector/defects"
+    assert keys.gateway_stats("f", "gw1") == "skynet/f/gateway/gw1/stats"
+    assert keys.heartbeat("f") == "skynet/f/gcs/heartbeat"
+
+
+@pytest.mark.parametrize("key", [
+    keys.state("a", 1), keys.cmd("a", 255), keys.camera("a", 9), keys.event("a", 2), keys.alive("a", 2),
+    keys.planner("a"), keys.defects("a"), keys.gateway_stats("a", 1), keys.heartbeat("a"), keys.gcs_event("a"),
+    keys.rcu_alive("a", "detector"), keys.rcu_event("a", "planner"),
+])
+def test_parse_inverts_builders(key):
+    info = keys.parse(key)
+    assert info.fleet == "a"
+    assert key.endswith(info.topic)
+
+
+@pytest.mark.parametrize("bad", ["", "skynet", "other/a/uav/1/state", "skynet/a/uav/0/state", "skynet/a/uav/256/state",
+                                 "skynet/a/uav/x/state", "skynet/a/uav/1/teleport", "skynet/a b/uav/1/state",
+                                 "skynet/a/rcu/planner/defects", "skynet/a/gateway/1/other"])
+def test_parse_rejects_foreign_keys(bad):
+    with pytest.raises(keys.KeyError_):
+        keys.parse(bad)
+
+
+@pytest.mark.parametrize("fleet,uav", [("a/b", 1), ("", 1), ("a", 0), ("a", 256), ("a", True), ("a*", 1)])
+def test_builders_reject_bad_chunks(fleet, uav):
+    with pytest.raises(keys.KeyError_):
+        keys.state(fleet, uav)
+
+
+def test_topics_map_to_link_classes():
+    assert class_of_topic("state") is TELEMETRY
+    assert class_of_topic("camera") is IMAGERY
+    assert class_of_topic("cmd") is COMMAND
+    assert COMMAND.reliable and not TELEMETRY.reliable and not IMAGERY.reliable
+    assert TELEMETRY.express and COMMAND.congestion == "block" and TELEMETRY.congestion == "drop"
