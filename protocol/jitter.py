@@ -1,0 +1,541 @@
+"""Receiver-side jitter buffer and reception statistics for RTP-style imagery frames.
+
+The paper chooses RTP for images because it allows "jitter compensation and detection of
+out-of-sequence arrival" (PAPER.md, section 1). This module is that receiver: one
+:class:`JitterBuffer` per source (SSRC), or a :class:`JitterBuffers` dictionary keyed by SSRC.
+It reorders frames inside a fixed window, waits a bounded time for missing ones, drops late and
+duplicate frames, resynchronises after a sequence-number jump, and keeps the receiver statistics
+of RFC 3550 (extended highest sequence number, A.1; expected and lost, A.3; interarrival
+jitter, A.8).
+
+Playout rule (our choice; the paper does not give one)
+------------------------------------------------------
+Playout is *arrival based* and adds no delay to a healthy stream:
+
+- a frame whose predecessors have all been played (or given up) is released at once, by the
+  :meth:`JitterBuffer.push` that brings it;
+- a frame that waits behind a missing sequence number is held; a missing number is given up
+  (counted as lost) ``playout_delay_s`` after it was first known to be missing, i.e. after the
+  earliest arrival among the frames buffered behind it. :meth:`JitterBuffer.pop_due` (and every
+  :meth:`JitterBuffer.push`, whose arrival time is "now") releases what has become due;
+  :meth:`JitterBuffer.next_deadline` tells a receiver loop when to call it.
+
+Media-time playout (a fixed offset from the sender's clock) would smooth the display of a
+video, but the detector consumes stills captured at irregular capture points, so any wait that
+is not needed to restore the order is pure latency; and arrival-based deadlines do not depend on
+the sender's clock being sane.
+
+Classification of one arriving packet (``ext``: its extended sequence number, ``next``: the
+next number to play, ``max``: the highest number stored so far, ``C``: the capacity):
+
+- ``next <= ext < next + C``: stored in the ring slot ``ext % C``; "reordered" when
+  ``ext < max``; "duplicate" when the slot already holds it.
+- ``next - C <= ext < next``: behind the playout point, dropped: "duplicate" when it was
+  played, otherwise "late" (its number had already been given up).
+- ``ext >= next + C`` but ``ext - max <= C``: the window is full of frames waiting for a gap;
+  the oldest gaps are given up (lost) until the frame fits.
+- anything else, a jump of more than ``C`` past ``max`` or more than ``C`` behind ``next``:
+  held as a *probe*. The next packet confirms it when it carries the probe's sequence
+  number + 1, or the probe becomes due ``playout_delay_s`` after its arrival; then the buffer
+  *resyncs* (counted in ``resyncs``): it releases what it holds and restarts playout at the
+  probe. A packet back in the old window first discards the probe (a stray, counted "late").
+
+After a resync, a forward jump of less than ``MAX_DROPOUT`` (3000, RFC 3550 A.1) keeps the
+extended numbering and counts the skipped numbers as lost (an outage longer than the window);
+any other jump (a sender restart with a new random initial sequence number) starts a new
+numbering epoch, as ``init_seq`` does in RFC 3550 A.1, without counting loss.
+
+References
+----------
+.. [1] H. Schulzrinne et al., "RTP: A Transport Protocol for Real-Time Applications",
+   RFC 3550, 2003: 6.4.1 (report fields), A.1 (sequence number validity and extended highest
+   sequence number), A.3 (expected and lost packets), A.8 (interarrival jitter).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from protocol.rtp import VIDEO_CLOCK_RATE, RtpHeader, unpack_frame
+
+__all__ = ["MAX_DROPOUT", "Frame", "JitterBuffer", "JitterBuffers", "JitterStats"]
+
+MAX_DROPOUT = 3000  # RFC 3550 A.1: the largest forward jump still taken as loss
+MAX_CAPACITY = 1 << 14  # the window must stay well inside half the 16-bit circle
+_SEQ_MASK = 0xFFFF
+_SEQ_HALF = 0x8000
+_TS_MASK = 0xFFFFFFFF
+_TS_HALF = 0x80000000
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One frame released for playout.
+
+    Attributes
+    ----------
+    header : RtpHeader
+        As received.
+    payload : bytes or memoryview
+        As pushed (the buffer keeps a reference, never a copy).
+    arrival_s : float
+        Arrival time given to :meth:`JitterBuffer.push`.
+    extended_sequence : int
+        Sequence number extended with its wrap cycles (RFC 3550 A.1); monotonic within a
+        numbering epoch (see the module notes on resync).
+    """
+
+    header: RtpHeader
+    payload: bytes | memoryview
+    arrival_s: float
+    extended_sequence: int
+
+    @property
+    def sequence(self) -> int:
+        return self.header.sequence
+
+    @property
+    def timestamp(self) -> int:
+        return self.header.timestamp
+
+    @property
+    def ssrc(self) -> int:
+        return self.header.ssrc
+
+    @property
+    def marker(self) -> bool:
+        return self.header.marker
+
+
+@dataclass(frozen=True, slots=True)
+class JitterStats:
+    """Receiver statistics of one source (RFC 3550, 6.4.1 and appendix A).
+
+    Attributes
+    ----------
+    ssrc : int or None
+        The source, None before the first packet.
+    received : int
+        Packets pushed, including duplicates, late ones and probes (RFC 3550 A.3 "received").
+    delivered : int
+        Frames released for playout.
+    lost : int
+        Sequence numbers given up by playout (never delivered). A frame that arrives after its
+        number was given up stays counted here and is also counted ``late``.
+    duplicated, late, reordered, resyncs : int
+        See the classification table in the module docstring.
+    buffered : int
+        Frames held now (including a pending probe).
+    highest_sequence : int or None
+        Extended highest sequence number stored (RFC 3550 A.1: cycles * 65536 + max_seq).
+    expected : int
+        Sequence numbers spanned by the stream, summed over numbering epochs (RFC 3550 A.3).
+    fraction_lost : float
+        ``lost / expected`` over the whole session (0.0 before anything is expected). RTCP's
+        8-bit interval fraction is a report-time detail this module does not need.
+    cumulative_lost : int
+        ``expected - received`` as in RFC 3550 A.3 (negative with duplicates).
+    jitter_ts : float
+        Interarrival jitter J in timestamp units (RFC 3550 A.8).
+    jitter_s : float
+        The same in seconds (``jitter_ts / clock_rate``).
+    """
+
+    ssrc: int | None
+    received: int
+    delivered: int
+    lost: int
+    duplicated: int
+    late: int
+    reordered: int
+    resyncs: int
+    buffered: int
+    highest_sequence: int | None
+    expected: int
+    fraction_lost: float
+    cumulative_lost: int
+    jitter_ts: float
+    jitter_s: float
+
+    def as_dict(self) -> dict:
+        """Plain dict (for messages and JSON)."""
+        return asdict(self)
+
+
+def _check_params(capacity: int, playout_delay_s: float, clock_rate: int) -> tuple[int, float, int]:
+    if isinstance(capacity, bool) or not isinstance(capacity, (int, np.integer)) or not 1 <= capacity <= MAX_CAPACITY:
+        raise ValueError(f"capacity must be an int in 1..{MAX_CAPACITY}, got {capacity!r}")
+    delay = float(playout_delay_s)
+    if not math.isfinite(delay) or delay < 0:
+        raise ValueError(f"playout_delay_s must be finite and >= 0, got {playout_delay_s!r}")
+    if isinstance(clock_rate, bool) or not isinstance(clock_rate, (int, np.integer)) or clock_rate <= 0:
+        raise ValueError(f"clock_rate must be a positive int, got {clock_rate!r}")
+    return int(capacity), delay, int(clock_rate)
+
+
+def _arrival(arrival_s: float) -> float:
+    try:
+        t = float(arrival_s)
+    except (TypeError, ValueError):
+        raise ValueError(f"arrival time must be a number of seconds, got {arrival_s!r}") from None
+    if not math.isfinite(t):
+        raise ValueError(f"arrival time must be finite, got {arrival_s!r}")
+    return t
+
+
+class JitterBuffer:
+    """Reordering playout buffer and RFC 3550 receiver statistics for one SSRC.
+
+    Parameters
+    ----------
+    capacity : int
+        Ring size in frames (1..16384): the reorder window, in sequence numbers, beyond the
+        next frame to play.
+    playout_delay_s : float
+        How long a missing frame is waited for (see the module docstring), >= 0. Zero gives
+        up every gap at the next push: no reordering, minimal latency.
+    clock_rate : int
+        Media clock of the RTP timestamps in Hz (90 000 for video), for the jitter in seconds.
+
+    Examples
+    --------
+    >>> from protocol.rtp import RtpHeader
+    >>> jb = JitterBuffer(capacity=8, playout_delay_s=0.1)
+    >>> [f.sequence for f in jb.push(RtpHeader(65535, 0, 7), b"a", 0.00)]
+    [65535]
+    >>> jb.push(RtpHeader(1, 6000, 7), b"c", 0.07)   # 0 is missing: held
+    []
+    >>> [f.sequence for f in jb.push(RtpHeader(0, 3000, 7), b"b", 0.08)]
+    [0, 1]
+    >>> jb.stats().reordered, jb.stats().highest_sequence
+    (1, 65537)
+    """
+
+    def __init__(
+        self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE
+    ) -> None:
+        self.capacity, self.playout_delay_s, self.clock_rate = _check_params(capacity, playout_delay_s, clock_rate)
+        cap = self.capacity
+        self._slots: list[Frame | None] = [None] * cap
+        self._arrivals = np.full(cap, np.inf)  # arrival time per occupied slot, inf when empty
+        self._played = np.full(cap, -1, dtype=np.int64)  # extended seq last played per slot
+        self._buffered = 0
+        self._ssrc: int | None = None
+        self._next: int | None = None  # extended sequence number to play next
+        self._max: int = -1  # extended highest sequence number stored
+        self._base: int = 0  # first extended sequence number of the epoch
+        self._expected_prior = 0  # expected count of finished epochs
+        self._probe: tuple[RtpHeader, bytes | memoryview, float] | None = None
+        self._last_arrival = 0.0  # R_i of the previous packet, seconds
+        self._last_ts: int | None = None  # S_i of the previous packet
+        self._jitter = 0.0  # J, timestamp units
+        self.received = self.delivered = self.lost = 0
+        self.duplicated = self.late = self.reordered = self.resyncs = 0
+
+    # ---------------------------------------------------------------- public API
+
+    @property
+    def ssrc(self) -> int | None:
+        return self._ssrc
+
+    def __len__(self) -> int:
+        return self._buffered + (self._probe is not None)
+
+    def push(self, header: RtpHeader, payload: bytes | memoryview, arrival_s: float) -> list[Frame]:
+        """Take one packet; return the frames now ready for playout, in sequence order.
+
+        ``arrival_s`` is also "now": gaps whose wait has expired by then are given up as by
+        :meth:`pop_due`.
+
+        Raises
+        ------
+        ValueError
+            Not an :class:`~protocol.rtp.RtpHeader`, a non-finite arrival time, or an SSRC other
+            than the one this buffer serves (use :class:`JitterBuffers` for several sources).
+        """
+        if not isinstance(header, RtpHeader):
+            raise ValueError(f"header must be an RtpHeader, got {type(header).__name__}")
+        now = _arrival(arrival_s)
+        if self._ssrc is None:
+            self._ssrc = header.ssrc
+        elif header.ssrc != self._ssrc:
+            raise ValueError(
+                f"this JitterBuffer serves SSRC {self._ssrc:#010x}, got {header.ssrc:#010x}; use JitterBuffers"
+            )
+        self.received += 1
+        out: list[Frame] = []
+        if self._next is None:
+            self._start_epoch(header.sequence)
+            self._jitter_reference(header.timestamp, now)
+            self._store(header, payload, now, header.sequence, out)
+        else:
+            self._accept(header, payload, now, out)
+        self._release(now, out)
+        return out
+
+    def push_packet(self, data: bytes | bytearray | memoryview, arrival_s: float) -> list[Frame]:
+        """:func:`~protocol.rtp.unpack_frame` then :meth:`push`; RtpError for a bad packet."""
+        header, payload = unpack_frame(data)
+        return self.push(header, payload, arrival_s)
+
+    def pop_due(self, now_s: float) -> list[Frame]:
+        """Release the frames whose wait has ended by ``now_s``, giving up expired gaps."""
+        out: list[Frame] = []
+        self._release(_arrival(now_s), out)
+        return out
+
+    def flush(self) -> list[Frame]:
+        """Release everything held, in order; remaining gaps count as lost, a probe resyncs."""
+        out: list[Frame] = []
+        self._release(None, out)
+        return out
+
+    def next_deadline(self) -> float | None:
+        """Earliest time at which :meth:`pop_due` would release something; None if never."""
+        deadline = math.inf
+        if self._buffered:
+            deadline = float(self._arrivals.min()) + self.playout_delay_s
+        if self._probe is not None:
+            deadline = min(deadline, self._probe[2] + self.playout_delay_s)
+        return None if deadline == math.inf else deadline
+
+    def stats(self) -> JitterStats:
+        """Current statistics (a snapshot)."""
+        started = self._next is not None
+        expected = self._expected_prior + (self._max - self._base + 1 if started else 0)
+        return JitterStats(
+            ssrc=self._ssrc,
+            received=self.received,
+            delivered=self.delivered,
+            lost=self.lost,
+            duplicated=self.duplicated,
+            late=self.late,
+            reordered=self.reordered,
+            resyncs=self.resyncs,
+            buffered=len(self),
+            highest_sequence=self._max if started else None,
+            expected=expected,
+            fraction_lost=self.lost / expected if expected else 0.0,
+            cumulative_lost=expected - self.received,
+            jitter_ts=self._jitter,
+            jitter_s=self._jitter / self.clock_rate,
+        )
+
+    # ---------------------------------------------------------------- internals
+
+    def _extend(self, seq: int) -> int:
+        """Extended sequence number of ``seq``: the nearest to the highest seen (RFC 3550 A.1)."""
+        top = self._max
+        return top + (((seq - (top & _SEQ_MASK) + _SEQ_HALF) & _SEQ_MASK) - _SEQ_HALF)
+
+    def _start_epoch(self, ext: int) -> None:
+        self._base = self._next = ext
+        self._max = ext - 1
+        self._played.fill(-1)
+
+    def _jitter_reference(self, ts: int, now: float) -> None:
+        self._last_ts, self._last_arrival = ts, now
+
+    def _update_jitter(self, ts: int, now: float) -> None:
+        """RFC 3550 A.8: D = (Rj - Ri) - (Sj - Si) in timestamp units; J += (|D| - J) / 16."""
+        if self._last_ts is not None:
+            ds = ((ts - self._last_ts + _TS_HALF) & _TS_MASK) - _TS_HALF
+            d = (now - self._last_arrival) * self.clock_rate - ds
+            self._jitter += (abs(d) - self._jitter) / 16.0
+        self._jitter_reference(ts, now)
+
+    def _accept(self, header: RtpHeader, payload, now: float, out: list[Frame]) -> None:
+        cap, nxt = self.capacity, self._next
+        ext = self._extend(header.sequence)
+        if nxt - cap <= ext < nxt + cap or (ext >= nxt + cap and ext - self._max <= cap):
+            if self._probe is not None:  # the stream went on in the old window: a stray
+                self._probe = None
+                self.late += 1
+            self._update_jitter(header.timestamp, now)
+            if ext < nxt:
+                if self._played[ext % cap] == ext:
+                    self.duplicated += 1
+                else:
+                    self.late += 1
+                return
+            if ext >= nxt + cap:  # window full of frames waiting for gaps: give the oldest up
+                self._advance_to(ext - cap + 1, out)
+            slot = self._slots[ext % cap]
+            if slot is not None:
+                self.duplicated += 1
+                return
+            if ext < self._max:
+                self.reordered += 1
+            self._store(header, payload, now, ext, out)
+            return
+        probe = self._probe
+        if probe is not None and header.sequence == probe[0].sequence:
+            self.duplicated += 1
+            return
+        if probe is not None and header.sequence == (probe[0].sequence + 1) & _SEQ_MASK:
+            self._probe = None
+            self._resync(probe, out)
+            self._update_jitter(header.timestamp, now)
+            self._store(header, payload, now, self._extend(header.sequence), out)
+            return
+        if probe is not None:  # two unrelated far-off packets: the older one was a stray
+            self.late += 1
+        self._probe = (header, payload, now)
+
+    def _store(self, header: RtpHeader, payload, now: float, ext: int, out: list[Frame]) -> None:
+        i = ext % self.capacity
+        self._slots[i] = Frame(header, payload, now, ext)
+        self._arrivals[i] = now
+        self._buffered += 1
+        if ext > self._max:
+            self._max = ext
+
+    def _advance_to(self, target: int, out: list[Frame]) -> None:
+        """Play or give up every number below ``target`` (extended)."""
+        cap, slots = self.capacity, self._slots
+        e = self._next
+        while e < target:
+            if self._buffered == 0:  # nothing more held: the rest are gaps
+                self.lost += target - e
+                e = target
+                break
+            i = e % cap
+            f = slots[i]
+            if f is None:
+                self.lost += 1
+            else:
+                slots[i] = None
+                self._arrivals[i] = np.inf
+                self._buffered -= 1
+                self._played[i] = e
+                self.delivered += 1
+                out.append(f)
+            e += 1
+        self._next = e
+
+    def _release(self, now: float | None, out: list[Frame]) -> None:
+        """Play in-order frames; give up gaps whose wait has expired (all gaps if ``now`` is None)."""
+        cap, slots = self.capacity, self._slots
+        while self._buffered:
+            e = self._next
+            i = e % cap
+            f = slots[i]
+            if f is not None:
+                slots[i] = None
+                self._arrivals[i] = np.inf
+                self._buffered -= 1
+                self._played[i] = e
+                self._next = e + 1
+                self.delivered += 1
+                out.append(f)
+                continue
+            if now is not None and float(self._arrivals.min()) + self.playout_delay_s > now:
+                break
+            k = 1  # the lowest buffered frame is k numbers ahead
+            while slots[(e + k) % cap] is None:
+                k += 1
+            self.lost += k
+            self._next = e + k
+        probe = self._probe
+        if probe is not None and (now is None or probe[2] + self.playout_delay_s <= now):
+            self._probe = None
+            self._resync(probe, out)
+
+    def _resync(self, probe: tuple[RtpHeader, bytes | memoryview, float], out: list[Frame]) -> None:
+        """Restart playout at ``probe`` after a jump (module docstring, last paragraph)."""
+        header, payload, arrival = probe
+        self.resyncs += 1
+        self._advance_to(self._max + 1, out)  # release everything held from the old window
+        ext = self._extend(header.sequence)
+        if 0 <= ext - self._next < MAX_DROPOUT:
+            self.lost += ext - self._next  # an outage longer than the window: same numbering
+            self._next = ext
+        else:  # a new numbering epoch (RFC 3550 A.1 init_seq)
+            self._expected_prior += self._max - self._base + 1
+            ext = header.sequence
+            self._start_epoch(ext)
+        self._jitter_reference(header.timestamp, arrival)
+        self._store(header, payload, arrival, ext, out)
+        self._release(arrival, out)
+
+
+class JitterBuffers:
+    """One :class:`JitterBuffer` per SSRC, created on the first packet of each source.
+
+    Parameters
+    ----------
+    capacity, playout_delay_s, clock_rate
+        Passed to every :class:`JitterBuffer`.
+    max_sources : int
+        Upper bound on distinct SSRCs (a flood of forged SSRCs must not grow memory without
+        bound); a packet of a new source beyond it raises ValueError.
+    """
+
+    def __init__(
+        self,
+        capacity: int = 64,
+        playout_delay_s: float = 0.1,
+        clock_rate: int = VIDEO_CLOCK_RATE,
+        max_sources: int = 64,
+    ) -> None:
+        self._params = _check_params(capacity, playout_delay_s, clock_rate)
+        if isinstance(max_sources, bool) or not isinstance(max_sources, int) or max_sources < 1:
+            raise ValueError(f"max_sources must be a positive int, got {max_sources!r}")
+        self.max_sources = max_sources
+        self._buffers: dict[int, JitterBuffer] = {}
+
+    def __len__(self) -> int:
+        return len(self._buffers)
+
+    def __contains__(self, ssrc: int) -> bool:
+        return ssrc in self._buffers
+
+    def __getitem__(self, ssrc: int) -> JitterBuffer:
+        return self._buffers[ssrc]
+
+    @property
+    def sources(self) -> list[int]:
+        return list(self._buffers)
+
+    def push(self, header: RtpHeader, payload: bytes | memoryview, arrival_s: float) -> list[Frame]:
+        """Route to the source's buffer (created if new); see :meth:`JitterBuffer.push`."""
+        if not isinstance(header, RtpHeader):
+            raise ValueError(f"header must be an RtpHeader, got {type(header).__name__}")
+        jb = self._buffers.get(header.ssrc)
+        if jb is None:
+            if len(self._buffers) >= self.max_sources:
+                raise ValueError(f"too many RTP sources (max_sources={self.max_sources}); SSRC {header.ssrc:#010x} refused")
+            _arrival(arrival_s)  # do not create a buffer for a packet push() will refuse
+            jb = self._buffers[header.ssrc] = JitterBuffer(*self._params)
+        return jb.push(header, payload, arrival_s)
+
+    def push_packet(self, data: bytes | bytearray | memoryview, arrival_s: float) -> list[Frame]:
+        """:func:`~protocol.rtp.unpack_frame` then :meth:`push`; RtpError for a bad packet."""
+        header, payload = unpack_frame(data)
+        return self.push(header, payload, arrival_s)
+
+    def pop_due(self, now_s: float) -> list[Frame]:
+        """Due frames of every source (each source's frames in sequence order)."""
+        now = _arrival(now_s)
+        return [f for jb in self._buffers.values() for f in jb.pop_due(now)]
+
+    def flush(self) -> list[Frame]:
+        """Everything held by every source, each source in sequence order."""
+        return [f for jb in self._buffers.values() for f in jb.flush()]
+
+    def remove(self, ssrc: int) -> list[Frame]:
+        """Forget a source (e.g. after RTCP BYE or a liveliness loss); returns its last frames."""
+        jb = self._buffers.pop(ssrc, None)
+        return jb.flush() if jb is not None else []
+
+    def next_deadline(self) -> float | None:
+        """Earliest deadline over all sources, None if none."""
+        deadlines = [d for jb in self._buffers.values() if (d := jb.next_deadline()) is not None]
+        return min(deadlines) if deadlines else None
+
+    def stats(self) -> dict[int, JitterStats]:
+        """Statistics per SSRC."""
+        return {ssrc: jb.stats() for ssrc, jb in self._buffers.items()}
