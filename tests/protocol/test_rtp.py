@@ -396,11 +396,21 @@ def test_sender_rejects_bad_parameters(kwargs: dict) -> None:
         RtpSender(**kwargs)
 
 
-def test_sender_rejects_bad_capture_time() -> None:
+def test_sender_rejects_bad_frame_input() -> None:
     sender = RtpSender(1, initial_seq=0)
     with pytest.raises(ValueError):
         sender.frame(b"x", math.nan)
+    with pytest.raises(RtpError):
+        sender.frame("not bytes", 0.0)  # type: ignore[arg-type]
     assert sender.next_sequence == 0  # a refused frame does not consume a sequence number
+    assert sender.packets_sent == 0
+
+
+def test_sender_header_preview_matches_the_packet() -> None:
+    sender = RtpSender(ssrc_for(4, 2), initial_seq=65535)
+    preview = sender.header(3.0, marker=False)
+    assert sender.next_sequence == 65535  # a preview does not consume the number
+    assert unpack_frame(sender.frame(b"img", 3.0, marker=False))[0] == preview
 
 
 def test_ssrc_mapping() -> None:
