@@ -253,11 +253,14 @@ class JitterBuffer:
         Raises
         ------
         ValueError
-            Not an :class:`~protocol.rtp.RtpHeader`, a non-finite arrival time, or an SSRC other
+            Not an :class:`~protocol.rtp.RtpHeader`, a payload that is not bytes-like, a
+            non-finite arrival time, or an SSRC other
             than the one this buffer serves (use :class:`JitterBuffers` for several sources).
         """
         if not isinstance(header, RtpHeader):
             raise ValueError(f"header must be an RtpHeader, got {type(header).__name__}")
+        if not isinstance(payload, (bytes, bytearray, memoryview)):
+            raise ValueError(f"payload must be bytes-like, got {type(payload).__name__}")
         now = _arrival(arrival_s)
         if self._ssrc is None:
             self._ssrc = header.ssrc
@@ -507,7 +510,9 @@ class JitterBuffers:
         jb = self._buffers.get(header.ssrc)
         if jb is None:
             if len(self._buffers) >= self.max_sources:
-                raise ValueError(f"too many RTP sources (max_sources={self.max_sources}); SSRC {header.ssrc:#010x} refused")
+                raise ValueError(
+                    f"too many RTP sources (max_sources={self.max_sources}); SSRC {header.ssrc:#010x} refused"
+                )
             _arrival(arrival_s)  # do not create a buffer for a packet push() will refuse
             jb = self._buffers[header.ssrc] = JitterBuffer(*self._params)
         return jb.push(header, payload, arrival_s)

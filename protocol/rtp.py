@@ -307,7 +307,9 @@ class RtpHeader:
 
 _FIELD_SETTERS = tuple(
     getattr(RtpHeader, name).__set__
-    for name in ("sequence", "timestamp", "ssrc", "marker", "payload_type", "version", "padding", "extension", "csrc_count")
+    for name in (
+        "sequence", "timestamp", "ssrc", "marker", "payload_type", "version", "padding", "extension", "csrc_count"
+    )
 )
 
 

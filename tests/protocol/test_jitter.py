@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import doctest
 import math
 
 import numpy as np
@@ -9,8 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import protocol.jitter
 from protocol.jitter import MAX_DROPOUT, Frame, JitterBuffer, JitterBuffers, JitterStats
-from protocol.rtp import RtpHeader, RtpSender, pack_frame, seq_add, ssrc_for
+from protocol.rtp import RtpHeader, RtpSender, seq_add, ssrc_for
 
 SSRC = 0x534B0100
 
@@ -312,6 +314,8 @@ def test_bad_input_is_a_value_error() -> None:
         jb.pop_due(math.nan)
     with pytest.raises(ValueError):
         jb.push((2, 0, SSRC), b"", 0.1)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="payload"):
+        jb.push(h(2), None, 0.1)  # type: ignore[arg-type]
     assert jb.stats().received == 1  # refused packets are not counted
 
 
@@ -395,3 +399,8 @@ def test_impaired_stream_invariants(start: int, n: int, seed: int, drop: float, 
     assert s.highest_sequence == ext.max()
     assert s.delivered + s.lost == s.expected == ext.max() - start + 1
     assert s.buffered == 0 and s.jitter_ts >= 0
+
+
+def test_docstring_examples_hold() -> None:
+    result = doctest.testmod(protocol.jitter)
+    assert result.attempted > 0 and result.failed == 0
