@@ -1,0 +1,18 @@
+"""User-space network impairment for experiments (the kernel here has no ``netem`` qdisc).
+
+DESIGN.md, "Running it": the launcher can put impairment proxies (delay, jitter, loss,
+reordering, duplication, bandwidth, outage) on chosen links. Paper, Section 1: the system runs
+over a 4G gateway, with UDP for sensing data, TCP for commands and RTP for imagery; these
+proxies let the experiments reproduce such a link on one machine.
+
+* :mod:`services.netem.model` — pure: :class:`~services.netem.model.Impairment` (what to do,
+  parsed from a netem-like string) and :class:`~services.netem.model.Impairer` (the per-packet
+  and per-chunk decisions, seeded, with counters).
+* :mod:`services.netem.proxy` — :class:`~services.netem.proxy.UdpProxy` and
+  :class:`~services.netem.proxy.TcpProxy`, real sockets, one per Zenoh link.
+* :mod:`services.netem.cli` — ``skynet netem udp|tcp --listen ... --target ... --impair ...``.
+"""
+
+from services.netem.model import GilbertElliott, Impairer, Impairment
+
+__all__ = ["GilbertElliott", "Impairer", "Impairment"]

@@ -1,0 +1,608 @@
+"""What a link does to packets: the impairment description and the seeded per-packet decisions.
+
+Pure code, no sockets. :class:`Impairment` says *what* to do (delay, jitter, loss, burst loss,
+duplication, reordering, bandwidth, queue limit, outages); :class:`Impairer` applies it to one
+direction of one link: :meth:`Impairer.decide` gives the release times of the copies of one
+datagram (empty = dropped), :meth:`Impairer.decide_stream` the release time of one chunk of a
+byte stream (TCP never loses or reorders bytes; loss becomes retransmission delay).
+
+The paper (Section 1, "System and communication") runs the fleet over a 4G/LTE gateway with
+UDP for sensing data, TCP for commands and RTP for imagery, but gives no link figures; this
+module is what the experiments use to put such a link's latency and loss on loopback. The
+semantics follow Linux ``tc-netem(8)`` and its loss models, with the differences listed below.
+
+Semantics (and where we differ from netem)
+------------------------------------------
+* **Delay and jitter** — each packet waits ``delay + J`` where J is uniform on
+  ``[-jitter, +jitter]`` (netem's default) or normal with σ = jitter (``distribution normal``),
+  clamped at zero.
+* **Order** — by default the link is a FIFO: a packet never leaves before the one that arrived
+  before it (release = max(own time, previous release)), so jitter alone does not reorder,
+  as on a real queueing path. ``unordered`` gives netem's time-sorted queue instead, where
+  jitter larger than the packet spacing reorders. Only ``reorder`` reorders on a FIFO link:
+  the chosen packet is held back by an extra ``reorder_ms`` and later packets overtake it
+  (netem's ``reorder`` instead sends the chosen packet *early*; ours needs no base delay).
+* **Loss** — Bernoulli with probability ``loss``; with ``loss_correlation`` ρ a two-state
+  Markov chain, ``P(lost | previous lost) = ρ + (1-ρ) p`` and ``P(lost | previous kept) =
+  (1-ρ) p``, whose long-run loss rate stays p and whose mean burst is ``1 / ((1-ρ)(1-p))``
+  (netem's own "correlation" does not keep the mean, see Salsano et al.). ``loss gemodel p r
+  1-h 1-k`` is the Gilbert–Elliott model of netem (Salsano, Ludovici, Ordine, "Definition of a
+  general and intuitive loss model for packet networks and its implementation in the Netem
+  module", 2010): state Good→Bad with probability p, Bad→Good with r, loss with 1-h in Bad and
+  1-k in Good; stationary loss ``(p (1-h) + r (1-k)) / (p + r)``.
+* **Duplicate** — the copy takes its own delay sample and its own place in the rate queue;
+  it is not subject to loss again.
+* **Rate** — a serialising link of ``rate_kbps`` kilobits per second: each packet occupies the
+  link for ``8 size / rate`` seconds after the previous one, then the delay is added (netem's
+  ``rate``). ``limit`` caps the packets held at once (netem's default 1000); beyond it packets
+  are dropped with reason ``queue``.
+* **Outages** — windows ``(start_s, duration_s)`` relative to the impairer's origin (the proxy
+  start). A datagram that arrives during an outage is dropped (reason ``outage``); a stream
+  chunk that arrives, or would be released, inside a window waits for its end (the stream
+  stalls).
+* **Streams (TCP)** — :meth:`Impairer.decide_stream` applies outage, rate, delay and jitter in
+  order; duplicate and reorder do not apply (TCP removes both). Loss is counted per
+  ``mss``-byte segment; a chunk with a lost segment is delayed by ``rto_ms`` (Linux's minimum
+  retransmission timeout, 200 ms, by default) — a model of the retransmission stall, not of
+  TCP's congestion response.
+
+String form
+-----------
+``Impairment.parse("delay 50ms jitter 10ms loss 2% duplicate 1% reorder 5% rate 2mbit")``;
+keywords: ``delay T [JITTER]``, ``jitter T``, ``distribution uniform|normal``,
+``loss P [CORRELATION]``, ``loss random P [CORRELATION]``, ``loss gemodel p [r [1-h [1-k]]]``,
+``duplicate P``, ``reorder P [HOLD]``, ``rate R``, ``limit N``, ``outage START DURATION``
+(repeatable), ``rto T``, ``unordered``. Times need a unit (``us``, ``ms``, ``s``;
+tc's bare numbers mean µs, a trap we refuse), percentages need ``%``. Rates use tc's units,
+case-insensitively: ``bit kbit mbit gbit`` (and ``kibit``...) are bits per second, while
+``bps kbps mbps gbps`` are **bytes** per second as in tc (``rate 1mbps`` = 8000 kbit/s);
+a bare number is bits per second.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+__all__ = [
+    "DROP_REASONS",
+    "GilbertElliott",
+    "Impairment",
+    "Counters",
+    "Impairer",
+    "DEFAULT_MSS",
+]
+
+#: Reasons a datagram is dropped, the keys of :attr:`Counters.dropped`.
+DROP_REASONS = ("loss", "outage", "queue")
+
+#: TCP segment payload assumed when counting lost segments of a stream chunk (Ethernet MSS).
+DEFAULT_MSS = 1448
+
+Probability = Field(default=0.0, ge=0.0, le=1.0, allow_inf_nan=False)
+
+
+class GilbertElliott(BaseModel):
+    """Gilbert–Elliott burst loss in netem's ``gemodel`` parameters (Salsano et al. 2010).
+
+    Parameters
+    ----------
+    p : float
+        Probability Good → Bad per packet.
+    r : float
+        Probability Bad → Good per packet.
+    loss_bad : float
+        Loss probability in the Bad state (netem's ``1-h``), default 1.
+    loss_good : float
+        Loss probability in the Good state (netem's ``1-k``), default 0.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    p: float = Field(ge=0.0, le=1.0, allow_inf_nan=False)
+    r: float = Field(ge=0.0, le=1.0, allow_inf_nan=False)
+    loss_bad: float = Field(default=1.0, ge=0.0, le=1.0, allow_inf_nan=False)
+    loss_good: float = Field(default=0.0, ge=0.0, le=1.0, allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _moves(self) -> GilbertElliott:
+        if self.p + self.r <= 0.0:
+            raise ValueError("gemodel: p and r cannot both be 0 (the chain would never move)")
+        return self
+
+    @property
+    def mean_loss(self) -> float:
+        """Stationary loss rate ``(p (1-h) + r (1-k)) / (p + r)``."""
+        return (self.p * self.loss_bad + self.r * self.loss_good) / (self.p + self.r)
+
+
+class Impairment(BaseModel):
+    """What one direction of a link does to traffic; validated, immutable.
+
+    Times in milliseconds, probabilities as fractions in [0, 1], rate in kilobits per second
+    (1 kbit = 1000 bit; 0 = unlimited). See the module docstring for the exact semantics and
+    :meth:`parse` for the netem-like string form.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    delay_ms: float = Field(default=0.0, ge=0.0, le=3.6e6, allow_inf_nan=False)
+    jitter_ms: float = Field(default=0.0, ge=0.0, le=3.6e6, allow_inf_nan=False)
+    distribution: Literal["uniform", "normal"] = "uniform"
+    loss: float = Probability
+    loss_correlation: float = Field(default=0.0, ge=0.0, lt=1.0, allow_inf_nan=False)
+    gilbert_elliott: GilbertElliott | None = None
+    duplicate: float = Probability
+    reorder: float = Probability
+    reorder_ms: float = Field(default=10.0, gt=0.0, le=3.6e6, allow_inf_nan=False)
+    rate_kbps: float = Field(default=0.0, ge=0.0, le=1e9, allow_inf_nan=False)
+    limit: int = Field(default=1000, ge=0, le=10_000_000, description="packets held at most; 0 = unlimited")
+    outages: tuple[tuple[float, float], ...] = ()
+    rto_ms: float = Field(default=200.0, gt=0.0, le=3.6e6, allow_inf_nan=False)
+    fifo: bool = True
+
+    @model_validator(mode="after")
+    def _check(self) -> Impairment:
+        if self.gilbert_elliott is not None and (self.loss > 0.0 or self.loss_correlation > 0.0):
+            raise ValueError("give either loss [correlation] or gilbert_elliott, not both")
+        return self
+
+    @field_validator("outages", mode="after")
+    @classmethod
+    def _sorted_outages(cls, v: tuple[tuple[float, float], ...]) -> tuple[tuple[float, float], ...]:
+        for start, duration in v:
+            if not (math.isfinite(start) and math.isfinite(duration)) or start < 0.0 or duration <= 0.0:
+                raise ValueError(f"outage ({start}, {duration}): need start_s >= 0 and duration_s > 0, finite")
+        return tuple(sorted(v))
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def parse(cls, text: str) -> Impairment:
+        """Parse a netem-like string, e.g. ``"delay 50ms jitter 10ms loss 2% rate 2mbit"``.
+
+        An empty string (or ``"none"``) is the null impairment. Errors are :class:`ValueError`
+        naming the offending token.
+
+        Examples
+        --------
+        >>> Impairment.parse("delay 50ms 10ms loss 2%").jitter_ms
+        10.0
+        >>> Impairment.parse("rate 2mbit").rate_kbps
+        2000.0
+        """
+        if not isinstance(text, str):
+            raise ValueError(f"impairment text must be a string, not {type(text).__name__}")
+        tokens = text.split()
+        if tokens in ([], ["none"]):
+            return cls()
+        out: dict[str, Any] = {}
+        outages: list[tuple[float, float]] = []
+        i = 0
+        kw = ""
+
+        def take(what: str) -> str:
+            nonlocal i
+            if i >= len(tokens):
+                raise ValueError(f"{kw!r} needs {what}, got end of text")
+            i += 1
+            return tokens[i - 1]
+
+        def peek(pred) -> bool:
+            return i < len(tokens) and pred(tokens[i])
+
+        while i < len(tokens):
+            kw = tokens[i].lower()
+            i += 1
+            if kw == "delay":
+                out["delay_ms"] = _time_ms(take("a time"))
+                if peek(_is_time):
+                    out["jitter_ms"] = _time_ms(take("a time"))
+            elif kw == "jitter":
+                out["jitter_ms"] = _time_ms(take("a time"))
+            elif kw == "distribution":
+                name = take("uniform or normal")
+                if name.lower() not in ("uniform", "normal"):
+                    raise ValueError(f"distribution {name!r}: use uniform or normal")
+                out["distribution"] = name.lower()
+            elif kw == "loss":
+                if peek(lambda t: t.lower() == "random"):
+                    i += 1
+                if peek(lambda t: t.lower() == "gemodel"):
+                    i += 1
+                    p = _percent(take("a percentage p"))
+                    ge: dict[str, float] = {"p": p, "r": 1.0 - p}
+                    for name in ("r", "loss_bad", "loss_good"):
+                        if not peek(_is_percent):
+                            break
+                        ge[name] = _percent(take("a percentage"))
+                    out["gilbert_elliott"] = ge
+                else:
+                    out["loss"] = _percent(take("a percentage"))
+                    if peek(_is_percent):
+                        out["loss_correlation"] = _percent(take("a percentage"))
+            elif kw == "duplicate":
+                out["duplicate"] = _percent(take("a percentage"))
+            elif kw == "reorder":
+                out["reorder"] = _percent(take("a percentage"))
+                if peek(_is_time):
+                    out["reorder_ms"] = _time_ms(take("a time"))
+            elif kw == "rate":
+                out["rate_kbps"] = _rate_kbps(take("a rate"))
+            elif kw == "limit":
+                tok = take("a packet count")
+                if not re.fullmatch(r"\d+", tok):
+                    raise ValueError(f"limit {tok!r}: need a whole number of packets")
+                out["limit"] = int(tok)
+            elif kw == "outage":
+                start = _time_ms(take("a start time")) / 1000.0
+                duration = _time_ms(take("a duration")) / 1000.0
+                outages.append((start, duration))
+            elif kw == "rto":
+                out["rto_ms"] = _time_ms(take("a time"))
+            elif kw == "unordered":
+                out["fifo"] = False
+            else:
+                raise ValueError(f"unknown keyword {tokens[i - 1]!r} in impairment {text!r}")
+        if outages:
+            out["outages"] = tuple(outages)
+        return cls.model_validate(out)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Impairment:
+        """Build from a mapping of field names (e.g. a TOML/JSON table); outages as pairs."""
+        if not isinstance(data, dict):
+            raise ValueError(f"impairment dict expected, got {type(data).__name__}")
+        return cls.model_validate(data)
+
+    @classmethod
+    def coerce(cls, spec: Impairment | str | dict[str, Any] | None) -> Impairment:
+        """Accept an :class:`Impairment`, a netem-like string, a dict, or None (no impairment)."""
+        if spec is None:
+            return cls()
+        if isinstance(spec, Impairment):
+            return spec
+        if isinstance(spec, str):
+            return cls.parse(spec)
+        if isinstance(spec, dict):
+            return cls.from_dict(spec)
+        raise ValueError(f"cannot make an Impairment from {type(spec).__name__}")
+
+    # ------------------------------------------------------------------ views
+    @property
+    def is_null(self) -> bool:
+        """True when packets pass untouched (outages, loss, delay... all off)."""
+        return (self.delay_ms == 0.0 and self.jitter_ms == 0.0 and self.loss == 0.0
+                and self.gilbert_elliott is None and self.duplicate == 0.0 and self.reorder == 0.0
+                and self.rate_kbps == 0.0 and not self.outages)
+
+    def to_text(self) -> str:
+        """The canonical string form; ``Impairment.parse(x.to_text())`` gives ``x`` back (to float rounding)."""
+        parts: list[str] = []
+        if self.delay_ms:
+            parts.append(f"delay {_fmt_ms(self.delay_ms)}")
+        if self.jitter_ms:
+            parts.append(f"jitter {_fmt_ms(self.jitter_ms)}")
+        if self.distribution != "uniform":
+            parts.append(f"distribution {self.distribution}")
+        if self.gilbert_elliott is not None:
+            g = self.gilbert_elliott
+            parts.append(f"loss gemodel {_fmt_pct(g.p)} {_fmt_pct(g.r)} {_fmt_pct(g.loss_bad)} {_fmt_pct(g.loss_good)}")
+        elif self.loss or self.loss_correlation:
+            parts.append(f"loss {_fmt_pct(self.loss)}"
+                         + (f" {_fmt_pct(self.loss_correlation)}" if self.loss_correlation else ""))
+        if self.duplicate:
+            parts.append(f"duplicate {_fmt_pct(self.duplicate)}")
+        if self.reorder or self.reorder_ms != 10.0:
+            parts.append(f"reorder {_fmt_pct(self.reorder)} {_fmt_ms(self.reorder_ms)}")
+        if self.rate_kbps:
+            parts.append(f"rate {self.rate_kbps * 1000.0!r}bit")
+        if self.limit != 1000:
+            parts.append(f"limit {self.limit}")
+        for start, duration in self.outages:
+            parts.append(f"outage {start!r}s {duration!r}s")
+        if self.rto_ms != 200.0:
+            parts.append(f"rto {_fmt_ms(self.rto_ms)}")
+        if not self.fifo:
+            parts.append("unordered")
+        return " ".join(parts) or "none"
+
+    def __str__(self) -> str:
+        return self.to_text()
+
+
+# ---------------------------------------------------------------------------- token parsers
+_TIME_UNITS = {"us": 1e-3, "usec": 1e-3, "µs": 1e-3, "ms": 1.0, "msec": 1.0,
+               "s": 1e3, "sec": 1e3, "secs": 1e3}
+# tc's rate units (iproute2 tc_util.c), in bit/s; matched case-insensitively, "bps" = bytes/s
+_RATE_UNITS = {"": 1.0, "bit": 1.0, "kbit": 1e3, "mbit": 1e6, "gbit": 1e9, "tbit": 1e12,
+               "kibit": 1024.0, "mibit": 1024.0**2, "gibit": 1024.0**3, "tibit": 1024.0**4,
+               "bps": 8.0, "kbps": 8e3, "mbps": 8e6, "gbps": 8e9, "tbps": 8e12,
+               "kibps": 8 * 1024.0, "mibps": 8 * 1024.0**2, "gibps": 8 * 1024.0**3, "tibps": 8 * 1024.0**4}
+_NUM = r"([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)"
+
+
+def _is_time(tok: str) -> bool:
+    m = re.fullmatch(_NUM + r"([a-zµ]+)", tok.lower())
+    return bool(m and m.group(2) in _TIME_UNITS)
+
+
+def _is_percent(tok: str) -> bool:
+    return re.fullmatch(_NUM + "%", tok) is not None
+
+
+def _time_ms(tok: str) -> float:
+    m = re.fullmatch(_NUM + r"([a-zµ]*)", tok.lower())
+    if not m:
+        raise ValueError(f"bad time {tok!r}: expected a number with a unit, e.g. 50ms")
+    if not m.group(2):
+        raise ValueError(f"bad time {tok!r}: a unit is required (us, ms or s)")
+    if m.group(2) not in _TIME_UNITS:
+        raise ValueError(f"bad time unit in {tok!r}: use us, ms or s")
+    return float(m.group(1)) * _TIME_UNITS[m.group(2)]
+
+
+def _percent(tok: str) -> float:
+    m = re.fullmatch(_NUM + "%", tok)
+    if not m:
+        raise ValueError(f"bad percentage {tok!r}: expected e.g. 2% or 0.5%")
+    value = float(m.group(1)) / 100.0
+    if value > 1.0:
+        raise ValueError(f"bad percentage {tok!r}: above 100%")
+    return value
+
+
+def _rate_kbps(tok: str) -> float:
+    m = re.fullmatch(_NUM + r"([a-z]*)", tok.lower())
+    if not m or m.group(2) not in _RATE_UNITS:
+        raise ValueError(f"bad rate {tok!r}: expected e.g. 2mbit, 500kbit or 100kbps (bytes/s as in tc)")
+    return float(m.group(1)) * _RATE_UNITS[m.group(2)] / 1000.0
+
+
+def _fmt_ms(ms: float) -> str:
+    return f"{ms!r}ms"
+
+
+def _fmt_pct(x: float) -> str:
+    return f"{x * 100.0!r}%"
+
+
+# ---------------------------------------------------------------------------- counters
+@dataclass
+class Counters:
+    """What one :class:`Impairer` did. ``out`` counts released copies (duplicates included)."""
+
+    packets_in: int = 0
+    bytes_in: int = 0
+    packets_out: int = 0
+    bytes_out: int = 0
+    dropped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(DROP_REASONS, 0))
+    duplicated: int = 0
+    reordered: int = 0
+    stalled: int = 0
+    retransmitted: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"packets_in": self.packets_in, "bytes_in": self.bytes_in,
+                "packets_out": self.packets_out, "bytes_out": self.bytes_out,
+                "dropped": dict(self.dropped), "duplicated": self.duplicated,
+                "reordered": self.reordered, "stalled": self.stalled,
+                "retransmitted": self.retransmitted}
+
+
+# ---------------------------------------------------------------------------- the decisions
+class Impairer:
+    """Seeded decisions for one direction of one link (not thread-safe: one caller at a time).
+
+    Parameters
+    ----------
+    impairment : Impairment | str | dict | None
+        What to apply (see :meth:`Impairment.coerce`).
+    rng : numpy.random.Generator | int | None
+        Random source, or a seed. Uniform and normal variates are drawn in vectorised blocks
+        of :attr:`BLOCK` and consumed one per decision, so a seed gives the same decisions for
+        the same sequence of calls.
+    origin_s : float
+        The caller's clock reading at which outages are counted from (the proxy start).
+    mss : int
+        Segment size for counting lost segments in :meth:`decide_stream`.
+    """
+
+    BLOCK = 4096
+
+    def __init__(self, impairment: Impairment | str | dict[str, Any] | None = None,
+                 rng: np.random.Generator | int | None = None, origin_s: float = 0.0,
+                 mss: int = DEFAULT_MSS) -> None:
+        self.impairment = imp = Impairment.coerce(impairment)
+        if not math.isfinite(origin_s):
+            raise ValueError(f"origin_s must be finite, got {origin_s}")
+        if not isinstance(mss, int) or mss <= 0:
+            raise ValueError(f"mss must be a positive int, got {mss!r}")
+        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.origin_s = float(origin_s)
+        self.mss = mss
+        self.counters = Counters()
+        self._delay = imp.delay_ms / 1000.0
+        self._jitter = imp.jitter_ms / 1000.0
+        self._hold = imp.reorder_ms / 1000.0
+        self._rto = imp.rto_ms / 1000.0
+        self._byte_time = 8.0 / (imp.rate_kbps * 1000.0) if imp.rate_kbps > 0 else 0.0
+        self._outages = [(self.origin_s + s, self.origin_s + s + d) for s, d in imp.outages]
+        self._busy_until = -math.inf      # rate: when the link finishes the previous packet
+        self._last_release = -math.inf    # FIFO floor
+        self._held: list[float] = []      # release times of packets held (for `limit`)
+        self._bad = False                 # loss chain state (GE: Bad; Markov: previous lost)
+        self._u = np.empty(0)
+        self._ui = 0
+        self._n = np.empty(0)
+        self._ni = 0
+
+    # ---------------------------------------------------------------- random streams
+    def _uniform(self) -> float:
+        if self._ui >= self._u.size:
+            self._u = self.rng.random(self.BLOCK)
+            self._ui = 0
+        self._ui += 1
+        return float(self._u[self._ui - 1])
+
+    def _normal(self) -> float:
+        if self._ni >= self._n.size:
+            self._n = self.rng.standard_normal(self.BLOCK)
+            self._ni = 0
+        self._ni += 1
+        return float(self._n[self._ni - 1])
+
+    # ---------------------------------------------------------------- pieces
+    def _lost(self) -> bool:
+        """One packet through the loss model (Bernoulli, Markov-correlated or Gilbert–Elliott)."""
+        imp = self.impairment
+        ge = imp.gilbert_elliott
+        if ge is not None:
+            if self._bad:
+                lost = self._uniform() < ge.loss_bad
+                if self._uniform() < ge.r:
+                    self._bad = False
+            else:
+                lost = self._uniform() < ge.loss_good
+                if self._uniform() < ge.p:
+                    self._bad = True
+            return lost
+        p = imp.loss
+        if p <= 0.0:
+            return False
+        rho = imp.loss_correlation
+        if rho > 0.0:
+            q = rho + (1.0 - rho) * p if self._bad else (1.0 - rho) * p
+            self._bad = self._uniform() < q
+            return self._bad
+        return self._uniform() < p
+
+    def _latency(self) -> float:
+        """Delay plus one jitter sample, seconds, never negative."""
+        if self._jitter <= 0.0:
+            return self._delay
+        if self.impairment.distribution == "normal":
+            j = self._normal() * self._jitter
+        else:
+            j = (2.0 * self._uniform() - 1.0) * self._jitter
+        return max(0.0, self._delay + j)
+
+    def _serialise(self, t: float, size: int) -> float:
+        """When a packet entering the link at ``t`` has been sent at ``rate_kbps``."""
+        if self._byte_time <= 0.0:
+            return t
+        start = t if t > self._busy_until else self._busy_until
+        self._busy_until = start + size * self._byte_time
+        return self._busy_until
+
+    def outage_end(self, t: float) -> float | None:
+        """End of the outage window containing clock time ``t`` (chained windows merged), or None."""
+        end = None
+        for a, b in self._outages:
+            if a <= t < b or (end is not None and a <= end < b):
+                end = b
+                t = b
+        return end
+
+    def _check(self, now_s: float, size_bytes: int) -> None:
+        if not (isinstance(now_s, (int, float)) and math.isfinite(now_s)):
+            raise ValueError(f"now_s must be a finite number, got {now_s!r}")
+        if not isinstance(size_bytes, (int, np.integer)) or size_bytes < 0:
+            raise ValueError(f"size_bytes must be an int >= 0, got {size_bytes!r}")
+
+    # ---------------------------------------------------------------- datagrams
+    def decide(self, now_s: float, size_bytes: int) -> list[float]:
+        """Release times (caller's clock, seconds) of the copies of one datagram arriving now.
+
+        Empty list: dropped (counted under ``loss``, ``outage`` or ``queue``). Two entries: the
+        packet was duplicated. Times are never before ``now_s``.
+        """
+        self._check(now_s, size_bytes)
+        c = self.counters
+        c.packets_in += 1
+        c.bytes_in += size_bytes
+        if self._outages and self.outage_end(now_s) is not None:
+            c.dropped["outage"] += 1
+            return []
+        if self._lost():
+            c.dropped["loss"] += 1
+            return []
+        imp = self.impairment
+        held = self._held
+        if imp.limit:
+            while held and held[0] <= now_s:
+                heapq.heappop(held)
+            if len(held) >= imp.limit:
+                c.dropped["queue"] += 1
+                return []
+        copies = 2 if imp.duplicate > 0.0 and self._uniform() < imp.duplicate else 1
+        out: list[float] = []
+        for k in range(copies):
+            t = self._serialise(now_s, size_bytes) + self._latency()
+            if k == 0 and imp.reorder > 0.0 and self._uniform() < imp.reorder:
+                # held back: later packets overtake it; it does not raise the FIFO floor
+                t = max(t, self._last_release) + self._hold
+                c.reordered += 1
+            elif imp.fifo:
+                if t < self._last_release:
+                    t = self._last_release
+                self._last_release = t
+            out.append(t)
+            if imp.limit and t > now_s:
+                heapq.heappush(held, t)
+        if copies == 2:
+            c.duplicated += 1
+            out.sort()
+        c.packets_out += copies
+        c.bytes_out += copies * size_bytes
+        return out
+
+    # ---------------------------------------------------------------- byte streams
+    def decide_stream(self, now_s: float, size_bytes: int) -> float:
+        """Release time of one in-order chunk of a byte stream (TCP) arriving now.
+
+        Never drops: an outage stalls the chunk until the window ends; a lost segment
+        (Bernoulli / correlated / Gilbert–Elliott per ``mss`` bytes) delays the chunk by
+        ``rto_ms``; then rate, delay and jitter; release times never decrease.
+        """
+        self._check(now_s, size_bytes)
+        c = self.counters
+        c.packets_in += 1
+        c.bytes_in += size_bytes
+        t = float(now_s)
+        stalled = False
+        if self._outages:
+            end = self.outage_end(t)
+            if end is not None:
+                t, stalled = end, True
+        imp = self.impairment
+        if imp.loss > 0.0 or imp.gilbert_elliott is not None:
+            segments = max(1, -(-size_bytes // self.mss))
+            lost = False
+            if imp.gilbert_elliott is None and imp.loss_correlation == 0.0:
+                lost = self._uniform() < 1.0 - (1.0 - imp.loss) ** segments
+            else:
+                for _ in range(segments):
+                    lost = self._lost() or lost
+            if lost:
+                t += self._rto
+                c.retransmitted += 1
+        t = self._serialise(t, size_bytes) + self._latency()
+        if self._outages:
+            end = self.outage_end(t)
+            if end is not None:
+                t, stalled = end, True
+        if t < self._last_release:
+            t = self._last_release
+        self._last_release = t
+        c.stalled += stalled
+        c.packets_out += 1
+        c.bytes_out += size_bytes
+        return t
+
+    def stats(self) -> dict[str, Any]:
+        """Counters as a plain dict (JSON-ready)."""
+        return self.counters.as_dict()
