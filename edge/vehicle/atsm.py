@@ -1,0 +1,184 @@
+"""Attitude control: adaptive twisting sliding-mode control (ATSM), PAPER.md (P13)-(P17).
+
+For each axis i of Θ = (φ, θ, ψ) with error ``e = Θ − Θ_d`` (yaw error wrapped to (−π, π]):
+
+- (P14) sliding surface ``σ = ė + Λ e``;
+- (P15) equivalent control ``u_eq = Î (Θ̈_d − Λ ė) − f̂(X)``, with the controller's *model* of the
+  inertia ``Î`` (which may differ from the plant's) and ``f̂`` of (P12) evaluated with ``Î`` and
+  the measured body rates;
+- (P16) twisting term ``u_T,i = −μ_i α_i sign(σ_i)`` if ``σ_i σ̇_i <= 0`` else ``−α_i sign(σ_i)``
+  (Levant 1993), ``0 < μ_i < 1``; σ̇ is the backward difference of σ over one control period;
+- (P17) gain adaptation (Plestan et al. 2010, in the paper's form)
+  ``α̇_i = ω̄_i |σ_i| sign(|σ_i|^ρ_i − ε_i)`` if ``α_i > α_m,i`` else ``η_i``, integrated with the
+  control period and additionally clamped to ``α_max,i`` (the torque the motors can give; our
+  addition so the gain cannot wind up while the actuators saturate);
+- (P13) ``u = u_eq + u_T``.
+
+The paper gives no gain values; :class:`ATSMGains` documents ours, tuned on the 3DR Solo class
+plant of :mod:`edge.vehicle.quadrotor` at 200 Hz with a 20 ms motor lag:
+
+- Λ = 8, 8, 4 1/s: on the surface the error has a 0.125 s (0.25 s yaw) time constant, so a step
+  settles to 2 % in about 0.5 s (1 s yaw) plus the reaching phase;
+- μ = 0.5; twisting converges against a disturbance ``|d| <= D`` when ``μ α > D``, so the floor
+  ``α_m = 0.06, 0.06, 0.03 N·m`` covers torque disturbances up to 0.03 / 0.03 / 0.015 N·m;
+- ``|σ|^ρ = ε`` with ρ = 0.5, ε = 0.2 puts the adaptation threshold at ``|σ| = 0.04 rad/s``: above
+  the σ ripple that the discrete-time twisting with a motor lag produces at any α up to
+  ``α_max`` (so chattering alone never raises the gain), below the drift when α is too small for
+  the disturbance. Inside the band α decays to the floor (less chattering), outside it (a
+  reference step or a disturbance pushes σ out) it grows; ω̄ = 30 makes the decay take about a
+  second after a step;
+- α0 = 0.15, 0.15, 0.10 N·m, α_max = 0.6, 0.6, 0.3 N·m.
+
+:class:`TwistingController` is the same law with the gain fixed at ``α0`` (no adaptation), the
+baseline of the comparison in ``bench/sim.py``.
+
+The derivative of the Euler angles is computed from the body rates (inverse of (P10)); the
+reference derivatives default to zero (piecewise-constant references from the position loop).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["ATSMGains", "ATSM", "TwistingController", "wrap_angle"]
+
+Vec3 = tuple[float, float, float]
+
+
+def wrap_angle(a: float) -> float:
+    """Wrap an angle to (−π, π]."""
+    a = math.fmod(a + math.pi, 2.0 * math.pi)
+    if a <= 0.0:
+        a += 2.0 * math.pi
+    return a - math.pi
+
+
+@dataclass(frozen=True)
+class ATSMGains:
+    """Gains of the ATSM controller, per axis (roll, pitch, yaw).
+
+    Attributes
+    ----------
+    lam : Λ of (P14), 1/s: the error decays as ``exp(−Λ t)`` on the sliding surface.
+    mu : μ of (P16), in (0, 1).
+    alpha0 : initial twisting gain α (and the fixed gain of :class:`TwistingController`), N·m.
+    alpha_m : α_m of (P17), the adaptation floor, N·m.
+    alpha_max : upper clamp on α, N·m.
+    omega_bar : ω̄ of (P17), N·m per (rad/s) per s.
+    rho : ρ of (P17).
+    eps : ε of (P17).
+    eta : η of (P17), growth rate below the floor, N·m/s.
+    """
+
+    lam: Vec3 = (8.0, 8.0, 4.0)
+    mu: Vec3 = (0.5, 0.5, 0.5)
+    alpha0: Vec3 = (0.15, 0.15, 0.10)
+    alpha_m: Vec3 = (0.06, 0.06, 0.03)
+    alpha_max: Vec3 = (0.6, 0.6, 0.3)
+    omega_bar: Vec3 = (30.0, 30.0, 30.0)
+    rho: Vec3 = (0.5, 0.5, 0.5)
+    eps: Vec3 = (0.2, 0.2, 0.2)
+    eta: Vec3 = (0.1, 0.1, 0.1)
+
+    def __post_init__(self) -> None:
+        for name in ("lam", "mu", "alpha0", "alpha_m", "alpha_max", "omega_bar", "rho", "eps", "eta"):
+            v = getattr(self, name)
+            if len(v) != 3 or not all(math.isfinite(x) and x > 0 for x in v):
+                raise ValueError(f"ATSM gain {name} must be 3 finite positive numbers")
+        if not all(m < 1 for m in self.mu):
+            raise ValueError("twisting mu must be in (0, 1)")
+        if not all(lo <= hi for lo, hi in zip(self.alpha_m, self.alpha_max)):
+            raise ValueError("alpha_m must not exceed alpha_max")
+
+
+class ATSM:
+    """Adaptive twisting sliding-mode attitude controller (P13)-(P17).
+
+    Parameters
+    ----------
+    inertia : (Ixx, Iyy, Izz)
+        The controller's model of the inertia, kg·m² (may be mismatched to the plant).
+    gains : ATSMGains
+    dt : float
+        Control period, s.
+    adaptive : bool
+        Adapt α by (P17); False gives the fixed-gain twisting controller.
+    """
+
+    def __init__(self, inertia: Vec3, gains: ATSMGains = ATSMGains(), dt: float = 1 / 200, adaptive: bool = True):
+        inertia = tuple(float(v) for v in inertia)
+        if len(inertia) != 3 or not all(math.isfinite(v) and v > 0 for v in inertia):
+            raise ValueError("inertia must be 3 finite positive numbers")
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError("dt must be finite and > 0")
+        self.inertia = inertia
+        self.gains = gains
+        self.dt = float(dt)
+        self.adaptive = bool(adaptive)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget σ history and restart the gains at α0."""
+        self.alpha = list(self.gains.alpha0)
+        self._sigma_prev: list[float] | None = None
+        self.sigma: Vec3 = (0.0, 0.0, 0.0)
+
+    def update(
+        self,
+        att: Vec3,
+        datt: Vec3,
+        rates: Vec3,
+        ref: Vec3,
+        dref: Vec3 = (0.0, 0.0, 0.0),
+        ddref: Vec3 = (0.0, 0.0, 0.0),
+    ) -> Vec3:
+        """One control period: torques ``u = u_eq + u_T`` (P13), N·m.
+
+        Parameters
+        ----------
+        att : Θ = (φ, θ, ψ), rad.
+        datt : Θ̇, rad/s.
+        rates : body rates (p, q, r), rad/s (for f(X) of (P12)).
+        ref, dref, ddref : Θ_d and its first two derivatives.
+        """
+        ixx, iyy, izz = self.inertia
+        p, q, r = rates
+        # f(X) of (P12) with the model inertia
+        f = ((iyy - izz) * q * r, (izz - ixx) * p * r, (ixx - iyy) * p * q)
+        g = self.gains
+        lam, mu = g.lam, g.mu
+        e = (att[0] - ref[0], att[1] - ref[1], wrap_angle(att[2] - ref[2]))
+        de = (datt[0] - dref[0], datt[1] - dref[1], datt[2] - dref[2])
+        sigma = [de[i] + lam[i] * e[i] for i in range(3)]  # (P14)
+        prev = self._sigma_prev if self._sigma_prev is not None else sigma
+        alpha = self.alpha
+        inv_dt = 1.0 / self.dt
+        inertia = self.inertia
+        u = [0.0, 0.0, 0.0]
+        for i in range(3):
+            s = sigma[i]
+            ds = (s - prev[i]) * inv_dt
+            a = alpha[i]
+            sgn = 1.0 if s > 0.0 else (-1.0 if s < 0.0 else 0.0)
+            u_t = -(mu[i] * a if s * ds <= 0.0 else a) * sgn  # (P16)
+            u_eq = inertia[i] * (ddref[i] - lam[i] * de[i]) - f[i]  # (P15)
+            u[i] = u_eq + u_t  # (P13)
+            if self.adaptive:  # (P17)
+                abs_s = abs(s)
+                if a > g.alpha_m[i]:
+                    da = g.omega_bar[i] * abs_s * (1.0 if abs_s ** g.rho[i] > g.eps[i] else -1.0)
+                else:
+                    da = g.eta[i]
+                a += da * self.dt
+                alpha[i] = min(a, g.alpha_max[i])
+        self._sigma_prev = sigma
+        self.sigma = (sigma[0], sigma[1], sigma[2])
+        return (u[0], u[1], u[2])
+
+
+class TwistingController(ATSM):
+    """Fixed-gain twisting sliding-mode controller: (P13)-(P16) with α = α0, no (P17)."""
+
+    def __init__(self, inertia: Vec3, gains: ATSMGains = ATSMGains(), dt: float = 1 / 200):
+        super().__init__(inertia, gains, dt, adaptive=False)
