@@ -273,7 +273,7 @@ class JitterBuffer:
         if self._next is None:
             self._start_epoch(header.sequence)
             self._jitter_reference(header.timestamp, now)
-            self._store(header, payload, now, header.sequence, out)
+            self._store(header, payload, now, header.sequence)
         else:
             self._accept(header, payload, now, out)
         self._release(now, out)
@@ -372,7 +372,7 @@ class JitterBuffer:
                 return
             if ext < self._max:
                 self.reordered += 1
-            self._store(header, payload, now, ext, out)
+            self._store(header, payload, now, ext)
             return
         probe = self._probe
         if probe is not None and header.sequence == probe[0].sequence:
@@ -382,13 +382,13 @@ class JitterBuffer:
             self._probe = None
             self._resync(probe, out)
             self._update_jitter(header.timestamp, now)
-            self._store(header, payload, now, self._extend(header.sequence), out)
+            self._store(header, payload, now, self._extend(header.sequence))
             return
         if probe is not None:  # two unrelated far-off packets: the older one was a stray
             self.late += 1
         self._probe = (header, payload, now)
 
-    def _store(self, header: RtpHeader, payload, now: float, ext: int, out: list[Frame]) -> None:
+    def _store(self, header: RtpHeader, payload, now: float, ext: int) -> None:
         i = ext % self.capacity
         self._slots[i] = Frame(header, payload, now, ext)
         self._arrivals[i] = now
@@ -461,7 +461,7 @@ class JitterBuffer:
             ext = header.sequence
             self._start_epoch(ext)
         self._jitter_reference(header.timestamp, arrival)
-        self._store(header, payload, arrival, ext, out)
+        self._store(header, payload, arrival, ext)
         self._release(arrival, out)
 
 
