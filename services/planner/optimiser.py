@@ -1,0 +1,104 @@
+"""What every path optimiser shares: the result type and the budget / convergence bookkeeping.
+
+All algorithms (θ-PSO, PSO, GA, TLBO) minimise the same :class:`~services.planner.cost.Cost`
+from the same initial population under the same budget of cost evaluations,
+``particles * (iterations + 1)`` (the initial population, then one evaluation per particle per
+iteration). Convergence is recorded after every ``particles`` evaluations (one "iteration"),
+so TLBO, which evaluates twice per learner per generation, records two points per generation.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["OptResult", "Tracker", "check_budget"]
+
+
+@dataclass
+class OptResult:
+    """Outcome of one optimiser run.
+
+    Attributes
+    ----------
+    x : ndarray (3n,)
+        Best decision vector (free waypoints, flattened).
+    cost : float
+        Its cost (P5).
+    history : ndarray (iterations + 1,)
+        Best cost so far after the initial population and after each further ``particles``
+        evaluations.
+    evaluations : int
+        Cost evaluations used.
+    wall_time_s : float
+    """
+
+    algorithm: str
+    x: NDArray[np.float64]
+    cost: float
+    history: NDArray[np.float64]
+    evaluations: int
+    wall_time_s: float
+
+    @property
+    def initial_cost(self) -> float:
+        return float(self.history[0])
+
+    def convergence_iteration(self, rel: float = 1e-3) -> int:
+        """First iteration whose best cost is within ``rel`` (0.1 %) of the final cost."""
+        h = self.history
+        return int(np.argmax(h <= self.cost + rel * abs(self.cost)))
+
+
+def check_budget(particles: int, iterations: int) -> tuple[int, int]:
+    if int(particles) != particles or particles < 2:
+        raise ValueError(f"particles must be an integer >= 2, got {particles!r}")
+    if int(iterations) != iterations or iterations < 1:
+        raise ValueError(f"iterations must be a positive integer, got {iterations!r}")
+    return int(particles), int(iterations)
+
+
+@dataclass
+class Tracker:
+    """Best-so-far bookkeeping, one history point per ``particles`` evaluations."""
+
+    name: str
+    particles: int
+    budget: int
+    best_x: NDArray[np.float64] | None = None
+    best_f: float = np.inf
+    used: int = 0
+    history: list[float] = field(default_factory=list)
+    t0: float = field(default_factory=time.perf_counter)
+
+    @property
+    def remaining(self) -> int:
+        return self.budget - self.used
+
+    def record(self, X: NDArray[np.float64], f: NDArray[np.float64]) -> None:
+        """Account for a batch of evaluated candidates (in order of evaluation)."""
+        k = 0
+        n = f.shape[0]
+        while k < n:
+            room = self.particles - (self.used % self.particles)
+            chunk = slice(k, min(n, k + room))
+            i = int(np.argmin(f[chunk])) + k
+            if f[i] < self.best_f:
+                self.best_f, self.best_x = float(f[i]), X[i].copy()
+            self.used += chunk.stop - chunk.start
+            if self.used % self.particles == 0:
+                self.history.append(self.best_f)
+            k = chunk.stop
+
+    def result(self) -> OptResult:
+        return OptResult(
+            self.name,
+            np.asarray(self.best_x, float),
+            float(self.best_f),
+            np.asarray(self.history, float),
+            self.used,
+            time.perf_counter() - self.t0,
+        )

@@ -1,0 +1,56 @@
+"""Conventional global-best PSO (Kennedy & Eberhart 1995; Shi & Eberhart 1998) on the box.
+
+The baseline of Table I, with the same settings as :func:`~services.planner.theta_pso.theta_pso`
+so that only the encoding differs: ``w`` from 0.9 to 0.4, ``c1 = c2 = 2.0``, ``r1, r2`` per
+particle per iteration, velocities starting at zero and clamped to half the box's extent (the
+counterpart of Δθ ∈ [−π/2, π/2], half of θ's range), positions clipped to the box.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .cost import Cost
+from .optimiser import OptResult, Tracker, check_budget
+
+__all__ = ["pso"]
+
+
+def pso(
+    cost: Cost,
+    x0: ArrayLike,
+    iterations: int,
+    rng: np.random.Generator,
+    w: tuple[float, float] = (0.9, 0.4),
+    c1: float = 2.0,
+    c2: float = 2.0,
+    per_dimension: bool = False,
+) -> OptResult:
+    """Minimise ``cost`` with gbest PSO from ``x0 (P, D)``; budget ``P (iterations + 1)``."""
+    X = np.asarray(x0, float).copy()
+    P, I = check_budget(X.shape[0], iterations)
+    D = X.shape[1]
+    lo = np.tile(cost.problem.lo, D // 3)
+    hi = np.tile(cost.problem.hi, D // 3)
+    vmax = 0.5 * (hi - lo)
+    tr = Tracker("pso", P, P * (I + 1))
+    V = np.zeros_like(X)
+    f = cost(X)
+    tr.record(X, f)
+    pbest, pbest_f = X.copy(), f.copy()
+    g = int(np.argmin(f))
+    rshape = (P, D) if per_dimension else (P, 1)
+    for k in range(I):
+        wk = w[0] + (w[1] - w[0]) * k / max(I - 1, 1)
+        r1 = rng.random(rshape)
+        r2 = rng.random(rshape)
+        V = wk * V + c1 * r1 * (pbest - X) + c2 * r2 * (pbest[g] - X)
+        V = np.clip(V, -vmax, vmax)
+        X = np.clip(X + V, lo, hi)
+        f = cost(X)
+        tr.record(X, f)
+        better = f < pbest_f
+        pbest[better], pbest_f[better] = X[better], f[better]
+        g = int(np.argmin(pbest_f))
+    return tr.result()

@@ -1,0 +1,329 @@
+"""Task assessment: camera configurations that image a surface (PAPER.md Section 2, (P1)-(P3)).
+
+Shots must look perpendicular to the surface, resolve the smallest feature ``s_f`` with two
+pixels, and overlap by ``o_p``:
+
+- (P1) footprint ``a_fov = 1/2 r_c s_f`` per image axis (``r_c`` pixels along that axis);
+- (P2) stand-off distance ``d_f = a_fov f / s_s`` (``f`` focal length, ``s_s`` sensor size along
+  the same axis, same unit as ``f``);
+- (P3) spacing between neighbouring shots ``g = (1 - o_p) a_fov``.
+
+:func:`camera_grid` lays the shots of a general regular grid over a planar patch.
+:func:`formation_pass` does the same for a formation (P9) that flies once along a vertical wall:
+the rows of shots are the heights of the UAVs in the formation (the formation frame's z does not
+change with heading), the columns are spaced at most ``g`` apart, and every shot is a point that
+the UAV taking it passes through, so the capture points lie on the UAVs' trajectories.
+
+Choices where the paper is silent (documented in ``scenarios/monorail.toml``): the paper's
+34.4 mm focal length is read as a 35 mm-equivalent focal length with an equivalent 36 mm x 27 mm
+sensor for the 4:3 frame (square pixels); when the two axes give different stand-offs the
+smaller one is used, so that ``s_f`` is resolved on both axes. Columns are spread evenly from
+half a footprint inside one end of the patch to half a footprint inside the other end (the
+footprints of the end shots touch the patch's edges).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .scenario import Camera, Scenario, Surface
+
+__all__ = [
+    "footprint",
+    "standoff",
+    "spacing",
+    "footprint_at",
+    "grid_stations",
+    "camera_grid",
+    "InspectionPass",
+    "formation_pass",
+    "coverage",
+]
+
+
+def _positive(name: str, value: float) -> float:
+    v = float(value)
+    if not math.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
+    return v
+
+
+def footprint(camera: Camera, smallest_feature: float) -> tuple[float, float]:
+    """Footprint ``a_fov`` (m) across and along the image, two pixels per feature (P1).
+
+    Parameters
+    ----------
+    camera : Camera
+        Resolution ``(r_w, r_h)`` in pixels.
+    smallest_feature : float
+        ``s_f`` in metres.
+
+    Returns
+    -------
+    (a_w, a_h) : tuple of float
+        ``a = 1/2 r_c s_f`` for the width and the height axis, metres.
+
+    Examples
+    --------
+    >>> from services.planner.scenario import Camera
+    >>> footprint(Camera(resolution=(4000, 3000), sensor_mm=(36, 27), focal_mm=34.4), 0.0025)
+    (5.0, 3.75)
+    """
+    s_f = _positive("smallest_feature", smallest_feature)
+    return 0.5 * camera.resolution[0] * s_f, 0.5 * camera.resolution[1] * s_f
+
+
+def standoff(camera: Camera, smallest_feature: float) -> float:
+    """Distance from the camera to the surface, ``d_f = a_fov f / s_s`` (P2), metres.
+
+    Computed for both image axes; the smaller distance is returned (it resolves ``s_f`` on
+    both). For square pixels the two are equal.
+
+    Examples
+    --------
+    >>> from services.planner.scenario import Camera
+    >>> round(standoff(Camera(resolution=(4000, 3000), sensor_mm=(36, 27), focal_mm=34.4), 0.0025), 4)
+    4.7778
+    """
+    a_w, a_h = footprint(camera, smallest_feature)
+    return min(a_w * camera.focal_mm / camera.sensor_mm[0], a_h * camera.focal_mm / camera.sensor_mm[1])
+
+
+def footprint_at(camera: Camera, distance: float) -> tuple[float, float]:
+    """Footprint (width, height) in metres of a shot taken square-on from ``distance`` metres."""
+    d = _positive("distance", distance)
+    return d * camera.sensor_mm[0] / camera.focal_mm, d * camera.sensor_mm[1] / camera.focal_mm
+
+
+def spacing(a_fov: float, overlap: float) -> float:
+    """Largest spacing between neighbouring shots, ``g = (1 - o_p) a_fov`` (P3), metres."""
+    a = _positive("a_fov", a_fov)
+    o = float(overlap)
+    if not (math.isfinite(o) and 0.0 <= o < 1.0):
+        raise ValueError(f"overlap must lie in [0, 1), got {overlap!r}")
+    return (1.0 - o) * a
+
+
+def grid_stations(length: float, a_fov: float, g: float) -> NDArray[np.float64]:
+    """Centres of the shots along one axis of a patch ``length`` metres long.
+
+    ``n = ceil((length - a_fov) / g) + 1`` centres spread evenly from ``a_fov/2`` to
+    ``length - a_fov/2``, so neighbours are at most ``g`` apart and the end footprints touch
+    the patch's edges; a patch no longer than ``a_fov`` gets one shot at its middle.
+    """
+    L = _positive("length", length)
+    a = _positive("a_fov", a_fov)
+    gg = _positive("spacing", g)
+    if L <= a:
+        return np.array([0.5 * L])
+    n = int(math.ceil((L - a) / gg - 1e-9)) + 1
+    return np.linspace(0.5 * a, L - 0.5 * a, n)
+
+
+def camera_grid(
+    surface: Surface, camera: Camera, smallest_feature: float, overlap: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Camera configurations covering a planar rectangle: the set G of (P1)-(P3).
+
+    Parameters
+    ----------
+    surface : Surface
+        The rectangle; shots are taken from the side its normal points to.
+    camera : Camera
+    smallest_feature, overlap : float
+        ``s_f`` (m) and ``o_p``.
+
+    Returns
+    -------
+    positions : ndarray, shape (K, 3)
+        Camera positions at the stand-off distance (P2), row-major from the bottom-left corner.
+    look : ndarray, shape (K, 3)
+        Unit optical axes (the inverse surface normal).
+    """
+    a_w, a_h = footprint(camera, smallest_feature)
+    d = standoff(camera, smallest_feature)
+    p0, u, n = surface.frame
+    z0, z1 = surface.z_range
+    s = grid_stations(surface.length, a_w, spacing(a_w, overlap))
+    z = grid_stations(z1 - z0, a_h, spacing(a_h, overlap))
+    S, Z = np.meshgrid(s, z)
+    pos = p0 + S.reshape(-1, 1) * u + Z.reshape(-1, 1) * np.array([0.0, 0.0, 1.0]) + d * n
+    look = np.broadcast_to(-n, pos.shape).copy()
+    return pos, look
+
+
+@dataclass(frozen=True)
+class InspectionPass:
+    """One straight pass of the formation along a vertical wall, and the shots it takes.
+
+    Attributes
+    ----------
+    entry, exit : ndarray (3,)
+        Centroid positions where the straight pass starts and ends (fixed via-points of the path).
+    direction : ndarray (3,)
+        Unit horizontal direction of travel along the wall.
+    standoff : float
+        (P2) distance of every camera from the wall, m.
+    footprint, spacing : tuple of float
+        (P1) footprint and (P3) spacing (width, height), m.
+    uav : ndarray (K,) of int
+        Index (0-based, row of the formation offsets) of the UAV taking each shot.
+    leg_s : ndarray (K,)
+        Distance of the centroid from ``entry`` along the pass when the shot is taken, m.
+    positions, look : ndarray (K, 3)
+        Camera position (a point the UAV flies through) and unit optical axis of every shot.
+    stations : ndarray (K, 2)
+        Where the optical axis meets the wall: (distance along the bottom edge from p0, z).
+
+    Shots are sorted by ``leg_s`` (then by UAV), i.e. in the order they are taken.
+    """
+
+    entry: NDArray[np.float64]
+    exit: NDArray[np.float64]
+    direction: NDArray[np.float64]
+    standoff: float
+    footprint: tuple[float, float]
+    spacing: tuple[float, float]
+    uav: NDArray[np.int64]
+    leg_s: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    look: NDArray[np.float64]
+    stations: NDArray[np.float64]
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(self.exit - self.entry))
+
+
+def formation_pass(scenario: Scenario) -> InspectionPass | None:
+    """Plan the formation's pass along the scenario's wall (None if it has no surface).
+
+    The centroid flies a straight line parallel to the wall, at the height that centres the
+    band imaged by the UAV rows on the wall, at the distance that puts every UAV at the (P2)
+    stand-off, from ``max|ΔT_x| + lead_in`` before one end of the wall to as far past the other
+    end, in the direction that makes start -> entry -> exit -> goal shortest. Each distinct UAV
+    height is a row of shots; a row's columns (``grid_stations`` with the (P3) spacing) are
+    shared round-robin among the UAVs flying that row.
+
+    Raises
+    ------
+    ValueError
+        If the UAVs do not share one lateral offset (they would not all be at the stand-off),
+        if the rows are further apart than the (P3) spacing, or if the wall is taller than the
+        band one pass images.
+    """
+    if scenario.surface is None:
+        return None
+    surf, cam, insp = scenario.surface, scenario.camera, scenario.inspection
+    off = scenario.offsets
+    a_w, a_h = footprint(cam, insp.smallest_feature)
+    d = standoff(cam, insp.smallest_feature)
+    a_w, a_h = footprint_at(cam, d)
+    g_w, g_h = spacing(a_w, insp.overlap), spacing(a_h, insp.overlap)
+    if np.ptp(off[:, 1]) > 0.01:
+        raise ValueError(
+            "formation.offsets: every UAV must have the same lateral (y) offset to image a wall "
+            "from the stand-off distance in one pass"
+        )
+    heights = np.unique(np.round(off[:, 2], 2))
+    if heights.size > 1 and np.max(np.diff(heights)) > g_h + 1e-9:
+        raise ValueError(
+            f"formation.offsets: UAV rows {np.max(np.diff(heights)):.2f} m apart exceed the (P3) "
+            f"spacing {g_h:.2f} m for overlap {insp.overlap}; lower inspection.overlap or "
+            "bring the UAVs closer vertically"
+        )
+    z0, z1 = surf.z_range
+    band = float(heights[-1] - heights[0] + a_h)
+    if z1 - z0 > band + 1e-9:
+        raise ValueError(
+            f"surface: the wall is {z1 - z0:.2f} m tall but one formation pass images {band:.2f} m"
+        )
+    zc = 0.5 * (z0 + z1) - 0.5 * (heights[0] + heights[-1])
+    p0, u, n = surf.frame
+    L = surf.length
+    e = float(np.max(np.abs(off[:, 0]))) + insp.lead_in
+    start, goal = np.asarray(scenario.start, float), np.asarray(scenario.goal, float)
+    best = None
+    for sign in (1.0, -1.0):
+        t = sign * u
+        left = np.cross([0.0, 0.0, 1.0], t)
+        dist_c = d - float(off[0, 1]) * float(left @ n)  # centroid distance so UAVs are at d
+        base = p0 + dist_c * n
+        base = np.array([base[0], base[1], zc])
+        s_in, s_out = (-e, L + e) if sign > 0 else (L + e, -e)
+        entry, exit_ = base + s_in * u, base + s_out * u
+        total = np.linalg.norm(entry - start) + np.linalg.norm(goal - exit_)
+        if best is None or total < best[0]:
+            best = (total, sign, t, entry, exit_, s_in)
+    _, sign, t, entry, exit_, s_in = best
+    cols = grid_stations(L, a_w, g_w)
+    uav, leg_s, pos, stations = [], [], [], []
+    for h in heights:
+        members = np.flatnonzero(np.abs(off[:, 2] - h) < 0.005)
+        members = members[np.argsort(-off[members, 0] * 1.0)]  # leading UAV first
+        for k, s in enumerate(cols):
+            m = int(members[k % members.size])
+            s_c = s - off[m, 0] * sign  # centroid station along u when UAV m is at s
+            leg = (s_c - s_in) * sign
+            p = p0 + s * u + d * n
+            pos.append([p[0], p[1], zc + off[m, 2]])
+            uav.append(m)
+            leg_s.append(leg)
+            stations.append([s, zc + off[m, 2]])
+    order = np.lexsort((np.asarray(uav), np.asarray(leg_s)))
+    pos_a = np.asarray(pos, float)[order]
+    return InspectionPass(
+        entry=entry,
+        exit=exit_,
+        direction=t,
+        standoff=d,
+        footprint=(a_w, a_h),
+        spacing=(g_w, g_h),
+        uav=np.asarray(uav, np.int64)[order],
+        leg_s=np.asarray(leg_s, float)[order],
+        positions=pos_a,
+        look=np.broadcast_to(-n, pos_a.shape).copy(),
+        stations=np.asarray(stations, float)[order],
+    )
+
+
+def coverage(
+    surface: Surface,
+    camera: Camera,
+    positions: ArrayLike,
+    look: ArrayLike,
+    resolution: float = 0.1,
+) -> float:
+    """Fraction of the wall imaged by square-on shots (footprint per :func:`footprint_at`).
+
+    Samples the wall on a grid ``resolution`` metres apart (cell centres) and counts the samples
+    inside at least one shot's footprint. Shots must look along the inverse wall normal.
+    """
+    pos = np.asarray(positions, float).reshape(-1, 3)
+    lk = np.asarray(look, float).reshape(-1, 3)
+    if pos.shape[0] == 0:
+        return 0.0
+    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(lk))):
+        raise ValueError("positions and look must be finite")
+    p0, u, n = surface.frame
+    if not np.allclose(lk, -n, atol=1e-6):
+        raise ValueError("coverage() handles square-on shots only (look = -normal)")
+    z0, z1 = surface.z_range
+    dist = (pos - p0) @ n
+    if np.any(dist <= 0):
+        raise ValueError("every shot must be in front of the surface")
+    half_w = 0.5 * dist * camera.sensor_mm[0] / camera.focal_mm
+    half_h = 0.5 * dist * camera.sensor_mm[1] / camera.focal_mm
+    s_c = (pos - p0) @ u
+    z_c = pos[:, 2]
+    r = _positive("resolution", resolution)
+    s = np.arange(0.5 * r, surface.length, r)
+    z = np.arange(z0 + 0.5 * r, z1, r)
+    inside = (np.abs(s[None, :, None] - s_c[None, None, :]) <= half_w + 1e-9) & (
+        np.abs(z[:, None, None] - z_c[None, None, :]) <= half_h + 1e-9
+    )
+    return float(np.mean(np.any(inside, axis=2)))
