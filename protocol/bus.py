@@ -153,21 +153,24 @@ class Ring:
     Zenoh runs callbacks on one thread per session fed by a bounded queue; a slow callback
     stalls every other subscriber (ZENOH.md, "Python runtime"). Subscribers that do slow work
     get a Ring: the Zenoh callback only appends, the ring's thread does the work, and overflow
-    drops the *oldest* item and counts it.
+    drops the *oldest* item and counts it. ``workers > 1`` makes it a small pool (for work that
+    releases the GIL, such as OpenCV).
     """
 
-    def __init__(self, capacity: int, worker: Callable[[Any], None], name: str = "ring"):
-        if capacity < 1:
-            raise ValueError("ring capacity must be >= 1")
+    def __init__(self, capacity: int, worker: Callable[[Any], None], name: str = "ring", workers: int = 1):
+        if capacity < 1 or workers < 1:
+            raise ValueError("ring capacity and workers must be >= 1")
         self._items: collections.deque = collections.deque()
         self._capacity = capacity
         self._cond = threading.Condition()
         self._worker = worker
         self._closed = False
+        self.name = name
         self.dropped = 0
         self.processed = 0
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
+        self._threads = [threading.Thread(target=self._run, name=f"{name}#{i}", daemon=True) for i in range(workers)]
+        for t in self._threads:
+            t.start()
 
     def push(self, item: Any) -> None:
         with self._cond:
@@ -194,14 +197,16 @@ class Ring:
                 self._worker(item)
             except Exception:  # a worker bug must not kill the ring
                 log.exception("ring worker failed")
-            self.processed += 1
+            with self._cond:
+                self.processed += 1
 
     def close(self, timeout: float = 2.0) -> None:
         with self._cond:
             self._closed = True
             self._cond.notify_all()
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout)
+        for t in self._threads:
+            if threading.current_thread() is not t:
+                t.join(timeout)
 
 
 # ----------------------------------------------------------------------------- results
@@ -345,7 +350,7 @@ class Bus:
         return sub
 
     def ring_stats(self) -> dict[str, dict[str, int]]:
-        return {r._thread.name: {"dropped": r.dropped, "processed": r.processed, "queued": len(r)} for r in self._rings}
+        return {r.name: {"dropped": r.dropped, "processed": r.processed, "queued": len(r)} for r in self._rings}
 
     # -- request / reply
     def request(

@@ -13,6 +13,7 @@ Layout (DESIGN.md, "Key space")::
     skynet/<fleet>/rcu/detector/defects defect reports
     skynet/<fleet>/rcu/<name>/alive     liveliness token of a remote computational unit
     skynet/<fleet>/rcu/<name>/event     events of a remote computational unit
+    skynet/<fleet>/rcu/<name>/stats     statistics of a remote computational unit (LinkStats)
     skynet/<fleet>/gateway/<id>/stats   the gateway's link statistics
 
 Fleet names and service names are single chunks of ``[A-Za-z0-9_-]``; UAV ids are 1..255.
@@ -103,6 +104,10 @@ def rcu_event(fleet: str, name: str) -> str:
     return f"{fleet_root(fleet)}/rcu/{_chunk(name, 'service name')}/event"
 
 
+def rcu_stats(fleet: str, name: str) -> str:
+    return f"{fleet_root(fleet)}/rcu/{_chunk(name, 'service name')}/stats"
+
+
 def gateway_stats(fleet: str, gateway_id: str | int = "*") -> str:
     gid = "*" if gateway_id == "*" else _chunk(str(gateway_id), "gateway id")
     return f"{fleet_root(fleet)}/gateway/{gid}/stats"
@@ -139,7 +144,7 @@ def parse(key: str) -> KeyInfo:
     elif area == "gcs" and rest in (["heartbeat"], ["event"]):
         return KeyInfo(fleet, "gcs", rest[0])
     elif area == "rcu" and len(rest) == 2 and _CHUNK.match(rest[0]):
-        if rest[1] in ("alive", "event") or RCU_TOPICS.get(rest[0]) == rest[1]:
+        if rest[1] in ("alive", "event", "stats") or RCU_TOPICS.get(rest[0]) == rest[1]:
             return KeyInfo(fleet, "rcu", rest[1], name=rest[0])
     elif area == "gateway" and len(rest) == 2 and rest[1] == "stats" and _CHUNK.match(rest[0]):
         return KeyInfo(fleet, "gateway", "stats", name=rest[0])

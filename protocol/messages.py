@@ -271,6 +271,9 @@ class ImageMeta(Message):
     )
     intrinsics: Intrinsics
     encoding: Literal["jpeg", "png"] = "jpeg"
+    range_m: Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)] | None = Field(
+        default=None, description="distance to the surface along the optical axis, m (rangefinder or plan)"
+    )
 
 
 class Defect(Message):
@@ -312,6 +315,7 @@ class LinkStats(Message):
     sessions: dict[Short, Annotated[int, Field(ge=0)]] = {}
     classes: dict[Short, ClassCounters] = {}
     rejected: dict[Short, Annotated[int, Field(ge=0)]] = {}
+    metrics: dict[Short, Finite] = Field(default={}, description="named figures, e.g. uav1.jitter_ms")
 
 
 class Level(str, Enum):

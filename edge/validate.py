@@ -1,0 +1,55 @@
+"""Command validation on board: nothing invalid reaches the vehicle.
+
+The codec has already checked the schema and that every number is finite and within its
+field's range; here are the checks that need the board's context: the addressee, the geofence
+(the operation box of the mission), and speeds a multirotor can fly. Pure functions; the
+board turns a non-empty reason into a rejected acknowledgement.
+"""
+
+from __future__ import annotations
+
+import math
+
+from protocol.messages import Box, Message, SetFormation, Takeoff, Trajectory, UploadTrajectory
+
+#: slack on speeds implied by consecutive waypoints (interpolation overshoot, rounding)
+SPEED_SLACK = 1.25
+#: largest formation offset accepted, m
+MAX_OFFSET_M = 50.0
+
+
+def trajectory_problem(traj: Trajectory, geofence: Box | None, max_speed: float) -> str:
+    """Why a trajectory must be refused, or ``""``."""
+    wps = traj.waypoints
+    for i, w in enumerate(wps):
+        if geofence is not None and not geofence.contains(w.pos):
+            return f"waypoint {i} at ({w.pos[0]:.1f}, {w.pos[1]:.1f}, {w.pos[2]:.1f}) is outside the geofence"
+        if w.speed > max_speed:
+            return f"waypoint {i} speed {w.speed:.1f} m/s exceeds {max_speed:.1f} m/s"
+    for i, (a, b) in enumerate(zip(wps, wps[1:])):
+        v = math.dist(a.pos, b.pos) / (b.t - a.t)
+        if v > max_speed * SPEED_SLACK:
+            return f"segment {i}->{i + 1} needs {v:.1f} m/s, more than {max_speed:.1f} m/s"
+    return ""
+
+
+def validate_command(cmd: Message, uav: int, geofence: Box | None, max_speed: float) -> str:
+    """Why ``cmd`` must be refused by UAV ``uav``, or ``""`` when it may reach the vehicle."""
+    target = getattr(cmd, "uav", None)
+    if target != uav:
+        return f"command addressed to UAV {target}, this is UAV {uav}"
+    if isinstance(cmd, UploadTrajectory):
+        if cmd.trajectory.uav != uav:
+            return f"trajectory is for UAV {cmd.trajectory.uav}"
+        fence = geofence if geofence is not None else cmd.geofence
+        return trajectory_problem(cmd.trajectory, fence, max_speed)
+    if isinstance(cmd, Takeoff) and geofence is not None:
+        if cmd.altitude > geofence.hi[2] - geofence.lo[2]:
+            return f"takeoff altitude {cmd.altitude:.1f} m is above the geofence"
+    if isinstance(cmd, SetFormation):
+        if uav not in cmd.offsets:
+            return f"formation has no offset for UAV {uav}"
+        for k, v in cmd.offsets.items():
+            if math.hypot(*v) > MAX_OFFSET_M:
+                return f"offset of UAV {k} is farther than {MAX_OFFSET_M:.0f} m"
+    return ""

@@ -1,0 +1,73 @@
+"""From one imagery payload to one defect report (pure: no bus code).
+
+``analyse(meta, image_bytes, method)`` decodes the JPEG, runs :func:`detect`, and maps every
+defect's pixel centroid to the surface in world coordinates with the pinhole model of the
+frame's metadata: the ray ``K^-1 [u, v, 1]^T`` in the camera frame (OpenCV axes: x right,
+y down, z forward), scaled to the surface range along the optical axis, rotated and translated
+by the camera pose, ``X = p_cam + R_wc (range · K^-1 [u, v, 1]^T)``. Lengths follow from the
+ground sampling distance ``range / f`` metres per pixel (the inverse of (P2)).
+"""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from protocol.messages import Defect, DefectReport, ImageMeta
+
+from .detect import Detection, detect
+
+#: components smaller than this are not reported (the mask is unchanged)
+MIN_REPORT_AREA_PX = 12
+MAX_REPORTED_DEFECTS = 500
+
+
+def decode_image(data: bytes | memoryview) -> np.ndarray:
+    """Grey uint8 image from JPEG/PNG bytes; ``ValueError`` when they do not decode."""
+    buf = np.frombuffer(data, dtype=np.uint8)
+    if buf.size == 0:
+        raise ValueError("empty image")
+    img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise ValueError("image bytes do not decode")
+    return img
+
+
+def pixels_to_world(meta: ImageMeta, px: np.ndarray) -> np.ndarray | None:
+    """World ENU points (N, 3) of pixel coordinates (N, 2) on the surface; None without a range."""
+    if meta.range_m is None:
+        return None
+    k = meta.intrinsics
+    px = np.asarray(px, dtype=float).reshape(-1, 2)
+    rays = np.column_stack([(px[:, 0] - k.cx) / k.fx, (px[:, 1] - k.cy) / k.fy, np.ones(len(px))])
+    R = np.asarray(meta.cam_rot, dtype=float).reshape(3, 3)
+    return np.asarray(meta.cam_pos) + (meta.range_m * rays) @ R.T
+
+
+def to_report(meta: ImageMeta, det: Detection, stamp_report: float | None = None) -> DefectReport:
+    keep = [d for d in det.defects if d.area_px >= MIN_REPORT_AREA_PX][:MAX_REPORTED_DEFECTS]
+    world = pixels_to_world(meta, np.array([d.centroid for d in keep])) if keep else None
+    gsd = None if meta.range_m is None else meta.range_m / meta.intrinsics.fx  # m per pixel
+    defects = []
+    for i, d in enumerate(keep):
+        pos = None if world is None else tuple(float(v) for v in world[i])
+        length = None if gsd is None else float(np.hypot(d.bbox[2], d.bbox[3]) * gsd)
+        defects.append(Defect(area_px=d.area_px, bbox=d.bbox, centroid_px=d.centroid, contrast=d.contrast,
+                              pos=pos, length_m=length))
+    return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
+                        stamp_report=stamp_report or time.time(), method=det.method,
+                        threshold=float(det.threshold or 0), defects=defects,
+                        defect_fraction=det.defect_fraction)
+
+
+def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", **params: object) -> DefectReport:
+    """Decode, detect and map one frame; a frame that does not decode gives an ``ok=False`` report."""
+    try:
+        grey = decode_image(image)
+    except ValueError as exc:
+        return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
+                            stamp_report=time.time(), method=method, ok=False, error=str(exc))
+    det = detect(grey, method, min_defect_area=MIN_REPORT_AREA_PX, **params)
+    return to_report(meta, det)

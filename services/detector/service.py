@@ -1,0 +1,150 @@
+"""The detector RCU service: every UAV's imagery in, one defect report per frame out.
+
+Frames arrive on ``skynet/<fleet>/uav/*/camera`` (RTP header + metadata + JPEG,
+:mod:`protocol.imagery`). The Zenoh callback only parses the 12-byte RTP header and pushes the
+frame into the per-camera jitter buffer (:mod:`protocol.jitter`); frames released in sequence
+order go to a bounded drop-oldest queue served by a small worker pool that decodes, detects
+(:mod:`services.detector.pipeline`) and publishes a :class:`DefectReport` on
+``skynet/<fleet>/rcu/detector/defects``. A slow frame never stalls the bus: when the pool falls
+behind, the oldest frames are dropped and counted. A frame that fails to decode is counted and
+reported (``ok=False``), never fatal. Statistics (RFC 3550 loss and jitter per camera, drops,
+rejections) go out once a second on ``skynet/<fleet>/rcu/detector/stats``.
+
+    skynet detector -m client -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from collections import Counter
+
+from protocol import codec, keys
+from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.imagery import split_payload
+from protocol.jitter import Frame, JitterBuffers
+from protocol.links import COMMAND, TELEMETRY
+from protocol.messages import DefectReport, LinkStats
+from protocol.rtp import RtpError, parse_ssrc, unpack_frame
+
+from .detect import METHODS
+from .pipeline import analyse
+
+
+class DetectorService:
+    """Binds the pipeline to the bus; see the module docstring."""
+
+    def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = 8,
+                 playout_delay_s: float = 0.05, log=None):
+        if method not in METHODS:
+            raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")
+        self.bus, self.method, self.log = bus, method, log
+        self.counts: Counter[str] = Counter()
+        self.latency_ms: list[float] = []
+        self._jb = JitterBuffers(capacity=64, playout_delay_s=playout_delay_s)
+        self._lock = threading.Lock()
+        self.work = Ring(queue, self._process, name="detector", workers=workers)
+        self.pub = bus.publisher(keys.defects(bus.fleet), COMMAND)
+        self.stats_pub = bus.publisher(keys.rcu_stats(bus.fleet, "detector"), TELEMETRY)
+        bus.subscribe_raw(keys.camera(bus.fleet, "*"), self._on_frame)
+        bus.token(keys.rcu_alive(bus.fleet, "detector"))
+        self._t0 = time.time()
+
+    def _on_frame(self, sample) -> None:
+        now = time.time()
+        data = sample.payload.to_bytes()
+        try:
+            header, payload = unpack_frame(data)
+        except RtpError as exc:
+            self.counts["bad-rtp"] += 1
+            if self.counts["bad-rtp"] == 1 and self.log:
+                self.log.warning("dropping a sample that is not an RTP frame: %s", exc)
+            return
+        self.counts["frames"] += 1
+        with self._lock:
+            ready = self._jb.push(header, payload, now)
+        for f in ready:
+            self.work.push(f)
+
+    def poll(self) -> None:
+        """Release frames whose wait for a missing predecessor is over."""
+        with self._lock:
+            ready = self._jb.pop_due(time.time())
+        for f in ready:
+            self.work.push(f)
+
+    def _process(self, frame: Frame) -> None:
+        try:
+            meta, image = split_payload(frame.payload)
+        except codec.CodecError as exc:
+            self.counts["bad-meta"] += 1
+            uav, _ = parse_ssrc(frame.ssrc) if (frame.ssrc >> 16) == 0x534B else (None, None)
+            if uav and 1 <= uav <= 255:
+                self.pub.put(DefectReport(uav=uav, capture_id=0, stamp_capture=0.0, stamp_report=time.time(),
+                                          method=self.method, ok=False, error=f"bad metadata: {exc}"[:500]))
+            return
+        report = analyse(meta, image, self.method)
+        if not report.ok:
+            self.counts["bad-image"] += 1
+            if self.log:
+                self.log.warning("uav %d capture %d: %s", meta.uav, meta.capture_id, report.error)
+        else:
+            self.counts["reports"] += 1
+            self.latency_ms.append(1000 * (report.stamp_report - report.stamp_capture))
+            del self.latency_ms[:-1000]
+        self.pub.put(report)
+
+    def stats(self) -> LinkStats:
+        metrics: dict[str, float] = {}
+        with self._lock:
+            for ssrc in self._jb.sources:
+                st = self._jb[ssrc].stats()
+                uav, cam = parse_ssrc(ssrc)
+                p = f"uav{uav}.cam{cam}"
+                metrics.update({f"{p}.received": st.received, f"{p}.delivered": st.delivered, f"{p}.lost": st.lost,
+                                f"{p}.late": st.late, f"{p}.duplicated": st.duplicated,
+                                f"{p}.reordered": st.reordered, f"{p}.jitter_ms": 1000 * st.jitter_s,
+                                f"{p}.fraction_lost": st.fraction_lost})
+        metrics["queue.dropped"] = self.work.dropped
+        metrics["queue.processed"] = self.work.processed
+        counts = dict(self.counts)
+        return LinkStats(source="detector", stamp=time.time(), uptime_s=time.time() - self._t0,
+                         rejected={k: v for k, v in counts.items() if k.startswith("bad")},
+                         metrics={**metrics, **{f"count.{k}": v for k, v in counts.items()}})
+
+    def close(self) -> None:
+        with self._lock:
+            rest = self._jb.flush()
+        for f in rest:
+            self.work.push(f)
+        self.work.close(timeout=10.0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="skynet detector", description=__doc__.split("\n\n")[0])
+    add_bus_args(parser, mode="client")
+    parser.add_argument("--method", default="it+", help=f"one of {sorted(METHODS)}")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--queue", type=int, default=8, help="frames waiting for a worker before the oldest drop")
+    parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
+    args = parser.parse_args(argv)
+    log = setup_logging("detector")
+    stop = stop_event_on_signals()
+    with Bus(config_from_args(args), fleet=args.fleet, name="detector") as bus:
+        svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log)
+        log.info("detector up: method %s, %d workers", args.method, args.workers)
+        next_stats = time.monotonic() + 1.0
+        while not stop.wait(0.01):
+            svc.poll()
+            if time.monotonic() >= next_stats:
+                svc.stats_pub.put(svc.stats())
+                next_stats += 1.0
+        svc.close()
+        svc.stats_pub.put(svc.stats())
+        log.info("shutting down: %s", dict(svc.counts))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

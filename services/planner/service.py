@@ -1,0 +1,67 @@
+"""The planner RCU service: answers plan requests on ``skynet/<fleet>/rcu/planner/plan``.
+
+A :class:`PlanRequest` (command class, request/reply) carries the scenario document and the
+algorithm, seed and budget; the reply is the :class:`MissionPlan` of
+:func:`services.planner.mission.plan_mission`. A malformed scenario or an infeasible request is
+answered with an error reply that says why (``reply_err`` + :class:`ErrorReply`). Planning runs
+on the queryable's own worker thread, so a long plan never blocks Zenoh's callback thread.
+
+    skynet planner -m client -e tcp/127.0.0.1:7447?rel=1 --multilink
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from protocol import keys
+from protocol.bus import Bus, Rejected, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.messages import MissionPlan, PlanRequest
+
+from .mission import plan_mission
+from .scenario import ScenarioError, validate_scenario
+
+
+def answer(request: PlanRequest) -> MissionPlan:
+    """The plan for one request; :class:`Rejected` (with the reason) when it cannot be planned."""
+    try:
+        scenario = validate_scenario(request.scenario)
+    except (ScenarioError, ValueError) as exc:
+        raise Rejected(f"bad scenario: {exc}", code="bad-scenario") from None
+    try:
+        plan = plan_mission(scenario, algorithm=request.algorithm, seed=request.seed, particles=request.particles,
+                            iterations=request.iterations, waypoints=request.waypoints)
+    except ValueError as exc:
+        raise Rejected(f"cannot plan: {exc}", code="infeasible") from None
+    return plan.model_copy(update={"request_id": request.request_id})
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="skynet planner", description=__doc__.split("\n\n")[0])
+    add_bus_args(parser, mode="client")
+    args = parser.parse_args(argv)
+    log = setup_logging("planner")
+    stop = stop_event_on_signals()
+    with Bus(config_from_args(args), fleet=args.fleet, name="planner") as bus:
+
+        def handle(req: PlanRequest) -> MissionPlan:
+            t0 = time.perf_counter()
+            try:
+                plan = answer(req)
+            except Rejected as exc:
+                log.warning("plan request %d refused: %s", req.request_id, exc.reason)
+                raise
+            log.info("plan %d: %s seed %d cost %.2f collision-free %s in %.2f s", req.request_id, plan.algorithm,
+                     plan.seed, plan.cost, plan.collision_free, time.perf_counter() - t0)
+            return plan
+
+        bus.serve(keys.planner(args.fleet), handle, expect=PlanRequest, ring=4)
+        bus.token(keys.rcu_alive(args.fleet, "planner"))
+        log.info("planner up")
+        stop.wait()
+        log.info("shutting down")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
