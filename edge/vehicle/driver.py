@@ -1,0 +1,150 @@
+"""The vehicle driver interface that the edge's board service talks to.
+
+In the style of Skybrush's driver extensions (``virtual_uavs``, ``mavlink``): the board never
+knows which kind of vehicle it commands. :class:`edge.vehicle.sim.SimDriver` is the built-in
+simulated vehicle; a MAVLink driver for a real autopilot implements the same surface.
+
+Mode machine (protocol.messages.Mode)::
+
+    IDLE --takeoff--> TAKEOFF --(altitude reached)--> HOLD --start--> MISSION
+    MISSION --(end of trajectory)--> HOLD;  MISSION --hold--> HOLD --resume--> MISSION
+    TAKEOFF/HOLD/MISSION/RTL --land--> LAND --(on the ground)--> LANDED (disarmed)
+    TAKEOFF/HOLD/MISSION/LAND --return_to_launch--> RTL --(above launch)--> LAND --> LANDED
+    LANDED --takeoff--> TAKEOFF
+
+A command that is invalid in the current mode raises :class:`ValueError` with the reason; the
+board turns it into a rejected acknowledgement.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+from protocol.messages import Mode, Trajectory, VehicleState
+
+__all__ = ["DriverState", "CaptureEvent", "VehicleDriver"]
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class DriverState:
+    """Snapshot of the vehicle.
+
+    Attributes
+    ----------
+    t : simulation/mission time, s.
+    pos, vel : ENU position (m) and velocity (m/s).
+    att : (roll, pitch, yaw), rad, ZYX Euler; yaw wrapped to (−π, π].
+    rates : body rates (p, q, r), rad/s (P10).
+    mode : flight mode.
+    armed : motors armed.
+    battery : remaining charge, 0..1.
+    wp_index : index of the last trajectory waypoint passed (−1 before the first / no mission).
+    progress : fraction of the trajectory's duration flown, 0..1.
+    captures : capture events fired since the trajectory was uploaded.
+    """
+
+    t: float
+    pos: Vec3
+    vel: Vec3
+    att: Vec3
+    rates: Vec3
+    mode: Mode
+    armed: bool
+    battery: float
+    wp_index: int
+    progress: float
+    captures: int
+
+    def to_message(self, uav: int, seq: int, stamp: float) -> VehicleState:
+        """The wire message (protocol.messages.VehicleState) for this snapshot."""
+        return VehicleState(
+            uav=uav, seq=seq, t=max(0.0, self.t), stamp=stamp, pos=self.pos, vel=self.vel,
+            att=self.att, rates=self.rates, mode=self.mode, armed=self.armed,
+            battery=min(1.0, max(0.0, self.battery)), wp_index=self.wp_index,
+            progress=self.progress, captures=self.captures,
+        )
+
+
+@dataclass(frozen=True)
+class CaptureEvent:
+    """The follower passed a waypoint with a capture id: take the picture now.
+
+    Attributes
+    ----------
+    capture_id : the waypoint's capture id.
+    t : simulation time of the event, s.
+    pos : vehicle ENU position at that time, m.
+    att : vehicle (roll, pitch, yaw) at that time, rad.
+    """
+
+    capture_id: int
+    t: float
+    pos: Vec3
+    att: Vec3
+
+
+def check_vec3(v: object, name: str) -> Vec3:
+    """Three finite floats, or a ValueError naming ``name``."""
+    try:
+        out = tuple(float(x) for x in v)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 3 numbers") from None
+    if len(out) != 3 or not all(math.isfinite(x) for x in out):
+        raise ValueError(f"{name} must be 3 finite numbers")
+    return out  # type: ignore[return-value]
+
+
+class VehicleDriver(ABC):
+    """What the board needs from a vehicle (simulated or real)."""
+
+    @abstractmethod
+    def state(self) -> DriverState:
+        """Current snapshot."""
+
+    @abstractmethod
+    def upload(self, traj: Trajectory) -> None:
+        """Store the trajectory to follow (ValueError if unusable or not allowed now)."""
+
+    @abstractmethod
+    def takeoff(self, altitude: float) -> None:
+        """Arm and climb to ``altitude`` metres above the launch point, then HOLD."""
+
+    @abstractmethod
+    def start(self, t0: float | None = None) -> None:
+        """Follow the uploaded trajectory, its time 0 at sim time ``t0`` (or now).
+
+        If the vehicle is far from the first waypoint it first flies there; the trajectory
+        clock then starts at the later of ``t0`` and the arrival.
+        """
+
+    @abstractmethod
+    def land(self) -> None:
+        """Descend where the vehicle is and disarm on the ground."""
+
+    @abstractmethod
+    def hold(self) -> None:
+        """Stop and hold the current position (pausing a mission)."""
+
+    @abstractmethod
+    def resume(self) -> None:
+        """Continue a mission paused by :meth:`hold`."""
+
+    @abstractmethod
+    def return_to_launch(self) -> None:
+        """Fly back above the launch point and land."""
+
+    @abstractmethod
+    def set_reference_offset(self, offset: Vec3) -> None:
+        """Formation correction (m) added to the trajectory reference; bounded by the driver."""
+
+    @abstractmethod
+    def step(self, until_t: float) -> list[CaptureEvent]:
+        """Advance to sim time ``until_t``; the capture events that fired meanwhile."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the vehicle (connections, threads)."""
