@@ -1,0 +1,291 @@
+"""Scoring the defects a mission found against the ground truth of the inspected surface.
+
+Pure numpy, no bus code. The detector (PAPER.md Section 6, (P18)-(P19)) reports each defect it
+segments with the ENU position where the shot's optical ray meets the surface
+(:class:`protocol.messages.Defect` ``pos``). The synthetic surface knows where its cracks really
+are (:class:`services.gcs.record.GroundTruthDefect`, bounding boxes in surface coordinates). This
+module puts both in the surface frame and counts, object by object:
+
+- **recall** -- the share of ground-truth cracks that have at least one reported defect position
+  within ``tolerance_m`` of their bounding box;
+- **precision** -- the share of reported defect positions that lie within ``tolerance_m`` of some
+  ground-truth bounding box;
+- the F-measure ``F = 2pr / (p + r)`` of (P20), here over objects rather than pixels.
+
+Surface frame (as the mission report draws it): origin ``p0 = corners[0]``, ``u`` along the bottom
+edge ``corners[1] - corners[0]`` (unit), ``v`` along ``corners[3] - corners[0]`` (unit, made
+orthogonal to ``u`` by Gram-Schmidt, which changes nothing for the rectangles of
+:class:`services.planner.scenario.Surface`). Distances are measured in ``(u, v)`` only: the
+detector's positions lie on the surface plane by construction (ray-plane intersection), so the
+offset along the normal carries no information about which crack was seen.
+
+Choices where the paper is silent (it scores pixels, (P20), not a whole mission):
+
+- a report's defect without ``pos`` (the detector could not place it) is not counted at all,
+  only tallied in :attr:`DefectScore.without_pos`;
+- reports with ``ok=False`` carry no defects and are skipped;
+- with nothing to find, recall is 1 (nothing was missed); with nothing reported, precision is 1
+  (nothing false was claimed). The counts in :class:`DefectScore` tell those cases apart.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from protocol.messages import DefectReport
+from services.gcs.record import GroundTruthDefect
+
+__all__ = ["DefectMatch", "DefectScore", "surface_frame", "surface_uv", "bbox_distance", "score_defects"]
+
+
+@dataclass(frozen=True)
+class DefectMatch:
+    """One reported defect position lying within tolerance of a ground-truth crack.
+
+    ``report`` indexes the list of reports given to :func:`score_defects`, ``defect`` the
+    report's ``defects`` list; ``truth_id`` is the :attr:`GroundTruthDefect.id`; ``distance_m``
+    the (u, v) distance from the position to the crack's bounding box (0 inside it).
+    """
+
+    report: int
+    defect: int
+    uav: int
+    capture_id: int
+    truth_id: int
+    distance_m: float
+    uv: tuple[float, float]
+
+
+@dataclass
+class DefectScore:
+    """Object-level score of the reported defects against the ground truth.
+
+    Attributes
+    ----------
+    recall, precision, f_measure : float
+        See the module docstring; ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``.
+    n_truth : int
+        Ground-truth cracks.
+    n_found : int
+        Ground-truth cracks with at least one reported position within tolerance.
+    n_reported : int
+        Reported defect positions (defects with ``pos``, from reports with ``ok=True``).
+    n_true : int
+        Reported positions within tolerance of some crack.
+    without_pos : int
+        Reported defects that had no position (not scored).
+    tolerance_m : float
+    matches : list of DefectMatch
+        Every (position, crack) pair within tolerance (a position near two cracks counts twice
+        here but once in ``n_true``).
+    found_ids, missed_ids : list of int
+        Ground-truth ids found / missed.
+    false_positives : list of (report, defect, u, v)
+        Reported positions near no crack.
+    reported_uv : list of (report, defect, u, v)
+        Every scored position in surface coordinates (what the defect map draws).
+    """
+
+    recall: float
+    precision: float
+    f_measure: float
+    n_truth: int
+    n_found: int
+    n_reported: int
+    n_true: int
+    without_pos: int
+    tolerance_m: float
+    matches: list[DefectMatch] = field(default_factory=list)
+    found_ids: list[int] = field(default_factory=list)
+    missed_ids: list[int] = field(default_factory=list)
+    false_positives: list[tuple[int, int, float, float]] = field(default_factory=list)
+    reported_uv: list[tuple[int, int, float, float]] = field(default_factory=list)
+
+
+def surface_frame(corners: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Origin and unit axes ``(p0, u, v)`` of the surface frame.
+
+    Parameters
+    ----------
+    corners : array_like, shape (4, 3)
+        Surface corners p0, p1, p2, p3 (p0-p1 the bottom edge, p3 above p0), ENU metres.
+
+    Returns
+    -------
+    p0, u, v : ndarray, shape (3,)
+        ``u = (p1 - p0) / |p1 - p0|``; ``v`` the unit part of ``p3 - p0`` orthogonal to ``u``.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape, non-finite values, or degenerate (zero-length or parallel) edges.
+    """
+    c = np.asarray(corners, dtype=float)
+    if c.shape != (4, 3):
+        raise ValueError(f"corners must have shape (4, 3), got {c.shape}")
+    if not np.all(np.isfinite(c)):
+        raise ValueError("corners must be finite (got NaN or inf)")
+    p0 = c[0]
+    a, b = c[1] - p0, c[3] - p0
+    la = float(np.linalg.norm(a))
+    if la < 1e-9:
+        raise ValueError("corners: the bottom edge corners[1] - corners[0] has zero length")
+    u = a / la
+    b = b - (b @ u) * u
+    lb = float(np.linalg.norm(b))
+    if lb < 1e-9:
+        raise ValueError("corners: corners[3] - corners[0] is zero or parallel to the bottom edge")
+    return p0, u, b / lb
+
+
+def surface_uv(points: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
+    """Surface coordinates ``(u, v)`` of ENU points: ``u = (p - p0)·û``, ``v = (p - p0)·v̂``.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3) or (3,)
+        ENU positions, metres. N may be 0.
+    corners : array_like, shape (4, 3)
+        Surface corners (see :func:`surface_frame`).
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        Metres along the bottom edge and up the surface from ``corners[0]``; points off the plane
+        are projected orthogonally onto it.
+
+    Examples
+    --------
+    >>> corners = [(60, 85, 25.5), (60, 35, 25.5), (60, 35, 31.5), (60, 85, 31.5)]
+    >>> surface_uv([(60.0, 80.0, 27.5)], corners)
+    array([[5., 2.]])
+    """
+    p0, u, v = surface_frame(corners)
+    p = np.asarray(points, dtype=float)
+    if p.ndim == 1 and p.shape == (3,):
+        p = p[None, :]
+    if p.ndim != 2 or p.shape[1] != 3:
+        if p.size == 0:
+            return np.zeros((0, 2))
+        raise ValueError(f"points must have shape (N, 3), got {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("points must be finite (got NaN or inf)")
+    d = p - p0
+    return np.stack([d @ u, d @ v], axis=1)
+
+
+def bbox_distance(uv: ArrayLike, bboxes: ArrayLike) -> NDArray[np.float64]:
+    """Distance from each point to each axis-aligned box in the (u, v) plane (0 inside).
+
+    Parameters
+    ----------
+    uv : array_like, shape (N, 2)
+    bboxes : array_like, shape (M, 4)
+        ``(u0, v0, u1, v1)`` per box; the corners may come in either order.
+
+    Returns
+    -------
+    ndarray, shape (N, M)
+        ``hypot(max(u0 - u, 0, u - u1), max(v0 - v, 0, v - v1))``.
+    """
+    p = np.asarray(uv, dtype=float).reshape(-1, 2)
+    b = np.asarray(bboxes, dtype=float).reshape(-1, 4)
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(b))):
+        raise ValueError("points and boxes must be finite (got NaN or inf)")
+    lo = np.minimum(b[:, :2], b[:, 2:])  # (M, 2)
+    hi = np.maximum(b[:, :2], b[:, 2:])
+    gap = np.maximum(np.maximum(lo[None] - p[:, None], p[:, None] - hi[None]), 0.0)  # (N, M, 2)
+    return np.hypot(gap[..., 0], gap[..., 1])
+
+
+def score_defects(
+    reports: Sequence[DefectReport],
+    ground_truth: Sequence[GroundTruthDefect],
+    corners: ArrayLike,
+    tolerance_m: float = 0.3,
+) -> DefectScore:
+    """Object-level recall and precision of reported defects against the ground truth.
+
+    Parameters
+    ----------
+    reports : sequence of DefectReport
+        As received from the detector; reports with ``ok=False`` and defects without ``pos``
+        are not scored.
+    ground_truth : sequence of GroundTruthDefect
+        The cracks really on the surface (``bbox_uv`` in surface coordinates, metres).
+    corners : array_like, shape (4, 3)
+        Surface corners, the frame of ``bbox_uv`` (:func:`surface_frame`). Not used (and may be
+        empty) when no report carries a position.
+    tolerance_m : float
+        Largest (u, v) distance from a reported position to a crack's bounding box that still
+        counts as seeing it, metres (finite, >= 0).
+
+    Returns
+    -------
+    DefectScore
+
+    Raises
+    ------
+    ValueError
+        Negative or non-finite tolerance, bad corners, or items of the wrong type.
+
+    Notes
+    -----
+    Recall ``= n_found / n_truth`` and precision ``= n_true / n_reported`` are the object-level
+    analogues of ``r = tp / (tp + fn)`` and ``p = tp / (tp + fp)`` of (P20).
+    """
+    tol = float(tolerance_m)
+    if not (math.isfinite(tol) and tol >= 0.0):
+        raise ValueError(f"tolerance_m must be finite and >= 0, got {tolerance_m!r}")
+    for r in reports:
+        if not isinstance(r, DefectReport):
+            raise ValueError(f"reports must be DefectReport, got {type(r).__name__}")
+    for g in ground_truth:
+        if not isinstance(g, GroundTruthDefect):
+            raise ValueError(f"ground_truth must be GroundTruthDefect, got {type(g).__name__}")
+
+    keys: list[tuple[int, int]] = []
+    pts: list[tuple[float, float, float]] = []
+    without_pos = 0
+    for i, r in enumerate(reports):
+        if not r.ok:
+            continue
+        for j, d in enumerate(r.defects):
+            if d.pos is None:
+                without_pos += 1
+            else:
+                keys.append((i, j))
+                pts.append(d.pos)
+
+    n_truth, n_rep = len(ground_truth), len(pts)
+    uv = surface_uv(np.asarray(pts, dtype=float).reshape(-1, 3), corners) if n_rep else np.zeros((0, 2))
+    boxes = np.array([g.bbox_uv for g in ground_truth], dtype=float).reshape(-1, 4)
+    dist = bbox_distance(uv, boxes)  # (n_rep, n_truth)
+    near = dist <= tol
+
+    matches = [
+        DefectMatch(report=keys[a][0], defect=keys[a][1], uav=reports[keys[a][0]].uav,
+                    capture_id=reports[keys[a][0]].capture_id, truth_id=ground_truth[b].id,
+                    distance_m=float(dist[a, b]), uv=(float(uv[a, 0]), float(uv[a, 1])))
+        for a, b in zip(*np.nonzero(near))
+    ]
+    found = near.any(axis=0) if n_rep else np.zeros(n_truth, dtype=bool)
+    true = near.any(axis=1) if n_truth else np.zeros(n_rep, dtype=bool)
+    n_found, n_true = int(found.sum()), int(true.sum())
+    recall = n_found / n_truth if n_truth else 1.0
+    precision = n_true / n_rep if n_rep else 1.0
+    f = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
+    rows = [(k[0], k[1], float(p[0]), float(p[1])) for k, p in zip(keys, uv)]
+    return DefectScore(
+        recall=recall, precision=precision, f_measure=f, n_truth=n_truth, n_found=n_found,
+        n_reported=n_rep, n_true=n_true, without_pos=without_pos, tolerance_m=tol, matches=matches,
+        found_ids=[g.id for g, ok in zip(ground_truth, found) if ok],
+        missed_ids=[g.id for g, ok in zip(ground_truth, found) if not ok],
+        false_positives=[row for row, ok in zip(rows, true) if not ok],
+        reported_uv=rows,
+    )
