@@ -37,8 +37,9 @@ class SimClock:
 
     Parameters
     ----------
-    epoch : float
-        Wall-clock UNIX time of simulated time 0, s (shared by all processes of a run).
+    epoch : float or None
+        Wall-clock UNIX time of simulated time 0, s (shared by all processes of a run); None
+        takes the current wall time (a single process on its own).
     speed : float
         Simulated seconds per wall second (> 0).
     time_fn, sleep_fn : callables
@@ -47,13 +48,13 @@ class SimClock:
 
     def __init__(
         self,
-        epoch: float,
+        epoch: float | None = None,
         speed: float = 1.0,
         *,
         time_fn: Callable[[], float] = time.time,
         sleep_fn: Callable[[float], None] = time.sleep,
     ):
-        epoch = float(epoch)
+        epoch = float(time_fn() if epoch is None else epoch)
         speed = float(speed)
         if not (math.isfinite(epoch) and epoch >= 0):
             raise ValueError("epoch must be a finite UNIX time >= 0")

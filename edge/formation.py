@@ -282,8 +282,13 @@ def formation_reference(
     (for a consistent plan, ``planned_slot = planned_centroid + R_OF ΔT_own``, so this is
     ``planned_slot + gain · (ĉ + R_OF ΔT_own − planned_slot)``). The correction vector is
     bounded in norm by ``max_correction`` so a wild neighbour cannot drag the vehicle away.
-    When a neighbour lags behind its slot, the others therefore slow down toward it and the
-    triangle holds; the lagging vehicle, seeing the others on plan, keeps its planned slot.
+    When a neighbour lags behind its slot, the others fall back toward it and the triangle
+    holds better. Every vehicle applies the rule, so the laggard is also pulled back a little by
+    the others' fall-back: with a constant lag ``L`` of one of three vehicles and gain ``g`` the
+    others settle ``s = g L / (2 − g − g²)`` behind their slots and the laggard ``g s`` further
+    back — for g = 0.5, L = 6 m: 2.4 m and 1.2 m, shape error 2.26 m instead of 2.83 m
+    (:func:`formation_error`). A gain below 1 keeps this fixed point finite (at g = 1 the whole
+    formation would drift back until ``max_correction``).
 
     Parameters
     ----------

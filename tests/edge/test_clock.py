@@ -58,6 +58,12 @@ def test_sleep_until_sleeps_wall_time_divided_by_speed():
     assert len(w.slept) == n
 
 
+def test_default_epoch_is_now():
+    w = ManualTime(777.0)
+    c = SimClock(speed=2.0, time_fn=w.time, sleep_fn=w.sleep)
+    assert c.epoch == 777.0 and c.now() == 0.0
+
+
 def test_real_time_source_runs_forward():
     c = SimClock(time.time(), speed=1000.0)
     t1 = c.sleep_until(c.now() + 5.0)  # 5 ms of wall time

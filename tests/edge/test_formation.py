@@ -195,3 +195,62 @@ def test_formation_error_metric():
     assert formation_error({2: slots[1] + [0, 0, 1.5]}, c, 0.7, OFFSETS) == pytest.approx(1.5)
     with pytest.raises(ValueError):
         formation_error({7: slots[0]}, c, 0.7, OFFSETS)
+
+
+# ----------------------------------------------------------------------------- closed loop
+def _fly_formation(keep: bool) -> float:
+    """Three simulated UAVs fly the (P9) slots of a straight centroid path; UAV 3 is held for 3 s
+    (it ends 6 m behind its slot). Returns the RMS shape error over the last 10 s."""
+    from edge.vehicle.sim import SimDriver
+    from protocol.messages import Mode, Trajectory, Waypoint
+
+    T, v = 30.0, 2.0
+    times = np.arange(0.0, T + 1e-9, 2.0)
+    centroid = np.stack([v * times, np.zeros_like(times), np.full_like(times, 20.0)], axis=1)
+    yaw = headings(centroid)
+    slots = uav_positions(centroid, yaw)  # (N, 3, 3)
+    drivers = {}
+    for n in (1, 2, 3):
+        start = slots[0, n - 1]
+        d = SimDriver(n, seed=n, home=(start[0], start[1], 0.0))
+        d.upload(Trajectory(uav=n, waypoints=[
+            Waypoint(t=float(t), pos=tuple(map(float, slots[i, n - 1])), yaw=float(yaw[i])) for i, t in enumerate(times)
+        ]))
+        d.takeoff(float(start[2]))
+        drivers[n] = d
+    for d in drivers.values():
+        while d.mode != Mode.HOLD:
+            d.step(d.t + 0.1)
+    t0 = max(d.t for d in drivers.values()) + 1.0
+    for d in drivers.values():
+        d.start(t0)
+    errs, t, dt = [], t0, 0.1
+    while t < t0 + T - 0.5:
+        t += dt
+        if abs(t - (t0 + 5.0)) < dt / 2:
+            drivers[3].hold()
+        if abs(t - (t0 + 8.0)) < dt / 2:
+            drivers[3].resume()
+        for d in drivers.values():
+            d.step(t)
+        pos = {n: np.array(d.state().pos) for n, d in drivers.items()}
+        tau = t - t0
+        c_plan = np.array([v * tau, 0.0, 20.0])
+        if keep:
+            for n, d in drivers.items():
+                if d.mode != Mode.MISSION:
+                    continue
+                slot = c_plan + rotation_of(0, 0, 0.0) @ OFFSETS[n]
+                neigh = {j: (pos[j], 0.1) for j in pos if j != n}
+                ref = formation_reference(n, slot, c_plan, 0.0, OFFSETS, neigh)
+                d.set_reference_offset(ref - slot)
+        if tau > T - 10.5:
+            errs.append(formation_error(pos, c_plan, 0.0, OFFSETS))
+    return float(np.sqrt(np.mean(np.square(errs))))
+
+
+def test_formation_keeping_reduces_shape_error_when_one_uav_lags():
+    free = _fly_formation(keep=False)
+    kept = _fly_formation(keep=True)
+    assert free > 2.0  # UAV 3 really lags (6 m behind its slot)
+    assert kept < 0.85 * free
