@@ -74,6 +74,9 @@ class VehicleState(Message):
     wp_index: Annotated[int, Field(ge=-1)] = -1
     progress: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
     captures: Annotated[int, Field(ge=0)] = 0
+    neighbours: Annotated[int, Field(ge=0, le=255)] = Field(
+        default=0, description="other UAVs whose state was heard over SkyNet within the stale limit"
+    )
 
 
 # ----------------------------------------------------------------------------- trajectories

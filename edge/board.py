@@ -1,0 +1,276 @@
+"""The UAV's IoT board: one process per UAV, a Zenoh peer of SkyNet connected to the gateway.
+
+It binds a vehicle driver (``sim`` built in), the formation keeping of :mod:`edge.formation`
+and a camera (:mod:`edge.camera`) to the bus:
+
+* publishes :class:`VehicleState` as telemetry at ``--rate`` Hz and holds a liveliness token;
+  its link lease is short (``--lease``, 2 s) so the others notice a lost UAV;
+* subscribes to the other UAVs' states (SkyNet) and corrects its own reference from them
+  (P8)-(P9), ignoring neighbours older than ``--stale`` s;
+* serves commands on ``.../uav/<id>/cmd``: validated (schema, geofence, finite numbers, sane
+  speeds) and acknowledged accepted or rejected with a reason — nothing invalid reaches the
+  vehicle;
+* failsafe: no ground-station heartbeat for ``--failsafe-timeout`` s (ArduPilot's FS_GCS_TIMEOUT,
+  5 s) while flying -> hold / land / return-to-launch and an event; ``resume`` ends it;
+* at each capture point grabs a frame, JPEG-encodes it off the control loop and publishes it
+  on the imagery link (RTP header + metadata + JPEG, :mod:`protocol.imagery`).
+
+    skynet edge --uav 1 -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from protocol import keys
+from protocol.bus import Bus, Rejected, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.links import COMMAND, IMAGERY, TELEMETRY
+from protocol.messages import (
+    Box, CommandAck, Event, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
+    Start, Takeoff, UploadTrajectory, VehicleState, COMMAND_TYPES,
+)
+
+from . import formation
+from .validate import validate_command
+
+FAILSAFE_ACTIONS = ("hold", "land", "rtl")
+
+
+@dataclass
+class Neighbour:
+    pos: tuple[float, float, float]
+    stamp: float  # wall time of reception
+
+
+@dataclass
+class BoardOptions:
+    uav: int
+    rate_hz: float = 20.0
+    stale_s: float = 1.0
+    failsafe_timeout_s: float = 5.0
+    failsafe_action: str = "hold"
+    geofence: Box | None = None
+    max_speed: float = 12.0
+    formation_gain: float = 0.5
+    offsets: dict[int, tuple[float, float, float]] = field(
+        default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
+
+
+class Board:
+    """The board's logic, bound to a bus and a driver; :meth:`tick` is one control-loop pass."""
+
+    def __init__(self, bus: Bus, driver, clock, options: BoardOptions, camera=None, log=None):
+        self.bus, self.driver, self.clock, self.opt, self.camera = bus, driver, clock, options, camera
+        self.log = log
+        self.uav = options.uav
+        self.lock = threading.RLock()
+        self.neighbours: dict[int, Neighbour] = {}
+        self.seq = 0
+        self.last_heartbeat: float | None = None
+        self.failsafe_active = False
+        self.trajectory = None
+        self.follower = None
+        self._yaw = 0.0
+        fleet = bus.fleet
+        self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
+        self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
+        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY)
+        bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=Heartbeat, link=COMMAND)
+        bus.serve(keys.cmd(fleet, self.uav), self.handle_command, expect=COMMAND_TYPES)
+        bus.token(keys.alive(fleet, self.uav))
+        bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
+
+    # -- inputs (Zenoh callback threads)
+    def _on_state(self, msg: Message, sample) -> None:
+        assert isinstance(msg, VehicleState)
+        if msg.uav != self.uav:
+            self.neighbours[msg.uav] = Neighbour(msg.pos, time.time())
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        uav = keys.parse(key).uav
+        if uav == self.uav or uav is None:
+            return
+        if alive:
+            self.event("neighbour-up", f"UAV {uav} joined SkyNet", neighbour=uav)
+        else:
+            self.neighbours.pop(uav, None)
+            self.event("neighbour-lost", f"UAV {uav} left SkyNet (liveliness lost)", Level.WARNING, neighbour=uav)
+
+    def _on_heartbeat(self, msg: Message, sample) -> None:
+        self.last_heartbeat = time.time()
+
+    def event(self, kind: str, text: str, level: Level = Level.INFO, **data) -> None:
+        self.event_pub.put(Event(source=f"uav/{self.uav}", stamp=time.time(), kind=kind, level=level, text=text,
+                                 data=data))
+        if self.log:
+            self.log.info("event %s: %s", kind, text)
+
+    # -- commands
+    def handle_command(self, cmd: Message) -> CommandAck:
+        reason = validate_command(cmd, self.uav, self.opt.geofence, self.opt.max_speed)
+        if reason:
+            return self._ack(cmd, False, reason)
+        try:
+            with self.lock:
+                self._apply(cmd)
+        except ValueError as exc:
+            return self._ack(cmd, False, str(exc))
+        return self._ack(cmd, True, "")
+
+    def _ack(self, cmd, accepted: bool, reason: str) -> CommandAck:
+        if not accepted:
+            self.event("command-rejected", f"{cmd.kind} #{cmd.cmd_id}: {reason}", Level.WARNING)
+        return CommandAck(uav=self.uav, cmd_id=cmd.cmd_id, accepted=accepted, reason=reason)
+
+    def _apply(self, cmd: Message) -> None:
+        d = self.driver
+        if isinstance(cmd, UploadTrajectory):
+            d.upload(cmd.trajectory)
+            from .vehicle.follower import Follower
+            self.trajectory, self.follower = cmd.trajectory, Follower(cmd.trajectory)
+            if cmd.geofence is not None and self.opt.geofence is None:
+                self.opt.geofence = cmd.geofence
+        elif isinstance(cmd, Takeoff):
+            d.takeoff(cmd.altitude)
+        elif isinstance(cmd, Start):
+            t0 = None if cmd.t0_stamp is None else self.clock.sim_of(cmd.t0_stamp)
+            d.start(t0)
+        elif isinstance(cmd, Land):
+            d.land()
+        elif isinstance(cmd, Hold):
+            d.hold()
+        elif isinstance(cmd, Resume):
+            if self.failsafe_active:
+                self.failsafe_active = False
+                self.event("failsafe-cleared", "resumed by command")
+            d.resume()
+        elif isinstance(cmd, ReturnToLaunch):
+            d.return_to_launch()
+        elif isinstance(cmd, SetFormation):
+            self.opt.offsets = {int(k): tuple(v) for k, v in cmd.offsets.items()}
+
+    # -- the control loop
+    def tick(self) -> VehicleState:
+        now_wall = time.time()
+        with self.lock:
+            captures = self.driver.step(self.clock.now())
+            st = self.driver.state()
+            if st.mode == Mode.MISSION and self.follower is not None:
+                self._keep_formation(st, now_wall)
+            self._check_failsafe(st, now_wall)
+        for ev in captures:
+            if self.camera is not None:
+                self.camera.capture(ev, now_wall)
+        fresh = sum(1 for n in list(self.neighbours.values()) if now_wall - n.stamp <= self.opt.stale_s)
+        msg = st.to_message(self.uav, self.seq, now_wall).model_copy(update={"neighbours": fresh})
+        self.seq += 1
+        self.state_pub.put(msg)
+        return msg
+
+    def _keep_formation(self, st, now_wall: float) -> None:
+        fol = self.follower
+        tau = fol.t0 + st.progress * fol.duration
+        pos, vel, _, _ = fol.reference(tau)
+        if math.hypot(vel[0], vel[1]) > 0.2:
+            self._yaw = math.atan2(vel[1], vel[0])
+        offsets = self.opt.offsets
+        if self.uav not in offsets:
+            return
+        R = formation.rotation_of(0.0, 0.0, self._yaw)
+        centroid = np.asarray(pos) - R @ np.asarray(offsets[self.uav])
+        neigh = {j: (n.pos, now_wall - n.stamp) for j, n in list(self.neighbours.items())}
+        ref = formation.formation_reference(self.uav, pos, centroid, self._yaw, offsets, neigh,
+                                            stale_after_s=self.opt.stale_s, gain=self.opt.formation_gain)
+        self.driver.set_reference_offset(tuple(ref - np.asarray(pos)))
+
+    def _check_failsafe(self, st, now_wall: float) -> None:
+        flying = st.armed and st.mode in (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION)
+        if self.failsafe_active or not flying or self.last_heartbeat is None:
+            return
+        silent = now_wall - self.last_heartbeat
+        if silent <= self.opt.failsafe_timeout_s:
+            return
+        self.failsafe_active = True
+        action = self.opt.failsafe_action
+        try:
+            {"hold": self.driver.hold, "land": self.driver.land, "rtl": self.driver.return_to_launch}[action]()
+        except ValueError:
+            pass
+        self.event("failsafe", f"no ground-station heartbeat for {silent:.1f} s: {action}", Level.WARNING,
+                   silent_s=round(silent, 3), action=action)
+
+
+def parse_box(text: str | None) -> Box | None:
+    if not text:
+        return None
+    v = [float(x) for x in text.split(",")]
+    if len(v) != 6:
+        raise argparse.ArgumentTypeError("geofence is x0,y0,z0,x1,y1,z1")
+    return Box(lo=tuple(v[:3]), hi=tuple(v[3:]))
+
+
+def parse_vec(text: str) -> tuple[float, float, float]:
+    v = tuple(float(x) for x in text.split(","))
+    if len(v) != 3 or not all(map(math.isfinite, v)):
+        raise argparse.ArgumentTypeError("expected x,y,z")
+    return v  # type: ignore[return-value]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="skynet edge", description=__doc__.split("\n\n")[0])
+    add_bus_args(parser, mode="peer")
+    parser.add_argument("--uav", type=int, required=True)
+    parser.add_argument("--vehicle", default="sim", choices=["sim", "mavlink"], help="vehicle driver")
+    parser.add_argument("--mavlink", default="udpin:0.0.0.0:14550", help="MAVLink connection (--vehicle mavlink)")
+    parser.add_argument("--home", type=parse_vec, default=(0.0, 0.0, 0.0), help="launch point x,y,z (ENU m)")
+    parser.add_argument("--rate", type=float, default=20.0, help="state publication rate, Hz")
+    parser.add_argument("--stale", type=float, default=1.0, help="neighbour state considered stale after, s")
+    parser.add_argument("--failsafe-timeout", type=float, default=5.0)
+    parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default="hold")
+    parser.add_argument("--geofence", type=parse_box, default=None, help="x0,y0,z0,x1,y1,z1 (else from upload)")
+    parser.add_argument("--speed", type=float, default=1.0, help="simulation speed factor")
+    parser.add_argument("--epoch", type=float, default=None, help="shared wall-clock epoch of the sim clock")
+    parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--camera", default="synthetic", help="synthetic | image folder | video:<url or index> | none")
+    parser.add_argument("--scenario", default=None, help="scenario file (surface and camera of the synthetic source)")
+    parser.add_argument("--frame-size", default="640x480", help="delivered frame size WxH")
+    args = parser.parse_args(argv)
+    if args.lease is None:
+        args.lease = 2.0
+    log = setup_logging(f"uav{args.uav}")
+    from .clock import SimClock
+    from .runtime import make_camera, make_driver
+
+    clock = SimClock(epoch=args.epoch if args.epoch is not None else time.time(), speed=args.speed)
+    driver = make_driver(args, t0=clock.now())
+    stop = stop_event_on_signals()
+    opts = BoardOptions(uav=args.uav, rate_hz=args.rate, stale_s=args.stale, failsafe_timeout_s=args.failsafe_timeout,
+                        failsafe_action=args.failsafe_action, geofence=args.geofence)
+    with Bus(config_from_args(args), fleet=args.fleet, name=f"uav{args.uav}") as bus:
+        camera = make_camera(args, bus, log)
+        board = Board(bus, driver, clock, opts, camera=camera, log=log)
+        log.info("board up: uav %d, %s driver, camera %s, speed x%g", args.uav, args.vehicle, args.camera, args.speed)
+        period = 1.0 / args.rate
+        next_t = time.monotonic()
+        while not stop.is_set():
+            board.tick()
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay < -1.0:  # fell far behind (suspended?): do not try to catch up in a burst
+                next_t = time.monotonic()
+            stop.wait(max(0.0, delay))
+        log.info("shutting down")
+        if camera is not None:
+            camera.close()
+        driver.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

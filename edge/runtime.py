@@ -1,0 +1,135 @@
+"""Wiring of the edge process: which driver, which camera, and the camera's bus binding.
+
+Kept out of :mod:`edge.board` so that the board's logic stays a thin shell over the driver,
+and so that the ground station can rebuild the very same synthetic surface (and so its ground
+truth) from the scenario with :func:`synthetic_surface`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from protocol import keys
+from protocol.bus import Bus
+from protocol.imagery import pack_image
+from protocol.links import IMAGERY
+from protocol.messages import ImageMeta, Intrinsics
+from protocol.rtp import RtpSender, ssrc_for
+
+from .vehicle.driver import CaptureEvent, VehicleDriver
+
+#: seed of the synthetic surface: one wall for the whole fleet, whatever the UAV
+SURFACE_SEED = 2024
+
+
+def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
+    if args.vehicle == "sim":
+        from .vehicle.sim import SimDriver
+
+        return SimDriver(args.uav, seed=args.seed if args.seed is not None else args.uav, home=args.home, t0=t0)
+    from .vehicle.mavlink import MavlinkDriver  # needs the "mavlink" extra
+
+    return MavlinkDriver(args.uav, args.mavlink, home=args.home)
+
+
+def scenario_doc(path: str | None) -> dict:
+    from services.planner.scenario import load_scenario
+
+    return load_scenario(path).model_dump(mode="json")
+
+
+def synthetic_surface(scenario: dict, px_per_m: float | None = None, seed: int = SURFACE_SEED):
+    """The inspected wall of the scenario as a textured, cracked :class:`SyntheticSurface`."""
+    from .surface import DEFAULT_PX_PER_M, SyntheticSurface
+
+    corners = np.asarray(scenario["surface"]["corners"], dtype=float)
+    return SyntheticSurface.from_corners(corners, px_per_m=px_per_m or DEFAULT_PX_PER_M, seed=seed)
+
+
+def camera_model(scenario: dict, frame_size: tuple[int, int]):
+    """The scenario's camera delivering ``frame_size`` frames (the same field of view, fewer pixels)."""
+    from .camera import CameraModel
+
+    cam = scenario["camera"]
+    return CameraModel(resolution=frame_size, sensor_mm=tuple(cam["sensor_mm"]), focal_mm=float(cam["focal_mm"]))
+
+
+def camera_rotation(yaw: float) -> np.ndarray:
+    """World-from-camera rotation of a gimbal-stabilised camera looking horizontally along ``yaw``.
+
+    OpenCV camera axes: z forward (the optical axis), x right, y down.
+    """
+    c, s = math.cos(yaw), math.sin(yaw)
+    z = np.array([c, s, 0.0])
+    x = np.array([s, -c, 0.0])
+    y = np.array([0.0, 0.0, -1.0])
+    return np.column_stack([x, y, z])
+
+
+class CameraLink:
+    """Capture -> frame -> JPEG (off the control loop) -> imagery sample on the bus."""
+
+    def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
+                 quality: int = 85):
+        from .camera import FrameEncoder
+
+        self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
+        self.sender = RtpSender(ssrc_for(uav, 0))
+        self.pub = bus.publisher(keys.camera(bus.fleet, uav), IMAGERY)
+        k = model.intrinsics()
+        self.intrinsics = Intrinsics(width=model.resolution[0], height=model.resolution[1], fx=k[0], fy=k[1],
+                                     cx=k[2], cy=k[3])
+        self.encoder = FrameEncoder(self._publish, capacity=4, quality=quality)
+        self.sent = 0
+
+    def range_to_surface(self, pos: np.ndarray, axis: np.ndarray) -> float | None:
+        if self.surface is None:
+            return None
+        n = self.surface.normal
+        denom = float(np.dot(axis, -n)) if float(np.dot(axis, n)) < 0 else float(np.dot(axis, n))
+        dist = abs(float(np.dot(np.asarray(self.surface.origin) - pos, n)))
+        return dist / denom if denom > 1e-6 else None
+
+    def capture(self, ev: CaptureEvent, stamp: float) -> None:
+        from .camera import CameraPose
+
+        R = camera_rotation(ev.att[2])
+        pose = CameraPose(position=np.asarray(ev.pos, dtype=float), rotation=R)
+        frame = self.source.grab(pose, ev.t)
+        if frame is None:
+            if self.log:
+                self.log.warning("capture %d: the camera gave no frame", ev.capture_id)
+            return
+        rng = self.range_to_surface(pose.position, R[:, 2])
+        meta = ImageMeta(uav=self.uav, capture_id=ev.capture_id, t=max(0.0, ev.t), stamp=stamp,
+                         cam_pos=tuple(map(float, ev.pos)), cam_rot=tuple(map(float, R.ravel())),
+                         intrinsics=self.intrinsics, range_m=rng if rng and rng <= 1000 else None)
+        self.encoder.submit((frame, meta))
+
+    def _publish(self, item: Any, jpeg: bytes) -> None:
+        _, meta = item
+        self.pub.put_bytes(pack_image(self.sender, meta, jpeg, meta.stamp))
+        self.sent += 1
+
+    def close(self) -> None:
+        self.encoder.close()
+        self.source.close()
+
+
+def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> CameraLink | None:
+    if args.camera in ("", "none"):
+        return None
+    from .camera import make_source
+
+    w, h = (int(v) for v in args.frame_size.lower().split("x"))
+    scenario = scenario_doc(args.scenario)
+    model = camera_model(scenario, (w, h))
+    surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
+    source = make_source(args.camera, surface=surface, camera=model)
+    return CameraLink(bus, args.uav, source, model, surface=surface, log=log)

@@ -1,0 +1,96 @@
+"""The board over the real bus: three edges and the gateway in processes (issue 3)."""
+
+import time
+
+import pytest
+
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.links import TELEMETRY
+from protocol.messages import (Box, CommandAck, Event, Hold, Mode, Takeoff, Trajectory, UploadTrajectory,
+                               VehicleState, Waypoint)
+from tests.conftest import spawn_node
+
+FLEET = "test"
+HOMES = {1: "10,10,0", 2: "14,10,0", 3: "6,10,0"}
+
+
+def _wait(pred, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.05)
+    return pred()
+
+
+@pytest.fixture
+def fleet(group, gateway):
+    edges = {}
+    for uav, home in HOMES.items():
+        edges[uav] = group.start(f"uav{uav}", [
+            "edge", "--uav", str(uav), "--fleet", FLEET, "--multilink", "--camera", "none",
+            *[a for e in gateway for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0",
+            "--home", home, "--speed", "4", "--failsafe-timeout", "2", "--geofence", "0,0,0,100,100,40"])
+    for svc in edges.values():
+        assert svc.wait_for("board up", 30), "\n".join(svc.lines)
+    return edges
+
+
+def test_board_state_sharing_commands_failsafe_and_liveliness(fleet, gateway):
+    states: dict[int, VehicleState] = {}
+    events: list[Event] = []
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
+        gcs.subscribe(keys.state(FLEET, "*"), lambda m, s: states.__setitem__(m.uav, m), expect=VehicleState,
+                      link=TELEMETRY)
+        gcs.subscribe(keys.all_events(FLEET), lambda m, s: events.append(m), expect=Event)
+
+        # SkyNet: every edge hears the two others
+        assert _wait(lambda: len(states) == 3 and all(s.neighbours == 2 for s in states.values()), 30), states
+
+        # a command is acknowledged; an invalid one is refused with its reason and never reaches the vehicle
+        ack = gcs.request(keys.cmd(FLEET, 1), Takeoff(uav=1, cmd_id=1, altitude=5), expect=CommandAck)
+        assert ack.ok and ack.message.accepted, ack
+        early = gcs.request(keys.cmd(FLEET, 2), Hold(uav=2, cmd_id=2), expect=CommandAck)
+        assert early.ok and not early.message.accepted and early.message.reason
+        outside = Trajectory(uav=2, waypoints=[Waypoint(t=0, pos=(10, 10, 5)), Waypoint(t=30, pos=(10, 150, 5))])
+        refused = gcs.request(keys.cmd(FLEET, 2), UploadTrajectory(uav=2, cmd_id=3, trajectory=outside), expect=CommandAck)
+        assert refused.ok and not refused.message.accepted
+        assert "geofence" in refused.message.reason
+        too_fast = Trajectory(uav=2, waypoints=[Waypoint(t=0, pos=(10, 10, 5)), Waypoint(t=1, pos=(10, 90, 5))])
+        fast = gcs.request(keys.cmd(FLEET, 2), UploadTrajectory(uav=2, cmd_id=4, trajectory=too_fast), expect=CommandAck)
+        assert fast.ok and not fast.message.accepted and "m/s" in fast.message.reason
+        wrong = gcs.request(keys.cmd(FLEET, 2), Takeoff(uav=3, cmd_id=5, altitude=5), expect=CommandAck)
+        assert wrong.ok and not wrong.message.accepted and "addressed to UAV 3" in wrong.message.reason
+        assert states[2].mode == Mode.IDLE
+        assert _wait(lambda: states[1].mode == Mode.HOLD and states[1].pos[2] > 4.5, 30), states[1]
+
+        # failsafe: the ground-station side sends heartbeats, then dies
+        hb = spawn_node(f"""
+import time
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.links import COMMAND
+from protocol.messages import Heartbeat
+with Bus(BusConfig(mode="client", connect={gateway!r}, multilink=True), "{FLEET}", "hb") as bus:
+    pub = bus.publisher(keys.heartbeat("{FLEET}"), COMMAND)
+    for i in range(10000):
+        pub.put(Heartbeat(seq=i, stamp=time.time()))
+        time.sleep(0.2)
+""")
+        try:
+            time.sleep(2.0)
+            assert not any(e.kind == "failsafe" for e in events)
+        finally:
+            hb.kill()
+            hb.communicate()
+        assert _wait(lambda: any(e.kind == "failsafe" for e in events), 10), events
+        fs = next(e for e in events if e.kind == "failsafe")
+        assert fs.source == "uav/1" and fs.data["action"] == "hold"
+        assert fs.data["silent_s"] < 2.0 + 0.5  # noticed within the timeout (plus one control tick)
+
+        # killing one edge is noticed by the others through liveliness
+        fleet[3].proc.kill()
+        assert _wait(lambda: {e.source for e in events if e.kind == "neighbour-lost" and e.data.get("neighbour") == 3}
+                     == {"uav/1", "uav/2"}, 15), [e for e in events if e.kind.startswith("neighbour")]
+        assert _wait(lambda: states[1].neighbours == 1, 10)
