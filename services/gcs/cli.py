@@ -1,0 +1,89 @@
+"""``skynet gcs mission``: run a mission over the bus and write its report.
+
+    skynet gcs mission --scenario FILE -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
+
+Exit status 0 only when every UAV reached the goal and every capture point was imaged.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from edge import formation
+from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+
+from .mission import MissionOptions, MissionRunner
+from .progress import LiveDisplay, render
+
+
+def load_scenario_doc(path: str | None) -> dict:
+    """The scenario as a validated document (a dict, as it travels in the plan request)."""
+    from services.planner.scenario import load_scenario
+
+    return load_scenario(path).model_dump(mode="json")
+
+
+def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
+                abort=None) -> int:
+    display = None if quiet else LiveDisplay()
+    offsets = {i + 1: tuple(o) for i, o in enumerate(formation.DEFAULT_OFFSETS)}
+    t_start = time.time()
+
+    def progress(runner: MissionRunner) -> None:
+        if display is None:
+            return
+        phase = max(runner.record.phases, key=runner.record.phases.get) if runner.record.phases else "-"
+        with runner._lock:
+            states = dict(runner.latest)
+            ages = [1000 * (s.rx - s.msg.stamp) for s in runner.record.states[-60:]]
+            n_reports = len(runner.reports)
+        display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
+                              time.time() - t_start))
+
+    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort)
+    record = runner.run()
+    from services.gcs.ground_truth import attach_ground_truth
+
+    attach_ground_truth(record)
+    if out:
+        from .report import write_report
+
+        folder = Path(out)
+        write_report(record, folder)
+        log.info("report written to %s", folder / "report.md")
+    if record.success:
+        log.info("mission succeeded: %d UAVs reached the goal, %d capture points imaged", len(options.uavs),
+                 len(runner.planned_captures()))
+        return 0
+    for f in record.failures:
+        log.error("mission failed: %s", f)
+    return 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="skynet gcs", description="ground control station")
+    sub = parser.add_subparsers(dest="action", required=True)
+    m = sub.add_parser("mission", help="run a mission over the bus")
+    add_bus_args(m, mode="client")
+    m.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
+    m.add_argument("--uavs", type=int, default=3, help="number of UAVs (ids 1..N)")
+    m.add_argument("--algorithm", default="theta-pso")
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--speed", type=float, default=1.0, help="the edges' simulation speed factor")
+    m.add_argument("--out", default=None, help="report folder")
+    m.add_argument("--quiet", action="store_true")
+    m.add_argument("--appear-timeout", type=float, default=30.0)
+    args = parser.parse_args(argv)
+    log = setup_logging("gcs")
+    scenario = load_scenario_doc(args.scenario)
+    options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
+                             speed=args.speed, appear_timeout_s=args.appear_timeout)
+    abort = stop_event_on_signals()
+    with Bus(config_from_args(args), fleet=args.fleet, name="gcs") as bus:
+        return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

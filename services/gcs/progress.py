@@ -1,0 +1,71 @@
+"""Live mission progress in the terminal: a bar per UAV, formation error, link figures.
+
+:func:`render` is pure (state in, lines out); :class:`LiveDisplay` redraws those lines in place
+on a terminal (ANSI cursor-up), or prints them every few seconds when the output is a pipe.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import sys
+import time
+from typing import IO
+
+import numpy as np
+
+from edge import formation
+from protocol.messages import VehicleState
+
+
+def bar(fraction: float, width: int = 24) -> str:
+    fraction = min(1.0, max(0.0, fraction))
+    full = int(round(fraction * width))
+    return "█" * full + "·" * (width - full)
+
+
+def formation_rms(states: dict[int, VehicleState], offsets: dict[int, tuple[float, float, float]]) -> float | None:
+    ids = [u for u in states if u in offsets]
+    if len(ids) < 2:
+        return None
+    vel = np.mean([states[u].vel for u in ids], axis=0)
+    yaw = math.atan2(vel[1], vel[0]) if math.hypot(vel[0], vel[1]) > 0.3 else 0.0
+    return formation.formation_error({u: states[u].pos for u in ids}, None, yaw, offsets)
+
+
+def render(phase: str, states: dict[int, VehicleState], uavs: tuple[int, ...], ages_ms: list[float],
+           reports: int, captures_planned: int, offsets: dict[int, tuple[float, float, float]], elapsed_s: float) -> list[str]:
+    lines = [f"mission {elapsed_s:6.1f} s  phase: {phase}"]
+    for u in uavs:
+        s = states.get(u)
+        if s is None:
+            lines.append(f"  UAV {u}  (no telemetry yet)")
+            continue
+        lines.append(f"  UAV {u}  {bar(s.progress)} {100 * s.progress:5.1f} %  {s.mode.value:<8} "
+                     f"z {s.pos[2]:5.1f} m  {math.hypot(*s.vel):4.1f} m/s  captures {s.captures}")
+    err = formation_rms(states, offsets)
+    age = f"{statistics.median(ages_ms):.1f} ms" if ages_ms else "-"
+    lines.append(f"  formation RMS error {'-' if err is None else f'{err:.2f} m'}   telemetry age p50 {age}   "
+                 f"defect reports {reports}/{captures_planned}")
+    return lines
+
+
+class LiveDisplay:
+    def __init__(self, stream: IO[str] = sys.stdout, period_s: float = 0.25, pipe_period_s: float = 5.0):
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.period = period_s if self.tty else pipe_period_s
+        self._last = 0.0
+        self._drawn = 0
+
+    def update(self, lines: list[str], force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._last < self.period:
+            return
+        self._last = now
+        if self.tty and self._drawn:
+            self.stream.write(f"\x1b[{self._drawn}F")
+        for line in lines:
+            self.stream.write(("\x1b[2K" if self.tty else "") + line + "\n")
+        self._drawn = len(lines)
+        self.stream.flush()

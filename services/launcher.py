@@ -1,0 +1,181 @@
+"""The embedded default: the whole network on one machine, as separate processes on loopback.
+
+``skynet up`` starts the gateway, N edges (SkyNet peers), the planner and the detector on free
+loopback ports, prefixes each service's log lines with its name, and stops everything cleanly
+on Ctrl-C (SIGINT to every child so sessions close, then SIGTERM/SIGKILL for stragglers).
+
+``skynet mission`` does the same, then runs the ground station's mission on the scenario in
+this process (a Zenoh client, with the live progress display) and writes the report; its exit
+status is the mission's.
+
+Impairment experiments: ``--impair uav2="delay 50ms jitter 10ms loss 2%"`` puts user-space
+netem proxies (:mod:`services.netem`, TCP and UDP) between that node and the gateway; names
+are ``uavN``, ``planner``, ``detector`` and ``gcs``. Shared memory stays off so that nothing
+bypasses them. (Edges also mesh directly with each other; those SkyNet links are not proxied.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+
+from protocol.bus import Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
+
+from .process import ProcessGroup, free_port_pair
+
+HOST = "127.0.0.1"
+
+
+def parse_impair(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        name, sep, spec = item.partition("=")
+        if not sep or not spec.strip():
+            raise argparse.ArgumentTypeError(f"--impair wants NAME=SPEC, got {item!r}")
+        out[name.strip()] = spec.strip()
+    return out
+
+
+class Network:
+    """The processes of one run and the endpoints each node connects to."""
+
+    def __init__(self, args: argparse.Namespace, echo=sys.stdout, log_dir: Path | None = None):
+        self.args = args
+        self.group = ProcessGroup(echo=echo)
+        self.log_dir = log_dir
+        self.proxies: list = []
+        tcp, udp = free_port_pair()
+        self.gateway_endpoints = multilink_endpoints(HOST, tcp, udp)
+        self.impair = parse_impair(args.impair or [])
+        self.epoch = time.time() + 3.0
+
+    def endpoints_for(self, name: str) -> list[str]:
+        """Where ``name`` connects: the gateway, or impairment proxies in front of it."""
+        spec = self.impair.get(name)
+        if spec is None:
+            return self.gateway_endpoints
+        from services.netem.proxy import TcpProxy, UdpProxy
+
+        tcp_target = self.gateway_endpoints[0].split("/")[1].split("?")[0]
+        udp_target = self.gateway_endpoints[1].split("/")[1].split("?")[0]
+        tp = TcpProxy((HOST, 0), tcp_target, spec, seed=self.args.seed).start()
+        up = UdpProxy((HOST, 0), udp_target, spec, seed=self.args.seed + 1).start()
+        self.proxies += [(name, tp), (name, up)]
+        return multilink_endpoints(HOST, tp.port, up.port)
+
+    def bus_args(self, name: str, mode: str) -> list[str]:
+        args = ["--mode", mode, "--fleet", self.args.fleet, "--multilink"]
+        for e in self.endpoints_for(name):
+            args += ["--connect", e]
+        return args
+
+    def homes(self, n: int) -> list[tuple[float, float, float]]:
+        """Launch points: the formation slots around the start, on the ground (P9)."""
+        from edge.formation import DEFAULT_OFFSETS, rotation_of
+        from services.gcs.cli import load_scenario_doc
+
+        sc = load_scenario_doc(self.args.scenario)
+        start, goal = sc["start"], sc["goal"]
+        yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
+        R = rotation_of(0.0, 0.0, yaw)
+        ground = sc["box"]["lo"][2]
+        out = []
+        for i in range(n):
+            off = DEFAULT_OFFSETS[i % len(DEFAULT_OFFSETS)] * (1 + i // len(DEFAULT_OFFSETS))
+            p = (R @ off)[:2]
+            out.append((round(start[0] + p[0], 3), round(start[1] + p[1], 3), ground))
+        return out
+
+    def start(self) -> None:
+        a = self.args
+        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink",
+                                          *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
+        if not gw.wait_for("router up", 30):
+            raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
+        scenario = ["--scenario", a.scenario] if a.scenario else []
+        for i, home in enumerate(self.homes(a.uavs), start=1):
+            ptcp, pudp = free_port_pair()
+            self.group.start(f"uav{i}", [
+                "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"),
+                *[x for e in multilink_endpoints(HOST, ptcp, pudp) for x in ("--listen", e)],
+                "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
+                "--seed", str(a.seed + i), "--camera", a.camera, *scenario])
+        self.group.start("planner", ["planner", *self.bus_args("planner", "client")])
+        self.group.start("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method])
+
+    def check_alive(self) -> list[str]:
+        return [s.name for s in self.group.services if not s.alive()]
+
+    def stop(self) -> dict:
+        codes = self.group.stop()
+        for _, p in self.proxies:
+            p.stop()
+        return codes
+
+
+def build_parser(prog: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=f"skynet {prog}", description=__doc__.split("\n\n")[0])
+    p.add_argument("--uavs", type=int, default=3, help="number of UAVs")
+    p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
+    p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
+    p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
+    p.add_argument("--method", default="it+", help="the detector's method")
+    p.add_argument("--fleet", default="demo")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--impair", action="append", default=[], metavar="NAME=SPEC",
+                   help='netem-like impairment between a node and the gateway, e.g. uav2="delay 50ms loss 2%%"')
+    if prog == "mission":
+        p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
+        p.add_argument("--quiet", action="store_true", help="no live progress display")
+        p.add_argument("--algorithm", default="theta-pso")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    prog = argv.pop(0) if argv and argv[0] in ("up", "mission") else "up"
+    args = build_parser(prog).parse_args(argv)
+    log = setup_logging(prog)
+    stop = stop_event_on_signals()
+    if prog == "up":
+        net = Network(args)
+        try:
+            net.start()
+            log.info("network up: gateway at %s; Ctrl-C to stop", " ".join(net.gateway_endpoints))
+            while not stop.wait(1.0):
+                dead = net.check_alive()
+                if dead:
+                    log.error("service(s) ended: %s", ", ".join(dead))
+                    break
+        finally:
+            codes = net.stop()
+            log.info("stopped: %s", codes)
+        return 0
+    return run_mission(args, log, stop)
+
+
+def run_mission(args: argparse.Namespace, log: logging.Logger, stop) -> int:
+    from services.gcs.cli import load_scenario_doc, run_mission as gcs_mission
+    from services.gcs.mission import MissionOptions
+
+    out = Path(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
+    out.mkdir(parents=True, exist_ok=True)
+    log_file = open(out / "services.log", "w")
+    net = Network(args, echo=log_file)
+    scenario = load_scenario_doc(args.scenario)
+    try:
+        net.start()
+        cfg = BusConfig(mode="client", connect=net.endpoints_for("gcs"), multilink=True)
+        options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
+                                 speed=args.speed)
+        with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
+            code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop)
+    finally:
+        net.stop()
+        log_file.close()
+    log.info("services' logs: %s", out / "services.log")
+    return code
