@@ -41,6 +41,8 @@ __all__ = ["SimParams", "SimDriver"]
 Vec3 = tuple[float, float, float]
 
 _GROUNDED = (Mode.IDLE, Mode.LANDED)
+#: longest flight one step() call may simulate, s (guards against a clock/driver time mismatch)
+MAX_STEP_S = 3600.0
 _AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL)
 
 
@@ -260,6 +262,7 @@ class SimDriver(VehicleDriver):
         self._captures = 0
         self._mission_done = False
         self._tau_paused = None
+        self._paused_phase = ""
         self._phase = ""
 
     def takeoff(self, altitude: float) -> None:
@@ -317,6 +320,8 @@ class SimDriver(VehicleDriver):
         if self.mode == Mode.MISSION:
             if self._phase == "track":
                 self._tau_paused = self.t - self._origin
+            elif self._phase == "transit_resume":  # paused again before getting back on track
+                self._tau_paused = self._resume_tau
             self._paused_phase = self._phase
         elif self.mode in (Mode.LAND, Mode.RTL):
             self._tau_paused = None
@@ -404,6 +409,11 @@ class SimDriver(VehicleDriver):
         if self.mode in _GROUNDED:
             self._k += n  # at rest on the ground: nothing moves
             return []
+        if n * self.dt > MAX_STEP_S:
+            raise ValueError(
+                f"step of {n * self.dt:.0f} s of flight in one call exceeds {MAX_STEP_S:.0f} s "
+                f"(sim time is {self.t:.3f} s: was the driver created with the clock's t0?)"
+            )
         self._run(n)
         return self._events
 

@@ -134,6 +134,35 @@ def test_hold_pauses_and_resume_continues():
     assert [e.capture_id for e in ev] == [102, 103, 104]
 
 
+def test_hold_during_return_to_the_paused_point_resumes_there():
+    d = airborne(params=SimParams())
+    d.upload(line_traj(start=(0.0, 0.0, 10.0), n=6))
+    d.start()
+    assert [e.capture_id for e in d.step(d.t + 5.0)] == [100, 101, 102]
+    d.hold()
+    d.set_reference_offset((0.0, 0.0, 0.0))
+    d.quad.s = (d.quad.s[0], d.quad.s[1] + 5.0, *d.quad.s[2:])  # pushed 5 m sideways by a gust
+    d.resume()
+    assert d._phase == "transit_resume"
+    d.step(d.t + 0.5)
+    d.hold()  # paused again on the way back
+    d.resume()
+    assert d._phase == "transit_resume"  # still heading back to the paused point, not the start
+    ev = run_until(d, lambda d: d.mode == Mode.HOLD, 40)
+    assert [e.capture_id for e in ev] == [103, 104, 105]
+
+
+def test_upload_clears_a_paused_mission():
+    d = airborne(params=SimParams())
+    d.upload(line_traj())
+    d.start()
+    d.step(d.t + 3.0)
+    d.hold()
+    d.upload(line_traj())
+    with pytest.raises(ValueError, match="no paused mission"):
+        d.resume()
+
+
 def test_reference_offset_is_bounded_and_applied():
     d = airborne(params=SimParams())
     d.upload(Trajectory(uav=1, waypoints=[Waypoint(t=0, pos=(0, 0, 10)), Waypoint(t=30, pos=(0, 0.5, 10))]))
@@ -199,6 +228,9 @@ def test_step_edge_cases_and_close():
     assert d.step(-3.0) == []
     with pytest.raises(ValueError):
         d.step(math.nan)
+    d.takeoff(2.0)
+    with pytest.raises(ValueError, match="exceeds"):  # airborne: hours in one call is a time mix-up
+        d.step(1.0e6)
     d.close()
     with pytest.raises(ValueError, match="closed"):
         d.takeoff(5.0)
