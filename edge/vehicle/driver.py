@@ -118,7 +118,9 @@ class VehicleDriver(ABC):
         """Follow the uploaded trajectory, its time 0 at sim time ``t0`` (or now).
 
         If the vehicle is far from the first waypoint it first flies there; the trajectory
-        clock then starts at the later of ``t0`` and the arrival.
+        clock then starts at the later of ``t0`` and the arrival. Started at the first waypoint
+        with ``t0`` in the past, the trajectory is already running (the vehicle catches up, and
+        capture points already passed fire at once). Capture points fire once per upload.
         """
 
     @abstractmethod

@@ -22,7 +22,6 @@ is plain floats (it runs at the physics rate).
 from __future__ import annotations
 
 import bisect
-import math
 from collections.abc import Sequence
 from typing import Literal
 

@@ -35,7 +35,7 @@ Default parameters (:class:`QuadParams`) are of a 3DR Solo class vehicle: 1.47 k
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import lfilter
