@@ -17,6 +17,9 @@ UAV n flies the segment ``(a + R ΔT_n, b + R ΔT_n)``.
   Crossing the inspected wall costs ``K (1 + depth)`` too (depth: distance of the crossing point
   from the wall's nearest edge). Inter-UAV term: ``K`` per segment times the relative shortfall
   of every pair closer than the minimum separation (rigid formation: constant per segment).
+  Manoeuvrability (the paper lists it among the constraints folded into (P5)): ``K/10`` per
+  radian by which the horizontal turn at a waypoint exceeds ``max_turn_deg`` (a formation
+  reversing on itself swings its outer UAVs through the obstacles the centroid path avoids).
 - J3, flying altitude / stand-off: ``K/10`` per metre that a UAV's waypoint altitude leaves the
   allowed band, plus, at 8 samples per UAV segment, the relative shortfall ``(k - dist) / k`` of
   the distance to the wall below ``k = 0.9 d_f`` (keep the (P2) distance from the surface).
@@ -48,6 +51,7 @@ __all__ = [
     "clearance",
     "formation_points",
     "path_collision_free",
+    "crosses_wall_free",
 ]
 
 
@@ -159,6 +163,7 @@ class Cost:
         self.band = sc.cost.danger_band
         self.pen = sc.cost.collision_penalty
         self.alt = sc.cost.altitude
+        self.max_turn = np.deg2rad(sc.cost.max_turn_deg)
         self.evaluations = 0
         M = self.off.shape[0]
         i, j = np.triu_indices(M, 1)
@@ -200,6 +205,12 @@ class Cost:
         B = b[:, :, None, :] + rot
         P, S, M = A.shape[:3]
         J2 = np.full(P, self.pen * self.sep_shortfall * S)
+        hx, hy = d[..., 0], d[..., 1]
+        hn = np.hypot(hx, hy)
+        ok = (hn[:, :-1] > 1e-9) & (hn[:, 1:] > 1e-9)
+        cosang = (hx[:, :-1] * hx[:, 1:] + hy[:, :-1] * hy[:, 1:]) / np.where(ok, hn[:, :-1] * hn[:, 1:], 1.0)
+        turn = np.where(ok, np.arccos(np.clip(cosang, -1.0, 1.0)), 0.0)
+        J2 += 0.1 * self.pen * np.sum(np.clip(turn - self.max_turn, 0.0, None), axis=1)
         if self.cyl.shape[0]:
             J2 += np.sum(self._cyl_penalty(A, B), axis=(1, 2, 3))
         J3 = np.zeros(P)
@@ -335,21 +346,29 @@ def formation_points(V: ArrayLike, offsets: ArrayLike, step: float = 0.25) -> ND
     return np.concatenate(pts, axis=0)
 
 
+def crosses_wall_free(Q: ArrayLike, scenario: Scenario) -> bool:
+    """True if no UAV track ``Q (N, M, 3)`` (consecutive samples joined) passes through the wall."""
+    if scenario.surface is None:
+        return True
+    Q = np.asarray(Q, float)
+    p0, u, n = scenario.surface.frame
+    s = (Q - p0) @ n
+    cross = s[:-1] * s[1:] < 0
+    if not np.any(cross):
+        return True
+    t = s[:-1] / np.where(cross, s[:-1] - s[1:], 1.0)
+    X = Q[:-1] + t[..., None] * (Q[1:] - Q[:-1])
+    su, z = (X - p0) @ u, X[..., 2]
+    z0, z1 = scenario.surface.z_range
+    inwall = (su >= 0) & (su <= scenario.surface.length) & (z >= z0) & (z <= z1)
+    return not bool(np.any(cross & inwall))
+
+
 def path_collision_free(V: ArrayLike, scenario: Scenario, step: float = 0.25) -> bool:
-    """True if no UAV of the formation along centroid polyline ``V`` comes into an obstacle or the wall."""
+    """True if no UAV of the formation along centroid polyline ``V`` comes into an obstacle or the wall.
+
+    Exact point clearances (:func:`clearance`) every ``step`` metres, plus wall crossings between
+    samples; the formation keeps each segment's heading.
+    """
     Q = formation_points(V, scenario.offsets, step)
-    if np.any(clearance(Q, scenario) < 0):
-        return False
-    if scenario.surface is not None:  # a thin wall can be jumped between samples
-        p0, u, n = scenario.surface.frame
-        s = (Q - p0) @ n
-        cross = s[:-1] * s[1:] < 0
-        if np.any(cross):
-            t = s[:-1] / np.where(cross, s[:-1] - s[1:], 1.0)
-            X = Q[:-1] + t[..., None] * (Q[1:] - Q[:-1])
-            su, z = (X - p0) @ u, X[..., 2]
-            z0, z1 = scenario.surface.z_range
-            inwall = (su >= 0) & (su <= scenario.surface.length) & (z >= z0) & (z <= z1)
-            if np.any(cross & inwall):
-                return False
-    return True
+    return bool(np.all(clearance(Q, scenario) >= 0)) and crosses_wall_free(Q, scenario)

@@ -22,7 +22,8 @@ example, which is also the default scenario)::
     [inspection] smallest_feature (m), overlap (0..1), lead_in (m)
     [formation]  offsets = [[x, y, z], ...] (formation frame: x along travel, y left, z up),
                  min_separation (m)
-    [cost]     beta = [b1, b2, b3], uav_radius, danger_band, collision_penalty, altitude = [lo, hi]
+    [cost]     beta = [b1, b2, b3], uav_radius, danger_band, collision_penalty, altitude = [lo, hi],
+               max_turn_deg
     [speeds]   cruise, inspect, max (m/s), accel, lateral_accel (m/s^2)
     [planner]  particles, waypoints, iterations, init ("corridor" | "box"), corridor_width (m)
 
@@ -187,6 +188,7 @@ class CostSpec(_Model):
     danger_band: Positive = 2.0
     collision_penalty: NonNeg = 100.0
     altitude: tuple[Finite, Finite] = (5.0, 38.0)
+    max_turn_deg: Annotated[float, Field(gt=0.0, le=180.0, allow_inf_nan=False)] = 60.0
 
     @model_validator(mode="after")
     def _band(self) -> "CostSpec":

@@ -1,0 +1,140 @@
+"""The planner's library entry point: scenario -> mission plan (PAPER.md Sections 2-4).
+
+:func:`plan_mission` runs the whole pipeline: task assessment (P1)-(P3) and the inspection
+pass (:mod:`.task`), the centroid path by θ-PSO (P4) or a baseline on the cost (P5)
+(:mod:`.cost`), and the formation trajectories (P6)-(P9) with the capture points
+(:mod:`.trajectory`), returned as a :class:`protocol.messages.MissionPlan`. The planner service
+(``services.planner.service``) calls it for every plan request.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from protocol.messages import Box, MissionPlan
+
+from .cost import Cost, PathProblem, path_collision_free
+from .ga import ga
+from .optimiser import OptResult
+from .pso import pso
+from .scenario import Scenario, validate_scenario
+from .theta_pso import theta_pso
+from .tlbo import tlbo
+from .trajectory import FormationTrajectories, build_trajectories
+
+__all__ = ["ALGORITHMS", "optimise", "plan_mission", "plan_details"]
+
+#: algorithm name -> optimiser(cost, x0, iterations, rng) -> OptResult
+ALGORITHMS: dict[str, Callable[..., OptResult]] = {
+    "theta-pso": theta_pso,
+    "pso": pso,
+    "ga": ga,
+    "tlbo": tlbo,
+}
+
+
+def _int(name: str, value: Any, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= value <= hi:
+        raise ValueError(f"{name} must be an integer in [{lo}, {hi}], got {value!r}")
+    return int(value)
+
+
+def optimise(
+    scenario: Scenario,
+    algorithm: str = "theta-pso",
+    seed: int = 0,
+    particles: int | None = None,
+    iterations: int | None = None,
+    waypoints: int | None = None,
+    init: str | None = None,
+) -> tuple[PathProblem, OptResult]:
+    """Optimise the centroid path only; returns the problem and the optimiser's result.
+
+    All algorithms start from the same initial population for the same seed
+    (:meth:`PathProblem.initial_population`) and get the same budget of evaluations.
+    """
+    if algorithm not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm {algorithm!r}; choose one of {sorted(ALGORITHMS)}")
+    sp = scenario.planner
+    P = _int("particles", sp.particles if particles is None else particles, 2, 10000)
+    I = _int("iterations", sp.iterations if iterations is None else iterations, 1, 100000)
+    n = _int("waypoints", sp.waypoints if waypoints is None else waypoints, 1, 200)
+    s = _int("seed", seed, 0, 2**63 - 1)
+    problem = PathProblem.from_scenario(scenario, n)
+    x0 = problem.initial_population(P, np.random.default_rng([s, 0]), init or sp.init, sp.corridor_width)
+    result = ALGORITHMS[algorithm](Cost(problem), x0, I, np.random.default_rng([s, 1]))
+    return problem, result
+
+
+def plan_details(
+    scenario: Scenario | dict[str, Any],
+    algorithm: str = "theta-pso",
+    seed: int = 0,
+    particles: int | None = None,
+    iterations: int | None = None,
+    waypoints: int | None = None,
+    request_id: int = 0,
+) -> tuple[MissionPlan, FormationTrajectories, OptResult]:
+    """:func:`plan_mission` plus the dense trajectories and the optimiser's result."""
+    t0 = time.perf_counter()
+    sc = validate_scenario(scenario)
+    problem, res = optimise(sc, algorithm, seed, particles, iterations, waypoints)
+    V = problem.assemble(res.x[None])[0]
+    ft = build_trajectories(sc, V, problem.inspection)
+    free = ft.min_clearance >= 0 and path_collision_free(V, sc)
+    plan = MissionPlan(
+        request_id=request_id,
+        algorithm=algorithm,
+        seed=seed,
+        cost=res.cost,
+        collision_free=bool(free),
+        centroid_path=[tuple(p) for p in V.tolist()],
+        trajectories=ft.trajectories,
+        captures=ft.captures,
+        convergence=res.history.tolist(),
+        planning_time_s=time.perf_counter() - t0,
+        geofence=Box(lo=sc.box.lo, hi=sc.box.hi),
+        origin=(sc.origin.lat, sc.origin.lon, sc.origin.alt),
+        standoff_m=problem.inspection.standoff if problem.inspection is not None else 0.0,
+    )
+    return plan, ft, res
+
+
+def plan_mission(
+    scenario: Scenario | dict[str, Any],
+    algorithm: str = "theta-pso",
+    seed: int = 0,
+    particles: int | None = None,
+    iterations: int | None = None,
+    waypoints: int | None = None,
+) -> MissionPlan:
+    """Plan a formation inspection mission.
+
+    Parameters
+    ----------
+    scenario : Scenario or dict
+        A scenario (or its document, as carried by a ``PlanRequest``).
+    algorithm : {"theta-pso", "pso", "ga", "tlbo"}
+    seed : int
+        Seed of ``numpy.random.default_rng``; the same seed gives the same plan.
+    particles, iterations, waypoints : int, optional
+        Budget; default from the scenario's ``[planner]`` section (the paper's 150 / 300 / 10).
+
+    Returns
+    -------
+    MissionPlan
+        Centroid path, one trajectory per UAV, capture points (each a waypoint of its UAV's
+        trajectory), convergence history, cost, ``collision_free`` (exact dense check of every
+        UAV's trajectory), geofence, geodetic origin and the (P2) stand-off.
+
+    Raises
+    ------
+    ValueError
+        For a malformed scenario (naming the field), an unknown algorithm, a bad budget, or a
+        surface the formation cannot image in one pass.
+    """
+    return plan_details(scenario, algorithm, seed, particles, iterations, waypoints)[0]

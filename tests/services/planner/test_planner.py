@@ -1,0 +1,312 @@
+"""Tests of the planner's pure core: scenario, task assessment (P1-P3), cost (P5), θ-PSO (P4),
+baselines, formation trajectories (P6-P9), export, plan_mission and the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from services.planner.cli import main as cli_main
+from services.planner.compare import compare, convergence_plot
+from services.planner.cost import Cost, PathProblem, clearance, path_collision_free, point_segment_distance
+from services.planner.export import (
+    mission_geojson,
+    parse_geojson,
+    parse_qgc_wpl,
+    qgc_wpl,
+    waypoints_enu,
+    MAV_CMD_DO_DIGICAM_CONTROL,
+    MAV_CMD_NAV_RETURN_TO_LAUNCH,
+    MAV_CMD_NAV_TAKEOFF,
+)
+from services.planner.mission import optimise, plan_details, plan_mission
+from services.planner.scenario import Camera, Scenario, ScenarioError, load_scenario, validate_scenario
+from services.planner.task import camera_grid, coverage, footprint, formation_pass, spacing, standoff
+from services.planner.theta_pso import inverse_sine_map, sine_map
+
+SC = load_scenario()
+
+
+def _doc(**changes):
+    d = SC.model_dump(mode="python")
+    d.update(changes)
+    return d
+
+
+def _no_obstacles(**changes) -> Scenario:
+    return validate_scenario(_doc(obstacles=[], surface=None, **changes))
+
+
+# ----------------------------------------------------------------------------- scenario
+def test_default_scenario_is_the_paper_setting():
+    assert SC.box.hi == (101.0, 141.0, 40.0)
+    assert SC.start == (40.0, 8.0, 30.0) and SC.goal == (64.0, 108.0, 34.0)
+    assert len(SC.obstacles) == 10 and len({c.radius for c in SC.obstacles}) == 10
+    assert (SC.origin.lat, SC.origin.lon) == (-33.87601, 151.191182)
+
+
+def test_default_scenario_blocks_the_straight_line():
+    assert not path_collision_free(np.array([SC.start, SC.goal]), SC)
+
+
+@pytest.mark.parametrize(
+    "change, field",
+    [
+        ({"start": (40.0, 200.0, 30.0)}, "start"),
+        ({"obstacles": [{"centre": (1.0, 1.0), "radius": -1.0, "height": 5.0}]}, "obstacles[0].radius"),
+        ({"camera": {"resolution": (4000, 3000), "sensor_mm": (36.0, math.nan), "focal_mm": 34.4}}, "camera.sensor_mm"),
+        ({"inspection": {"overlap": 1.5}}, "inspection.overlap"),
+        ({"goal": (64.0, 108.0)}, "goal"),
+        ({"bogus": 1}, "bogus"),
+    ],
+)
+def test_scenario_errors_name_the_field(change, field):
+    with pytest.raises(ScenarioError) as ei:
+        validate_scenario(_doc(**change))
+    assert field in str(ei.value)
+    assert isinstance(ei.value, ValueError)
+
+
+def test_scenario_file_errors(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("start = [1, 2\n")
+    with pytest.raises(ScenarioError, match="not valid TOML"):
+        load_scenario(bad)
+    with pytest.raises(ScenarioError, match="cannot read"):
+        load_scenario(tmp_path / "missing.toml")
+    bad.write_text('name = "x"\n[origin]\nlat = 0\nlon = 0\n[box]\nlo = [0,0,0]\nhi = [10,10,10]\n')
+    with pytest.raises(ScenarioError, match="'start'"):
+        load_scenario(bad)
+
+
+def test_surface_must_be_a_vertical_rectangle():
+    with pytest.raises(ScenarioError, match="surface.corners"):
+        validate_scenario(_doc(surface={"corners": [(60, 85, 25), (60, 35, 25), (60, 35, 31), (60, 80, 31)]}))
+    with pytest.raises(ScenarioError, match="vertical"):
+        validate_scenario(_doc(surface={"corners": [(50, 40, 20), (60, 40, 20), (60, 50, 20), (50, 50, 20)]}))
+
+
+# ----------------------------------------------------------------------------- task assessment
+def test_task_assessment_hand_numbers():
+    cam = Camera(resolution=(4000, 3000), sensor_mm=(36.0, 27.0), focal_mm=34.4)
+    # (P1) a = 1/2 * 4000 px * 2.5 mm = 5 m; 1/2 * 3000 * 2.5 mm = 3.75 m
+    assert footprint(cam, 0.0025) == pytest.approx((5.0, 3.75))
+    # (P2) d = 5 m * 34.4 mm / 36 mm = 4.7778 m (the same on the 27 mm axis: square pixels)
+    assert standoff(cam, 0.0025) == pytest.approx(4.777777, rel=1e-6)
+    # (P3) g = (1 - 0.2) * 5 m = 4 m
+    assert spacing(5.0, 0.2) == pytest.approx(4.0)
+    # the real GoPro sensor: 6.17 mm wide, ~2.92 mm focal length -> d = 5 * 2.92 / 6.17 = 2.366 m
+    real = Camera(resolution=(4000, 3000), sensor_mm=(6.17, 4.55), focal_mm=2.92)
+    assert standoff(real, 0.0025) == pytest.approx(min(5 * 2.92 / 6.17, 3.75 * 2.92 / 4.55))
+    with pytest.raises(ValueError):
+        footprint(cam, -1.0)
+    with pytest.raises(ValueError):
+        spacing(5.0, 1.0)
+
+
+def test_camera_grid_covers_the_wall_at_the_standoff():
+    pos, look = camera_grid(SC.surface, SC.camera, 0.0025, 0.2)
+    p0, _, n = SC.surface.frame
+    # 50 m wall, 5 m footprint, 4 m spacing: ceil(45 / 4) + 1 = 13 columns; 6 m tall: 2 rows
+    assert pos.shape == (26, 3)
+    assert np.allclose((pos - p0) @ n, 4.777777, atol=1e-6)
+    assert coverage(SC.surface, SC.camera, pos, look) == 1.0
+    assert coverage(SC.surface, SC.camera, pos[::2], look[::2]) < 1.0
+
+
+def test_formation_pass_images_the_whole_wall():
+    ip = formation_pass(SC)
+    assert ip is not None and ip.uav.size == 26
+    assert coverage(SC.surface, SC.camera, ip.positions, ip.look) == 1.0
+    assert set(ip.uav.tolist()) == {0, 1, 2}
+    assert np.all(np.diff(ip.leg_s) >= 0) and np.all(ip.leg_s > 0) and np.all(ip.leg_s < ip.length)
+
+
+def test_formation_pass_rejects_a_wall_too_tall():
+    tall = [(60, 85, 20), (60, 35, 20), (60, 35, 35), (60, 85, 35)]
+    with pytest.raises(ValueError, match="tall"):
+        formation_pass(validate_scenario(_doc(surface={"corners": tall})))
+
+
+# ----------------------------------------------------------------------------- cost and θ-PSO maps
+def test_sine_map_bounds_and_inverse():
+    lo, hi = np.array([0.0, -5.0, 10.0]), np.array([101.0, 5.0, 40.0])
+    th = np.random.default_rng(0).uniform(-np.pi / 2, np.pi / 2, (1000, 3))
+    x = sine_map(th, lo, hi)
+    assert np.all(x >= lo) and np.all(x <= hi)
+    assert np.allclose(sine_map(-np.pi / 2, lo, hi), lo) and np.allclose(sine_map(np.pi / 2, lo, hi), hi)
+    assert np.allclose(inverse_sine_map(x, lo, hi), th)
+
+
+def test_point_segment_distance_analytic():
+    a, b = np.array([0.0, 0.0]), np.array([10.0, 0.0])
+    assert point_segment_distance([5.0, 3.0], a, b) == pytest.approx(3.0)  # perpendicular foot inside
+    assert point_segment_distance([-3.0, 4.0], a, b) == pytest.approx(5.0)  # beyond a
+    assert point_segment_distance([13.0, -4.0], a, b) == pytest.approx(5.0)  # beyond b
+    assert point_segment_distance([1.0, 1.0], a, a) == pytest.approx(math.sqrt(2))  # degenerate
+    p = np.array([[1.0, 2.0, 2.0]])
+    assert point_segment_distance(p, [0, 0, 0], [2, 0, 0])[0] == pytest.approx(math.sqrt(8))
+
+
+def test_straight_line_cost_without_obstacles_is_the_distance():
+    sc = _no_obstacles()
+    cost = Cost(PathProblem.from_scenario(sc, 3))
+    V = np.array([sc.start, sc.goal], float)[None]
+    J = cost.path_terms(V)[0]
+    assert J[0] == pytest.approx(102.92, abs=0.005)
+    assert J[1] == 0.0 and J[2] == 0.0
+    # free waypoints on the straight line: same cost, through the vectorised entry point
+    x = np.linspace(sc.start, sc.goal, 5)[1:-1].reshape(1, -1)
+    assert cost(x)[0] == pytest.approx(102.917, abs=1e-3)
+
+
+def test_collision_penalty_grows_with_depth_and_is_finite():
+    sc = validate_scenario(_doc(surface=None, obstacles=[{"centre": (52.0, 58.0), "radius": 4.0, "height": 40.0}]))
+    cost = Cost(PathProblem.from_scenario(sc, 1))
+    base = np.array([52.0, 58.0, 32.0])
+    xs = np.array([base + [d, 0, 0] for d in (12.0, 5.5, 3.0, 1.0, 0.0)])
+    J2 = cost.terms(xs)[:, 1]
+    assert np.all(np.isfinite(J2))
+    assert J2[0] == 0.0 and 0 < J2[1] < J2[2] < J2[3] < J2[4]
+    assert J2[2] > sc.cost.collision_penalty  # inside: the large penalty
+    with pytest.raises(ValueError):
+        cost(np.full((1, 3), np.nan))
+
+
+def test_clearance_of_points():
+    sc = validate_scenario(_doc(surface=None, obstacles=[{"centre": (10.0, 10.0), "radius": 2.0, "height": 20.0}]))
+    r = sc.cost.uav_radius
+    c = clearance(np.array([[15.0, 10.0, 5.0], [10.0, 10.0, 23.0], [11.0, 10.0, 5.0]]), sc)
+    assert c == pytest.approx([3.0 - r, 3.0 - r, -1.0 - r])
+
+
+# ----------------------------------------------------------------------------- optimisers
+def test_seeded_runs_are_reproducible():
+    a = optimise(SC, "theta-pso", seed=3, particles=20, iterations=15)[1]
+    b = optimise(SC, "theta-pso", seed=3, particles=20, iterations=15)[1]
+    c = optimise(SC, "theta-pso", seed=4, particles=20, iterations=15)[1]
+    assert np.array_equal(a.x, b.x) and a.cost == b.cost
+    assert not np.array_equal(a.x, c.x)
+
+
+@pytest.mark.parametrize("algorithm", ["theta-pso", "pso", "ga", "tlbo"])
+def test_every_algorithm_keeps_the_budget_and_improves(algorithm):
+    problem, res = optimise(SC, algorithm, seed=1, particles=30, iterations=40)
+    assert res.evaluations == 30 * 41
+    assert res.history.shape == (41,)
+    assert np.all(np.diff(res.history) <= 0)
+    assert res.cost < res.initial_cost
+    assert np.all(res.x >= np.tile(problem.lo, 10) - 1e-9) and np.all(res.x <= np.tile(problem.hi, 10) + 1e-9)
+
+
+def test_same_initialisation_for_all_algorithms():
+    inits = {a: optimise(SC, a, seed=2, particles=20, iterations=2)[1].initial_cost for a in ("theta-pso", "pso", "ga", "tlbo")}
+    assert len(set(inits.values())) == 1
+
+
+def test_theta_pso_ends_collision_free_on_the_default_scenario():
+    problem, res = optimise(SC, "theta-pso", seed=0, particles=60, iterations=80)
+    assert res.cost < 0.7 * res.initial_cost
+    assert path_collision_free(problem.assemble(res.x[None])[0], SC)
+
+
+# ----------------------------------------------------------------------------- plan, trajectories
+@pytest.fixture(scope="module")
+def plan_and_traj():
+    plan, ft, _ = plan_details(SC, seed=0, particles=60, iterations=100)
+    return plan, ft
+
+
+def test_plan_mission_trajectories_and_captures(plan_and_traj):
+    plan, ft = plan_and_traj
+    assert plan.collision_free and ft.min_clearance >= 0
+    assert len(plan.trajectories) == 3 and [t.uav for t in plan.trajectories] == [1, 2, 3]
+    assert 60.0 <= ft.duration_s <= 180.0
+    assert len(plan.captures) == 26
+    by_uav = {t.uav: t for t in plan.trajectories}
+    p0, u, n = SC.surface.frame
+    for c in plan.captures:
+        wp = [w for w in by_uav[c.uav].waypoints if w.capture_id == c.capture_id]
+        assert len(wp) == 1  # the capture point is a waypoint of its UAV's trajectory
+        assert np.allclose(wp[0].pos, c.pos) and wp[0].t == c.t
+        assert (np.asarray(c.pos) - p0) @ n == pytest.approx(plan.standoff_m, abs=0.01)
+        assert np.allclose(c.look, -n)
+        assert math.cos(wp[0].yaw - math.atan2(c.look[1], c.look[0])) > 0.999  # facing the wall
+    assert coverage(SC.surface, SC.camera, [c.pos for c in plan.captures], [c.look for c in plan.captures]) == 1.0
+    # speed limits and the centroid (P6)
+    for t in plan.trajectories:
+        P = np.array([w.pos for w in t.waypoints])
+        T = np.array([w.t for w in t.waypoints])
+        assert np.max(np.linalg.norm(np.diff(P, axis=0), axis=1) / np.diff(T)) <= SC.speeds.max + 1e-9
+        assert np.allclose(P[0], np.asarray(SC.start) + [[0, 0, 2], [0, 0, -1], [0, 0, -1]][t.uav - 1], atol=3.5)
+    assert np.allclose(ft.positions.mean(axis=1), ft.centroid, atol=1e-9)
+    assert np.allclose(ft.centroid[0], SC.start) and np.allclose(ft.centroid[-1], SC.goal)
+
+
+def test_plan_mission_rejects_bad_requests():
+    with pytest.raises(ValueError, match="algorithm"):
+        plan_mission(SC, algorithm="simplex")
+    with pytest.raises(ValueError, match="particles"):
+        plan_mission(SC, particles=1)
+    with pytest.raises(ValueError, match="box.lo|box"):
+        plan_mission(_doc(box={"lo": (0, 0, 0), "hi": (0, 141, 40)}))
+
+
+def test_plan_mission_accepts_a_scenario_dict():
+    plan = plan_mission(SC.model_dump(mode="json"), seed=1, particles=10, iterations=3)
+    assert plan.seed == 1 and len(plan.convergence) == 4
+
+
+# ----------------------------------------------------------------------------- export
+def test_waypoint_file_round_trip(plan_and_traj):
+    plan, _ = plan_and_traj
+    for tr in plan.trajectories:
+        items = parse_qgc_wpl(qgc_wpl(tr, plan.origin))
+        assert items[1].command == MAV_CMD_NAV_TAKEOFF and items[-1].command == MAV_CMD_NAV_RETURN_TO_LAUNCH
+        enu, caps = waypoints_enu(items)
+        P = np.array([w.pos for w in tr.waypoints])
+        assert enu.shape == P.shape and np.max(np.abs(enu - P)) < 0.01
+        assert caps == [w.capture_id for w in tr.waypoints]
+        assert sum(it.command == MAV_CMD_DO_DIGICAM_CONTROL for it in items) == sum(c is not None for c in caps)
+
+
+def test_geojson_round_trip(plan_and_traj):
+    plan, _ = plan_and_traj
+    doc = json.loads(json.dumps(mission_geojson(plan)))
+    lines = parse_geojson(doc, plan.origin)
+    assert np.max(np.abs(lines["centroid"] - np.array(plan.centroid_path))) < 0.01
+    P = np.array([w.pos for w in plan.trajectories[1].waypoints])
+    assert np.max(np.abs(lines["uav2"] - P)) < 0.01
+    assert sum(f["properties"]["kind"] == "capture" for f in doc["features"]) == 26
+
+
+def test_parsers_reject_garbage():
+    with pytest.raises(ValueError, match="QGC WPL 110"):
+        parse_qgc_wpl("hello\n")
+    with pytest.raises(ValueError, match="line 2"):
+        parse_qgc_wpl("QGC WPL 110\n0\t1\t0\t16\n")
+    with pytest.raises(ValueError):
+        parse_geojson({"type": "Feature"}, (0.0, 0.0, 0.0))
+
+
+# ----------------------------------------------------------------------------- compare and CLI
+def test_compare_table_and_plot(tmp_path):
+    res = compare(SC, seeds=2, particles=12, iterations=6)
+    assert set(res["rows"]) == {"ga", "tlbo", "pso", "theta-pso"}
+    for r in res["rows"].values():
+        assert r["final_best"] <= r["final_mean"] <= r["initial_cost"]
+        assert 0.0 <= r["collision_free"] <= 1.0 and 0 <= r["convergence_iteration"] <= 6
+    png = convergence_plot(res, tmp_path / "conv.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_plan_writes_files(tmp_path, capsys):
+    rc = cli_main(["--seed", "0", "--particles", "60", "--iterations", "100", "--out", str(tmp_path)])
+    assert rc == 0
+    assert (tmp_path / "uav1.waypoints").read_text().startswith("QGC WPL 110")
+    assert json.loads((tmp_path / "mission.geojson").read_text())["type"] == "FeatureCollection"
+    assert "collision-free" in capsys.readouterr().out
+    assert cli_main(["--scenario", str(tmp_path / "nope.toml")]) == 2
