@@ -222,7 +222,7 @@ def parse_vec(text: str) -> tuple[float, float, float]:
     return v  # type: ignore[return-value]
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet edge", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="peer")
     parser.add_argument("--uav", type=int, required=True)
@@ -237,9 +237,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--speed", type=float, default=1.0, help="simulation speed factor")
     parser.add_argument("--epoch", type=float, default=None, help="shared wall-clock epoch of the sim clock")
     parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--wind", choices=["calm", "moderate"], default="moderate",
+                        help="disturbance model of the simulated vehicle (seeded gusts and torques)")
     parser.add_argument("--camera", default="synthetic", help="synthetic | image folder | video:<url or index> | none")
     parser.add_argument("--scenario", default=None, help="scenario file (surface and camera of the synthetic source)")
     parser.add_argument("--frame-size", default="640x480", help="delivered frame size WxH")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.lease is None:
         args.lease = 2.0

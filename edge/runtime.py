@@ -30,9 +30,12 @@ SURFACE_SEED = 2024
 
 def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
     if args.vehicle == "sim":
-        from .vehicle.sim import SimDriver
+        from .vehicle.quadrotor import DisturbanceParams
+        from .vehicle.sim import SimDriver, SimParams
 
-        return SimDriver(args.uav, seed=args.seed if args.seed is not None else args.uav, home=args.home, t0=t0)
+        wind = DisturbanceParams.moderate() if args.wind == "moderate" else DisturbanceParams()
+        return SimDriver(args.uav, params=SimParams(disturbance=wind), home=args.home, t0=t0,
+                         seed=args.seed if args.seed is not None else args.uav)
     from .vehicle.mavlink import MavlinkDriver  # needs the "mavlink" extra
 
     return MavlinkDriver(args.uav, args.mavlink, home=args.home)

@@ -50,13 +50,18 @@ def session_counts(bus: Bus) -> dict[str, int]:
     return dict(counts)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet gateway", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="router")
     parser.add_argument("--id", default="1", help="gateway id (key space)")
     parser.add_argument("--host", default="127.0.0.1", help="listen host when --port is used")
     parser.add_argument("--port", type=int, default=None, help="TCP port; UDP uses port+1 (multilink)")
     parser.add_argument("--period", type=float, default=1.0, help="statistics period, s")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     log = setup_logging(f"gateway-{args.id}")
     listen = list(args.listen)

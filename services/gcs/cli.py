@@ -62,7 +62,7 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
     return 1
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet gcs", description="ground control station")
     sub = parser.add_subparsers(dest="action", required=True)
     m = sub.add_parser("mission", help="run a mission over the bus")
@@ -75,7 +75,11 @@ def main(argv: list[str] | None = None) -> int:
     m.add_argument("--out", default=None, help="report folder")
     m.add_argument("--quiet", action="store_true")
     m.add_argument("--appear-timeout", type=float, default=30.0)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     log = setup_logging("gcs")
     scenario = load_scenario_doc(args.scenario)
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,

@@ -36,9 +36,14 @@ def answer(request: PlanRequest) -> MissionPlan:
     return plan.model_copy(update={"request_id": request.request_id})
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet planner", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="client")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     log = setup_logging("planner")
     stop = stop_event_on_signals()
