@@ -1,0 +1,36 @@
+"""The planner service over the real bus (issue 4): plan requests answered, bad ones refused with a reason."""
+
+import time
+
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.messages import MissionPlan, PlanRequest
+from services.planner.scenario import load_scenario
+
+FLEET = "test"
+
+
+def test_planner_answers_plan_requests_over_the_bus(group, gateway):
+    svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink",
+                                  *[a for e in gateway for a in ("--connect", e)]])
+    assert svc.wait_for("planner up", 30), "\n".join(svc.lines)
+    doc = load_scenario().model_dump(mode="json")
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
+        deadline = time.monotonic() + 10
+        while not gcs.alive(keys.rcu_alive(FLEET, "planner")) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        reply = gcs.request(keys.planner(FLEET), PlanRequest(request_id=7, scenario=doc, seed=1),
+                             expect=MissionPlan, timeout=60)
+        assert reply.ok, reply.error
+        plan = reply.message
+        assert plan.request_id == 7 and plan.collision_free
+        assert {t.uav for t in plan.trajectories} == {1, 2, 3}
+        assert plan.centroid_path[0] == tuple(doc["start"]) and plan.centroid_path[-1] == tuple(doc["goal"])
+
+        bad = dict(doc, box={"lo": [0, 0, 0], "hi": [10, 10, "high"]})
+        refused = gcs.request(keys.planner(FLEET), PlanRequest(scenario=bad), expect=MissionPlan, timeout=30)
+        assert not refused.ok and "box" in refused.error
+
+        unknown = gcs.request(keys.planner(FLEET), PlanRequest(scenario=doc, algorithm="magic", iterations=5),
+                              expect=MissionPlan, timeout=30)
+        assert not unknown.ok and "magic" in unknown.error
