@@ -1,0 +1,59 @@
+"""Ground-station failures end the mission with a clear message, never a hang (issue 6)."""
+
+import time
+
+import pytest
+
+from protocol.bus import Bus, BusConfig
+from services.gcs.cli import load_scenario_doc
+from services.gcs.mission import MissionOptions, MissionRunner
+
+FLEET = "test"
+
+
+def _edge(group, gateway, uav, *extra):
+    return group.start(f"uav{uav}", ["edge", "--uav", str(uav), "--fleet", FLEET, "--multilink", "--camera", "none",
+                                     *[a for e in gateway for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0",
+                                     "--home", f"{38 + 2 * uav},8,0", "--speed", "8", *extra])
+
+
+@pytest.fixture
+def planner(group, gateway):
+    svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink",
+                                  *[a for e in gateway for a in ("--connect", e)]])
+    assert svc.wait_for("planner up", 30)
+    return svc
+
+
+def _run(gateway, uavs, appear_timeout=20.0):
+    opts = MissionOptions(uavs=uavs, speed=8, appear_timeout_s=appear_timeout, command_timeout_s=1.0,
+                          command_attempts=2, particles=40, iterations=40)
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as bus:
+        t0 = time.monotonic()
+        record = MissionRunner(bus, load_scenario_doc(None), opts).run()
+        return record, time.monotonic() - t0
+
+
+def test_a_uav_that_never_appears_fails_the_mission(group, gateway, planner):
+    for uav in (1, 2):
+        assert _edge(group, gateway, uav).wait_for("board up", 30)
+    record, elapsed = _run(gateway, (1, 2, 3), appear_timeout=4.0)
+    assert not record.success
+    assert any("UAV 3 never appeared" in f for f in record.failures), record.failures
+    assert elapsed < 30  # did not hang (the appear timeout is 4 s)
+    assert record.plan is None and not record.commands
+
+
+def test_a_uav_that_refuses_its_upload_fails_the_mission(group, gateway, planner):
+    _edge(group, gateway, 1)
+    # UAV 2's own geofence is a small box: the plan's trajectory leaves it
+    fenced = _edge(group, gateway, 2, "--geofence", "0,0,0,60,30,40")
+    for svc in group.services[-2:]:
+        assert svc.wait_for("board up", 30)
+    record, _ = _run(gateway, (1, 2))
+    assert not record.success
+    assert any("UAV 2 refused its trajectory upload" in f and "geofence" in f for f in record.failures), record.failures
+    refused = [c for c in record.commands if c.uav == 2 and c.kind == "upload"]
+    assert refused and refused[0].ok and not refused[0].accepted
+    assert not any(c.kind == "takeoff" for c in record.commands)
+    assert fenced.alive()
