@@ -33,10 +33,12 @@ not reported). A pause (hold, resume) therefore shows as a growing time-aligned 
 
 *Formation error.* The UAVs' positions are linearly interpolated to common times (the union of
 their state times inside the window where every UAV tracks), the heading ψ is that of the flown
-centroid's horizontal velocity (held at its last value while the centroid moves slower than
-0.1 m/s) and :func:`edge.formation.formation_error` gives the RMS shape error (P6)-(P9) at each
+centroid's horizontal velocity averaged over 1 s (held at its last value while the centroid moves
+slower than 0.3 m/s; before the first such time, the first heading found) and :func:`edge.formation.formation_error` gives the RMS shape error (P6)-(P9) at each
 time, with the scenario's offsets (``scenario["formation"]["offsets"]``, row n−1 for UAV n) or
-:data:`edge.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum.
+:data:`edge.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
+planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
+heading of the centroid's motion is not always the one the planner placed the slots with.
 
 *Reached goal*: the last recorded position is within 2 m of the last planned waypoint.
 
@@ -85,6 +87,7 @@ __all__ = [
     "planned_positions",
     "latency_figures",
     "convergence_iteration",
+    "shape_errors",
     "summarise",
     "write_report",
 ]
@@ -94,7 +97,9 @@ GOAL_RADIUS_M = 2.0
 #: Tolerance of the defect scoring (:func:`services.gcs.scoring.score_defects`), m.
 DEFECT_TOLERANCE_M = 0.3
 #: Below this horizontal centroid speed the formation heading is held, m/s.
-_HEADING_MIN_SPEED = 0.1
+_HEADING_MIN_SPEED = 0.3
+#: The centroid velocity giving the formation heading is averaged over this window, s.
+_HEADING_WINDOW_S = 1.0
 #: Most points drawn per line (longer series are decimated for plotting only).
 _PLOT_POINTS = 4000
 #: The plot files, in the order of the paper's results section.
@@ -141,13 +146,20 @@ class UavFigures:
 
 @dataclass
 class FormationFigures:
-    """Formation shape error during the MISSION phase (RMS over time and maximum), metres."""
+    """Formation shape error during the MISSION phase (RMS over time and maximum), metres.
+
+    ``plan_rms_m`` / ``plan_max_m``: the planned trajectories' own shape error measured the same
+    way over the plan's waypoint times (the heading from the centroid's motion need not be the
+    one the planner placed the slots with, e.g. in turns and climbs).
+    """
 
     rms_m: float | None = None
     max_m: float | None = None
     mean_m: float | None = None
     samples: int = 0
     duration_s: float = 0.0
+    plan_rms_m: float | None = None
+    plan_max_m: float | None = None
     uavs: list[int] = field(default_factory=list)
     offsets: dict[int, list[float]] = field(default_factory=dict)
 
@@ -470,16 +482,74 @@ def _uav_figures(uav: int, track: _Track | None, traj: Trajectory | None,
     return f, series
 
 
-def _formation(tracks: Mapping[int, _Track], offsets: Mapping[int, NDArray[np.float64]]
-               ) -> tuple[FormationFigures, dict[str, NDArray[np.float64]]]:
+def shape_errors(t: ArrayLike, positions: Mapping[int, ArrayLike], offsets: Mapping[int, ArrayLike]
+                 ) -> NDArray[np.float64]:
+    """Formation shape error at each time, heading from the centroid's own motion, metres.
+
+    Parameters
+    ----------
+    t : array_like, shape (N,)
+        Increasing sample times, s.
+    positions : mapping int -> array_like (N, 3)
+        Every UAV's position at those times (at least two UAVs with an offset).
+    offsets : mapping int -> (3,)
+        Formation offsets ΔT_n (P9).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        :func:`edge.formation.formation_error` (P6)-(P9) at each time, with the heading ψ of the
+        centroid's horizontal velocity averaged over 1 s (one-sided at the ends), held at its
+        last value while that speed is below 0.3 m/s (before the first faster time: the first
+        heading found; never faster: ψ = 0).
+    """
+    t = np.asarray(t, dtype=float)
+    ids = [u for u in sorted(positions) if u in offsets]
+    if t.ndim != 1 or t.size == 0 or len(ids) < 2:
+        raise ValueError("need N >= 1 sample times and at least two UAVs with an offset")
+    pos = {u: np.asarray(positions[u], dtype=float) for u in ids}
+    if any(p.shape != (t.size, 3) for p in pos.values()):
+        raise ValueError(f"positions must have shape ({t.size}, 3)")
+    C = np.mean([pos[u] for u in ids], axis=0)
+    # the plain sample-to-sample difference turns position noise into heading noise at low speed
+    a = np.clip(t - _HEADING_WINDOW_S / 2, t[0], t[-1])
+    b = np.clip(t + _HEADING_WINDOW_S / 2, t[0], t[-1])
+    Ca = np.stack([np.interp(a, t, C[:, k]) for k in range(2)], axis=1)
+    Cb = np.stack([np.interp(b, t, C[:, k]) for k in range(2)], axis=1)
+    vel = (Cb - Ca) / np.maximum(b - a, 1e-9)[:, None]
+    valid = np.hypot(vel[:, 0], vel[:, 1]) >= _HEADING_MIN_SPEED
+    yaw = np.zeros(t.size)
+    if np.any(valid):
+        idx = np.maximum.accumulate(np.where(valid, np.arange(t.size), -1))
+        idx[idx < 0] = int(np.argmax(valid))
+        yaw = np.arctan2(vel[idx, 1], vel[idx, 0])
+    return np.array([formation_error({u: pos[u][k] for u in ids}, C[k], float(yaw[k]), offsets)
+                     for k in range(t.size)])
+
+
+def _formation(tracks: Mapping[int, _Track], trajs: Mapping[int, Trajectory],
+               offsets: Mapping[int, NDArray[np.float64]]) -> tuple[FormationFigures, dict[str, NDArray[np.float64]]]:
     ids = [u for u in sorted(tracks) if u in offsets and tracks[u].tracking.sum() >= 2]
     out = FormationFigures(uavs=ids, offsets={u: offsets[u].tolist() for u in ids})
+    series: dict[str, NDArray[np.float64]] = {}
+    # the plan's own shape error, measured the same way (what the flight can at best reproduce)
+    planned = [u for u in sorted(trajs) if u in offsets]
+    if len(planned) >= 2:
+        tau = np.unique(np.concatenate([[w.t for w in trajs[u].waypoints] for u in planned]))
+        tau = tau[(tau >= max(trajs[u].waypoints[0].t for u in planned))
+                  & (tau <= min(trajs[u].waypoints[-1].t for u in planned))]
+        if tau.size:
+            pe = shape_errors(tau, {u: planned_positions(trajs[u], tau) for u in planned}, offsets)
+            out.plan_rms_m, out.plan_max_m = float(np.sqrt(np.mean(pe**2))), float(np.max(pe))
+            anchors = [tracks[u].anchor for u in planned if u in tracks and tracks[u].anchor is not None]
+            if anchors:
+                series.update(plan_t=tau - trajs[planned[0]].waypoints[0].t + anchors[0], plan_error=pe)
     if len(ids) < 2:
-        return out, {}
+        return out, series
     lo = max(float(tracks[u].t[tracks[u].tracking][0]) for u in ids)
     hi = min(float(tracks[u].t[tracks[u].tracking][-1]) for u in ids)
     if not hi > lo:
-        return out, {}
+        return out, series
     grid = np.unique(np.concatenate([tracks[u].t[(tracks[u].t >= lo) & (tracks[u].t <= hi)] for u in ids]))
     keep = np.ones(grid.size, dtype=bool)
     pos = {}
@@ -491,26 +561,15 @@ def _formation(tracks: Mapping[int, _Track], offsets: Mapping[int, NDArray[np.fl
         pos[u] = np.stack([np.interp(grid, tk.t, tk.pos[:, k]) for k in range(3)], axis=1)
     grid = grid[keep]
     if grid.size < 2:
-        return out, {}
-    pos = {u: p[keep] for u, p in pos.items()}
-    C = np.mean([pos[u] for u in ids], axis=0)
-    vel = np.gradient(C, grid, axis=0)
-    speed = np.hypot(vel[:, 0], vel[:, 1])
-    valid = speed >= _HEADING_MIN_SPEED
-    yaw = np.zeros(grid.size)
-    if np.any(valid):
-        idx = np.where(valid, np.arange(grid.size), -1)
-        idx = np.maximum.accumulate(idx)
-        idx[idx < 0] = int(np.argmax(valid))
-        yaw = np.arctan2(vel[idx, 1], vel[idx, 0])
-    err = np.array([formation_error({u: pos[u][k] for u in ids}, C[k], float(yaw[k]), offsets)
-                    for k in range(grid.size)])
+        return out, series
+    err = shape_errors(grid, {u: p[keep] for u, p in pos.items()}, offsets)
     out.rms_m = float(np.sqrt(np.mean(err**2)))
     out.mean_m = float(np.mean(err))
     out.max_m = float(np.max(err))
     out.samples = int(grid.size)
     out.duration_s = float(grid[-1] - grid[0])
-    return out, {"t": grid, "error": err}
+    series.update(t=grid, error=err)
+    return out, series
 
 
 def _latest(stats: Sequence[Any]) -> Any | None:
@@ -611,7 +670,7 @@ def _analyse(record: MissionRecord) -> tuple[ReportSummary, dict[str, Any]]:
     for u in sorted(set(tracks) | set(trajs)):
         uavs[u], series["path"][u] = _uav_figures(u, tracks.get(u), trajs.get(u), imaged)
     offsets = _offsets(record, sorted(set(tracks) | set(trajs)))
-    formation, series["formation"] = _formation(tracks, offsets)
+    formation, series["formation"] = _formation(tracks, trajs, offsets)
 
     corners = record.surface_corners
     defects = None
@@ -826,10 +885,14 @@ def _plot_formation(summary: ReportSummary, series: Mapping[str, Any], path: Pat
     fig = _figure(7.0, 3.5)
     ax = fig.add_subplot()
     f = series["formation"]
-    if f:
+    if "t" in f:
         s = _thin(f["t"].size)
-        ax.plot(f["t"][s] - _t0(series), f["error"][s], "-", color="k")
-        ax.axhline(summary.formation.rms_m, color="C3", ls="--", lw=0.8, label=f"RMS {summary.formation.rms_m:.2f} m")
+        ax.plot(f["t"][s] - _t0(series), f["error"][s], "-", color="k", label="flown")
+        if "plan_t" in f:
+            s = _thin(f["plan_t"].size)
+            ax.plot(f["plan_t"][s] - _t0(series), f["plan_error"][s], "--", color="C0", lw=0.9,
+                    label=f"planned (RMS {summary.formation.plan_rms_m:.2f} m)")
+        ax.axhline(summary.formation.rms_m, color="C3", ls=":", lw=0.8, label=f"flown RMS {summary.formation.rms_m:.2f} m")
         ax.legend(fontsize=8)
     else:
         _no_data(ax, "fewer than two UAVs tracking together")
@@ -984,7 +1047,9 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
                     f"{f.captures_imaged} / {f.captures_planned}"] for u, f in s.uavs.items()]), "",
            "![Formation error](formation_error.png)", "",
            f"Formation shape error over the MISSION phase ({s.formation.samples} samples, "
-           f"{_fmt(s.formation.duration_s, 1)} s): RMS {_fmt(s.formation.rms_m)} m, max {_fmt(s.formation.max_m)} m.",
+           f"{_fmt(s.formation.duration_s, 1)} s): RMS {_fmt(s.formation.rms_m)} m, max {_fmt(s.formation.max_m)} m "
+           f"(the plan itself, measured the same way: RMS {_fmt(s.formation.plan_rms_m)} m, "
+           f"max {_fmt(s.formation.plan_max_m)} m).",
            ""]
     md += ["## Surface inspection results", ""]
     c = s.captures

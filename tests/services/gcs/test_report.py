@@ -22,7 +22,7 @@ from protocol.messages import (Box, Defect, DefectReport, Event, Level, LinkStat
 from services.gcs.record import (CommandRecord, DefectRx, EventRx, GroundTruthDefect, MissionRecord, StateRx,
                                  StatsRx)
 from services.gcs.report import (PLOTS, Latency, convergence_iteration, latency_figures, planned_positions,
-                                 polyline_distance, summarise, write_report)
+                                 polyline_distance, shape_errors, summarise, write_report)
 
 V, T, LAG, SIDE = 2.0, 20.0, 0.5, 0.5  # m/s, s, s, m
 T_SIM0, STAMP0 = 50.0, 1000.0  # sim time and wall time of trajectory time 0
@@ -156,6 +156,22 @@ def test_formation_error_is_the_known_shape_error(summary):
     assert f.rms_m == pytest.approx(math.sqrt(2) / 3, rel=1e-9)
     assert f.max_m == pytest.approx(math.sqrt(2) / 3, rel=1e-9)
     assert f.samples == 101 and f.duration_s == pytest.approx(10.0)  # UAV 3 stops at tau = 10
+    assert f.plan_rms_m == pytest.approx(0.0, abs=1e-9) and f.plan_max_m == pytest.approx(0.0, abs=1e-9)
+
+
+def test_shape_errors_take_the_heading_from_the_motion():
+    t = np.arange(0.0, 5.0, 0.1)
+    c = np.stack([-1.5 * t, np.zeros_like(t), np.full_like(t, 10.0)], axis=1)  # flying west
+    offsets = {u: DEFAULT_OFFSETS[u - 1] for u in (1, 2, 3)}
+    west = {u: c + np.array([-o[0], -o[1], o[2]]) for u, o in offsets.items()}  # R(pi) ΔT_n
+    np.testing.assert_allclose(shape_errors(t, west, offsets), 0.0, atol=1e-9)
+    east = {u: c + offsets[u] for u in offsets}  # the triangle left facing east
+    np.testing.assert_allclose(shape_errors(t, east, offsets), math.sqrt((36 + 36) / 3), rtol=1e-9)
+    # hovering: no heading from the motion, psi = 0 (east) is used
+    still = {u: np.repeat(c[:1], t.size, 0) + offsets[u] for u in offsets}
+    np.testing.assert_allclose(shape_errors(t, still, offsets), 0.0, atol=1e-9)
+    with pytest.raises(ValueError):
+        shape_errors(t, {1: west[1]}, offsets)
 
 
 def test_defects_by_hand(summary):
