@@ -1,0 +1,366 @@
+"""Tests of services.netem.proxy on real sockets on 127.0.0.1 (generous bounds, no fragile timing)."""
+
+from __future__ import annotations
+
+import os
+import socket
+import statistics
+import struct
+import threading
+import time
+
+import pytest
+
+from services.netem.proxy import TcpProxy, UdpProxy, parse_address
+
+
+# ------------------------------------------------------------------------------ servers
+class UdpServer:
+    """A UDP sink that records (arrival time, payload) and optionally echoes."""
+
+    def __init__(self, echo: bool = False) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.1)
+        self.echo, self.got, self.peers = echo, [], set()
+        self._stop = False
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    @property
+    def address(self):
+        return self.sock.getsockname()
+
+    def _run(self) -> None:
+        while not self._stop:
+            try:
+                data, peer = self.sock.recvfrom(65535)
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            self.got.append((time.monotonic(), data))
+            self.peers.add(peer)
+            if self.echo:
+                self.sock.sendto(data, peer)
+
+    def wait_count(self, n: int, timeout: float = 5.0) -> None:
+        deadline = time.monotonic() + timeout
+        while len(self.got) < n and time.monotonic() < deadline:
+            time.sleep(0.01)
+
+    def close(self) -> None:
+        self._stop = True
+        self.thread.join()
+        self.sock.close()
+
+
+class TcpEcho:
+    """A TCP echo server, one thread per connection."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen()
+        self.sock.settimeout(0.1)
+        self._stop = False
+        self.threads = [threading.Thread(target=self._run, daemon=True)]
+        self.threads[0].start()
+
+    @property
+    def address(self):
+        return self.sock.getsockname()
+
+    def _run(self) -> None:
+        while not self._stop:
+            try:
+                conn, _ = self.sock.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            t = threading.Thread(target=self._echo, args=(conn,), daemon=True)
+            self.threads.append(t)
+            t.start()
+
+    @staticmethod
+    def _echo(conn: socket.socket) -> None:
+        with conn:
+            try:
+                while data := conn.recv(1 << 16):
+                    conn.sendall(data)
+            except OSError:
+                pass
+
+    def close(self) -> None:
+        self._stop = True
+        self.threads[0].join()
+        self.sock.close()
+
+
+@pytest.fixture
+def sink():
+    s = UdpServer()
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def udp_echo():
+    s = UdpServer(echo=True)
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def tcp_echo():
+    s = TcpEcho()
+    yield s
+    s.close()
+
+
+def netem_threads() -> list[str]:
+    return [t.name for t in threading.enumerate() if t.name.startswith("netem-")]
+
+
+def udp_client() -> socket.socket:
+    c = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    c.settimeout(2.0)
+    return c
+
+
+def eventually(pred, timeout: float = 5.0) -> bool:
+    """Poll ``pred`` until true (or timeout): waits for the proxy threads to catch up."""
+    deadline = time.monotonic() + timeout
+    while not pred() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return pred()
+
+
+def send_paced(sock: socket.socket, addr, payloads, every: int = 50, pause: float = 0.002) -> None:
+    """Send datagrams with a short pause every few, so no socket buffer overflows on the way."""
+    for i, p in enumerate(payloads):
+        sock.sendto(p, addr)
+        if i % every == every - 1:
+            time.sleep(pause)
+
+
+def rtt_ms(sock: socket.socket, addr, n: int = 15) -> list[float]:
+    out = []
+    for i in range(n):
+        t = time.monotonic()
+        sock.sendto(struct.pack("!I", i), addr)
+        while struct.unpack("!I", sock.recvfrom(100)[0][:4])[0] != i:
+            pass
+        out.append((time.monotonic() - t) * 1000.0)
+        time.sleep(0.005)
+    return out
+
+
+# ------------------------------------------------------------------------------ construction
+def test_bad_arguments_are_value_errors():
+    with pytest.raises(ValueError):
+        UdpProxy(target=("127.0.0.1", 9), direction="sideways")
+    with pytest.raises(ValueError):
+        TcpProxy(target="127.0.0.1")
+    with pytest.raises(ValueError):
+        TcpProxy(target=("127.0.0.1", 70000))
+    with pytest.raises(ValueError):
+        UdpProxy(target=("127.0.0.1", 9), impairment="loss 2")
+    with pytest.raises(ValueError):
+        TcpProxy(target=("127.0.0.1", 9), max_pending_bytes=0)
+    assert parse_address("[::1]:7447") == ("::1", 7447)
+    with pytest.raises(RuntimeError):
+        UdpProxy(target=("127.0.0.1", 9)).address  # not started
+
+
+# ------------------------------------------------------------------------------ UDP
+def test_udp_port_zero_reports_the_bound_port_and_forwards_both_ways(udp_echo):
+    with UdpProxy(target=udp_echo.address, seed=0) as proxy:
+        assert proxy.port != 0
+        c1, c2 = udp_client(), udp_client()
+        for c, msg in ((c1, b"one"), (c2, b"two")):
+            c.sendto(msg, proxy.address)
+            assert c.recvfrom(100)[0] == msg
+        eventually(lambda: proxy.stats()["down"]["sent_bytes"] == 6)  # counted just after sending
+        s = proxy.stats()
+        assert s["associations"] == 2 and len(udp_echo.peers) == 2  # one upstream socket per client
+        assert s["up"]["sent_bytes"] == s["down"]["sent_bytes"] == 6
+        c1.close()
+        c2.close()
+
+
+def test_udp_delay_is_added_on_the_impaired_direction_only(udp_echo):
+    with UdpProxy(target=udp_echo.address, seed=0) as plain, \
+            UdpProxy(target=udp_echo.address, impairment="delay 50ms", direction="up", seed=0) as slow:
+        c = udp_client()
+        base = statistics.median(rtt_ms(c, plain.address))
+        added = statistics.median(rtt_ms(c, slow.address)) - base
+        c.close()
+    assert abs(added - 50.0) < 10.0, added
+
+
+def test_udp_loss_over_2000_packets_is_within_binomial_bounds(sink):
+    n, p = 2000, 0.1
+    with UdpProxy(target=sink.address, impairment="loss 10%", seed=123) as proxy:
+        c = udp_client()
+        send_paced(c, proxy.address, [struct.pack("!I", i) + bytes(60) for i in range(n)])
+        assert eventually(lambda: proxy.stats()["up"]["packets_in"] == n)  # nothing lost on the way in
+        sink.wait_count(proxy.stats()["up"]["packets_out"])
+        s = proxy.stats()
+        c.close()
+    lost = s["up"]["dropped"]["loss"]
+    assert abs(lost - n * p) < 4 * (n * p * (1 - p)) ** 0.5
+    assert len(sink.got) == n - lost == s["up"]["sent_packets"]
+
+
+def test_udp_duplicate_sends_identical_copies(sink):
+    n = 500
+    with UdpProxy(target=sink.address, impairment="duplicate 20%", seed=5) as proxy:
+        c = udp_client()
+        send_paced(c, proxy.address, [struct.pack("!I", i) for i in range(n)])
+        assert eventually(lambda: proxy.stats()["up"]["packets_in"] == n)
+        dup = proxy.stats()["up"]["duplicated"]
+        sink.wait_count(n + dup)
+        c.close()
+    seqs = [struct.unpack("!I", d)[0] for _, d in sink.got]
+    assert 60 < dup < 140 and len(seqs) == n + dup
+    assert sorted(set(seqs)) == list(range(n))
+    assert sum(seqs.count(k) == 2 for k in set(seqs)) == dup
+
+
+def test_udp_reorder_really_reorders(sink):
+    n = 300
+    with UdpProxy(target=sink.address, impairment="reorder 10% 20ms", seed=8) as proxy:
+        c = udp_client()
+        for i in range(n):
+            c.sendto(struct.pack("!I", i), proxy.address)
+            time.sleep(0.001)
+        sink.wait_count(n)
+        held = proxy.stats()["up"]["reordered"]
+        c.close()
+    seqs = [struct.unpack("!I", d)[0] for _, d in sink.got]
+    assert sorted(seqs) == list(range(n))
+    late = sum(1 for k in range(1, n) if seqs[k] < max(seqs[:k]))  # arrived after a later packet
+    assert held > 10 and late >= held // 2
+
+
+def test_udp_rate_limit_spreads_a_burst(sink):
+    # 20 datagrams of 1000 B at 800 kbit/s: 10 ms of link time each, 190 ms from first to last
+    with UdpProxy(target=sink.address, impairment="rate 800kbit", seed=0) as proxy:
+        c = udp_client()
+        for i in range(20):
+            c.sendto(bytes(1000), proxy.address)
+        sink.wait_count(20)
+        c.close()
+    times = [t for t, _ in sink.got]
+    assert len(times) == 20
+    assert 0.15 < times[-1] - times[0] < 2.0
+
+
+def test_udp_outage_drops_everything_in_the_window(sink):
+    with UdpProxy(target=sink.address, impairment="outage 0s 1s", seed=0) as proxy:
+        c = udp_client()
+        send_paced(c, proxy.address, [b"during"] * 20)
+        time.sleep(max(0.0, 1.2 - (time.monotonic() - proxy._t0)))
+        send_paced(c, proxy.address, [b"after"] * 20)
+        sink.wait_count(20)
+        s = proxy.stats()
+        c.close()
+    assert s["up"]["dropped"]["outage"] == 20
+    assert [d for _, d in sink.got] == [b"after"] * 20
+
+
+# ------------------------------------------------------------------------------ TCP
+def echo_roundtrip(addr, payload: bytes) -> tuple[bytes, float]:
+    """Send payload, half-close, read the echo to the end: (echo, seconds)."""
+    t = time.monotonic()
+    with socket.create_connection(addr, timeout=10) as c:
+        sender = threading.Thread(target=lambda: (c.sendall(payload), c.shutdown(socket.SHUT_WR)))
+        sender.start()
+        got = bytearray()
+        while data := c.recv(1 << 16):
+            got += data
+        sender.join()
+    return bytes(got), time.monotonic() - t
+
+
+def test_tcp_passes_1mb_byte_exact_under_impairment(tcp_echo):
+    data = os.urandom(1 << 20)
+    with TcpProxy(target=tcp_echo.address, impairment="delay 5ms jitter 3ms loss 1% rate 200mbit", seed=1) as proxy:
+        echo, _ = echo_roundtrip(proxy.address, data)
+        s = proxy.stats()
+    assert echo == data
+    assert s["up"]["bytes_in"] == s["up"]["sent_bytes"] == s["down"]["sent_bytes"] == len(data)
+    assert s["up"]["retransmitted"] > 0  # 1 % per segment over 700+ segments
+
+
+def test_tcp_delay_is_added_per_direction(tcp_echo):
+    def median_rtt(addr) -> float:
+        with socket.create_connection(addr, timeout=5) as c:
+            c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            out = []
+            for _ in range(15):
+                t = time.monotonic()
+                c.sendall(b"ping")
+                got = b""
+                while len(got) < 4:
+                    got += c.recv(4 - len(got))
+                out.append((time.monotonic() - t) * 1000.0)
+                time.sleep(0.005)
+            return statistics.median(out)
+    with TcpProxy(target=tcp_echo.address) as plain, \
+            TcpProxy(target=tcp_echo.address, impairment="delay 25ms", direction="both") as slow:
+        added = median_rtt(slow.address) - median_rtt(plain.address)
+    assert abs(added - 50.0) < 10.0, added  # 25 ms each way
+
+
+def test_tcp_rate_limits_throughput(tcp_echo):
+    data = os.urandom(200_000)  # at 8 mbit/s (1 MB/s) up: about 0.2 s
+    with TcpProxy(target=tcp_echo.address, impairment="rate 8mbit", direction="up") as proxy:
+        echo, took = echo_roundtrip(proxy.address, data)
+    assert echo == data
+    assert 0.15 < took < 5.0
+
+
+def test_tcp_outage_stalls_the_stream_without_losing_bytes(tcp_echo):
+    data = os.urandom(50_000)
+    with TcpProxy(target=tcp_echo.address, impairment="outage 0s 600ms") as proxy:
+        echo, _ = echo_roundtrip(proxy.address, data)
+        since_start = time.monotonic() - proxy._t0
+        s = proxy.stats()
+    assert echo == data
+    assert since_start > 0.55  # nothing came back before the window ended
+    assert s["up"]["stalled"] > 0
+
+
+def test_tcp_refused_target_closes_the_client():
+    with socket.socket() as probe:  # a port with nobody listening
+        probe.bind(("127.0.0.1", 0))
+        dead = probe.getsockname()
+    with TcpProxy(target=dead) as proxy:
+        with socket.create_connection(proxy.address, timeout=5) as c:
+            assert c.recv(10) == b""
+        assert eventually(lambda: proxy.stats()["connect_errors"] == 1)
+
+
+# ------------------------------------------------------------------------------ shutdown
+def test_stop_joins_every_thread_and_closes_every_socket(udp_echo, tcp_echo):
+    assert netem_threads() == []
+    udp = UdpProxy(target=udp_echo.address, impairment="delay 200ms").start()
+    tcp = TcpProxy(target=tcp_echo.address, impairment="delay 200ms").start()
+    c = udp_client()
+    c.sendto(b"queued", udp.address)  # still queued in the scheduler at stop()
+    t = socket.create_connection(tcp.address)
+    t.sendall(b"queued too")
+    eventually(lambda: len(netem_threads()) == 2 + 1 + 4)  # scheduler, receiver, acceptor, 2 x 2 pumps
+    assert tcp.stats()["connections"] == 1 and len(netem_threads()) == 7
+    udp.stop()
+    tcp.stop()
+    assert netem_threads() == []
+    assert udp._lsock.fileno() == -1 and tcp._lsock.fileno() == -1
+    assert t.recv(10) == b""  # the relayed connection was closed
+    udp.stop()  # idempotent
+    c.close()
+    t.close()
