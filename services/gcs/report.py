@@ -76,6 +76,7 @@ __all__ = [
     "GOAL_RADIUS_M",
     "DEFECT_TOLERANCE_M",
     "PLOTS",
+    "LATENCY_NAMES",
     "Latency",
     "UavFigures",
     "FormationFigures",
@@ -102,6 +103,9 @@ _HEADING_MIN_SPEED = 0.3
 _HEADING_WINDOW_S = 1.0
 #: Most points drawn per line (longer series are decimated for plotting only).
 _PLOT_POINTS = 4000
+#: Link flow -> the name its latency is repeated under in ``report.json``.
+LATENCY_NAMES = {"telemetry": "age_ms", "imagery": "capture_to_report_ms", "defect_reports": "delivery_ms",
+                 "command": "ack_ms"}
 #: The plot files, in the order of the paper's results section.
 PLOTS = ("trajectories.png", "altitudes.png", "path_error.png", "formation_error.png", "convergence.png",
          "defects_map.png", "links.png")
@@ -231,8 +235,20 @@ class ReportSummary:
     files: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able dict (non-finite floats become ``None``)."""
-        return _clean(asdict(self))
+        """Plain JSON-able dict (non-finite floats become ``None``).
+
+        Besides the fields, for readers that look figures up by what they measure: every link
+        repeats its ``latency_ms`` under the latency's own name (:data:`LATENCY_NAMES`, e.g.
+        ``links.imagery.capture_to_report_ms``, ``links.telemetry.age_ms``), and ``mission``
+        gathers ``sim_duration_s``, ``wall_time_s``, ``speed`` and ``measured_speed``.
+        """
+        d = _clean(asdict(self))
+        for name, link in d["links"].items():
+            if name in LATENCY_NAMES:
+                link[LATENCY_NAMES[name]] = link["latency_ms"]
+        d["mission"] = {"sim_duration_s": d["sim_time_s"], "wall_time_s": d["wall_time_s"], "speed": d["speed"],
+                        "measured_speed": d["measured_speed"]}
+        return d
 
 
 def _clean(x: Any) -> Any:

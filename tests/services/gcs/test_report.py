@@ -218,6 +218,9 @@ def test_write_report_writes_every_file(record, summary, tmp_path):
     assert js["uavs"]["1"]["path_error_rms_m"] == pytest.approx(SIDE)
     assert js["defects"]["recall"] == pytest.approx(2 / 3)
     assert js["links"]["imagery"]["ratio"] == pytest.approx(0.9)
+    assert js["links"]["imagery"]["capture_to_report_ms"]["p95"] == pytest.approx(150.0)
+    assert js["links"]["telemetry"]["age_ms"]["p50"] == pytest.approx(20.0)
+    assert js["mission"]["sim_duration_s"] == pytest.approx(22.0)
     assert js == json.loads(json.dumps(summary.to_dict() | {"files": out.files}))
     md = (tmp_path / "rep" / "report.md").read_text()
     for png in PLOTS:
