@@ -1,0 +1,95 @@
+"""A real Zenoh router/client pair through the proxies: the paper's TCP/UDP split, end to end.
+
+Paper, Section 1: UDP for sensing data, TCP for commands. With Zenoh's multilink setup
+(ZENOH.md, "One link per reliability class") a client connects to the router through a
+:class:`TcpProxy` (``?rel=1``) and a :class:`UdpProxy` (``?rel=0``); best-effort publications
+must then cross the UDP proxy and reliable ones the TCP proxy, and an impairment put on the UDP
+proxy must slow the best-effort samples only.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import struct
+import time
+
+import pytest
+
+from services.netem.proxy import TcpProxy, UdpProxy
+from services.process import free_port_pair
+
+zenoh = pytest.importorskip("zenoh", reason="zenoh-python (eclipse-zenoh) is needed for the end-to-end split")
+
+N, SIZE = 100, 2000
+COMMON = {"scouting/multicast/enabled": False, "transport/shared_memory/enabled": False,
+          "transport/unicast/max_links": 2}
+
+
+def config(values: dict) -> zenoh.Config:
+    conf = zenoh.Config()
+    for key, value in values.items():
+        conf.insert_json5(key, json.dumps(value))
+    return conf
+
+
+def wait(pred, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while not pred() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return pred()
+
+
+def test_best_effort_crosses_udp_and_reliable_crosses_tcp():
+    p_tcp, p_udp = free_port_pair()
+    router = zenoh.open(config({**COMMON, "mode": "router",
+                                "listen/endpoints": [f"tcp/127.0.0.1:{p_tcp}?rel=1", f"udp/127.0.0.1:{p_udp}?rel=0"]}))
+    latency: dict[str, list[float]] = {"be": [], "rel": []}
+
+    def on_sample(sample) -> None:
+        sent = struct.unpack_from("!d", sample.payload.to_bytes())[0]
+        latency[str(sample.key_expr).rsplit("/", 1)[-1]].append(time.monotonic() - sent)
+
+    client = None
+    try:
+        sub = router.declare_subscriber("netem/test/*", on_sample)
+        with TcpProxy(target=("127.0.0.1", p_tcp), seed=1) as tcp, \
+                UdpProxy(target=("127.0.0.1", p_udp), impairment="delay 100ms", direction="up", seed=2) as udp:
+            client = zenoh.open(config({**COMMON, "mode": "client", "connect/endpoints": [
+                {"strategy": "allOf", "locators": [f"tcp/127.0.0.1:{tcp.port}?rel=1",
+                                                   f"udp/127.0.0.1:{udp.port}?rel=0"]}]}))
+            assert wait(lambda: len(list(client.info.links())) == 2), "the client opened one link only"
+            links = {str(link.reliability).rsplit(".", 1)[-1]: str(link.dst) for link in client.info.links()}
+            assert links["RELIABLE"].endswith(f":{tcp.port}?rel=1") and links["BEST_EFFORT"].endswith(f":{udp.port}?rel=0")
+
+            def up_bytes() -> tuple[int, int]:
+                return tcp.stats()["up"]["bytes_in"], udp.stats()["up"]["bytes_in"]
+
+            for name, reliability in (("be", zenoh.Reliability.BEST_EFFORT), ("rel", zenoh.Reliability.RELIABLE)):
+                pub = client.declare_publisher(f"netem/test/{name}", reliability=reliability)
+                while not latency[name]:  # first sample through = the route exists
+                    pub.put(struct.pack("!d", time.monotonic()) + bytes(SIZE - 8))
+                    wait(lambda: bool(latency[name]), 0.3)
+                latency[name].clear()
+                before = up_bytes()
+                for _ in range(N):
+                    pub.put(struct.pack("!d", time.monotonic()) + bytes(SIZE - 8))
+                    time.sleep(0.002)
+                assert wait(lambda: len(latency[name]) >= N), f"{name}: {len(latency[name])} of {N} arrived"
+                after = up_bytes()
+                d_tcp, d_udp = after[0] - before[0], after[1] - before[1]
+                if name == "be":
+                    assert d_udp >= N * SIZE and d_tcp < N * SIZE / 10, (d_tcp, d_udp)
+                else:
+                    assert d_tcp >= N * SIZE and d_udp < N * SIZE / 10, (d_tcp, d_udp)
+                pub.undeclare()
+            sub.undeclare()
+            client.close()
+            client = None
+    finally:
+        if client is not None:
+            client.close()
+        router.close()
+    # the 100 ms put on the UDP proxy delays best-effort samples only
+    assert statistics.median(latency["be"]) > 0.09
+    assert statistics.median(latency["rel"]) < 0.05
