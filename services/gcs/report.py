@@ -232,6 +232,7 @@ class ReportSummary:
     gateway: dict[str, Any]
     events: list[dict[str, Any]]
     phases: dict[str, float]
+    notes: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
@@ -434,6 +435,20 @@ def _offsets(record: MissionRecord, uavs: Iterable[int]) -> dict[int, NDArray[np
         if table.ndim != 2 or table.shape[1] != 3 or not np.all(np.isfinite(table)):
             raise ValueError("scenario formation.offsets must be a list of finite [x, y, z] offsets")
     return {u: np.array(table[u - 1]) for u in uavs if 1 <= u <= len(table)}
+
+
+def _corners(record: MissionRecord) -> list[tuple[float, float, float]]:
+    """The inspected surface's corners: the record's, else the scenario's ``surface.corners``."""
+    if record.surface_corners:
+        return [tuple(map(float, c)) for c in record.surface_corners]
+    surf = record.scenario.get("surface") if isinstance(record.scenario, dict) else None
+    raw = surf.get("corners") if isinstance(surf, dict) else None
+    if not raw:
+        return []
+    c = np.asarray(raw, dtype=float)
+    if c.shape != (4, 3) or not np.all(np.isfinite(c)):
+        raise ValueError("scenario surface.corners must be four finite [x, y, z] points")
+    return [tuple(map(float, p)) for p in c]
 
 
 def _obstacles(record: MissionRecord) -> list[tuple[float, float, float, float]]:
@@ -688,11 +703,16 @@ def _analyse(record: MissionRecord) -> tuple[ReportSummary, dict[str, Any]]:
     offsets = _offsets(record, sorted(set(tracks) | set(trajs)))
     formation, series["formation"] = _formation(tracks, trajs, offsets)
 
-    corners = record.surface_corners
+    corners = _corners(record)
+    notes: list[str] = []
     defects = None
-    if record.ground_truth or record.defects:
-        defects = score_defects([d.msg for d in record.defects], record.ground_truth,
-                                corners if corners else [], DEFECT_TOLERANCE_M)
+    placed = any(d.msg.ok and any(x.pos is not None for x in d.msg.defects) for d in record.defects)
+    if placed and not corners:
+        notes.append("defects not scored: the record has no surface corners to place the reported positions on")
+    elif record.ground_truth or record.defects:
+        defects = score_defects([d.msg for d in record.defects], record.ground_truth, corners, DEFECT_TOLERANCE_M)
+    if not record.ground_truth and record.defects:
+        notes.append("no ground truth in the record: recall is vacuous and every placed defect counts as false")
     imagery = _imagery_metrics(record)
     links = _links(record, tracks, uavs, imagery)
 
@@ -728,7 +748,7 @@ def _analyse(record: MissionRecord) -> tuple[ReportSummary, dict[str, Any]]:
         speed=record.speed, sim_time_s=sim,
         measured_speed=(sim / wall_states) if sim is not None and wall_states > 0 else None,
         planner=planner, uavs=uavs, formation=formation, captures=captures, defects=defects, links=links,
-        imagery=imagery, gateway=gateway, events=events, phases=dict(record.phases),
+        imagery=imagery, gateway=gateway, events=events, phases=dict(record.phases), notes=notes,
     )
     series["tracks"], series["trajs"], series["offsets"] = tracks, trajs, offsets
     return summary, series
@@ -813,8 +833,8 @@ def _plot_trajectories(record: MissionRecord, series: Mapping[str, Any], path: P
     if goal is not None:
         ax.scatter(*np.asarray(goal, float), marker="*", s=90, color="red", label="goal")
         pts.append(np.asarray(goal, float).reshape(1, 3))
-    if record.surface_corners:
-        S = np.asarray(record.surface_corners, float)
+    if _corners(record):
+        S = np.asarray(_corners(record), float)
         ax.add_collection3d(Poly3DCollection([S], facecolor="tab:orange", edgecolor="darkorange", alpha=0.35))
         pts.append(S)
     if not pts:
@@ -944,8 +964,9 @@ def _plot_defects(record: MissionRecord, summary: ReportSummary, path: Path) -> 
     fig = _figure(9.0, 3.8)
     ax = fig.add_subplot()
     score = summary.defects
-    if record.surface_corners:
-        L = surface_uv(np.asarray(record.surface_corners, float), record.surface_corners)
+    corners = _corners(record)
+    if corners:
+        L = surface_uv(np.asarray(corners, float), corners)
         ax.add_patch(Rectangle((0, 0), L[1, 0], L[3, 1], fill=False, ec="k", lw=1.0))
         ax.set_xlim(min(0.0, L[:, 0].min()) - 1, L[:, 0].max() + 1)
         ax.set_ylim(min(0.0, L[:, 1].min()) - 1, L[:, 1].max() + 1)
@@ -1026,6 +1047,7 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
     md: list[str] = [f"# Mission report: fleet `{s.fleet}`", ""]
     outcome = "**success**" if s.success else "**failed**"
     md += [f"Outcome: {outcome}" + (f" ({'; '.join(s.failures)})" if s.failures else "") + ".", ""]
+    md += [f"> Note: {n}." for n in s.notes] + ([""] if s.notes else [])
     scen = record.scenario.get("name", "–") if isinstance(record.scenario, dict) else "–"
     md += ["## Experimental setup", "",
            _table(["item", "value"], [
@@ -1044,8 +1066,10 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
         md += [_table(["algorithm", "initial cost", "min cost", "iterations to converge", "iterations",
                        "planning time", "plan request", "collision free"],
                       [[p.algorithm, _fmt(p.initial_cost), _fmt(p.cost), _fmt(p.convergence_iteration), p.iterations,
-                        _fmt(p.planning_time_s, 2, " s"), _fmt(p.plan_request_s, 2, " s"), _fmt(p.collision_free)]]),
-               "", "![Planner convergence](convergence.png)", ""]
+                        _fmt(p.planning_time_s, 2, " s"), _fmt(p.plan_request_s, 2, " s"), _fmt(p.collision_free)],
+                       ["θ-PSO (paper, Table I)", "142.84", "111.02", "68", "300", "–", "–", "–"]]),
+               "", "The paper's costs come from its own cost weights and obstacles, so only the shape of the "
+               "convergence compares, not the values.", "", "![Planner convergence](convergence.png)", ""]
     else:
         md += ["No plan was received.", ""]
     md += ["### Formation flight", "",
@@ -1081,7 +1105,7 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
                "", f"A reported position counts when it lies within {d.tolerance_m:g} m of a crack's bounding box "
                "on the surface.", ""]
     else:
-        md += ["No ground truth and no defect reports.", ""]
+        md += ["No defect score (no ground truth and no defect reports, or nowhere to place them).", ""]
     md += ["![Defects on the surface](defects_map.png)", ""]
     md += ["## Communication", "",
            _table(["flow", "carried as", "delivered / sent", "ratio", "latency", "p50", "p95", "p99", "n"],

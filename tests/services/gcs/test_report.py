@@ -237,6 +237,14 @@ def test_an_empty_record_still_gives_a_report(tmp_path):
     json.loads((tmp_path / "report.json").read_text())
 
 
+def test_corners_from_the_scenario_and_no_corners_at_all(record):
+    scen = record.scenario | {"surface": {"corners": [list(c) for c in CORNERS]}}
+    s = summarise(record.model_copy(update={"surface_corners": [], "scenario": scen}))
+    assert s.defects.recall == pytest.approx(2 / 3) and s.defects.precision == pytest.approx(3 / 5)
+    s = summarise(record.model_copy(update={"surface_corners": []}))
+    assert s.defects is None and "no surface corners" in s.notes[0]
+
+
 def test_bad_inputs_are_refused(record, tmp_path):
     with pytest.raises(ValueError, match="MissionRecord"):
         summarise({"fleet": "x"})
