@@ -70,7 +70,7 @@ from numpy.typing import ArrayLike, NDArray
 from edge.formation import DEFAULT_OFFSETS, formation_error
 from protocol.messages import Mode, Trajectory
 from services.gcs.record import MissionRecord
-from services.gcs.scoring import DefectScore, score_defects, surface_frame, surface_uv
+from services.gcs.scoring import DefectScore, score_defects, surface_uv
 
 __all__ = [
     "GOAL_RADIUS_M",
