@@ -431,7 +431,10 @@ def _offsets(record: MissionRecord, uavs: Iterable[int]) -> dict[int, NDArray[np
     if raw is None:
         table = DEFAULT_OFFSETS
     else:
-        table = np.asarray(raw, dtype=float)
+        try:
+            table = np.asarray(raw, dtype=float)
+        except (TypeError, ValueError):
+            table = np.zeros(0)
         if table.ndim != 2 or table.shape[1] != 3 or not np.all(np.isfinite(table)):
             raise ValueError("scenario formation.offsets must be a list of finite [x, y, z] offsets")
     return {u: np.array(table[u - 1]) for u in uavs if 1 <= u <= len(table)}
@@ -445,7 +448,10 @@ def _corners(record: MissionRecord) -> list[tuple[float, float, float]]:
     raw = surf.get("corners") if isinstance(surf, dict) else None
     if not raw:
         return []
-    c = np.asarray(raw, dtype=float)
+    try:
+        c = np.asarray(raw, dtype=float)
+    except (TypeError, ValueError):
+        c = np.zeros(0)
     if c.shape != (4, 3) or not np.all(np.isfinite(c)):
         raise ValueError("scenario surface.corners must be four finite [x, y, z] points")
     return [tuple(map(float, p)) for p in c]
@@ -751,6 +757,7 @@ def _analyse(record: MissionRecord) -> tuple[ReportSummary, dict[str, Any]]:
         imagery=imagery, gateway=gateway, events=events, phases=dict(record.phases), notes=notes,
     )
     series["tracks"], series["trajs"], series["offsets"] = tracks, trajs, offsets
+    series["obstacles"] = _obstacles(record)  # validated here, before anything is written
     return summary, series
 
 
@@ -769,8 +776,8 @@ def summarise(record: MissionRecord) -> ReportSummary:
     Raises
     ------
     ValueError
-        When ``record`` is not a MissionRecord or its scenario has malformed formation offsets
-        or surface corners.
+        When ``record`` is not a MissionRecord or its scenario has malformed formation offsets,
+        surface corners or obstacles.
     """
     return _analyse(record)[0]
 
@@ -845,7 +852,7 @@ def _plot_trajectories(record: MissionRecord, series: Mapping[str, Any], path: P
     lo, hi = allp.min(axis=0) - 5.0, allp.max(axis=0) + 5.0
     lo[2] = 0.0
     theta = np.linspace(0, 2 * np.pi, 25)
-    for x, y, r, h in _obstacles(record):
+    for x, y, r, h in series["obstacles"]:
         if x + r < lo[0] or x - r > hi[0] or y + r < lo[1] or y - r > hi[1]:
             continue
         X = x + r * np.cos(theta)[None, :].repeat(2, 0)

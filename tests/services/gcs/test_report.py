@@ -248,9 +248,17 @@ def test_corners_from_the_scenario_and_no_corners_at_all(record):
 def test_bad_inputs_are_refused(record, tmp_path):
     with pytest.raises(ValueError, match="MissionRecord"):
         summarise({"fleet": "x"})
-    bad = record.model_copy(update={"scenario": {"formation": {"offsets": [[0, 0]]}}})
-    with pytest.raises(ValueError, match="offsets"):
+    for offsets in ([[0, 0]], [[0, 0, 1], [1, 2]], [[0, 0, math.nan]], "abc"):
+        bad = record.model_copy(update={"scenario": {"formation": {"offsets": offsets}}})
+        with pytest.raises(ValueError, match="offsets"):
+            summarise(bad)
+    bad = record.model_copy(update={"surface_corners": [], "scenario": {"surface": {"corners": [[0, 0], [1]]}}})
+    with pytest.raises(ValueError, match="corners"):
         summarise(bad)
+    bad = record.model_copy(update={"scenario": {"obstacles": [{"centre": [1, 2], "radius": -1, "height": 3}]}})
+    with pytest.raises(ValueError, match="obstacles"):
+        write_report(bad, tmp_path / "obst")
+    assert not (tmp_path / "obst").exists()  # refused before anything is written
     (tmp_path / "file").write_text("")
     with pytest.raises(ValueError, match="not a directory"):
         write_report(MissionRecord(fleet="x", scenario={}, speed=1.0, started=0.0), tmp_path / "file")
