@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import doctest
 import math
 
 import numpy as np
@@ -9,7 +10,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import services.netem.model
 from services.netem.model import GilbertElliott, Impairer, Impairment
+
+
+def test_docstring_examples():
+    result = doctest.testmod(services.netem.model)
+    assert result.attempted >= 2 and result.failed == 0
 
 
 # ------------------------------------------------------------------------------ parsing
@@ -143,7 +150,7 @@ def _bursts(lost: np.ndarray) -> np.ndarray:
 
 def test_correlated_loss_keeps_the_mean_and_lengthens_bursts():
     p, rho, n = 0.05, 0.6, 40000
-    imp = Impairer(f"loss 5% 60%", rng=3)
+    imp = Impairer("loss 5% 60%", rng=3)
     lost = np.array([not imp.decide(i * 1e-4, 10) for i in range(n)])
     sigma = math.sqrt(p * (1 - p) / n) * math.sqrt((1 + rho) / (1 - rho))  # AR(1)-inflated
     assert abs(lost.mean() - p) < 5 * sigma
