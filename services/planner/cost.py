@@ -149,6 +149,15 @@ class Cost:
     """The cost (P5) of decision vectors, vectorised: ``cost(X) -> (P,)`` for ``X (P, 3n)``.
 
     ``evaluations`` counts the candidate paths evaluated so far (the algorithms' budget).
+
+    Implementation: every term is evaluated for every particle, UAV, segment and obstacle in
+    a fixed sequence of whole-array numpy operations (no data-dependent shortcuts), so the time
+    of a call depends only on the array shapes, not on where the swarm is. Arrays are float64
+    with the particle axis last (contiguous): ``(S, P)`` per segment, ``(C, S, P)`` per
+    obstacle and ``(M, C, S, P)`` per UAV and obstacle. Distances use the segment's frame: the
+    horizontal unit heading ``e`` and its left normal ``e⊥``, in which the formation offsets
+    ΔT_n (P7, P9: yaw only) are constants, so UAV n's segment starts at
+    ``a + ox_n e + oy_n e⊥ + oz_n z`` and has the centroid's direction ``b - a``.
     """
 
     SAMPLES = 8  # per UAV segment, for the wall stand-off term
@@ -165,15 +174,27 @@ class Cost:
         self.alt = sc.cost.altitude
         self.max_turn = np.deg2rad(sc.cost.max_turn_deg)
         self.evaluations = 0
+        self._ws: dict[str, NDArray] = {}
         M = self.off.shape[0]
         i, j = np.triu_indices(M, 1)
         dsep = np.linalg.norm(self.off[i] - self.off[j], axis=1)
         dmin = sc.formation.min_separation
         self.sep_shortfall = float(np.sum(np.clip((dmin - dsep) / dmin, 0, None))) if dmin > 0 else 0.0
+        # per-UAV offsets, broadcasting against (M, ...) arrays with three trailing axes
+        self._ox, self._oy, self._oz = (self.off[:, k].reshape(M, 1, 1, 1).copy() for k in range(3))
+        C = self.cyl.shape[0]
+        # per-obstacle arrays: centre against (C, S, P); radius and height against (M, C, S, P)
+        self._cx = self.cyl[:, 0].reshape(C, 1, 1).copy()
+        self._cy = self.cyl[:, 1].reshape(C, 1, 1).copy()
+        self._r = self.cyl[:, 2].reshape(1, C, 1, 1).copy()
+        self._h_oz = (self.cyl[:, 3].reshape(1, C, 1, 1) - self._oz).copy()  # top minus UAV's z offset
         if sc.surface is not None and problem.inspection is not None:
             p0, u, n = sc.surface.frame
             self.wall = (p0, u, n, sc.surface.length, *sc.surface.z_range)
             self.keep = 0.9 * problem.inspection.standoff
+            # sample parameters along a UAV segment, centred on its midpoint: (k + 1/2) / K - 1/2
+            K = self.SAMPLES
+            self._k = ((np.arange(K) + 0.5) / K - 0.5).reshape(K, 1, 1, 1)
         else:
             self.wall = None
 
@@ -193,104 +214,156 @@ class Cost:
         return self.path_terms(self.problem.assemble(X))
 
     def path_terms(self, V: NDArray[np.float64]) -> NDArray[np.float64]:
-        """J1, J2, J3 of centroid polylines ``V (P, nv, 3)``."""
-        a, b = V[:, :-1], V[:, 1:]
-        d = b - a
-        J1 = np.sum(np.linalg.norm(d, axis=-1), axis=1)
-        yaw = np.arctan2(d[..., 1], d[..., 0])  # (P, S)
-        c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
-        ox, oy, oz = self.off[:, 0], self.off[:, 1], self.off[:, 2]
-        rot = np.stack([ox * c - oy * s, ox * s + oy * c, np.broadcast_to(oz, c.shape[:-1] + oz.shape)], -1)
-        A = a[:, :, None, :] + rot  # (P, S, M, 3)
-        B = b[:, :, None, :] + rot
-        P, S, M = A.shape[:3]
+        """J1, J2, J3 of centroid polylines ``V (P, nv, 3)``, shape ``(P, 3)``."""
+        V = np.asarray(V, float)
+        P, nv = V.shape[:2]
+        T = np.ascontiguousarray(V.transpose(2, 1, 0))  # (3, nv, P)
+        a = T[:, :-1]  # segment starts (3, S, P)
+        d = T[:, 1:] - a
+        dx, dy, dz = d
+        S = nv - 1
+        L2 = dx * dx + dy * dy
+        L = np.sqrt(L2)  # horizontal length
+        J1 = np.sqrt(L2 + dz * dz).sum(axis=0)
+        flat = L > 0
+        inv = 1.0 / np.where(flat, L, 1.0)
+        # horizontal heading (P7): (1, 0) for a vertical segment, as atan2(0, 0) = 0 gives
+        ex = np.where(flat, dx * inv, 1.0)
+        ey = dy * inv
         J2 = np.full(P, self.pen * self.sep_shortfall * S)
-        hx, hy = d[..., 0], d[..., 1]
-        hn = np.hypot(hx, hy)
-        ok = (hn[:, :-1] > 1e-9) & (hn[:, 1:] > 1e-9)
-        cosang = (hx[:, :-1] * hx[:, 1:] + hy[:, :-1] * hy[:, 1:]) / np.where(ok, hn[:, :-1] * hn[:, 1:], 1.0)
+        # manoeuvrability: horizontal turn at each inner vertex beyond max_turn
+        ok = (L[:-1] > 1e-9) & (L[1:] > 1e-9)
+        cosang = (dx[:-1] * dx[1:] + dy[:-1] * dy[1:]) / np.where(ok, L[:-1] * L[1:], 1.0)
         turn = np.where(ok, np.arccos(np.clip(cosang, -1.0, 1.0)), 0.0)
-        J2 += 0.1 * self.pen * np.sum(np.clip(turn - self.max_turn, 0.0, None), axis=1)
+        J2 += 0.1 * self.pen * np.clip(turn - self.max_turn, 0.0, None).sum(axis=0)
         if self.cyl.shape[0]:
-            J2 += np.sum(self._cyl_penalty(A, B), axis=(1, 2, 3))
-        J3 = np.zeros(P)
-        z = np.concatenate([A[..., 2], B[:, -1:, :, 2]], axis=1)
+            J2 += self._cyl_penalty(a, ex, ey, L, np.where(flat, dz * inv, 0.0))
+        # J3 altitude band at every vertex of every UAV's polyline
+        z = T[2] + self._oz[:, :, 0]  # (M, nv, P)
         lo, hi = self.alt
-        J3 += 0.1 * self.pen * np.sum(np.clip(lo - z, 0, None) + np.clip(z - hi, 0, None), axis=(1, 2))
+        below = np.clip(lo - z, 0.0, np.inf).reshape(-1, P).sum(axis=0)
+        above = np.clip(z - hi, 0.0, np.inf).reshape(-1, P).sum(axis=0)
+        J3 = 0.1 * self.pen * (below + above)
         if self.wall is not None:
-            w2, w3 = self._wall_penalty(A, B)
+            w2, w3 = self._wall_penalty(a, d, ex, ey)
             J2 += w2
             J3 += w3
         return np.stack([J1, J2, J3], axis=1)
 
-    def _cyl_penalty(self, A: NDArray[np.float64], B: NDArray[np.float64]) -> NDArray[np.float64]:
-        # float32 halves the memory traffic of this, the hottest part; clearances are needed
-        # to millimetres only, far above float32's resolution at these scales.
-        cx, cy, r, h = self.cyl.T.astype(np.float32)
-        A32, B32 = A.astype(np.float32), B.astype(np.float32)
-        ax, ay, az = A32[..., 0, None], A32[..., 1, None], A32[..., 2, None]
-        dx, dy, dz = B32[..., 0, None] - ax, B32[..., 1, None] - ay, B32[..., 2, None] - az
-        wx, wy = cx - ax, cy - ay  # (P, S, M, C)
-        dd = dx * dx + dy * dy
-        dd[dd <= 0] = 1.0  # degenerate: w·d = 0 there, so t = 0
-        t = wx * dx
-        t += wy * dy
-        t /= dd
-        np.clip(t, 0.0, 1.0, out=t)
-        wx -= t * dx
-        wy -= t * dy
-        gap = np.hypot(wx, wy)
-        gap -= r
-        zt = t * dz
-        zt += az
-        zt -= h  # height above the top
-        above = zt > 0
-        if np.any(above):
-            gap = np.where(above, np.hypot(np.clip(gap, 0, None), zt), gap)
-        gap -= np.float32(self.r_uav)
-        return self._shape(gap).astype(np.float64)
+    def _buf(self, name: str, shape: tuple[int, ...], dtype: type = np.float64) -> NDArray:
+        """A reusable work array (allocating large arrays on every call costs page faults)."""
+        b = self._ws.get(name)
+        if b is None or b.shape != shape or b.dtype != dtype:
+            b = self._ws[name] = np.empty(shape, dtype)
+        return b
 
-    def _shape(self, cl: NDArray[np.float64]) -> NDArray[np.float64]:
-        D = cl.dtype.type(self.band)
-        out = np.clip((D - cl) / D, 0.0, 1.0)
-        out *= out
-        inside = cl < 0
-        if np.any(inside):
-            out[inside] = 1.0 + self.pen * (1.0 - cl[inside])
-        return out
+    def _cyl_penalty(self, a, ex, ey, L, slope) -> NDArray[np.float64]:
+        """Σ over UAVs, segments and cylinders of the J2 obstacle term, ``(P,)``.
 
-    def _wall_penalty(self, A, B):
+        In the segment frame the cylinder axis is at ``(u, v)`` from the centroid's segment
+        start (``u`` along ``e``, ``v`` along ``e⊥``); UAV n's segment runs along ``e`` from
+        ``(ox_n, oy_n)`` for the horizontal length ``L``, so the closest point is at
+        ``s = clip(u - ox_n, 0, L)`` and ``ρ = hypot(u - ox_n - s, v - oy_n)`` (the exact
+        point-segment distance of :func:`point_segment_distance`), at height
+        ``a_z + oz_n + s dz / L``. ``s`` is measured from the segment's midpoint below.
+        """
+        ax, ay, az = a
+        S, P = ax.shape
+        M, C = self._ox.shape[0], self._cx.shape[0]
+        hL = 0.5 * L  # (S, P)
+        c1, c2, c3, c4 = (self._buf(f"c{i}", (C, S, P)) for i in range(4))
+        B1, B2, B3, B4 = (self._buf(f"B{i}", (M, C, S, P)) for i in range(4))
+        under = self._buf("under", (M, C, S, P), np.bool_)
+        wx = np.subtract(self._cx, ax, out=c1)  # (C, S, P)
+        wy = np.subtract(self._cy, ay, out=c2)
+        uc = np.multiply(wx, ex, out=c3)
+        uc += np.multiply(wy, ey, out=c4)
+        uc -= hL  # along-track coordinate of the axis from the segment's midpoint
+        v = np.multiply(wy, ex, out=c4)
+        v -= np.multiply(wx, ey, out=c1)  # left of track
+        uu = np.subtract(uc, self._ox, out=B1)  # (M, C, S, P), from UAV n's segment midpoint
+        sc = np.maximum(uu, -hL, out=B2)
+        np.minimum(sc, hL, out=sc)  # closest point, from the midpoint
+        uu -= sc  # along-track distance beyond the segment's ends
+        uu *= uu
+        dv = np.subtract(v, self._oy, out=B3)
+        dv *= dv
+        uu += dv
+        rho = np.sqrt(uu, out=uu)
+        gap = np.subtract(rho, self._r, out=rho)  # horizontal clearance from the cylinder's side
+        # height above the top at the closest point: a_z + dz/2 + sc dz/L + oz - h
+        zt = np.multiply(sc, slope, out=sc)
+        zt += az + hL * slope
+        zt -= self._h_oz
+        # clearance: gap below the top, hypot(max(gap, 0), zt) above it
+        g0 = np.clip(gap, 0.0, np.inf, out=B3)
+        zp = np.clip(zt, 0.0, np.inf, out=B4)
+        np.less_equal(zt, 0.0, out=under)
+        gap -= g0  # min(gap, 0), kept only below the top
+        gap *= under
+        g0 *= g0
+        zp *= zp
+        g0 += zp
+        cl = np.sqrt(g0, out=g0)
+        cl += gap  # clearance of the UAV's centre; minus r_uav gives the body's clearance c
+        # ((D - c) / D)^2 clipped to [0, 1], plus K (1 - c) inside (c < 0)
+        D, r, K = self.band, self.r_uav, self.pen
+        inside = np.less(cl, r, out=under)
+        q = np.multiply(cl, -1.0 / D, out=B4)
+        q += 1.0 + r / D
+        np.clip(q, 0.0, 1.0, out=q)
+        q *= q
+        depth = np.multiply(cl, -K, out=cl)
+        depth += K * (1.0 + r)
+        depth *= inside
+        q += depth
+        return q.reshape(-1, P).sum(axis=0)
+
+    def _wall_penalty(self, a, d, ex, ey):
+        """Wall crossing (J2) and stand-off (J3) terms, each ``(P,)``."""
         p0, u, n, L, z0, z1 = self.wall
-        # wall coordinates: s along the bottom edge, q = signed distance from the plane, z
-        uA, uB = (A - p0) @ u, (B - p0) @ u
-        qA, qB = (A - p0) @ n, (B - p0) @ n
-        zA, zB = A[..., 2], B[..., 2]
+        S, P = a.shape[1:]
+        ox, oy, oz = self._ox[:, :, 0], self._oy[:, :, 0], self._oz[:, :, 0]  # (M, 1, 1)
+        # wall coordinates of UAV n's segment start: s along the bottom edge, q off the plane
+        rel = a - p0[:, None, None]  # (3, S, P)
+        ou = ox * (ex * u[0] + ey * u[1]) + oy * (ey * u[0] - ex * u[1]) + oz * u[2]  # (M, S, P)
+        on = ox * (ex * n[0] + ey * n[1]) + oy * (ey * n[0] - ex * n[1])
+        sA = (rel[0] * u[0] + rel[1] * u[1] + rel[2] * u[2]) + ou
+        qA = (rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]) + on
+        ds = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]  # (S, P): the same for every UAV
+        dq = d[0] * n[0] + d[1] * n[1] + d[2] * n[2]
+        zA = a[2] + oz
+        qB = qA + dq
         cross = qA * qB < 0
-        J2 = np.zeros(A.shape[0])
-        if np.any(cross):
-            t = qA / np.where(cross, qA - qB, 1.0)
-            su, zz = uA + t * (uB - uA), zA + t * (zB - zA)
-            depth = np.minimum(np.minimum(su, L - su), np.minimum(zz - z0, z1 - zz))
-            hit = cross & (depth > -self.r_uav)
-            J2 = np.sum(np.where(hit, self.pen * (1.0 + np.clip(depth, 0, None)), 0.0), axis=(1, 2))
-        f32 = np.float32
-        k = ((np.arange(self.SAMPLES) + 0.5) / self.SAMPLES).astype(f32)
-
-        def lerp(a, b):
-            a = a.astype(f32)[..., None]
-            return a + k * (b.astype(f32)[..., None] - a)  # (P, S, M, K)
-
-        s, q, z = lerp(uA, uB), lerp(qA, qB), lerp(zA, zB)
-        es = s - np.clip(s, f32(0.0), f32(L))
-        ez = z - np.clip(z, f32(z0), f32(z1))
+        t = qA / np.where(cross, qA - qB, 1.0)
+        su, zz = sA + t * ds, zA + t * d[2]
+        depth = np.minimum(np.minimum(su, L - su), np.minimum(zz - z0, z1 - zz))
+        hit = cross & (depth > -self.r_uav)
+        J2 = (hit * (self.pen * (1.0 + np.clip(depth, 0.0, np.inf)))).reshape(-1, P).sum(axis=0)
+        # stand-off: distance to the rectangle at K samples per UAV segment, K along the axis 0,
+        # with every coordinate measured from the middle of the segment and of the wall
+        k = self._k  # (K, 1, 1, 1)
+        shape = (k.shape[0], ox.shape[0], S, P)
+        W1, W2, W3 = (self._buf(f"W{i}", shape) for i in range(3))
+        es = np.add(k * ds, sA + (0.5 * ds - 0.5 * L), out=W1)  # along the edge
+        np.abs(es, out=es)
+        es -= 0.5 * L
+        np.clip(es, 0.0, np.inf, out=es)  # beyond the wall's ends
         es *= es
+        ez = np.add(k * d[2], zA + (0.5 * d[2] - 0.5 * (z0 + z1)), out=W2)  # height
+        np.abs(ez, out=ez)
+        ez -= 0.5 * (z1 - z0)
+        np.clip(ez, 0.0, np.inf, out=ez)  # above or below the wall
         ez *= ez
+        q = np.add(k * dq, qA + 0.5 * dq, out=W3)  # off the plane
         q *= q
         es += ez
         es += q
-        dist = np.sqrt(es)
-        keep = f32(self.keep)
-        J3 = np.sum(np.clip((keep - dist) / keep, f32(0.0), None), axis=(1, 2, 3), dtype=np.float64)
+        kp = self.keep
+        np.clip(es, 0.0, kp * kp, out=es)
+        dist = np.sqrt(es, out=es)
+        # Σ max((k - dist) / k, 0) = count - Σ min(dist, k) / k
+        J3 = es[0].size // P * self.SAMPLES - dist.reshape(-1, P).sum(axis=0) / kp
         return J2, J3
 
 

@@ -75,7 +75,7 @@ def theta_pso(
     tr = Tracker("theta-pso", P, P * (I + 1))
     theta = inverse_sine_map(X, lo, hi)
     dtheta = np.zeros_like(theta)
-    f = cost(sine_map(theta, lo, hi))
+    f = cost(X)  # the shared initial population itself (sine_map(theta) equals it to rounding)
     tr.record(X, f)
     pbest, pbest_f = theta.copy(), f.copy()
     g = int(np.argmin(f))

@@ -176,6 +176,77 @@ def test_collision_penalty_grows_with_depth_and_is_finite():
         cost(np.full((1, 3), np.nan))
 
 
+def _reference_terms(V, sc, problem):
+    """J1, J2, J3 (P5) of one centroid polyline, written out loop by loop from cost.py's definitions."""
+    K, D, r_uav = sc.cost.collision_penalty, sc.cost.danger_band, sc.cost.uav_radius
+    off, cyl = sc.offsets, sc.cylinders()
+    p0, u, n = sc.surface.frame
+    Lw, (z0, z1) = sc.surface.length, sc.surface.z_range
+    keep = 0.9 * problem.inspection.standoff
+    lo, hi = sc.cost.altitude
+    dmin = sc.formation.min_separation
+    short = sum(max((dmin - np.linalg.norm(off[i] - off[j])) / dmin, 0.0)
+                for i in range(len(off)) for j in range(i + 1, len(off)))
+    J1 = J2 = J3 = 0.0
+    for s_ in range(len(V) - 1):
+        a, b = V[s_], V[s_ + 1]
+        d = b - a
+        J1 += np.linalg.norm(d)
+        J2 += K * short
+        yaw = math.atan2(d[1], d[0])
+        R = np.array([[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]])
+        if s_ + 1 < len(V) - 1:
+            e = V[s_ + 2] - b
+            h1, h2 = np.hypot(*d[:2]), np.hypot(*e[:2])
+            if h1 > 1e-9 and h2 > 1e-9:
+                turn = math.acos(np.clip((d[0] * e[0] + d[1] * e[1]) / (h1 * h2), -1, 1))
+                J2 += 0.1 * K * max(turn - np.deg2rad(sc.cost.max_turn_deg), 0.0)
+        for o in off:
+            A, B = a + R @ o, b + R @ o
+            dd = (B - A)[:2] @ (B - A)[:2]
+            for cx, cy, r, h in cyl:
+                t = 0.0 if dd == 0 else float(np.clip(((np.array([cx, cy]) - A[:2]) @ (B - A)[:2]) / dd, 0, 1))
+                q = A + t * (B - A)
+                gap = math.hypot(cx - q[0], cy - q[1]) - r
+                c = (gap if q[2] <= h else math.hypot(max(gap, 0.0), q[2] - h)) - r_uav
+                J2 += 1.0 + K * (1.0 - c) if c < 0 else min(max((D - c) / D, 0.0), 1.0) ** 2
+            qa, qb = (A - p0) @ n, (B - p0) @ n
+            if qa * qb < 0:
+                t = qa / (qa - qb)
+                X = A + t * (B - A)
+                su = (X - p0) @ u
+                depth = min(su, Lw - su, X[2] - z0, z1 - X[2])
+                if depth > -r_uav:
+                    J2 += K * (1.0 + max(depth, 0.0))
+            for k in (np.arange(8) + 0.5) / 8:
+                Q = A + k * (B - A)
+                su = (Q - p0) @ u
+                near = p0 + min(max(su, 0.0), Lw) * u
+                near[2] = min(max(Q[2], z0), z1)
+                J3 += max((keep - np.linalg.norm(Q - near)) / keep, 0.0)
+            for z in ([A[2], B[2]] if s_ == len(V) - 2 else [A[2]]):
+                J3 += 0.1 * K * (max(lo - z, 0.0) + max(z - hi, 0.0))
+    return np.array([J1, J2, J3])
+
+
+def test_vectorised_cost_equals_the_loop_reference():
+    problem = PathProblem.from_scenario(SC, 4)
+    cost = Cost(problem)
+    rng = np.random.default_rng(7)
+    X = np.concatenate([problem.initial_population(12, rng, "box"), problem.initial_population(12, rng)])
+    W = X.reshape(-1, 4, 3)
+    W[0, 1] = W[0, 0]  # repeated point: zero-length segment
+    W[1, 1, :2] = W[1, 0, :2]  # vertical segment
+    W[2, :, 2] = 39.5  # over the tops of the 35 m and 38 m posts
+    W[3, 0] = [48.0, 45.0, 20.0]  # inside the lamp post
+    W[4, 0], W[4, 1] = [55.0, 60.0, 28.0], [66.0, 60.0, 28.0]  # through the girder wall
+    got = cost.terms(X)
+    V = problem.assemble(X)
+    want = np.array([_reference_terms(v, SC, problem) for v in V])
+    assert np.allclose(got, want, rtol=1e-9, atol=1e-9)
+    assert want[3, 1] > SC.cost.collision_penalty and want[4, 1] > SC.cost.collision_penalty
+
+
 def test_clearance_of_points():
     sc = validate_scenario(_doc(surface=None, obstacles=[{"centre": (10.0, 10.0), "radius": 2.0, "height": 20.0}]))
     r = sc.cost.uav_radius
