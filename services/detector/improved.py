@@ -30,7 +30,8 @@ crosses ``C_s``: none of them helped on both data sets.
 
 Real time: the threshold comes from the one 256-bin histogram, the mask from one
 ``cv2.threshold``; the shape analysis runs on the mask reduced by an integer factor so that it
-has at most ``work_px`` pixels (block "any" via ``INTER_AREA``), and the keep-map is upsampled
+has at most ``work_px`` pixels (block "any": a corner-anchored ``s × s`` dilation, then every
+``s``-th pixel), and the keep-map is upsampled
 with nearest neighbour and ANDed into the full-resolution mask.
 """
 
@@ -44,7 +45,9 @@ import numpy as np
 from .iterative import C_S_DEFAULT, iterative_threshold
 from .thresholds import _check_hist, as_grey_u8, histogram
 
-__all__ = ["threshold_it_plus", "shape_filter", "it_plus_mask", "MIN_FRACTION_DEFAULT"]
+__all__ = [
+    "threshold_it_plus", "shape_filter", "it_plus_mask", "reduction_factor", "MIN_FRACTION_DEFAULT",
+]
 
 #: Smallest share of the image the defect class may shrink to (chosen on DeepCrack train).
 MIN_FRACTION_DEFAULT: float = 0.02
@@ -131,15 +134,15 @@ def shape_filter(
     m = np.asarray(mask)
     if m.ndim != 2 or m.size == 0:
         raise ValueError(f"mask must be a non-empty 2-D array, got shape {m.shape}")
-    if work_px < 1:
-        raise ValueError("work_px must be >= 1")
     m = np.where(m != 0, 255, 0).astype(np.uint8) if m.dtype != np.uint8 else m
     H, W = m.shape
-    s = max(1, math.ceil(math.sqrt(H * W / work_px)))
-    small = m if s == 1 else cv2.resize(m, (max(1, W // s), max(1, H // s)), interpolation=cv2.INTER_AREA)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(
-        (small > 0).view(np.uint8), connectivity=8, ltype=cv2.CV_32S
-    )
+    s = reduction_factor(H * W, work_px)
+    if s == 1:
+        small = m
+    else:  # block "any": dilate with an s x s box anchored at its corner, take every s-th pixel
+        box = cv2.getStructuringElement(cv2.MORPH_RECT, (s, s))
+        small = np.ascontiguousarray(cv2.dilate(m, box, anchor=(0, 0))[::s, ::s])
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(small, connectivity=8, ltype=cv2.CV_32S)
     area = stats[:, cv2.CC_STAT_AREA].astype(np.float64)
     w = stats[:, cv2.CC_STAT_WIDTH].astype(np.float64)
     h = stats[:, cv2.CC_STAT_HEIGHT].astype(np.float64)
@@ -150,8 +153,19 @@ def shape_filter(
     keep_small = lut[labels]
     if s == 1:
         return cv2.bitwise_and(m, keep_small)
-    keep_full = cv2.resize(keep_small, (W, H), interpolation=cv2.INTER_NEAREST)
-    return cv2.bitwise_and(m, keep_full)
+    hs, ws = keep_small.shape
+    keep_full = cv2.resize(keep_small, (ws * s, hs * s), interpolation=cv2.INTER_NEAREST)
+    return cv2.bitwise_and(m, np.ascontiguousarray(keep_full[:H, :W]))
+
+
+def reduction_factor(n_pixels: int, work_px: int) -> int:
+    """Smallest integer ``s >= 1`` with ``n_pixels / s² <= work_px``."""
+    if work_px < 1:
+        raise ValueError("work_px must be >= 1")
+    s = max(1, math.ceil(math.sqrt(n_pixels / work_px)))
+    while s > 1 and n_pixels / (s - 1) ** 2 <= work_px:  # guard against float rounding
+        s -= 1
+    return s
 
 
 def it_plus_mask(

@@ -58,6 +58,8 @@ def as_grey_u8(image: np.ndarray) -> np.ndarray:
     ndarray of uint8, shape (H, W)
     """
     a = np.asarray(image)
+    if a.dtype == np.uint8 and a.ndim == 2 and a.size:  # fast path: already grey uint8
+        return a
     if a.dtype == np.bool_ or not (np.issubdtype(a.dtype, np.number)):
         raise ValueError(f"image must be numeric, got dtype {a.dtype}")
     if a.ndim == 3 and a.shape[2] in (3, 4):
@@ -117,11 +119,12 @@ def _check_hist(hist: np.ndarray) -> np.ndarray:
     h = np.asarray(hist, dtype=np.float64)
     if h.ndim != 1 or h.size == 0:
         raise ValueError(f"hist must be a non-empty 1-D array, got shape {h.shape}")
-    if not np.all(np.isfinite(h)):
+    total = h.sum()  # NaN or inf anywhere makes the sum non-finite
+    if not np.isfinite(total):
         raise ValueError("hist contains NaN or infinite values")
-    if np.any(h < 0):
+    if h.min() < 0:
         raise ValueError("hist has negative counts")
-    if h.sum() <= 0:
+    if total <= 0:
         raise ValueError("hist is empty (all counts are zero)")
     return h
 
