@@ -3,4 +3,4 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh test
-exec .venv/bin/skynet demo "$@"
+exec .venv/bin/skynet mission "$@"

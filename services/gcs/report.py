@@ -40,7 +40,9 @@ time, with the scenario's offsets (``scenario["formation"]["offsets"]``, row n�
 planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
 heading of the centroid's motion is not always the one the planner placed the slots with.
 
-*Reached goal*: the last recorded position is within 2 m of the last planned waypoint.
+*Reached goal*: the last position with the trajectory complete (progress 1, in MISSION or HOLD,
+i.e. before the ground station lands the formation) is within 2 m of the last planned waypoint
+(the last recorded position when the trajectory never completed).
 
 *Link classes.* Telemetry (UDP in the paper): delivered = distinct sequence numbers received,
 sent = the sequence span ``max − min + 1`` per UAV; latency = state age ``rx − stamp``.
@@ -93,7 +95,8 @@ __all__ = [
     "write_report",
 ]
 
-#: A UAV reached its goal when its last position is this close to its last planned waypoint, m.
+#: A UAV reached its goal when, at the end of its trajectory (progress 1, before landing), it is
+#: this close to its last planned waypoint, m.
 GOAL_RADIUS_M = 2.0
 #: Tolerance of the defect scoring (:func:`services.gcs.scoring.score_defects`), m.
 DEFECT_TOLERANCE_M = 0.3
@@ -497,7 +500,11 @@ def _uav_figures(uav: int, track: _Track | None, traj: Trajectory | None,
     if traj is None:
         return f, series
     W = np.array([w.pos for w in traj.waypoints], dtype=float)
-    f.goal_distance_m = float(np.linalg.norm(track.pos[-1] - W[-1]))
+    # where the trajectory ended (progress 1, before the ground station lands the formation);
+    # the last position when the trajectory never completed
+    done = (track.progress >= 1.0) & np.array([m in (Mode.MISSION, Mode.HOLD) for m in track.mode], dtype=bool)
+    end = track.pos[done][-1] if done.any() else track.pos[-1]
+    f.goal_distance_m = float(np.linalg.norm(end - W[-1]))
     f.reached_goal = f.goal_distance_m <= GOAL_RADIUS_M
     if f.tracking_states == 0:
         return f, series
