@@ -40,6 +40,10 @@ Semantics (and where we differ from netem)
   start). A datagram that arrives during an outage is dropped (reason ``outage``); a stream
   chunk that arrives, or would be released, inside a window waits for its end (the stream
   stalls).
+* **Onset** — ``after_s``: everything but the outages starts that long after the origin;
+  before it packets pass untouched (counted). Zenoh opens a UDP link with a handshake of a few
+  datagrams and gives up on the link if they are lost (the session then runs on TCP alone),
+  so loss experiments on the UDP link should let the sessions open first (``after 2s``).
 * **Streams (TCP)** — :meth:`Impairer.decide_stream` applies outage, rate, delay and jitter in
   order; duplicate and reorder do not apply (TCP removes both). Loss is counted per
   ``mss``-byte segment; a chunk with a lost segment is delayed by ``rto_ms`` (Linux's minimum
@@ -52,7 +56,7 @@ String form
 keywords: ``delay T [JITTER]``, ``jitter T``, ``distribution uniform|normal``,
 ``loss P [CORRELATION]``, ``loss random P [CORRELATION]``, ``loss gemodel p [r [1-h [1-k]]]``,
 ``duplicate P``, ``reorder P [HOLD]``, ``rate R``, ``limit N``, ``outage START DURATION``
-(repeatable), ``rto T``, ``unordered``. Times need a unit (``us``, ``ms``, ``s``;
+(repeatable), ``rto T``, ``after T``, ``unordered``. Times need a unit (``us``, ``ms``, ``s``;
 tc's bare numbers mean µs, a trap we refuse), percentages need ``%``. Rates use tc's units,
 case-insensitively: ``bit kbit mbit gbit`` (and ``kibit``...) are bits per second, while
 ``bps kbps mbps gbps`` are **bytes** per second as in tc (``rate 1mbps`` = 8000 kbit/s);
@@ -143,6 +147,8 @@ class Impairment(BaseModel):
     limit: int = Field(default=1000, ge=0, le=10_000_000, description="packets held at most; 0 = unlimited")
     outages: tuple[tuple[float, float], ...] = ()
     rto_ms: float = Field(default=200.0, gt=0.0, le=3.6e6, allow_inf_nan=False)
+    after_s: float = Field(default=0.0, ge=0.0, le=1e7, allow_inf_nan=False,
+                           description="onset: impair only from this long after the origin (not outages)")
     fifo: bool = True
 
     @model_validator(mode="after")
@@ -243,6 +249,8 @@ class Impairment(BaseModel):
                 outages.append((start, duration))
             elif kw == "rto":
                 out["rto_ms"] = _time_ms(take("a time"))
+            elif kw == "after":
+                out["after_s"] = _time_ms(take("a time")) / 1000.0
             elif kw == "unordered":
                 out["fifo"] = False
             else:
@@ -306,6 +314,8 @@ class Impairment(BaseModel):
             parts.append(f"outage {start!r}s {duration!r}s")
         if self.rto_ms != 200.0:
             parts.append(f"rto {_fmt_ms(self.rto_ms)}")
+        if self.after_s:
+            parts.append(f"after {self.after_s!r}s")
         if not self.fifo:
             parts.append("unordered")
         return " ".join(parts) or "none"
@@ -429,6 +439,7 @@ class Impairer:
         self._jitter = imp.jitter_ms / 1000.0
         self._hold = imp.reorder_ms / 1000.0
         self._rto = imp.rto_ms / 1000.0
+        self._onset = self.origin_s + imp.after_s
         self._byte_time = 8.0 / (imp.rate_kbps * 1000.0) if imp.rate_kbps > 0 else 0.0
         self._outages = [(self.origin_s + s, self.origin_s + s + d) for s, d in imp.outages]
         self._busy_until = -math.inf      # rate: when the link finishes the previous packet
@@ -527,6 +538,10 @@ class Impairer:
         if self._outages and self.outage_end(now_s) is not None:
             c.dropped["outage"] += 1
             return []
+        if now_s < self._onset:
+            c.packets_out += 1
+            c.bytes_out += size_bytes
+            return [float(now_s)]
         if self._lost():
             c.dropped["loss"] += 1
             return []
@@ -578,6 +593,13 @@ class Impairer:
             end = self.outage_end(t)
             if end is not None:
                 t, stalled = end, True
+        if t < self._onset:
+            t = max(t, self._last_release)
+            self._last_release = t
+            c.stalled += stalled
+            c.packets_out += 1
+            c.bytes_out += size_bytes
+            return t
         imp = self.impairment
         if imp.loss > 0.0 or imp.gilbert_elliott is not None:
             segments = max(1, -(-size_bytes // self.mss))

@@ -224,6 +224,16 @@ def test_outage_drops_datagrams_and_stalls_streams():
     assert s.counters.stalled == 2 and s.counters.dropped["outage"] == 0
 
 
+def test_onset_leaves_the_link_clean_until_after_s():
+    imp = Impairer("after 2s loss 100% outage 1s 500ms", rng=0, origin_s=10.0)
+    assert imp.decide(11.9, 10) == [11.9] and imp.decide(12.0, 10) == []
+    assert imp.decide(11.2, 10) == []  # outages keep their own times
+    assert imp.counters.dropped == {"loss": 1, "outage": 1, "queue": 0}
+    s = Impairer("after 2s delay 50ms", rng=0, origin_s=10.0)
+    assert s.decide_stream(11.0, 10) == 11.0 and s.decide_stream(12.0, 10) == pytest.approx(12.05)
+    assert Impairment.parse("after 1500ms").after_s == 1.5
+
+
 def test_stream_loss_is_retransmission_delay_and_order_is_kept():
     imp = Impairer("loss 30% delay 5ms jitter 4ms rto 200ms", rng=9)
     t = np.array([imp.decide_stream(i * 1e-3, 1448) for i in range(500)])

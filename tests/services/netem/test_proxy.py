@@ -196,9 +196,12 @@ def test_udp_delay_is_added_on_the_impaired_direction_only(udp_echo):
             UdpProxy(target=udp_echo.address, impairment="delay 50ms", direction="up", seed=0) as slow:
         c = udp_client()
         base = statistics.median(rtt_ms(c, plain.address))
-        added = statistics.median(rtt_ms(c, slow.address)) - base
+        slow_rtt = rtt_ms(c, slow.address)
         c.close()
-    assert abs(added - 50.0) < 10.0, added
+    # never released early; the best sample within 10 ms (the median too, unless the 2 cores are
+    # saturated by other work, when thread wake-ups lag by a scheduler time slice)
+    assert min(slow_rtt) >= 50.0 - 0.5
+    assert abs(min(slow_rtt) - base - 50.0) < 10.0, slow_rtt
 
 
 def test_udp_loss_over_2000_packets_is_within_binomial_bounds(sink):
@@ -297,7 +300,7 @@ def test_tcp_passes_1mb_byte_exact_under_impairment(tcp_echo):
 
 
 def test_tcp_delay_is_added_per_direction(tcp_echo):
-    def median_rtt(addr) -> float:
+    def rtts(addr) -> list[float]:
         with socket.create_connection(addr, timeout=5) as c:
             c.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             out = []
@@ -309,11 +312,13 @@ def test_tcp_delay_is_added_per_direction(tcp_echo):
                     got += c.recv(4 - len(got))
                 out.append((time.monotonic() - t) * 1000.0)
                 time.sleep(0.005)
-            return statistics.median(out)
+            return out
     with TcpProxy(target=tcp_echo.address) as plain, \
             TcpProxy(target=tcp_echo.address, impairment="delay 25ms", direction="both") as slow:
-        added = median_rtt(slow.address) - median_rtt(plain.address)
-    assert abs(added - 50.0) < 10.0, added  # 25 ms each way
+        base = statistics.median(rtts(plain.address))
+        slow_rtt = rtts(slow.address)
+    assert min(slow_rtt) >= 50.0 - 0.5  # 25 ms each way, never early
+    assert abs(min(slow_rtt) - base - 50.0) < 10.0, slow_rtt
 
 
 def test_tcp_rate_limits_throughput(tcp_echo):
