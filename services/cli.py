@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "gcs": ("services.gcs.cli", "ground control station: run a mission over the bus"),
     "up": ("services.launcher", "start the whole network on this machine"),
     "mission": ("services.launcher", "start the network, run the default mission, write the report"),
+    "netem": ("services.netem.cli", "user-space impairment proxy (UDP/TCP) for latency/loss experiments"),
     "demo": ("services.demo", "gateway + a demo publisher/subscriber pair, printing what flows"),
     "bench": ("services.bench", "benchmarks: bus, sim, plan, detect, mission"),
 }
