@@ -1,0 +1,1003 @@
+"""MAVLink vehicle driver: an ArduCopter-style autopilot behind :class:`VehicleDriver`.
+
+The edge's board talks to a real autopilot (or an autopilot simulator, e.g.
+:mod:`edge.vehicle.mavsim`) exactly as it talks to the built-in :class:`SimDriver`: this module
+maps the driver interface onto MAVLink 2 (pymavlink ``mavutil``, dialect ``ardupilotmega``).
+In the paper the Pixhawk does the low-level control (PAPER.md Section 5: the built-in PID
+position loop) and the companion computer the high-level control; this driver is the
+companion side: it streams the trajectory reference of (P9) (plus the formation correction of
+(P8)) as position targets and fires the capture points.
+
+Frames
+------
+MAVLink's local frame is NED (x north, y east, z down) about the EKF origin, and its body frame
+FRD; ours is ENU about the mission origin with a FLU body. With the launch point ``home`` (ENU
+m, where the autopilot's EKF origin is)::
+
+    x_enu = y_ned + home_x,   y_enu = x_ned + home_y,   z_enu = −z_ned + home_z
+    φ_enu = φ_ned,   θ_enu = −θ_ned,   ψ_enu = π/2 − ψ_ned  (wrapped to (−π, π])
+    (p, q, r)_flu = (p, −q, −r)_frd
+
+(the world change is the reflection that swaps x and y and flips z, the body change a half
+turn about x; e.g. the ROS REP 103 / MAVROS ``ftf`` conversions). The same formulas are their
+own inverses, :func:`enu_to_ned` and :func:`yaw_enu_to_ned` apply them the other way.
+
+Link
+----
+A reader thread keeps the latest HEARTBEAT (armed flag, ArduCopter custom mode),
+LOCAL_POSITION_NED, ATTITUDE, SYS_STATUS (``battery_remaining``), STATUSTEXT and COMMAND_ACK;
+it sends our own HEARTBEAT at 1 Hz as a GCS (system 255 by default, so that ArduPilot's GCS
+failsafe watches this link) and asks for the telemetry streams with MAV_CMD_SET_MESSAGE_INTERVAL
+(20 Hz position and attitude, 2 Hz SYS_STATUS) while they are missing. The first autopilot
+heard (a HEARTBEAT whose ``autopilot`` is not MAV_AUTOPILOT_INVALID) becomes the target, unless
+``sysid`` names one. Without a HEARTBEAT for ``heartbeat_timeout_s`` (3 s, the usual GCS "link
+lost" time) the state's mode is FAILSAFE and every command raises :class:`VehicleLinkError`
+(a ValueError: the board turns it into a rejected acknowledgement with the reason).
+
+Commands
+--------
+Every COMMAND_LONG waits for its COMMAND_ACK (``timeout_s`` per attempt, ``retries`` resends
+with the ``confirmation`` field incremented, MAV_RESULT_IN_PROGRESS keeps waiting); any result
+but MAV_RESULT_ACCEPTED raises ValueError naming the MAV_RESULT (and the autopilot's latest
+STATUSTEXT, e.g. a PreArm failure).
+
+==================  ===============================================================
+driver call         MAVLink
+==================  ===============================================================
+takeoff(alt)        DO_SET_MODE GUIDED, COMPONENT_ARM_DISARM(1), NAV_TAKEOFF(param7 = alt)
+start(t0)           DO_SET_MODE GUIDED if not in it; then SET_POSITION_TARGET_LOCAL_NED stream
+hold()              DO_SET_MODE GUIDED if not in it; position target at the current position
+resume()            as start, from the paused trajectory time
+land()              NAV_LAND (ArduCopter switches to LAND and disarms on the ground)
+return_to_launch()  NAV_RETURN_TO_LAUNCH (RTL mode)
+capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = capture id % 256)
+==================  ===============================================================
+
+Hold is a position target in GUIDED rather than LOITER/BRAKE: it keeps the vehicle in the
+mode the driver streams in, so resume needs no mode change, and ArduCopter holds the last
+position target if the companion stops talking.
+
+Position targets (``coordinate_frame = MAV_FRAME_LOCAL_NED``) are streamed from :meth:`step` at
+most ``rate_hz`` times per wall second, with ``type_mask`` (POSITION_TARGET_TYPEMASK bits set
+= ignored)::
+
+    TYPE_MASK_POS_VEL_YAW = AX|AY|AZ|YAW_RATE          = 2496  (trajectory: p, v feed-forward, ψ)
+    TYPE_MASK_POS_YAW     = VX|VY|VZ|AX|AY|AZ|YAW_RATE = 2552  (hold: p, ψ)
+
+Modes (protocol.messages.Mode)
+------------------------------
+ArduCopter reports only its custom mode (0 STABILIZE, 3 AUTO, 4 GUIDED, 5 LOITER, 6 RTL,
+9 LAND, 17 BRAKE, ...). The driver keeps what it asked for (its *phase*) and reports it while the
+autopilot agrees: TAKEOFF / HOLD / MISSION in GUIDED, LAND in LAND, RTL in RTL; disarmed is IDLE
+before the first flight and LANDED after. A HEARTBEAT received after the last accepted command
+that disagrees (the pilot's remote control or the autopilot's own failsafe took over, as the
+paper allows in an emergency) wins, and the mode follows :func:`copter_mode`: AUTO -> MISSION,
+GUIDED / LOITER / BRAKE -> HOLD, RTL / SMART_RTL -> RTL, LAND -> LAND, any other (pilot-flown)
+mode -> FAILSAFE; the driver then stops streaming until a command takes the vehicle back.
+
+Time
+----
+``step(until_t)`` receives the board's mission clock (:mod:`edge.clock`); trajectory times,
+the transit to the first waypoint and the capture points run on that clock, exactly as with
+the simulated vehicle. :meth:`step` never waits for the link; only commands do.
+
+Only ArduCopter's custom-mode numbering is implemented; a PX4 autopilot (whose custom mode packs
+main and sub modes, and which needs OFFBOARD instead of GUIDED) is not.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Literal
+
+import numpy as np
+
+from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
+from edge.vehicle.follower import Follower
+from protocol.messages import Mode, Trajectory
+
+try:  # pymavlink is the optional "mavlink" extra
+    from pymavlink import mavutil
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+except ImportError as _exc:  # pragma: no cover - depends on the installation
+    raise ImportError("the MAVLink driver needs pymavlink (pip install 'skynet-inspect[mavlink]')") from _exc
+
+__all__ = [
+    "CopterMode",
+    "MavlinkParams",
+    "MavlinkDriver",
+    "VehicleLinkError",
+    "TYPE_MASK_POS_VEL_YAW",
+    "TYPE_MASK_POS_YAW",
+    "copter_mode",
+    "ned_to_enu",
+    "enu_to_ned",
+    "yaw_ned_to_enu",
+    "yaw_enu_to_ned",
+    "attitude_ned_to_enu",
+    "rates_frd_to_flu",
+    "open_connection",
+    "result_name",
+    "command_name",
+]
+
+Vec3 = tuple[float, float, float]
+M = mavlink2
+
+
+class CopterMode(IntEnum):
+    """ArduCopter custom modes (HEARTBEAT.custom_mode) that the driver and mavsim use."""
+
+    STABILIZE = 0
+    ALT_HOLD = 2
+    AUTO = 3
+    GUIDED = 4
+    LOITER = 5
+    RTL = 6
+    LAND = 9
+    POSHOLD = 16
+    BRAKE = 17
+    SMART_RTL = 21
+
+
+_COPTER_TO_MODE = {
+    CopterMode.AUTO: Mode.MISSION,
+    CopterMode.GUIDED: Mode.HOLD,
+    CopterMode.LOITER: Mode.HOLD,
+    CopterMode.BRAKE: Mode.HOLD,
+    CopterMode.RTL: Mode.RTL,
+    CopterMode.SMART_RTL: Mode.RTL,
+    CopterMode.LAND: Mode.LAND,
+}
+
+_IGNORE_ACC = (M.POSITION_TARGET_TYPEMASK_AX_IGNORE | M.POSITION_TARGET_TYPEMASK_AY_IGNORE
+               | M.POSITION_TARGET_TYPEMASK_AZ_IGNORE)
+_IGNORE_VEL = (M.POSITION_TARGET_TYPEMASK_VX_IGNORE | M.POSITION_TARGET_TYPEMASK_VY_IGNORE
+               | M.POSITION_TARGET_TYPEMASK_VZ_IGNORE)
+#: SET_POSITION_TARGET_LOCAL_NED type_mask: position, velocity feed-forward and yaw (2496)
+TYPE_MASK_POS_VEL_YAW = _IGNORE_ACC | M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+#: SET_POSITION_TARGET_LOCAL_NED type_mask: position and yaw only (2552)
+TYPE_MASK_POS_YAW = TYPE_MASK_POS_VEL_YAW | _IGNORE_VEL
+
+#: telemetry the driver asks for: message id -> rate, Hz
+STREAMS = {M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 20.0, M.MAVLINK_MSG_ID_ATTITUDE: 20.0,
+           M.MAVLINK_MSG_ID_SYS_STATUS: 2.0}
+
+_GROUNDED = (Mode.IDLE, Mode.LANDED)
+_AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL, Mode.FAILSAFE)
+#: the autopilot mode each driver phase expects
+_PHASE_COPTER = {"takeoff": CopterMode.GUIDED, "hold": CopterMode.GUIDED, "mission": CopterMode.GUIDED,
+                 "land": CopterMode.LAND, "rtl": CopterMode.RTL}
+_PHASE_MODE = {"idle": Mode.IDLE, "landed": Mode.LANDED, "takeoff": Mode.TAKEOFF, "hold": Mode.HOLD,
+               "mission": Mode.MISSION, "land": Mode.LAND, "rtl": Mode.RTL}
+
+
+class VehicleLinkError(ValueError):
+    """No (recent) HEARTBEAT from the autopilot, or no COMMAND_ACK: the vehicle cannot be commanded."""
+
+
+# ---------------------------------------------------------------------------------- conversions
+def _vec3_array(v: Any, name: str) -> np.ndarray:
+    a = np.asarray(v, dtype=float)
+    if a.ndim == 0 or a.shape[-1] != 3:
+        raise ValueError(f"{name} must have 3 components in its last axis")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite")
+    return a
+
+
+def ned_to_enu(v: Any) -> np.ndarray:
+    """NED vector(s) -> ENU: ``(x, y, z)_enu = (y, x, −z)_ned``; shape (..., 3), vectorised.
+
+    Positions get the home offset added by the caller (the NED origin is the launch point).
+
+    Examples
+    --------
+    >>> ned_to_enu([1.0, 2.0, -3.0]).tolist()
+    [2.0, 1.0, 3.0]
+    """
+    a = _vec3_array(v, "vector")
+    out = a[..., [1, 0, 2]].copy()
+    out[..., 2] *= -1.0
+    return out
+
+
+def enu_to_ned(v: Any) -> np.ndarray:
+    """ENU vector(s) -> NED (the same swap-and-flip as :func:`ned_to_enu`, its own inverse)."""
+    return ned_to_enu(v)
+
+
+def wrap(a: float) -> float:
+    """Angle wrapped to (−π, π]."""
+    w = math.remainder(a, 2.0 * math.pi)
+    return math.pi if w == -math.pi else w
+
+
+def yaw_ned_to_enu(yaw: float) -> float:
+    """Heading from north, clockwise (NED) -> from east, counter-clockwise (ENU): ``π/2 − ψ``, wrapped."""
+    if not math.isfinite(yaw):
+        raise ValueError("yaw must be finite")
+    return wrap(math.pi / 2.0 - yaw)
+
+
+def yaw_enu_to_ned(yaw: float) -> float:
+    """ENU yaw -> NED yaw (the same map: ``π/2 − ψ`` is an involution)."""
+    return yaw_ned_to_enu(yaw)
+
+
+def attitude_ned_to_enu(roll: float, pitch: float, yaw: float) -> Vec3:
+    """ZYX Euler angles of an FRD body in NED -> of the FLU body in ENU: ``(φ, −θ, π/2 − ψ)``."""
+    if not (math.isfinite(roll) and math.isfinite(pitch)):
+        raise ValueError("roll and pitch must be finite")
+    return (float(roll), -float(pitch), yaw_ned_to_enu(yaw))
+
+
+def rates_frd_to_flu(p: float, q: float, r: float) -> Vec3:
+    """Body rates about FRD axes -> about FLU axes: ``(p, −q, −r)`` (also the inverse)."""
+    return (float(p), -float(q), -float(r))
+
+
+def copter_mode(custom_mode: int) -> Mode:
+    """The board's mode for an ArduCopter custom mode flown by someone else (pilot, failsafe).
+
+    AUTO -> MISSION; GUIDED, LOITER, BRAKE -> HOLD; RTL, SMART_RTL -> RTL; LAND -> LAND; every
+    other mode (STABILIZE, ALT_HOLD, POSHOLD, ...: a pilot on the sticks) -> FAILSAFE.
+    """
+    return _COPTER_TO_MODE.get(custom_mode, Mode.FAILSAFE)
+
+
+def copter_mode_name(custom_mode: int) -> str:
+    """ArduCopter's name of a custom mode (``MODE_<n>`` when unknown)."""
+    return mavutil.mode_mapping_acm.get(int(custom_mode), f"MODE_{int(custom_mode)}")
+
+
+def result_name(result: int) -> str:
+    """``MAV_RESULT_*`` name of a COMMAND_ACK result."""
+    e = M.enums["MAV_RESULT"].get(int(result))
+    return e.name if e is not None else f"MAV_RESULT {int(result)}"
+
+
+def command_name(command: int) -> str:
+    """``MAV_CMD_*`` name of a command id (or ``MAVLINK_MSG_ID_<n>`` for a message acked as a command)."""
+    e = M.enums["MAV_CMD"].get(int(command))
+    return e.name if e is not None else f"MAVLINK_MSG_ID_{int(command)}"
+
+
+def open_connection(connection: str, source_system: int, source_component: int) -> Any:
+    """A pymavlink connection (``udpin:``, ``udpout:``, ``tcp:``, serial, ...) speaking MAVLink 2.
+
+    The connection's encoder is replaced by the MAVLink 2 ``ardupilotmega`` one, so the wire
+    version does not depend on the ``MAVLINK20`` environment variable at import time.
+    """
+    if not isinstance(connection, str) or not connection.strip():
+        raise ValueError("connection must be a pymavlink connection string, e.g. 'udpin:0.0.0.0:14550'")
+    for v, name in ((source_system, "source_system"), (source_component, "source_component")):
+        if not (isinstance(v, int) and 0 <= v <= 255):
+            raise ValueError(f"{name} must be an int in 0..255")
+    try:
+        conn = mavutil.mavlink_connection(connection, source_system=source_system,
+                                          source_component=source_component)
+    except Exception as exc:  # pymavlink raises OSError, ValueError, serial errors, ...
+        raise ValueError(f"cannot open MAVLink connection {connection!r}: {exc}") from exc
+    conn.mav = M.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
+    conn.mav.robust_parsing = True
+    conn.WIRE_PROTOCOL_VERSION = "2.0"
+    return conn
+
+
+# ---------------------------------------------------------------------------------- the driver
+@dataclass(frozen=True)
+class MavlinkParams:
+    """Tuning of :class:`MavlinkDriver` (defaults as :class:`edge.vehicle.sim.SimParams` where shared).
+
+    Attributes
+    ----------
+    transit_speed : speed of the reference flying to the first waypoint / back to a paused point, m/s.
+    start_radius : ``start`` flies to the first waypoint first when farther than this, m.
+    arrive_radius : a transit counts as arrived when the vehicle is this close to its end, m.
+    max_offset : bound on the formation offset's norm, m.
+    offset_rate : the applied offset moves toward the commanded one at most this fast, m/s.
+    takeoff_tolerance : takeoff is complete within this height of the target, m.
+    heartbeat_timeout_s : link lost after this long without an autopilot HEARTBEAT, s.
+    retries : COMMAND_LONG resends when no COMMAND_ACK arrives.
+    trigger_camera : send MAV_CMD_DO_DIGICAM_CONTROL at each capture (not waiting for the ack).
+    interpolation : trajectory interpolation, "cubic" or "linear".
+    """
+
+    transit_speed: float = 4.0
+    start_radius: float = 1.0
+    arrive_radius: float = 0.5
+    max_offset: float = 3.0
+    offset_rate: float = 1.0
+    takeoff_tolerance: float = 0.3
+    heartbeat_timeout_s: float = 3.0
+    retries: int = 1
+    trigger_camera: bool = False
+    interpolation: Literal["cubic", "linear"] = "cubic"
+
+    def __post_init__(self) -> None:
+        for k in ("transit_speed", "start_radius", "arrive_radius", "offset_rate", "takeoff_tolerance",
+                  "heartbeat_timeout_s"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{k} must be finite and > 0")
+        if not (math.isfinite(self.max_offset) and self.max_offset >= 0):
+            raise ValueError("max_offset must be finite and >= 0")
+        if not (isinstance(self.retries, int) and 0 <= self.retries <= 10):
+            raise ValueError("retries must be an int in 0..10")
+        if self.interpolation not in ("cubic", "linear"):
+            raise ValueError("interpolation must be 'cubic' or 'linear'")
+
+
+@dataclass(frozen=True)
+class _Heartbeat:
+    armed: bool
+    custom_mode: int
+    rx: int  # receive index (orders heartbeats against command acks)
+    mono: float  # time.monotonic() of reception
+
+
+class MavlinkDriver(VehicleDriver):
+    """An ArduCopter-style autopilot over MAVLink 2 behind the driver interface.
+
+    Parameters
+    ----------
+    uav : int
+        UAV id (trajectories for another id are refused).
+    connection : str
+        pymavlink connection string, e.g. ``"udpin:0.0.0.0:14550"`` (listen for the autopilot).
+    home : (x, y, z)
+        Launch point in the mission's ENU frame, m: where the autopilot's local NED origin is.
+    rate_hz : float
+        Position-target stream rate (at most this many per wall second), Hz.
+    timeout_s : float
+        How long a command waits for its COMMAND_ACK per attempt, s.
+    params : MavlinkParams
+    sysid : int or None
+        The autopilot's MAVLink system id; None takes the first autopilot heard.
+    source_system, source_component : int
+        Our own MAVLink address (255 / MAV_COMP_ID_ONBOARD_COMPUTER by default: a GCS-side id).
+    """
+
+    def __init__(
+        self,
+        uav: int,
+        connection: str,
+        home: Vec3 = (0.0, 0.0, 0.0),
+        rate_hz: float = 20.0,
+        timeout_s: float = 1.5,
+        *,
+        params: MavlinkParams = MavlinkParams(),
+        sysid: int | None = None,
+        source_system: int = 255,
+        source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
+    ):
+        if not (isinstance(uav, int) and 1 <= uav <= 255):
+            raise ValueError("uav must be an int in 1..255")
+        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 100):
+            raise ValueError("rate_hz must be in (0, 100]")
+        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and 0 < timeout_s <= 60):
+            raise ValueError("timeout_s must be in (0, 60]")
+        if sysid is not None and not (isinstance(sysid, int) and 1 <= sysid <= 255):
+            raise ValueError("sysid must be None or an int in 1..255")
+        if not isinstance(params, MavlinkParams):
+            raise ValueError("params must be a MavlinkParams")
+        self.uav = uav
+        self.connection = connection
+        self.home = check_vec3(home, "home")
+        self.rate_hz = float(rate_hz)
+        self.timeout_s = float(timeout_s)
+        self.params = params
+        self._home = np.array(self.home)
+        self._sysid = sysid
+        self._compid = M.MAV_COMP_ID_AUTOPILOT1
+        self._conn = open_connection(connection, source_system, source_component)
+        self._mono0 = time.monotonic()
+        self._lock = threading.RLock()  # telemetry, phase, acks
+        self._cv = threading.Condition(self._lock)
+        self._send_lock = threading.Lock()
+        self._cmd_lock = threading.Lock()  # one COMMAND_LONG in flight
+        self._stop = threading.Event()
+        self._closed = False
+        # telemetry
+        self._rx = 0
+        self._hb: _Heartbeat | None = None
+        self._pos: Vec3 = self.home
+        self._vel: Vec3 = (0.0, 0.0, 0.0)
+        self._att: Vec3 = (0.0, 0.0, 0.0)
+        self._rates: Vec3 = (0.0, 0.0, 0.0)
+        self._battery = 1.0
+        self._last_mono: dict[str, float] = {}
+        self._texts: deque[tuple[float, int, str]] = deque(maxlen=16)
+        self._acks: dict[int, tuple[int, int]] = {}  # command -> (result, rx)
+        self._cmd_rx = 0  # receive index of the last accepted command's ack
+        self.rx_errors = 0
+        # mission state (driver phases: idle, landed, takeoff, hold, mission, land, rtl, external)
+        self._t = 0.0
+        self._phase = "idle"
+        self._takeoff_z = self.home[2]
+        self._hold: tuple[Vec3, float] = (self.home, 0.0)  # position, ENU yaw
+        self._follower: Follower | None = None
+        self._traj_t0: float | None = None
+        self._sub = ""  # mission sub-phase: transit, wait, track, transit_resume
+        self._t_start = 0.0
+        self._origin = 0.0
+        self._tau_paused: float | None = None
+        self._resume_tau = 0.0
+        self._mission_done = False
+        self._captures = 0
+        self._mv: tuple[Vec3, Vec3, float, float, float] = (self.home, (0.0, 0.0, 0.0), 0.0, 0.0, 0.0)
+        self._yaw_ref = 0.0
+        self._offset_cmd: Vec3 = (0.0, 0.0, 0.0)
+        self._offset: Vec3 = (0.0, 0.0, 0.0)
+        self._last_target_mono = -math.inf
+        #: position targets sent (count) and the last one (NED x, y, z, yaw), for inspection
+        self.targets_sent = 0
+        self.last_target: tuple[float, float, float, float] | None = None
+        self._reader = threading.Thread(target=self._read_loop, name=f"mavlink-uav{uav}", daemon=True)
+        self._reader.start()
+
+    # ------------------------------------------------------------------ link
+    def _send(self, name: str, *args: Any) -> None:
+        with self._send_lock:
+            try:
+                getattr(self._conn.mav, name)(*args)
+            except OSError:
+                self.rx_errors += 1
+
+    def _read_loop(self) -> None:
+        conn = self._conn
+        last_hb = -math.inf
+        last_req = -math.inf
+        while not self._stop.is_set():
+            try:
+                msg = conn.recv_msg()
+            except Exception:  # a malformed datagram or a closed socket must not kill the reader
+                if self._stop.is_set():
+                    break
+                self.rx_errors += 1
+                msg = None
+            now = time.monotonic()
+            if msg is not None:
+                self._on_message(msg, now)
+            else:
+                conn.select(0.02)
+            if now - last_hb >= 1.0:
+                last_hb = now
+                self._send("heartbeat_send", M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
+            if self._hb is not None and now - last_req >= 2.0:
+                last_req = now
+                self._request_streams(now)
+
+    def _request_streams(self, now: float) -> None:
+        """Ask (again) for every telemetry stream not heard for 1 s (fire and forget)."""
+        names = {M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED", M.MAVLINK_MSG_ID_ATTITUDE: "ATTITUDE",
+                 M.MAVLINK_MSG_ID_SYS_STATUS: "SYS_STATUS"}
+        for msg_id, hz in STREAMS.items():
+            if now - self._last_mono.get(names[msg_id], -math.inf) > 1.0:
+                self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                           msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
+
+    def _on_message(self, msg: Any, now: float) -> None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            self.rx_errors += 1
+            return
+        src = msg.get_srcSystem()
+        if kind == "HEARTBEAT":
+            if msg.autopilot == M.MAV_AUTOPILOT_INVALID:
+                return  # a GCS or another companion, not a vehicle
+            with self._cv:
+                if self._sysid is None:
+                    self._sysid = src
+                if src != self._sysid:
+                    return
+                self._compid = msg.get_srcComponent()
+                self._rx += 1
+                self._hb = _Heartbeat(bool(msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED), int(msg.custom_mode),
+                                      self._rx, now)
+                self._last_mono[kind] = now
+                self._cv.notify_all()
+            return
+        if src != self._sysid:
+            return
+        with self._cv:
+            self._last_mono[kind] = now
+            if kind == "LOCAL_POSITION_NED":
+                try:
+                    p = ned_to_enu((msg.x, msg.y, msg.z)) + self._home
+                    v = ned_to_enu((msg.vx, msg.vy, msg.vz))
+                except ValueError:
+                    self.rx_errors += 1
+                    return
+                self._pos = (float(p[0]), float(p[1]), float(p[2]))
+                self._vel = (float(v[0]), float(v[1]), float(v[2]))
+            elif kind == "ATTITUDE":
+                try:
+                    self._att = attitude_ned_to_enu(msg.roll, msg.pitch, msg.yaw)
+                except ValueError:
+                    self.rx_errors += 1
+                    return
+                self._rates = rates_frd_to_flu(msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            elif kind == "SYS_STATUS":
+                if 0 <= msg.battery_remaining <= 100:
+                    self._battery = msg.battery_remaining / 100.0
+            elif kind == "STATUSTEXT":
+                text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
+                self._texts.append((now, int(msg.severity), text.rstrip("\x00")))
+            elif kind == "COMMAND_ACK":
+                self._rx += 1
+                self._acks[int(msg.command)] = (int(msg.result), self._rx)
+                self._cv.notify_all()
+
+    def heartbeat_age(self) -> float | None:
+        """Seconds since the last autopilot HEARTBEAT (None: none yet)."""
+        hb = self._hb
+        return None if hb is None else time.monotonic() - hb.mono
+
+    @property
+    def link_ok(self) -> bool:
+        """An autopilot HEARTBEAT arrived within ``heartbeat_timeout_s``."""
+        age = self.heartbeat_age()
+        return age is not None and age <= self.params.heartbeat_timeout_s
+
+    @property
+    def target_system(self) -> int | None:
+        """The autopilot's system id (None until heard)."""
+        return self._sysid
+
+    @property
+    def autopilot_mode(self) -> int | None:
+        """The autopilot's custom mode from its last HEARTBEAT."""
+        hb = self._hb
+        return None if hb is None else hb.custom_mode
+
+    @property
+    def status_texts(self) -> list[str]:
+        """The autopilot's recent STATUSTEXT messages, oldest first."""
+        with self._lock:
+            return [t for _, _, t in self._texts]
+
+    def _link_error(self) -> VehicleLinkError | None:
+        age = self.heartbeat_age()
+        if age is None:
+            waited = time.monotonic() - self._mono0
+            return VehicleLinkError(f"no HEARTBEAT from an autopilot on {self.connection} in {waited:.1f} s: "
+                                    "is the vehicle connected and sending to this endpoint?")
+        if age > self.params.heartbeat_timeout_s:
+            return VehicleLinkError(f"autopilot link lost: last HEARTBEAT {age:.1f} s ago on {self.connection}")
+        return None
+
+    def wait_heartbeat(self, timeout_s: float = 5.0) -> None:
+        """Block until an autopilot HEARTBEAT is heard; :class:`VehicleLinkError` after ``timeout_s``."""
+        if not (math.isfinite(timeout_s) and timeout_s >= 0):
+            raise ValueError("timeout_s must be finite and >= 0")
+        deadline = time.monotonic() + timeout_s
+        with self._cv:
+            while not self.link_ok:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    err = self._link_error()
+                    assert err is not None
+                    raise err
+                self._cv.wait(min(left, 0.1))
+
+    def _command(self, command: int, params: tuple[float, ...], what: str) -> None:
+        """Send a COMMAND_LONG and wait for its COMMAND_ACK; ValueError unless MAV_RESULT_ACCEPTED."""
+        err = self._link_error()
+        if err is not None:
+            raise err
+        p = tuple(float(x) for x in params) + (0.0,) * (7 - len(params))
+        with self._cmd_lock:
+            got: tuple[int, int] | None = None
+            sent_mono = time.monotonic()
+            for attempt in range(self.params.retries + 1):
+                with self._cv:
+                    self._acks.pop(command, None)
+                self._send("command_long_send", self._sysid, self._compid, command, attempt, *p)
+                deadline = time.monotonic() + self.timeout_s
+                with self._cv:
+                    while True:
+                        a = self._acks.pop(command, None)
+                        if a is not None:
+                            if a[0] != M.MAV_RESULT_IN_PROGRESS:
+                                got = a
+                                break
+                            deadline = time.monotonic() + self.timeout_s
+                        left = deadline - time.monotonic()
+                        if left <= 0:
+                            break
+                        self._cv.wait(left)
+                if got is not None:
+                    break
+        if got is None:
+            raise VehicleLinkError(f"{what}: no COMMAND_ACK to {command_name(command)} within "
+                                   f"{self.timeout_s:g} s x {self.params.retries + 1} attempts")
+        result, rx = got
+        if result != M.MAV_RESULT_ACCEPTED:
+            with self._lock:
+                texts = [t for m, _, t in self._texts if m >= sent_mono - 1.0]
+            why = f" ({'; '.join(texts)})" if texts else ""
+            raise ValueError(f"{what} refused by the autopilot: {result_name(result)} to "
+                             f"{command_name(command)}{why}")
+        with self._lock:
+            self._cmd_rx = max(self._cmd_rx, rx)
+
+    def _set_mode(self, mode: CopterMode) -> None:
+        self._command(M.MAV_CMD_DO_SET_MODE, (M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, int(mode)),
+                      f"set mode {mode.name}")
+
+    def _ensure_guided(self) -> None:
+        """DO_SET_MODE GUIDED unless the driver already flies in GUIDED (and no newer HEARTBEAT disagrees)."""
+        with self._lock:
+            hb = self._hb
+            fresh = hb is not None and hb.rx > self._cmd_rx
+            if self._phase in ("hold", "mission", "takeoff") and not (fresh and hb.custom_mode != CopterMode.GUIDED):
+                return
+        self._set_mode(CopterMode.GUIDED)
+
+    # ------------------------------------------------------------------ mode machine
+    def _update_phase(self) -> None:
+        """Let a HEARTBEAT newer than the last accepted command overrule the driver's phase."""
+        hb = self._hb
+        if hb is None or hb.rx <= self._cmd_rx:
+            return
+        phase = self._phase
+        if not hb.armed:
+            if phase not in ("idle", "landed"):
+                self._pause_mission()
+                self._phase = "landed"
+            return
+        if phase in ("idle", "landed"):
+            self._phase = "external"  # armed by someone else
+        elif phase == "external":
+            if hb.custom_mode == CopterMode.GUIDED:
+                self._hold_here()
+        elif hb.custom_mode != _PHASE_COPTER[phase]:
+            self._pause_mission()
+            if hb.custom_mode == CopterMode.GUIDED:
+                self._hold_here()
+            else:
+                self._phase = "external"
+
+    def _mode(self) -> Mode:
+        if not self.link_ok:
+            return Mode.FAILSAFE
+        if self._phase == "external":
+            hb = self._hb
+            return copter_mode(hb.custom_mode) if hb is not None else Mode.FAILSAFE
+        return _PHASE_MODE[self._phase]
+
+    def _require(self, allowed: tuple[Mode, ...], what: str) -> Mode:
+        if self._closed:
+            raise ValueError("driver is closed")
+        err = self._link_error()
+        if err is not None:
+            raise err
+        with self._lock:
+            self._update_phase()
+            mode = self._mode()
+        if mode not in allowed:
+            names = ", ".join(m.value for m in allowed)
+            raise ValueError(f"cannot {what} in mode {mode.value} (allowed in: {names})")
+        return mode
+
+    def _armed(self) -> bool:
+        """Armed per the last HEARTBEAT, or per the phase when no HEARTBEAT followed the last command."""
+        hb = self._hb
+        if hb is not None and hb.rx > self._cmd_rx:
+            return hb.armed
+        return self._phase not in ("idle", "landed")
+
+    # ------------------------------------------------------------------ state
+    def _tau(self) -> float | None:
+        f = self._follower
+        if f is None:
+            return None
+        if self._mission_done:
+            return f.t_end
+        if self._tau_paused is not None:
+            return self._tau_paused + f.t0
+        if self._phase == "mission" and self._sub == "track":
+            return self._t - self._origin + f.t0
+        return None
+
+    def state(self) -> DriverState:
+        with self._lock:
+            self._update_phase()
+            tau = self._tau()
+            f = self._follower
+            if f is None or tau is None:
+                wp, prog = -1, 0.0
+            else:
+                wp, prog = f.segment(tau), f.progress(tau)
+            return DriverState(
+                t=self._t, pos=self._pos, vel=self._vel, att=self._att, rates=self._rates,
+                mode=self._mode(), armed=self._armed(), battery=self._battery,
+                wp_index=wp, progress=prog, captures=self._captures,
+            )
+
+    # ------------------------------------------------------------------ commands
+    def upload(self, traj: Trajectory) -> None:
+        self._require((Mode.IDLE, Mode.LANDED, Mode.TAKEOFF, Mode.HOLD), "upload a trajectory")
+        if not isinstance(traj, Trajectory):
+            raise ValueError("upload needs a protocol.messages.Trajectory")
+        if traj.uav != self.uav:
+            raise ValueError(f"trajectory is for UAV {traj.uav}, this is UAV {self.uav}")
+        gz = self.home[2]
+        for i, w in enumerate(traj.waypoints):
+            if w.pos[2] < gz + 0.5:
+                raise ValueError(f"waypoint {i} is below 0.5 m above the ground (z = {w.pos[2]:.2f} m)")
+        follower = Follower(traj, self.params.interpolation)
+        with self._lock:
+            self._follower = follower
+            self._captures = 0
+            self._mission_done = False
+            self._tau_paused = None
+            self._sub = ""
+
+    def takeoff(self, altitude: float) -> None:
+        self._require(_GROUNDED, "take off")
+        altitude = float(altitude)
+        if not (math.isfinite(altitude) and 0.5 <= altitude <= 500.0):
+            raise ValueError("takeoff altitude must be in [0.5, 500] m")
+        self._set_mode(CopterMode.GUIDED)
+        self._command(M.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "arm")
+        try:
+            self._command(M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, 0, 0, altitude), f"take off to {altitude:g} m")
+        except ValueError:
+            try:  # do not leave the motors armed on the ground
+                self._command(M.MAV_CMD_COMPONENT_ARM_DISARM, (0.0,), "disarm")
+            except ValueError:
+                pass
+            raise
+        with self._lock:
+            self._phase = "takeoff"
+            self._takeoff_z = self.home[2] + altitude
+            self._yaw_ref = self._att[2]
+
+    def start(self, t0: float | None = None) -> None:
+        self._require((Mode.HOLD,), "start a mission")
+        if self._follower is None:
+            raise ValueError("no trajectory uploaded")
+        if t0 is not None and not math.isfinite(t0):
+            raise ValueError("t0 must be finite")
+        self._ensure_guided()
+        with self._lock:
+            f = self._follower
+            self._t_start = self._t if t0 is None else float(t0)
+            self._tau_paused = None
+            self._mission_done = False
+            self._phase = "mission"
+            self._yaw_ref = f.reference(f.t0)[3]
+            if math.dist(self._pos, f.start) > self.params.start_radius:
+                self._sub = "transit"
+                self._go(f.start, self._pos)
+            else:
+                self._begin_wait_or_track(None)
+            self._last_target_mono = -math.inf
+
+    def hold(self) -> None:
+        self._require(_AIRBORNE, "hold")
+        if self._phase == "hold":
+            return
+        if not self._armed():
+            raise ValueError("cannot hold: the vehicle is not armed")
+        self._ensure_guided()
+        with self._lock:
+            self._pause_mission()
+            self._hold_here()
+
+    def resume(self) -> None:
+        self._require((Mode.HOLD,), "resume")
+        if self._follower is None or self._mission_done or self._tau_paused is None:
+            raise ValueError("no paused mission to resume")
+        self._ensure_guided()
+        with self._lock:
+            f = self._follower
+            tau = self._tau_paused
+            self._tau_paused = None
+            self._phase = "mission"
+            self._t_start = self._t - tau
+            ref = f.reference(tau + f.t0)[0]
+            if math.dist(self._pos, ref) > self.params.start_radius:
+                self._sub = "transit_resume"
+                self._resume_tau = tau
+                self._go(ref, self._pos)
+            else:
+                self._sub = "track"
+                self._origin = self._t - tau
+            self._last_target_mono = -math.inf
+
+    def land(self) -> None:
+        self._require(_AIRBORNE, "land")
+        if self._phase == "land":
+            return
+        self._command(M.MAV_CMD_NAV_LAND, (0, 0, 0, math.nan, 0, 0, 0), "land")
+        with self._lock:
+            self._pause_mission()
+            self._tau_paused = None
+            self._phase = "land"
+
+    def return_to_launch(self) -> None:
+        self._require(_AIRBORNE, "return to launch")
+        if self._phase == "rtl":
+            return
+        self._command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH, (), "return to launch")
+        with self._lock:
+            self._pause_mission()
+            self._tau_paused = None
+            self._phase = "rtl"
+
+    def set_reference_offset(self, offset: Vec3) -> None:
+        if self._closed:
+            raise ValueError("driver is closed")
+        o = check_vec3(offset, "offset")
+        n = math.sqrt(o[0] ** 2 + o[1] ** 2 + o[2] ** 2)
+        m = self.params.max_offset
+        if n > m:
+            o = (o[0] * m / n, o[1] * m / n, o[2] * m / n)
+        self._offset_cmd = o
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._stop.set()
+        self._reader.join(timeout=2.0)
+        try:
+            self._conn.close()
+        except OSError:
+            pass
+
+    def __enter__(self) -> "MavlinkDriver":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ mission bookkeeping (under _lock)
+    def _hold_here(self) -> None:
+        self._phase = "hold"
+        self._hold = (self._pos, self._att[2])
+        self._last_target_mono = -math.inf
+
+    def _pause_mission(self) -> None:
+        if self._phase != "mission":
+            return
+        if self._sub == "track":
+            self._tau_paused = self._t - self._origin
+        elif self._sub == "transit_resume":
+            self._tau_paused = self._resume_tau
+        elif self._sub in ("transit", "wait"):
+            self._tau_paused = 0.0
+        self._sub = ""
+
+    def _go(self, target: Vec3, start: Vec3) -> None:
+        d = (target[0] - start[0], target[1] - start[1], target[2] - start[2])
+        n = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+        u = (d[0] / n, d[1] / n, d[2] / n) if n > 1e-12 else (0.0, 0.0, 0.0)
+        self._mv = (start, u, n, self._t, self.params.transit_speed)
+
+    def _mover(self, t: float) -> tuple[Vec3, Vec3, bool]:
+        start, u, n, ts, v = self._mv
+        s = v * max(0.0, t - ts)
+        if s >= n:
+            return (start[0] + u[0] * n, start[1] + u[1] * n, start[2] + u[2] * n), (0.0, 0.0, 0.0), True
+        return (start[0] + u[0] * s, start[1] + u[1] * s, start[2] + u[2] * s), (u[0] * v, u[1] * v, u[2] * v), False
+
+    def _begin_wait_or_track(self, t: float | None) -> None:
+        now = self._t if t is None else t
+        if now < self._t_start:
+            self._sub = "wait"
+        else:
+            self._sub = "track"
+            self._origin = self._t_start if t is None else now
+
+    def _rate_limit_offset(self, dt: float) -> Vec3:
+        o, c = self._offset, self._offset_cmd
+        d = (c[0] - o[0], c[1] - o[1], c[2] - o[2])
+        n = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+        step = self.params.offset_rate * max(0.0, dt)
+        if n <= step:
+            self._offset = c
+        else:
+            s = step / n
+            self._offset = (o[0] + d[0] * s, o[1] + d[1] * s, o[2] + d[2] * s)
+        return self._offset
+
+    def _fire(self, due: list, t: float, events: list[CaptureEvent]) -> None:
+        for w in due:
+            events.append(CaptureEvent(w.capture_id, t, self._pos, self._att))
+            self._captures += 1
+
+    def _mission_reference(self, t: float, dt: float, events: list[CaptureEvent]) -> tuple[Vec3, Vec3 | None, float]:
+        """(position, velocity or None, yaw) of the mission at time t; advances sub-phases, fires captures."""
+        f = self._follower
+        assert f is not None
+        sub = self._sub
+        if sub == "wait":
+            if t < self._t_start:
+                return f.start, None, self._yaw_ref
+            self._sub, self._origin = "track", self._t_start
+            return self._mission_reference(t, dt, events)
+        if sub in ("transit", "transit_resume"):
+            p, v, done = self._mover(t)
+            if done and math.dist(self._pos, p) < self.params.arrive_radius:
+                if sub == "transit":
+                    self._begin_wait_or_track(t)
+                else:
+                    self._sub, self._origin = "track", t - self._resume_tau
+                return self._mission_reference(t, dt, events)
+            return p, v, self._yaw_ref
+        # track
+        tau = t - self._origin + f.t0
+        due = f.due_captures(tau)
+        if due:
+            self._fire(due, t, events)
+        if tau >= f.t_end:
+            o = self._offset
+            self._mission_done = True
+            self._sub = ""
+            self._phase = "hold"
+            end = (f.end[0] + o[0], f.end[1] + o[1], f.end[2] + o[2])
+            self._hold = (end, f.reference(f.t_end)[3])
+            return end, None, self._hold[1]
+        p, v, _, yaw = f.reference(tau)
+        o = self._rate_limit_offset(dt)
+        return (p[0] + o[0], p[1] + o[1], p[2] + o[2]), v, yaw
+
+    # ------------------------------------------------------------------ streaming
+    def step(self, until_t: float) -> list[CaptureEvent]:
+        if self._closed:
+            raise ValueError("driver is closed")
+        until_t = float(until_t)
+        if not math.isfinite(until_t):
+            raise ValueError("until_t must be finite")
+        events: list[CaptureEvent] = []
+        with self._lock:
+            dt = until_t - self._t
+            self._t = until_t
+            self._update_phase()
+            if not self.link_ok:
+                return events
+            phase = self._phase
+            if (phase == "takeoff" and self._pos[2] >= self._takeoff_z - self.params.takeoff_tolerance
+                    and abs(self._vel[2]) < 0.3):
+                self._phase = phase = "hold"
+                self._hold = ((self._pos[0], self._pos[1], self._takeoff_z), self._yaw_ref)
+                self._last_target_mono = -math.inf
+            if phase == "mission":
+                pos, vel, yaw = self._mission_reference(until_t, dt, events)
+            elif phase == "hold":
+                (pos, yaw), vel = self._hold, None
+            else:
+                return events
+            now = time.monotonic()
+            if now - self._last_target_mono < 1.0 / self.rate_hz:
+                return events
+            self._last_target_mono = now
+        self._send_target(pos, vel, yaw)
+        if self.params.trigger_camera:
+            for ev in events:
+                self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_DO_DIGICAM_CONTROL, 0,
+                           0, 0, 0, 0, 1, ev.capture_id % 256, 0)
+        return events
+
+    def _send_target(self, pos: Vec3, vel: Vec3 | None, yaw_enu: float) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED for an ENU position (+ velocity) and yaw."""
+        h = self.home
+        x, y, z = pos[1] - h[1], pos[0] - h[0], -(pos[2] - h[2])
+        vx, vy, vz = (vel[1], vel[0], -vel[2]) if vel is not None else (0.0, 0.0, 0.0)
+        mask = TYPE_MASK_POS_VEL_YAW if vel is not None else TYPE_MASK_POS_YAW
+        yaw = yaw_enu_to_ned(yaw_enu)
+        ms = int((time.monotonic() - self._mono0) * 1000) & 0xFFFFFFFF
+        self._send("set_position_target_local_ned_send", ms, self._sysid, self._compid, M.MAV_FRAME_LOCAL_NED,
+                   mask, x, y, z, vx, vy, vz, 0, 0, 0, yaw, 0)
+        self.targets_sent += 1
+        self.last_target = (x, y, z, yaw)
