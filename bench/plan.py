@@ -29,4 +29,6 @@ if __name__ == "__main__":
                      f"{r['pyswarms_over_theta_pso_cpu']:.2f}x); evaluations {r['theta_pso_evaluations']} "
                      f"vs {r['pyswarms_evaluations']}")
         print(line)
+        print("cost (P5) per call of " + str(r["compare"]["particles"]) + " paths, ms: "
+              + ", ".join(f"{k} {v:.3f}" for k, v in r["cost_call_ms"].items()))
     raise SystemExit(rc)

@@ -24,7 +24,7 @@ from .mission import ALGORITHMS
 from .scenario import Scenario
 from .theta_pso import theta_pso
 
-__all__ = ["compare", "format_table", "convergence_plot", "bench"]
+__all__ = ["compare", "format_table", "convergence_plot", "cost_call_times", "bench"]
 
 
 def compare(
@@ -117,6 +117,32 @@ def convergence_plot(result: dict[str, Any], path: str | Path) -> Path:
     return p
 
 
+def cost_call_times(problem: PathProblem, particles: int = 150, calls: int = 100) -> dict[str, float]:
+    """Median time (ms) of one :class:`Cost` call on swarms in different places.
+
+    ``corridor``: the shared initial population; ``box``: uniform over the box; ``clear``: every
+    waypoint in the box's south-west corner, away from every obstacle and the wall. Equal times
+    show that the cost's work does not depend on where the swarm is.
+    """
+    rng = np.random.default_rng(0)
+    swarms = {
+        "corridor": problem.initial_population(particles, rng),
+        "box": problem.initial_population(particles, rng, "box"),
+        "clear": np.tile(problem.lo + [5.0, 5.0, 20.0], (particles, problem.n_free)),
+    }
+    cost = Cost(problem)
+    for X in swarms.values():  # warm up (buffers, caches, clock)
+        for _ in range(10):
+            cost(X)
+    ts: dict[str, list[float]] = {name: [] for name in swarms}
+    for _ in range(calls):  # interleaved, so drifts in machine load hit every swarm alike
+        for name, X in swarms.items():
+            t = time.perf_counter()
+            cost(X)
+            ts[name].append(time.perf_counter() - t)
+    return {name: 1e3 * float(np.median(t)) for name, t in ts.items()}
+
+
 def bench(
     scenario: Scenario,
     seeds: int = 20,
@@ -184,6 +210,7 @@ def bench(
             "pyswarms_over_theta_pso": float(np.median(sw[:, 0]) / np.median(th[:, 0])),
             "pyswarms_over_theta_pso_cpu": float(np.median(sw[:, 1]) / np.median(th[:, 1])),
         })
+    out_doc["cost_call_ms"] = cost_call_times(problem, particles)
     out_doc["compare"] = compare(scenario, seeds, particles, iterations, waypoints)
     if out is not None:
         p = Path(out)
