@@ -28,11 +28,14 @@ What it does (MAVLink 2, system id = ``uav``, component 1, ``MAV_AUTOPILOT_ARDUP
   =======================  ==================================================================
 
 - in GUIDED, airborne, follows SET_POSITION_TARGET_LOCAL_NED (``MAV_FRAME_LOCAL_NED``) as
-  ArduCopter's guided position/velocity controller does: the position target moves with the
-  velocity target (p + v·Δt) until 3 s pass without a new target, then the velocity is dropped
-  and the last position held; a velocity-only target starts from the current position; an
-  ignored yaw keeps the current heading. A target during the takeoff climb ends the climb.
+  ArduCopter's guided position/velocity/acceleration controller does: the target moves on with
+  its velocity and acceleration (p + v·Δt + a·Δt²/2) until 3 s pass without a new one, then the
+  feed-forward is dropped and the last position held; a velocity-only target starts from the
+  current position; an ignored yaw keeps the current heading. A target during the takeoff climb
+  ends the climb. Other frames are ignored.
 - disarms on the ground after LAND/RTL, and 10 s after arming without a takeoff (DISARM_DELAY).
+- :meth:`MavlinkSimVehicle.pilot_mode` flips the mode as the pilot's remote control would (the
+  paper's emergency take-over), to test that the driver reports it and stops streaming.
 
 Hook into the simulator: :class:`SimDriver` has no public "external position reference", so a
 small subclass (:class:`GuidedSimDriver`) overrides its per-mode reference generator
@@ -83,22 +86,27 @@ _ZERO: Vec3 = (0.0, 0.0, 0.0)
 class GuidedSimDriver(SimDriver):
     """:class:`SimDriver` whose HOLD reference can be a moving guided target.
 
-    ``target = (position, velocity, yaw, t_set)`` (ENU m, m/s, rad, sim s) or None (plain HOLD).
-    The reference is ``position + velocity · min(t − t_set, GUIDED_TIMEOUT_S)`` with the velocity as
-    feed-forward until the timeout.
+    ``target = (position, velocity, acceleration, yaw, t_set)`` (ENU m, m/s, m/s², rad, sim s) or
+    None (plain HOLD). The target moves on by constant-acceleration kinematics for
+    ``k = t − t_set``: ``p + v k + a k²/2``, velocity ``v + a k`` and acceleration ``a`` as
+    feed-forward, until ``k`` reaches GUIDED_TIMEOUT_S; then the position stays and the
+    feed-forward is dropped (ArduCopter's guided position/velocity/acceleration controller).
     """
 
-    target: tuple[Vec3, Vec3, float, float] | None = None
+    target: tuple[Vec3, Vec3, Vec3, float, float] | None = None
 
     def _reference(self, t: float):  # type: ignore[override]
         tg = self.target
         if tg is None or self.mode != Mode.HOLD:
             return super()._reference(t)
-        p, v, yaw, t_set = tg
+        p, v, a, yaw, t_set = tg
         age = t - t_set
         k = min(max(age, 0.0), GUIDED_TIMEOUT_S)
-        pos = (p[0] + v[0] * k, p[1] + v[1] * k, p[2] + v[2] * k)
-        return pos, (v if age < GUIDED_TIMEOUT_S else _ZERO), _ZERO, yaw
+        h = 0.5 * k * k
+        pos = (p[0] + v[0] * k + a[0] * h, p[1] + v[1] * k + a[1] * h, p[2] + v[2] * k + a[2] * h)
+        if age >= GUIDED_TIMEOUT_S:
+            return pos, _ZERO, _ZERO, yaw
+        return pos, (v[0] + a[0] * k, v[1] + a[1] * k, v[2] + a[2] * k), a, yaw
 
 
 class MavlinkSimVehicle:
@@ -211,7 +219,7 @@ class MavlinkSimVehicle:
         while not self._pilot.empty():
             if self._set_mode(self._pilot.get()) != M.MAV_RESULT_ACCEPTED:
                 self.errors.append("pilot mode change refused")
-            self.send_heartbeat()  # a mode change shows at once, as ArduPilot's GCS messages do
+            self.send_heartbeat()  # show the new mode now, not at the next 1 Hz heartbeat
         for _ in range(200):
             try:
                 msg = self._conn.recv_msg()
@@ -343,7 +351,7 @@ class MavlinkSimVehicle:
             sim.target = None
         else:
             s = sim.state()
-            sim.target = (s.pos, _ZERO, s.att[2], sim.t)
+            sim.target = (s.pos, _ZERO, _ZERO, s.att[2], sim.t)
 
     def _set_mode(self, mode: float) -> int:
         try:
@@ -416,9 +424,10 @@ class MavlinkSimVehicle:
         mask = msg.type_mask
         use_pos = (mask & 0b111) != 0b111
         use_vel = (mask & 0b111000) != 0b111000
+        use_acc = (mask & 0b111000000) != 0b111000000 and not mask & M.POSITION_TARGET_TYPEMASK_FORCE_SET
         if not (use_pos or use_vel):
             return
-        vals = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, msg.yaw)
+        vals = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, msg.afx, msg.afy, msg.afz, msg.yaw)
         if not all(math.isfinite(v) for v in vals):
             return
         if sim.mode == Mode.TAKEOFF:
@@ -427,8 +436,9 @@ class MavlinkSimVehicle:
         h = self.home
         pos = (h[0] + msg.y, h[1] + msg.x, h[2] - msg.z) if use_pos else s.pos
         vel = (msg.vy, msg.vx, -msg.vz) if use_vel else _ZERO
+        acc = (msg.afy, msg.afx, -msg.afz) if use_acc else _ZERO
         yaw = s.att[2] if mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE else wrap(math.pi / 2 - msg.yaw)
-        sim.target = (pos, vel, yaw, sim.t)
+        sim.target = (pos, vel, acc, yaw, sim.t)
         self.targets_received += 1
 
 

@@ -1,0 +1,306 @@
+"""edge.vehicle.mavlink against edge.vehicle.mavsim: real pymavlink on both ends of loopback UDP.
+
+The simulated vehicle runs at an accelerated speed factor; the test drives the driver's
+``step`` with the vehicle's own clock, as the board does with the shared mission clock.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from edge.vehicle.follower import Follower
+
+pytest.importorskip("pymavlink",
+                    reason="the MAVLink driver needs the 'mavlink' extra (pip install -e '.[mavlink]')")
+
+from edge.vehicle.mavlink import (  # noqa: E402
+    TYPE_MASK_POS_VEL_ACC_YAW, TYPE_MASK_POS_VEL_YAW, TYPE_MASK_POS_YAW, CopterMode, MavlinkDriver, MavlinkParams, VehicleLinkError,
+    attitude_ned_to_enu, copter_mode, enu_to_ned, ned_to_enu, rates_frd_to_flu, result_name, yaw_enu_to_ned,
+    yaw_ned_to_enu,
+)
+from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
+from protocol.messages import Mode, Trajectory, Waypoint  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[3]
+HOME = (10.0, -5.0, 2.0)  # the launch point is not the ENU origin: the offset must be applied
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def link(request):
+    """A driver listening on loopback and a simulated ArduCopter sending to it (speed x8)."""
+    opts = getattr(request, "param", {})
+    port = free_udp_port()
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME,
+                        params=MavlinkParams(trigger_camera=True, heartbeat_timeout_s=1.0))
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=8.0, **opts).start()
+    try:
+        drv.wait_heartbeat(5.0)
+        yield drv, veh
+    finally:
+        drv.close()
+        veh.close()
+
+
+def fly(drv, veh, done, limit_s: float, watch=None) -> list:
+    """Step the driver on the vehicle's clock until ``done(state)`` or ``limit_s`` simulated seconds."""
+    clock = veh.clock
+    end = clock.now() + limit_s
+    events = []
+    while clock.now() < end:
+        events += drv.step(clock.now())
+        st = drv.state()
+        if watch is not None:
+            watch(st)
+        if done(st):
+            return events
+        time.sleep(0.01)
+    raise AssertionError(f"not done within {limit_s} s of simulated time: {drv.state()}")
+
+
+def trajectory(z: float) -> Trajectory:
+    x0, y0 = HOME[0], HOME[1]
+    wps = [Waypoint(t=0.0, pos=(x0, y0, z), yaw=0.0),
+           Waypoint(t=4.0, pos=(x0 + 4, y0, z), yaw=0.0, capture_id=11),
+           Waypoint(t=8.0, pos=(x0 + 8, y0, z), yaw=0.0, capture_id=12),
+           Waypoint(t=10.0, pos=(x0 + 8, y0 + 2, z), yaw=0.5, capture_id=13)]
+    return Trajectory(uav=1, waypoints=wps)
+
+
+# ------------------------------------------------------------------ frames, by hand
+def test_ned_enu_position_hand_values():
+    assert ned_to_enu([1.0, 2.0, -3.0]).tolist() == [2.0, 1.0, 3.0]  # 1 m north, 2 m east, 3 m up
+    assert enu_to_ned([2.0, 1.0, 3.0]).tolist() == [1.0, 2.0, -3.0]
+    many = np.arange(12.0).reshape(4, 3)
+    assert np.array_equal(enu_to_ned(ned_to_enu(many)), many)
+    assert ned_to_enu(many)[2].tolist() == [7.0, 6.0, -8.0]
+
+
+@pytest.mark.parametrize("bad", [[1.0, 2.0], [1.0, math.nan, 0.0], 5.0, [[1.0, 2.0, math.inf]]])
+def test_ned_enu_rejects_bad_vectors(bad):
+    with pytest.raises(ValueError):
+        ned_to_enu(bad)
+
+
+@pytest.mark.parametrize("ned, enu", [(0.0, math.pi / 2), (math.pi / 2, 0.0), (math.pi, -math.pi / 2),
+                                      (-math.pi / 2, math.pi), (math.pi / 4, math.pi / 4),
+                                      (3 * math.pi / 4, -math.pi / 4)])
+def test_yaw_ned_to_enu_hand_values(ned, enu):
+    # north-facing is ENU yaw π/2, east-facing 0, south −π/2, west π (wrapped to (−π, π])
+    assert yaw_ned_to_enu(ned) == pytest.approx(enu, abs=1e-12)
+    assert yaw_enu_to_ned(enu) == pytest.approx(math.remainder(ned, 2 * math.pi), abs=1e-12)
+
+
+def test_yaw_rejects_nan():
+    with pytest.raises(ValueError):
+        yaw_ned_to_enu(math.nan)
+
+
+def test_attitude_and_rates_conversion_is_the_frame_change():
+    # R_enu = T_w R_ned T_b with T_w swapping x/y and flipping z (world), T_b = diag(1, −1, −1) (FRD -> FLU)
+    Tw = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    Tb = np.diag([1.0, -1.0, -1.0])
+    rng = np.random.default_rng(3)
+    for roll, pitch, yaw in rng.uniform([-1.2, -1.2, -3.1], [1.2, 1.2, 3.1], size=(50, 3)):
+        R_ned = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
+        r, p, y = attitude_ned_to_enu(roll, pitch, yaw)
+        R_enu = Rotation.from_euler("ZYX", [y, p, r]).as_matrix()
+        assert np.allclose(R_enu, Tw @ R_ned @ Tb, atol=1e-12)
+        w = rng.normal(size=3)
+        assert np.allclose(rates_frd_to_flu(*w), Tb @ w)
+    # by hand: 10° nose-up in NED (positive pitch) is negative pitch about FLU's left axis
+    assert attitude_ned_to_enu(0.1, math.radians(10), 0.0) == pytest.approx((0.1, -math.radians(10), math.pi / 2))
+
+
+def test_copter_mode_mapping_and_names():
+    assert copter_mode(CopterMode.AUTO) == Mode.MISSION
+    assert copter_mode(CopterMode.LOITER) == copter_mode(CopterMode.BRAKE) == Mode.HOLD
+    assert copter_mode(CopterMode.RTL) == copter_mode(CopterMode.SMART_RTL) == Mode.RTL
+    assert copter_mode(CopterMode.LAND) == Mode.LAND
+    assert copter_mode(CopterMode.STABILIZE) == copter_mode(CopterMode.POSHOLD) == Mode.FAILSAFE
+    assert result_name(M.MAV_RESULT_FAILED) == "MAV_RESULT_FAILED"
+    # type masks: bits set = ignored; the trajectory stream uses position, velocity and yaw
+    assert TYPE_MASK_POS_VEL_ACC_YAW == 2048 and TYPE_MASK_POS_VEL_YAW == 2496 and TYPE_MASK_POS_YAW == 2552
+    assert TYPE_MASK_POS_VEL_YAW & (M.POSITION_TARGET_TYPEMASK_X_IGNORE | M.POSITION_TARGET_TYPEMASK_VX_IGNORE
+                                    | M.POSITION_TARGET_TYPEMASK_YAW_IGNORE) == 0
+
+
+# ------------------------------------------------------------------ bad input, no vehicle
+def test_constructor_rejects_bad_arguments():
+    with pytest.raises(ValueError, match="uav"):
+        MavlinkDriver(0, "udpin:127.0.0.1:0")
+    with pytest.raises(ValueError, match="rate_hz"):
+        MavlinkDriver(1, "udpin:127.0.0.1:0", rate_hz=math.nan)
+    with pytest.raises(ValueError, match="home"):
+        MavlinkDriver(1, "udpin:127.0.0.1:0", home=(0.0, math.inf, 0.0))
+    with pytest.raises(ValueError, match="cannot open MAVLink connection"):
+        MavlinkDriver(1, "udpin:127.0.0.1:notaport")
+    with pytest.raises(ValueError, match="heartbeat_timeout_s"):
+        MavlinkParams(heartbeat_timeout_s=0.0)
+
+
+def test_no_heartbeat_is_a_clear_error():
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{free_udp_port()}", home=HOME)
+    try:
+        assert drv.state().mode == Mode.FAILSAFE and not drv.state().armed
+        assert drv.state().pos == HOME
+        with pytest.raises(VehicleLinkError, match="no HEARTBEAT"):
+            drv.wait_heartbeat(0.3)
+        with pytest.raises(ValueError, match="no HEARTBEAT from an autopilot"):
+            drv.takeoff(5.0)
+        assert drv.step(1.0) == [] and drv.targets_sent == 0
+        with pytest.raises(ValueError, match="until_t"):
+            drv.step(math.nan)
+    finally:
+        drv.close()
+    with pytest.raises(ValueError, match="closed"):
+        drv.step(2.0)
+
+
+# ------------------------------------------------------------------ flights
+def test_takeoff_mission_captures_land_and_link_loss(link):
+    drv, veh = link
+    assert drv.target_system == 1
+    st = drv.state()
+    assert st.mode == Mode.IDLE and not st.armed and st.pos == pytest.approx(HOME, abs=1e-6)
+    with pytest.raises(ValueError, match="cannot start a mission in mode idle"):
+        drv.start()
+
+    drv.takeoff(5.0)
+    assert veh.custom_mode == CopterMode.GUIDED and veh.armed
+    assert drv.state().mode == Mode.TAKEOFF and drv.state().armed
+    fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
+    assert drv.state().pos[2] == pytest.approx(HOME[2] + 5.0, abs=0.4)
+    assert math.dist(drv.state().pos[:2], HOME[:2]) < 0.3
+
+    traj = trajectory(HOME[2] + 5.0)
+    drv.upload(traj)
+    ref = Follower(traj)
+    drv.start()
+    assert drv.state().mode == Mode.MISSION
+    errors, seen = [], []
+
+    def watch(s):  # tracking error while following (the driver's state says where on the trajectory)
+        if s.mode == Mode.MISSION and 0.0 < s.progress < 1.0:
+            tau = s.progress * ref.duration
+            seen.append(math.dist(s.pos, ref.reference(tau)[0]))  # as reported (telemetry lags)
+            q = veh.sim.state()  # the simulated vehicle itself, at its own time
+            errors.append(math.dist(q.pos, ref.reference(tau + q.t - s.t)[0]))
+
+    events = fly(drv, veh, lambda s: s.mode == Mode.HOLD, 20.0, watch)
+    assert [e.capture_id for e in events] == [11, 12, 13]  # each once, in order
+    for e, w in zip(events, traj.waypoints[1:]):
+        assert math.dist(e.pos, w.pos) < 1.0
+    assert drv.state().captures == 3 and drv.state().progress == 1.0
+    assert len(errors) > 20 and max(errors) < 0.6 and max(seen) < 1.2
+    assert veh.targets_received > 20
+    assert fly(drv, veh, lambda s: True, 1.0) == []  # no capture fires twice
+    t_end = time.monotonic() + 2.0
+    while veh.shots != [11, 12, 13] and time.monotonic() < t_end:  # DO_DIGICAM_CONTROL, not acked
+        time.sleep(0.01)
+    assert veh.shots == [11, 12, 13]
+
+    drv.land()
+    fly(drv, veh, lambda s: s.mode == Mode.LANDED, 20.0)
+    st = drv.state()
+    assert not st.armed and not veh.armed and st.pos[2] == pytest.approx(HOME[2], abs=0.05)
+
+    veh.close()  # the vehicle goes silent: after heartbeat_timeout_s the state says so
+    t_end = time.monotonic() + 3.0
+    while drv.state().mode != Mode.FAILSAFE and time.monotonic() < t_end:
+        time.sleep(0.05)
+    assert drv.state().mode == Mode.FAILSAFE
+    with pytest.raises(VehicleLinkError, match="link lost"):
+        drv.takeoff(5.0)
+
+
+def test_hold_resume_and_return_to_launch(link):
+    drv, veh = link
+    drv.takeoff(4.0)
+    fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
+    traj = trajectory(HOME[2] + 4.0)
+    drv.upload(traj)
+    drv.start()
+    events = fly(drv, veh, lambda s: s.progress > 0.5, 10.0)  # capture 11 (at 40 %) fired
+    drv.hold()
+    st = drv.state()
+    assert st.mode == Mode.HOLD and 0.5 < st.progress < 0.8
+    clock_end = veh.clock.now() + 3.0
+    while veh.clock.now() < clock_end:  # held: no progress, no capture, the vehicle stops
+        events += drv.step(veh.clock.now())
+        time.sleep(0.01)
+    held = drv.state()
+    assert held.progress == st.progress and held.captures == 1
+    assert math.hypot(*held.vel) < 0.3 and math.dist(held.pos, st.pos) < 1.5
+    drv.resume()
+    assert drv.state().mode == Mode.MISSION
+    events += fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
+    assert [e.capture_id for e in events] == [11, 12, 13]
+    with pytest.raises(ValueError, match="no paused mission"):
+        drv.resume()
+
+    modes = set()
+    drv.return_to_launch()
+    fly(drv, veh, lambda s: s.mode == Mode.LANDED, 40.0, lambda s: modes.add(s.mode))
+    st = drv.state()
+    assert Mode.RTL in modes and not st.armed
+    assert math.dist(st.pos[:2], HOME[:2]) < 0.5 and st.pos[2] == pytest.approx(HOME[2], abs=0.05)
+
+
+def test_pilot_takeover_is_reported_and_not_fought(link):
+    drv, veh = link
+    drv.takeoff(3.0)
+    fly(drv, veh, lambda s: s.mode == Mode.HOLD, 10.0)
+    fly(drv, veh, lambda s: drv.targets_sent >= 3, 5.0)  # hold targets streaming
+    veh.pilot_mode(CopterMode.LAND)  # the pilot's mode switch
+    fly(drv, veh, lambda s: s.mode == Mode.LAND, 5.0)
+    sent = drv.targets_sent
+    fly(drv, veh, lambda s: s.mode == Mode.LANDED, 20.0)
+    assert drv.targets_sent == sent  # no position target while the pilot flies
+    assert not drv.state().armed
+
+
+@pytest.mark.parametrize("link", [{"refuse_arming": True}], indirect=True)
+def test_refused_arming_raises_with_the_reason(link):
+    drv, veh = link
+    with pytest.raises(ValueError, match="arm refused by the autopilot: MAV_RESULT_FAILED.*PreArm"):
+        drv.takeoff(5.0)
+    st = drv.state()
+    assert st.mode == Mode.IDLE and not st.armed and not veh.armed
+    veh.refuse_arming = False
+    drv.takeoff(2.0)
+    fly(drv, veh, lambda s: s.mode == Mode.HOLD, 10.0)
+
+
+def test_mavsim_runs_as_a_process():
+    port = free_udp_port()
+    drv = MavlinkDriver(3, f"udpin:127.0.0.1:{port}", timeout_s=2.0)
+    proc = subprocess.Popen([sys.executable, "-m", "edge.vehicle.mavsim", "--connection", f"udpout:127.0.0.1:{port}",
+                             "--uav", "7", "--refuse-arming"], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        drv.wait_heartbeat(20.0)
+        assert drv.target_system == 7 and drv.state().mode == Mode.IDLE
+        with pytest.raises(ValueError, match="MAV_RESULT_FAILED"):
+            drv.takeoff(5.0)
+    finally:
+        drv.close()
+        proc.terminate()
+        out, _ = proc.communicate(timeout=10)
+    assert proc.returncode == 0, out
+    assert "mavsim up: uav 7" in out and "mavsim stopped" in out
