@@ -31,7 +31,11 @@ This is exact for cylinders taller than the segment and an approximation for seg
 over a cylinder's top; :func:`clearance` on densely sampled points gives the exact answer and is
 what decides ``collision_free``.
 
-Every result is finite for finite input.
+Every result is finite for finite input. :class:`Cost` evaluates all terms for all particles,
+UAVs, segments and obstacles with a fixed sequence of whole-array float64 operations and no
+data-dependent shortcuts, so its time per call depends on the array shapes only (about 0.9 ms
+for 150 paths of 13 segments, 3 UAVs and 10 cylinders on one core), not on where the swarm is;
+tests/services/planner check it against a loop-by-loop reference of these definitions.
 """
 
 from __future__ import annotations
