@@ -11,7 +11,6 @@ import argparse
 import logging
 import math
 import time
-from typing import Any
 
 import numpy as np
 
@@ -85,19 +84,22 @@ class CameraLink:
         self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
         self.sender = RtpSender(ssrc_for(uav, 0))
         self.pub = bus.publisher(keys.camera(bus.fleet, uav), IMAGERY)
-        k = model.intrinsics()
-        self.intrinsics = Intrinsics(width=model.resolution[0], height=model.resolution[1], fx=k[0], fy=k[1],
-                                     cx=k[2], cy=k[3])
         self.encoder = FrameEncoder(self._publish, capacity=4, quality=quality)
         self.sent = 0
 
     def range_to_surface(self, pos: np.ndarray, axis: np.ndarray) -> float | None:
+        """Distance along the optical axis to the wall (what a rangefinder would measure)."""
         if self.surface is None:
             return None
         n = self.surface.normal
-        denom = float(np.dot(axis, -n)) if float(np.dot(axis, n)) < 0 else float(np.dot(axis, n))
-        dist = abs(float(np.dot(np.asarray(self.surface.origin) - pos, n)))
-        return dist / denom if denom > 1e-6 else None
+        along = float(np.dot(axis, n))
+        if along >= -1e-6:
+            return None
+        return float(np.dot(self.surface.origin - pos, n)) / along
+
+    def intrinsics(self, width: int, height: int) -> Intrinsics:
+        fx, fy, cx, cy = self.model.scaled(width, height).intrinsics()
+        return Intrinsics(width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy)
 
     def capture(self, ev: CaptureEvent, stamp: float) -> None:
         from .camera import CameraPose
@@ -109,14 +111,14 @@ class CameraLink:
             if self.log:
                 self.log.warning("capture %d: the camera gave no frame", ev.capture_id)
             return
+        h, w = frame.image.shape[:2]
         rng = self.range_to_surface(pose.position, R[:, 2])
         meta = ImageMeta(uav=self.uav, capture_id=ev.capture_id, t=max(0.0, ev.t), stamp=stamp,
                          cam_pos=tuple(map(float, ev.pos)), cam_rot=tuple(map(float, R.ravel())),
-                         intrinsics=self.intrinsics, range_m=rng if rng and rng <= 1000 else None)
-        self.encoder.submit((frame, meta))
+                         intrinsics=self.intrinsics(w, h), range_m=rng if rng and rng <= 1000 else None)
+        self.encoder.submit(frame.image, meta)
 
-    def _publish(self, item: Any, jpeg: bytes) -> None:
-        _, meta = item
+    def _publish(self, meta: ImageMeta, jpeg: bytes) -> None:
         self.pub.put_bytes(pack_image(self.sender, meta, jpeg, meta.stamp))
         self.sent += 1
 

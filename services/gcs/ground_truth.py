@@ -1,0 +1,22 @@
+"""The ground truth of a simulated mission: the cracks really on the synthetic wall.
+
+The edges render their camera frames from :func:`edge.runtime.synthetic_surface` (same scenario,
+same seed), so the ground station can rebuild the identical wall and list its cracks, which
+the report scores the system's defect reports against (recall and precision, object level).
+"""
+
+from __future__ import annotations
+
+from edge.runtime import synthetic_surface
+
+from .record import GroundTruthDefect, MissionRecord
+
+
+def attach_ground_truth(record: MissionRecord) -> None:
+    """Fill ``record.ground_truth`` and ``record.surface_corners`` from the scenario's wall."""
+    surface = synthetic_surface(record.scenario)
+    record.surface_corners = [tuple(map(float, c)) for c in surface.corners]
+    record.ground_truth = [
+        GroundTruthDefect(id=d.id, pos=d.centroid_world, uv=d.centroid_uv, bbox_uv=d.bbox_uv, area_m2=d.area_m2)
+        for d in surface.defects()
+    ]
