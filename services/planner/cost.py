@@ -199,6 +199,11 @@ class Cost:
             # sample parameters along a UAV segment, centred on its midpoint: (k + 1/2) / K - 1/2
             K = self.SAMPLES
             self._k = ((np.arange(K) + 0.5) / K - 0.5).reshape(K, 1, 1, 1)
+            # offsets along u and n: (ox e + oy e⊥ + oz z)·u = ex (ox u_x + oy u_y)
+            # + ey (ox u_y - oy u_x) + oz u_z, with e = (ex, ey), e⊥ = (-ey, ex); n_z = 0
+            ox, oy, oz = self._ox[:, :, 0], self._oy[:, :, 0], self._oz[:, :, 0]  # (M, 1, 1)
+            self._wall_coef = (ox * u[0] + oy * u[1], ox * u[1] - oy * u[0], oz * u[2],
+                               ox * n[0] + oy * n[1], ox * n[1] - oy * n[0])
         else:
             self.wall = None
 
@@ -327,16 +332,15 @@ class Cost:
         """Wall crossing (J2) and stand-off (J3) terms, each ``(P,)``."""
         p0, u, n, L, z0, z1 = self.wall
         S, P = a.shape[1:]
-        ox, oy, oz = self._ox[:, :, 0], self._oy[:, :, 0], self._oz[:, :, 0]  # (M, 1, 1)
-        # wall coordinates of UAV n's segment start: s along the bottom edge, q off the plane
-        rel = a - p0[:, None, None]  # (3, S, P)
-        ou = ox * (ex * u[0] + ey * u[1]) + oy * (ey * u[0] - ex * u[1]) + oz * u[2]  # (M, S, P)
-        on = ox * (ex * n[0] + ey * n[1]) + oy * (ey * n[0] - ex * n[1])
-        sA = (rel[0] * u[0] + rel[1] * u[1] + rel[2] * u[2]) + ou
-        qA = (rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]) + on
+        # wall coordinates of UAV n's segment start, s along the bottom edge and q off the plane:
+        # the centroid's plus its offset ox e + oy e⊥ + oz z (e⊥ = (-ey, ex)) projected on u, n
+        su_x, su_y, su_1, sn_x, sn_y = self._wall_coef  # (M, 1, 1) each
+        ax, ay, az = a
+        sA = (ax * u[0] + ay * u[1] + az * u[2] - p0 @ u) + (su_x * ex + su_y * ey + su_1)  # (M, S, P)
+        qA = (ax * n[0] + ay * n[1] + az * n[2] - p0 @ n) + (sn_x * ex + sn_y * ey)
         ds = d[0] * u[0] + d[1] * u[1] + d[2] * u[2]  # (S, P): the same for every UAV
         dq = d[0] * n[0] + d[1] * n[1] + d[2] * n[2]
-        zA = a[2] + oz
+        zA = az + self._oz[:, :, 0]
         qB = qA + dq
         cross = qA * qB < 0
         t = qA / np.where(cross, qA - qB, 1.0)
@@ -347,7 +351,7 @@ class Cost:
         # stand-off: distance to the rectangle at K samples per UAV segment, K along the axis 0,
         # with every coordinate measured from the middle of the segment and of the wall
         k = self._k  # (K, 1, 1, 1)
-        shape = (k.shape[0], ox.shape[0], S, P)
+        shape = (k.shape[0], sA.shape[0], S, P)
         W1, W2, W3 = (self._buf(f"W{i}", shape) for i in range(3))
         es = np.add(k * ds, sA + (0.5 * ds - 0.5 * L), out=W1)  # along the edge
         np.abs(es, out=es)

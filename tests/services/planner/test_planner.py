@@ -229,8 +229,13 @@ def _reference_terms(V, sc, problem):
     return np.array([J1, J2, J3])
 
 
-def test_vectorised_cost_equals_the_loop_reference():
-    problem = PathProblem.from_scenario(SC, 4)
+LATERAL = validate_scenario(_doc(formation={"offsets": [(0.0, 1.5, 2.0), (3.0, 1.5, -1.0), (-2.0, 1.5, -1.0)],
+                                          "min_separation": 2.0}))
+
+
+@pytest.mark.parametrize("sc", [SC, LATERAL], ids=["default", "lateral-offsets"])
+def test_vectorised_cost_equals_the_loop_reference(sc):
+    problem = PathProblem.from_scenario(sc, 4)
     cost = Cost(problem)
     rng = np.random.default_rng(7)
     X = np.concatenate([problem.initial_population(12, rng, "box"), problem.initial_population(12, rng)])
@@ -242,9 +247,10 @@ def test_vectorised_cost_equals_the_loop_reference():
     W[4, 0], W[4, 1] = [55.0, 60.0, 28.0], [66.0, 60.0, 28.0]  # through the girder wall
     got = cost.terms(X)
     V = problem.assemble(X)
-    want = np.array([_reference_terms(v, SC, problem) for v in V])
+    want = np.array([_reference_terms(v, sc, problem) for v in V])
     assert np.allclose(got, want, rtol=1e-9, atol=1e-9)
-    assert want[3, 1] > SC.cost.collision_penalty and want[4, 1] > SC.cost.collision_penalty
+    assert want[3, 1] > sc.cost.collision_penalty and want[4, 1] > sc.cost.collision_penalty
+    assert np.count_nonzero(want[:, 2] > 0) >= 10  # the stand-off and altitude terms are exercised
 
 
 def test_clearance_of_points():
