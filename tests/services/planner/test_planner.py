@@ -25,7 +25,7 @@ from services.planner.export import (
 from services.planner.mission import optimise, plan_details, plan_mission
 from services.planner.scenario import Camera, Scenario, ScenarioError, load_scenario, validate_scenario
 from services.planner.task import camera_grid, coverage, footprint, formation_pass, spacing, standoff
-from services.planner.theta_pso import inverse_sine_map, sine_map
+from services.planner.theta_pso import inverse_sine_map, sine_map, theta_pso
 
 SC = load_scenario()
 
@@ -282,6 +282,16 @@ def test_every_algorithm_keeps_the_budget_and_improves(algorithm):
 def test_same_initialisation_for_all_algorithms():
     inits = {a: optimise(SC, a, seed=2, particles=20, iterations=2)[1].initial_cost for a in ("theta-pso", "pso", "ga", "tlbo")}
     assert len(set(inits.values())) == 1
+
+
+def test_theta_pso_settings_are_checked_and_both_draws_work():
+    problem = PathProblem.from_scenario(SC, 10)
+    x0 = problem.initial_population(12, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="dtheta_max"):
+        theta_pso(Cost(problem), x0, 3, np.random.default_rng(1), dtheta_max=2.0)
+    for per_dimension in (True, False):
+        res = theta_pso(Cost(problem), x0, 20, np.random.default_rng(1), per_dimension=per_dimension)
+        assert res.evaluations == 12 * 21 and res.cost < res.initial_cost
 
 
 def test_theta_pso_ends_collision_free_on_the_default_scenario():
