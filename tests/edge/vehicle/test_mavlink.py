@@ -249,8 +249,11 @@ def test_hold_resume_and_return_to_launch(link):
     assert math.hypot(*held.vel) < 0.3 and math.dist(held.pos, st.pos) < 1.5
     drv.resume()
     assert drv.state().mode == Mode.MISSION
+    drv.set_reference_offset((0.0, 0.0, 10.0))  # formation correction: bounded to 3 m, at 1 m/s
     events += fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
     assert [e.capture_id for e in events] == [11, 12, 13]
+    fly(drv, veh, lambda s: abs(s.vel[2]) < 0.1, 5.0)
+    assert drv.state().pos[2] == pytest.approx(HOME[2] + 4.0 + 3.0, abs=0.4)
     with pytest.raises(ValueError, match="no paused mission"):
         drv.resume()
 
@@ -282,6 +285,10 @@ def test_refused_arming_raises_with_the_reason(link):
         drv.takeoff(5.0)
     st = drv.state()
     assert st.mode == Mode.IDLE and not st.armed and not veh.armed
+    with pytest.raises(ValueError, match="for UAV 2"):
+        drv.upload(Trajectory(uav=2, waypoints=trajectory(HOME[2] + 4).waypoints))
+    with pytest.raises(ValueError, match="waypoint 0 is below"):
+        drv.upload(trajectory(HOME[2] + 0.2))
     veh.refuse_arming = False
     drv.takeoff(2.0)
     fly(drv, veh, lambda s: s.mode == Mode.HOLD, 10.0)
@@ -304,3 +311,54 @@ def test_mavsim_runs_as_a_process():
         out, _ = proc.communicate(timeout=10)
     assert proc.returncode == 0, out
     assert "mavsim up: uav 7" in out and "mavsim stopped" in out
+
+
+def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
+    """``skynet edge --vehicle mavlink`` (runtime.make_driver) commanding a mavsim vehicle over the bus."""
+    from protocol import keys
+    from protocol.bus import Bus, BusConfig
+    from protocol.links import TELEMETRY
+    from protocol.messages import CommandAck, Land, Start, Takeoff, UploadTrajectory, VehicleState
+
+    fleet, port, epoch, speed = "mav", free_udp_port(), time.time(), 4.0
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=speed, epoch=epoch,
+                            refuse_arming=True).start()
+    edge = group.start("uav1", [
+        "edge", "--uav", "1", "--fleet", fleet, "--multilink", "--camera", "none",
+        *[a for e in gateway for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0",
+        "--vehicle", "mavlink", "--mavlink", f"udpin:127.0.0.1:{port}", "--home", ",".join(map(str, HOME)),
+        "--epoch", repr(epoch), "--speed", str(speed)])
+    states: list[VehicleState] = []
+
+    def wait(pred, timeout=20.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not (states and pred(states[-1])):
+            time.sleep(0.05)
+        return bool(states) and pred(states[-1])
+
+    try:
+        assert edge.wait_for("board up", 30), "\n".join(edge.lines)
+        with Bus(BusConfig(mode="client", connect=gateway, multilink=True), fleet, "gcs") as gcs:
+            gcs.subscribe(keys.state(fleet, 1), lambda m, s: states.append(m), expect=VehicleState, link=TELEMETRY)
+            assert wait(lambda s: s.mode == Mode.IDLE), states[-1:]
+
+            def cmd(msg):
+                reply = gcs.request(keys.cmd(fleet, 1), msg, expect=CommandAck, timeout=10.0)
+                assert reply.ok, reply
+                return reply.message
+
+            refused = cmd(Takeoff(uav=1, cmd_id=1, altitude=5))
+            assert not refused.accepted and "MAV_RESULT_FAILED" in refused.reason and "PreArm" in refused.reason
+            veh.refuse_arming = False
+            assert cmd(Takeoff(uav=1, cmd_id=2, altitude=5)).accepted
+            assert wait(lambda s: s.mode == Mode.HOLD and s.armed, 20), states[-1]
+            assert cmd(UploadTrajectory(uav=1, cmd_id=3, trajectory=trajectory(HOME[2] + 5.0))).accepted
+            assert cmd(Start(uav=1, cmd_id=4)).accepted
+            assert wait(lambda s: s.mode == Mode.MISSION, 5), states[-1]
+            assert wait(lambda s: s.mode == Mode.HOLD and s.captures == 3, 20), states[-1]
+            assert math.dist(states[-1].pos, (HOME[0] + 8, HOME[1] + 2, HOME[2] + 5)) < 1.0
+            assert cmd(Land(uav=1, cmd_id=5)).accepted
+            assert wait(lambda s: s.mode == Mode.LANDED and not s.armed, 20), states[-1]
+    finally:
+        group.stop()
+        veh.close()
