@@ -57,8 +57,8 @@ Hold is a position target in GUIDED rather than LOITER/BRAKE: it keeps the vehic
 mode the driver streams in, so resume needs no mode change, and ArduCopter holds the last
 position target if the companion stops talking.
 
-Position targets (``coordinate_frame = MAV_FRAME_LOCAL_NED``) are streamed from :meth:`step` at
-most ``rate_hz`` times per wall second, with ``type_mask`` (POSITION_TARGET_TYPEMASK bits set
+Position targets (``coordinate_frame = MAV_FRAME_LOCAL_NED``) are streamed from :meth:`step`:
+``rate_hz`` per wall second on average, or once per call if the caller steps more slowly, with ``type_mask`` (POSITION_TARGET_TYPEMASK bits set
 = ignored)::
 
     TYPE_MASK_POS_VEL_ACC_YAW = YAW_RATE                   = 2048  (trajectory: p, v, a, ψ)
@@ -431,14 +431,17 @@ class MavlinkDriver(VehicleDriver):
         self._texts: deque[tuple[float, int, str]] = deque(maxlen=16)
         self._acks: dict[int, tuple[int, int]] = {}  # command -> (result, rx)
         self._cmd_rx = 0  # receive index of the last accepted command's ack
-        self.rx_errors = 0
+        self._compid_locked = False
+        #: the autopilot's MAV_AUTOPILOT (from its HEARTBEAT; None until heard)
+        self.autopilot: int | None = None
+        #: undecodable datagrams, malformed values and send errors on the link
+        self.link_errors = 0
         # mission state (driver phases: idle, landed, takeoff, hold, mission, land, rtl, external)
         self._t = 0.0
         self._phase = "idle"
         self._takeoff_z = self.home[2]
         self._hold: tuple[Vec3, float] = (self.home, 0.0)  # position, ENU yaw
         self._follower: Follower | None = None
-        self._traj_t0: float | None = None
         self._sub = ""  # mission sub-phase: transit, wait, track, transit_resume
         self._t_start = 0.0
         self._origin = 0.0
@@ -450,7 +453,7 @@ class MavlinkDriver(VehicleDriver):
         self._yaw_ref = 0.0
         self._offset_cmd: Vec3 = (0.0, 0.0, 0.0)
         self._offset: Vec3 = (0.0, 0.0, 0.0)
-        self._last_target_mono = -math.inf
+        self._next_target_mono = -math.inf
         #: position targets sent (count) and the last one (NED x, y, z, yaw), for inspection
         self.targets_sent = 0
         self.last_target: tuple[float, float, float, float] | None = None
@@ -463,7 +466,7 @@ class MavlinkDriver(VehicleDriver):
             try:
                 getattr(self._conn.mav, name)(*args)
             except OSError:
-                self.rx_errors += 1
+                self.link_errors += 1
 
     def _read_loop(self) -> None:
         conn = self._conn
@@ -475,7 +478,7 @@ class MavlinkDriver(VehicleDriver):
             except Exception:  # a malformed datagram or a closed socket must not kill the reader
                 if self._stop.is_set():
                     break
-                self.rx_errors += 1
+                self.link_errors += 1
                 msg = None
             now = time.monotonic()
             if msg is not None:
@@ -501,18 +504,23 @@ class MavlinkDriver(VehicleDriver):
     def _on_message(self, msg: Any, now: float) -> None:
         kind = msg.get_type()
         if kind == "BAD_DATA":
-            self.rx_errors += 1
+            self.link_errors += 1
             return
         src = msg.get_srcSystem()
         if kind == "HEARTBEAT":
             if msg.autopilot == M.MAV_AUTOPILOT_INVALID:
                 return  # a GCS or another companion, not a vehicle
+            comp = msg.get_srcComponent()
             with self._cv:
                 if self._sysid is None:
                     self._sysid = src
                 if src != self._sysid:
                     return
-                self._compid = msg.get_srcComponent()
+                if not self._compid_locked:  # the first autopilot component heard (not a gimbal or camera)
+                    self._compid, self._compid_locked = comp, True
+                    self.autopilot = int(msg.autopilot)
+                if comp != self._compid:
+                    return
                 self._rx += 1
                 self._hb = _Heartbeat(bool(msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED), int(msg.custom_mode),
                                       self._rx, now)
@@ -528,7 +536,7 @@ class MavlinkDriver(VehicleDriver):
                     p = ned_to_enu((msg.x, msg.y, msg.z)) + self._home
                     v = ned_to_enu((msg.vx, msg.vy, msg.vz))
                 except ValueError:
-                    self.rx_errors += 1
+                    self.link_errors += 1
                     return
                 self._pos = (float(p[0]), float(p[1]), float(p[2]))
                 self._vel = (float(v[0]), float(v[1]), float(v[2]))
@@ -536,7 +544,7 @@ class MavlinkDriver(VehicleDriver):
                 try:
                     self._att = attitude_ned_to_enu(msg.roll, msg.pitch, msg.yaw)
                 except ValueError:
-                    self.rx_errors += 1
+                    self.link_errors += 1
                     return
                 self._rates = rates_frd_to_flu(msg.rollspeed, msg.pitchspeed, msg.yawspeed)
             elif kind == "SYS_STATUS":
@@ -586,6 +594,10 @@ class MavlinkDriver(VehicleDriver):
                                     "is the vehicle connected and sending to this endpoint?")
         if age > self.params.heartbeat_timeout_s:
             return VehicleLinkError(f"autopilot link lost: last HEARTBEAT {age:.1f} s ago on {self.connection}")
+        if self.autopilot != M.MAV_AUTOPILOT_ARDUPILOTMEGA:
+            e = M.enums["MAV_AUTOPILOT"].get(self.autopilot)
+            return VehicleLinkError(f"the autopilot is {e.name if e else self.autopilot}: this driver speaks "
+                                    "ArduCopter's modes only")
         return None
 
     def wait_heartbeat(self, timeout_s: float = 5.0) -> None:
@@ -795,7 +807,7 @@ class MavlinkDriver(VehicleDriver):
                 self._go(f.start, self._pos)
             else:
                 self._begin_wait_or_track(None)
-            self._last_target_mono = -math.inf
+            self._next_target_mono = -math.inf
 
     def hold(self) -> None:
         self._require(_AIRBORNE, "hold")
@@ -827,7 +839,7 @@ class MavlinkDriver(VehicleDriver):
             else:
                 self._sub = "track"
                 self._origin = self._t - tau
-            self._last_target_mono = -math.inf
+            self._next_target_mono = -math.inf
 
     def land(self) -> None:
         self._require(_AIRBORNE, "land")
@@ -880,7 +892,7 @@ class MavlinkDriver(VehicleDriver):
     def _hold_here(self) -> None:
         self._phase = "hold"
         self._hold = (self._pos, self._att[2])
-        self._last_target_mono = -math.inf
+        self._next_target_mono = -math.inf
 
     def _pause_mission(self) -> None:
         if self._phase != "mission":
@@ -987,16 +999,19 @@ class MavlinkDriver(VehicleDriver):
                     and abs(self._vel[2]) < 0.3):
                 self._phase = phase = "hold"
                 self._hold = ((self._pos[0], self._pos[1], self._takeoff_z), self._yaw_ref)
-                self._last_target_mono = -math.inf
+                self._next_target_mono = -math.inf
             if phase == "mission":
                 target = self._mission_reference(until_t, dt, events)
             elif phase == "hold":
                 target = (self._hold[0], None, None, self._hold[1])
-            now = time.monotonic()
-            if target is not None and now - self._last_target_mono < 1.0 / self.rate_hz:
+            # at most rate_hz on average; a tick up to 20 % of a period early still sends, so a board
+            # ticking at exactly rate_hz is not halved by jitter
+            now, period = time.monotonic(), 1.0 / self.rate_hz
+            if target is not None and now < self._next_target_mono - 0.2 * period:
                 target = None  # streamed recently enough
             if target is not None:
-                self._last_target_mono = now
+                due = self._next_target_mono
+                self._next_target_mono = due + period if now - due < period else now + period
         if target is not None:
             self._send_target(*target)
         if self.params.trigger_camera:
