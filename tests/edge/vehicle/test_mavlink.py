@@ -47,7 +47,7 @@ def link(request):
     opts = getattr(request, "param", {})
     port = free_udp_port()
     drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME,
-                        params=MavlinkParams(trigger_camera=True, heartbeat_timeout_s=1.0))
+                        params=MavlinkParams(trigger_camera=True, heartbeat_timeout_s=1.5))
     veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=8.0, **opts).start()
     try:
         drv.wait_heartbeat(5.0)
@@ -221,7 +221,7 @@ def test_takeoff_mission_captures_land_and_link_loss(link):
     assert not st.armed and not veh.armed and st.pos[2] == pytest.approx(HOME[2], abs=0.05)
 
     veh.close()  # the vehicle goes silent: after heartbeat_timeout_s the state says so
-    t_end = time.monotonic() + 3.0
+    t_end = time.monotonic() + 4.0
     while drv.state().mode != Mode.FAILSAFE and time.monotonic() < t_end:
         time.sleep(0.05)
     assert drv.state().mode == Mode.FAILSAFE
