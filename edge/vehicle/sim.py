@@ -6,7 +6,8 @@
 - :class:`edge.vehicle.pid.PositionPID` — the autopilot's position loop (PAPER.md Section 5);
 - :class:`edge.vehicle.atsm.ATSM` — the attitude loop (P13)-(P17) (or the fixed-gain twisting
   baseline, ``SimParams.controller = "twisting"``);
-- :class:`edge.vehicle.follower.Follower` — the uploaded trajectory (P9) and its capture points.
+- :class:`edge.vehicle.sequencer.MissionSequencer` — the uploaded trajectory (P9), its start,
+  pause and resume, the formation offset and the capture points (shared with the MAVLink driver).
 
 Control runs at the physics rate. Simulated time advances only in :meth:`SimDriver.step`, so the
 same driver runs in real time (the board steps it to the shared clock, :mod:`edge.clock`) or as
@@ -14,16 +15,18 @@ fast as the CPU allows (tests, benchmarks).
 
 Reference generation per mode (our choices; the paper leaves the autopilot's modes implicit):
 TAKEOFF climbs vertically at ``takeoff_speed``; LAND descends at ``land_speed`` where the
-vehicle is; HOLD holds the position where it was commanded; MISSION first flies straight to the
-first waypoint at ``transit_speed`` when farther than ``start_radius`` from it, waits there for
-the trajectory's start time, then tracks the trajectory (plus the bounded, rate-limited formation
-offset); RTL climbs to ``max(altitude, rtl_altitude)`` above launch, flies above the launch point
-and lands.
+vehicle is; HOLD holds the position where it was commanded (or follows the external reference
+set with :meth:`SimDriver.set_external_reference`); MISSION is the sequencer's reference: first
+straight to the first waypoint at ``transit_speed`` when farther than ``start_radius`` from it,
+wait there for the trajectory's start time, then track the trajectory (plus the bounded,
+rate-limited formation offset); RTL climbs to ``max(altitude, rtl_altitude)`` above launch, flies
+above the launch point and lands. The straight-line legs are :class:`edge.vehicle.sequencer.Mover`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -31,9 +34,10 @@ import numpy as np
 
 from edge.vehicle.atsm import ATSM, ATSMGains, TwistingController, wrap_angle
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
-from edge.vehicle.follower import Follower
+from edge.vehicle.follower import Reference
 from edge.vehicle.pid import PIDGains, PositionPID
 from edge.vehicle.quadrotor import DisturbanceParams, Quadrotor, QuadParams, euler_rates_from_body_rates
+from edge.vehicle.sequencer import ZERO, MissionSequencer, Mover
 from protocol.messages import Mode, Trajectory
 
 __all__ = ["SimParams", "SimDriver"]
@@ -149,25 +153,19 @@ class SimDriver(VehicleDriver):
         self.armed = False
         self.battery = 1.0
         self._closed = False
-        self._follower: Follower | None = None
         self._events: list[CaptureEvent] = []
-        self._captures = 0
-        # mission bookkeeping
-        self._phase = ""  # MISSION: "transit" -> "wait" -> "track"
-        self._t_start = 0.0  # requested sim time of trajectory time 0
-        self._origin = 0.0  # sim time of trajectory time 0 while tracking
-        self._tau_paused: float | None = None  # trajectory time when paused by hold()
-        self._paused_phase = ""
-        self._resume_tau = 0.0
-        self._mission_done = False
+        #: the trajectory, its start/pause/resume, the formation offset and the captures
+        self.mission = MissionSequencer(
+            uav, self.home[2], transit_speed=params.transit_speed, start_radius=params.start_radius,
+            arrive_radius=params.arrive_radius, max_offset=params.max_offset, offset_rate=params.offset_rate,
+            interpolation=params.interpolation)
+        self._rtl_leg = ""  # RTL: "climb" -> "return" (then LAND)
         self._rtl_z = self.home[2] + params.rtl_altitude
-        # go-to "mover": reference moving from a start point toward a target at constant speed
-        self._mv = (self.home, (0.0, 0.0, 0.0), 0.0, 0.0, 0.0)  # start, dir, length, t_start, speed
+        # takeoff / land / RTL reference: from a start point toward a target at constant speed
+        self._mv = Mover(self.home, self.home, params.takeoff_speed, self.t)
         self._hold_pos: Vec3 = self.home
         self._yaw_ref = float(yaw)
-        # formation offset: commanded and applied (rate-limited)
-        self._offset_cmd: Vec3 = (0.0, 0.0, 0.0)
-        self._offset: Vec3 = (0.0, 0.0, 0.0)
+        self._external: Callable[[float], Reference] | None = None
         self._hover_inv = 1.0 / P.hover_thrust
         self._drain = self.dt / params.endurance_s
         #: last reference position (for inspection/tests)
@@ -179,33 +177,20 @@ class SimDriver(VehicleDriver):
         """Current simulation time, s."""
         return self._t_base + self._k * self.dt
 
-    # ------------------------------------------------------------------ state
-    def _tau(self) -> float | None:
-        """Trajectory time now (None when no mission has started)."""
-        f = self._follower
-        if f is None:
-            return None
-        if self._mission_done:
-            return f.t_end
-        if self._tau_paused is not None:
-            return self._tau_paused + f.t0
-        if self.mode == Mode.MISSION and self._phase == "track":
-            return self.t - self._origin + f.t0
-        return None
+    @property
+    def _phase(self) -> str:
+        """The mission's phase (:attr:`MissionSequencer.phase`: transit, wait, track, transit_resume)."""
+        return self.mission.phase
 
+    # ------------------------------------------------------------------ state
     def state(self) -> DriverState:
         q = self.quad.s
-        tau = self._tau()
-        f = self._follower
-        if f is None or tau is None:
-            wp, prog = -1, 0.0
-        else:
-            wp, prog = f.segment(tau), f.progress(tau)
+        wp, prog = self.mission.progress(self.t)
         return DriverState(
             t=self.t, pos=(q[0], q[1], q[2]), vel=(q[3], q[4], q[5]),
             att=(q[6], q[7], wrap_angle(q[8])), rates=(q[9], q[10], q[11]),
             mode=self.mode, armed=self.armed, battery=self.battery,
-            wp_index=wp, progress=prog, captures=self._captures,
+            wp_index=wp, progress=prog, captures=self.mission.captures,
         )
 
     # ------------------------------------------------------------------ commands
@@ -219,19 +204,8 @@ class SimDriver(VehicleDriver):
             names = ", ".join(m.value for m in allowed)
             raise ValueError(f"cannot {what} in mode {self.mode.value} (allowed in: {names})")
 
-    def _go(self, target: Vec3, speed: float, start: Vec3 | None = None) -> None:
-        start = self.ref_pos if start is None else start
-        d = (target[0] - start[0], target[1] - start[1], target[2] - start[2])
-        n = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
-        u = (d[0] / n, d[1] / n, d[2] / n) if n > 1e-12 else (0.0, 0.0, 0.0)
-        self._mv = (start, u, n, self.t, speed)
-
-    def _mover(self, t: float) -> tuple[Vec3, Vec3, bool]:
-        start, u, n, ts, v = self._mv
-        s = v * (t - ts)
-        if s >= n:
-            return (start[0] + u[0] * n, start[1] + u[1] * n, start[2] + u[2] * n), (0.0, 0.0, 0.0), True
-        return (start[0] + u[0] * s, start[1] + u[1] * s, start[2] + u[2] * s), (u[0] * v, u[1] * v, u[2] * v), False
+    def _go(self, target: Vec3, speed: float, start: Vec3) -> None:
+        self._mv = Mover(start, target, speed, self.t)
 
     def _here(self) -> Vec3:
         s = self.quad.s
@@ -239,14 +213,10 @@ class SimDriver(VehicleDriver):
 
     def upload(self, traj: Trajectory) -> None:
         self._require((Mode.IDLE, Mode.LANDED, Mode.TAKEOFF, Mode.HOLD), "upload a trajectory")
-        if not isinstance(traj, Trajectory):
-            raise ValueError("upload needs a protocol.messages.Trajectory")
-        if traj.uav != self.uav:
-            raise ValueError(f"trajectory is for UAV {traj.uav}, this is UAV {self.uav}")
-        gz = self.home[2]
-        for i, w in enumerate(traj.waypoints):
-            if w.pos[2] < gz + 0.5:
-                raise ValueError(f"waypoint {i} is below 0.5 m above the ground (z = {w.pos[2]:.2f} m)")
+        self.mission.load(traj, check=self._check_speeds)
+
+    def _check_speeds(self, traj: Trajectory) -> None:
+        """ValueError if a segment needs more than the position loop's speed limits."""
         G = self.params.pid
         wps = traj.waypoints
         for i, (a, b) in enumerate(zip(wps, wps[1:])):
@@ -258,12 +228,6 @@ class SimDriver(VehicleDriver):
                     f"segment {i}->{i + 1} needs {h:.1f} m/s horizontal, {vz:.1f} m/s vertical: "
                     f"beyond the limits {G.max_speed_xy}/{G.max_speed_up}/{G.max_speed_down} m/s"
                 )
-        self._follower = Follower(traj, self.params.interpolation)
-        self._captures = 0
-        self._mission_done = False
-        self._tau_paused = None
-        self._paused_phase = ""
-        self._phase = ""
 
     def takeoff(self, altitude: float) -> None:
         self._require(_GROUNDED, "take off")
@@ -275,87 +239,39 @@ class SimDriver(VehicleDriver):
         self.attitude.reset()
         self.armed = True
         self.mode = Mode.TAKEOFF
+        self._external = None
         self._yaw_ref = self.quad.s[8]
         self.ref_pos = here
         self._go((here[0], here[1], self.home[2] + altitude), self.params.takeoff_speed, here)
 
     def start(self, t0: float | None = None) -> None:
         self._require((Mode.HOLD,), "start a mission")
-        if self._follower is None:
-            raise ValueError("no trajectory uploaded")
-        if t0 is not None and not math.isfinite(t0):
-            raise ValueError("t0 must be finite")
-        f = self._follower
-        self._t_start = self.t if t0 is None else float(t0)
-        self._tau_paused = None
-        self._mission_done = False
+        m = self.mission
+        m.start(self.t, self._here(), t0, ref=self.ref_pos)  # the transit leaves from the hold reference
         self.mode = Mode.MISSION
-        here = self._here()
-        first = f.start
-        self._yaw_ref = f.reference(f.t0)[3]
-        if math.dist(here, first) > self.params.start_radius:
-            self._phase = "transit"
-            self._go(first, self.params.transit_speed, self.ref_pos)
-        else:
-            self._begin_wait_or_track()
-
-    def _begin_wait_or_track(self, t: float | None = None) -> None:
-        """At the first waypoint: wait for the start time, or track from it.
-
-        After a transit (``t`` given, the arrival time) the trajectory clock starts at the later
-        of the requested start and the arrival; when started at the first waypoint, at the
-        requested start even if that is in the past (the vehicle catches up).
-        """
-        now = self.t if t is None else t
-        if now < self._t_start:
-            self._phase = "wait"
-        else:
-            self._phase = "track"
-            self._origin = self._t_start if t is None else now
+        self._external = None
+        self._yaw_ref = m.yaw
 
     def hold(self) -> None:
         self._require(_AIRBORNE, "hold")
         if self.mode == Mode.HOLD:
             return
         if self.mode == Mode.MISSION:
-            if self._phase == "track":
-                self._tau_paused = self.t - self._origin
-            elif self._phase == "transit_resume":  # paused again before getting back on track
-                self._tau_paused = self._resume_tau
-            self._paused_phase = self._phase
-        elif self.mode in (Mode.LAND, Mode.RTL):
-            self._tau_paused = None
+            self.mission.pause(self.t)
         self._hold_here()
 
     def _hold_here(self) -> None:
         self.mode = Mode.HOLD
+        self._external = None
         self._hold_pos = self._here()
         self._yaw_ref = self.quad.s[8]
         self.ref_pos = self._hold_pos
 
     def resume(self) -> None:
         self._require((Mode.HOLD,), "resume")
-        if self._follower is None or self._mission_done or self._paused_phase == "":
-            raise ValueError("no paused mission to resume")
-        f = self._follower
+        self.mission.resume(self.t, self._here(), self._yaw_ref)
         self.mode = Mode.MISSION
-        if self._tau_paused is not None:
-            tau = self._tau_paused
-            self._tau_paused = None
-            # continue from the paused trajectory time: fly back to that point first if needed
-            self._t_start = self.t - tau
-            ref = f.reference(tau + f.t0)[0]
-            if math.dist(self._here(), ref) > self.params.start_radius:
-                self._phase = "transit_resume"
-                self._resume_tau = tau
-                self._go(ref, self.params.transit_speed, self._here())
-            else:
-                self._phase = "track"
-                self._origin = self.t - tau
-        else:
-            self._phase = "transit"
-            self._go(f.start, self.params.transit_speed, self._here())
-        self._paused_phase = ""
+        self._external = None
 
     def land(self) -> None:
         self._require((Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.RTL, Mode.LAND), "land")
@@ -365,8 +281,8 @@ class SimDriver(VehicleDriver):
 
     def _start_landing(self) -> None:
         self.mode = Mode.LAND
-        self._tau_paused = None
-        self._paused_phase = ""
+        self._external = None
+        self.mission.cancel()
         here = self._here()
         start = (here[0], here[1], self.ref_pos[2] if self.ref_pos[2] < here[2] else here[2])
         self._go((here[0], here[1], self.home[2] - 2.0), self.params.land_speed, start)
@@ -376,22 +292,29 @@ class SimDriver(VehicleDriver):
         if self.mode == Mode.RTL:
             return
         self.mode = Mode.RTL
-        self._tau_paused = None
-        self._paused_phase = ""
+        self._external = None
+        self.mission.cancel()
         here = self._here()
         self._rtl_z = max(here[2], self.home[2] + self.params.rtl_altitude)
-        self._phase = "rtl_climb"
+        self._rtl_leg = "climb"
         self._yaw_ref = self.quad.s[8]
         self._go((here[0], here[1], self._rtl_z), self.params.takeoff_speed, here)
 
     def set_reference_offset(self, offset: Vec3) -> None:
         self._check_open()
-        o = check_vec3(offset, "offset")
-        n = math.sqrt(o[0] ** 2 + o[1] ** 2 + o[2] ** 2)
-        m = self.params.max_offset
-        if n > m:
-            o = (o[0] * m / n, o[1] * m / n, o[2] * m / n)
-        self._offset_cmd = o
+        self.mission.set_offset(offset)
+
+    def set_external_reference(self, source: Callable[[float], Reference] | None) -> None:
+        """While in HOLD, fly ``source(t)`` (position, velocity, acceleration, yaw) instead of the held point.
+
+        The hook for a guided target from outside (:mod:`edge.vehicle.mavsim` follows MAVLink
+        position targets with it). None goes back to the held point; every command that changes
+        the mode (takeoff, start, resume, hold from another mode, land, return to launch) drops it.
+        """
+        self._check_open()
+        if source is not None and not callable(source):
+            raise ValueError("the external reference must be callable (t -> (pos, vel, acc, yaw)) or None")
+        self._external = source
 
     def close(self) -> None:
         self._closed = True
@@ -417,92 +340,54 @@ class SimDriver(VehicleDriver):
         self._run(n)
         return self._events
 
-    def _reference(self, t: float) -> tuple[Vec3, Vec3, Vec3, float]:
+    def _reference(self, t: float) -> Reference:
         """Position, velocity, acceleration and yaw references for the current mode at time t."""
-        zero = (0.0, 0.0, 0.0)
         mode = self.mode
         if mode == Mode.HOLD:
-            return self._hold_pos, zero, zero, self._yaw_ref
+            ext = self._external
+            if ext is not None:
+                return ext(t)
+            return self._hold_pos, ZERO, ZERO, self._yaw_ref
         if mode == Mode.MISSION:
-            phase = self._phase
-            if phase == "track":
-                f = self._follower
-                tau = t - self._origin + f.t0
-                if tau >= f.t_end:
-                    self._finish_mission()
-                    return self._hold_pos, zero, zero, self._yaw_ref
-                p, v, a, yaw = f.reference(tau)
-                o = self._rate_limit_offset()
-                return (p[0] + o[0], p[1] + o[1], p[2] + o[2]), v, a, yaw
-            if phase == "wait":
-                f = self._follower
-                if t >= self._t_start:
-                    self._phase = "track"
-                    self._origin = self._t_start
-                    return self._reference(t)
-                return f.start, zero, zero, self._yaw_ref
-            # transit / transit_resume
-            p, v, done = self._mover(t)
-            if done and math.dist(self._here(), p) < self.params.arrive_radius:
-                if phase == "transit":
-                    self._begin_wait_or_track(t)
-                else:
-                    self._phase = "track"
-                    self._origin = t - self._resume_tau
-                return self._reference(t)
-            return p, v, zero, self._yaw_ref
+            m = self.mission
+            q = self.quad.s
+            r = m.reference(t, (q[0], q[1], q[2]), self.dt)
+            if m.done:
+                self._finish_mission(r)
+            return r
         if mode == Mode.TAKEOFF:
-            p, v, done = self._mover(t)
+            p, v, done = self._mv.at(t)
             if done and abs(self.quad.s[2] - p[2]) < 0.15 and abs(self.quad.s[5]) < 0.3:
                 self.mode = Mode.HOLD
                 self._hold_pos = p
-                return p, zero, zero, self._yaw_ref
-            return p, v, zero, self._yaw_ref
+                return p, ZERO, ZERO, self._yaw_ref
+            return p, v, ZERO, self._yaw_ref
         if mode == Mode.LAND:
-            p, v, _ = self._mover(t)
-            return p, v, zero, self._yaw_ref
+            p, v, _ = self._mv.at(t)
+            return p, v, ZERO, self._yaw_ref
         if mode == Mode.RTL:
-            p, v, done = self._mover(t)
+            p, v, done = self._mv.at(t)
             if done and math.dist(self._here(), p) < max(self.params.arrive_radius, 0.5):
-                if self._phase == "rtl_climb":
-                    self._phase = "rtl_return"
+                if self._rtl_leg == "climb":
+                    self._rtl_leg = "return"
                     self._go((self.home[0], self.home[1], self._rtl_z), self.params.transit_speed, p)
                 else:
                     self._start_landing()
                 return self._reference(t)
-            return p, v, zero, self._yaw_ref
-        return self._here(), zero, zero, self._yaw_ref
+            return p, v, ZERO, self._yaw_ref
+        return self._here(), ZERO, ZERO, self._yaw_ref
 
-    def _finish_mission(self) -> None:
-        f = self._follower
-        due = f.due_captures(f.t_end)  # a capture exactly at the end not yet fired (rounding)
+    def _finish_mission(self, end: Reference) -> None:
+        """The trajectory ended: fire what is left at the end, hold at the end point (+ offset)."""
+        due = self.mission.due(self.t)  # a capture exactly at the end not yet fired (rounding)
         if due:
             self._fire(due, self.t)
-        end = f.end
-        o = self._offset
-        self._mission_done = True
-        self._phase = ""
-        self._paused_phase = ""
         self.mode = Mode.HOLD
-        self._hold_pos = (end[0] + o[0], end[1] + o[1], end[2] + o[2])
-        self._yaw_ref = f.reference(f.t_end)[3]
-
-    def _rate_limit_offset(self) -> Vec3:
-        o, c = self._offset, self._offset_cmd
-        if o is c:
-            return o
-        d = (c[0] - o[0], c[1] - o[1], c[2] - o[2])
-        n = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
-        step = self.params.offset_rate * self.dt
-        if n <= step:
-            self._offset = c
-        else:
-            s = step / n
-            self._offset = (o[0] + d[0] * s, o[1] + d[1] * s, o[2] + d[2] * s)
-        return self._offset
+        self._hold_pos = end[0]
+        self._yaw_ref = end[3]
 
     def _run(self, n: int) -> None:
-        quad, pid, att_ctl = self.quad, self.pid, self.attitude
+        quad, pid, att_ctl, mission = self.quad, self.pid, self.attitude, self.mission
         dt = self.dt
         hover_inv, drain = self._hover_inv, self._drain
         for i in range(n):
@@ -526,9 +411,8 @@ class SimDriver(VehicleDriver):
                 self.ref_pos = self._here()
                 self._k += n - 1 - i  # the rest of this call needs no physics
                 return
-            if mode == Mode.MISSION and self._phase == "track":
-                f = self._follower
-                due = f.due_captures(t + dt - self._origin + f.t0)
+            if mode == Mode.MISSION:
+                due = mission.due(t + dt)
                 if due:
                     self._fire(due, t + dt)
 
@@ -536,4 +420,3 @@ class SimDriver(VehicleDriver):
         s = self.quad.s
         for w in due:
             self._events.append(CaptureEvent(w.capture_id, t, (s[0], s[1], s[2]), (s[6], s[7], wrap_angle(s[8]))))
-            self._captures += 1
