@@ -8,6 +8,7 @@ Exit status 0 only when every UAV reached the goal and every capture point was i
 from __future__ import annotations
 
 import argparse
+import logging
 import time
 from pathlib import Path
 
@@ -31,7 +32,7 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
     offsets = {i + 1: tuple(o) for i, o in enumerate(formation.DEFAULT_OFFSETS)}
     t_start = time.time()
 
-    def progress(runner: MissionRunner) -> None:
+    def progress(runner: MissionRunner, force: bool = False) -> None:
         if display is None:
             return
         phase = max(runner.record.phases, key=runner.record.phases.get) if runner.record.phases else "-"
@@ -40,10 +41,20 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
             ages = [1000 * (s.rx - s.msg.stamp) for s in runner.record.states[-60:]]
             n_reports = len(runner.reports)
         display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
-                              time.time() - t_start))
+                              time.time() - t_start), force=force)
 
     runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort)
-    record = runner.run()
+    root = logging.getLogger()
+    saved = list(root.handlers)
+    if display is not None and display.tty:  # log lines go above the live block, not through it
+        handler = display.handler()
+        handler.setFormatter(saved[0].formatter if saved else None)
+        root.handlers = [handler]
+    try:
+        record = runner.run()
+        progress(runner, force=True)
+    finally:
+        root.handlers = saved
     from services.gcs.ground_truth import attach_ground_truth
 
     attach_ground_truth(record)

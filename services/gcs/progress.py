@@ -6,9 +6,11 @@ on a terminal (ANSI cursor-up), or prints them every few seconds when the output
 
 from __future__ import annotations
 
+import logging
 import math
 import statistics
 import sys
+import threading
 import time
 from typing import IO
 
@@ -57,15 +59,42 @@ class LiveDisplay:
         self.period = period_s if self.tty else pipe_period_s
         self._last = 0.0
         self._drawn = 0
+        self._lines: list[str] = []
+        self._lock = threading.Lock()
+
+    def message(self, text: str) -> None:
+        """Print a line above the live block (log messages), then redraw the block."""
+        with self._lock:
+            if self.tty and self._drawn:
+                self.stream.write(f"\x1b[{self._drawn}F\x1b[J")
+            self.stream.write(text + "\n")
+            if self.tty and self._lines:
+                for line in self._lines:
+                    self.stream.write("\x1b[2K" + line + "\n")
+            else:
+                self._drawn = 0
+            self.stream.flush()
+
+    def handler(self) -> logging.Handler:
+        """A logging handler that writes through :meth:`message`."""
+        display = self
+
+        class _Handler(logging.Handler):
+            def emit(self, record: logging.LogRecord) -> None:
+                display.message(self.format(record))
+
+        return _Handler()
 
     def update(self, lines: list[str], force: bool = False) -> None:
         now = time.monotonic()
         if not force and now - self._last < self.period:
             return
-        self._last = now
-        if self.tty and self._drawn:
-            self.stream.write(f"\x1b[{self._drawn}F")
-        for line in lines:
-            self.stream.write(("\x1b[2K" if self.tty else "") + line + "\n")
-        self._drawn = len(lines)
-        self.stream.flush()
+        with self._lock:
+            self._last = now
+            if self.tty and self._drawn:
+                self.stream.write(f"\x1b[{self._drawn}F")
+            for line in lines:
+                self.stream.write(("\x1b[2K" if self.tty else "") + line + "\n")
+            self._drawn = len(lines)
+            self._lines = list(lines)
+            self.stream.flush()
