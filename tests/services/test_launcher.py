@@ -65,3 +65,35 @@ def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
     assert "shutting down" in rest
+
+
+def test_impairment_proxy_on_one_uav_delays_only_its_link():
+    from protocol import keys
+    from protocol.bus import Bus, BusConfig
+    from protocol.links import TELEMETRY
+    from protocol.messages import VehicleState
+
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--fleet", "imp",
+                             "--impair", "uav2=delay 100ms"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    endpoints = None
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and endpoints is None:
+            line = proc.stdout.readline()
+            if "network up: gateway at" in line:
+                endpoints = line.split("gateway at ")[1].split(";")[0].split()
+        assert endpoints, "the launcher never reported its gateway"
+        ages: dict[int, list[float]] = {1: [], 2: []}
+        with Bus(BusConfig(mode="client", connect=endpoints, multilink=True), "imp", "probe") as bus:
+            bus.subscribe(keys.state("imp", "*"), lambda m, s: ages.get(m.uav, []).append(time.time() - m.stamp),
+                          expect=VehicleState, link=TELEMETRY)
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and min(len(a) for a in ages.values()) < 40:
+                time.sleep(0.1)
+        med = {u: sorted(a)[len(a) // 2] for u, a in ages.items()}
+        assert med[2] > 0.09, med  # 100 ms added on uav2 <-> gateway
+        assert med[1] < 0.05, med  # uav1 is not impaired
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
