@@ -86,7 +86,9 @@ Time
 ----
 ``step(until_t)`` receives the board's mission clock (:mod:`edge.clock`); trajectory times,
 the transit to the first waypoint and the capture points run on that clock, exactly as with
-the simulated vehicle. :meth:`step` never waits for the link; only commands do.
+the simulated vehicle: both drivers take the mission's reference from the same
+:class:`edge.vehicle.sequencer.MissionSequencer` (start, transit, wait, track, pause/resume,
+formation offset, captures). :meth:`step` never waits for the link; only commands do.
 
 Only ArduCopter's custom-mode numbering is implemented; a PX4 autopilot (whose custom mode packs
 main and sub modes, and which needs OFFBOARD instead of GUIDED) is not.
@@ -105,7 +107,7 @@ from typing import Any, Literal
 import numpy as np
 
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
-from edge.vehicle.follower import Follower
+from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import Mode, Trajectory
 
 try:  # pymavlink is the optional "mavlink" extra
@@ -440,19 +442,13 @@ class MavlinkDriver(VehicleDriver):
         self._t = 0.0
         self._phase = "idle"
         self._takeoff_z = self.home[2]
+        self._takeoff_yaw = 0.0
         self._hold: tuple[Vec3, float] = (self.home, 0.0)  # position, ENU yaw
-        self._follower: Follower | None = None
-        self._sub = ""  # mission sub-phase: transit, wait, track, transit_resume
-        self._t_start = 0.0
-        self._origin = 0.0
-        self._tau_paused: float | None = None
-        self._resume_tau = 0.0
-        self._mission_done = False
-        self._captures = 0
-        self._mv: tuple[Vec3, Vec3, float, float, float] = (self.home, (0.0, 0.0, 0.0), 0.0, 0.0, 0.0)
-        self._yaw_ref = 0.0
-        self._offset_cmd: Vec3 = (0.0, 0.0, 0.0)
-        self._offset: Vec3 = (0.0, 0.0, 0.0)
+        #: the trajectory, its start/pause/resume, the formation offset and the captures (under _lock)
+        self.mission = MissionSequencer(
+            uav, self.home[2], transit_speed=params.transit_speed, start_radius=params.start_radius,
+            arrive_radius=params.arrive_radius, max_offset=params.max_offset, offset_rate=params.offset_rate,
+            interpolation=params.interpolation)
         self._next_target_mono = -math.inf
         #: position targets sent (count) and the last one (NED x, y, z, yaw), for inspection
         self.targets_sent = 0
@@ -677,7 +673,7 @@ class MavlinkDriver(VehicleDriver):
         phase = self._phase
         if not hb.armed:
             if phase not in ("idle", "landed"):
-                self._pause_mission()
+                self.mission.pause(self._t)
                 self._phase = "landed"
             return
         if phase in ("idle", "landed"):
@@ -686,7 +682,7 @@ class MavlinkDriver(VehicleDriver):
             if hb.custom_mode == CopterMode.GUIDED:
                 self._hold_here()
         elif hb.custom_mode != _PHASE_COPTER[phase]:
-            self._pause_mission()
+            self.mission.pause(self._t)
             if hb.custom_mode == CopterMode.GUIDED:
                 self._hold_here()
             else:
@@ -722,51 +718,21 @@ class MavlinkDriver(VehicleDriver):
         return self._phase not in ("idle", "landed")
 
     # ------------------------------------------------------------------ state
-    def _tau(self) -> float | None:
-        f = self._follower
-        if f is None:
-            return None
-        if self._mission_done:
-            return f.t_end
-        if self._tau_paused is not None:
-            return self._tau_paused + f.t0
-        if self._phase == "mission" and self._sub == "track":
-            return self._t - self._origin + f.t0
-        return None
-
     def state(self) -> DriverState:
         with self._lock:
             self._update_phase()
-            tau = self._tau()
-            f = self._follower
-            if f is None or tau is None:
-                wp, prog = -1, 0.0
-            else:
-                wp, prog = f.segment(tau), f.progress(tau)
+            wp, prog = self.mission.progress(self._t)
             return DriverState(
                 t=self._t, pos=self._pos, vel=self._vel, att=self._att, rates=self._rates,
                 mode=self._mode(), armed=self._armed(), battery=self._battery,
-                wp_index=wp, progress=prog, captures=self._captures,
+                wp_index=wp, progress=prog, captures=self.mission.captures,
             )
 
     # ------------------------------------------------------------------ commands
     def upload(self, traj: Trajectory) -> None:
         self._require((Mode.IDLE, Mode.LANDED, Mode.TAKEOFF, Mode.HOLD), "upload a trajectory")
-        if not isinstance(traj, Trajectory):
-            raise ValueError("upload needs a protocol.messages.Trajectory")
-        if traj.uav != self.uav:
-            raise ValueError(f"trajectory is for UAV {traj.uav}, this is UAV {self.uav}")
-        gz = self.home[2]
-        for i, w in enumerate(traj.waypoints):
-            if w.pos[2] < gz + 0.5:
-                raise ValueError(f"waypoint {i} is below 0.5 m above the ground (z = {w.pos[2]:.2f} m)")
-        follower = Follower(traj, self.params.interpolation)
         with self._lock:
-            self._follower = follower
-            self._captures = 0
-            self._mission_done = False
-            self._tau_paused = None
-            self._sub = ""
+            self.mission.load(traj)
 
     def takeoff(self, altitude: float) -> None:
         self._require(_GROUNDED, "take off")
@@ -786,27 +752,15 @@ class MavlinkDriver(VehicleDriver):
         with self._lock:
             self._phase = "takeoff"
             self._takeoff_z = self.home[2] + altitude
-            self._yaw_ref = self._att[2]
+            self._takeoff_yaw = self._att[2]
 
     def start(self, t0: float | None = None) -> None:
         self._require((Mode.HOLD,), "start a mission")
-        if self._follower is None:
-            raise ValueError("no trajectory uploaded")
-        if t0 is not None and not math.isfinite(t0):
-            raise ValueError("t0 must be finite")
+        self.mission.check_start(t0)
         self._ensure_guided()
         with self._lock:
-            f = self._follower
-            self._t_start = self._t if t0 is None else float(t0)
-            self._tau_paused = None
-            self._mission_done = False
+            self.mission.start(self._t, self._pos, t0)
             self._phase = "mission"
-            self._yaw_ref = f.reference(f.t0)[3]
-            if math.dist(self._pos, f.start) > self.params.start_radius:
-                self._sub = "transit"
-                self._go(f.start, self._pos)
-            else:
-                self._begin_wait_or_track(None)
             self._next_target_mono = -math.inf
 
     def hold(self) -> None:
@@ -817,28 +771,16 @@ class MavlinkDriver(VehicleDriver):
             raise ValueError("cannot hold: the vehicle is not armed")
         self._ensure_guided()
         with self._lock:
-            self._pause_mission()
+            self.mission.pause(self._t)
             self._hold_here()
 
     def resume(self) -> None:
         self._require((Mode.HOLD,), "resume")
-        if self._follower is None or self._mission_done or self._tau_paused is None:
-            raise ValueError("no paused mission to resume")
+        self.mission.check_resume()
         self._ensure_guided()
         with self._lock:
-            f = self._follower
-            tau = self._tau_paused
-            self._tau_paused = None
+            self.mission.resume(self._t, self._pos, self._att[2])  # flies back keeping its heading
             self._phase = "mission"
-            self._t_start = self._t - tau
-            ref = f.reference(tau + f.t0)[0]
-            if math.dist(self._pos, ref) > self.params.start_radius:
-                self._sub = "transit_resume"
-                self._resume_tau = tau
-                self._go(ref, self._pos)
-            else:
-                self._sub = "track"
-                self._origin = self._t - tau
             self._next_target_mono = -math.inf
 
     def land(self) -> None:
@@ -847,8 +789,7 @@ class MavlinkDriver(VehicleDriver):
             return
         self._command(M.MAV_CMD_NAV_LAND, (0, 0, 0, math.nan, 0, 0, 0), "land")
         with self._lock:
-            self._pause_mission()
-            self._tau_paused = None
+            self.mission.cancel()
             self._phase = "land"
 
     def return_to_launch(self) -> None:
@@ -857,19 +798,14 @@ class MavlinkDriver(VehicleDriver):
             return
         self._command(M.MAV_CMD_NAV_RETURN_TO_LAUNCH, (), "return to launch")
         with self._lock:
-            self._pause_mission()
-            self._tau_paused = None
+            self.mission.cancel()
             self._phase = "rtl"
 
     def set_reference_offset(self, offset: Vec3) -> None:
         if self._closed:
             raise ValueError("driver is closed")
-        o = check_vec3(offset, "offset")
-        n = math.sqrt(o[0] ** 2 + o[1] ** 2 + o[2] ** 2)
-        m = self.params.max_offset
-        if n > m:
-            o = (o[0] * m / n, o[1] * m / n, o[2] * m / n)
-        self._offset_cmd = o
+        with self._lock:
+            self.mission.set_offset(offset)
 
     def close(self) -> None:
         if self._closed:
@@ -894,90 +830,31 @@ class MavlinkDriver(VehicleDriver):
         self._hold = (self._pos, self._att[2])
         self._next_target_mono = -math.inf
 
-    def _pause_mission(self) -> None:
-        if self._phase != "mission":
-            return
-        if self._sub == "track":
-            self._tau_paused = self._t - self._origin
-        elif self._sub == "transit_resume":
-            self._tau_paused = self._resume_tau
-        elif self._sub in ("transit", "wait"):
-            self._tau_paused = 0.0
-        self._sub = ""
-
-    def _go(self, target: Vec3, start: Vec3) -> None:
-        d = (target[0] - start[0], target[1] - start[1], target[2] - start[2])
-        n = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
-        u = (d[0] / n, d[1] / n, d[2] / n) if n > 1e-12 else (0.0, 0.0, 0.0)
-        self._mv = (start, u, n, self._t, self.params.transit_speed)
-
-    def _mover(self, t: float) -> tuple[Vec3, Vec3, bool]:
-        start, u, n, ts, v = self._mv
-        s = v * max(0.0, t - ts)
-        if s >= n:
-            return (start[0] + u[0] * n, start[1] + u[1] * n, start[2] + u[2] * n), (0.0, 0.0, 0.0), True
-        return (start[0] + u[0] * s, start[1] + u[1] * s, start[2] + u[2] * s), (u[0] * v, u[1] * v, u[2] * v), False
-
-    def _begin_wait_or_track(self, t: float | None) -> None:
-        now = self._t if t is None else t
-        if now < self._t_start:
-            self._sub = "wait"
-        else:
-            self._sub = "track"
-            self._origin = self._t_start if t is None else now
-
-    def _rate_limit_offset(self, dt: float) -> Vec3:
-        o, c = self._offset, self._offset_cmd
-        d = (c[0] - o[0], c[1] - o[1], c[2] - o[2])
-        n = math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
-        step = self.params.offset_rate * max(0.0, dt)
-        if n <= step:
-            self._offset = c
-        else:
-            s = step / n
-            self._offset = (o[0] + d[0] * s, o[1] + d[1] * s, o[2] + d[2] * s)
-        return self._offset
-
     def _fire(self, due: list, t: float, events: list[CaptureEvent]) -> None:
         for w in due:
             events.append(CaptureEvent(w.capture_id, t, self._pos, self._att))
-            self._captures += 1
 
     def _mission_reference(self, t: float, dt: float, events: list[CaptureEvent]) -> _Target:
-        """The mission's target at time t; advances the sub-phases and fires the captures due."""
-        f = self._follower
-        assert f is not None
-        sub = self._sub
-        if sub == "wait":
-            if t < self._t_start:
-                return f.start, None, None, self._yaw_ref
-            self._sub, self._origin = "track", self._t_start
-            return self._mission_reference(t, dt, events)
-        if sub in ("transit", "transit_resume"):
-            p, v, done = self._mover(t)
-            if done and math.dist(self._pos, p) < self.params.arrive_radius:
-                if sub == "transit":
-                    self._begin_wait_or_track(t)
-                else:
-                    self._sub, self._origin = "track", t - self._resume_tau
-                return self._mission_reference(t, dt, events)
-            return p, v, None, self._yaw_ref
-        # track
-        tau = t - self._origin + f.t0
-        due = f.due_captures(tau)
+        """The mission's target at time t (the sequencer's reference, as this driver streams it).
+
+        Waiting at the first waypoint and holding at the end: position and yaw; transit:
+        position, velocity and yaw; tracking: also the acceleration (``accel_feedforward``).
+        """
+        m = self.mission
+        p, v, a, yaw = m.reference(t, self._pos, dt)
+        due = m.due(t)
         if due:
             self._fire(due, t, events)
-        if tau >= f.t_end:
-            o = self._offset
-            self._mission_done = True
-            self._sub = ""
+        if m.done:
             self._phase = "hold"
-            end = (f.end[0] + o[0], f.end[1] + o[1], f.end[2] + o[2])
-            self._hold = (end, f.reference(f.t_end)[3])
-            return end, None, None, self._hold[1]
-        p, v, a, yaw = f.reference(tau)
-        o = self._rate_limit_offset(dt)
-        return (p[0] + o[0], p[1] + o[1], p[2] + o[2]), v, (a if self.params.accel_feedforward else None), yaw
+            self._hold = (p, yaw)
+            return p, None, None, yaw
+        phase = m.phase
+        if phase == "track":
+            return p, v, (a if self.params.accel_feedforward else None), yaw
+        if phase == "wait":
+            return p, None, None, yaw
+        return p, v, None, yaw
 
     # ------------------------------------------------------------------ streaming
     def step(self, until_t: float) -> list[CaptureEvent]:
@@ -998,7 +875,7 @@ class MavlinkDriver(VehicleDriver):
             if (phase == "takeoff" and self._pos[2] >= self._takeoff_z - self.params.takeoff_tolerance
                     and abs(self._vel[2]) < 0.3):
                 self._phase = phase = "hold"
-                self._hold = ((self._pos[0], self._pos[1], self._takeoff_z), self._yaw_ref)
+                self._hold = ((self._pos[0], self._pos[1], self._takeoff_z), self._takeoff_yaw)
                 self._next_target_mono = -math.inf
             if phase == "mission":
                 target = self._mission_reference(until_t, dt, events)
