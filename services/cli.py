@@ -7,6 +7,7 @@ for OpenCV or the planner's imports.
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import sys
 
@@ -44,9 +45,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"skynet: unknown command {name!r}\n\n{usage()}", file=sys.stderr)
         return 2
     module = importlib.import_module(COMMANDS[name][0])
-    if name in {"up", "mission"}:
-        return int(module.main([name, *rest]) or 0)
-    return int(module.main(rest) or 0)
+    try:
+        if name in {"up", "mission"}:
+            return int(module.main([name, *rest]) or 0)
+        return int(module.main(rest) or 0)
+    except KeyboardInterrupt:
+        return 130
+    except Exception as exc:
+        # bad input (a value, a file, an endpoint Zenoh refuses) is the user's to fix: say what, no traceback
+        if isinstance(exc, (ValueError, OSError, argparse.ArgumentTypeError)) or type(exc).__name__ == "ZError":
+            print(f"skynet {name}: error: {exc}", file=sys.stderr)
+            return 2
+        raise
 
 
 if __name__ == "__main__":

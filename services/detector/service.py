@@ -124,7 +124,7 @@ class DetectorService:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet detector", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="client")
-    parser.add_argument("--method", default="it+", help=f"one of {sorted(METHODS)}")
+    parser.add_argument("--method", default="it+", choices=sorted(METHODS), help="detection method")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--queue", type=int, default=8, help="frames waiting for a worker before the oldest drop")
     parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")

@@ -1,0 +1,36 @@
+"""The skynet command: every subcommand exists, bad input gives a one-line error and exit 2."""
+
+import subprocess
+import sys
+
+import pytest
+
+from services.cli import COMMANDS
+
+
+def skynet(*args, timeout=30):
+    return subprocess.run([sys.executable, "-m", "services.cli", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_help_lists_every_command():
+    out = skynet("--help")
+    assert out.returncode == 0
+    for name in COMMANDS:
+        assert f"  {name}" in out.stdout
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["teleport"], "unknown command"),
+    (["edge", "--uav", "300", "--camera", "none"], "uav must be an int in 1..255"),
+    (["gateway", "--listen", "garbage"], "Endpoints must be of the form"),
+    (["mission", "--impair", "foo"], "NAME=SPEC"),
+    (["detector"], "No peer specified"),
+    (["gcs", "mission", "--scenario", "/nonexistent.toml"], "cannot read scenario file"),
+    (["edge", "--uav", "1", "--home", "1,2"], "expected x,y,z"),
+])
+def test_bad_input_is_a_clear_error_not_a_traceback(args, needle):
+    out = skynet(*args)
+    assert out.returncode == 2
+    assert needle in out.stderr
+    assert "Traceback" not in out.stderr
