@@ -248,8 +248,8 @@ def threshold_valley_emphasis(
 
     Examples
     --------
-    >>> threshold_valley_emphasis(hist=np.array([4, 6, 1, 0, 30, 40, 30]))
-    2
+    >>> threshold_valley_emphasis(hist=np.array([4, 6, 1, 0, 30, 40, 30]))  # empty level: p_T = 0
+    3
     """
     h = _hist_of(image, hist)
     single = _single_level(h)
