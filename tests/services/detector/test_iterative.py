@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 
 from services.detector.iterative import (
     C_S_DEFAULT,
+    C_S_UNGUARDED,
+    MIN_REGION_DEFAULT,
     interclass_contrast,
     iterative_threshold,
     threshold_it,
@@ -61,6 +63,41 @@ def test_min_pixels_guard():
     assert r.thresholds == (110,) and r.stop == "region"
 
 
+def test_size_guard_stops_below_min_region():
+    # uniform histogram: each Otsu step halves the dark region (50 %, 25 %, 12.5 %, 6.25 %, ...)
+    h = np.full(256, 10.0)
+    bare = iterative_threshold(hist=h, c_s=0.999, min_region=0.0, max_iter=6)
+    assert bare.steps == 6 and bare.stop == "max_iter"
+    shares = [(t + 1) / 256 for t in bare.thresholds]
+    assert shares[:4] == pytest.approx([0.5, 0.25, 0.125, 0.0625], abs=0.01)
+    # min_region 0.1: the region after step 4 (6.25 %) is not split again; T_f = T_4
+    r = iterative_threshold(hist=h, c_s=0.999, min_region=0.1, max_iter=6)
+    assert r.thresholds == bare.thresholds[:4] and r.threshold == bare.thresholds[3]
+    assert r.stop == "size"
+    # exactly at the limit the region is still split (strictly "less than")
+    at = (bare.thresholds[2] + 1) / 256  # share of the region after step 3
+    r_at = iterative_threshold(hist=h, c_s=0.999, min_region=at, max_iter=6)
+    assert r_at.thresholds == bare.thresholds[:4]
+    # the contrast rule, when it fires first, wins over the guard
+    c2 = bare.contrasts[1]
+    r2 = iterative_threshold(hist=h, c_s=c2 - 1e-9, min_region=0.1)
+    assert r2.thresholds == bare.thresholds[:2] and r2.stop == "contrast"
+
+
+def test_default_is_the_guarded_rule_and_bare_rule_differs():
+    assert 0.0 < MIN_REGION_DEFAULT < 0.1 and 0.0 < C_S_UNGUARDED < C_S_DEFAULT < 1.0
+    # a faint dark tail: contrast never exceeds the defaults, so the guard decides
+    h = np.zeros(256)
+    h[100:140] = 1000.0
+    h[80:100] = np.linspace(5, 100, 20)
+    r = iterative_threshold(hist=h)
+    assert r.stop == "size"
+    region = h[: r.threshold + 1].sum() / h.sum()
+    prev = h[: r.thresholds[-2] + 1].sum() / h.sum()
+    assert region < MIN_REGION_DEFAULT <= prev
+    assert iterative_threshold(hist=h, min_region=0.0).threshold < r.threshold
+
+
 def test_max_iter_caps_the_steps():
     h = np.full(256, 10.0)
     r = iterative_threshold(hist=h, c_s=0.999, max_iter=3)
@@ -88,7 +125,8 @@ def test_two_level_image():
 def test_bad_input():
     h = five_level_hist()
     for kw in ({"c_s": 1.0}, {"c_s": -0.1}, {"c_s": float("nan")}, {"background": "left"},
-               {"max_iter": 0}):
+               {"max_iter": 0}, {"min_region": 1.0}, {"min_region": -0.01},
+               {"min_region": float("nan")}):
         with pytest.raises(ValueError):
             iterative_threshold(hist=h, **kw)
     for bad in (np.zeros(256), np.array([1.0, np.nan]), np.array([-1.0, 2.0]), np.array([])):
@@ -114,10 +152,12 @@ def test_threshold_it_matches_result():
 
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.integers(0, 500), min_size=256, max_size=256).filter(lambda v: sum(v) > 0),
-       st.floats(0.0, 0.95), st.sampled_from(["above", "previous"]))
-def test_properties_on_random_histograms(counts, c_s, background):
+       st.floats(0.0, 0.95), st.sampled_from(["above", "previous"]),
+       st.sampled_from([0.0, 0.02, 0.2]))
+def test_properties_on_random_histograms(counts, c_s, background, min_region):
     h = np.array(counts, float)
-    r = iterative_threshold(hist=h, c_s=c_s, background=background, max_iter=8)
+    r = iterative_threshold(hist=h, c_s=c_s, background=background, max_iter=8,
+                            min_region=min_region)
     occ = np.flatnonzero(h)
     assert len(r.thresholds) == len(r.contrasts) <= 8
     if occ.size >= 2:
@@ -128,6 +168,11 @@ def test_properties_on_random_histograms(counts, c_s, background):
         # the stop rule: only the last contrast may exceed C_s
         assert all(c <= c_s for c in r.contrasts[:-1])
         assert (r.contrasts[-1] > c_s) == (r.stop == "contrast")
+        # the guard: every region that was split held at least min_region of the pixels
+        cum = np.cumsum(h)
+        assert all(cum[t] >= min_region * cum[-1] for t in r.thresholds[:-1])
+        if r.stop == "size":
+            assert cum[r.threshold] < min_region * cum[-1]
         if background == "above":  # a darker class against everything brighter: C grows
             assert all(b >= a - 1e-12 for a, b in zip(r.contrasts, r.contrasts[1:]))
 
