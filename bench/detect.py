@@ -3,9 +3,11 @@
     python bench/detect.py [--data DIR] [--only tune|quality|speed ...] [--repeats N]
                            [--threads N] [--out bench/results/detect.json]
 
-* tune     C_s of IT for both background readings, and IT+'s area guard and shape limits, on
-           the DeepCrack *training* split only (the numbers behind the module defaults).
-* quality  Table II-style scores of every method on crackforest/ and deepcrack-train/.
+* tune     C_s and the size guard min_region of IT for both background readings, and IT+'s
+           area guard and shape limits, on the DeepCrack *training* split only (the numbers
+           behind the module defaults).
+* quality  Table II-style scores of every method on crackforest/ and deepcrack-train/, and
+           IT's mean F over C_s on both (a diagnostic; nothing is chosen from it).
 * speed    IT vs OpenCV's Otsu (cv2.threshold + THRESH_OTSU), and IT+, side by side on the same
            BGR frames at 480x320 and 4000x3000, grey conversion and mask output included,
            OpenCV limited to ``--threads`` (default 1: "one core").
@@ -30,56 +32,107 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from services.detector.detect import METHODS, detect  # noqa: E402
 from services.detector.evaluate import evaluate, load_dataset, markdown_table  # noqa: E402
 from services.detector.improved import it_plus_mask, shape_filter, threshold_it_plus  # noqa: E402
-from services.detector.iterative import C_S_DEFAULT, iterative_threshold  # noqa: E402
+from services.detector.iterative import (  # noqa: E402
+    C_S_DEFAULT,
+    C_S_UNGUARDED,
+    MIN_REGION_DEFAULT,
+    iterative_threshold,
+)
 from services.detector.metrics import f_measure  # noqa: E402
 from services.detector.thresholds import histogram  # noqa: E402
 
 DEFAULT_DATA = Path("/work/shared/data")
 SETS = ("crackforest", "deepcrack-train")
+SENS_GRID = [float(round(x, 3)) for x in np.arange(0.10, 0.601, 0.025)]
 
 
 # ------------------------------------------------------------------------------------------ tune
+def _f_curves(samples: list) -> np.ndarray:
+    """Exact defect-class F (P20) of ``grey <= t`` for every t = -1..255: row i, column t + 1.
+
+    From two cumulative histograms per image (all pixels, ground-truth pixels): the same numbers
+    as :func:`services.detector.metrics.f_measure` on every threshold, without 257 masks.
+    """
+    out = np.empty((len(samples), 257))
+    for i, s in enumerate(samples):
+        n_pred = np.concatenate([[0.0], np.cumsum(histogram(s.grey))])
+        tp = np.concatenate([[0.0], np.cumsum(histogram(s.grey, s.mask))])
+        n_gt = float(np.count_nonzero(s.mask))
+        den = n_pred + n_gt
+        out[i] = np.where(den > 0, 2 * tp / np.where(den > 0, den, 1.0), 1.0)
+    return out
+
+
+def _one_se(per: dict[tuple[float, float], np.ndarray]) -> tuple[tuple[float, float], list]:
+    """Best key by mean, and every key within one paired standard error of it."""
+    best = max(per, key=lambda k: per[k].mean())
+    n = len(per[best])
+    se = {k: (per[best] - per[k]).std(ddof=1) / np.sqrt(n) for k in per}
+    within = [k for k in per if (per[best] - per[k]).mean() <= se[k] + 1e-12]
+    return best, within
+
+
 def tune(data: Path) -> dict[str, object]:
     samples = load_dataset(data / "deepcrack-train")
     hists = [histogram(s.grey) for s in samples]
     gts = [s.mask for s in samples]
+    curves = _f_curves(samples)
+    rows_i = np.arange(len(samples))
     out: dict[str, object] = {"dataset": "deepcrack-train", "n_images": len(samples)}
 
-    def f_at(ts: list[int]) -> np.ndarray:
-        return np.array([f_measure(s.grey <= t, g)[0] for s, t, g in zip(samples, ts, gts)])
+    regions = (0.0, 0.005, 0.01, 0.015, 0.02, 0.025, 0.03, 0.035, 0.04, 0.05, 0.07, 0.1)
+    grid = [float(round(x, 3)) for x in np.arange(0.20, 0.651, 0.025)]
+    per: dict[str, dict[tuple[float, float], np.ndarray]] = {"above": {}, "previous": {}}
+    stops: dict[tuple[float, float], dict[str, int]] = {}
+    for bg in ("above", "previous"):
+        for mr in regions:
+            for cs in grid:
+                rs = [iterative_threshold(hist=h, c_s=cs, background=bg, min_region=mr)
+                      for h in hists]
+                per[bg][(mr, cs)] = curves[rows_i, [r.threshold + 1 for r in rs]]
+                if bg == "above":
+                    stops[(mr, cs)] = {k: sum(r.stop == k for r in rs)
+                                       for k in ("contrast", "size", "region", "max_iter")}
+    print("\n### IT on DeepCrack train: mean defect-class F (exact), background 'above'; "
+          "rows min_region, columns C_s\n")
+    print("| min_region | " + " | ".join(f"{c:.3f}" for c in grid) + " |")
+    print("|---" * (len(grid) + 1) + "|")
+    for mr in regions:
+        print(f"| {mr} | " + " | ".join(f"{per['above'][(mr, c)].mean():.3f}" for c in grid) + " |")
+    for bg in ("above", "previous"):  # keys "min_region/C_s"
+        out[f"it_grid_{bg}"] = {f"{mr}/{cs}": float(v.mean()) for (mr, cs), v in per[bg].items()}
 
-    grid = [round(x, 3) for x in np.arange(0.10, 0.601, 0.025)]
-    print("\n### IT: C_s on DeepCrack train (mean defect-class F, exact pixels)\n")
-    print("| C_s | above | previous |\n|---|---|---|")
-    table: dict[str, dict[str, float]] = {}
-    per: dict[tuple[str, float], np.ndarray] = {}
-    for cs in grid:
-        row = {}
-        for bg in ("above", "previous"):
-            f = f_at([iterative_threshold(hist=h, c_s=cs, background=bg).threshold for h in hists])
-            per[(bg, cs)] = f
-            row[bg] = float(f.mean())
-        table[str(cs)] = row
-        print(f"| {cs:.3f} | {row['above']:.4f} | {row['previous']:.4f} |")
-    best = {bg: max(grid, key=lambda c: table[str(c)][bg]) for bg in ("above", "previous")}
-    b = best["above"]
-    # smallest C_s whose mean F is within one standard error (paired) of the best one
-    within = [c for c in grid if (per[("above", b)] - per[("above", c)]).mean()
-              <= (per[("above", b)] - per[("above", c)]).std(ddof=1) / np.sqrt(len(hists)) + 1e-12]
-    one_se = min(within)
-    print(f"\nbest: above C_s={best['above']} (F={table[str(best['above'])]['above']:.4f}), "
-          f"previous C_s={best['previous']} (F={table[str(best['previous'])]['previous']:.4f}); "
-          f"one-SE choice (above): C_s={one_se}; module default C_S_DEFAULT={C_S_DEFAULT}")
-    out["it_cs_grid"] = table
-    out["it_best"] = best
-    out["it_one_se"] = one_se
+    # the paper's bare stop rule (min_region = 0): smallest C_s within one SE of the best
+    res: dict[str, object] = {}
+    for bg in ("above", "previous"):
+        bare = {k: v for k, v in per[bg].items() if k[0] == 0.0}
+        b, within = _one_se(bare)
+        gb, gwithin = _one_se(per[bg])
+        res[bg] = {"bare_best": b, "bare_best_f": float(bare[b].mean()),
+                   "bare_one_se": min(within, key=lambda k: k[1]),
+                   "guarded_best": gb, "guarded_best_f": float(per[bg][gb].mean()),
+                   # smallest guard (closest to the bare rule), then smallest C_s
+                   "guarded_one_se": min(gwithin)}
+        print(f"\n{bg}: bare rule best C_s={b[1]} (F={bare[b].mean():.4f}), one-SE C_s="
+              f"{res[bg]['bare_one_se'][1]}; with guard best {gb} (F={per[bg][gb].mean():.4f}), "
+              f"one-SE (smallest guard, then C_s) {res[bg]['guarded_one_se']} "
+              f"(F={per[bg][res[bg]['guarded_one_se']].mean():.4f})")
+    sel = res["above"]["guarded_one_se"]  # type: ignore[index]
+    print(f"selected (min_region, C_s) = {sel}; stop reasons on DeepCrack: {stops[sel]}")
+    print(f"module defaults: C_S_DEFAULT={C_S_DEFAULT}, MIN_REGION_DEFAULT={MIN_REGION_DEFAULT}, "
+          f"C_S_UNGUARDED={C_S_UNGUARDED}")
+    out["it_selection"] = {
+        bg: {k: list(v) if isinstance(v, tuple) else v for k, v in r.items()}  # type: ignore[union-attr]
+        for bg, r in res.items()
+    }
+    out["it_selected_stops"] = stops[sel]
 
-    print("\n### IT+: area guard and shape limits on DeepCrack train (C_s = C_S_DEFAULT)\n")
+    print("\n### IT+: area guard and shape limits on DeepCrack train (IT at its defaults)\n")
     print("| min_fraction | min_area | min_elongation | min_length | F |\n|---|---|---|---|---|")
     rows = []
     shapes = [(0, 0, 0), (20, 6, 30), (30, 8, 40), (60, 10, 60)]
     for mf in (0.0, 0.01, 0.015, 0.02, 0.025, 0.03, 0.04):
-        ts = [threshold_it_plus(hist=h, c_s=C_S_DEFAULT, min_fraction=mf) for h in hists]
+        ts = [threshold_it_plus(hist=h, min_fraction=mf) for h in hists]
         raws = [cv2.threshold(s.grey, t, 255, cv2.THRESH_BINARY_INV)[1] for s, t in zip(samples, ts)]
         for a, e, ln in shapes:
             masks = raws if a == 0 else [
@@ -102,7 +155,8 @@ def quality(data: Path) -> dict[str, object]:
         if not folder.is_dir():
             print(f"\n(skipping {name}: {folder} not found)")
             continue
-        ev = evaluate(load_dataset(folder), list(METHODS), dataset=name)
+        samples = load_dataset(folder)
+        ev = evaluate(samples, list(METHODS), dataset=name)
         print("\n" + markdown_table(ev))
         m = ev.mean
         goals = {
@@ -110,8 +164,42 @@ def quality(data: Path) -> dict[str, object]:
             "it_plus_beats_it": m["it+"]["f"] > m["it"]["f"],
         }
         print(f"\ngoals on {name}: {goals}")
-        out[name] = {"mean": m, "goals": goals, "per_image": ev.per_image, "images": ev.names}
+        out[name] = {"mean": m, "goals": goals, "per_image": ev.per_image, "images": ev.names,
+                     "it_sensitivity": _it_sensitivity(samples)}
+    _print_sensitivity(out)
     return out
+
+
+def _it_sensitivity(samples: list) -> dict[str, dict[str, float]]:
+    """Mean defect-class F of IT over C_s, bare rule and with the default size guard.
+
+    A diagnostic of how far the defaults sit from each set's own optimum; no default is
+    chosen from it (they come from ``tune`` on the DeepCrack training split only).
+    """
+    curves = _f_curves(samples)
+    hists = [histogram(s.grey) for s in samples]
+    i = np.arange(len(samples))
+    out: dict[str, dict[str, float]] = {"bare": {}, "guarded": {}}
+    for cs in SENS_GRID:
+        for key, mr in (("bare", 0.0), ("guarded", MIN_REGION_DEFAULT)):
+            ts = [iterative_threshold(hist=h, c_s=cs, min_region=mr).threshold + 1 for h in hists]
+            out[key][f"{cs:.3f}"] = float(curves[i, ts].mean())
+    return out
+
+
+def _print_sensitivity(res: dict[str, object]) -> None:
+    names = [n for n in SETS if n in res]
+    if not names:
+        return
+    print("\n### IT sensitivity to C_s (mean defect-class F, exact; diagnostic only, no choice "
+          f"is made here). bare = paper's stop rule only; guarded = min_region "
+          f"{MIN_REGION_DEFAULT}\n")
+    cols = [f"{n} {k}" for n in names for k in ("bare", "guarded")]
+    print("| C_s | " + " | ".join(cols) + " |\n" + "|---" * (len(cols) + 1) + "|")
+    for cs in SENS_GRID:
+        vals = [res[n]["it_sensitivity"][k][f"{cs:.3f}"]  # type: ignore[index]
+                for n in names for k in ("bare", "guarded")]
+        print(f"| {cs:.3f} | " + " | ".join(f"{v:.3f}" for v in vals) + " |")
 
 
 # ----------------------------------------------------------------------------------------- speed

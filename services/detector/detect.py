@@ -2,7 +2,9 @@
 
 Polarity: defects are darker than the background; a global method marks the pixels ``<= T``.
 Every method in :data:`METHODS` maps a grey ``uint8`` image (plus keyword parameters) to a
-binary mask (uint8 0/255) and its global threshold (``None`` for the local Sauvola).
+binary mask (uint8 0/255) and its global threshold (``None`` for the local Sauvola). ``"it"`` is
+the paper's IT with our size guard (the default, see :mod:`services.detector.iterative`);
+``"it-paper"`` is IT with the paper's bare stop rule and its own DeepCrack-chosen ``C_s``.
 
 Defects are the 8-connected components of the mask, each with its pixel area, bounding box,
 centroid and its interclass contrast (P19) against the local background: the non-defect pixels
@@ -18,7 +20,7 @@ import cv2
 import numpy as np
 
 from .improved import it_plus_mask, reduction_factor
-from .iterative import iterative_threshold
+from .iterative import C_S_UNGUARDED, iterative_threshold
 from .thresholds import (
     as_grey_u8,
     histogram,
@@ -53,6 +55,12 @@ def _it(grey: np.ndarray, **params: object) -> tuple[np.ndarray, int]:
     return mask_at(grey, t), t
 
 
+def _it_paper(grey: np.ndarray, **params: object) -> tuple[np.ndarray, int]:
+    """IT with the paper's bare stop rule only (``C_k > C_s``, no size guard), for comparison."""
+    kw: dict[str, object] = {"c_s": C_S_UNGUARDED, "min_region": 0.0, **params}
+    return _it(grey, **kw)
+
+
 def _sauvola(grey: np.ndarray, **params: object) -> tuple[np.ndarray, None]:
     t = threshold_sauvola(grey, **params)  # type: ignore[arg-type]
     return np.where(grey <= t, 255, 0).astype(np.uint8), None
@@ -66,6 +74,7 @@ METHODS: dict[str, MethodFn] = {
     "itth": _global(threshold_itth),
     "sdd": _global(threshold_sdd),
     "it": _it,
+    "it-paper": _it_paper,
     "it+": it_plus_mask,
 }
 

@@ -6,14 +6,15 @@ import cv2
 import numpy as np
 import pytest
 
-from services.detector.detect import METHODS, defects_of, detect
+from services.detector.detect import METHODS, defects_of, detect, mask_at
 from services.detector.improved import (
     it_plus_mask,
     reduction_factor,
     shape_filter,
     threshold_it_plus,
 )
-from services.detector.iterative import iterative_threshold
+from services.detector.iterative import C_S_UNGUARDED, iterative_threshold
+from services.detector.thresholds import histogram
 from services.detector.metrics import f_measure
 
 
@@ -25,7 +26,20 @@ def bar_image() -> np.ndarray:
 
 
 def test_registry_names_every_method():
-    assert set(METHODS) == {"otsu", "ve", "sauvola", "itth", "sdd", "it", "it+"}
+    assert set(METHODS) == {"otsu", "ve", "sauvola", "itth", "sdd", "it", "it-paper", "it+"}
+
+
+def test_it_paper_is_the_bare_stop_rule():
+    # a dark ramp: the guarded default stops on size, the bare rule runs on to its C_s
+    g = np.full((100, 100), 200, np.uint8)
+    g[:, :4] = np.arange(10, 90, 20, dtype=np.uint8)  # 4 columns of 10, 30, 50, 70
+    h = histogram(g)
+    bare = iterative_threshold(hist=h, c_s=C_S_UNGUARDED, min_region=0.0)
+    mask, t = METHODS["it-paper"](g)
+    assert t == bare.threshold and (mask == mask_at(g, t)).all()
+    assert METHODS["it"](g)[1] == iterative_threshold(hist=h).threshold
+    loose = iterative_threshold(hist=h, c_s=0.9, min_region=0).threshold
+    assert METHODS["it-paper"](g, c_s=0.9)[1] == loose
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
