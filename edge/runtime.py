@@ -23,6 +23,8 @@ from protocol.rtp import RtpSender, ssrc_for
 
 from .vehicle.driver import CaptureEvent, VehicleDriver
 
+#: frames each camera keeps for retransmission of frames lost on the way
+IMAGERY_CACHE_FRAMES = 32
 #: seed of the synthetic surface: one wall for the whole fleet, whatever the UAV
 SURFACE_SEED = 2024
 
@@ -83,7 +85,8 @@ class CameraLink:
 
         self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
         self.sender = RtpSender(ssrc_for(uav, 0))
-        self.pub = bus.publisher(keys.camera(bus.fleet, uav), IMAGERY)
+        # keep the last frames for retransmission to subscribers that ask (RTP NACK-like recovery)
+        self.pub = bus.publisher(keys.camera(bus.fleet, uav), IMAGERY, cache=IMAGERY_CACHE_FRAMES)
         self.encoder = FrameEncoder(self._publish, capacity=4, quality=quality)
         self.sent = 0
 

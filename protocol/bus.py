@@ -36,6 +36,9 @@ from .messages import ErrorReply, Message
 
 log = logging.getLogger("skynet.bus")
 
+#: period of the sequence-number heartbeat of publishers that keep a recovery cache, s
+RECOVERY_HEARTBEAT_S = 0.5
+
 Mode = Literal["peer", "client", "router"]
 
 
@@ -243,12 +246,21 @@ class Publisher:
     per-message cost of the bus layer to a couple of attribute updates.
     """
 
-    def __init__(self, bus: "Bus", key: str, link: LinkClass):
+    def __init__(self, bus: "Bus", key: str, link: LinkClass, cache: int | None = None):
         self.key = key
         self.link = link
         self.samples = 0
         self.bytes = 0
-        self._pub = bus.session.declare_publisher(key, **link.publisher_qos())
+        if cache:
+            # retransmission on request (RTP NACK-like): the last ``cache`` samples stay available to
+            # subscribers that declare recovery, and a heartbeat lets them notice a lost last sample
+            from zenoh import ext
+
+            self._pub = ext.declare_advanced_publisher(
+                bus.session, key, **link.publisher_qos(), cache=ext.CacheConfig(cache),
+                sample_miss_detection=ext.MissDetectionConfig(heartbeat=RECOVERY_HEARTBEAT_S, sporadic_heartbeat=None))
+        else:
+            self._pub = bus.session.declare_publisher(key, **link.publisher_qos())
         self._put = self._pub.put
         bus.counters.publishers.append(self)
 
@@ -308,8 +320,9 @@ class Bus:
         return self._closed
 
     # -- publish
-    def publisher(self, key: str, link: LinkClass) -> Publisher:
-        return Publisher(self, key, link)
+    def publisher(self, key: str, link: LinkClass, cache: int | None = None) -> Publisher:
+        """A publisher with the link class's QoS; ``cache=N`` keeps the last N samples for recovery."""
+        return Publisher(self, key, link, cache)
 
     # -- subscribe
     def _decode_or_count(self, key: str, data: bytes, expect: Any) -> Message | None:
@@ -343,9 +356,15 @@ class Bus:
         return self.subscribe_raw(key, handle, ring=ring)
 
     def subscribe_raw(
-        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None
+        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False
     ) -> Any:
-        """Subscribe to raw samples (e.g. RTP frames); the callback must not raise for bad input."""
+        """Subscribe to raw samples (e.g. RTP frames); the callback must not raise for bad input.
+
+        ``recover=True`` asks publishers that keep a cache (``publisher(..., cache=N)``) to
+        retransmit samples lost on the way; samples are then delivered in order, a gap holding
+        later ones back until it is recovered. What cannot be recovered is counted as
+        ``missed`` in :attr:`counters`.
+        """
         target = callback
         if ring is not None:
             r = Ring(ring, callback, name=f"ring:{key}")
@@ -361,7 +380,19 @@ class Bus:
                 if self.counters.reject(str(sample.key_expr), "handler-error"):
                     log.exception("%s: subscriber on %s failed", self.name, key)
 
-        sub = self.session.declare_subscriber(key, guarded)
+        if recover:
+            from zenoh import ext
+
+            sub = ext.declare_advanced_subscriber(self.session, key, guarded,
+                                                  recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None))
+
+            def on_miss(miss: Any) -> None:
+                with self.counters.lock:
+                    self.counters.dropped[f"missed:{key}"] += int(miss.nb)
+
+            self._entities.append(sub.sample_miss_listener(on_miss))
+        else:
+            sub = self.session.declare_subscriber(key, guarded)
         self._entities.append(sub)
         return sub
 

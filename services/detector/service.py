@@ -7,7 +7,9 @@ order go to a bounded drop-oldest queue served by a small worker pool that decod
 (:mod:`services.detector.pipeline`) and publishes a :class:`DefectReport` on
 ``skynet/<fleet>/rcu/detector/defects``. A slow frame never stalls the bus: when the pool falls
 behind, the oldest frames are dropped and counted. A frame that fails to decode is counted and
-reported (``ok=False``), never fatal. Statistics (RFC 3550 loss and jitter per camera, drops,
+reported (``ok=False``), never fatal. Frames lost on the way are asked for again from the
+cameras' caches (Zenoh's advanced subscriber recovery, the role RTP's NACKs play); what cannot be
+recovered is counted (``imagery.unrecovered``). Statistics (RFC 3550 loss and jitter per camera, drops,
 rejections) go out once a second on ``skynet/<fleet>/rcu/detector/stats``.
 
     skynet detector -m client -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
@@ -47,7 +49,8 @@ class DetectorService:
         self.work = Ring(queue, self._process, name="detector", workers=workers)
         self.pub = bus.publisher(keys.defects(bus.fleet), COMMAND)
         self.stats_pub = bus.publisher(keys.rcu_stats(bus.fleet, "detector"), TELEMETRY)
-        bus.subscribe_raw(keys.camera(bus.fleet, "*"), self._on_frame)
+        # recover=True: frames lost on a lossy link are retransmitted from the cameras' caches
+        bus.subscribe_raw(keys.camera(bus.fleet, "*"), self._on_frame, recover=True)
         bus.token(keys.rcu_alive(bus.fleet, "detector"))
         self._t0 = time.time()
 
@@ -106,6 +109,8 @@ class DetectorService:
                                 f"{p}.late": st.late, f"{p}.duplicated": st.duplicated,
                                 f"{p}.reordered": st.reordered, f"{p}.jitter_ms": 1000 * st.jitter_s,
                                 f"{p}.fraction_lost": st.fraction_lost})
+        missed = self.bus.counters.snapshot()["dropped"]
+        metrics["imagery.unrecovered"] = sum(v for k, v in missed.items() if k.startswith("missed:"))
         metrics["queue.dropped"] = self.work.dropped
         metrics["queue.processed"] = self.work.processed
         counts = dict(self.counts)
