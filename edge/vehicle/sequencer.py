@@ -103,7 +103,9 @@ class Mover:
         """Reference position and velocity at time ``t``, and whether the target is reached."""
         start, u, n, v = self.start, self._u, self._n, self.speed
         s = t - self.t0
-        s = v * s if s > 0.0 else 0.0
+        if s < 0.0:
+            return start, ZERO, n == 0.0
+        s *= v
         if s >= n:
             return (start[0] + u[0] * n, start[1] + u[1] * n, start[2] + u[2] * n), ZERO, True
         return (start[0] + u[0] * s, start[1] + u[1] * s, start[2] + u[2] * s), (u[0] * v, u[1] * v, u[2] * v), False
@@ -298,7 +300,6 @@ class MissionSequencer:
             self._mover = Mover(pos, f.start, self.transit_speed, t)
             return
         self._tau_paused = None
-        self._t_start = t - tau
         ref = f.reference(tau + f.t0)[0]
         if math.dist(pos, ref) > self.start_radius:
             self.phase = "transit_resume"
