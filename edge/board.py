@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol import keys
-from protocol.bus import Bus, Rejected, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
-from protocol.links import COMMAND, IMAGERY, TELEMETRY
+from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
     Box, CommandAck, Event, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
     Start, Takeoff, UploadTrajectory, VehicleState, COMMAND_TYPES,

@@ -15,7 +15,6 @@ world-from-camera, so a world point ``X`` is at ``R^T (X - C)`` in the camera fr
 from __future__ import annotations
 
 import collections
-import glob
 import math
 import os
 import threading

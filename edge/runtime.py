@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import time
 
 import numpy as np
 

@@ -7,7 +7,7 @@ import pytest
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import TELEMETRY
-from protocol.messages import (Box, CommandAck, Event, Hold, Mode, Takeoff, Trajectory, UploadTrajectory,
+from protocol.messages import (CommandAck, Event, Hold, Mode, Takeoff, Trajectory, UploadTrajectory,
                                VehicleState, Waypoint)
 from tests.conftest import spawn_node
 

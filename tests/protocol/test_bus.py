@@ -1,14 +1,11 @@
 """The bus layer across real processes through a real gateway router (no mock of the bus)."""
 
 import signal
-import threading
 import time
 
-import pytest
-import zenoh
 
 from protocol import keys
-from protocol.bus import Bus, BusConfig, Rejected
+from protocol.bus import Bus, BusConfig
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
 from protocol.messages import CommandAck, Hold, Land, Mode, VehicleState
 from tests.conftest import spawn_node
