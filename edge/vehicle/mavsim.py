@@ -37,10 +37,10 @@ What it does (MAVLink 2, system id = ``uav``, component 1, ``MAV_AUTOPILOT_ARDUP
 - :meth:`MavlinkSimVehicle.pilot_mode` flips the mode as the pilot's remote control would (the
   paper's emergency take-over), to test that the driver reports it and stops streaming.
 
-Hook into the simulator: :class:`SimDriver` has no public "external position reference", so a
-small subclass (:class:`GuidedSimDriver`) overrides its per-mode reference generator
-``_reference`` while in HOLD with a guided target; the rest of SimDriver (dynamics, control,
-takeoff, land, RTL) is used as is.
+Hook into the simulator: a guided target is a :class:`GuidedTarget` handed to
+:meth:`SimDriver.set_external_reference`, which the simulated vehicle flies while in HOLD; the rest
+of SimDriver (dynamics, control, takeoff, land, RTL) is used as is, and any of its mode-changing
+commands drops the target.
 """
 
 from __future__ import annotations
@@ -52,10 +52,12 @@ import signal
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from typing import Any
 
 from edge.clock import SimClock
 from edge.vehicle.driver import check_vec3
+from edge.vehicle.follower import Reference
 from edge.vehicle.mavlink import CopterMode, open_connection, wrap
 from edge.vehicle.quadrotor import DisturbanceParams
 from edge.vehicle.sim import SimDriver, SimParams
@@ -63,7 +65,7 @@ from protocol.messages import Mode
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-__all__ = ["GuidedSimDriver", "MavlinkSimVehicle", "GUIDED_TIMEOUT_S", "main"]
+__all__ = ["GuidedTarget", "MavlinkSimVehicle", "GUIDED_TIMEOUT_S", "main"]
 
 Vec3 = tuple[float, float, float]
 
@@ -83,30 +85,32 @@ _STREAM_IDS = {M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED", M.MAVL
 _ZERO: Vec3 = (0.0, 0.0, 0.0)
 
 
-class GuidedSimDriver(SimDriver):
-    """:class:`SimDriver` whose HOLD reference can be a moving guided target.
+@dataclass(frozen=True)
+class GuidedTarget:
+    """A guided position target, as ArduCopter's guided position/velocity/acceleration controller flies it.
 
-    ``target = (position, velocity, acceleration, yaw, t_set)`` (ENU m, m/s, m/s², rad, sim s) or
-    None (plain HOLD). The target moves on by constant-acceleration kinematics for
+    Position ``p``, velocity ``v``, acceleration ``a`` (ENU m, m/s, m/s²) and yaw (rad), set at
+    sim time ``t_set``. Called at time t it moves on by constant-acceleration kinematics for
     ``k = t − t_set``: ``p + v k + a k²/2``, velocity ``v + a k`` and acceleration ``a`` as
     feed-forward, until ``k`` reaches GUIDED_TIMEOUT_S; then the position stays and the
-    feed-forward is dropped (ArduCopter's guided position/velocity/acceleration controller).
+    feed-forward is dropped. Handed to :meth:`SimDriver.set_external_reference`.
     """
 
-    target: tuple[Vec3, Vec3, Vec3, float, float] | None = None
+    pos: Vec3
+    vel: Vec3
+    acc: Vec3
+    yaw: float
+    t_set: float
 
-    def _reference(self, t: float):  # type: ignore[override]
-        tg = self.target
-        if tg is None or self.mode != Mode.HOLD:
-            return super()._reference(t)
-        p, v, a, yaw, t_set = tg
-        age = t - t_set
+    def __call__(self, t: float) -> Reference:
+        p, v, a = self.pos, self.vel, self.acc
+        age = t - self.t_set
         k = min(max(age, 0.0), GUIDED_TIMEOUT_S)
         h = 0.5 * k * k
         pos = (p[0] + v[0] * k + a[0] * h, p[1] + v[1] * k + a[1] * h, p[2] + v[2] * k + a[2] * h)
         if age >= GUIDED_TIMEOUT_S:
-            return pos, _ZERO, _ZERO, yaw
-        return pos, (v[0] + a[0] * k, v[1] + a[1] * k, v[2] + a[2] * k), a, yaw
+            return pos, _ZERO, _ZERO, self.yaw
+        return pos, (v[0] + a[0] * k, v[1] + a[1] * k, v[2] + a[2] * k), a, self.yaw
 
 
 class MavlinkSimVehicle:
@@ -154,7 +158,7 @@ class MavlinkSimVehicle:
         self.uav = uav
         self.home = check_vec3(home, "home")
         self.clock = SimClock(epoch=epoch, speed=speed)
-        self.sim = GuidedSimDriver(uav, params=params, seed=seed, home=self.home, t0=self.clock.now())
+        self.sim = SimDriver(uav, params=params, seed=seed, home=self.home, t0=self.clock.now())
         self._t_boot = self.clock.now()
         self._conn = open_connection(connection, uav, M.MAV_COMP_ID_AUTOPILOT1)
         self.connection = connection
@@ -347,11 +351,10 @@ class MavlinkSimVehicle:
     def _hold_here(self) -> None:
         sim = self.sim
         if sim.mode != Mode.HOLD:
-            sim.hold()  # from TAKEOFF, MISSION, LAND, RTL: hold where it is
-            sim.target = None
+            sim.hold()  # from TAKEOFF, MISSION, LAND, RTL: hold where it is (drops a guided target)
         else:
             s = sim.state()
-            sim.target = (s.pos, _ZERO, _ZERO, s.att[2], sim.t)
+            sim.set_external_reference(GuidedTarget(s.pos, _ZERO, _ZERO, s.att[2], sim.t))
 
     def _set_mode(self, mode: float) -> int:
         try:
@@ -371,10 +374,8 @@ class MavlinkSimVehicle:
                     if m != self.custom_mode or m != CopterMode.GUIDED:
                         self._hold_here()
                 elif m == CopterMode.LAND:
-                    sim.target = None
                     sim.land()
                 elif m == CopterMode.RTL:
-                    sim.target = None
                     sim.return_to_launch()
             elif m == CopterMode.RTL:
                 self._text(M.MAV_SEVERITY_WARNING, "Mode change to RTL failed: not armed/flying")
@@ -409,7 +410,6 @@ class MavlinkSimVehicle:
             self._text(M.MAV_SEVERITY_WARNING, "Takeoff: needs GUIDED, armed, on the ground")
             return M.MAV_RESULT_FAILED
         try:
-            self.sim.target = None
             self.sim.takeoff(altitude)
         except ValueError as exc:
             self._text(M.MAV_SEVERITY_WARNING, f"Takeoff: {exc}"[:50])
@@ -438,7 +438,7 @@ class MavlinkSimVehicle:
         vel = (msg.vy, msg.vx, -msg.vz) if use_vel else _ZERO
         acc = (msg.afy, msg.afx, -msg.afz) if use_acc else _ZERO
         yaw = s.att[2] if mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE else wrap(math.pi / 2 - msg.yaw)
-        sim.target = (pos, vel, acc, yaw, sim.t)
+        sim.set_external_reference(GuidedTarget(pos, vel, acc, yaw, sim.t))
         self.targets_received += 1
 
 

@@ -362,3 +362,16 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
     finally:
         group.stop()
         veh.close()
+
+
+def test_guided_target_moves_on_then_stops_after_the_timeout():
+    from edge.vehicle.mavsim import GUIDED_TIMEOUT_S, GuidedTarget
+
+    g = GuidedTarget((1.0, 2.0, 3.0), (1.0, 0.0, -0.5), (0.0, 0.2, 0.0), 0.3, t_set=10.0)
+    assert g(9.0) == ((1.0, 2.0, 3.0), (1.0, 0.0, -0.5), (0.0, 0.2, 0.0), 0.3)  # not yet set: no motion
+    p, v, a, yaw = g(12.0)  # k = 2 s: p + v k + a k²/2, v + a k
+    assert p == pytest.approx((3.0, 2.4, 2.0)) and v == pytest.approx((1.0, 0.4, -0.5)) and a == (0.0, 0.2, 0.0)
+    p, v, a, yaw = g(10.0 + GUIDED_TIMEOUT_S + 5.0)  # timed out: the position stays, no feed-forward
+    k = GUIDED_TIMEOUT_S
+    assert p == pytest.approx((1.0 + k, 2.0 + 0.1 * k * k, 3.0 - 0.5 * k))
+    assert v == (0.0, 0.0, 0.0) and a == (0.0, 0.0, 0.0) and yaw == 0.3

@@ -240,3 +240,22 @@ def test_step_edge_cases_and_close():
 def test_bad_construction_raises(kw):
     with pytest.raises(ValueError):
         SimDriver(**kw)
+
+
+def test_external_reference_is_flown_in_hold_and_dropped_by_mode_changes():
+    d = airborne(params=SimParams())
+    target = (4.0, -3.0, 12.0)
+    d.set_external_reference(lambda t: (target, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.5))
+    d.step(d.t + 8.0)
+    s = d.state()
+    assert math.dist(s.pos, target) < 0.3 and s.att[2] == pytest.approx(0.5, abs=0.05)
+    d.land()  # a mode change drops the hook: after landing and a new takeoff it is not flown again
+    run_until(d, lambda d: d.mode == Mode.LANDED, 30)
+    ground = d.state().pos
+    d.takeoff(6.0)
+    run_until(d, lambda d: d.mode == Mode.HOLD, 20)
+    d.step(d.t + 3.0)
+    assert math.dist(d.state().pos, (ground[0], ground[1], 6.0)) < 0.5 and math.dist(ground[:2], target[:2]) < 0.5
+    with pytest.raises(ValueError, match="callable"):
+        d.set_external_reference((1.0, 2.0, 3.0))  # type: ignore[arg-type]
+    d.set_external_reference(None)
