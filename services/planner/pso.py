@@ -1,9 +1,10 @@
 """Conventional global-best PSO (Kennedy & Eberhart 1995; Shi & Eberhart 1998) on the box.
 
 The baseline of Table I, with the same settings as :func:`~services.planner.theta_pso.theta_pso`
-so that only the encoding differs: ``w`` from 0.9 to 0.4, ``c1 = c2 = 2.0``, ``r1, r2`` per
-particle per iteration, velocities starting at zero and clamped to half the box's extent (the
-counterpart of Δθ ∈ [−π/2, π/2], half of θ's range), positions clipped to the box.
+so that only the encoding differs: ``w`` from 0.7 to 0.3, ``c1 = c2 = 2.0``, ``r1, r2`` drawn
+per dimension, velocities starting at zero and clamped to ``vmax_fraction`` = 5 % of the box's
+extent — the counterpart of θ-PSO's |Δθ| ≤ 0.1 rad, since ``dx/dθ = (x_max − x_min)/2 · cos θ``
+is at most half the extent per radian — and positions clipped to the box.
 """
 
 from __future__ import annotations
@@ -22,10 +23,11 @@ def pso(
     x0: ArrayLike,
     iterations: int,
     rng: np.random.Generator,
-    w: tuple[float, float] = (0.9, 0.4),
+    w: tuple[float, float] = (0.7, 0.3),
     c1: float = 2.0,
     c2: float = 2.0,
-    per_dimension: bool = False,
+    per_dimension: bool = True,
+    vmax_fraction: float = 0.05,
 ) -> OptResult:
     """Minimise ``cost`` with gbest PSO from ``x0 (P, D)``; budget ``P (iterations + 1)``."""
     X = np.asarray(x0, float).copy()
@@ -33,7 +35,9 @@ def pso(
     D = X.shape[1]
     lo = np.tile(cost.problem.lo, D // 3)
     hi = np.tile(cost.problem.hi, D // 3)
-    vmax = 0.5 * (hi - lo)
+    if not 0.0 < vmax_fraction <= 1.0:
+        raise ValueError("vmax_fraction must be in (0, 1]")
+    vmax = vmax_fraction * (hi - lo)
     tr = Tracker("pso", P, P * (I + 1))
     V = np.zeros_like(X)
     f = cost(X)
