@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "DEFAULT_OFFSETS",
+    "offsets_for",
     "MAX_CORRECTION_M",
     "rotation_of",
     "errors_in_formation",
@@ -46,6 +47,22 @@ DEFAULT_OFFSETS.setflags(write=False)
 
 #: Default bound on the on-board formation correction, metres (our choice; the paper is silent).
 MAX_CORRECTION_M = 3.0
+
+
+def offsets_for(n: int) -> NDArray[np.float64]:
+    """Offsets ΔT_n for a formation of ``n`` UAVs (P9): the paper's triangle for the first three,
+    then further slots 3 m apart along travel on the same two rows (z = +2 and z = -1 m):
+    (3, 0, 2), (-3, 0, 2), (6, 0, -1), (-6, 0, -1), (6, 0, 2), ... so every pair stays at least
+    3 m apart. Row n-1 is UAV n.
+    """
+    if not isinstance(n, (int, np.integer)) or not 1 <= n <= 255:
+        raise ValueError(f"formation size must be an int in 1..255, got {n!r}")
+    rows = [tuple(o) for o in DEFAULT_OFFSETS]
+    k = 1
+    while len(rows) < n:
+        rows += [(3.0 * k, 0.0, 2.0), (-3.0 * k, 0.0, 2.0), (3.0 * (k + 1), 0.0, -1.0), (-3.0 * (k + 1), 0.0, -1.0)]
+        k += 1
+    return np.array(rows[:n], dtype=float)
 
 
 def _finite(a: ArrayLike, name: str) -> NDArray[np.float64]:

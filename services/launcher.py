@@ -75,7 +75,7 @@ class Network:
 
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9)."""
-        from edge.formation import DEFAULT_OFFSETS, rotation_of
+        from edge.formation import offsets_for, rotation_of
         from services.gcs.cli import load_scenario_doc
 
         sc = load_scenario_doc(self.args.scenario)
@@ -84,8 +84,7 @@ class Network:
         R = rotation_of(0.0, 0.0, yaw)
         ground = sc["box"]["lo"][2]
         out = []
-        for i in range(n):
-            off = DEFAULT_OFFSETS[i % len(DEFAULT_OFFSETS)] * (1 + i // len(DEFAULT_OFFSETS))
+        for off in offsets_for(n):
             p = (R @ off)[:2]
             out.append((round(start[0] + p[0], 3), round(start[1] + p[1], 3), ground))
         return out

@@ -29,7 +29,7 @@ def load_scenario_doc(path: str | None) -> dict:
 def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
                 abort=None) -> int:
     display = None if quiet else LiveDisplay()
-    offsets = {i + 1: tuple(o) for i, o in enumerate(formation.DEFAULT_OFFSETS)}
+    offsets = {i + 1: tuple(o) for i, o in enumerate(formation.offsets_for(len(options.uavs)))}
     t_start = time.time()
 
     def progress(runner: MissionRunner, force: bool = False) -> None:

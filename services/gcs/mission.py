@@ -19,13 +19,30 @@ from protocol import keys
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
-    CommandAck, DefectReport, Event, Heartbeat, Land, LinkStats, MissionPlan, Mode, PlanRequest, Start, Takeoff,
+    CommandAck, DefectReport, Event, Heartbeat, Land, LinkStats, MissionPlan, Mode, PlanRequest, SetFormation, Start, Takeoff,
     UploadTrajectory, VehicleState,
 )
 
 from .record import CommandRecord, DefectRx, EventRx, MissionRecord, StateRx, StatsRx
 
 GOAL_TOLERANCE_M = 2.0
+
+
+def with_formation_size(scenario: dict, n: int, log=None) -> dict:
+    """The scenario with one formation offset per UAV of the mission (P9).
+
+    A scenario written for three UAVs flown with two or five gets the offsets of
+    :func:`edge.formation.offsets_for`, so the planner plans a trajectory for every UAV present.
+    """
+    offsets = scenario.get("formation", {}).get("offsets")
+    if offsets is not None and len(offsets) == n:
+        return scenario
+    from edge.formation import offsets_for
+
+    new = [list(map(float, o)) for o in offsets_for(n)]
+    if log:
+        log.info("formation of %d UAVs: offsets %s", n, new)
+    return {**scenario, "formation": {**scenario.get("formation", {}), "offsets": new}}
 
 
 class MissionFailed(Exception):
@@ -58,6 +75,7 @@ class MissionRunner:
                  abort: threading.Event | None = None):
         self.bus, self.opt, self.log = bus, options, log
         self.abort = abort or threading.Event()
+        scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
         self.record = MissionRecord(fleet=bus.fleet, scenario=scenario, speed=options.speed, started=time.time())
         self.latest: dict[int, VehicleState] = {}
@@ -210,6 +228,8 @@ class MissionRunner:
             traj = {t.uav: t for t in plan.trajectories}
             self.command_all(lambda u, cid: UploadTrajectory(uav=u, cmd_id=cid, trajectory=traj[u],
                                                              geofence=plan.geofence), "its trajectory upload")
+            offsets = {u: tuple(map(float, o)) for u, o in zip(self.opt.uavs, self.record.scenario["formation"]["offsets"])}
+            self.command_all(lambda u, cid: SetFormation(uav=u, cmd_id=cid, offsets=offsets), "the formation")
             self.phase("takeoff")
             self.command_all(lambda u, cid: Takeoff(uav=u, cmd_id=cid, altitude=self.takeoff_altitude(u)), "takeoff")
             self.wait_for(lambda: all(self.modes().get(u) == Mode.HOLD for u in self.opt.uavs),

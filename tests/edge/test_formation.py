@@ -254,3 +254,17 @@ def test_formation_keeping_reduces_shape_error_when_one_uav_lags():
     kept = _fly_formation(keep=True)
     assert free > 2.0  # UAV 3 really lags (6 m behind its slot)
     assert kept < 0.85 * free
+
+
+def test_offsets_for_any_fleet_size_keep_three_metres_apart():
+    from edge.formation import offsets_for
+
+    np.testing.assert_array_equal(offsets_for(3), DEFAULT_OFFSETS)
+    np.testing.assert_array_equal(offsets_for(2), DEFAULT_OFFSETS[:2])
+    for n in (1, 4, 7, 12):
+        o = offsets_for(n)
+        assert o.shape == (n, 3)
+        d = np.linalg.norm(o[:, None] - o[None], axis=-1) + np.eye(n) * 99
+        assert d.min() >= 3.0 - 1e-9
+    with pytest.raises(ValueError):
+        offsets_for(0)

@@ -57,3 +57,14 @@ def test_a_uav_that_refuses_its_upload_fails_the_mission(group, gateway, planner
     assert refused and refused[0].ok and not refused[0].accepted
     assert not any(c.kind == "takeoff" for c in record.commands)
     assert fenced.alive()
+
+
+def test_scenario_formation_follows_the_number_of_uavs():
+    from services.gcs.mission import with_formation_size
+
+    doc = load_scenario_doc(None)
+    assert with_formation_size(doc, 3) is doc
+    two = with_formation_size(doc, 2)
+    assert two["formation"]["offsets"] == [[0.0, 0.0, 2.0], [3.0, 0.0, -1.0]]
+    assert len(with_formation_size(doc, 5)["formation"]["offsets"]) == 5
+    assert len(doc["formation"]["offsets"]) == 3  # the caller's document is not changed
