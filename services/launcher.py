@@ -172,7 +172,8 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop) -> int:
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                                  speed=args.speed)
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
-            code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop)
+            code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
+                               ground_truth=args.camera == "synthetic")
     finally:
         net.stop()
         log_file.close()

@@ -27,7 +27,8 @@ def load_scenario_doc(path: str | None) -> dict:
 
 
 def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None) -> int:
+                abort=None, ground_truth: bool = True) -> int:
+    """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall."""
     display = None if quiet else LiveDisplay()
     offsets = {i + 1: tuple(o) for i, o in enumerate(formation.offsets_for(len(options.uavs)))}
     t_start = time.time()
@@ -57,7 +58,8 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
         root.handlers = saved
     from services.gcs.ground_truth import attach_ground_truth
 
-    attach_ground_truth(record)
+    if ground_truth:
+        attach_ground_truth(record)
     if out:
         from .report import write_report
 
@@ -86,6 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", default=None, help="report folder")
     m.add_argument("--quiet", action="store_true")
     m.add_argument("--appear-timeout", type=float, default=30.0)
+    m.add_argument("--no-ground-truth", action="store_true",
+                   help="the edges do not image the synthetic wall (real cameras, image folders): no defect scoring")
     return parser
 
 
@@ -97,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="gcs") as bus:
-        return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort)
+        return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
+                           ground_truth=not args.no_ground_truth)
 
 
 if __name__ == "__main__":

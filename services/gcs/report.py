@@ -1111,7 +1111,11 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
            + (f" ({100 * c.ratio:.1f} %)" if c.ratio is not None else "")
            + f"; failed reports: {c.failed_reports}; reports for unplanned captures: {c.unplanned_reports}.", ""]
     d = s.defects
-    if d is not None:
+    if d is not None and d.n_truth == 0:
+        md += [f"No ground truth for this run (real or replayed imagery): {d.n_reported + d.without_pos} defects "
+               f"reported, {d.without_pos} of them without a surface position; recall and precision are not "
+               "defined.", ""]
+    elif d is not None:
         md += [_table(["ground-truth cracks", "found", "reported positions", "on a crack", "without position",
                        "recall", "precision", "F (P20, objects)"],
                       [[d.n_truth, d.n_found, d.n_reported, d.n_true, d.without_pos, _fmt(d.recall), _fmt(d.precision),
