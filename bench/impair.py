@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import tempfile
-import time
 from pathlib import Path
+
+from mission import find, run, write_rows  # bench/mission.py: one mission run and its report
 
 CASES = [
     ("clean", []),
@@ -28,14 +27,6 @@ CASES = [
 ]
 
 
-def g(d: dict, *path, default=float("nan")):
-    for p in path:
-        if not isinstance(d, dict) or p not in d:
-            return default
-        d = d[p]
-    return d
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--speed", type=float, default=6.0)
@@ -44,16 +35,17 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, impair in CASES:
-            out = Path(tmp) / f"case{len(rows)}"
-            cmd = [sys.executable, "-m", "services.cli", "mission", "--quiet", "--speed", str(args.speed),
-                   "--out", str(out), *[a for spec in impair for a in ("--impair", spec)]]
-            t0 = time.perf_counter()
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
-            rep = json.loads((out / "report.json").read_text()) if (out / "report.json").exists() else {}
+            r = run(args.speed, Path(tmp) / f"case{len(rows)}", [a for spec in impair for a in ("--impair", spec)])
+            rep = r["report"]
             links = rep.get("links", {})
+            nan = float("nan")
+
+            def g(d: dict, *path):
+                return find(d, *path, default=nan)
+
             row = {
-                "case": name, "impair": impair, "exit": proc.returncode, "success": rep.get("success"),
-                "wall_s": time.perf_counter() - t0, "failures": rep.get("failures", []),
+                "case": name, "impair": impair, "exit": r["exit"], "success": rep.get("success"),
+                "wall_s": r["wall_s"], "failures": rep.get("failures", []),
                 "imagery_delivered": g(links, "imagery", "delivered"), "imagery_sent": g(links, "imagery", "sent"),
                 "capture_to_report_p50_ms": g(links, "imagery", "capture_to_report_ms", "p50"),
                 "capture_to_report_p95_ms": g(links, "imagery", "capture_to_report_ms", "p95"),
@@ -72,10 +64,7 @@ def main() -> None:
         print(f"| {r['case']} | {r['success']} | {r['captures']} | {r['capture_to_report_p50_ms']:.1f} / "
               f"{r['capture_to_report_p95_ms']:.1f} | {r['telemetry_age_p95_ms']:.1f} | {r['ack_p95_ms']:.1f} | "
               f"{r['formation_rms_m']:.2f} | {r['recall']:.2f} |")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(rows, indent=2))
-    print(f"wrote {out}")
+    write_rows(rows, args.out)
 
 
 if __name__ == "__main__":

@@ -29,15 +29,23 @@ def find(d: dict, *path: str, default=None):
     return d
 
 
-def run(speed: float, workdir: Path) -> dict:
-    out = workdir / f"speed-{speed:g}"
+def run(speed: float, out: Path, extra: list[str] | None = None) -> dict:
+    """One ``skynet mission`` into ``out``: exit status, wall time, its report.json and the output's tail."""
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "services.cli", "mission", "--speed", str(speed), "--quiet",
-                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                             "--out", str(out), *(extra or [])], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
     output, _ = proc.communicate()  # reaps the launcher: its and its services' CPU go to os.times().children_*
     wall = time.perf_counter() - t0
     report = json.loads((out / "report.json").read_text()) if (out / "report.json").exists() else {}
     return {"speed": speed, "exit": proc.returncode, "wall_s": wall, "report": report, "tail": output[-2000:]}
+
+
+def write_rows(rows: list[dict], path: str) -> None:
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(rows, indent=2))
+    print(f"wrote {out}")
 
 
 def main() -> None:
@@ -49,7 +57,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for speed in args.speeds:
             before = os.times()
-            r = run(speed, Path(tmp))
+            r = run(speed, Path(tmp) / f"speed-{speed:g}")
             after = os.times()
             cpu = (after.children_user - before.children_user) + (after.children_system - before.children_system)
             rep = r["report"]
@@ -72,10 +80,7 @@ def main() -> None:
         print(f"| x{r['speed']:g} | {r['success']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
               f"{c.get('p50', float('nan')):.1f} / {c.get('p95', float('nan')):.1f} | "
               f"{a.get('p50', float('nan')):.1f} / {a.get('p95', float('nan')):.1f} |")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(rows, indent=2))
-    print(f"wrote {out}")
+    write_rows(rows, args.out)
 
 
 if __name__ == "__main__":
