@@ -15,6 +15,8 @@ Layout (DESIGN.md, "Key space")::
     skynet/<fleet>/rcu/<name>/event     events of a remote computational unit
     skynet/<fleet>/rcu/<name>/stats     statistics of a remote computational unit (LinkStats)
     skynet/<fleet>/gateway/<id>/stats   the gateway's link statistics
+    <key>/@adv/**                       what zenoh.ext's advanced publisher on <key> adds (sequence-number
+                                        heartbeats, its cache queryable); see :func:`advanced`
 
 Fleet names and service names are single chunks of ``[A-Za-z0-9_-]``; UAV ids are 1..255.
 """
@@ -119,7 +121,21 @@ def all_events(fleet: str) -> str:
 
 
 def fleet_all(fleet: str) -> str:
+    """Every key of the fleet (``**`` does not match ``@``-chunks: see :func:`advanced`)."""
     return f"{fleet_root(fleet)}/**"
+
+
+def advanced(key: str) -> str:
+    """``<key>/@adv/**``: the keys zenoh.ext's advanced publisher and subscriber use beside ``key``.
+
+    A publisher with a recovery cache (``Bus.publisher(..., cache=N)``) puts its sequence-number
+    heartbeats on ``<key>/@adv/pub/<zid>/<eid>/_`` and answers recovery queries there. ``@adv`` is
+    a verbatim chunk that no wildcard matches, so access-control rules must name it. ``key`` may be
+    a wildcard form such as ``camera(fleet, "*")``.
+    """
+    if not isinstance(key, str) or not key.startswith(f"{ROOT}/") or "@" in key or key.endswith("**"):
+        raise KeyError_(f"advanced() wants a SkyNet key without '@' or a trailing '**', got {key!r}")
+    return f"{key}/@adv/**"
 
 
 @dataclass(frozen=True)

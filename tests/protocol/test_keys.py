@@ -39,6 +39,14 @@ def test_builders_reject_bad_chunks(fleet, uav):
         keys.state(fleet, uav)
 
 
+def test_advanced_names_the_recovery_keys_of_a_key():
+    assert keys.advanced(keys.camera("f", "*")) == "skynet/f/uav/*/camera/@adv/**"
+    assert keys.advanced(keys.camera("f", 2)) == "skynet/f/uav/2/camera/@adv/**"
+    for bad in ("other/f/x", keys.fleet_all("f"), "skynet/f/uav/1/camera/@adv/**", 3):
+        with pytest.raises(keys.KeyError_):
+            keys.advanced(bad)
+
+
 def test_topics_map_to_link_classes():
     assert class_of_topic("state") is TELEMETRY
     assert class_of_topic("camera") is IMAGERY
