@@ -21,6 +21,7 @@ import argparse
 import collections
 import json
 import logging
+import os
 import signal
 import threading
 import time
@@ -28,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Literal, Sequence
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, SecretStr
 
 from . import codec
 from .links import COMMAND, LinkClass
@@ -40,6 +41,8 @@ log = logging.getLogger("skynet.bus")
 RECOVERY_HEARTBEAT_S = 0.5
 
 Mode = Literal["peer", "client", "router"]
+#: environment variable read for the password when ``--user`` is given without ``--password``
+PASSWORD_ENV = "SKYNET_PASSWORD"
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -57,6 +60,8 @@ class BusConfig(BaseModel):
     shared_memory: bool = False
     multilink: bool = False
     connect_timeout_s: float = Field(default=10.0, ge=0.0, le=3600.0)
+    user: str | None = Field(default=None, description="transport/auth/usrpwd/user")
+    password: SecretStr | None = Field(default=None, description="transport/auth/usrpwd/password; never shown")
 
     def to_zenoh(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
@@ -82,6 +87,13 @@ class BusConfig(BaseModel):
             put("transport/unicast/max_links", 2)
         if self.mode == "client":
             put("connect/timeout_ms", int(self.connect_timeout_s * 1000))
+        if self.user is not None or self.password is not None:
+            if self.user is None or self.password is None:
+                raise ValueError(f"user/password authentication needs both a user and a password "
+                                 f"(--user, and --password or {PASSWORD_ENV})")
+            # path by path, so that a dictionary_file from config_file stays
+            put("transport/auth/usrpwd/user", self.user)
+            put("transport/auth/usrpwd/password", self.password.get_secret_value())
         return conf
 
 
@@ -102,13 +114,17 @@ def add_bus_args(parser: argparse.ArgumentParser, mode: Mode = "peer") -> None:
     g.add_argument("--multilink", action="store_true", help="reliable on TCP, best-effort on UDP")
     g.add_argument("--shm", action="store_true", help="enable shared-memory transport")
     g.add_argument("--scouting", action="store_true", help="enable multicast scouting")
+    g.add_argument("--user", default=None, help="user name for the gateway's user/password authentication")
+    g.add_argument("--password", default=None, help=f"its password (or set {PASSWORD_ENV})")
 
 
 def config_from_args(args: argparse.Namespace, **overrides: Any) -> BusConfig:
+    user = getattr(args, "user", None)
     values = dict(
         mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config,
         lease_s=args.lease, multilink=args.multilink, shared_memory=args.shm,
-        multicast_scouting=args.scouting,
+        multicast_scouting=args.scouting, user=user,
+        password=getattr(args, "password", None) or (os.environ.get(PASSWORD_ENV) if user else None),
     )
     values.update({k: v for k, v in overrides.items() if v is not None})
     return BusConfig(**values)

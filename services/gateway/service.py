@@ -7,18 +7,46 @@ connected sessions by kind and samples/bytes per link class seen on the fleet's 
 
     skynet gateway --listen tcp/0.0.0.0:7447?rel=1 --listen udp/0.0.0.0:7448?rel=0
     skynet gateway --port 7447           # the same, TCP on 7447 and UDP on 7448
+
+Authentication and access control (off by default): ``--users FILE`` (lines ``user:password``)
+makes every node that connects present one of those users (``--user``, and ``--password`` or
+``SKYNET_PASSWORD``); ``--acl`` adds the role rules of :mod:`services.gateway.acl` (default deny),
+roles from ``--roles FILE`` (lines ``user:role``) or from the user names (``uav1``..``uav255``,
+``gcs``, ``planner``, ``detector``, ``gateway``).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from collections import Counter
+from typing import Any
+
+import zenoh
 
 from protocol import keys
-from protocol.bus import Bus, add_bus_args, config_from_args, multilink_endpoints, setup_logging, stop_event_on_signals
+from protocol.bus import (Bus, BusConfig, add_bus_args, config_from_args, multilink_endpoints, setup_logging,
+                          stop_event_on_signals)
 from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
 from protocol.messages import ClassCounters, LinkStats
+
+from . import acl
+
+
+class GatewayConfig(BusConfig):
+    """The router's session config: a :class:`BusConfig` plus the users dictionary and the ACL."""
+
+    dictionary_file: str | None = None
+    access_control: dict[str, Any] | None = None
+
+    def to_zenoh(self) -> zenoh.Config:
+        conf = super().to_zenoh()
+        if self.dictionary_file:
+            conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(self.dictionary_file))
+        if self.access_control is not None:
+            conf.insert_json5("access_control", json.dumps(self.access_control))
+        return conf
 
 
 class TrafficMeter:
@@ -57,7 +85,43 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--host", default="127.0.0.1", help="listen host when --port is used")
     parser.add_argument("--port", type=int, default=None, help="TCP port; UDP uses port+1 (multilink)")
     parser.add_argument("--period", type=float, default=1.0, help="statistics period, s")
+    sec = parser.add_argument_group("authentication and access control")
+    sec.add_argument("--users", default=None, metavar="FILE",
+                     help="user/password authentication: every node must present a user of FILE (lines user:password)")
+    sec.add_argument("--acl", action="store_true", help="enforce the role rules (needs --users); default deny")
+    sec.add_argument("--roles", default=None, metavar="FILE",
+                     help="lines user:role (uavN, gcs, planner, detector, gateway); else the role comes from the name")
     return parser
+
+
+def security_options(args: argparse.Namespace, log=None) -> dict[str, Any]:
+    """``dictionary_file`` and ``access_control`` for :class:`GatewayConfig` from the options.
+
+    Raises ValueError for a malformed users or roles file, or ``--acl``/``--roles`` without
+    ``--users`` (the rules name users).
+    """
+    if not args.users:
+        if args.acl or args.roles:
+            raise ValueError("--acl and --roles need --users (the rules name authenticated users)")
+        return {}
+    users = acl.read_users(args.users)
+    out: dict[str, Any] = {"dictionary_file": str(args.users)}
+    if log:
+        log.info("authentication on: %d users", len(users))
+    if args.roles and not args.acl:
+        raise ValueError("--roles needs --acl")
+    if args.acl:
+        roles = acl.read_roles(args.roles) if args.roles else {}
+        unknown = sorted(set(roles) - set(users))
+        if unknown:
+            raise ValueError(f"roles file names users that are not in the users file: {', '.join(unknown)}")
+        principals, unassigned = acl.assign_roles(users, roles)
+        out["access_control"] = acl.access_control(args.fleet, principals)
+        if log:
+            log.info("access control on (default deny): %s", ", ".join(f"{p.user}={p.subject}" for p in principals))
+            if unassigned:
+                log.warning("users without a role (denied everything): %s", ", ".join(unassigned))
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     if not listen and not args.config:
         listen = multilink_endpoints(args.host, 7447, 7448)
         multilink = True
-    config = config_from_args(args, listen=listen, multilink=multilink)
+    base = config_from_args(args, listen=listen, multilink=multilink)
+    config = GatewayConfig(**dict(base), **security_options(args, log))
     stop = stop_event_on_signals()
     meter = TrafficMeter()
     with Bus(config, fleet=args.fleet, name="gateway") as bus:

@@ -1,0 +1,300 @@
+"""Who may say what at the gateway: users, roles and the Zenoh ``access_control`` rules.
+
+Pure: builds plain dictionaries for the router's configuration from the key space
+(:mod:`protocol.keys`) and a fleet name; no Zenoh session here. The gateway
+(:mod:`services.gateway.service`) puts the result under ``access_control`` and the users file
+under ``transport/auth/usrpwd/dictionary_file`` (ZENOH.md, "Authentication and access control").
+
+Roles (DESIGN.md, "The network" and "Data flow of a mission"; ``F`` is the fleet):
+
+==========  =====================================================================================
+role        may (everything else is denied: ``default_permission: deny``)
+==========  =====================================================================================
+uav N       put its own ``state``, ``event``, ``camera`` (and the camera's recovery heartbeats);
+            declare and answer its own ``cmd`` queryable and the camera's recovery cache;
+            its own ``alive`` token; receive every UAV's state, the GCS heartbeat and every
+            UAV's ``alive`` token. It may not query anything.
+gcs         put the heartbeat and GCS events; query every UAV's ``cmd`` and the planner;
+            receive everything of the fleet (states, events, defects, statistics, tokens).
+planner     declare and answer the planner queryable; its token, events and statistics.
+detector    receive the cameras and query their recovery caches; put defect reports,
+            its statistics and events; its token.
+gateway     another gateway (router) relaying this fleet: everything of the fleet.
+==========  =====================================================================================
+
+Every role may also be *told* of subscribers, queryables and liveliness interests anywhere in
+the fleet (egress declarations): a declaration carries no data, and a publisher that is not told
+of a matching subscriber would not send at all. The data itself is checked both ways.
+
+The rules are per UAV: user ``uav3`` gets a subject of its own whose rules name
+``skynet/F/uav/3/...``, so one UAV cannot publish another's state or answer its commands through
+the gateway. The gateway's own session (its statistics, its traffic meter) is inside the router
+and is not filtered. Links that the UAV peers open directly to each other (SkyNet) do not pass
+through the router and are not filtered either: the UAV mesh is trusted.
+
+Zenoh matches a message against a rule when the rule's key expression *includes* the message's
+(a subscriber on ``skynet/F/**/event`` needs a rule on ``skynet/F/**``), and ``**`` does not match
+``@``-chunks, hence :func:`protocol.keys.advanced` for the recovery keys.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, Iterable, Mapping, NamedTuple
+
+from protocol import keys
+
+ROLES = ("uav", "gcs", "planner", "detector", "gateway")
+#: the message kinds of Zenoh's ACL (zenoh 1.x ``AclMessage``)
+MESSAGES = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable", "liveliness_token",
+            "liveliness_query", "declare_liveliness_subscriber")
+_USER = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_UAV_NAME = re.compile(r"^uav([0-9]{1,3})$")
+_ROLE_NAME = re.compile(r"^(gcs|planner|detector|gateway)([0-9]*|[-_.][A-Za-z0-9_.-]*)$")
+#: characters a password may not contain (the dictionary file is ``user:password`` per line)
+_PASSWORD_BAD = re.compile(r"[\s:;=#]")
+
+
+class Principal(NamedTuple):
+    """A user name and the role it speaks for; ``uav`` is the UAV id for the ``uav`` role."""
+
+    user: str
+    role: str
+    uav: int | None = None
+
+    @property
+    def subject(self) -> str:
+        """The ACL subject it belongs to: one per UAV id, one per other role."""
+        return f"uav{self.uav}" if self.role == "uav" else self.role
+
+
+class Grant(NamedTuple):
+    """Messages allowed in one direction on some key expressions (one ACL rule)."""
+
+    flow: str  # "ingress": from the node into the router; "egress": from the router to the node
+    messages: tuple[str, ...]
+    key_exprs: tuple[str, ...]
+
+
+# ----------------------------------------------------------------------------- users and roles
+def check_user(user: str) -> str:
+    if not isinstance(user, str) or not _USER.match(user):
+        raise ValueError(f"user name must match [A-Za-z0-9_.-]{{1,64}}, got {user!r}")
+    return user
+
+
+def check_password(password: str) -> str:
+    if not isinstance(password, str) or not password or len(password) > 256 or _PASSWORD_BAD.search(password):
+        raise ValueError("password must be 1..256 characters without whitespace, ':', ';', '=' or '#'")
+    return password
+
+
+def _lines(text: str) -> Iterable[tuple[int, str]]:
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.strip()
+        if line and not line.startswith("#"):
+            yield n, line
+
+
+def parse_users(text: str) -> dict[str, str]:
+    """Parse a users file into ``{user: password}``: one ``user:password`` per line; blank lines
+    and ``#`` comments skipped.
+
+    Raises ValueError naming the line for a malformed line, a bad name or password, or a
+    duplicate user (the message never contains a password).
+    """
+    out: dict[str, str] = {}
+    for n, line in _lines(text):
+        user, sep, password = line.partition(":")
+        if not sep:
+            raise ValueError(f"users file line {n}: expected user:password")
+        try:
+            check_user(user)
+            check_password(password)
+        except ValueError as exc:
+            raise ValueError(f"users file line {n}: {exc}") from None
+        if user in out:
+            raise ValueError(f"users file line {n}: user {user!r} defined twice")
+        out[user] = password
+    if not out:
+        raise ValueError("users file defines no user")
+    return out
+
+
+def read_users(path: str | Path) -> dict[str, str]:
+    return parse_users(Path(path).read_text())
+
+
+def role_of(user: str, role: str | None = None) -> Principal:
+    """The principal of ``user``: from an explicit ``role`` or from the user name.
+
+    ``role`` is ``uavN`` (N in 1..255), ``gcs``, ``planner``, ``detector`` or ``gateway``. Without
+    it the name decides: ``uav1``..``uav255`` are UAVs, and ``gcs``, ``planner``, ``detector``,
+    ``gateway``, optionally followed by digits or by ``-``/``_``/``.`` and more (``gcs2``,
+    ``detector-b``), are those roles. Raises ValueError when neither gives a role.
+    """
+    check_user(user)
+    text = user if role is None else role.strip()
+    m = _UAV_NAME.match(text)
+    if m:
+        uav = int(m.group(1))
+        if not 1 <= uav <= 255:
+            raise ValueError(f"{user!r}: UAV id must be in 1..255, got {uav}")
+        return Principal(user, "uav", uav)
+    if role is not None:
+        if text in ROLES and text != "uav":
+            return Principal(user, text)
+        raise ValueError(f"{user!r}: unknown role {role!r}; expected uavN (1..255), gcs, planner, detector or gateway")
+    m = _ROLE_NAME.match(text)
+    if m:
+        return Principal(user, m.group(1))
+    raise ValueError(f"no role for user {user!r}: name it uavN, gcs, planner, detector or gateway, "
+                     "or give it a role in the roles file")
+
+
+def parse_roles(text: str) -> dict[str, Principal]:
+    """Parse a roles file: one ``user:role`` per line (role as in :func:`role_of`)."""
+    out: dict[str, Principal] = {}
+    for n, line in _lines(text):
+        user, sep, role = line.partition(":")
+        if not sep:
+            raise ValueError(f"roles file line {n}: expected user:role")
+        try:
+            out[user.strip()] = role_of(user.strip(), role)
+        except ValueError as exc:
+            raise ValueError(f"roles file line {n}: {exc}") from None
+    return out
+
+
+def read_roles(path: str | Path) -> dict[str, Principal]:
+    return parse_roles(Path(path).read_text())
+
+
+def assign_roles(users: Iterable[str], roles: Mapping[str, Principal] | None = None
+                 ) -> tuple[list[Principal], list[str]]:
+    """Principals of ``users`` (roles file first, then the name) and the users left without a role.
+
+    A user without a role may still connect (authentication) but is denied everything.
+    """
+    roles = roles or {}
+    found, unassigned = [], []
+    for user in users:
+        if user in roles:
+            found.append(roles[user])
+            continue
+        try:
+            found.append(role_of(user))
+        except ValueError:
+            unassigned.append(user)
+    return found, unassigned
+
+
+# ----------------------------------------------------------------------------- rules
+_INTEREST = ("declare_subscriber", "declare_queryable", "declare_liveliness_subscriber", "liveliness_query")
+
+
+def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
+    """What ``role`` may say (ingress) and hear (egress) in ``fleet``; see the module table."""
+    cam_all = keys.camera(fleet, "*")
+    interest = Grant("egress", _INTEREST, (keys.fleet_all(fleet), keys.advanced(cam_all)))
+    if role == "uav":
+        if uav is None:
+            raise ValueError("the uav role needs a UAV id")
+        cam = keys.camera(fleet, uav)
+        return [
+            Grant("ingress", ("put",), (keys.state(fleet, uav), keys.event(fleet, uav), cam, keys.advanced(cam))),
+            Grant("ingress", ("declare_queryable",), (keys.cmd(fleet, uav), keys.advanced(cam))),
+            Grant("ingress", ("reply",), (keys.cmd(fleet, uav), cam, keys.advanced(cam))),
+            Grant("ingress", ("liveliness_token",), (keys.alive(fleet, uav),)),
+            Grant("ingress", ("declare_subscriber",), (keys.state(fleet, "*"), keys.heartbeat(fleet))),
+            Grant("ingress", ("declare_liveliness_subscriber", "liveliness_query"), (keys.alive(fleet, "*"),)),
+            Grant("egress", ("put",), (keys.state(fleet, "*"), keys.heartbeat(fleet))),
+            # the detector's recovery queries name every camera (``uav/*/camera/@adv/*/<zid>/<eid>/**``,
+            # from its subscription to all cameras), which no per-UAV key includes: a UAV may be *asked*
+            # on every camera's recovery keys, and may only *answer* with its own camera's frames
+            Grant("egress", ("query",), (keys.cmd(fleet, uav), keys.advanced(cam_all))),
+            Grant("egress", ("liveliness_token",), (keys.alive(fleet, "*"),)),
+            interest,
+        ]
+    if uav is not None:
+        raise ValueError(f"only the uav role takes a UAV id, not {role!r}")
+    if role == "gcs":
+        everything = keys.fleet_all(fleet)
+        return [
+            Grant("ingress", ("put",), (keys.heartbeat(fleet), keys.gcs_event(fleet))),
+            Grant("ingress", ("query",), (keys.cmd(fleet, "*"), keys.planner(fleet))),
+            Grant("ingress", ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"),
+                  (everything,)),
+            Grant("egress", ("put", "liveliness_token"), (everything,)),
+            Grant("egress", ("reply",), (keys.cmd(fleet, "*"), keys.planner(fleet))),
+            interest,
+        ]
+    if role == "planner":
+        return [
+            Grant("ingress", ("declare_queryable", "reply"), (keys.planner(fleet),)),
+            Grant("ingress", ("liveliness_token",), (keys.rcu_alive(fleet, "planner"),)),
+            Grant("ingress", ("put",), (keys.rcu_event(fleet, "planner"), keys.rcu_stats(fleet, "planner"))),
+            Grant("egress", ("query",), (keys.planner(fleet),)),
+            interest,
+        ]
+    if role == "detector":
+        return [
+            Grant("ingress", ("declare_subscriber", "query"), (cam_all, keys.advanced(cam_all))),
+            Grant("ingress", ("put",), (keys.defects(fleet), keys.rcu_event(fleet, "detector"),
+                                        keys.rcu_stats(fleet, "detector"))),
+            Grant("ingress", ("liveliness_token",), (keys.rcu_alive(fleet, "detector"),)),
+            Grant("egress", ("put", "reply"), (cam_all, keys.advanced(cam_all))),
+            interest,
+        ]
+    if role == "gateway":
+        both = (keys.fleet_all(fleet), keys.advanced(cam_all))
+        return [Grant("ingress", MESSAGES, both), Grant("egress", MESSAGES, both)]
+    raise ValueError(f"unknown role {role!r}; expected one of {ROLES}")
+
+
+def access_control(fleet: str, principals: Iterable[Principal]) -> dict[str, Any]:
+    """The router's ``access_control`` object: default deny, one subject per UAV id and per role.
+
+    Parameters
+    ----------
+    fleet : str
+        The fleet whose key space the rules name.
+    principals : iterable of Principal
+        The users and their roles (:func:`assign_roles`). Users without a principal get no
+        subject: the default (deny) applies to them.
+
+    Returns
+    -------
+    dict
+        ``{"enabled", "default_permission", "rules", "subjects", "policies"}``, JSON-ready.
+
+    Examples
+    --------
+    >>> acl = access_control("demo", [role_of("uav1"), role_of("gcs")])
+    >>> [s["id"] for s in acl["subjects"]]
+    ['uav1', 'gcs']
+    >>> acl["subjects"][0]["usernames"]
+    ['uav1']
+    """
+    keys.fleet_root(fleet)  # validates the fleet name
+    members: dict[str, list[Principal]] = {}
+    for p in principals:
+        if not isinstance(p, Principal):
+            raise ValueError(f"expected a Principal, got {p!r}")
+        members.setdefault(p.subject, []).append(p)
+    rules: list[dict[str, Any]] = []
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    for subject, ps in members.items():
+        ids = []
+        for i, g in enumerate(grants(fleet, ps[0].role, ps[0].uav)):
+            rid = f"{subject}-{g.flow}-{i}"
+            rules.append({"id": rid, "messages": list(g.messages), "flows": [g.flow], "permission": "allow",
+                          "key_exprs": list(g.key_exprs)})
+            ids.append(rid)
+        usernames = sorted({p.user for p in ps})
+        subjects.append({"id": subject, "usernames": usernames})
+        policies.append({"id": f"{subject}-policy", "rules": ids, "subjects": [subject]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
