@@ -4,6 +4,7 @@ message when its key expression *includes* the message's), and accepted by a rea
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 import zenoh
@@ -198,3 +199,61 @@ def test_grants_refuse_bad_arguments():
         acl.access_control("bad/fleet", [])
     with pytest.raises(ValueError):
         acl.access_control(F, ["uav1"])
+
+
+def _router(tmp_path, policy, passwords):
+    from services.process import free_port_pair
+
+    users = tmp_path / "users.txt"
+    users.write_text("".join(f"{u}:{p}\n" for u, p in passwords.items()))
+    tcp, udp = free_port_pair()
+    endpoints = [f"tcp/127.0.0.1:{tcp}?rel=1", f"udp/127.0.0.1:{udp}?rel=0"]
+    conf = zenoh.Config()
+    for path, value in (("mode", "router"), ("listen/endpoints", endpoints), ("scouting/multicast/enabled", False),
+                        ("transport/unicast/max_links", 2), ("transport/shared_memory/enabled", False),
+                        ("transport/auth/usrpwd/dictionary_file", str(users)), ("access_control", policy)):
+        conf.insert_json5(path, json.dumps(value))
+    return zenoh.open(conf), endpoints
+
+
+@pytest.mark.parametrize("drop", [None, "query", "reply"])
+def test_camera_recovery_needs_the_detectors_query_and_reply_grants(tmp_path, drop):
+    """Checked, not assumed: without the detector's ``query`` (ingress) or ``reply`` (egress) on the
+    cameras' keys, frames lost on a lossy UDP link are not recovered from the camera's cache."""
+    from protocol.bus import Bus, BusConfig
+    from protocol.links import IMAGERY
+    from services.netem.proxy import UdpProxy
+
+    passwords = {"uav3": "pw-uav3", "detector": "pw-detector"}
+    policy = acl.access_control(F, [acl.role_of(u) for u in passwords])
+    if drop:
+        for r in policy["rules"]:
+            if r["id"].startswith("detector-") and drop in r["messages"]:
+                r["messages"] = [m for m in r["messages"] if m != drop]
+    router, (tcp, udp) = _router(tmp_path, policy, passwords)
+    got: list[int] = []
+    try:
+        with UdpProxy(("127.0.0.1", 0), udp.split("/")[1].split("?")[0], "after 1s loss 20%", seed=7) as lossy:
+            via = [tcp, f"udp/127.0.0.1:{lossy.port}?rel=0"]
+
+            def client(user, connect):
+                return Bus(BusConfig(mode="client", connect=connect, multilink=True, user=user,
+                                     password=passwords[user]), F, user)
+
+            with client("detector", [tcp, udp]) as det, client("uav3", via) as cam:
+                det.subscribe_raw(keys.camera(F, "*"), lambda s: got.append(s.payload.to_bytes()[0]), recover=True)
+                pub = cam.publisher(keys.camera(F, 3), IMAGERY, cache=64)
+                time.sleep(1.3)
+                for i in range(60):
+                    pub.put_bytes(bytes([i]) * 1000)
+                    time.sleep(0.01)
+                deadline = time.monotonic() + (4 if drop is None else 2)
+                while len(got) < 60 and time.monotonic() < deadline:
+                    time.sleep(0.05)
+            assert lossy.stats()["up"]["dropped"]["loss"] > 0
+    finally:
+        router.close()
+    if drop is None:
+        assert got == list(range(60))
+    else:
+        assert 0 < len(got) < 60 and got == sorted(got)
