@@ -12,6 +12,12 @@ Impairment experiments: ``--impair uav2="delay 50ms jitter 10ms loss 2%"`` puts 
 netem proxies (:mod:`services.netem`, TCP and UDP) between that node and the gateway; names
 are ``uavN``, ``planner``, ``detector`` and ``gcs``. Shared memory stays off so that nothing
 bypasses them. (Edges also mesh directly with each other; those SkyNet links are not proxied.)
+
+``--secure`` turns on the gateway's authentication and access control: random passwords for
+``gcs``, ``planner``, ``detector`` and ``uav1..N`` in a private temporary folder (removed at the
+end), the gateway started with ``--users`` and ``--acl``, each service with ``--user`` and its
+password in ``SKYNET_PASSWORD``, the edges with the UAVs' dictionary (``--config``, see
+:mod:`services.gateway.credentials`) so that they accept each other's links.
 """
 
 from __future__ import annotations
@@ -19,11 +25,13 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-from protocol.bus import Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
+from protocol.bus import PASSWORD_ENV, Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
 
 from .process import ProcessGroup, free_port_pair
 
@@ -52,6 +60,12 @@ class Network:
         self.gateway_endpoints = multilink_endpoints(HOST, tcp, udp)
         self.impair = parse_impair(args.impair or [])
         self.epoch = time.time() + 3.0
+        self.creds = None
+        if getattr(args, "secure", False):
+            from services.gateway.credentials import generate
+
+            users = ["gcs", "planner", "detector", *[f"uav{i}" for i in range(1, args.uavs + 1)]]
+            self.creds = generate(tempfile.mkdtemp(prefix="skynet-creds-"), users)
 
     def endpoints_for(self, name: str) -> list[str]:
         """Where ``name`` connects: the gateway, or impairment proxies in front of it."""
@@ -71,7 +85,23 @@ class Network:
         args = ["--mode", mode, "--fleet", self.args.fleet, "--multilink"]
         for e in self.endpoints_for(name):
             args += ["--connect", e]
+        if self.creds is not None:
+            args += ["--user", name]
         return args
+
+    def start_service(self, name: str, args: list[str]):
+        """Start a service; with --secure its password goes in its environment, not on its command line."""
+        if self.creds is not None:
+            self.group.env[PASSWORD_ENV] = self.creds.passwords[name]
+        try:
+            return self.group.start(name, args)
+        finally:
+            self.group.env.pop(PASSWORD_ENV, None)
+
+    def gcs_config(self) -> BusConfig:
+        """The in-process ground station's session."""
+        creds = {} if self.creds is None else {"user": "gcs", "password": self.creds.passwords["gcs"]}
+        return BusConfig(mode="client", connect=self.endpoints_for("gcs"), multilink=True, **creds)
 
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9)."""
@@ -91,20 +121,22 @@ class Network:
 
     def start(self) -> None:
         a = self.args
-        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink",
+        secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
+        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure,
                                           *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
         if not gw.wait_for("router up", 30):
             raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
         scenario = ["--scenario", a.scenario] if a.scenario else []
+        edge_secure = [] if self.creds is None else ["--config", str(self.creds.mesh_config)]
         for i, home in enumerate(self.homes(a.uavs), start=1):
             ptcp, pudp = free_port_pair()
-            self.group.start(f"uav{i}", [
-                "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"),
+            self.start_service(f"uav{i}", [
+                "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *edge_secure,
                 *[x for e in multilink_endpoints(HOST, ptcp, pudp) for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
                 "--seed", str(a.seed + i), "--camera", a.camera, *scenario])
-        self.group.start("planner", ["planner", *self.bus_args("planner", "client")])
-        self.group.start("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method])
+        self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
+        self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method])
 
     def check_alive(self) -> list[str]:
         return [s.name for s in self.group.services if not s.alive()]
@@ -113,6 +145,8 @@ class Network:
         codes = self.group.stop()
         for _, p in self.proxies:
             p.stop()
+        if self.creds is not None:
+            shutil.rmtree(self.creds.users_file.parent, ignore_errors=True)
         return codes
 
 
@@ -127,6 +161,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--impair", action="append", default=[], metavar="NAME=SPEC",
                    help='netem-like impairment between a node and the gateway, e.g. uav2="delay 50ms loss 2%%"')
+    p.add_argument("--secure", action="store_true",
+                   help="gateway authentication and access control, with generated per-service passwords")
     if prog == "mission":
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
@@ -145,6 +181,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             net.start()
             log.info("network up: gateway at %s; Ctrl-C to stop", " ".join(net.gateway_endpoints))
+            if net.creds is not None:
+                log.info("authentication and access control on; users file (passwords) in %s",
+                         net.creds.users_file.parent)
             while not stop.wait(1.0):
                 dead = net.check_alive()
                 if dead:
@@ -168,7 +207,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop) -> int:
     scenario = load_scenario_doc(args.scenario)
     try:
         net.start()
-        cfg = BusConfig(mode="client", connect=net.endpoints_for("gcs"), multilink=True)
+        cfg = net.gcs_config()
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                                  speed=args.speed)
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
