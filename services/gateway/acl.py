@@ -13,7 +13,9 @@ role        may (everything else is denied: ``default_permission: deny``)
 uav N       put its own ``state``, ``event``, ``camera`` (and the camera's recovery heartbeats);
             declare and answer its own ``cmd`` queryable and the camera's recovery cache;
             its own ``alive`` token; receive every UAV's state, the GCS heartbeat and every
-            UAV's ``alive`` token. It may not query anything.
+            UAV's ``alive`` token. It may not query anything. (It is *asked* recovery queries
+            naming every camera, ``uav/*/camera/@adv/...``, as the detector sends them; it can
+            answer only with its own camera's frames.)
 gcs         put the heartbeat and GCS events; query every UAV's ``cmd`` and the planner;
             receive everything of the fleet (states, events, defects, statistics, tokens).
 planner     declare and answer the planner queryable; its token, events and statistics.
