@@ -290,8 +290,10 @@ class Publisher:
         self.bytes += n
         return n
 
-    def matching(self) -> bool:
-        return bool(self._pub.matching_status.matching)
+    def matching(self) -> bool | None:
+        """Whether a subscriber matches; None for a recovery-cache publisher (Zenoh does not say)."""
+        status = getattr(self._pub, "matching_status", None)
+        return None if status is None else bool(status.matching)
 
     def undeclare(self) -> None:
         self._pub.undeclare()
