@@ -26,7 +26,6 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-import numpy as np
 
 from protocol import keys
 from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
@@ -45,6 +44,8 @@ FAILSAFE_ACTIONS = ("hold", "land", "rtl")
 @dataclass
 class Neighbour:
     pos: tuple[float, float, float]
+    ref: tuple[float, float, float] | None  # its planned position, when it flies a mission
+    tau: float | None  # its trajectory time
     stamp: float  # wall time of reception
 
 
@@ -57,7 +58,7 @@ class BoardOptions:
     failsafe_action: str = "hold"
     geofence: Box | None = None
     max_speed: float = 12.0
-    formation_gain: float = 0.5
+    formation_gain: float = 0.8
     offsets: dict[int, tuple[float, float, float]] = field(
         default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
@@ -76,7 +77,6 @@ class Board:
         self.failsafe_active = False
         self.trajectory = None
         self.follower = None
-        self._yaw = 0.0
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
@@ -90,7 +90,7 @@ class Board:
     def _on_state(self, msg: Message, sample) -> None:
         assert isinstance(msg, VehicleState)
         if msg.uav != self.uav:
-            self.neighbours[msg.uav] = Neighbour(msg.pos, time.time())
+            self.neighbours[msg.uav] = Neighbour(msg.pos, msg.ref, msg.tau, time.time())
 
     def _on_alive(self, key: str, alive: bool) -> None:
         uav = keys.parse(key).uav
@@ -161,33 +161,29 @@ class Board:
         with self.lock:
             captures = self.driver.step(self.clock.now())
             st = self.driver.state()
-            if st.mode == Mode.MISSION and self.follower is not None:
-                self._keep_formation(st, now_wall)
+            plan = self._keep_formation(st, now_wall) if st.mode == Mode.MISSION and self.follower else {}
             self._check_failsafe(st, now_wall)
         for ev in captures:
             if self.camera is not None:
                 self.camera.capture(ev, now_wall)
         fresh = sum(1 for n in list(self.neighbours.values()) if now_wall - n.stamp <= self.opt.stale_s)
-        msg = st.to_message(self.uav, self.seq, now_wall).model_copy(update={"neighbours": fresh})
+        msg = st.to_message(self.uav, self.seq, now_wall).model_copy(update={"neighbours": fresh, **plan})
         self.seq += 1
         self.state_pub.put(msg)
         return msg
 
-    def _keep_formation(self, st, now_wall: float) -> None:
+    def _keep_formation(self, st, now_wall: float) -> dict:
+        """Correct the own reference from the errors the neighbours share (P8, see
+        :func:`edge.formation.neighbour_correction`); returns the own plan to share."""
         fol = self.follower
         tau = fol.t0 + st.progress * fol.duration
         pos, vel, _, _ = fol.reference(tau)
-        if math.hypot(vel[0], vel[1]) > 0.2:
-            self._yaw = math.atan2(vel[1], vel[0])
-        offsets = self.opt.offsets
-        if self.uav not in offsets:
-            return
-        R = formation.rotation_of(0.0, 0.0, self._yaw)
-        centroid = np.asarray(pos) - R @ np.asarray(offsets[self.uav])
-        neigh = {j: (n.pos, now_wall - n.stamp) for j, n in list(self.neighbours.items())}
-        ref = formation.formation_reference(self.uav, pos, centroid, self._yaw, offsets, neigh,
-                                            stale_after_s=self.opt.stale_s, gain=self.opt.formation_gain)
-        self.driver.set_reference_offset(tuple(ref - np.asarray(pos)))
+        neigh = {j: (n.pos, n.ref, n.tau, now_wall - n.stamp)
+                 for j, n in list(self.neighbours.items()) if n.ref is not None and n.tau is not None}
+        corr = formation.neighbour_correction(tau, vel, neigh, stale_after_s=self.opt.stale_s,
+                                              gain=self.opt.formation_gain)
+        self.driver.set_reference_offset(tuple(map(float, corr)))
+        return {"ref": tuple(map(float, pos)), "tau": max(0.0, float(tau))}
 
     def _check_failsafe(self, st, now_wall: float) -> None:
         flying = st.armed and st.mode in (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION)
@@ -231,6 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--home", type=parse_vec, default=(0.0, 0.0, 0.0), help="launch point x,y,z (ENU m)")
     parser.add_argument("--rate", type=float, default=20.0, help="state publication rate, Hz")
     parser.add_argument("--stale", type=float, default=1.0, help="neighbour state considered stale after, s")
+    parser.add_argument("--formation-gain", type=float, default=0.8,
+                        help="share of the neighbours' mean position error corrected on board, 0..1")
     parser.add_argument("--failsafe-timeout", type=float, default=5.0)
     parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default="hold")
     parser.add_argument("--geofence", type=parse_box, default=None, help="x0,y0,z0,x1,y1,z1 (else from upload)")
@@ -258,7 +256,8 @@ def main(argv: list[str] | None = None) -> int:
     driver = make_driver(args, t0=clock.now())
     stop = stop_event_on_signals()
     opts = BoardOptions(uav=args.uav, rate_hz=args.rate, stale_s=args.stale, failsafe_timeout_s=args.failsafe_timeout,
-                        failsafe_action=args.failsafe_action, geofence=args.geofence)
+                        failsafe_action=args.failsafe_action, geofence=args.geofence,
+                        formation_gain=args.formation_gain)
     with Bus(config_from_args(args), fleet=args.fleet, name=f"uav{args.uav}") as bus:
         camera = make_camera(args, bus, log)
         board = Board(bus, driver, clock, opts, camera=camera, log=log)

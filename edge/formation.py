@@ -36,6 +36,7 @@ __all__ = [
     "centroid_of",
     "headings",
     "formation_reference",
+    "neighbour_correction",
     "formation_error",
 ]
 
@@ -364,6 +365,71 @@ def formation_reference(
     if norm > max_correction:
         corr *= max_correction / norm
     return slot + corr
+
+
+def neighbour_correction(
+    own_tau: float,
+    own_ref_vel: ArrayLike,
+    neighbours: Mapping[int, tuple[ArrayLike, ArrayLike, float, float]],
+    stale_after_s: float = 1.0,
+    gain: float = 0.8,
+    max_correction: float = MAX_CORRECTION_M,
+) -> NDArray[np.float64]:
+    """Own reference correction from the position errors the neighbours share over SkyNet (P8).
+
+    Each neighbour j shares its position ``P_j``, its planned position ``P_j,d`` and its
+    trajectory time ``τ_j``. Its error as seen at the own trajectory time ``τ`` is the (P8) error
+    plus the part of the plan it is behind::
+
+        e_j = (P_j − P_j,d) − v_d (τ − τ_j)
+
+    with ``v_d`` the own planned velocity (all slots of a rigid formation move with the
+    centroid, up to its rotation in turns). The correction is ``gain · mean_j e_j`` over the
+    fresh neighbours, bounded in norm by ``max_correction``: when one UAV lags — by a tracking
+    error or by a paused mission clock — the others fall back toward it and the triangle holds;
+    in steady state the relative lag left is ``(2 − 2g) / (2 + g)`` of it for three UAVs. No
+    heading is needed, so turns and climbs where the formation rotates add no spurious term.
+
+    Parameters
+    ----------
+    own_tau : float
+        Own trajectory time, s.
+    own_ref_vel : array_like, shape (3,)
+        Own planned velocity now, m/s.
+    neighbours : mapping int -> (position (3,), planned position (3,), tau_s, age_s)
+        Latest shared state of each other UAV and its age in seconds.
+    stale_after_s, gain, max_correction : float
+        As in :func:`formation_reference`.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The correction to add to the own planned position; zeros without a fresh neighbour.
+    """
+    if not math.isfinite(own_tau):
+        raise ValueError("own_tau must be finite")
+    v = _vec3(own_ref_vel, "own_ref_vel")
+    if not (math.isfinite(stale_after_s) and stale_after_s >= 0.0):
+        raise ValueError("stale_after_s must be finite and >= 0")
+    if not (0.0 <= gain <= 1.0):
+        raise ValueError("gain must be in [0, 1]")
+    if not (math.isfinite(max_correction) and max_correction >= 0.0):
+        raise ValueError("max_correction must be finite and >= 0")
+    errs = []
+    for j, (pos, ref, tau_j, age) in neighbours.items():
+        age, tau_j = float(age), float(tau_j)
+        if math.isnan(age) or not math.isfinite(tau_j):
+            raise ValueError(f"age and tau of UAV {j}'s state must be numbers")
+        if age > stale_after_s:
+            continue
+        errs.append(_vec3(pos, f"position of UAV {j}") - _vec3(ref, f"plan of UAV {j}") - v * (own_tau - tau_j))
+    if not errs:
+        return np.zeros(3)
+    corr = gain * np.mean(errs, axis=0)
+    norm = float(np.linalg.norm(corr))
+    if norm > max_correction:
+        corr *= max_correction / norm
+    return corr
 
 
 def formation_error(

@@ -77,6 +77,8 @@ class VehicleState(Message):
     neighbours: Annotated[int, Field(ge=0, le=255)] = Field(
         default=0, description="other UAVs whose state was heard over SkyNet within the stale limit"
     )
+    ref: Vec3 | None = Field(default=None, description="planned position (own slot, P9) now, ENU m; in MISSION")
+    tau: Seconds | None = Field(default=None, description="trajectory time now, s; in MISSION")
 
 
 # ----------------------------------------------------------------------------- trajectories
