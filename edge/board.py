@@ -37,6 +37,7 @@ from protocol.messages import (
 
 from . import formation
 from .validate import validate_command
+from .vehicle.follower import Follower
 
 FAILSAFE_ACTIONS = ("hold", "land", "rtl")
 
@@ -132,7 +133,6 @@ class Board:
         d = self.driver
         if isinstance(cmd, UploadTrajectory):
             d.upload(cmd.trajectory)
-            from .vehicle.follower import Follower
             self.trajectory, self.follower = cmd.trajectory, Follower(cmd.trajectory)
             if cmd.geofence is not None and self.opt.geofence is None:
                 self.opt.geofence = cmd.geofence
@@ -175,11 +175,15 @@ class Board:
     def _keep_formation(self, st, now_wall: float) -> dict:
         """Correct the own reference from the errors the neighbours share (P8, see
         :func:`edge.formation.neighbour_correction`); returns the own plan to share."""
+        if st.wp_index < 0:  # still flying to the first waypoint or waiting there: nothing to keep
+            self.driver.set_reference_offset((0.0, 0.0, 0.0))
+            return {}
         fol = self.follower
         tau = fol.t0 + st.progress * fol.duration
         pos, vel, _, _ = fol.reference(tau)
-        neigh = {j: (n.pos, n.ref, n.tau, now_wall - n.stamp)
-                 for j, n in list(self.neighbours.items()) if n.ref is not None and n.tau is not None}
+        members = self.opt.offsets  # the formation set by SetFormation (P9): other UAVs do not count
+        neigh = {j: (n.pos, n.ref, n.tau, now_wall - n.stamp) for j, n in list(self.neighbours.items())
+                 if n.ref is not None and n.tau is not None and j in members}
         corr = formation.neighbour_correction(tau, vel, neigh, stale_after_s=self.opt.stale_s,
                                               gain=self.opt.formation_gain)
         self.driver.set_reference_offset(tuple(map(float, corr)))
