@@ -206,9 +206,9 @@ def _walk_crack(
     heading_k = np.empty(n)
     th = heading
     for k in range(n):
-        kappa = 0.85 * kappa + g.normal(0.0, 0.035)
-        th += kappa + g.normal(0.0, 0.08)
-        heading_k[k] = th
+        kappa = 0.85 * kappa + g.normal(0.0, 0.012)
+        th += kappa
+        heading_k[k] = th + g.normal(0.0, 0.25)  # jagged, but does not accumulate
     pts = np.empty((n + 1, 2))
     pts[0] = start
     pts[1:] = start + np.cumsum(step * np.stack([np.cos(heading_k), np.sin(heading_k)], 1), 0)
@@ -289,7 +289,9 @@ def draw_cracks(
     mask = np.zeros((h, w), np.uint8)
     for _ in range(int(n_cracks)):
         start = (float(g.uniform(0, w)), float(g.uniform(0, h)))
-        heading = float(g.uniform(0, 2 * np.pi))
+        # head roughly towards the image centre so that most of the crack stays in view
+        to_centre = math.atan2(h / 2 - start[1], w / 2 - start[0])
+        heading = to_centre + float(g.uniform(-1.0, 1.0))
         _walk_crack(mask, g, start, heading, float(g.uniform(lo_len, hi_len)), width, branch_prob, 2)
     return mask
 

@@ -1,58 +1,89 @@
+"""Tests for edge.surface: crack-image generators and the synthetic inspected surface."""
+
+from __future__ import annotations
+
+import cv2
 import numpy as np
 import pytest
 
-from edge.surface import SyntheticSurface, crack_image, draw_cracks, textured_background
-
-CORNERS = [[60, 85, 25.5], [60, 35, 25.5], [60, 35, 31.5], [60, 85, 31.5]]
+from edge.surface import crack_image, draw_cracks, textured_background
 
 
-def test_generators_are_deterministic_and_cracks_are_darker():
-    a = crack_image((120, 160), rng=4)
-    b = crack_image((120, 160), rng=4)
+# ---------------------------------------------------------------- generators
+def test_background_shape_dtype_and_level() -> None:
+    bg = textured_background((120, 200), 3, mean=140.0)
+    assert bg.shape == (120, 200) and bg.dtype == np.uint8
+    assert 120 < bg.mean() < 160
+    assert bg.std() > 3  # textured, not flat
+
+
+def test_background_deterministic_by_seed() -> None:
+    a = textured_background((64, 80), 7)
+    b = textured_background((64, 80), 7)
+    c = textured_background((64, 80), 8)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_background_gradient_zero_and_flat() -> None:
+    flat = textured_background((50, 60), 1, roughness=0, blotches=0, gradient=0, grain=0, mean=100)
+    assert np.all(flat == 100)
+
+
+def test_draw_cracks_binary_thin_and_seeded() -> None:
+    m = draw_cracks((240, 320), 5, n_cracks=4)
+    assert m.shape == (240, 320) and m.dtype == np.uint8
+    assert set(np.unique(m)) <= {0, 255}
+    frac = (m > 0).mean()
+    assert 0.002 < frac < 0.15  # cracks are thin lines, not blobs
+    assert np.array_equal(m, draw_cracks((240, 320), 5, n_cracks=4))
+    assert not np.any(draw_cracks((50, 50), 0, n_cracks=0))
+
+
+def test_crack_width_within_range() -> None:
+    # the distance transform inside the mask is at most about half the widest stroke
+    m = draw_cracks((300, 300), 11, n_cracks=5, width_px=(1, 3))
+    dist = cv2.distanceTransform((m > 0).astype(np.uint8), cv2.DIST_L2, 5)
+    assert dist.max() <= 3.0
+    wide = draw_cracks((300, 300), 11, n_cracks=5, width_px=(5, 9))
+    dist_w = cv2.distanceTransform((wide > 0).astype(np.uint8), cv2.DIST_L2, 5)
+    assert dist_w.max() > dist.max()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_crack_image_cracks_darker_than_surroundings(seed: int) -> None:
+    grey, mask = crack_image((320, 480), seed, n_cracks=3)
+    assert grey.shape == mask.shape == (320, 480)
+    assert grey.dtype == mask.dtype == np.uint8
+    on = mask > 0
+    assert on.any()
+    # compare with a ring 3..8 px around the cracks (local background)
+    near = cv2.dilate(mask, np.ones((17, 17), np.uint8)) > 0
+    ring = near & ~(cv2.dilate(mask, np.ones((7, 7), np.uint8)) > 0)
+    assert grey[on].mean() < 0.85 * grey[ring].mean()
+
+
+def test_crack_image_deterministic() -> None:
+    a = crack_image((100, 120), 42)
+    b = crack_image((100, 120), np.random.default_rng(42))
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
-    grey, mask = a
-    assert grey.dtype == np.uint8 and mask.dtype == np.uint8 and set(np.unique(mask)) <= {0, 255}
-    assert grey[mask > 0].mean() < grey[mask == 0].mean() - 20
-    assert textured_background((30, 40), rng=1).shape == (30, 40)
-    assert not draw_cracks((50, 50), rng=1, n_cracks=0).any()
 
 
-@pytest.mark.parametrize("bad", [(0, 10), (10, -1), "x", (1.5, 3)])
-def test_bad_shapes_are_refused(bad):
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"shape": (0, 10)},
+        {"shape": (10,)},
+        {"shape": (10.5, 10)},
+        {"n_cracks": -1},
+        {"contrast": (0.6, 0.2)},
+        {"contrast": (0.1, float("nan"))},
+        {"noise_sigma": -1.0},
+        {"width_px": (0.5, 3)},
+        {"rng": "seed"},
+    ],
+)
+def test_crack_image_bad_input(kwargs: dict) -> None:
+    args = {"shape": (20, 20), "rng": 0} | kwargs
     with pytest.raises(ValueError):
-        textured_background(bad, rng=0)
-
-
-def test_surface_geometry_round_trips():
-    s = SyntheticSurface.from_corners(CORNERS, px_per_m=50, seed=1)
-    assert s.texture.shape == (300, 2500)
-    assert np.allclose(s.normal, [-1, 0, 0])  # faces west, where the formation flies
-    uv = np.array([[0.0, 0.0], [50.0, 6.0], [12.5, 3.0]])
-    world = s.surface_to_world(uv)
-    assert np.allclose(world[0], CORNERS[0]) and np.allclose(world[1], CORNERS[2])
-    assert np.allclose(s.world_to_surface(world), uv)
-    # a point off the plane projects onto it
-    assert np.allclose(s.world_to_surface([[55.0, 60.0, 28.0]]), [[25.0, 2.5]])
-    A = s.pixel_to_world_matrix()
-    for col, row in [(0, 0), (2499, 299), (1250, 150)]:
-        px = s.surface_to_pixel(s.world_to_surface((A @ [col, row, 1.0])[None]))[0]
-        assert np.allclose(px, [col, row])
-
-
-def test_ground_truth_defects_match_the_mask():
-    s = SyntheticSurface.from_corners(CORNERS, px_per_m=50, seed=3)
-    defects = s.defects()
-    assert defects and all(0 <= d.centroid_uv[0] <= 50 and 0 <= d.centroid_uv[1] <= 6 for d in defects)
-    for d in defects:
-        u0, v0, u1, v1 = d.bbox_uv
-        assert u0 <= d.centroid_uv[0] <= u1 and v0 <= d.centroid_uv[1] <= v1
-        c, r = s.surface_to_pixel([d.centroid_uv])[0]
-        assert np.isclose(d.centroid_world[0], 60.0)
-    assert sum(d.area_px for d in defects) <= int((s.mask > 0).sum())
-
-
-def test_bad_corners_are_refused():
-    with pytest.raises(ValueError):
-        SyntheticSurface.from_corners([[0, 0, 0], [1, 0, 0], [1, 1, 1]])
-    with pytest.raises(ValueError):
-        SyntheticSurface.from_corners([[0, 0, 0], [10, 0, 0], [11, 0, 3], [1, 0, 3]])  # not a rectangle
+        crack_image(**args)
