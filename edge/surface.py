@@ -35,6 +35,8 @@ __all__ = [
     "textured_background",
     "draw_cracks",
     "crack_image",
+    "Defect",
+    "SyntheticSurface",
     "DEFAULT_PX_PER_M",
     "SurfaceDefect",
     "SyntheticSurface",
@@ -289,9 +291,12 @@ def draw_cracks(
     mask = np.zeros((h, w), np.uint8)
     for _ in range(int(n_cracks)):
         start = (float(g.uniform(0, w)), float(g.uniform(0, h)))
-        # head roughly towards the image centre so that most of the crack stays in view
-        to_centre = math.atan2(h / 2 - start[1], w / 2 - start[0])
-        heading = to_centre + float(g.uniform(-1.0, 1.0))
+        if hi_len >= 0.5 * min(h, w):
+            # long cracks head roughly towards the centre so that most of them stay in view
+            to_centre = math.atan2(h / 2 - start[1], w / 2 - start[0])
+            heading = to_centre + float(g.uniform(-1.0, 1.0))
+        else:
+            heading = float(g.uniform(0, 2 * np.pi))
         _walk_crack(mask, g, start, heading, float(g.uniform(lo_len, hi_len)), width, branch_prob, 2)
     return mask
 
@@ -479,3 +484,311 @@ class SyntheticSurface:
                                          area, area * s * s))
             object.__setattr__(self, "_defects", out)
         return list(self._defects)
+
+
+# ------------------------------------------------------------------ the surface in the world
+@dataclass(frozen=True)
+class Defect:
+    """One ground-truth crack component of a :class:`SyntheticSurface`.
+
+    A component is an 8-connected set of crack pixels of the surface mask: a crack with its
+    branches, or several cracks that cross.
+
+    Attributes
+    ----------
+    label : int
+        Component number, 1-based, stable for a given surface.
+    centroid_uv : numpy.ndarray
+        Centroid ``(u, v)`` on the surface, metres.
+    centroid_enu : numpy.ndarray
+        The same point in the world, local ENU metres.
+    bbox_uv : tuple of float
+        ``(u_min, v_min, u_max, v_max)`` on the surface, metres (pixel edges included).
+    bbox_px : tuple of int
+        ``(x, y, w, h)`` in texture pixels.
+    area_px : int
+        Number of crack pixels.
+    area_m2 : float
+        Crack area, square metres.
+    """
+
+    label: int
+    centroid_uv: NDArray[np.float64]
+    centroid_enu: NDArray[np.float64]
+    bbox_uv: tuple[float, float, float, float]
+    bbox_px: tuple[int, int, int, int]
+    area_px: int
+    area_m2: float
+
+
+def _vec3(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    a = np.asarray(value, dtype=np.float64)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be a finite 3-vector, got {value!r}")
+    return a
+
+
+class SyntheticSurface:
+    """A planar rectangular surface in the world, textured like concrete, with known cracks.
+
+    Geometry: the rectangle spans ``origin + u * u_axis + v * v_axis`` for ``0 <= u <=
+    width_m`` and ``0 <= v <= height_m`` (local ENU metres). ``u_axis`` and ``v_axis`` are
+    orthonormal. The texture is an image whose column grows with ``u`` and row with ``v``, so
+    a wall made by :meth:`from_corners` (``u`` horizontal, ``v`` pointing down) reads like a
+    photograph of the wall taken from the front. The front is the side :attr:`normal` points
+    to: a camera there, with its x axis along ``u_axis`` and its y axis along ``v_axis``, sees
+    the texture unmirrored.
+
+    Pixel convention (as OpenCV): texture pixel ``(col, row)`` covers ``u`` in
+    ``[col, col + 1) / px_per_m`` and its centre is at integer coordinates, so
+    ``x = u * px_per_m - 0.5``, ``y = v * px_per_m - 0.5``.
+
+    Parameters
+    ----------
+    origin, u_axis, v_axis : array_like, shape (3,)
+        Corner of texture pixel (0, 0) and the two in-plane axes (normalised here; they must be
+        orthogonal to within 0.1 degree).
+    width_m, height_m : float
+        Extent along ``u_axis`` and ``v_axis``, metres.
+    px_per_m : float
+        Texture resolution; default :data:`DEFAULT_PX_PER_M` (100 px/m, 1 cm per pixel). The
+        texture may not exceed 100 MP (a 60 m x 20 m wall at 100 px/m is 12 MP).
+    seed : int
+        Seed of the texture and the cracks.
+    n_cracks : int, optional
+        Number of main cracks; default ``max(1, round(crack_density * area))``.
+    crack_density : float
+        Main cracks per square metre when ``n_cracks`` is not given. Default 0.05 (60 cracks
+        on a 60 m x 20 m wall: about one per 4.5 m x 4.5 m patch).
+    crack_length_m : (float, float)
+        Range of main-crack lengths, metres. Default 0.3..2.5 m.
+    crack_width_px : (float, float)
+        Range of crack widths in texture pixels (1..5 px = 1..5 mm at 100 px/m).
+    contrast : (float, float)
+        Relative darkening of crack pixels, see :func:`crack_image`.
+    """
+
+    MAX_PIXELS = 100_000_000
+
+    def __init__(
+        self,
+        origin: ArrayLike,
+        u_axis: ArrayLike,
+        v_axis: ArrayLike,
+        width_m: float,
+        height_m: float,
+        *,
+        px_per_m: float = DEFAULT_PX_PER_M,
+        seed: int = 0,
+        n_cracks: int | None = None,
+        crack_density: float = 0.05,
+        crack_length_m: tuple[float, float] = (0.3, 2.5),
+        crack_width_px: tuple[float, float] = (1.0, 5.0),
+        contrast: tuple[float, float] = (0.25, 0.55),
+    ) -> None:
+        o = _vec3("origin", origin)
+        u = _vec3("u_axis", u_axis)
+        v = _vec3("v_axis", v_axis)
+        nu, nv = float(np.linalg.norm(u)), float(np.linalg.norm(v))
+        if nu < 1e-9 or nv < 1e-9:
+            raise ValueError("u_axis and v_axis must be non-zero")
+        u, v = u / nu, v / nv
+        if abs(float(u @ v)) > math.sin(math.radians(0.1)):
+            raise ValueError(f"u_axis and v_axis must be orthogonal, angle {math.degrees(math.acos(np.clip(u @ v, -1, 1))):.3f} deg")
+        for name, val in (("width_m", width_m), ("height_m", height_m), ("px_per_m", px_per_m)):
+            if not (isinstance(val, (int, float, np.floating, np.integer)) and math.isfinite(val) and val > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {val!r}")
+        w_px = int(round(float(width_m) * px_per_m))
+        h_px = int(round(float(height_m) * px_per_m))
+        if w_px < 1 or h_px < 1:
+            raise ValueError(f"surface is smaller than one pixel at {px_per_m} px/m")
+        if w_px * h_px > self.MAX_PIXELS:
+            raise ValueError(
+                f"texture would be {w_px} x {h_px} px = {w_px * h_px / 1e6:.0f} MP > "
+                f"{self.MAX_PIXELS / 1e6:.0f} MP: lower px_per_m"
+            )
+        if not (math.isfinite(crack_density) and crack_density >= 0):
+            raise ValueError(f"crack_density must be finite and >= 0, got {crack_density!r}")
+        lo_m, hi_m = _range("crack_length_m", crack_length_m, lo=0.0)
+        if n_cracks is None:
+            n_cracks = max(1, int(round(crack_density * float(width_m) * float(height_m))))
+
+        self.origin = o
+        self.u_axis = u
+        self.v_axis = v
+        self.width_m = float(width_m)
+        self.height_m = float(height_m)
+        self.px_per_m = float(px_per_m)
+        self.seed = int(seed)
+        self.n_cracks = int(n_cracks)
+        self.texture, self.mask = crack_image(
+            (h_px, w_px),
+            np.random.default_rng(self.seed),
+            self.n_cracks,
+            contrast=contrast,
+            length_px=(max(1.0, lo_m * px_per_m), max(1.0, hi_m * px_per_m)),
+            width_px=crack_width_px,
+        )
+        self._defects: list[Defect] | None = None
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_corners(
+        cls, corners: ArrayLike, px_per_m: float = DEFAULT_PX_PER_M, seed: int = 0, **kwargs: Any
+    ) -> "SyntheticSurface":
+        """Build a surface from 2, 3 or 4 corner points (ENU metres, rows of an array).
+
+        - **2 points**, opposite corners. If their heights differ, a vertical wall: ``u`` is
+          the horizontal direction from point 0 to point 1, ``v`` points straight down, the
+          origin is point 0's top corner, and the front faces the right-hand side of someone
+          walking from point 0 to point 1. If their heights are equal, a horizontal,
+          axis-aligned deck seen from above: ``u`` east, ``v`` south, origin the north-west
+          corner.
+        - **3 points**: the origin, the end of the ``u`` edge, the end of the ``v`` edge.
+        - **4 points**, in order around the rectangle: origin, end of ``u`` edge, opposite
+          corner, end of ``v`` edge; the opposite corner must close the rectangle to 1 %.
+
+        Other keyword arguments go to the constructor.
+
+        Raises
+        ------
+        ValueError
+            On non-finite points, degenerate or non-rectangular corners.
+        """
+        p = np.asarray(corners, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3 or not 2 <= p.shape[0] <= 4 or not np.all(np.isfinite(p)):
+            raise ValueError(f"corners must be a finite (2..4, 3) array, got shape {p.shape}")
+        if p.shape[0] == 2:
+            p0, p1 = p
+            dz = p1[2] - p0[2]
+            horiz = p1[:2] - p0[:2]
+            if abs(dz) > 1e-9:
+                wh = float(np.linalg.norm(horiz))
+                if wh < 1e-9:
+                    raise ValueError("the two corners of a wall must differ horizontally")
+                u = np.array([horiz[0] / wh, horiz[1] / wh, 0.0])
+                origin = np.array([p0[0], p0[1], max(p0[2], p1[2])])
+                return cls(origin, u, (0.0, 0.0, -1.0), wh, abs(dz), px_per_m=px_per_m, seed=seed, **kwargs)
+            lo, hi = np.minimum(p0, p1), np.maximum(p0, p1)
+            w, h = hi[0] - lo[0], hi[1] - lo[1]
+            if w < 1e-9 or h < 1e-9:
+                raise ValueError("the two corners of a horizontal surface must differ in x and in y")
+            origin = np.array([lo[0], hi[1], p0[2]])
+            return cls(origin, (1.0, 0.0, 0.0), (0.0, -1.0, 0.0), w, h, px_per_m=px_per_m, seed=seed, **kwargs)
+        p0 = p[0]
+        eu = p[1] - p0
+        ev = p[-1] - p0
+        w, h = float(np.linalg.norm(eu)), float(np.linalg.norm(ev))
+        if w < 1e-9 or h < 1e-9:
+            raise ValueError("corners are degenerate (repeated points)")
+        if abs(float(eu @ ev)) / (w * h) > math.sin(math.radians(0.1)):
+            raise ValueError("corners do not make a right angle at the origin")
+        if p.shape[0] == 4 and np.linalg.norm(p[2] - (p[1] + p[3] - p0)) > 0.01 * max(w, h):
+            raise ValueError("the four corners are not a rectangle (third corner off by > 1 %)")
+        return cls(p0, eu, ev, w, h, px_per_m=px_per_m, seed=seed, **kwargs)
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def normal(self) -> NDArray[np.float64]:
+        """Unit normal of the front side, ``v_axis x u_axis`` (points towards the viewer)."""
+        return np.cross(self.v_axis, self.u_axis)
+
+    @property
+    def shape_px(self) -> tuple[int, int]:
+        """Texture shape ``(height, width)`` in pixels."""
+        return self.texture.shape[0], self.texture.shape[1]
+
+    @property
+    def corners(self) -> NDArray[np.float64]:
+        """The four world corners, (4, 3): origin, +u, +u+v, +v."""
+        uv = np.array([[0, 0], [self.width_m, 0], [self.width_m, self.height_m], [0, self.height_m]])
+        return self.surface_to_world(uv)
+
+    @property
+    def center(self) -> NDArray[np.float64]:
+        """Centre of the rectangle, world ENU metres."""
+        return self.surface_to_world(np.array([self.width_m / 2, self.height_m / 2]))
+
+    @staticmethod
+    def _points(name: str, points: ArrayLike, dim: int) -> NDArray[np.float64]:
+        a = np.asarray(points, dtype=np.float64)
+        if a.ndim == 0 or a.shape[-1] != dim:
+            raise ValueError(f"{name} must have shape (..., {dim}), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} must be finite")
+        return a
+
+    def world_to_surface(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Project world points (..., 3) onto the plane: surface coordinates (..., 2), metres."""
+        d = self._points("points", points, 3) - self.origin
+        return np.stack([d @ self.u_axis, d @ self.v_axis], axis=-1)
+
+    def distance_to_plane(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Signed distance (..., ) of world points from the plane, positive on the front side."""
+        return (self._points("points", points, 3) - self.origin) @ self.normal
+
+    def surface_to_world(self, uv: ArrayLike) -> NDArray[np.float64]:
+        """Surface coordinates (..., 2) metres -> world points (..., 3) on the plane."""
+        a = self._points("uv", uv, 2)
+        return self.origin + a[..., :1] * self.u_axis + a[..., 1:2] * self.v_axis
+
+    def surface_to_pixel(self, uv: ArrayLike) -> NDArray[np.float64]:
+        """Surface coordinates (..., 2) metres -> texture pixel coordinates ``(x, y)`` (..., 2)."""
+        return self._points("uv", uv, 2) * self.px_per_m - 0.5
+
+    def pixel_to_surface(self, xy: ArrayLike) -> NDArray[np.float64]:
+        """Texture pixel coordinates ``(x, y)`` (..., 2) -> surface coordinates (..., 2) metres."""
+        return (self._points("xy", xy, 2) + 0.5) / self.px_per_m
+
+    def contains(self, uv: ArrayLike) -> NDArray[np.bool_]:
+        """Whether surface coordinates (..., 2) lie on the rectangle."""
+        a = self._points("uv", uv, 2)
+        return (a[..., 0] >= 0) & (a[..., 0] <= self.width_m) & (a[..., 1] >= 0) & (a[..., 1] <= self.height_m)
+
+    def is_crack(self, uv: ArrayLike) -> NDArray[np.bool_]:
+        """Ground truth at surface coordinates (..., 2): True on a crack pixel (False off the surface)."""
+        a = self._points("uv", uv, 2)
+        col = np.floor(a[..., 0] * self.px_per_m).astype(np.int64)
+        row = np.floor(a[..., 1] * self.px_per_m).astype(np.int64)
+        h, w = self.shape_px
+        ok = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        out = np.zeros(a.shape[:-1], dtype=bool)
+        out[ok] = self.mask[row[ok], col[ok]] > 0
+        return out
+
+    # ------------------------------------------------------------------ ground truth
+    def defects(self) -> list[Defect]:
+        """Ground-truth crack components (8-connected), in surface and world coordinates.
+
+        Computed once with ``cv2.connectedComponentsWithStats`` and cached. A mission report
+        can match detections mapped to surface coordinates against these to compute the
+        system's recall and precision ((P20) at the defect level).
+        """
+        if self._defects is None:
+            n, _, stats, cents = cv2.connectedComponentsWithStats(self.mask, connectivity=8)
+            out: list[Defect] = []
+            s = self.px_per_m
+            for k in range(1, n):
+                x, y, w, h, area = (int(t) for t in stats[k])
+                c_uv = (cents[k] + 0.5) / s
+                out.append(
+                    Defect(
+                        label=k,
+                        centroid_uv=c_uv,
+                        centroid_enu=self.surface_to_world(c_uv),
+                        bbox_uv=(x / s, y / s, (x + w) / s, (y + h) / s),
+                        bbox_px=(x, y, w, h),
+                        area_px=area,
+                        area_m2=area / s**2,
+                    )
+                )
+            self._defects = out
+        return list(self._defects)
+
+    def __repr__(self) -> str:
+        h, w = self.shape_px
+        return (
+            f"SyntheticSurface(origin={self.origin.tolist()}, u={self.u_axis.round(6).tolist()}, "
+            f"v={self.v_axis.round(6).tolist()}, {self.width_m:g} m x {self.height_m:g} m, "
+            f"{self.px_per_m:g} px/m -> {w}x{h} px, seed={self.seed}, n_cracks={self.n_cracks})"
+        )

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.surface import crack_image, draw_cracks, textured_background
+from edge.surface import SyntheticSurface, crack_image, draw_cracks, textured_background
 
 
 # ---------------------------------------------------------------- generators
@@ -87,3 +87,93 @@ def test_crack_image_bad_input(kwargs: dict) -> None:
     args = {"shape": (20, 20), "rng": 0} | kwargs
     with pytest.raises(ValueError):
         crack_image(**args)
+
+
+# ---------------------------------------------------------------- the surface in the world
+@pytest.fixture(scope="module")
+def wall() -> SyntheticSurface:
+    # a 6 m x 3 m wall along east, from (10, 5) to (16, 5), 1..4 m high: front faces south
+    return SyntheticSurface.from_corners([[10, 5, 1], [16, 5, 4]], px_per_m=50, seed=3, n_cracks=4)
+
+
+def test_wall_from_two_corners(wall: SyntheticSurface) -> None:
+    assert wall.shape_px == (150, 300)
+    np.testing.assert_allclose(wall.origin, [10, 5, 4])
+    np.testing.assert_allclose(wall.u_axis, [1, 0, 0])
+    np.testing.assert_allclose(wall.v_axis, [0, 0, -1])
+    np.testing.assert_allclose(wall.normal, [0, -1, 0], atol=1e-12)  # right of walking east
+    np.testing.assert_allclose(wall.corners[2], [16, 5, 1])
+    np.testing.assert_allclose(wall.center, [13, 5, 2.5])
+
+
+def test_deck_from_two_corners_faces_up() -> None:
+    s = SyntheticSurface.from_corners([[0, 0, 2], [4, 3, 2]], px_per_m=20, n_cracks=1)
+    np.testing.assert_allclose(s.normal, [0, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(s.origin, [0, 3, 2])  # north-west corner
+    assert s.shape_px == (60, 80)
+
+
+def test_oblique_from_four_corners_round_trip() -> None:
+    # a tilted rectangle: u along (1, 1, 0)/sqrt2, v along (0, 0, -1) rotated 30 deg about u
+    rng = np.random.default_rng(0)
+    u = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    a = np.radians(30)
+    v = np.cos(a) * np.array([0, 0, -1.0]) + np.sin(a) * np.cross(u, [0, 0, -1.0])
+    o = np.array([3.0, -2.0, 7.0])
+    corners = np.array([o, o + 4 * u, o + 4 * u + 2 * v, o + 2 * v])
+    s = SyntheticSurface.from_corners(corners, px_per_m=25, seed=1, n_cracks=2)
+    assert s.width_m == pytest.approx(4) and s.height_m == pytest.approx(2)
+    assert np.linalg.norm(s.normal) == pytest.approx(1)
+    assert abs(s.normal @ s.u_axis) < 1e-12 and abs(s.normal @ s.v_axis) < 1e-12
+    uv = rng.uniform([0, 0], [4, 2], size=(50, 2))
+    world = s.surface_to_world(uv)
+    np.testing.assert_allclose(s.world_to_surface(world), uv, atol=1e-12)
+    np.testing.assert_allclose(s.distance_to_plane(world), 0, atol=1e-12)
+    # points off the plane project along the normal
+    off = world + 1.5 * s.normal
+    np.testing.assert_allclose(s.world_to_surface(off), uv, atol=1e-12)
+    np.testing.assert_allclose(s.distance_to_plane(off), 1.5, atol=1e-12)
+    np.testing.assert_allclose(s.pixel_to_surface(s.surface_to_pixel(uv)), uv, atol=1e-12)
+    np.testing.assert_allclose(s.surface_to_pixel([[0.02, 0.02]]), [[0.0, 0.0]])  # pixel centre
+
+
+def test_bad_corners() -> None:
+    with pytest.raises(ValueError):
+        SyntheticSurface.from_corners([[0, 0, 0], [0, 0, 5]])  # no horizontal extent
+    with pytest.raises(ValueError):
+        SyntheticSurface.from_corners([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 2, 0]])  # not a rectangle
+    with pytest.raises(ValueError):
+        SyntheticSurface.from_corners([[0, 0, 0], [1, 0, 0], [1, 1, 0]])  # not a right angle
+    with pytest.raises(ValueError):
+        SyntheticSurface.from_corners([[0, 0, np.nan], [1, 0, 1]])
+    with pytest.raises(ValueError):
+        SyntheticSurface.from_corners([[0, 0, 0]])
+    with pytest.raises(ValueError):
+        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, -1], 1000, 1000)  # 10^10 px
+    with pytest.raises(ValueError):
+        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, -1], -1, 1)
+
+
+def test_surface_deterministic_by_seed() -> None:
+    a = SyntheticSurface.from_corners([[0, 0, 0], [3, 0, 2]], px_per_m=40, seed=9)
+    b = SyntheticSurface.from_corners([[0, 0, 0], [3, 0, 2]], px_per_m=40, seed=9)
+    assert np.array_equal(a.texture, b.texture) and np.array_equal(a.mask, b.mask)
+    assert a.mask.any()
+
+
+def test_defects_match_mask(wall: SyntheticSurface) -> None:
+    defects = wall.defects()
+    assert defects
+    assert sum(d.area_px for d in defects) == int((wall.mask > 0).sum())
+    for d in defects:
+        x, y, w, h = d.bbox_px
+        assert wall.mask[y : y + h, x : x + w].any()
+        u0, v0, u1, v1 = d.bbox_uv
+        assert u0 <= d.centroid_uv[0] <= u1 and v0 <= d.centroid_uv[1] <= v1
+        np.testing.assert_allclose(wall.world_to_surface(d.centroid_enu), d.centroid_uv, atol=1e-9)
+        assert d.area_m2 == pytest.approx(d.area_px / 50**2)
+    # is_crack agrees with the mask at pixel centres
+    rows, cols = np.nonzero(wall.mask)
+    uv = wall.pixel_to_surface(np.stack([cols, rows], 1).astype(float))
+    assert wall.is_crack(uv).all()
+    assert not wall.is_crack([[-1.0, 0.5], [0.5, 99.0]]).any()
