@@ -24,7 +24,7 @@ gives the same image, bit for bit.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -35,10 +35,9 @@ __all__ = [
     "textured_background",
     "draw_cracks",
     "crack_image",
-    "Defect",
-    "SyntheticSurface",
     "DEFAULT_PX_PER_M",
     "SurfaceDefect",
+    "Defect",
     "SyntheticSurface",
 ]
 
@@ -46,7 +45,8 @@ __all__ = [
 #: pixel. A 60 m x 20 m wall is then 6000 x 2000 px = 12 MP (12 MB for the texture, 12 MB for
 #: the mask), and cracks drawn 1..5 px wide are 1..5 mm wide -- the range of hairline to
 #: structural cracks in concrete. A camera frame of 640 px across at the (P2) inspection
-#: distance for a 1 cm feature (footprint 3.2 m) samples the texture at about 1:2.
+#: distance for a 1 cm feature (footprint 3.2 m) samples the texture at about 1:2; at the
+#: default scenario's stand-off (5 m footprint) about 1:0.8.
 DEFAULT_PX_PER_M = 100.0
 
 RngLike = np.random.Generator | int | None
@@ -375,150 +375,44 @@ def crack_image(
 
 
 # ============================================================================ the wall in the world
+
+
+# ============================================================================ the wall in the world
 @dataclass(frozen=True)
 class SurfaceDefect:
-    """One ground-truth crack (a connected component of the surface mask)."""
+    """One ground-truth crack of a :class:`SyntheticSurface`: an 8-connected component of its mask.
 
-    id: int
-    centroid_uv: tuple[float, float]  # surface metres: u along the bottom edge, v up
-    centroid_world: tuple[float, float, float]  # ENU metres
-    bbox_uv: tuple[float, float, float, float]  # u0, v0, u1, v1, metres
-    area_px: int
-    area_m2: float
-
-
-@dataclass
-class SyntheticSurface:
-    """A planar, textured, cracked rectangle in the world (local ENU metres).
-
-    Surface coordinates ``(u, v)`` in metres: ``u`` along the bottom edge from ``origin``
-    (corner p0 towards p1), ``v`` up the wall (p0 towards p3). The texture is an image whose
-    column ``c`` is ``u = (c + 0.5) / px_per_m`` and whose row ``r`` is
-    ``v = height_m - (r + 0.5) / px_per_m`` (row 0 is the top of the wall, so the texture looks
-    upright). :attr:`normal` ``= u x v`` points to the side the wall is inspected from.
-    """
-
-    origin: NDArray[np.float64]
-    u_axis: NDArray[np.float64]
-    v_axis: NDArray[np.float64]
-    width_m: float
-    height_m: float
-    px_per_m: float
-    texture: NDArray[np.uint8]
-    mask: NDArray[np.uint8]
-    seed: int = 0
-    _defects: list[SurfaceDefect] | None = field(default=None, repr=False)
-
-    @classmethod
-    def from_corners(cls, corners: ArrayLike, px_per_m: float = DEFAULT_PX_PER_M, seed: int = 0,
-                     cracks_per_m2: float = 1 / 12, crack_length_m: tuple[float, float] = (0.8, 3.0),
-                     crack_width_px: tuple[float, float] = (2.0, 5.0)) -> "SyntheticSurface":
-        """A wall on the rectangle ``corners`` (4, 3): p0, p1 (bottom edge), p2, p3 (p3 above p0).
-
-        About one crack per ``1 / cracks_per_m2`` square metres, lengths in ``crack_length_m``.
-        """
-        c = np.asarray(corners, dtype=float)
-        if c.shape != (4, 3) or not np.all(np.isfinite(c)):
-            raise ValueError("corners must be 4 finite points (4, 3)")
-        if not (math.isfinite(px_per_m) and 1.0 <= px_per_m <= 2000.0):
-            raise ValueError("px_per_m must be in [1, 2000]")
-        du, dv = c[1] - c[0], c[3] - c[0]
-        width, height = float(np.linalg.norm(du)), float(np.linalg.norm(dv))
-        if width < 0.1 or height < 0.1 or abs(float(np.dot(du, dv))) > 1e-6 * width * height:
-            raise ValueError("corners must form a rectangle at least 0.1 m on each side")
-        w_px, h_px = int(round(width * px_per_m)), int(round(height * px_per_m))
-        if w_px * h_px > 200_000_000:
-            raise ValueError(f"texture of {w_px}x{h_px} px is too large; lower px_per_m")
-        g = np.random.default_rng(seed)
-        n = max(1, int(round(width * height * cracks_per_m2)))
-        lo, hi = (float(x) * px_per_m for x in crack_length_m)
-        grey, mask = crack_image((h_px, w_px), g, n, length_px=(lo, hi), width_px=crack_width_px,
-                                 contrast=(0.35, 0.6))
-        return cls(c[0].copy(), du / width, dv / height, width, height, float(px_per_m), grey, mask, seed)
-
-    @property
-    def normal(self) -> NDArray[np.float64]:
-        n = np.cross(self.u_axis, self.v_axis)
-        return n / np.linalg.norm(n)
-
-    @property
-    def corners(self) -> NDArray[np.float64]:
-        u, v = self.u_axis * self.width_m, self.v_axis * self.height_m
-        return np.array([self.origin, self.origin + u, self.origin + u + v, self.origin + v])
-
-    def world_to_surface(self, points: ArrayLike) -> NDArray[np.float64]:
-        """(N, 3) ENU points -> (N, 2) surface coordinates (projected onto the plane)."""
-        d = np.atleast_2d(np.asarray(points, dtype=float)) - self.origin
-        return np.column_stack([d @ self.u_axis, d @ self.v_axis])
-
-    def surface_to_world(self, uv: ArrayLike) -> NDArray[np.float64]:
-        uv = np.atleast_2d(np.asarray(uv, dtype=float))
-        return self.origin + uv[:, :1] * self.u_axis + uv[:, 1:2] * self.v_axis
-
-    def surface_to_pixel(self, uv: ArrayLike) -> NDArray[np.float64]:
-        """(N, 2) surface metres -> (N, 2) texture pixel coordinates (column, row), continuous."""
-        uv = np.atleast_2d(np.asarray(uv, dtype=float))
-        return np.column_stack([uv[:, 0] * self.px_per_m - 0.5, (self.height_m - uv[:, 1]) * self.px_per_m - 0.5])
-
-    def pixel_to_world_matrix(self) -> NDArray[np.float64]:
-        """A (3, 3) with ``X = A [c, r, 1]^T``: texture pixel (column, row) -> ENU point."""
-        s = 1.0 / self.px_per_m
-        return np.column_stack([self.u_axis * s, -self.v_axis * s,
-                                self.origin + self.v_axis * (self.height_m - 0.5 * s) + self.u_axis * 0.5 * s])
-
-    def defects(self, min_area_px: int = 20) -> list[SurfaceDefect]:
-        """The ground-truth cracks: connected components of the mask (8-connected)."""
-        if self._defects is None:
-            n, _, stats, cents = cv2.connectedComponentsWithStats((self.mask > 0).astype(np.uint8), connectivity=8)
-            out = []
-            s = 1.0 / self.px_per_m
-            for i in range(1, n):
-                area = int(stats[i, cv2.CC_STAT_AREA])
-                if area < min_area_px:
-                    continue
-                x, y, w, h = (int(v) for v in stats[i, :4])
-                cu, cv_ = (cents[i, 0] + 0.5) * s, self.height_m - (cents[i, 1] + 0.5) * s
-                world = self.surface_to_world([[cu, cv_]])[0]
-                out.append(SurfaceDefect(len(out), (float(cu), float(cv_)), tuple(float(v) for v in world),
-                                         (x * s, self.height_m - (y + h) * s, (x + w) * s, self.height_m - y * s),
-                                         area, area * s * s))
-            object.__setattr__(self, "_defects", out)
-        return list(self._defects)
-
-
-# ------------------------------------------------------------------ the surface in the world
-@dataclass(frozen=True)
-class Defect:
-    """One ground-truth crack component of a :class:`SyntheticSurface`.
-
-    A component is an 8-connected set of crack pixels of the surface mask: a crack with its
-    branches, or several cracks that cross.
+    A component is a crack with its branches, or several cracks that cross.
 
     Attributes
     ----------
-    label : int
-        Component number, 1-based, stable for a given surface.
-    centroid_uv : numpy.ndarray
-        Centroid ``(u, v)`` on the surface, metres.
-    centroid_enu : numpy.ndarray
+    id : int
+        0-based index in :meth:`SyntheticSurface.defects`, stable for a given surface.
+    centroid_uv : (float, float)
+        Centroid of the crack pixels in surface coordinates, metres.
+    centroid_world : (float, float, float)
         The same point in the world, local ENU metres.
-    bbox_uv : tuple of float
-        ``(u_min, v_min, u_max, v_max)`` on the surface, metres (pixel edges included).
-    bbox_px : tuple of int
-        ``(x, y, w, h)`` in texture pixels.
+    bbox_uv : (float, float, float, float)
+        ``(u0, v0, u1, v1)``, the bounding box in surface coordinates (pixel edges), metres.
     area_px : int
-        Number of crack pixels.
+        Number of crack pixels in the texture.
     area_m2 : float
         Crack area, square metres.
+    bbox_px : (int, int, int, int)
+        ``(x, y, w, h)``, the bounding box in texture pixels (column, row).
     """
 
-    label: int
-    centroid_uv: NDArray[np.float64]
-    centroid_enu: NDArray[np.float64]
+    id: int
+    centroid_uv: tuple[float, float]
+    centroid_world: tuple[float, float, float]
     bbox_uv: tuple[float, float, float, float]
-    bbox_px: tuple[int, int, int, int]
     area_px: int
     area_m2: float
+    bbox_px: tuple[int, int, int, int] = (0, 0, 0, 0)
+
+
+#: Alias: the name the assignment uses for a ground-truth crack component.
+Defect = SurfaceDefect
 
 
 def _vec3(name: str, value: ArrayLike) -> NDArray[np.float64]:
@@ -528,44 +422,60 @@ def _vec3(name: str, value: ArrayLike) -> NDArray[np.float64]:
     return a
 
 
+def _positive(name: str, value: Any) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+    return v
+
+
 class SyntheticSurface:
-    """A planar rectangular surface in the world, textured like concrete, with known cracks.
+    """A planar, textured, cracked rectangle in the world (local ENU metres), with its ground truth.
 
-    Geometry: the rectangle spans ``origin + u * u_axis + v * v_axis`` for ``0 <= u <=
-    width_m`` and ``0 <= v <= height_m`` (local ENU metres). ``u_axis`` and ``v_axis`` are
-    orthonormal. The texture is an image whose column grows with ``u`` and row with ``v``, so
-    a wall made by :meth:`from_corners` (``u`` horizontal, ``v`` pointing down) reads like a
-    photograph of the wall taken from the front. The front is the side :attr:`normal` points
-    to: a camera there, with its x axis along ``u_axis`` and its y axis along ``v_axis``, sees
-    the texture unmirrored.
+    Surface coordinates ``(u, v)`` in metres: the rectangle is ``origin + u u_axis + v v_axis``
+    for ``0 <= u <= width_m``, ``0 <= v <= height_m``; ``u_axis`` and ``v_axis`` are orthonormal.
+    For a wall, ``u`` runs along the bottom edge (corner p0 towards p1) and ``v`` up the wall (p0
+    towards p3), the convention of the scenario's ``surface.corners`` and of the mission report
+    (:mod:`services.gcs.scoring`). :attr:`normal` ``= u_axis x v_axis`` points to the side the
+    surface is inspected from, its *front*.
 
-    Pixel convention (as OpenCV): texture pixel ``(col, row)`` covers ``u`` in
-    ``[col, col + 1) / px_per_m`` and its centre is at integer coordinates, so
-    ``x = u * px_per_m - 0.5``, ``y = v * px_per_m - 0.5``.
+    The texture is an image seen upright from the front: column ``c`` is at
+    ``u = (c + 0.5) / px_per_m`` and row ``r`` at ``v = height_m - (r + 0.5) / px_per_m`` (row 0 is
+    the top edge; pixel centres at integer coordinates, as in OpenCV). A camera in front of the
+    surface with its x axis along ``u_axis`` and its y axis along ``-v_axis`` (OpenCV axes: z into
+    the surface) sees the texture unmirrored.
 
     Parameters
     ----------
     origin, u_axis, v_axis : array_like, shape (3,)
-        Corner of texture pixel (0, 0) and the two in-plane axes (normalised here; they must be
-        orthogonal to within 0.1 degree).
+        Corner p0 and the two in-plane axes (normalised here; they must be orthogonal to within
+        0.1 degree).
     width_m, height_m : float
-        Extent along ``u_axis`` and ``v_axis``, metres.
+        Extent along ``u_axis`` and ``v_axis``, metres (at least one texture pixel).
     px_per_m : float
-        Texture resolution; default :data:`DEFAULT_PX_PER_M` (100 px/m, 1 cm per pixel). The
-        texture may not exceed 100 MP (a 60 m x 20 m wall at 100 px/m is 12 MP).
+        Texture resolution; default :data:`DEFAULT_PX_PER_M` = 100 px/m (1 cm per pixel). The
+        texture may not exceed :attr:`MAX_PIXELS` (100 MP); a 60 m x 20 m wall is 12 MP.
     seed : int
-        Seed of the texture and the cracks.
-    n_cracks : int, optional
-        Number of main cracks; default ``max(1, round(crack_density * area))``.
-    crack_density : float
-        Main cracks per square metre when ``n_cracks`` is not given. Default 0.05 (60 cracks
-        on a 60 m x 20 m wall: about one per 4.5 m x 4.5 m patch).
+        Seed of the texture and the cracks: the same seed and geometry give the same surface, so
+        the ground station rebuilds the edges' wall to score a mission.
+    cracks_per_m2 : float
+        Main cracks per square metre (at least one crack). Default 1/12: a crack in every
+        3.5 m x 3.5 m patch, i.e. a few per camera footprint at the inspection distance.
     crack_length_m : (float, float)
-        Range of main-crack lengths, metres. Default 0.3..2.5 m.
+        Range of main-crack lengths, metres. Default 0.8..3 m.
     crack_width_px : (float, float)
-        Range of crack widths in texture pixels (1..5 px = 1..5 mm at 100 px/m).
+        Range of crack widths in texture pixels. Default 2..5 px (2..5 mm at 100 px/m): the
+        frames sample the texture at about 1:1 to 1:2, where 1 px cracks would fade out.
     contrast : (float, float)
-        Relative darkening of crack pixels, see :func:`crack_image`.
+        Relative darkening of crack pixels, see :func:`crack_image`. Default 0.35..0.6.
+    n_cracks : int, optional
+        Number of main cracks, overriding ``cracks_per_m2``.
+    texture, mask : numpy.ndarray, optional
+        A ready texture and mask (uint8, ``(round(height_m px_per_m), round(width_m px_per_m))``)
+        instead of generated ones, e.g. a photograph of a real wall with a hand-made mask.
     """
 
     MAX_PIXELS = 100_000_000
@@ -577,14 +487,16 @@ class SyntheticSurface:
         v_axis: ArrayLike,
         width_m: float,
         height_m: float,
-        *,
         px_per_m: float = DEFAULT_PX_PER_M,
+        texture: NDArray[np.uint8] | None = None,
+        mask: NDArray[np.uint8] | None = None,
         seed: int = 0,
+        *,
+        cracks_per_m2: float = 1 / 12,
+        crack_length_m: tuple[float, float] = (0.8, 3.0),
+        crack_width_px: tuple[float, float] = (2.0, 5.0),
+        contrast: tuple[float, float] = (0.35, 0.6),
         n_cracks: int | None = None,
-        crack_density: float = 0.05,
-        crack_length_m: tuple[float, float] = (0.3, 2.5),
-        crack_width_px: tuple[float, float] = (1.0, 5.0),
-        contrast: tuple[float, float] = (0.25, 0.55),
     ) -> None:
         o = _vec3("origin", origin)
         u = _vec3("u_axis", u_axis)
@@ -594,120 +506,118 @@ class SyntheticSurface:
             raise ValueError("u_axis and v_axis must be non-zero")
         u, v = u / nu, v / nv
         if abs(float(u @ v)) > math.sin(math.radians(0.1)):
-            raise ValueError(f"u_axis and v_axis must be orthogonal, angle {math.degrees(math.acos(np.clip(u @ v, -1, 1))):.3f} deg")
-        for name, val in (("width_m", width_m), ("height_m", height_m), ("px_per_m", px_per_m)):
-            if not (isinstance(val, (int, float, np.floating, np.integer)) and math.isfinite(val) and val > 0):
-                raise ValueError(f"{name} must be finite and > 0, got {val!r}")
-        w_px = int(round(float(width_m) * px_per_m))
-        h_px = int(round(float(height_m) * px_per_m))
+            ang = math.degrees(math.acos(float(np.clip(u @ v, -1.0, 1.0))))
+            raise ValueError(f"u_axis and v_axis must be orthogonal, they make {ang:.3f} deg")
+        width_m, height_m = _positive("width_m", width_m), _positive("height_m", height_m)
+        px_per_m = _positive("px_per_m", px_per_m)
+        w_px, h_px = int(round(width_m * px_per_m)), int(round(height_m * px_per_m))
         if w_px < 1 or h_px < 1:
-            raise ValueError(f"surface is smaller than one pixel at {px_per_m} px/m")
+            raise ValueError(f"the surface is smaller than one pixel at {px_per_m:g} px/m")
         if w_px * h_px > self.MAX_PIXELS:
-            raise ValueError(
-                f"texture would be {w_px} x {h_px} px = {w_px * h_px / 1e6:.0f} MP > "
-                f"{self.MAX_PIXELS / 1e6:.0f} MP: lower px_per_m"
+            raise ValueError(f"texture of {w_px} x {h_px} px = {w_px * h_px / 1e6:.0f} MP exceeds "
+                             f"{self.MAX_PIXELS / 1e6:.0f} MP: lower px_per_m")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise ValueError(f"seed must be an integer, got {seed!r}")
+        self.origin, self.u_axis, self.v_axis = o, u, v
+        self.width_m, self.height_m, self.px_per_m, self.seed = width_m, height_m, px_per_m, int(seed)
+        if texture is None and mask is None:
+            if not (math.isfinite(cracks_per_m2) and cracks_per_m2 >= 0):
+                raise ValueError(f"cracks_per_m2 must be finite and >= 0, got {cracks_per_m2!r}")
+            lo, hi = _range("crack_length_m", crack_length_m, lo=0.0)
+            if n_cracks is None:
+                n_cracks = max(1, int(round(width_m * height_m * cracks_per_m2)))
+            texture, mask = crack_image(
+                (h_px, w_px), np.random.default_rng(self.seed), n_cracks,
+                length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)),
+                width_px=crack_width_px, contrast=contrast,
             )
-        if not (math.isfinite(crack_density) and crack_density >= 0):
-            raise ValueError(f"crack_density must be finite and >= 0, got {crack_density!r}")
-        lo_m, hi_m = _range("crack_length_m", crack_length_m, lo=0.0)
-        if n_cracks is None:
-            n_cracks = max(1, int(round(crack_density * float(width_m) * float(height_m))))
-
-        self.origin = o
-        self.u_axis = u
-        self.v_axis = v
-        self.width_m = float(width_m)
-        self.height_m = float(height_m)
-        self.px_per_m = float(px_per_m)
-        self.seed = int(seed)
-        self.n_cracks = int(n_cracks)
-        self.texture, self.mask = crack_image(
-            (h_px, w_px),
-            np.random.default_rng(self.seed),
-            self.n_cracks,
-            contrast=contrast,
-            length_px=(max(1.0, lo_m * px_per_m), max(1.0, hi_m * px_per_m)),
-            width_px=crack_width_px,
-        )
-        self._defects: list[Defect] | None = None
+        elif texture is None or mask is None:
+            raise ValueError("give both texture and mask, or neither")
+        for name, img in (("texture", texture), ("mask", mask)):
+            if not (isinstance(img, np.ndarray) and img.dtype == np.uint8 and img.shape == (h_px, w_px)):
+                raise ValueError(f"{name} must be a uint8 array of shape {(h_px, w_px)}")
+        self.texture: NDArray[np.uint8] = texture
+        self.mask: NDArray[np.uint8] = np.where(mask > 0, 255, 0).astype(np.uint8)
+        self._defects: dict[int, list[SurfaceDefect]] = {}
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_corners(
-        cls, corners: ArrayLike, px_per_m: float = DEFAULT_PX_PER_M, seed: int = 0, **kwargs: Any
-    ) -> "SyntheticSurface":
-        """Build a surface from 2, 3 or 4 corner points (ENU metres, rows of an array).
+    def from_corners(cls, corners: ArrayLike, px_per_m: float = DEFAULT_PX_PER_M, seed: int = 0,
+                     **kwargs: Any) -> "SyntheticSurface":
+        """Build a surface on 2, 3 or 4 corner points (rows of an array, ENU metres).
 
-        - **2 points**, opposite corners. If their heights differ, a vertical wall: ``u`` is
-          the horizontal direction from point 0 to point 1, ``v`` points straight down, the
-          origin is point 0's top corner, and the front faces the right-hand side of someone
-          walking from point 0 to point 1. If their heights are equal, a horizontal,
-          axis-aligned deck seen from above: ``u`` east, ``v`` south, origin the north-west
-          corner.
-        - **3 points**: the origin, the end of the ``u`` edge, the end of the ``v`` edge.
-        - **4 points**, in order around the rectangle: origin, end of ``u`` edge, opposite
-          corner, end of ``v`` edge; the opposite corner must close the rectangle to 1 %.
+        - **4 points** ``p0, p1, p2, p3`` in order around the rectangle: ``u`` along ``p1 - p0``
+          (the bottom edge of a wall), ``v`` along ``p3 - p0`` (up); ``p2`` must close the
+          rectangle to 1 % of its size. This is the scenario's ``surface.corners``.
+        - **3 points** ``p0, p1, p3``: the same without the opposite corner.
+        - **2 points**, opposite corners ``p0`` and ``p2``. If their heights differ, a vertical
+          wall: ``u`` horizontal from ``p0`` towards ``p2``, ``v`` straight up, origin below or at
+          the lower point; its front (:attr:`normal`) is on the right of someone walking along
+          ``u``. If their heights are equal, a horizontal deck facing up, axis-aligned: ``u``
+          east, ``v`` north, origin the south-west corner.
 
-        Other keyword arguments go to the constructor.
+        Other keyword arguments (``cracks_per_m2``, ``crack_length_m``, ...) go to the
+        constructor.
 
         Raises
         ------
         ValueError
-            On non-finite points, degenerate or non-rectangular corners.
+            Non-finite points, a wrong count, degenerate or non-rectangular corners.
         """
         p = np.asarray(corners, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3 or not 2 <= p.shape[0] <= 4 or not np.all(np.isfinite(p)):
-            raise ValueError(f"corners must be a finite (2..4, 3) array, got shape {p.shape}")
+            raise ValueError(f"corners must be 2 to 4 finite [x, y, z] points, got shape {p.shape}")
         if p.shape[0] == 2:
-            p0, p1 = p
-            dz = p1[2] - p0[2]
-            horiz = p1[:2] - p0[:2]
-            if abs(dz) > 1e-9:
-                wh = float(np.linalg.norm(horiz))
-                if wh < 1e-9:
+            p0, p2 = p
+            dz = float(p2[2] - p0[2])
+            horiz = p2[:2] - p0[:2]
+            if abs(dz) > 1e-9:  # vertical wall
+                w = float(np.linalg.norm(horiz))
+                if w < 1e-9:
                     raise ValueError("the two corners of a wall must differ horizontally")
-                u = np.array([horiz[0] / wh, horiz[1] / wh, 0.0])
-                origin = np.array([p0[0], p0[1], max(p0[2], p1[2])])
-                return cls(origin, u, (0.0, 0.0, -1.0), wh, abs(dz), px_per_m=px_per_m, seed=seed, **kwargs)
-            lo, hi = np.minimum(p0, p1), np.maximum(p0, p1)
-            w, h = hi[0] - lo[0], hi[1] - lo[1]
+                u = np.array([horiz[0] / w, horiz[1] / w, 0.0])
+                origin = np.array([p0[0], p0[1], min(p0[2], p2[2])])
+                if dz < 0:  # p0 is the top corner: the bottom edge starts below it
+                    origin[2] = p2[2]
+                return cls(origin, u, (0.0, 0.0, 1.0), w, abs(dz), px_per_m, seed=seed, **kwargs)
+            lo, hi = np.minimum(p0, p2), np.maximum(p0, p2)
+            w, h = float(hi[0] - lo[0]), float(hi[1] - lo[1])
             if w < 1e-9 or h < 1e-9:
                 raise ValueError("the two corners of a horizontal surface must differ in x and in y")
-            origin = np.array([lo[0], hi[1], p0[2]])
-            return cls(origin, (1.0, 0.0, 0.0), (0.0, -1.0, 0.0), w, h, px_per_m=px_per_m, seed=seed, **kwargs)
-        p0 = p[0]
-        eu = p[1] - p0
-        ev = p[-1] - p0
+            return cls(np.array([lo[0], lo[1], p0[2]]), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), w, h,
+                       px_per_m, seed=seed, **kwargs)
+        p0, eu, ev = p[0], p[1] - p[0], p[-1] - p[0]
         w, h = float(np.linalg.norm(eu)), float(np.linalg.norm(ev))
         if w < 1e-9 or h < 1e-9:
             raise ValueError("corners are degenerate (repeated points)")
-        if abs(float(eu @ ev)) / (w * h) > math.sin(math.radians(0.1)):
-            raise ValueError("corners do not make a right angle at the origin")
+        if abs(float(eu @ ev)) > math.sin(math.radians(0.1)) * w * h:
+            raise ValueError("corners do not make a right angle at p0")
         if p.shape[0] == 4 and np.linalg.norm(p[2] - (p[1] + p[3] - p0)) > 0.01 * max(w, h):
-            raise ValueError("the four corners are not a rectangle (third corner off by > 1 %)")
-        return cls(p0, eu, ev, w, h, px_per_m=px_per_m, seed=seed, **kwargs)
+            raise ValueError("the four corners are not a rectangle (p2 is off p1 + p3 - p0 by more than 1 %)")
+        return cls(p0, eu, ev, w, h, px_per_m, seed=seed, **kwargs)
 
     # ------------------------------------------------------------------ geometry
     @property
     def normal(self) -> NDArray[np.float64]:
-        """Unit normal of the front side, ``v_axis x u_axis`` (points towards the viewer)."""
-        return np.cross(self.v_axis, self.u_axis)
+        """Unit normal of the front (inspected) side, ``u_axis x v_axis``."""
+        n = np.cross(self.u_axis, self.v_axis)
+        return n / np.linalg.norm(n)
 
     @property
     def shape_px(self) -> tuple[int, int]:
         """Texture shape ``(height, width)`` in pixels."""
-        return self.texture.shape[0], self.texture.shape[1]
+        return int(self.texture.shape[0]), int(self.texture.shape[1])
 
     @property
     def corners(self) -> NDArray[np.float64]:
-        """The four world corners, (4, 3): origin, +u, +u+v, +v."""
-        uv = np.array([[0, 0], [self.width_m, 0], [self.width_m, self.height_m], [0, self.height_m]])
-        return self.surface_to_world(uv)
+        """The four world corners (4, 3): p0, p1 = p0 + u, p2, p3 = p0 + v."""
+        u, v = self.u_axis * self.width_m, self.v_axis * self.height_m
+        return np.array([self.origin, self.origin + u, self.origin + u + v, self.origin + v])
 
     @property
     def center(self) -> NDArray[np.float64]:
-        """Centre of the rectangle, world ENU metres."""
-        return self.surface_to_world(np.array([self.width_m / 2, self.height_m / 2]))
+        """Centre of the rectangle, ENU metres."""
+        return self.origin + 0.5 * (self.u_axis * self.width_m + self.v_axis * self.height_m)
 
     @staticmethod
     def _points(name: str, points: ArrayLike, dim: int) -> NDArray[np.float64]:
@@ -719,37 +629,50 @@ class SyntheticSurface:
         return a
 
     def world_to_surface(self, points: ArrayLike) -> NDArray[np.float64]:
-        """Project world points (..., 3) onto the plane: surface coordinates (..., 2), metres."""
+        """World points (..., 3) projected onto the plane: surface coordinates (..., 2), metres."""
         d = self._points("points", points, 3) - self.origin
         return np.stack([d @ self.u_axis, d @ self.v_axis], axis=-1)
 
     def distance_to_plane(self, points: ArrayLike) -> NDArray[np.float64]:
-        """Signed distance (..., ) of world points from the plane, positive on the front side."""
+        """Signed distance (...,) of world points (..., 3) to the plane, positive in front."""
         return (self._points("points", points, 3) - self.origin) @ self.normal
 
     def surface_to_world(self, uv: ArrayLike) -> NDArray[np.float64]:
-        """Surface coordinates (..., 2) metres -> world points (..., 3) on the plane."""
+        """Surface coordinates (..., 2), metres -> world points (..., 3) on the plane."""
         a = self._points("uv", uv, 2)
         return self.origin + a[..., :1] * self.u_axis + a[..., 1:2] * self.v_axis
 
     def surface_to_pixel(self, uv: ArrayLike) -> NDArray[np.float64]:
-        """Surface coordinates (..., 2) metres -> texture pixel coordinates ``(x, y)`` (..., 2)."""
-        return self._points("uv", uv, 2) * self.px_per_m - 0.5
+        """Surface coordinates (..., 2), metres -> texture pixel coordinates ``(column, row)`` (..., 2)."""
+        a = self._points("uv", uv, 2)
+        return np.stack([a[..., 0] * self.px_per_m - 0.5, (self.height_m - a[..., 1]) * self.px_per_m - 0.5], -1)
 
     def pixel_to_surface(self, xy: ArrayLike) -> NDArray[np.float64]:
-        """Texture pixel coordinates ``(x, y)`` (..., 2) -> surface coordinates (..., 2) metres."""
-        return (self._points("xy", xy, 2) + 0.5) / self.px_per_m
+        """Texture pixel coordinates ``(column, row)`` (..., 2) -> surface coordinates (..., 2), metres."""
+        a = self._points("xy", xy, 2)
+        return np.stack([(a[..., 0] + 0.5) / self.px_per_m, self.height_m - (a[..., 1] + 0.5) / self.px_per_m], -1)
+
+    def pixel_to_world_matrix(self) -> NDArray[np.float64]:
+        """The (3, 3) ``A`` with ``X = A [column, row, 1]^T``: texture pixel -> ENU point.
+
+        The camera's plane-to-image homography is ``K R^T (A - C e3^T)`` (see
+        :class:`edge.camera.SyntheticSource`).
+        """
+        s = 1.0 / self.px_per_m
+        return np.column_stack([self.u_axis * s, -self.v_axis * s,
+                                self.origin + self.v_axis * (self.height_m - 0.5 * s) + self.u_axis * 0.5 * s])
 
     def contains(self, uv: ArrayLike) -> NDArray[np.bool_]:
-        """Whether surface coordinates (..., 2) lie on the rectangle."""
+        """Whether surface coordinates (..., 2) lie on the rectangle (edges included)."""
         a = self._points("uv", uv, 2)
         return (a[..., 0] >= 0) & (a[..., 0] <= self.width_m) & (a[..., 1] >= 0) & (a[..., 1] <= self.height_m)
 
     def is_crack(self, uv: ArrayLike) -> NDArray[np.bool_]:
-        """Ground truth at surface coordinates (..., 2): True on a crack pixel (False off the surface)."""
+        """Ground truth at surface coordinates (..., 2): True on a crack pixel, False elsewhere
+        (and off the surface)."""
         a = self._points("uv", uv, 2)
         col = np.floor(a[..., 0] * self.px_per_m).astype(np.int64)
-        row = np.floor(a[..., 1] * self.px_per_m).astype(np.int64)
+        row = np.floor((self.height_m - a[..., 1]) * self.px_per_m).astype(np.int64)
         h, w = self.shape_px
         ok = (col >= 0) & (col < w) & (row >= 0) & (row < h)
         out = np.zeros(a.shape[:-1], dtype=bool)
@@ -757,38 +680,40 @@ class SyntheticSurface:
         return out
 
     # ------------------------------------------------------------------ ground truth
-    def defects(self) -> list[Defect]:
-        """Ground-truth crack components (8-connected), in surface and world coordinates.
+    def defects(self, min_area_px: int = 20) -> list[SurfaceDefect]:
+        """The ground-truth cracks: 8-connected components of the mask, in surface and world
+        coordinates.
 
-        Computed once with ``cv2.connectedComponentsWithStats`` and cached. A mission report
-        can match detections mapped to surface coordinates against these to compute the
-        system's recall and precision ((P20) at the defect level).
+        Components smaller than ``min_area_px`` texture pixels (a crack tip cut off by the edge of
+        the surface) are left out: no camera could tell them from the texture. Computed with
+        ``cv2.connectedComponentsWithStats`` and cached per ``min_area_px``. The mission report
+        matches the detector's defect positions, mapped to surface coordinates, against these
+        (object-level recall and precision, the F-measure of (P20)).
         """
-        if self._defects is None:
+        if isinstance(min_area_px, bool) or not isinstance(min_area_px, (int, np.integer)) or min_area_px < 0:
+            raise ValueError(f"min_area_px must be an integer >= 0, got {min_area_px!r}")
+        key = int(min_area_px)
+        if key not in self._defects:
             n, _, stats, cents = cv2.connectedComponentsWithStats(self.mask, connectivity=8)
-            out: list[Defect] = []
-            s = self.px_per_m
-            for k in range(1, n):
-                x, y, w, h, area = (int(t) for t in stats[k])
-                c_uv = (cents[k] + 0.5) / s
-                out.append(
-                    Defect(
-                        label=k,
-                        centroid_uv=c_uv,
-                        centroid_enu=self.surface_to_world(c_uv),
-                        bbox_uv=(x / s, y / s, (x + w) / s, (y + h) / s),
-                        bbox_px=(x, y, w, h),
-                        area_px=area,
-                        area_m2=area / s**2,
-                    )
-                )
-            self._defects = out
-        return list(self._defects)
+            s = 1.0 / self.px_per_m
+            out: list[SurfaceDefect] = []
+            for i in range(1, n):
+                x, y, w, h, area = (int(t) for t in stats[i, :5])
+                if area < key:
+                    continue
+                cu, cv_ = self.pixel_to_surface(cents[i])
+                world = self.surface_to_world(np.array([cu, cv_]))
+                out.append(SurfaceDefect(
+                    id=len(out), centroid_uv=(float(cu), float(cv_)),
+                    centroid_world=(float(world[0]), float(world[1]), float(world[2])),
+                    bbox_uv=(x * s, self.height_m - (y + h) * s, (x + w) * s, self.height_m - y * s),
+                    area_px=area, area_m2=area * s * s, bbox_px=(x, y, w, h),
+                ))
+            self._defects[key] = out
+        return list(self._defects[key])
 
     def __repr__(self) -> str:
         h, w = self.shape_px
-        return (
-            f"SyntheticSurface(origin={self.origin.tolist()}, u={self.u_axis.round(6).tolist()}, "
-            f"v={self.v_axis.round(6).tolist()}, {self.width_m:g} m x {self.height_m:g} m, "
-            f"{self.px_per_m:g} px/m -> {w}x{h} px, seed={self.seed}, n_cracks={self.n_cracks})"
-        )
+        return (f"SyntheticSurface(origin={self.origin.round(3).tolist()}, u={self.u_axis.round(6).tolist()}, "
+                f"v={self.v_axis.round(6).tolist()}, {self.width_m:g} m x {self.height_m:g} m, "
+                f"{self.px_per_m:g} px/m = {w}x{h} px, seed={self.seed})")

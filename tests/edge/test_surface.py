@@ -90,90 +90,164 @@ def test_crack_image_bad_input(kwargs: dict) -> None:
 
 
 # ---------------------------------------------------------------- the surface in the world
+# the default scenario's wall: 50 m x 6 m along north-south at x = 60, inspected from the west
+CORNERS = [[60, 85, 25.5], [60, 35, 25.5], [60, 35, 31.5], [60, 85, 31.5]]
+
+
 @pytest.fixture(scope="module")
 def wall() -> SyntheticSurface:
-    # a 6 m x 3 m wall along east, from (10, 5) to (16, 5), 1..4 m high: front faces south
-    return SyntheticSurface.from_corners([[10, 5, 1], [16, 5, 4]], px_per_m=50, seed=3, n_cracks=4)
+    return SyntheticSurface.from_corners(CORNERS, px_per_m=50, seed=3)
 
 
-def test_wall_from_two_corners(wall: SyntheticSurface) -> None:
-    assert wall.shape_px == (150, 300)
-    np.testing.assert_allclose(wall.origin, [10, 5, 4])
-    np.testing.assert_allclose(wall.u_axis, [1, 0, 0])
-    np.testing.assert_allclose(wall.v_axis, [0, 0, -1])
-    np.testing.assert_allclose(wall.normal, [0, -1, 0], atol=1e-12)  # right of walking east
-    np.testing.assert_allclose(wall.corners[2], [16, 5, 1])
-    np.testing.assert_allclose(wall.center, [13, 5, 2.5])
+def test_scenario_wall_geometry(wall: SyntheticSurface) -> None:
+    assert wall.shape_px == (300, 2500) and wall.texture.dtype == np.uint8
+    np.testing.assert_allclose(wall.normal, [-1, 0, 0], atol=1e-12)  # faces west, where the UAVs fly
+    np.testing.assert_allclose(wall.corners, CORNERS)
+    np.testing.assert_allclose(wall.center, [60, 60, 28.5])
+    uv = np.array([[0.0, 0.0], [50.0, 6.0], [12.5, 3.0]])
+    world = wall.surface_to_world(uv)
+    np.testing.assert_allclose(world[0], CORNERS[0])
+    np.testing.assert_allclose(world[1], CORNERS[2])
+    np.testing.assert_allclose(wall.world_to_surface(world), uv, atol=1e-12)
+    # a point off the plane projects onto it along the normal
+    np.testing.assert_allclose(wall.world_to_surface([55.0, 60.0, 28.0]), [25.0, 2.5])
+    assert wall.distance_to_plane([55.0, 60.0, 28.0]) == pytest.approx(5.0)
+
+
+def test_texture_is_upright_and_matrix_consistent(wall: SyntheticSurface) -> None:
+    # row 0 is the top of the wall, column 0 the p0 end
+    np.testing.assert_allclose(wall.surface_to_pixel([[0.01, 5.99]]), [[0.0, 0.0]], atol=1e-9)
+    np.testing.assert_allclose(wall.surface_to_pixel([[0.01, 0.01]]), [[0.0, 299.0]], atol=1e-9)
+    A = wall.pixel_to_world_matrix()
+    for col, row in [(0, 0), (2499, 299), (1250, 150), (7.25, 3.5)]:
+        X = A @ [col, row, 1.0]
+        np.testing.assert_allclose(wall.surface_to_pixel(wall.world_to_surface(X)), [col, row], atol=1e-9)
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 300, size=(20, 2))
+    np.testing.assert_allclose(wall.surface_to_pixel(wall.pixel_to_surface(xy)), xy, atol=1e-9)
+
+
+def test_wall_from_two_corners() -> None:
+    s = SyntheticSurface.from_corners([[10, 5, 1], [16, 5, 4]], px_per_m=20, n_cracks=1)
+    assert s.shape_px == (60, 120)
+    np.testing.assert_allclose(s.origin, [10, 5, 1])
+    np.testing.assert_allclose(s.u_axis, [1, 0, 0])
+    np.testing.assert_allclose(s.v_axis, [0, 0, 1])
+    np.testing.assert_allclose(s.normal, [0, -1, 0], atol=1e-12)  # right of walking east
+    np.testing.assert_allclose(s.corners[2], [16, 5, 4])
+    # given top corner first: same wall
+    t = SyntheticSurface.from_corners([[10, 5, 4], [16, 5, 1]], px_per_m=20, n_cracks=1)
+    np.testing.assert_allclose(t.corners, s.corners)
 
 
 def test_deck_from_two_corners_faces_up() -> None:
-    s = SyntheticSurface.from_corners([[0, 0, 2], [4, 3, 2]], px_per_m=20, n_cracks=1)
+    s = SyntheticSurface.from_corners([[4, 3, 2], [0, 0, 2]], px_per_m=20, n_cracks=1)
     np.testing.assert_allclose(s.normal, [0, 0, 1], atol=1e-12)
-    np.testing.assert_allclose(s.origin, [0, 3, 2])  # north-west corner
+    np.testing.assert_allclose(s.origin, [0, 0, 2])  # south-west corner
     assert s.shape_px == (60, 80)
 
 
-def test_oblique_from_four_corners_round_trip() -> None:
-    # a tilted rectangle: u along (1, 1, 0)/sqrt2, v along (0, 0, -1) rotated 30 deg about u
+def test_oblique_from_three_and_four_corners_round_trip() -> None:
     rng = np.random.default_rng(0)
     u = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
     a = np.radians(30)
-    v = np.cos(a) * np.array([0, 0, -1.0]) + np.sin(a) * np.cross(u, [0, 0, -1.0])
+    v = np.cos(a) * np.array([0, 0, 1.0]) + np.sin(a) * np.cross([0, 0, 1.0], u)
     o = np.array([3.0, -2.0, 7.0])
-    corners = np.array([o, o + 4 * u, o + 4 * u + 2 * v, o + 2 * v])
-    s = SyntheticSurface.from_corners(corners, px_per_m=25, seed=1, n_cracks=2)
+    four = np.array([o, o + 4 * u, o + 4 * u + 2 * v, o + 2 * v])
+    s = SyntheticSurface.from_corners(four, px_per_m=25, seed=1, n_cracks=2)
+    s3 = SyntheticSurface.from_corners(four[[0, 1, 3]], px_per_m=25, seed=1, n_cracks=2)
+    np.testing.assert_allclose(s3.corners, s.corners, atol=1e-12)
     assert s.width_m == pytest.approx(4) and s.height_m == pytest.approx(2)
-    assert np.linalg.norm(s.normal) == pytest.approx(1)
-    assert abs(s.normal @ s.u_axis) < 1e-12 and abs(s.normal @ s.v_axis) < 1e-12
+    np.testing.assert_allclose(s.normal, np.cross(u, v), atol=1e-12)
     uv = rng.uniform([0, 0], [4, 2], size=(50, 2))
     world = s.surface_to_world(uv)
     np.testing.assert_allclose(s.world_to_surface(world), uv, atol=1e-12)
     np.testing.assert_allclose(s.distance_to_plane(world), 0, atol=1e-12)
-    # points off the plane project along the normal
     off = world + 1.5 * s.normal
     np.testing.assert_allclose(s.world_to_surface(off), uv, atol=1e-12)
     np.testing.assert_allclose(s.distance_to_plane(off), 1.5, atol=1e-12)
-    np.testing.assert_allclose(s.pixel_to_surface(s.surface_to_pixel(uv)), uv, atol=1e-12)
-    np.testing.assert_allclose(s.surface_to_pixel([[0.02, 0.02]]), [[0.0, 0.0]])  # pixel centre
+    assert s.contains(uv).all() and not s.contains([[4.1, 1.0], [1.0, -0.1]]).any()
 
 
-def test_bad_corners() -> None:
+@pytest.mark.parametrize(
+    "corners",
+    [
+        [[0, 0, 0], [0, 0, 5]],  # no horizontal extent
+        [[0, 0, 0], [3, 0, 0]],  # flat and no extent in y
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 2, 0]],  # not a rectangle
+        [[0, 0, 0], [1, 0, 0], [1, 1, 1]],  # not a right angle
+        [[0, 0, 0], [10, 0, 0], [11, 0, 3], [1, 0, 3]],  # a parallelogram
+        [[0, 0, np.nan], [1, 0, 1]],
+        [[0, 0, 0]],
+        [[0, 0], [1, 1]],
+    ],
+)
+def test_bad_corners(corners: list) -> None:
     with pytest.raises(ValueError):
-        SyntheticSurface.from_corners([[0, 0, 0], [0, 0, 5]])  # no horizontal extent
+        SyntheticSurface.from_corners(corners, px_per_m=10)
+
+
+def test_bad_construction() -> None:
     with pytest.raises(ValueError):
-        SyntheticSurface.from_corners([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 2, 0]])  # not a rectangle
+        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, 1], 1000, 1000)  # 10^10 px
     with pytest.raises(ValueError):
-        SyntheticSurface.from_corners([[0, 0, 0], [1, 0, 0], [1, 1, 0]])  # not a right angle
+        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, 1], -1, 1)
     with pytest.raises(ValueError):
-        SyntheticSurface.from_corners([[0, 0, np.nan], [1, 0, 1]])
+        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, 1], 1, 1, px_per_m=float("inf"))
     with pytest.raises(ValueError):
-        SyntheticSurface.from_corners([[0, 0, 0]])
+        SyntheticSurface([0, 0, 0], [1, 0, 0], [0.1, 0, 1], 1, 1)  # not orthogonal
     with pytest.raises(ValueError):
-        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, -1], 1000, 1000)  # 10^10 px
+        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, 1], 1, 1, px_per_m=10, texture=np.zeros((10, 10), np.uint8))
     with pytest.raises(ValueError):
-        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, -1], -1, 1)
+        SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, 1], 1, 1, px_per_m=10,
+                         texture=np.zeros((9, 10), np.uint8), mask=np.zeros((9, 10), np.uint8))
+    with pytest.raises(ValueError):
+        SyntheticSurface.from_corners(CORNERS, px_per_m=10).world_to_surface([[1.0, 2.0]])
+
+
+def test_given_texture_and_mask_are_used() -> None:
+    tex = np.full((10, 20), 100, np.uint8)
+    mask = np.zeros((10, 20), np.uint8)
+    mask[2:4, 5:15] = 1
+    s = SyntheticSurface([0, 0, 0], [1, 0, 0], [0, 0, 1], 2, 1, px_per_m=10, texture=tex, mask=mask)
+    assert set(np.unique(s.mask)) == {0, 255}
+    (d,) = s.defects()
+    assert d.area_px == 20 and d.bbox_px == (5, 2, 10, 2)
+    assert d.bbox_uv == pytest.approx((0.5, 0.6, 1.5, 0.8))
+    assert d.centroid_uv == pytest.approx((1.0, 0.7))
 
 
 def test_surface_deterministic_by_seed() -> None:
-    a = SyntheticSurface.from_corners([[0, 0, 0], [3, 0, 2]], px_per_m=40, seed=9)
-    b = SyntheticSurface.from_corners([[0, 0, 0], [3, 0, 2]], px_per_m=40, seed=9)
+    a = SyntheticSurface.from_corners(CORNERS, px_per_m=10, seed=9)
+    b = SyntheticSurface.from_corners(CORNERS, px_per_m=10, seed=9)
+    c = SyntheticSurface.from_corners(CORNERS, px_per_m=10, seed=10)
     assert np.array_equal(a.texture, b.texture) and np.array_equal(a.mask, b.mask)
-    assert a.mask.any()
+    assert not np.array_equal(a.mask, c.mask)
 
 
-def test_defects_match_mask(wall: SyntheticSurface) -> None:
+def test_defects_match_the_mask(wall: SyntheticSurface) -> None:
+    every = wall.defects(min_area_px=0)
+    assert sum(d.area_px for d in every) == int((wall.mask > 0).sum())
     defects = wall.defects()
-    assert defects
-    assert sum(d.area_px for d in defects) == int((wall.mask > 0).sum())
+    assert defects and len(defects) <= len(every) and all(d.area_px >= 20 for d in defects)
+    assert [d.id for d in defects] == list(range(len(defects)))
     for d in defects:
+        u0, v0, u1, v1 = d.bbox_uv
+        assert 0 <= u0 <= d.centroid_uv[0] <= u1 <= 50 and 0 <= v0 <= d.centroid_uv[1] <= v1 <= 6
+        assert d.centroid_world[0] == pytest.approx(60.0)
+        np.testing.assert_allclose(wall.world_to_surface(d.centroid_world), d.centroid_uv, atol=1e-9)
+        assert d.area_m2 == pytest.approx(d.area_px / 50**2)
         x, y, w, h = d.bbox_px
         assert wall.mask[y : y + h, x : x + w].any()
-        u0, v0, u1, v1 = d.bbox_uv
-        assert u0 <= d.centroid_uv[0] <= u1 and v0 <= d.centroid_uv[1] <= v1
-        np.testing.assert_allclose(wall.world_to_surface(d.centroid_enu), d.centroid_uv, atol=1e-9)
-        assert d.area_m2 == pytest.approx(d.area_px / 50**2)
+        # the pixel box and the surface box are the same rectangle
+        np.testing.assert_allclose(wall.pixel_to_surface([[x - 0.5, y + h - 0.5]]), [[u0, v0]], atol=1e-9)
     # is_crack agrees with the mask at pixel centres
     rows, cols = np.nonzero(wall.mask)
     uv = wall.pixel_to_surface(np.stack([cols, rows], 1).astype(float))
     assert wall.is_crack(uv).all()
+    rows0, cols0 = np.nonzero(wall.mask == 0)
+    pick = np.random.default_rng(1).choice(len(rows0), 500)
+    assert not wall.is_crack(wall.pixel_to_surface(np.stack([cols0[pick], rows0[pick]], 1).astype(float))).any()
     assert not wall.is_crack([[-1.0, 0.5], [0.5, 99.0]]).any()
+    with pytest.raises(ValueError):
+        wall.defects(min_area_px=-1)
