@@ -1,236 +1,737 @@
 """The UAV's camera: frame sources behind one interface, and JPEG encoding off the control loop.
 
 Sources (:class:`FrameSource`): :class:`SyntheticSource` renders the view of a
-:class:`~edge.surface.SyntheticSurface` from the camera pose (its ground-truth mask comes
-along); :class:`FolderSource` replays a folder of images; :class:`VideoCaptureSource` reads a
-real camera or stream through OpenCV. :func:`make_source` picks one from a spec string.
+:class:`~edge.surface.SyntheticSurface` from the camera pose, with the view's ground-truth mask;
+:class:`FolderSource` replays a folder of images; :class:`VideoCaptureSource` reads a real camera
+or a stream through OpenCV. :func:`make_source` picks one from a spec string. :class:`FrameEncoder`
+JPEG-encodes frames on its own thread, so that the control loop that fires the camera at each
+capture point never waits for the encoder (the bus publishing is in :mod:`edge.runtime`).
 
-Camera model: a pinhole with square pixels, the task-assessment model of (P1)-(P3): at a
-distance ``d`` the footprint is ``d * s_s / f`` on each axis (the inverse of (P2)) and the
-intrinsics are ``f_x = f * W / s_w``, ``f_y = f * H / s_h``, principal point at the centre.
-Poses use OpenCV camera axes: x right, y down, z forward (the optical axis); ``rotation`` is
-world-from-camera, so a world point ``X`` is at ``R^T (X - C)`` in the camera frame.
+Camera model (:class:`CameraModel`): a pinhole with the task-assessment geometry of the paper
+(PAPER.md Section 2): at a distance ``d`` from the surface the footprint is ``d s_s / f`` on each
+axis, the inverse of (P2); (P1) and (P3) are :meth:`CameraModel.feature_footprint` and
+:meth:`CameraModel.spacing`. Intrinsics ``f_x = f W / s_w``, ``f_y = f H / s_h`` (pixels),
+principal point at the image centre ``((W - 1) / 2, (H - 1) / 2)`` -- OpenCV's convention, pixel
+centres at integer coordinates, the same one :meth:`SyntheticSurface.pixel_to_world_matrix` uses.
+
+Poses (:class:`CameraPose`) use OpenCV camera axes: x right, y down, z forward (the optical axis).
+``rotation`` is world-from-camera: its columns are the camera axes in ENU, and a world point ``X``
+is at ``R^T (X - C)`` in the camera frame.
 """
 
 from __future__ import annotations
 
 import collections
+import logging
 import math
 import os
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from .surface import SyntheticSurface
+
+__all__ = [
+    "IMAGE_EXTENSIONS",
+    "CameraModel",
+    "CameraPose",
+    "Frame",
+    "FrameSource",
+    "SyntheticSource",
+    "FolderSource",
+    "VideoCaptureSource",
+    "make_source",
+    "encode_jpeg",
+    "decode_jpeg",
+    "FrameEncoder",
+]
+
+log = logging.getLogger(__name__)
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
 
+def _finite_pos(name: str, value: Any) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+    return v
+
+
+# ============================================================================ camera model
 @dataclass(frozen=True)
 class CameraModel:
-    """Delivered frame size (px), sensor size (mm) and focal length (mm)."""
+    """Pinhole camera: delivered frame size (px), sensor size (mm) and focal length (mm).
 
-    resolution: tuple[int, int]  # width, height
-    sensor_mm: tuple[float, float]  # width, height
-    focal_mm: float
+    The defaults are the paper's camera as the planner reads it (``services/planner/task.py``):
+    the GoPro's 34.4 mm is taken as a 35 mm-equivalent focal length with an equivalent
+    36 mm x 27 mm sensor for the 4:3 frame, here delivering 640 x 480 frames (the same field of
+    view as the 4000 x 3000 stills, fewer pixels).
+
+    Parameters
+    ----------
+    resolution : (int, int)
+        ``(width, height)`` of the delivered frame, pixels.
+    sensor_mm : (float, float)
+        ``(s_w, s_h)``, sensor size in the unit of ``focal_mm``.
+    focal_mm : float
+        Focal length ``f``.
+    """
+
+    resolution: tuple[int, int] = (640, 480)
+    sensor_mm: tuple[float, float] = (36.0, 27.0)
+    focal_mm: float = 34.4
 
     def __post_init__(self) -> None:
-        w, h = self.resolution
-        if not (w >= 1 and h >= 1):
-            raise ValueError("resolution must be positive")
-        if not (self.focal_mm > 0 and min(self.sensor_mm) > 0 and all(map(math.isfinite, (*self.sensor_mm, self.focal_mm)))):
-            raise ValueError("sensor size and focal length must be finite and positive")
+        try:
+            w, h = self.resolution
+            sw, sh = self.sensor_mm
+        except (TypeError, ValueError):
+            raise ValueError("resolution and sensor_mm must be (width, height) pairs") from None
+        if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in (w, h)):
+            raise ValueError(f"resolution must be two positive integers, got {self.resolution!r}")
+        object.__setattr__(self, "resolution", (int(w), int(h)))
+        object.__setattr__(self, "sensor_mm", (_finite_pos("sensor width", sw), _finite_pos("sensor height", sh)))
+        object.__setattr__(self, "focal_mm", _finite_pos("focal_mm", self.focal_mm))
 
+    # ------------------------------------------------------------------ intrinsics
     def intrinsics(self) -> tuple[float, float, float, float]:
-        """(fx, fy, cx, cy) in pixels."""
+        """``(fx, fy, cx, cy)`` in pixels: ``f W / s_w``, ``f H / s_h``, ``(W - 1) / 2``, ``(H - 1) / 2``."""
         w, h = self.resolution
-        return (self.focal_mm * w / self.sensor_mm[0], self.focal_mm * h / self.sensor_mm[1], w / 2.0, h / 2.0)
+        return (self.focal_mm * w / self.sensor_mm[0], self.focal_mm * h / self.sensor_mm[1],
+                (w - 1) / 2.0, (h - 1) / 2.0)
 
     def K(self) -> NDArray[np.float64]:
+        """The 3 x 3 intrinsic matrix."""
         fx, fy, cx, cy = self.intrinsics()
         return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
-    def footprint(self, distance_m: float) -> tuple[float, float]:
-        """Footprint (width, height) in metres at ``distance_m`` (inverse of (P2): a = d s_s / f)."""
-        return (distance_m * self.sensor_mm[0] / self.focal_mm, distance_m * self.sensor_mm[1] / self.focal_mm)
+    @property
+    def fov_rad(self) -> tuple[float, float]:
+        """Full horizontal and vertical field of view, radians: ``2 atan(s / 2f)``."""
+        return (2 * math.atan(self.sensor_mm[0] / (2 * self.focal_mm)),
+                2 * math.atan(self.sensor_mm[1] / (2 * self.focal_mm)))
 
     def scaled(self, width: int, height: int) -> "CameraModel":
         """The same optics delivering ``width x height`` frames."""
         return CameraModel((int(width), int(height)), self.sensor_mm, self.focal_mm)
 
+    # ------------------------------------------------------------------ task assessment (P1)-(P3)
+    def footprint(self, distance_m: float) -> tuple[float, float]:
+        """Footprint (width, height), metres, of a square-on shot from ``distance_m``: ``d s_s / f``.
 
+        The inverse of (P2); the planner's ``footprint_at`` computes the same.
+        """
+        d = _finite_pos("distance_m", distance_m)
+        return d * self.sensor_mm[0] / self.focal_mm, d * self.sensor_mm[1] / self.focal_mm
+
+    def gsd(self, distance_m: float) -> tuple[float, float]:
+        """Ground sample distance (metres per pixel of the delivered frame) at ``distance_m``."""
+        a_w, a_h = self.footprint(distance_m)
+        return a_w / self.resolution[0], a_h / self.resolution[1]
+
+    def feature_footprint(self, smallest_feature_m: float) -> tuple[float, float]:
+        """(P1) ``a_fov = 1/2 r_c s_f`` per axis, metres: two frame pixels per smallest feature."""
+        s_f = _finite_pos("smallest_feature_m", smallest_feature_m)
+        return 0.5 * self.resolution[0] * s_f, 0.5 * self.resolution[1] * s_f
+
+    def standoff(self, smallest_feature_m: float) -> float:
+        """(P2) ``d_f = a_fov f / s_s``, metres; the smaller of the two axes (resolves ``s_f`` on both)."""
+        a_w, a_h = self.feature_footprint(smallest_feature_m)
+        return min(a_w * self.focal_mm / self.sensor_mm[0], a_h * self.focal_mm / self.sensor_mm[1])
+
+    def spacing(self, distance_m: float, overlap: float) -> tuple[float, float]:
+        """(P3) ``g = (1 - o_p) a_fov`` per axis, metres, for shots from ``distance_m``."""
+        o = float(overlap)
+        if not (math.isfinite(o) and 0.0 <= o < 1.0):
+            raise ValueError(f"overlap must lie in [0, 1), got {overlap!r}")
+        a_w, a_h = self.footprint(distance_m)
+        return (1 - o) * a_w, (1 - o) * a_h
+
+    def project(self, points: ArrayLike, pose: "CameraPose") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Project world points (..., 3) into the frame: pixel coordinates (..., 2) and depth (...,).
+
+        Points with depth <= 0 are behind the camera; their pixel coordinates mean nothing.
+        """
+        pc = pose.world_to_camera(points)
+        z = pc[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uvw = pc @ self.K().T
+            px = uvw[..., :2] / uvw[..., 2:3]
+        return px, z
+
+
+# ============================================================================ pose
 @dataclass(frozen=True)
 class CameraPose:
-    position: NDArray[np.float64]  # ENU metres
-    rotation: NDArray[np.float64]  # world-from-camera, OpenCV axes
+    """Where the camera is and where it looks.
+
+    Attributes
+    ----------
+    position : numpy.ndarray
+        Camera centre ``C``, ENU metres, shape (3,).
+    rotation : numpy.ndarray
+        World-from-camera rotation ``R`` (3, 3), OpenCV camera axes (x right, y down, z the optical
+        axis): the columns are the camera axes in ENU. Must be a proper rotation (to 1e-6).
+    """
+
+    position: NDArray[np.float64]
+    rotation: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        p = np.asarray(self.position, dtype=np.float64).reshape(-1)
+        R = np.asarray(self.rotation, dtype=np.float64)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise ValueError(f"position must be a finite 3-vector, got {self.position!r}")
+        if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+            raise ValueError("rotation must be a finite 3 x 3 matrix")
+        if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise ValueError("rotation must be a proper rotation matrix (orthonormal, det +1)")
+        object.__setattr__(self, "position", p)
+        object.__setattr__(self, "rotation", R)
 
     @classmethod
-    def looking(cls, position: Any, yaw: float, pitch: float = 0.0) -> "CameraPose":
-        """A gimbal-stabilised camera looking along heading ``yaw`` (ENU, from east, CCW), tilted
-        down by ``pitch`` radians."""
+    def looking(cls, position: ArrayLike, yaw: float, pitch: float = 0.0, roll: float = 0.0) -> "CameraPose":
+        """A gimbal camera looking along heading ``yaw``, tilted down by ``pitch``, rolled by ``roll``.
+
+        ``yaw`` is the heading of the optical axis in the ENU plane, radians counter-clockwise from
+        east (the ψ of (P7)); ``pitch`` tilts the optical axis *down* (gimbal tilt: ``pi/2`` looks
+        straight down); ``roll`` turns the camera about its optical axis, positive turning the
+        image's x axis towards its y axis. At ``(0, 0, 0)`` the camera looks east, x points south,
+        y down.
+        """
+        for name, a in (("yaw", yaw), ("pitch", pitch), ("roll", roll)):
+            if not math.isfinite(a):
+                raise ValueError(f"{name} must be finite, got {a!r}")
         c, s = math.cos(yaw), math.sin(yaw)
         cp, sp = math.cos(pitch), math.sin(pitch)
         z = np.array([c * cp, s * cp, -sp])
         x = np.array([s, -c, 0.0])
         y = np.cross(z, x)
+        cr, sr = math.cos(roll), math.sin(roll)
+        x, y = cr * x + sr * y, -sr * x + cr * y
         return cls(np.asarray(position, dtype=float), np.column_stack([x, y, z]))
 
+    @classmethod
+    def facing(cls, target: ArrayLike, normal: ArrayLike, distance: float,
+               up: ArrayLike = (0.0, 0.0, 1.0)) -> "CameraPose":
+        """The camera ``distance`` metres out along ``normal`` from ``target``, looking back at it.
 
+        The image's y axis points as nearly as possible along ``-up`` (world up is image up); when
+        the optical axis is parallel to ``up`` (looking straight down or up), north is image up.
+        For a :class:`~edge.surface.SyntheticSurface` ``s``, ``facing(point, s.normal, d)`` is the
+        square-on shot the task assessment (P1)-(P3) assumes.
+        """
+        t = np.asarray(target, dtype=float)
+        n = np.asarray(normal, dtype=float)
+        u = np.asarray(up, dtype=float)
+        if t.shape != (3,) or n.shape != (3,) or u.shape != (3,) or not np.all(np.isfinite(np.r_[t, n, u])):
+            raise ValueError("target, normal and up must be finite 3-vectors")
+        if np.linalg.norm(n) < 1e-12 or np.linalg.norm(u) < 1e-12:
+            raise ValueError("normal and up must be non-zero")
+        d = _finite_pos("distance", distance)
+        z = -n / np.linalg.norm(n)
+        x = np.cross(z, u)
+        if np.linalg.norm(x) < 1e-9 * np.linalg.norm(u):
+            x = np.cross(z, [0.0, 1.0, 0.0])
+        x /= np.linalg.norm(x)
+        return cls(t - d * z, np.column_stack([x, np.cross(z, x), z]))
+
+    @property
+    def optical_axis(self) -> NDArray[np.float64]:
+        """Unit optical axis (camera z) in ENU."""
+        return self.rotation[:, 2]
+
+    def world_to_camera(self, points: ArrayLike) -> NDArray[np.float64]:
+        """World points (..., 3) in the camera frame: ``R^T (X - C)``."""
+        X = np.asarray(points, dtype=float)
+        if X.ndim == 0 or X.shape[-1] != 3:
+            raise ValueError(f"points must have shape (..., 3), got {X.shape}")
+        return (X - self.position) @ self.rotation
+
+
+# ============================================================================ frames and sources
 @dataclass
 class Frame:
+    """One captured frame.
+
+    Attributes
+    ----------
+    image : numpy.ndarray
+        ``uint8``, grey (H, W) or BGR (H, W, 3).
+    t : float
+        Capture time, seconds (the caller's clock: mission time on the edge).
+    pose : CameraPose or None
+        The camera pose at capture, as given to :meth:`FrameSource.grab`.
+    mask : numpy.ndarray or None
+        Ground truth of the frame (uint8, 255 on cracks), when the source knows it.
+    seq : int
+        The source's frame counter, from 0.
+    name : str
+        Where the frame came from (file name, stream), empty for the synthetic source.
+    """
+
     image: NDArray[np.uint8]
     t: float
     pose: CameraPose | None = None
-    mask: NDArray[np.uint8] | None = None  # ground truth, synthetic source only
+    mask: NDArray[np.uint8] | None = None
+    seq: int = 0
+    name: str = ""
 
 
+@runtime_checkable
 class FrameSource(Protocol):
-    def grab(self, pose: CameraPose | None, t: float) -> Frame | None: ...
+    """What the edge needs of a camera: a frame at each capture point, and a way to stop."""
 
-    def close(self) -> None: ...
+    def grab(self, pose: CameraPose | None, t: float) -> Frame | None:
+        """The frame seen from ``pose`` at time ``t``; None when there is none (end of a stream)."""
+        ...
+
+    def close(self) -> None:
+        """Release the device; further grabs may fail."""
+        ...
 
 
 class SyntheticSource:
-    """Renders the surface as the camera sees it: the plane-to-image homography
-    ``H = K R^T [A - C]`` of the texture (``A`` maps texture pixels to the wall,
-    :meth:`SyntheticSurface.pixel_to_world_matrix`), applied with ``cv2.warpPerspective`` —
-    its cost is the size of the frame, not of the texture. Where the wall is not in view the
-    frame shows a bright sky (a dark border would look like a defect)."""
+    """The view of a :class:`~edge.surface.SyntheticSurface` from the camera pose.
 
-    def __init__(self, surface: SyntheticSurface, camera: CameraModel, sky: int = 200):
+    The surface plane maps to the image by the homography ``H = K R^T (A - C e3^T)`` (``A`` maps
+    texture pixels to the world, :meth:`SyntheticSurface.pixel_to_world_matrix`), applied with
+    ``cv2.warpPerspective`` -- bilinear for the texture, nearest neighbour for the mask. The cost
+    is that of the frame, not of the texture:
+
+    - only the texture region the frame can see is handed to the warp (the bounding box of the
+      view's corners mapped back onto the texture);
+    - where the frame looks at the surface from afar (more than two texture pixels per frame
+      pixel), the warp reads a 2^L-times box-filtered copy of the texture (built once per level)
+      instead of aliasing; the mask copy marks a pixel as crack if any texture pixel under it is;
+    - pixels whose rays miss the plane (above its horizon, or pointing away) are sky, as are
+      pixels off the rectangle and every pixel when the camera is behind the surface (its back
+      is not textured).
+
+    Parameters
+    ----------
+    surface : SyntheticSurface
+    camera : CameraModel
+    sky : int
+        Grey level where the surface is not seen. Default 200: bright, so that a frame edge is not
+        a dark stripe the detector would take for a defect.
+    noise_sigma : float
+        Standard deviation of Gaussian sensor noise added to each frame, grey levels. Default 0
+        (the texture already has grain).
+    seed : int or None
+        Seed of the sensor noise.
+    """
+
+    #: frame pixels of texture, at most, before a coarser texture level is used
+    MINIFY_LIMIT = 2.0
+
+    def __init__(self, surface: SyntheticSurface, camera: CameraModel, sky: int = 200,
+                 noise_sigma: float = 0.0, seed: int | None = None) -> None:
+        if not isinstance(surface, SyntheticSurface):
+            raise ValueError(f"surface must be a SyntheticSurface, got {type(surface).__name__}")
+        if not isinstance(camera, CameraModel):
+            raise ValueError(f"camera must be a CameraModel, got {type(camera).__name__}")
+        if not 0 <= int(sky) <= 255:
+            raise ValueError(f"sky must be a grey level 0..255, got {sky!r}")
+        if not (math.isfinite(noise_sigma) and noise_sigma >= 0):
+            raise ValueError(f"noise_sigma must be finite and >= 0, got {noise_sigma!r}")
         self.surface, self.camera, self.sky = surface, camera, int(sky)
+        self.noise_sigma = float(noise_sigma)
+        self._rng = np.random.default_rng(seed)
         self._A = surface.pixel_to_world_matrix()
+        self._levels: dict[int, tuple[NDArray[np.uint8], NDArray[np.uint8]]] = {0: (surface.texture, surface.mask)}
+        self._seq = 0
 
+    # ------------------------------------------------------------------ geometry
     def homography(self, pose: CameraPose) -> NDArray[np.float64] | None:
-        R, C = np.asarray(pose.rotation, float), np.asarray(pose.position, float)
-        # the wall must be in front of the camera, seen from its inspected side
-        to_wall = float(np.dot(self.surface.origin - C, self.surface.normal))
-        if to_wall >= 0 or float(np.dot(R[:, 2], self.surface.normal)) >= 0:
+        """Texture pixel -> frame pixel homography, or None when the camera is not in front of the
+        surface (behind its plane or on it)."""
+        R, C = pose.rotation, pose.position
+        if float(np.dot(C - self.surface.origin, self.surface.normal)) <= 1e-9:
             return None
-        M = R.T @ (self._A - np.outer(C, [0.0, 0.0, 1.0]))
-        return self.camera.K() @ M
+        return self.camera.K() @ (R.T @ (self._A - np.outer(C, [0.0, 0.0, 1.0])))
 
-    def grab(self, pose: CameraPose | None, t: float) -> Frame | None:
+    def _visible_polygon(self, pose: CameraPose) -> NDArray[np.float64] | None:
+        """The frame region (convex polygon, pixel coordinates) whose rays meet the plane in front.
+
+        A ray ``d = R K^-1 p`` meets the plane ahead iff ``n . d < 0`` (the camera is in front):
+        a half-plane of the image, clipped here against the frame rectangle (Sutherland-Hodgman
+        with one edge). None when no pixel sees the plane.
+        """
         w, h = self.camera.resolution
-        H = None if pose is None else self.homography(pose)
+        line = self.surface.normal @ pose.rotation @ np.linalg.inv(self.camera.K())  # n . d(p)
+        rect = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]])
+        # keep a margin from the horizon, where the plane is infinitely far away
+        margin = 1e-6 * float(np.abs(line).sum())
+        val = rect @ line[:2] + line[2] + margin
+        if np.all(val < 0):
+            return rect
+        if np.all(val >= 0):
+            return None
+        out = []
+        for i in range(4):
+            a, b, va, vb = rect[i], rect[(i + 1) % 4], val[i], val[(i + 1) % 4]
+            if va < 0:
+                out.append(a)
+            if (va < 0) != (vb < 0):
+                out.append(a + (b - a) * (va / (va - vb)))
+        return np.array(out) if len(out) >= 3 else None
+
+    def _level(self, level: int) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+        if level not in self._levels:
+            f = 1 << level
+            tex, mask = self.surface.texture, self.surface.mask
+            h, w = (tex.shape[0] // f) * f, (tex.shape[1] // f) * f
+            size = (max(1, w // f), max(1, h // f))
+            t = cv2.resize(tex[: max(h, f), : max(w, f)], size, interpolation=cv2.INTER_AREA)
+            m = cv2.resize(mask[: max(h, f), : max(w, f)], size, interpolation=cv2.INTER_AREA)
+            self._levels[level] = (t, np.where(m > 0, 255, 0).astype(np.uint8))
+        return self._levels[level]
+
+    # ------------------------------------------------------------------ rendering
+    def render(self, pose: CameraPose) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+        """The grey frame and its ground-truth mask seen from ``pose`` (see the class docstring)."""
+        w, h = self.camera.resolution
+        sky = np.full((h, w), self.sky, np.uint8), np.zeros((h, w), np.uint8)
+        H = self.homography(pose)
         if H is None:
-            return Frame(np.full((h, w), self.sky, np.uint8), t, pose, np.zeros((h, w), np.uint8))
-        img = cv2.warpPerspective(self.surface.texture, H, (w, h), flags=cv2.INTER_LINEAR,
+            return sky
+        poly = self._visible_polygon(pose)
+        if poly is None:
+            return sky
+        Hinv = np.linalg.inv(H)
+        # the texture region the frame can see: the visible polygon mapped back onto the texture
+        q = np.c_[poly, np.ones(len(poly))] @ Hinv.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tq = q[:, :2] / q[:, 2:3]
+        th, tw = self.surface.shape_px
+        tq = np.nan_to_num(tq, nan=0.0, posinf=1e12, neginf=-1e12)
+        x0, y0 = np.floor(np.clip(tq.min(0) - 2, [0, 0], [tw, th])).astype(int)
+        x1, y1 = np.ceil(np.clip(tq.max(0) + 2, [0, 0], [tw, th])).astype(int)
+        if x1 <= x0 or y1 <= y0:
+            return sky
+        # texture pixels per frame pixel at the middle of the visible region
+        c = poly.mean(0)
+        J = self._jacobian(Hinv, c)
+        minify = math.sqrt(abs(np.linalg.det(J)))
+        level = int(math.floor(math.log2(minify / self.MINIFY_LIMIT))) + 1 if minify > self.MINIFY_LIMIT else 0
+        f = 1 << level
+        tex, mask = self._level(level)
+        lx0, ly0 = x0 // f, y0 // f
+        lx1, ly1 = min(tex.shape[1], -(-x1 // f)), min(tex.shape[0], -(-y1 // f))
+        if lx1 <= lx0 or ly1 <= ly0:
+            return sky
+        # level-L pixel x' (cropped at lx0) is texture pixel f (x' + lx0) + (f - 1) / 2
+        S = np.array([[f, 0.0, f * lx0 + (f - 1) / 2.0], [0.0, f, f * ly0 + (f - 1) / 2.0], [0.0, 0.0, 1.0]])
+        Hl = H @ S
+        tex_roi, mask_roi = tex[ly0:ly1, lx0:lx1], mask[ly0:ly1, lx0:lx1]
+        img = cv2.warpPerspective(tex_roi, Hl, (w, h), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=self.sky)
-        mask = cv2.warpPerspective(self.surface.mask, H, (w, h), flags=cv2.INTER_NEAREST,
-                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        return Frame(img, t, pose, mask)
+        gt = cv2.warpPerspective(mask_roi, Hl, (w, h), flags=cv2.INTER_NEAREST,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if len(poly) != 4 or not np.allclose(poly, [[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]):
+            seen = np.zeros((h, w), np.uint8)
+            cv2.fillConvexPoly(seen, np.round(poly * 16).astype(np.int32), 1, cv2.LINE_8, 4)
+            img[seen == 0] = self.sky
+            gt[seen == 0] = 0
+        return img, gt
+
+    @staticmethod
+    def _jacobian(Hinv: NDArray[np.float64], p: NDArray[np.float64]) -> NDArray[np.float64]:
+        """d(texture pixel) / d(frame pixel) of the homography ``Hinv`` at frame point ``p``."""
+        x = Hinv @ [p[0], p[1], 1.0]
+        return (Hinv[:2, :2] * x[2] - np.outer(x[:2], Hinv[2, :2])) / x[2] ** 2
+
+    def grab(self, pose: CameraPose | None, t: float) -> Frame:
+        """Render the frame at ``pose`` (all sky without a pose), with its ground-truth mask."""
+        if pose is None:
+            w, h = self.camera.resolution
+            img, gt = np.full((h, w), self.sky, np.uint8), np.zeros((h, w), np.uint8)
+        else:
+            img, gt = self.render(pose)
+        if self.noise_sigma > 0:
+            noisy = img + self._rng.standard_normal(img.shape, dtype=np.float32) * self.noise_sigma
+            img = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        frame = Frame(img, t, pose, gt, seq=self._seq)
+        self._seq += 1
+        return frame
 
     def close(self) -> None:
         pass
 
 
 class FolderSource:
-    """The images of a folder in name order (the pose is ignored), looping by default."""
+    """The images of a folder in name order, looping by default; the pose is only recorded.
 
-    def __init__(self, path: str | os.PathLike, loop: bool = True, grey: bool = True):
-        self.files = sorted(p for p in Path(path).iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS) \
-            if Path(path).is_dir() else []
+    Parameters
+    ----------
+    path : str or path
+        Folder of images (``IMAGE_EXTENSIONS``, case-insensitive), e.g. a data set's ``images/``.
+    loop : bool
+        Start again after the last image; otherwise :meth:`grab` returns None from then on.
+    grey : bool
+        Read as grey (the detector's input, PAPER.md Section 6) rather than BGR. Default True.
+    mask_dir : str or path, optional
+        Folder of ground-truth masks with the same base names (``<stem>.png``), as the data sets
+        under ``/work/shared/data`` have them; a frame whose mask is missing has ``mask=None``.
+
+    Raises
+    ------
+    ValueError
+        When the folder does not exist or holds no image. An unreadable image is skipped, counted
+        in :attr:`skipped` and logged.
+    """
+
+    def __init__(self, path: str | os.PathLike, loop: bool = True, grey: bool = True,
+                 mask_dir: str | os.PathLike | None = None) -> None:
+        folder = Path(path)
+        if not folder.is_dir():
+            raise ValueError(f"not a folder: {folder}")
+        self.files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
         if not self.files:
-            raise ValueError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in {path}")
-        self.loop, self.grey, self.index = loop, grey, 0
+            raise ValueError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in {folder}")
+        if mask_dir is not None and not Path(mask_dir).is_dir():
+            raise ValueError(f"mask_dir is not a folder: {mask_dir}")
+        self.mask_dir = Path(mask_dir) if mask_dir is not None else None
+        self.loop, self.grey, self.index = bool(loop), bool(grey), 0
+        self.skipped = 0
+        self._seq = 0
 
-    def grab(self, pose: CameraPose | None, t: float) -> Frame | None:
+    def _next_path(self) -> Path | None:
         if self.index >= len(self.files):
             if not self.loop:
                 return None
             self.index = 0
         path = self.files[self.index]
         self.index += 1
-        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE if self.grey else cv2.IMREAD_COLOR)
-        if img is None:
-            raise ValueError(f"cannot read image {path}")
-        return Frame(img, t, pose)
+        return path
+
+    def grab(self, pose: CameraPose | None, t: float) -> Frame | None:
+        """The next readable image; None at the end (``loop=False``) or if none of the files reads."""
+        for _ in range(len(self.files)):
+            path = self._next_path()
+            if path is None:
+                return None
+            img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE if self.grey else cv2.IMREAD_COLOR)
+            if img is None:
+                self.skipped += 1
+                log.warning("folder source: cannot read %s, skipped", path)
+                continue
+            mask = None
+            if self.mask_dir is not None:
+                mpath = self.mask_dir / (path.stem + ".png")
+                m = cv2.imread(str(mpath), cv2.IMREAD_GRAYSCALE) if mpath.is_file() else None
+                if m is not None and m.shape == img.shape[:2]:
+                    mask = np.where(m > 0, 255, 0).astype(np.uint8)
+            frame = Frame(img, t, pose, mask, seq=self._seq, name=path.name)
+            self._seq += 1
+            return frame
+        return None
 
     def close(self) -> None:
         pass
 
 
 class VideoCaptureSource:
-    """A real camera (an index) or a stream/file URL through ``cv2.VideoCapture``."""
+    """A real camera (an index such as ``0``) or a stream or file URL, through ``cv2.VideoCapture``.
 
-    def __init__(self, url: str | int):
+    :meth:`grab` reads the next frame; it returns None when there is none (end of a file, a stream
+    that stalled or dropped), so the edge logs and goes on. The pose is only recorded.
+
+    Parameters
+    ----------
+    url : str or int
+        Device index (an int, or a string of digits) or anything ``cv2.VideoCapture`` opens.
+    grey : bool
+        Convert frames to grey. Default False (frames as captured, BGR).
+
+    Raises
+    ------
+    ValueError
+        When the source cannot be opened.
+    """
+
+    def __init__(self, url: str | int, grey: bool = False) -> None:
+        if isinstance(url, str) and not url.strip():
+            raise ValueError("empty video source")
         self.url = url
-        self.cap = cv2.VideoCapture(int(url) if isinstance(url, str) and url.isdigit() else url)
+        self.grey = bool(grey)
+        self.cap = cv2.VideoCapture(int(url) if isinstance(url, str) and url.strip().isdigit() else url)
         if not self.cap.isOpened():
+            self.cap.release()
             raise ValueError(f"cannot open video source {url!r}")
+        self.failed = 0
+        self._seq = 0
 
     def grab(self, pose: CameraPose | None, t: float) -> Frame | None:
         ok, img = self.cap.read()
         if not ok or img is None:
+            self.failed += 1
             return None
-        return Frame(img, t, pose)
+        if self.grey and img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        frame = Frame(img, t, pose, seq=self._seq, name=str(self.url))
+        self._seq += 1
+        return frame
 
     def close(self) -> None:
         self.cap.release()
 
 
-def make_source(spec: str, surface: SyntheticSurface | None = None, camera: CameraModel | None = None) -> FrameSource:
-    """``"synthetic"`` (needs ``surface`` and ``camera``), ``"video:<url or index>"``, or a folder."""
+def make_source(spec: str, surface: SyntheticSurface | None = None, camera: CameraModel | None = None,
+                *, loop: bool = True, grey: bool | None = None) -> FrameSource:
+    """A frame source from a spec string.
+
+    - ``"synthetic"``: :class:`SyntheticSource` of ``surface`` and ``camera`` (both required);
+    - ``"video:<url or index>"``: :class:`VideoCaptureSource` (``grey`` default False);
+    - anything else: a folder for :class:`FolderSource` (``grey`` default True); when the folder
+      is a data set's ``images/`` with a sibling ``masks/``, the masks come along as ground truth.
+
+    Raises
+    ------
+    ValueError
+        On an empty spec, a synthetic source without surface or camera, or a source that does not
+        open.
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"camera spec must be a non-empty string, got {spec!r}")
     if spec == "synthetic":
         if surface is None or camera is None:
             raise ValueError("the synthetic camera needs the scenario's surface and camera")
         return SyntheticSource(surface, camera)
     if spec.startswith("video:"):
-        return VideoCaptureSource(spec[len("video:"):])
-    return FolderSource(spec)
+        return VideoCaptureSource(spec[len("video:"):], grey=bool(grey))
+    folder = Path(spec)
+    masks = folder.parent / "masks"
+    mask_dir = masks if folder.name == "images" and masks.is_dir() else None
+    return FolderSource(folder, loop=loop, grey=True if grey is None else grey, mask_dir=mask_dir)
 
 
+# ============================================================================ JPEG
 def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
-    if not 1 <= quality <= 100:
-        raise ValueError("JPEG quality must be in 1..100")
+    """JPEG bytes of a ``uint8`` grey (H, W) or BGR (H, W, 3) image (``cv2.imencode``).
+
+    Raises
+    ------
+    ValueError
+        On a non-image array or a quality outside 1..100.
+    """
+    if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
+        raise ValueError(f"JPEG quality must be an integer in 1..100, got {quality!r}")
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8:
+        raise ValueError("image must be a uint8 numpy array")
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (1, 3))) or image.size == 0:
+        raise ValueError(f"image must be (H, W) or (H, W, 3), got shape {image.shape}")
+    if max(image.shape[:2]) > 65500:
+        raise ValueError(f"image of {image.shape[1]} x {image.shape[0]} px is too large for JPEG")
     ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
     if not ok:
         raise ValueError("JPEG encoding failed")
     return buf.tobytes()
 
 
-def decode_jpeg(data: bytes, grey: bool = True) -> NDArray[np.uint8]:
-    buf = np.frombuffer(data, np.uint8)
-    img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR) if buf.size else None
+def decode_jpeg(data: bytes | bytearray | memoryview, grey: bool = False) -> NDArray[np.uint8]:
+    """The image of JPEG bytes (``cv2.imdecode``): grey or BGR as stored, or grey if ``grey``.
+
+    Raises
+    ------
+    ValueError
+        When the bytes are not a complete JPEG: no start-of-image marker, no end-of-image marker
+        (a truncated frame, which libjpeg would otherwise half-decode with a warning), or data
+        libjpeg refuses.
+    """
+    try:
+        buf = np.frombuffer(data, np.uint8)
+    except TypeError:
+        raise ValueError(f"JPEG data must be bytes, got {type(data).__name__}") from None
+    if buf.size < 4 or buf[0] != 0xFF or buf[1] != 0xD8:
+        raise ValueError("not a JPEG: no start-of-image marker")
+    tail = buf[-64:].tobytes()
+    if b"\xff\xd9" not in tail:
+        raise ValueError("truncated JPEG: no end-of-image marker")
+    img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise ValueError("bytes are not a decodable image")
+        raise ValueError("corrupt JPEG: cannot decode")
     return img
 
 
+# ============================================================================ off-loop encoding
 class FrameEncoder:
-    """JPEG encoding on a worker thread, fed by a bounded drop-oldest queue.
+    """JPEG encoding on one worker thread, fed by a bounded drop-oldest queue.
 
-    ``submit(image, tag)`` returns at once; the worker calls ``on_encoded(tag, jpeg)``. When the
-    queue is full the oldest waiting frame is dropped and counted in :attr:`dropped`, so the
-    control loop never waits for the encoder.
+    :meth:`submit` returns at once; the worker encodes in submission order and calls
+    ``on_encoded(item, jpeg)``, where ``item`` is the submitted :class:`Frame`, or the ``tag`` given
+    with it (the edge passes the frame's metadata as the tag). When ``capacity`` frames are already
+    waiting, the oldest waiting one is dropped and counted in :attr:`dropped`: the control loop
+    never waits for the encoder, and what goes out is the newest view. An exception in the
+    encoder or the callback is counted in :attr:`failed` and logged; the worker carries on.
+
+    Parameters
+    ----------
+    on_encoded : callable
+        ``on_encoded(item, jpeg_bytes)``, called on the worker thread.
+    capacity : int
+        Frames waiting at most (the one being encoded not included). Default 4.
+    quality : int
+        JPEG quality 1..100. Default 85.
     """
 
-    def __init__(self, on_encoded: Callable[[Any, bytes], None], capacity: int = 4, quality: int = 85):
-        if capacity < 1:
-            raise ValueError("capacity must be >= 1")
-        self.on_encoded, self.capacity, self.quality = on_encoded, capacity, quality
-        self._q: collections.deque = collections.deque()
+    def __init__(self, on_encoded: Callable[[Any, bytes], None], capacity: int = 4, quality: int = 85) -> None:
+        if not callable(on_encoded):
+            raise ValueError("on_encoded must be callable")
+        if isinstance(capacity, bool) or not isinstance(capacity, (int, np.integer)) or capacity < 1:
+            raise ValueError(f"capacity must be an integer >= 1, got {capacity!r}")
+        if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
+            raise ValueError(f"JPEG quality must be an integer in 1..100, got {quality!r}")
+        self.on_encoded, self.capacity, self.quality = on_encoded, int(capacity), int(quality)
+        self._q: collections.deque[tuple[NDArray[np.uint8], Any]] = collections.deque()
         self._cond = threading.Condition()
         self._closed = False
-        self.dropped = self.encoded = self.failed = 0
+        self.submitted = self.dropped = self.encoded = self.failed = 0
         self._thread = threading.Thread(target=self._run, name="jpeg-encoder", daemon=True)
         self._thread.start()
 
-    def submit(self, image: NDArray[np.uint8], tag: Any = None) -> None:
+    def submit(self, frame: Frame | NDArray[np.uint8], tag: Any = None) -> bool:
+        """Queue a frame (or a bare image) for encoding; returns False if an older one was dropped.
+
+        Raises
+        ------
+        ValueError
+            After :meth:`close`, or when ``frame`` is neither a Frame nor a numpy image.
+        """
+        if isinstance(frame, Frame):
+            image, item = frame.image, frame if tag is None else tag
+        elif isinstance(frame, np.ndarray):
+            image, item = frame, tag
+        else:
+            raise ValueError(f"submit takes a Frame or an image, got {type(frame).__name__}")
         with self._cond:
             if self._closed:
                 raise ValueError("encoder is closed")
+            kept = True
             if len(self._q) >= self.capacity:
                 self._q.popleft()
                 self.dropped += 1
-            self._q.append((image, tag))
+                kept = False
+            self._q.append((image, item))
+            self.submitted += 1
             self._cond.notify()
+        return kept
+
+    @property
+    def pending(self) -> int:
+        """Frames waiting to be encoded."""
+        with self._cond:
+            return len(self._q)
 
     def _run(self) -> None:
         while True:
@@ -239,17 +740,32 @@ class FrameEncoder:
                     self._cond.wait()
                 if not self._q:
                     return
-                image, tag = self._q.popleft()
+                image, item = self._q.popleft()
             try:
                 jpeg = encode_jpeg(image, self.quality)
-                self.on_encoded(tag, jpeg)
+                self.on_encoded(item, jpeg)
                 self.encoded += 1
             except Exception:  # a bad frame or a publish error must not kill the encoder
                 self.failed += 1
+                log.exception("frame encoder: encoding or delivery failed")
 
-    def close(self, timeout: float = 5.0) -> None:
-        """Encode what is queued, then stop."""
+    def close(self, timeout: float | None = 5.0, drain: bool = True) -> None:
+        """Stop: encode what is queued (or drop it, counted, if not ``drain``), then join the worker.
+
+        Idempotent. With a ``timeout`` the join gives up after that many seconds (the worker is a
+        daemon thread and ends with the process).
+        """
         with self._cond:
             self._closed = True
+            if not drain:
+                self.dropped += len(self._q)
+                self._q.clear()
             self._cond.notify_all()
-        self._thread.join(timeout)
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout)
+
+    def __enter__(self) -> "FrameEncoder":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
