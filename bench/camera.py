@@ -23,8 +23,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edge.camera import CameraPose, SyntheticSource, encode_jpeg  # noqa: E402
-from edge.runtime import camera_model, scenario_doc, synthetic_surface  # noqa: E402
+from edge.camera import CameraPose, SyntheticSource, encode_jpeg
+from edge.runtime import camera_model, scenario_doc, synthetic_surface
 
 
 def poses(wall, kind: str, n: int) -> list[CameraPose]:

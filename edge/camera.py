@@ -26,9 +26,10 @@ import logging
 import math
 import os
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
@@ -40,15 +41,15 @@ __all__ = [
     "IMAGE_EXTENSIONS",
     "CameraModel",
     "CameraPose",
+    "FolderSource",
     "Frame",
+    "FrameEncoder",
     "FrameSource",
     "SyntheticSource",
-    "FolderSource",
     "VideoCaptureSource",
-    "make_source",
-    "encode_jpeg",
     "decode_jpeg",
-    "FrameEncoder",
+    "encode_jpeg",
+    "make_source",
 ]
 
 log = logging.getLogger(__name__)
@@ -120,7 +121,7 @@ class CameraModel:
         return (2 * math.atan(self.sensor_mm[0] / (2 * self.focal_mm)),
                 2 * math.atan(self.sensor_mm[1] / (2 * self.focal_mm)))
 
-    def scaled(self, width: int, height: int) -> "CameraModel":
+    def scaled(self, width: int, height: int) -> CameraModel:
         """The same optics delivering ``width x height`` frames."""
         return CameraModel((int(width), int(height)), self.sensor_mm, self.focal_mm)
 
@@ -156,7 +157,7 @@ class CameraModel:
         a_w, a_h = self.footprint(distance_m)
         return (1 - o) * a_w, (1 - o) * a_h
 
-    def project(self, points: ArrayLike, pose: "CameraPose") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def project(self, points: ArrayLike, pose: CameraPose) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Project world points (..., 3) into the frame: pixel coordinates (..., 2) and depth (...,).
 
         Points with depth <= 0 are behind the camera; their pixel coordinates mean nothing.
@@ -199,7 +200,7 @@ class CameraPose:
         object.__setattr__(self, "rotation", R)
 
     @classmethod
-    def looking(cls, position: ArrayLike, yaw: float, pitch: float = 0.0, roll: float = 0.0) -> "CameraPose":
+    def looking(cls, position: ArrayLike, yaw: float, pitch: float = 0.0, roll: float = 0.0) -> CameraPose:
         """A gimbal camera looking along heading ``yaw``, tilted down by ``pitch``, rolled by ``roll``.
 
         ``yaw`` is the heading of the optical axis in the ENU plane, radians counter-clockwise from
@@ -222,7 +223,7 @@ class CameraPose:
 
     @classmethod
     def facing(cls, target: ArrayLike, normal: ArrayLike, distance: float,
-               up: ArrayLike = (0.0, 0.0, 1.0)) -> "CameraPose":
+               up: ArrayLike = (0.0, 0.0, 1.0)) -> CameraPose:
         """The camera ``distance`` metres out along ``normal`` from ``target``, looking back at it.
 
         The image's y axis points as nearly as possible along ``-up`` (world up is image up); when
@@ -764,7 +765,7 @@ class FrameEncoder:
         if threading.current_thread() is not self._thread:
             self._thread.join(timeout)
 
-    def __enter__(self) -> "FrameEncoder":
+    def __enter__(self) -> FrameEncoder:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -32,19 +32,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
-    "textured_background",
-    "draw_cracks",
-    "crack_image",
     "DEFAULT_PX_PER_M",
-    "SurfaceDefect",
     "Defect",
+    "SurfaceDefect",
     "SyntheticSurface",
+    "crack_image",
+    "draw_cracks",
+    "textured_background",
 ]
 
 #: Default texture resolution of :class:`SyntheticSurface`: 100 px/m, i.e. 1 cm per texture
 #: pixel. A 60 m x 20 m wall is then 6000 x 2000 px = 12 MP (12 MB for the texture, 12 MB for
-#: the mask), and cracks drawn 1..5 px wide are 1..5 mm wide -- the range of hairline to
-#: structural cracks in concrete. A camera frame of 640 px across at the (P2) inspection
+#: the mask), and cracks drawn 2..5 px wide (the surface's default) are 2..5 mm wide -- the
+#: range of fine to structural cracks in concrete. A camera frame of 640 px across at the (P2) inspection
 #: distance for a 1 cm feature (footprint 3.2 m) samples the texture at about 1:2; at the
 #: default scenario's stand-off (5 m footprint) about 1:0.8.
 DEFAULT_PX_PER_M = 100.0
@@ -543,7 +543,7 @@ class SyntheticSurface:
     # ------------------------------------------------------------------ construction
     @classmethod
     def from_corners(cls, corners: ArrayLike, px_per_m: float = DEFAULT_PX_PER_M, seed: int = 0,
-                     **kwargs: Any) -> "SyntheticSurface":
+                     **kwargs: Any) -> SyntheticSurface:
         """Build a surface on 2, 3 or 4 corner points (rows of an array, ENU metres).
 
         - **4 points** ``p0, p1, p2, p3`` in order around the rectangle: ``u`` along ``p1 - p0``

@@ -11,10 +11,21 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.camera import (CameraModel, CameraPose, FolderSource, Frame, FrameEncoder, FrameSource, SyntheticSource,
-                         VideoCaptureSource, decode_jpeg, encode_jpeg, make_source)
+from edge.camera import (
+    CameraModel,
+    CameraPose,
+    FolderSource,
+    Frame,
+    FrameEncoder,
+    FrameSource,
+    SyntheticSource,
+    VideoCaptureSource,
+    decode_jpeg,
+    encode_jpeg,
+    make_source,
+)
 from edge.runtime import camera_rotation
-from edge.surface import SyntheticSurface
+from edge.surface import SyntheticSurface, crack_image
 
 # the default scenario's wall (50 m x 6 m at x = 60, facing west) and camera
 CORNERS = [[60, 85, 25.5], [60, 35, 25.5], [60, 35, 31.5], [60, 85, 31.5]]
@@ -311,7 +322,7 @@ def test_video_capture_source(tmp_path) -> None:
 
 # ---------------------------------------------------------------- JPEG
 def test_jpeg_round_trip_grey_and_colour() -> None:
-    grey, _ = __import__("edge.surface", fromlist=["crack_image"]).crack_image((48, 64), 0)
+    grey, _ = crack_image((48, 64), 0)
     back = decode_jpeg(encode_jpeg(grey, 95))
     assert back.shape == grey.shape and back.dtype == np.uint8
     assert np.abs(back.astype(int) - grey).mean() < 4
