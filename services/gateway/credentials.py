@@ -56,6 +56,15 @@ def mesh_config_doc(dictionary_file: str | Path) -> dict:
                                                                       "to_peer": "greater-zid"}}}}}
 
 
+def _password(nbytes: int) -> str:
+    """A URL-safe random password that does not start with '-' (a command line would read it as
+    an option)."""
+    while True:
+        pw = secrets.token_urlsafe(nbytes)
+        if not pw.startswith("-"):
+            return pw
+
+
 def generate(folder: str | Path, users: Iterable[str], nbytes: int = 18) -> Credentials:
     """Random passwords for ``users`` and their files in ``folder``.
 
@@ -68,7 +77,7 @@ def generate(folder: str | Path, users: Iterable[str], nbytes: int = 18) -> Cred
     names = list(users)
     if not names or len(set(names)) != len(names):
         raise ValueError("generate() wants a non-empty list of distinct user names")
-    passwords = {check_user(u): secrets.token_urlsafe(nbytes) for u in names}
+    passwords = {check_user(u): _password(nbytes) for u in names}
     users_file = write_private(folder / "users.txt", users_text(passwords))
     uavs = {}
     for u, p in passwords.items():

@@ -83,3 +83,9 @@ def test_gateway_security_options(tmp_path):
     roles.write_text("stranger:gcs\n")
     with pytest.raises(ValueError, match="stranger"):
         security_options(parse(["--users", str(users), "--acl", "--roles", str(roles)]))
+
+
+def test_generated_passwords_never_look_like_options(tmp_path):
+    from services.gateway.credentials import _password
+
+    assert not any(_password(3).startswith("-") for _ in range(2000))

@@ -50,7 +50,7 @@ def net(tmp_path_factory):
         # each service its own environment: the password travels in SKYNET_PASSWORD, not on the command line
         env = {} if password_on_command_line else {PASSWORD_ENV: creds.passwords[name]}
         g = groups[name] = ProcessGroup(echo=None, env=env)
-        extra = ["--password", creds.passwords[name]] if password_on_command_line else []
+        extra = [f"--password={creds.passwords[name]}"] if password_on_command_line else []
         return g.start(name, [*args, "--fleet", FLEET, "--multilink", "--user", name, *extra])
 
     # the gateway logs each denial (zenoh's access_control at debug level): shown when a test fails
