@@ -24,7 +24,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edge.camera import CameraPose, SyntheticSource, encode_jpeg
-from edge.runtime import camera_model, scenario_doc, synthetic_surface
+from edge.runtime import camera_model, synthetic_surface
+from services.planner.scenario import load_scenario_document
 
 
 def poses(wall, kind: str, n: int) -> list[CameraPose]:
@@ -45,7 +46,7 @@ def main() -> None:
     parser.add_argument("--quality", type=int, default=85)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "camera.json"))
     args = parser.parse_args()
-    sc = scenario_doc(None)
+    sc = load_scenario_document(None)
     t0 = time.perf_counter()
     wall = synthetic_surface(sc)
     build_s = time.perf_counter() - t0

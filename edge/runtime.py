@@ -41,12 +41,6 @@ def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
     return MavlinkDriver(args.uav, args.mavlink, home=args.home)
 
 
-def scenario_doc(path: str | None) -> dict:
-    from services.planner.scenario import load_scenario
-
-    return load_scenario(path).model_dump(mode="json")
-
-
 def synthetic_surface(scenario: dict, px_per_m: float | None = None, seed: int = SURFACE_SEED):
     """The inspected wall of the scenario as a textured, cracked :class:`SyntheticSurface`."""
     from .surface import DEFAULT_PX_PER_M, SyntheticSurface
@@ -135,7 +129,9 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     from .camera import make_source
 
     w, h = (int(v) for v in args.frame_size.lower().split("x"))
-    scenario = scenario_doc(args.scenario)
+    from services.planner.scenario import load_scenario_document
+
+    scenario = load_scenario_document(args.scenario)
     model = camera_model(scenario, (w, h))
     surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
     source = make_source(args.camera, surface=surface, camera=model)

@@ -13,17 +13,17 @@ import time
 from pathlib import Path
 
 from edge import formation
-from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.bus import (
+    Bus,
+    add_bus_args,
+    config_from_args,
+    setup_logging,
+    stop_event_on_signals,
+)
+from services.planner.scenario import load_scenario_document
 
 from .mission import MissionOptions, MissionRunner
 from .progress import LiveDisplay, render
-
-
-def load_scenario_doc(path: str | None) -> dict:
-    """The scenario as a validated document (a dict, as it travels in the plan request)."""
-    from services.planner.scenario import load_scenario
-
-    return load_scenario(path).model_dump(mode="json")
 
 
 def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
@@ -96,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     log = setup_logging("gcs")
-    scenario = load_scenario_doc(args.scenario)
+    scenario = load_scenario_document(args.scenario)
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()

@@ -343,3 +343,8 @@ def load_scenario(path: str | Path | None = None) -> Scenario:
         return validate_scenario(doc)
     except ScenarioError as exc:
         raise ScenarioError(f"{p}: {exc}") from None
+
+
+def load_scenario_document(path: str | Path | None = None) -> dict[str, Any]:
+    """The validated scenario as a plain document (the form it travels in a plan request)."""
+    return load_scenario(path).model_dump(mode="json")

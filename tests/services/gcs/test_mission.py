@@ -5,7 +5,7 @@ import time
 import pytest
 
 from protocol.bus import Bus, BusConfig
-from services.gcs.cli import load_scenario_doc
+from services.planner.scenario import load_scenario_document as load_scenario_doc
 from services.gcs.mission import MissionOptions, MissionRunner
 
 FLEET = "test"
