@@ -35,7 +35,6 @@ __all__ = [
     "uav_positions",
     "centroid_of",
     "headings",
-    "formation_reference",
     "neighbour_correction",
     "formation_error",
 ]
@@ -277,96 +276,6 @@ def _offset_of(offsets: Mapping[int, ArrayLike], uav: int) -> NDArray[np.float64
     return _vec3(offsets[uav], f"offset of UAV {uav}")
 
 
-def formation_reference(
-    uav: int,
-    planned_slot: ArrayLike,
-    planned_centroid: ArrayLike,
-    yaw: float,
-    offsets: Mapping[int, ArrayLike],
-    neighbours: Mapping[int, tuple[ArrayLike, float]],
-    stale_after_s: float = 1.0,
-    gain: float = 0.5,
-    max_correction: float = MAX_CORRECTION_M,
-) -> NDArray[np.float64]:
-    """Own position reference corrected from the neighbours' states (on-board keeping, P8-P9).
-
-    Each fresh neighbour j (state age ``<= stale_after_s``) implies where the formation's
-    centroid actually is: ``ĉ_j = P_j − R_OF(ψ) ΔT_j``. Their mean ``ĉ`` is compared with the
-    planned centroid and the own reference is moved toward the slot of the actual triangle,
-    ``ĉ + R_OF ΔT_own``, by the fraction ``gain``::
-
-        r = planned_slot + clip(gain · (ĉ − planned_centroid), max_correction)
-
-    (for a consistent plan, ``planned_slot = planned_centroid + R_OF ΔT_own``, so this is
-    ``planned_slot + gain · (ĉ + R_OF ΔT_own − planned_slot)``). The correction vector is
-    bounded in norm by ``max_correction`` so a wild neighbour cannot drag the vehicle away.
-    When a neighbour lags behind its slot, the others fall back toward it and the triangle
-    holds better. Every vehicle applies the rule, so the laggard is also pulled back a little by
-    the others' fall-back: with a constant lag ``L`` of one of three vehicles and gain ``g`` the
-    others settle ``s = g L / (2 − g − g²)`` behind their slots and the laggard ``g s`` further
-    back — for g = 0.5, L = 6 m: 2.4 m and 1.2 m, shape error 2.26 m instead of 2.83 m
-    (:func:`formation_error`). A gain below 1 keeps this fixed point finite (at g = 1 the whole
-    formation would drift back until ``max_correction``).
-
-    Parameters
-    ----------
-    uav : int
-        Own UAV id (a key of ``offsets``).
-    planned_slot : array_like, shape (3,)
-        Own reference from the uploaded trajectory at this time, metres.
-    planned_centroid : array_like, shape (3,)
-        Planned formation centroid at this time, metres.
-    yaw : float
-        Formation heading ψ at this time, radians (roll = pitch = 0).
-    offsets : mapping int -> (3,)
-        ΔT_n of every UAV in the formation frame.
-    neighbours : mapping int -> (position (3,), age_s)
-        Latest state of every other UAV heard over SkyNet and its age in seconds. The own id
-        and ids without an offset are ignored.
-    stale_after_s : float
-        Neighbour states older than this are ignored.
-    gain : float
-        Fraction of the centroid discrepancy applied, in [0, 1].
-    max_correction : float
-        Bound on the norm of the correction, metres (>= 0).
-
-    Returns
-    -------
-    ndarray, shape (3,)
-        The corrected reference; ``planned_slot`` unchanged when no neighbour is fresh.
-    """
-    slot = _vec3(planned_slot, "planned_slot")
-    pc = _vec3(planned_centroid, "planned_centroid")
-    if not math.isfinite(yaw):
-        raise ValueError("yaw must be finite")
-    if not (math.isfinite(stale_after_s) and stale_after_s >= 0.0):
-        raise ValueError("stale_after_s must be finite and >= 0")
-    if not (0.0 <= gain <= 1.0):
-        raise ValueError("gain must be in [0, 1]")
-    if not (math.isfinite(max_correction) and max_correction >= 0.0):
-        raise ValueError("max_correction must be finite and >= 0")
-    _offset_of(offsets, uav)  # own offset must exist
-    R = rotation_of(0.0, 0.0, yaw)
-    implied = []
-    for j, (pos, age) in neighbours.items():
-        if j == uav or j not in offsets:
-            continue
-        age = float(age)
-        if math.isnan(age):
-            raise ValueError(f"age of UAV {j}'s state is NaN")
-        if age > stale_after_s:
-            continue
-        implied.append(_vec3(pos, f"position of UAV {j}") - R @ _offset_of(offsets, j))
-    if not implied:
-        return slot.copy()
-    c_hat = np.mean(implied, axis=0)
-    corr = gain * (c_hat - pc)
-    norm = float(np.linalg.norm(corr))
-    if norm > max_correction:
-        corr *= max_correction / norm
-    return slot + corr
-
-
 def neighbour_correction(
     own_tau: float,
     own_ref_vel: ArrayLike,
@@ -398,8 +307,13 @@ def neighbour_correction(
         Own planned velocity now, m/s.
     neighbours : mapping int -> (position (3,), planned position (3,), tau_s, age_s)
         Latest shared state of each other UAV and its age in seconds.
-    stale_after_s, gain, max_correction : float
-        As in :func:`formation_reference`.
+    stale_after_s : float
+        Neighbour states older than this are ignored.
+    gain : float
+        Share of the neighbours' mean error applied, in [0, 1].
+    max_correction : float
+        Bound on the norm of the correction, metres (>= 0), so a wild neighbour cannot drag
+        the vehicle away.
 
     Returns
     -------

@@ -16,7 +16,6 @@ from edge.formation import (
     errors_in_formation,
     errors_to_inertial,
     formation_error,
-    formation_reference,
     headings,
     rotation_of,
     uav_positions,
@@ -121,63 +120,13 @@ def test_bad_inputs_raise():
     with pytest.raises(ValueError):
         uav_positions(np.zeros((3, 3)), np.zeros(2))
     with pytest.raises(ValueError):
-        formation_reference(4, [0, 0, 0], [0, 0, 0], 0.0, OFFSETS, {})
+        neighbour_correction(0.0, [0, 0, 0], {2: ([0, 0, 0], [0, 0, 0], 0.0, np.nan)})
     with pytest.raises(ValueError):
-        formation_reference(1, [0, 0, 0], [0, 0, 0], 0.0, OFFSETS, {2: ([0, 0, 0], np.nan)})
-    with pytest.raises(ValueError):
-        formation_reference(1, [0, 0, np.inf], [0, 0, 0], 0.0, OFFSETS, {})
-    with pytest.raises(ValueError):
-        formation_reference(1, [0, 0, 0], [0, 0, 0], 0.0, OFFSETS, {}, gain=2.0)
+        neighbour_correction(0.0, [0, 0, np.inf], {})
 
 
 def _slots(c, yaw):
     return uav_positions(np.asarray(c, float), yaw)[0]
-
-
-def test_formation_reference_moves_toward_lagging_neighbour():
-    yaw = 0.3
-    c_plan = np.array([50.0, 20.0, 30.0])
-    slots = _slots(c_plan, yaw)
-    lag = np.array([-2.0 * math.cos(yaw), -2.0 * math.sin(yaw), 0.0])  # UAV 3 is 2 m behind
-    neighbours = {2: (slots[1], 0.1), 3: (slots[2] + lag, 0.2)}
-    ref = formation_reference(1, slots[0], c_plan, yaw, OFFSETS, neighbours, gain=0.5)
-    corr = ref - slots[0]
-    # estimated centroid is 1 m behind (mean of the two implied ones); half of that applied
-    np.testing.assert_allclose(corr, 0.5 * lag / 2, atol=1e-12)
-    # moved toward the lagging neighbour
-    assert np.linalg.norm(ref - (slots[2] + lag)) < np.linalg.norm(slots[0] - (slots[2] + lag))
-
-
-def test_formation_reference_unchanged_when_on_plan():
-    c_plan = np.array([0.0, 0.0, 20.0])
-    slots = _slots(c_plan, 1.0)
-    ref = formation_reference(2, slots[1], c_plan, 1.0, OFFSETS, {1: (slots[0], 0), 3: (slots[2], 0)})
-    np.testing.assert_allclose(ref, slots[1], atol=1e-12)
-
-
-def test_formation_reference_ignores_stale_and_falls_back():
-    c_plan = np.array([0.0, 0.0, 20.0])
-    slots = _slots(c_plan, 0.0)
-    far = slots[2] + [-5.0, 0, 0]
-    stale = {3: (far, 1.5)}
-    ref = formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, stale, stale_after_s=1.0)
-    np.testing.assert_allclose(ref, slots[0])
-    # the same neighbour when fresh does pull
-    ref2 = formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, {3: (far, 0.5)}, stale_after_s=1.0)
-    assert ref2[0] == pytest.approx(slots[0][0] - 2.5)
-    # no neighbours at all
-    np.testing.assert_allclose(formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, {}), slots[0])
-    # own id and unknown ids are ignored
-    ref3 = formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, {1: (far, 0), 9: (far, 0)})
-    np.testing.assert_allclose(ref3, slots[0])
-
-
-def test_formation_reference_bounded():
-    c_plan = np.zeros(3)
-    slots = _slots(c_plan, 0.0)
-    wild = {2: (slots[1] + [100.0, -50.0, 7.0], 0.0)}
-    ref = formation_reference(1, slots[0], c_plan, 0.0, OFFSETS, wild, gain=1.0, max_correction=3.0)
-    assert np.linalg.norm(ref - slots[0]) == pytest.approx(3.0)
 
 
 def test_formation_error_metric():
