@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .surface import SyntheticSurface
+from .surface import SyntheticSurface, _positive
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -55,16 +55,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
-
-
-def _finite_pos(name: str, value: Any) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
 
 
 # ============================================================================ camera model
@@ -100,8 +90,8 @@ class CameraModel:
         if not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in (w, h)):
             raise ValueError(f"resolution must be two positive integers, got {self.resolution!r}")
         object.__setattr__(self, "resolution", (int(w), int(h)))
-        object.__setattr__(self, "sensor_mm", (_finite_pos("sensor width", sw), _finite_pos("sensor height", sh)))
-        object.__setattr__(self, "focal_mm", _finite_pos("focal_mm", self.focal_mm))
+        object.__setattr__(self, "sensor_mm", (_positive("sensor width", sw), _positive("sensor height", sh)))
+        object.__setattr__(self, "focal_mm", _positive("focal_mm", self.focal_mm))
 
     # ------------------------------------------------------------------ intrinsics
     def intrinsics(self) -> tuple[float, float, float, float]:
@@ -131,7 +121,7 @@ class CameraModel:
 
         The inverse of (P2); the planner's ``footprint_at`` computes the same.
         """
-        d = _finite_pos("distance_m", distance_m)
+        d = _positive("distance_m", distance_m)
         return d * self.sensor_mm[0] / self.focal_mm, d * self.sensor_mm[1] / self.focal_mm
 
     def gsd(self, distance_m: float) -> tuple[float, float]:
@@ -141,7 +131,7 @@ class CameraModel:
 
     def feature_footprint(self, smallest_feature_m: float) -> tuple[float, float]:
         """(P1) ``a_fov = 1/2 r_c s_f`` per axis, metres: two frame pixels per smallest feature."""
-        s_f = _finite_pos("smallest_feature_m", smallest_feature_m)
+        s_f = _positive("smallest_feature_m", smallest_feature_m)
         return 0.5 * self.resolution[0] * s_f, 0.5 * self.resolution[1] * s_f
 
     def standoff(self, smallest_feature_m: float) -> float:
@@ -238,7 +228,7 @@ class CameraPose:
             raise ValueError("target, normal and up must be finite 3-vectors")
         if np.linalg.norm(n) < 1e-12 or np.linalg.norm(u) < 1e-12:
             raise ValueError("normal and up must be non-zero")
-        d = _finite_pos("distance", distance)
+        d = _positive("distance", distance)
         z = -n / np.linalg.norm(n)
         x = np.cross(z, u)
         if np.linalg.norm(x) < 1e-9 * np.linalg.norm(u):
