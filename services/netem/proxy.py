@@ -127,6 +127,22 @@ class _ProxyBase:
         raise NotImplementedError
 
     def stop(self) -> None:
+        """Wake the listening thread and join it, release the proxy's own resources
+        (:meth:`_release`), then close the listening and wake-up sockets. Idempotent."""
+        if not self._started or self._stopped:
+            return
+        self._stopped = True
+        self._running = False
+        try:
+            self._wake_w.send(b"x")
+        except OSError:
+            pass
+        self._thread.join()
+        self._release()
+        for s in (self._lsock, self._wake_r, self._wake_w):
+            s.close()
+
+    def _release(self) -> None:
         raise NotImplementedError
 
     def __enter__(self) -> _ProxyBase:
@@ -258,24 +274,13 @@ class UdpProxy(_ProxyBase):
         self._started = True
         return self
 
-    def stop(self) -> None:
-        """Stop both threads, close every socket; datagrams still queued are discarded."""
-        if not self._started or self._stopped:
-            return
-        self._stopped = True
-        self._running = False
-        try:
-            self._wake_w.send(b"x")
-        except OSError:
-            pass
-        self._thread.join()
+    def _release(self) -> None:
+        """Stop the scheduler and close every association; datagrams still queued are discarded."""
         self._sched.stop()
         self._sel.close()
         for assoc in self._assocs.values():
             assoc.sock.close()
         self._assocs.clear()
-        for s in (self._lsock, self._wake_r, self._wake_w):
-            s.close()
 
     # ---------------------------------------------------------------- threads
     def _run(self) -> None:
@@ -592,25 +597,14 @@ class TcpProxy(_ProxyBase):
         self._started = True
         return self
 
-    def stop(self) -> None:
-        """Stop accepting, reset every relayed connection, join all threads, close sockets."""
-        if not self._started or self._stopped:
-            return
-        self._stopped = True
-        self._running = False
-        try:
-            self._wake_w.send(b"x")
-        except OSError:
-            pass
-        self._thread.join()
+    def _release(self) -> None:
+        """Reset every relayed connection and join its threads."""
         with self._conns_lock:
             conns = list(self._conns)
         for conn in conns:
             conn.abort()
         for conn in conns:
             conn.join()
-        for s in (self._lsock, self._wake_r, self._wake_w):
-            s.close()
 
     def _accept_loop(self) -> None:
         with selectors.DefaultSelector() as sel:
