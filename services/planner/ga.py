@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .cost import Cost
-from .optimiser import OptResult, Tracker, check_budget
+from .optimiser import OptResult, start
 
 __all__ = ["ga"]
 
@@ -28,14 +28,9 @@ def ga(
     sigma: tuple[float, float] = (0.1, 0.01),
 ) -> OptResult:
     """Minimise ``cost`` with a (μ + λ) real-coded GA from ``x0 (P, D)``."""
-    X = np.asarray(x0, float).copy()
-    P, I = check_budget(X.shape[0], iterations)
+    st = start("ga", cost, x0, iterations)
+    X, P, I, lo, hi, tr, f = st.X, st.P, st.I, st.lo, st.hi, st.tracker, st.f
     D = X.shape[1]
-    lo = np.tile(cost.problem.lo, D // 3)
-    hi = np.tile(cost.problem.hi, D // 3)
-    tr = Tracker("ga", P, P * (I + 1))
-    f = cost(X)
-    tr.record(X, f)
     for k in range(I):
         a, b = rng.integers(0, P, (2, P)), rng.integers(0, P, (2, P))
         pa = np.where(f[a[0]] < f[a[1]], a[0], a[1])

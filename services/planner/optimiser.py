@@ -53,6 +53,34 @@ class OptResult:
         return int(np.argmax(h <= self.cost + rel * abs(self.cost)))
 
 
+@dataclass
+class Start:
+    """What every optimiser begins with: the population (a copy of ``x0``), its size ``P``, the
+    iteration count ``I``, the box bounds tiled over the waypoints, the tracker, and the
+    population's costs already evaluated and recorded."""
+
+    X: NDArray[np.float64]
+    P: int
+    I: int
+    lo: NDArray[np.float64]
+    hi: NDArray[np.float64]
+    tracker: "Tracker"
+    f: NDArray[np.float64]
+
+
+def start(name: str, cost, x0, iterations: int) -> Start:
+    """Check the budget, evaluate ``x0 (P, D)`` once and record it (budget ``P (I + 1)``)."""
+    X = np.asarray(x0, float).copy()
+    P, I = check_budget(X.shape[0], iterations)
+    D = X.shape[1]
+    lo = np.tile(cost.problem.lo, D // 3)
+    hi = np.tile(cost.problem.hi, D // 3)
+    tr = Tracker(name, P, P * (I + 1))
+    f = cost(X)
+    tr.record(X, f)
+    return Start(X, P, I, lo, hi, tr, f)
+
+
 def check_budget(particles: int, iterations: int) -> tuple[int, int]:
     if int(particles) != particles or particles < 2:
         raise ValueError(f"particles must be an integer >= 2, got {particles!r}")

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .cost import Cost
-from .optimiser import OptResult, Tracker, check_budget
+from .optimiser import OptResult, start
 
 __all__ = ["pso"]
 
@@ -30,18 +30,13 @@ def pso(
     vmax_fraction: float = 0.05,
 ) -> OptResult:
     """Minimise ``cost`` with gbest PSO from ``x0 (P, D)``; budget ``P (iterations + 1)``."""
-    X = np.asarray(x0, float).copy()
-    P, I = check_budget(X.shape[0], iterations)
-    D = X.shape[1]
-    lo = np.tile(cost.problem.lo, D // 3)
-    hi = np.tile(cost.problem.hi, D // 3)
     if not 0.0 < vmax_fraction <= 1.0:
         raise ValueError("vmax_fraction must be in (0, 1]")
+    s = start("pso", cost, x0, iterations)
+    X, P, I, lo, hi, tr, f = s.X, s.P, s.I, s.lo, s.hi, s.tracker, s.f
+    D = X.shape[1]
     vmax = vmax_fraction * (hi - lo)
-    tr = Tracker("pso", P, P * (I + 1))
     V = np.zeros_like(X)
-    f = cost(X)
-    tr.record(X, f)
     pbest, pbest_f = X.copy(), f.copy()
     g = int(np.argmin(f))
     rshape = (P, D) if per_dimension else (P, 1)

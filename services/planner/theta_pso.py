@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .cost import Cost
-from .optimiser import OptResult, Tracker, check_budget
+from .optimiser import OptResult, start
 
 __all__ = ["sine_map", "inverse_sine_map", "theta_pso"]
 
@@ -90,19 +90,15 @@ def theta_pso(
     dtheta_max : float
         Clamp of the increments, ``|Δθ| <= dtheta_max <= π/2``.
     """
-    X = np.asarray(x0, float)
-    P, I = check_budget(X.shape[0], iterations)
     if not 0.0 < dtheta_max <= HALF_PI:
         raise ValueError(f"dtheta_max must be in (0, π/2], got {dtheta_max!r}")
+    # the shared initial population is evaluated itself (sine_map(theta) equals it to rounding)
+    s = start("theta-pso", cost, x0, iterations)
+    X, P, I, lo, hi, tr, f = s.X, s.P, s.I, s.lo, s.hi, s.tracker, s.f
     D = X.shape[1]
-    lo = np.tile(cost.problem.lo, D // 3)
-    hi = np.tile(cost.problem.hi, D // 3)
     mid, half = 0.5 * (hi + lo), 0.5 * (hi - lo)  # sine map (P4): x = mid + half sin θ
-    tr = Tracker("theta-pso", P, P * (I + 1))
     theta = inverse_sine_map(X, lo, hi)
     dtheta = np.zeros_like(theta)
-    f = cost(X)  # the shared initial population itself (sine_map(theta) equals it to rounding)
-    tr.record(X, f)
     pbest, pbest_f = theta.copy(), f.copy()
     g = int(np.argmin(f))
     rshape = (P, D) if per_dimension else (P, 1)

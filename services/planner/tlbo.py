@@ -13,21 +13,16 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .cost import Cost
-from .optimiser import OptResult, Tracker, check_budget
+from .optimiser import OptResult, start
 
 __all__ = ["tlbo"]
 
 
 def tlbo(cost: Cost, x0: ArrayLike, iterations: int, rng: np.random.Generator) -> OptResult:
     """Minimise ``cost`` with TLBO from ``x0 (P, D)`` within ``P (iterations + 1)`` evaluations."""
-    X = np.asarray(x0, float).copy()
-    P, I = check_budget(X.shape[0], iterations)
+    s = start("tlbo", cost, x0, iterations)
+    X, P, lo, hi, tr, f = s.X, s.P, s.lo, s.hi, s.tracker, s.f
     D = X.shape[1]
-    lo = np.tile(cost.problem.lo, D // 3)
-    hi = np.tile(cost.problem.hi, D // 3)
-    tr = Tracker("tlbo", P, P * (I + 1))
-    f = cost(X)
-    tr.record(X, f)
     phase = 0
     while tr.remaining >= P:
         if phase == 0:  # teacher phase
