@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -32,6 +33,16 @@ def gateway(group):
                                   *[a for e in endpoints for a in ("--listen", e)]])
     assert svc.wait_for("router up", 20), "\n".join(svc.lines)
     return endpoints
+
+
+def wait_until(pred, timeout: float = 20.0, poll: float = 0.02) -> bool:
+    """Poll ``pred`` until it holds or ``timeout`` seconds pass; its last value."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(poll)
+    return bool(pred())
 
 
 def run_node(code: str, timeout: float = 30.0) -> subprocess.CompletedProcess:

@@ -9,19 +9,10 @@ from protocol.bus import Bus, BusConfig
 from protocol.links import TELEMETRY
 from protocol.messages import (CommandAck, Event, Hold, Mode, Takeoff, Trajectory, UploadTrajectory,
                                VehicleState, Waypoint)
-from tests.conftest import spawn_node
+from tests.conftest import spawn_node, wait_until as _wait
 
 FLEET = "test"
 HOMES = {1: "10,10,0", 2: "14,10,0", 3: "6,10,0"}
-
-
-def _wait(pred, timeout=20.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.05)
-    return pred()
 
 
 @pytest.fixture

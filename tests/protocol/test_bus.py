@@ -8,7 +8,7 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
 from protocol.messages import CommandAck, Hold, Land, Mode, VehicleState
-from tests.conftest import spawn_node
+from tests.conftest import spawn_node, wait_until as _wait
 
 FLEET = "test"
 
@@ -34,15 +34,6 @@ def _client(endpoints):
 def _state(seq):
     return VehicleState(uav=4, seq=seq, t=seq * 0.05, stamp=time.time(), pos=(1, 2, 3), vel=(0, 0, 0), att=(0, 0, 0),
                         rates=(0, 0, 0), mode=Mode.HOLD)
-
-
-def _wait(pred, timeout=10.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.02)
-    return pred()
 
 
 def test_peer_telemetry_reaches_client_through_gateway(gateway):

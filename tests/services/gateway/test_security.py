@@ -26,15 +26,7 @@ from services.process import ProcessGroup, free_port_pair
 
 FLEET = "sec"
 USERS = ["uav1", "uav2", "uav3", "gcs", "planner", "detector", "visitor"]
-
-
-def _wait(pred, timeout=15.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(0.05)
-    return pred()
+from tests.conftest import wait_until as _wait
 
 
 @pytest.fixture(scope="module")
