@@ -102,6 +102,11 @@ def multilink_endpoints(host: str, tcp_port: int, udp_port: int) -> list[str]:
     return [f"tcp/{host}:{tcp_port}?rel=1", f"udp/{host}:{udp_port}?rel=0"]
 
 
+def endpoint_address(endpoint: str) -> str:
+    """``host:port`` of a Zenoh endpoint such as ``udp/127.0.0.1:7448?rel=0``."""
+    return endpoint.split("/", 1)[1].split("?", 1)[0].split("#", 1)[0]
+
+
 def add_bus_args(parser: argparse.ArgumentParser, mode: Mode = "peer") -> None:
     """The options of zenoh-python's examples, plus the fleet name and our session switches."""
     g = parser.add_argument_group("bus")

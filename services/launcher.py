@@ -31,7 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from protocol.bus import PASSWORD_ENV, Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
+from protocol.bus import (PASSWORD_ENV, Bus, BusConfig, endpoint_address, multilink_endpoints, setup_logging,
+                          stop_event_on_signals)
 
 from .process import ProcessGroup, free_port_pair
 
@@ -74,8 +75,7 @@ class Network:
             return self.gateway_endpoints
         from services.netem.proxy import TcpProxy, UdpProxy
 
-        tcp_target = self.gateway_endpoints[0].split("/")[1].split("?")[0]
-        udp_target = self.gateway_endpoints[1].split("/")[1].split("?")[0]
+        tcp_target, udp_target = (endpoint_address(e) for e in self.gateway_endpoints)
         tp = TcpProxy((HOST, 0), tcp_target, spec, seed=self.args.seed).start()
         up = UdpProxy((HOST, 0), udp_target, spec, seed=self.args.seed + 1).start()
         self.proxies += [(name, tp), (name, up)]

@@ -59,8 +59,7 @@ class ProcessGroup:
         self.echo = echo
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self._echo_lock = threading.Lock()
-        width = 10
-        self._width = width
+        self._width = 10  # service names are right-aligned in this many columns
 
     def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None) -> Service:
         cmd = [sys.executable, "-m", "services.cli", *args]

@@ -5,7 +5,7 @@ import time
 
 
 from protocol import keys
-from protocol.bus import Bus, BusConfig
+from protocol.bus import Bus, BusConfig, endpoint_address
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
 from protocol.messages import CommandAck, Hold, Land, Mode, VehicleState
 from tests.conftest import spawn_node, wait_until as _wait
@@ -17,7 +17,7 @@ def _peer_code(endpoints, body):
     return f"""
 import time, sys
 from protocol import keys
-from protocol.bus import Bus, BusConfig
+from protocol.bus import Bus, BusConfig, endpoint_address
 from protocol.links import TELEMETRY
 from protocol.messages import *
 bus = Bus(BusConfig(mode="peer", connect={endpoints!r}, listen=["tcp/127.0.0.1:0"], multilink=True), "{FLEET}", "peer")
@@ -179,7 +179,7 @@ def test_recovery_retransmits_best_effort_samples_lost_on_a_lossy_udp_link(gatew
     from services.netem.proxy import UdpProxy
 
     tcp, udp = gateway
-    udp_target = udp.split("/")[1].split("?")[0]
+    udp_target = endpoint_address(udp)
     with UdpProxy(("127.0.0.1", 0), udp_target, "after 1s loss 20%", seed=7) as lossy:
         via = [tcp, f"udp/127.0.0.1:{lossy.port}?rel=0"]
         plain, recovered = [], []

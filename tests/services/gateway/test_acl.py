@@ -220,7 +220,7 @@ def _router(tmp_path, policy, passwords):
 def test_camera_recovery_needs_the_detectors_query_and_reply_grants(tmp_path, drop):
     """Checked, not assumed: without the detector's ``query`` (ingress) or ``reply`` (egress) on the
     cameras' keys, frames lost on a lossy UDP link are not recovered from the camera's cache."""
-    from protocol.bus import Bus, BusConfig
+    from protocol.bus import Bus, BusConfig, endpoint_address
     from protocol.links import IMAGERY
     from services.netem.proxy import UdpProxy
 
@@ -233,7 +233,7 @@ def test_camera_recovery_needs_the_detectors_query_and_reply_grants(tmp_path, dr
     router, (tcp, udp) = _router(tmp_path, policy, passwords)
     got: list[int] = []
     try:
-        with UdpProxy(("127.0.0.1", 0), udp.split("/")[1].split("?")[0], "after 1s loss 20%", seed=7) as lossy:
+        with UdpProxy(("127.0.0.1", 0), endpoint_address(udp), "after 1s loss 20%", seed=7) as lossy:
             via = [tcp, f"udp/127.0.0.1:{lossy.port}?rel=0"]
 
             def client(user, connect):

@@ -15,7 +15,7 @@ import zenoh
 
 from edge.surface import crack_image
 from protocol import keys
-from protocol.bus import PASSWORD_ENV, Bus, BusConfig, multilink_endpoints
+from protocol.bus import PASSWORD_ENV, Bus, BusConfig, endpoint_address, multilink_endpoints
 from protocol.imagery import pack_image
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
 from protocol.messages import (CommandAck, DefectReport, Heartbeat, Hold, ImageMeta, Intrinsics, LinkStats,
@@ -189,7 +189,7 @@ def test_imagery_to_detector_with_recovery_and_defect_reports(net):
     tcp, udp = net["endpoints"]
     rng = np.random.default_rng(5)
     reports: dict[int, DefectReport] = {}
-    with UdpProxy(("127.0.0.1", 0), udp.split("/")[1].split("?")[0], "after 1s loss 20%", seed=11) as lossy:
+    with UdpProxy(("127.0.0.1", 0), endpoint_address(udp), "after 1s loss 20%", seed=11) as lossy:
         via = [tcp, f"udp/127.0.0.1:{lossy.port}?rel=0"]
         with _client(net, "gcs") as gcs, _client(net, "uav3", connect=via) as uav3:
             gcs.subscribe(keys.defects(FLEET), lambda m, s: reports.__setitem__(m.capture_id, m), expect=DefectReport)
