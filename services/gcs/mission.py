@@ -23,9 +23,8 @@ from protocol.messages import (
     UploadTrajectory, VehicleState,
 )
 
-from .record import CommandRecord, DefectRx, EventRx, MissionRecord, StateRx, StatsRx
+from .record import GOAL_RADIUS_M, CommandRecord, DefectRx, EventRx, MissionRecord, StateRx, StatsRx
 
-GOAL_TOLERANCE_M = 2.0
 
 
 def with_formation_size(scenario: dict, n: int, log=None) -> dict:
@@ -293,7 +292,7 @@ class MissionRunner:
                 goal = t.waypoints[-1].pos
                 flown = [s.msg for s in rec.states if s.msg.uav == t.uav and s.msg.mode in (Mode.MISSION, Mode.HOLD)
                          and s.msg.progress >= 1.0]
-                if not flown or math.dist(flown[-1].pos, goal) > GOAL_TOLERANCE_M:
+                if not flown or math.dist(flown[-1].pos, goal) > GOAL_RADIUS_M:
                     rec.failures.append(f"UAV {t.uav} did not reach its goal {tuple(round(v, 1) for v in goal)}")
             missing = self.missing_captures()
             if missing:

@@ -71,7 +71,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from edge.formation import DEFAULT_OFFSETS, formation_error
 from protocol.messages import Mode, Trajectory
-from services.gcs.record import MissionRecord
+from services.gcs.record import GOAL_RADIUS_M, MissionRecord
 from services.gcs.scoring import DefectScore, score_defects, surface_uv
 
 __all__ = [
@@ -95,9 +95,6 @@ __all__ = [
     "write_report",
 ]
 
-#: A UAV reached its goal when, at the end of its trajectory (progress 1, before landing), it is
-#: this close to its last planned waypoint, m.
-GOAL_RADIUS_M = 2.0
 #: Tolerance of the defect scoring (:func:`services.gcs.scoring.score_defects`), m.
 DEFECT_TOLERANCE_M = 0.3
 #: Below this horizontal centroid speed the formation heading is held, m/s.
