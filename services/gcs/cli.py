@@ -27,8 +27,12 @@ from .progress import LiveDisplay, render
 
 
 def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None, ground_truth: bool = True) -> int:
-    """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall."""
+                abort=None, ground_truth: bool = True, on_runner=None) -> int:
+    """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
+
+    ``on_runner(runner)`` is called once, after the :class:`MissionRunner` is made and before it runs
+    (the launcher's fault injector hooks in there: ``runner.note_fault``, ``runner.record.phases``).
+    """
     display = None if quiet else LiveDisplay()
     offsets = {i + 1: tuple(o) for i, o in enumerate(formation.offsets_for(len(options.uavs)))}
     t_start = time.time()
@@ -45,6 +49,8 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
                               time.time() - t_start), force=force)
 
     runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort)
+    if on_runner is not None:
+        on_runner(runner)
     root = logging.getLogger()
     saved = list(root.handlers)
     if display is not None and display.tty:  # log lines go above the live block, not through it

@@ -23,7 +23,7 @@ from protocol.messages import (
     UploadTrajectory, VehicleState,
 )
 
-from .record import GOAL_RADIUS_M, CommandRecord, DefectRx, EventRx, MissionRecord, StateRx, StatsRx
+from .record import GOAL_RADIUS_M, CommandRecord, DefectRx, EventRx, FaultRecord, MissionRecord, StateRx, StatsRx
 
 
 
@@ -115,6 +115,16 @@ class MissionRunner:
     def _on_det_stats(self, msg, sample) -> None:
         with self._lock:
             self.record.detector_stats.append(StatsRx(rx=time.time(), msg=msg))
+
+    def note_fault(self, action: str, target: str, text: str = "") -> None:
+        """Record a fault injected into the run (kill, restart, cut, restore, partition, heal).
+
+        Called by the launcher's fault injector from its own thread; thread-safe.
+        """
+        with self._lock:
+            self.record.faults.append(FaultRecord(at=time.time(), action=action, target=target, text=text))
+        if self.log:
+            self.log.warning("fault: %s %s %s", action, target, text)
 
     # -- steps
     def phase(self, name: str) -> None:

@@ -55,6 +55,20 @@ class CommandRecord(BaseModel):
     ack_s: list[float] = Field(default=[], description="round-trip time of each answered try, s")
 
 
+class FaultRecord(BaseModel):
+    """One fault injected into the run (or ended), as the injector told the ground station.
+
+    ``action`` is one of kill, restart, cut, restore, partition, heal (services.faults); ``at`` is the
+    wall-clock UNIX time it happened.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    at: float
+    action: str
+    target: str
+    text: str = ""
+
+
 class GroundTruthDefect(BaseModel):
     """A crack really on the synthetic surface (what the system should find)."""
 
@@ -81,6 +95,7 @@ class MissionRecord(BaseModel):
     gateway_stats: list[StatsRx] = []
     detector_stats: list[StatsRx] = []
     commands: list[CommandRecord] = []
+    faults: list[FaultRecord] = Field(default=[], description="faults injected during the run (services.faults)")
     heartbeats_sent: int = 0
     ground_truth: list[GroundTruthDefect] = []
     surface_corners: list[tuple[float, float, float]] = []
