@@ -40,6 +40,17 @@ Semantics (and where we differ from netem)
   start). A datagram that arrives during an outage is dropped (reason ``outage``); a stream
   chunk that arrives, or would be released, inside a window waits for its end (the stream
   stalls).
+* **Live changes** — :meth:`Impairer.update` replaces the impairment from the next decision
+  on; the random stream, the counters, the origin, the FIFO floor, the rate queue and the
+  loss chain's state carry over, so packets already decided keep their release times and a
+  FIFO link still never lets a new packet overtake an old one. Outage windows and ``after``
+  of the new impairment count from the same origin (an ``after`` already past applies at
+  once). :meth:`Impairer.cut` adds a window starting *now* (open-ended when no duration is
+  given) and :meth:`Impairer.restore` ends every cut; cuts are the link's state, not part of
+  the impairment, so an update does not end them. A datagram arriving in a cut is dropped
+  (reason ``outage``). Streams are not stalled by cuts in :meth:`Impairer.decide_stream`
+  (an open-ended cut has no end to stall to): the sender must hold bytes while
+  :meth:`Impairer.outage_end` says the link is down, as the TCP proxy's writers do.
 * **Onset** — ``after_s``: everything but the outages starts that long after the origin;
   before it packets pass untouched (counted). Zenoh opens a UDP link with a handshake of a few
   datagrams and gives up on the link if they are lost (the session then runs on TCP alone),
@@ -68,6 +79,7 @@ from __future__ import annotations
 import heapq
 import math
 import re
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -81,6 +93,7 @@ __all__ = [
     "Counters",
     "Impairer",
     "DEFAULT_MSS",
+    "parse_time_s",
 ]
 
 #: Reasons a datagram is dropped, the keys of :attr:`Counters.dropped`.
@@ -355,6 +368,11 @@ def _time_ms(tok: str) -> float:
     return float(m.group(1)) * _TIME_UNITS[m.group(2)]
 
 
+def parse_time_s(tok: str) -> float:
+    """A time with a unit (``us``, ``ms``, ``s``), e.g. ``"1.5s"`` or ``"250ms"``, in seconds."""
+    return _time_ms(tok) / 1000.0
+
+
 def _percent(tok: str) -> float:
     m = re.fullmatch(_NUM + "%", tok)
     if not m:
@@ -404,8 +422,51 @@ class Counters:
 
 
 # ---------------------------------------------------------------------------- the decisions
+@dataclass(frozen=True, slots=True)
+class _Params:
+    """One immutable snapshot of what an :class:`Impairer` applies, in the caller's clock.
+
+    Swapped whole by :meth:`Impairer.update`, :meth:`Impairer.cut` and :meth:`Impairer.restore`,
+    read once per decision: a decision never sees half of a change.
+    """
+
+    impairment: Impairment
+    delay: float
+    jitter: float
+    hold: float
+    rto: float
+    onset: float
+    byte_time: float
+    outages: tuple[tuple[float, float], ...]   # the impairment's windows, absolute
+    cuts: tuple[tuple[float, float], ...]      # live cuts, absolute; end may be inf
+    down: tuple[tuple[float, float], ...]      # outages and cuts, sorted (what datagrams see)
+
+    @classmethod
+    def of(cls, imp: Impairment, origin_s: float, cuts: tuple[tuple[float, float], ...]) -> _Params:
+        outages = tuple((origin_s + s, origin_s + s + d) for s, d in imp.outages)
+        return cls(imp, imp.delay_ms / 1000.0, imp.jitter_ms / 1000.0, imp.reorder_ms / 1000.0,
+                   imp.rto_ms / 1000.0, origin_s + imp.after_s,
+                   8.0 / (imp.rate_kbps * 1000.0) if imp.rate_kbps > 0 else 0.0,
+                   outages, cuts, tuple(sorted(outages + cuts)))
+
+
+def _window_end(windows: tuple[tuple[float, float], ...], t: float) -> float | None:
+    """End of the window containing ``t`` in sorted ``windows`` (chained windows merged), or None."""
+    end = None
+    for a, b in windows:
+        if a <= t < b or (end is not None and a <= end < b):
+            end = b
+            t = b
+    return end
+
+
 class Impairer:
-    """Seeded decisions for one direction of one link (not thread-safe: one caller at a time).
+    """Seeded decisions for one direction of one link.
+
+    Threads: :meth:`decide` / :meth:`decide_stream` from one caller at a time (they advance the
+    random stream and the queue state); :meth:`update`, :meth:`cut`, :meth:`restore` and
+    :meth:`outage_end` from any thread at any time (a change is one swap of an immutable
+    snapshot, which a decision reads once).
 
     Parameters
     ----------
@@ -414,7 +475,7 @@ class Impairer:
     rng : numpy.random.Generator | int | None
         Random source, or a seed. Uniform and normal variates are drawn in vectorised blocks
         of :attr:`BLOCK` and consumed one per decision, so a seed gives the same decisions for
-        the same sequence of calls.
+        the same sequence of calls (and changes).
     origin_s : float
         The caller's clock reading at which outages are counted from (the proxy start).
     mss : int
@@ -426,7 +487,7 @@ class Impairer:
     def __init__(self, impairment: Impairment | str | dict[str, Any] | None = None,
                  rng: np.random.Generator | int | None = None, origin_s: float = 0.0,
                  mss: int = DEFAULT_MSS) -> None:
-        self.impairment = imp = Impairment.coerce(impairment)
+        imp = Impairment.coerce(impairment)
         if not math.isfinite(origin_s):
             raise ValueError(f"origin_s must be finite, got {origin_s}")
         if not isinstance(mss, int) or mss <= 0:
@@ -435,13 +496,9 @@ class Impairer:
         self.origin_s = float(origin_s)
         self.mss = mss
         self.counters = Counters()
-        self._delay = imp.delay_ms / 1000.0
-        self._jitter = imp.jitter_ms / 1000.0
-        self._hold = imp.reorder_ms / 1000.0
-        self._rto = imp.rto_ms / 1000.0
-        self._onset = self.origin_s + imp.after_s
-        self._byte_time = 8.0 / (imp.rate_kbps * 1000.0) if imp.rate_kbps > 0 else 0.0
-        self._outages = [(self.origin_s + s, self.origin_s + s + d) for s, d in imp.outages]
+        self.changes = 0                  # update / cut / restore calls applied
+        self._change_lock = threading.Lock()
+        self._p = _Params.of(imp, self.origin_s, ())
         self._busy_until = -math.inf      # rate: when the link finishes the previous packet
         self._last_release = -math.inf    # FIFO floor
         self._held: list[float] = []      # release times of packets held (for `limit`)
@@ -450,6 +507,54 @@ class Impairer:
         self._ui = 0
         self._n = np.empty(0)
         self._ni = 0
+
+    @property
+    def impairment(self) -> Impairment:
+        """What is applied now."""
+        return self._p.impairment
+
+    # ---------------------------------------------------------------- live changes
+    def update(self, impairment: Impairment | str | dict[str, Any] | None) -> Impairment:
+        """Apply ``impairment`` from the next decision on; returns it (validated).
+
+        Keeps the random stream, counters, origin, FIFO floor, rate queue, loss-chain state and
+        the live cuts (see the module docstring, "Live changes"). Bad input raises
+        :class:`ValueError` and changes nothing.
+        """
+        imp = Impairment.coerce(impairment)
+        with self._change_lock:
+            self._p = _Params.of(imp, self.origin_s, self._p.cuts)
+            self.changes += 1
+        return imp
+
+    def cut(self, now_s: float, duration_s: float | None = None) -> None:
+        """Cut the link from ``now_s`` for ``duration_s`` seconds (None: until :meth:`restore`)."""
+        self._check(now_s, 0)
+        if duration_s is not None and not (isinstance(duration_s, (int, float))
+                                           and math.isfinite(duration_s) and duration_s > 0.0):
+            raise ValueError(f"cut duration must be a finite number of seconds > 0 or None, got {duration_s!r}")
+        end = math.inf if duration_s is None else float(now_s) + float(duration_s)
+        with self._change_lock:
+            p = self._p
+            cuts = tuple(sorted(p.cuts + ((float(now_s), end),)))
+            self._p = _Params.of(p.impairment, self.origin_s, cuts)
+            self.changes += 1
+
+    def restore(self) -> None:
+        """End every cut (current or pending). The impairment's own outage windows stay."""
+        with self._change_lock:
+            p = self._p
+            self._p = _Params.of(p.impairment, self.origin_s, ())
+            self.changes += 1
+
+    def cut_end(self, t: float) -> float | None:
+        """End of the live cut containing clock time ``t`` (``inf``: until restored), or None."""
+        return _window_end(self._p.cuts, t)
+
+    def outage_end(self, t: float) -> float | None:
+        """When the link comes back if it is down at clock time ``t``: the end of the outage or cut
+        window containing ``t`` (chained windows merged; ``inf`` for an open-ended cut), or None."""
+        return _window_end(self._p.down, t)
 
     # ---------------------------------------------------------------- random streams
     def _uniform(self) -> float:
@@ -467,9 +572,8 @@ class Impairer:
         return float(self._n[self._ni - 1])
 
     # ---------------------------------------------------------------- pieces
-    def _lost(self) -> bool:
+    def _lost(self, imp: Impairment) -> bool:
         """One packet through the loss model (Bernoulli, Markov-correlated or Gilbert–Elliott)."""
-        imp = self.impairment
         ge = imp.gilbert_elliott
         if ge is not None:
             if self._bad:
@@ -491,32 +595,23 @@ class Impairer:
             return self._bad
         return self._uniform() < p
 
-    def _latency(self) -> float:
+    def _latency(self, p: _Params) -> float:
         """Delay plus one jitter sample, seconds, never negative."""
-        if self._jitter <= 0.0:
-            return self._delay
-        if self.impairment.distribution == "normal":
-            j = self._normal() * self._jitter
+        if p.jitter <= 0.0:
+            return p.delay
+        if p.impairment.distribution == "normal":
+            j = self._normal() * p.jitter
         else:
-            j = (2.0 * self._uniform() - 1.0) * self._jitter
-        return max(0.0, self._delay + j)
+            j = (2.0 * self._uniform() - 1.0) * p.jitter
+        return max(0.0, p.delay + j)
 
-    def _serialise(self, t: float, size: int) -> float:
+    def _serialise(self, p: _Params, t: float, size: int) -> float:
         """When a packet entering the link at ``t`` has been sent at ``rate_kbps``."""
-        if self._byte_time <= 0.0:
+        if p.byte_time <= 0.0:
             return t
         start = t if t > self._busy_until else self._busy_until
-        self._busy_until = start + size * self._byte_time
+        self._busy_until = start + size * p.byte_time
         return self._busy_until
-
-    def outage_end(self, t: float) -> float | None:
-        """End of the outage window containing clock time ``t`` (chained windows merged), or None."""
-        end = None
-        for a, b in self._outages:
-            if a <= t < b or (end is not None and a <= end < b):
-                end = b
-                t = b
-        return end
 
     def _check(self, now_s: float, size_bytes: int) -> None:
         if not (isinstance(now_s, (int, float)) and math.isfinite(now_s)):
@@ -528,24 +623,25 @@ class Impairer:
     def decide(self, now_s: float, size_bytes: int) -> list[float]:
         """Release times (caller's clock, seconds) of the copies of one datagram arriving now.
 
-        Empty list: dropped (counted under ``loss``, ``outage`` or ``queue``). Two entries: the
-        packet was duplicated. Times are never before ``now_s``.
+        Empty list: dropped (counted under ``loss``, ``outage`` — outage windows and cuts — or
+        ``queue``). Two entries: the packet was duplicated. Times are never before ``now_s``.
         """
         self._check(now_s, size_bytes)
+        p = self._p
         c = self.counters
         c.packets_in += 1
         c.bytes_in += size_bytes
-        if self._outages and self.outage_end(now_s) is not None:
+        if p.down and _window_end(p.down, now_s) is not None:
             c.dropped["outage"] += 1
             return []
-        if now_s < self._onset:
+        if now_s < p.onset:
             c.packets_out += 1
             c.bytes_out += size_bytes
             return [float(now_s)]
-        if self._lost():
+        imp = p.impairment
+        if self._lost(imp):
             c.dropped["loss"] += 1
             return []
-        imp = self.impairment
         held = self._held
         if imp.limit:
             while held and held[0] <= now_s:
@@ -556,10 +652,10 @@ class Impairer:
         copies = 2 if imp.duplicate > 0.0 and self._uniform() < imp.duplicate else 1
         out: list[float] = []
         for k in range(copies):
-            t = self._serialise(now_s, size_bytes) + self._latency()
+            t = self._serialise(p, now_s, size_bytes) + self._latency(p)
             if k == 0 and imp.reorder > 0.0 and self._uniform() < imp.reorder:
                 # held back: later packets overtake it; it does not raise the FIFO floor
-                t = max(t, self._last_release) + self._hold
+                t = max(t, self._last_release) + p.hold
                 c.reordered += 1
             elif imp.fifo:
                 if t < self._last_release:
@@ -579,28 +675,30 @@ class Impairer:
     def decide_stream(self, now_s: float, size_bytes: int) -> float:
         """Release time of one in-order chunk of a byte stream (TCP) arriving now.
 
-        Never drops: an outage stalls the chunk until the window ends; a lost segment
+        Never drops: an outage window stalls the chunk until the window ends; a lost segment
         (Bernoulli / correlated / Gilbert–Elliott per ``mss`` bytes) delays the chunk by
-        ``rto_ms``; then rate, delay and jitter; release times never decrease.
+        ``rto_ms``; then rate, delay and jitter; release times never decrease. Live cuts are
+        not applied here: the sender holds bytes while :meth:`outage_end` is not None.
         """
         self._check(now_s, size_bytes)
+        p = self._p
         c = self.counters
         c.packets_in += 1
         c.bytes_in += size_bytes
         t = float(now_s)
         stalled = False
-        if self._outages:
-            end = self.outage_end(t)
+        if p.outages:
+            end = _window_end(p.outages, t)
             if end is not None:
                 t, stalled = end, True
-        if t < self._onset:
+        if t < p.onset:
             t = max(t, self._last_release)
             self._last_release = t
             c.stalled += stalled
             c.packets_out += 1
             c.bytes_out += size_bytes
             return t
-        imp = self.impairment
+        imp = p.impairment
         if imp.loss > 0.0 or imp.gilbert_elliott is not None:
             segments = max(1, -(-size_bytes // self.mss))
             lost = False
@@ -608,13 +706,13 @@ class Impairer:
                 lost = self._uniform() < 1.0 - (1.0 - imp.loss) ** segments
             else:
                 for _ in range(segments):
-                    lost = self._lost() or lost
+                    lost = self._lost(imp) or lost
             if lost:
-                t += self._rto
+                t += p.rto
                 c.retransmitted += 1
-        t = self._serialise(t, size_bytes) + self._latency()
-        if self._outages:
-            end = self.outage_end(t)
+        t = self._serialise(p, t, size_bytes) + self._latency(p)
+        if p.outages:
+            end = _window_end(p.outages, t)
             if end is not None:
                 t, stalled = end, True
         if t < self._last_release:

@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import json
+import math
 import selectors
 import socket
 import threading
@@ -39,8 +41,10 @@ from typing import Any, Callable, Literal
 import numpy as np
 
 from services.netem.model import Impairer, Impairment
+from services.netem.schedule import Command, Step, parse_command, parse_schedule
 
-__all__ = ["Address", "Direction", "parse_address", "format_address", "UdpProxy", "TcpProxy"]
+__all__ = ["Address", "Direction", "parse_address", "format_address", "UdpProxy", "TcpProxy",
+           "ControlServer", "send_control"]
 
 Address = tuple[str, int]
 Direction = Literal["both", "up", "down"]
@@ -85,7 +89,8 @@ def _resolve(addr: Address, kind: int) -> tuple[int, tuple]:
 
 
 class _ProxyBase:
-    """Shared life cycle: impairers per direction, start/stop, context manager, address."""
+    """Shared life cycle: impairers per direction, start/stop, context manager, address, and the
+    live changes (:meth:`update`, :meth:`cut`, :meth:`restore`, :meth:`apply`, :meth:`play`)."""
 
     kind = "?"
 
@@ -96,21 +101,36 @@ class _ProxyBase:
             raise ValueError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
         self.listen = _check_address(listen, "listen")
         self.target = _check_address(target, "target")
-        self.impairment = Impairment.coerce(impairment)
+        imp = Impairment.coerce(impairment)
+        self._initial = {d: imp if direction in ("both", d) else Impairment() for d in ("up", "down")}
         self.direction = direction
         self.seed = seed
         self._address: Address | None = None
         self._started = self._stopped = False
         self._t0 = 0.0
+        self._live = False  # impairers exist (from start on)
+        self._change_lock = threading.Lock()
+        self.changes = 0
+        self._runner: _ScheduleRunner | None = None
 
     def _make_impairers(self) -> dict[str, Impairer]:
         self._t0 = time.monotonic()
         rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(self.seed).spawn(2)]
-        out = {}
-        for name, rng in zip(("up", "down"), rngs):
-            imp = self.impairment if self.direction in ("both", name) else None
-            out[name] = Impairer(imp, rng, origin_s=self._t0)
-        return out
+        with self._change_lock:
+            self._imp = {d: Impairer(self._initial[d], rng, origin_s=self._t0)
+                         for d, rng in zip(("up", "down"), rngs)}
+            self._live = True
+        return self._imp
+
+    def _schedule_due(self) -> None:
+        """In start(), before any packet: apply the steps due at once (at 0 s)."""
+        if self._runner is not None:
+            self._runner.apply_due()
+
+    def _schedule_start(self) -> None:
+        """At the end of start(): the runner thread applies the rest."""
+        if self._runner is not None:
+            self._runner.start()
 
     @property
     def address(self) -> Address:
@@ -123,13 +143,135 @@ class _ProxyBase:
     def port(self) -> int:
         return self.address[1]
 
+    # ---------------------------------------------------------------- live changes
+    def impairment(self, direction: Direction = "both") -> Impairment:
+        """The impairment applied now to ``"up"`` or ``"down"``; ``"both"`` when they are equal
+        (a :class:`ValueError` when they differ)."""
+        if direction not in DIRECTIONS:
+            raise ValueError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
+        now = {d: (self._imp[d].impairment if self._live else self._initial[d]) for d in ("up", "down")}
+        if direction != "both":
+            return now[direction]
+        if now["up"] != now["down"]:
+            raise ValueError("up and down differ: ask for 'up' or 'down'")
+        return now["up"]
+
+    def update(self, spec: Impairment | str | dict[str, Any] | None, direction: Direction = "both") -> Impairment:
+        """Replace the impairment of ``direction`` (default both) from now on; None or "" = a clean
+        link. Packets already decided keep their release times; seeds, counters, outage origin and
+        any cut carry over (:meth:`Impairer.update`). Bad input raises ValueError, changing nothing.
+        Callable from any thread, before or after :meth:`start`."""
+        if direction not in DIRECTIONS:
+            raise ValueError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
+        imp = Impairment.coerce(spec)
+        with self._change_lock:
+            self._update(imp, direction)
+            self.changes += 1
+        self._changed()
+        return imp
+
+    def cut(self, duration_s: float | None = None) -> None:
+        """Cut the link now in both directions, for ``duration_s`` seconds or (None) until
+        :meth:`restore`. UDP: datagrams arriving meanwhile are dropped (reason ``outage``); those
+        already queued keep their release times. TCP: no byte is sent either way while cut (the
+        streams stall, nothing is lost), and new connections are accepted but held, not connected
+        to the target, until the link is back."""
+        self._require_started()
+        with self._change_lock:
+            self._cut(duration_s)
+            self.changes += 1
+        self._changed()
+
+    def restore(self) -> None:
+        """End any cut now (the impairment stays); held TCP bytes and connections go on."""
+        self._require_started()
+        with self._change_lock:
+            self._restore()
+            self.changes += 1
+        self._changed()
+
+    def apply(self, command: Command | str) -> dict[str, Any]:
+        """Carry out one command of :mod:`services.netem.schedule` (``set``, ``cut``, ``restore``,
+        ``clear``; ``stats`` returns the counters). Returns a JSON-ready reply; ValueError on a
+        bad command."""
+        cmd = parse_command(command) if isinstance(command, str) else command
+        if not isinstance(cmd, Command):
+            raise ValueError(f"a command is a Command or text, not {type(command).__name__}")
+        if cmd.action == "stats":
+            return {"ok": True, "stats": self.stats()}
+        if cmd.action != "set":
+            self._require_started()
+        with self._change_lock:
+            if cmd.action == "set":
+                self._update(cmd.impairment, cmd.direction)
+            elif cmd.action == "cut":
+                self._cut(cmd.duration_s)
+            elif cmd.action == "restore":
+                self._restore()
+            else:  # clear
+                self._update(Impairment(), "both")
+                self._restore()
+            self.changes += 1
+        self._changed()
+        return {"ok": True, "applied": cmd.to_text(), "impairment": self._impairment_text(),
+                "changes": self.changes}
+
+    def play(self, steps: list[Step] | str, on_step: Callable[[Step, str | None], None] | None = None) -> None:
+        """Run a schedule (steps, or schedule text) relative to the proxy start, on a thread of its
+        own; may be called before :meth:`start` (steps at 0 s then apply before the first packet)
+        or after (steps already due apply at once, in order). ``on_step(step, error)`` is called
+        after each step. One schedule per proxy; :meth:`stop` ends it."""
+        if isinstance(steps, str):
+            steps = parse_schedule(steps)
+        if self._runner is not None:
+            raise RuntimeError("a schedule is already playing")
+        if self._stopped:
+            raise RuntimeError(f"{type(self).__name__} stopped")
+        self._runner = _ScheduleRunner(self, list(steps), on_step)
+        if self._started:
+            self._schedule_due()
+            self._schedule_start()
+
+    def _update(self, imp: Impairment, direction: str) -> None:
+        for d in ("up", "down"):
+            if direction in ("both", d):
+                if self._live:
+                    self._imp[d].update(imp)
+                else:
+                    self._initial[d] = imp
+
+    def _cut(self, duration_s: float | None) -> None:
+        now = time.monotonic()
+        for d in ("up", "down"):
+            self._imp[d].cut(now, duration_s)
+
+    def _restore(self) -> None:
+        for d in ("up", "down"):
+            self._imp[d].restore()
+
+    def _changed(self) -> None:
+        """Hook after a change (TCP: wake the writers and the acceptor)."""
+
+    def _require_started(self) -> None:
+        if not self._live or self._stopped:
+            raise RuntimeError(f"{type(self).__name__} not running")
+
+    def _down_until(self, now: float) -> float | None:
+        """When the link is back if either direction is down now (``inf``: cut until restore)."""
+        ends = [e for e in (self._imp[d].outage_end(now) for d in ("up", "down")) if e is not None]
+        return max(ends) if ends else None
+
+    # ---------------------------------------------------------------- life cycle
     def start(self) -> _ProxyBase:
         raise NotImplementedError
 
     def stop(self) -> None:
-        """Wake the listening thread and join it, release the proxy's own resources
-        (:meth:`_release`), then close the listening and wake-up sockets. Idempotent."""
+        """Stop the schedule, wake the listening thread and join it, release the proxy's own
+        resources (:meth:`_release`), then close the listening and wake-up sockets. Idempotent."""
+        if self._runner is not None:
+            self._runner.stop()
         if not self._started or self._stopped:
+            self._stopped = True
             return
         self._stopped = True
         self._running = False
@@ -151,11 +293,85 @@ class _ProxyBase:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def _impairment_text(self) -> str:
+        """One string for both directions: the text when they agree, else ``up: X; down: Y``."""
+        up, down = (self.impairment(d) for d in ("up", "down"))
+        return up.to_text() if up == down else f"up: {up.to_text()}; down: {down.to_text()}"
+
     def _header(self) -> dict[str, Any]:
-        return {"kind": self.kind, "listen": format_address(self._address or self.listen),
-                "target": format_address(self.target), "direction": self.direction,
-                "impairment": self.impairment.to_text(),
-                "uptime_s": round(time.monotonic() - self._t0, 3) if self._started else 0.0}
+        out = {"kind": self.kind, "listen": format_address(self._address or self.listen),
+               "target": format_address(self.target), "direction": self.direction,
+               "impairment": self._impairment_text(), "changes": self.changes,
+               "uptime_s": round(time.monotonic() - self._t0, 3) if self._started else 0.0,
+               "cut": False, "cut_remaining_s": None}
+        if self._started:
+            now = time.monotonic()
+            end = self._imp["up"].cut_end(now)
+            if end is not None:
+                out["cut"] = True
+                out["cut_remaining_s"] = None if math.isinf(end) else round(end - now, 3)
+        if self._runner is not None:
+            out["schedule"] = self._runner.stats()
+        return out
+
+    def _direction_stats(self, d: str) -> dict[str, Any]:
+        return {"impairment": self._imp[d].impairment.to_text(), **self._imp[d].stats(), **self._sent[d]}
+
+
+class _ScheduleRunner:
+    """Applies a schedule's steps at ``proxy start + at_s`` on one thread (``netem-...-schedule``)."""
+
+    def __init__(self, proxy: _ProxyBase, steps: list[Step],
+                 on_step: Callable[[Step, str | None], None] | None) -> None:
+        for s in steps:
+            if not isinstance(s, Step):
+                raise ValueError(f"a schedule is a list of Step, got {type(s).__name__}")
+        self.proxy, self.on_step = proxy, on_step
+        self.steps = sorted(steps, key=lambda s: (s.at_s, s.line))
+        self.applied = self.errors = 0
+        self._next = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def apply_due(self) -> bool:
+        """Apply every step due by now; True when none is left."""
+        with self._lock:
+            while self._next < len(self.steps) and not self._stop.is_set():
+                step = self.steps[self._next]
+                if self.proxy._t0 + step.at_s > time.monotonic():
+                    return False
+                self._next += 1
+                error = None
+                try:
+                    self.proxy.apply(step.command)
+                    self.applied += 1
+                except Exception as e:  # noqa: BLE001 - a bad step must not end the schedule
+                    self.errors += 1
+                    error = f"{type(e).__name__}: {e}"
+                if self.on_step is not None:
+                    self.on_step(step, error)
+            return True
+
+    def start(self) -> None:
+        if self._thread is None and self._next < len(self.steps):
+            self._thread = threading.Thread(target=self._run, name=f"netem-{self.proxy.kind}-{self.proxy.port}-schedule",
+                                            daemon=True)
+            self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set() and not self.apply_due():
+            wait = self.proxy._t0 + self.steps[self._next].at_s - time.monotonic()
+            if wait > 0.0:
+                self._stop.wait(wait)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join()
+
+    def stats(self) -> dict[str, Any]:
+        return {"steps": len(self.steps), "applied": self.applied, "errors": self.errors}
 
 
 # ============================================================================ UDP
@@ -260,7 +476,8 @@ class UdpProxy(_ProxyBase):
             raise
         self._lsock.setblocking(False)
         self._address = (self.listen[0], self._lsock.getsockname()[1])
-        self._imp = self._make_impairers()
+        self._make_impairers()
+        self._schedule_due()
         self._wake_r, self._wake_w = socket.socketpair()
         self._wake_r.setblocking(False)
         self._sel = selectors.DefaultSelector()
@@ -272,6 +489,7 @@ class UdpProxy(_ProxyBase):
         self._thread = threading.Thread(target=self._run, name=f"netem-udp-{self.port}-recv", daemon=True)
         self._thread.start()
         self._started = True
+        self._schedule_start()
         return self
 
     def _release(self) -> None:
@@ -382,7 +600,7 @@ class UdpProxy(_ProxyBase):
         out = self._header()
         if self._started:
             for d in ("up", "down"):
-                out[d] = {**self._imp[d].stats(), **self._sent[d]}
+                out[d] = self._direction_stats(d)
             out["associations"] = len(self._assocs)
             out["associations_closed"] = self._closed_assocs
             out["queued"] = len(self._sched)
@@ -403,7 +621,6 @@ class _Pump:
     def reader(self) -> None:
         proxy = self.conn.proxy
         imp, lock, counts = proxy._imp[self.name], proxy._locks[self.name], proxy._sent[self.name]
-        piece = proxy._piece_bytes[self.name]
         limit = proxy.max_pending_bytes
         try:
             while True:
@@ -411,6 +628,7 @@ class _Pump:
                 if not data:
                     break
                 now = time.monotonic()
+                piece = proxy._piece_bytes[self.name]  # follows the rate of live updates
                 chunks = [data] if piece == 0 or len(data) <= piece else \
                     [data[k:k + piece] for k in range(0, len(data), piece)]
                 for chunk in chunks:
@@ -421,7 +639,9 @@ class _Pump:
                             self.cond.wait()
                         if self.aborted:
                             return
-                        direct = not self.queue and not self.inflight and t <= time.monotonic()
+                        now = time.monotonic()
+                        direct = (not self.queue and not self.inflight and t <= now
+                                  and imp.outage_end(now) is None)
                         if direct:
                             self.inflight = True
                         else:
@@ -446,21 +666,33 @@ class _Pump:
             self.conn.thread_done()
 
     def writer(self) -> None:
+        """Send each queued chunk when due, in order; hold everything (the FIN too) while the
+        link is down (a cut or an outage window), woken by :meth:`TcpProxy.restore`."""
         proxy = self.conn.proxy
-        counts, lock = proxy._sent[self.name], proxy._locks[self.name]
+        imp, counts, lock = proxy._imp[self.name], proxy._sent[self.name], proxy._locks[self.name]
+        held = False  # the head chunk has been counted as held by a down link
         try:
             while True:
                 with self.cond:
                     while True:
                         if self.aborted:
                             return
-                        if self.queue and not self.inflight:
-                            wait = self.queue[0][0] - time.monotonic()
-                            if wait <= 0.0:
-                                _, chunk = self.queue.popleft()
-                                self.inflight = True
-                                break
-                            self.cond.wait(wait)
+                        now = time.monotonic()
+                        due = self.queue and not self.inflight and self.queue[0][0] <= now
+                        if (due or (self.eof and not self.queue and not self.inflight)) and \
+                                (back := imp.outage_end(now)) is not None:
+                            if due and not held:
+                                held = True
+                                with lock:
+                                    counts["held_link_down"] += 1
+                            self.cond.wait(min(back - now, 1.0))
+                        elif due:
+                            _, chunk = self.queue.popleft()
+                            self.inflight = True
+                            held = False
+                            break
+                        elif self.queue and not self.inflight:
+                            self.cond.wait(self.queue[0][0] - now)
                         elif not self.queue and not self.inflight and self.eof:
                             try:  # pass the half-close on once everything before it is out
                                 self.dst.shutdown(socket.SHUT_WR)
@@ -565,8 +797,9 @@ class TcpProxy(_ProxyBase):
         self.max_pending_bytes = max_pending_bytes
         self._conns: set[_TcpConnection] = set()
         self._conns_lock = threading.Lock()
-        self._sent = {d: {"sent_bytes": 0} for d in ("up", "down")}
-        self._accepted = self._connect_errors = 0
+        self._sent = {d: {"sent_bytes": 0, "held_link_down": 0} for d in ("up", "down")}
+        self._accepted = self._connect_errors = self._held_on_accept = 0
+        self._held_clients: list[socket.socket] = []  # accepted while the link was down
 
     def start(self) -> TcpProxy:
         if self._started:
@@ -582,20 +815,43 @@ class TcpProxy(_ProxyBase):
             self._lsock.close()
             raise
         self._address = (self.listen[0], self._lsock.getsockname()[1])
-        self._imp = self._make_impairers()
         self._locks = {d: threading.Lock() for d in ("up", "down")}
-        self._piece_bytes = {}
-        for d, imp in self._imp.items():
-            rate = imp.impairment.rate_kbps
-            # about 1 ms of link time per piece, so the rate releases a smooth stream
-            self._piece_bytes[d] = max(1448, int(rate * 1000 / 8 * 1e-3)) if rate > 0 else 0
+        self._make_impairers()
+        self._set_pieces()
+        self._schedule_due()
         self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
         self._running = True
         self._ids = itertools.count(1)
         self._thread = threading.Thread(target=self._accept_loop, name=f"netem-tcp-{self.port}-accept", daemon=True)
         self._thread.start()
         self._started = True
+        self._schedule_start()
         return self
+
+    def _set_pieces(self) -> None:
+        """Chunk size per direction: about 1 ms of link time, so a rate releases a smooth stream."""
+        pieces = {}
+        for d, imp in self._imp.items():
+            rate = imp.impairment.rate_kbps
+            pieces[d] = max(1448, int(rate * 1000 / 8 * 1e-3)) if rate > 0 else 0
+        self._piece_bytes = pieces
+
+    def _changed(self) -> None:
+        """After a change: new chunk sizes; wake every writer (a restore releases held bytes) and
+        the acceptor (held connections go on)."""
+        if not self._started or self._stopped:
+            return
+        self._set_pieces()
+        with self._conns_lock:
+            pumps = [p for c in self._conns for p in c.pumps]
+        for p in pumps:
+            with p.cond:
+                p.cond.notify_all()
+        try:
+            self._wake_w.send(b"c")
+        except OSError:
+            pass
 
     def _release(self) -> None:
         """Reset every relayed connection and join its threads."""
@@ -607,21 +863,49 @@ class TcpProxy(_ProxyBase):
             conn.join()
 
     def _accept_loop(self) -> None:
+        """Accept clients; while the link is down, hold them (accepted, not yet connected to the
+        target: the client's first bytes wait, as behind a cut link) and relay them once it is up."""
+        held = self._held_clients
         with selectors.DefaultSelector() as sel:
             sel.register(self._lsock, selectors.EVENT_READ, "listen")
             sel.register(self._wake_r, selectors.EVENT_READ, "wake")
-            while self._running:
-                for key, _ in sel.select():
-                    if key.data == "wake" or not self._running:
-                        return
-                    try:
-                        client, _ = self._lsock.accept()
-                    except OSError:
-                        continue
-                    self._relay(client)
+            try:
+                while self._running:
+                    timeout = None
+                    if held:
+                        now = time.monotonic()
+                        back = self._down_until(now)
+                        if back is None:
+                            while held and self._running:
+                                self._relay(held.pop(0))
+                            continue
+                        timeout = min(back - now, 1.0)
+                    for key, _ in sel.select(timeout):
+                        if not self._running:
+                            return
+                        if key.data == "wake":
+                            try:
+                                while self._wake_r.recv(64):
+                                    pass
+                            except OSError:
+                                pass
+                            continue
+                        try:
+                            client, _ = self._lsock.accept()
+                        except OSError:
+                            continue
+                        self._accepted += 1
+                        if self._down_until(time.monotonic()) is not None:
+                            self._held_on_accept += 1
+                            held.append(client)
+                        else:
+                            self._relay(client)
+            finally:
+                for client in held:
+                    client.close()
+                held.clear()
 
     def _relay(self, client: socket.socket) -> None:
-        self._accepted += 1
         upstream = socket.socket(self._tfam, socket.SOCK_STREAM)
         try:
             upstream.settimeout(self.connect_timeout_s)
@@ -650,8 +934,136 @@ class TcpProxy(_ProxyBase):
         if self._started:
             for d in ("up", "down"):
                 with self._locks[d]:
-                    out[d] = {**self._imp[d].stats(), **self._sent[d]}
+                    out[d] = self._direction_stats(d)
             out["connections"] = len(self._conns)
             out["accepted"] = self._accepted
+            out["held_connections"] = len(self._held_clients)
+            out["held_on_accept"] = self._held_on_accept
             out["connect_errors"] = self._connect_errors
         return out
+
+
+# ============================================================================ control channel
+def _is_loopback(addr: Address) -> bool:
+    import ipaddress
+
+    try:
+        infos = socket.getaddrinfo(addr[0], addr[1], type=socket.SOCK_DGRAM)
+    except socket.gaierror:
+        return False
+    return bool(infos) and all(ipaddress.ip_address(info[4][0]).is_loopback for info in infos)
+
+
+class ControlServer:
+    """A text control channel for one proxy: UDP datagrams on loopback, one command per datagram
+    (the grammar of :mod:`services.netem.schedule`: ``set SPEC``, ``cut [T]``, ``restore``,
+    ``clear``, ``stats``), one JSON reply each: ``{"ok": true, ...}`` or ``{"ok": false,
+    "error": "..."}``. A bad command gets an error reply and changes nothing; nothing a client
+    sends stops the proxy. Loopback only: the channel has no authentication.
+    """
+
+    def __init__(self, proxy: _ProxyBase, listen: Address | str = ("127.0.0.1", 0)) -> None:
+        self.proxy = proxy
+        self.listen = _check_address(listen, "control address")
+        if not _is_loopback(self.listen):
+            raise ValueError(f"control address {format_address(self.listen)}: must be a loopback address "
+                             "(the channel has no authentication)")
+        self.requests = self.errors = 0
+        self._address: Address | None = None
+        self._thread: threading.Thread | None = None
+
+    @property
+    def address(self) -> Address:
+        if self._address is None:
+            raise RuntimeError("ControlServer not started")
+        return self._address
+
+    def start(self) -> ControlServer:
+        if self._thread is not None:
+            raise RuntimeError("ControlServer already started")
+        fam, sa = _resolve(self.listen, socket.SOCK_DGRAM)
+        self._sock = socket.socket(fam, socket.SOCK_DGRAM)
+        try:
+            self._sock.bind(sa)
+        except OSError:
+            self._sock.close()
+            raise
+        self._address = (self.listen[0], self._sock.getsockname()[1])
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._running = True
+        self._thread = threading.Thread(target=self._run, name=f"netem-ctl-{self._address[1]}", daemon=True)
+        self._thread.start()
+        return self
+
+    def handle(self, text: str) -> dict[str, Any]:
+        """The reply to one command (never raises)."""
+        self.requests += 1
+        try:
+            return self.proxy.apply(text)
+        except (ValueError, RuntimeError) as e:
+            self.errors += 1
+            return {"ok": False, "error": " ".join(str(e).split())}
+        except Exception as e:  # noqa: BLE001 - a control request must never end the proxy
+            self.errors += 1
+            return {"ok": False, "error": f"{type(e).__name__}: {e}"}
+
+    def _run(self) -> None:
+        with selectors.DefaultSelector() as sel:
+            sel.register(self._sock, selectors.EVENT_READ, "ctl")
+            sel.register(self._wake_r, selectors.EVENT_READ, "wake")
+            while self._running:
+                for key, _ in sel.select():
+                    if key.data == "wake" or not self._running:
+                        return
+                    try:
+                        data, peer = self._sock.recvfrom(_MAX_DATAGRAM)
+                    except OSError:
+                        continue
+                    try:
+                        reply = self.handle(data.decode("utf-8"))
+                    except UnicodeDecodeError:
+                        self.requests += 1
+                        self.errors += 1
+                        reply = {"ok": False, "error": "a command is UTF-8 text"}
+                    try:
+                        self._sock.sendto(json.dumps(reply).encode(), peer)
+                    except OSError:
+                        pass
+
+    def stop(self) -> None:
+        """Join the thread and close the socket. Idempotent."""
+        if self._thread is None or not self._running:
+            return
+        self._running = False
+        try:
+            self._wake_w.send(b"x")
+        except OSError:
+            pass
+        self._thread.join()
+        for s in (self._sock, self._wake_r, self._wake_w):
+            s.close()
+
+    def __enter__(self) -> ControlServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def send_control(address: Address | str, command: str, timeout_s: float = 3.0) -> dict[str, Any]:
+    """Send one command to a :class:`ControlServer` and return its JSON reply.
+
+    Raises :class:`TimeoutError` when no reply comes within ``timeout_s`` (one try: commands
+    such as ``cut`` are not idempotent), :class:`OSError` on socket errors.
+    """
+    addr = _check_address(address, "control address")
+    fam, sa = _resolve(addr, socket.SOCK_DGRAM)
+    with socket.socket(fam, socket.SOCK_DGRAM) as s:
+        s.settimeout(timeout_s)
+        s.connect(sa)
+        s.send(command.encode("utf-8"))
+        try:
+            data = s.recv(_MAX_DATAGRAM)
+        except socket.timeout as e:
+            raise TimeoutError(f"no reply from {format_address(addr)} within {timeout_s} s") from e
+    return json.loads(data)

@@ -331,13 +331,21 @@ def test_tcp_rate_limits_throughput(tcp_echo):
 
 def test_tcp_outage_stalls_the_stream_without_losing_bytes(tcp_echo):
     data = os.urandom(50_000)
-    with TcpProxy(target=tcp_echo.address, impairment="outage 0s 600ms") as proxy:
-        echo, _ = echo_roundtrip(proxy.address, data)
+    with TcpProxy(target=tcp_echo.address, impairment="outage 500ms 600ms") as proxy:
+        # connect before the window (a connection made during one is held at accept instead)
+        with socket.create_connection(proxy.address, timeout=10) as c:
+            assert eventually(lambda: proxy.stats()["connections"] == 1)
+            time.sleep(max(0.0, 0.55 - (time.monotonic() - proxy._t0)))
+            c.sendall(data)
+            c.shutdown(socket.SHUT_WR)
+            echo = bytearray()
+            while got := c.recv(1 << 16):
+                echo += got
         since_start = time.monotonic() - proxy._t0
         s = proxy.stats()
     assert echo == data
-    assert since_start > 0.55  # nothing came back before the window ended
-    assert s["up"]["stalled"] > 0
+    assert since_start > 1.05  # nothing came back before the window ended
+    assert s["up"]["stalled"] > 0 and s["held_on_accept"] == 0
 
 
 def test_tcp_refused_target_closes_the_client():
