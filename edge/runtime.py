@@ -1,5 +1,18 @@
 """Wiring of the edge process: which driver, which camera, and the camera's bus binding.
 
+The camera sends two imagery streams (issue 7):
+
+- **capture frames** on ``uav/<id>/camera``, one per capture point: what the detector analyses
+  and what coverage counts. With ``imagery_cache`` N > 0 (default :data:`IMAGERY_CACHE_FRAMES`)
+  the publisher keeps its last N frames and answers recovery queries (Zenoh's advanced
+  publisher: the role RTP retransmission plays), so a frame lost on a lossy link is sent again;
+  with 0 it is a plain best-effort publisher and a lost frame stays lost.
+- **live preview frames** on ``uav/<id>/preview``: small (default 320x240, JPEG quality 60) at a
+  low wall-clock rate (default 2 Hz, ``preview_hz`` 0 = off), always plain best-effort, never
+  cached or recovered (a late preview frame is worth nothing), RTP camera index 1
+  (:data:`PREVIEW_CAMERA`). Only the synthetic camera previews: a folder or video source is
+  read by the captures alone, so that previews never take frames away from them.
+
 Kept out of :mod:`edge.board` so that the board's logic stays a thin shell over the driver,
 and so that the ground station can rebuild the very same synthetic surface (and so its ground
 truth) from the scenario with :func:`synthetic_surface`.
@@ -10,6 +23,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import threading
 
 import numpy as np
 
@@ -24,8 +38,36 @@ from .vehicle.driver import CaptureEvent, VehicleDriver
 
 #: frames each camera keeps for retransmission of frames lost on the way
 IMAGERY_CACHE_FRAMES = 32
+#: live preview defaults: rate (wall clock, Hz), frame size and JPEG quality
+PREVIEW_HZ = 2.0
+PREVIEW_SIZE = (320, 240)
+PREVIEW_QUALITY = 60
+#: RTP camera index of the preview stream (the capture stream is camera 0)
+PREVIEW_CAMERA = 1
 #: seed of the synthetic surface: one wall for the whole fleet, whatever the UAV
 SURFACE_SEED = 2024
+
+
+def cache_frames(text: str) -> int:
+    """argparse type of ``--imagery-cache``: an int >= 0 (0 = no cache, capture frames not recoverable)."""
+    try:
+        n = int(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a number of frames >= 0, got {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected a number of frames >= 0, got {text!r}")
+    return n
+
+
+def preview_rate(text: str) -> float:
+    """argparse type of ``--preview-hz``: a finite rate >= 0 Hz (0 = no live preview)."""
+    try:
+        hz = float(text)
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a rate in Hz >= 0, got {text!r}") from None
+    if not math.isfinite(hz) or hz < 0:
+        raise argparse.ArgumentTypeError(f"expected a rate in Hz >= 0, got {text!r}")
+    return hz
 
 
 def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
@@ -70,17 +112,29 @@ def camera_rotation(yaw: float) -> np.ndarray:
 
 
 class CameraLink:
-    """Capture -> frame -> JPEG (off the control loop) -> imagery sample on the bus."""
+    """Capture -> frame -> JPEG (off the control loop) -> imagery sample on the bus.
+
+    Parameters
+    ----------
+    cache : int
+        Capture frames kept for recovery (>= 0; 0 = plain best-effort publisher, no recovery).
+    preview : PreviewStream or None
+        The live preview stream, fed by :meth:`preview`.
+    """
 
     def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
-                 quality: int = 85):
+                 quality: int = 85, cache: int = IMAGERY_CACHE_FRAMES, preview: PreviewStream | None = None):
         from .camera import FrameEncoder
 
+        if isinstance(cache, bool) or not isinstance(cache, int) or cache < 0:
+            raise ValueError(f"imagery cache must be an int >= 0 (frames), got {cache!r}")
         self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
         self.sender = RtpSender(ssrc_for(uav, 0))
-        # keep the last frames for retransmission to subscribers that ask (RTP NACK-like recovery)
-        self.pub = bus.publisher(keys.camera(bus.fleet, uav), IMAGERY, cache=IMAGERY_CACHE_FRAMES)
+        self.cache = cache
+        # cache > 0 keeps the last frames for subscribers that ask (RTP retransmission-like recovery)
+        self.pub = bus.publisher(keys.camera(bus.fleet, uav), IMAGERY, cache=cache or None)
         self.encoder = FrameEncoder(self._publish, capacity=4, quality=quality)
+        self.preview_stream = preview
         self.sent = 0
 
     def range_to_surface(self, pos: np.ndarray, axis: np.ndarray) -> float | None:
@@ -118,9 +172,97 @@ class CameraLink:
         self.pub.put_bytes(pack_image(self.sender, meta, jpeg, meta.stamp))
         self.sent += 1
 
+    def preview(self, pos, att, t: float, now_wall: float) -> bool:
+        """Offer the current pose to the live preview (cheap; call it every control tick).
+
+        Returns True when a preview frame was queued (the stream's rate limit decides).
+        """
+        if self.preview_stream is None:
+            return False
+        return self.preview_stream.offer(pos, att, t, now_wall)
+
     def close(self) -> None:
+        if self.preview_stream is not None:
+            self.preview_stream.close()
         self.encoder.close()
         self.source.close()
+
+
+class PreviewStream:
+    """Low-rate live preview of one camera: render + encode on its own thread, plain best-effort.
+
+    :meth:`offer` runs on the control loop: it only compares the wall clock with the next due
+    time and, when due, leaves the pose in a one-slot mailbox (a newer pose replaces one not yet
+    rendered, counted in :attr:`skipped`). The worker renders the frame with its own source (a
+    :class:`~edge.camera.SyntheticSource` at the preview size), encodes it and publishes it on
+    ``uav/<id>/preview`` without cache or recovery.
+    """
+
+    def __init__(self, bus: Bus, uav: int, source, model, rate_hz: float = PREVIEW_HZ,
+                 quality: int = PREVIEW_QUALITY, log: logging.Logger | None = None):
+        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"preview rate must be a finite number of Hz > 0, got {rate_hz!r}")
+        if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= 100:
+            raise ValueError(f"preview JPEG quality must be an int in 1..100, got {quality!r}")
+        self.bus, self.uav, self.source, self.model, self.log = bus, uav, source, model, log
+        self.period_s, self.quality = 1.0 / float(rate_hz), quality
+        self.sender = RtpSender(ssrc_for(uav, PREVIEW_CAMERA))
+        self.pub = bus.publisher(keys.preview(bus.fleet, uav), IMAGERY)  # never a cache: best-effort only
+        self._next_due = 0.0
+        self._slot: tuple | None = None
+        self._cond = threading.Condition()
+        self._closed = False
+        self.offered = self.sent = self.skipped = self.failed = 0
+        self._thread = threading.Thread(target=self._run, name=f"preview-uav{uav}", daemon=True)
+        self._thread.start()
+
+    def offer(self, pos, att, t: float, now_wall: float) -> bool:
+        if now_wall < self._next_due or self._closed:
+            return False
+        # a steady grid of due times; the first offer, or one after a stall, restarts the grid from now
+        late = now_wall - self._next_due >= self.period_s
+        self._next_due = (now_wall if late else self._next_due) + self.period_s
+        with self._cond:
+            if self._slot is not None:
+                self.skipped += 1
+            self._slot = (tuple(map(float, pos)), tuple(map(float, att)), float(t), float(now_wall))
+            self.offered += 1
+            self._cond.notify()
+        return True
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._slot is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    return
+                job, self._slot = self._slot, None
+            try:
+                self._send(*job)
+            except Exception:  # a preview never takes the edge down
+                self.failed += 1
+                if self.failed == 1 and self.log:
+                    self.log.exception("preview frame failed")
+
+    def _send(self, pos, att, t: float, stamp: float) -> None:
+        from .camera import CameraPose, encode_jpeg
+
+        R = camera_rotation(att[2])
+        frame = self.source.grab(CameraPose(position=np.asarray(pos, dtype=float), rotation=R), t)
+        h, w = frame.image.shape[:2]
+        fx, fy, cx, cy = self.model.scaled(w, h).intrinsics()
+        meta = ImageMeta(uav=self.uav, capture_id=0, t=max(0.0, t), stamp=stamp, cam_pos=pos,
+                         cam_rot=tuple(map(float, R.ravel())),
+                         intrinsics=Intrinsics(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy))
+        self.pub.put_bytes(pack_image(self.sender, meta, encode_jpeg(frame.image, self.quality), stamp))
+        self.sent += 1
+
+    def close(self, timeout: float = 2.0) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._thread.join(timeout)
 
 
 def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> CameraLink | None:
@@ -135,4 +277,15 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     model = camera_model(scenario, (w, h))
     surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
     source = make_source(args.camera, surface=surface, camera=model)
-    return CameraLink(bus, args.uav, source, model, surface=surface, log=log)
+    cache = getattr(args, "imagery_cache", IMAGERY_CACHE_FRAMES)
+    preview_hz = float(getattr(args, "preview_hz", PREVIEW_HZ) or 0.0)
+    preview = None
+    if preview_hz > 0 and surface is not None:
+        from .camera import SyntheticSource
+
+        small = camera_model(scenario, PREVIEW_SIZE)
+        preview = PreviewStream(bus, args.uav, SyntheticSource(surface, small), small, rate_hz=preview_hz, log=log)
+    elif preview_hz > 0:
+        log.info("live preview off: only the synthetic camera previews (%s is read by the captures alone)",
+                 args.camera)
+    return CameraLink(bus, args.uav, source, model, surface=surface, log=log, cache=cache, preview=preview)

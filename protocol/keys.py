@@ -4,7 +4,8 @@ Layout (DESIGN.md, "Key space")::
 
     skynet/<fleet>/uav/<id>/state       telemetry: VehicleState
     skynet/<fleet>/uav/<id>/cmd         command queryable: Command -> CommandAck
-    skynet/<fleet>/uav/<id>/camera      imagery: RTP frame (ImageMeta + JPEG)
+    skynet/<fleet>/uav/<id>/camera      imagery: RTP frame (ImageMeta + JPEG) of a capture point
+    skynet/<fleet>/uav/<id>/preview     imagery: low-rate live preview frames (same format), best-effort only
     skynet/<fleet>/uav/<id>/event       events of one UAV
     skynet/<fleet>/uav/<id>/alive       liveliness token of one UAV
     skynet/<fleet>/gcs/heartbeat        the ground station's command-link heartbeat
@@ -29,7 +30,7 @@ from dataclasses import dataclass
 ROOT = "skynet"
 DEFAULT_FLEET = "demo"
 _CHUNK = re.compile(r"^[A-Za-z0-9_-]+$")
-UAV_TOPICS = ("state", "cmd", "camera", "event", "alive")
+UAV_TOPICS = ("state", "cmd", "camera", "preview", "event", "alive")
 RCU_TOPICS = {"planner": "plan", "detector": "defects"}
 
 
@@ -72,6 +73,15 @@ def cmd(fleet: str, uav: int | str) -> str:
 
 def camera(fleet: str, uav: int | str) -> str:
     return uav_key(fleet, uav, "camera")
+
+
+def preview(fleet: str, uav: int | str) -> str:
+    """Live preview frames of one camera: small, low-rate, never cached nor recovered.
+
+    A sibling of :func:`camera`, not a sub-key, so ``camera(fleet, "*")`` (the detector's
+    subscription) does not match it.
+    """
+    return uav_key(fleet, uav, "preview")
 
 
 def event(fleet: str, uav: int | str) -> str:

@@ -9,8 +9,25 @@ order go to a bounded drop-oldest queue served by a small worker pool that decod
 behind, the oldest frames are dropped and counted. A frame that fails to decode is counted and
 reported (``ok=False``), never fatal. Frames lost on the way are asked for again from the
 cameras' caches (Zenoh's advanced subscriber recovery, the role RTP's NACKs play); what cannot be
-recovered is counted (``imagery.unrecovered``). Statistics (RFC 3550 loss and jitter per camera, drops,
-rejections) go out once a second on ``skynet/<fleet>/rcu/detector/stats``.
+recovered is counted (``imagery.unrecovered``). ``--no-recovery`` subscribes plainly instead: a
+frame the link loses stays lost. Live preview frames (``uav/<id>/preview``) are not analysed:
+the camera wildcard does not match them.
+
+Statistics go out once a second on ``skynet/<fleet>/rcu/detector/stats``; per camera
+(``uav<N>.cam<C>.<name>``): ``received``, ``delivered``, ``lost``, ``duplicated``,
+``reordered``, ``jitter_ms`` (RFC 3550 A.8 interarrival jitter), ``fraction_lost`` as the jitter
+buffer counts them (:class:`protocol.jitter.JitterStats`), and
+
+- ``late``: frames that arrived after the jitter buffer's playout had given their sequence
+  number up (they had waited ``--playout-delay`` behind a gap and been counted lost); they are
+  dropped, not analysed. With recovery on, Zenoh hands frames over in order, so a recovered
+  frame is delayed rather than late;
+- ``recovered``: frames that reached the detector only through recovery, i.e. that the live
+  best-effort path never delivered (:class:`services.detector.recovery.RecoveryTracker`); 0 with
+  ``--no-recovery``.
+
+and overall ``imagery.recovery`` (1 on, 0 off), ``imagery.unrecovered`` (Zenoh's miss
+listener), queue drops and rejections.
 
     skynet detector -m client -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
 """
@@ -32,13 +49,14 @@ from protocol.rtp import RtpError, parse_ssrc, unpack_frame
 
 from .detect import METHODS
 from .pipeline import analyse
+from .recovery import RecoveryTracker
 
 
 class DetectorService:
     """Binds the pipeline to the bus; see the module docstring."""
 
     def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = 8,
-                 playout_delay_s: float = 0.05, log=None):
+                 playout_delay_s: float = 0.05, log=None, recover: bool = True):
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")
         self.bus, self.method, self.log = bus, method, log
@@ -49,8 +67,14 @@ class DetectorService:
         self.work = Ring(queue, self._process, name="detector", workers=workers)
         self.pub = bus.publisher(keys.defects(bus.fleet), COMMAND)
         self.stats_pub = bus.publisher(keys.rcu_stats(bus.fleet, "detector"), TELEMETRY)
-        # recover=True: frames lost on a lossy link are retransmitted from the cameras' caches
-        bus.subscribe_raw(keys.camera(bus.fleet, "*"), self._on_frame, recover=True)
+        self.recover = bool(recover)
+        self.recovery = RecoveryTracker() if self.recover else None
+        cams = keys.camera(bus.fleet, "*")
+        if self.recover:
+            # frames lost on a lossy link are retransmitted from the cameras' caches; a plain
+            # subscriber beside it sees what the link delivered the first time (recovered = the rest)
+            bus.subscribe_raw(cams, self._on_live)
+        bus.subscribe_raw(cams, self._on_frame, recover=self.recover)
         bus.token(keys.rcu_alive(bus.fleet, "detector"))
         self._t0 = time.time()
 
@@ -66,14 +90,28 @@ class DetectorService:
             return
         self.counts["frames"] += 1
         with self._lock:
+            if self.recovery is not None:
+                self.recovery.delivered(header.ssrc, header.sequence, now)
             ready = self._jb.push(header, payload, now)
         for f in ready:
             self.work.push(f)
 
+    def _on_live(self, sample) -> None:
+        """The live path (recovery on): note which frames the link delivered the first time."""
+        try:
+            header, _ = unpack_frame(sample.payload.to_bytes())
+        except RtpError:
+            return  # counted once, by _on_frame
+        with self._lock:
+            self.recovery.live(header.ssrc, header.sequence, time.time())
+
     def poll(self) -> None:
         """Release frames whose wait for a missing predecessor is over."""
         with self._lock:
-            ready = self._jb.pop_due(time.time())
+            now = time.time()
+            ready = self._jb.pop_due(now)
+            if self.recovery is not None:
+                self.recovery.settle(now)
         for f in ready:
             self.work.push(f)
 
@@ -108,7 +146,9 @@ class DetectorService:
                 metrics.update({f"{p}.received": st.received, f"{p}.delivered": st.delivered, f"{p}.lost": st.lost,
                                 f"{p}.late": st.late, f"{p}.duplicated": st.duplicated,
                                 f"{p}.reordered": st.reordered, f"{p}.jitter_ms": 1000 * st.jitter_s,
-                                f"{p}.fraction_lost": st.fraction_lost})
+                                f"{p}.fraction_lost": st.fraction_lost,
+                                f"{p}.recovered": self.recovery.recovered[ssrc] if self.recovery else 0})
+        metrics["imagery.recovery"] = int(self.recover)
         missed = self.bus.counters.snapshot()["dropped"]
         metrics["imagery.unrecovered"] = sum(v for k, v in missed.items() if k.startswith("missed:"))
         metrics["queue.dropped"] = self.work.dropped
@@ -121,6 +161,8 @@ class DetectorService:
     def close(self) -> None:
         with self._lock:
             rest = self._jb.flush()
+            if self.recovery is not None:
+                self.recovery.settle(float("inf"))
         for f in rest:
             self.work.push(f)
         self.work.close(timeout=10.0)
@@ -133,6 +175,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--queue", type=int, default=8, help="frames waiting for a worker before the oldest drop")
     parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
+    parser.add_argument("--no-recovery", action="store_true",
+                        help="do not ask the cameras' caches for lost capture frames (plain best-effort)")
     return parser
 
 
@@ -142,8 +186,10 @@ def main(argv: list[str] | None = None) -> int:
     log = setup_logging("detector")
     stop = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="detector") as bus:
-        svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log)
-        log.info("detector up: method %s, %d workers", args.method, args.workers)
+        svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log,
+                              recover=not args.no_recovery)
+        log.info("detector up: method %s, %d workers, recovery %s", args.method, args.workers,
+                 "off" if args.no_recovery else "on")
         next_stats = time.monotonic() + 1.0
         while not stop.wait(0.01):
             svc.poll()

@@ -53,3 +53,17 @@ def test_topics_map_to_link_classes():
     assert class_of_topic("cmd") is COMMAND
     assert COMMAND.reliable and not TELEMETRY.reliable and not IMAGERY.reliable
     assert TELEMETRY.express and COMMAND.congestion == "block" and TELEMETRY.congestion == "drop"
+
+
+def test_preview_is_a_uav_key_the_camera_wildcard_does_not_match():
+    import zenoh
+
+    key = keys.preview("f", 2)
+    assert key == "skynet/f/uav/2/preview"
+    info = keys.parse(key)
+    assert (info.area, info.topic, info.uav) == ("uav", "preview", 2)
+    cams = zenoh.KeyExpr(keys.camera("f", "*"))
+    assert not cams.intersects(zenoh.KeyExpr(key))  # the detector never sees preview frames
+    assert not zenoh.KeyExpr(keys.advanced(keys.camera("f", "*"))).intersects(zenoh.KeyExpr(key))
+    assert cams.intersects(zenoh.KeyExpr(keys.camera("f", 2)))
+    assert zenoh.KeyExpr(keys.fleet_all("f")).intersects(zenoh.KeyExpr(key))  # the gateway meters it

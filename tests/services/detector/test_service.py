@@ -4,6 +4,7 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 
 from protocol import keys
 from protocol.bus import Bus, BusConfig
@@ -12,6 +13,7 @@ from protocol.links import IMAGERY
 from protocol.messages import DefectReport, ImageMeta, Intrinsics, LinkStats
 from protocol.rtp import RtpSender, ssrc_for
 from edge.surface import crack_image
+from tests.conftest import wait_until
 
 FLEET = "test"
 
@@ -68,3 +70,82 @@ def test_detector_service_frames_in_reports_out(group, gateway):
     assert last.rejected["bad-rtp"] >= 1 and last.rejected["bad-image"] >= 1 and last.rejected["bad-meta"] >= 1
     assert last.metrics["uav2.cam0.delivered"] >= 6
     assert svc.alive()
+
+
+class CrackCamera:
+    """A frame source (edge.camera.FrameSource) of synthetic cracked walls, one new image per grab."""
+
+    def __init__(self, seed: int, size=(240, 320)):
+        self.rng, self.size = np.random.default_rng(seed), size
+
+    def grab(self, pose, t):
+        from edge.camera import Frame
+
+        grey, mask = crack_image(self.size, self.rng, n_cracks=2)
+        return Frame(grey, t, pose, mask)
+
+    def close(self):
+        pass
+
+
+N_FRAMES = 60
+ONSET_S = 3.0  # the proxy passes everything before, so that the detector's UDP link opens
+
+
+@pytest.mark.parametrize("recovery", [True, False], ids=["recovery-on", "recovery-off"])
+def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery):
+    """Issue 7: with recovery on (camera cache + recovering subscriber) every capture frame lost on the
+    detector's lossy UDP link still arrives and is counted ``recovered``; with it off (``--imagery-cache 0``,
+    ``--no-recovery``) frames are lost for good. Real processes, a real lossy UDP proxy (seeded)."""
+    from edge.camera import CameraModel
+    from edge.runtime import CameraLink
+    from edge.vehicle.driver import CaptureEvent
+    from protocol.bus import endpoint_address
+    from services.netem.proxy import UdpProxy
+
+    tcp, udp = gateway
+    with UdpProxy(("127.0.0.1", 0), endpoint_address(udp), f"after {ONSET_S}s loss 25%", seed=11) as lossy:
+        t_proxy = time.monotonic()
+        via = [tcp, f"udp/127.0.0.1:{lossy.port}?rel=0"]
+        svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
+                                       *[a for e in via for a in ("--connect", e)],
+                                       *([] if recovery else ["--no-recovery"])])
+        assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+        assert svc.wait_for("recovery " + ("on" if recovery else "off"), 1)
+        reports: dict[int, DefectReport] = {}
+        stats: list[LinkStats] = []
+        with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "uav2") as uav:
+            uav.subscribe(keys.defects(FLEET), lambda m, s: reports.setdefault(m.capture_id, m), expect=DefectReport)
+            uav.subscribe(keys.rcu_stats(FLEET, "detector"), lambda m, s: stats.append(m), expect=LinkStats)
+            assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
+            assert wait_until(lambda: lossy.stats()["down"]["sent_packets"] > 0, 10), lossy.stats()  # UDP link is up
+            cam = CameraLink(uav, 2, CrackCamera(5), CameraModel(resolution=(320, 240)),
+                             cache=32 if recovery else 0)
+            time.sleep(max(0.5, ONSET_S + 0.3 - (time.monotonic() - t_proxy)))  # the loss has started
+            for cid in range(N_FRAMES):
+                cam.capture(CaptureEvent(capture_id=cid, t=0.1 * cid, pos=(10.0, 0.0, 20.0),
+                                         att=(0.0, 0.0, np.pi / 2)), time.time())
+                time.sleep(1 / 15)
+            cam.close()
+
+            def cam_metric(name):
+                return stats[-1].metrics.get(f"uav2.cam0.{name}", 0) if stats else 0
+
+            if recovery:
+                assert wait_until(lambda: len(reports) == N_FRAMES and cam_metric("delivered") == N_FRAMES
+                                  and cam_metric("recovered") > 0, 20), \
+                    (len(reports), stats[-1].metrics if stats else None)
+            else:
+                wait_until(lambda: cam_metric("delivered") + cam_metric("lost") >= N_FRAMES - 5, 10)
+                time.sleep(1.5)  # a last statistics period
+            last = stats[-1].metrics
+        dropped = lossy.stats()["down"]["dropped"]["loss"]
+    assert dropped > 0  # the link really lost datagrams
+    if recovery:
+        assert sorted(reports) == list(range(N_FRAMES))  # full coverage
+        assert last["uav2.cam0.delivered"] == N_FRAMES and last["uav2.cam0.lost"] == 0
+        assert last["uav2.cam0.recovered"] > 0 and last["imagery.recovery"] == 1
+    else:
+        assert len(reports) < N_FRAMES and last["uav2.cam0.lost"] > 0
+        assert last["uav2.cam0.recovered"] == 0 and last["imagery.recovery"] == 0
+        assert last["uav2.cam0.delivered"] == len(reports)

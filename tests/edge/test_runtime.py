@@ -1,0 +1,100 @@
+"""The edge camera's bus binding (issue 7): capture frames with or without a recovery cache, and the
+live preview stream (small, low-rate, plain best-effort, on its own key) -- over a real gateway."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import time
+
+import numpy as np
+import pytest
+
+from edge.camera import decode_jpeg
+from edge.runtime import (IMAGERY_CACHE_FRAMES, PREVIEW_CAMERA, PREVIEW_SIZE, cache_frames, make_camera,
+                          preview_rate)
+from edge.vehicle.driver import CaptureEvent
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.imagery import split_payload
+from protocol.rtp import parse_ssrc, unpack_frame
+from tests.conftest import wait_until
+
+FLEET = "test"
+log = logging.getLogger("test-runtime")
+
+
+def _args(**kw) -> argparse.Namespace:
+    base = dict(camera="synthetic", frame_size="640x480", scenario=None, uav=3)
+    return argparse.Namespace(**{**base, **kw})
+
+
+def _facing_the_wall(cam) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """A position 5 m in front of the middle of the scenario's wall, and the attitude looking at it."""
+    s = cam.surface
+    pos = s.center + 5.0 * s.normal
+    yaw = math.atan2(-s.normal[1], -s.normal[0])
+    return tuple(map(float, pos)), (0.0, 0.0, yaw)
+
+
+def _decode(sample) -> tuple[int, int, object, np.ndarray]:
+    header, payload = unpack_frame(sample.payload.to_bytes())
+    meta, jpeg = split_payload(payload)
+    uav, camera = parse_ssrc(header.ssrc)
+    return uav, camera, meta, decode_jpeg(jpeg, grey=True)
+
+
+def test_preview_is_small_rate_limited_best_effort_and_apart_from_captures(gateway):
+    got_cam, got_preview = [], []
+    cfg = BusConfig(mode="client", connect=gateway, multilink=True)
+    with Bus(cfg, FLEET, "ground") as ground, Bus(cfg, FLEET, "uav3") as edge:
+        ground.subscribe_raw(keys.camera(FLEET, "*"), got_cam.append)
+        ground.subscribe_raw(keys.preview(FLEET, "*"), got_preview.append)
+        cam = make_camera(_args(preview_hz=5.0), edge, log)
+        try:
+            assert cam.cache == IMAGERY_CACHE_FRAMES and cam.pub.matching() is None  # the recovery cache
+            assert cam.preview_stream is not None
+            assert cam.preview_stream.pub.matching() is not None  # a plain publisher: never a cache
+            assert wait_until(lambda: cam.preview_stream.pub.matching(), 10)
+            pos, att = _facing_the_wall(cam)
+            # the control loop offers the pose at 50 Hz for 1.2 s (wall clock): 5 Hz lets 6 or 7 through
+            t0 = time.time()
+            queued = sum(cam.preview(pos, att, 0.02 * i, t0 + 0.02 * i) for i in range(60))
+            assert queued == 6
+            assert wait_until(lambda: len(got_preview) >= 1, 10)
+            cam.capture(CaptureEvent(capture_id=4, t=1.0, pos=pos, att=att), time.time())
+            assert wait_until(lambda: len(got_cam) == 1, 10)
+        finally:
+            cam.close()
+    uav, camera, meta, img = _decode(got_cam[0])
+    assert (uav, camera, meta.capture_id, img.shape) == (3, 0, 4, (480, 640))
+    assert 1 <= len(got_preview) <= 6  # offers that come faster than the worker renders replace each other
+    for s in got_preview:
+        uav, camera, meta, img = _decode(s)
+        assert (uav, camera) == (3, PREVIEW_CAMERA) and img.shape == PREVIEW_SIZE[::-1]
+        assert meta.intrinsics.width == PREVIEW_SIZE[0] and 50 < img.mean() < 200  # the wall, not the sky
+
+
+def test_imagery_cache_zero_is_a_plain_publisher_and_preview_can_be_off(gateway):
+    cfg = BusConfig(mode="client", connect=gateway, multilink=True)
+    with Bus(cfg, FLEET, "uav3") as edge:
+        cam = make_camera(_args(imagery_cache=0, preview_hz=0.0), edge, log)
+        try:
+            assert cam.cache == 0 and cam.pub.matching() is not None  # no advanced publisher
+            assert cam.preview_stream is None and not cam.preview((0, 0, 0), (0, 0, 0), 0.0, time.time())
+        finally:
+            cam.close()
+        with pytest.raises(ValueError, match="imagery cache"):
+            make_camera(_args(imagery_cache=-1), edge, log)
+
+
+def test_option_types_reject_bad_values():
+    assert cache_frames("0") == 0 and cache_frames("64") == 64
+    assert preview_rate("0") == 0.0 and preview_rate("2.5") == 2.5
+    for bad in ("-1", "x", "1.5"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            cache_frames(bad)
+    for bad in ("-1", "nan", "inf", "fast"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            preview_rate(bad)
