@@ -5,6 +5,27 @@
 ``success`` set only when every UAV reached the goal and every capture point was imaged; any
 step that cannot complete (a UAV that never appears, refuses its upload, a planner that does
 not answer, a timeout) ends the mission with a failure that says why, never a hang.
+
+Faults (issue 7). A supervisor thread watches, for the whole mission:
+
+* the UAVs' liveliness tokens: a token that goes away is recorded at once (``token-gone``); a UAV
+  whose token stays away longer than ``lost_grace_s`` while the ground station's own link is up
+  is *lost* (``uav-lost``): the waits stop waiting for it (a lost UAV is still waited for
+  ``lost_wait_s`` after the others finish, in case it comes back), it is not sent commands (a
+  failed command record says so), and the mission ends with a failure naming it and the capture
+  points it did not image; the others finish and land. A lost UAV whose token comes back is
+  noted (``uav-back``) and counted again. A gateway restart takes every token away at once but
+  also the ground station's own link, so nobody is declared lost unless it stays away after the
+  link is back (the grace is counted from the later of the two);
+* the ground station's own link to the gateway (``link-down``/``link-up``; Zenoh's client
+  reconnects by itself, :class:`protocol.bus.BusConfig` ``reconnect_max_s``);
+* failsafe holds: during the mission phase a UAV in HOLD before the end of its trajectory holds
+  because of its failsafe (the ground station never commands a hold): once its state is heard
+  again (the link is back) it gets a ``Resume`` — each UAV as soon as possible, not the fleet at
+  once, since the others kept flying and the board's formation keeping on trajectory time closes
+  the lag. The waits are extended by the time the fleet stood still, up to ``stall_limit_s``.
+
+Heartbeats continue throughout. Every command ends in the record acknowledged or failed.
 """
 
 from __future__ import annotations
@@ -19,11 +40,19 @@ from protocol import keys
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
-    CommandAck, DefectReport, Event, Heartbeat, Land, LinkStats, MissionPlan, Mode, PlanRequest, SetFormation, Start, Takeoff,
+    CommandAck, DefectReport, Event, Heartbeat, Land, LinkStats, MissionPlan, Mode, PlanRequest, Resume, SetFormation,
+    Start, Takeoff,
     UploadTrajectory, VehicleState,
 )
 
-from .record import GOAL_RADIUS_M, CommandRecord, DefectRx, EventRx, FaultRecord, MissionRecord, StateRx, StatsRx
+from .record import (
+    GOAL_RADIUS_M, CommandRecord, DefectRx, EventRx, FaultRecord, Incident, MissionRecord, StateRx, StatsRx,
+)
+
+#: How often the supervisor looks at liveliness, the own link and failsafe holds, s.
+SUPERVISE_PERIOD_S = 0.2
+#: A UAV's state counts as heard "now" when received within this many wall seconds.
+FRESH_STATE_S = 1.0
 
 
 
@@ -63,6 +92,10 @@ class MissionOptions:
     mission_margin: float = 1.5  # x planned duration, simulated
     land_timeout_s: float = 60.0  # simulated seconds
     report_wait_s: float = 5.0  # wall seconds to wait for the last defect reports
+    lost_grace_s: float = 3.0  # wall s a token may stay away (own link up) before its UAV counts as lost
+    lost_wait_s: float = 10.0  # wall s a lost UAV is still waited for after the others finished
+    stall_limit_s: float = 120.0  # wall s the waits may be extended by while the fleet stands still
+    resume_held: bool = True  # resume UAVs holding mid-mission (failsafe) once they are heard again
     particles: int | None = None
     iterations: int | None = None
     waypoints: int | None = None
@@ -80,8 +113,21 @@ class MissionRunner:
         self.latest: dict[int, VehicleState] = {}
         self.reports: dict[tuple[int, int], DefectReport] = {}
         self._lock = threading.Lock()
+        self._cmd_lock = threading.Lock()
         self._cmd_id = 0
         self._hb_stop = threading.Event()
+        # fault tracking (supervisor thread + liveliness callback; under self._lock)
+        self._gone: dict[int, float] = {}  # UAV -> wall time its token went away
+        self._lost: dict[int, float] = {}  # UAV -> wall time it was declared lost
+        self._link_up_since: float | None = time.time()  # None while the own link is down
+        self._started: dict[int, float] = {}  # UAV -> wall time its Start was acknowledged
+        self._held: dict[int, float] = {}  # UAV -> wall time a mid-mission hold was first seen
+        self._resume_after: dict[int, float] = {}  # UAV -> no resume before this wall time
+        self._rx: dict[int, float] = {}  # UAV -> wall time of its latest state
+        self._stalled_s = 0.0
+        self._land_state: dict[int, tuple[bool, float]] = {}  # UAV -> (Land accepted, last try)
+        self._in_mission = threading.Event()
+        self._sup_stop = threading.Event()
         fleet = bus.fleet
         bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY)
         bus.subscribe(keys.all_events(fleet), self._on_event, expect=Event, link=COMMAND)
@@ -89,12 +135,15 @@ class MissionRunner:
         bus.subscribe(keys.gateway_stats(fleet), self._on_gw_stats, expect=LinkStats, link=TELEMETRY)
         bus.subscribe(keys.rcu_stats(fleet, "detector"), self._on_det_stats, expect=LinkStats, link=TELEMETRY)
         self._hb_pub = bus.publisher(keys.heartbeat(fleet), COMMAND)
+        bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
 
     # -- recording (Zenoh callback threads: short)
     def _on_state(self, msg, sample) -> None:
+        now = time.time()
         with self._lock:
-            self.record.states.append(StateRx(rx=time.time(), msg=msg))
+            self.record.states.append(StateRx(rx=now, msg=msg))
             self.latest[msg.uav] = msg
+            self._rx[msg.uav] = now
 
     def _on_event(self, msg, sample) -> None:
         with self._lock:
@@ -116,6 +165,34 @@ class MissionRunner:
         with self._lock:
             self.record.detector_stats.append(StatsRx(rx=time.time(), msg=msg))
 
+    def _on_alive(self, key: str, alive: bool) -> None:
+        try:
+            uav = keys.parse(key).uav
+        except ValueError:
+            return
+        if uav is None or uav not in self.opt.uavs:
+            return
+        now = time.time()
+        with self._lock:
+            if alive:
+                gone = self._gone.pop(uav, None)
+                if gone is not None:
+                    self._incident("token-back", uav, f"UAV {uav}'s liveliness token is back after {now - gone:.1f} s",
+                                   now)
+                lost = self._lost.pop(uav, None)
+                if lost is not None:
+                    self._incident("uav-back", uav, f"UAV {uav} is back (lost for {now - lost:.1f} s)", now)
+            elif uav not in self._gone:
+                self._gone[uav] = now
+                self._incident("token-gone", uav, f"UAV {uav}'s liveliness token went away", now)
+
+    def _incident(self, kind: str, uav: int | None, text: str, at: float | None = None) -> None:
+        """Record an incident (caller holds ``self._lock``)."""
+        self.record.incidents.append(Incident(at=time.time() if at is None else at, kind=kind, uav=uav, text=text))
+        if self.log:
+            (self.log.info if kind in ("token-back", "uav-back", "link-up", "resume") else self.log.warning)(
+                "%s: %s", kind, text)
+
     def note_fault(self, action: str, target: str, text: str = "") -> None:
         """Record a fault injected into the run (kill, restart, cut, restore, partition, heal).
 
@@ -133,12 +210,18 @@ class MissionRunner:
             self.log.info("phase: %s", name)
 
     def wait_for(self, pred: Callable[[], bool], timeout_s: float, what: str) -> None:
+        """Poll ``pred`` until true; the timeout is extended by the time the fleet stood still
+        meanwhile (own link down, a UAV unheard or holding; see :meth:`supervise`), at most
+        ``stall_limit_s``."""
         deadline = time.monotonic() + timeout_s
+        stalled0 = self._stalled_s
         while not pred():
             if self.abort.is_set():
                 raise MissionFailed(f"aborted by the operator while waiting for {what}")
-            if time.monotonic() > deadline:
-                raise MissionFailed(f"timed out after {timeout_s:.0f} s waiting for {what}")
+            extra = min(self._stalled_s - stalled0, self.opt.stall_limit_s)
+            if time.monotonic() > deadline + extra:
+                raise MissionFailed(f"timed out after {timeout_s + extra:.0f} s waiting for {what}"
+                                    + (f" ({extra:.0f} s of it added while the fleet stood still)" if extra >= 1 else ""))
             if self.on_progress:
                 self.on_progress(self)
             time.sleep(0.1)
@@ -180,9 +263,23 @@ class MissionRunner:
         return plan
 
     def command(self, make: Callable[[int], object]) -> CommandRecord:
-        """Send one command with retries and back-off; a refusal is final (not retried)."""
-        self._cmd_id += 1
-        cmd = make(self._cmd_id)
+        """Send one command with retries and back-off; a refusal is final (not retried).
+
+        A command for a lost UAV is not sent; it is recorded as failed ("not sent: ...") so that no
+        command disappears without a trace.
+        """
+        with self._cmd_lock:
+            self._cmd_id += 1
+            cmd = make(self._cmd_id)
+        lost = self.lost()
+        if cmd.uav in lost:
+            rec = CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=False, accepted=False,
+                                reason=f"not sent: UAV {cmd.uav} is lost (no liveliness token since "
+                                       f"{self.mission_time(lost[cmd.uav])})",
+                                attempts=0, elapsed_s=0.0)
+            with self._lock:
+                self.record.commands.append(rec)
+            return rec
         t0 = time.monotonic()
         acks, reason = [], ""
         backoff = 0.25
@@ -194,14 +291,16 @@ class MissionRunner:
                 ack = reply.message
                 rec = CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=True, accepted=ack.accepted,
                                     reason=ack.reason, attempts=attempt, elapsed_s=time.monotonic() - t0, ack_s=acks)
-                self.record.commands.append(rec)
+                with self._lock:
+                    self.record.commands.append(rec)
                 return rec
             reason = reply.error
             time.sleep(backoff)
             backoff *= 2
         rec = CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=False, accepted=False, reason=reason,
                             attempts=self.opt.command_attempts, elapsed_s=time.monotonic() - t0, ack_s=acks)
-        self.record.commands.append(rec)
+        with self._lock:
+            self.record.commands.append(rec)
         return rec
 
     def command_all(self, make: Callable[[int, int], object], what: str) -> None:
@@ -229,6 +328,8 @@ class MissionRunner:
 
     def run(self) -> MissionRecord:
         hb = threading.Thread(target=self.heartbeat, name="heartbeat", daemon=True)
+        sup = threading.Thread(target=self.supervise, name="supervisor", daemon=True)
+        sup.start()
         try:
             self.wait_alive()
             plan = self.request_plan()
@@ -241,14 +342,18 @@ class MissionRunner:
             self.command_all(lambda u, cid: SetFormation(uav=u, cmd_id=cid, offsets=offsets), "the formation")
             self.phase("takeoff")
             self.command_all(lambda u, cid: Takeoff(uav=u, cmd_id=cid, altitude=self.takeoff_altitude(u)), "takeoff")
-            self.wait_for(lambda: all(self.modes().get(u) == Mode.HOLD for u in self.opt.uavs),
+            self.wait_for(lambda: self.fleet_done(lambda u, s: s is not None and s.mode == Mode.HOLD),
                           self.sim_timeout(self.opt.takeoff_timeout_s), "every UAV to reach takeoff altitude")
             self.phase("mission")
             t0 = time.time() + 1.0
             self.command_all(lambda u, cid: Start(uav=u, cmd_id=cid, t0_stamp=t0), "start")
+            with self._lock:
+                self._started.update({u: time.time() for u in self.opt.uavs})
+            self._in_mission.set()
             duration = max(t.waypoints[-1].t for t in plan.trajectories)
             self.wait_for(lambda: self.mission_done(), self.sim_timeout(duration * self.opt.mission_margin + 60.0),
                           "every UAV to finish its trajectory")
+            self._in_mission.clear()
             self.phase("reports")
             try:
                 self.wait_for(lambda: not self.missing_captures(), self.opt.report_wait_s, "the last defect reports")
@@ -257,22 +362,154 @@ class MissionRunner:
         except MissionFailed as exc:
             self.record.failures.append(str(exc))
         finally:
+            self._in_mission.clear()
             try:
                 self.phase("landing")
-                for uav in self.opt.uavs:
-                    if uav in self.latest and self.latest[uav].armed:
-                        self.command(lambda cid, u=uav: Land(uav=u, cmd_id=cid))
-                self.wait_for(lambda: all(not s.armed for u, s in self.latest.items() if u in self.opt.uavs),
-                              self.sim_timeout(self.opt.land_timeout_s), "every UAV to land")
+                self.wait_for(self._land_step, self.sim_timeout(self.opt.land_timeout_s), "every UAV to land")
             except MissionFailed as exc:
                 self.record.failures.append(str(exc))
             self._hb_stop.set()
-            if hb.is_alive():
-                hb.join(2.0)
+            self._sup_stop.set()
+            for t in (hb, sup):
+                if t.is_alive():
+                    t.join(2.0)
             self.record.ended = time.time()
             self.phase("done")
         self.judge()
         return self.record
+
+    # -- faults: liveliness, the own link, failsafe holds
+    def lost(self) -> dict[int, float]:
+        """Lost UAVs -> wall time their token went away."""
+        with self._lock:
+            return dict(self._lost)
+
+    def mission_time(self, wall: float) -> str:
+        """``wall`` as "mission t=12.3 s" (from the mission phase's start), or "t=… s" from the start."""
+        m = self.record.phases.get("mission")
+        return f"mission t={wall - m:.1f} s" if m is not None else f"t={wall - self.record.started:.1f} s"
+
+    def supervise(self) -> None:
+        """Supervisor thread: own link, lost UAVs, stall time and (mission phase) failsafe resumes."""
+        last = time.monotonic()
+        while not self._sup_stop.wait(SUPERVISE_PERIOD_S):
+            now_m = time.monotonic()
+            dt, last = now_m - last, now_m
+            try:
+                self._check_link()
+                self._confirm_losses()
+                if self._standing_still():
+                    self._stalled_s += dt
+                if self._in_mission.is_set() and self.opt.resume_held:
+                    self._resume_held()
+            except Exception:  # the supervisor must outlive a bug in one pass (and say so)
+                if self.log:
+                    self.log.exception("supervisor pass failed")
+
+    def _check_link(self) -> None:
+        up = bool(self.bus.routers() or self.bus.peers())
+        now = time.time()
+        with self._lock:
+            if up and self._link_up_since is None:
+                self._link_up_since = now
+                self._incident("link-up", None, "the ground station reached the gateway again", now)
+            elif not up and self._link_up_since is not None:
+                self._link_up_since = None
+                self._incident("link-down", None, "the ground station lost its link to the gateway", now)
+
+    def _confirm_losses(self) -> None:
+        now = time.time()
+        with self._lock:
+            if self._link_up_since is None:
+                return
+            for u, gone in self._gone.items():
+                if u not in self._lost and now - max(gone, self._link_up_since) > self.opt.lost_grace_s:
+                    self._lost[u] = gone
+                    self._incident("uav-lost", u, f"UAV {u} lost: no liveliness token since {self.mission_time(gone)} "
+                                                  f"({now - gone:.1f} s) while the ground station's link is up", now)
+
+    def _standing_still(self) -> bool:
+        """True while the mission cannot progress for a fault: own link down, or a UAV still counted
+        (not lost) unheard for a while or holding mid-mission."""
+        now = time.time()
+        with self._lock:
+            if self._link_up_since is None:
+                return True
+            active = [u for u in self.opt.uavs if u not in self._lost]
+            if not active:
+                return True
+            for u in active:
+                rx = self._rx.get(u)
+                if rx is not None and now - rx > FRESH_STATE_S:
+                    return True
+                if u in self._held:
+                    return True
+        return False
+
+    def _resume_held(self) -> None:
+        """Resume each UAV holding mid-mission (its failsafe) once its state is heard again."""
+        for u in self.opt.uavs:
+            now = time.time()
+            with self._lock:
+                s, rx, started = self.latest.get(u), self._rx.get(u), self._started.get(u)
+                if u in self._lost or s is None or rx is None or started is None or rx < started + 0.5:
+                    continue
+                held = s.armed and s.mode == Mode.HOLD and s.progress < 1.0
+                if not held:
+                    self._held.pop(u, None)
+                    continue
+                if u not in self._held:
+                    self._held[u] = now
+                    self._incident("hold-seen", u, f"UAV {u} holds mid-mission at {s.progress:.0%} of its trajectory "
+                                                   f"(its failsafe; the ground station did not command it)", now)
+                ready = (now - rx <= FRESH_STATE_S and self._link_up_since is not None
+                         and now >= self._resume_after.get(u, 0.0))
+                held_since = self._held[u]
+            if not ready:
+                continue
+            rec = self.command(lambda cid, uav=u: Resume(uav=uav, cmd_id=cid))
+            with self._lock:
+                if rec.ok and rec.accepted:
+                    self._resume_after[u] = time.time() + 1.0
+                    self._incident("resume", u, f"UAV {u} resumed, {time.time() - held_since:.1f} s after its hold "
+                                                f"was seen ({rec.attempts} tries)")
+                else:
+                    self._resume_after[u] = time.time() + 2.0
+                    self._incident("resume-failed", u, f"UAV {u} not resumed: "
+                                                       f"{rec.reason or 'refused'} ({rec.attempts} tries)")
+
+    def fleet_done(self, finished: Callable[[int, VehicleState | None], bool]) -> bool:
+        """Every UAV still counted (not lost) is ``finished``; lost ones are waited for ``lost_wait_s``
+        after they went away, unless every UAV is lost (then until the wait's own timeout)."""
+        with self._lock:
+            latest = {u: self.latest.get(u) for u in self.opt.uavs}
+            lost = dict(self._lost)
+        active = [u for u in self.opt.uavs if u not in lost]
+        if not active or not all(finished(u, latest[u]) for u in active):
+            return False
+        return not lost or time.time() - max(lost.values()) > self.opt.lost_wait_s
+
+    def _land_step(self) -> bool:
+        """Send Land to every armed UAV not yet landing (retried every 2 s while unacknowledged;
+        lost UAVs get a failed "not sent" record once); True when every UAV still counted is down."""
+        now = time.time()
+        for u in self.opt.uavs:
+            with self._lock:
+                s, lost = self.latest.get(u), u in self._lost
+            if s is None or not s.armed or s.mode == Mode.LAND:
+                continue
+            accepted, last_try = self._land_state.get(u, (False, -1e9))
+            if accepted and not lost:
+                continue
+            if lost:
+                if u in self._land_state:
+                    continue
+            elif now - last_try < 2.0:
+                continue
+            rec = self.command(lambda cid, uav=u: Land(uav=uav, cmd_id=cid))
+            self._land_state[u] = (rec.ok and rec.accepted, time.time())
+        with self._lock:
+            return all(not s.armed for u, s in self.latest.items() if u in self.opt.uavs and u not in self._lost)
 
     def takeoff_altitude(self, uav: int) -> float:
         plan = self.record.plan
@@ -281,9 +518,9 @@ class MissionRunner:
         return max(2.0, min(first[2] - home_z, plan.geofence.hi[2] - home_z - 1.0))
 
     def mission_done(self) -> bool:
-        with self._lock:
-            latest = {u: self.latest.get(u) for u in self.opt.uavs}
-        return all(s is not None and s.progress >= 1.0 and s.mode != Mode.MISSION for s in latest.values())
+        """Every UAV still counted finished its trajectory (or came down on its own: not waited for)."""
+        return self.fleet_done(lambda u, s: s is not None and ((s.progress >= 1.0 and s.mode != Mode.MISSION)
+                                                                or not s.armed))
 
     def planned_captures(self) -> set[tuple[int, int]]:
         plan = self.record.plan
@@ -291,14 +528,27 @@ class MissionRunner:
             return set()
         return {(t.uav, w.capture_id) for t in plan.trajectories for w in t.waypoints if w.capture_id is not None}
 
-    def missing_captures(self) -> set[tuple[int, int]]:
+    def missing_captures(self, include_lost: bool = False) -> set[tuple[int, int]]:
+        """Planned capture points without a report (of the lost UAVs too with ``include_lost``)."""
         with self._lock:
-            return self.planned_captures() - set(self.reports)
+            missing = self.planned_captures() - set(self.reports)
+            lost = set(self._lost)
+        return missing if include_lost else {c for c in missing if c[0] not in lost}
 
     def judge(self) -> None:
         rec = self.record
-        if rec.plan is not None and not rec.failures:
+        clean = not rec.failures
+        planned = self.planned_captures()
+        for u, gone in sorted(self.lost().items()):
+            mine = {c for c in planned if c[0] == u}
+            missed = mine & self.missing_captures(include_lost=True)
+            rec.failures.append(f"UAV {u} lost at {self.mission_time(gone)} (no liveliness token since); "
+                                f"its {len(missed)} of {len(mine)} capture points not imaged")
+        lost = self.lost()
+        if rec.plan is not None and clean:
             for t in rec.plan.trajectories:
+                if t.uav in lost:
+                    continue
                 goal = t.waypoints[-1].pos
                 flown = [s.msg for s in rec.states if s.msg.uav == t.uav and s.msg.mode in (Mode.MISSION, Mode.HOLD)
                          and s.msg.progress >= 1.0]

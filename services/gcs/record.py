@@ -69,6 +69,30 @@ class FaultRecord(BaseModel):
     text: str = ""
 
 
+#: What an :class:`Incident` can say (the ground station's view of a fault and what it did about it).
+INCIDENT_KINDS = (
+    "token-gone",     # a UAV's liveliness token went away (crash: at once; silent loss: after its lease)
+    "token-back",     # ... and came back
+    "uav-lost",       # gone longer than the grace while the ground station's own link was up: not waited for
+    "uav-back",       # a lost UAV's token is back (restarted, link restored)
+    "link-down",      # the ground station's own session lost the gateway
+    "link-up",        # ... and found it again
+    "hold-seen",      # a UAV holds mid-mission without a ground-station command (its failsafe)
+    "resume",         # the ground station resumed it (acknowledged and accepted)
+    "resume-failed",  # the resume was not acknowledged or was refused
+)
+
+
+class Incident(BaseModel):
+    """Something the ground station noticed about a fault, or did about one (issue 7)."""
+
+    model_config = ConfigDict(extra="forbid")
+    at: float = Field(description="wall-clock UNIX time")
+    kind: str = Field(description="one of INCIDENT_KINDS")
+    uav: int | None = None
+    text: str = ""
+
+
 class GroundTruthDefect(BaseModel):
     """A crack really on the synthetic surface (what the system should find)."""
 
@@ -96,6 +120,7 @@ class MissionRecord(BaseModel):
     detector_stats: list[StatsRx] = []
     commands: list[CommandRecord] = []
     faults: list[FaultRecord] = Field(default=[], description="faults injected during the run (services.faults)")
+    incidents: list[Incident] = Field(default=[], description="what the ground station saw of faults and did")
     heartbeats_sent: int = 0
     ground_truth: list[GroundTruthDefect] = []
     surface_corners: list[tuple[float, float, float]] = []
