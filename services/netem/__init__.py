@@ -10,9 +10,22 @@ proxies let the experiments reproduce such a link on one machine.
   and per-chunk decisions, seeded, with counters).
 * :mod:`services.netem.proxy` — :class:`~services.netem.proxy.UdpProxy` and
   :class:`~services.netem.proxy.TcpProxy`, real sockets, one per Zenoh link.
-* :mod:`services.netem.cli` — ``skynet netem udp|tcp --listen ... --target ... --impair ...``.
+* :mod:`services.netem.schedule` — pure: the command grammar (``set SPEC``, ``cut [T]``,
+  ``restore``, ``clear``, ``stats``) and schedule files (``at 25s cut 5s``) that change a
+  running proxy's conditions (issue 7).
+* :mod:`services.netem.cli` — ``skynet netem udp|tcp --listen ... --target ... --impair ...
+  [--schedule FILE] [--control HOST:PORT]`` and ``skynet netem ctl HOST:PORT COMMAND``.
 """
 
 from services.netem.model import GilbertElliott, Impairer, Impairment
+from services.netem.schedule import (
+           Command,
+           ScheduleError,
+           Step,
+           load_schedule,
+           parse_command,
+           parse_schedule,
+)
 
-__all__ = ["GilbertElliott", "Impairer", "Impairment"]
+__all__ = ["GilbertElliott", "Impairer", "Impairment", "Command", "ScheduleError", "Step", "load_schedule",
+           "parse_command", "parse_schedule"]

@@ -7,26 +7,71 @@ Point the node at the listen address instead of the router's (``tcp/127.0.0.1:90
 ``udp/127.0.0.1:9000?rel=0``). Counters are printed once a second (``--json`` for one JSON
 object per line); Ctrl-C or SIGTERM stops the proxy and prints the final counters. The first
 line, ``netem <kind> listening on HOST:PORT -> TARGET``, tells a launcher the bound port.
+
+Changing conditions while it runs (issue 7)
+-------------------------------------------
+``--schedule FILE`` plays a schedule file, steps timed from the proxy start (format in
+:mod:`services.netem.schedule`)::
+
+    at 0s    "delay 50ms loss 2%"
+    at 10s   "delay 200ms jitter 20ms loss 20%"
+    at 25s   cut 5s
+    at 40s   clear
+
+A bad file is a usage error naming the line (exit 2); each step applied is logged on stderr
+(``netem: step at 25.0s: cut 5.0s``), so ``--json`` output stays JSON.
+
+``--control HOST:PORT`` (loopback only; port 0 = any free port) opens a control channel: UDP,
+one text command per datagram, one JSON reply per command. The second line printed,
+``netem control on HOST:PORT``, gives its port. Commands (the schedule's grammar, without ``at``):
+
+    set [up|down|both] SPEC   replace the impairment, e.g. set "delay 200ms loss 20%"; set none
+    cut [T]                   cut the link now, for T (e.g. 5s) or until restore
+    restore                   end the cut
+    clear                     no impairment and no cut
+    stats                     the counters, as printed with --json
+
+Replies are ``{"ok": true, "applied": ..., "impairment": ..., "changes": N}`` (``stats``:
+``{"ok": true, "stats": {...}}``) or ``{"ok": false, "error": "..."}``; a bad command changes
+nothing and never stops the proxy. The client side::
+
+    skynet netem ctl 127.0.0.1:9100 set "delay 200ms loss 20%"
+    skynet netem ctl 127.0.0.1:9100 cut 5s
+    skynet netem ctl 127.0.0.1:9100 stats
+
+prints the reply as one JSON line; exit 0 when the proxy accepted the command, 2 when it
+refused it (the error on stderr), 1 when no reply came (``--timeout``, default 3 s).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import signal
 import sys
 import threading
 from typing import Any
 
 from services.netem.model import Impairment
-from services.netem.proxy import DIRECTIONS, TcpProxy, UdpProxy, format_address, parse_address
+from services.netem.proxy import (
+    DIRECTIONS,
+    ControlServer,
+    TcpProxy,
+    UdpProxy,
+    format_address,
+    parse_address,
+    send_control,
+)
+from services.netem.schedule import ScheduleError, Step, load_schedule
 
-__all__ = ["main", "build_parser", "summary"]
+__all__ = ["main", "build_parser", "build_ctl_parser", "ctl", "summary"]
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet netem", description=__doc__.split("\n\n")[0])
-    parser.add_argument("kind", choices=("udp", "tcp"), help="which proxy")
+    parser.add_argument("kind", choices=("udp", "tcp"),
+                        help="which proxy (skynet netem ctl HOST:PORT COMMAND talks to a running one)")
     parser.add_argument("--listen", type=parse_address, default=("127.0.0.1", 0),
                         help="HOST:PORT the node connects to (port 0 = any free port)")
     parser.add_argument("--target", type=parse_address, required=True, help="HOST:PORT of the router")
@@ -37,7 +82,39 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--interval", type=float, default=1.0, help="seconds between counter lines")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     parser.add_argument("--json", action="store_true", help="print counters as JSON lines")
+    parser.add_argument("--schedule", metavar="FILE", default=None,
+                        help="play a schedule file of timed changes (at 10s cut 5s ...)")
+    parser.add_argument("--control", metavar="HOST:PORT", type=parse_address, default=None,
+                        help="open a loopback UDP control channel (skynet netem ctl HOST:PORT COMMAND)")
     return parser
+
+
+def build_ctl_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="skynet netem ctl",
+                                     description="send one command to a running proxy's control channel")
+    parser.add_argument("address", type=parse_address, help="HOST:PORT of the control channel")
+    parser.add_argument("command", nargs="+", help='set SPEC | cut [T] | restore | clear | stats')
+    parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the reply")
+    return parser
+
+
+def ctl(argv: list[str]) -> int:
+    """``skynet netem ctl HOST:PORT COMMAND...``: print the reply; 0 accepted, 2 refused, 1 no reply."""
+    parser = build_ctl_parser()
+    args = parser.parse_args(argv)
+    if not args.timeout > 0:
+        parser.error("--timeout must be > 0")
+    command = args.command[0] if len(args.command) == 1 else shlex.join(args.command)
+    try:
+        reply = send_control(args.address, command, timeout_s=args.timeout)
+    except (OSError, ValueError) as e:  # TimeoutError is an OSError
+        print(f"netem ctl: {e}", file=sys.stderr)
+        return 1
+    print(json.dumps(reply), flush=True)
+    if not reply.get("ok"):
+        print(f"netem ctl: {reply.get('error', 'refused')}", file=sys.stderr)
+        return 2
+    return 0
 
 
 def summary(stats: dict[str, Any]) -> str:
@@ -54,10 +131,18 @@ def summary(stats: dict[str, Any]) -> str:
     for k in ("associations", "connections"):
         if k in stats:
             parts.append(f"{k}={stats[k]}")
+    if stats.get("changes"):
+        parts.append(f"changes={stats['changes']} now: {stats['impairment']}")
+    if stats.get("cut"):
+        left = stats.get("cut_remaining_s")
+        parts.append("CUT" + (f" {left:.1f}s left" if left is not None else " until restore"))
     return " | ".join(parts)
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["ctl"]:
+        return ctl(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     if not args.interval > 0:
@@ -66,9 +151,23 @@ def main(argv: list[str] | None = None) -> int:
         impairment = Impairment.parse(args.impair)
     except ValueError as e:
         parser.error(f"--impair: {e}")
+    steps: list[Step] = []
+    if args.schedule is not None:
+        try:
+            steps = load_schedule(args.schedule)
+        except ScheduleError as e:
+            parser.error(f"--schedule: {e}")
     cls = UdpProxy if args.kind == "udp" else TcpProxy
     proxy = cls(listen=args.listen, target=args.target, impairment=impairment, seed=args.seed,
                 direction=args.direction)
+    control = None
+    if args.control is not None:
+        try:
+            control = ControlServer(proxy, args.control)
+        except ValueError as e:
+            parser.error(f"--control: {e}")
+    if args.schedule is not None:
+        proxy.play(steps, on_step=_log_step)
     stop = threading.Event()
     previous = {}
     if threading.current_thread() is threading.main_thread():
@@ -77,11 +176,15 @@ def main(argv: list[str] | None = None) -> int:
     try:
         try:
             proxy.start()
+            if control is not None:
+                control.start()
         except (OSError, ValueError) as e:
             print(f"netem: cannot start: {e}", file=sys.stderr)
             return 1
         print(f"netem {args.kind} listening on {format_address(proxy.address)} -> "
               f"{format_address(proxy.target)} [{args.direction}: {impairment.to_text()}]", flush=True)
+        if control is not None:
+            print(f"netem control on {format_address(control.address)}", flush=True)
         waited = 0.0
         while not stop.is_set():
             step = args.interval if args.duration is None else min(args.interval, args.duration - waited)
@@ -89,13 +192,23 @@ def main(argv: list[str] | None = None) -> int:
                 break
             waited += step
             _print(proxy.stats(), args.json)
+        if control is not None:
+            control.stop()
         proxy.stop()
         _print(proxy.stats(), args.json)
         return 0
     finally:
+        if control is not None:
+            control.stop()
         proxy.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _log_step(step: Step, error: str | None) -> None:
+    """A schedule step, logged on stderr (stdout carries the counters)."""
+    text = f"netem: step at {step.at_s!r}s: {step.command.to_text()}"
+    print(text + (f" FAILED: {error}" if error else ""), file=sys.stderr, flush=True)
 
 
 def _print(stats: dict[str, Any], as_json: bool) -> None:

@@ -23,6 +23,27 @@ kind in front of the router's ``tcp/...?rel=1`` and ``udp/...?rel=0`` endpoints.
 
 Both proxies: ``start()``, ``stop()`` (joins every thread, closes every socket; queued data is
 discarded), ``stats()``, ``with`` blocks, port 0 (read :attr:`address` after ``start``).
+
+Conditions change while a proxy runs (issue 7), from any thread:
+
+* ``update(spec, direction="both")`` — a new impairment from now on (None or "" = clean link);
+  packets already decided keep their release times; seeds, counters and the outage origin (the
+  proxy start) carry over (:meth:`~services.netem.model.Impairer.update`).
+* ``cut(duration_s=None)`` / ``restore()`` — the link goes down now in both directions, for
+  ``duration_s`` or until restored. UDP: datagrams arriving meanwhile are dropped (reason
+  ``outage``), those already queued still go out. TCP: the writers send nothing, in either
+  direction, while the link is down (a cut or an outage window) and nothing is lost; a client
+  that connects meanwhile is accepted (the kernel completes its handshake) but held, not
+  connected to the target, until the link is back — as behind a cut link, where the client's
+  first bytes go unanswered until its own timeouts act. We hold rather than refuse because a
+  refused connection (RST) is what a *reachable* host without a listener does, not a cut link.
+* ``apply(command)`` — one command of :mod:`services.netem.schedule` (``set``, ``cut``,
+  ``restore``, ``clear``, ``stats``); ``play(steps)`` runs a schedule on a thread of its own.
+* ``impairment(direction)`` — what is applied now; ``stats()`` shows it (``impairment``, per
+  direction too), the number of ``changes``, and ``cut`` / ``cut_remaining_s``.
+
+:class:`ControlServer` puts ``apply`` on a loopback UDP text channel (``skynet netem --control``);
+:func:`send_control` is its client (``skynet netem ctl``).
 """
 
 from __future__ import annotations
@@ -36,7 +57,8 @@ import socket
 import threading
 import time
 from collections import deque
-from typing import Any, Callable, Literal
+from collections.abc import Callable
+from typing import Any, Literal
 
 import numpy as np
 
@@ -1064,6 +1086,6 @@ def send_control(address: Address | str, command: str, timeout_s: float = 3.0) -
         s.send(command.encode("utf-8"))
         try:
             data = s.recv(_MAX_DATAGRAM)
-        except socket.timeout as e:
+        except TimeoutError as e:
             raise TimeoutError(f"no reply from {format_address(addr)} within {timeout_s} s") from e
     return json.loads(data)

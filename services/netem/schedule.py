@@ -133,6 +133,8 @@ def _command(tokens: list[str]) -> Command:
         direction = "both"
         if rest and rest[0].lower() in _DIRECTIONS:
             direction, rest = rest[0].lower(), rest[1:]
+        if not rest:
+            raise ValueError("set needs an impairment spec ('set none' for a clean link)")
         return Command(action="set", direction=direction, impairment=Impairment.parse(" ".join(rest)))
     if word == "cut":
         if len(rest) > 1:

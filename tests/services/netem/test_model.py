@@ -243,3 +243,101 @@ def test_stream_loss_is_retransmission_delay_and_order_is_kept():
     big = Impairer("loss 1%", rng=1)  # a 64 KB chunk is 46 segments: 1 - 0.99**46 = 37 % hit
     hits = sum(big.decide_stream(i * 10.0, 65536) > i * 10.0 for i in range(1000))
     assert hits == pytest.approx(370, abs=4 * math.sqrt(1000 * 0.37 * 0.63))
+
+
+# ------------------------------------------------------------------------------ live changes
+def test_update_applies_from_the_next_decision_keeping_counters_and_origin():
+    imp = Impairer("delay 100ms", rng=1, origin_s=50.0)
+    assert imp.decide(50.0, 10) == [pytest.approx(50.1)]
+    assert imp.update("loss 100% outage 10s 1s") == Impairment.parse("loss 100% outage 10s 1s")
+    assert imp.impairment.loss == 1.0 and imp.changes == 1
+    assert imp.decide(50.2, 10) == [] and imp.counters.dropped["loss"] == 1
+    imp.update("outage 10s 1s")  # windows count from the same origin: 60 s .. 61 s
+    assert imp.decide(60.5, 10) == [] and imp.counters.dropped["outage"] == 1
+    assert imp.decide(61.0, 10) == [61.0]
+    assert imp.counters.packets_in == 4 and imp.counters.packets_out == 2  # counters carried over
+
+
+def test_update_keeps_the_fifo_floor_so_decided_packets_keep_their_times():
+    fifo, unordered = Impairer("delay 200ms", rng=0), Impairer("delay 200ms unordered", rng=0)
+    assert fifo.decide(0.0, 1) == unordered.decide(0.0, 1) == [pytest.approx(0.2)]
+    fifo.update(None)
+    unordered.update("unordered")
+    assert fifo.decide(0.01, 1) == [pytest.approx(0.2)]  # behind the packet still in flight
+    assert unordered.decide(0.01, 1) == [0.01]
+    assert fifo.decide_stream(0.3, 100) == 0.3
+
+
+def test_update_keeps_the_random_stream_and_is_deterministic():
+    def run(seed: int) -> list[int]:
+        imp = Impairer("loss 50%", rng=seed)
+        out = [len(imp.decide(i * 0.001, 10)) for i in range(300)]
+        imp.update("loss 20% duplicate 10%")
+        return out + [len(imp.decide(1.0 + i * 0.001, 10)) for i in range(300)]
+    a, b = run(3), run(3)
+    assert a == b and a != run(4)
+    assert 0.35 < a[:300].count(0) / 300 < 0.65 and 0.1 < a[300:].count(0) / 300 < 0.3
+    assert 2 in a[300:]  # the duplicate of the new impairment
+
+
+def test_bad_update_changes_nothing():
+    imp = Impairer("delay 5ms", rng=0)
+    for bad in ("loss 2", {"delay_ms": -1}, 42):
+        with pytest.raises(ValueError):
+            imp.update(bad)
+    assert imp.impairment == Impairment.parse("delay 5ms") and imp.changes == 0
+    for now, duration in ((math.nan, 1.0), (0.0, 0.0), (0.0, -1.0), (0.0, math.inf)):
+        with pytest.raises(ValueError):
+            imp.cut(now, duration)
+    assert imp.outage_end(0.0) is None
+
+
+def test_cut_drops_datagrams_until_it_ends_or_is_restored():
+    imp = Impairer("delay 10ms", rng=0, origin_s=100.0)
+    imp.cut(101.0, 2.0)
+    assert imp.decide(100.5, 1) != [] and imp.decide(101.0, 1) == [] and imp.decide(102.9, 1) == []
+    assert imp.decide(103.0, 1) != [] and imp.counters.dropped["outage"] == 2
+    imp.cut(104.0)  # until restore
+    assert imp.outage_end(104.0) == math.inf == imp.cut_end(1e9)
+    imp.update("delay 20ms")  # an update does not end the cut
+    assert imp.decide(200.0, 1) == []
+    imp.restore()
+    assert imp.outage_end(200.0) is None and imp.decide(200.0, 1) == [pytest.approx(200.02)]
+    assert imp.changes == 4
+
+
+def test_cut_is_left_to_the_stream_sender_but_outage_windows_stall_streams():
+    imp = Impairer("outage 1s 1s", rng=0, origin_s=0.0)
+    imp.cut(5.0)
+    assert imp.decide_stream(1.5, 100) == 2.0  # an outage window stalls the chunk to its end
+    assert imp.decide_stream(5.5, 100) == 5.5  # a cut does not: the sender holds bytes meanwhile
+    assert imp.outage_end(1.5) == 2.0 and imp.cut_end(1.5) is None
+    assert imp.outage_end(5.5) == imp.cut_end(5.5) == math.inf
+    assert imp.counters.stalled == 1
+
+
+def test_changes_from_another_thread_while_deciding():
+    import threading
+
+    imp = Impairer("loss 10%", rng=0)
+    stop = threading.Event()
+
+    def flip() -> None:
+        k = 0
+        while not stop.is_set():
+            imp.update("loss 10%" if k % 2 else "delay 1ms loss 30%")
+            imp.cut(k * 1e-3, 1e-4) if k % 7 == 0 else imp.restore()
+            k += 1
+
+    t = threading.Thread(target=flip)
+    t.start()
+    try:
+        for i in range(20000):
+            imp.decide(i * 1e-4, 10)
+            imp.decide_stream(i * 1e-4, 100)
+    finally:
+        stop.set()
+        t.join()
+    c = imp.counters
+    assert c.packets_in == 40000 and imp.changes > 0
+    assert c.packets_out + sum(c.dropped.values()) - c.duplicated == 40000
