@@ -6,7 +6,11 @@ and a camera (:mod:`edge.camera`) to the bus:
 * publishes :class:`VehicleState` as telemetry at ``--rate`` Hz and holds a liveliness token;
   its link lease is short (``--lease``, 2 s) so the others notice a lost UAV;
 * subscribes to the other UAVs' states (SkyNet) and corrects its own reference from them
-  (P8)-(P9), ignoring neighbours older than ``--stale`` s;
+  (P8)-(P9), ignoring neighbours older than ``--stale`` s: when SkyNet is partitioned the
+  correction goes back to zero (at the sequencer's offset rate) and the UAV flies its planned
+  slot, and it comes back with the neighbours' states. A formation member whose state goes stale
+  gives a ``neighbour-stale`` event, and ``neighbour-fresh`` when heard again (issue 7); its
+  liveliness token leaving or joining gives ``neighbour-lost`` / ``neighbour-up``;
 * serves commands on ``.../uav/<id>/cmd``: validated (schema, geofence, finite numbers, sane
   speeds) and acknowledged accepted or rejected with a reason — nothing invalid reaches the
   vehicle;
@@ -36,6 +40,7 @@ from protocol.messages import (
 )
 
 from . import formation
+from .runtime import IMAGERY_CACHE_FRAMES
 from .validate import validate_command
 from .vehicle.follower import Follower
 
@@ -73,6 +78,7 @@ class Board:
         self.uav = options.uav
         self.lock = threading.RLock()
         self.neighbours: dict[int, Neighbour] = {}
+        self.stale: set[int] = set()  # formation members whose state went stale (event sent)
         self.seq = 0
         self.last_heartbeat: float | None = None
         self.failsafe_active = False
@@ -101,6 +107,7 @@ class Board:
             self.event("neighbour-up", f"UAV {uav} joined SkyNet", neighbour=uav)
         else:
             self.neighbours.pop(uav, None)
+            self.stale.discard(uav)
             self.event("neighbour-lost", f"UAV {uav} left SkyNet (liveliness lost)", Level.WARNING, neighbour=uav)
 
     def _on_heartbeat(self, msg: Message, sample) -> None:
@@ -166,11 +173,27 @@ class Board:
         for ev in captures:
             if self.camera is not None:
                 self.camera.capture(ev, now_wall)
-        fresh = sum(1 for n in list(self.neighbours.values()) if now_wall - n.stamp <= self.opt.stale_s)
+        fresh = self._watch_staleness(now_wall)
         msg = st.to_message(self.uav, self.seq, now_wall).model_copy(update={"neighbours": fresh, **plan})
         self.seq += 1
         self.state_pub.put(msg)
         return msg
+
+    def _watch_staleness(self, now_wall: float) -> int:
+        """Events when a formation member's state goes stale or fresh again; the number of fresh ones."""
+        fresh = 0
+        for j, n in list(self.neighbours.items()):
+            age = now_wall - n.stamp
+            if age <= self.opt.stale_s:
+                fresh += 1
+                if j in self.stale:
+                    self.stale.discard(j)
+                    self.event("neighbour-fresh", f"UAV {j}'s state heard again over SkyNet", neighbour=j)
+            elif j not in self.stale and j in self.opt.offsets:
+                self.stale.add(j)
+                self.event("neighbour-stale", f"UAV {j}'s state is {age:.1f} s old: formation keeping without it",
+                           Level.WARNING, neighbour=j, age_s=round(age, 3))
+        return fresh
 
     def _keep_formation(self, st, now_wall: float) -> dict:
         """Correct the own reference from the errors the neighbours share (P8, see
@@ -222,6 +245,16 @@ def parse_vec(text: str) -> tuple[float, float, float]:
     return v  # type: ignore[return-value]
 
 
+def _non_negative_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {n}")
+    return n
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet edge", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="peer")
@@ -244,6 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--camera", default="synthetic", help="synthetic | image folder | video:<url or index> | none")
     parser.add_argument("--scenario", default=None, help="scenario file (surface and camera of the synthetic source)")
     parser.add_argument("--frame-size", default="640x480", help="delivered frame size WxH")
+    parser.add_argument("--imagery-cache", type=_non_negative_int, default=IMAGERY_CACHE_FRAMES, metavar="N",
+                        help="capture frames kept for retransmission to a detector that lost them "
+                             "(0: no recovery, capture frames are best-effort like previews)")
     return parser
 
 

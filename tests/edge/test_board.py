@@ -85,3 +85,17 @@ with Bus(BusConfig(mode="client", connect={gateway!r}, multilink=True), "{FLEET}
         assert _wait(lambda: {e.source for e in events if e.kind == "neighbour-lost" and e.data.get("neighbour") == 3}
                      == {"uav/1", "uav/2"}, 15), [e for e in events if e.kind.startswith("neighbour")]
         assert _wait(lambda: states[1].neighbours == 1, 10)
+
+
+def test_imagery_cache_option_defaults_to_the_runtime_cache_and_refuses_negatives(capsys):
+    from edge.board import build_parser
+    from edge.runtime import IMAGERY_CACHE_FRAMES
+
+    parser = build_parser()
+    assert parser.parse_args(["--uav", "1"]).imagery_cache == IMAGERY_CACHE_FRAMES
+    assert parser.parse_args(["--uav", "1", "--imagery-cache", "0"]).imagery_cache == 0
+    for bad in ("-1", "many"):
+        with pytest.raises(SystemExit) as exc:
+            parser.parse_args(["--uav", "1", "--imagery-cache", bad])
+        assert exc.value.code == 2
+    assert "--imagery-cache" in capsys.readouterr().err
