@@ -72,6 +72,7 @@ from numpy.typing import ArrayLike, NDArray
 from edge.formation import DEFAULT_OFFSETS, formation_error
 from protocol.messages import Mode, Trajectory
 from services.gcs.record import GOAL_RADIUS_M, MissionRecord
+from services.gcs.resilience import fault_figures
 from services.gcs.scoring import DefectScore, score_defects, surface_uv
 
 __all__ = [
@@ -234,6 +235,7 @@ class ReportSummary:
     phases: dict[str, float]
     notes: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
+    faults: dict[str, Any] = field(default_factory=dict)  # services.gcs.resilience.fault_figures
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (non-finite floats become ``None``).
@@ -759,6 +761,7 @@ def _analyse(record: MissionRecord) -> tuple[ReportSummary, dict[str, Any]]:
         measured_speed=(sim / wall_states) if sim is not None and wall_states > 0 else None,
         planner=planner, uavs=uavs, formation=formation, captures=captures, defects=defects, links=links,
         imagery=imagery, gateway=gateway, events=events, phases=dict(record.phases), notes=notes,
+        faults=fault_figures(record),
     )
     series["tracks"], series["trajs"], series["offsets"] = tracks, trajs, offsets
     series["obstacles"] = _obstacles(record)  # validated here, before anything is written
@@ -1134,6 +1137,7 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
                _table(["camera", *keys], [[cam, *(_fmt(m.get(k), 3 if k in ("fraction_lost", "jitter_ms") else 0)
                                                    for k in keys)] for cam, m in s.imagery.items()]), ""]
     md += ["![Latency per link class](links.png)", ""]
+    md += _faults_markdown(s.faults)
     md += ["## Events", ""]
     if s.events:
         md += [_table(["rx", "source", "level", "kind", "text"],
@@ -1144,6 +1148,67 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
     if s.gateway.get("rejected"):
         md += ["Gateway rejections: " + ", ".join(f"{k}: {v}" for k, v in s.gateway["rejected"].items()) + ".", ""]
     return "\n".join(md)
+
+
+def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
+    """The "Faults and recovery" section (figures of :func:`services.gcs.resilience.fault_figures`)."""
+    md = ["## Faults and recovery", ""]
+    if not f:
+        return md + ["No record of faults.", ""]
+    cmds = f["commands"]
+    quiet = not (f["faults"] or f["uavs_lost"] or f["failsafes"] or f["resumes"] or f["gcs_link"] or cmds["failed"]
+                 or f["skynet"])
+    if quiet:
+        return md + [f"No fault injected or seen; {cmds['acknowledged']} of {cmds['sent']} commands acknowledged.", ""]
+    md += [f"Times in seconds since the {f['origin']}.", ""]
+    if f["faults"]:
+        md += ["Faults injected:", "", _table(["t", "action", "target", "as written"],
+                                             [[_fmt(x["t_s"], 1, " s"), x["action"], x["target"], x["text"]]
+                                              for x in f["faults"]]), ""]
+    else:
+        md += ["No fault injected.", ""]
+    for x in f["seen_again"]:
+        line = (f"After the {x['after']} of {x['target']} at {_fmt(x['t_s'], 1, ' s')}: fleet seen again "
+                f"{_fmt(x['fleet_s'], 2, ' s')} later (" + ", ".join(f"UAV {u}: {_fmt(v, 2, ' s')}"
+                                                                     for u, v in x["uavs_s"].items()) + ")")
+        if x["never"]:
+            line += "; never heard again: " + ", ".join(f"UAV {u}" for u in x["never"])
+        md += [line + ".", ""]
+    if f["gcs_link"]:
+        md += ["Ground station's link to the gateway: " + "; ".join(
+            f"down at {_fmt(x['down_s'], 1, ' s')}, up at {_fmt(x['up_s'], 1, ' s')}" for x in f["gcs_link"]) + ".", ""]
+    if f["uavs_lost"]:
+        md += ["UAVs gone from liveliness:", "",
+               _table(["UAV", "token gone", "counted lost", "back"],
+                      [[x["uav"], _fmt(x["gone_s"], 1, " s"), _fmt(x["lost_s"], 1, " s"), _fmt(x["back_s"], 1, " s")]
+                       for x in f["uavs_lost"]]), ""]
+    if f["still_lost"]:
+        md += ["Lost at the end (not waited for; their capture points not imaged): "
+               + ", ".join(f"UAV {u}" for u in f["still_lost"]) + ".", ""]
+    if f["failsafes"] or f["resumes"]:
+        rows = [[_fmt(x["t_s"], 1, " s"), x["uav"], f"failsafe: {x['action']}",
+                 f"no heartbeat for {_fmt(x['silent_s'], 1, ' s')}"] for x in f["failsafes"]]
+        rows += [[_fmt(x["t_s"], 1, " s"), x["uav"], "resume" if x["ok"] else "resume failed",
+                  f"{_fmt(x['after_failsafe_s'], 1, ' s')} after its failsafe"] for x in f["resumes"]]
+        md += ["Failsafes and resumes:", "", _table(["t", "UAV", "what", "detail"], sorted(rows, key=lambda r: r[0])), ""]
+    if f["skynet"]:
+        md += ["SkyNet (the boards' view of their neighbours):", "",
+               _table(["t", "UAV", "event", "neighbour"],
+                      [[_fmt(x["t_s"], 1, " s"), x["uav"], x["kind"], x["neighbour"]] for x in f["skynet"]]), ""]
+    rec = f["reception"]
+    if rec:
+        md += ["State reception at the ground station:", "",
+               _table(["UAV", "last heard", "longest gap", "ended at", "gaps > 1 s"],
+                      [[u, _fmt(x["last_rx_s"], 1, " s"), _fmt(x["max_gap_s"], 2, " s"), _fmt(x["max_gap_ended_s"], 1, " s"),
+                        ", ".join(f"{_fmt(a, 1)}–{_fmt(b, 1)} s" for a, b in x["gaps"]) or "none"]
+                       for u, x in rec.items()]), ""]
+    md += [f"Commands: {cmds['acknowledged']} of {cmds['sent']} acknowledged"
+           + (", every one either acknowledged or listed here as failed:" if cmds["failed"] else "; none failed.")]
+    if cmds["failed"]:
+        md += ["", _table(["UAV", "command", "id", "acknowledged", "tries", "reason"],
+                          [[x["uav"], x["kind"], x["cmd_id"], _fmt(x["acknowledged"]), x["attempts"],
+                            str(x["reason"]).replace("|", "/")] for x in cmds["failed"]])]
+    return md + [""]
 
 
 # ============================================================================ entry point

@@ -1,0 +1,163 @@
+"""What the faults of a run did, read from its record: the report's "Faults and recovery" (issue 7).
+
+Pure code over a :class:`~services.gcs.record.MissionRecord`, no bus. Times are seconds since the
+start of the mission phase (the ground station's ``phase("mission")``, the origin the fault
+injector counts from; the record's start when there was no mission phase).
+
+What is measured (our choices where the issue is silent):
+
+* *Faults*: what the injector noted (``record.faults``: kill, restart, cut, restore, partition,
+  heal).
+* *UAVs lost and back*: the ground station's incidents (``record.incidents``): when a UAV's
+  liveliness token went away, when it was counted lost, when it came back.
+* *Failsafes*: the boards' ``failsafe`` events (time = the board's stamp, when it happened, even
+  if the event reached the ground station later) and the ground station's ``hold-seen``
+  incidents; *resumes*: its ``resume`` incidents, each with the time since the UAV's last failsafe
+  before it (failsafe → resume).
+* *Fleet seen again*: after each fault end that can interrupt telemetry (``restart``,
+  ``restore``), the delay to the first state received from each UAV; the fleet's figure is the
+  largest over the UAVs heard again (a UAV never heard again is listed apart).
+* *State-reception gaps*: per UAV, the longest pause between two states received (and when it
+  ended), and every pause longer than :data:`GAP_S`.
+* *SkyNet*: the boards' ``neighbour-lost/up/stale/fresh`` events during the mission.
+* *Commands*: every command that was not acknowledged or was refused, with its reason.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from typing import Any
+
+from .record import MissionRecord
+
+__all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "fault_figures", "reception_gaps"]
+
+#: A pause in a UAV's state reception longer than this is listed as a gap, s (states come at 20 Hz).
+GAP_S = 1.0
+#: The boards' SkyNet events shown (edge.board).
+NEIGHBOUR_EVENTS = ("neighbour-lost", "neighbour-up", "neighbour-stale", "neighbour-fresh")
+#: Fault ends after which the ground station's reception of the fleet is measured.
+_SEEN_AGAIN_AFTER = ("restart", "restore")
+
+
+def _origin(record: MissionRecord) -> float:
+    return record.phases.get("mission", record.started)
+
+
+def _uav_of(source: str) -> int | None:
+    head, _, tail = source.partition("/")
+    return int(tail) if head == "uav" and tail.isdigit() else None
+
+
+def reception_gaps(rx_times: list[float], min_gap_s: float = GAP_S) -> tuple[float, float | None, list[tuple[float, float]]]:
+    """``(max_gap, its end, [(start, end) of every gap > min_gap_s])`` of sorted reception times.
+
+    >>> reception_gaps([0.0, 0.05, 0.1, 3.1, 3.15], 1.0)
+    (3.0, 3.1, [(0.1, 3.1)])
+    """
+    best, end, gaps = 0.0, None, []
+    for a, b in zip(rx_times, rx_times[1:]):
+        d = b - a
+        if d > best:
+            best, end = d, b
+        if d > min_gap_s:
+            gaps.append((a, b))
+    return best, end, gaps
+
+
+def fault_figures(record: MissionRecord) -> dict[str, Any]:
+    """The "faults" object of report.json (see the module docstring); empty lists when nothing happened."""
+    t0 = _origin(record)
+
+    def t(x: float) -> float:
+        return round(x - t0, 3)
+
+    faults = [{"t_s": t(f.at), "action": f.action, "target": f.target, "text": f.text}
+              for f in sorted(record.faults, key=lambda f: f.at)]
+    incidents = sorted(record.incidents, key=lambda i: i.at)
+
+    # UAVs: token gone -> (lost) -> back
+    episodes: list[dict[str, Any]] = []
+    open_ep: dict[int, dict[str, Any]] = {}
+    for inc in incidents:
+        u = inc.uav
+        if u is None:
+            continue
+        if inc.kind == "token-gone":
+            open_ep[u] = {"uav": u, "gone_s": t(inc.at), "lost_s": None, "back_s": None}
+            episodes.append(open_ep[u])
+        elif inc.kind == "uav-lost" and u in open_ep:
+            open_ep[u]["lost_s"] = t(inc.at)
+        elif inc.kind == "token-back" and u in open_ep:
+            open_ep[u]["back_s"] = t(inc.at)
+            del open_ep[u]
+    links = []
+    for inc in incidents:
+        if inc.kind == "link-down":
+            links.append({"down_s": t(inc.at), "up_s": None})
+        elif inc.kind == "link-up" and links and links[-1]["up_s"] is None:
+            links[-1]["up_s"] = t(inc.at)
+
+    # failsafes (board events) and resumes (ground station)
+    failsafes = []
+    for e in record.events:
+        if e.msg.kind == "failsafe":
+            failsafes.append({"uav": _uav_of(e.msg.source), "t_s": t(e.msg.stamp), "rx_s": t(e.rx),
+                              "action": e.msg.data.get("action"), "silent_s": e.msg.data.get("silent_s")})
+    failsafes.sort(key=lambda f: f["t_s"])
+    holds = [{"uav": i.uav, "t_s": t(i.at)} for i in incidents if i.kind == "hold-seen"]
+    resumes = []
+    for inc in incidents:
+        if inc.kind not in ("resume", "resume-failed"):
+            continue
+        before = [f["t_s"] for f in failsafes if f["uav"] == inc.uav and f["t_s"] <= t(inc.at)]
+        resumes.append({"uav": inc.uav, "t_s": t(inc.at), "ok": inc.kind == "resume",
+                        "after_failsafe_s": round(t(inc.at) - before[-1], 3) if before else None, "text": inc.text})
+
+    # reception per UAV
+    rx: dict[int, list[float]] = defaultdict(list)
+    for s in record.states:
+        rx[s.msg.uav].append(s.rx)
+    gaps = {}
+    for u in sorted(rx):
+        times = sorted(rx[u])
+        best, end, listed = reception_gaps(times)
+        gaps[u] = {"last_rx_s": t(times[-1]), "max_gap_s": round(best, 3),
+                   "max_gap_ended_s": None if end is None else t(end),
+                   "gaps": [[t(a), t(b)] for a, b in listed]}
+    seen_again = []
+    for f in record.faults:
+        if f.action not in _SEEN_AGAIN_AFTER:
+            continue
+        per_uav: dict[int, float] = {}
+        for u, times in rx.items():
+            after = [x for x in times if x >= f.at]
+            if after:
+                per_uav[u] = round(min(after) - f.at, 3)
+        never = sorted(set(rx) - set(per_uav))
+        seen_again.append({"after": f.action, "target": f.target, "t_s": t(f.at),
+                           "fleet_s": max(per_uav.values()) if per_uav else None,
+                           "uavs_s": dict(sorted(per_uav.items())), "never": never})
+
+    neighbours = [{"t_s": t(e.msg.stamp), "uav": _uav_of(e.msg.source), "kind": e.msg.kind,
+                   "neighbour": e.msg.data.get("neighbour")}
+                  for e in sorted(record.events, key=lambda e: e.msg.stamp)
+                  if e.msg.kind in NEIGHBOUR_EVENTS and e.msg.stamp >= t0]
+    failed = [{"uav": c.uav, "kind": c.kind, "cmd_id": c.cmd_id, "acknowledged": c.ok, "attempts": c.attempts,
+               "reason": c.reason} for c in record.commands if not (c.ok and c.accepted)]
+    return {
+        "origin": "mission phase start" if "mission" in record.phases else "record start",
+        "faults": faults,
+        "uavs_lost": episodes,
+        "still_lost": sorted(u for u in open_ep if open_ep[u]["lost_s"] is not None),
+        "gcs_link": links,
+        "failsafes": failsafes,
+        "holds_seen": holds,
+        "resumes": resumes,
+        "seen_again": seen_again,
+        "reception": gaps,
+        "skynet": neighbours,
+        "commands": {"sent": len(record.commands), "acknowledged": sum(c.ok for c in record.commands),
+                     "failed": failed},
+        "incidents": [{"t_s": t(i.at), "kind": i.kind, "uav": i.uav, "text": i.text} for i in incidents],
+    }
