@@ -293,7 +293,6 @@ class _ProxyBase:
         if self._runner is not None:
             self._runner.stop()
         if not self._started or self._stopped:
-            self._stopped = True
             return
         self._stopped = True
         self._running = False
@@ -618,7 +617,8 @@ class UdpProxy(_ProxyBase):
                 self._closed_assocs += 1
 
     def stats(self) -> dict[str, Any]:
-        """Counters per direction (impairer decisions plus datagrams actually sent) and associations."""
+        """Counters per direction (the impairment applied now, impairer decisions, datagrams
+        actually sent) and associations; the header has ``impairment``, ``changes``, ``cut``."""
         out = self._header()
         if self._started:
             for d in ("up", "down"):
@@ -951,7 +951,10 @@ class TcpProxy(_ProxyBase):
             self._conns.discard(conn)
 
     def stats(self) -> dict[str, Any]:
-        """Counters per direction (chunks decided, bytes in/out, stalls, retransmissions, bytes sent)."""
+        """Counters per direction (the impairment applied now, chunks decided, bytes in/out, stalls,
+        retransmissions, bytes sent, chunks ``held_link_down`` by a cut or outage at the writer),
+        connections, and clients accepted while the link was down (``held_on_accept``, of which
+        ``held_connections`` still wait)."""
         out = self._header()
         if self._started:
             for d in ("up", "down"):

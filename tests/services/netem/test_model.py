@@ -177,6 +177,17 @@ def test_duplicate_gives_two_copies_at_the_configured_rate():
     assert all(t >= i * 1e-3 + 5e-3 - 1e-12 for i, o in enumerate(out) for t in o)
 
 
+@pytest.mark.parametrize("distribution, sd_per_jitter", [("uniform", 1 / 3 ** 0.5), ("normal", 1.0)])
+def test_delay_and_jitter_statistics(distribution, sd_per_jitter):
+    imp = Impairer(f"delay 50ms jitter 10ms distribution {distribution} unordered", rng=4)
+    d = np.array([imp.decide(float(i), 1)[0] - i for i in range(20000)])
+    sd = 0.010 * sd_per_jitter
+    assert abs(d.mean() - 0.050) < 4 * sd / len(d) ** 0.5
+    assert d.std() == pytest.approx(sd, rel=0.03)
+    if distribution == "uniform":
+        assert 0.040 <= d.min() < 0.0401 and 0.0599 < d.max() <= 0.060
+
+
 def test_fifo_jitter_never_reorders_but_unordered_does():
     def releases(text):
         imp = Impairer(text, rng=2)

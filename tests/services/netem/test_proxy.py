@@ -9,8 +9,10 @@ import struct
 import threading
 import time
 
+import numpy as np
 import pytest
 
+from services.netem.model import Impairer
 from services.netem.proxy import TcpProxy, UdpProxy, parse_address
 from tests.services.netem.sockets import (
     eventually,
@@ -79,6 +81,46 @@ def test_udp_loss_over_2000_packets_is_within_binomial_bounds(sink):
     lost = s["up"]["dropped"]["loss"]
     assert abs(lost - n * p) < 4 * (n * p * (1 - p)) ** 0.5
     assert len(sink.got) == n - lost == s["up"]["sent_packets"]
+
+
+@pytest.mark.parametrize("distribution, sd_per_jitter, within_one_sd", [
+    ("uniform", 1 / 3 ** 0.5, 1 / 3 ** 0.5),  # U(-j, j): sd j/sqrt(3); P(|J| < sd) = 1/sqrt(3) = 0.577
+    ("normal", 1.0, 0.6827),                   # N(0, j): sd j; P(|J| < sd) = 0.683
+])
+def test_udp_delay_statistics_match_delay_and_jitter(sink, distribution, sd_per_jitter, within_one_sd):
+    """One-way added delay of 400 datagrams through the proxy, ``delay 40ms jitter 10ms``.
+
+    Tolerances: mean within 4 standard errors plus 2 ms (the proxy's and the sink's thread
+    wake-ups only ever add delay); standard deviation within 20 % of the setting; the fraction
+    within one sd of the mean within 0.1 of the distribution's (tells uniform from normal);
+    uniform: nothing earlier than delay - jitter. ``unordered``, so the FIFO floor does not
+    reshape the samples (they are 2 ms apart, jitter spans 20 ms).
+    """
+    n, delay, jitter = 400, 0.040, 0.010
+    with UdpProxy(target=sink.address, impairment=f"delay 40ms jitter 10ms distribution {distribution} unordered",
+                  seed=21) as proxy:
+        c = udp_client()
+        for i in range(n):
+            c.sendto(struct.pack("!Id", i, time.monotonic()), proxy.address)
+            time.sleep(0.002)
+        sink.wait_count(n)
+        c.close()
+    delays = [t - struct.unpack("!Id", d)[1] for t, d in sink.got]
+    assert len(delays) == n
+    mean, sd = statistics.fmean(delays), statistics.stdev(delays)
+    expected_sd = jitter * sd_per_jitter
+    assert -4 * expected_sd / n ** 0.5 < mean - delay < 4 * expected_sd / n ** 0.5 + 0.002, (mean, sd)
+    assert abs(sd / expected_sd - 1.0) < 0.2, (mean, sd)
+    inside = sum(abs(x - mean) < expected_sd for x in delays) / n
+    assert abs(inside - within_one_sd) < 0.1, inside
+    if distribution == "uniform":
+        assert min(delays) >= delay - jitter - 0.0005
+    # and per datagram: the delay the seeded impairer decided (replayed here), never early
+    rng = np.random.default_rng(np.random.SeedSequence(21).spawn(2)[0])  # the proxy's "up" stream
+    replay = Impairer(proxy.impairment("up"), rng)
+    decided = {i: replay.decide(0.0, 1)[0] for i in range(n)}
+    extra = sorted(t - struct.unpack("!Id", d)[1] - decided[struct.unpack("!Id", d)[0]] for t, d in sink.got)
+    assert extra[0] > -0.0005 and extra[n // 2] < 0.002, (extra[0], extra[n // 2])
 
 
 def test_udp_duplicate_sends_identical_copies(sink):
