@@ -15,7 +15,12 @@ import pytest
 from services.netem.model import Impairment
 from services.netem.proxy import ControlServer, TcpProxy, UdpProxy, send_control
 from services.netem.schedule import parse_schedule
-from tests.services.netem.sockets import eventually, netem_threads, send_paced, udp_client
+from tests.services.netem.sockets import (
+    eventually,
+    netem_threads,
+    send_paced,
+    udp_client,
+)
 
 
 def stamped(i: int) -> bytes:
