@@ -3,6 +3,12 @@
 Used by the launcher (``skynet up``), the demo and the tests, so that all of them start the
 network the same way: ``python -m services.cli <command> ...`` per service, each line of its
 output prefixed with the service's name, SIGINT then SIGTERM then SIGKILL on the way out.
+
+Fault injection (issue 7, :mod:`services.faults`) needs two more things: :meth:`ProcessGroup.kill`
+(SIGKILL to the service's whole process group, as a crash would end it) and
+:meth:`ProcessGroup.restart` (the same command line and environment again, under the same
+name). Once :meth:`ProcessGroup.stop` has begun, a restart is refused, so that Ctrl-C during a
+fault never leaves a process behind.
 """
 
 from __future__ import annotations
@@ -14,8 +20,9 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import IO, Callable
+from typing import IO
 
 
 def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
@@ -35,6 +42,13 @@ class Service:
     proc: subprocess.Popen
     lines: list[str] = field(default_factory=list)
     _reader: threading.Thread | None = None
+    args: list[str] = field(default_factory=list)
+    env: dict[str, str] = field(default_factory=dict, repr=False)
+    on_line: Callable[[str, str], None] | None = None
+    #: ended on purpose by :meth:`ProcessGroup.kill` (not a failure of the service)
+    killed: bool = False
+    #: how many times this service was started before this run of it
+    restarts: int = 0
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -60,14 +74,25 @@ class ProcessGroup:
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self._echo_lock = threading.Lock()
         self._width = 10  # service names are right-aligned in this many columns
+        self._lock = threading.Lock()  # membership: start/restart against stop
+        self._closed = False
 
     def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None) -> Service:
+        with self._lock:
+            if self._closed:
+                raise RuntimeError(f"cannot start {name}: the process group is stopping")
+            svc = self._spawn(name, list(args), dict(self.env), on_line)
+            self.services.append(svc)
+        return svc
+
+    def _spawn(self, name: str, args: list[str], env: dict[str, str],
+               on_line: Callable[[str, str], None] | None, restarts: int = 0) -> Service:
         cmd = [sys.executable, "-m", "services.cli", *args]
         proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            text=True, bufsize=1, env=self.env, start_new_session=True,
+            text=True, bufsize=1, env=env, start_new_session=True,
         )
-        svc = Service(name, proc)
+        svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts)
 
         def pump() -> None:
             assert proc.stdout is not None
@@ -84,11 +109,52 @@ class ProcessGroup:
 
         svc._reader = threading.Thread(target=pump, name=f"log:{name}", daemon=True)
         svc._reader.start()
-        self.services.append(svc)
+        return svc
+
+    def get(self, name: str) -> Service:
+        """The current run of the service ``name``; KeyError if there is none."""
+        for s in self.services:
+            if s.name == name:
+                return s
+        raise KeyError(f"no service named {name!r}")
+
+    def kill(self, name: str, timeout: float = 5.0) -> int | None:
+        """SIGKILL the service's whole process group (a crash: no clean session close) and reap it.
+
+        Returns its exit status (``-9``), None if it did not die within ``timeout``.
+        """
+        svc = self.get(name)
+        svc.killed = True
+        try:
+            os.killpg(svc.proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        try:
+            svc.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            return None
+        if svc._reader:
+            svc._reader.join(1.0)
+        return svc.proc.returncode
+
+    def restart(self, name: str) -> Service:
+        """Start ``name`` again with its command line and environment (after :meth:`kill`, or after it
+        ended); a still-running one is killed first. Refused (RuntimeError) once :meth:`stop` began."""
+        old = self.get(name)
+        if old.alive():
+            self.kill(name)
+        with self._lock:
+            if self._closed:
+                raise RuntimeError(f"cannot restart {name}: the process group is stopping")
+            svc = self._spawn(name, old.args, old.env, old.on_line, restarts=old.restarts + 1)
+            self.services[self.services.index(old)] = svc
         return svc
 
     def stop(self, grace: float = 5.0) -> dict[str, int | None]:
-        """SIGINT everyone (sessions close cleanly), then SIGTERM, then SIGKILL stragglers."""
+        """SIGINT everyone (sessions close cleanly), then SIGTERM, then SIGKILL stragglers.
+        No service can be started or restarted once this has begun."""
+        with self._lock:
+            self._closed = True
         for sig, wait in ((signal.SIGINT, grace), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
             live = [s for s in self.services if s.alive()]
             if not live:
@@ -109,7 +175,7 @@ class ProcessGroup:
                 s._reader.join(1.0)
         return {s.name: s.proc.returncode for s in self.services}
 
-    def __enter__(self) -> "ProcessGroup":
+    def __enter__(self) -> ProcessGroup:
         return self
 
     def __exit__(self, *exc: object) -> None:
