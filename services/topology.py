@@ -1,0 +1,192 @@
+"""The links of a run and which of them carry an impairment proxy (pure: no sockets, no bus).
+
+The paper's system has two kinds of radio links (Section 1, "System and communication"): each
+UAV's **uplink** to the ground over the 4G/LTE gateway, and **SkyNet**, the UAVs' own mesh over
+which they share states for formation keeping. On one machine the launcher reproduces both on
+loopback and can put user-space netem proxies (:mod:`services.netem`) on any of them; this module
+names the links, reads the ``--impair`` grammar and derives each proxy's seed.
+
+Link names
+----------
+* an uplink is named by its node: ``uav1`` .. ``uavN``, ``planner``, ``detector``, ``gcs``;
+* a SkyNet link by its two edges, lower id first: ``uav1-uav2``.
+
+``--impair NAME[/udp|/tcp]=SPEC`` (repeatable; issue 7 interfaces): NAME is a link name or a
+group — ``uplinks`` (every node's uplink), ``skynet`` (every SkyNet link), ``all`` (both). The
+suffix picks the reliability class: ``/udp`` the best-effort link, ``/tcp`` the reliable one,
+none = both (zenoh's multilink setup, ZENOH.md "One link per reliability class"). SPEC is the
+netem string of :meth:`services.netem.model.Impairment.parse`. Later items override earlier ones
+for the same link and class.
+
+Meshing (``--mesh``): ``direct`` — the edges find each other by zenoh gossip and connect
+directly (zenoh's default); ``proxied`` — gossip autoconnect is off on the edges and edge i
+connects explicitly, for each j > i, to a proxy pair in front of edge j's listen endpoints, so
+that nothing bypasses the proxies (:func:`edge_mesh_config`).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Literal
+
+CLASSES = ("tcp", "udp")
+GROUPS = ("uplinks", "skynet", "all")
+SERVICES = ("planner", "detector", "gcs")
+MeshMode = Literal["direct", "proxied"]
+
+_UAV = re.compile(r"uav([1-9][0-9]*)")
+_PAIR = re.compile(r"uav([1-9][0-9]*)-uav([1-9][0-9]*)")
+
+
+def skynet_link(i: int, j: int) -> str:
+    """The name of the SkyNet link between edges ``i`` and ``j`` (lower id first)."""
+    if i == j:
+        raise ValueError(f"a SkyNet link joins two different UAVs, got uav{i}-uav{j}")
+    a, b = sorted((i, j))
+    return f"uav{a}-uav{b}"
+
+
+def link_ends(name: str) -> tuple[int, int] | None:
+    """``(i, j)`` of a SkyNet link name, None for an uplink name."""
+    m = _PAIR.fullmatch(name)
+    return (int(m.group(1)), int(m.group(2))) if m else None
+
+
+@dataclass(frozen=True)
+class Links:
+    """The links of one run: the nodes that have an uplink and the UAV ids of the mesh."""
+
+    uavs: int
+    services: tuple[str, ...] = SERVICES
+
+    @property
+    def edges(self) -> list[str]:
+        return [f"uav{i}" for i in range(1, self.uavs + 1)]
+
+    @property
+    def uplinks(self) -> list[str]:
+        return [*self.edges, *self.services]
+
+    @property
+    def skynet(self) -> list[str]:
+        return [skynet_link(i, j) for i in range(1, self.uavs + 1) for j in range(i + 1, self.uavs + 1)]
+
+    def uav(self, text: str, what: str = "name") -> int:
+        """The id of ``uavN``, checked against the fleet size."""
+        m = _UAV.fullmatch(text)
+        if not m:
+            raise ValueError(f"{what} {text!r}: expected uavN")
+        n = int(m.group(1))
+        if not 1 <= n <= self.uavs:
+            raise ValueError(f"{what} {text!r}: there are {self.uavs} UAVs (uav1..uav{self.uavs})")
+        return n
+
+    def resolve(self, name: str) -> list[str]:
+        """The links a name stands for (a link, a group); ValueError naming the bad name."""
+        name = name.strip()
+        if name == "uplinks":
+            return self.uplinks
+        if name == "skynet":
+            return self.skynet
+        if name == "all":
+            return [*self.uplinks, *self.skynet]
+        if name in self.services:
+            return [name]
+        if name in SERVICES:
+            raise ValueError(f"link {name!r}: no {name} in this run (it connects on its own)")
+        pair = _PAIR.fullmatch(name)
+        if pair:
+            i, j = (self.uav(f"uav{g}", "link") for g in pair.groups())
+            return [skynet_link(i, j)]
+        if _UAV.fullmatch(name):
+            return [f"uav{self.uav(name, 'link')}"]
+        raise ValueError(f"link {name!r}: expected uavN, uavI-uavJ, {', '.join(self.services)}, "
+                         f"{', '.join(GROUPS)}")
+
+
+@dataclass
+class Impairments:
+    """``specs[link][class]``: the netem string of each impaired link class (absent = clean)."""
+
+    specs: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    def spec(self, link: str, cls: str) -> str | None:
+        return self.specs.get(link, {}).get(cls)
+
+    def links(self) -> list[str]:
+        return list(self.specs)
+
+
+def parse_impair(items: Iterable[str], links: Links) -> Impairments:
+    """Read ``--impair NAME[/udp|/tcp]=SPEC`` items (later ones override earlier ones).
+
+    Raises ValueError with a one-line message naming the bad item (unknown link, unknown class,
+    an empty or invalid SPEC — checked with :meth:`Impairment.parse`).
+    """
+    from services.netem.model import Impairment
+
+    out = Impairments()
+    for item in items:
+        name, sep, spec = item.partition("=")
+        name, spec = name.strip(), spec.strip()
+        if not sep or not name or not spec:
+            raise ValueError(f"--impair wants NAME=SPEC (NAME[/udp|/tcp]), got {item!r}")
+        base, slash, cls = name.partition("/")
+        if slash and cls not in CLASSES:
+            raise ValueError(f"--impair {item!r}: class {cls!r} is not udp or tcp")
+        try:
+            Impairment.parse(spec)
+        except ValueError as e:
+            raise ValueError(f"--impair {item!r}: {e}") from None
+        targets = links.resolve(base)
+        for link in targets:
+            for c in ([cls] if slash else CLASSES):
+                out.specs.setdefault(link, {})[c] = spec
+    return out
+
+
+def link_seed(seed: int, link: str, cls: str) -> int:
+    """A proxy's seed: distinct per link and class, the same in every run with the same ``seed``
+    (a hash, not Python's randomised ``hash()``)."""
+    digest = hashlib.sha256(f"{seed}/{link}/{cls}".encode()).digest()
+    return int.from_bytes(digest[:8], "big")
+
+
+#: ``transport/unicast/open_timeout`` of the edges, ms (zenoh's default 10 000). An edge dials
+#: the UDP endpoint of a neighbour that may not be up yet (edges start together, or one restarts
+#: after a fault); the unanswered handshake is retried only after this timeout, so with the
+#: default the SkyNet pair ran TCP-only for 10 s (measured: 5 runs of 3 edges, 1-2 of 3 UDP links
+#: late by ~10 s in 3 of them). 2.5 s still leaves room for a handshake (two round trips) over a
+#: link with hundreds of ms of delay.
+OPEN_TIMEOUT_MS = 2500
+
+
+def edge_mesh_config(mesh: MeshMode, base: dict | None = None) -> dict:
+    """The zenoh config of an edge whose links must all go where the launcher points them.
+
+    Gossip stays on (the nodes still tell each other what they have), but *autoconnect* —
+    dialling a node learned by gossip, which would bypass a proxy — is restricted: never to the
+    router (each edge connects to the gateway through its ``--connect`` endpoints; with a cut
+    uplink it must not find the gateway's real address by gossip), and to other peers only with
+    the ``direct`` mesh. ``scouting/gossip/autoconnect`` lists the kinds of node a peer dials
+    (zenoh's DEFAULT_CONFIG.json5: ``{ router: [], peer: ["router", "peer"] }``). ``base`` (e.g.
+    the secured edges' config, :func:`services.gateway.credentials.mesh_config_doc`) is merged in.
+    The open timeout is shortened (:data:`OPEN_TIMEOUT_MS`).
+    """
+    doc = copy.deepcopy(base or {})
+    peer = ["peer"] if mesh == "direct" else []
+    return _merge(doc, {"scouting": {"gossip": {"autoconnect": {"router": [], "peer": peer}}},
+                        "transport": {"unicast": {"open_timeout": OPEN_TIMEOUT_MS}}})
+
+
+def _merge(into: dict, other: dict) -> dict:
+    for k, v in other.items():
+        if isinstance(v, dict) and isinstance(into.get(k), dict):
+            _merge(into[k], v)
+        else:
+            into[k] = v
+    return into
