@@ -8,10 +8,22 @@ on Ctrl-C (SIGINT to every child so sessions close, then SIGTERM/SIGKILL for str
 this process (a Zenoh client, with the live progress display) and writes the report; its exit
 status is the mission's.
 
-Impairment experiments: ``--impair uav2="delay 50ms jitter 10ms loss 2%"`` puts user-space
-netem proxies (:mod:`services.netem`, TCP and UDP) between that node and the gateway; names
-are ``uavN``, ``planner``, ``detector`` and ``gcs``. Shared memory stays off so that nothing
-bypasses them. (Edges also mesh directly with each other; those SkyNet links are not proxied.)
+Impairment experiments (issue 7; link names and grammar in :mod:`services.topology`):
+``--impair NAME[/udp|/tcp]=SPEC`` puts user-space netem proxies (:mod:`services.netem`, a TCP and
+a UDP one per link) on the named links: ``uavN``, ``planner``, ``detector``, ``gcs`` (that node's
+uplink to the gateway — for an edge, the paper's 4G hop), ``uavI-uavJ`` (a SkyNet link between
+two edges), ``uplinks``, ``skynet``, ``all``; ``/udp`` or ``/tcp`` impairs only the best-effort
+or the reliable link. Shared memory stays off so that nothing bypasses the proxies. With
+``--mesh proxied`` (the default as soon as a SkyNet link is impaired or faulted) the edges do
+not dial each other from gossip; edge i connects to a proxy pair in front of edge j's listen
+endpoints for every j > i. ``--no-recovery`` makes capture frames unrecoverable (edges publish
+imagery without the recovery cache, the detector subscribes without recovery).
+
+Faults (:mod:`services.faults`): ``--fault "20s kill gateway for 3s"``, ``"25s kill uav3"``,
+``"15s cut uplinks for 8s"``, ``"15s partition uav1-uav2 for 10s"``; AT counts from the
+mission phase (``skynet mission``) or the network start (``skynet up``). A killed service is
+restarted with the same command line and ports; the launcher puts clean proxies on the links a
+fault cuts.
 
 ``--secure`` turns on the gateway's authentication and access control: random passwords for
 ``gcs``, ``planner``, ``detector`` and ``uav1..N`` in a private temporary folder (removed at the
@@ -23,63 +35,139 @@ password in ``SKYNET_PASSWORD``, the edges with the UAVs' dictionary (``--config
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import math
 import shutil
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from protocol.bus import (PASSWORD_ENV, Bus, BusConfig, endpoint_address, multilink_endpoints, setup_logging,
-                          stop_event_on_signals)
+from protocol.bus import (
+    PASSWORD_ENV,
+    Bus,
+    BusConfig,
+    endpoint_address,
+    multilink_endpoints,
+    setup_logging,
+    stop_event_on_signals,
+)
 
+from .faults import FaultInjector, Resolved, cut_links, plan_faults
 from .process import ProcessGroup, free_port_pair
+from .topology import (
+    CLASSES,
+    Impairments,
+    Links,
+    MeshMode,
+    edge_mesh_config,
+    link_ends,
+    link_seed,
+    parse_impair,
+)
 
 HOST = "127.0.0.1"
+#: the line each service prints when it is up (waited for after a restart)
+READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up"}
+EDGE_READY = "board up"
+#: how long a restarted service may take to come up (the gateway retries a busy port meanwhile)
+RESTART_TIMEOUT_S = 30.0
 
 
-def parse_impair(items: list[str]) -> dict[str, str]:
-    out = {}
-    for item in items:
-        name, sep, spec = item.partition("=")
-        if not sep or not spec.strip():
-            raise argparse.ArgumentTypeError(f"--impair wants NAME=SPEC, got {item!r}")
-        out[name.strip()] = spec.strip()
-    return out
+@dataclass
+class Plan:
+    """What the command line asks of the network, checked: impairments, faults, proxied links, mesh."""
+
+    links: Links
+    impair: Impairments
+    faults: list[Resolved]
+    mesh: MeshMode
+    proxied: set[str] = field(default_factory=set)
+
+
+def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
+    """Check ``--impair``, ``--fault`` and ``--mesh`` against the run; ValueError with a one-line message."""
+    if args.uavs < 1:
+        raise ValueError(f"--uavs {args.uavs}: at least one UAV")
+    links = Links(args.uavs, ("planner", "detector", "gcs") if ground_station else ("planner", "detector"))
+    impair = parse_impair(getattr(args, "impair", None) or [], links)
+    faults = plan_faults(getattr(args, "fault", None) or [], links)
+    proxied = set(impair.links()) | cut_links(faults)
+    skynet = {link for link in proxied if link_ends(link) is not None}
+    mesh = getattr(args, "mesh", None)
+    if mesh is None:
+        mesh = "proxied" if skynet else "direct"
+    elif mesh == "direct" and skynet:
+        raise ValueError(f"--mesh direct: SkyNet link(s) {', '.join(sorted(skynet))} are impaired or faulted, "
+                         "which needs --mesh proxied")
+    if mesh == "proxied":
+        proxied |= set(links.skynet)
+    return Plan(links, impair, faults, mesh, proxied)
 
 
 class Network:
-    """The processes of one run and the endpoints each node connects to."""
+    """The processes of one run, the proxies on its links and the endpoints each node connects to.
 
-    def __init__(self, args: argparse.Namespace, echo=sys.stdout, log_dir: Path | None = None):
+    ``ground_station``: the run has an in-process GCS (``skynet mission``), whose uplink can be
+    impaired. :meth:`kill`, :meth:`restart` and :meth:`link_proxies` are what the fault injector
+    acts on.
+    """
+
+    def __init__(self, args: argparse.Namespace, echo=sys.stdout, log_dir: Path | None = None,
+                 ground_station: bool = False, plan: Plan | None = None):
         self.args = args
+        self.plan = plan or make_plan(args, ground_station)
         self.group = ProcessGroup(echo=echo)
         self.log_dir = log_dir
-        self.proxies: list = []
+        #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}
+        self.proxies: dict[str, dict] = {}
         tcp, udp = free_port_pair()
         self.gateway_endpoints = multilink_endpoints(HOST, tcp, udp)
-        self.impair = parse_impair(args.impair or [])
+        self.edge_endpoints: dict[int, list[str]] = {}
         self.epoch = time.time() + 3.0
+        self.tmp = Path(tempfile.mkdtemp(prefix="skynet-net-"))
         self.creds = None
+        self.injector: FaultInjector | None = None
         if getattr(args, "secure", False):
             from services.gateway.credentials import generate
 
             users = ["gcs", "planner", "detector", *[f"uav{i}" for i in range(1, args.uavs + 1)]]
-            self.creds = generate(tempfile.mkdtemp(prefix="skynet-creds-"), users)
+            self.creds = generate(self.tmp / "creds", users)
 
-    def endpoints_for(self, name: str) -> list[str]:
-        """Where ``name`` connects: the gateway, or impairment proxies in front of it."""
-        spec = self.impair.get(name)
-        if spec is None:
-            return self.gateway_endpoints
+    # -- links
+    def _proxy_pair(self, link: str, target: list[str]) -> list[str]:
+        """Start the TCP and UDP proxies of ``link`` in front of ``target`` (a multilink endpoint
+        pair); the endpoints to connect to instead."""
         from services.netem.proxy import TcpProxy, UdpProxy
 
-        tcp_target, udp_target = (endpoint_address(e) for e in self.gateway_endpoints)
-        tp = TcpProxy((HOST, 0), tcp_target, spec, seed=self.args.seed).start()
-        up = UdpProxy((HOST, 0), udp_target, spec, seed=self.args.seed + 1).start()
-        self.proxies += [(name, tp), (name, up)]
+        tcp_target, udp_target = (endpoint_address(e) for e in target)
+        seed = self.args.seed
+        tp = TcpProxy((HOST, 0), tcp_target, self.plan.impair.spec(link, "tcp"),
+                      seed=link_seed(seed, link, "tcp")).start()
+        self.proxies[link] = {"tcp": tp}
+        up = UdpProxy((HOST, 0), udp_target, self.plan.impair.spec(link, "udp"),
+                      seed=link_seed(seed, link, "udp")).start()
+        self.proxies[link]["udp"] = up
         return multilink_endpoints(HOST, tp.port, up.port)
+
+    def endpoints_for(self, name: str) -> list[str]:
+        """Where ``name`` connects: the gateway, or the proxies of its uplink."""
+        if name not in self.plan.proxied:
+            return self.gateway_endpoints
+        if name not in self.proxies:
+            self._proxy_pair(name, self.gateway_endpoints)
+        return multilink_endpoints(HOST, self.proxies[name]["tcp"].port, self.proxies[name]["udp"].port)
+
+    def link_proxies(self, link: str) -> list:
+        """The proxies of a link (TCP then UDP); KeyError if the link has none."""
+        if link not in self.proxies:
+            raise KeyError(f"link {link!r} has no proxies (proxied: {', '.join(sorted(self.proxies)) or 'none'})")
+        return [self.proxies[link][c] for c in CLASSES]
+
+    def proxy_stats(self) -> dict[str, dict[str, dict]]:
+        return {link: {c: p.stats() for c, p in pair.items()} for link, pair in self.proxies.items()}
 
     def bus_args(self, name: str, mode: str) -> list[str]:
         args = ["--mode", mode, "--fleet", self.args.fleet, "--multilink"]
@@ -89,6 +177,29 @@ class Network:
             args += ["--user", name]
         return args
 
+    def edge_config(self, i: int) -> list[str]:
+        """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
+        rules that keep its links on the proxies (:func:`services.topology.edge_mesh_config`)."""
+        base = json.loads(self.creds.mesh_config.read_text()) if self.creds is not None else None
+        if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied:
+            return [] if base is None else ["--config", str(self.creds.mesh_config)]
+        path = self.tmp / f"uav{i}.json5"
+        path.write_text(json.dumps(edge_mesh_config(self.plan.mesh, base)))
+        path.chmod(0o600)
+        return ["--config", str(path)]
+
+    def mesh_connect(self, i: int) -> list[str]:
+        """With the proxied mesh, edge i's ``--connect`` to the proxies in front of every edge j > i."""
+        if self.plan.mesh != "proxied":
+            return []
+        out = []
+        for j in range(i + 1, self.args.uavs + 1):
+            link = f"uav{i}-uav{j}"
+            for e in self._proxy_pair(link, self.edge_endpoints[j]):
+                out += ["--connect", e]
+        return out
+
+    # -- services
     def start_service(self, name: str, args: list[str]):
         """Start a service; with --secure its password goes in its environment, not on its command line."""
         if self.creds is not None:
@@ -124,43 +235,94 @@ class Network:
         secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
         gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure,
                                           *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
-        if not gw.wait_for("router up", 30):
+        if not gw.wait_for(READY["gateway"], 30):
             raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
         scenario = ["--scenario", a.scenario] if a.scenario else []
-        edge_secure = [] if self.creds is None else ["--config", str(self.creds.mesh_config)]
+        recovery = ["--imagery-cache", "0"] if getattr(a, "no_recovery", False) else []
+        for i in range(1, a.uavs + 1):
+            self.edge_endpoints[i] = multilink_endpoints(HOST, *free_port_pair())
         for i, home in enumerate(self.homes(a.uavs), start=1):
-            ptcp, pudp = free_port_pair()
             self.start_service(f"uav{i}", [
-                "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *edge_secure,
-                *[x for e in multilink_endpoints(HOST, ptcp, pudp) for x in ("--listen", e)],
+                "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
+                *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
-                "--seed", str(a.seed + i), "--camera", a.camera, *scenario])
+                "--seed", str(a.seed + i), "--camera", a.camera, *scenario, *recovery])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
-        self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method])
+        no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
+        self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
+                                        *no_recovery])
+
+    def start_faults(self, log: logging.Logger) -> FaultInjector | None:
+        """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
+        with the wall time AT counts from, or ``attach(runner)`` then ``start()``."""
+        if not self.plan.faults:
+            return None
+        self.injector = FaultInjector(self, self.plan.faults, log)
+        return self.injector
+
+    def kill(self, name: str) -> None:
+        """SIGKILL a service (a crash)."""
+        self.group.kill(name)
+
+    def restart(self, name: str) -> float:
+        """Start a killed service again with the same command line (same ports); the seconds until it
+        said it is up. The gateway's ports may still be held for a moment: it is retried until
+        :data:`RESTART_TIMEOUT_S`."""
+        t0 = time.monotonic()
+        ready = READY.get(name, EDGE_READY)
+        while True:
+            svc = self.group.restart(name)
+            left = RESTART_TIMEOUT_S - (time.monotonic() - t0)
+            if svc.wait_for(ready, max(left, 0.1)):
+                return time.monotonic() - t0
+            if svc.alive() or time.monotonic() - t0 > RESTART_TIMEOUT_S:
+                raise RuntimeError(f"{name} did not come back up:\n" + "\n".join(svc.lines[-10:]))
+            time.sleep(0.2)  # it exited (e.g. its port still busy): try again
 
     def check_alive(self) -> list[str]:
-        return [s.name for s in self.group.services if not s.alive()]
+        """Services that ended on their own (not those a fault killed)."""
+        return [s.name for s in self.group.services if not s.alive() and not s.killed]
 
     def stop(self) -> dict:
+        if self.injector is not None:
+            self.injector.stop()
         codes = self.group.stop()
-        for _, p in self.proxies:
-            p.stop()
-        if self.creds is not None:
-            shutil.rmtree(self.creds.users_file.parent, ignore_errors=True)
+        for pair in self.proxies.values():
+            for p in pair.values():
+                p.stop()
+        shutil.rmtree(self.tmp, ignore_errors=True)
         return codes
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=f"skynet {prog}", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog=f"skynet {prog}", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="Links: uavN, planner, detector" + (", gcs" if prog == "mission" else "")
+                                + " (uplinks to the gateway), uavI-uavJ (SkyNet), uplinks, skynet, all.\n"
+                                "Examples:\n"
+                                '  --impair "all/udp=after 2s delay 200ms loss 20%"\n'
+                                '  --impair uav2="delay 50ms jitter 10ms"   --impair uav1-uav2=loss 5%\n'
+                                '  --fault "20s kill gateway for 3s"   --fault "15s cut uplinks for 8s"\n'
+                                '  --fault "25s kill uav3"   --fault "15s partition uav1-uav2 for 10s"')
     p.add_argument("--uavs", type=int, default=3, help="number of UAVs")
     p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
     p.add_argument("--method", default="it+", help="the detector's method")
     p.add_argument("--fleet", default="demo")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--impair", action="append", default=[], metavar="NAME=SPEC",
-                   help='netem-like impairment between a node and the gateway, e.g. uav2="delay 50ms loss 2%%"')
+    p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
+    p.add_argument("--impair", action="append", default=[], metavar="NAME[/udp|/tcp]=SPEC",
+                   help="netem impairment on a link or group of links (repeatable, later wins), e.g. "
+                        'uav2="delay 50ms loss 2%%"; SPEC as in skynet netem')
+    p.add_argument("--mesh", choices=["direct", "proxied"], default=None,
+                   help="direct: edges find and dial each other by gossip; proxied: through a proxy pair per "
+                        "SkyNet link (default: proxied when a SkyNet link is impaired or faulted)")
+    p.add_argument("--no-recovery", action="store_true",
+                   help="capture frames not recoverable: no imagery cache on the edges, no recovery in the detector")
+    p.add_argument("--fault", action="append", default=[], metavar='"AT ACTION TARGET [for D]"',
+                   help="scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|"
+                        "detector" + ("|gcs" if prog == "mission" else "") + ", partition uavI-uavJ|uavN|skynet; "
+                        "AT from the " + ("mission phase" if prog == "mission" else "network start"))
     p.add_argument("--secure", action="store_true",
                    help="gateway authentication and access control, with generated per-service passwords")
     if prog == "mission":
@@ -173,17 +335,27 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     prog = argv.pop(0) if argv and argv[0] in ("up", "mission") else "up"
-    args = build_parser(prog).parse_args(argv)
+    parser = build_parser(prog)
+    args = parser.parse_args(argv)
+    try:
+        plan = make_plan(args, ground_station=prog == "mission")
+    except ValueError as e:
+        parser.error(str(e))
     log = setup_logging(prog)
     stop = stop_event_on_signals()
     if prog == "up":
-        net = Network(args)
+        net = Network(args, plan=plan)
         try:
             net.start()
             log.info("network up: gateway at %s; Ctrl-C to stop", " ".join(net.gateway_endpoints))
+            for link in sorted(net.proxies):
+                log.info("proxies on %s: tcp %s, udp %s", link, *(net.proxies[link][c].port for c in CLASSES))
             if net.creds is not None:
                 log.info("authentication and access control on; users file (passwords) in %s",
                          net.creds.users_file.parent)
+            injector = net.start_faults(log)
+            if injector is not None:
+                injector.start(origin=time.time())
             while not stop.wait(1.0):
                 dead = net.check_alive()
                 if dead:
@@ -193,27 +365,37 @@ def main(argv: list[str] | None = None) -> int:
             codes = net.stop()
             log.info("stopped: %s", codes)
         return 0
-    return run_mission(args, log, stop)
+    return run_mission(args, log, stop, plan)
 
 
-def run_mission(args: argparse.Namespace, log: logging.Logger, stop) -> int:
+def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan | None = None) -> int:
     from services.gcs.cli import run_mission as gcs_mission
-    from services.planner.scenario import load_scenario_document
     from services.gcs.mission import MissionOptions
+    from services.planner.scenario import load_scenario_document
 
     out = Path(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)
     log_file = open(out / "services.log", "w")
-    net = Network(args, echo=log_file)
+    net = Network(args, echo=log_file, ground_station=True, plan=plan)
     scenario = load_scenario_document(args.scenario)
     try:
         net.start()
         cfg = net.gcs_config()
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                                  speed=args.speed)
+        hooks = {}
+        injector = net.start_faults(log)
+        if injector is not None:
+            def on_runner(runner) -> None:
+                injector.attach(runner)
+                injector.start()
+
+            hooks["on_runner"] = on_runner
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
             code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
-                               ground_truth=args.camera == "synthetic")
+                               ground_truth=args.camera == "synthetic", **hooks)
+        if net.proxies:
+            (out / "proxies.json").write_text(json.dumps(net.proxy_stats(), indent=1))
     finally:
         net.stop()
         log_file.close()

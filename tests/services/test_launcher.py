@@ -97,3 +97,37 @@ def test_impairment_proxy_on_one_uav_delays_only_its_link():
     finally:
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["up", "--impair", "uav9=loss 5%"], "uav9"),
+    (["up", "--impair", "gcs=loss 5%"], "gcs"),
+    (["mission", "--impair", "uav1/sctp=loss 5%"], "sctp"),
+    (["mission", "--impair", "skynet=loss 5%", "--mesh", "direct"], "--mesh proxied"),
+    (["mission", "--fault", "3s kill gcs"], "gcs"),
+    (["mission", "--fault", "3 kill gateway"], "'3'"),
+    (["up", "--fault", "3s partition uav1-uav5 for 2s"], "uav5"),
+])
+def test_bad_links_and_faults_are_one_line_errors(argv, needle):
+    proc = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "error:" in last and needle in last, proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_no_recovery_reaches_the_edges_and_the_detector():
+    from services.launcher import Network, build_parser
+
+    net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "norec", "--no-recovery", "--uavs", "2"]),
+                  echo=None)
+    try:
+        net.start()
+        for name, ready, flag in [("uav1", "board up", "--imagery-cache"), ("uav2", "board up", "--imagery-cache"),
+                                  ("detector", "detector up", "--no-recovery")]:
+            svc = net.group.get(name)
+            assert flag in svc.args and (flag != "--imagery-cache" or svc.args[svc.args.index(flag) + 1] == "0")
+            assert svc.wait_for(ready, 30), "\n".join(svc.lines[-20:])
+        assert net.check_alive() == []
+    finally:
+        net.stop()

@@ -1,0 +1,177 @@
+"""The launcher's links with real processes (issue 7): SkyNet through proxies, faults on a running network.
+
+Each test starts a whole ``skynet up``-like :class:`~services.launcher.Network` in this process (gateway,
+three edges, planner, detector as child processes; the proxies in this process) and watches it from a
+probe client session on the gateway, as a ground station would. Edges' ``neighbours`` (states heard over
+SkyNet) and their ``neighbour-up``/``neighbour-lost`` log lines (liveliness) tell what each edge sees.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import pytest
+
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.links import TELEMETRY
+from protocol.messages import Hold, VehicleState
+from services.launcher import Network, build_parser
+from tests.conftest import wait_until
+
+#: the edges' link lease (edge.board: --lease defaults to 2 s)
+EDGE_LEASE_S = 2.0
+
+
+class Probe:
+    """A client session on the gateway: the latest state of each UAV and the UAVs' liveliness."""
+
+    def __init__(self, endpoints: list[str], fleet: str):
+        self.fleet = fleet
+        self.bus = Bus(BusConfig(mode="client", connect=endpoints, multilink=True), fleet, "probe")
+        self.lock = threading.Lock()
+        self.last: dict[int, tuple[int, float]] = {}  # uav -> (neighbours, rx wall time)
+        self.alive: dict[int, bool] = {}
+        self.bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY)
+        self.bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
+
+    def _on_state(self, msg, sample) -> None:
+        with self.lock:
+            self.last[msg.uav] = (msg.neighbours, time.time())
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        self.alive[keys.parse(key).uav] = alive
+
+    def fresh(self, uav: int, within: float = 0.5) -> bool:
+        with self.lock:
+            got = self.last.get(uav)
+        return got is not None and time.time() - got[1] < within
+
+    def neighbours(self, uav: int) -> int | None:
+        """What uav says it hears over SkyNet, if its state is fresh."""
+        with self.lock:
+            got = self.last.get(uav)
+        return got[0] if got is not None and time.time() - got[1] < 0.5 else None
+
+    def answered(self, uav: int) -> bool:
+        """A command reaches the edge and comes back (any reply from the board, even a refusal)."""
+        r = self.bus.request(keys.cmd(self.fleet, uav), Hold(uav=uav, cmd_id=1), timeout=1.0)
+        return r.ok or not (r.error.startswith("no reply") or r.error.startswith("query failed")
+                            or "Timeout" in r.error)
+
+    def close(self) -> None:
+        self.bus.close()
+
+
+def network(fleet: str, *extra: str) -> Network:
+    args = build_parser("up").parse_args(["--speed", "8", "--fleet", fleet, "--camera", "none", *extra])
+    return Network(args, echo=None)
+
+
+def lines(net: Network, name: str, text: str) -> list[str]:
+    return [ln for ln in list(net.group.get(name).lines) if text in ln]
+
+
+@pytest.fixture
+def running():
+    """Start a network (``running(fleet, *args)``) with a probe on its gateway; both stopped after the test."""
+    started: list[tuple[Network, Probe]] = []
+
+    def start(fleet: str, *extra: str) -> tuple[Network, Probe]:
+        net = network(fleet, *extra)
+        started.append((net, None))
+        net.start()
+        probe = Probe(net.gateway_endpoints, fleet)
+        started[-1] = (net, probe)
+        return net, probe
+
+    yield start
+    for net, probe in started:
+        if probe is not None:
+            probe.close()
+        net.stop()
+
+
+def test_proxied_skynet_carries_the_mesh_and_a_cut_separates_two_edges(running):
+    net, probe = running("topo", "--mesh", "proxied")
+    assert net.plan.mesh == "proxied" and set(net.proxies) == {"uav1-uav2", "uav1-uav3", "uav2-uav3"}
+    # every edge hears both others over SkyNet (states) and saw them join (liveliness)
+    assert wait_until(lambda: all(probe.neighbours(u) == 2 for u in (1, 2, 3)), 30), probe.last
+    for u in (1, 2, 3):
+        for v in {1, 2, 3} - {u}:
+            assert wait_until(lambda u=u, v=v: lines(net, f"uav{u}", f"UAV {v} joined SkyNet"), 5), (u, v)
+    # all edge-edge traffic crosses the proxies, on both the reliable (TCP) and best-effort (UDP) link:
+    # states are best-effort, so UDP carries most of it once zenoh's UDP links are open
+    def both_ways(link: str, cls: str, least: int) -> bool:
+        st = net.proxies[link][cls].stats()
+        return st["up"]["sent_bytes"] > least and st["down"]["sent_bytes"] > least
+
+    for link in net.proxies:
+        assert wait_until(lambda link=link: both_ways(link, "udp", 5000), 15), (link, net.proxies[link]["udp"].stats())
+        assert both_ways(link, "tcp", 100), (link, net.proxies[link]["tcp"].stats())
+
+    # cut uav1-uav2: the two lose each other (the gateway does not relay between peers), uav3 keeps both,
+    # and both still reach the gateway
+    for p in net.link_proxies("uav1-uav2"):
+        p.cut()
+    assert wait_until(lambda: probe.neighbours(1) == 1 and probe.neighbours(2) == 1, 10), probe.last
+    assert wait_until(lambda: lines(net, "uav1", "UAV 2 left SkyNet") and lines(net, "uav2", "UAV 1 left SkyNet"),
+                      3 * EDGE_LEASE_S)
+    time.sleep(1.0)
+    assert probe.neighbours(1) == 1 and probe.neighbours(2) == 1 and probe.neighbours(3) == 2, probe.last
+    assert probe.fresh(1) and probe.fresh(2) and probe.answered(1) and probe.answered(2)
+    # healed: they find each other again through the same proxies
+    t0 = time.monotonic()
+    for p in net.link_proxies("uav1-uav2"):
+        p.restore()
+    assert wait_until(lambda: all(probe.neighbours(u) == 2 for u in (1, 2, 3)), 30), probe.last
+    print(f"\nSkyNet link uav1-uav2 healed: states shared again {time.monotonic() - t0:.2f} s after the restore")
+
+
+def test_gateway_killed_and_restarted_on_the_same_ports(running):
+    net, probe = running("gwkill", "--fault", "0s kill gateway for 2s")
+    assert wait_until(lambda: all(probe.neighbours(u) == 2 for u in (1, 2, 3)), 30), probe.last
+    gw_pid = net.group.get("gateway").proc.pid
+    injector = net.start_faults(logging.getLogger("test"))
+    injector.start(origin=time.time())
+    assert wait_until(lambda: len(injector.ledger) == 1, 5)
+    assert not net.group.get("gateway").alive()
+    # while the gateway is down, the edges keep flying over SkyNet
+    time.sleep(1.0)
+    assert not any(probe.fresh(u) for u in (1, 2, 3))
+    assert all(lines(net, f"uav{u}", "left SkyNet") == [] for u in (1, 2, 3))
+    assert wait_until(lambda: len(injector.ledger) == 2, 40), injector.ledger
+    restarted = time.monotonic()
+    gw = net.group.get("gateway")
+    assert gw.alive() and gw.proc.pid != gw_pid and gw.restarts == 1
+    assert injector.ledger[1][1] == "restart" and "up again" in injector.ledger[1][3]
+    # the edges and the client session see each other again, through the same endpoints
+    assert wait_until(lambda: all(probe.fresh(u, 0.3) and probe.neighbours(u) == 2 for u in (1, 2, 3)), 30)
+    assert all(wait_until(lambda u=u: probe.answered(u), 30) for u in (1, 2, 3))
+    print(f"\ngateway restart: {injector.ledger[1][3]}; fleet seen by the client again "
+          f"{time.monotonic() - restarted:.2f} s after it was up")
+    assert net.check_alive() == []
+
+
+def test_killed_edge_is_seen_gone_within_its_lease_and_comes_back(running):
+    net, probe = running("edgekill", "--fault", "0s kill uav3 for 3s")
+    assert wait_until(lambda: all(probe.neighbours(u) == 2 for u in (1, 2, 3)), 30), probe.last
+    assert wait_until(lambda: probe.alive.get(3) is True, 5)
+    injector = net.start_faults(logging.getLogger("test"))
+    injector.start(origin=time.time())
+    assert wait_until(lambda: injector.ledger, 5)
+    killed = time.monotonic()
+    assert wait_until(lambda: lines(net, "uav1", "UAV 3 left SkyNet") and lines(net, "uav2", "UAV 3 left SkyNet")
+                      and probe.alive.get(3) is False, EDGE_LEASE_S + 3.0)
+    print(f"\nuav3 killed: seen gone by uav1, uav2 and the client within {time.monotonic() - killed:.2f} s "
+          f"(lease {EDGE_LEASE_S} s)")
+    assert net.check_alive() == []  # killed on purpose is not a failure
+    assert wait_until(lambda: probe.neighbours(1) == 1 and probe.neighbours(2) == 1, 5), probe.last
+    # restarted with the same command line: back on SkyNet and on the gateway
+    assert wait_until(lambda: len(injector.ledger) == 2, 40), injector.ledger
+    back = time.monotonic()
+    assert wait_until(lambda: all(probe.neighbours(u) == 2 for u in (1, 2, 3)), 30), probe.last
+    assert probe.alive.get(3) is True
+    print(f"uav3 restarted ({injector.ledger[1][3]}): mesh whole again {time.monotonic() - back:.2f} s later")
