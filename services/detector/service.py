@@ -13,6 +13,13 @@ recovered is counted (``imagery.unrecovered``). ``--no-recovery`` subscribes pla
 frame the link loses stays lost. Live preview frames (``uav/<id>/preview``) are not analysed:
 the camera wildcard does not match them.
 
+Each camera opens its stream with an empty "announce" frame (:meth:`edge.runtime.CameraLink.announce`)
+so that Zenoh's recovery sees a lost first capture as a gap like any other. The detector drops it
+on arrival (``count.announce``): it is not a capture, and it often arrives seconds after it was
+sent (fetched from the cache when the detector starts), which would spoil the jitter figure.
+So without recovery a lost *first* capture of a camera is not counted ``lost`` (the jitter
+buffer starts at the first capture it sees); the report's coverage still misses it.
+
 Statistics go out once a second on ``skynet/<fleet>/rcu/detector/stats``; per camera
 (``uav<N>.cam<C>.<name>``): ``received``, ``delivered``, ``lost``, ``duplicated``,
 ``reordered``, ``jitter_ms`` (RFC 3550 A.8 interarrival jitter), ``fraction_lost`` as the jitter
@@ -88,6 +95,9 @@ class DetectorService:
             if self.counts["bad-rtp"] == 1 and self.log:
                 self.log.warning("dropping a sample that is not an RTP frame: %s", exc)
             return
+        if len(payload) == 0:  # a camera's announce frame (edge.runtime.CameraLink.announce)
+            self.counts["announce"] += 1
+            return
         self.counts["frames"] += 1
         with self._lock:
             if self.recovery is not None:
@@ -99,9 +109,11 @@ class DetectorService:
     def _on_live(self, sample) -> None:
         """The live path (recovery on): note which frames the link delivered the first time."""
         try:
-            header, _ = unpack_frame(sample.payload.to_bytes())
+            header, payload = unpack_frame(sample.payload.to_bytes())
         except RtpError:
             return  # counted once, by _on_frame
+        if len(payload) == 0:
+            return  # an announce frame: not a capture
         with self._lock:
             self.recovery.live(header.ssrc, header.sequence, time.time())
 

@@ -12,8 +12,14 @@ import numpy as np
 import pytest
 
 from edge.camera import decode_jpeg
-from edge.runtime import (IMAGERY_CACHE_FRAMES, PREVIEW_CAMERA, PREVIEW_SIZE, cache_frames, make_camera,
-                          preview_rate)
+from edge.runtime import (
+    IMAGERY_CACHE_FRAMES,
+    PREVIEW_CAMERA,
+    PREVIEW_SIZE,
+    cache_frames,
+    make_camera,
+    preview_rate,
+)
 from edge.vehicle.driver import CaptureEvent
 from protocol import keys
 from protocol.bus import Bus, BusConfig
@@ -26,7 +32,7 @@ log = logging.getLogger("test-runtime")
 
 
 def _args(**kw) -> argparse.Namespace:
-    base = dict(camera="synthetic", frame_size="640x480", scenario=None, uav=3)
+    base = {"camera": "synthetic", "frame_size": "640x480", "scenario": None, "uav": 3}
     return argparse.Namespace(**{**base, **kw})
 
 
@@ -49,7 +55,7 @@ def test_preview_is_small_rate_limited_best_effort_and_apart_from_captures(gatew
     got_cam, got_preview = [], []
     cfg = BusConfig(mode="client", connect=gateway, multilink=True)
     with Bus(cfg, FLEET, "ground") as ground, Bus(cfg, FLEET, "uav3") as edge:
-        ground.subscribe_raw(keys.camera(FLEET, "*"), got_cam.append)
+        ground.subscribe_raw(keys.camera(FLEET, "*"), got_cam.append, recover=True)  # as the detector does
         ground.subscribe_raw(keys.preview(FLEET, "*"), got_preview.append)
         cam = make_camera(_args(preview_hz=5.0), edge, log)
         try:
@@ -63,11 +69,16 @@ def test_preview_is_small_rate_limited_best_effort_and_apart_from_captures(gatew
             queued = sum(cam.preview(pos, att, 0.02 * i, t0 + 0.02 * i) for i in range(60))
             assert queued == 6
             assert wait_until(lambda: len(got_preview) >= 1, 10)
+            assert wait_until(lambda: len(got_cam) == 1, 10)  # the announce (live, or from the cache)
             cam.capture(CaptureEvent(capture_id=4, t=1.0, pos=pos, att=att), time.time())
-            assert wait_until(lambda: len(got_cam) == 1, 10)
+            assert wait_until(lambda: len(got_cam) == 2, 10)
         finally:
             cam.close()
-    uav, camera, meta, img = _decode(got_cam[0])
+    # the stream opens with an empty announce frame (so that a lost first capture is a gap), then the capture
+    first, _ = unpack_frame(got_cam[0].payload.to_bytes())
+    assert len(_) == 0 and not first.marker and parse_ssrc(first.ssrc) == (3, 0)
+    uav, camera, meta, img = _decode(got_cam[1])
+    assert unpack_frame(got_cam[1].payload.to_bytes())[0].sequence == (first.sequence + 1) & 0xFFFF
     assert (uav, camera, meta.capture_id, img.shape) == (3, 0, 4, (480, 640))
     assert 1 <= len(got_preview) <= 6  # offers that come faster than the worker renders replace each other
     for s in got_preview:

@@ -1,0 +1,191 @@
+"""``skynet experiment``: the mission over a grid of link conditions; a table and plots of what held up.
+
+    skynet experiment --loss 0,5,20,40 --delay 0,50,200 [--jitter 0,20] [--repeat N] [--recovery on,off]
+                      [--links all/udp] [--speed 6] [--uavs 3] [--seed S] [--out DIR] [--timeout 300]
+                      [--dry-run]
+
+Every cell of the grid (:mod:`services.experiment.grid`) is flown ``--repeat`` times, each run a
+``skynet mission`` process with ``--impair "<links>=after 2s delay Dms jitter Jms loss L%"``
+(``--no-recovery`` when recovery is off) and seed ``seed + repeat`` (the same seeds in every
+cell). A run that does not end within ``--timeout`` seconds is stopped and recorded as hung
+(:mod:`services.experiment.runner`); the experiment goes on. Then, in ``--out``:
+
+- ``results.json``: the grid, each cell's figures (mean/min/max over its runs,
+  :func:`services.experiment.metrics.aggregate`) and every run's figures, status and command;
+- ``results.md``: the table (also printed) and the metric definitions;
+- ``coverage.png``, ``imagery.png``, ``telemetry.png``, ``commands.png``
+  (:mod:`services.experiment.plots`);
+- ``runs/<cell>-r<k>/``: each mission's own report and logs.
+
+Exit status: 0 when every run left a report (missions that failed are results, not errors), 1
+when a run hung or crashed without a report, 2 on bad options, 130 when interrupted (what ran
+is still written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from .grid import (
+    Cell,
+    Run,
+    check_links,
+    expand,
+    impair_spec,
+    mission_command,
+    parse_list,
+    parse_recovery,
+    plan,
+)
+from .metrics import METRICS, aggregate
+from .runner import RunResult, run_all
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="skynet experiment", description=__doc__.split("\n\n")[0])
+    p.add_argument("--loss", default="0,5,20,40", help="random loss values, %% (default 0,5,20,40)")
+    p.add_argument("--delay", default="0,50,200", help="one-way delay values, ms (default 0,50,200)")
+    p.add_argument("--jitter", default="0", help="jitter values, ms (default 0)")
+    p.add_argument("--recovery", default="on", help="imagery recovery: on, off or on,off (default on)")
+    p.add_argument("--repeat", type=int, default=1, help="runs per cell (default 1)")
+    p.add_argument("--links", default="all/udp",
+                   help="impaired links, in the launcher's --impair names (default all/udp: every best-effort link)")
+    p.add_argument("--speed", type=float, default=6.0, help="simulation speed factor (default 6)")
+    p.add_argument("--uavs", type=int, default=3)
+    p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
+    p.add_argument("--seed", type=int, default=0, help="run k of every cell uses seed + k")
+    p.add_argument("--out", default=None, help="results folder (default reports/experiment-<time>)")
+    p.add_argument("--timeout", type=float, default=300.0, help="wall-clock limit of one run, s (then: hung)")
+    p.add_argument("--dry-run", action="store_true", help="print the mission commands and stop")
+    return p
+
+
+def _check(args: argparse.Namespace) -> tuple[list[Cell], list[Run]]:
+    """The grid and runs of the options; ValueError with a one-line message."""
+    loss = parse_list(args.loss, "--loss", hi=100.0)
+    delay = parse_list(args.delay, "--delay", hi=60_000.0)
+    jitter = parse_list(args.jitter, "--jitter", hi=60_000.0)
+    recovery = parse_recovery(args.recovery)
+    if args.uavs < 1 or args.uavs > 255:
+        raise ValueError(f"--uavs must be in 1..255, got {args.uavs}")
+    if not (args.speed > 0 and args.speed < 1000):
+        raise ValueError(f"--speed must be in (0, 1000), got {args.speed}")
+    if not args.timeout > 0:
+        raise ValueError(f"--timeout must be > 0 s, got {args.timeout}")
+    args.links = check_links(args.links, args.uavs)
+    cells = expand(loss, delay, jitter, recovery)
+    return cells, plan(cells, args.repeat, args.seed)
+
+
+def summarise(args: argparse.Namespace, cells: list[Cell], results: list[RunResult], started: float,
+              interrupted: bool = False) -> dict[str, Any]:
+    """results.json's content."""
+    rows = []
+    for cell in cells:
+        mine = [r.as_dict() for r in results if r.run.cell == cell]
+        if mine:
+            rows.append({"cell": cell.as_dict(), "name": cell.name, "label": cell.label,
+                         "impair": impair_spec(cell, args.links), **aggregate(mine)})
+    return {
+        "experiment": {"loss_pct": sorted({c.loss_pct for c in cells}), "delay_ms": sorted({c.delay_ms for c in cells}),
+                       "jitter_ms": sorted({c.jitter_ms for c in cells}),
+                       "recovery": sorted({c.recovery for c in cells}, reverse=True), "repeat": args.repeat,
+                       "seed": args.seed, "links": args.links, "speed": args.speed, "uavs": args.uavs,
+                       "scenario": args.scenario, "timeout_s": args.timeout, "started": started,
+                       "ended": time.time(), "interrupted": interrupted,
+                       "runs_planned": len(cells) * args.repeat, "runs_done": len(results)},
+        "metrics": {k: {"unit": u, "description": d} for k, (u, d) in METRICS.items()},
+        "cells": rows,
+        "runs": [r.as_dict() for r in results],
+    }
+
+
+def write_results(doc: dict[str, Any], out: Path) -> str:
+    """results.json, results.md and the plots; returns the table."""
+    from .plots import write_plots
+    from .table import markdown
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(doc, indent=1))
+    table = markdown(doc["cells"])
+    e = doc["experiment"]
+    plots = write_plots(doc["cells"], out) if doc["cells"] else []
+    md = [
+        "# Experiment: the mission under impaired links", "",
+        (f"Impaired links: `{e['links']}` (from 2 s after each proxy starts); speed x{e['speed']:g}, "
+         f"{e['uavs']} UAVs, {e['repeat']} run(s) per cell, seeds {e['seed']}..{e['seed'] + e['repeat'] - 1}; "
+         f"{e['runs_done']} of {e['runs_planned']} runs done{' (interrupted)' if e['interrupted'] else ''}."), "",
+        table, "",
+        "Figures are means over the runs of a cell, with (min-max) when they differ. Definitions:", "",
+        *[f"- `{k}`: {d}{f' ({u})' if u else ''}" for k, (u, d) in METRICS.items()],
+        ("- *lost*: capture frames whose sequence number the detector's jitter buffer gave up; *late*: frames "
+         "that arrived after that; *recovered*: frames the live best-effort path lost that reached the "
+         "detector through recovery (the cameras' caches)."), "",
+        *[f"![{p}]({p})" for p in plots],
+    ]
+    (out / "results.md").write_text("\n".join(md) + "\n")
+    return table
+
+
+def run_experiment(args: argparse.Namespace, cells: list[Cell], runs: list[Run], out: Path,
+                   echo=None) -> tuple[dict[str, Any], int]:
+    """Fly every run, write the results; (results.json content, exit status). ``echo``: default stdout."""
+    echo = echo or sys.stdout
+    started = time.time()
+    results: list[RunResult] = []
+
+    def command_of(run: Run, folder: Path) -> list[str]:
+        return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs,
+                               scenario=args.scenario)
+
+    def progress(res: RunResult, i: int, n: int) -> None:
+        results.append(res)
+        m = res.metrics
+        cov = m.get("coverage")
+        print(f"[{i + 1}/{n}] {res.run.cell.label}, seed {res.run.seed}: {res.status}, "
+              f"success {int(m.get('success') or 0)}, coverage {'-' if cov is None else f'{100 * cov:.0f}%'}, "
+              f"{res.wall_s:.0f} s", file=echo, flush=True)
+
+    interrupted = False
+    try:
+        run_all(runs, command_of, out, args.timeout, on_result=progress, cwd=str(REPO))
+    except KeyboardInterrupt:
+        interrupted = True
+        print("interrupted: writing what ran", file=echo, flush=True)
+    doc = summarise(args, cells, results, started, interrupted)
+    table = write_results(doc, out)
+    print("\n" + table + "\n", file=echo)
+    print(f"results: {out / 'results.md'} (and results.json, plots)", file=echo, flush=True)
+    if interrupted:
+        return doc, 130
+    return doc, 0 if all(r.status == "ok" for r in results) else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        cells, runs = _check(args)
+    except ValueError as e:
+        print(f"skynet experiment: error: {e}", file=sys.stderr)
+        return 2
+    out = Path(args.out or f"reports/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
+    if args.dry_run:
+        for run in runs:
+            print(shlex.join(mission_command(run, str(out / "runs" / run.name), links=args.links, speed=args.speed,
+                                             uavs=args.uavs, scenario=args.scenario)))
+        return 0
+    print(f"{len(runs)} runs ({len(cells)} cells x {args.repeat}) into {out}", flush=True)
+    return run_experiment(args, cells, runs, out)[1]
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

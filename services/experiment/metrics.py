@@ -1,0 +1,168 @@
+"""What an experiment measures per run, read from the mission's ``report.json``, and per cell (pure).
+
+Every figure comes from the ground station's report (:mod:`services.gcs.report`), so an
+experiment measures exactly what a single mission reports. Per run (:data:`METRICS`):
+
+=========================  ===================================================================
+success                    1 when the mission succeeded (every UAV reached the goal, every
+                           capture point imaged), else 0; a hung run (killed at the timeout) 0
+coverage                   capture points imaged / planned (``captures.ratio``): an ``ok``
+                           defect report came back for the capture
+cmd_ack_ratio              commands acknowledged / sent (``links.command.ratio``)
+cmd_ack_p50_ms, _p95_ms    acknowledgement round trip (``links.command.latency_ms``)
+cmd_failed                 commands sent but not acknowledged (reported failed, never silent)
+telemetry_ratio            vehicle states received / sent (sequence numbers)
+telemetry_age_p50_ms, p95  state age at the ground station, receive - publish stamp
+img_delivered              capture frames the detector's jitter buffer played out
+img_lost                   sequence numbers given up (never delivered)
+img_late                   frames that came after their number was given up (dropped)
+img_recovered              frames that reached the detector only through recovery
+img_jitter_ms              RFC 3550 interarrival jitter, the largest over the cameras
+capture_to_report_p95_ms   capture to defect report (includes any recovery wait)
+formation_rms_m, max_m     formation shape error during the mission phase
+defects_found, _planted    ground-truth defects found (within tolerance) / planted
+defect_recall, _precision  of the defect reports against the ground truth
+wall_s                     the run's wall time (the mission process, start to exit)
+=========================  ===================================================================
+
+Per cell, :func:`aggregate` gives each metric's mean, min and max over the runs that have it,
+and counts the runs, the successes and the hung runs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
+
+__all__ = ["METRICS", "aggregate", "run_metrics"]
+
+#: metric name -> (unit, description); the order of tables and results.json
+METRICS: dict[str, tuple[str, str]] = {
+    "success": ("", "mission succeeded"),
+    "coverage": ("", "capture points imaged / planned"),
+    "captures_imaged": ("", "capture points imaged"),
+    "captures_planned": ("", "capture points planned"),
+    "cmd_ack_ratio": ("", "commands acknowledged / sent"),
+    "cmd_ack_p50_ms": ("ms", "command acknowledgement p50"),
+    "cmd_ack_p95_ms": ("ms", "command acknowledgement p95"),
+    "cmd_failed": ("", "commands not acknowledged"),
+    "telemetry_ratio": ("", "states received / sent"),
+    "telemetry_age_p50_ms": ("ms", "telemetry age p50"),
+    "telemetry_age_p95_ms": ("ms", "telemetry age p95"),
+    "img_delivered": ("", "capture frames delivered"),
+    "img_lost": ("", "capture frames lost"),
+    "img_late": ("", "capture frames late"),
+    "img_recovered": ("", "capture frames recovered"),
+    "img_jitter_ms": ("ms", "RFC 3550 jitter (largest camera)"),
+    "capture_to_report_p95_ms": ("ms", "capture to report p95"),
+    "formation_rms_m": ("m", "formation error RMS"),
+    "formation_max_m": ("m", "formation error max"),
+    "defects_found": ("", "defects found"),
+    "defects_planted": ("", "defects planted"),
+    "defect_recall": ("", "defect recall"),
+    "defect_precision": ("", "defect precision"),
+    "wall_s": ("s", "run wall time"),
+}
+
+
+def _get(d: Any, *path: str) -> Any:
+    for p in path:
+        if not isinstance(d, Mapping) or p not in d:
+            return None
+        d = d[p]
+    return d
+
+
+def _num(x: Any) -> float | None:
+    if isinstance(x, bool):
+        return float(x)
+    if isinstance(x, (int, float)) and math.isfinite(x):
+        return float(x)
+    return None
+
+
+def _camera_sum(imagery: Mapping[str, Any], name: str) -> float | None:
+    values = [_num(_get(m, name)) for m in imagery.values()]
+    values = [v for v in values if v is not None]
+    return float(sum(values)) if values else None
+
+
+def run_metrics(report: Mapping[str, Any] | None, wall_s: float | None = None, hung: bool = False
+                ) -> dict[str, float | None]:
+    """The :data:`METRICS` of one run from its ``report.json`` (None or {} when there is none).
+
+    A figure the report does not have is None (e.g. no imagery statistics reached the ground
+    station); a run without a report has ``success`` 0 and nothing else; a hung run (stopped at
+    the timeout) has ``success`` 0 and whatever the report it left says.
+    """
+    out: dict[str, float | None] = dict.fromkeys(METRICS)
+    out["wall_s"] = _num(wall_s)
+    if not report:
+        out["success"] = 0.0
+        return out
+    r = report
+    out["success"] = 1.0 if r.get("success") is True and not hung else 0.0
+    out["coverage"] = _num(_get(r, "captures", "ratio"))
+    out["captures_imaged"] = _num(_get(r, "captures", "imaged"))
+    out["captures_planned"] = _num(_get(r, "captures", "planned"))
+    cmd = _get(r, "links", "command") or {}
+    out["cmd_ack_ratio"] = _num(cmd.get("ratio"))
+    out["cmd_ack_p50_ms"] = _num(_get(cmd, "latency_ms", "p50"))
+    out["cmd_ack_p95_ms"] = _num(_get(cmd, "latency_ms", "p95"))
+    sent, ok = _num(cmd.get("sent")), _num(cmd.get("delivered"))
+    out["cmd_failed"] = sent - ok if sent is not None and ok is not None else None
+    tel = _get(r, "links", "telemetry") or {}
+    out["telemetry_ratio"] = _num(tel.get("ratio"))
+    out["telemetry_age_p50_ms"] = _num(_get(tel, "latency_ms", "p50"))
+    out["telemetry_age_p95_ms"] = _num(_get(tel, "latency_ms", "p95"))
+    imagery = r.get("imagery") or {}
+    if isinstance(imagery, Mapping) and imagery:
+        out["img_delivered"] = _camera_sum(imagery, "delivered")
+        out["img_lost"] = _camera_sum(imagery, "lost")
+        out["img_late"] = _camera_sum(imagery, "late")
+        out["img_recovered"] = _camera_sum(imagery, "recovered")
+        jit = [_num(_get(m, "jitter_ms")) for m in imagery.values()]
+        jit = [j for j in jit if j is not None]
+        out["img_jitter_ms"] = max(jit) if jit else None
+    out["capture_to_report_p95_ms"] = _num(_get(r, "links", "imagery", "latency_ms", "p95"))
+    out["formation_rms_m"] = _num(_get(r, "formation", "rms_m"))
+    out["formation_max_m"] = _num(_get(r, "formation", "max_m"))
+    out["defects_found"] = _num(_get(r, "defects", "n_found"))
+    out["defects_planted"] = _num(_get(r, "defects", "n_truth"))
+    out["defect_recall"] = _num(_get(r, "defects", "recall"))
+    out["defect_precision"] = _num(_get(r, "defects", "precision"))
+    return out
+
+
+def _stats(values: Sequence[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    return {"mean": sum(values) / len(values), "min": min(values), "max": max(values), "n": len(values)}
+
+
+def aggregate(runs: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """One cell's figures from its runs (each ``{"status": ..., "metrics": {...}}``).
+
+    Returns ``{"runs", "succeeded", "hung", "failed_to_report", "metrics": {name: {mean, min, max, n}
+    or None}}``; a metric's statistics cover the runs that have it.
+
+    Examples
+    --------
+    >>> a = aggregate([{"status": "ok", "metrics": {"success": 1.0, "coverage": 1.0}},
+    ...                {"status": "hung", "metrics": {"success": 0.0, "coverage": None}}])
+    >>> a["runs"], a["succeeded"], a["hung"], a["metrics"]["success"]["mean"], a["metrics"]["coverage"]["n"]
+    (2, 1, 1, 0.5, 1)
+    """
+    runs = list(runs)
+    metrics: dict[str, Any] = {}
+    for name in METRICS:
+        vals = [v for r in runs if (v := _num((r.get("metrics") or {}).get(name))) is not None]
+        metrics[name] = _stats(vals)
+    return {
+        "runs": len(runs),
+        "succeeded": sum(1 for r in runs if _num((r.get("metrics") or {}).get("success")) == 1.0),
+        "hung": sum(1 for r in runs if r.get("status") == "hung"),
+        "failed_to_report": sum(1 for r in runs if r.get("status") == "no-report"),
+        "metrics": metrics,
+    }
