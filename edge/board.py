@@ -82,6 +82,7 @@ class Board:
         self.seq = 0
         self.last_heartbeat: float | None = None
         self.failsafe_active = False
+        self.failsafe_since: float | None = None  # wall time the failsafe began
         self.trajectory = None
         self.follower = None
         fleet = bus.fleet
@@ -154,8 +155,12 @@ class Board:
             d.hold()
         elif isinstance(cmd, Resume):
             if self.failsafe_active:
-                self.failsafe_active = False
-                self.event("failsafe-cleared", "resumed by command")
+                # the "failsafe" event may have been lost with the link that caused it: this one
+                # says again when it began, for the report's failsafe -> resume time
+                since = self.failsafe_since or time.time()
+                self.failsafe_active, self.failsafe_since = False, None
+                self.event("failsafe-cleared", f"resumed by command after {time.time() - since:.1f} s of failsafe",
+                           since=round(since, 3), held_s=round(time.time() - since, 3))
             d.resume()
         elif isinstance(cmd, ReturnToLaunch):
             d.return_to_launch()
@@ -220,6 +225,7 @@ class Board:
         if silent <= self.opt.failsafe_timeout_s:
             return
         self.failsafe_active = True
+        self.failsafe_since = now_wall
         action = self.opt.failsafe_action
         try:
             {"hold": self.driver.hold, "land": self.driver.land, "rtl": self.driver.return_to_launch}[action]()

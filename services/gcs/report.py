@@ -1186,11 +1186,15 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
         md += ["Lost at the end (not waited for; their capture points not imaged): "
                + ", ".join(f"UAV {u}" for u in f["still_lost"]) + ".", ""]
     if f["failsafes"] or f["resumes"]:
-        rows = [[_fmt(x["t_s"], 1, " s"), x["uav"], f"failsafe: {x['action']}",
-                 f"no heartbeat for {_fmt(x['silent_s'], 1, ' s')}"] for x in f["failsafes"]]
-        rows += [[_fmt(x["t_s"], 1, " s"), x["uav"], "resume" if x["ok"] else "resume failed",
-                  f"{_fmt(x['after_failsafe_s'], 1, ' s')} after its failsafe"] for x in f["resumes"]]
-        md += ["Failsafes and resumes:", "", _table(["t", "UAV", "what", "detail"], sorted(rows, key=lambda r: r[0])), ""]
+        rows = [(x["t_s"], [x["uav"], "failsafe" + (f": {x['action']}" if x["action"] else ""),
+                            f"no heartbeat for {_fmt(x['silent_s'], 1, ' s')}" if x["rx_s"] is not None
+                            else "its event was lost with the link; time from its failsafe-cleared event"])
+                for x in f["failsafes"]]
+        rows += [(x["t_s"], [x["uav"], "resume" if x["ok"] else "resume failed",
+                             f"{_fmt(x['after_failsafe_s'], 1, ' s')} after its failsafe"]) for x in f["resumes"]]
+        md += ["Failsafes and resumes:", "", _table(["t", "UAV", "what", "detail"],
+                                                    [[_fmt(tt, 1, " s"), *r] for tt, r in sorted(rows, key=lambda r: r[0])]),
+               ""]
     if f["skynet"]:
         md += ["SkyNet (the boards' view of their neighbours):", "",
                _table(["t", "UAV", "event", "neighbour"],

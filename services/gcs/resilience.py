@@ -26,6 +26,7 @@ What is measured (our choices where the issue is silent):
 from __future__ import annotations
 
 from collections import defaultdict
+from itertools import pairwise
 from typing import Any
 
 from .record import MissionRecord
@@ -56,7 +57,7 @@ def reception_gaps(rx_times: list[float], min_gap_s: float = GAP_S) -> tuple[flo
     (3.0, 3.1, [(0.1, 3.1)])
     """
     best, end, gaps = 0.0, None, []
-    for a, b in zip(rx_times, rx_times[1:]):
+    for a, b in pairwise(rx_times):
         d = b - a
         if d > best:
             best, end = d, b
@@ -104,6 +105,12 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
         if e.msg.kind == "failsafe":
             failsafes.append({"uav": _uav_of(e.msg.source), "t_s": t(e.msg.stamp), "rx_s": t(e.rx),
                               "action": e.msg.data.get("action"), "silent_s": e.msg.data.get("silent_s")})
+    for e in record.events:  # a failsafe whose own event was lost with the link: its "cleared" event tells
+        since = e.msg.data.get("since")
+        if e.msg.kind == "failsafe-cleared" and isinstance(since, (int, float)):
+            u = _uav_of(e.msg.source)
+            if not any(f["uav"] == u and abs(f["t_s"] - t(since)) < 0.5 for f in failsafes):
+                failsafes.append({"uav": u, "t_s": t(since), "rx_s": None, "action": None, "silent_s": None})
     failsafes.sort(key=lambda f: f["t_s"])
     holds = [{"uav": i.uav, "t_s": t(i.at)} for i in incidents if i.kind == "hold-seen"]
     resumes = []
