@@ -1,71 +1,107 @@
-"""Latency/loss injection experiment: the default mission under impaired links.
+"""Latency/loss injection benchmark: the issue-7 goals, measured with ``skynet experiment``.
 
-Runs ``skynet mission`` once per impairment (user-space netem proxies between a node and the
-gateway, :mod:`services.netem`) and tabulates, from each mission's report: success, imagery
-delivered, capture-to-report latency, telemetry age, command acknowledgement time and the
-formation error. The impairments hit UAV 2's link (its telemetry, imagery and commands) and the
-detector's link (all imagery), the two places where the paper's 4G relay would hurt.
+A thin wrapper over :mod:`services.experiment`: flies the default mission with every best-effort
+link impaired (``--links all/udp``: each node's uplink and the SkyNet links) at 200 ms delay and
+0, 20 and 40 % random loss, with imagery recovery on and off, then checks the goals of issue 7:
 
-    .venv/bin/python bench/impair.py [--speed 6] [--out bench/results/impair.json]
+- 20 % loss, 200 ms delay, recovery on: the mission completes, 100 % of commands are
+  acknowledged, capture coverage is 100 %, telemetry age p95 < 500 ms;
+- 40 % loss: every run ends by itself with a report (completes or stops safely), none hangs.
+
+Writes the experiment's ``results.json`` content plus the goal verdicts to
+``bench/results/impair.json``; the runs themselves go to a temporary folder (``--keep DIR`` to keep
+them, with the table and plots).
+
+    .venv/bin/python bench/impair.py [--speed 6] [--repeat 1] [--loss 0,20,40] [--delay 200]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 from pathlib import Path
 
-from mission import find, run, write_rows  # bench/mission.py: one mission run and its report
-
-CASES = [
-    ("clean", []),
-    ("uav2 4G-like: delay 50ms jitter 10ms", ["uav2=delay 50ms jitter 10ms"]),
-    ("detector: loss 5% (after 2s)", ["detector=after 2s loss 5%"]),
-    ("uav2 delay 100ms + detector loss 10%", ["uav2=delay 100ms jitter 20ms", "detector=after 2s loss 10%"]),
-    ("uav2 rate 2mbit + loss 2%", ["uav2=after 2s rate 2mbit loss 2%"]),
-]
+from services.experiment import cli as experiment
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--speed", type=float, default=6.0)
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "impair.json"))
-    args = parser.parse_args()
-    rows = []
+def _cell(doc: dict, loss: float, delay: float, recovery: bool) -> dict | None:
+    for c in doc["cells"]:
+        cell = c["cell"]
+        if (cell["loss_pct"], cell["delay_ms"], cell["recovery"]) == (loss, delay, recovery):
+            return c
+    return None
+
+
+def _mean(cell: dict | None, metric: str) -> float | None:
+    st = (cell or {}).get("metrics", {}).get(metric)
+    return None if not st else st["mean"]
+
+
+def goals(doc: dict) -> list[dict]:
+    """The issue's goals against the measured cells (those that ran)."""
+    out = []
+    c20 = _cell(doc, 20.0, 200.0, True)
+    if c20 is not None:
+        n = c20["runs"]
+        age = _mean(c20, "telemetry_age_p95_ms")
+        out += [
+            {"goal": "20% loss, 200 ms: the mission completes", "measured": f"{c20['succeeded']}/{n}",
+             "pass": c20["succeeded"] == n},
+            {"goal": "20% loss, 200 ms: 100% of commands acknowledged",
+             "measured": _mean(c20, "cmd_ack_ratio"), "pass": _mean(c20, "cmd_ack_ratio") == 1.0},
+            {"goal": "20% loss, 200 ms, recovery on: capture coverage 100%", "measured": _mean(c20, "coverage"),
+             "pass": (c20["metrics"].get("coverage") or {}).get("min") == 1.0},
+            {"goal": "20% loss, 200 ms: telemetry age p95 < 500 ms", "measured": age,
+             "pass": age is not None and (c20["metrics"]["telemetry_age_p95_ms"]["max"] < 500.0)},
+        ]
+    c40 = [c for c in doc["cells"] if c["cell"]["loss_pct"] == 40.0]
+    if c40:
+        hung = sum(c["hung"] + c["failed_to_report"] for c in c40)
+        out.append({"goal": "40% loss: every run completes or stops safely with a report (never hangs)",
+                    "measured": f"{sum(c['succeeded'] for c in c40)} completed, "
+                                f"{sum(c['runs'] for c in c40) - hung - sum(c['succeeded'] for c in c40)} stopped "
+                                f"with a report, {hung} hung or without report",
+                    "pass": hung == 0})
+    return out
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--speed", default="6")
+    p.add_argument("--repeat", default="1")
+    p.add_argument("--loss", default="0,20,40")
+    p.add_argument("--delay", default="200")
+    p.add_argument("--recovery", default="on,off")
+    p.add_argument("--timeout", default="300")
+    p.add_argument("--keep", default=None, help="keep the runs, table and plots in this folder")
+    p.add_argument("--out", default=str(Path(__file__).parent / "results" / "impair.json"))
+    a = p.parse_args()
+    argv = ["--loss", a.loss, "--delay", a.delay, "--recovery", a.recovery, "--repeat", a.repeat,
+            "--speed", a.speed, "--links", "all/udp", "--timeout", a.timeout]
+    args = experiment.build_parser().parse_args(argv)
+    try:
+        cells, runs = experiment.check_options(args)
+    except ValueError as e:
+        print(f"bench/impair.py: error: {e}", file=sys.stderr)
+        return 2
     with tempfile.TemporaryDirectory() as tmp:
-        for name, impair in CASES:
-            r = run(args.speed, Path(tmp) / f"case{len(rows)}", [a for spec in impair for a in ("--impair", spec)])
-            rep = r["report"]
-            links = rep.get("links", {})
-            nan = float("nan")
-
-            def g(d: dict, *path):
-                return find(d, *path, default=nan)
-
-            row = {
-                "case": name, "impair": impair, "exit": r["exit"], "success": rep.get("success"),
-                "wall_s": r["wall_s"], "failures": rep.get("failures", []),
-                "imagery_delivered": g(links, "imagery", "delivered"), "imagery_sent": g(links, "imagery", "sent"),
-                "capture_to_report_p50_ms": g(links, "imagery", "capture_to_report_ms", "p50"),
-                "capture_to_report_p95_ms": g(links, "imagery", "capture_to_report_ms", "p95"),
-                "telemetry_age_p95_ms": g(links, "telemetry", "age_ms", "p95"),
-                "ack_p95_ms": g(links, "command", "latency_ms", "p95"),
-                "formation_rms_m": g(rep, "formation", "rms_m"),
-                "captures": f"{g(rep, 'captures', 'imaged')}/{g(rep, 'captures', 'planned')}",
-                "recall": g(rep, "defects", "recall"),
-            }
-            rows.append(row)
-            print(json.dumps(row), flush=True)
-    print("\n| case | success | captures imaged | capture->report p50 / p95 (ms) | telemetry age p95 (ms) |"
-          " command ack p95 (ms) | formation RMS (m) | defect recall |")
-    print("|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['case']} | {r['success']} | {r['captures']} | {r['capture_to_report_p50_ms']:.1f} / "
-              f"{r['capture_to_report_p95_ms']:.1f} | {r['telemetry_age_p95_ms']:.1f} | {r['ack_p95_ms']:.1f} | "
-              f"{r['formation_rms_m']:.2f} | {r['recall']:.2f} |")
-    write_rows(rows, args.out)
+        folder = Path(a.keep or tmp)
+        doc, code = experiment.run_experiment(args, cells, runs, folder)
+    doc["goals"] = goals(doc)
+    for g in doc["goals"]:
+        print(f"{'PASS' if g['pass'] else 'FAIL'}  {g['goal']}: {g['measured']}")
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for r in doc["runs"]:  # machine-specific paths stay out of the committed results
+        r["out"] = Path(r["out"]).name
+        cmd = ["skynet", *r["command"][3:]]
+        r["command"] = [r["out"] if i and cmd[i - 1] == "--out" else x for i, x in enumerate(cmd)]
+    out.write_text(json.dumps(doc, indent=1))
+    print(f"wrote {out}")
+    return code
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

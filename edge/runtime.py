@@ -146,7 +146,7 @@ class CameraLink:
         start of the stream: were the first *capture* lost, nothing would ask for it again. This
         frame is that first sample instead (a late subscriber gets it from the cache through the
         publisher's periodic heartbeat), so a lost first capture is a gap like any other and is
-        recovered (or, without recovery, counted lost). The detector skips empty frames.
+        recovered. The detector drops empty frames on arrival.
         """
         self.pub.put_bytes(self.sender.frame(b"", time.time(), marker=False))
 

@@ -68,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _check(args: argparse.Namespace) -> tuple[list[Cell], list[Run]]:
+def check_options(args: argparse.Namespace) -> tuple[list[Cell], list[Run]]:
     """The grid and runs of the options; ValueError with a one-line message."""
     loss = parse_list(args.loss, "--loss", hi=100.0)
     delay = parse_list(args.delay, "--delay", hi=60_000.0)
@@ -173,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        cells, runs = _check(args)
+        cells, runs = check_options(args)
     except ValueError as e:
         print(f"skynet experiment: error: {e}", file=sys.stderr)
         return 2

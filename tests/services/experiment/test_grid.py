@@ -4,8 +4,16 @@ import json
 
 import pytest
 
-from services.experiment.grid import (Cell, check_links, expand, impair_spec, mission_command, parse_list,
-                                      parse_recovery, plan)
+from services.experiment.grid import (
+    Cell,
+    check_links,
+    expand,
+    impair_spec,
+    mission_command,
+    parse_list,
+    parse_recovery,
+    plan,
+)
 from services.experiment.metrics import METRICS, aggregate, run_metrics
 from services.experiment.table import markdown
 

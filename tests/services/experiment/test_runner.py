@@ -65,7 +65,7 @@ def test_descendants_lists_children_and_grandchildren():
         assert descendants(family[0][0]) == []
     finally:
         for pid, _ in descendants(p.pid):
-            subprocess.run(["kill", str(pid)])
+            subprocess.run(["kill", str(pid)], check=False)
         p.kill()
         p.wait()
 
