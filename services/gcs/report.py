@@ -1168,9 +1168,10 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
     else:
         md += ["No fault injected.", ""]
     for x in f["seen_again"]:
-        line = (f"After the {x['after']} of {x['target']} at {_fmt(x['t_s'], 1, ' s')}: fleet seen again "
-                f"{_fmt(x['fleet_s'], 2, ' s')} later (" + ", ".join(f"UAV {u}: {_fmt(v, 2, ' s')}"
-                                                                     for u, v in x["uavs_s"].items()) + ")")
+        line = (f"{x['after'].capitalize()} of {x['target']} at {_fmt(x['t_s'], 1, ' s')} (down since "
+                f"{_fmt(x['began_s'], 1, ' s')}): fleet seen again at {_fmt(x['fleet_seen_s'], 2, ' s')}, "
+                f"{_fmt(x['fleet_s'], 2, ' s')} after the {x['after']}, {_fmt(x['blackout_s'], 2, ' s')} of blackout "
+                "(" + ", ".join(f"UAV {u}: {_fmt(v, 2, ' s')}" for u, v in x["uavs_s"].items()) + ")")
         if x["never"]:
             line += "; never heard again: " + ", ".join(f"UAV {u}" for u in x["never"])
         md += [line + ".", ""]

@@ -14,9 +14,12 @@ What is measured (our choices where the issue is silent):
   if the event reached the ground station later) and the ground station's ``hold-seen``
   incidents; *resumes*: its ``resume`` incidents, each with the time since the UAV's last failsafe
   before it (failsafe → resume).
-* *Fleet seen again*: after each fault end that can interrupt telemetry (``restart``,
-  ``restore``), the delay to the first state received from each UAV; the fleet's figure is the
-  largest over the UAVs heard again (a UAV never heard again is listed apart).
+* *Fleet seen again*: for each fault end that can interrupt telemetry (``restart``, ``restore``),
+  when each UAV's state was received again: the first state after the reception gap (> GAP_S)
+  that the fault opened, else the first after the end. ``fleet_s`` is the latest of them minus the
+  end's time (negative when the fleet was back before the injector noted the end, e.g. a gateway
+  that routes before it logs "router up"); ``blackout_s`` counts from the fault's begin (kill,
+  cut). A UAV never heard again is listed apart.
 * *State-reception gaps*: per UAV, the longest pause between two states received (and when it
   ended), and every pause longer than :data:`GAP_S`.
 * *SkyNet*: the boards' ``neighbour-lost/up/stale/fresh`` events during the mission.
@@ -39,6 +42,7 @@ GAP_S = 1.0
 NEIGHBOUR_EVENTS = ("neighbour-lost", "neighbour-up", "neighbour-stale", "neighbour-fresh")
 #: Fault ends after which the ground station's reception of the fleet is measured.
 _SEEN_AGAIN_AFTER = ("restart", "restore")
+_BEGIN_OF = {"restart": ("kill",), "restore": ("cut",)}
 
 
 def _origin(record: MissionRecord) -> float:
@@ -136,15 +140,24 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
     for f in record.faults:
         if f.action not in _SEEN_AGAIN_AFTER:
             continue
+        begins = [b for b in record.faults if b.target == f.target and b.action in _BEGIN_OF[f.action] and b.at <= f.at]
+        begin = max((b.at for b in begins), default=f.at)
         per_uav: dict[int, float] = {}
         for u, times in rx.items():
-            after = [x for x in times if x >= f.at]
-            if after:
-                per_uav[u] = round(min(after) - f.at, 3)
+            times = sorted(times)
+            # the first state after the gap that the fault opened (or the first after its end)
+            back = next((b for a, b in pairwise(times) if b >= begin and b - max(a, begin) > GAP_S), None)
+            if back is None:
+                back = next((x for x in times if x >= f.at), None)
+            if back is not None:
+                per_uav[u] = back
         never = sorted(set(rx) - set(per_uav))
-        seen_again.append({"after": f.action, "target": f.target, "t_s": t(f.at),
-                           "fleet_s": max(per_uav.values()) if per_uav else None,
-                           "uavs_s": dict(sorted(per_uav.items())), "never": never})
+        fleet = max(per_uav.values()) if per_uav else None
+        seen_again.append({"after": f.action, "target": f.target, "began_s": t(begin), "t_s": t(f.at),
+                           "fleet_seen_s": None if fleet is None else t(fleet),
+                           "fleet_s": None if fleet is None else round(fleet - f.at, 3),
+                           "blackout_s": None if fleet is None else round(fleet - begin, 3),
+                           "uavs_s": {u: round(x - f.at, 3) for u, x in sorted(per_uav.items())}, "never": never})
 
     neighbours = [{"t_s": t(e.msg.stamp), "uav": _uav_of(e.msg.source), "kind": e.msg.kind,
                    "neighbour": e.msg.data.get("neighbour")}
