@@ -227,8 +227,13 @@ class FaultInjector:
         self._thread.start()
         return self
 
+    def cancel(self) -> None:
+        """Inject nothing more from now on (does not wait; see :meth:`stop`)."""
+        self._stop.set()
+
     def stop(self, timeout: float = 30.0) -> None:
-        """Stop injecting (a restart in progress finishes or is refused by the stopping group)."""
+        """Stop injecting and wait for the thread (a restart in progress finishes, or fails once the
+        process group is stopping)."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout)

@@ -59,6 +59,7 @@ from .faults import FaultInjector, Resolved, cut_links, plan_faults
 from .process import ProcessGroup, free_port_pair
 from .topology import (
     CLASSES,
+    OPEN_TIMEOUT_MS,
     Impairments,
     Links,
     MeshMode,
@@ -72,6 +73,13 @@ HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
 READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up"}
 EDGE_READY = "board up"
+#: the link lease of the gateway and the clients (planner, detector, ground station) when links are
+#: proxied, s: the edges' own (edge.board, 2 s). Each side of
+#: a zenoh link declares it dead after the *other* side's lease without news; with zenoh's default
+#: (10 s) on the gateway, an uplink cut for 3 s left the edges on their old session while the
+#: gateway had already dropped it, and after the restore the gateway refused their data ("Route
+#: data with unknown scope") for good. With equal leases both sides drop the session and reopen.
+GATEWAY_LEASE_S = 2.0
 #: how long a restarted service may take to come up (the gateway retries a busy port meanwhile)
 RESTART_TIMEOUT_S = 30.0
 
@@ -171,11 +179,23 @@ class Network:
 
     def bus_args(self, name: str, mode: str) -> list[str]:
         args = ["--mode", mode, "--fleet", self.args.fleet, "--multilink"]
+        if self.plan.proxied and mode == "client":
+            # equal leases on both ends (see GATEWAY_LEASE_S), a short open timeout (see client_config)
+            args += ["--lease", str(GATEWAY_LEASE_S), "--config", str(self.client_config())]
         for e in self.endpoints_for(name):
             args += ["--connect", e]
         if self.creds is not None:
             args += ["--user", name]
         return args
+
+    def client_config(self) -> Path:
+        """The zenoh config of the clients (planner, detector, ground station) when links are proxied:
+        the edges' open timeout (:data:`services.topology.OPEN_TIMEOUT_MS`), so that a UDP handshake
+        lost on an impaired link after a gateway restart is retried in seconds, not after zenoh's 10 s."""
+        path = self.tmp / "client.json5"
+        if not path.exists():
+            path.write_text(json.dumps({"transport": {"unicast": {"open_timeout": OPEN_TIMEOUT_MS}}}))
+        return path
 
     def edge_config(self, i: int) -> list[str]:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
@@ -212,7 +232,8 @@ class Network:
     def gcs_config(self) -> BusConfig:
         """The in-process ground station's session."""
         creds = {} if self.creds is None else {"user": "gcs", "password": self.creds.passwords["gcs"]}
-        return BusConfig(mode="client", connect=self.endpoints_for("gcs"), multilink=True, **creds)
+        lease = {"lease_s": GATEWAY_LEASE_S, "config_file": str(self.client_config())} if self.plan.proxied else {}
+        return BusConfig(mode="client", connect=self.endpoints_for("gcs"), multilink=True, **creds, **lease)
 
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9)."""
@@ -233,7 +254,8 @@ class Network:
     def start(self) -> None:
         a = self.args
         secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
-        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure,
+        lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
+        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease,
                                           *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
         if not gw.wait_for(READY["gateway"], 30):
             raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
@@ -285,8 +307,10 @@ class Network:
 
     def stop(self) -> dict:
         if self.injector is not None:
-            self.injector.stop()
+            self.injector.cancel()  # then the group refuses restarts and its stop ends a restart's wait
         codes = self.group.stop()
+        if self.injector is not None:
+            self.injector.stop()
         for pair in self.proxies.values():
             for p in pair.values():
                 p.stop()

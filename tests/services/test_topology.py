@@ -175,3 +175,21 @@ def test_killed_edge_is_seen_gone_within_its_lease_and_comes_back(running):
     assert wait_until(lambda: all(probe.neighbours(u) == 2 for u in (1, 2, 3)), 30), probe.last
     assert probe.alive.get(3) is True
     print(f"uav3 restarted ({injector.ledger[1][3]}): mesh whole again {time.monotonic() - back:.2f} s later")
+
+
+def test_uplinks_cut_longer_than_the_lease_come_back_after_the_restore(running):
+    net, probe = running("uplinkcut", "--fault", "0s cut uplinks for 3s")
+    assert set(net.proxies) == {"uav1", "uav2", "uav3"} and net.plan.mesh == "direct"
+    assert wait_until(lambda: all(probe.neighbours(u) == 2 for u in (1, 2, 3)), 30), probe.last
+    injector = net.start_faults(logging.getLogger("test"))
+    injector.start(origin=time.time())
+    assert wait_until(lambda: injector.ledger, 5)
+    time.sleep(2.5)  # past the lease: the gateway has dropped the edges, and they it
+    assert not any(probe.fresh(u) for u in (1, 2, 3))
+    assert wait_until(lambda: len(injector.ledger) == 2, 5), injector.ledger
+    restored = time.monotonic()
+    # the edges kept their SkyNet mesh meanwhile and reopen their sessions with the gateway
+    assert wait_until(lambda: all(probe.fresh(u, 0.3) and probe.neighbours(u) == 2 for u in (1, 2, 3)), 30), \
+        probe.last
+    print(f"\nuplinks cut 3 s: the client sees the fleet again {time.monotonic() - restored:.2f} s after the restore")
+    assert all(probe.answered(u) for u in (1, 2, 3))
