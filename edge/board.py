@@ -213,7 +213,7 @@ class Board:
         neigh = {j: (n.pos, n.ref, n.tau, now_wall - n.stamp) for j, n in list(self.neighbours.items())
                  if n.ref is not None and n.tau is not None and j in members}
         corr = formation.neighbour_correction(tau, vel, neigh, stale_after_s=self.opt.stale_s,
-                                              gain=self.opt.formation_gain)
+                                              gain=self.opt.formation_gain, clock_rate=self.clock.speed)
         self.driver.set_reference_offset(tuple(map(float, corr)))
         return {"ref": tuple(map(float, pos)), "tau": max(0.0, float(tau))}
 

@@ -283,6 +283,7 @@ def neighbour_correction(
     stale_after_s: float = 1.0,
     gain: float = 0.8,
     max_correction: float = MAX_CORRECTION_M,
+    clock_rate: float = 1.0,
 ) -> NDArray[np.float64]:
     """Own reference correction from the position errors the neighbours share over SkyNet (P8).
 
@@ -290,8 +291,13 @@ def neighbour_correction(
     trajectory time ``τ_j``. Its error as seen at the own trajectory time ``τ`` is the (P8) error
     plus the part of the plan it is behind::
 
-        e_j = (P_j − P_j,d) − v_d (τ − τ_j)
+        e_j = (P_j − P_j,d) − v_d (τ − τ_j − a_j)
 
+with ``a_j = age_j · clock_rate`` the trajectory time the neighbour has flown since it sent the
+state: ``P_j`` and ``P_j,d`` are of the same instant, so a late state still gives the right
+(P8) error, but its ``τ_j`` is ``a_j`` old. Without that term a link delay of d seconds reads
+as every neighbour lagging by ``v_d d``, and the fleet, each UAV falling back toward the
+others, drifts behind its plan (2.6 m at the goal with 50 ms of delay at 6x before the fix).
     with ``v_d`` the own planned velocity (all slots of a rigid formation move with the
     centroid, up to its rotation in turns). The correction is ``gain · mean_j e_j`` over the
     fresh neighbours, bounded in norm by ``max_correction``: when one UAV lags — by a tracking
@@ -314,6 +320,9 @@ def neighbour_correction(
     max_correction : float
         Bound on the norm of the correction, metres (>= 0), so a wild neighbour cannot drag
         the vehicle away.
+    clock_rate : float
+        Trajectory (simulated) seconds per second of ``age``: the speed factor of the sim clock,
+        1 on a real vehicle.
 
     Returns
     -------
@@ -329,6 +338,8 @@ def neighbour_correction(
         raise ValueError("gain must be in [0, 1]")
     if not (math.isfinite(max_correction) and max_correction >= 0.0):
         raise ValueError("max_correction must be finite and >= 0")
+    if not (math.isfinite(clock_rate) and clock_rate > 0.0):
+        raise ValueError("clock_rate must be finite and > 0")
     errs = []
     for j, (pos, ref, tau_j, age) in neighbours.items():
         age, tau_j = float(age), float(tau_j)
@@ -336,7 +347,9 @@ def neighbour_correction(
             raise ValueError(f"age and tau of UAV {j}'s state must be numbers")
         if age > stale_after_s:
             continue
-        errs.append(_vec3(pos, f"position of UAV {j}") - _vec3(ref, f"plan of UAV {j}") - v * (own_tau - tau_j))
+        lead = max(age, 0.0) * clock_rate  # trajectory time the neighbour flew since its state
+        errs.append(_vec3(pos, f"position of UAV {j}") - _vec3(ref, f"plan of UAV {j}")
+                    - v * (own_tau - tau_j - lead))
     if not errs:
         return np.zeros(3)
     corr = gain * np.mean(errs, axis=0)

@@ -226,18 +226,19 @@ def test_offsets_for_any_fleet_size_keep_three_metres_apart():
 
 def test_neighbour_correction_from_shared_errors():
     v = np.array([2.0, 0.0, 0.0])
-    on_plan = {2: ((3, 0, 19), (3, 0, 19), 10.0, 0.1), 3: ((-3, 0, 19), (-3, 0, 19), 10.0, 0.1)}
-    np.testing.assert_allclose(neighbour_correction(10.0, v, on_plan), 0.0)
+    on_plan = {2: ((3, 0, 19), (3, 0, 19), 9.9, 0.1), 3: ((-3, 0, 19), (-3, 0, 19), 9.9, 0.1)}
+    # the states are 0.1 s old, so a neighbour on plan shows a tau 0.1 s behind the own
+    np.testing.assert_allclose(neighbour_correction(10.0, v, on_plan), 0.0, atol=1e-12)
     # UAV 3 is 1.5 s behind in its mission (held): its plan and position are 3 m back
-    behind = {**on_plan, 3: ((-6, 0, 19), (-6, 0, 19), 8.5, 0.1)}
-    np.testing.assert_allclose(neighbour_correction(10.0, v, behind, gain=1.0), [-1.5, 0, 0])
+    behind = {**on_plan, 3: ((-6, 0, 19), (-6, 0, 19), 8.4, 0.1)}
+    np.testing.assert_allclose(neighbour_correction(10.0, v, behind, gain=1.0), [-1.5, 0, 0], atol=1e-12)
     # UAV 2 has a tracking error of 1 m to the left (P8): followed by the same share
-    drift = {**on_plan, 2: ((3, 1, 19), (3, 0, 19), 10.0, 0.1)}
-    np.testing.assert_allclose(neighbour_correction(10.0, v, drift, gain=0.8), [0, 0.4, 0])
+    drift = {**on_plan, 2: ((3, 1, 19), (3, 0, 19), 9.9, 0.1)}
+    np.testing.assert_allclose(neighbour_correction(10.0, v, drift, gain=0.8), [0, 0.4, 0], atol=1e-12)
     # stale neighbours are ignored; the correction is bounded
     stale = {3: ((-30, 0, 19), (-3, 0, 19), 10.0, 5.0)}
     np.testing.assert_allclose(neighbour_correction(10.0, v, stale), 0.0)
-    far = {3: ((-30, 0, 19), (-3, 0, 19), 10.0, 0.1)}
+    far = {3: ((-30, 0, 19), (-3, 0, 19), 9.9, 0.1)}
     assert np.linalg.norm(neighbour_correction(10.0, v, far, max_correction=3.0)) == pytest.approx(3.0)
     with pytest.raises(ValueError):
         neighbour_correction(float("nan"), v, on_plan)
@@ -245,3 +246,17 @@ def test_neighbour_correction_from_shared_errors():
         neighbour_correction(10.0, v, on_plan, gain=1.5)
     with pytest.raises(ValueError):
         neighbour_correction(10.0, v, {2: ((float("nan"), 0, 0), (0, 0, 0), 1.0, 0.1)})
+    with pytest.raises(ValueError):
+        neighbour_correction(10.0, v, on_plan, clock_rate=0.0)
+
+
+def test_a_late_state_is_not_read_as_a_lagging_neighbour():
+    """A state that took 50 ms over SkyNet at a 6x clock is 0.3 s of trajectory old: on plan
+    neighbours give no correction however late their states arrive (else the fleet drifts back)."""
+    v = np.array([2.0, 0.0, 0.0])
+    for age in (0.0, 0.05, 0.2, 0.9):
+        late = {2: ((3, 0, 19), (3, 0, 19), 10.0 - 6 * age, age), 3: ((-3, 0, 19), (-3, 0, 19), 10.0 - 6 * age, age)}
+        np.testing.assert_allclose(neighbour_correction(10.0, v, late, clock_rate=6.0), 0.0, atol=1e-12)
+    # read at the wrong rate the same states look 0.25 s x 2 m/s behind
+    late = {2: ((3, 0, 19), (3, 0, 19), 9.7, 0.05)}
+    np.testing.assert_allclose(neighbour_correction(10.0, v, late, gain=1.0, clock_rate=1.0), [-0.5, 0, 0])
