@@ -2,7 +2,7 @@
 
 - ``coverage.png``: capture coverage and mission success against loss, one line per delay
   (and jitter), solid with recovery on, dashed with it off: what recovery buys under loss;
-- ``imagery.png``: capture frames recovered and lost against loss;
+- ``imagery.png``: capture frames recovered and never delivered against loss;
 - ``telemetry.png``: telemetry age p95 and delivery ratio against loss, per delay;
 - ``commands.png``: command acknowledgement p95 against delay, one line per loss.
 
@@ -101,9 +101,9 @@ def write_plots(cells: Sequence[Mapping[str, Any]], folder: str | Path) -> list[
 
     fig, (a, b) = _figure(2)
     _plot(a, cells, "img_recovered", "loss_pct", by_delay, "capture frames recovered", loss, 1.0, varying)
-    _plot(b, cells, "img_lost", "loss_pct", by_delay, "capture frames lost", loss, 1.0, varying)
+    _plot(b, cells, "img_missing", "loss_pct", by_delay, "capture frames never delivered", loss, 1.0, varying)
     a.set_title("imagery: recovered")
-    b.set_title("imagery: lost for good")
+    b.set_title("imagery: missing")
     fig.tight_layout()
     fig.savefig(folder / "imagery.png")
 

@@ -16,7 +16,8 @@ __all__ = ["COLUMNS", "markdown"]
 COLUMNS: tuple[tuple[str, str, str, float], ...] = (
     ("coverage %", "coverage", "{:.0f}", 100.0),
     ("frames delivered", "img_delivered", "{:.0f}", 1.0),
-    ("lost", "img_lost", "{:.0f}", 1.0),
+    ("missing", "img_missing", "{:.0f}", 1.0),
+    ("lost (gaps)", "img_lost", "{:.0f}", 1.0),
     ("late", "img_late", "{:.0f}", 1.0),
     ("recovered", "img_recovered", "{:.0f}", 1.0),
     ("RTP jitter ms", "img_jitter_ms", "{:.0f}", 1.0),

@@ -108,8 +108,9 @@ def test_one_cell_experiment_end_to_end(tmp_path, capsys):
     assert m["cmd_ack_ratio"]["mean"] == 1.0 and m["cmd_ack_p95_ms"]["mean"] > 0
     assert 0.5 < m["telemetry_ratio"]["mean"] < 1.0  # 10 % loss on two hops, for the ground station's states
     assert m["telemetry_age_p95_ms"]["mean"] >= 20  # the delay is there
-    assert m["img_delivered"]["mean"] == m["captures_planned"]["mean"] and m["img_lost"]["mean"] == 0
+    assert m["img_delivered"]["mean"] == m["captures_planned"]["mean"] and m["img_missing"]["mean"] == 0
+    assert m["img_lost"]["mean"] == 0
     assert m["defects_found"]["mean"] <= m["defects_planted"]["mean"]
     table = (out / "results.md").read_text()
-    row = f"| 10 | 20 | 0 | on | {int(m['success']['mean'])}/1 | 100 | {m['img_delivered']['mean']:.0f} | 0 | 0 |"
+    row = f"| 10 | 20 | 0 | on | {int(m['success']['mean'])}/1 | 100 | {m['img_delivered']['mean']:.0f} | 0 | 0 | 0 |"
     assert row in table and row in printed
