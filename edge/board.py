@@ -53,6 +53,7 @@ class Neighbour:
     ref: tuple[float, float, float] | None  # its planned position, when it flies a mission
     tau: float | None  # its trajectory time
     stamp: float  # wall time of reception
+    sent: float  # its publication stamp (not after reception): what the state's age counts from
 
 
 @dataclass
@@ -98,7 +99,10 @@ class Board:
     def _on_state(self, msg: Message, sample) -> None:
         assert isinstance(msg, VehicleState)
         if msg.uav != self.uav:
-            self.neighbours[msg.uav] = Neighbour(msg.pos, msg.ref, msg.tau, time.time())
+            rx = time.time()
+            # a stamp from a clock ahead of ours reads as no transit time; one far behind makes the state
+            # stale, so formation keeping falls back to the planned slot (hosts' clocks: GPS/NTP)
+            self.neighbours[msg.uav] = Neighbour(msg.pos, msg.ref, msg.tau, rx, min(msg.stamp, rx))
 
     def _on_alive(self, key: str, alive: bool) -> None:
         uav = keys.parse(key).uav
@@ -210,7 +214,8 @@ class Board:
         tau = fol.t0 + st.progress * fol.duration
         pos, vel, _, _ = fol.reference(tau)
         members = self.opt.offsets  # the formation set by SetFormation (P9): other UAVs do not count
-        neigh = {j: (n.pos, n.ref, n.tau, now_wall - n.stamp) for j, n in list(self.neighbours.items())
+        # the age from publication, link delay included: the neighbour's tau is that old (P8 correction)
+        neigh = {j: (n.pos, n.ref, n.tau, now_wall - n.sent) for j, n in list(self.neighbours.items())
                  if n.ref is not None and n.tau is not None and j in members}
         corr = formation.neighbour_correction(tau, vel, neigh, stale_after_s=self.opt.stale_s,
                                               gain=self.opt.formation_gain, clock_rate=self.clock.speed)
