@@ -12,7 +12,14 @@ from __future__ import annotations
 import pytest
 
 from protocol.messages import Event, Level, Mode, VehicleState
-from services.gcs.record import CommandRecord, EventRx, FaultRecord, Incident, MissionRecord, StateRx
+from services.gcs.record import (
+    CommandRecord,
+    EventRx,
+    FaultRecord,
+    Incident,
+    MissionRecord,
+    StateRx,
+)
 from services.gcs.report import summarise, write_report
 from services.gcs.resilience import fault_figures, reception_gaps
 
@@ -32,8 +39,8 @@ def event(uav: int, t: float, kind: str, **data) -> EventRx:
 
 @pytest.fixture
 def record() -> MissionRecord:
-    ts1 = [round(0.1 * i, 1) for i in range(0, 101)] + [round(13.5 + 0.1 * i, 1) for i in range(0, 66)]
-    states = [state(1, t) for t in ts1] + [state(2, round(0.1 * i, 1)) for i in range(0, 51)]
+    ts1 = [round(0.1 * i, 1) for i in range(101)] + [round(13.5 + 0.1 * i, 1) for i in range(66)]
+    states = [state(1, t) for t in ts1] + [state(2, round(0.1 * i, 1)) for i in range(51)]
     return MissionRecord(
         fleet="f", scenario={}, speed=8.0, started=M - 20, ended=M + 22, phases={"mission": M},
         states=states,
