@@ -33,20 +33,40 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from protocol import keys
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
-    CommandAck, DefectReport, Event, Heartbeat, Land, LinkStats, MissionPlan, Mode, PlanRequest, Resume, SetFormation,
-    Start, Takeoff,
-    UploadTrajectory, VehicleState,
+    CommandAck,
+    DefectReport,
+    Event,
+    Heartbeat,
+    Land,
+    LinkStats,
+    MissionPlan,
+    Mode,
+    PlanRequest,
+    Resume,
+    SetFormation,
+    Start,
+    Takeoff,
+    UploadTrajectory,
+    VehicleState,
 )
 
 from .record import (
-    GOAL_RADIUS_M, CommandRecord, DefectRx, EventRx, FaultRecord, Incident, MissionRecord, StateRx, StatsRx,
+    GOAL_RADIUS_M,
+    CommandRecord,
+    DefectRx,
+    EventRx,
+    FaultRecord,
+    Incident,
+    MissionRecord,
+    StateRx,
+    StatsRx,
 )
 
 #: How often the supervisor looks at liveliness, the own link and failsafe holds, s.
@@ -103,7 +123,7 @@ class MissionOptions:
 
 class MissionRunner:
     def __init__(self, bus: Bus, scenario: dict, options: MissionOptions,
-                 on_progress: Callable[["MissionRunner"], None] | None = None, log=None,
+                 on_progress: Callable[[MissionRunner], None] | None = None, log=None,
                  abort: threading.Event | None = None):
         self.bus, self.opt, self.log = bus, options, log
         self.abort = abort or threading.Event()

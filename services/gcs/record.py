@@ -13,7 +13,6 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from protocol.messages import DefectReport, Event, LinkStats, MissionPlan, VehicleState
 
-
 #: A UAV reached its goal when, at the end of its trajectory (progress 1, before landing), it is
 #: this close to its last planned waypoint, m. The mission's verdict and the report both use it.
 GOAL_RADIUS_M = 2.0
