@@ -26,9 +26,10 @@ Statistics go out once a second on ``skynet/<fleet>/rcu/detector/stats``; per ca
 buffer counts them (:class:`protocol.jitter.JitterStats`), and
 
 - ``late``: frames that arrived after the jitter buffer's playout had given their sequence
-  number up (they had waited ``--playout-delay`` behind a gap and been counted lost); they are
-  dropped, not analysed. With recovery on, Zenoh hands frames over in order, so a recovered
-  frame is delayed rather than late;
+  number up (it had waited ``--playout-delay`` behind the gap and counted them lost). Each is a
+  capture all the same, so it is still analysed (``count.late-analysed``), only out of order.
+  With recovery on, Zenoh hands frames over in order, so a recovered frame is normally
+  delayed rather than late;
 - ``recovered``: frames that reached the detector only through recovery, i.e. that the live
   best-effort path never delivered (:class:`services.detector.recovery.RecoveryTracker`); 0 with
   ``--no-recovery``.
@@ -58,11 +59,17 @@ from .detect import METHODS
 from .pipeline import analyse
 from .recovery import RecoveryTracker
 
+#: frames waiting for a worker before the oldest is dropped. Capture frames are what coverage counts,
+#: and recovery hands them over in bursts (every camera's cache, up to 32 frames each, after an outage
+#: or a gateway restart), so the queue holds such a burst (~50 kB a frame: a few MB); the Zenoh
+#: callback never waits for it either way.
+QUEUE_FRAMES = 128
+
 
 class DetectorService:
     """Binds the pipeline to the bus; see the module docstring."""
 
-    def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = 8,
+    def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = QUEUE_FRAMES,
                  playout_delay_s: float = 0.05, log=None, recover: bool = True):
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")
@@ -102,7 +109,12 @@ class DetectorService:
         with self._lock:
             if self.recovery is not None:
                 self.recovery.delivered(header.ssrc, header.sequence, now)
+            late = self._jb[header.ssrc].late if header.ssrc in self._jb else 0
             ready = self._jb.push(header, payload, now)
+            if self._jb[header.ssrc].late > late and all(f.sequence != header.sequence for f in ready):
+                # after playout gave its number up: out of order, but a capture all the same (coverage)
+                self.counts["late-analysed"] += 1
+                ready.append(Frame(header, payload, now, -1))
         for f in ready:
             self.work.push(f)
 
@@ -185,7 +197,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_bus_args(parser, mode="client")
     parser.add_argument("--method", default="it+", choices=sorted(METHODS), help="detection method")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--queue", type=int, default=8, help="frames waiting for a worker before the oldest drop")
+    parser.add_argument("--queue", type=int, default=QUEUE_FRAMES,
+                        help="frames waiting for a worker before the oldest drop")
     parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
     parser.add_argument("--no-recovery", action="store_true",
                         help="do not ask the cameras' caches for lost capture frames (plain best-effort)")

@@ -126,10 +126,11 @@ def write_results(doc: dict[str, Any], out: Path) -> str:
         table, "",
         "Figures are means over the runs of a cell, with (min-max) when they differ. Definitions:", "",
         *[f"- `{k}`: {d}{f' ({u})' if u else ''}" for k, (u, d) in METRICS.items()],
-        ("- *missing*: capture frames the detector never played out (planned - delivered); *lost (gaps)*: "
+        ("- *missing*: capture frames that never reached the detector (planned - delivered - late); *lost (gaps)*: "
          "sequence numbers its jitter buffer gave up (RFC 3550 loss, which cannot see a stream's first or last "
-         "frames); *late*: frames that arrived after their number was given up; *recovered*: frames the live "
-         "best-effort path lost that reached the detector through recovery (the cameras' caches)."), "",
+         "frames); *late*: frames that arrived after their number was given up (still analysed); *recovered*: "
+         "frames the live best-effort path lost that reached the detector through recovery (the cameras' caches)."),
+        "",
         *[f"![{p}]({p})" for p in plots],
     ]
     (out / "results.md").write_text("\n".join(md) + "\n")

@@ -14,11 +14,11 @@ cmd_failed                 commands sent but not acknowledged (reported failed, 
 telemetry_ratio            vehicle states received / sent (sequence numbers)
 telemetry_age_p50_ms, p95  state age at the ground station, receive - publish stamp
 img_delivered              capture frames the detector's jitter buffer played out
-img_missing                capture points planned whose frame the detector never played out
-                           (planned - delivered): every loss, including a stream's first or
-                           last frames, which no sequence gap reveals
+img_missing                capture points planned whose frame never reached the detector
+                           (planned - delivered - late): every loss, including a stream's first
+                           or last frames, which no sequence gap reveals
 img_lost                   sequence numbers the jitter buffer gave up (RFC 3550 loss: gaps only)
-img_late                   frames that came after their number was given up (dropped)
+img_late                   frames that came after their number was given up (analysed anyway)
 img_recovered              frames that reached the detector only through recovery
 img_jitter_ms              RFC 3550 interarrival jitter, the largest over the cameras
 capture_to_report_p95_ms   capture to defect report (includes any recovery wait)
@@ -54,7 +54,7 @@ METRICS: dict[str, tuple[str, str]] = {
     "telemetry_age_p50_ms": ("ms", "telemetry age p50"),
     "telemetry_age_p95_ms": ("ms", "telemetry age p95"),
     "img_delivered": ("", "capture frames delivered"),
-    "img_missing": ("", "capture frames never delivered (planned - delivered)"),
+    "img_missing": ("", "capture frames that never arrived (planned - delivered - late)"),
     "img_lost": ("", "capture frames lost (sequence gaps)"),
     "img_late": ("", "capture frames late"),
     "img_recovered": ("", "capture frames recovered"),
@@ -131,7 +131,8 @@ def run_metrics(report: Mapping[str, Any] | None, wall_s: float | None = None, h
         out["img_jitter_ms"] = max(jit) if jit else None
     planned = out["captures_planned"]
     if planned is not None:
-        out["img_missing"] = max(planned - (out["img_delivered"] or 0.0), 0.0)
+        arrived = (out["img_delivered"] or 0.0) + (out["img_late"] or 0.0)
+        out["img_missing"] = max(planned - arrived, 0.0)
     out["capture_to_report_p95_ms"] = _num(_get(r, "links", "imagery", "latency_ms", "p95"))
     out["formation_rms_m"] = _num(_get(r, "formation", "rms_m"))
     out["formation_max_m"] = _num(_get(r, "formation", "max_m"))

@@ -149,3 +149,34 @@ def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery)
         assert len(reports) < N_FRAMES and last["uav2.cam0.lost"] > 0
         assert last["uav2.cam0.recovered"] == 0 and last["imagery.recovery"] == 0
         assert last["uav2.cam0.delivered"] == len(reports)
+
+
+def test_a_frame_late_for_playout_is_still_analysed(group, gateway):
+    """A capture that arrives after the jitter buffer gave its number up is counted late, and still imaged."""
+    svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink", "--no-recovery",
+                                   *[a for e in gateway for a in ("--connect", e)]])
+    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    reports: dict[int, DefectReport] = {}
+    stats: list[LinkStats] = []
+    rng = np.random.default_rng(4)
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "uav") as uav:
+        uav.subscribe(keys.defects(FLEET), lambda m, s: reports.setdefault(m.capture_id, m), expect=DefectReport)
+        uav.subscribe(keys.rcu_stats(FLEET, "detector"), lambda m, s: stats.append(m), expect=LinkStats)
+        assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
+        time.sleep(0.5)
+        pub = uav.publisher(keys.camera(FLEET, 4), IMAGERY)
+        sender = RtpSender(ssrc_for(4))
+        packets = []
+        for cid in range(3):
+            grey, _ = crack_image((240, 320), rng, n_cracks=2)
+            packets.append(pack_image(sender, _meta(4, cid, 320, 240), cv2.imencode(".jpg", grey)[1].tobytes(),
+                                      time.time()))
+        pub.put_bytes(packets[0])
+        pub.put_bytes(packets[2])  # 1 is missing: given up after the playout delay (50 ms)
+        time.sleep(0.5)
+        pub.put_bytes(packets[1])  # ... and comes late
+        assert wait_until(lambda: len(reports) == 3 and stats and stats[-1].metrics.get("uav4.cam0.late") == 1, 15), \
+            (sorted(reports), stats[-1].metrics if stats else None)
+    m = stats[-1].metrics
+    assert m["uav4.cam0.lost"] == 1 and m["uav4.cam0.delivered"] == 2 and m["count.late-analysed"] == 1
+    assert all(r.ok for r in reports.values())
