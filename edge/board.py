@@ -40,7 +40,7 @@ from protocol.messages import (
 )
 
 from . import formation
-from .runtime import IMAGERY_CACHE_FRAMES
+from .runtime import IMAGERY_CACHE_FRAMES, PREVIEW_HZ, preview_rate
 from .validate import validate_command
 from .vehicle.follower import Follower
 
@@ -184,6 +184,8 @@ class Board:
                 self.camera.capture(ev, now_wall)
         fresh = self._watch_staleness(now_wall)
         msg = st.to_message(self.uav, self.seq, now_wall).model_copy(update={"neighbours": fresh, **plan})
+        if self.camera is not None:  # live preview: rate-limited, best-effort, encoded off this loop
+            self.camera.preview(msg.pos, msg.att, msg.t, now_wall)
         self.seq += 1
         self.state_pub.put(msg)
         return msg
@@ -288,6 +290,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--camera", default="synthetic", help="synthetic | image folder | video:<url or index> | none")
     parser.add_argument("--scenario", default=None, help="scenario file (surface and camera of the synthetic source)")
     parser.add_argument("--frame-size", default="640x480", help="delivered frame size WxH")
+    parser.add_argument("--preview-hz", type=preview_rate, default=PREVIEW_HZ, metavar="HZ",
+                        help="live preview frames per second (320x240, best-effort, never recovered; 0 = off)")
     parser.add_argument("--imagery-cache", type=_non_negative_int, default=IMAGERY_CACHE_FRAMES, metavar="N",
                         help="capture frames kept for retransmission to a detector that lost them "
                              "(0: no recovery, capture frames are best-effort like previews)")

@@ -67,6 +67,6 @@ def class_of_topic(topic: str) -> LinkClass:
     """The link class a key-space topic travels on (see :mod:`protocol.keys`)."""
     if topic in ("state", "stats"):
         return TELEMETRY
-    if topic == "camera":
+    if topic in ("camera", "preview"):
         return IMAGERY
     return COMMAND

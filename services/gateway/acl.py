@@ -10,7 +10,7 @@ Roles (DESIGN.md, "The network" and "Data flow of a mission"; ``F`` is the fleet
 ==========  =====================================================================================
 role        may (everything else is denied: ``default_permission: deny``)
 ==========  =====================================================================================
-uav N       put its own ``state``, ``event``, ``camera`` (and the camera's recovery heartbeats);
+uav N       put its own ``state``, ``event``, ``camera`` (and the camera's recovery heartbeats), ``preview``;
             declare and answer its own ``cmd`` queryable and the camera's recovery cache;
             its own ``alive`` token; receive every UAV's state, the GCS heartbeat and every
             UAV's ``alive`` token. It may not query anything. (It is *asked* recovery queries
@@ -205,7 +205,8 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
             raise ValueError("the uav role needs a UAV id")
         cam = keys.camera(fleet, uav)
         return [
-            Grant("ingress", ("put",), (keys.state(fleet, uav), keys.event(fleet, uav), cam, keys.advanced(cam))),
+            Grant("ingress", ("put",), (keys.state(fleet, uav), keys.event(fleet, uav), cam, keys.advanced(cam),
+                                        keys.preview(fleet, uav))),
             Grant("ingress", ("declare_queryable",), (keys.cmd(fleet, uav), keys.advanced(cam))),
             Grant("ingress", ("reply",), (keys.cmd(fleet, uav), cam, keys.advanced(cam))),
             Grant("ingress", ("liveliness_token",), (keys.alive(fleet, uav),)),

@@ -65,11 +65,6 @@ def test_gateway_killed_and_restarted(tmp_path):
         assert _landed(record, int(uav))
     # no command silently lost: every one acknowledged (or listed failed, which would fail here)
     assert faults["commands"]["acknowledged"] == faults["commands"]["sent"] > 0, _explain(proc, report)
-    capture_only = report["failures"] and all("capture points were not imaged" in f for f in report["failures"])
-    dropped = record["detector_stats"][-1]["msg"]["metrics"].get("queue.dropped", 0) if record["detector_stats"] else 0
-    if capture_only and dropped:
-        pytest.xfail(f"the detector's drop-oldest work queue (services/detector/service.py, 8 frames) dropped {dropped:g} "
-                     "capture frames of the burst recovered after the gateway restart: " + report["failures"][0])
     assert proc.returncode == 0 and report["success"], _explain(proc, report)
 
 
