@@ -17,7 +17,6 @@ from typing import Any
 
 __all__ = ["PLOTS", "write_plots"]
 
-PLOTS = ("coverage.png", "imagery.png", "telemetry.png", "commands.png")
 
 
 def _figure(n: int = 1):
@@ -82,43 +81,37 @@ def _plot(ax, cells, metric: str, x: str, group: Sequence[str], ylabel: str, xla
         ax.legend(fontsize=7)
 
 
+_BY_DELAY = ("delay_ms", "jitter_ms", "recovery")
+_LOSS = "random loss on the impaired links (%)"
+#: file -> panels (metric, x, lines by, y label, x label, scale, title)
+FIGURES: tuple[tuple[str, tuple[tuple[str, str, tuple[str, ...], str, str, float, str], ...]], ...] = (
+    ("coverage.png", (
+        ("coverage", "loss_pct", _BY_DELAY, "capture coverage (%)", _LOSS, 100.0, "capture coverage"),
+        ("success", "loss_pct", _BY_DELAY, "missions succeeded (%)", _LOSS, 100.0, "mission success"))),
+    ("imagery.png", (
+        ("img_recovered", "loss_pct", _BY_DELAY, "capture frames recovered", _LOSS, 1.0, "imagery: recovered"),
+        ("img_missing", "loss_pct", _BY_DELAY, "capture frames never delivered", _LOSS, 1.0, "imagery: missing"))),
+    ("telemetry.png", (
+        ("telemetry_age_p95_ms", "loss_pct", _BY_DELAY, "telemetry age p95 (ms)", _LOSS, 1.0, "telemetry age"),
+        ("telemetry_ratio", "loss_pct", _BY_DELAY, "telemetry delivered (%)", _LOSS, 100.0, "telemetry delivery"))),
+    ("commands.png", (
+        ("cmd_ack_p95_ms", "delay_ms", ("loss_pct", "jitter_ms", "recovery"), "command acknowledgement p95 (ms)",
+         "one-way delay on the impaired links (ms)", 1.0, "command acknowledgement latency"),)),
+)
+PLOTS = tuple(name for name, _ in FIGURES)
+
+
 def write_plots(cells: Sequence[Mapping[str, Any]], folder: str | Path) -> list[str]:
     """Write :data:`PLOTS` into ``folder``; returns the file names."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     varying = [k for k in ("loss_pct", "delay_ms", "jitter_ms", "recovery")
                if len({c["cell"][k] for c in cells}) > 1]
-    by_delay = ("delay_ms", "jitter_ms", "recovery")
-    loss = "random loss on the impaired links (%)"
-
-    fig, (a, b) = _figure(2)
-    _plot(a, cells, "coverage", "loss_pct", by_delay, "capture coverage (%)", loss, 100.0, varying)
-    _plot(b, cells, "success", "loss_pct", by_delay, "missions succeeded (%)", loss, 100.0, varying)
-    a.set_title("capture coverage")
-    b.set_title("mission success")
-    fig.tight_layout()
-    fig.savefig(folder / "coverage.png")
-
-    fig, (a, b) = _figure(2)
-    _plot(a, cells, "img_recovered", "loss_pct", by_delay, "capture frames recovered", loss, 1.0, varying)
-    _plot(b, cells, "img_missing", "loss_pct", by_delay, "capture frames never delivered", loss, 1.0, varying)
-    a.set_title("imagery: recovered")
-    b.set_title("imagery: missing")
-    fig.tight_layout()
-    fig.savefig(folder / "imagery.png")
-
-    fig, (a, b) = _figure(2)
-    _plot(a, cells, "telemetry_age_p95_ms", "loss_pct", by_delay, "telemetry age p95 (ms)", loss, 1.0, varying)
-    _plot(b, cells, "telemetry_ratio", "loss_pct", by_delay, "telemetry delivered (%)", loss, 100.0, varying)
-    a.set_title("telemetry age")
-    b.set_title("telemetry delivery")
-    fig.tight_layout()
-    fig.savefig(folder / "telemetry.png")
-
-    fig, (a,) = _figure(1)
-    _plot(a, cells, "cmd_ack_p95_ms", "delay_ms", ("loss_pct", "jitter_ms", "recovery"),
-          "command acknowledgement p95 (ms)", "one-way delay on the impaired links (ms)", 1.0, varying)
-    a.set_title("command acknowledgement latency")
-    fig.tight_layout()
-    fig.savefig(folder / "commands.png")
+    for name, panels in FIGURES:
+        fig, axes = _figure(len(panels))
+        for ax, (metric, x, group, ylabel, xlabel, scale, title) in zip(axes, panels):
+            _plot(ax, cells, metric, x, group, ylabel, xlabel, scale, varying)
+            ax.set_title(title)
+        fig.tight_layout()
+        fig.savefig(folder / name)
     return list(PLOTS)
