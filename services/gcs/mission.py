@@ -107,6 +107,7 @@ class MissionOptions:
     appear_timeout_s: float = 30.0
     plan_timeout_s: float = 120.0
     command_timeout_s: float = 2.0
+    start_margin_s: float = 1.0  # least time between the start command and the common start t0, wall s
     command_attempts: int = 4
     takeoff_timeout_s: float = 60.0  # simulated seconds
     mission_margin: float = 1.5  # x planned duration, simulated
@@ -331,6 +332,16 @@ class MissionRunner:
             if not rec.accepted:
                 raise MissionFailed(f"UAV {uav} refused {what}: {rec.reason}")
 
+    def start_margin_s(self) -> float:
+        """How far ahead the common start time ``t0`` is set: the Start commands go out one after
+        another, so the last UAV must have its Start before ``t0`` or it begins behind the others
+        (and formation keeping pulls them back toward it). Twice the slowest acknowledgement so far
+        per UAV, at least ``start_margin_s`` (1 s), at most 30 s: 200 ms each way on the uplinks
+        gives 0.8 s round trips and a 4.8 s margin for three UAVs."""
+        acks = [a for c in self.record.commands for a in c.ack_s]
+        slowest = max(acks, default=0.0)
+        return min(30.0, max(self.opt.start_margin_s, 2.0 * slowest * len(self.opt.uavs)))
+
     def heartbeat(self) -> None:
         period = 1.0 / self.opt.heartbeat_hz
         seq = 0
@@ -365,7 +376,7 @@ class MissionRunner:
             self.wait_for(lambda: self.fleet_done(lambda u, s: s is not None and s.mode == Mode.HOLD),
                           self.sim_timeout(self.opt.takeoff_timeout_s), "every UAV to reach takeoff altitude")
             self.phase("mission")
-            t0 = time.time() + 1.0
+            t0 = time.time() + self.start_margin_s()
             self.command_all(lambda u, cid: Start(uav=u, cmd_id=cid, t0_stamp=t0), "start")
             with self._lock:
                 self._started.update({u: time.time() for u in self.opt.uavs})

@@ -99,6 +99,21 @@ def test_impairment_proxy_on_one_uav_delays_only_its_link():
         proc.communicate(timeout=30)
 
 
+def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
+    """Every link, reliable ones too, 200 ms each way (issue 7's delay): the formation must not
+    read late states as lagging neighbours, and the common start must wait for the last UAV's
+    Start; either fault left the fleet 2.7 m behind its plan and the mission failed."""
+    out = tmp_path / "report"
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--speed", "8", "--quiet", "--out", str(out),
+                           "--impair", "all=delay 200ms"], capture_output=True, text=True, timeout=300)
+    report = json.loads((out / "report.json").read_text())
+    assert proc.returncode == 0 and report["success"], report["failures"]
+    for uav, fig in report["uavs"].items():
+        assert fig["reached_goal"], (uav, fig)
+    assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M
+    assert report["links"]["telemetry"]["latency_ms"]["p50"] > 380  # the delay was there: two hops of 200 ms
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["up", "--impair", "uav9=loss 5%"], "uav9"),
     (["up", "--impair", "gcs=loss 5%"], "gcs"),
