@@ -25,6 +25,9 @@ from services.planner.scenario import load_scenario_document
 from .mission import MissionOptions, MissionRunner
 from .progress import LiveDisplay, render
 
+#: the live display marks a UAV whose state has not been heard for this long (its 20 Hz telemetry)
+SILENT_S = 1.0
+
 
 def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
                 abort=None, ground_truth: bool = True, on_runner=None) -> int:
@@ -41,12 +44,17 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
         if display is None:
             return
         phase = max(runner.record.phases, key=runner.record.phases.get) if runner.record.phases else "-"
+        now = time.time()
         with runner._lock:
             states = dict(runner.latest)
             ages = [1000 * (s.rx - s.msg.stamp) for s in runner.record.states[-60:]]
             n_reports = len(runner.reports)
+            heard = dict(runner._rx)
+        lost = runner.lost()
+        notes = {u: "LOST" if u in lost else f"silent {now - heard[u]:.1f} s" for u in options.uavs
+                 if u in lost or (u in heard and now - heard[u] > SILENT_S)}
         display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
-                              time.time() - t_start), force=force)
+                              now - t_start, notes), force=force)
 
     runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort)
     if on_runner is not None:

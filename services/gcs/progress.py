@@ -36,15 +36,19 @@ def formation_rms(states: dict[int, VehicleState], offsets: dict[int, tuple[floa
 
 
 def render(phase: str, states: dict[int, VehicleState], uavs: tuple[int, ...], ages_ms: list[float],
-           reports: int, captures_planned: int, offsets: dict[int, tuple[float, float, float]], elapsed_s: float) -> list[str]:
+           reports: int, captures_planned: int, offsets: dict[int, tuple[float, float, float]], elapsed_s: float,
+           notes: dict[int, str] | None = None) -> list[str]:
+    """The live block; ``notes`` adds a word per UAV (``LOST``, ``silent 3.2 s``) after its line."""
     lines = [f"mission {elapsed_s:6.1f} s  phase: {phase}"]
+    notes = notes or {}
     for u in uavs:
         s = states.get(u)
+        note = f"  [{notes[u]}]" if notes.get(u) else ""
         if s is None:
-            lines.append(f"  UAV {u}  (no telemetry yet)")
+            lines.append(f"  UAV {u}  (no telemetry yet){note}")
             continue
         lines.append(f"  UAV {u}  {bar(s.progress)} {100 * s.progress:5.1f} %  {s.mode.value:<8} "
-                     f"z {s.pos[2]:5.1f} m  {math.hypot(*s.vel):4.1f} m/s  captures {s.captures}")
+                     f"z {s.pos[2]:5.1f} m  {math.hypot(*s.vel):4.1f} m/s  captures {s.captures}{note}")
     err = formation_rms(states, offsets)
     age = f"{statistics.median(ages_ms):.1f} ms" if ages_ms else "-"
     lines.append(f"  formation RMS error {'-' if err is None else f'{err:.2f} m'}   telemetry age p50 {age}   "
