@@ -54,15 +54,8 @@ import threading
 from typing import Any
 
 from services.netem.model import Impairment
-from services.netem.proxy import (
-    DIRECTIONS,
-    ControlServer,
-    TcpProxy,
-    UdpProxy,
-    format_address,
-    parse_address,
-    send_control,
-)
+from services.netem.control import ControlServer, send_control
+from services.netem.proxy import DIRECTIONS, TcpProxy, UdpProxy, format_address, parse_address
 from services.netem.schedule import ScheduleError, Step, load_schedule
 
 __all__ = ["main", "build_parser", "build_ctl_parser", "ctl", "summary"]

@@ -13,7 +13,8 @@ import time
 import pytest
 
 from services.netem.model import Impairment
-from services.netem.proxy import ControlServer, TcpProxy, UdpProxy, send_control
+from services.netem.control import ControlServer, send_control
+from services.netem.proxy import TcpProxy, UdpProxy
 from services.netem.schedule import parse_schedule
 from tests.services.netem.sockets import (
     eventually,
