@@ -529,13 +529,8 @@ class MissionRunner:
                 s, lost = self.latest.get(u), u in self._lost
             if s is None or not s.armed or s.mode == Mode.LAND:
                 continue
-            accepted, last_try = self._land_state.get(u, (False, -1e9))
-            if accepted and not lost:
-                continue
-            if lost:
-                if u in self._land_state:
-                    continue
-            elif now - last_try < 2.0:
+            tried = self._land_state.get(u)  # (accepted, when)
+            if tried is not None and (lost or tried[0] or now - tried[1] < 2.0):
                 continue
             rec = self.command(lambda cid, uav=u: Land(uav=uav, cmd_id=cid))
             self._land_state[u] = (rec.ok and rec.accepted, time.time())
@@ -569,13 +564,12 @@ class MissionRunner:
     def judge(self) -> None:
         rec = self.record
         clean = not rec.failures
-        planned = self.planned_captures()
-        for u, gone in sorted(self.lost().items()):
+        planned, lost = self.planned_captures(), self.lost()
+        missed_any = self.missing_captures(include_lost=True)
+        for u, gone in sorted(lost.items()):
             mine = {c for c in planned if c[0] == u}
-            missed = mine & self.missing_captures(include_lost=True)
             rec.failures.append(f"UAV {u} lost at {self.mission_time(gone)} (no liveliness token since); "
-                                f"its {len(missed)} of {len(mine)} capture points not imaged")
-        lost = self.lost()
+                                f"its {len(mine & missed_any)} of {len(mine)} capture points not imaged")
         if rec.plan is not None and clean:
             for t in rec.plan.trajectories:
                 if t.uav in lost:
