@@ -40,8 +40,7 @@ __all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "fault_figures", "reception_gaps"]
 GAP_S = 1.0
 #: The boards' SkyNet events shown (edge.board).
 NEIGHBOUR_EVENTS = ("neighbour-lost", "neighbour-up", "neighbour-stale", "neighbour-fresh")
-#: Fault ends after which the ground station's reception of the fleet is measured.
-_SEEN_AGAIN_AFTER = ("restart", "restore")
+#: Fault ends after which the ground station's reception of the fleet is measured -> their beginnings.
 _BEGIN_OF = {"restart": ("kill",), "restore": ("cut",)}
 
 
@@ -129,22 +128,23 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
     rx: dict[int, list[float]] = defaultdict(list)
     for s in record.states:
         rx[s.msg.uav].append(s.rx)
+    for times in rx.values():
+        times.sort()
     gaps = {}
     for u in sorted(rx):
-        times = sorted(rx[u])
+        times = rx[u]
         best, end, listed = reception_gaps(times)
         gaps[u] = {"last_rx_s": t(times[-1]), "max_gap_s": round(best, 3),
                    "max_gap_ended_s": None if end is None else t(end),
                    "gaps": [[t(a), t(b)] for a, b in listed]}
     seen_again = []
     for f in record.faults:
-        if f.action not in _SEEN_AGAIN_AFTER:
+        if f.action not in _BEGIN_OF:
             continue
         begins = [b for b in record.faults if b.target == f.target and b.action in _BEGIN_OF[f.action] and b.at <= f.at]
         begin = max((b.at for b in begins), default=f.at)
         per_uav: dict[int, float] = {}
         for u, times in rx.items():
-            times = sorted(times)
             # the first state after the gap that the fault opened (or the first after its end)
             back = next((b for a, b in pairwise(times) if b >= begin and b - max(a, begin) > GAP_S), None)
             if back is None:
