@@ -185,10 +185,7 @@ class _ProxyBase:
         if direction not in DIRECTIONS:
             raise ValueError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
         imp = Impairment.coerce(spec)
-        with self._change_lock:
-            self._update(imp, direction)
-            self.changes += 1
-        self._changed()
+        self._change(self._update, imp, direction)
         return imp
 
     def cut(self, duration_s: float | None = None) -> None:
@@ -198,18 +195,12 @@ class _ProxyBase:
         streams stall, nothing is lost), and new connections are accepted but held, not connected
         to the target, until the link is back."""
         self._require_started()
-        with self._change_lock:
-            self._cut(duration_s)
-            self.changes += 1
-        self._changed()
+        self._change(self._cut, duration_s)
 
     def restore(self) -> None:
         """End any cut now (the impairment stays); held TCP bytes and connections go on."""
         self._require_started()
-        with self._change_lock:
-            self._restore()
-            self.changes += 1
-        self._changed()
+        self._change(self._restore)
 
     def apply(self, command: Command | str) -> dict[str, Any]:
         """Carry out one command of :mod:`services.netem.schedule` (``set``, ``cut``, ``restore``,
@@ -222,18 +213,14 @@ class _ProxyBase:
             return {"ok": True, "stats": self.stats()}
         if cmd.action != "set":
             self._require_started()
-        with self._change_lock:
-            if cmd.action == "set":
-                self._update(cmd.impairment, cmd.direction)
-            elif cmd.action == "cut":
-                self._cut(cmd.duration_s)
-            elif cmd.action == "restore":
-                self._restore()
-            else:  # clear
-                self._update(Impairment(), "both")
-                self._restore()
-            self.changes += 1
-        self._changed()
+        if cmd.action == "set":
+            self._change(self._update, cmd.impairment, cmd.direction)
+        elif cmd.action == "cut":
+            self._change(self._cut, cmd.duration_s)
+        elif cmd.action == "restore":
+            self._change(self._restore)
+        else:  # clear
+            self._change(self._clear)
         return {"ok": True, "applied": cmd.to_text(), "impairment": self._impairment_text(),
                 "changes": self.changes}
 
@@ -253,6 +240,13 @@ class _ProxyBase:
             self._schedule_due()
             self._schedule_start()
 
+    def _change(self, op: Callable[..., None], *args: Any) -> None:
+        """Apply one change under the change lock, count it, then run the :meth:`_changed` hook."""
+        with self._change_lock:
+            op(*args)
+            self.changes += 1
+        self._changed()
+
     def _update(self, imp: Impairment, direction: str) -> None:
         for d in ("up", "down"):
             if direction in ("both", d):
@@ -269,6 +263,10 @@ class _ProxyBase:
     def _restore(self) -> None:
         for d in ("up", "down"):
             self._imp[d].restore()
+
+    def _clear(self) -> None:
+        self._update(Impairment(), "both")
+        self._restore()
 
     def _changed(self) -> None:
         """Hook after a change (TCP: wake the writers and the acceptor)."""
