@@ -67,6 +67,7 @@ from .topology import (
     link_ends,
     link_seed,
     parse_impair,
+    skynet_link,
 )
 
 HOST = "127.0.0.1"
@@ -200,9 +201,9 @@ class Network:
     def edge_config(self, i: int) -> list[str]:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
         rules that keep its links on the proxies (:func:`services.topology.edge_mesh_config`)."""
-        base = json.loads(self.creds.mesh_config.read_text()) if self.creds is not None else None
         if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied:
-            return [] if base is None else ["--config", str(self.creds.mesh_config)]
+            return [] if self.creds is None else ["--config", str(self.creds.mesh_config)]
+        base = json.loads(self.creds.mesh_config.read_text()) if self.creds is not None else None
         path = self.tmp / f"uav{i}.json5"
         path.write_text(json.dumps(edge_mesh_config(self.plan.mesh, base)))
         path.chmod(0o600)
@@ -214,8 +215,7 @@ class Network:
             return []
         out = []
         for j in range(i + 1, self.args.uavs + 1):
-            link = f"uav{i}-uav{j}"
-            for e in self._proxy_pair(link, self.edge_endpoints[j]):
+            for e in self._proxy_pair(skynet_link(i, j), self.edge_endpoints[j]):
                 out += ["--connect", e]
         return out
 
