@@ -18,6 +18,7 @@ from services.faults import (
 )
 from services.launcher import build_parser, make_plan
 from services.topology import Links, edge_mesh_config, link_seed, parse_impair
+from tests.conftest import wait_until
 
 L3 = Links(3)
 UP3 = Links(3, ("planner", "detector"))
@@ -190,9 +191,7 @@ def test_injector_waits_for_the_mission_counts_overlapping_cuts_and_stops_at_don
     time.sleep(0.3)
     assert target.log == [] and runner.notes == []  # no mission phase yet
     runner.record.phases["mission"] = time.time()
-    deadline = time.monotonic() + 5
-    while len(runner.notes) < 6 and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_until(lambda: len(runner.notes) >= 6, 5.0)
     runner.record.phases["done"] = time.time()
     inj.stop()
     assert inj.done()
