@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import heapq
 import itertools
-import json
 import math
 import selectors
 import socket
