@@ -161,10 +161,11 @@ class Board:
             if self.failsafe_active:
                 # the "failsafe" event may have been lost with the link that caused it: this one
                 # says again when it began, for the report's failsafe -> resume time
-                since = self.failsafe_since or time.time()
+                now = time.time()
+                since = self.failsafe_since or now
                 self.failsafe_active, self.failsafe_since = False, None
-                self.event("failsafe-cleared", f"resumed by command after {time.time() - since:.1f} s of failsafe",
-                           since=round(since, 3), held_s=round(time.time() - since, 3))
+                self.event("failsafe-cleared", f"resumed by command after {now - since:.1f} s of failsafe",
+                           since=round(since, 3), held_s=round(now - since, 3))
             d.resume()
         elif isinstance(cmd, ReturnToLaunch):
             d.return_to_launch()
