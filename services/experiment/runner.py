@@ -46,32 +46,34 @@ class RunResult:
                 "out": self.out, "command": self.command, "metrics": self.metrics}
 
 
-def _proc_start(pid: int) -> str | None:
-    """Start time of a process (field 22 of /proc/PID/stat), to tell a reused pid apart."""
+def _stat(pid: int | str) -> list[str] | None:
+    """Fields 3.. of /proc/PID/stat (after the command name, which may hold spaces), or None."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
     except OSError:
         return None
-    return stat.rsplit(")", 1)[1].split()[19]
+    return stat.rsplit(")", 1)[1].split()
+
+
+def _proc_start(pid: int) -> str | None:
+    """Start time of a process (field 22 of /proc/PID/stat), to tell a reused pid apart."""
+    fields = _stat(pid)
+    return None if fields is None else fields[19]
 
 
 def descendants(pid: int) -> list[tuple[int, str | None]]:
-    """Every process below ``pid`` (children, grandchildren, ...) as (pid, start time), from /proc."""
-    parents: dict[int, list[int]] = {}
+    """Every process below ``pid`` (children, grandchildren, ...) as (pid, start time), from /proc
+    (each process's stat read once)."""
+    children: dict[int, list[tuple[int, str]]] = {}
     for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
+        if not entry.name.isdigit() or (fields := _stat(entry.name)) is None:
             continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue
-        ppid = int(stat.rsplit(")", 1)[1].split()[1])
-        parents.setdefault(ppid, []).append(int(entry.name))
+        children.setdefault(int(fields[1]), []).append((int(entry.name), fields[19]))
     out, todo = [], [pid]
     while todo:
-        for child in parents.get(todo.pop(), []):
-            out.append((child, _proc_start(child)))
-            todo.append(child)
+        for child in children.get(todo.pop(), []):
+            out.append(child)
+            todo.append(child[0])
     return out
 
 
