@@ -60,7 +60,7 @@ class BusConfig(BaseModel):
     shared_memory: bool = False
     multilink: bool = False
     connect_timeout_s: float = Field(default=10.0, ge=0.0, le=3600.0)
-    reconnect_max_s: float = Field(default=1.0, gt=0.0, le=3600.0,
+    reconnect_max_s: float = Field(default=1.0, ge=0.001, le=3600.0,
                                    description="connect/retry/period_max_ms: longest pause between tries to "
                                                "reach a lost connect endpoint (zenoh's default 4 s)")
     user: str | None = Field(default=None, description="transport/auth/usrpwd/user")
@@ -83,8 +83,8 @@ class BusConfig(BaseModel):
             put("connect/endpoints", endpoints)
             # a restarted gateway (or a healed link) is found again within about this pause; zenoh's
             # default backs off to 4 s, which made the fleet reappear up to 4 s after a restart (issue 7)
-            init_ms = min(250, int(self.reconnect_max_s * 1000))
-            put("connect/retry", {"period_init_ms": init_ms, "period_max_ms": int(self.reconnect_max_s * 1000),
+            max_ms = int(self.reconnect_max_s * 1000)  # >= 1: a 0 ms pause would retry without pause
+            put("connect/retry", {"period_init_ms": min(250, max_ms), "period_max_ms": max_ms,
                                   "period_increase_factor": 2})
         put("scouting/multicast/enabled", self.multicast_scouting)
         put("scouting/gossip/enabled", self.gossip)

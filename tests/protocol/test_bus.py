@@ -1,8 +1,11 @@
 """The bus layer across real processes through a real gateway router (no mock of the bus)."""
 
+import json
 import signal
 import time
 
+import pydantic
+import pytest
 
 from protocol import keys
 from protocol.bus import Bus, BusConfig, endpoint_address
@@ -196,3 +199,12 @@ def test_recovery_retransmits_best_effort_samples_lost_on_a_lossy_udp_link(gatew
         assert lossy.stats()["up"]["dropped"]["loss"] > 5  # the link really lost frames
         assert len(plain) < 100  # ... which a plain subscriber does not get back
         assert [int.from_bytes(r[:2], "big") for r in recovered] == list(range(100))  # in order, none missing
+
+
+def test_reconnect_pause_reaches_zenoh_in_whole_milliseconds():
+    """A lost connect endpoint is retried within reconnect_max_s (issue 7); a pause that would round to 0 ms is refused."""
+    conf = BusConfig(mode="client", connect=["tcp/127.0.0.1:7447"], reconnect_max_s=1.0).to_zenoh()
+    assert json.loads(conf.get_json("connect/retry")) == {"period_init_ms": 250, "period_max_ms": 1000,
+                                                         "period_increase_factor": 2.0}
+    with pytest.raises(pydantic.ValidationError, match="reconnect_max_s"):
+        BusConfig(reconnect_max_s=0.0004)
