@@ -29,6 +29,7 @@ import json
 import shlex
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +84,12 @@ def check_options(args: argparse.Namespace) -> tuple[list[Cell], list[Run]]:
     args.links = check_links(args.links, args.uavs)
     cells = expand(loss, delay, jitter, recovery)
     return cells, plan(cells, args.repeat, args.seed)
+
+
+def command_of(args: argparse.Namespace, run: Run, folder: Path) -> list[str]:
+    """The mission command of ``run`` under the options (what is flown, and what --dry-run prints)."""
+    return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs,
+                           scenario=args.scenario)
 
 
 def summarise(args: argparse.Namespace, cells: list[Cell], results: list[RunResult], started: float,
@@ -144,10 +151,6 @@ def run_experiment(args: argparse.Namespace, cells: list[Cell], runs: list[Run],
     started = time.time()
     results: list[RunResult] = []
 
-    def command_of(run: Run, folder: Path) -> list[str]:
-        return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs,
-                               scenario=args.scenario)
-
     def progress(res: RunResult, i: int, n: int) -> None:
         results.append(res)
         m = res.metrics
@@ -158,7 +161,7 @@ def run_experiment(args: argparse.Namespace, cells: list[Cell], runs: list[Run],
 
     interrupted = False
     try:
-        run_all(runs, command_of, out, args.timeout, on_result=progress, cwd=str(REPO))
+        run_all(runs, partial(command_of, args), out, args.timeout, on_result=progress, cwd=str(REPO))
     except KeyboardInterrupt:
         interrupted = True
         print("interrupted: writing what ran", file=echo, flush=True)
@@ -182,8 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out or f"reports/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.dry_run:
         for run in runs:
-            print(shlex.join(mission_command(run, str(out / "runs" / run.name), links=args.links, speed=args.speed,
-                                             uavs=args.uavs, scenario=args.scenario)))
+            print(shlex.join(command_of(args, run, out / "runs" / run.name)))
         return 0
     print(f"{len(runs)} runs ({len(cells)} cells x {args.repeat}) into {out}", flush=True)
     return run_experiment(args, cells, runs, out)[1]
