@@ -22,11 +22,8 @@ from protocol.bus import (
 )
 from services.planner.scenario import load_scenario_document
 
-from .mission import MissionOptions, MissionRunner
+from .mission import FRESH_STATE_S, MissionOptions, MissionRunner
 from .progress import LiveDisplay, render
-
-#: the live display marks a UAV whose state has not been heard for this long (its 20 Hz telemetry)
-SILENT_S = 1.0
 
 
 def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
@@ -52,7 +49,7 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
             heard = dict(runner._rx)
         lost = runner.lost()
         notes = {u: "LOST" if u in lost else f"silent {now - heard[u]:.1f} s" for u in options.uavs
-                 if u in lost or (u in heard and now - heard[u] > SILENT_S)}
+                 if u in lost or (u in heard and now - heard[u] > FRESH_STATE_S)}
         display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
                               now - t_start, notes), force=force)
 
