@@ -7,6 +7,8 @@ import struct
 import threading
 import time
 
+from tests.conftest import wait_until
+
 
 class UdpServer:
     """A UDP sink that records (arrival time, payload) and optionally echoes."""
@@ -39,9 +41,7 @@ class UdpServer:
                 self.sock.sendto(data, peer)
 
     def wait_count(self, n: int, timeout: float = 5.0) -> None:
-        deadline = time.monotonic() + timeout
-        while len(self.got) < n and time.monotonic() < deadline:
-            time.sleep(0.01)
+        eventually(lambda: len(self.got) >= n, timeout)
 
     def close(self) -> None:
         self._stop = True
@@ -106,10 +106,7 @@ def udp_client() -> socket.socket:
 
 def eventually(pred, timeout: float = 5.0) -> bool:
     """Poll ``pred`` until true (or timeout): waits for the proxy threads to catch up."""
-    deadline = time.monotonic() + timeout
-    while not pred() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    return pred()
+    return wait_until(pred, timeout, poll=0.01)
 
 
 def send_paced(sock: socket.socket, addr, payloads, every: int = 50, pause: float = 0.002) -> None:
