@@ -96,13 +96,15 @@ def run_metrics(report: Mapping[str, Any] | None, wall_s: float | None = None, h
                 ) -> dict[str, float | None]:
     """The :data:`METRICS` of one run from its ``report.json`` (None or {} when there is none).
 
+    Parts of the report that are missing or not of the expected shape give None, never an error.
+
     A figure the report does not have is None (e.g. no imagery statistics reached the ground
     station); a run without a report has ``success`` 0 and nothing else; a hung run (stopped at
     the timeout) has ``success`` 0 and whatever the report it left says.
     """
     out: dict[str, float | None] = dict.fromkeys(METRICS)
     out["wall_s"] = _num(wall_s)
-    if not report:
+    if not isinstance(report, Mapping) or not report:
         out["success"] = 0.0
         return out
     r = report
@@ -110,17 +112,17 @@ def run_metrics(report: Mapping[str, Any] | None, wall_s: float | None = None, h
     out["coverage"] = _num(_get(r, "captures", "ratio"))
     out["captures_imaged"] = _num(_get(r, "captures", "imaged"))
     out["captures_planned"] = _num(_get(r, "captures", "planned"))
-    cmd = _get(r, "links", "command") or {}
-    out["cmd_ack_ratio"] = _num(cmd.get("ratio"))
+    cmd = _get(r, "links", "command")
+    out["cmd_ack_ratio"] = _num(_get(cmd, "ratio"))
     out["cmd_ack_p50_ms"] = _num(_get(cmd, "latency_ms", "p50"))
     out["cmd_ack_p95_ms"] = _num(_get(cmd, "latency_ms", "p95"))
-    sent, ok = _num(cmd.get("sent")), _num(cmd.get("delivered"))
+    sent, ok = _num(_get(cmd, "sent")), _num(_get(cmd, "delivered"))
     out["cmd_failed"] = sent - ok if sent is not None and ok is not None else None
-    tel = _get(r, "links", "telemetry") or {}
-    out["telemetry_ratio"] = _num(tel.get("ratio"))
+    tel = _get(r, "links", "telemetry")
+    out["telemetry_ratio"] = _num(_get(tel, "ratio"))
     out["telemetry_age_p50_ms"] = _num(_get(tel, "latency_ms", "p50"))
     out["telemetry_age_p95_ms"] = _num(_get(tel, "latency_ms", "p95"))
-    imagery = r.get("imagery") or {}
+    imagery = r.get("imagery")
     if isinstance(imagery, Mapping) and imagery:
         out["img_delivered"] = _camera_sum(imagery, "delivered")
         out["img_lost"] = _camera_sum(imagery, "lost")

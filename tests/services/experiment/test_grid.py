@@ -95,6 +95,11 @@ def test_run_metrics_read_the_report():
     odd = run_metrics({"success": "yes", "captures": {"ratio": float("nan")}, "imagery": {}})
     assert odd["success"] == 0.0 and odd["coverage"] is None and odd["img_lost"] is None
     assert odd["img_missing"] is None
+    # a report of the wrong shape gives no figures rather than an error
+    misshapen = run_metrics({"success": True, "links": {"command": [1, 2], "telemetry": "x"}, "imagery": [3]})
+    assert misshapen["success"] == 1.0 and misshapen["cmd_ack_ratio"] is None and misshapen["cmd_failed"] is None
+    assert misshapen["telemetry_ratio"] is None and misshapen["img_delivered"] is None
+    assert run_metrics([1, 2], 3.0)["success"] == 0.0  # type: ignore[arg-type]
 
 
 def test_aggregate_and_table():
