@@ -46,8 +46,7 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
             states = dict(runner.latest)
             ages = [1000 * (s.rx - s.msg.stamp) for s in runner.record.states[-60:]]
             n_reports = len(runner.reports)
-            heard = dict(runner._rx)
-        lost = runner.lost()
+        heard, lost = runner.last_heard(), runner.lost()
         notes = {u: "LOST" if u in lost else f"silent {now - heard[u]:.1f} s" for u in options.uavs
                  if u in lost or (u in heard and now - heard[u] > FRESH_STATE_S)}
         display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,

@@ -415,6 +415,11 @@ class MissionRunner:
         with self._lock:
             return dict(self._lost)
 
+    def last_heard(self) -> dict[int, float]:
+        """UAV -> wall time its latest state was received."""
+        with self._lock:
+            return dict(self._rx)
+
     def mission_time(self, wall: float) -> str:
         """``wall`` as "mission t=12.3 s" (from the mission phase's start), or "t=… s" from the start."""
         m = self.record.phases.get("mission")
