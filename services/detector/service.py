@@ -81,14 +81,13 @@ class DetectorService:
         self.work = Ring(queue, self._process, name="detector", workers=workers)
         self.pub = bus.publisher(keys.defects(bus.fleet), COMMAND)
         self.stats_pub = bus.publisher(keys.rcu_stats(bus.fleet, "detector"), TELEMETRY)
-        self.recover = bool(recover)
-        self.recovery = RecoveryTracker() if self.recover else None
+        self.recovery = RecoveryTracker() if recover else None  # None: recovery off
         cams = keys.camera(bus.fleet, "*")
-        if self.recover:
+        if recover:
             # frames lost on a lossy link are retransmitted from the cameras' caches; a plain
             # subscriber beside it sees what the link delivered the first time (recovered = the rest)
             bus.subscribe_raw(cams, self._on_live)
-        bus.subscribe_raw(cams, self._on_frame, recover=self.recover)
+        bus.subscribe_raw(cams, self._on_frame, recover=bool(recover))
         bus.token(keys.rcu_alive(bus.fleet, "detector"))
         self._t0 = time.time()
 
@@ -172,7 +171,7 @@ class DetectorService:
                                 f"{p}.reordered": st.reordered, f"{p}.jitter_ms": 1000 * st.jitter_s,
                                 f"{p}.fraction_lost": st.fraction_lost,
                                 f"{p}.recovered": self.recovery.recovered[ssrc] if self.recovery else 0})
-        metrics["imagery.recovery"] = int(self.recover)
+        metrics["imagery.recovery"] = int(self.recovery is not None)
         missed = self.bus.counters.snapshot()["dropped"]
         metrics["imagery.unrecovered"] = sum(v for k, v in missed.items() if k.startswith("missed:"))
         metrics["queue.dropped"] = self.work.dropped
