@@ -40,7 +40,7 @@ from protocol.messages import (
 )
 
 from . import formation
-from .runtime import IMAGERY_CACHE_FRAMES, PREVIEW_HZ, preview_rate
+from .runtime import IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, preview_rate
 from .validate import validate_command
 from .vehicle.follower import Follower
 
@@ -259,16 +259,6 @@ def parse_vec(text: str) -> tuple[float, float, float]:
     return v  # type: ignore[return-value]
 
 
-def _non_negative_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {n}")
-    return n
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet edge", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="peer")
@@ -293,7 +283,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--frame-size", default="640x480", help="delivered frame size WxH")
     parser.add_argument("--preview-hz", type=preview_rate, default=PREVIEW_HZ, metavar="HZ",
                         help="live preview frames per second (320x240, best-effort, never recovered; 0 = off)")
-    parser.add_argument("--imagery-cache", type=_non_negative_int, default=IMAGERY_CACHE_FRAMES, metavar="N",
+    parser.add_argument("--imagery-cache", type=cache_frames, default=IMAGERY_CACHE_FRAMES, metavar="N",
                         help="capture frames kept for retransmission to a detector that lost them "
                              "(0: no recovery, capture frames are best-effort like previews)")
     return parser
