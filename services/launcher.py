@@ -60,6 +60,7 @@ from .process import ProcessGroup, free_port_pair
 from .topology import (
     CLASSES,
     OPEN_TIMEOUT_MS,
+    open_timeout_ms,
     Impairments,
     Links,
     MeshMode,
@@ -128,6 +129,8 @@ class Network:
                  ground_station: bool = False, plan: Plan | None = None):
         self.args = args
         self.plan = plan or make_plan(args, ground_station)
+        #: transport/unicast/open_timeout of nodes whose links are proxied, ms (slower links, longer)
+        self.open_timeout = open_timeout_ms(self.plan.impair.worst_delay_ms())
         self.group = ProcessGroup(echo=echo)
         self.log_dir = log_dir
         #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}
@@ -195,7 +198,7 @@ class Network:
         lost on an impaired link after a gateway restart is retried in seconds, not after zenoh's 10 s."""
         path = self.tmp / "client.json5"
         if not path.exists():
-            path.write_text(json.dumps({"transport": {"unicast": {"open_timeout": OPEN_TIMEOUT_MS}}}))
+            path.write_text(json.dumps({"transport": {"unicast": {"open_timeout": self.open_timeout}}}))
         return path
 
     def edge_config(self, i: int) -> list[str]:
@@ -205,17 +208,20 @@ class Network:
             return [] if self.creds is None else ["--config", str(self.creds.mesh_config)]
         base = json.loads(self.creds.mesh_config.read_text()) if self.creds is not None else None
         path = self.tmp / f"uav{i}.json5"
-        path.write_text(json.dumps(edge_mesh_config(self.plan.mesh, base)))
+        path.write_text(json.dumps(edge_mesh_config(self.plan.mesh, base, self.open_timeout)))
         path.chmod(0o600)
         return ["--config", str(path)]
 
     def mesh_connect(self, i: int) -> list[str]:
-        """With the proxied mesh, edge i's ``--connect`` to the proxies in front of every edge j > i."""
-        if self.plan.mesh != "proxied":
-            return []
+        """Edge i's ``--connect`` to every edge j > i: through the proxies in front of j with the
+        proxied mesh, else straight to j's endpoints. Dialled endpoints are retried until they
+        answer, while a peer learned by gossip is dialled when the gossip arrives: an edge that
+        was not listening yet then stayed out of the mesh for good (seen under load in CI)."""
         out = []
         for j in range(i + 1, self.args.uavs + 1):
-            for e in self._proxy_pair(skynet_link(i, j), self.edge_endpoints[j]):
+            ends = (self._proxy_pair(skynet_link(i, j), self.edge_endpoints[j]) if self.plan.mesh == "proxied"
+                    else self.edge_endpoints[j])
+            for e in ends:
                 out += ["--connect", e]
         return out
 
@@ -339,7 +345,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="netem impairment on a link or group of links (repeatable, later wins), e.g. "
                         'uav2="delay 50ms loss 2%%"; SPEC as in skynet netem')
     p.add_argument("--mesh", choices=["direct", "proxied"], default=None,
-                   help="direct: edges find and dial each other by gossip; proxied: through a proxy pair per "
+                   help="direct: edges dial each other straight; proxied: through a proxy pair per "
                         "SkyNet link (default: proxied when a SkyNet link is impaired or faulted)")
     p.add_argument("--no-recovery", action="store_true",
                    help="capture frames not recoverable: no imagery cache on the edges, no recovery in the detector")

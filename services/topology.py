@@ -18,10 +18,10 @@ none = both (zenoh's multilink setup, ZENOH.md "One link per reliability class")
 netem string of :meth:`services.netem.model.Impairment.parse`. Later items override earlier ones
 for the same link and class.
 
-Meshing (``--mesh``): ``direct`` — the edges find each other by zenoh gossip and connect
-directly (zenoh's default); ``proxied`` — gossip autoconnect is off on the edges and edge i
-connects explicitly, for each j > i, to a proxy pair in front of edge j's listen endpoints, so
-that nothing bypasses the proxies (:func:`edge_mesh_config`).
+Meshing (``--mesh``): edge i connects explicitly, for each j > i, to edge j — ``direct``:
+straight to j's listen endpoints (gossip may add the same links); ``proxied``: to a proxy pair
+in front of them, with gossip autoconnect off on the edges so that nothing bypasses the proxies
+(:func:`edge_mesh_config`).
 """
 
 from __future__ import annotations
@@ -120,6 +120,18 @@ class Impairments:
     def links(self) -> list[str]:
         return list(self.specs)
 
+    def worst_delay_ms(self) -> float:
+        """The largest one-way delay any impaired link adds (delay + 3 jitter, its rate's
+        serialisation of a 64 KB datagram aside), ms; 0 with no impairment."""
+        from services.netem.model import Impairment
+
+        worst = 0.0
+        for classes in self.specs.values():
+            for spec in classes.values():
+                imp = Impairment.parse(spec)
+                worst = max(worst, imp.delay_ms + 3.0 * imp.jitter_ms)
+        return worst
+
 
 def parse_impair(items: Iterable[str], links: Links) -> Impairments:
     """Read ``--impair NAME[/udp|/tcp]=SPEC`` items (later ones override earlier ones).
@@ -165,7 +177,14 @@ def link_seed(seed: int, link: str, cls: str) -> int:
 OPEN_TIMEOUT_MS = 2500
 
 
-def edge_mesh_config(mesh: MeshMode, base: dict | None = None) -> dict:
+def open_timeout_ms(worst_delay_ms: float) -> int:
+    """:data:`OPEN_TIMEOUT_MS` plus four round trips of the worst one-way delay: opening a zenoh
+    link takes the TCP handshake and two more round trips (InitSyn/Ack, OpenSyn/Ack), and a link
+    that cannot open in time is abandoned and dialled again, over and over (200 ms each way: 4.1 s)."""
+    return int(OPEN_TIMEOUT_MS + 8.0 * max(0.0, worst_delay_ms))
+
+
+def edge_mesh_config(mesh: MeshMode, base: dict | None = None, open_timeout: int = OPEN_TIMEOUT_MS) -> dict:
     """The zenoh config of an edge whose links must all go where the launcher points them.
 
     Gossip stays on (the nodes still tell each other what they have), but *autoconnect* —
@@ -175,12 +194,12 @@ def edge_mesh_config(mesh: MeshMode, base: dict | None = None) -> dict:
     the ``direct`` mesh. ``scouting/gossip/autoconnect`` lists the kinds of node a peer dials
     (zenoh's DEFAULT_CONFIG.json5: ``{ router: [], peer: ["router", "peer"] }``). ``base`` (e.g.
     the secured edges' config, :func:`services.gateway.credentials.mesh_config_doc`) is merged in.
-    The open timeout is shortened (:data:`OPEN_TIMEOUT_MS`).
+    The open timeout is shortened (:data:`OPEN_TIMEOUT_MS`, more on slow links: :func:`open_timeout_ms`).
     """
     doc = copy.deepcopy(base or {})
     peer = ["peer"] if mesh == "direct" else []
     return _merge(doc, {"scouting": {"gossip": {"autoconnect": {"router": [], "peer": peer}}},
-                        "transport": {"unicast": {"open_timeout": OPEN_TIMEOUT_MS}}})
+                        "transport": {"unicast": {"open_timeout": open_timeout}}})
 
 
 def _merge(into: dict, other: dict) -> dict:

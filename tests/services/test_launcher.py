@@ -107,7 +107,8 @@ def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--speed", "8", "--quiet", "--out", str(out),
                            "--impair", "all=delay 200ms"], capture_output=True, text=True, timeout=300)
     report = json.loads((out / "report.json").read_text())
-    assert proc.returncode == 0 and report["success"], report["failures"]
+    logs = (out / "services.log").read_text()[-4000:] if (out / "services.log").exists() else ""
+    assert proc.returncode == 0 and report["success"], f"{report['failures']}\n{proc.stderr[-2000:]}\n{logs}"
     for uav, fig in report["uavs"].items():
         assert fig["reached_goal"], (uav, fig)
     assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M

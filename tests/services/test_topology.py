@@ -193,3 +193,14 @@ def test_uplinks_cut_longer_than_the_lease_come_back_after_the_restore(running):
         probe.last
     print(f"\nuplinks cut 3 s: the client sees the fleet again {time.monotonic() - restored:.2f} s after the restore")
     assert all(probe.answered(u) for u in (1, 2, 3))
+
+
+def test_open_timeout_grows_with_the_worst_configured_delay():
+    from services.topology import OPEN_TIMEOUT_MS, Links, open_timeout_ms, parse_impair
+
+    links = Links(3, ("planner", "detector", "gcs"))
+    assert parse_impair([], links).worst_delay_ms() == 0.0
+    imp = parse_impair(["uav2=delay 50ms", "all/udp=after 2s delay 200ms jitter 20ms loss 20%"], links)
+    assert imp.worst_delay_ms() == 260.0  # delay + 3 jitter
+    assert open_timeout_ms(0.0) == OPEN_TIMEOUT_MS
+    assert open_timeout_ms(imp.worst_delay_ms()) == OPEN_TIMEOUT_MS + 8 * 260
