@@ -34,6 +34,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 from protocol import keys
@@ -107,7 +108,7 @@ class MissionOptions:
     appear_timeout_s: float = 30.0
     plan_timeout_s: float = 120.0
     command_timeout_s: float = 2.0
-    start_margin_s: float = 1.0  # least time between the start command and the common start t0, wall s
+    start_margin_s: float = 2.0  # least time between the start commands and the common start t0, wall s
     command_attempts: int = 4
     takeoff_timeout_s: float = 60.0  # simulated seconds
     mission_margin: float = 1.5  # x planned duration, simulated
@@ -324,23 +325,36 @@ class MissionRunner:
             self.record.commands.append(rec)
         return rec
 
-    def command_all(self, make: Callable[[int, int], object], what: str) -> None:
-        for uav in self.opt.uavs:
-            rec = self.command(lambda cid, u=uav: make(u, cid))
+    def command_all(self, make: Callable[[int, int], object], what: str, parallel: bool = False) -> None:
+        """The command to every UAV, one after another or (``parallel``) all at once; MissionFailed
+        naming the first UAV that did not acknowledge or refused it."""
+        def one(uav: int) -> CommandRecord:
+            return self.command(lambda cid: make(uav, cid))
+
+        if parallel:
+            with ThreadPoolExecutor(max_workers=len(self.opt.uavs), thread_name_prefix="cmd") as pool:
+                records = list(pool.map(one, self.opt.uavs))
+        else:
+            records = []
+            for uav in self.opt.uavs:
+                records.append(one(uav))
+                if not (records[-1].ok and records[-1].accepted):
+                    break
+        for uav, rec in zip(self.opt.uavs, records):
             if not rec.ok:
                 raise MissionFailed(f"UAV {uav} did not acknowledge {what} after {rec.attempts} tries: {rec.reason}")
             if not rec.accepted:
                 raise MissionFailed(f"UAV {uav} refused {what}: {rec.reason}")
 
     def start_margin_s(self) -> float:
-        """How far ahead the common start time ``t0`` is set: the Start commands go out one after
-        another, so the last UAV must have its Start before ``t0`` or it begins behind the others
-        (and formation keeping pulls them back toward it). Twice the slowest acknowledgement so far
-        per UAV, at least ``start_margin_s`` (1 s), at most 30 s: 200 ms each way on the uplinks
-        gives 0.8 s round trips and a 4.8 s margin for three UAVs."""
+        """How far ahead the common start time ``t0`` is set. The Start commands go out to all UAVs
+        at once, and each must arrive before ``t0`` or that UAV begins behind the others (and
+        formation keeping pulls them back toward it): twice the slowest acknowledgement so far, at
+        least ``start_margin_s`` (2 s), at most 30 s. (With 200 ms on every link a round trip takes
+        0.8 s; sent one after another with 1 s of margin, UAV 3 began 7 s of trajectory late.)"""
         acks = [a for c in self.record.commands for a in c.ack_s]
         slowest = max(acks, default=0.0)
-        return min(30.0, max(self.opt.start_margin_s, 2.0 * slowest * len(self.opt.uavs)))
+        return min(30.0, max(self.opt.start_margin_s, 2.0 * slowest))
 
     def heartbeat(self) -> None:
         period = 1.0 / self.opt.heartbeat_hz
@@ -377,7 +391,7 @@ class MissionRunner:
                           self.sim_timeout(self.opt.takeoff_timeout_s), "every UAV to reach takeoff altitude")
             self.phase("mission")
             t0 = time.time() + self.start_margin_s()
-            self.command_all(lambda u, cid: Start(uav=u, cmd_id=cid, t0_stamp=t0), "start")
+            self.command_all(lambda u, cid: Start(uav=u, cmd_id=cid, t0_stamp=t0), "start", parallel=True)
             with self._lock:
                 self._started.update({u: time.time() for u in self.opt.uavs})
             self._in_mission.set()

@@ -71,18 +71,21 @@ def test_scenario_formation_follows_the_number_of_uavs():
 
 
 def test_the_common_start_leaves_time_for_every_start_command():
-    """Start goes to the UAVs one after another: t0 must lie beyond the last one's round trip,
-    or that UAV begins behind the others (seen with 200 ms on every link: 2.7 m short of the goal)."""
+    """t0 must lie beyond the Start commands' round trip, or a UAV begins behind the others (seen
+    with 200 ms on every link: 2.7 m short of the goal)."""
     from services.gcs.record import CommandRecord
 
     with Bus(BusConfig(mode="peer"), FLEET, "gcs") as bus:
         runner = MissionRunner(bus, load_scenario_doc(None), MissionOptions(uavs=(1, 2, 3)))
-        assert runner.start_margin_s() == 1.0  # nothing measured yet: the least margin
+        assert runner.start_margin_s() == 2.0  # nothing measured yet: the least margin
         runner.record.commands += [
             CommandRecord(uav=1, kind="takeoff", cmd_id=1, ok=True, accepted=True, elapsed_s=0.01, ack_s=[0.01]),
             CommandRecord(uav=2, kind="takeoff", cmd_id=2, ok=True, accepted=True, elapsed_s=0.8, ack_s=[0.8]),
         ]
-        assert runner.start_margin_s() == pytest.approx(2 * 0.8 * 3)
+        assert runner.start_margin_s() == pytest.approx(2.0)  # 2 x 0.8 s is less than the least margin
         runner.record.commands.append(
-            CommandRecord(uav=3, kind="takeoff", cmd_id=3, ok=True, accepted=True, elapsed_s=60, ack_s=[60.0]))
+            CommandRecord(uav=3, kind="takeoff", cmd_id=3, ok=True, accepted=True, elapsed_s=1.5, ack_s=[1.5]))
+        assert runner.start_margin_s() == pytest.approx(3.0)
+        runner.record.commands.append(
+            CommandRecord(uav=3, kind="takeoff", cmd_id=4, ok=True, accepted=True, elapsed_s=60, ack_s=[60.0]))
         assert runner.start_margin_s() == 30.0  # bounded
