@@ -29,13 +29,13 @@ a service, the proxies of a link) and reports every action and its end to ``note
 from __future__ import annotations
 
 import logging
-import re
 import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
+from services.netem.model import parse_time_s
 from services.topology import Links, link_ends
 
 Action = Literal["kill", "cut", "partition"]
@@ -43,16 +43,14 @@ ACTIONS = ("kill", "cut", "partition")
 #: the actions noted when a fault ends (``MissionRunner.note_fault``; issue 7 interfaces)
 END_ACTION = {"kill": "restart", "cut": "restore", "partition": "heal"}
 KILLABLE = ("gateway", "planner", "detector")
-_TIME = re.compile(r"([0-9]*\.?[0-9]+)(ms|s|min)")
-_UNIT_S = {"ms": 1e-3, "s": 1.0, "min": 60.0}
 
 
 def parse_duration(tok: str, what: str) -> float:
-    """``500ms``, ``20s``, ``1.5min`` → seconds; a unit is required."""
-    m = _TIME.fullmatch(tok)
-    if not m:
-        raise ValueError(f"{what} {tok!r}: expected a time with a unit (ms, s, min), e.g. 20s")
-    return float(m.group(1)) * _UNIT_S[m.group(2)]
+    """``500ms``, ``20s``, ``1.5min`` → seconds; a unit is required (the netem parser's units)."""
+    try:
+        return parse_time_s(tok)
+    except ValueError as exc:
+        raise ValueError(f"{what} {tok!r}: {exc}") from None
 
 
 @dataclass(frozen=True)

@@ -339,7 +339,7 @@ class Impairment(BaseModel):
 
 # ---------------------------------------------------------------------------- token parsers
 _TIME_UNITS = {"us": 1e-3, "usec": 1e-3, "µs": 1e-3, "ms": 1.0, "msec": 1.0,
-               "s": 1e3, "sec": 1e3, "secs": 1e3}
+               "s": 1e3, "sec": 1e3, "secs": 1e3, "min": 60e3}
 # tc's rate units (iproute2 tc_util.c), in bit/s; matched case-insensitively, "bps" = bytes/s
 _RATE_UNITS = {"": 1.0, "bit": 1.0, "kbit": 1e3, "mbit": 1e6, "gbit": 1e9, "tbit": 1e12,
                "kibit": 1024.0, "mibit": 1024.0**2, "gibit": 1024.0**3, "tibit": 1024.0**4,
@@ -362,14 +362,14 @@ def _time_ms(tok: str) -> float:
     if not m:
         raise ValueError(f"bad time {tok!r}: expected a number with a unit, e.g. 50ms")
     if not m.group(2):
-        raise ValueError(f"bad time {tok!r}: a unit is required (us, ms or s)")
+        raise ValueError(f"bad time {tok!r}: a unit is required (us, ms, s or min)")
     if m.group(2) not in _TIME_UNITS:
-        raise ValueError(f"bad time unit in {tok!r}: use us, ms or s")
+        raise ValueError(f"bad time unit in {tok!r}: use us, ms, s or min")
     return float(m.group(1)) * _TIME_UNITS[m.group(2)]
 
 
 def parse_time_s(tok: str) -> float:
-    """A time with a unit (``us``, ``ms``, ``s``), e.g. ``"1.5s"`` or ``"250ms"``, in seconds."""
+    """A time with a unit (``us``, ``ms``, ``s``, ``min``), e.g. ``"1.5s"`` or ``"250ms"``, in seconds."""
     return _time_ms(tok) / 1000.0
 
 
