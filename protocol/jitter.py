@@ -199,6 +199,10 @@ class JitterBuffer:
         up every gap at the next push: no reordering, minimal latency.
     clock_rate : int
         Media clock of the RTP timestamps in Hz (90 000 for video), for the jitter in seconds.
+    release_late : bool
+        Also return a packet that arrives after its number was given up (counted ``late``),
+        after the frames released in order; off by default (a late frame is dropped, as in a
+        media player).
 
     Examples
     --------
@@ -215,10 +219,16 @@ class JitterBuffer:
     """
 
     def __init__(
-        self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE
+        self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE,
+        release_late: bool = False,
     ) -> None:
         self.capacity, self.playout_delay_s, self.clock_rate = _check_params(capacity, playout_delay_s, clock_rate)
+        #: hand a late packet (its number already given up) out anyway, after the frames in order:
+        #: for media where every frame counts whatever its order (inspection captures); counted late
+        self.release_late = bool(release_late)
+        self.late_released = 0
         cap = self.capacity
+        self._late_out: list[Frame] = []
         self._slots: list[Frame | None] = [None] * cap
         self._arrivals = np.full(cap, np.inf)  # arrival time per occupied slot, inf when empty
         self._played = np.full(cap, -1, dtype=np.int64)  # extended seq last played per slot
@@ -277,6 +287,9 @@ class JitterBuffer:
         else:
             self._accept(header, payload, now, out)
         self._release(now, out)
+        if self._late_out:
+            out += self._late_out
+            self._late_out = []
         return out
 
     def push_packet(self, data: bytes | bytearray | memoryview, arrival_s: float) -> list[Frame]:
@@ -363,6 +376,9 @@ class JitterBuffer:
                     self.duplicated += 1
                 else:
                     self.late += 1
+                    if self.release_late:
+                        self.late_released += 1
+                        self._late_out.append(Frame(header, payload, now, ext))
                 return
             if ext >= nxt + cap:  # window full of frames waiting for gaps: give the oldest up
                 self._advance_to(ext - cap + 1, out)
@@ -470,7 +486,7 @@ class JitterBuffers:
 
     Parameters
     ----------
-    capacity, playout_delay_s, clock_rate
+    capacity, playout_delay_s, clock_rate, release_late
         Passed to every :class:`JitterBuffer`.
     max_sources : int
         Upper bound on distinct SSRCs (a flood of forged SSRCs must not grow memory without
@@ -483,8 +499,9 @@ class JitterBuffers:
         playout_delay_s: float = 0.1,
         clock_rate: int = VIDEO_CLOCK_RATE,
         max_sources: int = 64,
+        release_late: bool = False,
     ) -> None:
-        self._params = _check_params(capacity, playout_delay_s, clock_rate)
+        self._params = (*_check_params(capacity, playout_delay_s, clock_rate), bool(release_late))
         if isinstance(max_sources, bool) or not isinstance(max_sources, int) or max_sources < 1:
             raise ValueError(f"max_sources must be a positive int, got {max_sources!r}")
         self.max_sources = max_sources

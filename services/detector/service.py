@@ -76,7 +76,8 @@ class DetectorService:
         self.bus, self.method, self.log = bus, method, log
         self.counts: Counter[str] = Counter()
         self.latency_ms: list[float] = []
-        self._jb = JitterBuffers(capacity=64, playout_delay_s=playout_delay_s)
+        # late frames too: out of order, but captures all the same (coverage)
+        self._jb = JitterBuffers(capacity=64, playout_delay_s=playout_delay_s, release_late=True)
         self._lock = threading.Lock()
         self.work = Ring(queue, self._process, name="detector", workers=workers)
         self.pub = bus.publisher(keys.defects(bus.fleet), COMMAND)
@@ -108,12 +109,10 @@ class DetectorService:
         with self._lock:
             if self.recovery is not None:
                 self.recovery.delivered(header.ssrc, header.sequence, now)
-            late = self._jb[header.ssrc].late if header.ssrc in self._jb else 0
+            before = self._jb[header.ssrc].late_released if header.ssrc in self._jb else 0
             ready = self._jb.push(header, payload, now)
-            if self._jb[header.ssrc].late > late and all(f.sequence != header.sequence for f in ready):
-                # after playout gave its number up: out of order, but a capture all the same (coverage)
+            if self._jb[header.ssrc].late_released > before:
                 self.counts["late-analysed"] += 1
-                ready.append(Frame(header, payload, now, -1))
         for f in ready:
             self.work.push(f)
 

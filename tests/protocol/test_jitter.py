@@ -404,3 +404,15 @@ def test_impaired_stream_invariants(start: int, n: int, seed: int, drop: float, 
 def test_docstring_examples_hold() -> None:
     result = doctest.testmod(protocol.jitter)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_release_late_hands_a_given_up_frame_out_after_the_ones_in_order():
+    from protocol.rtp import RtpHeader
+
+    for release in (False, True):
+        jb = JitterBuffer(capacity=8, playout_delay_s=0.0, release_late=release)
+        jb.push(RtpHeader(0, 0, 7), b"a", 0.0)
+        assert [f.sequence for f in jb.push(RtpHeader(2, 6000, 7), b"c", 0.1)] == [2]  # 1 given up at once
+        late = jb.push(RtpHeader(1, 3000, 7), b"b", 0.2)
+        assert jb.late == 1 and jb.late_released == int(release)
+        assert [(f.sequence, bytes(f.payload)) for f in late] == ([(1, b"b")] if release else [])
