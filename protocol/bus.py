@@ -294,10 +294,10 @@ class Publisher:
         bus.counters.publishers.append(self)
 
     def put(self, msg: Message) -> int:
-        return self.put_bytes(codec.encode(msg))
+        return self.put_bytes(codec.encode(msg), encoding_of(msg))
 
-    def put_bytes(self, data: bytes) -> int:
-        self._put(data)
+    def put_bytes(self, data: bytes, encoding: zenoh.Encoding | None = None) -> int:
+        self._put(data, encoding=encoding)
         n = len(data)
         self.samples += 1
         self.bytes += n
@@ -310,6 +310,21 @@ class Publisher:
 
     def undeclare(self) -> None:
         self._pub.undeclare()
+
+
+_ENCODINGS: dict[str, zenoh.Encoding] = {}
+
+
+def encoding_of(msg: Message) -> zenoh.Encoding:
+    """The Zenoh encoding of a message's samples (:func:`protocol.codec.encoding_name`), made once per type."""
+    enc = _ENCODINGS.get(msg.TYPE)
+    if enc is None:
+        enc = _ENCODINGS[msg.TYPE] = zenoh.Encoding(codec.encoding_name(msg.TYPE))
+    return enc
+
+
+def _reply_err(query: zenoh.Query, error: ErrorReply) -> None:
+    query.reply_err(codec.encode(error), encoding=encoding_of(error))
 
 
 # ----------------------------------------------------------------------------- the bus
@@ -448,7 +463,8 @@ class Bus:
         payload = codec.encode(msg)
         self.counters.add(self.counters.sent, link.name, len(payload))
         try:
-            replies = self.session.get(key, payload=payload, timeout=timeout, **link.request_qos())
+            replies = self.session.get(key, payload=payload, encoding=encoding_of(msg), timeout=timeout,
+                                       **link.request_qos())
             for reply in replies:
                 if reply.ok is not None:
                     data = reply.ok.payload.to_bytes()
@@ -492,20 +508,20 @@ class Bus:
                     msg = codec.decode(data, expect)
                 except codec.CodecError as exc:
                     self.counters.reject(qkey, exc.kind)
-                    query.reply_err(codec.encode(ErrorReply(code=exc.kind, reason=str(exc))))
+                    _reply_err(query, ErrorReply(code=exc.kind, reason=str(exc)))
                     return
                 try:
                     result = handler(msg)
                 except Rejected as exc:
-                    query.reply_err(codec.encode(ErrorReply(code=exc.code, reason=exc.reason)))
+                    _reply_err(query, ErrorReply(code=exc.code, reason=exc.reason))
                     return
                 except Exception as exc:
                     log.exception("%s: handler on %s failed", self.name, qkey)
-                    query.reply_err(codec.encode(ErrorReply(code="internal", reason=f"{type(exc).__name__}: {exc}"[:500])))
+                    _reply_err(query, ErrorReply(code="internal", reason=f"{type(exc).__name__}: {exc}"[:500]))
                     return
                 out = codec.encode(result)
                 self.counters.add(self.counters.sent, COMMAND.name, len(out))
-                query.reply(query.key_expr, out)
+                query.reply(query.key_expr, out, encoding=encoding_of(result))
             finally:
                 query.drop()
 

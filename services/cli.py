@@ -25,7 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "netem": ("services.netem.cli", "user-space impairment proxy (UDP/TCP) for latency/loss experiments"),
     "experiment": ("services.experiment.cli", "the mission over a grid of link loss/delay/jitter, with a table and plots"),
     "demo": ("services.demo", "gateway + a demo publisher/subscriber pair, printing what flows"),
-    "bench": ("services.bench", "benchmarks: bus, sim, plan, detect, mission"),
+    "schema": ("protocol.contract", "print the wire contract: key space, link classes, envelope, JSON Schemas"),
 }
 
 
