@@ -35,7 +35,7 @@ from protocol.messages import Defect, DefectReport, LinkStats, Mode, VehicleStat
 from services.gcs.record import CommandRecord, DefectRx, MissionRecord, StateRx, StatsRx  # noqa: E402
 from services.gcs.report import planned_positions, summarise, write_report  # noqa: E402
 from services.planner.mission import plan_mission  # noqa: E402
-from services.planner.scenario import default_scenario_path, load_scenario  # noqa: E402
+from protocol.scenario import default_scenario_path, load_scenario  # noqa: E402
 
 
 def synth_record(plan, scenario: dict, rate_hz: float, repeat: int, rng: np.random.Generator) -> MissionRecord:

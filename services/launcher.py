@@ -244,13 +244,13 @@ class Network:
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9)."""
         from edge.formation import offsets_for, rotation_of
-        from services.planner.scenario import load_scenario_document
+        from protocol.scenario import load_scenario
 
-        sc = load_scenario_document(self.args.scenario)
-        start, goal = sc["start"], sc["goal"]
+        sc = load_scenario(self.args.scenario)
+        start, goal = sc.start, sc.goal
         yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
         R = rotation_of(0.0, 0.0, yaw)
-        ground = sc["box"]["lo"][2]
+        ground = sc.box.lo[2]
         out = []
         for off in offsets_for(n):
             p = (R @ off)[:2]
@@ -401,13 +401,13 @@ def main(argv: list[str] | None = None) -> int:
 def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan | None = None) -> int:
     from services.gcs.cli import run_mission as gcs_mission
     from services.gcs.mission import MissionOptions
-    from services.planner.scenario import load_scenario_document
+    from protocol.scenario import load_scenario
 
     out = Path(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)
     log_file = open(out / "services.log", "w")
     net = Network(args, echo=log_file, ground_station=True, plan=plan)
-    scenario = load_scenario_document(args.scenario)
+    scenario = load_scenario(args.scenario)
     try:
         net.start()
         cfg = net.gcs_config()

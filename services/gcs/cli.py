@@ -20,13 +20,13 @@ from protocol.bus import (
     setup_logging,
     stop_event_on_signals,
 )
-from services.planner.scenario import load_scenario_document
+from protocol.scenario import Scenario, load_scenario
 
 from .mission import FRESH_STATE_S, MissionOptions, MissionRunner
 from .progress import LiveDisplay, render
 
 
-def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
+def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,
                 abort=None, ground_truth: bool = True, on_runner=None) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
 
@@ -106,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     log = setup_logging("gcs")
-    scenario = load_scenario_document(args.scenario)
+    scenario = load_scenario(args.scenario)
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()

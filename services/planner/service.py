@@ -1,6 +1,6 @@
 """The planner RCU service: answers plan requests on ``skynet/<fleet>/rcu/planner/plan``.
 
-A :class:`PlanRequest` (command class, request/reply) carries the scenario document and the
+A :class:`PlanRequest` (command class, request/reply) carries the (typed) scenario and the
 algorithm, seed and budget; the reply is the :class:`MissionPlan` of
 :func:`services.planner.mission.plan_mission`. A malformed scenario or an infeasible request is
 answered with an error reply that says why (``reply_err`` + :class:`ErrorReply`). Planning runs
@@ -19,17 +19,16 @@ from protocol.bus import Bus, Rejected, add_bus_args, config_from_args, setup_lo
 from protocol.messages import MissionPlan, PlanRequest
 
 from .mission import plan_mission
-from .scenario import ScenarioError, validate_scenario
 
 
 def answer(request: PlanRequest) -> MissionPlan:
-    """The plan for one request; :class:`Rejected` (with the reason) when it cannot be planned."""
+    """The plan for one request; :class:`Rejected` (with the reason) when it cannot be planned.
+
+    The scenario was validated when the request was decoded (it is typed on the wire): a bad one
+    never reaches here, its reply names the field.
+    """
     try:
-        scenario = validate_scenario(request.scenario)
-    except (ScenarioError, ValueError) as exc:
-        raise Rejected(f"bad scenario: {exc}", code="bad-scenario") from None
-    try:
-        plan = plan_mission(scenario, algorithm=request.algorithm, seed=request.seed, particles=request.particles,
+        plan = plan_mission(request.scenario, algorithm=request.algorithm, seed=request.seed, particles=request.particles,
                             iterations=request.iterations, waypoints=request.waypoints)
     except ValueError as exc:
         raise Rejected(f"cannot plan: {exc}", code="infeasible") from None

@@ -14,7 +14,7 @@ the rows of shots are the heights of the UAVs in the formation (the formation fr
 change with heading), the columns are spaced at most ``g`` apart, and every shot is a point that
 the UAV taking it passes through, so the capture points lie on the UAVs' trajectories.
 
-Choices where the paper is silent (documented in ``scenarios/monorail.toml``): the paper's
+Choices where the paper is silent (documented in ``protocol/scenarios/monorail.toml``): the paper's
 34.4 mm focal length is read as a 35 mm-equivalent focal length with an equivalent 36 mm x 27 mm
 sensor for the 4:3 frame (square pixels); when the two axes give different stand-offs the
 smaller one is used, so that ``s_f`` is resolved on both axes. Columns are spread evenly from
