@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import json
 import logging
 import os
@@ -26,12 +27,12 @@ import signal
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal, Sequence
+from typing import Any, Callable, Iterator, Literal, Sequence
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, SecretStr
 
-from . import codec
+from . import codec, keys
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
 
@@ -65,6 +66,7 @@ class BusConfig(BaseModel):
                                                "reach a lost connect endpoint (zenoh's default 4 s)")
     user: str | None = Field(default=None, description="transport/auth/usrpwd/user")
     password: SecretStr | None = Field(default=None, description="transport/auth/usrpwd/password; never shown")
+    cfg: list[tuple[str, str]] = Field(default=[], description="KEY, JSON5 VALUE pairs applied last (--cfg)")
 
     def to_zenoh(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
@@ -102,7 +104,20 @@ class BusConfig(BaseModel):
             # path by path, so that a dictionary_file from config_file stays
             put("transport/auth/usrpwd/user", self.user)
             put("transport/auth/usrpwd/password", self.password.get_secret_value())
+        for key, value in self.cfg:
+            try:
+                conf.insert_json5(key, value)
+            except zenoh.ZError as exc:
+                raise ValueError(f"--cfg {key}:{value}: {exc}") from None
         return conf
+
+
+def parse_cfg(text: str) -> tuple[str, str]:
+    """``KEY:VALUE`` of zenoh-python's examples' ``--cfg`` (VALUE is JSON5; an empty KEY is the root)."""
+    key, sep, value = str(text).partition(":")
+    if not sep or not value.strip():
+        raise argparse.ArgumentTypeError(f"--cfg wants KEY:VALUE (VALUE in JSON5), got {text!r}")
+    return key.strip().strip("/"), value
 
 
 def multilink_endpoints(host: str, tcp_port: int, udp_port: int) -> list[str]:
@@ -122,7 +137,9 @@ def add_bus_args(parser: argparse.ArgumentParser, mode: Mode = "peer") -> None:
     g.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT")
     g.add_argument("--listen", "-l", action="append", default=[], metavar="ENDPOINT")
     g.add_argument("--config", "-c", default=None, metavar="FILE", help="Zenoh JSON5 config applied first")
-    g.add_argument("--fleet", default="demo", help="fleet name (key space prefix)")
+    g.add_argument("--cfg", action="append", default=[], type=parse_cfg, metavar="KEY:VALUE",
+                   help="a Zenoh config change applied last, VALUE in JSON5 (e.g. transport/link/tx/lease:3000)")
+    g.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (key space prefix)")
     g.add_argument("--lease", type=float, default=None, metavar="S", help="link lease, seconds")
     g.add_argument("--multilink", action="store_true", help="reliable on TCP, best-effort on UDP")
     g.add_argument("--shm", action="store_true", help="enable shared-memory transport")
@@ -136,7 +153,7 @@ def config_from_args(args: argparse.Namespace, **overrides: Any) -> BusConfig:
     values = dict(
         mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config,
         lease_s=args.lease, multilink=args.multilink, shared_memory=args.shm,
-        multicast_scouting=args.scouting, user=user,
+        multicast_scouting=args.scouting, user=user, cfg=getattr(args, "cfg", []),
         password=getattr(args, "password", None) or (os.environ.get(PASSWORD_ENV) if user else None),
     )
     values.update({k: v for k, v in overrides.items() if v is not None})
@@ -331,7 +348,7 @@ def _reply_err(query: zenoh.Query, error: ErrorReply) -> None:
 class Bus:
     """One Zenoh session with typed helpers. Use as a context manager or call :meth:`close`."""
 
-    def __init__(self, config: BusConfig | None = None, fleet: str = "demo", name: str = "node"):
+    def __init__(self, config: BusConfig | None = None, fleet: str = keys.DEFAULT_FLEET, name: str = "node"):
         self.config = config or BusConfig()
         self.fleet = fleet
         self.name = name
@@ -572,16 +589,31 @@ class Bus:
 
 
 # ----------------------------------------------------------------------------- process helpers
-def stop_event_on_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> threading.Event:
-    """An event set by SIGINT/SIGTERM, so a service's main loop can close its session cleanly."""
-    stop = threading.Event()
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    def handler(signum: int, frame: Any) -> None:
-        stop.set()
 
-    for s in signals:
-        signal.signal(s, handler)
+def stop_event_on_signals(signals: Sequence[int] = STOP_SIGNALS,
+                          stop: threading.Event | None = None) -> threading.Event:
+    """An event set by SIGINT/SIGTERM, so a main loop can close cleanly (the one way every command stops).
+
+    Off the main thread (where Python cannot install handlers) the event is returned unhooked.
+    """
+    stop = stop or threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for s in signals:
+            signal.signal(s, lambda signum, frame: stop.set())
     return stop
+
+
+@contextlib.contextmanager
+def stopping_on_signals(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[threading.Event]:
+    """:func:`stop_event_on_signals` for a command run in-process: the previous handlers come back on exit."""
+    previous = {s: signal.getsignal(s) for s in signals} if threading.current_thread() is threading.main_thread() else {}
+    try:
+        yield stop_event_on_signals(signals)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def setup_logging(name: str, level: str = "INFO") -> logging.Logger:

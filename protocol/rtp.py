@@ -67,11 +67,13 @@ __all__ = [
     "pack_frame",
     "parse_ssrc",
     "seq_add",
+    "seq_delta",
     "seq_diff",
     "seq_gt",
     "seq_lt",
     "ssrc_for",
     "ts_add",
+    "ts_delta",
     "ts_diff",
     "unpack_frame",
     "unwrap_sequence",
@@ -111,6 +113,17 @@ def _check_u(value: int, mask: int, what: str) -> None:
         raise ValueError(f"{what} must be in 0..{mask}, got {value}")
 
 
+def seq_delta(a: int, b: int) -> int:
+    """:func:`seq_diff` without the range checks, for the hot path of callers whose sequence numbers
+    are already known to be 16-bit (parsed headers): the one home of the RFC 1982 arithmetic."""
+    return ((a - b + _SEQ_HALF) & _SEQ_MASK) - _SEQ_HALF
+
+
+def ts_delta(a: int, b: int) -> int:
+    """:func:`ts_diff` without the range checks (timestamps of parsed headers)."""
+    return ((a - b + _TS_HALF) & _TS_MASK) - _TS_HALF
+
+
 def seq_add(a: int, n: int) -> int:
     """Sequence number ``a`` advanced by ``n`` (any sign), modulo 2**16 (RFC 1982, 3.1).
 
@@ -140,7 +153,7 @@ def seq_diff(a: int, b: int) -> int:
     """
     _check_u(a, _SEQ_MASK, "sequence number")
     _check_u(b, _SEQ_MASK, "sequence number")
-    return ((a - b + _SEQ_HALF) & _SEQ_MASK) - _SEQ_HALF
+    return seq_delta(a, b)
 
 
 def seq_lt(a: int, b: int) -> bool:
@@ -167,7 +180,7 @@ def ts_diff(a: int, b: int) -> int:
     """
     _check_u(a, _TS_MASK, "timestamp")
     _check_u(b, _TS_MASK, "timestamp")
-    return ((a - b + _TS_HALF) & _TS_MASK) - _TS_HALF
+    return ts_delta(a, b)
 
 
 def unwrap_sequence(seqs: np.ndarray | list[int]) -> np.ndarray:

@@ -45,6 +45,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from protocol import keys
 from protocol.bus import (
     PASSWORD_ENV,
     Bus,
@@ -339,7 +340,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
     p.add_argument("--method", default="it+", help="the detector's method")
-    p.add_argument("--fleet", default="demo")
+    p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
     p.add_argument("--impair", action="append", default=[], metavar="NAME[/udp|/tcp]=SPEC",
                    help="netem impairment on a link or group of links (repeatable, later wins), e.g. "
