@@ -13,11 +13,9 @@ The camera model and poses (:class:`CameraModel`, :class:`CameraPose`) live in
 
 from __future__ import annotations
 
-import collections
 import logging
 import math
 import os
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +24,8 @@ from typing import Any, Protocol, runtime_checkable
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from protocol.ring import Ring
 
 from .optics import CameraModel, CameraPose
 from .surface import SyntheticSurface
@@ -458,7 +458,7 @@ def decode_jpeg(data: bytes | bytearray | memoryview, grey: bool = False) -> NDA
 
 # ============================================================================ off-loop encoding
 class FrameEncoder:
-    """JPEG encoding on one worker thread, fed by a bounded drop-oldest queue.
+    """JPEG encoding on one worker thread, fed by a bounded drop-oldest queue (a :class:`~protocol.ring.Ring`).
 
     :meth:`submit` returns at once; the worker encodes in submission order and calls
     ``on_encoded(item, jpeg)``, where ``item`` is the submitted :class:`Frame`, or the ``tag`` given
@@ -485,12 +485,18 @@ class FrameEncoder:
         if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
             raise ValueError(f"JPEG quality must be an integer in 1..100, got {quality!r}")
         self.on_encoded, self.capacity, self.quality = on_encoded, int(capacity), int(quality)
-        self._q: collections.deque[tuple[NDArray[np.uint8], Any]] = collections.deque()
-        self._cond = threading.Condition()
-        self._closed = False
-        self.submitted = self.dropped = self.encoded = self.failed = 0
-        self._thread = threading.Thread(target=self._run, name="jpeg-encoder", daemon=True)
-        self._thread.start()
+        self.submitted = self.encoded = 0
+        self._ring = Ring(self.capacity, self._encode, name="jpeg-encoder")
+
+    @property
+    def dropped(self) -> int:
+        """Frames dropped unencoded (the oldest waiting one when full, or what ``close(drain=False)`` left)."""
+        return self._ring.dropped
+
+    @property
+    def failed(self) -> int:
+        """Frames whose encoding or delivery raised (logged; the worker carries on)."""
+        return self._ring.failed
 
     def submit(self, frame: Frame | NDArray[np.uint8], tag: Any = None) -> bool:
         """Queue a frame (or a bare image) for encoding; returns False if an older one was dropped.
@@ -506,40 +512,26 @@ class FrameEncoder:
             image, item = frame, tag
         else:
             raise ValueError(f"submit takes a Frame or an image, got {type(frame).__name__}")
-        with self._cond:
-            if self._closed:
-                raise ValueError("encoder is closed")
-            kept = True
-            if len(self._q) >= self.capacity:
-                self._q.popleft()
-                self.dropped += 1
-                kept = False
-            self._q.append((image, item))
-            self.submitted += 1
-            self._cond.notify()
-        return kept
+        if self._ring.closed:
+            raise ValueError("encoder is closed")
+        self.submitted += 1
+        return self._ring.push((image, item))
 
     @property
     def pending(self) -> int:
         """Frames waiting to be encoded."""
-        with self._cond:
-            return len(self._q)
+        return len(self._ring)
 
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                while not self._q and not self._closed:
-                    self._cond.wait()
-                if not self._q:
-                    return
-                image, item = self._q.popleft()
-            try:
-                jpeg = encode_jpeg(image, self.quality)
-                self.on_encoded(item, jpeg)
-                self.encoded += 1
-            except Exception:  # a bad frame or a publish error must not kill the encoder
-                self.failed += 1
-                log.exception("frame encoder: encoding or delivery failed")
+    @property
+    def alive(self) -> bool:
+        """Whether the worker thread still runs."""
+        return self._ring.alive
+
+    def _encode(self, job: tuple[NDArray[np.uint8], Any]) -> None:
+        image, item = job
+        jpeg = encode_jpeg(image, self.quality)
+        self.on_encoded(item, jpeg)
+        self.encoded += 1
 
     def close(self, timeout: float | None = 5.0, drain: bool = True) -> None:
         """Stop: encode what is queued (or drop it, counted, if not ``drain``), then join the worker.
@@ -547,14 +539,7 @@ class FrameEncoder:
         Idempotent. With a ``timeout`` the join gives up after that many seconds (the worker is a
         daemon thread and ends with the process).
         """
-        with self._cond:
-            self._closed = True
-            if not drain:
-                self.dropped += len(self._q)
-                self._q.clear()
-            self._cond.notify_all()
-        if threading.current_thread() is not self._thread:
-            self._thread.join(timeout)
+        self._ring.close(timeout, drain)
 
     def __enter__(self) -> FrameEncoder:
         return self

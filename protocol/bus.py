@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field, SecretStr
 from . import codec, keys
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
+from .ring import Ring  # noqa: F401  (services take their rings from the bus)
 
 log = logging.getLogger("skynet.bus")
 
@@ -199,69 +200,6 @@ class Counters:
                 "rejected": {f"{k}|{kind}": n for (k, kind), n in self.rejected.items()},
                 "dropped": dict(self.dropped),
             }
-
-
-# ----------------------------------------------------------------------------- ring worker
-class Ring:
-    """A bounded drop-oldest queue with its own consumer thread.
-
-    Zenoh runs callbacks on one thread per session fed by a bounded queue; a slow callback
-    stalls every other subscriber (ZENOH.md, "Python runtime"). Subscribers that do slow work
-    get a Ring: the Zenoh callback only appends, the ring's thread does the work, and overflow
-    drops the *oldest* item and counts it. ``workers > 1`` makes it a small pool (for work that
-    releases the GIL, such as OpenCV).
-    """
-
-    def __init__(self, capacity: int, worker: Callable[[Any], None], name: str = "ring", workers: int = 1):
-        if capacity < 1 or workers < 1:
-            raise ValueError("ring capacity and workers must be >= 1")
-        self._items: collections.deque = collections.deque()
-        self._capacity = capacity
-        self._cond = threading.Condition()
-        self._worker = worker
-        self._closed = False
-        self.name = name
-        self.dropped = 0
-        self.processed = 0
-        self._threads = [threading.Thread(target=self._run, name=f"{name}#{i}", daemon=True) for i in range(workers)]
-        for t in self._threads:
-            t.start()
-
-    def push(self, item: Any) -> None:
-        with self._cond:
-            if self._closed:
-                return
-            if len(self._items) >= self._capacity:
-                self._items.popleft()
-                self.dropped += 1
-            self._items.append(item)
-            self._cond.notify()
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                while not self._items and not self._closed:
-                    self._cond.wait()
-                if not self._items and self._closed:
-                    return
-                item = self._items.popleft()
-            try:
-                self._worker(item)
-            except Exception:  # a worker bug must not kill the ring
-                log.exception("ring worker failed")
-            with self._cond:
-                self.processed += 1
-
-    def close(self, timeout: float = 2.0) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()
-        for t in self._threads:
-            if threading.current_thread() is not t:
-                t.join(timeout)
 
 
 # ----------------------------------------------------------------------------- results
