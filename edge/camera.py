@@ -40,6 +40,7 @@ __all__ = [
     "FrameSource",
     "SyntheticSource",
     "VideoCaptureSource",
+    "decode_image",
     "decode_jpeg",
     "encode_jpeg",
     "make_source",
@@ -431,29 +432,42 @@ def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
     return buf.tobytes()
 
 
-def decode_jpeg(data: bytes | bytearray | memoryview, grey: bool = False) -> NDArray[np.uint8]:
-    """The image of JPEG bytes (``cv2.imdecode``): grey or BGR as stored, or grey if ``grey``.
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"  # RFC 2083, section 3.1
+
+
+def decode_image(data: bytes | bytearray | memoryview, grey: bool = False) -> NDArray[np.uint8]:
+    """The image of JPEG or PNG bytes (``cv2.imdecode``): grey or BGR as stored, or grey if ``grey``.
+
+    The one decoder of the project (the camera's tests, the detector). JPEG must be complete
+    (ITU T.81 start- and end-of-image markers: libjpeg would otherwise half-decode a truncated
+    frame with only a warning); PNG must start with its signature.
 
     Raises
     ------
     ValueError
-        When the bytes are not a complete JPEG: no start-of-image marker, no end-of-image marker
-        (a truncated frame, which libjpeg would otherwise half-decode with a warning), or data
-        libjpeg refuses.
+        When the bytes are not a complete JPEG or PNG, or the codec refuses them.
     """
     try:
         buf = np.frombuffer(data, np.uint8)
     except TypeError:
-        raise ValueError(f"JPEG data must be bytes, got {type(data).__name__}") from None
-    if buf.size < 4 or buf[0] != 0xFF or buf[1] != 0xD8:
-        raise ValueError("not a JPEG: no start-of-image marker")
-    tail = buf[-64:].tobytes()
-    if b"\xff\xd9" not in tail:
-        raise ValueError("truncated JPEG: no end-of-image marker")
+        raise ValueError(f"image data must be bytes, got {type(data).__name__}") from None
+    if buf.size == 0:
+        raise ValueError("cannot decode an empty image")
+    if buf[:8].tobytes() == _PNG_SIGNATURE:
+        kind = "PNG"
+    elif buf.size >= 4 and buf[0] == 0xFF and buf[1] == 0xD8:
+        kind = "JPEG"
+        if b"\xff\xd9" not in buf[-64:].tobytes():
+            raise ValueError("cannot decode a truncated JPEG: no end-of-image marker")
+    else:
+        raise ValueError("cannot decode: neither a JPEG (no start-of-image marker) nor a PNG (no signature)")
     img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise ValueError("corrupt JPEG: cannot decode")
+        raise ValueError(f"cannot decode a corrupt {kind}")
     return img
+
+
+decode_jpeg = decode_image  # the name the camera's callers know
 
 
 # ============================================================================ off-loop encoding
