@@ -73,7 +73,7 @@ from .topology import (
 
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
-READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up"}
+READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up", "video": "video up"}
 EDGE_READY = "board up"
 #: the link lease of the gateway and the clients (planner, detector, ground station) when links are
 #: proxied, s: the edges' own (edge.board, 2 s). Each side of
@@ -279,6 +279,9 @@ class Network:
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
                                         *no_recovery])
+        if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
+            self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
+                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -355,6 +358,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "AT from the " + ("mission phase" if prog == "mission" else "network start"))
     p.add_argument("--secure", action="store_true",
                    help="gateway authentication and access control, with generated per-service passwords")
+    p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
+                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:5600+2(n-1)")
+    p.add_argument("--video-sdp", default="sdp", help="folder of the video streams' SDP files (with --video)")
     if prog == "mission":
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
@@ -371,6 +377,8 @@ def main(argv: list[str] | None = None) -> int:
         plan = make_plan(args, ground_station=prog == "mission")
     except ValueError as e:
         parser.error(str(e))
+    if args.video and args.secure:
+        parser.error("--video has no role in the access control yet: not with --secure")
     log = setup_logging(prog)
     stop = stop_event_on_signals()
     if prog == "up":
