@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "netem": ("services.netem.cli", "user-space impairment proxy (UDP/TCP) for latency/loss experiments"),
     "experiment": ("services.experiment.cli", "the mission over a grid of link loss/delay/jitter, with a table and plots"),
     "video": ("services.video.service", "every UAV's camera as standard RTP/UDP (H.264 or JPEG) with SDP files"),
+    "web": ("services.web.service", "the live web page of the fleet (aiohttp, WebSocket)"),
     "demo": ("services.demo", "gateway + a demo publisher/subscriber pair, printing what flows"),
     "bench": ("services.bench", "benchmarks: bus, sim, plan, detect, mission"),
 }

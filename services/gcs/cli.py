@@ -98,6 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", default=None, help="report folder")
     m.add_argument("--quiet", action="store_true")
     m.add_argument("--appear-timeout", type=float, default=30.0)
+    m.add_argument("--web", default=None, metavar="[HOST]:PORT",
+                   help="serve the live web page of the fleet there (e.g. :8080; loopback unless a host is given)")
     m.add_argument("--no-ground-truth", action="store_true",
                    help="the edges do not image the synthetic wall (real cameras, image folders): no defect scoring")
     return parser
@@ -111,8 +113,18 @@ def main(argv: list[str] | None = None) -> int:
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="gcs") as bus:
-        return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
-                           ground_truth=not args.no_ground_truth)
+        hooks, server = {}, None
+        if args.web:  # services.web: the live page, fed by this session
+            from services.web.service import follow_runner, start_web
+
+            view, server = start_web(bus, args.web, scenario, log=log)
+            hooks["on_runner"] = lambda runner: follow_runner(view, runner)
+        try:
+            return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
+                               ground_truth=not args.no_ground_truth, **hooks)
+        finally:
+            if server is not None:
+                server.stop()
 
 
 if __name__ == "__main__":
