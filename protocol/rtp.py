@@ -27,8 +27,13 @@ accepts all three, as any RFC 3550 receiver must, and skips them.
 
 Choices where the paper is silent
 ---------------------------------
-- Payload type 26: the static RTP/AVP payload type of JPEG (RFC 3551, table 5), because the
-  payload *is* a JPEG image. Any 0..127 value is accepted.
+- Payload type 96, a dynamic payload type (RFC 3551 section 3, range 96..127), with the encoding
+  name ``x-skynet-frame`` at 90 kHz (``a=rtpmap:96 x-skynet-frame/90000`` in SDP, RFC 8866 section
+  6.6; an unregistered "x-" name, RFC 4855 section 3): the payload is this project's own format
+  (length-prefixed metadata + a whole JPEG file, :mod:`protocol.imagery`), *not* the RFC 2435
+  JPEG payload that the static type 26 promises (RFC 3551, table 5), so no standard receiver is
+  told it can depacketise it. Standard video leaves the bus through ``skynet video`` (RFC 2435 /
+  RFC 6184). Any 0..127 value is accepted.
 - Media clock 90 kHz, the video clock of RFC 3551 (section 5); the timestamp is the capture
   time times the clock rate, modulo 2**32, with no random offset (RFC 3550 section 5.1 suggests
   one against known-plaintext attacks on encrypted streams; we do not encrypt at this layer and
@@ -57,6 +62,8 @@ import numpy as np
 
 __all__ = [
     "JPEG_PAYLOAD_TYPE",
+    "SKYNET_ENCODING_NAME",
+    "SKYNET_PAYLOAD_TYPE",
     "RTP_HEADER_LENGTH",
     "RTP_VERSION",
     "VIDEO_CLOCK_RATE",
@@ -81,7 +88,9 @@ __all__ = [
 
 RTP_VERSION = 2
 RTP_HEADER_LENGTH = 12
-JPEG_PAYLOAD_TYPE = 26  # RFC 3551, table 5: JPEG, clock 90 kHz
+JPEG_PAYLOAD_TYPE = 26  # RFC 3551, table 5: JPEG (RFC 2435 payload), clock 90 kHz
+SKYNET_PAYLOAD_TYPE = 96  # dynamic (RFC 3551, section 3): the project's own frame format
+SKYNET_ENCODING_NAME = "x-skynet-frame"  # its SDP encoding name (rtpmap), clock 90 kHz
 VIDEO_CLOCK_RATE = 90_000  # RFC 3551, section 5
 
 SEQ_MOD = 1 << 16
@@ -276,7 +285,7 @@ class RtpHeader:
     marker : bool
         M bit; for video, the last packet of a frame. Our frames are one packet each.
     payload_type : int
-        0..127; default 26 = JPEG (RFC 3551, table 5).
+        0..127; default 96 = ``x-skynet-frame`` (dynamic, :data:`SKYNET_PAYLOAD_TYPE`).
     version : int
         Always 2.
     padding, extension : bool
@@ -290,7 +299,7 @@ class RtpHeader:
     timestamp: int
     ssrc: int
     marker: bool = True
-    payload_type: int = JPEG_PAYLOAD_TYPE
+    payload_type: int = SKYNET_PAYLOAD_TYPE
     version: int = RTP_VERSION
     padding: bool = False
     extension: bool = False
@@ -486,7 +495,7 @@ class RtpSender:
     ssrc : int
         32-bit source id, normally ``ssrc_for(uav_id, camera)``.
     payload_type : int
-        0..127, default 26 (JPEG, RFC 3551).
+        0..127, default 96 (``x-skynet-frame``, :data:`SKYNET_PAYLOAD_TYPE`).
     clock_rate : int
         Media clock in Hz, default 90 000.
     initial_seq : int or None
@@ -506,7 +515,7 @@ class RtpSender:
     def __init__(
         self,
         ssrc: int,
-        payload_type: int = JPEG_PAYLOAD_TYPE,
+        payload_type: int = SKYNET_PAYLOAD_TYPE,
         clock_rate: int = VIDEO_CLOCK_RATE,
         initial_seq: int | None = None,
         rng: np.random.Generator | None = None,

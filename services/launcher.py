@@ -74,7 +74,8 @@ from .topology import (
 
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
-READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up"}
+READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up", "video": "video up",
+         "web": "web up"}
 EDGE_READY = "board up"
 #: the link lease of the gateway and the clients (planner, detector, ground station) when links are
 #: proxied, s: the edges' own (edge.board, 2 s). Each side of
@@ -129,6 +130,7 @@ class Network:
     def __init__(self, args: argparse.Namespace, echo=sys.stdout, log_dir: Path | None = None,
                  ground_station: bool = False, plan: Plan | None = None):
         self.args = args
+        self.ground_station = ground_station
         self.plan = plan or make_plan(args, ground_station)
         #: transport/unicast/open_timeout of nodes whose links are proxied, ms (slower links, longer)
         self.open_timeout = open_timeout_ms(self.plan.impair.worst_delay_ms())
@@ -280,6 +282,11 @@ class Network:
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
                                         *no_recovery])
+        if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
+            self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
+                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
+        if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
+            self.start_service("web", ["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -356,6 +363,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "AT from the " + ("mission phase" if prog == "mission" else "network start"))
     p.add_argument("--secure", action="store_true",
                    help="gateway authentication and access control, with generated per-service passwords")
+    p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
+                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:5600+2(n-1)")
+    p.add_argument("--video-sdp", default="sdp", help="folder of the video streams' SDP files (with --video)")
+    p.add_argument("--web", default=None, metavar="[HOST]:PORT",
+                   help="serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)")
     if prog == "mission":
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
@@ -372,6 +384,8 @@ def main(argv: list[str] | None = None) -> int:
         plan = make_plan(args, ground_station=prog == "mission")
     except ValueError as e:
         parser.error(str(e))
+    if (args.video or args.web) and args.secure:
+        parser.error("--video and --web have no role in the access control yet: not with --secure")
     log = setup_logging(prog)
     stop = stop_event_on_signals()
     if prog == "up":
@@ -423,8 +437,19 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
 
             hooks["on_runner"] = on_runner
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
-            code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
-                               ground_truth=args.camera == "synthetic", **hooks)
+            web_server = None
+            if args.web:  # the live page in the ground station's process, with its plan (services.web)
+                from services.web.service import follow_runner, start_web
+
+                view, web_server = start_web(bus, args.web, scenario, log=log)
+                before = hooks.get("on_runner")
+                hooks["on_runner"] = lambda runner: (before and before(runner), follow_runner(view, runner))
+            try:
+                code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
+                                   ground_truth=args.camera == "synthetic", **hooks)
+            finally:
+                if web_server is not None:
+                    web_server.stop()
         if net.proxies:
             (out / "proxies.json").write_text(json.dumps(net.proxy_stats(), indent=1))
     finally:

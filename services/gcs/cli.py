@@ -27,8 +27,11 @@ from .progress import LiveDisplay, render
 
 
 def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None, ground_truth: bool = True, on_runner=None) -> int:
+                abort=None, ground_truth: bool = True, on_runner=None, record: bool = True) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
+
+    With ``out`` and ``record``, everything on the fleet's keys is also logged to ``out/mission.mcap``
+    (:mod:`services.recording`), from which the same report can be rebuilt.
 
     ``on_runner(runner)`` is called once, after the :class:`MissionRunner` is made and before it runs
     (the launcher's fault injector hooks in there: ``runner.note_fault``, ``runner.record.phases``).
@@ -52,6 +55,12 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
                               now - t_start, notes), force=force)
 
+    recorder = None
+    if out and record:  # before the runner subscribes, so the log holds every sample the runner gets
+        from services.recording.recorder import Recorder
+
+        Path(out).mkdir(parents=True, exist_ok=True)
+        recorder = Recorder(bus, Path(out) / "mission.mcap", log)
     runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort)
     if on_runner is not None:
         on_runner(runner)
@@ -64,12 +73,18 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
     try:
         record = runner.run()
         progress(runner, force=True)
+    except BaseException:
+        if recorder is not None:
+            recorder.close()
+        raise
     finally:
         root.handlers = saved
     from services.gcs.ground_truth import attach_ground_truth
 
     if ground_truth:
         attach_ground_truth(record)
+    if recorder is not None:  # the report is written from the frozen record the file rebuilds
+        record = recorder.finish(record, runner._lock)
     if out:
         from .report import write_report
 
@@ -98,6 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", default=None, help="report folder")
     m.add_argument("--quiet", action="store_true")
     m.add_argument("--appear-timeout", type=float, default=30.0)
+    m.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap")
+    m.add_argument("--web", default=None, metavar="[HOST]:PORT",
+                   help="serve the live web page of the fleet there (e.g. :8080; loopback unless a host is given)")
     m.add_argument("--no-ground-truth", action="store_true",
                    help="the edges do not image the synthetic wall (real cameras, image folders): no defect scoring")
     return parser
@@ -111,8 +129,18 @@ def main(argv: list[str] | None = None) -> int:
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="gcs") as bus:
-        return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
-                           ground_truth=not args.no_ground_truth)
+        hooks, server = {}, None
+        if args.web:  # services.web: the live page, fed by this session
+            from services.web.service import follow_runner, start_web
+
+            view, server = start_web(bus, args.web, scenario, log=log)
+            hooks["on_runner"] = lambda runner: follow_runner(view, runner)
+        try:
+            return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
+                               ground_truth=not args.no_ground_truth, record=not args.no_record, **hooks)
+        finally:
+            if server is not None:
+                server.stop()
 
 
 if __name__ == "__main__":
