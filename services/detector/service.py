@@ -64,6 +64,24 @@ from .recovery import RecoveryTracker
 #: or a gateway restart), so the queue holds such a burst (~50 kB a frame: a few MB); the Zenoh
 #: callback never waits for it either way.
 QUEUE_FRAMES = 128
+#: cameras per UAV the detector keeps a jitter buffer for (SSRC ``0x534BUUCC`` with CC below this):
+#: the capture camera is 0, the preview camera 1 (edge.runtime); any other SSRC is rejected, so a
+#: sender cannot make the detector keep an unbounded number of buffers.
+MAX_CAMERAS = 4
+
+
+def frame_source(key: str, ssrc: int) -> tuple[int, int] | None:
+    """``(uav, camera)`` of a frame received on ``key`` with ``ssrc``, or None when the SSRC is not a
+    SkyNet camera's (RFC 3550 §8: SSRCs are the sender's to choose, so the receiver checks them) or
+    not one of the UAV whose camera key carried it (a UAV may write only its own keys)."""
+    try:
+        uav, camera = parse_ssrc(ssrc)
+        key_uav = keys.parse(key).uav
+    except ValueError:
+        return None
+    if key_uav != uav or camera >= MAX_CAMERAS:
+        return None
+    return uav, camera
 
 
 class DetectorService:
@@ -102,6 +120,12 @@ class DetectorService:
             if self.counts["bad-rtp"] == 1 and self.log:
                 self.log.warning("dropping a sample that is not an RTP frame: %s", exc)
             return
+        if frame_source(str(sample.key_expr), header.ssrc) is None:
+            self.counts["bad-ssrc"] += 1
+            if self.counts["bad-ssrc"] == 1 and self.log:
+                self.log.warning("dropping a frame with SSRC %#010x on %s: not that UAV's camera (further ones "
+                                 "are only counted)", header.ssrc, sample.key_expr)
+            return
         if len(payload) == 0:  # a camera's announce frame (edge.runtime.CameraLink.announce)
             self.counts["announce"] += 1
             return
@@ -121,6 +145,8 @@ class DetectorService:
         try:
             header, payload = unpack_frame(sample.payload.to_bytes())
         except RtpError:
+            return  # counted once, by _on_frame
+        if frame_source(str(sample.key_expr), header.ssrc) is None:
             return  # counted once, by _on_frame
         if len(payload) == 0:
             return  # an announce frame: not a capture
@@ -142,10 +168,13 @@ class DetectorService:
             meta, image = split_payload(frame.payload)
         except codec.CodecError as exc:
             self.counts["bad-meta"] += 1
-            uav, _ = parse_ssrc(frame.ssrc) if (frame.ssrc >> 16) == 0x534B else (None, None)
-            if uav and 1 <= uav <= 255:
+            uav, _ = parse_ssrc(frame.ssrc)  # checked on arrival (frame_source)
+            if uav:
                 self.pub.put(DefectReport(uav=uav, capture_id=0, stamp_capture=0.0, stamp_report=time.time(),
                                           method=self.method, ok=False, error=f"bad metadata: {exc}"[:500]))
+            return
+        if meta.uav != parse_ssrc(frame.ssrc)[0]:
+            self.counts["bad-meta"] += 1  # metadata naming another UAV than the camera that sent it
             return
         report = analyse(meta, image, self.method)
         if not report.ok:
@@ -163,7 +192,10 @@ class DetectorService:
         with self._lock:
             for ssrc in self._jb.sources:
                 st = self._jb[ssrc].stats()
-                uav, cam = parse_ssrc(ssrc)
+                try:
+                    uav, cam = parse_ssrc(ssrc)
+                except ValueError:  # never pushed (frame_source), but stats must not end the service
+                    continue
                 p = f"uav{uav}.cam{cam}"
                 metrics.update({f"{p}.received": st.received, f"{p}.delivered": st.delivered, f"{p}.lost": st.lost,
                                 f"{p}.late": st.late, f"{p}.duplicated": st.duplicated,
@@ -215,10 +247,15 @@ def main(argv: list[str] | None = None) -> int:
                  "off" if args.no_recovery else "on")
         next_stats = time.monotonic() + 1.0
         while not stop.wait(0.01):
-            svc.poll()
-            if time.monotonic() >= next_stats:
-                svc.stats_pub.put(svc.stats())
-                next_stats += 1.0
+            try:
+                svc.poll()
+                if time.monotonic() >= next_stats:
+                    next_stats += 1.0
+                    svc.stats_pub.put(svc.stats())
+            except Exception:  # nothing a sender can do may end the service: counted, logged once
+                svc.counts["loop-error"] += 1
+                if svc.counts["loop-error"] == 1:
+                    log.exception("detector main loop pass failed (further ones are only counted)")
         svc.close()
         svc.stats_pub.put(svc.stats())
         log.info("shutting down: %s", dict(svc.counts))
