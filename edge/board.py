@@ -310,8 +310,14 @@ def main(argv: list[str] | None = None) -> int:
         log.info("board up: uav %d, %s driver, camera %s, speed x%g", args.uav, args.vehicle, args.camera, args.speed)
         period = 1.0 / args.rate
         next_t = time.monotonic()
+        tick_errors = 0
         while not stop.is_set():
-            board.tick()
+            try:
+                board.tick()
+            except Exception:  # nothing a neighbour or the link sends may end the board: counted, logged once
+                tick_errors += 1
+                if tick_errors == 1:
+                    log.exception("board tick failed (further failures are only counted)")
             next_t += period
             delay = next_t - time.monotonic()
             if delay < -1.0:  # fell far behind (suspended?): do not try to catch up in a burst

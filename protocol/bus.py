@@ -144,6 +144,9 @@ def config_from_args(args: argparse.Namespace, **overrides: Any) -> BusConfig:
 
 
 # ----------------------------------------------------------------------------- counters
+#: distinct (key, kind) rejection rows a session keeps (see :meth:`Counters.reject`)
+MAX_REJECT_KEYS = 512
+
 @dataclass
 class Counters:
     """Per-session traffic and rejection counters; updates from Zenoh's threads take a lock,
@@ -163,8 +166,13 @@ class Counters:
             row[1] += nbytes
 
     def reject(self, key: str, kind: str) -> bool:
-        """Count a rejection; True the first time this (key, kind) is seen (log it once)."""
+        """Count a rejection; True the first time this (key, kind) is seen (log it once).
+
+        At most :data:`MAX_REJECT_KEYS` distinct pairs are kept; the rest are counted under the key
+        ``"(other)"``, so a flood of made-up keys cannot grow the table without bound."""
         with self.lock:
+            if (key, kind) not in self.rejected and len(self.rejected) >= MAX_REJECT_KEYS:
+                key = "(other)"
             first = (key, kind) not in self.rejected
             self.rejected[(key, kind)] += 1
             return first

@@ -208,3 +208,15 @@ def test_reconnect_pause_reaches_zenoh_in_whole_milliseconds():
                                                          "period_increase_factor": 2.0}
     with pytest.raises(pydantic.ValidationError, match="reconnect_max_s"):
         BusConfig(reconnect_max_s=0.0004)
+
+
+def test_rejection_table_is_bounded_under_a_flood_of_made_up_keys():
+    """Issue 12: every distinct rejected key used to add a row; past MAX_REJECT_KEYS they share one."""
+    from protocol.bus import MAX_REJECT_KEYS, Counters
+
+    c = Counters()
+    firsts = sum(c.reject(f"skynet/demo/uav/x{i}/state", "bad-msgpack") for i in range(10 * MAX_REJECT_KEYS))
+    assert len(c.rejected) == MAX_REJECT_KEYS + 1
+    assert firsts == MAX_REJECT_KEYS + 1  # each row logged once, the overflow row too
+    assert sum(c.rejected.values()) == 10 * MAX_REJECT_KEYS
+    assert c.rejected[("(other)", "bad-msgpack")] == 9 * MAX_REJECT_KEYS
