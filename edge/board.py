@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 
 from protocol import keys
+from protocol.budget import for_topic
 from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
@@ -89,8 +90,10 @@ class Board:
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
-        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY)
-        bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=Heartbeat, link=COMMAND)
+        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY,
+                      budget=for_topic("state"))
+        bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=Heartbeat, link=COMMAND,
+                      budget=for_topic("heartbeat"))
         bus.serve(keys.cmd(fleet, self.uav), self.handle_command, expect=COMMAND_TYPES)
         bus.token(keys.alive(fleet, self.uav))
         bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)

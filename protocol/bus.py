@@ -32,6 +32,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field, SecretStr
 
 from . import codec
+from .budget import Budget
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
 
@@ -380,8 +381,10 @@ class Bus:
         expect: type[Message] | tuple[type[Message], ...] | None = None,
         link: LinkClass | None = None,
         ring: int | None = None,
+        budget: Budget | None = None,
     ) -> Any:
-        """Subscribe with decoding; ``ring=N`` hands samples to a worker through a drop-oldest ring."""
+        """Subscribe with decoding; ``ring=N`` hands samples to a worker through a drop-oldest ring;
+        ``budget`` drops (and counts) what a source sends beyond its rate or size (:mod:`protocol.budget`)."""
         counters = self.counters
         cls_name = link.name if link else "any"
 
@@ -392,10 +395,11 @@ class Bus:
             if msg is not None:
                 callback(msg, sample)
 
-        return self.subscribe_raw(key, handle, ring=ring)
+        return self.subscribe_raw(key, handle, ring=ring, budget=budget)
 
     def subscribe_raw(
-        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False
+        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False,
+        budget: Budget | None = None,
     ) -> Any:
         """Subscribe to raw samples (e.g. RTP frames); the callback must not raise for bad input.
 
@@ -413,6 +417,15 @@ class Bus:
         def guarded(sample: zenoh.Sample) -> None:
             if self._closed:
                 return
+            if budget is not None:
+                source = str(sample.key_expr)
+                with self.counters.lock:
+                    reason = budget.admit(source, len(sample.payload), time.monotonic())
+                if reason is not None:
+                    if self.counters.reject(source, reason):
+                        log.warning("%s: %s over its budget (%s); further ones are only counted", self.name,
+                                    source, reason)
+                    return
             try:
                 target(sample)
             except Exception:

@@ -48,6 +48,7 @@ import time
 from collections import Counter
 
 from protocol import codec, keys
+from protocol.budget import for_topic
 from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.imagery import split_payload
 from protocol.jitter import Frame, JitterBuffers
@@ -105,8 +106,9 @@ class DetectorService:
         if recover:
             # frames lost on a lossy link are retransmitted from the cameras' caches; a plain
             # subscriber beside it sees what the link delivered the first time (recovered = the rest)
-            bus.subscribe_raw(cams, self._on_live)
-        bus.subscribe_raw(cams, self._on_frame, recover=bool(recover))
+            bus.subscribe_raw(cams, self._on_live, budget=for_topic("camera"))
+        # per-camera budget (protocol.budget): a flood of frames from one UAV is dropped before parsing
+        bus.subscribe_raw(cams, self._on_frame, recover=bool(recover), budget=for_topic("camera"))
         bus.token(keys.rcu_alive(bus.fleet, "detector"))
         self._t0 = time.time()
 
@@ -203,13 +205,15 @@ class DetectorService:
                                 f"{p}.fraction_lost": st.fraction_lost,
                                 f"{p}.recovered": self.recovery.recovered[ssrc] if self.recovery else 0})
         metrics["imagery.recovery"] = int(self.recovery is not None)
-        missed = self.bus.counters.snapshot()["dropped"]
+        snap = self.bus.counters.snapshot()
+        missed = snap["dropped"]
         metrics["imagery.unrecovered"] = sum(v for k, v in missed.items() if k.startswith("missed:"))
         metrics["queue.dropped"] = self.work.dropped
         metrics["queue.processed"] = self.work.processed
         counts = dict(self.counts)
         return LinkStats(source="detector", stamp=time.time(), uptime_s=time.time() - self._t0,
-                         rejected={k: v for k, v in counts.items() if k.startswith("bad")},
+                         rejected={**{k: v for k, v in counts.items() if k.startswith("bad")},
+                                   **{k: v for k, v in snap["rejected"].items() if "|budget-" in k}},
                          metrics={**metrics, **{f"count.{k}": v for k, v in counts.items()}})
 
     def close(self) -> None:

@@ -38,6 +38,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 from protocol import keys
+from protocol.budget import for_topic
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
@@ -151,11 +152,16 @@ class MissionRunner:
         self._in_mission = threading.Event()
         self._sup_stop = threading.Event()
         fleet = bus.fleet
-        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY)
-        bus.subscribe(keys.all_events(fleet), self._on_event, expect=Event, link=COMMAND)
-        bus.subscribe(keys.defects(fleet), self._on_defects, expect=DefectReport, link=COMMAND)
-        bus.subscribe(keys.gateway_stats(fleet), self._on_gw_stats, expect=LinkStats, link=TELEMETRY)
-        bus.subscribe(keys.rcu_stats(fleet, "detector"), self._on_det_stats, expect=LinkStats, link=TELEMETRY)
+        # per-source budgets (protocol.budget): a flood on one key is dropped and counted, never recorded
+        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY,
+                      budget=for_topic("state"))
+        bus.subscribe(keys.all_events(fleet), self._on_event, expect=Event, link=COMMAND, budget=for_topic("event"))
+        bus.subscribe(keys.defects(fleet), self._on_defects, expect=DefectReport, link=COMMAND,
+                      budget=for_topic("defects"))
+        bus.subscribe(keys.gateway_stats(fleet), self._on_gw_stats, expect=LinkStats, link=TELEMETRY,
+                      budget=for_topic("stats"))
+        bus.subscribe(keys.rcu_stats(fleet, "detector"), self._on_det_stats, expect=LinkStats, link=TELEMETRY,
+                      budget=for_topic("stats"))
         self._hb_pub = bus.publisher(keys.heartbeat(fleet), COMMAND)
         bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
 
@@ -419,6 +425,7 @@ class MissionRunner:
                 if t.is_alive():
                     t.join(2.0)
             self.record.ended = time.time()
+            self.record.rejected = self.bus.counters.snapshot()["rejected"]
             self.phase("done")
         self.judge()
         return self.record

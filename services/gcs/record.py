@@ -126,3 +126,5 @@ class MissionRecord(BaseModel):
     success: bool = False
     failures: list[str] = []
     phases: dict[str, float] = Field(default={}, description="phase name -> wall time it began")
+    rejected: dict[str, int] = Field(default={}, description="samples the ground station refused, 'key|kind' -> "
+                                     "count: undecodable, or over a source's budget (protocol.budget)")
