@@ -456,8 +456,10 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     from services.gcs.mission import MissionOptions
     from services.planner.scenario import load_scenario_document
 
-    out = Path(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
-    out.mkdir(parents=True, exist_ok=True)
+    from services.gcs.record import check_output_folder
+
+    # not writable or too little room: refused (RecordingError) before any service starts
+    out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     log_file = open(out / "services.log", "w")
     net = Network(args, echo=log_file, ground_station=True, plan=plan)
     scenario = load_scenario_document(args.scenario)

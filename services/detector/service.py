@@ -43,6 +43,7 @@ listener), queue drops and rejections.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import threading
 import time
 from collections import Counter
@@ -53,7 +54,7 @@ from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_loggin
 from protocol.imagery import split_payload
 from protocol.jitter import Frame, JitterBuffers
 from protocol.links import COMMAND, TELEMETRY
-from protocol.messages import DefectReport, LinkStats
+from protocol.messages import DefectReport, FrameEvidence, LinkStats
 from protocol.rtp import RtpError, parse_ssrc, unpack_frame
 
 from .detect import METHODS
@@ -95,6 +96,7 @@ class DetectorService:
         self.bus, self.method, self.log = bus, method, log
         self.counts: Counter[str] = Counter()
         self.latency_ms: list[float] = []
+        self.analysed: Counter[int] = Counter()  # SSRC -> frames analysed (reports published)
         # late frames too: out of order, but captures all the same (coverage)
         self._jb = JitterBuffers(capacity=64, playout_delay_s=playout_delay_s, release_late=True)
         self._lock = threading.Lock()
@@ -179,6 +181,11 @@ class DetectorService:
             self.counts["bad-meta"] += 1  # metadata naming another UAV than the camera that sent it
             return
         report = analyse(meta, image, self.method)
+        # the evidence the ground station counts a capture on: which frame, and a digest of its image bytes
+        report = report.model_copy(update={"frame": FrameEvidence(ssrc=frame.ssrc, seq=frame.sequence,
+                                                                  digest=hashlib.sha256(image).hexdigest())})
+        with self._lock:
+            self.analysed[frame.ssrc] += 1
         if not report.ok:
             self.counts["bad-image"] += 1
             if self.log:
@@ -203,7 +210,8 @@ class DetectorService:
                                 f"{p}.late": st.late, f"{p}.duplicated": st.duplicated,
                                 f"{p}.reordered": st.reordered, f"{p}.jitter_ms": 1000 * st.jitter_s,
                                 f"{p}.fraction_lost": st.fraction_lost,
-                                f"{p}.recovered": self.recovery.recovered[ssrc] if self.recovery else 0})
+                                f"{p}.recovered": self.recovery.recovered[ssrc] if self.recovery else 0,
+                                f"{p}.analysed": self.analysed[ssrc]})
         metrics["imagery.recovery"] = int(self.recovery is not None)
         snap = self.bus.counters.snapshot()
         missed = snap["dropped"]
