@@ -529,14 +529,17 @@ class MissionRunner:
                 held_since = self._held[u]
             if not ready:
                 continue
+            # a board resumes only after a heartbeat newer than its failsafe (edge.failsafe): one goes just
+            # ahead of the Resume, on the same reliable link
+            self._hb_pub.put(Heartbeat(source="gcs", seq=self.record.heartbeats_sent, stamp=time.time()))
             rec = self.command(lambda cid, uav=u: Resume(uav=uav, cmd_id=cid))
             with self._lock:
                 if rec.ok and rec.accepted:
                     self._resume_after[u] = time.time() + 1.0
                     self._incident("resume", u, f"UAV {u} resumed, {time.time() - held_since:.1f} s after its hold "
                                                 f"was seen ({rec.attempts} tries)")
-                else:
-                    self._resume_after[u] = time.time() + 2.0
+                else:  # refused for want of a fresh heartbeat: the next one is at most 1 / heartbeat_hz away
+                    self._resume_after[u] = time.time() + (0.5 if "heartbeat" in (rec.reason or "") else 2.0)
                     self._incident("resume-failed", u, f"UAV {u} not resumed: "
                                                        f"{rec.reason or 'refused'} ({rec.attempts} tries)")
 
