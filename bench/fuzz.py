@@ -221,21 +221,22 @@ def fuzz(target: Target, n: int, seed: int, hang_s: float) -> dict:
         for _ in range(n):
             data = mutate(rng, target.seeds)
             t = time.perf_counter()
-            signal.setitimer(signal.ITIMER_REAL, hang_s)
             try:
-                target.run(data)
-                accepted += 1
-            except Hang:
-                hangs.append(data[:200].hex())
-            except target.allowed:
-                rejected += 1
-            except Exception as exc:  # a crash: an error the target does not document
-                if len(crashes) < 5:
-                    crashes.append({"error": f"{type(exc).__name__}: {exc}"[:300], "input": data[:200].hex()})
-                else:
-                    crashes.append({})
-            finally:
-                signal.setitimer(signal.ITIMER_REAL, 0)
+                signal.setitimer(signal.ITIMER_REAL, hang_s)
+                try:
+                    target.run(data)
+                    accepted += 1
+                except Hang:
+                    raise
+                except target.allowed:
+                    rejected += 1
+                except Exception as exc:  # a crash: an error the target does not document
+                    crashes.append({"error": f"{type(exc).__name__}: {exc}"[:300], "input": data[:200].hex()}
+                                   if len(crashes) < 5 else {})
+                finally:
+                    signal.setitimer(signal.ITIMER_REAL, 0)
+            except Hang:  # also when the alarm fires as the input ends
+                hangs.append(data.hex())
             dt = time.perf_counter() - t
             if dt > slowest[0]:
                 slowest = (dt, data)
@@ -245,6 +246,7 @@ def fuzz(target: Target, n: int, seed: int, hang_s: float) -> dict:
     rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return {"target": target.name, "inputs": n, "inputs_per_s": n / wall, "rejected": rejected, "accepted": accepted,
             "crashes": len(crashes), "crash_examples": [c for c in crashes if c][:5], "hangs": len(hangs),
+            "hang_examples": hangs[:3],
             "slowest_ms": 1000 * slowest[0], "peak_rss_growth_mb": (rss1 - rss0) / 1024, "wall_s": wall}
 
 
@@ -267,6 +269,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['crashes']:>7} {r['hangs']:>5} {r['slowest_ms']:>7.1f}ms {r['peak_rss_growth_mb']:>8.1f}", flush=True)
         for c in r["crash_examples"]:
             print(f"    crash: {c['error']}  input={c['input'][:80]}")
+        for h in r["hang_examples"]:
+            print(f"    hang: input={h[:160]}")
     _SCENARIO_FILE.unlink(missing_ok=True)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -241,8 +241,9 @@ class Board:
         return {"ref": tuple(map(float, pos)), "tau": max(0.0, float(tau))}
 
     def _check_failsafe(self, st, now_wall: float) -> None:
-        flying = st.armed and st.mode in (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.RTL)
-        decision = self.failsafe.step(now_wall, self.last_heartbeat, flying, st.battery)
+        flying = st.armed and st.mode in (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION)
+        decision = self.failsafe.step(now_wall, self.last_heartbeat, flying, st.battery,
+                                      returning=st.armed and st.mode == Mode.RTL)
         if decision is None:
             return
         try:

@@ -76,15 +76,19 @@ class FailsafePolicy:
         self.current = action
         return Decision(action, reason, kind, text)
 
-    def step(self, now: float, last_heartbeat: float | None, flying: bool, battery: float) -> Decision | None:
-        """What to do now, or None."""
-        if not flying:
+    def step(self, now: float, last_heartbeat: float | None, flying: bool, battery: float,
+             returning: bool = False) -> Decision | None:
+        """What to do now, or None. ``returning``: the UAV is already coming home (RTL): only the
+        critical battery (land) still applies, a lost ground station does not stop it."""
+        if not (flying or returning):
             return None
         o = self.opt
         if battery <= o.battery_critical and self.battery != "critical":
             self.battery = "critical"
             return self._order("land", "battery", "battery-failsafe",
                                f"battery at {battery:.0%} (critical {o.battery_critical:.0%}): land")
+        if returning:
+            return None
         if battery <= o.battery_low and self.battery is None:
             self.battery = "low"
             return self._order("rtl", "battery", "battery-failsafe",

@@ -54,3 +54,10 @@ def test_not_flying_or_never_heard_is_no_failsafe_and_bad_options_refused():
                 dict(battery_low=0.1, battery_critical=0.2)]:
         with pytest.raises(ValueError):
             FailsafeOptions(**bad)
+
+
+def test_a_uav_returning_home_is_not_stopped_by_a_lost_ground_station_but_lands_on_a_critical_battery():
+    p = FailsafePolicy()
+    assert p.step(100, 0, flying=False, battery=0.5, returning=True) is None  # RTL commanded: no hold
+    assert p.step(101, 0, False, 0.15, returning=True) is None  # low battery: it is already returning
+    assert p.step(102, 0, False, 0.05, returning=True).action == "land"
