@@ -78,7 +78,8 @@ def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
         from .vehicle.sim import SimDriver, SimParams
 
         wind = DisturbanceParams.moderate() if args.wind == "moderate" else DisturbanceParams()
-        return SimDriver(args.uav, params=SimParams(disturbance=wind), home=args.home, t0=t0,
+        endurance = {} if getattr(args, "endurance", None) is None else {"endurance_s": args.endurance}
+        return SimDriver(args.uav, params=SimParams(disturbance=wind, **endurance), home=args.home, t0=t0,
                          seed=args.seed if args.seed is not None else args.uav)
     from .vehicle.mavlink import MavlinkDriver  # needs the "mavlink" extra
 

@@ -33,6 +33,7 @@ import zenoh
 from pydantic import BaseModel, ConfigDict, Field, SecretStr
 
 from . import codec, keys
+from .budget import Budget
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
 from .ring import Ring  # noqa: F401  (services take their rings from the bus)
@@ -162,6 +163,9 @@ def config_from_args(args: argparse.Namespace, **overrides: Any) -> BusConfig:
 
 
 # ----------------------------------------------------------------------------- counters
+#: distinct (key, kind) rejection rows a session keeps (see :meth:`Counters.reject`)
+MAX_REJECT_KEYS = 512
+
 @dataclass
 class Counters:
     """Per-session traffic and rejection counters; updates from Zenoh's threads take a lock,
@@ -181,8 +185,13 @@ class Counters:
             row[1] += nbytes
 
     def reject(self, key: str, kind: str) -> bool:
-        """Count a rejection; True the first time this (key, kind) is seen (log it once)."""
+        """Count a rejection; True the first time this (key, kind) is seen (log it once).
+
+        At most :data:`MAX_REJECT_KEYS` distinct pairs are kept; the rest are counted under the key
+        ``"(other)"``, so a flood of made-up keys cannot grow the table without bound."""
         with self.lock:
+            if (key, kind) not in self.rejected and len(self.rejected) >= MAX_REJECT_KEYS:
+                key = "(other)"
             first = (key, kind) not in self.rejected
             self.rejected[(key, kind)] += 1
             return first
@@ -342,8 +351,10 @@ class Bus:
         expect: type[Message] | tuple[type[Message], ...] | None = None,
         link: LinkClass | None = None,
         ring: int | None = None,
+        budget: Budget | None = None,
     ) -> Any:
-        """Subscribe with decoding; ``ring=N`` hands samples to a worker through a drop-oldest ring."""
+        """Subscribe with decoding; ``ring=N`` hands samples to a worker through a drop-oldest ring;
+        ``budget`` drops (and counts) what a source sends beyond its rate or size (:mod:`protocol.budget`)."""
         counters = self.counters
         cls_name = link.name if link else "any"
 
@@ -354,10 +365,11 @@ class Bus:
             if msg is not None:
                 callback(msg, sample)
 
-        return self.subscribe_raw(key, handle, ring=ring)
+        return self.subscribe_raw(key, handle, ring=ring, budget=budget)
 
     def subscribe_raw(
-        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False
+        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False,
+        budget: Budget | None = None,
     ) -> Any:
         """Subscribe to raw samples (e.g. RTP frames); the callback must not raise for bad input.
 
@@ -375,6 +387,15 @@ class Bus:
         def guarded(sample: zenoh.Sample) -> None:
             if self._closed:
                 return
+            if budget is not None:
+                source = str(sample.key_expr)
+                with self.counters.lock:
+                    reason = budget.admit(source, len(sample.payload), time.monotonic())
+                if reason is not None:
+                    if self.counters.reject(source, reason):
+                        log.warning("%s: %s over its budget (%s); further ones are only counted", self.name,
+                                    source, reason)
+                    return
             try:
                 target(sample)
             except Exception:

@@ -293,6 +293,16 @@ class Defect(Message):
     length_m: Finite | None = None
 
 
+class FrameEvidence(Message):
+    """The frame a defect report was computed from: its RTP source and sequence number (RFC 3550 §5.1) and
+    the SHA-256 of the image bytes the detector analysed (issue 12: a capture counts only with it)."""
+
+    TYPE: ClassVar[str] = "frame.evidence"
+    ssrc: Annotated[int, Field(ge=0, le=2**32 - 1)]
+    seq: Annotated[int, Field(ge=0, le=65535)]
+    digest: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
+
+
 class DefectReport(Message):
     TYPE: ClassVar[str] = "defects"
     uav: UavId
@@ -305,6 +315,7 @@ class DefectReport(Message):
     error: Text = ""
     defects: list[Defect] = Field(default=[], max_length=10000)
     defect_fraction: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
+    frame: FrameEvidence | None = Field(default=None, description="the frame analysed (None: no evidence)")
 
 
 # ----------------------------------------------------------------------------- stats and events
@@ -347,6 +358,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
     for m in (
         VehicleState, Waypoint, Trajectory, Box, *COMMAND_TYPES, CommandAck, Heartbeat,
         PlanRequest, CapturePoint, MissionPlan, ErrorReply, Intrinsics, ImageMeta, Defect,
-        DefectReport, ClassCounters, LinkStats, Event,
+        FrameEvidence, DefectReport, ClassCounters, LinkStats, Event,
     )
 }

@@ -342,6 +342,8 @@ def load_scenario(path: str | Path | None = None) -> Scenario:
         raise ScenarioError(f"cannot read scenario file {p}: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"scenario file {p} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:  # TOML is UTF-8 (TOML v1.0.0, "Spec"); tomllib lets this one through
+        raise ScenarioError(f"scenario file {p} is not UTF-8 text: {exc.reason} at byte {exc.start}") from None
     try:
         return validate_scenario(doc)
     except ScenarioError as exc:

@@ -25,6 +25,12 @@ mission phase (``skynet mission``) or the network start (``skynet up``). A kille
 restarted with the same command line and ports; the launcher puts clean proxies on the links a
 fault cuts.
 
+A service that exits by itself (a crash, not a fault's kill) is restarted by the supervisor
+(:meth:`Network.start_supervisor`) with the same command line, after an exponential back-off
+(:mod:`services.restart`: 0.5 s doubling to 30 s, reset after 10 s of good run); each restart is
+logged and, in a mission, recorded as a fault (``restart``) in the report. The network is never
+stopped because one service ended.
+
 ``--secure`` turns on the gateway's authentication and access control: random passwords for
 ``gcs``, ``planner``, ``detector`` and ``uav1..N`` in a private temporary folder (removed at the
 end), the gateway started with ``--users`` and ``--acl``, each service with ``--user`` and its
@@ -41,6 +47,7 @@ import math
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,6 +65,7 @@ from protocol.bus import (
 
 from .faults import FaultInjector, Resolved, cut_links, plan_faults
 from .process import ProcessGroup, free_port_pair
+from .restart import RestartTracker
 from .topology import (
     CLASSES,
     OPEN_TIMEOUT_MS,
@@ -145,6 +153,12 @@ class Network:
         self.tmp = Path(tempfile.mkdtemp(prefix="skynet-net-"))
         self.creds = None
         self.injector: FaultInjector | None = None
+        #: restarts the supervisor made: {"service", "code", "failures", "delay_s", "at"}
+        self.restarts: list[dict] = []
+        #: told of each restart (name, text); a mission sets its runner's ``note_fault`` here
+        self.on_restart = None
+        self._sup_stop = threading.Event()
+        self._sup: threading.Thread | None = None
         if getattr(args, "secure", False):
             from services.gateway.credentials import generate
 
@@ -319,7 +333,48 @@ class Network:
         """Services that ended on their own (not those a fault killed)."""
         return [s.name for s in self.group.services if not s.alive() and not s.killed]
 
+    def start_supervisor(self, log: logging.Logger, tracker: RestartTracker | None = None,
+                         period_s: float = 0.2) -> None:
+        """Restart services that end by themselves (see the module docstring), in a thread until :meth:`stop`."""
+        tracker = tracker or RestartTracker()
+
+        def loop() -> None:
+            while not self._sup_stop.wait(period_s):
+                try:
+                    self.supervise(tracker, log)
+                except Exception:  # the supervisor outlives a failed pass, and says so
+                    log.exception("supervisor pass failed")
+
+        self._sup = threading.Thread(target=loop, name="supervisor", daemon=True)
+        self._sup.start()
+
+    def supervise(self, tracker: RestartTracker, log: logging.Logger) -> None:
+        """One pass: schedule the restart of services that ended on their own, start those that are due."""
+        if self.group.closed:
+            return
+        now = time.monotonic()
+        for svc in list(self.group.services):
+            if svc.alive() or svc.killed or tracker.pending(svc.name):
+                continue
+            p = tracker.exited(svc.name, now, now - svc.started, svc.proc.returncode)
+            log.error("%s exited with code %s after %.1f s; restarting it in %.1f s (quick failure %d in a row)",
+                      svc.name, p.code, now - svc.started, p.due - now, p.failures)
+        for p in tracker.due(now):
+            try:
+                svc = self.group.restart(p.name)
+            except RuntimeError:  # the group is stopping
+                return
+            text = f"exited with code {p.code}; restarted by the supervisor (run {svc.restarts + 1})"
+            self.restarts.append({"service": p.name, "code": p.code, "failures": p.failures,
+                                  "at": time.time(), "text": text})
+            log.warning("%s %s", p.name, text)
+            if self.on_restart is not None:
+                self.on_restart(p.name, text)
+
     def stop(self) -> dict:
+        self._sup_stop.set()
+        if self._sup is not None:
+            self._sup.join(5.0)
         if self.injector is not None:
             self.injector.cancel()  # then the group refuses restarts and its stop ends a restart's wait
         codes = self.group.stop()
@@ -401,11 +456,9 @@ def main(argv: list[str] | None = None) -> int:
             injector = net.start_faults(log)
             if injector is not None:
                 injector.start(origin=time.time())
+            net.start_supervisor(log)  # a service that ends is restarted, the network stays up
             while not stop.wait(1.0):
-                dead = net.check_alive()
-                if dead:
-                    log.error("service(s) ended: %s", ", ".join(dead))
-                    break
+                pass
         finally:
             codes = net.stop()
             log.info("stopped: %s", codes)
@@ -418,8 +471,10 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     from services.gcs.mission import MissionOptions
     from protocol.scenario import load_scenario
 
-    out = Path(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
-    out.mkdir(parents=True, exist_ok=True)
+    from services.gcs.record import check_output_folder
+
+    # not writable or too little room: refused (RecordingError) before any service starts
+    out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     log_file = open(out / "services.log", "w")
     net = Network(args, echo=log_file, ground_station=True, plan=plan)
     scenario = load_scenario(args.scenario)
@@ -428,14 +483,16 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
         cfg = net.gcs_config()
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                                  speed=args.speed)
-        hooks = {}
         injector = net.start_faults(log)
-        if injector is not None:
-            def on_runner(runner) -> None:
+
+        def on_runner(runner) -> None:
+            net.on_restart = lambda name, text: runner.note_fault("restart", name, text)
+            if injector is not None:
                 injector.attach(runner)
                 injector.start()
 
-            hooks["on_runner"] = on_runner
+        hooks = {"on_runner": on_runner}
+        net.start_supervisor(log)
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
             web_server = None
             if args.web:  # the live page in the ground station's process, with its plan (services.web)
@@ -452,6 +509,8 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
                     web_server.stop()
         if net.proxies:
             (out / "proxies.json").write_text(json.dumps(net.proxy_stats(), indent=1))
+        if net.restarts:
+            (out / "restarts.json").write_text(json.dumps(net.restarts, indent=1))
     finally:
         net.stop()
         log_file.close()

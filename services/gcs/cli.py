@@ -55,13 +55,17 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
                               now - t_start, notes), force=force)
 
+    journal = None
+    if out:
+        from .record import check_output_folder
+
+        journal = check_output_folder(out) / "record.jsonl"  # RecordingError before anything flies
     recorder = None
     if out and record:  # before the runner subscribes, so the log holds every sample the runner gets
         from services.recording.recorder import Recorder
 
-        Path(out).mkdir(parents=True, exist_ok=True)
         recorder = Recorder(bus, Path(out) / "mission.mcap", log)
-    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort)
+    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort, journal=journal)
     if on_runner is not None:
         on_runner(runner)
     root = logging.getLogger()
@@ -89,8 +93,21 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         from .report import write_report
 
         folder = Path(out)
-        write_report(record, folder)
+        try:
+            write_report(record, folder)
+        except OSError as exc:  # a full or broken disk: the report goes elsewhere, and we say where
+            import tempfile
+
+            fallback = Path(tempfile.mkdtemp(prefix="skynet-report-"))
+            log.error("could not write the report to %s (%s); writing it to %s instead (the journal %s keeps "
+                      "the record up to the failure)", folder, exc.strerror or exc, fallback, journal)
+            record.recording_errors.append(f"report not written to {folder} ({exc.strerror or exc}): it is in "
+                                           f"{fallback}")
+            folder = fallback
+            write_report(record, folder)
         log.info("report written to %s", folder / "report.md")
+        for err in record.recording_errors:
+            log.error("recording: %s", err)
     if record.success:
         log.info("mission succeeded: %d UAVs reached the goal, %d capture points imaged", len(options.uavs),
                  len(runner.planned_captures()))

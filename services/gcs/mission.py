@@ -38,6 +38,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 from protocol import keys
+from protocol.budget import for_topic
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.scenario import FormationSpec, Scenario
@@ -59,6 +60,7 @@ from protocol.messages import (
     VehicleState,
 )
 
+from .evidence import corroboration_failures, has_evidence, ledger
 from .record import (
     GOAL_RADIUS_M,
     CommandRecord,
@@ -67,6 +69,7 @@ from .record import (
     FaultRecord,
     Incident,
     MissionRecord,
+    Recorder,
     StateRx,
     StatsRx,
 )
@@ -127,12 +130,14 @@ class MissionOptions:
 class MissionRunner:
     def __init__(self, bus: Bus, scenario: Scenario, options: MissionOptions,
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
-                 abort: threading.Event | None = None):
+                 abort: threading.Event | None = None, journal=None):
         self.bus, self.opt, self.log = bus, options, log
         self.abort = abort or threading.Event()
         scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
         self.record = MissionRecord(fleet=bus.fleet, scenario=scenario, speed=options.speed, started=time.time())
+        #: every item goes through it: bounded in memory, streamed to ``journal`` (record.Recorder)
+        self.recorder = Recorder(self.record, journal, log)
         self.latest: dict[int, VehicleState] = {}
         self.reports: dict[tuple[int, int], DefectReport] = {}
         self._lock = threading.Lock()
@@ -152,11 +157,16 @@ class MissionRunner:
         self._in_mission = threading.Event()
         self._sup_stop = threading.Event()
         fleet = bus.fleet
-        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY)
-        bus.subscribe(keys.all_events(fleet), self._on_event, expect=Event, link=COMMAND)
-        bus.subscribe(keys.defects(fleet), self._on_defects, expect=DefectReport, link=COMMAND)
-        bus.subscribe(keys.gateway_stats(fleet), self._on_gw_stats, expect=LinkStats, link=TELEMETRY)
-        bus.subscribe(keys.rcu_stats(fleet, "detector"), self._on_det_stats, expect=LinkStats, link=TELEMETRY)
+        # per-source budgets (protocol.budget): a flood on one key is dropped and counted, never recorded
+        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY,
+                      budget=for_topic("state"))
+        bus.subscribe(keys.all_events(fleet), self._on_event, expect=Event, link=COMMAND, budget=for_topic("event"))
+        bus.subscribe(keys.defects(fleet), self._on_defects, expect=DefectReport, link=COMMAND,
+                      budget=for_topic("defects"))
+        bus.subscribe(keys.gateway_stats(fleet), self._on_gw_stats, expect=LinkStats, link=TELEMETRY,
+                      budget=for_topic("stats"))
+        bus.subscribe(keys.rcu_stats(fleet, "detector"), self._on_det_stats, expect=LinkStats, link=TELEMETRY,
+                      budget=for_topic("stats"))
         self._hb_pub = bus.publisher(keys.heartbeat(fleet), COMMAND)
         bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
 
@@ -164,29 +174,29 @@ class MissionRunner:
     def _on_state(self, msg, sample) -> None:
         now = time.time()
         with self._lock:
-            self.record.states.append(StateRx(rx=now, msg=msg))
+            self.recorder.add("states", StateRx(rx=now, msg=msg))
             self.latest[msg.uav] = msg
             self._rx[msg.uav] = now
 
     def _on_event(self, msg, sample) -> None:
         with self._lock:
-            self.record.events.append(EventRx(rx=time.time(), msg=msg))
+            self.recorder.add("events", EventRx(rx=time.time(), msg=msg))
         if self.log and msg.level != "info":
             self.log.warning("event from %s: %s %s", msg.source, msg.kind, msg.text)
 
     def _on_defects(self, msg, sample) -> None:
         with self._lock:
-            self.record.defects.append(DefectRx(rx=time.time(), msg=msg))
-            if msg.ok:
+            self.recorder.add("defects", DefectRx(rx=time.time(), msg=msg))
+            if has_evidence(msg):  # a capture counts only on a report that names its frame (evidence.py)
                 self.reports[(msg.uav, msg.capture_id)] = msg
 
     def _on_gw_stats(self, msg, sample) -> None:
         with self._lock:
-            self.record.gateway_stats.append(StatsRx(rx=time.time(), msg=msg))
+            self.recorder.add("gateway_stats", StatsRx(rx=time.time(), msg=msg))
 
     def _on_det_stats(self, msg, sample) -> None:
         with self._lock:
-            self.record.detector_stats.append(StatsRx(rx=time.time(), msg=msg))
+            self.recorder.add("detector_stats", StatsRx(rx=time.time(), msg=msg))
 
     def _on_alive(self, key: str, alive: bool) -> None:
         try:
@@ -211,7 +221,7 @@ class MissionRunner:
 
     def _incident(self, kind: str, uav: int | None, text: str, at: float | None = None) -> None:
         """Record an incident (caller holds ``self._lock``)."""
-        self.record.incidents.append(Incident(at=time.time() if at is None else at, kind=kind, uav=uav, text=text))
+        self.recorder.add("incidents", Incident(at=time.time() if at is None else at, kind=kind, uav=uav, text=text))
         if self.log:
             (self.log.info if kind in ("token-back", "uav-back", "link-up", "resume") else self.log.warning)(
                 "%s: %s", kind, text)
@@ -222,7 +232,7 @@ class MissionRunner:
         Called by the launcher's fault injector from its own thread; thread-safe.
         """
         with self._lock:
-            self.record.faults.append(FaultRecord(at=time.time(), action=action, target=target, text=text))
+            self.recorder.add("faults", FaultRecord(at=time.time(), action=action, target=target, text=text))
         if self.log:
             self.log.warning("fault: %s %s %s", action, target, text)
 
@@ -301,7 +311,7 @@ class MissionRunner:
                                        f"{self.mission_time(lost[cmd.uav])})",
                                 attempts=0, elapsed_s=0.0)
             with self._lock:
-                self.record.commands.append(rec)
+                self.recorder.add("commands", rec)
             return rec
         t0 = time.monotonic()
         acks, reason = [], ""
@@ -315,7 +325,7 @@ class MissionRunner:
                 rec = CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=True, accepted=ack.accepted,
                                     reason=ack.reason, attempts=attempt, elapsed_s=time.monotonic() - t0, ack_s=acks)
                 with self._lock:
-                    self.record.commands.append(rec)
+                    self.recorder.add("commands", rec)
                 return rec
             reason = reply.error
             time.sleep(backoff)
@@ -323,7 +333,7 @@ class MissionRunner:
         rec = CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=False, accepted=False, reason=reason,
                             attempts=self.opt.command_attempts, elapsed_s=time.monotonic() - t0, ack_s=acks)
         with self._lock:
-            self.record.commands.append(rec)
+            self.recorder.add("commands", rec)
         return rec
 
     def command_all(self, make: Callable[[int, int], object], what: str, parallel: bool = False) -> None:
@@ -420,8 +430,10 @@ class MissionRunner:
                 if t.is_alive():
                     t.join(2.0)
             self.record.ended = time.time()
+            self.record.rejected = self.bus.counters.snapshot()["rejected"]
             self.phase("done")
         self.judge()
+        self.recorder.close()  # the journal's footer: plan, verdict, counters
         return self.record
 
     # -- faults: liveliness, the own link, failsafe holds
@@ -518,14 +530,17 @@ class MissionRunner:
                 held_since = self._held[u]
             if not ready:
                 continue
+            # a board resumes only after a heartbeat newer than its failsafe (edge.failsafe): one goes just
+            # ahead of the Resume, on the same reliable link
+            self._hb_pub.put(Heartbeat(source="gcs", seq=self.record.heartbeats_sent, stamp=time.time()))
             rec = self.command(lambda cid, uav=u: Resume(uav=uav, cmd_id=cid))
             with self._lock:
                 if rec.ok and rec.accepted:
                     self._resume_after[u] = time.time() + 1.0
                     self._incident("resume", u, f"UAV {u} resumed, {time.time() - held_since:.1f} s after its hold "
                                                 f"was seen ({rec.attempts} tries)")
-                else:
-                    self._resume_after[u] = time.time() + 2.0
+                else:  # refused for want of a fresh heartbeat: the next one is at most 1 / heartbeat_hz away
+                    self._resume_after[u] = time.time() + (0.5 if "heartbeat" in (rec.reason or "") else 2.0)
                     self._incident("resume-failed", u, f"UAV {u} not resumed: "
                                                        f"{rec.reason or 'refused'} ({rec.attempts} tries)")
 
@@ -603,4 +618,7 @@ class MissionRunner:
             if missing:
                 rec.failures.append(f"{len(missing)} of {len(self.planned_captures())} capture points were not imaged: "
                                     f"{sorted(missing)[:10]}")
+        rec.imagery = ledger(self.opt.uavs, (s.msg for s in rec.states), (d.msg for d in rec.defects),
+                             (s.msg for s in rec.detector_stats))
+        rec.failures += corroboration_failures(rec.imagery)
         rec.success = not rec.failures

@@ -71,7 +71,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from edge.formation import DEFAULT_OFFSETS, formation_error
 from protocol.messages import Mode, Trajectory
+from services.gcs.evidence import integrity_markdown
 from services.gcs.record import GOAL_RADIUS_M, MissionRecord
+
+#: events listed in report.json and report.md (the record keeps more, the journal all of them)
+MAX_REPORT_EVENTS = 500
 from services.gcs.resilience import fault_figures
 from services.gcs.scoring import DefectScore, score_defects, surface_uv
 
@@ -730,7 +734,7 @@ def _analyse(record: MissionRecord) -> tuple[ReportSummary, dict[str, Any]]:
                    "metrics": dict(gw.metrics)}
     events = [{"rx": e.rx, "source": e.msg.source, "stamp": e.msg.stamp, "kind": e.msg.kind,
                "level": e.msg.level.value, "text": e.msg.text, "data": dict(e.msg.data)}
-              for e in sorted(record.events, key=lambda e: e.rx)]
+              for e in sorted(record.events, key=lambda e: e.rx)[:MAX_REPORT_EVENTS]]  # a flood stays out
 
     ts = [tk.t for tk in tracks.values() if tk.n]
     sim = float(max(t[-1] for t in ts) - min(t[0] for t in ts)) if ts else None
@@ -1127,8 +1131,11 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
                         str(e["text"]).replace("|", "/")] for e in s.events]), ""]
     else:
         md += ["No events.", ""]
+    if len(record.events) > len(s.events):
+        md += [f"{len(record.events) - len(s.events)} more events are in record.json / record.jsonl.", ""]
     if s.gateway.get("rejected"):
         md += ["Gateway rejections: " + ", ".join(f"{k}: {v}" for k, v in s.gateway["rejected"].items()) + ".", ""]
+    md += integrity_markdown(record)
     return "\n".join(md)
 
 

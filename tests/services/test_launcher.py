@@ -150,3 +150,45 @@ def test_no_recovery_reaches_the_edges_and_the_detector():
         assert net.check_alive() == []
     finally:
         net.stop()
+
+
+def test_up_restarts_a_service_that_dies_instead_of_stopping_the_network():
+    """Issue 12: one service ending (here the planner, SIGKILLed from outside: a crash) used to stop the whole
+    network; now the supervisor restarts it after its back-off, says so, and the rest keeps running."""
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--fleet", "restart"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+
+    def read_until(pred, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                return False
+            lines.append(line)
+            if pred(line):
+                return True
+        return False
+
+    try:
+        assert read_until(lambda ln: "network up" in ln, 60), "".join(lines[-40:])
+        children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+        planner = [int(p) for p in children
+                   if " planner " in open(f"/proc/{p}/cmdline").read().replace("\0", " ") + " "]
+        assert len(planner) == 1, children
+        os.killpg(planner[0], signal.SIGKILL)
+        assert read_until(lambda ln: "planner exited with code -9" in ln, 10), "".join(lines[-20:])
+        assert read_until(lambda ln: "restarted by the supervisor" in ln, 10), "".join(lines[-20:])
+        assert read_until(lambda ln: ln.strip().startswith("planner |") and "planner up" in ln, 30), \
+            "".join(lines[-20:])
+        assert proc.poll() is None  # the network is still up
+        after = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+        assert len(after) == 6 and str(planner[0]) not in after
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0

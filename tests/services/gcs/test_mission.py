@@ -89,3 +89,47 @@ def test_the_common_start_leaves_time_for_every_start_command():
         runner.record.commands.append(
             CommandRecord(uav=3, kind="takeoff", cmd_id=4, ok=True, accepted=True, elapsed_s=60, ack_s=[60.0]))
         assert runner.start_margin_s() == 30.0  # bounded
+
+
+def test_forged_reports_with_a_dead_detector_fail_the_mission_and_say_why(group, gateway, planner):
+    """Issue 12: with no detector running, a forger publishing ok DefectReports for every capture (some naming no
+    frame, some with made-up frame evidence) made the mission end "success, every capture imaged" with 0 frames
+    received. Now such reports are not corroborated by the detector's statistics: the mission fails, saying why."""
+    import threading
+
+    from protocol import keys
+    from protocol.links import COMMAND
+    from protocol.messages import DefectReport, FrameEvidence
+    from protocol.rtp import ssrc_for
+
+    for uav in (1, 2):
+        assert _edge(group, gateway, uav).wait_for("board up", 30)
+    stop = threading.Event()
+
+    def forge() -> None:
+        with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "forger") as bus:
+            pub = bus.publisher(keys.defects(FLEET), COMMAND)
+            while not stop.wait(0.5):
+                for uav in (1, 2):
+                    for cid in range(60):
+                        now = time.time()
+                        pub.put(DefectReport(uav=uav, capture_id=cid, stamp_capture=now, stamp_report=now,
+                                             method="it+"))
+                        try:
+                            pub.put(DefectReport(uav=uav, capture_id=cid, stamp_capture=now, stamp_report=now,
+                                                 method="it+", frame=FrameEvidence(ssrc=ssrc_for(uav), seq=cid,
+                                                                                   digest="00" * 32)))
+                        except Exception:  # a protocol without frame evidence (before issue 12)
+                            pass
+
+    forger = threading.Thread(target=forge, daemon=True)
+    forger.start()
+    try:
+        record, _ = _run(gateway, (1, 2))
+    finally:
+        stop.set()
+        forger.join(10)
+    assert not record.success
+    why = [f for f in record.failures if "not corroborated" in f]
+    assert why and "no statistics were heard from the detector" in why[0], record.failures
+    assert record.imagery[1]["received"] is None and record.imagery[1]["sent"] > 0

@@ -41,3 +41,30 @@ def test_planner_answers_plan_requests_over_the_bus(group, gateway):
         unknown = gcs.request(keys.planner(FLEET), PlanRequest(scenario=scenario, algorithm="magic", iterations=5),
                               expect=MissionPlan, timeout=30)
         assert not unknown.ok and "magic" in unknown.error
+
+
+def test_oversized_and_overlong_plan_requests_are_refused_and_free_the_worker(group, gateway):
+    """Issue 12: the schema's largest request (10,000 particles x 100,000 iterations) would hold the planner for
+    hours and 200 waypoints took gigabytes; both are now refused before any work ("too large"). A request within
+    the limits that outlasts the time budget (here 1 s) is answered "timeout" and the next request is served."""
+    svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink", "--time-budget", "1",
+                                  *[a for e in gateway for a in ("--connect", e)]])
+    assert svc.wait_for("planner up", 30), "\n".join(svc.lines)
+    doc = load_scenario().model_dump(mode="json")
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
+        deadline = time.monotonic() + 10
+        while not gcs.alive(keys.rcu_alive(FLEET, "planner")) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        huge = gcs.request(keys.planner(FLEET), PlanRequest(scenario=doc, particles=10000, iterations=100000),
+                           expect=MissionPlan, timeout=30)
+        assert not huge.ok and "too large" in huge.error and "limit" in huge.error, huge.error
+        wide = gcs.request(keys.planner(FLEET), PlanRequest(scenario=doc, particles=10000, waypoints=200,
+                                                              iterations=1), expect=MissionPlan, timeout=30)
+        assert not wide.ok and "too large" in wide.error and "elements" in wide.error, wide.error
+        long = gcs.request(keys.planner(FLEET), PlanRequest(scenario=doc, particles=150, iterations=5000),
+                           expect=MissionPlan, timeout=60)
+        assert not long.ok and "time budget of 1 s ran out" in long.error, long.error
+        small = gcs.request(keys.planner(FLEET), PlanRequest(scenario=doc, particles=20, iterations=10),
+                            expect=MissionPlan, timeout=60)
+        assert small.ok, small.error
+    assert svc.alive()
