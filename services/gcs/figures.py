@@ -31,9 +31,10 @@ time, with the scenario's offsets (``scenario.formation.offsets``, row n−1 for
 planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
 heading of the centroid's motion is not always the one the planner placed the slots with.
 
-*Reached goal*: the last position with the trajectory complete (progress 1, in MISSION or HOLD,
-i.e. before the ground station lands the formation) is within 2 m of the last planned waypoint
-(the last recorded position when the trajectory never completed).
+*Reached goal* and *planned captures*: as :mod:`services.gcs.verdict` defines them for the
+mission's verdict too: the last position with the trajectory complete (progress 1, in MISSION or
+HOLD, i.e. before the ground station lands the formation) is within 2 m of the last planned
+waypoint (the last recorded position when the trajectory never completed).
 
 *Link classes.* Telemetry (UDP in the paper): delivered = distinct sequence numbers received,
 sent = the sequence span ``max − min + 1`` per UAV; latency = state age ``rx − stamp``.
@@ -63,6 +64,7 @@ from protocol.messages import Mode, Trajectory
 from services.gcs.record import GOAL_RADIUS_M, MissionRecord
 from services.gcs.resilience import fault_figures
 from services.gcs.scoring import DefectScore, score_defects
+from services.gcs.verdict import GoalCheck, goal_check, imaged_captures, planned_captures
 
 __all__ = [
     "GOAL_RADIUS_M",
@@ -500,15 +502,15 @@ def _obstacles(record: MissionRecord) -> list[tuple[float, float, float, float]]
 
 # ============================================================================ figures
 def _uav_figures(uav: int, track: Track | None, traj: Trajectory | None, imaged: set[tuple[int, int]],
-                 anchor: float | None) -> tuple[UavFigures, PathSeries | None]:
+                 anchor: float | None, goal: GoalCheck | None) -> tuple[UavFigures, PathSeries | None]:
     f = UavFigures(uav=uav)
     series: PathSeries | None = None
     if traj is not None:
         W = np.array([w.pos for w in traj.waypoints], dtype=float)
         f.planned_length_m = _path_length(W)
-        cids = [w.capture_id for w in traj.waypoints if w.capture_id is not None]
-        f.captures_planned = len(cids)
-        f.captures_imaged = sum((uav, c) in imaged for c in cids)
+        mine = planned_captures([traj])
+        f.captures_planned = len(mine)
+        f.captures_imaged = len(mine & imaged)
     if track is None or track.n == 0:
         return f, series
     f.states = track.n
@@ -523,12 +525,9 @@ def _uav_figures(uav: int, track: Track | None, traj: Trajectory | None, imaged:
     if traj is None:
         return f, series
     W = np.array([w.pos for w in traj.waypoints], dtype=float)
-    # where the trajectory ended (progress 1, before the ground station lands the formation);
-    # the last position when the trajectory never completed
-    done = (track.progress >= 1.0) & np.array([m in (Mode.MISSION, Mode.HOLD) for m in track.mode], dtype=bool)
-    end = track.pos[done][-1] if done.any() else track.pos[-1]
-    f.goal_distance_m = float(np.linalg.norm(end - W[-1]))
-    f.reached_goal = f.goal_distance_m <= GOAL_RADIUS_M
+    if goal is not None:  # services.gcs.verdict
+        f.goal_distance_m = goal.distance_m
+        f.reached_goal = goal.reached
     if f.tracking_states == 0:
         return f, series
     P, t = track.pos[tr], track.t[tr]
@@ -723,8 +722,8 @@ def _links(record: MissionRecord, samples: LinkSamples, uav_figs: Mapping[int, U
 
 
 def _captures(record: MissionRecord, trajs: Mapping[int, Trajectory]) -> tuple[CaptureFigures, set[tuple[int, int]]]:
-    planned = {(u, w.capture_id) for u, tr in trajs.items() for w in tr.waypoints if w.capture_id is not None}
-    ok = {(d.msg.uav, d.msg.capture_id) for d in record.defects if d.msg.ok}
+    planned = planned_captures(trajs.values())
+    ok = imaged_captures(d.msg for d in record.defects)
     imaged = planned & ok
     c = CaptureFigures(planned=len(planned), imaged=len(imaged), ratio=_ratio(len(imaged), len(planned)),
                        failed_reports=sum(not d.msg.ok for d in record.defects),
@@ -759,8 +758,9 @@ def analyse(record: MissionRecord) -> ReportFigures:
     captures, imaged = _captures(record, trajs)
     uavs: dict[int, UavFigures] = {}
     paths: dict[int, PathSeries] = {}
+    goals = {u: goal_check((s.msg for s in record.states if s.msg.uav == u), tr) for u, tr in trajs.items()}
     for u in sorted(set(tracks) | set(trajs)):
-        uavs[u], path = _uav_figures(u, tracks.get(u), trajs.get(u), imaged, anchors.get(u))
+        uavs[u], path = _uav_figures(u, tracks.get(u), trajs.get(u), imaged, anchors.get(u), goals.get(u))
         if path is not None:
             paths[u] = path
     offsets = _offsets(record, sorted(set(tracks) | set(trajs)))

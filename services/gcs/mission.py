@@ -30,7 +30,6 @@ Heartbeats continue throughout. Every command ends in the record acknowledged or
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from collections.abc import Callable
@@ -60,7 +59,6 @@ from protocol.messages import (
 )
 
 from .record import (
-    GOAL_RADIUS_M,
     CommandRecord,
     DefectRx,
     EventRx,
@@ -70,6 +68,7 @@ from .record import (
     StateRx,
     StatsRx,
 )
+from .verdict import goal_check, planned_captures
 
 #: How often the supervisor looks at liveliness, the own link and failsafe holds, s.
 SUPERVISE_PERIOD_S = 0.2
@@ -570,9 +569,7 @@ class MissionRunner:
 
     def planned_captures(self) -> set[tuple[int, int]]:
         plan = self.record.plan
-        if plan is None:
-            return set()
-        return {(t.uav, w.capture_id) for t in plan.trajectories for w in t.waypoints if w.capture_id is not None}
+        return set() if plan is None else planned_captures(plan.trajectories)
 
     def missing_captures(self, include_lost: bool = False) -> set[tuple[int, int]]:
         """Planned capture points without a report (of the lost UAVs too with ``include_lost``)."""
@@ -595,9 +592,8 @@ class MissionRunner:
                 if t.uav in lost:
                     continue
                 goal = t.waypoints[-1].pos
-                flown = [s.msg for s in rec.states if s.msg.uav == t.uav and s.msg.mode in (Mode.MISSION, Mode.HOLD)
-                         and s.msg.progress >= 1.0]
-                if not flown or math.dist(flown[-1].pos, goal) > GOAL_RADIUS_M:
+                check = goal_check((s.msg for s in rec.states if s.msg.uav == t.uav), t)  # services.gcs.verdict
+                if check is None or not (check.completed and check.reached):
                     rec.failures.append(f"UAV {t.uav} did not reach its goal {tuple(round(v, 1) for v in goal)}")
             missing = self.missing_captures()
             if missing:
