@@ -41,7 +41,6 @@ from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.scenario import FormationSpec, Scenario
 from protocol.messages import (
-    CommandAck,
     DefectReport,
     Event,
     Heartbeat,
@@ -58,6 +57,7 @@ from protocol.messages import (
     VehicleState,
 )
 
+from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
 from .record import (
     CommandRecord,
     DefectRx,
@@ -135,8 +135,8 @@ class MissionRunner:
         self.latest: dict[int, VehicleState] = {}
         self.reports: dict[tuple[int, int], DefectReport] = {}
         self._lock = threading.Lock()
-        self._cmd_lock = threading.Lock()
-        self._cmd_id = 0
+        self._cmd_ids = CommandIds()
+        self._retry = RetryPolicy(attempts=options.command_attempts, timeout_s=options.command_timeout_s)
         self._hb_stop = threading.Event()
         # fault tracking (supervisor thread + liveliness callback; under self._lock)
         self._gone: dict[int, float] = {}  # UAV -> wall time its token went away
@@ -285,42 +285,19 @@ class MissionRunner:
         return plan
 
     def command(self, make: Callable[[int], object]) -> CommandRecord:
-        """Send one command with retries and back-off; a refusal is final (not retried).
+        """Send one command with retries and back-off (:func:`services.gcs.commands.send`); a
+        refusal is final (not retried).
 
         A command for a lost UAV is not sent; it is recorded as failed ("not sent: ...") so that no
         command disappears without a trace.
         """
-        with self._cmd_lock:
-            self._cmd_id += 1
-            cmd = make(self._cmd_id)
+        cmd = make(self._cmd_ids.next())
         lost = self.lost()
         if cmd.uav in lost:
-            rec = CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=False, accepted=False,
-                                reason=f"not sent: UAV {cmd.uav} is lost (no liveliness token since "
-                                       f"{self.mission_time(lost[cmd.uav])})",
-                                attempts=0, elapsed_s=0.0)
-            with self._lock:
-                self.record.commands.append(rec)
-            return rec
-        t0 = time.monotonic()
-        acks, reason = [], ""
-        backoff = 0.25
-        for attempt in range(1, self.opt.command_attempts + 1):
-            reply = self.bus.request(keys.cmd(self.bus.fleet, cmd.uav), cmd, expect=CommandAck,
-                                     timeout=self.opt.command_timeout_s)
-            if reply.ok:
-                acks.append(reply.elapsed_s)
-                ack = reply.message
-                rec = CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=True, accepted=ack.accepted,
-                                    reason=ack.reason, attempts=attempt, elapsed_s=time.monotonic() - t0, ack_s=acks)
-                with self._lock:
-                    self.record.commands.append(rec)
-                return rec
-            reason = reply.error
-            time.sleep(backoff)
-            backoff *= 2
-        rec = CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=False, accepted=False, reason=reason,
-                            attempts=self.opt.command_attempts, elapsed_s=time.monotonic() - t0, ack_s=acks)
+            rec = not_sent(cmd, f"UAV {cmd.uav} is lost (no liveliness token since "
+                                f"{self.mission_time(lost[cmd.uav])})")
+        else:
+            rec = send(self.bus, cmd, self._retry)
         with self._lock:
             self.record.commands.append(rec)
         return rec
@@ -347,14 +324,11 @@ class MissionRunner:
                 raise MissionFailed(f"UAV {uav} refused {what}: {rec.reason}")
 
     def start_margin_s(self) -> float:
-        """How far ahead the common start time ``t0`` is set. The Start commands go out to all UAVs
-        at once, and each must arrive before ``t0`` or that UAV begins behind the others (and
-        formation keeping pulls them back toward it): twice the slowest acknowledgement so far, at
-        least ``start_margin_s`` (2 s), at most 30 s. (With 200 ms on every link a round trip takes
-        0.8 s; sent one after another with 1 s of margin, UAV 3 began 7 s of trajectory late.)"""
-        acks = [a for c in self.record.commands for a in c.ack_s]
-        slowest = max(acks, default=0.0)
-        return min(30.0, max(self.opt.start_margin_s, 2.0 * slowest))
+        """How far ahead the common start time ``t0`` is set (:func:`services.gcs.commands.start_margin`:
+        twice the slowest acknowledgement so far, at least ``start_margin_s``, at most 30 s)."""
+        with self._lock:
+            commands = list(self.record.commands)
+        return start_margin(commands, self.opt.start_margin_s)
 
     def heartbeat(self) -> None:
         period = 1.0 / self.opt.heartbeat_hz
