@@ -22,8 +22,9 @@ from protocol.bus import (
 )
 from protocol.scenario import Scenario, load_scenario
 
-from .mission import FRESH_STATE_S, MissionOptions, MissionRunner
+from .mission import MissionOptions, MissionRunner
 from .progress import LiveDisplay, render
+from .supervision import FRESH_STATE_S
 
 
 def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,

@@ -6,24 +6,11 @@
 step that cannot complete (a UAV that never appears, refuses its upload, a planner that does
 not answer, a timeout) ends the mission with a failure that says why, never a hang.
 
-Faults (issue 7). A supervisor thread watches, for the whole mission:
-
-* the UAVs' liveliness tokens: a token that goes away is recorded at once (``token-gone``); a UAV
-  whose token stays away longer than ``lost_grace_s`` while the ground station's own link is up
-  is *lost* (``uav-lost``): the waits stop waiting for it (a lost UAV is still waited for
-  ``lost_wait_s`` after the others finish, in case it comes back), it is not sent commands (a
-  failed command record says so), and the mission ends with a failure naming it and the capture
-  points it did not image; the others finish and land. A lost UAV whose token comes back is
-  noted (``uav-back``) and counted again. A gateway restart takes every token away at once but
-  also the ground station's own link, so nobody is declared lost unless it stays away after the
-  link is back (the grace is counted from the later of the two);
-* the ground station's own link to the gateway (``link-down``/``link-up``; Zenoh's client
-  reconnects by itself, :class:`protocol.bus.BusConfig` ``reconnect_max_s``);
-* failsafe holds: during the mission phase a UAV in HOLD before the end of its trajectory holds
-  because of its failsafe (the ground station never commands a hold): once its state is heard
-  again (the link is back) it gets a ``Resume`` — each UAV as soon as possible, not the fleet at
-  once, since the others kept flying and the board's formation keeping on trajectory time closes
-  the lag. The waits are extended by the time the fleet stood still, up to ``stall_limit_s``.
+Faults (issue 7). A supervisor thread binds :class:`services.gcs.supervision.Supervisor` (the
+policy, pure: lost UAVs, the own link, standing still, failsafe resumes) to the bus for the whole
+mission; commands go out through :mod:`services.gcs.commands` (retries, back-off), and a lost UAV
+is not sent commands (a failed command record says so). The waits are extended by the time the
+fleet stood still, up to ``stall_limit_s``.
 
 Heartbeats continue throughout. Every command ends in the record acknowledged or failed.
 """
@@ -68,12 +55,9 @@ from .record import (
     StateRx,
     StatsRx,
 )
+from .supervision import SUPERVISE_PERIOD_S, Supervisor, mission_time
 from .verdict import goal_check, planned_captures
 
-#: How often the supervisor looks at liveliness, the own link and failsafe holds, s.
-SUPERVISE_PERIOD_S = 0.2
-#: A UAV's state counts as heard "now" when received within this many wall seconds.
-FRESH_STATE_S = 1.0
 
 
 
@@ -132,21 +116,14 @@ class MissionRunner:
         scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
         self.record = MissionRecord(fleet=bus.fleet, scenario=scenario, speed=options.speed, started=time.time())
-        self.latest: dict[int, VehicleState] = {}
         self.reports: dict[tuple[int, int], DefectReport] = {}
         self._lock = threading.Lock()
         self._cmd_ids = CommandIds()
         self._retry = RetryPolicy(attempts=options.command_attempts, timeout_s=options.command_timeout_s)
         self._hb_stop = threading.Event()
-        # fault tracking (supervisor thread + liveliness callback; under self._lock)
-        self._gone: dict[int, float] = {}  # UAV -> wall time its token went away
-        self._lost: dict[int, float] = {}  # UAV -> wall time it was declared lost
-        self._link_up_since: float | None = time.time()  # None while the own link is down
-        self._started: dict[int, float] = {}  # UAV -> wall time its Start was acknowledged
-        self._held: dict[int, float] = {}  # UAV -> wall time a mid-mission hold was first seen
-        self._resume_after: dict[int, float] = {}  # UAV -> no resume before this wall time
-        self._rx: dict[int, float] = {}  # UAV -> wall time of its latest state
-        self._stalled_s = 0.0
+        # the supervision policy (supervisor thread + Zenoh callbacks; under self._lock)
+        self._sup = Supervisor(options.uavs, time.time(), lost_grace_s=options.lost_grace_s,
+                               lost_wait_s=options.lost_wait_s, describe=self.mission_time)
         self._land_state: dict[int, tuple[bool, float]] = {}  # UAV -> (Land accepted, last try)
         self._in_mission = threading.Event()
         self._sup_stop = threading.Event()
@@ -164,8 +141,12 @@ class MissionRunner:
         now = time.time()
         with self._lock:
             self.record.states.append(StateRx(rx=now, msg=msg))
-            self.latest[msg.uav] = msg
-            self._rx[msg.uav] = now
+            self._sup.on_state(msg, now)
+
+    @property
+    def latest(self) -> dict[int, VehicleState]:
+        """UAV -> its latest state (the supervisor's; read it under ``self._lock`` or via :meth:`snapshot`)."""
+        return self._sup.latest
 
     def _on_event(self, msg, sample) -> None:
         with self._lock:
@@ -194,26 +175,16 @@ class MissionRunner:
             return
         if uav is None or uav not in self.opt.uavs:
             return
-        now = time.time()
         with self._lock:
-            if alive:
-                gone = self._gone.pop(uav, None)
-                if gone is not None:
-                    self._incident("token-back", uav, f"UAV {uav}'s liveliness token is back after {now - gone:.1f} s",
-                                   now)
-                lost = self._lost.pop(uav, None)
-                if lost is not None:
-                    self._incident("uav-back", uav, f"UAV {uav} is back (lost for {now - lost:.1f} s)", now)
-            elif uav not in self._gone:
-                self._gone[uav] = now
-                self._incident("token-gone", uav, f"UAV {uav}'s liveliness token went away", now)
+            self._note(*self._sup.on_token(uav, alive, time.time()))
 
-    def _incident(self, kind: str, uav: int | None, text: str, at: float | None = None) -> None:
-        """Record an incident (caller holds ``self._lock``)."""
-        self.record.incidents.append(Incident(at=time.time() if at is None else at, kind=kind, uav=uav, text=text))
-        if self.log:
-            (self.log.info if kind in ("token-back", "uav-back", "link-up", "resume") else self.log.warning)(
-                "%s: %s", kind, text)
+    def _note(self, *incidents: Incident) -> None:
+        """Record the supervisor's incidents (caller holds ``self._lock``)."""
+        for inc in incidents:
+            self.record.incidents.append(inc)
+            if self.log:
+                (self.log.info if inc.kind in ("token-back", "uav-back", "link-up", "resume") else self.log.warning)(
+                    "%s: %s", inc.kind, inc.text)
 
     def note_fault(self, action: str, target: str, text: str = "") -> None:
         """Record a fault injected into the run (kill, restart, cut, restore, partition, heal).
@@ -236,11 +207,11 @@ class MissionRunner:
         meanwhile (own link down, a UAV unheard or holding; see :meth:`supervise`), at most
         ``stall_limit_s``."""
         deadline = time.monotonic() + timeout_s
-        stalled0 = self._stalled_s
+        stalled0 = self._sup.stalled_s
         while not pred():
             if self.abort.is_set():
                 raise MissionFailed(f"aborted by the operator while waiting for {what}")
-            extra = min(self._stalled_s - stalled0, self.opt.stall_limit_s)
+            extra = min(self._sup.stalled_s - stalled0, self.opt.stall_limit_s)
             if time.monotonic() > deadline + extra:
                 raise MissionFailed(f"timed out after {timeout_s + extra:.0f} s waiting for {what}"
                                     + (f" ({extra:.0f} s of it added while the fleet stood still)" if extra >= 1 else ""))
@@ -367,7 +338,7 @@ class MissionRunner:
             t0 = time.time() + self.start_margin_s()
             self.command_all(lambda u, cid: Start(uav=u, cmd_id=cid, t0_stamp=t0), "start", parallel=True)
             with self._lock:
-                self._started.update({u: time.time() for u in self.opt.uavs})
+                self._sup.on_started(self.opt.uavs, time.time())
             self._in_mission.set()
             duration = max(t.waypoints[-1].t for t in plan.trajectories)
             self.wait_for(lambda: self.mission_done(), self.sim_timeout(duration * self.opt.mission_margin + 60.0),
@@ -401,117 +372,42 @@ class MissionRunner:
     def lost(self) -> dict[int, float]:
         """Lost UAVs -> wall time their token went away."""
         with self._lock:
-            return dict(self._lost)
+            return dict(self._sup.lost)
 
     def last_heard(self) -> dict[int, float]:
         """UAV -> wall time its latest state was received."""
         with self._lock:
-            return dict(self._rx)
+            return dict(self._sup.rx)
 
     def mission_time(self, wall: float) -> str:
         """``wall`` as "mission t=12.3 s" (from the mission phase's start), or "t=… s" from the start."""
-        m = self.record.phases.get("mission")
-        return f"mission t={wall - m:.1f} s" if m is not None else f"t={wall - self.record.started:.1f} s"
+        return mission_time(wall, self.record.phases, self.record.started)
 
     def supervise(self) -> None:
-        """Supervisor thread: own link, lost UAVs, stall time and (mission phase) failsafe resumes."""
+        """Supervisor thread: one :meth:`Supervisor.tick` every ``SUPERVISE_PERIOD_S`` (own link, lost
+        UAVs, stall time and, in the mission phase, failsafe holds), then the Resumes it decided."""
         last = time.monotonic()
         while not self._sup_stop.wait(SUPERVISE_PERIOD_S):
             now_m = time.monotonic()
             dt, last = now_m - last, now_m
             try:
-                self._check_link()
-                self._confirm_losses()
-                if self._standing_still():
-                    self._stalled_s += dt
-                if self._in_mission.is_set() and self.opt.resume_held:
-                    self._resume_held()
+                up = bool(self.bus.routers() or self.bus.peers())
+                with self._lock:
+                    d = self._sup.tick(time.time(), dt, up, resume=self._in_mission.is_set() and self.opt.resume_held)
+                    self._note(*d.incidents)
+                for u in d.resume:
+                    rec = self.command(lambda cid, uav=u: Resume(uav=uav, cmd_id=cid))
+                    with self._lock:
+                        self._note(self._sup.on_resumed(u, rec, time.time()))
             except Exception:  # the supervisor must outlive a bug in one pass (and say so)
                 if self.log:
                     self.log.exception("supervisor pass failed")
-
-    def _check_link(self) -> None:
-        up = bool(self.bus.routers() or self.bus.peers())
-        now = time.time()
-        with self._lock:
-            if up and self._link_up_since is None:
-                self._link_up_since = now
-                self._incident("link-up", None, "the ground station reached the gateway again", now)
-            elif not up and self._link_up_since is not None:
-                self._link_up_since = None
-                self._incident("link-down", None, "the ground station lost its link to the gateway", now)
-
-    def _confirm_losses(self) -> None:
-        now = time.time()
-        with self._lock:
-            if self._link_up_since is None:
-                return
-            for u, gone in self._gone.items():
-                if u not in self._lost and now - max(gone, self._link_up_since) > self.opt.lost_grace_s:
-                    self._lost[u] = gone
-                    self._incident("uav-lost", u, f"UAV {u} lost: no liveliness token since {self.mission_time(gone)} "
-                                                  f"({now - gone:.1f} s) while the ground station's link is up", now)
-
-    def _standing_still(self) -> bool:
-        """True while the mission cannot progress for a fault: own link down, or a UAV still counted
-        (not lost) unheard for a while or holding mid-mission."""
-        now = time.time()
-        with self._lock:
-            if self._link_up_since is None:
-                return True
-            active = [u for u in self.opt.uavs if u not in self._lost]
-            if not active:
-                return True
-            for u in active:
-                rx = self._rx.get(u)
-                if rx is not None and now - rx > FRESH_STATE_S:
-                    return True
-                if u in self._held:
-                    return True
-        return False
-
-    def _resume_held(self) -> None:
-        """Resume each UAV holding mid-mission (its failsafe) once its state is heard again."""
-        for u in self.opt.uavs:
-            now = time.time()
-            with self._lock:
-                s, rx, started = self.latest.get(u), self._rx.get(u), self._started.get(u)
-                if u in self._lost or s is None or rx is None or started is None or rx < started + 0.5:
-                    continue
-                held = s.armed and s.mode == Mode.HOLD and s.progress < 1.0
-                if not held:
-                    self._held.pop(u, None)
-                    continue
-                if u not in self._held:
-                    self._held[u] = now
-                    self._incident("hold-seen", u, f"UAV {u} holds mid-mission at {s.progress:.0%} of its trajectory "
-                                                   f"(its failsafe; the ground station did not command it)", now)
-                ready = (now - rx <= FRESH_STATE_S and self._link_up_since is not None
-                         and now >= self._resume_after.get(u, 0.0))
-                held_since = self._held[u]
-            if not ready:
-                continue
-            rec = self.command(lambda cid, uav=u: Resume(uav=uav, cmd_id=cid))
-            with self._lock:
-                if rec.ok and rec.accepted:
-                    self._resume_after[u] = time.time() + 1.0
-                    self._incident("resume", u, f"UAV {u} resumed, {time.time() - held_since:.1f} s after its hold "
-                                                f"was seen ({rec.attempts} tries)")
-                else:
-                    self._resume_after[u] = time.time() + 2.0
-                    self._incident("resume-failed", u, f"UAV {u} not resumed: "
-                                                       f"{rec.reason or 'refused'} ({rec.attempts} tries)")
 
     def fleet_done(self, finished: Callable[[int, VehicleState | None], bool]) -> bool:
         """Every UAV still counted (not lost) is ``finished``; lost ones are waited for ``lost_wait_s``
         after they went away, unless every UAV is lost (then until the wait's own timeout)."""
         with self._lock:
-            latest = {u: self.latest.get(u) for u in self.opt.uavs}
-            lost = dict(self._lost)
-        active = [u for u in self.opt.uavs if u not in lost]
-        if not active or not all(finished(u, latest[u]) for u in active):
-            return False
-        return not lost or time.time() - max(lost.values()) > self.opt.lost_wait_s
+            return self._sup.fleet_done(finished, time.time())
 
     def _land_step(self) -> bool:
         """Send Land to every armed UAV not yet landing (retried every 2 s while unacknowledged;
@@ -519,7 +415,7 @@ class MissionRunner:
         now = time.time()
         for u in self.opt.uavs:
             with self._lock:
-                s, lost = self.latest.get(u), u in self._lost
+                s, lost = self.latest.get(u), u in self._sup.lost
             if s is None or not s.armed or s.mode == Mode.LAND:
                 continue
             tried = self._land_state.get(u)  # (accepted, when)
@@ -528,7 +424,7 @@ class MissionRunner:
             rec = self.command(lambda cid, uav=u: Land(uav=uav, cmd_id=cid))
             self._land_state[u] = (rec.ok and rec.accepted, time.time())
         with self._lock:
-            return all(not s.armed for u, s in self.latest.items() if u in self.opt.uavs and u not in self._lost)
+            return all(not s.armed for u, s in self.latest.items() if u in self.opt.uavs and u not in self._sup.lost)
 
     def takeoff_altitude(self, uav: int) -> float:
         plan = self.record.plan
@@ -549,7 +445,7 @@ class MissionRunner:
         """Planned capture points without a report (of the lost UAVs too with ``include_lost``)."""
         with self._lock:
             missing = self.planned_captures() - set(self.reports)
-            lost = set(self._lost)
+            lost = set(self._sup.lost)
         return missing if include_lost else {c for c in missing if c[0] not in lost}
 
     def judge(self) -> None:
