@@ -107,6 +107,18 @@ class MissionOptions:
     waypoints: int | None = None
 
 
+@dataclass(frozen=True)
+class Snapshot:
+    """The runner's live figures, copied at one instant (:meth:`MissionRunner.snapshot`)."""
+
+    phase: str  # the latest phase begun ("-" before the first)
+    states: dict[int, VehicleState]  # UAV -> its latest state
+    ages_ms: list[float]  # age rx - stamp of the latest states received (any UAV), ms
+    reports: int  # capture points with an ok defect report
+    last_heard: dict[int, float]  # UAV -> wall time its latest state was received
+    lost: dict[int, float]  # lost UAV -> wall time its token went away
+
+
 class MissionRunner:
     def __init__(self, bus: Bus, scenario: Scenario, options: MissionOptions,
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
@@ -367,6 +379,14 @@ class MissionRunner:
             self.phase("done")
         self.judge()
         return self.record
+
+    def snapshot(self, recent: int = 60) -> Snapshot:
+        """The live figures (for a progress display, from any thread): ``recent`` latest state ages."""
+        with self._lock:
+            phases = dict(self.record.phases)
+            return Snapshot(phase=max(phases, key=phases.get) if phases else "-", states=dict(self.latest),
+                            ages_ms=[1000 * (s.rx - s.msg.stamp) for s in self.record.states[-recent:]],
+                            reports=len(self.reports), last_heard=dict(self._sup.rx), lost=dict(self._sup.lost))
 
     # -- faults: liveliness, the own link, failsafe holds
     def lost(self) -> dict[int, float]:
