@@ -59,8 +59,6 @@ from .supervision import SUPERVISE_PERIOD_S, Supervisor, mission_time
 from .verdict import goal_check, planned_captures
 
 
-
-
 def with_formation_size(scenario: Scenario, n: int, log=None) -> Scenario:
     """The scenario with one formation offset per UAV of the mission (P9).
 
