@@ -22,8 +22,9 @@ from protocol.bus import (
 )
 from protocol.scenario import Scenario, load_scenario
 
-from .mission import FRESH_STATE_S, MissionOptions, MissionRunner
+from .mission import MissionOptions, MissionRunner
 from .progress import LiveDisplay, render
+from .supervision import FRESH_STATE_S
 
 
 def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,
@@ -43,17 +44,13 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
     def progress(runner: MissionRunner, force: bool = False) -> None:
         if display is None:
             return
-        phase = max(runner.record.phases, key=runner.record.phases.get) if runner.record.phases else "-"
+        snap = runner.snapshot()
         now = time.time()
-        with runner._lock:
-            states = dict(runner.latest)
-            ages = [1000 * (s.rx - s.msg.stamp) for s in runner.record.states[-60:]]
-            n_reports = len(runner.reports)
-        heard, lost = runner.last_heard(), runner.lost()
+        heard, lost = snap.last_heard, snap.lost
         notes = {u: "LOST" if u in lost else f"silent {now - heard[u]:.1f} s" for u in options.uavs
                  if u in lost or (u in heard and now - heard[u] > FRESH_STATE_S)}
-        display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
-                              now - t_start, notes), force=force)
+        display.update(render(snap.phase, snap.states, options.uavs, snap.ages_ms, snap.reports,
+                              len(runner.planned_captures()), offsets, now - t_start, notes), force=force)
 
     journal = None
     if out:

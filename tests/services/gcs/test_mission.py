@@ -133,3 +133,27 @@ def test_forged_reports_with_a_dead_detector_fail_the_mission_and_say_why(group,
     why = [f for f in record.failures if "not corroborated" in f]
     assert why and "no statistics were heard from the detector" in why[0], record.failures
     assert record.imagery[1]["received"] is None and record.imagery[1]["sent"] > 0
+
+
+def test_snapshot_copies_the_live_figures():
+    """What the live display reads, taken under the runner's lock (the CLI does not reach into it)."""
+    from protocol import keys
+    from protocol.links import TELEMETRY
+    from protocol.messages import Mode, VehicleState
+    from tests.conftest import wait_until
+
+    with Bus(BusConfig(mode="peer"), FLEET, "gcs") as bus:
+        runner = MissionRunner(bus, load_scenario(), MissionOptions(uavs=(1, 2)))
+        snap = runner.snapshot()
+        assert (snap.phase, snap.states, snap.ages_ms, snap.reports, snap.lost) == ("-", {}, [], 0, {})
+        msg = VehicleState(uav=1, seq=0, t=0.0, stamp=time.time() - 0.25, pos=(0, 0, 5), vel=(0, 0, 0),
+                           att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.HOLD, armed=True)
+        bus.publisher(keys.state(FLEET, 1), TELEMETRY).put(msg)  # the session hears its own sample
+        assert wait_until(lambda: runner.snapshot().states, 10.0)
+        runner.phase("takeoff")
+        snap = runner.snapshot()
+        assert snap.phase == "takeoff" and snap.states == {1: msg} and len(snap.ages_ms) == 1
+        assert snap.ages_ms[0] >= 250.0
+        assert set(snap.last_heard) == {1}
+        snap.states.clear()
+        assert runner.snapshot().states == {1: msg}  # a copy
