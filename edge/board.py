@@ -5,7 +5,8 @@ and a camera (:mod:`edge.camera`) to the bus:
 
 * publishes :class:`VehicleState` as telemetry at ``--rate`` Hz and holds a liveliness token;
   its link lease is short (``--lease``, 2 s) so the others notice a lost UAV;
-* subscribes to the other UAVs' states (SkyNet) and corrects its own reference from them
+* subscribes to its formation neighbours' states only (SkyNet, :mod:`edge.neighbourhood`:
+  formations of ``--formation-size`` UAVs, 3 by default) and corrects its own reference from them
   (P8)-(P9), ignoring neighbours older than ``--stale`` s: when SkyNet is partitioned the
   correction goes back to zero (at the sequencer's offset rate) and the UAV flies its planned
   slot, and it comes back with the neighbours' states. A formation member whose state goes stale
@@ -40,6 +41,7 @@ from protocol.messages import (
 )
 
 from . import formation
+from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
 from .runtime import IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, preview_rate
 from .validate import validate_command
 from .vehicle.follower import Follower
@@ -66,6 +68,7 @@ class BoardOptions:
     geofence: Box | None = None
     max_speed: float = 12.0
     formation_gain: float = 0.8
+    formation_size: int = FORMATION_SIZE  # the SkyNet neighbourhood: UAVs of the same formation
     offsets: dict[int, tuple[float, float, float]] = field(
         default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
@@ -89,7 +92,10 @@ class Board:
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
-        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY)
+        # only the formation's states: the cost per edge does not grow with the fleet (issue 18)
+        self.neighbourhood = frozenset(neighbourhood_of(self.uav, options.formation_size))
+        for j in sorted(self.neighbourhood):
+            bus.subscribe(keys.state(fleet, j), self._on_state, expect=VehicleState, link=TELEMETRY)
         bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=Heartbeat, link=COMMAND)
         bus.serve(keys.cmd(fleet, self.uav), self.handle_command, expect=COMMAND_TYPES)
         bus.token(keys.alive(fleet, self.uav))
@@ -98,7 +104,7 @@ class Board:
     # -- inputs (Zenoh callback threads)
     def _on_state(self, msg: Message, sample) -> None:
         assert isinstance(msg, VehicleState)
-        if msg.uav != self.uav:
+        if msg.uav in self.neighbourhood:
             rx = time.time()
             # a stamp from a clock ahead of ours reads as no transit time; one far behind makes the state
             # stale, so formation keeping falls back to the planned slot (hosts' clocks: GPS/NTP)
@@ -106,7 +112,7 @@ class Board:
 
     def _on_alive(self, key: str, alive: bool) -> None:
         uav = keys.parse(key).uav
-        if uav == self.uav or uav is None:
+        if uav not in self.neighbourhood:  # itself, or a UAV of another formation
             return
         if alive:
             self.event("neighbour-up", f"UAV {uav} joined SkyNet", neighbour=uav)
@@ -270,6 +276,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stale", type=float, default=1.0, help="neighbour state considered stale after, s")
     parser.add_argument("--formation-gain", type=float, default=0.8,
                         help="share of the neighbours' mean position error corrected on board, 0..1")
+    parser.add_argument("--formation-size", type=int, default=FORMATION_SIZE,
+                        help="UAVs per formation: the board shares state with its formation only (SkyNet)")
     parser.add_argument("--failsafe-timeout", type=float, default=5.0)
     parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default="hold")
     parser.add_argument("--geofence", type=parse_box, default=None, help="x0,y0,z0,x1,y1,z1 (else from upload)")
@@ -303,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     stop = stop_event_on_signals()
     opts = BoardOptions(uav=args.uav, rate_hz=args.rate, stale_s=args.stale, failsafe_timeout_s=args.failsafe_timeout,
                         failsafe_action=args.failsafe_action, geofence=args.geofence,
-                        formation_gain=args.formation_gain)
+                        formation_gain=args.formation_gain, formation_size=args.formation_size)
     with Bus(config_from_args(args), fleet=args.fleet, name=f"uav{args.uav}") as bus:
         camera = make_camera(args, bus, log)
         board = Board(bus, driver, clock, opts, camera=camera, log=log)

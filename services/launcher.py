@@ -71,6 +71,8 @@ from .topology import (
     skynet_link,
 )
 
+from edge.neighbourhood import FORMATION_SIZE
+
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
 READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up"}
@@ -204,21 +206,26 @@ class Network:
     def edge_config(self, i: int) -> list[str]:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
         rules that keep its links on the proxies (:func:`services.topology.edge_mesh_config`)."""
-        if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied:
+        # several formations: no gossip autoconnect, or every edge would dial every other (issue 18)
+        formations = self.args.uavs > FORMATION_SIZE
+        if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied and not formations:
             return [] if self.creds is None else ["--config", str(self.creds.mesh_config)]
         base = json.loads(self.creds.mesh_config.read_text()) if self.creds is not None else None
         path = self.tmp / f"uav{i}.json5"
-        path.write_text(json.dumps(edge_mesh_config(self.plan.mesh, base, self.open_timeout)))
+        mesh = "proxied" if formations else self.plan.mesh  # proxied: autoconnect to nothing
+        path.write_text(json.dumps(edge_mesh_config(mesh, base, self.open_timeout)))
         path.chmod(0o600)
         return ["--config", str(path)]
 
     def mesh_connect(self, i: int) -> list[str]:
-        """Edge i's ``--connect`` to every edge j > i: through the proxies in front of j with the
+        """Edge i's ``--connect`` to every edge j > i of its formation: through the proxies in front of j with the
         proxied mesh, else straight to j's endpoints. Dialled endpoints are retried until they
         answer, while a peer learned by gossip is dialled when the gossip arrives: an edge that
         was not listening yet then stayed out of the mesh for good (seen under load in CI)."""
+        from edge.neighbourhood import members
+
         out = []
-        for j in range(i + 1, self.args.uavs + 1):
+        for j in (j for j in members(i, fleet=self.args.uavs) if j > i):  # its formation only (issue 18)
             ends = (self._proxy_pair(skynet_link(i, j), self.edge_endpoints[j]) if self.plan.mesh == "proxied"
                     else self.edge_endpoints[j])
             for e in ends:

@@ -118,6 +118,25 @@ def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
     assert report["links"]["telemetry"]["latency_ms"]["p50"] > 380  # the delay was there: two hops of 200 ms
 
 
+def test_two_formations_fly_the_mission_each_its_own_skynet(tmp_path):
+    """Issue 18: six UAVs fly as two formations (1-3, 4-6); each edge hears only its formation."""
+    out = tmp_path / "report"
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--uavs", "6", "--speed", "4", "--quiet",
+                           "--out", str(out)], capture_output=True, text=True, timeout=400)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    assert report["success"] and not report["failures"]
+    assert set(report["uavs"]) == {str(u) for u in range(1, 7)}
+    assert all(fig["reached_goal"] for fig in report["uavs"].values()), report["uavs"]
+    assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M
+    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
+    record = json.loads((out / "record.json").read_text())
+    joined = {(int(e["msg"]["source"].split("/")[1]), e["msg"]["data"]["neighbour"]) for e in record["events"]
+              if e["msg"]["kind"] == "neighbour-up"}
+    formations = [(1, 2, 3), (4, 5, 6)]
+    assert joined == {(i, j) for f in formations for i in f for j in f if i != j}, sorted(joined)
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["up", "--impair", "uav9=loss 5%"], "uav9"),
     (["up", "--impair", "gcs=loss 5%"], "gcs"),
