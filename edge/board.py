@@ -42,7 +42,7 @@ from protocol.messages import (
 
 from . import formation
 from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
-from .runtime import IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, preview_rate
+from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size, preview_rate
 from .validate import validate_command
 from .vehicle.follower import Follower
 
@@ -288,7 +288,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="disturbance model of the simulated vehicle (seeded gusts and torques)")
     parser.add_argument("--camera", default="synthetic", help="synthetic | image folder | video:<url or index> | none")
     parser.add_argument("--scenario", default=None, help="scenario file (surface and camera of the synthetic source)")
-    parser.add_argument("--frame-size", default="640x480", help="delivered frame size WxH")
+    parser.add_argument("--frame-size", type=frame_size, default="640x480", help="delivered frame size WxH")
+    parser.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
+                        help="link of capture frames: best-effort (UDP), reliable (TCP), or auto: reliable above 1 MP")
     parser.add_argument("--preview-hz", type=preview_rate, default=PREVIEW_HZ, metavar="HZ",
                         help="live preview frames per second (320x240, best-effort, never recovered; 0 = off)")
     parser.add_argument("--imagery-cache", type=cache_frames, default=IMAGERY_CACHE_FRAMES, metavar="N",

@@ -72,6 +72,7 @@ from .topology import (
 )
 
 from edge.neighbourhood import FORMATION_SIZE
+from edge.runtime import frame_size
 
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
@@ -281,7 +282,7 @@ class Network:
                 "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
-                "--seed", str(a.seed + i), "--camera", a.camera, *scenario, *recovery])
+                "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"), *scenario, *recovery])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
@@ -345,6 +346,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
+    p.add_argument("--frame-size", type=frame_size, default="640x480", help="capture frame size WxH (4000x3000: the paper's 12 MP)")
     p.add_argument("--method", default="it+", help="the detector's method")
     p.add_argument("--fleet", default="demo")
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
