@@ -72,7 +72,7 @@ from .topology import (
 )
 
 from edge.neighbourhood import FORMATION_SIZE
-from edge.runtime import frame_size
+from edge.runtime import CAPTURE_LINKS, frame_size, preview_rate
 
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
@@ -265,11 +265,24 @@ class Network:
             out.append((round(start[0] + p[0], 3), round(start[1] + p[1], 3), ground))
         return out
 
+    def gateway_config(self) -> list[str]:
+        """``--config FILE`` of the gateway with ``--gcs-state-hz``: the clients' view of the states
+        downsampled (:mod:`services.gateway.downsample`), else nothing."""
+        hz = getattr(self.args, "gcs_state_hz", 0.0) or 0.0
+        if hz <= 0:
+            return []
+        from .gateway.downsample import state_downsampling
+
+        path = self.tmp / "gateway.json5"
+        path.write_text(json.dumps(state_downsampling(self.args.fleet, hz)))
+        return ["--config", str(path)]
+
     def start(self) -> None:
         a = self.args
         secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
         lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
-        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease,
+        thin = self.gateway_config()
+        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease, *thin,
                                           *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
         if not gw.wait_for(READY["gateway"], 30):
             raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
@@ -282,7 +295,8 @@ class Network:
                 "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
-                "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"), *scenario, *recovery])
+                "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
+                "--capture-link", getattr(a, "capture_link", "auto"), *scenario, *recovery])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
@@ -347,6 +361,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
     p.add_argument("--frame-size", type=frame_size, default="640x480", help="capture frame size WxH (4000x3000: the paper's 12 MP)")
+    p.add_argument("--gcs-state-hz", type=preview_rate, default=0.0, metavar="HZ",
+                   help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
+    p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
+                   help="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
     p.add_argument("--method", default="it+", help="the detector's method")
     p.add_argument("--fleet", default="demo")
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
