@@ -274,7 +274,7 @@ class Network:
         from .gateway.downsample import state_downsampling
 
         path = self.tmp / "gateway.json5"
-        path.write_text(json.dumps(state_downsampling(self.args.fleet, hz)))
+        path.write_text(json.dumps(state_downsampling(self.args.fleet, hz, self.args.uavs)))
         return ["--config", str(path)]
 
     def start(self) -> None:
