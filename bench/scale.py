@@ -10,8 +10,12 @@ at 1x. With ``--frames`` it also flies the paper's 12 MP frames (``--frame-size 
 capture frames on each link class side by side: capture-to-report p95 and the frames that
 reached the detector only through recovery (lost on a clean link) or not at all.
 
-    .venv/bin/python bench/scale.py [--uavs 3 12 24 48 99] [--speed 1] [--frames]
-                                    [--out bench/results/scale.json]
+    .venv/bin/python bench/scale.py [--uavs 3 12 18 24] [--speed 1] [--frames]
+                                    [--idle 3 12 24 48 99] [--out bench/results/scale.json]
+
+The monorail box holds one line of at most 18 UAVs (N = 20 and more are refused before takeoff,
+:mod:`services.gcs.preflight`); ``--idle`` measures larger fleets as ``skynet up``: every edge
+on the ground, sharing state with its formation at 20 Hz.
 
 Heavy: N = 100 on 2 cores is most of the machine for several minutes. Never run in tests.
 """
@@ -141,8 +145,38 @@ def run_one(n: int, speed: float, out: Path, extra: list[str]) -> dict:
     return row
 
 
-def fit(rows: list[dict]) -> dict:
-    pts = [(r["uavs"], r["edge_cores"]) for r in rows if r.get("edge_cores") is not None and not r["args"]]
+def run_idle(n: int, speed: float, seconds: float) -> dict:
+    """``skynet up --uavs N`` (gateway, N edges on the ground sharing state at 20 Hz, planner,
+    detector) for ``seconds`` after every edge is up: the edges' steady CPU and memory without a
+    mission, for fleets too long for the scenario's box as one line."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--uavs", str(n), "--speed", str(speed)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and len(_edges(proc.pid)) < n and proc.poll() is None:
+        time.sleep(1.0)
+    while time.monotonic() < deadline and sum("board up" in x for x in list(lines)) < n and proc.poll() is None:
+        time.sleep(1.0)
+    up_s = time.perf_counter() - t0
+    sampler = EdgeSampler(proc.pid, n)
+    sampler.start()
+    time.sleep(seconds)
+    sampler.stop.set()
+    proc.send_signal(2)
+    try:
+        proc.wait(60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    return {"uavs": n, "speed": speed, "args": ["up"], "exit": proc.returncode, "up_s": up_s, **sampler.figures()}
+
+
+def fit(rows: list[dict], kind: list[str] | None = None) -> dict:
+    kind = kind or []
+    pts = [(r["uavs"], r["edge_cores"]) for r in rows if r.get("edge_cores") is not None and r["args"] == kind]
     if len(pts) < 2:
         return {}
     n, c = np.array(pts, float).T
@@ -156,9 +190,12 @@ def fit(rows: list[dict]) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--uavs", type=int, nargs="+", default=[3, 12, 24, 48, 99])
+    parser.add_argument("--uavs", type=int, nargs="*", default=[3, 12, 18, 24])
     parser.add_argument("--speed", type=float, default=1.0)
     parser.add_argument("--frames", action="store_true", help="also 12 MP frames, reliable vs best-effort capture link")
+    parser.add_argument("--idle", type=int, nargs="*", default=[],
+                        help="fleet sizes run as `skynet up` (no mission): the edges' steady cost alone")
+    parser.add_argument("--idle-s", type=float, default=40.0, help="seconds sampled per --idle run")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "scale.json"))
     args = parser.parse_args()
     runs = [(n, []) for n in args.uavs]
@@ -170,19 +207,26 @@ def main() -> None:
             row = run_one(n, args.speed, Path(tmp) / f"run-{i}", extra)
             rows.append(row)
             print(json.dumps({k: v for k, v in row.items() if k != "captures"}), flush=True)
-    f = fit(rows)
+        for n in args.idle:
+            row = run_idle(n, args.speed, args.idle_s)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    f = {"mission": fit(rows), "up": fit(rows, ["up"])}
     print("\n| N | args | success | CPU s | CPU / UAV / sim s | edge cores / UAV | edge RSS MB (median) "
           "| telemetry age p95 ms | capture->report p95 ms | recovered / lost | plan s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     nan = float("nan")
     for r in rows:
+        if r["args"] == ["up"]:
+            print(f"| {r['uavs']} | up (no mission) | exit {r['exit']} | - | - | {r.get('edge_cores_per_uav') or nan:.4f} | "
+                  f"{r.get('edge_rss_mb_median') or nan:.0f} | - | - | - | - |")
+            continue
         print(f"| {r['uavs']} | {' '.join(r['args'])} | {r['success']} | {r['cpu_s']:.0f} | "
               f"{r['cpu_per_uav_per_sim_s']:.4f} | {r.get('edge_cores_per_uav') or nan:.4f} | "
               f"{r.get('edge_rss_mb_median') or nan:.0f} | {r['telemetry_age_p95_ms'] or nan:.1f} | "
               f"{r['capture_to_report_p95_ms'] or nan:.0f} | {r['frames_recovered']:.0f} / {r['frames_lost']:.0f} | "
               f"{r['plan_s'] or nan:.2f} |")
-    if f:
-        print("\nedge cores vs N:", json.dumps(f))
+    print("\nedge cores vs N:", json.dumps(f))
     write_rows([*rows, {"fit": f}], args.out)
 
 
