@@ -288,6 +288,8 @@ class Network:
             raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
         scenario = ["--scenario", a.scenario] if a.scenario else []
         recovery = ["--imagery-cache", "0"] if getattr(a, "no_recovery", False) else []
+        hz = getattr(a, "preview_hz", None)
+        preview = [] if hz is None else ["--preview-hz", str(hz)]
         for i in range(1, a.uavs + 1):
             self.edge_endpoints[i] = multilink_endpoints(HOST, *free_port_pair())
         for i, home in enumerate(self.homes(a.uavs), start=1):
@@ -296,7 +298,7 @@ class Network:
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
                 "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
-                "--capture-link", getattr(a, "capture_link", "auto"), *scenario, *recovery])
+                "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
@@ -361,6 +363,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
     p.add_argument("--frame-size", type=frame_size, default="640x480", help="capture frame size WxH (4000x3000: the paper's 12 MP)")
+    p.add_argument("--preview-hz", type=preview_rate, default=None, metavar="HZ",
+                   help="live preview frames per UAV per second (default: the edge's, 2; 0 = off)")
     p.add_argument("--gcs-state-hz", type=preview_rate, default=0.0, metavar="HZ",
                    help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
     p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",

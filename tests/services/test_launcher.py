@@ -169,3 +169,28 @@ def test_no_recovery_reaches_the_edges_and_the_detector():
         assert net.check_alive() == []
     finally:
         net.stop()
+
+
+def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
+    """Issue 18: --frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config."""
+    from services.launcher import Network, build_parser
+
+    net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
+                                                 "1280x960", "--capture-link", "reliable", "--preview-hz", "0",
+                                                 "--gcs-state-hz", "5"]), echo=None)
+    try:
+        net.start()
+        for i in range(1, 5):
+            svc = net.group.get(f"uav{i}")
+            a = svc.args
+            assert a[a.index("--frame-size") + 1] == "1280x960" and a[a.index("--capture-link") + 1] == "reliable"
+            assert float(a[a.index("--preview-hz") + 1]) == 0.0
+            assert svc.wait_for("board up", 30), "\n".join(svc.lines[-20:])
+        gw = net.group.get("gateway").args
+        conf = json.loads(open(gw[gw.index("--config") + 1]).read())
+        assert [r["key_expr"] for r in conf["downsampling"][0]["rules"]] == [f"skynet/opts/uav/{u}/state" for u in range(1, 5)]
+        assert net.check_alive() == []
+    finally:
+        net.stop()
+    with pytest.raises(SystemExit):
+        build_parser("up").parse_args(["--frame-size", "big"])
