@@ -145,13 +145,14 @@ def run_one(n: int, speed: float, out: Path, extra: list[str]) -> dict:
     return row
 
 
-def run_idle(n: int, speed: float, seconds: float) -> dict:
+def run_idle(n: int, speed: float, seconds: float, checkout: Path | None = None) -> dict:
     """``skynet up --uavs N`` (gateway, N edges on the ground sharing state at 20 Hz, planner,
     detector) for ``seconds`` after every edge is up: the edges' steady CPU and memory without a
     mission, for fleets too long for the scenario's box as one line."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--uavs", str(n), "--speed", str(speed)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    python = sys.executable if checkout is None else str(checkout / ".venv" / "bin" / "python")
+    proc = subprocess.Popen([python, "-m", "services.cli", "up", "--uavs", str(n), "--speed", str(speed)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=checkout)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
     reader.start()
@@ -171,7 +172,8 @@ def run_idle(n: int, speed: float, seconds: float) -> dict:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
-    return {"uavs": n, "speed": speed, "args": ["up"], "exit": proc.returncode, "up_s": up_s, **sampler.figures()}
+    kind = ["up"] if checkout is None else ["up", f"baseline {checkout}"]
+    return {"uavs": n, "speed": speed, "args": kind, "exit": proc.returncode, "up_s": up_s, **sampler.figures()}
 
 
 def fit(rows: list[dict], kind: list[str] | None = None) -> dict:
@@ -196,6 +198,9 @@ def main() -> None:
     parser.add_argument("--idle", type=int, nargs="*", default=[],
                         help="fleet sizes run as `skynet up` (no mission): the edges' steady cost alone")
     parser.add_argument("--idle-s", type=float, default=40.0, help="seconds sampled per --idle run")
+    parser.add_argument("--baseline", type=Path, default=None,
+                        help="another checkout of the project (with its .venv) whose `skynet up` runs the same "
+                             "--idle sizes side by side, e.g. the tree before issue 18")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "scale.json"))
     args = parser.parse_args()
     runs = [(n, []) for n in args.uavs]
@@ -208,17 +213,20 @@ def main() -> None:
             rows.append(row)
             print(json.dumps({k: v for k, v in row.items() if k != "captures"}), flush=True)
         for n in args.idle:
-            row = run_idle(n, args.speed, args.idle_s)
-            rows.append(row)
-            print(json.dumps(row), flush=True)
+            for checkout in ([None, args.baseline] if args.baseline else [None]):
+                row = run_idle(n, args.speed, args.idle_s, checkout)
+                rows.append(row)
+                print(json.dumps(row), flush=True)
     f = {"mission": fit(rows), "up": fit(rows, ["up"])}
+    if args.baseline:
+        f["up baseline"] = fit(rows, ["up", f"baseline {args.baseline}"])
     print("\n| N | args | success | CPU s | CPU / UAV / sim s | edge cores / UAV | edge RSS MB (median) "
           "| telemetry age p95 ms | capture->report p95 ms | recovered / lost | plan s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     nan = float("nan")
     for r in rows:
-        if r["args"] == ["up"]:
-            print(f"| {r['uavs']} | up (no mission) | exit {r['exit']} | - | - | {r.get('edge_cores_per_uav') or nan:.4f} | "
+        if r["args"][:1] == ["up"]:
+            print(f"| {r['uavs']} | {' '.join(r['args'])} (no mission) | exit {r['exit']} | - | - | {r.get('edge_cores_per_uav') or nan:.4f} | "
                   f"{r.get('edge_rss_mb_median') or nan:.0f} | - | - | - | - |")
             continue
         print(f"| {r['uavs']} | {' '.join(r['args'])} | {r['success']} | {r['cpu_s']:.0f} | "
