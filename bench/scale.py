@@ -145,13 +145,13 @@ def run_one(n: int, speed: float, out: Path, extra: list[str]) -> dict:
     return row
 
 
-def run_idle(n: int, speed: float, seconds: float, checkout: Path | None = None) -> dict:
+def run_idle(n: int, speed: float, seconds: float, checkout: Path | None = None, extra: list[str] | None = None) -> dict:
     """``skynet up --uavs N`` (gateway, N edges on the ground sharing state at 20 Hz, planner,
     detector) for ``seconds`` after every edge is up: the edges' steady CPU and memory without a
     mission, for fleets too long for the scenario's box as one line."""
     t0 = time.perf_counter()
     python = sys.executable if checkout is None else str(checkout / ".venv" / "bin" / "python")
-    proc = subprocess.Popen([python, "-m", "services.cli", "up", "--uavs", str(n), "--speed", str(speed)],
+    proc = subprocess.Popen([python, "-m", "services.cli", "up", "--uavs", str(n), "--speed", str(speed), *(extra or [])],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=checkout)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
@@ -172,7 +172,7 @@ def run_idle(n: int, speed: float, seconds: float, checkout: Path | None = None)
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
-    kind = ["up"] if checkout is None else ["up", f"baseline {checkout}"]
+    kind = (["up"] if checkout is None else ["up", f"baseline {checkout}"]) + list(extra or [])
     return {"uavs": n, "speed": speed, "args": kind, "exit": proc.returncode, "up_s": up_s, **sampler.figures()}
 
 
@@ -198,6 +198,8 @@ def main() -> None:
     parser.add_argument("--idle", type=int, nargs="*", default=[],
                         help="fleet sizes run as `skynet up` (no mission): the edges' steady cost alone")
     parser.add_argument("--idle-s", type=float, default=40.0, help="seconds sampled per --idle run")
+    parser.add_argument("--idle-args", nargs="*", default=[], help="more options of the --idle runs' skynet up "
+                        "(not given to --baseline), e.g. --preview-hz 0")
     parser.add_argument("--baseline", type=Path, default=None,
                         help="another checkout of the project (with its .venv) whose `skynet up` runs the same "
                              "--idle sizes side by side, e.g. the tree before issue 18")
@@ -214,10 +216,12 @@ def main() -> None:
             print(json.dumps({k: v for k, v in row.items() if k != "captures"}), flush=True)
         for n in args.idle:
             for checkout in ([None, args.baseline] if args.baseline else [None]):
-                row = run_idle(n, args.speed, args.idle_s, checkout)
+                row = run_idle(n, args.speed, args.idle_s, checkout, None if checkout else args.idle_args)
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     f = {"mission": fit(rows), "up": fit(rows, ["up"])}
+    if args.idle_args:
+        f["up " + " ".join(args.idle_args)] = fit(rows, ["up", *args.idle_args])
     if args.baseline:
         f["up baseline"] = fit(rows, ["up", f"baseline {args.baseline}"])
     print("\n| N | args | success | CPU s | CPU / UAV / sim s | edge cores / UAV | edge RSS MB (median) "
