@@ -173,7 +173,10 @@ def run_idle(n: int, speed: float, seconds: float, checkout: Path | None = None,
         proc.kill()
         proc.wait()
     kind = (["up"] if checkout is None else ["up", f"baseline {checkout}"]) + list(extra or [])
-    return {"uavs": n, "speed": speed, "args": kind, "exit": proc.returncode, "up_s": up_s, **sampler.figures()}
+    row = {"uavs": n, "speed": speed, "args": kind, "exit": proc.returncode, "up_s": up_s, **sampler.figures()}
+    if row.get("edge_cores") is None:
+        row["tail"] = "".join(lines[-30:])
+    return row
 
 
 def fit(rows: list[dict], kind: list[str] | None = None) -> dict:
