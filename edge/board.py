@@ -5,7 +5,8 @@ and a camera (:mod:`edge.camera`) to the bus:
 
 * publishes :class:`VehicleState` as telemetry at ``--rate`` Hz and holds a liveliness token;
   its link lease is short (``--lease``, 2 s) so the others notice a lost UAV;
-* subscribes to the other UAVs' states (SkyNet) and corrects its own reference from them
+* subscribes to its formation neighbours' states only (SkyNet, :mod:`edge.neighbourhood`:
+  formations of ``--formation-size`` UAVs, 3 by default) and corrects its own reference from them
   (P8)-(P9), ignoring neighbours older than ``--stale`` s: when SkyNet is partitioned the
   correction goes back to zero (at the sequencer's offset rate) and the UAV flies its planned
   slot, and it comes back with the neighbours' states. A formation member whose state goes stale
@@ -45,7 +46,8 @@ from protocol.messages import (
 
 from . import formation
 from .failsafe import ACTIONS, ESCALATIONS, FailsafeOptions, FailsafePolicy
-from .runtime import IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, preview_rate
+from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
+from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size, preview_rate
 from .validate import validate_command
 from .vehicle.follower import Follower
 
@@ -75,6 +77,7 @@ class BoardOptions:
     geofence: Box | None = None
     max_speed: float = 12.0
     formation_gain: float = 0.8
+    formation_size: int = FORMATION_SIZE  # the SkyNet neighbourhood: UAVs of the same formation
     offsets: dict[int, tuple[float, float, float]] = field(
         default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
@@ -100,8 +103,11 @@ class Board:
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
-        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY,
-                      budget=for_topic("state"))
+        # only the formation's states: the cost per edge does not grow with the fleet (issue 18)
+        self.neighbourhood = frozenset(neighbourhood_of(self.uav, options.formation_size))
+        for j in sorted(self.neighbourhood):
+            bus.subscribe(keys.state(fleet, j), self._on_state, expect=VehicleState, link=TELEMETRY,
+                          budget=for_topic("state"))
         bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=Heartbeat, link=COMMAND,
                       budget=for_topic("heartbeat"))
         bus.serve(keys.cmd(fleet, self.uav), self.handle_command, expect=COMMAND_TYPES)
@@ -111,7 +117,7 @@ class Board:
     # -- inputs (Zenoh callback threads)
     def _on_state(self, msg: Message, sample) -> None:
         assert isinstance(msg, VehicleState)
-        if msg.uav != self.uav:
+        if msg.uav in self.neighbourhood:
             rx = time.time()
             # a stamp from a clock ahead of ours reads as no transit time; one far behind makes the state
             # stale, so formation keeping falls back to the planned slot (hosts' clocks: GPS/NTP)
@@ -119,7 +125,7 @@ class Board:
 
     def _on_alive(self, key: str, alive: bool) -> None:
         uav = keys.parse(key).uav
-        if uav == self.uav or uav is None:
+        if uav not in self.neighbourhood:  # itself, or a UAV of another formation
             return
         if alive:
             self.event("neighbour-up", f"UAV {uav} joined SkyNet", neighbour=uav)
@@ -282,6 +288,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stale", type=float, default=1.0, help="neighbour state considered stale after, s")
     parser.add_argument("--formation-gain", type=float, default=0.8,
                         help="share of the neighbours' mean position error corrected on board, 0..1")
+    parser.add_argument("--formation-size", type=int, default=FORMATION_SIZE,
+                        help="UAVs per formation: the board shares state with its formation only (SkyNet)")
     parser.add_argument("--failsafe-timeout", type=float, default=5.0)
     parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default="hold")
     parser.add_argument("--failsafe-escalate", choices=ESCALATIONS, default="rtl",
@@ -299,7 +307,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="disturbance model of the simulated vehicle (seeded gusts and torques)")
     parser.add_argument("--camera", default="synthetic", help="synthetic | image folder | video:<url or index> | none")
     parser.add_argument("--scenario", default=None, help="scenario file (surface and camera of the synthetic source)")
-    parser.add_argument("--frame-size", default="640x480", help="delivered frame size WxH")
+    parser.add_argument("--frame-size", type=frame_size, default="640x480", help="delivered frame size WxH")
+    parser.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
+                        help="link of capture frames: best-effort (UDP), reliable (TCP), or auto: reliable above 1 MP")
     parser.add_argument("--preview-hz", type=preview_rate, default=PREVIEW_HZ, metavar="HZ",
                         help="live preview frames per second (320x240, best-effort, never recovered; 0 = off)")
     parser.add_argument("--imagery-cache", type=cache_frames, default=IMAGERY_CACHE_FRAMES, metavar="N",
@@ -325,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
                         failsafe_escalate=args.failsafe_escalate,
                         failsafe_escalate_after_s=args.failsafe_escalate_after, battery_low=args.battery_low,
                         battery_critical=args.battery_critical,
-                        formation_gain=args.formation_gain)
+                        formation_gain=args.formation_gain, formation_size=args.formation_size)
     with Bus(config_from_args(args), fleet=args.fleet, name=f"uav{args.uav}") as bus:
         camera = make_camera(args, bus, log)
         board = Board(bus, driver, clock, opts, camera=camera, log=log)

@@ -80,6 +80,9 @@ from .topology import (
     skynet_link,
 )
 
+from edge.neighbourhood import FORMATION_SIZE
+from edge.runtime import CAPTURE_LINKS, frame_size, preview_rate
+
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
 READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up", "video": "video up",
@@ -221,21 +224,26 @@ class Network:
     def edge_config(self, i: int) -> list[str]:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
         rules that keep its links on the proxies (:func:`services.topology.edge_mesh_config`)."""
-        if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied:
+        # several formations: no gossip autoconnect, or every edge would dial every other (issue 18)
+        formations = self.args.uavs > FORMATION_SIZE
+        if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied and not formations:
             return [] if self.creds is None else ["--config", str(self.creds.mesh_config)]
         base = json.loads(self.creds.mesh_config.read_text()) if self.creds is not None else None
         path = self.tmp / f"uav{i}.json5"
-        path.write_text(json.dumps(edge_mesh_config(self.plan.mesh, base, self.open_timeout)))
+        mesh = "proxied" if formations else self.plan.mesh  # proxied: autoconnect to nothing
+        path.write_text(json.dumps(edge_mesh_config(mesh, base, self.open_timeout)))
         path.chmod(0o600)
         return ["--config", str(path)]
 
     def mesh_connect(self, i: int) -> list[str]:
-        """Edge i's ``--connect`` to every edge j > i: through the proxies in front of j with the
+        """Edge i's ``--connect`` to every edge j > i of its formation: through the proxies in front of j with the
         proxied mesh, else straight to j's endpoints. Dialled endpoints are retried until they
         answer, while a peer learned by gossip is dialled when the gossip arrives: an edge that
         was not listening yet then stayed out of the mesh for good (seen under load in CI)."""
+        from edge.neighbourhood import members
+
         out = []
-        for j in range(i + 1, self.args.uavs + 1):
+        for j in (j for j in members(i, fleet=self.args.uavs) if j > i):  # its formation only (issue 18)
             ends = (self._proxy_pair(skynet_link(i, j), self.edge_endpoints[j]) if self.plan.mesh == "proxied"
                     else self.edge_endpoints[j])
             for e in ends:
@@ -274,16 +282,31 @@ class Network:
             out.append((round(start[0] + p[0], 3), round(start[1] + p[1], 3), ground))
         return out
 
+    def gateway_config(self) -> list[str]:
+        """``--config FILE`` of the gateway with ``--gcs-state-hz``: the clients' view of the states
+        downsampled (:mod:`services.gateway.downsample`), else nothing."""
+        hz = getattr(self.args, "gcs_state_hz", 0.0) or 0.0
+        if hz <= 0:
+            return []
+        from .gateway.downsample import state_downsampling
+
+        path = self.tmp / "gateway.json5"
+        path.write_text(json.dumps(state_downsampling(self.args.fleet, hz, self.args.uavs)))
+        return ["--config", str(path)]
+
     def start(self) -> None:
         a = self.args
         secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
         lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
-        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease,
+        thin = self.gateway_config()
+        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease, *thin,
                                           *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
         if not gw.wait_for(READY["gateway"], 30):
             raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
         scenario = ["--scenario", a.scenario] if a.scenario else []
         recovery = ["--imagery-cache", "0"] if getattr(a, "no_recovery", False) else []
+        hz = getattr(a, "preview_hz", None)
+        preview = [] if hz is None else ["--preview-hz", str(hz)]
         for i in range(1, a.uavs + 1):
             self.edge_endpoints[i] = multilink_endpoints(HOST, *free_port_pair())
         for i, home in enumerate(self.homes(a.uavs), start=1):
@@ -291,7 +314,8 @@ class Network:
                 "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
-                "--seed", str(a.seed + i), "--camera", a.camera, *scenario, *recovery])
+                "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
+                "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
@@ -401,6 +425,13 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
+    p.add_argument("--frame-size", type=frame_size, default="640x480", help="capture frame size WxH (4000x3000: the paper's 12 MP)")
+    p.add_argument("--preview-hz", type=preview_rate, default=None, metavar="HZ",
+                   help="live preview frames per UAV per second (default: the edge's, 2; 0 = off)")
+    p.add_argument("--gcs-state-hz", type=preview_rate, default=0.0, metavar="HZ",
+                   help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
+    p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
+                   help="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
     p.add_argument("--method", default="it+", help="the detector's method")
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")

@@ -272,6 +272,12 @@ class MissionRunner:
         missing = set(self.opt.uavs) - {t.uav for t in plan.trajectories}
         if missing:
             raise MissionFailed(f"the plan has no trajectory for UAV(s) {sorted(missing)}")
+        from .preflight import plan_problem  # before any upload: the whole fleet fits, or nobody flies
+
+        problem = plan_problem(plan, self.record.scenario.formation.offsets)
+        if problem:
+            self.record.plan = plan
+            raise MissionFailed(f"refused before takeoff: {problem}")
         self.record.plan = plan
         return plan
 

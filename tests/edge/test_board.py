@@ -153,3 +153,24 @@ with Bus(BusConfig(mode="client", connect={gateway!r}, multilink=True), "{FLEET}
         bat = next(e for e in events if e.kind == "battery-failsafe")
         assert bat.data["action"] == "rtl" and bat.data["battery"] <= 0.8
     assert e1.alive() and e2.alive()
+
+
+def test_an_edge_hears_only_its_formation(group, gateway):
+    """Issue 18: UAVs 1, 2 and 4 of a fleet flown as formations of three (1-3, 4-6): UAV 1 shares
+    state with UAV 2 only, UAV 4 with nobody, although every edge reaches every other."""
+    for uav, home in {1: "10,10,0", 2: "14,10,0", 4: "18,10,0"}.items():
+        svc = group.start(f"uav{uav}", [
+            "edge", "--uav", str(uav), "--fleet", FLEET, "--multilink", "--camera", "none",
+            *[a for e in gateway for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0", "--home", home])
+        assert svc.wait_for("board up", 30), "\n".join(svc.lines)
+    states: dict[int, VehicleState] = {}
+    events: list[Event] = []
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
+        gcs.subscribe(keys.state(FLEET, "*"), lambda m, s: states.__setitem__(m.uav, m), expect=VehicleState,
+                      link=TELEMETRY)
+        gcs.subscribe(keys.all_events(FLEET), lambda m, s: events.append(m), expect=Event)
+        assert _wait(lambda: len(states) == 3 and states[1].neighbours == 1 and states[2].neighbours == 1, 30), states
+        time.sleep(1.5)  # long enough for a state of UAV 4 to have reached UAV 1 had it subscribed
+        assert states[1].neighbours == 1 and states[2].neighbours == 1 and states[4].neighbours == 0, states
+        joined = {(e.source, e.data.get("neighbour")) for e in events if e.kind == "neighbour-up"}
+        assert not {pair for pair in joined if 4 in (pair[1], int(pair[0].split("/")[1]))}, joined
