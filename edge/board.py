@@ -82,6 +82,10 @@ class BoardOptions:
         default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
 
+#: the options' defaults, which the command line's defaults are (one place for each value)
+_DEFAULT = BoardOptions(uav=1)
+
+
 class Board:
     """The board's logic, bound to a bus and a driver; :meth:`tick` is one control-loop pass."""
 
@@ -284,19 +288,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--vehicle", default="sim", choices=["sim", "mavlink"], help="vehicle driver")
     parser.add_argument("--mavlink", default="udpin:0.0.0.0:14550", help="MAVLink connection (--vehicle mavlink)")
     parser.add_argument("--home", type=parse_vec, default=(0.0, 0.0, 0.0), help="launch point x,y,z (ENU m)")
-    parser.add_argument("--rate", type=float, default=20.0, help="state publication rate, Hz")
-    parser.add_argument("--stale", type=float, default=1.0, help="neighbour state considered stale after, s")
-    parser.add_argument("--formation-gain", type=float, default=0.8,
+    parser.add_argument("--rate", type=float, default=_DEFAULT.rate_hz, help="state publication rate, Hz")
+    parser.add_argument("--stale", type=float, default=_DEFAULT.stale_s,
+                        help="neighbour state considered stale after, s")
+    parser.add_argument("--formation-gain", type=float, default=_DEFAULT.formation_gain,
                         help="share of the neighbours' mean position error corrected on board, 0..1")
-    parser.add_argument("--formation-size", type=int, default=FORMATION_SIZE,
+    parser.add_argument("--formation-size", type=int, default=_DEFAULT.formation_size,
                         help="UAVs per formation: the board shares state with its formation only (SkyNet)")
-    parser.add_argument("--failsafe-timeout", type=float, default=5.0)
-    parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default="hold")
-    parser.add_argument("--failsafe-escalate", choices=ESCALATIONS, default="rtl",
+    parser.add_argument("--failsafe-timeout", type=float, default=_DEFAULT.failsafe_timeout_s)
+    parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default=_DEFAULT.failsafe_action)
+    parser.add_argument("--failsafe-escalate", choices=ESCALATIONS, default=_DEFAULT.failsafe_escalate,
                         help="after a failsafe hold of --failsafe-escalate-after s: rtl, land or none")
-    parser.add_argument("--failsafe-escalate-after", type=float, default=30.0, metavar="S")
-    parser.add_argument("--battery-low", type=float, default=0.2, help="battery failsafe: return to launch below")
-    parser.add_argument("--battery-critical", type=float, default=0.1, help="battery failsafe: land below")
+    parser.add_argument("--failsafe-escalate-after", type=float, default=_DEFAULT.failsafe_escalate_after_s,
+                        metavar="S")
+    parser.add_argument("--battery-low", type=float, default=_DEFAULT.battery_low,
+                        help="battery failsafe: return to launch below")
+    parser.add_argument("--battery-critical", type=float, default=_DEFAULT.battery_critical,
+                        help="battery failsafe: land below")
     parser.add_argument("--endurance", type=float, default=None, metavar="S",
                         help="simulated vehicle: hover time on a full battery, s (default 1200)")
     parser.add_argument("--geofence", type=parse_box, default=None, help="x0,y0,z0,x1,y1,z1 (else from upload)")
