@@ -21,6 +21,7 @@ truth) from the scenario with :func:`synthetic_surface`.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import logging
 import math
 import threading
@@ -36,7 +37,11 @@ from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import RtpSender, ssrc_for
 from protocol.scenario import Scenario, load_scenario
 
+from .camera import CameraModel, CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
+from .surface import DEFAULT_PX_PER_M, SyntheticSurface
+from .vehicle.quadrotor import DisturbanceParams
 from .vehicle.driver import CaptureEvent, VehicleDriver
+from .vehicle.sim import SimDriver, SimParams
 
 #: frames each camera keeps for retransmission of frames lost on the way
 IMAGERY_CACHE_FRAMES = 32
@@ -99,9 +104,6 @@ def preview_rate(text: str) -> float:
 
 def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
     if args.vehicle == "sim":
-        from .vehicle.quadrotor import DisturbanceParams
-        from .vehicle.sim import SimDriver, SimParams
-
         wind = DisturbanceParams.moderate() if args.wind == "moderate" else DisturbanceParams()
         endurance = {} if getattr(args, "endurance", None) is None else {"endurance_s": args.endurance}
         return SimDriver(args.uav, params=SimParams(disturbance=wind, **endurance), home=args.home, t0=t0,
@@ -113,8 +115,6 @@ def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
 
 def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: int = SURFACE_SEED):
     """The inspected wall of the scenario as a textured, cracked :class:`SyntheticSurface`."""
-    from .surface import DEFAULT_PX_PER_M, SyntheticSurface
-
     if scenario.surface is None:
         raise ValueError(f"scenario {scenario.name!r} has no [surface] to image")
     corners = np.asarray(scenario.surface.corners, dtype=float)
@@ -123,8 +123,6 @@ def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: i
 
 def camera_model(scenario: Scenario, frame_size: tuple[int, int]):
     """The scenario's camera delivering ``frame_size`` frames (the same field of view, fewer pixels)."""
-    from .camera import CameraModel
-
     cam = scenario.camera
     return CameraModel(resolution=frame_size, sensor_mm=cam.sensor_mm, focal_mm=cam.focal_mm)
 
@@ -155,8 +153,6 @@ class CameraLink:
     def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
                  quality: int = 85, cache: int = IMAGERY_CACHE_FRAMES, preview: PreviewStream | None = None,
                  link: LinkClass = IMAGERY):
-        from .camera import FrameEncoder
-
         if isinstance(cache, bool) or not isinstance(cache, int) or cache < 0:
             raise ValueError(f"imagery cache must be an int >= 0 (frames), got {cache!r}")
         self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
@@ -195,8 +191,6 @@ class CameraLink:
         return Intrinsics(width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy)
 
     def capture(self, ev: CaptureEvent, stamp: float) -> None:
-        from .camera import CameraPose
-
         R = camera_rotation(ev.att[2])
         pose = CameraPose(position=np.asarray(ev.pos, dtype=float), rotation=R)
         frame = self.source.grab(pose, ev.t)
@@ -289,8 +283,6 @@ class PreviewStream:
                     self.log.exception("preview frame failed")
 
     def _send(self, pos, att, t: float, stamp: float) -> None:
-        from .camera import CameraPose, encode_jpeg
-
         R = camera_rotation(att[2])
         frame = self.source.grab(CameraPose(position=np.asarray(pos, dtype=float), rotation=R), t)
         h, w = frame.image.shape[:2]
@@ -313,8 +305,6 @@ def release_freed_memory() -> None:
     building the synthetic wall leaves about 24 MB free but held in every edge (issue 18).
     A no-op where there is no glibc."""
     try:
-        import ctypes
-
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         pass
@@ -323,8 +313,6 @@ def release_freed_memory() -> None:
 def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> CameraLink | None:
     if args.camera in ("", "none"):
         return None
-    from .camera import make_source
-
     w, h = (int(v) for v in args.frame_size.lower().split("x"))
     scenario = load_scenario(args.scenario)
     model = camera_model(scenario, (w, h))
@@ -334,8 +322,6 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     preview_hz = float(getattr(args, "preview_hz", PREVIEW_HZ) or 0.0)
     preview = None
     if preview_hz > 0 and surface is not None:
-        from .camera import SyntheticSource
-
         small = camera_model(scenario, PREVIEW_SIZE)
         preview = PreviewStream(bus, args.uav, SyntheticSource(surface, small), small, rate_hz=preview_hz, log=log)
     elif preview_hz > 0:
