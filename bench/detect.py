@@ -144,6 +144,25 @@ def tune(data: Path) -> dict[str, object]:
     print(f"\nbest IT+ setting: {top}")
     out["it_plus_grid"] = rows
     out["it_plus_best"] = top
+
+    print("\n### IT+: guard gate, per-component contrast floor, elongation of long components "
+          "(DeepCrack train; the rest at the defaults)\n")
+    print("| guard_contrast | min_contrast | min_long_elongation | F |\n|---|---|---|---|")
+    rows = []
+    for gc in (0.0, 0.1):
+        ts = [threshold_it_plus(hist=h, guard_contrast=gc) for h in hists]
+        raws = [cv2.threshold(s.grey, t, 255, cv2.THRESH_BINARY_INV)[1] for s, t in zip(samples, ts)]
+        for mc in (0.0, 0.06, 0.08, 0.1, 0.12):
+            for mle in (0.0, 4.0, 5.0, 6.0):
+                masks = [shape_filter(r, grey=s.grey, min_contrast=mc, min_long_elongation=mle)
+                         for r, s in zip(raws, samples)]
+                f = float(np.mean([f_measure(m, g)[0] for m, g in zip(masks, gts)]))
+                rows.append({"guard_contrast": gc, "min_contrast": mc, "min_long_elongation": mle, "f": f})
+                print(f"| {gc} | {mc} | {mle} | {f:.4f} |")
+    top = max(rows, key=lambda r: r["f"])
+    print(f"\nbest IT+ component setting: {top}")
+    out["it_plus_component_grid"] = rows
+    out["it_plus_component_best"] = top
     return out
 
 

@@ -44,7 +44,7 @@ import math
 import cv2
 import numpy as np
 
-from .iterative import C_S_DEFAULT, iterative_threshold
+from .iterative import C_S_DEFAULT, interclass_contrast, iterative_threshold
 from .thresholds import _check_hist, as_grey_u8, histogram
 
 __all__ = [
@@ -53,6 +53,12 @@ __all__ = [
 
 #: Smallest share of the image the defect class may shrink to (chosen on DeepCrack train).
 MIN_FRACTION_DEFAULT: float = 0.03
+#: Per-component contrast floor (P19) of IT+ (chosen on DeepCrack train, ``bench/detect.py --only tune``).
+MIN_CONTRAST_DEFAULT: float = 0.10
+#: Elongation a component passing by its length alone must still have (DeepCrack train).
+MIN_LONG_ELONGATION_DEFAULT: float = 5.0
+#: The area guard applies only when its split has at least this contrast (DeepCrack train).
+GUARD_CONTRAST_DEFAULT: float = 0.10
 
 
 def threshold_it_plus(
@@ -61,6 +67,7 @@ def threshold_it_plus(
     hist: np.ndarray | None = None,
     c_s: float = C_S_DEFAULT,
     min_fraction: float = MIN_FRACTION_DEFAULT,
+    guard_contrast: float = 0.0,
     **it_params: object,
 ) -> int:
     """IT threshold (P18)-(P19) with the area guard of this module.
@@ -76,6 +83,11 @@ def threshold_it_plus(
     min_fraction : float
         In [0, 1): the dark class keeps at least this share of the pixels (unless that would
         need a threshold above the global Otsu step ``T_1``).
+    guard_contrast : float
+        The guard applies only when the interclass contrast (P19) of the guarded split (dark
+        class ``<= T_guard`` against the rest) reaches this value: a frame that holds no crack
+        has a dark class of texture with a low contrast, and the guard must not force a
+        threshold on it. 0 (the default) always applies it.
     **it_params
         Passed to :func:`services.detector.iterative.iterative_threshold`.
 
@@ -94,7 +106,19 @@ def threshold_it_plus(
         return r.threshold
     cum = np.cumsum(h)
     t_frac = int(np.searchsorted(cum, min_fraction * cum[-1]))
-    return max(r.threshold, min(t_frac, r.thresholds[0]))
+    t_guard = min(t_frac, r.thresholds[0])
+    if t_guard <= r.threshold:
+        return r.threshold
+    if guard_contrast > 0.0:
+        levels = np.arange(256, dtype=np.float64)
+        n_d, n_b = cum[t_guard], cum[-1] - cum[t_guard]
+        if n_d <= 0 or n_b <= 0:
+            return r.threshold
+        mu_d = float(h[: t_guard + 1] @ levels[: t_guard + 1]) / n_d
+        mu_b = float(h[t_guard + 1:] @ levels[t_guard + 1:]) / n_b
+        if interclass_contrast(mu_d, mu_b) < guard_contrast:
+            return r.threshold
+    return t_guard
 
 
 def shape_filter(
@@ -104,24 +128,40 @@ def shape_filter(
     min_elongation: float = 8.0,
     min_length: float = 40.0,
     work_px: int = 400_000,
+    grey: np.ndarray | None = None,
+    min_contrast: float = 0.0,
+    min_long_elongation: float = 0.0,
+    ring: int = 5,
+    robust: bool = True,
 ) -> np.ndarray:
     """Keep the crack-like connected components of a binary mask.
 
     A component (8-connectivity) is kept when ``area >= min_area`` and either
-    ``(w² + h²) / area >= min_elongation`` or ``max(w, h) >= min_length`` (bounding box w, h).
-    Sizes are in pixels of the *working* image: the mask reduced by the smallest integer factor
-    ``s`` that brings it to at most ``work_px`` pixels (a reduced pixel is set when any pixel of
-    its ``s × s`` block is). For images up to ``work_px`` pixels ``s = 1`` and the analysis is
-    exact.
+    ``(w² + h²) / area >= min_elongation`` or (``max(w, h) >= min_length`` and
+    ``(w² + h²) / area >= min_long_elongation``) (bounding box w, h), and, when ``grey`` is
+    given, its interclass contrast (P19) against its local background is at least
+    ``min_contrast``: ``|μ_B − μ_D| / (μ_B + μ_D)`` with ``μ_D`` the component's mean grey and
+    ``μ_B`` the mean of the non-defect pixels within ``ring`` pixels of it (the contrast
+    :func:`services.detector.detect.defects_of` reports). Sizes are in pixels of the *working*
+    image: the mask reduced by the smallest integer factor ``s`` that brings it to at most
+    ``work_px`` pixels (a reduced pixel is set when any pixel of its ``s × s`` block is; the
+    grey image is reduced by area averaging). For images up to ``work_px`` pixels ``s = 1`` and
+    the analysis is exact.
 
     Parameters
     ----------
     mask : ndarray of uint8
         Binary mask (non-zero = defect).
-    min_area, min_elongation, min_length : float
+    min_area, min_elongation, min_length, min_long_elongation : float
         Shape limits (working-image pixels).
     work_px : int
         Pixel budget of the working image.
+    grey : ndarray of uint8, optional
+        The image of the mask, for the contrast floor (ignored when ``min_contrast`` is 0).
+    min_contrast : float
+        Per-component contrast floor (P19), in [0, 1).
+    ring : int
+        Width of the local background ring, full-resolution pixels.
 
     Returns
     -------
@@ -136,6 +176,11 @@ def shape_filter(
     m = np.asarray(mask)
     if m.ndim != 2 or m.size == 0:
         raise ValueError(f"mask must be a non-empty 2-D array, got shape {m.shape}")
+    if not (math.isfinite(min_contrast) and 0.0 <= min_contrast < 1.0):
+        raise ValueError(f"min_contrast must lie in [0, 1), got {min_contrast}")
+    use_contrast = min_contrast > 0.0 and grey is not None
+    if use_contrast and np.shape(grey) != m.shape:
+        raise ValueError(f"grey shape {np.shape(grey)} != mask shape {m.shape}")
     m = np.where(m != 0, 255, 0).astype(np.uint8) if m.dtype != np.uint8 else m
     H, W = m.shape
     s = reduction_factor(H * W, work_px)
@@ -149,8 +194,12 @@ def shape_filter(
     w = stats[:, cv2.CC_STAT_WIDTH].astype(np.float64)
     h = stats[:, cv2.CC_STAT_HEIGHT].astype(np.float64)
     elong = (w * w + h * h) / np.maximum(area, 1.0)
-    keep = (area >= min_area) & ((elong >= min_elongation) | (np.maximum(w, h) >= min_length))
+    keep = (area >= min_area) & (
+        (elong >= min_elongation) | ((np.maximum(w, h) >= min_length) & (elong >= min_long_elongation))
+    )
     keep[0] = False
+    if use_contrast and n > 1 and keep.any():
+        keep &= component_contrast(as_grey_u8(grey), labels, n, s, ring, robust=robust) >= min_contrast
     lut = np.where(keep, 255, 0).astype(np.uint8)
     keep_small = lut[labels]
     if s == 1:
@@ -158,6 +207,47 @@ def shape_filter(
     hs, ws = keep_small.shape
     keep_full = cv2.resize(keep_small, (ws * s, hs * s), interpolation=cv2.INTER_NEAREST)
     return cv2.bitwise_and(m, np.ascontiguousarray(keep_full[:H, :W]))
+
+
+def component_contrast(grey: np.ndarray, labels: np.ndarray, n: int, s: int = 1, ring: int = 5,
+                       robust: bool = False) -> np.ndarray:
+    """Contrast (P19) of every labelled component against the background ring around it.
+
+    ``labels`` (int32, 0 = background) may be the labels of the image reduced by ``s``; the grey
+    image is then reduced to the label image's size by area averaging and the ring to
+    ``max(1, round(ring / s))`` pixels. A background pixel near several components goes to the
+    highest-numbered one (a label dilation), as in :func:`services.detector.detect.defects_of`.
+    With ``robust`` the background level is the ring's median instead of its mean, so that a
+    component at the edge of the surface, whose ring is partly the much brighter scene beyond
+    it (sky), is judged against the surface around it. Components without a ring get contrast
+    0. Returns an array of ``n`` values (index 0 unused).
+    """
+    hs, ws = labels.shape
+    g = grey if grey.shape == labels.shape else cv2.resize(grey, (ws, hs), interpolation=cv2.INTER_AREA)
+    r = max(1, round(ring / s))
+    lab = labels.ravel()
+    gv = g.ravel().astype(np.float64)
+    cnt_d = np.bincount(lab, minlength=n).astype(np.float64)
+    sum_d = np.bincount(lab, weights=gv, minlength=n)
+    k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * r + 1, 2 * r + 1))
+    dil = cv2.dilate(labels.astype(np.float32), k).astype(np.int64).ravel()
+    near = (dil > 0) & (lab == 0)
+    cnt_b = np.bincount(dil[near], minlength=n).astype(np.float64)
+    mu_d = sum_d / np.maximum(cnt_d, 1.0)
+    if robust:  # the median of each ring: sort the ring pixels by (component, grey)
+        rl, rg = dil[near], gv[near]
+        order = np.lexsort((rg, rl))
+        start = np.concatenate([[0], np.cumsum(np.bincount(rl, minlength=n))[:-1]])
+        cb = np.bincount(rl, minlength=n)
+        mid = start + np.maximum(cb - 1, 0) // 2
+        mid2 = start + cb // 2
+        sg = rg[order]
+        mu_b = np.where(cb > 0, 0.5 * (sg[np.minimum(mid, len(sg) - 1)] + sg[np.minimum(mid2, len(sg) - 1)]), 0.0) \
+            if len(sg) else np.zeros(n)
+    else:
+        mu_b = np.bincount(dil[near], weights=gv[near], minlength=n) / np.maximum(cnt_b, 1.0)
+    den = mu_b + mu_d
+    return np.where((cnt_b > 0) & (den > 0), np.abs(mu_b - mu_d) / np.where(den > 0, den, 1.0), 0.0)
 
 
 def reduction_factor(n_pixels: int, work_px: int) -> int:
@@ -179,6 +269,9 @@ def it_plus_mask(
     min_elongation: float = 8.0,
     min_length: float = 40.0,
     work_px: int = 400_000,
+    min_contrast: float = MIN_CONTRAST_DEFAULT,
+    min_long_elongation: float = MIN_LONG_ELONGATION_DEFAULT,
+    guard_contrast: float = GUARD_CONTRAST_DEFAULT,
     **it_params: object,
 ) -> tuple[np.ndarray, int]:
     """IT+ defect mask of a grey image: guarded IT threshold, then :func:`shape_filter`.
@@ -190,10 +283,11 @@ def it_plus_mask(
         The global threshold before shape filtering.
     """
     grey = as_grey_u8(image)
-    t = threshold_it_plus(hist=histogram(grey), c_s=c_s, min_fraction=min_fraction, **it_params)
+    t = threshold_it_plus(hist=histogram(grey), c_s=c_s, min_fraction=min_fraction,
+                          guard_contrast=guard_contrast, **it_params)
     raw = cv2.threshold(grey, t, 255, cv2.THRESH_BINARY_INV)[1]
     mask = shape_filter(
         raw, min_area=min_area, min_elongation=min_elongation, min_length=min_length,
-        work_px=work_px,
+        work_px=work_px, grey=grey, min_contrast=min_contrast, min_long_elongation=min_long_elongation,
     )
     return mask, t
