@@ -277,8 +277,9 @@ class Network:
                 "--seed", str(a.seed + i), "--camera", a.camera, *scenario, *recovery])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
+        save = ["--save-frames", a.save_frames] if getattr(a, "save_frames", None) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
-                                        *no_recovery])
+                                        *no_recovery, *save])
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -406,6 +407,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     out = Path(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)
     log_file = open(out / "services.log", "w")
+    args.save_frames = str((out / "frames").resolve())  # the captures, for the inspection deliverable
     net = Network(args, echo=log_file, ground_station=True, plan=plan)
     scenario = load_scenario_document(args.scenario)
     try:

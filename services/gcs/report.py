@@ -1253,5 +1253,8 @@ def write_report(record: MissionRecord, folder: str | Path) -> ReportSummary:
     _plot_links(record, series, out / "links.png")
     summary.files = ["record.json", "report.json", "report.md", *PLOTS]
     (out / "report.md").write_text(_markdown(record, summary))
+    from services.inspection.mission import append_deliverable  # mosaic, defect table (issue 17)
+
+    append_deliverable(record, out, summary.files)
     (out / "report.json").write_text(json.dumps(summary.to_dict(), indent=1, allow_nan=False))
     return summary
