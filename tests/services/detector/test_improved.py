@@ -101,3 +101,35 @@ def test_bad_contrast_floor_is_rejected():
         shape_filter(m, min_contrast=1.0)
     with pytest.raises(ValueError):
         shape_filter(m, grey=np.zeros((5, 5), np.uint8), min_contrast=0.1)
+
+
+def test_blackhat_cue_finds_a_faint_crack_under_uneven_light():
+    from services.detector.improved import it_plus_bh_mask
+
+    h, w = 240, 320
+    ramp = np.linspace(90, 190, w, dtype=np.float32)[None, :].repeat(h, 0)  # strong illumination gradient
+    rng = np.random.default_rng(2)
+    g = ramp + rng.normal(0, 3, (h, w)).astype(np.float32)
+    crack = np.zeros((h, w), np.uint8)
+    cv2.line(crack, (200, 20), (300, 220), 255, 2)  # on the bright side, 22 % darker than around it
+    g[crack > 0] *= 0.78
+    g = np.clip(g, 0, 255).astype(np.uint8)
+    plain = it_plus_mask(g)[0]
+    cued = it_plus_bh_mask(g)[0]
+    hit = lambda m: np.count_nonzero((m > 0) & (crack > 0)) / np.count_nonzero(crack)  # noqa: E731
+    assert hit(plain) < 0.2  # the global threshold takes the dark side of the ramp, not the crack
+    assert hit(cued) > 0.6
+    assert np.count_nonzero(cued[:, :150]) < 0.01 * cued[:, :150].size  # the ramp's dark side stays out
+    with pytest.raises(ValueError):
+        it_plus_bh_mask(g, size=2)
+    with pytest.raises(ValueError):
+        it_plus_bh_mask(g, top_fraction=0.0)
+
+
+def test_blackhat_on_a_large_frame_works_on_the_reduced_grid():
+    from services.detector.improved import it_plus_bh_mask
+
+    g = np.full((1500, 2000), 150, np.uint8)
+    cv2.line(g, (100, 100), (1900, 1400), 80, 9)
+    m, _ = it_plus_bh_mask(g, work_px=200_000)  # s = 4
+    assert m.shape == g.shape and m[750, 1000 - 9:1000 + 9].any()
