@@ -203,8 +203,9 @@ def shape_filter(
         # contrast of the shape-kept components only (relabelled 1..k); every other pixel of the
         # mask stays out of their rings, as when all components are measured
         sel = np.flatnonzero(keep)
-        relabel = np.zeros(n, np.int32)
-        relabel[sel] = np.arange(1, len(sel) + 1, dtype=np.int32)
+        dt = np.uint16 if len(sel) < 65535 else np.int32  # uint16 dilates faster than float32
+        relabel = np.zeros(n, dt)
+        relabel[sel] = np.arange(1, len(sel) + 1, dtype=dt)
         c = component_contrast(as_grey_u8(grey), relabel[labels], len(sel) + 1, s, ring, robust=robust,
                                free=labels == 0)
         keep[sel] = c[1:] >= min_contrast
@@ -248,13 +249,16 @@ def component_contrast(grey: np.ndarray, labels: np.ndarray, n: int, s: int = 1,
     sum_d = np.bincount(lab, weights=g_d.ravel().astype(np.float64), minlength=n)
     gb = g_b.ravel()
     k = cv2.getStructuringElement(cv2.MORPH_RECT, (2 * r + 1, 2 * r + 1))
-    dil = cv2.dilate(labels.astype(np.float32), k).astype(np.int64).ravel()
+    lab_img = labels if labels.dtype == np.uint16 else labels.astype(np.float32)
+    dil = cv2.dilate(lab_img, k).ravel()
+    if dil.dtype != np.uint16:
+        dil = dil.astype(np.int64)
     near = (dil > 0) & ((lab == 0) if free is None else np.asarray(free).ravel())
     cnt_b = np.bincount(dil[near], minlength=n).astype(np.float64)
     mu_d = sum_d / np.maximum(cnt_d, 1.0)
     if robust:  # the median of each ring, from a 256-level histogram per component
         rl = dil[near]
-        hist = np.bincount(rl * 256 + gb[near].astype(np.int64), minlength=n * 256).reshape(n, 256)
+        hist = np.bincount(rl.astype(np.int64) * 256 + gb[near], minlength=n * 256).reshape(n, 256)
         cum = np.cumsum(hist, axis=1)
         half = cum[:, -1:] / 2.0
         lo = np.argmax(cum >= half, axis=1)  # first level holding half of the ring
