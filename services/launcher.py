@@ -318,8 +318,9 @@ class Network:
                 "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
+        save = ["--save-frames", a.save_frames] if getattr(a, "save_frames", None) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
-                                        *no_recovery])
+                                        *no_recovery, *save])
         if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
             self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
                                          "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
@@ -507,6 +508,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     # not writable or too little room: refused (RecordingError) before any service starts
     out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     log_file = open(out / "services.log", "w")
+    args.save_frames = str((out / "frames").resolve())  # the captures, for the inspection deliverable
     net = Network(args, echo=log_file, ground_station=True, plan=plan)
     scenario = load_scenario(args.scenario)
     try:

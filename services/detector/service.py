@@ -90,10 +90,11 @@ class DetectorService:
     """Binds the pipeline to the bus; see the module docstring."""
 
     def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = QUEUE_FRAMES,
-                 playout_delay_s: float = 0.05, log=None, recover: bool = True):
+                 playout_delay_s: float = 0.05, log=None, recover: bool = True, save_frames: str | None = None):
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")
         self.bus, self.method, self.log = bus, method, log
+        self.save_frames = save_frames  # folder for the analysed captures (the inspection deliverable's input)
         self.counts: Counter[str] = Counter()
         self.latency_ms: list[float] = []
         self.analysed: Counter[int] = Counter()  # SSRC -> frames analysed (reports published)
@@ -186,6 +187,10 @@ class DetectorService:
                                                                   digest=hashlib.sha256(image).hexdigest())})
         with self._lock:
             self.analysed[frame.ssrc] += 1
+        if self.save_frames and report.ok:
+            from services.inspection.deliverable import save_frame
+
+            save_frame(self.save_frames, meta, image)
         if not report.ok:
             self.counts["bad-image"] += 1
             if self.log:
@@ -244,6 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
     parser.add_argument("--no-recovery", action="store_true",
                         help="do not ask the cameras' caches for lost capture frames (plain best-effort)")
+    parser.add_argument("--save-frames", default=None, metavar="DIR",
+                        help="keep every analysed capture with its pose in DIR (input of the inspection deliverable)")
     return parser
 
 
@@ -254,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     stop = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="detector") as bus:
         svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log,
-                              recover=not args.no_recovery)
+                              recover=not args.no_recovery, save_frames=args.save_frames)
         log.info("detector up: method %s, %d workers, recovery %s", args.method, args.workers,
                  "off" if args.no_recovery else "on")
         next_stats = time.monotonic() + 1.0

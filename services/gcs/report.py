@@ -51,6 +51,7 @@ from services.gcs.figures import (
 from services.gcs.markdown import markdown
 from services.gcs.plots import PLOTS, write_plots
 from services.gcs.record import MissionRecord
+from services.inspection.mission import append_deliverable
 
 __all__ = [
     "GOAL_RADIUS_M",
@@ -110,5 +111,6 @@ def write_report(record: MissionRecord | dict[str, Any], folder: str | Path) -> 
     plots = write_plots(record, figs, out)
     summary.files = ["record.json", "report.json", "report.md", *plots]
     (out / "report.md").write_text(markdown(record, summary))
+    append_deliverable(record, out, summary.files)  # mosaic, defect table (issue 17)
     (out / "report.json").write_text(json.dumps(summary.to_dict(), indent=1, allow_nan=False))
     return summary
