@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "netem": ("services.netem.cli", "user-space impairment proxy (UDP/TCP) for latency/loss experiments"),
     "experiment": ("services.experiment.cli", "the mission over a grid of link loss/delay/jitter, with a table and plots"),
     "demo": ("services.demo", "gateway + a demo publisher/subscriber pair, printing what flows"),
+    "keys": ("services.keys", "development fleet PKI: CA, per-node TLS certificates and signing keys"),
     "bench": ("services.bench", "benchmarks: bus, sim, plan, detect, mission"),
 }
 

@@ -208,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     log = setup_logging("detector")
     stop = stop_event_on_signals()
-    with Bus(config_from_args(args), fleet=args.fleet, name="detector") as bus:
+    with Bus(config_from_args(args, role="detector"), fleet=args.fleet, name="detector") as bus:
         svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log,
                               recover=not args.no_recovery)
         log.info("detector up: method %s, %d workers, recovery %s", args.method, args.workers,

@@ -27,7 +27,7 @@ from .progress import LiveDisplay, render
 
 
 def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None, ground_truth: bool = True, on_runner=None) -> int:
+                abort=None, ground_truth: bool = True, on_runner=None, signer=None) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
 
     ``on_runner(runner)`` is called once, after the :class:`MissionRunner` is made and before it runs
@@ -52,7 +52,7 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
         display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
                               now - t_start, notes), force=force)
 
-    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort)
+    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort, signer=signer)
     if on_runner is not None:
         on_runner(runner)
     root = logging.getLogger()
@@ -110,9 +110,15 @@ def main(argv: list[str] | None = None) -> int:
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
-    with Bus(config_from_args(args), fleet=args.fleet, name="gcs") as bus:
+    signer = None
+    if args.keys:  # commands and heartbeats signed end to end (issue 11)
+        from protocol.keyset import KeySet
+        signer = KeySet(args.keys, "gcs").signer()
+    else:
+        log.warning("INSECURE: commands and heartbeats go unsigned (no --keys)")
+    with Bus(config_from_args(args, role="gcs"), fleet=args.fleet, name="gcs") as bus:
         return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
-                           ground_truth=not args.no_ground_truth)
+                           ground_truth=not args.no_ground_truth, signer=signer)
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-from protocol import keys
+from protocol import binding, keys
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
@@ -126,8 +126,9 @@ class MissionOptions:
 class MissionRunner:
     def __init__(self, bus: Bus, scenario: dict, options: MissionOptions,
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
-                 abort: threading.Event | None = None):
+                 abort: threading.Event | None = None, signer=None):
         self.bus, self.opt, self.log = bus, options, log
+        self.signer = signer  # protocol.signing.Signer: commands and heartbeats signed end to end (issue 11)
         self.abort = abort or threading.Event()
         scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
@@ -161,6 +162,9 @@ class MissionRunner:
 
     # -- recording (Zenoh callback threads: short)
     def _on_state(self, msg, sample) -> None:
+        if not binding.matches(str(sample.key_expr), msg.uav):  # a node speaking for another: refused
+            self.bus.counters.reject(str(sample.key_expr), binding.MISMATCH)
+            return
         now = time.time()
         with self._lock:
             self.record.states.append(StateRx(rx=now, msg=msg))
@@ -168,6 +172,9 @@ class MissionRunner:
             self._rx[msg.uav] = now
 
     def _on_event(self, msg, sample) -> None:
+        if not binding.matches(str(sample.key_expr), None, msg.source):
+            self.bus.counters.reject(str(sample.key_expr), binding.MISMATCH)
+            return
         with self._lock:
             self.record.events.append(EventRx(rx=time.time(), msg=msg))
         if self.log and msg.level != "info":
@@ -306,8 +313,9 @@ class MissionRunner:
         acks, reason = [], ""
         backoff = 0.25
         for attempt in range(1, self.opt.command_attempts + 1):
-            reply = self.bus.request(keys.cmd(self.bus.fleet, cmd.uav), cmd, expect=CommandAck,
-                                     timeout=self.opt.command_timeout_s)
+            key = keys.cmd(self.bus.fleet, cmd.uav)  # each try signed afresh: a new sequence number
+            payload = cmd if self.signer is None else self.signer.sign(cmd, key)
+            reply = self.bus.request(key, payload, expect=CommandAck, timeout=self.opt.command_timeout_s)
             if reply.ok:
                 acks.append(reply.elapsed_s)
                 ack = reply.message
@@ -360,7 +368,8 @@ class MissionRunner:
         period = 1.0 / self.opt.heartbeat_hz
         seq = 0
         while not self._hb_stop.wait(period):
-            self._hb_pub.put(Heartbeat(source="gcs", seq=seq, stamp=time.time()))
+            hb = Heartbeat(source="gcs", seq=seq, stamp=time.time())
+            self._hb_pub.put(hb if self.signer is None else self.signer.sign(hb, self._hb_pub.key))
             seq += 1
             self.record.heartbeats_sent = seq
 
