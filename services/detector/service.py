@@ -47,7 +47,7 @@ import threading
 import time
 from collections import Counter
 
-from protocol import codec, keys
+from protocol import binding, codec, keys
 from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.imagery import split_payload
 from protocol.jitter import Frame, JitterBuffers
@@ -105,6 +105,13 @@ class DetectorService:
         if len(payload) == 0:  # a camera's announce frame (edge.runtime.CameraLink.announce)
             self.counts["announce"] += 1
             return
+        try:  # bodies bound to keys (issue 11): a camera speaks only for its own UAV
+            bound = binding.matches(str(sample.key_expr), parse_ssrc(header.ssrc)[0])
+        except ValueError:
+            bound = False
+        if not bound:
+            self.counts[binding.MISMATCH] += 1
+            return
         self.counts["frames"] += 1
         with self._lock:
             if self.recovery is not None:
@@ -146,6 +153,9 @@ class DetectorService:
             if uav and 1 <= uav <= 255:
                 self.pub.put(DefectReport(uav=uav, capture_id=0, stamp_capture=0.0, stamp_report=time.time(),
                                           method=self.method, ok=False, error=f"bad metadata: {exc}"[:500]))
+            return
+        if meta.uav != parse_ssrc(frame.ssrc)[0]:  # the metadata must name the camera's own UAV
+            self.counts[binding.MISMATCH] += 1
             return
         report = analyse(meta, image, self.method)
         if not report.ok:

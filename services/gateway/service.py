@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         multilink = True
     base = config_from_args(args, role="gateway", listen=listen, multilink=multilink)
     config = GatewayConfig(**dict(base), **security_options(args, log))
-    if args.keys and config.access_control is None:  # mutual TLS: ACL by certificate common name (issue 11)
+    if args.keys and config.access_control is None and listen and all(e.startswith("tls/") for e in listen):  # mutual TLS: ACL by certificate common name (issue 11)
         from protocol.keyset import KeySet
         names = ["gcs", "planner", "detector", "gateway", *(f"uav{i}" for i in KeySet(args.keys, "gateway").uavs())]
         config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
