@@ -20,6 +20,7 @@ import argparse
 import datetime as dt
 import ipaddress
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -151,11 +152,12 @@ def ensure(folder: str | Path, uavs: int) -> Path:
 def revoke(folder: str | Path, what: str) -> str:
     """Add a key id (or the id of a public key file) to ``revoked.txt``; returns the id."""
     kid = key_id(load_public(what)) if Path(what).is_file() else what.strip().lower()
+    if not re.fullmatch(r"[0-9a-f]{16}", kid):
+        raise ValueError(f"expected a 16-hex-digit key id or a public key file, got {what!r}")
     KeySet(folder, "gcs")  # validates the folder
     path = Path(folder) / "revoked.txt"
     text = path.read_text() if path.exists() else ""
     path.write_text(text + f"{kid}\n")
-    KeySet(folder, "gcs").revoked()  # validates the id
     return kid
 
 

@@ -137,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         listen = multilink_endpoints(args.host, 7447, 7448)
         multilink = True
     base = config_from_args(args, role="gateway", listen=listen, multilink=multilink)
-    config = GatewayConfig(**dict(base), **security_options(args, log))
+    config = GatewayConfig(**{**dict(base), **security_options(args, log)})
     if args.keys and config.access_control is None and listen and all(e.startswith("tls/") for e in listen):  # mutual TLS: ACL by certificate common name (issue 11)
         from protocol.keyset import KeySet
         names = ["gcs", "planner", "detector", "gateway", *(f"uav{i}" for i in KeySet(args.keys, "gateway").uavs())]
