@@ -25,7 +25,12 @@ mission phase (``skynet mission``) or the network start (``skynet up``). A kille
 restarted with the same command line and ports; the launcher puts clean proxies on the links a
 fault cuts.
 
-``--secure`` turns on the gateway's authentication and access control: random passwords for
+Secure by default (issue 11, :mod:`services.trustmode`): a development key set (``--keys DIR``, else
+``.keys/dev``), mutual TLS on a TLS multilink pair, access control by certificate common name on the
+gateway and on each edge, commands and heartbeats signed by the ground station; proxied runs keep
+plaintext TCP/UDP links (signed commands only); ``--insecure`` turns everything off.
+
+``--secure`` (the older mode, no TLS and unsigned commands) turns on the gateway's authentication and access control: random passwords for
 ``gcs``, ``planner``, ``detector`` and ``uav1..N`` in a private temporary folder (removed at the
 end), the gateway started with ``--users`` and ``--acl``, each service with ``--user`` and its
 password in ``SKYNET_PASSWORD``, the edges with the UAVs' dictionary (``--config``, see
