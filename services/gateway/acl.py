@@ -31,8 +31,12 @@ of a matching subscriber would not send at all. The data itself is checked both 
 The rules are per UAV: user ``uav3`` gets a subject of its own whose rules name
 ``skynet/F/uav/3/...``, so one UAV cannot publish another's state or answer its commands through
 the gateway. The gateway's own session (its statistics, its traffic meter) is inside the router
-and is not filtered. Links that the UAV peers open directly to each other (SkyNet) do not pass
-through the router and are not filtered either: the UAV mesh is trusted.
+and is not filtered. With user/password authentication, links that the UAV peers open directly to
+each other (SkyNet) do not pass through the router and are not filtered: the UAV mesh is trusted.
+With mutual TLS (issue 11, :func:`cert_access_control`) the same rules have subjects by certificate
+common name and every edge enforces them too, for the gateway and the other UAVs: a UAV may put
+only its own keys on the mesh as well, and nothing else (a ground station, a planner) may link to
+an edge at all.
 
 Zenoh matches a message against a rule when the rule's key expression *includes* the message's
 (a subscriber on ``skynet/F/**/event`` needs a rule on ``skynet/F/**``), and ``**`` does not match
