@@ -182,7 +182,8 @@ class ReplayStore:
                 return False
             self._last[stream] = seq
             if self.path is not None:
-                tmp = self.path.with_name(self.path.name + ".tmp")
+                # a name of its own: two edges sharing a key folder (parallel dev runs) never collide
+                tmp = self.path.with_name(f"{self.path.name}.{os.getpid()}.tmp")
                 with open(tmp, "w") as f:
                     json.dump(self._last, f)
                     f.flush()
