@@ -41,13 +41,15 @@ from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, sto
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
     Box, CommandAck, Event, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
-    Start, Takeoff, UploadTrajectory, VehicleState, COMMAND_TYPES,
+    Signed, Start, Takeoff, UploadTrajectory, VehicleState, COMMAND_TYPES,
 )
+from protocol.signing import TrustError
 
 from . import formation
 from .failsafe import ACTIONS, ESCALATIONS, FailsafeOptions, FailsafePolicy
 from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
 from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size, preview_rate
+from .trust import Gate, command_id
 from .validate import validate_command
 from .vehicle.follower import Follower
 
@@ -89,8 +91,10 @@ _DEFAULT = BoardOptions(uav=1)
 class Board:
     """The board's logic, bound to a bus and a driver; :meth:`tick` is one control-loop pass."""
 
-    def __init__(self, bus: Bus, driver, clock, options: BoardOptions, camera=None, log=None):
+    def __init__(self, bus: Bus, driver, clock, options: BoardOptions, camera=None, log=None, gate: Gate | None = None):
         self.bus, self.driver, self.clock, self.opt, self.camera = bus, driver, clock, options, camera
+        # signed commands and heartbeats, bodies bound to keys (edge.trust); no verifier = --insecure
+        self.gate = gate or Gate(bus.fleet, options.uav, None)
         self.log = log
         self.uav = options.uav
         self.lock = threading.RLock()
@@ -112,15 +116,18 @@ class Board:
         for j in sorted(self.neighbourhood):
             bus.subscribe(keys.state(fleet, j), self._on_state, expect=VehicleState, link=TELEMETRY,
                           budget=for_topic("state"))
-        bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=Heartbeat, link=COMMAND,
+        bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=(Heartbeat, Signed), link=COMMAND,
                       budget=for_topic("heartbeat"))
-        bus.serve(keys.cmd(fleet, self.uav), self.handle_command, expect=COMMAND_TYPES)
+        bus.serve(keys.cmd(fleet, self.uav), self.handle_command, expect=(*COMMAND_TYPES, Signed))
         bus.token(keys.alive(fleet, self.uav))
         bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
 
     # -- inputs (Zenoh callback threads)
     def _on_state(self, msg: Message, sample) -> None:
         assert isinstance(msg, VehicleState)
+        if not self.gate.body_matches(str(sample.key_expr), msg):
+            self._refused("body.mismatch", f"a state saying UAV {msg.uav} on {sample.key_expr}")
+            return
         if msg.uav in self.neighbourhood:
             rx = time.time()
             # a stamp from a clock ahead of ours reads as no transit time; one far behind makes the state
@@ -139,7 +146,17 @@ class Board:
             self.event("neighbour-lost", f"UAV {uav} left SkyNet (liveliness lost)", Level.WARNING, neighbour=uav)
 
     def _on_heartbeat(self, msg: Message, sample) -> None:
+        refused = self.gate.heartbeat(msg)
+        if refused is not None:  # only a verified heartbeat resets the failsafe timer
+            self._refused(f"heartbeat.{refused.reason.value}", f"heartbeat refused: {refused}")
+            return
         self.last_heartbeat = time.time()
+
+    def _refused(self, what: str, text: str) -> None:
+        """A rate-limited ``trust-refused`` event (edge.trust counts every refusal)."""
+        n = self.gate.report(what)
+        if n:
+            self.event("trust-refused", text, Level.WARNING, what=what, count=n)
 
     def event(self, kind: str, text: str, level: Level = Level.INFO, **data) -> None:
         self.event_pub.put(Event(source=f"uav/{self.uav}", stamp=time.time(), kind=kind, level=level, text=text,
@@ -149,12 +166,18 @@ class Board:
 
     # -- commands
     def handle_command(self, cmd: Message) -> CommandAck:
+        signed = isinstance(cmd, Signed)
+        try:
+            cmd = self.gate.command(cmd)  # before anything else
+        except TrustError as exc:
+            self._refused(f"command.{exc.reason.value}", f"command refused: {exc}")
+            return CommandAck(uav=self.uav, cmd_id=command_id(cmd), accepted=False, reason=f"trust: {exc}")
         reason = validate_command(cmd, self.uav, self.opt.geofence, self.opt.max_speed)
         if reason:
             return self._ack(cmd, False, reason)
         try:
             with self.lock:
-                self._apply(cmd)
+                self._apply(cmd, signed)
         except ValueError as exc:
             return self._ack(cmd, False, str(exc))
         return self._ack(cmd, True, "")
@@ -164,13 +187,13 @@ class Board:
             self.event("command-rejected", f"{cmd.kind} #{cmd.cmd_id}: {reason}", Level.WARNING)
         return CommandAck(uav=self.uav, cmd_id=cmd.cmd_id, accepted=accepted, reason=reason)
 
-    def _apply(self, cmd: Message) -> None:
+    def _apply(self, cmd: Message, signed: bool = False) -> None:
         d = self.driver
         if isinstance(cmd, UploadTrajectory):
             d.upload(cmd.trajectory)
             self.trajectory, self.follower = cmd.trajectory, Follower(cmd.trajectory)
-            if cmd.geofence is not None and self.opt.geofence is None:
-                self.opt.geofence = cmd.geofence
+            if cmd.geofence is not None and self.opt.geofence is None and signed:
+                self.opt.geofence = cmd.geofence  # a signed mission's fence; never an unsigned uploader's
         elif isinstance(cmd, Takeoff):
             d.takeoff(cmd.altitude)
         elif isinstance(cmd, Start):
@@ -323,6 +346,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--imagery-cache", type=cache_frames, default=IMAGERY_CACHE_FRAMES, metavar="N",
                         help="capture frames kept for retransmission to a detector that lost them "
                              "(0: no recovery, capture frames are best-effort like previews)")
+    sec = parser.add_argument_group("trust (issue 11; see edge.trust)")
+    sec.add_argument("--trust-window", type=float, default=10.0, metavar="S",
+                     help="signed commands and heartbeats stamped further than this from now are stale")
+    sec.add_argument("--mesh-uavs", type=int, default=None, metavar="N",
+                     help="UAVs 1..N may link to this edge (ACL by certificate; default: those of --keys)")
+    sec.add_argument("--insecure", action="store_true",
+                     help="accept unsigned commands and heartbeats, no TLS, no ACL (development only)")
     return parser
 
 
@@ -344,9 +374,13 @@ def main(argv: list[str] | None = None) -> int:
                         failsafe_escalate_after_s=args.failsafe_escalate_after, battery_low=args.battery_low,
                         battery_critical=args.battery_critical,
                         formation_gain=args.formation_gain, formation_size=args.formation_size)
-    with Bus(config_from_args(args), fleet=args.fleet, name=f"uav{args.uav}") as bus:
+    from .trust import secure_setup
+
+    gate, acl = secure_setup(args, log)
+    with Bus(config_from_args(args, role=f"uav{args.uav}", access_control=acl), fleet=args.fleet,
+             name=f"uav{args.uav}") as bus:
         camera = make_camera(args, bus, log)
-        board = Board(bus, driver, clock, opts, camera=camera, log=log)
+        board = Board(bus, driver, clock, opts, camera=camera, log=log, gate=gate)
         log.info("board up: uav %d, %s driver, camera %s, speed x%g", args.uav, args.vehicle, args.camera, args.speed)
         period = 1.0 / args.rate
         next_t = time.monotonic()

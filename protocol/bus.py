@@ -69,6 +69,10 @@ class BusConfig(BaseModel):
     user: str | None = Field(default=None, description="transport/auth/usrpwd/user")
     password: SecretStr | None = Field(default=None, description="transport/auth/usrpwd/password; never shown")
     cfg: list[tuple[str, str]] = Field(default=[], description="KEY, JSON5 VALUE pairs applied last (--cfg)")
+    tls_ca: str | None = Field(default=None, description="transport/link/tls/root_ca_certificate (mutual TLS on)")
+    tls_cert: str | None = Field(default=None, description="this node's certificate (common name = its role)")
+    tls_key: str | None = Field(default=None, description="its private key")
+    access_control: dict[str, Any] | None = Field(default=None, description="zenoh access_control (default deny)")
 
     def to_zenoh(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
@@ -77,7 +81,8 @@ class BusConfig(BaseModel):
             conf.insert_json5(path, json.dumps(value))
 
         put("mode", self.mode)
-        if self.listen:
+        if self.listen or self.tls_ca is not None:
+            # with TLS, no listen endpoint means none: not zenoh's default plaintext tcp/[::]:0 of peers
             put("listen/endpoints", self.listen)
         if self.connect:
             endpoints: list[Any] = list(self.connect)
@@ -106,6 +111,14 @@ class BusConfig(BaseModel):
             # path by path, so that a dictionary_file from config_file stays
             put("transport/auth/usrpwd/user", self.user)
             put("transport/auth/usrpwd/password", self.password.get_secret_value())
+        if self.tls_ca is not None:
+            # mutual TLS on tls/ links, both as listener and as dialler (issue 11): every link presents the
+            # node's certificate and checks the other's against the fleet CA; ACL subjects are common names
+            put("transport/link/tls", {"root_ca_certificate": self.tls_ca, "enable_mtls": True,
+                                       "listen_certificate": self.tls_cert, "listen_private_key": self.tls_key,
+                                       "connect_certificate": self.tls_cert, "connect_private_key": self.tls_key})
+        if self.access_control is not None:
+            put("access_control", self.access_control)
         for key, value in self.cfg:
             try:
                 conf.insert_json5(key, value)
@@ -148,10 +161,19 @@ def add_bus_args(parser: argparse.ArgumentParser, mode: Mode = "peer") -> None:
     g.add_argument("--scouting", action="store_true", help="enable multicast scouting")
     g.add_argument("--user", default=None, help="user name for the gateway's user/password authentication")
     g.add_argument("--password", default=None, help=f"its password (or set {PASSWORD_ENV})")
+    g.add_argument("--keys", default=None, metavar="DIR",
+                   help="fleet key set (skynet keys init): this node's TLS certificate for tls/ endpoints, "
+                        "signing and trusted keys")
 
 
-def config_from_args(args: argparse.Namespace, **overrides: Any) -> BusConfig:
+def config_from_args(args: argparse.Namespace, role: str | None = None, **overrides: Any) -> BusConfig:
+    """The session config of a service's arguments; with ``--keys`` and its ``role``, mutual TLS."""
     user = getattr(args, "user", None)
+    if getattr(args, "keys", None) and role is not None:
+        from .keyset import KeySet
+
+        ks = KeySet(args.keys, role)
+        overrides = {"tls_ca": str(ks.ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key), **overrides}
     values = dict(
         mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config,
         lease_s=args.lease, multilink=args.multilink, shared_memory=args.shm,

@@ -207,6 +207,20 @@ class Heartbeat(Message):
     stamp: Seconds
 
 
+class Signed(Message):
+    """An end-to-end signed envelope around a command or heartbeat (see :mod:`protocol.signing`)."""
+
+    TYPE: ClassVar[str] = "signed"
+    signer: Annotated[str, Field(min_length=1, max_length=64)]
+    kid: Annotated[str, Field(pattern=r"^[0-9a-f]{16}$")] = Field(description="signer key id")
+    seq: Seq = Field(description="strictly increasing per signer and addressee")
+    stamp: Seconds = Field(description="wall-clock UNIX time of signing, s")
+    to: Short = Field(description="the addressee: the key expression it is sent on")
+    type: Short = Field(description="wire tag of the inner message")
+    body: Annotated[str, Field(max_length=12 * 1024 * 1024)] = Field(description="the inner message's codec bytes, base64")
+    sig: Annotated[str, Field(max_length=128)] = Field(description="Ed25519 signature, base64")
+
+
 # ----------------------------------------------------------------------------- planning
 class PlanRequest(Message):
     TYPE: ClassVar[str] = "plan.request"
@@ -356,7 +370,7 @@ class Event(Message):
 MESSAGE_TYPES: dict[str, type[Message]] = {
     m.TYPE: m
     for m in (
-        VehicleState, Waypoint, Trajectory, Box, *COMMAND_TYPES, CommandAck, Heartbeat,
+        VehicleState, Waypoint, Trajectory, Box, *COMMAND_TYPES, CommandAck, Heartbeat, Signed,
         PlanRequest, CapturePoint, MissionPlan, ErrorReply, Intrinsics, ImageMeta, Defect,
         FrameEvidence, DefectReport, ClassCounters, LinkStats, Event,
     )

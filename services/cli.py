@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("services.recording.replay", "play a recorded mission (MCAP) back onto the bus"),
     "demo": ("services.demo", "gateway + a demo publisher/subscriber pair, printing what flows"),
     "schema": ("protocol.contract", "print the wire contract: key space, link classes, envelope, JSON Schemas"),
+    "keys": ("services.keys", "development fleet PKI: CA, per-node TLS certificates and signing keys"),
 }
 
 

@@ -31,7 +31,13 @@ A service that exits by itself (a crash, not a fault's kill) is restarted by the
 logged and, in a mission, recorded as a fault (``restart``) in the report. The network is never
 stopped because one service ended.
 
-``--secure`` turns on the gateway's authentication and access control: random passwords for
+Secure by default (issue 11, :mod:`services.trustmode`): a development key set (``--keys DIR``, else
+``.keys/dev``), mutual TLS on a TLS multilink pair, access control by certificate common name on the
+gateway and on each edge, commands and heartbeats signed by the ground station; proxied runs keep
+plaintext TCP/UDP links (signed commands only); ``--insecure`` turns everything off.
+
+``--secure`` (the older mode, no TLS and unsigned commands) turns on the gateway's authentication and
+access control: random passwords for
 ``gcs``, ``planner``, ``detector`` and ``uav1..N`` in a private temporary folder (removed at the
 end), the gateway started with ``--users`` and ``--acl``, each service with ``--user`` and its
 password in ``SKYNET_PASSWORD``, the edges with the UAVs' dictionary (``--config``, see
@@ -64,7 +70,8 @@ from protocol.bus import (
 )
 
 from .faults import FaultInjector, Resolved, cut_links, plan_faults
-from .process import ProcessGroup, free_port_pair
+from . import trustmode
+from .process import ProcessGroup, free_port, free_port_pair
 from .restart import RestartTracker
 from .topology import (
     CLASSES,
@@ -149,8 +156,9 @@ class Network:
         self.log_dir = log_dir
         #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}
         self.proxies: dict[str, dict] = {}
-        tcp, udp = free_port_pair()
-        self.gateway_endpoints = multilink_endpoints(HOST, tcp, udp)
+        #: TLS, certificate ACL, signed commands: secure by default (services.trustmode, issue 11)
+        self.trust = trustmode.resolve(args, proxied=bool(self.plan.proxied))
+        self.gateway_endpoints = self.endpoint_pair()
         self.edge_endpoints: dict[int, list[str]] = {}
         self.epoch = time.time() + 3.0
         self.tmp = Path(tempfile.mkdtemp(prefix="skynet-net-"))
@@ -169,6 +177,15 @@ class Network:
             self.creds = generate(self.tmp / "creds", users)
 
     # -- links
+    def endpoint_pair(self) -> list[str]:
+        """A node's listen endpoints: the TLS pair, or TCP + UDP."""
+        if self.trust.tls:
+            return trustmode.tls_endpoints(HOST, free_port(), free_port())
+        return multilink_endpoints(HOST, *free_port_pair())
+
+    def key_args(self) -> list[str]:
+        return [] if self.trust.keys is None else ["--keys", str(self.trust.keys)]
+
     def _proxy_pair(self, link: str, target: list[str]) -> list[str]:
         """Start the TCP and UDP proxies of ``link`` in front of ``target`` (a multilink endpoint
         pair); the endpoints to connect to instead."""
@@ -210,7 +227,7 @@ class Network:
             args += ["--connect", e]
         if self.creds is not None:
             args += ["--user", name]
-        return args
+        return args + self.key_args()
 
     def client_config(self) -> Path:
         """The zenoh config of the clients (planner, detector, ground station) when links are proxied:
@@ -264,7 +281,19 @@ class Network:
         """The in-process ground station's session."""
         creds = {} if self.creds is None else {"user": "gcs", "password": self.creds.passwords["gcs"]}
         lease = {"lease_s": GATEWAY_LEASE_S, "config_file": str(self.client_config())} if self.plan.proxied else {}
-        return BusConfig(mode="client", connect=self.endpoints_for("gcs"), multilink=True, **creds, **lease)
+        tls = {}
+        if self.trust.keys is not None and self.trust.tls:
+            from protocol.keyset import KeySet
+            ks = KeySet(self.trust.keys, "gcs")
+            tls = {"tls_ca": str(ks.ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
+        return BusConfig(mode="client", connect=self.endpoints_for("gcs"), multilink=True, **creds, **lease, **tls)
+
+    def gcs_signer(self):
+        """The ground station's signer (None: --insecure / --secure, unsigned commands)."""
+        if self.trust.keys is None:
+            return None
+        from protocol.keyset import KeySet
+        return KeySet(self.trust.keys, "gcs").signer()
 
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9)."""
@@ -296,10 +325,13 @@ class Network:
 
     def start(self) -> None:
         a = self.args
+        for w in self.trust.warnings:
+            logging.getLogger("skynet.launcher").warning("%s", w)
         secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
         lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
         thin = self.gateway_config()
         gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease, *thin,
+                                          *self.key_args(),
                                           *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
         if not gw.wait_for(READY["gateway"], 30):
             raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
@@ -308,7 +340,7 @@ class Network:
         hz = getattr(a, "preview_hz", None)
         preview = [] if hz is None else ["--preview-hz", str(hz)]
         for i in range(1, a.uavs + 1):
-            self.edge_endpoints[i] = multilink_endpoints(HOST, *free_port_pair())
+            self.edge_endpoints[i] = self.endpoint_pair()
         for i, home in enumerate(self.homes(a.uavs), start=1):
             self.start_service(f"uav{i}", [
                 "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
@@ -449,7 +481,12 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "detector" + ("|gcs" if prog == "mission" else "") + ", partition uavI-uavJ|uavN|skynet; "
                         "AT from the " + ("mission phase" if prog == "mission" else "network start"))
     p.add_argument("--secure", action="store_true",
-                   help="gateway authentication and access control, with generated per-service passwords")
+                   help="the older user/password mode: gateway authentication and access control with generated "
+                        "per-service passwords, no TLS, unsigned commands (default: TLS, certificate ACL, signed)")
+    p.add_argument("--keys", default=None, metavar="DIR",
+                   help=f"fleet key set (skynet keys init); default: a development set in {trustmode.DEFAULT_KEYS}")
+    p.add_argument("--insecure", action="store_true",
+                   help="no TLS, no access control, unsigned commands: development only")
     p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
                    help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:5600+2(n-1)")
     p.add_argument("--video-sdp", default="sdp", help="folder of the video streams' SDP files (with --video)")
@@ -474,6 +511,8 @@ def main(argv: list[str] | None = None) -> int:
     if (args.video or args.web) and args.secure:
         parser.error("--video and --web have no role in the access control yet: not with --secure")
     log = setup_logging(prog)
+    if args.insecure and args.secure:
+        parser.error("--insecure and --secure exclude each other")
     stop = stop_event_on_signals()
     if prog == "up":
         net = Network(args, plan=plan)
@@ -514,6 +553,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     try:
         net.start()
         cfg = net.gcs_config()
+        hooks_signer = net.gcs_signer()
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                                  speed=args.speed)
         injector = net.start_faults(log)
@@ -536,7 +576,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
                 hooks["on_runner"] = lambda runner: (before and before(runner), follow_runner(view, runner))
             try:
                 code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
-                                   ground_truth=args.camera == "synthetic", **hooks)
+                                   ground_truth=args.camera == "synthetic", signer=hooks_signer, **hooks)
             finally:
                 if web_server is not None:
                     web_server.stop()

@@ -48,7 +48,7 @@ import threading
 import time
 from collections import Counter
 
-from protocol import codec, keys
+from protocol import binding, codec, keys
 from protocol.budget import for_topic
 from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.imagery import split_payload
@@ -134,6 +134,13 @@ class DetectorService:
         if len(payload) == 0:  # a camera's announce frame (edge.runtime.CameraLink.announce)
             self.counts["announce"] += 1
             return
+        try:  # bodies bound to keys (issue 11): a camera speaks only for its own UAV
+            bound = binding.matches(str(sample.key_expr), parse_ssrc(header.ssrc)[0])
+        except ValueError:
+            bound = False
+        if not bound:
+            self.counts[binding.MISMATCH] += 1
+            return
         self.counts["frames"] += 1
         with self._lock:
             if self.recovery is not None:
@@ -178,8 +185,8 @@ class DetectorService:
                 self.pub.put(DefectReport(uav=uav, capture_id=0, stamp_capture=0.0, stamp_report=time.time(),
                                           method=self.method, ok=False, error=f"bad metadata: {exc}"[:500]))
             return
-        if meta.uav != parse_ssrc(frame.ssrc)[0]:
-            self.counts["bad-meta"] += 1  # metadata naming another UAV than the camera that sent it
+        if meta.uav != parse_ssrc(frame.ssrc)[0]:  # the metadata must name the camera's own UAV
+            self.counts[binding.MISMATCH] += 1
             return
         report = analyse(meta, image, self.method)
         # the evidence the ground station counts a capture on: which frame, and a digest of its image bytes
@@ -259,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     log = setup_logging("detector")
     stop = stop_event_on_signals()
-    with Bus(config_from_args(args), fleet=args.fleet, name="detector") as bus:
+    with Bus(config_from_args(args, role="detector"), fleet=args.fleet, name="detector") as bus:
         svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log,
                               recover=not args.no_recovery, save_frames=args.save_frames)
         log.info("detector up: method %s, %d workers, recovery %s", args.method, args.workers,

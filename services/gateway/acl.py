@@ -31,8 +31,12 @@ of a matching subscriber would not send at all. The data itself is checked both 
 The rules are per UAV: user ``uav3`` gets a subject of its own whose rules name
 ``skynet/F/uav/3/...``, so one UAV cannot publish another's state or answer its commands through
 the gateway. The gateway's own session (its statistics, its traffic meter) is inside the router
-and is not filtered. Links that the UAV peers open directly to each other (SkyNet) do not pass
-through the router and are not filtered either: the UAV mesh is trusted.
+and is not filtered. With user/password authentication, links that the UAV peers open directly to
+each other (SkyNet) do not pass through the router and are not filtered: the UAV mesh is trusted.
+With mutual TLS (issue 11, :func:`cert_access_control`) the same rules have subjects by certificate
+common name and every edge enforces them too, for the gateway and the other UAVs: a UAV may put
+only its own keys on the mesh as well, and nothing else (a ground station, a planner) may link to
+an edge at all.
 
 Zenoh matches a message against a rule when the rule's key expression *includes* the message's
 (a subscriber on ``skynet/F/**/event`` needs a rule on ``skynet/F/**``), and ``**`` does not match
@@ -256,7 +260,7 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
     raise ValueError(f"unknown role {role!r}; expected one of {ROLES}")
 
 
-def access_control(fleet: str, principals: Iterable[Principal]) -> dict[str, Any]:
+def access_control(fleet: str, principals: Iterable[Principal], by: str = "usernames") -> dict[str, Any]:
     """The router's ``access_control`` object: default deny, one subject per UAV id and per role.
 
     Parameters
@@ -266,6 +270,9 @@ def access_control(fleet: str, principals: Iterable[Principal]) -> dict[str, Any
     principals : iterable of Principal
         The users and their roles (:func:`assign_roles`). Users without a principal get no
         subject: the default (deny) applies to them.
+    by : str
+        What names a subject: ``usernames`` (user/password authentication) or
+        ``cert_common_names`` (mutual TLS: the certificate's common name is the role, issue 11).
 
     Returns
     -------
@@ -281,6 +288,8 @@ def access_control(fleet: str, principals: Iterable[Principal]) -> dict[str, Any
     ['uav1']
     """
     keys.fleet_root(fleet)  # validates the fleet name
+    if by not in ("usernames", "cert_common_names"):
+        raise ValueError(f"subjects by usernames or cert_common_names, not {by!r}")
     members: dict[str, list[Principal]] = {}
     for p in principals:
         if not isinstance(p, Principal):
@@ -297,7 +306,18 @@ def access_control(fleet: str, principals: Iterable[Principal]) -> dict[str, Any
                           "key_exprs": list(g.key_exprs)})
             ids.append(rid)
         usernames = sorted({p.user for p in ps})
-        subjects.append({"id": subject, "usernames": usernames})
+        subjects.append({"id": subject, by: usernames})
         policies.append({"id": f"{subject}-policy", "rules": ids, "subjects": [subject]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
+
+
+def cert_access_control(fleet: str, names: Iterable[str]) -> dict[str, Any]:
+    """The ``access_control`` of a mutual-TLS node: subjects by certificate common name (= role name).
+
+    The gateway lists every node of the fleet; an edge lists the gateway and the other UAVs, the
+    nodes that may link to it (SkyNet): a UAV may then put only its own keys on the mesh too, and
+    anything else that reaches an edge directly (a ground station, an attacker with some certificate)
+    is denied everything.
+    """
+    return access_control(fleet, [role_of(n) for n in names], by="cert_common_names")

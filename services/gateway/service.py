@@ -136,8 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     if not listen and not args.config:
         listen = multilink_endpoints(args.host, 7447, 7448)
         multilink = True
-    base = config_from_args(args, listen=listen, multilink=multilink)
-    config = GatewayConfig(**dict(base), **security_options(args, log))
+    base = config_from_args(args, role="gateway", listen=listen, multilink=multilink)
+    config = GatewayConfig(**{**dict(base), **security_options(args, log)})
+    if args.keys and config.access_control is None and listen and all(e.startswith("tls/") for e in listen):  # mutual TLS: ACL by certificate common name (issue 11)
+        from protocol.keyset import KeySet
+        names = ["gcs", "planner", "detector", "gateway", *(f"uav{i}" for i in KeySet(args.keys, "gateway").uavs())]
+        config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
+        log.info("mutual TLS on tls/ links; ACL by certificate common name for %s", ", ".join(names))
     stop = stop_event_on_signals()
     meter = TrafficMeter()
     with Bus(config, fleet=args.fleet, name="gateway") as bus:

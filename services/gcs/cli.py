@@ -28,7 +28,7 @@ from .supervision import FRESH_STATE_S
 
 
 def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None, ground_truth: bool = True, on_runner=None, record: bool = True) -> int:
+                abort=None, ground_truth: bool = True, on_runner=None, record: bool = True, signer=None) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
 
     With ``out`` and ``record``, everything on the fleet's keys is also logged to ``out/mission.mcap``
@@ -62,7 +62,8 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         from services.recording.recorder import Recorder
 
         recorder = Recorder(bus, Path(out) / "mission.mcap", log)
-    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort, journal=journal)
+    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort, journal=journal,
+                           signer=signer)
     if on_runner is not None:
         on_runner(runner)
     root = logging.getLogger()
@@ -142,7 +143,13 @@ def main(argv: list[str] | None = None) -> int:
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
-    with Bus(config_from_args(args), fleet=args.fleet, name="gcs") as bus:
+    signer = None
+    if args.keys:  # commands and heartbeats signed end to end (issue 11)
+        from protocol.keyset import KeySet
+        signer = KeySet(args.keys, "gcs").signer()
+    else:
+        log.warning("INSECURE: commands and heartbeats go unsigned (no --keys)")
+    with Bus(config_from_args(args, role="gcs"), fleet=args.fleet, name="gcs") as bus:
         hooks, server = {}, None
         if args.web:  # services.web: the live page, fed by this session
             from services.web.service import follow_runner, start_web
@@ -151,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
             hooks["on_runner"] = lambda runner: follow_runner(view, runner)
         try:
             return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
-                               ground_truth=not args.no_ground_truth, record=not args.no_record, **hooks)
+                               ground_truth=not args.no_ground_truth, record=not args.no_record, signer=signer,
+                               **hooks)
         finally:
             if server is not None:
                 server.stop()

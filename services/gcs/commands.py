@@ -68,8 +68,12 @@ def not_sent(cmd, reason: str) -> CommandRecord:
                          reason=f"not sent: {reason}", attempts=0, elapsed_s=0.0)
 
 
-def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = time.sleep) -> CommandRecord:
+def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = time.sleep,
+         signer=None) -> CommandRecord:
     """Send one command to ``cmd.uav`` with retries and back-off; a refusal is final (not retried).
+
+    With a ``signer`` (:class:`protocol.signing.Signer`) each try is signed afresh, so it carries a
+    new sequence number and the edge's replay window never refuses a retry (issue 11).
 
     Returns the :class:`CommandRecord`: ``ok`` when a :class:`CommandAck` came back (``accepted``
     and ``reason`` are its own), else the last try's error after ``policy.attempts`` tries;
@@ -78,7 +82,9 @@ def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = ti
     t0 = time.monotonic()
     acks, reason = [], ""
     for attempt, backoff in enumerate(policy.pauses(), 1):
-        reply = bus.request(keys.cmd(bus.fleet, cmd.uav), cmd, expect=CommandAck, timeout=policy.timeout_s)
+        key = keys.cmd(bus.fleet, cmd.uav)
+        payload = cmd if signer is None else signer.sign(cmd, key)
+        reply = bus.request(key, payload, expect=CommandAck, timeout=policy.timeout_s)
         if reply.ok:
             acks.append(reply.elapsed_s)
             ack = reply.message

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-from protocol import keys
+from protocol import binding, keys
 from protocol.budget import for_topic
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
@@ -123,8 +123,9 @@ class Snapshot:
 class MissionRunner:
     def __init__(self, bus: Bus, scenario: Scenario, options: MissionOptions,
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
-                 abort: threading.Event | None = None, journal=None):
+                 abort: threading.Event | None = None, journal=None, signer=None):
         self.bus, self.opt, self.log = bus, options, log
+        self.signer = signer  # protocol.signing.Signer: commands and heartbeats signed end to end (issue 11)
         self.abort = abort or threading.Event()
         scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
@@ -158,6 +159,9 @@ class MissionRunner:
 
     # -- recording (Zenoh callback threads: short)
     def _on_state(self, msg, sample) -> None:
+        if not binding.matches(str(sample.key_expr), msg.uav):  # a node speaking for another: refused
+            self.bus.counters.reject(str(sample.key_expr), binding.MISMATCH)
+            return
         now = time.time()
         with self._lock:
             self.recorder.add("states", StateRx(rx=now, msg=msg))
@@ -169,6 +173,9 @@ class MissionRunner:
         return self._sup.latest
 
     def _on_event(self, msg, sample) -> None:
+        if not binding.matches(str(sample.key_expr), None, msg.source):
+            self.bus.counters.reject(str(sample.key_expr), binding.MISMATCH)
+            return
         with self._lock:
             self.recorder.add("events", EventRx(rx=time.time(), msg=msg))
         if self.log and msg.level != "info":
@@ -294,7 +301,7 @@ class MissionRunner:
             rec = not_sent(cmd, f"UAV {cmd.uav} is lost (no liveliness token since "
                                 f"{self.mission_time(lost[cmd.uav])})")
         else:
-            rec = send(self.bus, cmd, self._retry)
+            rec = send(self.bus, cmd, self._retry, signer=self.signer)
         with self._lock:
             self.recorder.add("commands", rec)
         return rec
@@ -327,11 +334,16 @@ class MissionRunner:
             commands = list(self.record.commands)
         return start_margin(commands, self.opt.start_margin_s)
 
+    def _beat(self, seq: int) -> None:
+        """Publish one heartbeat, signed when the runner has a signer (only a verified one holds off a failsafe)."""
+        hb = Heartbeat(source="gcs", seq=seq, stamp=time.time())
+        self._hb_pub.put(hb if self.signer is None else self.signer.sign(hb, self._hb_pub.key))
+
     def heartbeat(self) -> None:
         period = 1.0 / self.opt.heartbeat_hz
         seq = 0
         while not self._hb_stop.wait(period):
-            self._hb_pub.put(Heartbeat(source="gcs", seq=seq, stamp=time.time()))
+            self._beat(seq)
             seq += 1
             self.record.heartbeats_sent = seq
 
@@ -434,7 +446,7 @@ class MissionRunner:
                 for u in d.resume:
                     # a board resumes only after a heartbeat newer than its failsafe (edge.failsafe): one goes just
                     # ahead of the Resume, on the same reliable link
-                    self._hb_pub.put(Heartbeat(source="gcs", seq=self.record.heartbeats_sent, stamp=time.time()))
+                    self._beat(self.record.heartbeats_sent)
                     rec = self.command(lambda cid, uav=u: Resume(uav=uav, cmd_id=cid))
                     with self._lock:
                         self._note(self._sup.on_resumed(u, rec, time.time()))

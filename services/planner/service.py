@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     log = setup_logging("planner")
     stop = stop_event_on_signals()
-    with Bus(config_from_args(args), fleet=args.fleet, name="planner") as bus:
+    with Bus(config_from_args(args, role="planner"), fleet=args.fleet, name="planner") as bus:
 
         def handle(req: PlanRequest) -> MissionPlan:
             t0 = time.perf_counter()

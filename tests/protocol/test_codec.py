@@ -30,6 +30,8 @@ SAMPLES = [
     m.SetFormation(uav=1, cmd_id=8, offsets={1: (0, 0, 2), 2: (3, 0, -1), 3: (-3, 0, -1)}),
     m.CommandAck(uav=1, cmd_id=8, accepted=False, reason="outside geofence"),
     m.Heartbeat(seq=3, stamp=1.7e9),
+    m.Signed(signer="gcs", kid="0123456789abcdef", seq=1, stamp=1.7e9, to="skynet/demo/uav/1/cmd", type="cmd.land",
+             body="AAAA", sig="AAAA"),
     m.PlanRequest(scenario={"name": "x", "origin": {"lat": 1, "lon": 2}, "box": {"lo": [0, 0, 0], "hi": [10, 10, 40]},
                             "start": [1, 1, 10], "goal": [9, 9, 10]}, seed=3),
     m.CapturePoint(capture_id=0, uav=1, pos=(1, 2, 3), look=(1, 0, 0), t=4.0),

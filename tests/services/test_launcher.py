@@ -33,6 +33,11 @@ def test_mission_through_the_launcher(tmp_path):
         assert (out / name).stat().st_size > 0, name
     md = (out / "report.md").read_text()
     assert all(f"({p})" in md for p in PLOTS)
+    # secure by default (issue 11): mutual TLS, ACL by certificate on the gateway and every edge, signed commands
+    services = (out / "services.log").read_text()
+    assert "ACL by certificate common name" in services and "INSECURE" not in services, services[-3000:]
+    assert all(f"mutual TLS as uav{i}" in services for i in (1, 2, 3))
+    assert not any(e["kind"] == "trust-refused" for e in report.get("events", []) if isinstance(e, dict))
 
 
 def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():

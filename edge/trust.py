@@ -1,0 +1,147 @@
+"""The board's gatekeeper: signed commands and heartbeats checked before anything else, bodies bound to keys.
+
+Pure (no bus code); :class:`edge.board.Board` calls it first thing in its command handler and its
+heartbeat and state callbacks:
+
+* :meth:`Gate.command` — with a verifier (secure mode) a command must be a
+  :class:`~protocol.messages.Signed` envelope from a trusted signer, addressed to this UAV's
+  ``cmd`` key, fresh and not replayed (:mod:`protocol.signing`); it returns the verified inner
+  command or raises :class:`~protocol.signing.TrustError`. Without one (``--insecure``) it
+  passes plain commands through and refuses envelopes it cannot check.
+* :meth:`Gate.heartbeat` — True only for a heartbeat that verifies: only those reset the failsafe
+  timer, so a forger sending heartbeats does not hold the failsafe off.
+* :meth:`Gate.body_matches` — a state/event/report whose ``uav`` field is not the one in its key
+  expression is refused (a node cannot speak for another, issue 11 item 4).
+
+Every refusal is counted per reason (``refused``), and :meth:`Gate.report` rate-limits the events
+the board raises about them (one per reason per :data:`EVENT_PERIOD_S`, with the count since the
+last), so a flood of forgeries cannot become a flood of events.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from typing import Any
+
+from protocol import keys
+from protocol.messages import COMMAND_TYPES, Heartbeat, Message, Signed
+from protocol.signing import Refusal, TrustError, Verifier
+
+#: at most one event per refusal reason per this many seconds
+EVENT_PERIOD_S = 1.0
+
+
+class Gate:
+    """Trust checks of one UAV's board; ``verifier=None`` is the insecure mode."""
+
+    def __init__(self, fleet: str, uav: int, verifier: Verifier | None, clock=time.monotonic):
+        self.fleet, self.uav, self.verifier = fleet, uav, verifier
+        self.cmd_key = keys.cmd(fleet, uav)
+        self.heartbeat_key = keys.heartbeat(fleet)
+        self.refused: collections.Counter[str] = collections.Counter()
+        self._reported: dict[str, tuple[float, int]] = {}  # reason -> (last event time, count then)
+        self._clock = clock
+        self._lock = threading.Lock()
+
+    @property
+    def secure(self) -> bool:
+        return self.verifier is not None
+
+    def _count(self, what: str) -> None:
+        with self._lock:
+            self.refused[what] += 1
+
+    def command(self, msg: Message) -> Message:
+        """The command to act on; raises :class:`TrustError` (counted) when it must be refused."""
+        try:
+            if self.verifier is None:
+                if isinstance(msg, Signed):
+                    raise TrustError(Refusal.UNKNOWN_SIGNER, "signed command but this board has no trusted keys")
+                return msg
+            return self.verifier.verify(msg, self.cmd_key, COMMAND_TYPES).message
+        except TrustError as exc:
+            self._count(f"command.{exc.reason.value}")
+            raise
+
+    def heartbeat(self, msg: Message) -> TrustError | None:
+        """None when ``msg`` is a heartbeat that may reset the failsafe timer, else why not (counted)."""
+        if self.verifier is None:
+            return None if isinstance(msg, Heartbeat) else TrustError(Refusal.UNKNOWN_SIGNER, "no trusted keys")
+        try:
+            self.verifier.verify(msg, self.heartbeat_key, Heartbeat)
+            return None
+        except TrustError as exc:
+            self._count(f"heartbeat.{exc.reason.value}")
+            return exc
+
+    def body_matches(self, key: str, msg: Message) -> bool:
+        """Whether the ``uav`` of ``msg`` is the UAV its key names (counted as ``body.mismatch`` if not)."""
+        try:
+            ok = keys.parse(key).uav == getattr(msg, "uav", None)
+        except keys.KeyError_:
+            ok = False
+        if not ok:
+            self._count("body.mismatch")
+        return ok
+
+    def report(self, what: str) -> int:
+        """How many refusals of ``what`` to report now (0: stay quiet, an event went out recently)."""
+        now = self._clock()
+        with self._lock:
+            total = self.refused[what]
+            last = self._reported.get(what)
+            if last is not None and now - last[0] < EVENT_PERIOD_S:
+                return 0
+            self._reported[what] = (now, total)
+            return total - (last[1] if last else 0)
+
+    def counters(self) -> dict[str, Any]:
+        with self._lock:
+            return dict(self.refused)
+
+
+def command_id(msg: Message) -> int:
+    """The ``cmd_id`` to acknowledge a refused message with (unverified: only for the sender's bookkeeping)."""
+    cmd_id = getattr(msg, "cmd_id", None)
+    if isinstance(cmd_id, int):
+        return cmd_id
+    if isinstance(msg, Signed):
+        import base64
+
+        from protocol import codec
+        try:
+            inner = codec.decode(base64.b64decode(msg.body), COMMAND_TYPES)
+            return int(getattr(inner, "cmd_id", 0))
+        except Exception:  # a refused envelope may hold anything
+            return 0
+    return 0
+
+
+def secure_setup(args, log=None) -> tuple[Gate, dict | None]:
+    """The edge's gate and access control from its options: ``--keys DIR`` (verifier with the persisted
+    replay window of ``DIR/uavN/replay.json``, ACL by certificate common name), or ``--insecure``.
+
+    Without either the board runs insecure and says so loudly (``skynet up``/``mission`` always
+    give one or the other).
+    """
+    if not getattr(args, "keys", None) or getattr(args, "insecure", False):
+        if log:
+            log.warning("INSECURE: uav%d obeys unsigned commands and heartbeats from anyone on the bus%s",
+                        args.uav, "" if getattr(args, "insecure", False) else " (no --keys given)")
+        return Gate(args.fleet, args.uav, None), None
+    from protocol.keyset import KeySet
+    from services.gateway.acl import cert_access_control
+
+    ks = KeySet(args.keys, f"uav{args.uav}")
+    verifier = ks.verifier(stale_s=args.trust_window)
+    n = args.mesh_uavs or max([args.uav, *ks.uavs()])
+    peers = ["gateway", *(f"uav{i}" for i in range(1, n + 1))]
+    endpoints = [*args.listen, *args.connect]
+    tls = bool(endpoints) and all(e.startswith("tls/") for e in endpoints)
+    if log:
+        log.info("trust: commands signed by %s, replay window %s; %s", ", ".join(ks.trusted()) or "nobody",
+                 ks.replay_file, f"mutual TLS as uav{args.uav}, ACL by certificate for {', '.join(peers)}" if tls
+                 else "links without TLS: no certificate ACL (commands and heartbeats still verified)")
+    return Gate(args.fleet, args.uav, verifier), cert_access_control(args.fleet, peers) if tls else None

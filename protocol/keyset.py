@@ -1,0 +1,105 @@
+"""A fleet key set on disk: where each node finds its TLS certificate, its signing key and whom it trusts.
+
+Layout (written by ``skynet keys init DIR``, :mod:`services.keys`)::
+
+    DIR/ca.pem                  the fleet CA certificate (every node: TLS trust anchor)
+    DIR/ca/ca.key               the CA's private key (stays with whoever issues certificates)
+    DIR/<role>/tls.pem, tls.key the node's TLS certificate (common name = role) and its key
+    DIR/<role>/sign.key         the node's Ed25519 signing key (only the gcs key signs commands)
+    DIR/<role>/sign.pub         its public half
+    DIR/trust/<signer>.pub      public keys whose signatures the UAVs accept (the ground station's)
+    DIR/revoked.txt             revoked key ids (:func:`protocol.signing.key_id`), one per line
+
+``role`` is ``gateway``, ``gcs``, ``planner``, ``detector`` or ``uavN``. A node on a real vehicle
+gets only ``ca.pem``, its own ``<role>/`` folder, ``trust/`` and ``revoked.txt``. Rotation is a new
+key set in place (no code change); a key listed in ``revoked.txt`` is refused even while still in
+``trust/``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
+
+from .signing import ReplayStore, Signer, Verifier, load_public
+
+_ROLE = re.compile(r"^(gateway|gcs|planner|detector|uav([1-9][0-9]{0,2}))$")
+_KID = re.compile(r"^[0-9a-f]{16}$")
+
+
+def check_role(role: str) -> str:
+    m = _ROLE.match(role or "")
+    if not m or (m.group(2) and int(m.group(2)) > 255):
+        raise ValueError(f"role must be gateway, gcs, planner, detector or uav1..uav255, got {role!r}")
+    return role
+
+
+@dataclass(frozen=True)
+class KeySet:
+    """One node's view of a key set folder."""
+
+    root: Path
+    role: str
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "root", Path(self.root))
+        check_role(self.role)
+        if not self.ca.is_file():
+            raise ValueError(f"{self.root}: not a key set (no ca.pem; make one with `skynet keys init {self.root}`)")
+
+    @property
+    def ca(self) -> Path:
+        return self.root / "ca.pem"
+
+    @property
+    def node(self) -> Path:
+        return self.root / self.role
+
+    @property
+    def tls_cert(self) -> Path:
+        return self.node / "tls.pem"
+
+    @property
+    def tls_key(self) -> Path:
+        return self.node / "tls.key"
+
+    @property
+    def replay_file(self) -> Path:
+        """Where this node keeps its replay window (next to its keys: survives a restart)."""
+        return self.node / "replay.json"
+
+    def uavs(self) -> list[int]:
+        """The UAV ids with a folder in this key set."""
+        return sorted(int(p.name[3:]) for p in self.root.glob("uav*") if p.is_dir() and p.name[3:].isdigit())
+
+    def signer(self) -> Signer:
+        return Signer.from_file(self.role, self.node / "sign.key")
+
+    def trusted(self) -> dict[str, list[Ed25519PublicKey]]:
+        """Trusted signers: ``trust/<signer>.pub`` and ``trust/<signer>.<anything>.pub`` (rotation overlap)."""
+        out: dict[str, list[Ed25519PublicKey]] = {}
+        for path in sorted((self.root / "trust").glob("*.pub")):
+            out.setdefault(path.name.split(".")[0], []).append(load_public(path))
+        return out
+
+    def revoked(self) -> set[str]:
+        path = self.root / "revoked.txt"
+        if not path.exists():
+            return set()
+        out = set()
+        for n, raw in enumerate(path.read_text().splitlines(), start=1):
+            line = raw.split("#", 1)[0].strip()
+            if not line:
+                continue
+            if not _KID.match(line):
+                raise ValueError(f"{path} line {n}: expected a 16-hex-digit key id, got {line!r}")
+            out.add(line)
+        return out
+
+    def verifier(self, stale_s: float | None = None, persist: bool = True) -> Verifier:
+        """A verifier of the trusted signers, with this node's persisted replay window."""
+        kw = {} if stale_s is None else {"stale_s": stale_s}
+        return Verifier(self.trusted(), self.revoked(), ReplayStore(self.replay_file if persist else None), **kw)

@@ -1,0 +1,209 @@
+"""``skynet keys``: a development fleet PKI.
+
+``skynet keys init DIR [--uavs N]`` writes a CA, and per node (``gateway``, ``gcs``, ``planner``,
+``detector``, ``uav1``..``uavN``) a TLS certificate whose common name is the role (ECDSA P-256,
+SANs ``<role>``, ``localhost`` and ``127.0.0.1``, server and client usage, signed by the CA) and an
+Ed25519 signing key pair; the ground station's public key goes to ``trust/`` (what the UAVs accept).
+Layout: :mod:`protocol.keyset`. Private keys are written mode 0600. An existing key set is kept
+unless ``--force`` (rotation: install a new set, restart the nodes).
+
+``skynet keys revoke DIR KEYID|PUBFILE`` appends a key id to ``revoked.txt``;
+``skynet keys show DIR`` lists the nodes, their key ids and certificate expiry.
+
+This is for development and tests: on real vehicles the CA key lives offline with the operator
+(README, "Trust").
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import ipaddress
+import os
+import re
+import shutil
+from pathlib import Path
+
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+from protocol.keyset import KeySet, check_role
+from protocol.signing import key_id, load_public
+
+#: the roles every key set has, besides the UAVs
+SERVICE_ROLES = ("gateway", "gcs", "planner", "detector")
+#: who signs what the UAVs obey
+COMMAND_SIGNERS = ("gcs",)
+VALID_DAYS = 365
+
+
+def roles(uavs: int) -> list[str]:
+    if not 1 <= uavs <= 255:
+        raise ValueError("--uavs must be in 1..255")
+    return [*SERVICE_ROLES, *(f"uav{i}" for i in range(1, uavs + 1))]
+
+
+def _is_role(name: str) -> bool:
+    try:
+        check_role(name)
+        return True
+    except ValueError:
+        return False
+
+
+def _write(path: Path, data: bytes, private: bool = False) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600 if private else 0o644)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+
+
+def _pem_private(key) -> bytes:
+    return key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                             serialization.NoEncryption())
+
+
+def _pem_public(key) -> bytes:
+    return key.public_bytes(serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo)
+
+
+def _name(cn: str) -> x509.Name:
+    return x509.Name([x509.NameAttribute(NameOID.ORGANIZATION_NAME, "SkyNet Inspect dev fleet"),
+                      x509.NameAttribute(NameOID.COMMON_NAME, cn)])
+
+
+def make_ca(now: dt.datetime, days: int = VALID_DAYS):
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = _name("SkyNet Inspect dev CA")
+    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
+            .serial_number(x509.random_serial_number()).not_valid_before(now - dt.timedelta(minutes=5))
+            .not_valid_after(now + dt.timedelta(days=days))
+            .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+            .add_extension(x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True,
+                                         content_commitment=False, key_encipherment=False, data_encipherment=False,
+                                         key_agreement=False, encipher_only=False, decipher_only=False), critical=True)
+            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+            .sign(key, hashes.SHA256()))
+    return key, cert
+
+
+def make_node_cert(role: str, ca_key, ca_cert, now: dt.datetime, days: int = VALID_DAYS, hosts: tuple[str, ...] = ()):
+    """A TLS key and certificate with common name ``role``, for both ends of a mutual-TLS link."""
+    key = ec.generate_private_key(ec.SECP256R1())
+    sans: list[x509.GeneralName] = [x509.DNSName(role), x509.DNSName("localhost"),
+                                    x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]
+    for h in hosts:
+        try:
+            sans.append(x509.IPAddress(ipaddress.ip_address(h)))
+        except ValueError:
+            sans.append(x509.DNSName(h))
+    cert = (x509.CertificateBuilder().subject_name(_name(role)).issuer_name(ca_cert.subject)
+            .public_key(key.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(now - dt.timedelta(minutes=5)).not_valid_after(now + dt.timedelta(days=days))
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(x509.SubjectAlternativeName(sans), critical=False)
+            .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+                           critical=False)
+            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
+            .sign(ca_key, hashes.SHA256()))
+    return key, cert
+
+
+def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VALID_DAYS,
+         hosts: tuple[str, ...] = ()) -> Path:
+    """Write a complete development key set to ``folder`` (see :mod:`protocol.keyset`)."""
+    folder = Path(folder)
+    if (folder / "ca.pem").exists():
+        if not force:
+            raise ValueError(f"{folder} already holds a key set (use --force to replace it)")
+        for sub in ("ca", "trust", *(p.name for p in folder.iterdir() if p.is_dir() and _is_role(p.name))):
+            shutil.rmtree(folder / sub, ignore_errors=True)
+    folder.mkdir(parents=True, exist_ok=True)
+    os.chmod(folder, 0o700)
+    now = dt.datetime.now(dt.timezone.utc)
+    ca_key, ca_cert = make_ca(now, days)
+    _write(folder / "ca" / "ca.key", _pem_private(ca_key), private=True)
+    _write(folder / "ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM))
+    for role in roles(uavs):
+        key, cert = make_node_cert(role, ca_key, ca_cert, now, days, hosts)
+        _write(folder / role / "tls.key", _pem_private(key), private=True)
+        _write(folder / role / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
+        sk = Ed25519PrivateKey.generate()
+        _write(folder / role / "sign.key", _pem_private(sk), private=True)
+        _write(folder / role / "sign.pub", _pem_public(sk.public_key()))
+        if role in COMMAND_SIGNERS:
+            _write(folder / "trust" / f"{role}.pub", _pem_public(sk.public_key()))
+    if not (folder / "revoked.txt").exists():
+        _write(folder / "revoked.txt", b"# revoked signing key ids (skynet keys revoke), one per line\n")
+    return folder
+
+
+def ensure(folder: str | Path, uavs: int) -> Path:
+    """Reuse the key set in ``folder`` if it covers ``uavs`` UAVs, else make a new one."""
+    folder = Path(folder)
+    if (folder / "ca.pem").exists() and all((folder / r / "tls.pem").exists() for r in roles(uavs)):
+        return folder
+    return init(folder, uavs, force=True)
+
+
+def revoke(folder: str | Path, what: str) -> str:
+    """Add a key id (or the id of a public key file) to ``revoked.txt``; returns the id."""
+    kid = key_id(load_public(what)) if Path(what).is_file() else what.strip().lower()
+    if not re.fullmatch(r"[0-9a-f]{16}", kid):
+        raise ValueError(f"expected a 16-hex-digit key id or a public key file, got {what!r}")
+    KeySet(folder, "gcs")  # validates the folder
+    path = Path(folder) / "revoked.txt"
+    text = path.read_text() if path.exists() else ""
+    path.write_text(text + f"{kid}\n")
+    return kid
+
+
+def show(folder: str | Path) -> list[str]:
+    folder = Path(folder)
+    lines = []
+    for node in sorted(p for p in folder.iterdir() if p.is_dir() and (p / "tls.pem").exists()):
+        check_role(node.name)
+        cert = x509.load_pem_x509_certificate((node / "tls.pem").read_bytes())
+        cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+        lines.append(f"{node.name:10} CN={cn:10} sign key {key_id(load_public(node / 'sign.pub'))}  "
+                     f"TLS until {cert.not_valid_after_utc:%Y-%m-%d}")
+    ks = KeySet(folder, "gcs")
+    lines.append(f"trusted signers: {', '.join(f'{n} ({len(k)} key)' for n, k in ks.trusted().items()) or 'none'}")
+    lines.append(f"revoked: {', '.join(sorted(ks.revoked())) or 'none'}")
+    return lines
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="skynet keys", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="action", required=True)
+    p = sub.add_parser("init", help="write a development key set (CA, per-node TLS certificates and signing keys)")
+    p.add_argument("dir")
+    p.add_argument("--uavs", type=int, default=3)
+    p.add_argument("--days", type=int, default=VALID_DAYS, help="certificate validity")
+    p.add_argument("--host", action="append", default=[], help="extra SAN (address or name) on every certificate")
+    p.add_argument("--force", action="store_true", help="replace an existing key set (rotation)")
+    p = sub.add_parser("revoke", help="refuse a signing key from now on")
+    p.add_argument("dir")
+    p.add_argument("key", help="key id (16 hex digits) or a public key file")
+    p = sub.add_parser("show", help="list the nodes, key ids and certificate expiry")
+    p.add_argument("dir")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.action == "init":
+        folder = init(args.dir, args.uavs, args.force, args.days, tuple(args.host))
+        print(f"key set written to {folder} (CA key in {folder / 'ca' / 'ca.key'}: keep it off the vehicles)")
+    elif args.action == "revoke":
+        print(f"revoked {revoke(args.dir, args.key)}")
+    else:
+        print("\n".join(show(args.dir)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
