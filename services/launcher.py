@@ -458,6 +458,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
         p.add_argument("--algorithm", default="theta-pso")
+        p.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap")
     return p
 
 
@@ -534,7 +535,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
                 hooks["on_runner"] = lambda runner: (before and before(runner), follow_runner(view, runner))
             try:
                 code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
-                                   ground_truth=args.camera == "synthetic", **hooks)
+                                   ground_truth=args.camera == "synthetic", record=not args.no_record, **hooks)
             finally:
                 if web_server is not None:
                     web_server.stop()

@@ -91,9 +91,12 @@ class McapLog:
             self._schemas[name] = self._w.register_schema(name, "jsonschema", json.dumps(schema).encode())
         return self._schemas[name]
 
-    def _channel(self, topic: str, encoding: str, schema_name: str = "", schema: dict | None = None) -> int:
+    def _channel(self, topic: str, encoding: str, schema_name: str = "", schema=None) -> int:
+        """The channel id; ``schema`` is a JSON Schema dict or a callable making one (called once)."""
         k = (topic, encoding, schema_name)
         if k not in self._channels:
+            if callable(schema) and schema_name not in self._schemas:
+                schema = schema()
             sid = self._schema(schema_name, schema) if schema is not None else 0
             self._channels[k] = self._w.register_channel(topic, encoding, sid)
         return self._channels[k]
@@ -120,7 +123,7 @@ class McapLog:
 
     def write_message(self, topic: str, msg: Message, rx_s: float) -> None:
         cls = type(msg)
-        ch = self._channel(topic, "json", f"skynet.{cls.__name__}", cls.model_json_schema())
+        ch = self._channel(topic, "json", f"skynet.{cls.__name__}", cls.model_json_schema)
         stamp = getattr(msg, "stamp", None)
         self._add(ch, rx_s, msg.model_dump_json().encode(), stamp if isinstance(stamp, float) else None)
 
