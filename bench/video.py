@@ -4,7 +4,9 @@ A gateway and a ``skynet video`` process run as in a deployment; this script pub
 preview streams (320x240 colour, numbered with a bar code, ``--hz`` pictures a second each) on
 the bus, and decodes UAV 1's stream from its SDP file with FFmpeg (PyAV), as a player would.
 Latency = the wall time a picture comes out of the decoder minus its capture stamp (the same
-clock: one machine). CPU = the video process's user+system time over the run, per stream.
+clock: one machine). Two H.264 receivers: FFmpeg's SDP demuxer (its H.264 parser releases a
+picture only when the next one begins: one picture period more), and GStreamer's rtph264depay
+(releases each access unit on the RTP marker bit) into FFmpeg's decoder. CPU = the video process's user+system time over the run, per stream.
 
     .venv/bin/python bench/video.py [--seconds 20] [--out bench/results/video.json]
 """
@@ -13,7 +15,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import statistics
+import subprocess
 import sys
 import threading
 import time
@@ -42,7 +46,38 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run(codec: str, uavs: int, seconds: float, hz: float, tmp: Path) -> dict:
+def gst_receiver(port: int, stamps: dict, lat: list, stop: threading.Event) -> subprocess.Popen:
+    """GStreamer's rtph264depay (one access unit per buffer, on the marker bit) into FFmpeg's decoder
+    without its parser: what a marker-driven player (GStreamer, as QGroundControl uses) waits for."""
+    import av
+
+    proc = subprocess.Popen([shutil.which("gst-launch-1.0"), "-q", "udpsrc", f"port={port}",
+                             "caps=application/x-rtp,media=video,clock-rate=90000,encoding-name=H264,payload=96", "!",
+                             "rtph264depay", "!", "video/x-h264,stream-format=byte-stream,alignment=au", "!",
+                             "fdsink", "fd=1", "sync=false"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    dec = av.CodecContext.create("h264", "r")
+    dec.flags |= av.codec.context.Flags.low_delay
+
+    def read() -> None:
+        while not stop.is_set():
+            au = proc.stdout.read1(1 << 20)  # fdsink writes one buffer (one access unit) per write
+            if not au:
+                return
+            try:
+                frames = dec.decode(av.Packet(au))
+            except av.error.FFmpegError:
+                continue  # before the first keyframe
+            for frame in frames:
+                now = time.time()
+                n = read_number(frame.to_ndarray(format="bgr24"))
+                if n in stamps:
+                    lat.append(now - stamps[n])
+
+    threading.Thread(target=read, daemon=True).start()
+    return proc
+
+
+def run(codec: str, uavs: int, seconds: float, hz: float, tmp: Path, receiver: str = "ffmpeg") -> dict:
     import av
 
     group = ProcessGroup(echo=None)
@@ -78,7 +113,12 @@ def run(codec: str, uavs: int, seconds: float, hz: float, tmp: Path) -> dict:
                     if stop.is_set():
                         return
 
-        rx = threading.Thread(target=receive, daemon=True)
+        gst = None
+        if receiver == "gstreamer":
+            gst = gst_receiver(base, stamps, lat, stop)
+            rx = threading.Thread(target=lambda: None)
+        else:
+            rx = threading.Thread(target=receive, daemon=True)
         rx.start()
         jpegs = [cv2.imencode(".jpg", picture(i), [cv2.IMWRITE_JPEG_QUALITY, 85])[1].tobytes() for i in range(256)]
         with Bus(BusConfig(mode="client", connect=ends, multilink=True), "bench", "uavs") as bus:
@@ -103,8 +143,11 @@ def run(codec: str, uavs: int, seconds: float, hz: float, tmp: Path) -> dict:
             wall = time.monotonic() - t0
             stop.set()
         rx.join(3)
+        if gst is not None:
+            gst.kill()
+            gst.wait()
         lat_ms = sorted(1000 * x for x in lat)
-        return {"codec": codec, "uavs": uavs, "hz": hz, "pictures": i, "decoded": len(lat),
+        return {"codec": codec, "receiver": receiver, "uavs": uavs, "hz": hz, "pictures": i, "decoded": len(lat),
                 "latency_ms_p50": round(statistics.median(lat_ms), 1) if lat_ms else None,
                 "latency_ms_p95": round(lat_ms[int(0.95 * (len(lat_ms) - 1))], 1) if lat_ms else None,
                 "cpu_percent_total": round(100 * cpu / wall, 1), "cpu_percent_per_stream": round(100 * cpu / wall / uavs, 1)}
@@ -122,9 +165,11 @@ def main() -> int:
 
     tmp = Path(tempfile.mkdtemp(prefix="bench-video-"))
     rows = [run(codec, uavs, args.seconds, args.hz, tmp) for codec in ("h264", "mjpeg") for uavs in (1, 3)]
-    print(f"{'codec':6} {'uavs':>4} {'pics':>5} {'decoded':>7} {'lat p50 ms':>10} {'lat p95 ms':>10} {'CPU %/stream':>12}")
+    if shutil.which("gst-launch-1.0"):
+        rows += [run("h264", uavs, args.seconds, args.hz, tmp, receiver="gstreamer") for uavs in (1, 3)]
+    print(f"{'codec':6} {'receiver':9} {'uavs':>4} {'pics':>5} {'decoded':>7} {'lat p50 ms':>10} {'lat p95 ms':>10} {'CPU %/stream':>12}")
     for r in rows:
-        print(f"{r['codec']:6} {r['uavs']:>4} {r['pictures']:>5} {r['decoded']:>7} {r['latency_ms_p50']!s:>10} "
+        print(f"{r['codec']:6} {r['receiver']:9} {r['uavs']:>4} {r['pictures']:>5} {r['decoded']:>7} {r['latency_ms_p50']!s:>10} "
               f"{r['latency_ms_p95']!s:>10} {r['cpu_percent_per_stream']:>12}")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps({"seconds": args.seconds, "hz": args.hz, "rows": rows}, indent=2))

@@ -3,7 +3,7 @@
 One subscription on ``skynet/<fleet>/**`` (states, events, defect reports, statistics, the
 heartbeat, capture and preview frames; ``@adv`` recovery traffic and liveliness tokens are not
 samples of the key space and are not logged) hands each sample with its receive time to a
-bounded drop-oldest ring; the ring's thread writes it (:class:`~services.recording.mcap_log.McapLog`),
+bounded drop-oldest ring (one for imagery frames, one for the rest); the rings' threads write it (:class:`~services.recording.mcap_log.McapLog`),
 so the Zenoh callback never waits for the disk and memory stays bounded (ring + one chunk). What
 the ring had to drop is counted and written in the file's ``skynet.recorder`` metadata.
 
@@ -27,9 +27,10 @@ from protocol import keys
 from protocol.bus import Bus, Ring
 from services.gcs.record import MissionRecord
 
-from .mcap_log import RECORD_TOPIC, McapLog
+from .mcap_log import RECORD_TOPIC, McapLog, is_imagery
 
-QUEUE_SAMPLES = 20_000  # ~20 s of a 12-UAV fleet's traffic; beyond it the oldest samples drop (counted)
+QUEUE_SAMPLES = 20_000  # small messages waiting for the disk (~20 s of a 12-UAV fleet's, a few MB)
+QUEUE_FRAMES = 256  # imagery frames waiting for the disk (640x480 JPEGs: ~15 MB); beyond either, the oldest drop
 RECEIVED_LISTS = ("states", "defects", "events", "gateway_stats", "detector_stats")
 
 
@@ -50,27 +51,35 @@ class MissionRecordSummary(BaseModel):
 
 
 class Recorder:
-    def __init__(self, bus: Bus, path: str | Path, log=None, queue: int = QUEUE_SAMPLES):
+    def __init__(self, bus: Bus, path: str | Path, log=None, queue: int = QUEUE_SAMPLES, frames: int = QUEUE_FRAMES):
         self.log = log
         self.mlog = McapLog(path)
         self.counts: Counter[str] = Counter()
         self.cpu_s = 0.0  # thread CPU time spent writing (the recording overhead)
+        self._lock = threading.Lock()  # one writer at a time; readers sort by log time (MCAP's index)
         self._ring = Ring(queue, self._write, name="recorder")
-        bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
+        self._frames = Ring(frames, self._write, name="recorder-frames")
         self._closed = threading.Event()
+        bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
 
     @property
     def path(self) -> Path:
         return self.mlog.path
 
+    @property
+    def dropped(self) -> int:
+        return self._ring.dropped + self._frames.dropped
+
     def _on_sample(self, sample) -> None:
         if not self._closed.is_set():
-            self._ring.push((str(sample.key_expr), sample.payload.to_bytes(), time.time()))
+            key = str(sample.key_expr)
+            (self._frames if is_imagery(key) else self._ring).push((key, sample.payload.to_bytes(), time.time()))
 
     def _write(self, item: tuple[str, bytes, float]) -> None:
         t0 = time.thread_time()
-        self.counts[self.mlog.write_sample(*item)] += 1
-        self.cpu_s += time.thread_time() - t0
+        with self._lock:
+            self.counts[self.mlog.write_sample(*item)] += 1
+            self.cpu_s += time.thread_time() - t0
 
     def finish(self, record: MissionRecord, lock: threading.Lock | None = None) -> MissionRecord:
         """Freeze ``record`` (its lists as they are now, under ``lock``), log the summary, close the file.
@@ -82,6 +91,7 @@ class Recorder:
             frozen = record.model_copy(update={name: list(getattr(record, name)) for name in RECEIVED_LISTS})
         self._closed.set()
         self._ring.close(timeout=60.0)
+        self._frames.close(timeout=60.0)
         windows = {}
         for name in RECEIVED_LISTS:
             items = getattr(frozen, name)
@@ -90,16 +100,17 @@ class Recorder:
                                        windows=windows)
         self.mlog.write_json(RECORD_TOPIC, "skynet.MissionRecordSummary", MissionRecordSummary.model_json_schema(),
                              summary.model_dump_json(), time.time())
-        self.mlog.metadata("skynet.recorder", {"fleet": frozen.fleet, "dropped": self._ring.dropped,
+        self.mlog.metadata("skynet.recorder", {"fleet": frozen.fleet, "dropped": self.dropped,
                                                "cpu_s": round(self.cpu_s, 3), **self.counts})
         self.mlog.close()
         if self.log:
             self.log.info("mission recorded to %s: %d messages, %d dropped", self.path, self.mlog.messages,
-                          self._ring.dropped)
+                          self.dropped)
         return frozen
 
     def close(self) -> None:
         """Close without a mission record (an interrupted run)."""
         self._closed.set()
         self._ring.close(timeout=60.0)
+        self._frames.close(timeout=60.0)
         self.mlog.close()
