@@ -148,6 +148,14 @@ class Signer:
                       body=_b64(body), sig=_b64(sig))
 
 
+def unverified_inner(msg: Message) -> Message:
+    """The message inside a :class:`Signed` envelope, decoded but NOT verified (for logs and their
+    readers, never for acting on it); any other message is returned as it is."""
+    if not isinstance(msg, Signed):
+        return msg
+    return codec.decode(_unb64(msg.body, "body"))
+
+
 # ----------------------------------------------------------------------------- replay window
 class ReplayStore:
     """The last accepted sequence per stream (``signer|addressee``), optionally persisted.

@@ -496,6 +496,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
         p.add_argument("--algorithm", default="theta-pso")
+        p.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap")
     return p
 
 
@@ -576,7 +577,8 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
                 hooks["on_runner"] = lambda runner: (before and before(runner), follow_runner(view, runner))
             try:
                 code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
-                                   ground_truth=args.camera == "synthetic", signer=hooks_signer, **hooks)
+                                   ground_truth=args.camera == "synthetic", signer=hooks_signer,
+                                   record=not args.no_record, **hooks)
             finally:
                 if web_server is not None:
                     web_server.stop()

@@ -59,11 +59,11 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         journal = check_output_folder(out) / "record.jsonl"  # RecordingError before anything flies
     recorder = None
     if out and record:  # before the runner subscribes, so the log holds every sample the runner gets
-        from services.recording.recorder import Recorder
+        from services.recording.recorder import Recorder, RecordingBus
 
         recorder = Recorder(bus, Path(out) / "mission.mcap", log)
-    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort, journal=journal,
-                           signer=signer)
+    runner = MissionRunner(bus if recorder is None else RecordingBus(bus, recorder), scenario, options,
+                           on_progress=progress, log=log, abort=abort, journal=journal, signer=signer)
     if on_runner is not None:
         on_runner(runner)
     root = logging.getLogger()

@@ -15,6 +15,10 @@ imagery frames          ``x-skynet-frame``   none (RTP + metadata + JPEG,       
 (camera, preview)                            :mod:`protocol.imagery`)
 previews, for viewers   ``json``             ``foxglove.CompressedImage`` (topic         Image
                                              ``<key>/jpeg``; JPEG base64 in ``data``)
+requests and replies    ``json``             the command / plan request model, and       Raw Messages
+(commands, acks, plan)                       CommandAck / MissionPlan / ErrorReply;
+                                             channel metadata ``skynet.kind`` =
+                                             ``query`` / ``reply``, topic = the key
 undecodable samples     ``x-skynet-raw``     none                                        none
 the mission record      ``json``             ``skynet.MissionRecordSummary`` (topic      Raw Messages
                                              ``/skynet/mission-record``, written last)
@@ -91,11 +95,18 @@ class McapLog:
             self._schemas[name] = self._w.register_schema(name, "jsonschema", json.dumps(schema).encode())
         return self._schemas[name]
 
-    def _channel(self, topic: str, encoding: str, schema_name: str = "", schema: dict | None = None) -> int:
-        k = (topic, encoding, schema_name)
+    def _channel(self, topic: str, encoding: str, schema_name: str = "", schema=None, kind: str = "sample") -> int:
+        """The channel id; ``schema`` is a JSON Schema dict or a callable making one (called once).
+
+        ``kind`` (channel metadata ``skynet.kind``): ``sample`` (a put on the key), ``query`` (a request
+        the ground station sent to the key's queryable) or ``reply`` (its answer).
+        """
+        k = (topic, encoding, schema_name, kind)
         if k not in self._channels:
+            if callable(schema) and schema_name not in self._schemas:
+                schema = schema()
             sid = self._schema(schema_name, schema) if schema is not None else 0
-            self._channels[k] = self._w.register_channel(topic, encoding, sid)
+            self._channels[k] = self._w.register_channel(topic, encoding, sid, {"skynet.kind": kind})
         return self._channels[k]
 
     def _add(self, channel: int, log_time_s: float, data: bytes, publish_time_s: float | None = None) -> None:
@@ -118,9 +129,9 @@ class McapLog:
         self.write_message(key, msg, rx_s)
         return "json"
 
-    def write_message(self, topic: str, msg: Message, rx_s: float) -> None:
+    def write_message(self, topic: str, msg: Message, rx_s: float, kind: str = "sample") -> None:
         cls = type(msg)
-        ch = self._channel(topic, "json", f"skynet.{cls.__name__}", cls.model_json_schema())
+        ch = self._channel(topic, "json", f"skynet.{cls.__name__}", cls.model_json_schema, kind)
         stamp = getattr(msg, "stamp", None)
         self._add(ch, rx_s, msg.model_dump_json().encode(), stamp if isinstance(stamp, float) else None)
 
@@ -161,6 +172,7 @@ class Logged:
     encoding: str
     schema: str
     data: bytes
+    kind: str = "sample"  # or "query" / "reply" (a request of the ground station and its answer)
 
     def message(self) -> Message | None:
         """The typed message of a ``json`` channel (None for frames, raw samples and viewer channels)."""
@@ -178,12 +190,14 @@ def read(path: str | Path, topics: list[str] | None = None) -> Iterator[Logged]:
     with open(path, "rb") as f:
         for schema, channel, message in make_reader(f).iter_messages(topics=topics, log_time_order=True):
             yield Logged(channel.topic, message.log_time / 1e9, channel.message_encoding,
-                         schema.name if schema is not None else "", message.data)
+                         schema.name if schema is not None else "", message.data,
+                         channel.metadata.get("skynet.kind", "sample"))
 
 
 def bus_bytes(item: Logged) -> bytes | None:
-    """What to put back on the bus for a logged message; None for what is not a bus sample."""
-    if not item.topic.startswith(f"{keys.ROOT}/") or item.topic.endswith("/jpeg"):
+    """What to put back on the bus for a logged message; None for what is not a bus sample (viewer
+    channels, the mission record, and queries and replies: a replay never commands a UAV)."""
+    if not item.topic.startswith(f"{keys.ROOT}/") or item.topic.endswith("/jpeg") or item.kind != "sample":
         return None
     if item.encoding in (FRAME_ENCODING, RAW_ENCODING):
         return item.data

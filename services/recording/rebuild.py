@@ -15,7 +15,7 @@ from protocol.messages import DefectReport, Event, LinkStats, VehicleState
 from services.gcs.record import DefectRx, EventRx, MissionRecord, StateRx, StatsRx
 
 from .mcap_log import RECORD_TOPIC, read
-from .recorder import MissionRecordSummary
+from .recorder import MissionRecordSummary, Window
 
 
 class NotAMissionLog(ValueError):
@@ -65,16 +65,24 @@ def rebuild(path: str | Path) -> MissionRecord:
             lists[name].append(_WRAP[name](rx=item.rx, msg=msg))
     if summary is None:
         raise NotAMissionLog(f"{path}: no {RECORD_TOPIC} message (not a mission log, or the run was cut short)")
-    update = {}
-    for name, win in summary.windows.items():
-        items = lists[name]
-        start = 0
-        if win.first is not None:
-            first = type(items[0].msg).model_validate(win.first) if items else None
-            start = next((k for k, it in enumerate(items) if it.msg == first), None)
-            if start is None:
-                raise NotAMissionLog(f"{path}: the first of the record's {name} is not in the log")
-        update[name] = items[start:start + win.n]
-        if len(update[name]) != win.n:
-            raise NotAMissionLog(f"{path}: the log has {len(update[name])} of the record's {win.n} {name}")
+    return with_lists(summary, lists, str(path))
+
+
+def window(items: list, win: Window, what: str = "list", where: str = "the log") -> list:
+    """The part of ``items`` (received in order) that the ground station's record held."""
+    start = 0
+    if win.first is not None:
+        first = type(items[0].msg).model_validate(win.first) if items else None
+        start = next((k for k, it in enumerate(items) if it.msg == first), None)
+        if start is None:
+            raise NotAMissionLog(f"{where}: the first of the record's {what} is not there")
+    out = items[start:start + win.n]
+    if len(out) != win.n:
+        raise NotAMissionLog(f"{where} has {len(out)} of the record's {win.n} {what}")
+    return out
+
+
+def with_lists(summary: MissionRecordSummary, lists: dict[str, list], where: str = "the log") -> MissionRecord:
+    """The record of ``summary`` with its received lists cut from ``lists`` (a log's, or a replay's)."""
+    update = {name: window(lists.get(name, []), win, name, where) for name, win in summary.windows.items()}
     return summary.record.model_copy(update=update)

@@ -5,7 +5,8 @@ Every logged bus sample is put again on its key, in receive-time order, with its
 fast as possible). Order per key is the file's order: one thread puts every sample, and each key
 has one publisher. ``--fleet NAME`` replays under another fleet name (the key's second chunk is
 swapped), so a past mission can be watched beside a live one (``skynet web --fleet NAME``).
-Messages keep their own stamps (a viewer's "last heard" is the receive time, not the stamp).
+``--reliable`` sends everything reliably (best-effort telemetry
+replayed at 10x on a busy machine loses some states, as it would live). Messages keep their own stamps (a viewer's "last heard" is the receive time, not the stamp).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pathlib import Path
 
 from protocol import keys
 from protocol.bus import Bus, Publisher, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
-from protocol.links import class_of_topic
+from protocol.links import COMMAND, class_of_topic
 
 from .mcap_log import bus_bytes, read
 
@@ -38,8 +39,13 @@ def rename_fleet(key: str, fleet: str | None) -> str:
     return "/".join(parts)
 
 
-def replay(bus: Bus, path: str | Path, speed: float = 1.0, fleet: str | None = None, stop=None) -> Counter:
-    """Put the file's samples on ``bus``; returns counts per link class (and ``skipped``)."""
+def replay(bus: Bus, path: str | Path, speed: float = 1.0, fleet: str | None = None, stop=None,
+           reliable: bool = False) -> Counter:
+    """Put the file's samples on ``bus``; returns counts per link class (and ``skipped``).
+
+    ``reliable`` puts every sample on the command class (reliable, blocking) instead of its own
+    class: nothing is dropped, at the price of the live run's timing under load.
+    """
     if not (speed >= 0.0):
         raise ValueError(f"speed must be >= 0, got {speed!r}")
     pubs: dict[str, Publisher] = {}
@@ -61,7 +67,7 @@ def replay(bus: Bus, path: str | Path, speed: float = 1.0, fleet: str | None = N
             if delay > 0:
                 time.sleep(delay)
         if key not in pubs:
-            pubs[key] = bus.publisher(key, class_of_topic(topic))
+            pubs[key] = bus.publisher(key, COMMAND if reliable else class_of_topic(topic))
         pubs[key].put_bytes(data)
         counts[class_of_topic(topic).name] += 1
     return counts
@@ -73,6 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("file", help="an MCAP file written by the ground station (reports/.../mission.mcap)")
     parser.add_argument("--speed", type=float, default=1.0, help="times the recorded pace (0: as fast as possible)")
     parser.add_argument("--as-fleet", default=None, help="replay under this fleet name")
+    parser.add_argument("--reliable", action="store_true",
+                        help="every sample reliable and blocking (nothing dropped), not on its own link class")
     return parser
 
 
@@ -84,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     stop = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="replay") as bus:
         log.info("replay up: %s at %gx", args.file, args.speed)
-        counts = replay(bus, args.file, args.speed, args.as_fleet, stop)
+        counts = replay(bus, args.file, args.speed, args.as_fleet, stop, reliable=args.reliable)
         time.sleep(0.5)  # let the last samples leave before the session closes
         log.info("replayed: %s", dict(counts))
     return 0

@@ -86,14 +86,20 @@ def test_page_shows_moving_uavs_a_preview_and_the_defects(group, gateway) -> Non
             driver.get(f"http://127.0.0.1:{port}/")
             wait = WebDriverWait(driver, 30)
             wait.until(lambda d: d.find_element(By.ID, "conn").text == "live")
-            wait.until(lambda d: len(d.find_elements(By.CSS_SELECTOR, "#uavs tbody tr")) == 3)
+            wait.until(lambda d: d.execute_script("return document.querySelectorAll('#uavs tbody tr').length") == 3)
 
-            def position(uav: int) -> str:
-                return driver.find_element(By.CSS_SELECTOR, f'#uavs tr[data-uav="{uav}"] .pos').text
+            def cell(uav: int, what: str) -> str | None:
+                # one read in the page (the table is redrawn on every update: no element kept across updates)
+                return driver.execute_script(
+                    "const c = document.querySelector(`#uavs tr[data-uav='${arguments[0]}'] .${arguments[1]}`);"
+                    "return c ? c.textContent : null", uav, what)
+
+            def position(uav: int) -> str | None:
+                return cell(uav, "pos")
 
             first = position(2)
             wait.until(lambda d: position(2) != first)  # UAV 2 moves
-            assert driver.find_element(By.CSS_SELECTOR, '#uavs tr[data-uav="2"] .mode').text == "mission"
+            assert cell(2, "mode") == "mission"
             wait.until(lambda d: d.execute_script(
                 "const i = document.getElementById('preview-1'); return !!i && i.complete && i.naturalWidth === 320"))
             wait.until(lambda d: int(d.find_element(By.ID, "defect-count").text) >= 1)
