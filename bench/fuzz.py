@@ -68,7 +68,8 @@ def _messages() -> list[m.Message]:
         m.DefectReport(uav=1, capture_id=4, stamp_capture=1.7e9, stamp_report=1.7e9, method="it+",
                        frame=m.FrameEvidence(ssrc=ssrc_for(1), seq=9, digest="ab" * 32)),
         m.Event(source="uav/1", stamp=1.7e9, kind="failsafe", level=m.Level.WARNING, data={"x": 1.0}),
-        m.PlanRequest(scenario={"name": "x"}, seed=3, particles=20),
+        m.PlanRequest(scenario={"name": "x", "origin": {"lat": 1, "lon": 2}, "box": {"lo": [0, 0, 0], "hi": [10, 10, 40]},
+                      "start": [1, 1, 10], "goal": [9, 9, 10]}, seed=3, particles=20),
     ]
 
 

@@ -34,6 +34,7 @@ from protocol.imagery import pack_image
 from protocol.links import IMAGERY
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import RtpSender, ssrc_for
+from protocol.scenario import Scenario, load_scenario
 
 from .vehicle.driver import CaptureEvent, VehicleDriver
 
@@ -85,20 +86,22 @@ def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
     return MavlinkDriver(args.uav, args.mavlink, home=args.home)
 
 
-def synthetic_surface(scenario: dict, px_per_m: float | None = None, seed: int = SURFACE_SEED):
+def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: int = SURFACE_SEED):
     """The inspected wall of the scenario as a textured, cracked :class:`SyntheticSurface`."""
     from .surface import DEFAULT_PX_PER_M, SyntheticSurface
 
-    corners = np.asarray(scenario["surface"]["corners"], dtype=float)
+    if scenario.surface is None:
+        raise ValueError(f"scenario {scenario.name!r} has no [surface] to image")
+    corners = np.asarray(scenario.surface.corners, dtype=float)
     return SyntheticSurface.from_corners(corners, px_per_m=px_per_m or DEFAULT_PX_PER_M, seed=seed)
 
 
-def camera_model(scenario: dict, frame_size: tuple[int, int]):
+def camera_model(scenario: Scenario, frame_size: tuple[int, int]):
     """The scenario's camera delivering ``frame_size`` frames (the same field of view, fewer pixels)."""
     from .camera import CameraModel
 
-    cam = scenario["camera"]
-    return CameraModel(resolution=frame_size, sensor_mm=tuple(cam["sensor_mm"]), focal_mm=float(cam["focal_mm"]))
+    cam = scenario.camera
+    return CameraModel(resolution=frame_size, sensor_mm=cam.sensor_mm, focal_mm=cam.focal_mm)
 
 
 def camera_rotation(yaw: float) -> np.ndarray:
@@ -285,9 +288,7 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     from .camera import make_source
 
     w, h = (int(v) for v in args.frame_size.lower().split("x"))
-    from services.planner.scenario import load_scenario_document
-
-    scenario = load_scenario_document(args.scenario)
+    scenario = load_scenario(args.scenario)
     model = camera_model(scenario, (w, h))
     surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
     source = make_source(args.camera, surface=surface, camera=model)

@@ -31,6 +31,9 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from protocol.checks import finite_vec3 as _vec3
+from protocol.checks import positive as _positive
+
 __all__ = [
     "DEFAULT_PX_PER_M",
     "Defect",
@@ -413,23 +416,6 @@ class SurfaceDefect:
 
 #: Alias: the name the assignment uses for a ground-truth crack component.
 Defect = SurfaceDefect
-
-
-def _vec3(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be a finite 3-vector, got {value!r}")
-    return a
-
-
-def _positive(name: str, value: Any) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
 
 
 class SyntheticSurface:

@@ -16,6 +16,8 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from .scenario import Scenario
+
 # Bounds that no sane message exceeds: the fleet operates in boxes of a few km.
 MAX_COORD_M = 1.0e5
 MAX_SPEED_MS = 100.0
@@ -209,7 +211,7 @@ class Heartbeat(Message):
 class PlanRequest(Message):
     TYPE: ClassVar[str] = "plan.request"
     request_id: Annotated[int, Field(ge=0)] = 0
-    scenario: dict[str, Any] = Field(description="a scenario document (see services.planner)")
+    scenario: Scenario = Field(description="the whole planning problem (protocol.scenario)")
     algorithm: Short = "theta-pso"
     seed: Annotated[int, Field(ge=0)] = 0
     particles: Annotated[int, Field(ge=2, le=10000)] | None = None

@@ -52,6 +52,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from protocol import keys
 from protocol.bus import (
     PASSWORD_ENV,
     Bus,
@@ -81,7 +82,8 @@ from .topology import (
 
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
-READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up"}
+READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up", "video": "video up",
+         "web": "web up"}
 EDGE_READY = "board up"
 #: the link lease of the gateway and the clients (planner, detector, ground station) when links are
 #: proxied, s: the edges' own (edge.board, 2 s). Each side of
@@ -136,6 +138,7 @@ class Network:
     def __init__(self, args: argparse.Namespace, echo=sys.stdout, log_dir: Path | None = None,
                  ground_station: bool = False, plan: Plan | None = None):
         self.args = args
+        self.ground_station = ground_station
         self.plan = plan or make_plan(args, ground_station)
         #: transport/unicast/open_timeout of nodes whose links are proxied, ms (slower links, longer)
         self.open_timeout = open_timeout_ms(self.plan.impair.worst_delay_ms())
@@ -258,13 +261,13 @@ class Network:
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9)."""
         from edge.formation import offsets_for, rotation_of
-        from services.planner.scenario import load_scenario_document
+        from protocol.scenario import load_scenario
 
-        sc = load_scenario_document(self.args.scenario)
-        start, goal = sc["start"], sc["goal"]
+        sc = load_scenario(self.args.scenario)
+        start, goal = sc.start, sc.goal
         yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
         R = rotation_of(0.0, 0.0, yaw)
-        ground = sc["box"]["lo"][2]
+        ground = sc.box.lo[2]
         out = []
         for off in offsets_for(n):
             p = (R @ off)[:2]
@@ -293,6 +296,11 @@ class Network:
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
                                         *no_recovery])
+        if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
+            self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
+                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
+        if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
+            self.start_service("web", ["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -394,7 +402,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
     p.add_argument("--method", default="it+", help="the detector's method")
-    p.add_argument("--fleet", default="demo")
+    p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
     p.add_argument("--impair", action="append", default=[], metavar="NAME[/udp|/tcp]=SPEC",
                    help="netem impairment on a link or group of links (repeatable, later wins), e.g. "
@@ -410,6 +418,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "AT from the " + ("mission phase" if prog == "mission" else "network start"))
     p.add_argument("--secure", action="store_true",
                    help="gateway authentication and access control, with generated per-service passwords")
+    p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
+                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:5600+2(n-1)")
+    p.add_argument("--video-sdp", default="sdp", help="folder of the video streams' SDP files (with --video)")
+    p.add_argument("--web", default=None, metavar="[HOST]:PORT",
+                   help="serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)")
     if prog == "mission":
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
@@ -426,6 +439,8 @@ def main(argv: list[str] | None = None) -> int:
         plan = make_plan(args, ground_station=prog == "mission")
     except ValueError as e:
         parser.error(str(e))
+    if (args.video or args.web) and args.secure:
+        parser.error("--video and --web have no role in the access control yet: not with --secure")
     log = setup_logging(prog)
     stop = stop_event_on_signals()
     if prog == "up":
@@ -454,7 +469,7 @@ def main(argv: list[str] | None = None) -> int:
 def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan | None = None) -> int:
     from services.gcs.cli import run_mission as gcs_mission
     from services.gcs.mission import MissionOptions
-    from services.planner.scenario import load_scenario_document
+    from protocol.scenario import load_scenario
 
     from services.gcs.record import check_output_folder
 
@@ -462,7 +477,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     log_file = open(out / "services.log", "w")
     net = Network(args, echo=log_file, ground_station=True, plan=plan)
-    scenario = load_scenario_document(args.scenario)
+    scenario = load_scenario(args.scenario)
     try:
         net.start()
         cfg = net.gcs_config()
@@ -479,8 +494,19 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
         hooks = {"on_runner": on_runner}
         net.start_supervisor(log)
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
-            code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
-                               ground_truth=args.camera == "synthetic", **hooks)
+            web_server = None
+            if args.web:  # the live page in the ground station's process, with its plan (services.web)
+                from services.web.service import follow_runner, start_web
+
+                view, web_server = start_web(bus, args.web, scenario, log=log)
+                before = hooks.get("on_runner")
+                hooks["on_runner"] = lambda runner: (before and before(runner), follow_runner(view, runner))
+            try:
+                code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
+                                   ground_truth=args.camera == "synthetic", **hooks)
+            finally:
+                if web_server is not None:
+                    web_server.stop()
         if net.proxies:
             (out / "proxies.json").write_text(json.dumps(net.proxy_stats(), indent=1))
         if net.restarts:

@@ -20,15 +20,18 @@ from protocol.bus import (
     setup_logging,
     stop_event_on_signals,
 )
-from services.planner.scenario import load_scenario_document
+from protocol.scenario import Scenario, load_scenario
 
 from .mission import FRESH_STATE_S, MissionOptions, MissionRunner
 from .progress import LiveDisplay, render
 
 
-def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None, ground_truth: bool = True, on_runner=None) -> int:
+def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,
+                abort=None, ground_truth: bool = True, on_runner=None, record: bool = True) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
+
+    With ``out`` and ``record``, everything on the fleet's keys is also logged to ``out/mission.mcap``
+    (:mod:`services.recording`), from which the same report can be rebuilt.
 
     ``on_runner(runner)`` is called once, after the :class:`MissionRunner` is made and before it runs
     (the launcher's fault injector hooks in there: ``runner.note_fault``, ``runner.record.phases``).
@@ -57,6 +60,11 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
         from .record import check_output_folder
 
         journal = check_output_folder(out) / "record.jsonl"  # RecordingError before anything flies
+    recorder = None
+    if out and record:  # before the runner subscribes, so the log holds every sample the runner gets
+        from services.recording.recorder import Recorder
+
+        recorder = Recorder(bus, Path(out) / "mission.mcap", log)
     runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort, journal=journal)
     if on_runner is not None:
         on_runner(runner)
@@ -69,12 +77,18 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
     try:
         record = runner.run()
         progress(runner, force=True)
+    except BaseException:
+        if recorder is not None:
+            recorder.close()
+        raise
     finally:
         root.handlers = saved
     from services.gcs.ground_truth import attach_ground_truth
 
     if ground_truth:
         attach_ground_truth(record)
+    if recorder is not None:  # the report is written from the frozen record the file rebuilds
+        record = recorder.finish(record, runner._lock)
     if out:
         from .report import write_report
 
@@ -116,6 +130,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", default=None, help="report folder")
     m.add_argument("--quiet", action="store_true")
     m.add_argument("--appear-timeout", type=float, default=30.0)
+    m.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap")
+    m.add_argument("--web", default=None, metavar="[HOST]:PORT",
+                   help="serve the live web page of the fleet there (e.g. :8080; loopback unless a host is given)")
     m.add_argument("--no-ground-truth", action="store_true",
                    help="the edges do not image the synthetic wall (real cameras, image folders): no defect scoring")
     return parser
@@ -124,13 +141,23 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     log = setup_logging("gcs")
-    scenario = load_scenario_document(args.scenario)
+    scenario = load_scenario(args.scenario)
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="gcs") as bus:
-        return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
-                           ground_truth=not args.no_ground_truth)
+        hooks, server = {}, None
+        if args.web:  # services.web: the live page, fed by this session
+            from services.web.service import follow_runner, start_web
+
+            view, server = start_web(bus, args.web, scenario, log=log)
+            hooks["on_runner"] = lambda runner: follow_runner(view, runner)
+        try:
+            return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
+                               ground_truth=not args.no_ground_truth, record=not args.no_record, **hooks)
+        finally:
+            if server is not None:
+                server.stop()
 
 
 if __name__ == "__main__":

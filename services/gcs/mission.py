@@ -41,6 +41,7 @@ from protocol import keys
 from protocol.budget import for_topic
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
+from protocol.scenario import FormationSpec, Scenario
 from protocol.messages import (
     CommandAck,
     DefectReport,
@@ -80,21 +81,21 @@ FRESH_STATE_S = 1.0
 
 
 
-def with_formation_size(scenario: dict, n: int, log=None) -> dict:
+def with_formation_size(scenario: Scenario, n: int, log=None) -> Scenario:
     """The scenario with one formation offset per UAV of the mission (P9).
 
     A scenario written for three UAVs flown with two or five gets the offsets of
     :func:`edge.formation.offsets_for`, so the planner plans a trajectory for every UAV present.
     """
-    offsets = scenario.get("formation", {}).get("offsets")
-    if offsets is not None and len(offsets) == n:
+    if len(scenario.formation.offsets) == n:
         return scenario
     from edge.formation import offsets_for
 
-    new = [list(map(float, o)) for o in offsets_for(n)]
+    new = [tuple(map(float, o)) for o in offsets_for(n)]
     if log:
         log.info("formation of %d UAVs: offsets %s", n, new)
-    return {**scenario, "formation": {**scenario.get("formation", {}), "offsets": new}}
+    formation = FormationSpec(offsets=new, min_separation=scenario.formation.min_separation)
+    return scenario.model_copy(update={"formation": formation})
 
 
 class MissionFailed(Exception):
@@ -127,7 +128,7 @@ class MissionOptions:
 
 
 class MissionRunner:
-    def __init__(self, bus: Bus, scenario: dict, options: MissionOptions,
+    def __init__(self, bus: Bus, scenario: Scenario, options: MissionOptions,
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
                  abort: threading.Event | None = None, journal=None):
         self.bus, self.opt, self.log = bus, options, log
@@ -393,7 +394,7 @@ class MissionRunner:
             traj = {t.uav: t for t in plan.trajectories}
             self.command_all(lambda u, cid: UploadTrajectory(uav=u, cmd_id=cid, trajectory=traj[u],
                                                              geofence=plan.geofence), "its trajectory upload")
-            offsets = {u: tuple(map(float, o)) for u, o in zip(self.opt.uavs, self.record.scenario["formation"]["offsets"])}
+            offsets = dict(zip(self.opt.uavs, self.record.scenario.formation.offsets))
             self.command_all(lambda u, cid: SetFormation(uav=u, cmd_id=cid, offsets=offsets), "the formation")
             self.phase("takeoff")
             self.command_all(lambda u, cid: Takeoff(uav=u, cmd_id=cid, altitude=self.takeoff_altitude(u)), "takeoff")

@@ -31,6 +31,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from protocol.messages import DefectReport, Event, LinkStats, MissionPlan, VehicleState
+from protocol.scenario import Scenario
 
 #: A UAV reached its goal when, at the end of its trajectory (progress 1, before landing), it is
 #: this close to its last planned waypoint, m. The mission's verdict and the report both use it.
@@ -125,7 +126,7 @@ class GroundTruthDefect(BaseModel):
 class MissionRecord(BaseModel):
     model_config = ConfigDict(extra="forbid")
     fleet: str
-    scenario: dict[str, Any]
+    scenario: Scenario | None = Field(default=None, description="the mission's scenario (None: not known)")
     speed: float = Field(description="simulation speed factor of the run")
     started: float = Field(description="wall-clock UNIX time the mission started")
     ended: float = 0.0

@@ -35,7 +35,7 @@ not reported). A pause (hold, resume) therefore shows as a growing time-aligned 
 their state times inside the window where every UAV tracks), the heading ψ is that of the flown
 centroid's horizontal velocity averaged over 1 s (held at its last value while the centroid moves
 slower than 0.3 m/s; before the first such time, the first heading found) and :func:`edge.formation.formation_error` gives the RMS shape error (P6)-(P9) at each
-time, with the scenario's offsets (``scenario["formation"]["offsets"]``, row n−1 for UAV n) or
+time, with the scenario's offsets (``scenario.formation.offsets``, row n−1 for UAV n) or
 :data:`edge.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
 planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
 heading of the centroid's motion is not always the one the planner placed the slots with.
@@ -433,16 +433,7 @@ def _anchor(track: _Track, traj: Trajectory) -> float | None:
 
 
 def _offsets(record: MissionRecord, uavs: Iterable[int]) -> dict[int, NDArray[np.float64]]:
-    raw = (record.scenario.get("formation") or {}).get("offsets") if isinstance(record.scenario, dict) else None
-    if raw is None:
-        table = DEFAULT_OFFSETS
-    else:
-        try:
-            table = np.asarray(raw, dtype=float)
-        except (TypeError, ValueError):
-            table = np.zeros(0)
-        if table.ndim != 2 or table.shape[1] != 3 or not np.all(np.isfinite(table)):
-            raise ValueError("scenario formation.offsets must be a list of finite [x, y, z] offsets")
+    table = DEFAULT_OFFSETS if record.scenario is None else record.scenario.offsets
     return {u: np.array(table[u - 1]) for u in uavs if 1 <= u <= len(table)}
 
 
@@ -450,32 +441,16 @@ def _corners(record: MissionRecord) -> list[tuple[float, float, float]]:
     """The inspected surface's corners: the record's, else the scenario's ``surface.corners``."""
     if record.surface_corners:
         return [tuple(map(float, c)) for c in record.surface_corners]
-    surf = record.scenario.get("surface") if isinstance(record.scenario, dict) else None
-    raw = surf.get("corners") if isinstance(surf, dict) else None
-    if not raw:
+    if record.scenario is None or record.scenario.surface is None:
         return []
-    try:
-        c = np.asarray(raw, dtype=float)
-    except (TypeError, ValueError):
-        c = np.zeros(0)
-    if c.shape != (4, 3) or not np.all(np.isfinite(c)):
-        raise ValueError("scenario surface.corners must be four finite [x, y, z] points")
-    return [tuple(map(float, p)) for p in c]
+    return [tuple(map(float, p)) for p in record.scenario.surface.corners]
 
 
 def _obstacles(record: MissionRecord) -> list[tuple[float, float, float, float]]:
     """``(x, y, radius, height)`` of the scenario's vertical cylinders."""
-    out = []
-    for i, ob in enumerate(record.scenario.get("obstacles") or []):
-        try:
-            x, y = (float(c) for c in ob["centre"])
-            r, h = float(ob["radius"]), float(ob["height"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ValueError(f"scenario obstacles[{i}] needs centre [x, y], radius and height: {exc}") from None
-        if not all(math.isfinite(v) for v in (x, y, r, h)) or r <= 0:
-            raise ValueError(f"scenario obstacles[{i}] must be finite with a positive radius")
-        out.append((x, y, r, h))
-    return out
+    if record.scenario is None:
+        return []
+    return [(c.centre[0], c.centre[1], c.radius, c.height) for c in record.scenario.obstacles]
 
 
 # ============================================================================ figures
@@ -706,9 +681,16 @@ def _captures(record: MissionRecord, trajs: Mapping[int, Trajectory]) -> tuple[C
     return c, imaged
 
 
+def as_record(record: MissionRecord | dict[str, Any]) -> MissionRecord:
+    """A record, validated when given as a document (``record.json`` read back); ValueError otherwise."""
+    if isinstance(record, MissionRecord):
+        return record
+    if isinstance(record, dict):
+        return MissionRecord.model_validate(record)  # pydantic's ValidationError is a ValueError naming the field
+    raise ValueError(f"record must be a MissionRecord, got {type(record).__name__}")
+
+
 def _analyse(record: MissionRecord) -> tuple[ReportSummary, dict[str, Any]]:
-    if not isinstance(record, MissionRecord):
-        raise ValueError(f"record must be a MissionRecord, got {type(record).__name__}")
     tracks = _tracks(record)
     trajs = _trajectories(record)
     captures, imaged = _captures(record, trajs)
@@ -772,7 +754,7 @@ def _analyse(record: MissionRecord) -> tuple[ReportSummary, dict[str, Any]]:
     return summary, series
 
 
-def summarise(record: MissionRecord) -> ReportSummary:
+def summarise(record: MissionRecord | dict[str, Any]) -> ReportSummary:
     """Every figure of the mission report, without writing anything.
 
     Parameters
@@ -787,10 +769,10 @@ def summarise(record: MissionRecord) -> ReportSummary:
     Raises
     ------
     ValueError
-        When ``record`` is not a MissionRecord or its scenario has malformed formation offsets,
-        surface corners or obstacles.
+        When ``record`` is neither a MissionRecord nor a valid record document (a malformed
+        scenario is refused there, naming the field).
     """
-    return _analyse(record)[0]
+    return _analyse(as_record(record))[0]
 
 
 # ============================================================================ plots
@@ -843,8 +825,8 @@ def _plot_trajectories(record: MissionRecord, series: Mapping[str, Any], path: P
     if record.plan is not None:
         cp = np.array(record.plan.centroid_path)
         ax.plot(cp[:, 0], cp[:, 1], cp[:, 2], ":", color="k", lw=0.8, label="centroid plan")
-    start = record.scenario.get("start") or (record.plan.centroid_path[0] if record.plan else None)
-    goal = record.scenario.get("goal") or (record.plan.centroid_path[-1] if record.plan else None)
+    start = record.scenario.start if record.scenario else (record.plan.centroid_path[0] if record.plan else None)
+    goal = record.scenario.goal if record.scenario else (record.plan.centroid_path[-1] if record.plan else None)
     if start is not None:
         ax.scatter(*np.asarray(start, float), marker="^", s=60, color="green", label="start")
         pts.append(np.asarray(start, float).reshape(1, 3))
@@ -1066,7 +1048,7 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
     outcome = "**success**" if s.success else "**failed**"
     md += [f"Outcome: {outcome}" + (f" ({'; '.join(s.failures)})" if s.failures else "") + ".", ""]
     md += [f"> Note: {n}." for n in s.notes] + ([""] if s.notes else [])
-    scen = record.scenario.get("name", "–") if isinstance(record.scenario, dict) else "–"
+    scen = record.scenario.name if record.scenario else "–"
     md += ["## Experimental setup", "",
            _table(["item", "value"], [
                ["scenario", scen],
@@ -1074,7 +1056,7 @@ def _markdown(record: MissionRecord, s: ReportSummary) -> str:
                ["mission wall time", _fmt(s.wall_time_s, 1, " s")],
                ["simulation speed factor (set / measured)", f"{_fmt(s.speed)} / {_fmt(s.measured_speed)}"],
                ["simulated time covered by the states", _fmt(s.sim_time_s, 1, " s")],
-               ["obstacles", str(len(record.scenario.get("obstacles") or []))],
+               ["obstacles", str(len(record.scenario.obstacles) if record.scenario else 0)],
                ["formation offsets ΔT_n (P9)", "; ".join(f"UAV {u}: {tuple(o)}" for u, o in s.formation.offsets.items())
                 or "–"],
            ]), ""]
@@ -1224,7 +1206,7 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
 
 
 # ============================================================================ entry point
-def write_report(record: MissionRecord, folder: str | Path) -> ReportSummary:
+def write_report(record: MissionRecord | dict[str, Any], folder: str | Path) -> ReportSummary:
     """Write the mission report of ``record`` into ``folder`` (created if needed).
 
     Files: ``record.json``, ``report.json``, ``report.md`` and the plots :data:`PLOTS` (a plot
@@ -1245,6 +1227,7 @@ def write_report(record: MissionRecord, folder: str | Path) -> ReportSummary:
     ValueError
         See :func:`summarise`; also when ``folder`` exists and is not a directory.
     """
+    record = as_record(record)
     summary, series = _analyse(record)
     out = Path(folder)
     if out.exists() and not out.is_dir():

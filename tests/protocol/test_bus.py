@@ -210,6 +210,26 @@ def test_reconnect_pause_reaches_zenoh_in_whole_milliseconds():
         BusConfig(reconnect_max_s=0.0004)
 
 
+def test_cfg_changes_reach_the_zenoh_config_and_bad_ones_are_clear_errors():
+    """``--cfg KEY:VALUE`` as in zenoh-python's examples, applied after everything else."""
+    import argparse
+
+    from protocol.bus import add_bus_args, config_from_args
+
+    parser = argparse.ArgumentParser()
+    add_bus_args(parser)
+    args = parser.parse_args(["--lease", "2", "--cfg", "transport/link/tx/lease:3000",
+                              "--cfg", "scouting/gossip/enabled:false"])
+    conf = config_from_args(args).to_zenoh()
+    assert json.loads(conf.get_json("transport/link/tx/lease")) == 3000  # --cfg wins over --lease
+    assert json.loads(conf.get_json("scouting/gossip/enabled")) is False
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--cfg", "no-colon"])
+    bad = config_from_args(parser.parse_args(["--cfg", "transport/link/tx/lease:not json"]))
+    with pytest.raises(ValueError, match="--cfg transport/link/tx/lease"):
+        bad.to_zenoh()
+
+
 def test_rejection_table_is_bounded_under_a_flood_of_made_up_keys():
     """Issue 12: every distinct rejected key used to add a row; past MAX_REJECT_KEYS they share one."""
     from protocol.bus import MAX_REJECT_KEYS, Counters

@@ -5,7 +5,7 @@ import time
 import pytest
 
 from protocol.bus import Bus, BusConfig
-from services.planner.scenario import load_scenario_document as load_scenario_doc
+from protocol.scenario import load_scenario
 from services.gcs.mission import MissionOptions, MissionRunner
 
 FLEET = "test"
@@ -30,7 +30,7 @@ def _run(gateway, uavs, appear_timeout=20.0):
                           command_attempts=2, particles=40, iterations=40)
     with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as bus:
         t0 = time.monotonic()
-        record = MissionRunner(bus, load_scenario_doc(None), opts).run()
+        record = MissionRunner(bus, load_scenario(), opts).run()
         return record, time.monotonic() - t0
 
 
@@ -62,12 +62,12 @@ def test_a_uav_that_refuses_its_upload_fails_the_mission(group, gateway, planner
 def test_scenario_formation_follows_the_number_of_uavs():
     from services.gcs.mission import with_formation_size
 
-    doc = load_scenario_doc(None)
+    doc = load_scenario()
     assert with_formation_size(doc, 3) is doc
     two = with_formation_size(doc, 2)
-    assert two["formation"]["offsets"] == [[0.0, 0.0, 2.0], [3.0, 0.0, -1.0]]
-    assert len(with_formation_size(doc, 5)["formation"]["offsets"]) == 5
-    assert len(doc["formation"]["offsets"]) == 3  # the caller's document is not changed
+    assert two.formation.offsets == [(0.0, 0.0, 2.0), (3.0, 0.0, -1.0)]
+    assert len(with_formation_size(doc, 5).formation.offsets) == 5
+    assert len(doc.formation.offsets) == 3  # the caller's scenario is not changed
 
 
 def test_the_common_start_leaves_time_for_every_start_command():
@@ -76,7 +76,7 @@ def test_the_common_start_leaves_time_for_every_start_command():
     from services.gcs.record import CommandRecord
 
     with Bus(BusConfig(mode="peer"), FLEET, "gcs") as bus:
-        runner = MissionRunner(bus, load_scenario_doc(None), MissionOptions(uavs=(1, 2, 3)))
+        runner = MissionRunner(bus, load_scenario(), MissionOptions(uavs=(1, 2, 3)))
         assert runner.start_margin_s() == 2.0  # nothing measured yet: the least margin
         runner.record.commands += [
             CommandRecord(uav=1, kind="takeoff", cmd_id=1, ok=True, accepted=True, elapsed_s=0.01, ack_s=[0.01]),

@@ -25,7 +25,7 @@ from services.gcs.record import (
 
 
 def _record() -> MissionRecord:
-    return MissionRecord(fleet="test", scenario={"name": "x"}, speed=4.0, started=time.time())
+    return MissionRecord(fleet="test", speed=4.0, started=time.time())
 
 
 def _state(i: int) -> StateRx:
