@@ -114,6 +114,17 @@ class Budget:
         self.dropped[(source, reason)] += 1
         return reason
 
+    def admit_size(self, source: str, nbytes: int) -> str | None:
+        """The size check alone (before decoding): None or ``budget-size``."""
+        if nbytes > self.limit.max_bytes:
+            self.dropped[(source if source in self._buckets else OTHER, "budget-size")] += 1
+            return "budget-size"
+        return None
+
+    def admit_rate(self, source: str, now: float) -> str | None:
+        """The rate check alone (after a sample proved well-formed): None or ``budget-rate``."""
+        return self.admit(source, 0, now)
+
     def sources(self) -> int:
         return len(self._buckets)
 

@@ -383,11 +383,26 @@ class Bus:
         def handle(sample: zenoh.Sample) -> None:
             data = sample.payload.to_bytes()
             counters.add(counters.received, cls_name, len(data))
-            msg = self._decode_or_count(str(sample.key_expr), data, expect)
-            if msg is not None:
+            source = str(sample.key_expr)
+            if budget is not None and not self._within_budget(budget, source, len(data), None):
+                return  # too large: not even decoded
+            msg = self._decode_or_count(source, data, expect)
+            # the rate is charged only to well-formed samples, so that garbage on a key does not use up the
+            # budget of the source that really writes it (garbage is rejected, and counted, by decoding)
+            if msg is not None and (budget is None or self._within_budget(budget, source, None, time.monotonic())):
                 callback(msg, sample)
 
-        return self.subscribe_raw(key, handle, ring=ring, budget=budget)
+        return self.subscribe_raw(key, handle, ring=ring)
+
+    def _within_budget(self, budget: Budget, source: str, nbytes: int | None, now: float | None) -> bool:
+        """Size (``nbytes``) or rate (``now``) check of ``budget``; a refusal is counted (logged once)."""
+        with self.counters.lock:
+            reason = budget.admit_size(source, nbytes) if nbytes is not None else budget.admit_rate(source, now)
+        if reason is None:
+            return True
+        if self.counters.reject(source, reason):
+            log.warning("%s: %s over its budget (%s); further ones are only counted", self.name, source, reason)
+        return False
 
     def subscribe_raw(
         self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False,

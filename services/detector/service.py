@@ -109,9 +109,11 @@ class DetectorService:
         if recover:
             # frames lost on a lossy link are retransmitted from the cameras' caches; a plain
             # subscriber beside it sees what the link delivered the first time (recovered = the rest)
-            bus.subscribe_raw(cams, self._on_live, budget=for_topic("camera"))
-        # per-camera budget (protocol.budget): a flood of frames from one UAV is dropped before parsing
-        bus.subscribe_raw(cams, self._on_frame, recover=bool(recover), budget=for_topic("camera"))
+            bus.subscribe_raw(cams, self._on_live)
+        # per-camera budget (protocol.budget), charged after the RTP header and SSRC check: frames of a
+        # foreign SSRC on a camera's key are rejected without using up that camera's budget
+        self._budget = for_topic("camera")
+        bus.subscribe_raw(cams, self._on_frame, recover=bool(recover))
         bus.token(keys.rcu_alive(bus.fleet, "detector"))
         self._t0 = time.time()
 
@@ -130,6 +132,14 @@ class DetectorService:
             if self.counts["bad-ssrc"] == 1 and self.log:
                 self.log.warning("dropping a frame with SSRC %#010x on %s: not that UAV's camera (further ones "
                                  "are only counted)", header.ssrc, sample.key_expr)
+            return
+        with self._lock:
+            over = self._budget.admit(f"{sample.key_expr}#{header.ssrc:08x}", len(data), now)
+        if over is not None:
+            self.counts[over] += 1
+            if self.counts[over] == 1 and self.log:
+                self.log.warning("%s: frames over the camera budget (%s); further ones are only counted",
+                                 sample.key_expr, over)
             return
         if len(payload) == 0:  # a camera's announce frame (edge.runtime.CameraLink.announce)
             self.counts["announce"] += 1
@@ -233,7 +243,7 @@ class DetectorService:
         counts = dict(self.counts)
         return LinkStats(source="detector", stamp=time.time(), uptime_s=time.time() - self._t0,
                          rejected={**{k: v for k, v in counts.items() if k.startswith("bad")},
-                                   **{k: v for k, v in snap["rejected"].items() if "|budget-" in k}},
+                                   **{k: v for k, v in counts.items() if k.startswith("budget")}},
                          metrics={**metrics, **{f"count.{k}": v for k, v in counts.items()}})
 
     def close(self) -> None:

@@ -49,3 +49,10 @@ def test_bucket_never_admits_more_than_burst_plus_rate_times_time(rate, burst, t
     if times:
         elapsed = max(times) - times[0]
         assert admitted <= burst + rate * max(elapsed, 0.0) + 1e-6
+
+
+def test_size_and_rate_checks_apart():
+    """The bus checks the size before decoding and charges the rate only to well-formed samples."""
+    b = Budget(Limit(1.0, 2, 100))
+    assert b.admit_size("k", 101) == "budget-size" and b.admit_size("k", 100) is None
+    assert [b.admit_rate("k", 0.0) for _ in range(3)] == [None, None, "budget-rate"]
