@@ -101,11 +101,12 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import Any, Literal
 
 import numpy as np
 
+from edge.vehicle.apm.modes import CopterMode
+from edge.vehicle.apm.signing import SafeSigningMAVLink
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import Mode, Trajectory
@@ -140,21 +141,6 @@ __all__ = [
 Vec3 = tuple[float, float, float]
 _Target = tuple[Vec3, "Vec3 | None", "Vec3 | None", float]  # ENU position, velocity, acceleration, yaw
 M = mavlink2
-
-
-class CopterMode(IntEnum):
-    """ArduCopter custom modes (HEARTBEAT.custom_mode) that the driver and mavsim use."""
-
-    STABILIZE = 0
-    ALT_HOLD = 2
-    AUTO = 3
-    GUIDED = 4
-    LOITER = 5
-    RTL = 6
-    LAND = 9
-    POSHOLD = 16
-    BRAKE = 17
-    SMART_RTL = 21
 
 
 _COPTER_TO_MODE = {
@@ -298,7 +284,7 @@ def open_connection(connection: str, source_system: int, source_component: int) 
                                           source_component=source_component)
     except Exception as exc:  # pymavlink raises OSError, ValueError, serial errors, ...
         raise ValueError(f"cannot open MAVLink connection {connection!r}: {exc}") from exc
-    conn.mav = M.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
+    conn.mav = SafeSigningMAVLink(conn, srcSystem=source_system, srcComponent=source_component)
     conn.mav.robust_parsing = True
     conn.WIRE_PROTOCOL_VERSION = "2.0"
     return conn
