@@ -265,6 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--uav", type=int, required=True)
     parser.add_argument("--vehicle", default="sim", choices=["sim", "mavlink"], help="vehicle driver")
     parser.add_argument("--mavlink", default="udpin:0.0.0.0:14550", help="MAVLink connection (--vehicle mavlink)")
+    parser.add_argument("--mavlink-key", default=None,
+                        help="MAVLink 2 signing key for the autopilot link: 64 hex digits or a passphrase")
     parser.add_argument("--home", type=parse_vec, default=(0.0, 0.0, 0.0), help="launch point x,y,z (ENU m)")
     parser.add_argument("--rate", type=float, default=20.0, help="state publication rate, Hz")
     parser.add_argument("--stale", type=float, default=1.0, help="neighbour state considered stale after, s")

@@ -50,7 +50,7 @@ hold()              DO_SET_MODE GUIDED if not in it; position target at the curr
 resume()            as start, from the paused trajectory time
 land()              NAV_LAND (ArduCopter switches to LAND and disarms on the ground)
 return_to_launch()  NAV_RETURN_TO_LAUNCH (RTL mode)
-capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = capture id % 256)
+capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = the capture id, apm.items)
 ==================  ===============================================================
 
 Hold is a position target in GUIDED rather than LOITER/BRAKE: it keeps the vehicle in the
@@ -105,8 +105,9 @@ from typing import Any, Literal
 
 import numpy as np
 
+from edge.vehicle.apm.items import capture_params
 from edge.vehicle.apm.modes import CopterMode
-from edge.vehicle.apm.signing import SafeSigningMAVLink
+from edge.vehicle.apm.signing import SafeSigningMAVLink, enable_signing, parse_key
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import Mode, Trajectory
@@ -365,6 +366,10 @@ class MavlinkDriver(VehicleDriver):
         The autopilot's MAVLink system id; None takes the first autopilot heard.
     source_system, source_component : int
         Our own MAVLink address (255 / MAV_COMP_ID_ONBOARD_COMPUTER by default: a GCS-side id).
+    signing_key : str or None
+        MAVLink 2 signing key (64 hex digits or a passphrase, :mod:`edge.vehicle.apm.signing`):
+        every packet out is signed and only correctly signed packets are accepted, the signature
+        checked before the stream's timestamp is recorded. None: unsigned.
     """
 
     def __init__(
@@ -379,6 +384,7 @@ class MavlinkDriver(VehicleDriver):
         sysid: int | None = None,
         source_system: int = 255,
         source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
+        signing_key: str | None = None,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -400,6 +406,8 @@ class MavlinkDriver(VehicleDriver):
         self._sysid = sysid
         self._compid = M.MAV_COMP_ID_AUTOPILOT1
         self._conn = open_connection(connection, source_system, source_component)
+        if signing_key is not None:
+            enable_signing(self._conn, parse_key(signing_key))
         self._mono0 = time.monotonic()
         self._lock = threading.RLock()  # telemetry, phase, acks
         self._cv = threading.Condition(self._lock)
@@ -880,7 +888,7 @@ class MavlinkDriver(VehicleDriver):
         if self.params.trigger_camera:
             for ev in events:
                 self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_DO_DIGICAM_CONTROL, 0,
-                           0, 0, 0, 0, 1, ev.capture_id % 256, 0)
+                           *capture_params(ev.capture_id))
         return events
 
     def _send_target(self, pos: Vec3, vel: Vec3 | None, acc: Vec3 | None, yaw_enu: float) -> None:
