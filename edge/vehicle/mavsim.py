@@ -252,6 +252,7 @@ class MavlinkSimVehicle:
         self._gcs_mono: float | None = None
         self.gcs_failsafe = False
         self.fence_breached = False
+        self.fence_breaches = 0
         self._pilot: queue.SimpleQueue[int] = queue.SimpleQueue()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -447,6 +448,7 @@ class MavlinkSimVehicle:
         breach = self._fence_breach(self.sim.state().pos)
         if breach and not self.fence_breached:
             self.fence_breached = True
+            self.fence_breaches += 1
             self._text(M.MAV_SEVERITY_CRITICAL, "Fence Breached")
             mode = FENCE_ACTIONS.get(int(self.params["FENCE_ACTION"]))
             if mode is not None and mode != self.custom_mode:

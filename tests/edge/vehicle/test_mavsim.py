@@ -205,3 +205,199 @@ def test_takeoff_reposition_rtl_land_and_disarm():
             assert await first(s.tel.subscribe_armed(), lambda a: not a) is False
             assert s.veh.sim.mode == Mode.LANDED and not s.veh.errors
     run(go())
+
+
+# ---------------------------------------------------------------------------------- pymavlink, MAVProxy style
+from pymavlink import mavutil, mavwp  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
+
+from edge.vehicle.mavlink import MavlinkDriver, open_connection  # noqa: E402
+from protocol.messages import Trajectory, Waypoint  # noqa: E402
+from services.planner.export import qgc_wpl  # noqa: E402
+
+
+class Gcs:
+    """A ground station as MAVProxy is one: mavutil's helpers on a udpin link, HEARTBEAT as MAV_TYPE_GCS."""
+
+    def __init__(self, port: int, key: str | None = None):
+        self.m = open_connection(f"udpin:127.0.0.1:{port}", 255, M.MAV_COMP_ID_MISSIONPLANNER)
+        if key is not None:
+            from edge.vehicle.apm.signing import enable_signing, parse_key
+            enable_signing(self.m, parse_key(key))
+
+    def beat(self) -> None:
+        self.m.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+    def wait(self, type, cond=lambda m: True, limit_s: float = 30.0, beat: bool = True):
+        """The next message of ``type`` satisfying ``cond`` (heartbeats go out meanwhile, as MAVProxy's do)."""
+        end, next_beat = time.monotonic() + limit_s, 0.0
+        while time.monotonic() < end:
+            if beat and time.monotonic() >= next_beat:
+                self.beat()
+                next_beat = time.monotonic() + 1.0
+            msg = self.m.recv_match(type=type, blocking=True, timeout=0.1)
+            if msg is not None and cond(msg):
+                return msg
+        raise TimeoutError(f"no {type} within {limit_s} s")
+
+    def ack(self, command: int) -> int:
+        return self.wait("COMMAND_ACK", lambda a: a.command == command).result
+
+    def mode(self, name: str) -> int:
+        self.m.set_mode_apm(name)  # what MAVProxy's "mode NAME" sends: DO_SET_MODE with ArduCopter's number
+        return self.ack(M.MAV_CMD_DO_SET_MODE)
+
+    def close(self) -> None:
+        self.m.close()
+
+
+@pytest.fixture
+def gcs_link(request):
+    opts = getattr(request, "param", {})
+    port = free_udp_port()
+    gcs = Gcs(port, opts.get("mavlink_key"))
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, speed=8.0, **opts).start()
+    try:
+        hb = gcs.m.wait_heartbeat(timeout=10)
+        assert hb is not None and gcs.m.target_system == 1
+        yield gcs, veh
+    finally:
+        gcs.close()
+        veh.close()
+
+
+def test_a_mavproxy_style_session_modes_param_set_wp_load_and_auto(gcs_link, tmp_path):
+    gcs, veh = gcs_link
+    m = gcs.m
+    assert mavutil.mode_string_v10(gcs.wait("HEARTBEAT")) == "STABILIZE"
+    # legacy stream request (MAVProxy, Mission Planner): POSITION group at 4 Hz
+    m.mav.request_data_stream_send(1, 1, M.MAV_DATA_STREAM_POSITION, 4, 1)
+    g = gcs.wait("GLOBAL_POSITION_INT")
+    assert g.lat == round(O[0] * 1e7) and g.relative_alt == 0
+    st = gcs.wait("SYS_STATUS")
+    fence = M.MAV_SYS_STATUS_GEOFENCE
+    assert st.onboard_control_sensors_present & fence and st.onboard_control_sensors_health & fence  # no "fence breach"
+    # param set / fetch
+    m.param_set_send("WPNAV_SPEED", 600.0)
+    pv = gcs.wait("PARAM_VALUE", lambda p: p.param_id == "WPNAV_SPEED")
+    assert pv.param_value == 600.0 and veh.params["WPNAV_SPEED"] == 600.0
+    m.param_set_send("WPNAV_SPEED", 1e9)  # out of range: refused, the old value answered
+    assert gcs.wait("PARAM_VALUE", lambda p: p.param_id == "WPNAV_SPEED").param_value == 600.0
+    m.mav.param_request_list_send(1, 1)
+    names = {gcs.wait("PARAM_VALUE").param_id for _ in range(len(veh.params.specs))}
+    assert {"FS_GCS_ENABLE", "FS_GCS_TIMEOUT", "RTL_ALT", "SYSID_THISMAV", "FENCE_ENABLE"} <= names
+    # modes: AUTO without a mission and RTL on the ground are refused, as ArduCopter does
+    assert gcs.mode("AUTO") == M.MAV_RESULT_FAILED and gcs.mode("RTL") == M.MAV_RESULT_FAILED
+    assert gcs.mode("LOITER") == M.MAV_RESULT_ACCEPTED
+
+    # wp load: a file from the planner's exporter, uploaded as MAVProxy's wp module does
+    tr = Trajectory(uav=1, waypoints=[Waypoint(t=0, pos=(0, 0, 5), capture_id=3),
+                                      Waypoint(t=4, pos=(12, 0, 5)),
+                                      Waypoint(t=8, pos=(12, 12, 6), capture_id=4)])
+    path = tmp_path / "uav1.waypoints"
+    path.write_text(qgc_wpl(tr, O))
+    wp = mavwp.MAVWPLoader(target_system=1, target_component=1)
+    assert wp.load(str(path)) == wp.count()
+    m.waypoint_count_send(wp.count())
+    while True:
+        msg = gcs.wait(["MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK"])
+        if msg.get_type() == "MISSION_ACK":
+            break
+        w = wp.wp(msg.seq)
+        if msg.get_type() == "MISSION_REQUEST_INT":
+            global_ = w.frame in (0, 3)
+            m.mav.mission_item_int_send(1, 1, w.seq, w.frame, w.command, w.current, w.autocontinue, w.param1,
+                                        w.param2, w.param3, w.param4, round(w.x * 1e7) if global_ else int(w.x),
+                                        round(w.y * 1e7) if global_ else int(w.y), w.z)
+        else:
+            m.mav.send(w)
+    assert msg.type == M.MAV_MISSION_ACCEPTED and len(veh.missions.mission()) == wp.count()
+
+    assert gcs.mode("GUIDED") == M.MAV_RESULT_ACCEPTED
+    m.arducopter_arm()
+    assert gcs.ack(M.MAV_CMD_COMPONENT_ARM_DISARM) == M.MAV_RESULT_ACCEPTED
+    assert gcs.mode("AUTO") == M.MAV_RESULT_ACCEPTED  # armed on the ground: the mission takes off
+    last_nav = wp.count() - 1  # RTL
+    gcs.wait("MISSION_ITEM_REACHED", lambda r: r.seq == last_nav, 120)
+    gcs.wait("HEARTBEAT", lambda h: not h.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, 60)
+    assert veh.shots == [3, 4] and not veh.errors
+    p = veh.sim.state().pos
+    assert math.hypot(p[0], p[1]) < 1.0  # RTL came home
+    fb = [t for t in veh.statustexts if "failed" in t]
+    assert len(fb) == 2  # the two refused mode changes said why
+
+
+@pytest.mark.parametrize("gcs_link", [{"param_overrides": {"FS_GCS_ENABLE": 1, "FS_GCS_TIMEOUT": 2}}],
+                         indirect=True)
+def test_gcs_failsafe_returns_to_launch_when_the_ground_station_falls_silent(gcs_link):
+    gcs, veh = gcs_link
+    assert gcs.mode("GUIDED") == M.MAV_RESULT_ACCEPTED
+    gcs.m.arducopter_arm()
+    assert gcs.ack(M.MAV_CMD_COMPONENT_ARM_DISARM) == M.MAV_RESULT_ACCEPTED
+    gcs.m.mav.command_long_send(1, 1, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, math.nan, 0, 0, 6)
+    assert gcs.ack(M.MAV_CMD_NAV_TAKEOFF) == M.MAV_RESULT_ACCEPTED
+    gcs.wait("GLOBAL_POSITION_INT", lambda g: g.relative_alt > 5500, 60)
+    assert not veh.gcs_failsafe
+    # silence: no more HEARTBEATs from the ground station
+    hb = gcs.wait("HEARTBEAT", lambda h: h.custom_mode == CopterMode.RTL, 30, beat=False)
+    assert hb.system_status == M.MAV_STATE_CRITICAL and "GCS Failsafe" in veh.statustexts
+    gcs.wait("STATUSTEXT", lambda t: "Failsafe Cleared" in t.text, 30)  # heartbeats again
+
+
+@pytest.mark.parametrize("gcs_link", [{"param_overrides": {"FENCE_ENABLE": 1, "FENCE_ALT_MAX": 10,
+                                                           "FENCE_ACTION": 1}}], indirect=True)
+def test_fence_breach_reports_and_returns_to_launch(gcs_link):
+    gcs, veh = gcs_link
+    assert gcs.mode("GUIDED") == M.MAV_RESULT_ACCEPTED
+    gcs.m.arducopter_arm()
+    assert gcs.ack(M.MAV_CMD_COMPONENT_ARM_DISARM) == M.MAV_RESULT_ACCEPTED
+    gcs.m.mav.command_long_send(1, 1, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, math.nan, 0, 0, 5)
+    assert gcs.ack(M.MAV_CMD_NAV_TAKEOFF) == M.MAV_RESULT_ACCEPTED
+    gcs.wait("GLOBAL_POSITION_INT", lambda g: g.relative_alt > 4500, 60)
+    mask = 0b110111111000  # position only (ignore velocity, acceleration, yaw rate... and yaw)
+    for _ in range(3):
+        gcs.m.mav.set_position_target_local_ned_send(0, 1, 1, M.MAV_FRAME_LOCAL_NED, mask | 1024, 0, 0, -14,
+                                                     0, 0, 0, 0, 0, 0, 0, 0)
+    gcs.wait("STATUSTEXT", lambda t: t.text == "Fence Breached", 60)
+    gcs.wait("HEARTBEAT", lambda h: h.custom_mode == CopterMode.RTL, 10)
+    gcs.wait("HEARTBEAT", lambda h: not h.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED, 120)
+    assert veh.fence_breaches == 1  # the geofence health bit was clear meanwhile (a breach may last < 1 SYS_STATUS)
+    st = gcs.wait("SYS_STATUS")
+    assert st.onboard_control_sensors_enabled & st.onboard_control_sensors_health & M.MAV_SYS_STATUS_GEOFENCE
+
+
+# ---------------------------------------------------------------------------------- signing end to end
+KEY = "a signing passphrase for the tests"
+
+
+def test_signed_link_survives_a_forged_future_timestamp_and_ignores_unsigned_commands():
+    port = free_udp_port()
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", signing_key=KEY)
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, speed=8.0, mavlink_key=KEY).start()
+    try:
+        drv.wait_heartbeat(10.0)
+        # the attacker: the autopilot's address and link id, a timestamp a year ahead, a wrong signature
+        liar = M.MAVLink(None, srcSystem=1, srcComponent=1)
+        liar.signing.secret_key = b"\x00" * 32
+        liar.signing.sign_outgoing = True
+        liar.signing.timestamp = veh._conn.mav.signing.timestamp + 365 * 86400 * 100_000
+        forged = bytes(liar.heartbeat_encode(M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 4, 0).pack(liar))
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(3):
+                s.sendto(forged, ("127.0.0.1", port))
+        drv.takeoff(4.0)  # needs the autopilot's genuine COMMAND_ACKs after the forgery
+        assert veh.armed and drv._conn.mav.signing.badsig_count >= 3
+        # an unsigned ground station is not obeyed: a LAND sent straight to the vehicle's socket
+        n = len(veh.commands)
+        plain = M.MAVLink(None, srcSystem=250, srcComponent=190)
+        land = bytes(plain.command_long_encode(1, 1, M.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0).pack(plain))
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.sendto(land, veh._conn.port.getsockname())
+        rejected = veh._conn.mav.signing.reject_count
+        # one more signed round trip (a command after the datagram): the vehicle has read it by then
+        drv._command(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), "request HOME_POSITION")
+        assert all(c != M.MAV_CMD_NAV_LAND for c, _ in veh.commands[n:]) and veh.custom_mode == CopterMode.GUIDED
+        assert veh._conn.mav.signing.reject_count > rejected or veh._conn.mav.signing.unsigned_count > 0
+    finally:
+        drv.close()
+        veh.close()
