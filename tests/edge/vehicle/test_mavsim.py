@@ -401,3 +401,38 @@ def test_signed_link_survives_a_forged_future_timestamp_and_ignores_unsigned_com
     finally:
         drv.close()
         veh.close()
+
+
+# ---------------------------------------------------------------------------------- skynet sim-autopilot
+def test_skynet_sim_autopilot_runs_several_instances_with_distinct_system_ids():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from edge.vehicle.sim_autopilot import connection_for
+
+    assert connection_for("udpout:127.0.0.1:{port}", 3, 14550) == "udpout:127.0.0.1:14552"
+    with pytest.raises(ValueError):
+        connection_for("udpout:127.0.0.1:{port}", 3, 65535)
+    base = free_udp_port()
+    listeners = [mavutil.mavlink_connection(f"udpin:127.0.0.1:{base + k}") for k in range(2)]
+    root = Path(__file__).resolve().parents[3]
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "sim-autopilot", "--uav", "1", "--uav", "2",
+                             "--port-base", str(base), "--speed", "2"], cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        ids = []
+        for k, m in enumerate(listeners):
+            hb = m.wait_heartbeat(timeout=30)
+            assert hb is not None and hb.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA
+            ids.append(hb.get_srcSystem())
+        assert ids == [1, 2]
+    finally:
+        proc.terminate()
+        out, _ = proc.communicate(timeout=20)
+        for m in listeners:
+            m.close()
+    assert proc.returncode == 0 and "uav 2 (system id 2)" in out and "sim-autopilot stopped" in out
+    bad = subprocess.run([sys.executable, "-m", "services.cli", "sim-autopilot", "--uav", "1", "--uav", "1"],
+                         cwd=root, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "distinct" in bad.stderr
