@@ -310,6 +310,9 @@ class MavlinkParams:
     interpolation : trajectory interpolation, "cubic" or "linear".
     accel_feedforward : also send the trajectory's acceleration (ArduCopter >= 4.1 uses it);
         False sends position, velocity and yaw only (older firmware).
+    appear_timeout_s : a command given before the autopilot's first HEARTBEAT waits this long for
+        it to appear (an autopilot still booting, a link still coming up) before failing; 0 fails
+        at once. A trajectory upload before then is stored without waiting.
     """
 
     transit_speed: float = 4.0
@@ -323,6 +326,7 @@ class MavlinkParams:
     trigger_camera: bool = False
     interpolation: Literal["cubic", "linear"] = "cubic"
     accel_feedforward: bool = True
+    appear_timeout_s: float = 10.0
 
     def __post_init__(self) -> None:
         for k in ("transit_speed", "start_radius", "arrive_radius", "offset_rate", "takeoff_tolerance",
@@ -332,6 +336,8 @@ class MavlinkParams:
                 raise ValueError(f"{k} must be finite and > 0")
         if not (math.isfinite(self.max_offset) and self.max_offset >= 0):
             raise ValueError("max_offset must be finite and >= 0")
+        if not (isinstance(self.appear_timeout_s, (int, float)) and 0 <= self.appear_timeout_s <= 600):
+            raise ValueError("appear_timeout_s must be in [0, 600] s")
         if not (isinstance(self.retries, int) and 0 <= self.retries <= 10):
             raise ValueError("retries must be an int in 0..10")
         if self.interpolation not in ("cubic", "linear"):
@@ -693,6 +699,11 @@ class MavlinkDriver(VehicleDriver):
     def _require(self, allowed: tuple[Mode, ...], what: str) -> Mode:
         if self._closed:
             raise ValueError("driver is closed")
+        if self.heartbeat_age() is None and self.params.appear_timeout_s > 0:
+            try:  # not heard yet: give the autopilot time to appear instead of a fixed window
+                self.wait_heartbeat(self.params.appear_timeout_s)
+            except VehicleLinkError:
+                pass  # reported below
         err = self._link_error()
         if err is not None:
             raise err
@@ -724,6 +735,10 @@ class MavlinkDriver(VehicleDriver):
 
     # ------------------------------------------------------------------ commands
     def upload(self, traj: Trajectory) -> None:
+        if self.heartbeat_age() is None and self._phase == "idle" and not self._closed:
+            with self._lock:  # before the autopilot appears: stored here, flown once it is there
+                self.mission.load(traj)
+            return
         self._require((Mode.IDLE, Mode.LANDED, Mode.TAKEOFF, Mode.HOLD), "upload a trajectory")
         with self._lock:
             self.mission.load(traj)
