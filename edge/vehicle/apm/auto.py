@@ -11,7 +11,8 @@ NAV_TAKEOFF (22)            ``("takeoff", alt)``: climb to ``z`` above home wher
 NAV_WAYPOINT (16)           a carrot moves from where the leg starts to the waypoint at the
                             current speed (WPNAV_SPEED, or the last DO_CHANGE_SPEED); reached when
                             the carrot is there and the vehicle within WPNAV_RADIUS; then waits
-                            param1 s (hold time)
+                            param1 s (hold time). The next leg starts when the carrot arrived
+                            (plus the hold), not at the update that noticed it
 NAV_LAND (21)               ``("land",)``; the mission ends when the vehicle is down
 NAV_RETURN_TO_LAUNCH (20)   ``("rtl",)``
 DO_CHANGE_SPEED (178)       param2 > 0: the new ground speed, m/s (applies from the next leg on, and
@@ -91,6 +92,7 @@ class AutoMission:
         self._last_target: Vec3 | None = None
         self._started: set[int] = set()
         self._takeoff_xy: tuple[float, float] | None = None
+        self._t_free: float | None = None  # when the last leg's carrot arrived (plus its hold)
 
     def set_current(self, seq: int) -> bool:
         """MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT: jump to ``seq`` (1..len-1)."""
@@ -193,7 +195,11 @@ class AutoMission:
     def _goto(self, t: float, pos: Vec3, end: Vec3, hold_s: float) -> tuple[Flight, bool]:
         if self._leg is None or self._leg[1] != end:
             start = self._last_target or pos
-            self._leg = (start, end, t)
+            # a leg starts when the previous one's carrot arrived (not at the next update after it), so
+            # the update rate does not stretch the mission's timing
+            t0 = self._t_free if self._t_free is not None and 0.0 <= t - self._t_free < 0.5 else t
+            self._leg = (start, end, t0)
+            self._t_free = None
             d = (end[0] - start[0], end[1] - start[1])
             if self.yaw_behavior != 0 and math.hypot(*d) > 2.0:
                 self._yaw = math.atan2(d[1], d[0])
@@ -210,5 +216,9 @@ class AutoMission:
         if _dist(pos, end) > self.radius:
             return Flight("goto", end, yaw=yaw), False
         if self._hold_until is None:
-            self._hold_until = t + max(0.0, hold_s)
-        return Flight("goto", end, yaw=yaw), t >= self._hold_until
+            arrived = t0 + (length / self.speed if self.speed > 0 else 0.0)
+            self._hold_until = max(arrived, t - 0.5) + max(0.0, hold_s)
+        if t >= self._hold_until:
+            self._t_free = self._hold_until
+            return Flight("goto", end, yaw=yaw), True
+        return Flight("goto", end, yaw=yaw), False
