@@ -376,6 +376,12 @@ class MavlinkDriver(VehicleDriver):
         MAVLink 2 signing key (64 hex digits or a passphrase, :mod:`edge.vehicle.apm.signing`):
         every packet out is signed and only correctly signed packets are accepted, the signature
         checked before the stream's timestamp is recorded. None: unsigned.
+    gcs_endpoint : str or None
+        A MAVLink endpoint for the operator's ground station (:mod:`edge.vehicle.gcs_bridge`): the
+        autopilot's traffic is forwarded there and the GCS's to the autopilot. With it the driver
+        speaks as the companion computer (system id ``uav`` unless ``source_system`` is given,
+        HEARTBEAT type MAV_TYPE_ONBOARD_CONTROLLER), so the autopilot's GCS failsafe watches the
+        operator's ground station, not the edge.
     """
 
     def __init__(
@@ -391,6 +397,7 @@ class MavlinkDriver(VehicleDriver):
         source_system: int = 255,
         source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
         signing_key: str | None = None,
+        gcs_endpoint: str | None = None,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -411,7 +418,13 @@ class MavlinkDriver(VehicleDriver):
         self._home = np.array(self.home)
         self._sysid = sysid
         self._compid = M.MAV_COMP_ID_AUTOPILOT1
+        self._hb_type = M.MAV_TYPE_GCS
+        if gcs_endpoint is not None:
+            self._hb_type = M.MAV_TYPE_ONBOARD_CONTROLLER
+            if source_system == 255:
+                source_system = uav
         self._conn = open_connection(connection, source_system, source_component)
+        self.bridge = None
         if signing_key is not None:
             enable_signing(self._conn, parse_key(signing_key))
         self._mono0 = time.monotonic()
@@ -453,6 +466,10 @@ class MavlinkDriver(VehicleDriver):
         #: position targets sent (count) and the last one (NED x, y, z, yaw), for inspection
         self.targets_sent = 0
         self.last_target: tuple[float, float, float, float] | None = None
+        if gcs_endpoint is not None:
+            from edge.vehicle.gcs_bridge import GcsBridge
+
+            self.bridge = GcsBridge(gcs_endpoint, self._write_raw)
         self._reader = threading.Thread(target=self._read_loop, name=f"mavlink-uav{uav}", daemon=True)
         self._reader.start()
 
@@ -463,6 +480,11 @@ class MavlinkDriver(VehicleDriver):
                 getattr(self._conn.mav, name)(*args)
             except OSError:
                 self.link_errors += 1
+
+    def _write_raw(self, frame: bytes) -> None:
+        """One raw frame to the autopilot (from the ground-station bridge)."""
+        with self._send_lock:
+            self._conn.write(frame)
 
     def _read_loop(self) -> None:
         conn = self._conn
@@ -478,12 +500,14 @@ class MavlinkDriver(VehicleDriver):
                 msg = None
             now = time.monotonic()
             if msg is not None:
+                if self.bridge is not None:
+                    self.bridge.to_gcs(msg)
                 self._on_message(msg, now)
             else:
                 conn.select(0.02)
             if now - last_hb >= 1.0:
                 last_hb = now
-                self._send("heartbeat_send", M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
+                self._send("heartbeat_send", self._hb_type, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
             if self._hb is not None and now - last_req >= 2.0:
                 last_req = now
                 self._request_streams(now)
@@ -822,6 +846,8 @@ class MavlinkDriver(VehicleDriver):
         self._closed = True
         self._stop.set()
         self._reader.join(timeout=2.0)
+        if self.bridge is not None:
+            self.bridge.close()
         try:
             self._conn.close()
         except OSError:
