@@ -270,11 +270,18 @@ class Network:
         for i in range(1, a.uavs + 1):
             self.edge_endpoints[i] = multilink_endpoints(HOST, *free_port_pair())
         for i, home in enumerate(self.homes(a.uavs), start=1):
+            vehicle = []
+            if getattr(a, "vehicle", "sim") == "mavlink":  # a sim autopilot per UAV, on loopback UDP
+                port = free_port_pair()[1]
+                self.group.start(f"ap{i}", ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1),
+                                            "--home", ",".join(map(str, home)), "--speed", str(a.speed),
+                                            "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate"])
+                vehicle = ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{port}"]
             self.start_service(f"uav{i}", [
                 "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
-                "--seed", str(a.seed + i), "--camera", a.camera, *scenario, *recovery])
+                "--seed", str(a.seed + i), "--camera", a.camera, *scenario, *recovery, *vehicle])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
@@ -338,6 +345,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
+    p.add_argument("--vehicle", choices=["sim", "mavlink"], default="sim",
+                   help="sim: the built-in vehicle; mavlink: each edge flies a sim autopilot (skynet sim-autopilot) "
+                        "over MAVLink on loopback")
     p.add_argument("--method", default="it+", help="the detector's method")
     p.add_argument("--fleet", default="demo")
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")

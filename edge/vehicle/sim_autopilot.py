@@ -43,6 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--home", type=_vec, action="append", default=[], help="launch point x,y,z per uav (ENU m)")
     p.add_argument("--origin", type=_vec, default=DEFAULT_ORIGIN, help="geodetic origin lat,lon,alt of the ENU frame")
     p.add_argument("--speed", type=float, default=1.0, help="simulation speed factor")
+    p.add_argument("--epoch", type=float, default=None, help="wall-clock UNIX time of sim time 0 (share the board's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--wind", choices=["calm", "moderate"], default="calm")
     p.add_argument("--mavlink-key", default=None, help="MAVLink 2 signing key: 64 hex digits or a passphrase")
@@ -64,7 +65,8 @@ def main(argv: list[str] | None = None) -> int:
         for k, uav in enumerate(args.uav):
             conn = connection_for(args.connection, uav, args.port_base)
             vehicles.append(MavlinkSimVehicle(conn, uav, home=args.home[k] if args.home else (0.0, 0.0, 0.0),
-                                              speed=args.speed, params=SimParams(disturbance=wind),
+                                              speed=args.speed, epoch=args.epoch,
+                                              params=SimParams(disturbance=wind),
                                               seed=args.seed + uav, origin=args.origin,
                                               mavlink_key=args.mavlink_key, param_overrides=dict(args.param)))
             print(f"sim-autopilot: uav {uav} (system id {uav}) on {conn}", flush=True)
