@@ -310,6 +310,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--uav", type=int, required=True)
     parser.add_argument("--vehicle", default="sim", choices=["sim", "mavlink"], help="vehicle driver")
     parser.add_argument("--mavlink", default="udpin:0.0.0.0:14550", help="MAVLink connection (--vehicle mavlink)")
+    parser.add_argument("--mavlink-key", default=None,
+                        help="MAVLink 2 signing key for the autopilot link: 64 hex digits or a passphrase")
+    parser.add_argument("--mavlink-gcs", default=None, metavar="ENDPOINT",
+                        help="MAVLink endpoint for the operator's ground station (autopilot traffic forwarded), "
+                             "e.g. udpout:127.0.0.1:14560")
     parser.add_argument("--home", type=parse_vec, default=(0.0, 0.0, 0.0), help="launch point x,y,z (ENU m)")
     parser.add_argument("--rate", type=float, default=_DEFAULT.rate_hz, help="state publication rate, Hz")
     parser.add_argument("--stale", type=float, default=_DEFAULT.stale_s,

@@ -110,7 +110,8 @@ def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
                          seed=args.seed if args.seed is not None else args.uav)
     from .vehicle.mavlink import MavlinkDriver  # needs the "mavlink" extra
 
-    return MavlinkDriver(args.uav, args.mavlink, home=args.home)
+    return MavlinkDriver(args.uav, args.mavlink, home=args.home, signing_key=getattr(args, "mavlink_key", None),
+                         gcs_endpoint=getattr(args, "mavlink_gcs", None))
 
 
 def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: int = SURFACE_SEED):

@@ -15,6 +15,7 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "gateway": ("services.gateway.service", "run the gateway router relay (SkyNet <-> Internet)"),
     "edge": ("edge.board", "run one UAV's IoT board (vehicle driver, SkyNet, camera)"),
+    "sim-autopilot": ("edge.vehicle.sim_autopilot", "simulated ArduCopters on MAVLink, for QGC, MAVProxy, MAVSDK"),
     "planner": ("services.planner.service", "run the planner RCU service (plan requests)"),
     "plan": ("services.planner.cli", "plan offline: compare algorithms, export missions, bench"),
     "detector": ("services.detector.service", "run the detector RCU service (imagery -> defects)"),

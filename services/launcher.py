@@ -342,12 +342,20 @@ class Network:
         for i in range(1, a.uavs + 1):
             self.edge_endpoints[i] = self.endpoint_pair()
         for i, home in enumerate(self.homes(a.uavs), start=1):
+            vehicle = []
+            if getattr(a, "vehicle", "sim") == "mavlink":  # a sim autopilot per UAV, on loopback UDP
+                port = free_port_pair()[1]
+                self.group.start(f"ap{i}", ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1),
+                                            "--home", ",".join(map(str, home)), "--speed", str(a.speed),
+                                            "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate"])
+                vehicle = ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{port}"]
             self.start_service(f"uav{i}", [
                 "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
                 "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
-                "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery])
+                "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery,
+                *vehicle])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         save = ["--save-frames", a.save_frames] if getattr(a, "save_frames", None) else []
@@ -465,6 +473,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
     p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
                    help="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
+    p.add_argument("--vehicle", choices=["sim", "mavlink"], default="sim",
+                   help="sim: the built-in vehicle; mavlink: each edge flies a sim autopilot (skynet sim-autopilot) "
+                        "over MAVLink on loopback")
     p.add_argument("--method", default="it+", help="the detector's method")
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")

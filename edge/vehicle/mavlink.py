@@ -50,7 +50,7 @@ hold()              DO_SET_MODE GUIDED if not in it; position target at the curr
 resume()            as start, from the paused trajectory time
 land()              NAV_LAND (ArduCopter switches to LAND and disarms on the ground)
 return_to_launch()  NAV_RETURN_TO_LAUNCH (RTL mode)
-capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = capture id % 256)
+capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = the capture id, apm.items)
 ==================  ===============================================================
 
 Hold is a position target in GUIDED rather than LOITER/BRAKE: it keeps the vehicle in the
@@ -101,11 +101,13 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import Any, Literal
 
 import numpy as np
 
+from edge.vehicle.apm.items import capture_params
+from edge.vehicle.apm.modes import CopterMode
+from edge.vehicle.apm.signing import SafeSigningMAVLink, enable_signing, parse_key
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import Mode, Trajectory
@@ -140,21 +142,6 @@ __all__ = [
 Vec3 = tuple[float, float, float]
 _Target = tuple[Vec3, "Vec3 | None", "Vec3 | None", float]  # ENU position, velocity, acceleration, yaw
 M = mavlink2
-
-
-class CopterMode(IntEnum):
-    """ArduCopter custom modes (HEARTBEAT.custom_mode) that the driver and mavsim use."""
-
-    STABILIZE = 0
-    ALT_HOLD = 2
-    AUTO = 3
-    GUIDED = 4
-    LOITER = 5
-    RTL = 6
-    LAND = 9
-    POSHOLD = 16
-    BRAKE = 17
-    SMART_RTL = 21
 
 
 _COPTER_TO_MODE = {
@@ -298,7 +285,7 @@ def open_connection(connection: str, source_system: int, source_component: int) 
                                           source_component=source_component)
     except Exception as exc:  # pymavlink raises OSError, ValueError, serial errors, ...
         raise ValueError(f"cannot open MAVLink connection {connection!r}: {exc}") from exc
-    conn.mav = M.MAVLink(conn, srcSystem=source_system, srcComponent=source_component)
+    conn.mav = SafeSigningMAVLink(conn, srcSystem=source_system, srcComponent=source_component)
     conn.mav.robust_parsing = True
     conn.WIRE_PROTOCOL_VERSION = "2.0"
     return conn
@@ -323,6 +310,9 @@ class MavlinkParams:
     interpolation : trajectory interpolation, "cubic" or "linear".
     accel_feedforward : also send the trajectory's acceleration (ArduCopter >= 4.1 uses it);
         False sends position, velocity and yaw only (older firmware).
+    appear_timeout_s : a command given before the autopilot's first HEARTBEAT waits this long for
+        it to appear (an autopilot still booting, a link still coming up) before failing; 0 fails
+        at once. A trajectory upload before then is stored without waiting.
     """
 
     transit_speed: float = 4.0
@@ -336,6 +326,7 @@ class MavlinkParams:
     trigger_camera: bool = False
     interpolation: Literal["cubic", "linear"] = "cubic"
     accel_feedforward: bool = True
+    appear_timeout_s: float = 10.0
 
     def __post_init__(self) -> None:
         for k in ("transit_speed", "start_radius", "arrive_radius", "offset_rate", "takeoff_tolerance",
@@ -345,6 +336,8 @@ class MavlinkParams:
                 raise ValueError(f"{k} must be finite and > 0")
         if not (math.isfinite(self.max_offset) and self.max_offset >= 0):
             raise ValueError("max_offset must be finite and >= 0")
+        if not (isinstance(self.appear_timeout_s, (int, float)) and 0 <= self.appear_timeout_s <= 600):
+            raise ValueError("appear_timeout_s must be in [0, 600] s")
         if not (isinstance(self.retries, int) and 0 <= self.retries <= 10):
             raise ValueError("retries must be an int in 0..10")
         if self.interpolation not in ("cubic", "linear"):
@@ -379,6 +372,16 @@ class MavlinkDriver(VehicleDriver):
         The autopilot's MAVLink system id; None takes the first autopilot heard.
     source_system, source_component : int
         Our own MAVLink address (255 / MAV_COMP_ID_ONBOARD_COMPUTER by default: a GCS-side id).
+    signing_key : str or None
+        MAVLink 2 signing key (64 hex digits or a passphrase, :mod:`edge.vehicle.apm.signing`):
+        every packet out is signed and only correctly signed packets are accepted, the signature
+        checked before the stream's timestamp is recorded. None: unsigned.
+    gcs_endpoint : str or None
+        A MAVLink endpoint for the operator's ground station (:mod:`edge.vehicle.gcs_bridge`): the
+        autopilot's traffic is forwarded there and the GCS's to the autopilot. With it the driver
+        speaks as the companion computer (system id ``uav`` unless ``source_system`` is given,
+        HEARTBEAT type MAV_TYPE_ONBOARD_CONTROLLER), so the autopilot's GCS failsafe watches the
+        operator's ground station, not the edge.
     """
 
     def __init__(
@@ -393,6 +396,8 @@ class MavlinkDriver(VehicleDriver):
         sysid: int | None = None,
         source_system: int = 255,
         source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
+        signing_key: str | None = None,
+        gcs_endpoint: str | None = None,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -413,7 +418,15 @@ class MavlinkDriver(VehicleDriver):
         self._home = np.array(self.home)
         self._sysid = sysid
         self._compid = M.MAV_COMP_ID_AUTOPILOT1
+        self._hb_type = M.MAV_TYPE_GCS
+        if gcs_endpoint is not None:
+            self._hb_type = M.MAV_TYPE_ONBOARD_CONTROLLER
+            if source_system == 255:
+                source_system = uav
         self._conn = open_connection(connection, source_system, source_component)
+        self.bridge = None
+        if signing_key is not None:
+            enable_signing(self._conn, parse_key(signing_key))
         self._mono0 = time.monotonic()
         self._lock = threading.RLock()  # telemetry, phase, acks
         self._cv = threading.Condition(self._lock)
@@ -453,6 +466,10 @@ class MavlinkDriver(VehicleDriver):
         #: position targets sent (count) and the last one (NED x, y, z, yaw), for inspection
         self.targets_sent = 0
         self.last_target: tuple[float, float, float, float] | None = None
+        if gcs_endpoint is not None:
+            from edge.vehicle.gcs_bridge import GcsBridge
+
+            self.bridge = GcsBridge(gcs_endpoint, self._write_raw)
         self._reader = threading.Thread(target=self._read_loop, name=f"mavlink-uav{uav}", daemon=True)
         self._reader.start()
 
@@ -463,6 +480,11 @@ class MavlinkDriver(VehicleDriver):
                 getattr(self._conn.mav, name)(*args)
             except OSError:
                 self.link_errors += 1
+
+    def _write_raw(self, frame: bytes) -> None:
+        """One raw frame to the autopilot (from the ground-station bridge)."""
+        with self._send_lock:
+            self._conn.write(frame)
 
     def _read_loop(self) -> None:
         conn = self._conn
@@ -478,12 +500,14 @@ class MavlinkDriver(VehicleDriver):
                 msg = None
             now = time.monotonic()
             if msg is not None:
+                if self.bridge is not None:
+                    self.bridge.to_gcs(msg)
                 self._on_message(msg, now)
             else:
                 conn.select(0.02)
             if now - last_hb >= 1.0:
                 last_hb = now
-                self._send("heartbeat_send", M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
+                self._send("heartbeat_send", self._hb_type, M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
             if self._hb is not None and now - last_req >= 2.0:
                 last_req = now
                 self._request_streams(now)
@@ -699,6 +723,11 @@ class MavlinkDriver(VehicleDriver):
     def _require(self, allowed: tuple[Mode, ...], what: str) -> Mode:
         if self._closed:
             raise ValueError("driver is closed")
+        if self.heartbeat_age() is None and self.params.appear_timeout_s > 0:
+            try:  # not heard yet: give the autopilot time to appear instead of a fixed window
+                self.wait_heartbeat(self.params.appear_timeout_s)
+            except VehicleLinkError:
+                pass  # reported below
         err = self._link_error()
         if err is not None:
             raise err
@@ -730,6 +759,10 @@ class MavlinkDriver(VehicleDriver):
 
     # ------------------------------------------------------------------ commands
     def upload(self, traj: Trajectory) -> None:
+        if self.heartbeat_age() is None and self._phase == "idle" and not self._closed:
+            with self._lock:  # before the autopilot appears: stored here, flown once it is there
+                self.mission.load(traj)
+            return
         self._require((Mode.IDLE, Mode.LANDED, Mode.TAKEOFF, Mode.HOLD), "upload a trajectory")
         with self._lock:
             self.mission.load(traj)
@@ -813,6 +846,8 @@ class MavlinkDriver(VehicleDriver):
         self._closed = True
         self._stop.set()
         self._reader.join(timeout=2.0)
+        if self.bridge is not None:
+            self.bridge.close()
         try:
             self._conn.close()
         except OSError:
@@ -894,7 +929,7 @@ class MavlinkDriver(VehicleDriver):
         if self.params.trigger_camera:
             for ev in events:
                 self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_DO_DIGICAM_CONTROL, 0,
-                           0, 0, 0, 0, 1, ev.capture_id % 256, 0)
+                           *capture_params(ev.capture_id))
         return events
 
     def _send_target(self, pos: Vec3, vel: Vec3 | None, acc: Vec3 | None, yaw_enu: float) -> None:

@@ -40,7 +40,7 @@ def _plan(argv: list[str]) -> int:
     a = ap.parse_args(argv)
     sc = load_scenario(a.scenario)
     plan = plan_mission(sc, a.algorithm, a.seed, a.particles, a.iterations, a.waypoints)
-    files = write_mission(plan, a.out)
+    files = write_mission(plan, a.out, sc.surface.corners if sc.surface is not None else None)
     dur = max(tr.waypoints[-1].t for tr in plan.trajectories)
     print(f"scenario {sc.name}: {plan.algorithm} seed {plan.seed}, cost {plan.cost:.2f}, "
           f"{'collision-free' if plan.collision_free else 'COLLISION'}, planned in {plan.planning_time_s:.2f} s")

@@ -1,17 +1,33 @@
-"""Mission export: QGroundControl / Mission Planner waypoint files and GeoJSON, and their parsers.
+"""Mission export: QGroundControl .plan, QGC WPL 110 waypoint files, KML and GeoJSON, and their readers.
 
 The paper uploads the paths to the UAVs with Mission Planner (PAPER.md Section 4). Each UAV's
-trajectory becomes a plain-text "QGC WPL 110" mission, one item per line, tab-separated::
+trajectory becomes one list of mission items (:func:`mission_items`), written as a plain-text
+"QGC WPL 110" file (one item per line, tab-separated: ``INDEX CURRENT FRAME COMMAND P1..P4
+LAT/X LON/Y ALT/Z AUTOCONTINUE``) or inside a QGroundControl ``.plan`` file:
 
-    INDEX  CURRENT  FRAME  COMMAND  P1  P2  P3  P4  LAT/X  LON/Y  ALT/Z  AUTOCONTINUE
-
-- item 0: home, ``MAV_CMD_NAV_WAYPOINT`` (16) in ``MAV_FRAME_GLOBAL`` (0), absolute altitude;
+- item 0: home, ``MAV_CMD_NAV_WAYPOINT`` (16) in ``MAV_FRAME_GLOBAL`` (0), absolute altitude
+  (a .plan has it as ``plannedHomePosition`` instead);
 - item 1: ``MAV_CMD_NAV_TAKEOFF`` (22) to the first waypoint's altitude;
 - waypoints: ``MAV_CMD_NAV_WAYPOINT`` (16) in ``MAV_FRAME_GLOBAL_RELATIVE_ALT`` (3), altitude
-  above home, P4 = yaw as a compass heading in degrees (0 north, clockwise);
-- after each capture waypoint: ``MAV_CMD_DO_DIGICAM_CONTROL`` (203) with P5 = 1 (shoot) and
-  P7 = the capture id (the "command identity" parameter);
+  above home, P4 = yaw as a compass heading in degrees (0 north, clockwise), P1 = hold time
+  where the trajectory hovers (a leg shorter than 1 cm);
+- ``MAV_CMD_CONDITION_YAW`` (115) after a waypoint whose heading differs from the last one by
+  more than 0.5 degree (ArduCopter turns in AUTO by this item; P1 heading, P4 = 0 absolute);
+- ``MAV_CMD_DO_CHANGE_SPEED`` (178) after a waypoint when the next leg's planned ground speed
+  (its length over its duration) differs from the one in force by more than 1 cm/s (P1 = 1
+  ground speed, P2 m/s, P3 = −1 throttle unchanged): an autopilot flying the file in AUTO keeps
+  the plan's timing, so the formation holds;
+- after each capture waypoint: ``MAV_CMD_DO_DIGICAM_CONTROL`` (203), P5 = 1 (shoot) and
+  **P6 = the capture id** (MAVLink's "Command Identity"; P7 is the test-shot flag and stays 0).
+  This is the one capture-id convention of the project (:mod:`edge.vehicle.apm.items`), shared
+  with the MAVLink driver and the sim autopilot;
 - last item: ``MAV_CMD_NAV_RETURN_TO_LAUNCH`` (20).
+
+A ``.plan`` (QGroundControl's documented JSON: ``fileType`` "Plan", ``mission`` version 2 with
+``SimpleItem`` items, ``geoFence`` version 2 with inclusion polygons, ``rallyPoints`` version 2)
+also carries the operation box as an inclusion fence and the launch point at the return
+altitude as a rally point. KML (OGC KML 2.2) holds each UAV's path as a LineString, the capture
+points as Points and the inspected surface as a Polygon, altitudes absolute.
 
 Local ENU metres are converted to WGS-84 with :func:`pymap3d.enu2geodetic` about the scenario's
 geodetic origin; latitudes/longitudes are written with 9 decimals (0.1 mm), altitudes with 3.
@@ -31,6 +47,7 @@ import numpy as np
 import pymap3d
 from numpy.typing import ArrayLike, NDArray
 
+from edge.vehicle.apm import items as AI
 from protocol.messages import MissionPlan, Trajectory
 
 __all__ = [
@@ -41,20 +58,33 @@ __all__ = [
     "MissionItem",
     "enu_to_geodetic",
     "geodetic_to_enu",
+    "mission_items",
+    "leg_speeds",
     "qgc_wpl",
     "parse_qgc_wpl",
+    "qgc_plan",
+    "parse_qgc_plan",
+    "mission_kml",
+    "parse_kml",
     "waypoints_enu",
     "mission_geojson",
     "parse_geojson",
     "write_mission",
 ]
 
-MAV_CMD_NAV_WAYPOINT = 16
-MAV_CMD_NAV_RETURN_TO_LAUNCH = 20
-MAV_CMD_NAV_TAKEOFF = 22
-MAV_CMD_DO_DIGICAM_CONTROL = 203
-MAV_FRAME_GLOBAL = 0
-MAV_FRAME_GLOBAL_RELATIVE_ALT = 3
+MAV_CMD_NAV_WAYPOINT = AI.MAV_CMD_NAV_WAYPOINT
+MAV_CMD_NAV_RETURN_TO_LAUNCH = AI.MAV_CMD_NAV_RETURN_TO_LAUNCH
+MAV_CMD_NAV_TAKEOFF = AI.MAV_CMD_NAV_TAKEOFF
+MAV_CMD_DO_DIGICAM_CONTROL = AI.MAV_CMD_DO_DIGICAM_CONTROL
+MAV_CMD_DO_CHANGE_SPEED = AI.MAV_CMD_DO_CHANGE_SPEED
+MAV_CMD_CONDITION_YAW = 115
+MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION = AI.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
+MAV_CMD_NAV_RALLY_POINT = AI.MAV_CMD_NAV_RALLY_POINT
+MAV_FRAME_GLOBAL = AI.MAV_FRAME_GLOBAL
+MAV_FRAME_MISSION = AI.MAV_FRAME_MISSION
+MAV_FRAME_GLOBAL_RELATIVE_ALT = AI.MAV_FRAME_GLOBAL_RELATIVE_ALT
+#: the return altitude of the rally point in a .plan (ArduCopter's RTL_ALT default), m above home
+RALLY_ALT_M = 15.0
 HEADER = "QGC WPL 110"
 
 
@@ -107,8 +137,8 @@ def _fmt(x: float, digits: int) -> str:
     return "0" if s in ("-0", "") else s
 
 
-def qgc_wpl(trajectory: Trajectory, origin: ArrayLike) -> str:
-    """The QGC WPL 110 text of one UAV's trajectory (see the module docstring)."""
+def mission_items(trajectory: Trajectory, origin: ArrayLike) -> list[MissionItem]:
+    """The mission items of one UAV's trajectory (see the module docstring), item 0 = home."""
     lat0, lon0, h0 = _origin(origin)
     wps = trajectory.waypoints
     pos = np.array([w.pos for w in wps], float)
@@ -118,16 +148,37 @@ def qgc_wpl(trajectory: Trajectory, origin: ArrayLike) -> str:
         MissionItem(1, 0, MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_CMD_NAV_TAKEOFF,
                     (0, 0, 0, 0, float(lla[0, 0]), float(lla[0, 1]), float(pos[0, 2]))),
     ]
-    for w, (lat, lon, _h), p in zip(wps, lla, pos):
-        items.append(MissionItem(len(items), 0, MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_CMD_NAV_WAYPOINT,
-                                 (0, 0, 0, _compass_deg(w.yaw), float(lat), float(lon), float(p[2]))))
+
+    def add(frame: int, command: int, params: tuple[float, ...]) -> None:
+        items.append(MissionItem(len(items), 0, frame, command, tuple(float(v) for v in params)))  # type: ignore[arg-type]
+
+    speed: float | None = None
+    heading: float | None = None
+    for k, (w, (lat, lon, _h), p) in enumerate(zip(wps, lla, pos)):
+        hdg = _compass_deg(w.yaw)
+        nxt = k + 1 < len(wps)
+        dt = wps[k + 1].t - w.t if nxt else 0.0
+        length = float(np.linalg.norm(pos[k + 1] - p)) if nxt else 0.0
+        hold = dt if nxt and length < 0.01 else 0.0
+        add(MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_CMD_NAV_WAYPOINT, (hold, 0, 0, hdg, float(lat), float(lon), float(p[2])))
+        if heading is None or abs((hdg - heading + 180.0) % 360.0 - 180.0) > 0.5:
+            add(MAV_FRAME_MISSION, MAV_CMD_CONDITION_YAW, (hdg, 0, 0, 0, 0, 0, 0))
+            heading = hdg
         if w.capture_id is not None:
-            items.append(MissionItem(len(items), 0, MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_CMD_DO_DIGICAM_CONTROL,
-                                     (0, 0, 0, 0, 1, 0, float(w.capture_id))))
-    items.append(MissionItem(len(items), 0, MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_CMD_NAV_RETURN_TO_LAUNCH,
-                             (0, 0, 0, 0, 0, 0, 0)))
+            add(MAV_FRAME_MISSION, MAV_CMD_DO_DIGICAM_CONTROL, AI.capture_params(w.capture_id))
+        if nxt and length >= 0.01:
+            v = length / dt
+            if speed is None or abs(v - speed) > 0.01:
+                add(MAV_FRAME_MISSION, MAV_CMD_DO_CHANGE_SPEED, AI.speed_params(min(v, 100.0)))
+                speed = v
+    add(MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_CMD_NAV_RETURN_TO_LAUNCH, (0, 0, 0, 0, 0, 0, 0))
+    return items
+
+
+def qgc_wpl(trajectory: Trajectory, origin: ArrayLike) -> str:
+    """The QGC WPL 110 text of one UAV's trajectory (see the module docstring)."""
     lines = [HEADER]
-    for it in items:
+    for it in mission_items(trajectory, origin):
         p = it.params
         cells = [str(it.index), str(it.current), str(it.frame), str(it.command),
                  *(_fmt(v, 6) for v in p[:4]), _fmt(p[4], 9), _fmt(p[5], 9), _fmt(p[6], 3),
@@ -179,9 +230,139 @@ def waypoints_enu(items: list[MissionItem]) -> tuple[NDArray[np.float64], list[i
             pts.append((lat, lon, h))
             caps.append(None)
         elif it.command == MAV_CMD_DO_DIGICAM_CONTROL and caps:
-            caps[-1] = int(it.params[6])
+            caps[-1] = AI.capture_id(it.params)
     enu = geodetic_to_enu(np.asarray(pts, float).reshape(-1, 3), origin) if pts else np.zeros((0, 3))
     return enu, caps
+
+
+def leg_speeds(items: list[MissionItem]) -> list[float | None]:
+    """The DO_CHANGE_SPEED ground speed in force on the leg after each NAV_WAYPOINT (None: the default)."""
+    out: list[float | None] = []
+    speed: float | None = None
+    for it in items[1:]:
+        if it.command == MAV_CMD_DO_CHANGE_SPEED and it.params[1] > 0:
+            speed = it.params[1]
+            if out:
+                out[-1] = speed  # after a waypoint: the leg that starts there
+        elif it.command == MAV_CMD_NAV_WAYPOINT:
+            out.append(speed)
+    return out
+
+
+def _nan_to_none(v: float) -> float | None:
+    return None if not math.isfinite(v) else v
+
+
+def qgc_plan(trajectory: Trajectory, plan: MissionPlan) -> dict[str, Any]:
+    """QGroundControl's .plan JSON for one UAV: the mission, the box as an inclusion fence, a rally point.
+
+    Schema: QGroundControl's "Plan File Format" (fileType "Plan", version 1; mission version 2 with
+    ``SimpleItem`` items, ``plannedHomePosition``, ``firmwareType`` 3 = ArduPilot, ``vehicleType`` 2 =
+    quadrotor; geoFence version 2; rallyPoints version 2).
+    """
+    items = mission_items(trajectory, plan.origin)
+    home = items[0].params
+    out_items = []
+    for it in items[1:]:
+        p = list(it.params)
+        out_items.append({"type": "SimpleItem", "autoContinue": bool(it.autocontinue), "command": it.command,
+                          "doJumpId": it.index, "frame": it.frame, "params": [_nan_to_none(v) for v in p],
+                          "Altitude": p[6], "AltitudeMode": 1, "AMSLAltAboveTerrain": None})
+    lo, hi = plan.geofence.lo, plan.geofence.hi
+    ring = enu_to_geodetic([(lo[0], lo[1], 0.0), (hi[0], lo[1], 0.0), (hi[0], hi[1], 0.0), (lo[0], hi[1], 0.0)],
+                           plan.origin)
+    start = trajectory.waypoints[0].pos
+    r = enu_to_geodetic([start[0], start[1], 0.0], plan.origin)
+    speeds = [w.speed for w in trajectory.waypoints if w.speed > 0]
+    return {
+        "fileType": "Plan", "version": 1, "groundStation": "SkyNet Inspect",
+        "mission": {"version": 2, "firmwareType": 3, "vehicleType": 2,
+                    "cruiseSpeed": max(speeds) if speeds else 5.0, "hoverSpeed": max(speeds) if speeds else 5.0,
+                    "plannedHomePosition": [home[4], home[5], home[6]], "items": out_items},
+        "geoFence": {"version": 2, "circles": [],
+                     "polygons": [{"inclusion": True, "version": 1,
+                                   "polygon": [[float(a), float(b)] for a, b, _ in ring]}]},
+        "rallyPoints": {"version": 2, "points": [[float(r[0]), float(r[1]), RALLY_ALT_M]]},
+    }
+
+
+def parse_qgc_plan(doc: dict[str, Any] | str) -> tuple[list[MissionItem], list[list[tuple[float, float]]],
+                                                       list[tuple[float, float, float]]]:
+    """Read a .plan: ``(items with home as item 0, inclusion polygons [(lat, lon)], rally points)``.
+
+    Raises ValueError for anything that is not a version-2 Plan of SimpleItems.
+    """
+    d = json.loads(doc) if isinstance(doc, str) else doc
+    if not isinstance(d, dict) or d.get("fileType") != "Plan":
+        raise ValueError("not a QGroundControl plan: fileType must be 'Plan'")
+    m = d.get("mission") or {}
+    if m.get("version") != 2:
+        raise ValueError("only mission version 2 is read")
+    home = m.get("plannedHomePosition")
+    if not (isinstance(home, list) and len(home) == 3):
+        raise ValueError("mission.plannedHomePosition must be [lat, lon, alt]")
+    items = [MissionItem(0, 1, MAV_FRAME_GLOBAL, MAV_CMD_NAV_WAYPOINT, (0, 0, 0, 0, *map(float, home)))]  # type: ignore[arg-type]
+    for k, it in enumerate(m.get("items", []), start=1):
+        if it.get("type") != "SimpleItem":
+            raise ValueError(f"mission item {k}: only SimpleItem is read, got {it.get('type')!r}")
+        p = it.get("params")
+        if not (isinstance(p, list) and len(p) == 7):
+            raise ValueError(f"mission item {k}: params must have 7 entries")
+        params = tuple(math.nan if v is None else float(v) for v in p)
+        items.append(MissionItem(k, 0, int(it["frame"]), int(it["command"]), params,  # type: ignore[arg-type]
+                                 int(bool(it.get("autoContinue", True)))))
+    fence = [[(float(a), float(b)) for a, b in poly["polygon"]]
+             for poly in (d.get("geoFence") or {}).get("polygons", []) if poly.get("inclusion", True)]
+    rally = [tuple(map(float, r)) for r in (d.get("rallyPoints") or {}).get("points", [])]
+    return items, fence, rally  # type: ignore[return-value]
+
+
+def mission_kml(plan: MissionPlan, surface: ArrayLike | None = None) -> str:
+    """KML 2.2 of a plan: a LineString per UAV, a Point per capture, the surface (4 ENU corners) as a Polygon."""
+    from xml.sax.saxutils import escape
+
+    o = plan.origin
+
+    def coords(p: ArrayLike) -> str:
+        g = enu_to_geodetic(np.asarray(p, float).reshape(-1, 3), o)
+        return " ".join(f"{lon:.9f},{lat:.9f},{h:.3f}" for lat, lon, h in g)
+
+    marks = []
+    for tr in plan.trajectories:
+        marks.append(f"<Placemark><name>uav{tr.uav}</name><LineString><altitudeMode>absolute</altitudeMode>"
+                     f"<coordinates>{coords([w.pos for w in tr.waypoints])}</coordinates></LineString></Placemark>")
+    for c in plan.captures:
+        marks.append(f"<Placemark><name>capture {c.capture_id} (uav{c.uav})</name><Point><altitudeMode>absolute"
+                     f"</altitudeMode><coordinates>{coords(c.pos)}</coordinates></Point></Placemark>")
+    if surface is not None:
+        corners = np.asarray(surface, float).reshape(-1, 3)
+        ring = np.vstack([corners, corners[:1]])
+        marks.append("<Placemark><name>inspected surface</name><Polygon><altitudeMode>absolute</altitudeMode>"
+                     f"<outerBoundaryIs><LinearRing><coordinates>{coords(ring)}</coordinates></LinearRing>"
+                     "</outerBoundaryIs></Polygon></Placemark>")
+    name = escape(f"SkyNet Inspect mission ({plan.algorithm})")
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2"><Document>'
+            f"<name>{name}</name>" + "".join(marks) + "</Document></kml>\n")
+
+
+def parse_kml(text: str, origin: ArrayLike) -> dict[str, NDArray[np.float64]]:
+    """Placemark name -> its coordinates in ENU ``(N, 3)`` (every LineString, Point and Polygon ring)."""
+    import xml.etree.ElementTree as ET
+
+    ns = {"k": "http://www.opengis.net/kml/2.2"}
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise ValueError(f"not KML: {exc}") from None
+    out: dict[str, NDArray[np.float64]] = {}
+    for pm in root.iterfind(".//k:Placemark", ns):
+        name = pm.findtext("k:name", default="", namespaces=ns)
+        c = pm.find(".//k:coordinates", ns)
+        if c is None or not c.text:
+            continue
+        lla = np.array([[float(v) for v in t.split(",")] for t in c.text.split()], float)
+        out[name] = geodetic_to_enu(lla[:, [1, 0, 2]], origin)
+    return out
 
 
 def mission_geojson(plan: MissionPlan) -> dict[str, Any]:
@@ -230,8 +411,8 @@ def parse_geojson(doc: dict[str, Any] | str, origin: ArrayLike) -> dict[str, NDA
     return out
 
 
-def write_mission(plan: MissionPlan, out_dir: str | Path) -> list[Path]:
-    """Write ``uav<N>.waypoints`` per UAV and ``mission.geojson`` into ``out_dir``; returns the paths."""
+def write_mission(plan: MissionPlan, out_dir: str | Path, surface: ArrayLike | None = None) -> list[Path]:
+    """Write ``uav<N>.waypoints`` and ``uav<N>.plan`` per UAV, ``mission.geojson`` and ``mission.kml``."""
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -239,7 +420,13 @@ def write_mission(plan: MissionPlan, out_dir: str | Path) -> list[Path]:
         p = d / f"uav{tr.uav}.waypoints"
         p.write_text(qgc_wpl(tr, plan.origin))
         paths.append(p)
+        p = d / f"uav{tr.uav}.plan"
+        p.write_text(json.dumps(qgc_plan(tr, plan), indent=1))
+        paths.append(p)
     p = d / "mission.geojson"
     p.write_text(json.dumps(mission_geojson(plan), indent=1))
+    paths.append(p)
+    p = d / "mission.kml"
+    p.write_text(mission_kml(plan, surface))
     paths.append(p)
     return paths

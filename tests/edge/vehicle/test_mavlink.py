@@ -155,7 +155,8 @@ def test_constructor_rejects_bad_arguments():
 
 
 def test_no_heartbeat_is_a_clear_error():
-    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{free_udp_port()}", home=HOME)
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{free_udp_port()}", home=HOME,
+                        params=MavlinkParams(appear_timeout_s=0.3))
     try:
         assert drv.state().mode == Mode.FAILSAFE and not drv.state().armed
         assert drv.state().pos == HOME
@@ -164,6 +165,7 @@ def test_no_heartbeat_is_a_clear_error():
         with pytest.raises(ValueError, match="no HEARTBEAT from an autopilot"):
             drv.takeoff(5.0)
         assert drv.step(1.0) == [] and drv.targets_sent == 0
+        drv.upload(Trajectory(uav=1, waypoints=[Waypoint(t=0, pos=(10, -5, 6)), Waypoint(t=1, pos=(10, -4, 6))]))
         with pytest.raises(ValueError, match="until_t"):
             drv.step(math.nan)
     finally:
@@ -375,3 +377,21 @@ def test_guided_target_moves_on_then_stops_after_the_timeout():
     k = GUIDED_TIMEOUT_S
     assert p == pytest.approx((1.0 + k, 2.0 + 0.1 * k * k, 3.0 - 0.5 * k))
     assert v == (0.0, 0.0, 0.0) and a == (0.0, 0.0, 0.0) and yaw == 0.3
+
+
+def test_commands_wait_for_an_autopilot_that_appears_later():
+    """No fixed window: the trajectory is stored at once and the takeoff waits for the first HEARTBEAT."""
+    port = free_udp_port()
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME)
+    veh = None
+    try:
+        drv.upload(Trajectory(uav=1, waypoints=[Waypoint(t=0, pos=(10, -5, 6)), Waypoint(t=2, pos=(12, -5, 6))]))
+        veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=8.0)
+        import threading
+        threading.Timer(1.0, veh.start).start()  # the autopilot boots a second after the command
+        drv.takeoff(4.0)
+        assert veh.armed and drv.state().mode == Mode.TAKEOFF
+    finally:
+        drv.close()
+        if veh is not None:
+            veh.close()

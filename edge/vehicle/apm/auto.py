@@ -1,0 +1,224 @@
+"""AUTO mode: walking a mission's items as ArduCopter's mission library does (a subset).
+
+Each call of :meth:`AutoMission.update` (vehicle time ``t``, position ``pos``, ENU m) returns
+what to fly now and what happened:
+
+==========================  =====================================================================
+item                        behaviour (ArduCopter's, ardupilot.org/copter/docs/mission-command-list)
+==========================  =====================================================================
+NAV_TAKEOFF (22)            ``("takeoff", alt)``: climb to ``z`` above home where the vehicle
+                            is; reached within ``takeoff_tol`` of that altitude
+NAV_WAYPOINT (16)           a carrot moves from where the leg starts to the waypoint at the
+                            current speed (WPNAV_SPEED, or the last DO_CHANGE_SPEED); reached when
+                            the carrot is there and the vehicle within WPNAV_RADIUS; then waits
+                            param1 s (hold time). The next leg starts when the carrot arrived
+                            (plus the hold), not at the update that noticed it
+NAV_LAND (21)               ``("land",)``; the mission ends when the vehicle is down
+NAV_RETURN_TO_LAUNCH (20)   ``("rtl",)``
+DO_CHANGE_SPEED (178)       param2 > 0: the new ground speed, m/s (applies from the next leg on, and
+                            to the current one at once, as ArduCopter does)
+DO_DIGICAM_CONTROL (203)    param5 = 1: a shot, event ``("shot", capture id)`` (:mod:`.items`)
+DO_SET_CAM_TRIGG_DIST (206) param1 m: a shot every param1 m flown (0 stops); param3 = 1 also one now
+CONDITION_YAW (115)         param1 heading, degrees (compass); param4 = 1 relative
+==========================  =====================================================================
+
+Do items run when the sequence reaches them (right after the previous NAV item completes).
+Yaw otherwise follows WP_YAW_BEHAVIOR: 0 keeps the heading, any other value faces along each
+leg longer than 2 m. After the last item the vehicle holds where it is (ArduCopter's "mission
+complete": it stays in AUTO); :attr:`done` is then True.
+Events: ``("current", seq)`` when the current item changes (MISSION_CURRENT), ``("reached",
+seq)`` when a NAV item completes (MISSION_ITEM_REACHED), ``("shot", id)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+from edge.vehicle.apm import items as I
+from edge.vehicle.apm.missions import PlanItem
+
+__all__ = ["AutoMission", "Flight", "MAV_CMD_CONDITION_YAW"]
+
+Vec3 = tuple[float, float, float]
+MAV_CMD_CONDITION_YAW = 115
+
+
+@dataclass(frozen=True)
+class Flight:
+    """What AUTO flies now: ``kind`` "goto" (pos, vel, yaw), "takeoff" (alt above home), "land", "rtl", "hold"."""
+
+    kind: str
+    pos: Vec3 = (0.0, 0.0, 0.0)
+    vel: Vec3 = (0.0, 0.0, 0.0)
+    yaw: float = 0.0
+    alt: float = 0.0
+
+
+def _dist(a: Vec3, b: Vec3) -> float:
+    return math.dist(a, b)
+
+
+class AutoMission:
+    """The mission executor.
+
+    Parameters
+    ----------
+    items : the stored mission (item 0 = home, skipped)
+    to_enu : PlanItem -> ENU position of a positioned item (relative altitude above home)
+    home : ENU home position
+    speed : WPNAV_SPEED, m/s; radius : WPNAV_RADIUS, m; yaw_behavior : WP_YAW_BEHAVIOR
+    """
+
+    def __init__(self, items: list[PlanItem], to_enu: Callable[[PlanItem], Vec3], home: Vec3, speed: float,
+                 radius: float = 2.0, yaw_behavior: int = 2, takeoff_tol: float = 0.3, start: int = 1):
+        self.items = list(items)
+        self.to_enu = to_enu
+        self.home = home
+        self.speed = float(speed)
+        self.radius = float(radius)
+        self.yaw_behavior = int(yaw_behavior)
+        self.takeoff_tol = float(takeoff_tol)
+        self.current = max(1, int(start))
+        self.done = False
+        self.shots = 0
+        self._leg: tuple[Vec3, Vec3, float] | None = None  # start, end, t_start
+        self._hold_until: float | None = None
+        self._yaw: float | None = None
+        self._trig_dist = 0.0
+        self._trig_from: Vec3 | None = None
+        self._began = False
+        self._last_target: Vec3 | None = None
+        self._started: set[int] = set()
+        self._takeoff_xy: tuple[float, float] | None = None
+        self._t_free: float | None = None  # when the last leg's carrot arrived (plus its hold)
+
+    def set_current(self, seq: int) -> bool:
+        """MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT: jump to ``seq`` (1..len-1)."""
+        if not 1 <= seq < max(2, len(self.items)):
+            return False
+        self.current, self._leg, self._hold_until, self.done = int(seq), None, None, False
+        self._started.discard(seq)
+        return True
+
+    def update(self, t: float, pos: Vec3, yaw: float, airborne: bool) -> tuple[Flight, list[tuple[str, int]]]:
+        ev: list[tuple[str, int]] = []
+        if not self._began:
+            self._began = True
+            ev.append(("current", self.current))
+        if self._yaw is None:
+            self._yaw = yaw
+        self._camera_distance(pos, ev)
+        for _ in range(len(self.items) + 1):  # do items run at once; stop at the first NAV item
+            if self.current >= len(self.items):
+                self.done = True
+                return Flight("hold", self._last_target or pos, yaw=self._yaw), ev
+            it = self.items[self.current]
+            c = it.command
+            if c in (I.MAV_CMD_DO_CHANGE_SPEED, I.MAV_CMD_DO_DIGICAM_CONTROL, I.MAV_CMD_DO_SET_CAM_TRIGG_DIST,
+                     MAV_CMD_CONDITION_YAW):
+                self._do(it, t, pos, ev)
+                self._advance(ev)
+                continue
+            flight, complete = self._nav(it, t, pos, airborne)
+            if not complete:
+                return flight, ev
+            ev.append(("reached", self.current))
+            self._advance(ev)
+        return Flight("hold", pos, yaw=self._yaw), ev
+
+    def _advance(self, ev: list[tuple[str, int]]) -> None:
+        self.current += 1
+        self._leg, self._hold_until = None, None
+        if self.current < len(self.items):
+            ev.append(("current", self.current))
+
+    def _do(self, it: PlanItem, t: float, pos: Vec3, ev: list[tuple[str, int]]) -> None:
+        c = it.command
+        if c == I.MAV_CMD_DO_CHANGE_SPEED:
+            if math.isfinite(it.param2) and it.param2 > 0:
+                self.speed = float(it.param2)
+                if self._leg is not None:
+                    self._leg = (pos, self._leg[1], t)
+        elif c == I.MAV_CMD_DO_DIGICAM_CONTROL:
+            cid = I.capture_id(it.params)
+            if cid is not None:
+                self.shots += 1
+                ev.append(("shot", cid))
+        elif c == I.MAV_CMD_DO_SET_CAM_TRIGG_DIST:
+            self._trig_dist = max(0.0, float(it.param1)) if math.isfinite(it.param1) else 0.0
+            self._trig_from = pos
+            if it.param3 == 1:
+                self.shots += 1
+                ev.append(("shot", self.shots))
+        elif c == MAV_CMD_CONDITION_YAW and math.isfinite(it.param1):
+            enu = math.radians(90.0 - it.param1)
+            base = self._yaw or 0.0
+            self._yaw = math.remainder(base - math.radians(it.param1) if it.param4 == 1 else enu, 2 * math.pi)
+
+    def _camera_distance(self, pos: Vec3, ev: list[tuple[str, int]]) -> None:
+        if self._trig_dist <= 0 or self._trig_from is None:
+            return
+        if _dist(pos, self._trig_from) >= self._trig_dist:
+            self._trig_from = pos
+            self.shots += 1
+            ev.append(("shot", self.shots))
+
+    def _nav(self, it: PlanItem, t: float, pos: Vec3, airborne: bool) -> tuple[Flight, bool]:
+        c = it.command
+        if c == I.MAV_CMD_NAV_TAKEOFF:
+            z = self.home[2] + max(0.5, it.z)
+            if airborne and pos[2] >= z - self.takeoff_tol:
+                self._last_target = (pos[0], pos[1], z)
+                return Flight("hold", self._last_target, yaw=self._yaw or 0.0), True
+            if self._takeoff_xy is None:
+                self._takeoff_xy = (pos[0], pos[1])
+            return Flight("takeoff", (*self._takeoff_xy, z), yaw=self._yaw or 0.0, alt=z - self.home[2]), False
+        if c == I.MAV_CMD_NAV_WAYPOINT:
+            p = self.to_enu(it)
+            if it.x == 0 and it.y == 0:  # ArduPilot: lat/lon 0 = here
+                p = (pos[0], pos[1], p[2])
+            return self._goto(t, pos, p, hold_s=it.param1 if math.isfinite(it.param1) else 0.0)
+        if c == I.MAV_CMD_NAV_LAND:
+            if not airborne and self.current in self._started:
+                return Flight("hold", pos), True
+            self._started.add(self.current)
+            return Flight("land"), False
+        if c == I.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            if not airborne and self.current in self._started:
+                return Flight("hold", pos), True
+            self._started.add(self.current)
+            return Flight("rtl"), False
+        return Flight("hold", pos), True  # a command the store let through but AUTO does not fly
+
+    def _goto(self, t: float, pos: Vec3, end: Vec3, hold_s: float) -> tuple[Flight, bool]:
+        if self._leg is None or self._leg[1] != end:
+            start = self._last_target or pos
+            # a leg starts when the previous one's carrot arrived (not at the next update after it), so
+            # the update rate does not stretch the mission's timing
+            t0 = self._t_free if self._t_free is not None and 0.0 <= t - self._t_free < 0.5 else t
+            self._leg = (start, end, t0)
+            self._t_free = None
+            d = (end[0] - start[0], end[1] - start[1])
+            if self.yaw_behavior != 0 and math.hypot(*d) > 2.0:
+                self._yaw = math.atan2(d[1], d[0])
+        start, end, t0 = self._leg
+        length = _dist(start, end)
+        s = self.speed * max(0.0, t - t0)
+        yaw = self._yaw or 0.0
+        if length > 1e-9 and s < length:
+            u = tuple((e - b) / length for b, e in zip(start, end))
+            carrot = tuple(b + ui * s for b, ui in zip(start, u))
+            vel = tuple(ui * self.speed for ui in u)
+            return Flight("goto", carrot, vel, yaw), False  # type: ignore[arg-type]
+        self._last_target = end
+        if _dist(pos, end) > self.radius:
+            return Flight("goto", end, yaw=yaw), False
+        if self._hold_until is None:
+            arrived = t0 + (length / self.speed if self.speed > 0 else 0.0)
+            self._hold_until = max(arrived, t - 0.5) + max(0.0, hold_s)
+        if t >= self._hold_until:
+            self._t_free = self._hold_until
+            return Flight("goto", end, yaw=yaw), True
+        return Flight("goto", end, yaw=yaw), False

@@ -1,0 +1,135 @@
+"""ArduCopter's parameter table (a subset) and the MAVLink parameter protocol.
+
+Protocol (https://mavlink.io/en/services/parameter.html), as ArduPilot answers it:
+
+- PARAM_REQUEST_LIST: every parameter as PARAM_VALUE, in index order (``param_count`` = table size);
+- PARAM_REQUEST_READ: by ``param_index``, or by ``param_id`` when the index is −1; an unknown
+  name or index gets no answer (ArduPilot stays silent too);
+- PARAM_SET: the new value is stored and echoed as PARAM_VALUE. ArduPilot ints travel as floats
+  holding the integer value ("cast", not the bytewise C union); the declared range is enforced
+  here (ArduPilot's ground stations enforce it; a value outside it, NaN or a non-integer for an
+  integer parameter is refused, counted in :attr:`ParamTable.rejected`, and answered with the
+  unchanged value, so the sender sees that the write failed).
+
+Defaults and ranges are ArduCopter 4.5's (ardupilot.org/copter/docs/parameters.html):
+FS_GCS_ENABLE 0 (0 off, 1 RTL, 2 continue in AUTO, 3 SmartRTL or RTL, 4 SmartRTL or land, 5 land,
+6 auto DO_LAND_START or RTL, 7 brake or land), FS_GCS_TIMEOUT 5 s, WPNAV_SPEED 1000 cm/s,
+WPNAV_RADIUS 200 cm, RTL_ALT 1500 cm, FENCE_ENABLE 0, FENCE_TYPE 7 (max altitude | circle |
+polygon), FENCE_ACTION 1 (RTL or land), FENCE_ALT_MAX 100 m, FENCE_RADIUS 300 m, FENCE_MARGIN 2 m,
+DISARM_DELAY 10 s, LAND_SPEED 50 cm/s, SYSID_THISMAV, SYSID_MYGCS 255.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["MAV_PARAM_TYPE_INT8", "MAV_PARAM_TYPE_INT16", "MAV_PARAM_TYPE_INT32", "MAV_PARAM_TYPE_REAL32",
+           "ParamSpec", "ParamTable", "COPTER_PARAMS"]
+
+MAV_PARAM_TYPE_INT8 = 2
+MAV_PARAM_TYPE_INT16 = 4
+MAV_PARAM_TYPE_INT32 = 6
+MAV_PARAM_TYPE_REAL32 = 9
+
+Out = tuple[str, dict]
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: name (at most 16 characters), default, range and MAV_PARAM_TYPE."""
+
+    name: str
+    default: float
+    lo: float
+    hi: float
+    type: int = MAV_PARAM_TYPE_REAL32
+
+    @property
+    def integer(self) -> bool:
+        return self.type != MAV_PARAM_TYPE_REAL32
+
+
+I8, I16, I32, F = MAV_PARAM_TYPE_INT8, MAV_PARAM_TYPE_INT16, MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32
+COPTER_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("DISARM_DELAY", 10, 0, 127, I8),
+    ParamSpec("FENCE_ACTION", 1, 0, 7, I8),
+    ParamSpec("FENCE_ALT_MAX", 100.0, 10.0, 1000.0, F),
+    ParamSpec("FENCE_ENABLE", 0, 0, 1, I8),
+    ParamSpec("FENCE_MARGIN", 2.0, 1.0, 10.0, F),
+    ParamSpec("FENCE_RADIUS", 300.0, 30.0, 10000.0, F),
+    ParamSpec("FENCE_TYPE", 7, 0, 15, I8),
+    ParamSpec("FS_GCS_ENABLE", 0, 0, 7, I8),
+    ParamSpec("FS_GCS_TIMEOUT", 5.0, 2.0, 120.0, F),
+    ParamSpec("LAND_SPEED", 50, 30, 200, I16),
+    ParamSpec("RTL_ALT", 1500, 200, 300000, I32),
+    ParamSpec("SYSID_MYGCS", 255, 1, 255, I16),
+    ParamSpec("SYSID_THISMAV", 1, 1, 255, I16),
+    ParamSpec("WPNAV_RADIUS", 200.0, 5.0, 1000.0, F),
+    ParamSpec("WPNAV_SPEED", 1000.0, 10.0, 2000.0, F),
+    ParamSpec("WPNAV_SPEED_DN", 150.0, 10.0, 500.0, F),
+    ParamSpec("WPNAV_SPEED_UP", 250.0, 10.0, 1000.0, F),
+)
+
+
+def _name(raw: object) -> str:
+    if isinstance(raw, (bytes, bytearray)):
+        raw = bytes(raw).split(b"\0", 1)[0].decode("ascii", "replace")
+    return str(raw).split("\0", 1)[0].strip()
+
+
+class ParamTable:
+    """The vehicle's parameters: values by name, in a fixed index order (sorted by name, as ArduPilot lists)."""
+
+    def __init__(self, specs: tuple[ParamSpec, ...] = COPTER_PARAMS, **overrides: float):
+        self.specs = tuple(sorted(specs, key=lambda s: s.name))
+        self._by_name = {s.name: s for s in self.specs}
+        self.values = {s.name: float(s.default) for s in self.specs}
+        self.rejected = 0
+        for k, v in overrides.items():
+            if not self.set(k, v):
+                raise ValueError(f"bad value {v!r} for parameter {k}")
+
+    def __getitem__(self, name: str) -> float:
+        return self.values[name]
+
+    def set(self, name: str, value: float) -> bool:
+        """Store ``value``; False (and counted) when the name is unknown or the value is out of its range."""
+        spec = self._by_name.get(name)
+        ok = spec is not None and isinstance(value, (int, float)) and math.isfinite(value)
+        if ok and spec.integer:
+            ok = float(value) == round(value)
+        if ok and not (spec.lo <= value <= spec.hi):
+            ok = False
+        if not ok:
+            self.rejected += 1
+            return False
+        self.values[name] = float(value)
+        return True
+
+    def _value(self, i: int) -> Out:
+        s = self.specs[i]
+        return ("param_value", dict(param_id=s.name.encode(), param_value=self.values[s.name], param_type=s.type,
+                                    param_count=len(self.specs), param_index=i))
+
+    def request_list(self) -> list[Out]:
+        """PARAM_REQUEST_LIST: every PARAM_VALUE."""
+        return [self._value(i) for i in range(len(self.specs))]
+
+    def request_read(self, param_id: object, param_index: int) -> list[Out]:
+        """PARAM_REQUEST_READ: one PARAM_VALUE, or nothing for an unknown parameter."""
+        if param_index >= 0:
+            return [self._value(param_index)] if param_index < len(self.specs) else []
+        name = _name(param_id)
+        if name not in self._by_name:
+            return []
+        return [self._value(self.specs.index(self._by_name[name]))]
+
+    def param_set(self, param_id: object, value: float) -> list[Out]:
+        """PARAM_SET: store when valid; answer the (new or unchanged) value; nothing for an unknown name."""
+        name = _name(param_id)
+        if name not in self._by_name:
+            self.rejected += 1
+            return []
+        self.set(name, value)
+        return self.request_read(name, -1)

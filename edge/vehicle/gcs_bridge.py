@@ -1,0 +1,85 @@
+"""A MAVLink endpoint for the operator's ground station on the edge: the autopilot's traffic, forwarded.
+
+QGroundControl, Mission Planner or MAVProxy pointed at the edge's ``--mavlink-gcs`` endpoint see the
+autopilot as if they were connected to it (every packet it sends, as it sent it, signature
+included), and what they send goes to the autopilot unchanged, with their own system id. So the
+operator can watch and take over (a mode change the edge did not make is reported by
+:class:`edge.vehicle.mavlink.MavlinkDriver`, which then stops commanding), and the autopilot's GCS
+failsafe (FS_GCS_*, which listens to SYSID_MYGCS) keeps meaning "the operator's ground station is
+gone": with a bridge the edge speaks as the companion computer (the vehicle's system id,
+MAV_COMP_ID_ONBOARD_COMPUTER, HEARTBEAT type MAV_TYPE_ONBOARD_CONTROLLER), never as a GCS.
+
+Packets are forwarded as raw frames: no re-encoding, so sequence numbers and signatures survive.
+A frame that does not parse is counted and dropped (a ground station cannot inject garbage).
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any, Callable
+
+__all__ = ["GcsBridge"]
+
+
+class GcsBridge:
+    """Forward frames between the autopilot link (via ``to_autopilot``) and a ground-station endpoint.
+
+    Parameters
+    ----------
+    endpoint : pymavlink connection string of the ground-station side (``udpout:HOST:PORT`` to reach
+        a GCS listening there, ``udpin:HOST:PORT`` to be dialled by it).
+    to_autopilot : writes one raw frame to the autopilot link.
+    """
+
+    def __init__(self, endpoint: str, to_autopilot: Callable[[bytes], None]):
+        from edge.vehicle.mavlink import open_connection  # the same codec (and signing) as the driver's link
+
+        self.endpoint = endpoint
+        self._conn = open_connection(endpoint, 0, 0)
+        self._to_autopilot = to_autopilot
+        self.to_gcs_count = 0
+        self.from_gcs_count = 0
+        self.dropped = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="mavlink-gcs-bridge", daemon=True)
+        self._thread.start()
+
+    def to_gcs(self, msg: Any) -> None:
+        """Forward one message received from the autopilot (its raw frame)."""
+        buf = msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else None
+        if not buf:
+            return
+        try:
+            self._conn.write(bytes(buf))
+            self.to_gcs_count += 1
+        except OSError:
+            self.dropped += 1
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self._conn.recv_msg()
+            except Exception:  # noqa: BLE001 - a bad datagram or a closed socket
+                if self._stop.is_set():
+                    break
+                self.dropped += 1
+                continue
+            if msg is None:
+                self._conn.select(0.02)
+                continue
+            if msg.get_type() == "BAD_DATA":
+                self.dropped += 1
+                continue
+            try:
+                self._to_autopilot(bytes(msg.get_msgbuf()))
+                self.from_gcs_count += 1
+            except OSError:
+                self.dropped += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        try:
+            self._conn.close()
+        except OSError:
+            pass

@@ -1,0 +1,93 @@
+"""``skynet sim-autopilot``: one or more simulated ArduCopters (:mod:`edge.vehicle.mavsim`) for real ground stations.
+
+Each ``--uav N`` is an autopilot with MAVLink system id N, in its own thread of this process,
+sending to ``--connection`` with ``{port}`` replaced by ``--port-base + N − 1`` (and ``{uav}`` by
+N). Point QGroundControl, Mission Planner, MAVProxy or MAVSDK at those ports::
+
+    skynet sim-autopilot --uav 1 --uav 2 --uav 3            # udpout to 127.0.0.1:14550, 14551, 14552
+    mavproxy.py --master udpin:127.0.0.1:14550              # then: mode GUIDED, arm throttle, ...
+
+``--home`` (repeatable, in ``--uav`` order) sets each launch point in the scenario's ENU frame
+(default: the origin for all); ``--mavlink-key`` signs every link; ``--param NAME=VALUE`` sets
+initial parameters of every autopilot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from edge.vehicle.mavsim import DEFAULT_ORIGIN, MavlinkSimVehicle, _param, _vec
+from edge.vehicle.quadrotor import DisturbanceParams
+from edge.vehicle.sim import SimParams
+
+__all__ = ["build_parser", "main", "connection_for"]
+
+
+def connection_for(template: str, uav: int, port_base: int) -> str:
+    """The connection string of autopilot ``uav`` (``{port}`` -> port_base + uav − 1, ``{uav}`` -> uav)."""
+    port = port_base + uav - 1
+    if not 1 <= port <= 65535:
+        raise ValueError(f"uav {uav}: port {port} is out of range")
+    return template.replace("{port}", str(port)).replace("{uav}", str(uav))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="skynet sim-autopilot", description=__doc__.split("\n\n")[0])
+    p.add_argument("--uav", type=int, action="append", required=True, help="system id (repeatable)")
+    p.add_argument("--connection", default="udpout:127.0.0.1:{port}",
+                   help="pymavlink connection string; {port} and {uav} are substituted")
+    p.add_argument("--port-base", type=int, default=14550, help="{port} of uav 1 (uav N: base + N - 1)")
+    p.add_argument("--home", type=_vec, action="append", default=[], help="launch point x,y,z per uav (ENU m)")
+    p.add_argument("--origin", type=_vec, default=DEFAULT_ORIGIN, help="geodetic origin lat,lon,alt of the ENU frame")
+    p.add_argument("--speed", type=float, default=1.0, help="simulation speed factor")
+    p.add_argument("--epoch", type=float, default=None, help="wall-clock UNIX time of sim time 0 (share the board's)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--wind", choices=["calm", "moderate"], default="calm")
+    p.add_argument("--mavlink-key", default=None, help="MAVLink 2 signing key: 64 hex digits or a passphrase")
+    p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if len(set(args.uav)) != len(args.uav):
+        print("sim-autopilot: every --uav must be a distinct system id", file=sys.stderr)
+        return 2
+    if args.home and len(args.home) != len(args.uav):
+        print("sim-autopilot: give one --home per --uav (or none)", file=sys.stderr)
+        return 2
+    wind = DisturbanceParams.moderate() if args.wind == "moderate" else DisturbanceParams()
+    vehicles: list[MavlinkSimVehicle] = []
+    try:
+        for k, uav in enumerate(args.uav):
+            conn = connection_for(args.connection, uav, args.port_base)
+            vehicles.append(MavlinkSimVehicle(conn, uav, home=args.home[k] if args.home else (0.0, 0.0, 0.0),
+                                              speed=args.speed, epoch=args.epoch,
+                                              params=SimParams(disturbance=wind),
+                                              seed=args.seed + uav, origin=args.origin,
+                                              mavlink_key=args.mavlink_key, param_overrides=dict(args.param)))
+            print(f"sim-autopilot: uav {uav} (system id {uav}) on {conn}", flush=True)
+    except ValueError as exc:
+        for v in vehicles:
+            v.close()
+        print(f"sim-autopilot: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    for v in vehicles:
+        v.start()
+    try:
+        stop.wait()
+    finally:
+        for v in vehicles:
+            v.close()
+    print("sim-autopilot stopped", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

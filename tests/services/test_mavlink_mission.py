@@ -1,0 +1,29 @@
+"""The whole 3-UAV mission with ``--vehicle mavlink``: every edge flies its own sim autopilot over MAVLink.
+
+Same bounds as the built-in vehicle's mission (tests/services/test_launcher.py): every UAV at the
+goal, every capture imaged, formation RMS under 1 m.
+"""
+
+import json
+import sys
+import subprocess
+
+import pytest
+
+pytest.importorskip("pymavlink", reason="--vehicle mavlink needs the 'mavlink' extra")
+
+FORMATION_RMS_BOUND_M = 1.0
+
+
+def test_mission_with_mavlink_vehicles_in_guided(tmp_path):
+    out = tmp_path / "report"
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--vehicle", "mavlink", "--speed", "8",
+                           "--quiet", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    assert report["success"] and not report["failures"]
+    assert all(fig["reached_goal"] for fig in report["uavs"].values()) and len(report["uavs"]) == 3
+    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
+    assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M
+    log = (out / "services.log").read_text()
+    assert all(f"sim-autopilot: uav {i} (system id {i})" in log for i in (1, 2, 3))
