@@ -2,7 +2,7 @@
 # docker compose, end to end, on a real Docker engine (issue 14); .ci/run runs it after the test suite.
 #
 #   bash scripts/compose-e2e.sh            # the impaired mission (proves the plain path too) + the tc check
-#   COMPOSE_E2E_RUNS="plain netem tc" bash scripts/compose-e2e.sh
+#   COMPOSE_E2E_RUNS="plain netem split tc" bash scripts/compose-e2e.sh   # split: compose/ground.yml + edge.yml
 #
 # 1. an engine: the one DOCKER_HOST points at, else our own dockerd (scripts/docker-lib.sh: persistent
 #    data root /var/cache/skynet-docker, so the base image and the build layers are kept between runs);
@@ -26,7 +26,12 @@ PY="${PYTHON:-$ROOT/.venv/bin/python}"
 [ -x "$PY" ] || PY=python3
 OUT="$ROOT/bench/results"
 WORK="$(mktemp -d /tmp/skynet-e2e.XXXXXX)"
-mkdir -p "$OUT" "$ROOT/reports"
+REPORTS="$WORK/reports"
+mkdir -p "$OUT" "$REPORTS"
+# the report must be handed to the owner of the reports folder: make that someone other than root
+[ "$(id -u)" = 0 ] && chown 4321:4321 "$REPORTS"
+chmod 755 "$WORK"
+export SKYNET_REPORTS="$REPORTS"
 . scripts/docker-lib.sh
 
 log() { echo "compose-e2e: $*"; }
@@ -42,10 +47,10 @@ cleanup() {
   if [ -n "${DOCKER_HOST:-}" ] || [ -S /var/run/docker.sock ]; then
     compose --env-file compose/netem.env down -v --remove-orphans --timeout 5 >/dev/null 2>&1
     compose --profile tc-netem down -v --remove-orphans --timeout 5 >/dev/null 2>&1
-    # whatever a profile left behind (compose v1 leaves a disabled profile's containers alone)
-    ids="$("$DOCKER" ps -aq --filter "label=com.docker.compose.project=$PROJECT")"
+    # whatever a profile or the split run left behind (compose v1 leaves a disabled profile's containers alone)
+    ids="$("$DOCKER" ps -aq --filter "name=^$PROJECT")"
     [ -n "$ids" ] && "$DOCKER" rm -f $ids >/dev/null 2>&1
-    ids="$("$DOCKER" network ls -q --filter "label=com.docker.compose.project=$PROJECT")"
+    ids="$("$DOCKER" network ls -q --filter "name=^$PROJECT")"
     [ -n "$ids" ] && "$DOCKER" network rm $ids >/dev/null 2>&1
   fi
   skynet_engine_down
@@ -116,7 +121,43 @@ for run in $RUNS; do
         log "tc: the kernel-netem profile failed the run as it must (exit $rc, $(since "$t") s)"
       fi
       continue ;;
-    *) log "unknown run '$run' (plain, netem, tc)"; exit 1 ;;
+    split)
+      # compose/ground.yml + one compose/edge.yml project per UAV, as on four hosts; the "hosts'
+      # addresses" are this machine's address on a network of our own engine (nothing else is reached)
+      "$DOCKER" network create "$PROJECT-split" >/dev/null
+      hostip="$("$DOCKER" network inspect -f '{{(index .IPAM.Config 0).Gateway}}' "$PROJECT-split")"
+      name="e2e-split-$$"; t=$(now); rc=0
+      SKYNET_BIND="$hostip" docker-compose -p "$PROJECT-ground" -f compose/ground.yml up -d gateway \
+        >"$WORK/up-split.log" 2>&1 || rc=$?
+      homes=("" "40,8,0" "40.7,10.9,0" "39.3,5.1,0"); peers=""
+      for i in 1 2 3; do
+        SKYNET_UAV=$i SKYNET_HOME="${homes[$i]}" SKYNET_GATEWAY="$hostip" SKYNET_PEERS="$peers" \
+          SKYNET_BIND="$hostip" SKYNET_EDGE_TCP_PORT=$((27440 + i)) SKYNET_EDGE_UDP_PORT=$((27450 + i)) \
+          docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml up -d >>"$WORK/up-split.log" 2>&1 || rc=$?
+        peers="$peers tcp/$hostip:$((27440 + i))?rel=1 udp/$hostip:$((27450 + i))?rel=0"
+      done
+      if [ "$rc" = 0 ]; then
+        set +e
+        SKYNET_BIND="$hostip" SKYNET_RUN="$name" timeout 600 docker-compose -p "$PROJECT-ground" -f compose/ground.yml \
+          up --exit-code-from gcs >>"$WORK/up-split.log" 2>&1
+        rc=$?
+        set -e
+      fi
+      UP_S[$run]=$(since "$t")
+      for i in 1 2 3; do
+        SKYNET_UAV=$i SKYNET_GATEWAY=x docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml down -v --timeout 5 \
+          >/dev/null 2>&1 || true
+      done
+      docker-compose -p "$PROJECT-ground" -f compose/ground.yml down -v --timeout 5 >/dev/null 2>&1 || true
+      "$DOCKER" network rm "$PROJECT-split" >/dev/null 2>&1 || true
+      log "split: ground + 3 edge projects, up --exit-code-from gcs exited $rc after ${UP_S[$run]} s"
+      if [ "$rc" != 0 ]; then
+        grep -v "^\s*$" "$WORK/up-split.log" | tail -n 60; log "FAIL: split: the mission's exit status is $rc"; failed=1
+      elif ! "$PY" scripts/compose_check.py "$REPORTS/$name" --json "$OUT/compose-e2e-split.json"; then
+        log "FAIL: split: the report"; failed=1
+      fi
+      continue ;;
+    *) log "unknown run '$run' (plain, netem, split, tc)"; exit 1 ;;
   esac
   name="e2e-$run-$$"
   : >"$WORK/stats-$run.txt"
@@ -140,17 +181,19 @@ for run in $RUNS; do
   if [ "$rc" != 0 ]; then
     grep -v "^\s*$" "$WORK/up-$run.log" | tail -n 60; log "FAIL: $run: the mission's exit status is $rc"; failed=1; continue
   fi
-  if ! "$PY" scripts/compose_check.py "reports/$name" "${check[@]}" --json "$OUT/compose-e2e-$run.json"; then
+  if ! "$PY" scripts/compose_check.py "$REPORTS/$name" "${check[@]}" --json "$OUT/compose-e2e-$run.json"; then
     log "FAIL: $run: the report"; failed=1
   fi
-  # the report folder belongs to the owner of ./reports, not to root (unless the owner is root)
-  owner="$(stat -c %u reports)"; got="$(stat -c %u "reports/$name")"
-  [ "$owner" = "$got" ] || { log "FAIL: $run: report owned by uid $got, ./reports by uid $owner"; failed=1; }
+  # the report folder and its files belong to the owner of the reports folder, not to root
+  owner="$(stat -c %u "$REPORTS")"; got="$(stat -c %u "$REPORTS/$name" "$REPORTS/$name/report.json" | sort -u)"
+  [ "$owner" = "$got" ] || { log "FAIL: $run: report owned by uid $got, the reports folder by uid $owner"; failed=1; }
+  rm -rf "$OUT/compose-e2e-$run-report"; mkdir -p "$OUT/compose-e2e-$run-report"
+  cp "$REPORTS/$name"/report.json "$REPORTS/$name"/record.json "$OUT/compose-e2e-$run-report/" 2>/dev/null || true
 done
 
 # nothing of the project may be left
-left_c="$("$DOCKER" ps -aq --filter "label=com.docker.compose.project=$PROJECT" | wc -l)"
-left_n="$("$DOCKER" network ls -q --filter "label=com.docker.compose.project=$PROJECT" | wc -l)"
+left_c="$("$DOCKER" ps -aq --filter "name=^$PROJECT" | wc -l)"
+left_n="$("$DOCKER" network ls -q --filter "name=^$PROJECT" | wc -l)"
 if [ "$left_c" != 0 ] || [ "$left_n" != 0 ]; then
   log "FAIL: down left $left_c containers and $left_n networks"; failed=1
 fi

@@ -32,7 +32,7 @@ skynet_engine_up() {
   SKYNET_ENGINE_TMP="$(mktemp -d /tmp/skynet-dockerd.XXXXXX)"
   dockerd --data-root "$SKYNET_DOCKER_CACHE/data" --exec-root "$SKYNET_ENGINE_TMP/exec" \
     -H "unix://$SKYNET_ENGINE_TMP/docker.sock" --pidfile "$SKYNET_ENGINE_TMP/pid" \
-    --iptables=false >"$SKYNET_ENGINE_TMP/dockerd.log" 2>&1 &
+    --iptables=false --bridge=none >"$SKYNET_ENGINE_TMP/dockerd.log" 2>&1 8>&- &
   SKYNET_ENGINE_STARTED=$!
   export DOCKER_HOST="unix://$SKYNET_ENGINE_TMP/docker.sock"
   for _ in $(seq 1 120); do
