@@ -56,7 +56,7 @@ def run_compose() -> dict:
     f = figures(json.loads(rep.read_text())) if rep.exists() else {}
     return {**f, "exit": p.returncode, "command_to_verdict_s": (summary.get("up_to_verdict_s") or {}).get("plain"),
             "image_mb": summary.get("image_mb"), "build_s": summary.get("build_s"),
-            "cached_build_s": summary.get("cached_build_s")}
+            "build_steps_cached": f"{summary.get('build_steps_cached')}/{summary.get('build_steps')}"}
 
 
 def main() -> int:
@@ -70,7 +70,7 @@ def main() -> int:
     print(f"{'':28s} {'launcher':>12s} {'compose':>12s}")
     for k in keys:
         print(f"{k:28s} {fmt(rows['launcher'].get(k)):>12s} {fmt(rows['compose'].get(k)):>12s}")
-    for k in ("image_mb", "build_s", "cached_build_s"):
+    for k in ("image_mb", "build_s", "build_steps_cached"):
         print(f"{k:28s} {'':>12s} {fmt(rows['compose'].get(k)):>12s}")
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps({"load_avg": os.getloadavg(), **rows}, indent=1))

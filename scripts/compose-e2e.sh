@@ -10,7 +10,7 @@
 # 3. `docker-compose build`, then per run `up --exit-code-from gcs`, asserting its exit status and the
 #    report (scripts/compose_check.py): success, every capture, formation RMS < 1 m; with `netem`
 #    (compose/netem.env: 100 ms on UAV 2's uplink through the user-space side-car) also that UAV 2's
-#    telemetry age grew by the delay and only UAV 2's; `tc` checks that the kernel-netem profile fails
+#    telemetry age grew by the delay and only UAV 2's; `tc` checks that the kernel-netem side-car fails
 #    `up` where the kernel has no netem qdisc (skipped where it has one);
 # 4. `down -v`, then no container and no network of the project may be left. Cleanup (down, the
 #    dockerd we started) runs on every exit, failure included.
@@ -82,11 +82,9 @@ log "base image $BASE_IMAGE (${base_s} s)"
 t=$(now)
 compose build gateway >"$WORK/build.log" 2>&1 || { tail -n 40 "$WORK/build.log"; log "FAIL: build"; exit 1; }
 build_s=$(since "$t")
-t=$(now)
-compose build gateway >"$WORK/build2.log" 2>&1 || { tail -n 40 "$WORK/build2.log"; log "FAIL: cached build"; exit 1; }
-cached_s=$(since "$t")
+steps="$(grep -c '^Step ' "$WORK/build.log" || true)"; cached="$(grep -c 'Using cache' "$WORK/build.log" || true)"
 image_mb=$(( $("$DOCKER" image inspect "skynet-inspect:${SKYNET_TAG:-latest}" --format '{{.Size}}') / 1000000 ))
-log "image ${image_mb} MB; build ${build_s} s, cached build ${cached_s} s"
+log "image ${image_mb} MB; build ${build_s} s (${cached} of ${steps} steps from the cache)"
 
 # per-container CPU and memory, sampled while a mission runs
 sample_stats() {
@@ -110,7 +108,10 @@ for run in $RUNS; do
       fi
       t=$(now)
       set +e
-      SKYNET_RUN="e2e-tc-$$" timeout 300 docker-compose -p "$PROJECT" --profile tc-netem up --exit-code-from gcs \
+      # only the side-car and what it needs (gateway, uav1, uav2): compose v1 starts every container
+      # (gcs after the health checks) before it watches for exits, so a whole `up --exit-code-from gcs`
+      # would end just as loudly (exit 143 when tried), only a minute later
+      timeout 300 docker-compose -p "$PROJECT" --profile tc-netem up --exit-code-from tc-netem-uav2 tc-netem-uav2 \
         >"$WORK/up-tc.log" 2>&1
       rc=$?
       set -e
@@ -203,7 +204,7 @@ ups="{}"
 for k in "${!UP_S[@]}"; do ups=$(echo "$ups" | "$PY" -c "import json,sys; d=json.load(sys.stdin); d['$k']=${UP_S[$k]}; print(json.dumps(d))"); done
 cat >"$OUT/compose-e2e.json" <<JSON
 {"base_image": "$BASE_IMAGE", "base_s": $base_s, "image_mb": $image_mb, "build_s": $build_s,
- "cached_build_s": $cached_s, "up_to_verdict_s": $ups, "ok": $([ "$failed" = 0 ] && echo true || echo false)}
+ "build_steps": $steps, "build_steps_cached": $cached, "up_to_verdict_s": $ups, "ok": $([ "$failed" = 0 ] && echo true || echo false)}
 JSON
 log "figures in bench/results/compose-e2e*.json"
 if [ "$failed" != 0 ]; then log "FAILED"; exit 1; fi
