@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edge.camera import CameraPose, SyntheticSource, encode_jpeg
 from edge.runtime import camera_model, synthetic_surface
-from services.planner.scenario import load_scenario_document
+from protocol.scenario import load_scenario
 
 
 def poses(wall, kind: str, n: int) -> list[CameraPose]:
@@ -46,7 +46,7 @@ def main() -> None:
     parser.add_argument("--quality", type=int, default=85)
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "camera.json"))
     args = parser.parse_args()
-    sc = load_scenario_document(None)
+    sc = load_scenario()
     t0 = time.perf_counter()
     wall = synthetic_surface(sc)
     build_s = time.perf_counter() - t0

@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from services.detector.detect import METHODS, detect  # noqa: E402
 from services.detector.evaluate import evaluate, load_dataset, markdown_table  # noqa: E402
-from services.detector.improved import it_plus_mask, shape_filter, threshold_it_plus  # noqa: E402
+from services.detector.improved import it_plus_bh_mask, it_plus_mask, shape_filter, threshold_it_plus  # noqa: E402
 from services.detector.iterative import (  # noqa: E402
     C_S_DEFAULT,
     C_S_UNGUARDED,
@@ -144,6 +144,39 @@ def tune(data: Path) -> dict[str, object]:
     print(f"\nbest IT+ setting: {top}")
     out["it_plus_grid"] = rows
     out["it_plus_best"] = top
+
+    print("\n### IT+: guard gate, per-component contrast floor, elongation of long components "
+          "(DeepCrack train; the rest at the defaults)\n")
+    print("| guard_contrast | min_contrast | min_long_elongation | F |\n|---|---|---|---|")
+    rows = []
+    for gc in (0.0, 0.1):
+        ts = [threshold_it_plus(hist=h, guard_contrast=gc) for h in hists]
+        raws = [cv2.threshold(s.grey, t, 255, cv2.THRESH_BINARY_INV)[1] for s, t in zip(samples, ts)]
+        for mc in (0.0, 0.06, 0.08, 0.1, 0.12):
+            for mle in (0.0, 4.0, 5.0, 6.0):
+                masks = [shape_filter(r, grey=s.grey, min_contrast=mc, min_long_elongation=mle)
+                         for r, s in zip(raws, samples)]
+                f = float(np.mean([f_measure(m, g)[0] for m, g in zip(masks, gts)]))
+                rows.append({"guard_contrast": gc, "min_contrast": mc, "min_long_elongation": mle, "f": f})
+                print(f"| {gc} | {mc} | {mle} | {f:.4f} |")
+    top = max(rows, key=lambda r: r["f"])
+    print(f"\nbest IT+ component setting: {top}")
+    out["it_plus_component_grid"] = rows
+    out["it_plus_component_best"] = top
+
+    print("\n### IT+bh: black-hat size and kept share of its response (DeepCrack train)\n")
+    print("| size | top_fraction | F |\n|---|---|---|")
+    rows = []
+    for size in (9, 15, 21, 31):
+        for q in (0.03, 0.05, 0.08):
+            f = float(np.mean([f_measure(it_plus_bh_mask(s.grey, size=size, top_fraction=q)[0], g)[0]
+                               for s, g in zip(samples, gts)]))
+            rows.append({"size": size, "top_fraction": q, "f": f})
+            print(f"| {size} | {q} | {f:.4f} |")
+    top = max(rows, key=lambda r: r["f"])
+    print(f"\nbest IT+bh setting: {top}")
+    out["it_plus_bh_grid"] = rows
+    out["it_plus_bh_best"] = top
     return out
 
 
@@ -229,13 +262,18 @@ def _it_plus(bgr: np.ndarray) -> np.ndarray:
     return it_plus_mask(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))[0]
 
 
+def _it_plus_bh(bgr: np.ndarray) -> np.ndarray:
+    return detect(bgr, "it+bh", with_defects=False).mask
+
+
 def _it_plus_defects(bgr: np.ndarray) -> np.ndarray:
     return detect(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), "it+").mask
 
 
 def speed(data: Path, repeats: int, threads: int) -> dict[str, object]:
     cv2.setNumThreads(threads)
-    fns = {"otsu (cv2)": _otsu_cv2, "it": _it, "it+": _it_plus, "it+ with defect list": _it_plus_defects}
+    fns = {"otsu (cv2)": _otsu_cv2, "it": _it, "it+": _it_plus, "it+bh": _it_plus_bh,
+           "it+ with defect list": _it_plus_defects}
     out: dict[str, object] = {"cv2_threads": threads, "repeats": repeats,
                               "cpu": platform.processor() or platform.machine()}
     print(f"\n### Speed (OpenCV threads = {threads}; median over {repeats} interleaved blocks "
@@ -268,6 +306,7 @@ def speed(data: Path, repeats: int, threads: int) -> dict[str, object]:
         "it_at_most_2x_otsu_12mp": big["it"]["ratio_to_otsu"] <= 2.0,  # type: ignore[index]
         "it_30fps_12mp": big["it"]["fps"] >= 30,  # type: ignore[index]
         "it_plus_20fps_12mp": big["it+"]["fps"] >= 20,  # type: ignore[index]
+        "it_plus_bh_20fps_12mp": big["it+bh"]["fps"] >= 20,  # type: ignore[index]
     }
     print(f"\ngoals: {out['goals']}")
     return out

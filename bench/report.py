@@ -35,13 +35,13 @@ from protocol.messages import Defect, DefectReport, LinkStats, Mode, VehicleStat
 from services.gcs.record import CommandRecord, DefectRx, MissionRecord, StateRx, StatsRx  # noqa: E402
 from services.gcs.report import planned_positions, summarise, write_report  # noqa: E402
 from services.planner.mission import plan_mission  # noqa: E402
-from services.planner.scenario import default_scenario_path, load_scenario  # noqa: E402
+from protocol.scenario import Scenario, default_scenario_path, load_scenario  # noqa: E402
 
 
-def synth_record(plan, scenario: dict, rate_hz: float, repeat: int, rng: np.random.Generator) -> MissionRecord:
+def synth_record(plan, scenario: Scenario, rate_hz: float, repeat: int, rng: np.random.Generator) -> MissionRecord:
     """A flight that follows ``plan`` ``repeat`` times over (to make long records)."""
     states, defects = [], []
-    corners = scenario.get("surface", {}).get("corners", [])
+    corners = list(scenario.surface.corners) if scenario.surface else []
     for tr in plan.trajectories:
         t0, t1 = tr.waypoints[0].t, tr.waypoints[-1].t
         taus = np.arange(0.0, (t1 - t0) * repeat, 1.0 / rate_hz)
@@ -89,15 +89,14 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     scenario = load_scenario(default_scenario_path())
-    doc = scenario.model_dump(mode="json")
-    plan = plan_mission(doc, seed=1, particles=20, iterations=20)
+    plan = plan_mission(scenario, seed=1, particles=20, iterations=20)
     rng = np.random.default_rng(0)
     repeats = 1 if args.quick else 3
     lengths = [1] if args.quick else [1, 4]
     rows = []
     for rep in lengths:
         t = time.perf_counter()
-        rec = synth_record(plan, doc, 20.0, rep, rng)
+        rec = synth_record(plan, scenario, 20.0, rep, rng)
         t_record = time.perf_counter() - t
         t_sum = median_time(lambda: summarise(rec), repeats)
         with tempfile.TemporaryDirectory() as tmp:

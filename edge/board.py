@@ -5,7 +5,8 @@ and a camera (:mod:`edge.camera`) to the bus:
 
 * publishes :class:`VehicleState` as telemetry at ``--rate`` Hz and holds a liveliness token;
   its link lease is short (``--lease``, 2 s) so the others notice a lost UAV;
-* subscribes to the other UAVs' states (SkyNet) and corrects its own reference from them
+* subscribes to its formation neighbours' states only (SkyNet, :mod:`edge.neighbourhood`:
+  formations of ``--formation-size`` UAVs, 3 by default) and corrects its own reference from them
   (P8)-(P9), ignoring neighbours older than ``--stale`` s: when SkyNet is partitioned the
   correction goes back to zero (at the sequencer's offset rate) and the UAV flies its planned
   slot, and it comes back with the neighbours' states. A formation member whose state goes stale
@@ -14,8 +15,11 @@ and a camera (:mod:`edge.camera`) to the bus:
 * serves commands on ``.../uav/<id>/cmd``: validated (schema, geofence, finite numbers, sane
   speeds) and acknowledged accepted or rejected with a reason — nothing invalid reaches the
   vehicle;
-* failsafe: no ground-station heartbeat for ``--failsafe-timeout`` s (ArduPilot's FS_GCS_TIMEOUT,
-  5 s) while flying -> hold / land / return-to-launch and an event; ``resume`` ends it;
+* failsafe (:mod:`edge.failsafe`): no ground-station heartbeat for ``--failsafe-timeout`` s
+  (ArduPilot's FS_GCS_TIMEOUT, 5 s) while flying -> hold / land / return-to-launch and an event;
+  a hold escalates to ``--failsafe-escalate`` (rtl) after ``--failsafe-escalate-after`` s (30 s);
+  a low battery returns (``--battery-low``, 20 %), a critical one lands (10 %); ``resume`` ends a
+  GCS failsafe only after a fresh heartbeat;
 * at each capture point grabs a frame, JPEG-encodes it off the control loop and publishes it
   on the imagery link (RTP header + metadata + JPEG, :mod:`protocol.imagery`).
 
@@ -32,6 +36,7 @@ from dataclasses import dataclass, field
 
 
 from protocol import keys
+from protocol.budget import for_topic
 from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
@@ -40,11 +45,13 @@ from protocol.messages import (
 )
 
 from . import formation
-from .runtime import IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, preview_rate
+from .failsafe import ACTIONS, ESCALATIONS, FailsafeOptions, FailsafePolicy
+from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
+from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size, preview_rate
 from .validate import validate_command
 from .vehicle.follower import Follower
 
-FAILSAFE_ACTIONS = ("hold", "land", "rtl")
+FAILSAFE_ACTIONS = ACTIONS
 
 
 @dataclass
@@ -63,11 +70,20 @@ class BoardOptions:
     stale_s: float = 1.0
     failsafe_timeout_s: float = 5.0
     failsafe_action: str = "hold"
+    failsafe_escalate_after_s: float = 30.0
+    failsafe_escalate: str = "rtl"
+    battery_low: float = 0.2
+    battery_critical: float = 0.1
     geofence: Box | None = None
     max_speed: float = 12.0
     formation_gain: float = 0.8
+    formation_size: int = FORMATION_SIZE  # the SkyNet neighbourhood: UAVs of the same formation
     offsets: dict[int, tuple[float, float, float]] = field(
         default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
+
+
+#: the options' defaults, which the command line's defaults are (one place for each value)
+_DEFAULT = BoardOptions(uav=1)
 
 
 class Board:
@@ -82,15 +98,22 @@ class Board:
         self.stale: set[int] = set()  # formation members whose state went stale (event sent)
         self.seq = 0
         self.last_heartbeat: float | None = None
-        self.failsafe_active = False
-        self.failsafe_since: float | None = None  # wall time the failsafe began
+        o = options
+        self.failsafe = FailsafePolicy(FailsafeOptions(
+            timeout_s=o.failsafe_timeout_s, action=o.failsafe_action, escalate_after_s=o.failsafe_escalate_after_s,
+            escalate_action=o.failsafe_escalate, battery_low=o.battery_low, battery_critical=o.battery_critical))
         self.trajectory = None
         self.follower = None
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
-        bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY)
-        bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=Heartbeat, link=COMMAND)
+        # only the formation's states: the cost per edge does not grow with the fleet (issue 18)
+        self.neighbourhood = frozenset(neighbourhood_of(self.uav, options.formation_size))
+        for j in sorted(self.neighbourhood):
+            bus.subscribe(keys.state(fleet, j), self._on_state, expect=VehicleState, link=TELEMETRY,
+                          budget=for_topic("state"))
+        bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=Heartbeat, link=COMMAND,
+                      budget=for_topic("heartbeat"))
         bus.serve(keys.cmd(fleet, self.uav), self.handle_command, expect=COMMAND_TYPES)
         bus.token(keys.alive(fleet, self.uav))
         bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
@@ -98,7 +121,7 @@ class Board:
     # -- inputs (Zenoh callback threads)
     def _on_state(self, msg: Message, sample) -> None:
         assert isinstance(msg, VehicleState)
-        if msg.uav != self.uav:
+        if msg.uav in self.neighbourhood:
             rx = time.time()
             # a stamp from a clock ahead of ours reads as no transit time; one far behind makes the state
             # stale, so formation keeping falls back to the planned slot (hosts' clocks: GPS/NTP)
@@ -106,7 +129,7 @@ class Board:
 
     def _on_alive(self, key: str, alive: bool) -> None:
         uav = keys.parse(key).uav
-        if uav == self.uav or uav is None:
+        if uav not in self.neighbourhood:  # itself, or a UAV of another formation
             return
         if alive:
             self.event("neighbour-up", f"UAV {uav} joined SkyNet", neighbour=uav)
@@ -158,12 +181,14 @@ class Board:
         elif isinstance(cmd, Hold):
             d.hold()
         elif isinstance(cmd, Resume):
-            if self.failsafe_active:
+            now = time.time()
+            refusal = self.failsafe.may_resume(now, self.last_heartbeat)
+            if refusal:
+                raise ValueError(refusal)
+            if self.failsafe.active:
                 # the "failsafe" event may have been lost with the link that caused it: this one
                 # says again when it began, for the report's failsafe -> resume time
-                now = time.time()
-                since = self.failsafe_since or now
-                self.failsafe_active, self.failsafe_since = False, None
+                since = self.failsafe.resumed() or now
                 self.event("failsafe-cleared", f"resumed by command after {now - since:.1f} s of failsafe",
                            since=round(since, 3), held_s=round(now - since, 3))
             d.resume()
@@ -227,20 +252,17 @@ class Board:
 
     def _check_failsafe(self, st, now_wall: float) -> None:
         flying = st.armed and st.mode in (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION)
-        if self.failsafe_active or not flying or self.last_heartbeat is None:
+        decision = self.failsafe.step(now_wall, self.last_heartbeat, flying, st.battery,
+                                      returning=st.armed and st.mode == Mode.RTL)
+        if decision is None:
             return
-        silent = now_wall - self.last_heartbeat
-        if silent <= self.opt.failsafe_timeout_s:
-            return
-        self.failsafe_active = True
-        self.failsafe_since = now_wall
-        action = self.opt.failsafe_action
         try:
-            {"hold": self.driver.hold, "land": self.driver.land, "rtl": self.driver.return_to_launch}[action]()
+            {"hold": self.driver.hold, "land": self.driver.land, "rtl": self.driver.return_to_launch}[decision.action]()
         except ValueError:
             pass
-        self.event("failsafe", f"no ground-station heartbeat for {silent:.1f} s: {action}", Level.WARNING,
-                   silent_s=round(silent, 3), action=action)
+        silent = None if self.last_heartbeat is None else round(now_wall - self.last_heartbeat, 3)
+        self.event(decision.kind, decision.text, Level.WARNING, action=decision.action, reason=decision.reason,
+                   battery=round(float(st.battery), 3), **({} if silent is None else {"silent_s": silent}))
 
 
 def parse_box(text: str | None) -> Box | None:
@@ -266,12 +288,25 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--vehicle", default="sim", choices=["sim", "mavlink"], help="vehicle driver")
     parser.add_argument("--mavlink", default="udpin:0.0.0.0:14550", help="MAVLink connection (--vehicle mavlink)")
     parser.add_argument("--home", type=parse_vec, default=(0.0, 0.0, 0.0), help="launch point x,y,z (ENU m)")
-    parser.add_argument("--rate", type=float, default=20.0, help="state publication rate, Hz")
-    parser.add_argument("--stale", type=float, default=1.0, help="neighbour state considered stale after, s")
-    parser.add_argument("--formation-gain", type=float, default=0.8,
+    parser.add_argument("--rate", type=float, default=_DEFAULT.rate_hz, help="state publication rate, Hz")
+    parser.add_argument("--stale", type=float, default=_DEFAULT.stale_s,
+                        help="neighbour state considered stale after, s")
+    parser.add_argument("--formation-gain", type=float, default=_DEFAULT.formation_gain,
                         help="share of the neighbours' mean position error corrected on board, 0..1")
-    parser.add_argument("--failsafe-timeout", type=float, default=5.0)
-    parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default="hold")
+    parser.add_argument("--formation-size", type=int, default=_DEFAULT.formation_size,
+                        help="UAVs per formation: the board shares state with its formation only (SkyNet)")
+    parser.add_argument("--failsafe-timeout", type=float, default=_DEFAULT.failsafe_timeout_s)
+    parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default=_DEFAULT.failsafe_action)
+    parser.add_argument("--failsafe-escalate", choices=ESCALATIONS, default=_DEFAULT.failsafe_escalate,
+                        help="after a failsafe hold of --failsafe-escalate-after s: rtl, land or none")
+    parser.add_argument("--failsafe-escalate-after", type=float, default=_DEFAULT.failsafe_escalate_after_s,
+                        metavar="S")
+    parser.add_argument("--battery-low", type=float, default=_DEFAULT.battery_low,
+                        help="battery failsafe: return to launch below")
+    parser.add_argument("--battery-critical", type=float, default=_DEFAULT.battery_critical,
+                        help="battery failsafe: land below")
+    parser.add_argument("--endurance", type=float, default=None, metavar="S",
+                        help="simulated vehicle: hover time on a full battery, s (default 1200)")
     parser.add_argument("--geofence", type=parse_box, default=None, help="x0,y0,z0,x1,y1,z1 (else from upload)")
     parser.add_argument("--speed", type=float, default=1.0, help="simulation speed factor")
     parser.add_argument("--epoch", type=float, default=None, help="shared wall-clock epoch of the sim clock")
@@ -280,7 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="disturbance model of the simulated vehicle (seeded gusts and torques)")
     parser.add_argument("--camera", default="synthetic", help="synthetic | image folder | video:<url or index> | none")
     parser.add_argument("--scenario", default=None, help="scenario file (surface and camera of the synthetic source)")
-    parser.add_argument("--frame-size", default="640x480", help="delivered frame size WxH")
+    parser.add_argument("--frame-size", type=frame_size, default="640x480", help="delivered frame size WxH")
+    parser.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
+                        help="link of capture frames: best-effort (UDP), reliable (TCP), or auto: reliable above 1 MP")
     parser.add_argument("--preview-hz", type=preview_rate, default=PREVIEW_HZ, metavar="HZ",
                         help="live preview frames per second (320x240, best-effort, never recovered; 0 = off)")
     parser.add_argument("--imagery-cache", type=cache_frames, default=IMAGERY_CACHE_FRAMES, metavar="N",
@@ -303,15 +340,24 @@ def main(argv: list[str] | None = None) -> int:
     stop = stop_event_on_signals()
     opts = BoardOptions(uav=args.uav, rate_hz=args.rate, stale_s=args.stale, failsafe_timeout_s=args.failsafe_timeout,
                         failsafe_action=args.failsafe_action, geofence=args.geofence,
-                        formation_gain=args.formation_gain)
+                        failsafe_escalate=args.failsafe_escalate,
+                        failsafe_escalate_after_s=args.failsafe_escalate_after, battery_low=args.battery_low,
+                        battery_critical=args.battery_critical,
+                        formation_gain=args.formation_gain, formation_size=args.formation_size)
     with Bus(config_from_args(args), fleet=args.fleet, name=f"uav{args.uav}") as bus:
         camera = make_camera(args, bus, log)
         board = Board(bus, driver, clock, opts, camera=camera, log=log)
         log.info("board up: uav %d, %s driver, camera %s, speed x%g", args.uav, args.vehicle, args.camera, args.speed)
         period = 1.0 / args.rate
         next_t = time.monotonic()
+        tick_errors = 0
         while not stop.is_set():
-            board.tick()
+            try:
+                board.tick()
+            except Exception:  # nothing a neighbour or the link sends may end the board: counted, logged once
+                tick_errors += 1
+                if tick_errors == 1:
+                    log.exception("board tick failed (further failures are only counted)")
             next_t += period
             delay = next_t - time.monotonic()
             if delay < -1.0:  # fell far behind (suspended?): do not try to catch up in a burst

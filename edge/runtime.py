@@ -21,6 +21,7 @@ truth) from the scenario with :func:`synthetic_surface`.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import logging
 import math
 import threading
@@ -31,11 +32,16 @@ import numpy as np
 from protocol import keys
 from protocol.bus import Bus
 from protocol.imagery import pack_image
-from protocol.links import IMAGERY
+from protocol.links import IMAGERY, IMAGERY_RELIABLE, LinkClass
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import RtpSender, ssrc_for
+from protocol.scenario import Scenario, load_scenario
 
+from .camera import CameraModel, CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
+from .surface import DEFAULT_PX_PER_M, SyntheticSurface
+from .vehicle.quadrotor import DisturbanceParams
 from .vehicle.driver import CaptureEvent, VehicleDriver
+from .vehicle.sim import SimDriver, SimParams
 
 #: frames each camera keeps for retransmission of frames lost on the way
 IMAGERY_CACHE_FRAMES = 32
@@ -47,6 +53,31 @@ PREVIEW_QUALITY = 60
 PREVIEW_CAMERA = 1
 #: seed of the synthetic surface: one wall for the whole fleet, whatever the UAV
 SURFACE_SEED = 2024
+#: ``--capture-link auto``: capture frames larger than this (pixels) go on the reliable link (issue 18)
+RELIABLE_CAPTURE_ABOVE_PX = 1_000_000
+CAPTURE_LINKS = ("auto", "best-effort", "reliable")
+
+
+def frame_size(text: str) -> str:
+    """argparse type of ``--frame-size``: ``WxH``, each side 16..20000 pixels (returned as given)."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 640x480), got {text!r}") from None
+    if not (16 <= w <= 20000 and 16 <= h <= 20000):
+        raise argparse.ArgumentTypeError(f"frame size {text!r}: each side must be 16..20000 pixels")
+    return text
+
+
+def capture_link(choice: str, frame_size: tuple[int, int]) -> LinkClass:
+    """The link class of capture frames: ``best-effort`` (UDP, the paper's RTP), ``reliable`` (TCP),
+    or ``auto``: reliable above :data:`RELIABLE_CAPTURE_ABOVE_PX` pixels, whose JPEGs span several UDP
+    datagrams (a 640x480 frame fits one; a 12 MP one lost 15-21 of 26 frames on a clean loopback)."""
+    if choice not in CAPTURE_LINKS:
+        raise ValueError(f"capture link must be one of {', '.join(CAPTURE_LINKS)}, got {choice!r}")
+    if choice == "auto":
+        choice = "reliable" if frame_size[0] * frame_size[1] > RELIABLE_CAPTURE_ABOVE_PX else "best-effort"
+    return IMAGERY_RELIABLE if choice == "reliable" else IMAGERY
 
 
 def cache_frames(text: str) -> int:
@@ -73,31 +104,27 @@ def preview_rate(text: str) -> float:
 
 def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
     if args.vehicle == "sim":
-        from .vehicle.quadrotor import DisturbanceParams
-        from .vehicle.sim import SimDriver, SimParams
-
         wind = DisturbanceParams.moderate() if args.wind == "moderate" else DisturbanceParams()
-        return SimDriver(args.uav, params=SimParams(disturbance=wind), home=args.home, t0=t0,
+        endurance = {} if getattr(args, "endurance", None) is None else {"endurance_s": args.endurance}
+        return SimDriver(args.uav, params=SimParams(disturbance=wind, **endurance), home=args.home, t0=t0,
                          seed=args.seed if args.seed is not None else args.uav)
     from .vehicle.mavlink import MavlinkDriver  # needs the "mavlink" extra
 
     return MavlinkDriver(args.uav, args.mavlink, home=args.home)
 
 
-def synthetic_surface(scenario: dict, px_per_m: float | None = None, seed: int = SURFACE_SEED):
+def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: int = SURFACE_SEED):
     """The inspected wall of the scenario as a textured, cracked :class:`SyntheticSurface`."""
-    from .surface import DEFAULT_PX_PER_M, SyntheticSurface
-
-    corners = np.asarray(scenario["surface"]["corners"], dtype=float)
+    if scenario.surface is None:
+        raise ValueError(f"scenario {scenario.name!r} has no [surface] to image")
+    corners = np.asarray(scenario.surface.corners, dtype=float)
     return SyntheticSurface.from_corners(corners, px_per_m=px_per_m or DEFAULT_PX_PER_M, seed=seed)
 
 
-def camera_model(scenario: dict, frame_size: tuple[int, int]):
+def camera_model(scenario: Scenario, frame_size: tuple[int, int]):
     """The scenario's camera delivering ``frame_size`` frames (the same field of view, fewer pixels)."""
-    from .camera import CameraModel
-
-    cam = scenario["camera"]
-    return CameraModel(resolution=frame_size, sensor_mm=tuple(cam["sensor_mm"]), focal_mm=float(cam["focal_mm"]))
+    cam = scenario.camera
+    return CameraModel(resolution=frame_size, sensor_mm=cam.sensor_mm, focal_mm=cam.focal_mm)
 
 
 def camera_rotation(yaw: float) -> np.ndarray:
@@ -124,16 +151,15 @@ class CameraLink:
     """
 
     def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
-                 quality: int = 85, cache: int = IMAGERY_CACHE_FRAMES, preview: PreviewStream | None = None):
-        from .camera import FrameEncoder
-
+                 quality: int = 85, cache: int = IMAGERY_CACHE_FRAMES, preview: PreviewStream | None = None,
+                 link: LinkClass = IMAGERY):
         if isinstance(cache, bool) or not isinstance(cache, int) or cache < 0:
             raise ValueError(f"imagery cache must be an int >= 0 (frames), got {cache!r}")
         self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
         self.sender = RtpSender(ssrc_for(uav, 0))
         self.cache = cache
         # cache > 0 keeps the last frames for subscribers that ask (RTP retransmission-like recovery)
-        self.pub = bus.publisher(keys.camera(bus.fleet, uav), IMAGERY, cache=cache or None)
+        self.pub = bus.publisher(keys.camera(bus.fleet, uav), link, cache=cache or None)
         self.encoder = FrameEncoder(self._publish, capacity=4, quality=quality)
         self.preview_stream = preview
         self.sent = 0
@@ -165,8 +191,6 @@ class CameraLink:
         return Intrinsics(width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy)
 
     def capture(self, ev: CaptureEvent, stamp: float) -> None:
-        from .camera import CameraPose
-
         R = camera_rotation(ev.att[2])
         pose = CameraPose(position=np.asarray(ev.pos, dtype=float), rotation=R)
         frame = self.source.grab(pose, ev.t)
@@ -259,8 +283,6 @@ class PreviewStream:
                     self.log.exception("preview frame failed")
 
     def _send(self, pos, att, t: float, stamp: float) -> None:
-        from .camera import CameraPose, encode_jpeg
-
         R = camera_rotation(att[2])
         frame = self.source.grab(CameraPose(position=np.asarray(pos, dtype=float), rotation=R), t)
         h, w = frame.image.shape[:2]
@@ -278,15 +300,21 @@ class PreviewStream:
         self._thread.join(timeout)
 
 
+def release_freed_memory() -> None:
+    """Hand the heap freed by start-up temporaries back to the system (glibc ``malloc_trim``):
+    building the synthetic wall leaves about 24 MB free but held in every edge (issue 18).
+    A no-op where there is no glibc."""
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> CameraLink | None:
     if args.camera in ("", "none"):
         return None
-    from .camera import make_source
-
     w, h = (int(v) for v in args.frame_size.lower().split("x"))
-    from services.planner.scenario import load_scenario_document
-
-    scenario = load_scenario_document(args.scenario)
+    scenario = load_scenario(args.scenario)
     model = camera_model(scenario, (w, h))
     surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
     source = make_source(args.camera, surface=surface, camera=model)
@@ -294,11 +322,11 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     preview_hz = float(getattr(args, "preview_hz", PREVIEW_HZ) or 0.0)
     preview = None
     if preview_hz > 0 and surface is not None:
-        from .camera import SyntheticSource
-
         small = camera_model(scenario, PREVIEW_SIZE)
         preview = PreviewStream(bus, args.uav, SyntheticSource(surface, small), small, rate_hz=preview_hz, log=log)
     elif preview_hz > 0:
         log.info("live preview off: only the synthetic camera previews (%s is read by the captures alone)",
                  args.camera)
-    return CameraLink(bus, args.uav, source, model, surface=surface, log=log, cache=cache, preview=preview)
+    link = capture_link(getattr(args, "capture_link", "auto"), (w, h))
+    release_freed_memory()
+    return CameraLink(bus, args.uav, source, model, surface=surface, log=log, cache=cache, preview=preview, link=link)

@@ -31,6 +31,9 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from protocol.checks import finite_vec3 as _vec3
+from protocol.checks import positive as _positive
+
 __all__ = [
     "DEFAULT_PX_PER_M",
     "Defect",
@@ -43,8 +46,10 @@ __all__ = [
 
 #: Default texture resolution of :class:`SyntheticSurface`: 100 px/m, i.e. 1 cm per texture
 #: pixel. A 60 m x 20 m wall is then 6000 x 2000 px = 12 MP (12 MB for the texture, 12 MB for
-#: the mask), and cracks drawn 2..5 px wide (the surface's default) are 2..5 mm wide -- the
-#: range of fine to structural cracks in concrete. A camera frame of 640 px across at the (P2) inspection
+#: the mask), and cracks drawn 2..5 px wide (the surface's default) are 2..5 cm wide (the drawn
+#: rectangle of a segment is about one pixel wider than its nominal thickness): wide, structural
+#: cracks, resolvable in the default 640 x 480 frames (7.8 mm per frame pixel at the stand-off),
+#: where a real 0.3 mm crack would need the full 4000 x 3000 sensor. A camera frame of 640 px across at the (P2) inspection
 #: distance for a 1 cm feature (footprint 3.2 m) samples the texture at about 1:2; at the
 #: default scenario's stand-off (5 m footprint) about 1:0.8.
 DEFAULT_PX_PER_M = 100.0
@@ -415,23 +420,6 @@ class SurfaceDefect:
 Defect = SurfaceDefect
 
 
-def _vec3(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be a finite 3-vector, got {value!r}")
-    return a
-
-
-def _positive(name: str, value: Any) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number, got {value!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
-
-
 class SyntheticSurface:
     """A planar, textured, cracked rectangle in the world (local ENU metres), with its ground truth.
 
@@ -467,7 +455,7 @@ class SyntheticSurface:
     crack_length_m : (float, float)
         Range of main-crack lengths, metres. Default 0.8..3 m.
     crack_width_px : (float, float)
-        Range of crack widths in texture pixels. Default 2..5 px (2..5 mm at 100 px/m): the
+        Range of crack widths in texture pixels. Default 2..5 px (2..5 cm at 100 px/m): the
         frames sample the texture at about 1:1 to 1:2, where 1 px cracks would fade out.
     contrast : (float, float)
         Relative darkening of crack pixels, see :func:`crack_image`. Default 0.35..0.6.

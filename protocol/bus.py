@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import json
 import logging
 import os
@@ -26,14 +27,16 @@ import signal
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal, Sequence
+from typing import Any, Callable, Iterator, Literal, Sequence
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, SecretStr
 
-from . import codec
+from . import codec, keys
+from .budget import Budget
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
+from .ring import Ring  # noqa: F401  (services take their rings from the bus)
 
 log = logging.getLogger("skynet.bus")
 
@@ -65,6 +68,7 @@ class BusConfig(BaseModel):
                                                "reach a lost connect endpoint (zenoh's default 4 s)")
     user: str | None = Field(default=None, description="transport/auth/usrpwd/user")
     password: SecretStr | None = Field(default=None, description="transport/auth/usrpwd/password; never shown")
+    cfg: list[tuple[str, str]] = Field(default=[], description="KEY, JSON5 VALUE pairs applied last (--cfg)")
 
     def to_zenoh(self) -> zenoh.Config:
         conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
@@ -102,7 +106,20 @@ class BusConfig(BaseModel):
             # path by path, so that a dictionary_file from config_file stays
             put("transport/auth/usrpwd/user", self.user)
             put("transport/auth/usrpwd/password", self.password.get_secret_value())
+        for key, value in self.cfg:
+            try:
+                conf.insert_json5(key, value)
+            except zenoh.ZError as exc:
+                raise ValueError(f"--cfg {key}:{value}: {exc}") from None
         return conf
+
+
+def parse_cfg(text: str) -> tuple[str, str]:
+    """``KEY:VALUE`` of zenoh-python's examples' ``--cfg`` (VALUE is JSON5; an empty KEY is the root)."""
+    key, sep, value = str(text).partition(":")
+    if not sep or not value.strip():
+        raise argparse.ArgumentTypeError(f"--cfg wants KEY:VALUE (VALUE in JSON5), got {text!r}")
+    return key.strip().strip("/"), value
 
 
 def multilink_endpoints(host: str, tcp_port: int, udp_port: int) -> list[str]:
@@ -122,7 +139,9 @@ def add_bus_args(parser: argparse.ArgumentParser, mode: Mode = "peer") -> None:
     g.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT")
     g.add_argument("--listen", "-l", action="append", default=[], metavar="ENDPOINT")
     g.add_argument("--config", "-c", default=None, metavar="FILE", help="Zenoh JSON5 config applied first")
-    g.add_argument("--fleet", default="demo", help="fleet name (key space prefix)")
+    g.add_argument("--cfg", action="append", default=[], type=parse_cfg, metavar="KEY:VALUE",
+                   help="a Zenoh config change applied last, VALUE in JSON5 (e.g. transport/link/tx/lease:3000)")
+    g.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (key space prefix)")
     g.add_argument("--lease", type=float, default=None, metavar="S", help="link lease, seconds")
     g.add_argument("--multilink", action="store_true", help="reliable on TCP, best-effort on UDP")
     g.add_argument("--shm", action="store_true", help="enable shared-memory transport")
@@ -136,7 +155,7 @@ def config_from_args(args: argparse.Namespace, **overrides: Any) -> BusConfig:
     values = dict(
         mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config,
         lease_s=args.lease, multilink=args.multilink, shared_memory=args.shm,
-        multicast_scouting=args.scouting, user=user,
+        multicast_scouting=args.scouting, user=user, cfg=getattr(args, "cfg", []),
         password=getattr(args, "password", None) or (os.environ.get(PASSWORD_ENV) if user else None),
     )
     values.update({k: v for k, v in overrides.items() if v is not None})
@@ -144,6 +163,9 @@ def config_from_args(args: argparse.Namespace, **overrides: Any) -> BusConfig:
 
 
 # ----------------------------------------------------------------------------- counters
+#: distinct (key, kind) rejection rows a session keeps (see :meth:`Counters.reject`)
+MAX_REJECT_KEYS = 512
+
 @dataclass
 class Counters:
     """Per-session traffic and rejection counters; updates from Zenoh's threads take a lock,
@@ -163,8 +185,13 @@ class Counters:
             row[1] += nbytes
 
     def reject(self, key: str, kind: str) -> bool:
-        """Count a rejection; True the first time this (key, kind) is seen (log it once)."""
+        """Count a rejection; True the first time this (key, kind) is seen (log it once).
+
+        At most :data:`MAX_REJECT_KEYS` distinct pairs are kept; the rest are counted under the key
+        ``"(other)"``, so a flood of made-up keys cannot grow the table without bound."""
         with self.lock:
+            if (key, kind) not in self.rejected and len(self.rejected) >= MAX_REJECT_KEYS:
+                key = "(other)"
             first = (key, kind) not in self.rejected
             self.rejected[(key, kind)] += 1
             return first
@@ -182,69 +209,6 @@ class Counters:
                 "rejected": {f"{k}|{kind}": n for (k, kind), n in self.rejected.items()},
                 "dropped": dict(self.dropped),
             }
-
-
-# ----------------------------------------------------------------------------- ring worker
-class Ring:
-    """A bounded drop-oldest queue with its own consumer thread.
-
-    Zenoh runs callbacks on one thread per session fed by a bounded queue; a slow callback
-    stalls every other subscriber (ZENOH.md, "Python runtime"). Subscribers that do slow work
-    get a Ring: the Zenoh callback only appends, the ring's thread does the work, and overflow
-    drops the *oldest* item and counts it. ``workers > 1`` makes it a small pool (for work that
-    releases the GIL, such as OpenCV).
-    """
-
-    def __init__(self, capacity: int, worker: Callable[[Any], None], name: str = "ring", workers: int = 1):
-        if capacity < 1 or workers < 1:
-            raise ValueError("ring capacity and workers must be >= 1")
-        self._items: collections.deque = collections.deque()
-        self._capacity = capacity
-        self._cond = threading.Condition()
-        self._worker = worker
-        self._closed = False
-        self.name = name
-        self.dropped = 0
-        self.processed = 0
-        self._threads = [threading.Thread(target=self._run, name=f"{name}#{i}", daemon=True) for i in range(workers)]
-        for t in self._threads:
-            t.start()
-
-    def push(self, item: Any) -> None:
-        with self._cond:
-            if self._closed:
-                return
-            if len(self._items) >= self._capacity:
-                self._items.popleft()
-                self.dropped += 1
-            self._items.append(item)
-            self._cond.notify()
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                while not self._items and not self._closed:
-                    self._cond.wait()
-                if not self._items and self._closed:
-                    return
-                item = self._items.popleft()
-            try:
-                self._worker(item)
-            except Exception:  # a worker bug must not kill the ring
-                log.exception("ring worker failed")
-            with self._cond:
-                self.processed += 1
-
-    def close(self, timeout: float = 2.0) -> None:
-        with self._cond:
-            self._closed = True
-            self._cond.notify_all()
-        for t in self._threads:
-            if threading.current_thread() is not t:
-                t.join(timeout)
 
 
 # ----------------------------------------------------------------------------- results
@@ -294,10 +258,10 @@ class Publisher:
         bus.counters.publishers.append(self)
 
     def put(self, msg: Message) -> int:
-        return self.put_bytes(codec.encode(msg))
+        return self.put_bytes(codec.encode(msg), encoding_of(msg))
 
-    def put_bytes(self, data: bytes) -> int:
-        self._put(data)
+    def put_bytes(self, data: bytes, encoding: zenoh.Encoding | None = None) -> int:
+        self._put(data, encoding=encoding)
         n = len(data)
         self.samples += 1
         self.bytes += n
@@ -312,11 +276,26 @@ class Publisher:
         self._pub.undeclare()
 
 
+_ENCODINGS: dict[str, zenoh.Encoding] = {}
+
+
+def encoding_of(msg: Message) -> zenoh.Encoding:
+    """The Zenoh encoding of a message's samples (:func:`protocol.codec.encoding_name`), made once per type."""
+    enc = _ENCODINGS.get(msg.TYPE)
+    if enc is None:
+        enc = _ENCODINGS[msg.TYPE] = zenoh.Encoding(codec.encoding_name(msg.TYPE))
+    return enc
+
+
+def _reply_err(query: zenoh.Query, error: ErrorReply) -> None:
+    query.reply_err(codec.encode(error), encoding=encoding_of(error))
+
+
 # ----------------------------------------------------------------------------- the bus
 class Bus:
     """One Zenoh session with typed helpers. Use as a context manager or call :meth:`close`."""
 
-    def __init__(self, config: BusConfig | None = None, fleet: str = "demo", name: str = "node"):
+    def __init__(self, config: BusConfig | None = None, fleet: str = keys.DEFAULT_FLEET, name: str = "node"):
         self.config = config or BusConfig()
         self.fleet = fleet
         self.name = name
@@ -372,8 +351,10 @@ class Bus:
         expect: type[Message] | tuple[type[Message], ...] | None = None,
         link: LinkClass | None = None,
         ring: int | None = None,
+        budget: Budget | None = None,
     ) -> Any:
-        """Subscribe with decoding; ``ring=N`` hands samples to a worker through a drop-oldest ring."""
+        """Subscribe with decoding; ``ring=N`` hands samples to a worker through a drop-oldest ring;
+        ``budget`` drops (and counts) what a source sends beyond its rate or size (:mod:`protocol.budget`)."""
         counters = self.counters
         cls_name = link.name if link else "any"
 
@@ -384,10 +365,11 @@ class Bus:
             if msg is not None:
                 callback(msg, sample)
 
-        return self.subscribe_raw(key, handle, ring=ring)
+        return self.subscribe_raw(key, handle, ring=ring, budget=budget)
 
     def subscribe_raw(
-        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False
+        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False,
+        budget: Budget | None = None,
     ) -> Any:
         """Subscribe to raw samples (e.g. RTP frames); the callback must not raise for bad input.
 
@@ -405,6 +387,15 @@ class Bus:
         def guarded(sample: zenoh.Sample) -> None:
             if self._closed:
                 return
+            if budget is not None:
+                source = str(sample.key_expr)
+                with self.counters.lock:
+                    reason = budget.admit(source, len(sample.payload), time.monotonic())
+                if reason is not None:
+                    if self.counters.reject(source, reason):
+                        log.warning("%s: %s over its budget (%s); further ones are only counted", self.name,
+                                    source, reason)
+                    return
             try:
                 target(sample)
             except Exception:
@@ -448,7 +439,8 @@ class Bus:
         payload = codec.encode(msg)
         self.counters.add(self.counters.sent, link.name, len(payload))
         try:
-            replies = self.session.get(key, payload=payload, timeout=timeout, **link.request_qos())
+            replies = self.session.get(key, payload=payload, encoding=encoding_of(msg), timeout=timeout,
+                                       **link.request_qos())
             for reply in replies:
                 if reply.ok is not None:
                     data = reply.ok.payload.to_bytes()
@@ -492,20 +484,20 @@ class Bus:
                     msg = codec.decode(data, expect)
                 except codec.CodecError as exc:
                     self.counters.reject(qkey, exc.kind)
-                    query.reply_err(codec.encode(ErrorReply(code=exc.kind, reason=str(exc))))
+                    _reply_err(query, ErrorReply(code=exc.kind, reason=str(exc)))
                     return
                 try:
                     result = handler(msg)
                 except Rejected as exc:
-                    query.reply_err(codec.encode(ErrorReply(code=exc.code, reason=exc.reason)))
+                    _reply_err(query, ErrorReply(code=exc.code, reason=exc.reason))
                     return
                 except Exception as exc:
                     log.exception("%s: handler on %s failed", self.name, qkey)
-                    query.reply_err(codec.encode(ErrorReply(code="internal", reason=f"{type(exc).__name__}: {exc}"[:500])))
+                    _reply_err(query, ErrorReply(code="internal", reason=f"{type(exc).__name__}: {exc}"[:500]))
                     return
                 out = codec.encode(result)
                 self.counters.add(self.counters.sent, COMMAND.name, len(out))
-                query.reply(query.key_expr, out)
+                query.reply(query.key_expr, out, encoding=encoding_of(result))
             finally:
                 query.drop()
 
@@ -556,16 +548,31 @@ class Bus:
 
 
 # ----------------------------------------------------------------------------- process helpers
-def stop_event_on_signals(signals: Sequence[int] = (signal.SIGINT, signal.SIGTERM)) -> threading.Event:
-    """An event set by SIGINT/SIGTERM, so a service's main loop can close its session cleanly."""
-    stop = threading.Event()
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    def handler(signum: int, frame: Any) -> None:
-        stop.set()
 
-    for s in signals:
-        signal.signal(s, handler)
+def stop_event_on_signals(signals: Sequence[int] = STOP_SIGNALS,
+                          stop: threading.Event | None = None) -> threading.Event:
+    """An event set by SIGINT/SIGTERM, so a main loop can close cleanly (the one way every command stops).
+
+    Off the main thread (where Python cannot install handlers) the event is returned unhooked.
+    """
+    stop = stop or threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for s in signals:
+            signal.signal(s, lambda signum, frame: stop.set())
     return stop
+
+
+@contextlib.contextmanager
+def stopping_on_signals(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[threading.Event]:
+    """:func:`stop_event_on_signals` for a command run in-process: the previous handlers come back on exit."""
+    previous = {s: signal.getsignal(s) for s in signals} if threading.current_thread() is threading.main_thread() else {}
+    try:
+        yield stop_event_on_signals(signals)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
 
 
 def setup_logging(name: str, level: str = "INFO") -> logging.Logger:

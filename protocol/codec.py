@@ -20,7 +20,19 @@ SCHEMA_VERSION = 1
 #: decoding refuses payloads larger than this (a mission plan of three long trajectories is ~1 MB)
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
 
+#: the media type of every envelope; the Zenoh encoding adds the schema (see :func:`encoding_name`)
+MEDIA_TYPE = "application/msgpack"
+
 M = TypeVar("M", bound=Message)
+
+
+def encoding_name(type_tag: str) -> str:
+    """The Zenoh encoding string of a sample holding a ``type_tag`` message.
+
+    ``application/msgpack;skynet/<version>/<type>``: Zenoh's ``<mime>;<schema>`` form, so generic
+    tools (zenoh-cli, a recorder) know the format and which schema of ``skynet schema`` applies.
+    """
+    return f"{MEDIA_TYPE};skynet/{SCHEMA_VERSION}/{type_tag}"
 
 
 class CodecError(ValueError):

@@ -59,16 +59,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from protocol.rtp import VIDEO_CLOCK_RATE, RtpHeader, unpack_frame
+from protocol.rtp import SEQ_MOD, VIDEO_CLOCK_RATE, RtpHeader, seq_delta, ts_delta, unpack_frame
 
 __all__ = ["MAX_DROPOUT", "Frame", "JitterBuffer", "JitterBuffers", "JitterStats"]
 
 MAX_DROPOUT = 3000  # RFC 3550 A.1: the largest forward jump still taken as loss
 MAX_CAPACITY = 1 << 14  # the window must stay well inside half the 16-bit circle
-_SEQ_MASK = 0xFFFF
-_SEQ_HALF = 0x8000
-_TS_MASK = 0xFFFFFFFF
-_TS_HALF = 0x80000000
+_SEQ_MASK = SEQ_MOD - 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -345,7 +342,7 @@ class JitterBuffer:
     def _extend(self, seq: int) -> int:
         """Extended sequence number of ``seq``: the nearest to the highest seen (RFC 3550 A.1)."""
         top = self._max
-        return top + (((seq - (top & _SEQ_MASK) + _SEQ_HALF) & _SEQ_MASK) - _SEQ_HALF)
+        return top + seq_delta(seq, top & _SEQ_MASK)
 
     def _start_epoch(self, ext: int) -> None:
         self._base = self._next = ext
@@ -358,7 +355,7 @@ class JitterBuffer:
     def _update_jitter(self, ts: int, now: float) -> None:
         """RFC 3550 A.8: D = (Rj - Ri) - (Sj - Si) in timestamp units; J += (|D| - J) / 16."""
         if self._last_ts is not None:
-            ds = ((ts - self._last_ts + _TS_HALF) & _TS_MASK) - _TS_HALF
+            ds = ts_delta(ts, self._last_ts)
             d = (now - self._last_arrival) * self.clock_rate - ds
             self._jitter += (abs(d) - self._jitter) / 16.0
         self._jitter_reference(ts, now)
@@ -394,7 +391,7 @@ class JitterBuffer:
         if probe is not None and header.sequence == probe[0].sequence:
             self.duplicated += 1
             return
-        if probe is not None and header.sequence == (probe[0].sequence + 1) & _SEQ_MASK:
+        if probe is not None and seq_delta(header.sequence, probe[0].sequence) == 1:
             self._probe = None
             self._resync(probe, out)
             self._update_jitter(header.timestamp, now)

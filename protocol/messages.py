@@ -16,6 +16,8 @@ from typing import Annotated, Any, ClassVar, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from .scenario import Scenario
+
 # Bounds that no sane message exceeds: the fleet operates in boxes of a few km.
 MAX_COORD_M = 1.0e5
 MAX_SPEED_MS = 100.0
@@ -209,7 +211,7 @@ class Heartbeat(Message):
 class PlanRequest(Message):
     TYPE: ClassVar[str] = "plan.request"
     request_id: Annotated[int, Field(ge=0)] = 0
-    scenario: dict[str, Any] = Field(description="a scenario document (see services.planner)")
+    scenario: Scenario = Field(description="the whole planning problem (protocol.scenario)")
     algorithm: Short = "theta-pso"
     seed: Annotated[int, Field(ge=0)] = 0
     particles: Annotated[int, Field(ge=2, le=10000)] | None = None
@@ -291,6 +293,16 @@ class Defect(Message):
     length_m: Finite | None = None
 
 
+class FrameEvidence(Message):
+    """The frame a defect report was computed from: its RTP source and sequence number (RFC 3550 §5.1) and
+    the SHA-256 of the image bytes the detector analysed (issue 12: a capture counts only with it)."""
+
+    TYPE: ClassVar[str] = "frame.evidence"
+    ssrc: Annotated[int, Field(ge=0, le=2**32 - 1)]
+    seq: Annotated[int, Field(ge=0, le=65535)]
+    digest: Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
+
+
 class DefectReport(Message):
     TYPE: ClassVar[str] = "defects"
     uav: UavId
@@ -303,6 +315,7 @@ class DefectReport(Message):
     error: Text = ""
     defects: list[Defect] = Field(default=[], max_length=10000)
     defect_fraction: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
+    frame: FrameEvidence | None = Field(default=None, description="the frame analysed (None: no evidence)")
 
 
 # ----------------------------------------------------------------------------- stats and events
@@ -345,6 +358,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
     for m in (
         VehicleState, Waypoint, Trajectory, Box, *COMMAND_TYPES, CommandAck, Heartbeat,
         PlanRequest, CapturePoint, MissionPlan, ErrorReply, Intrinsics, ImageMeta, Defect,
-        DefectReport, ClassCounters, LinkStats, Event,
+        FrameEvidence, DefectReport, ClassCounters, LinkStats, Event,
     )
 }

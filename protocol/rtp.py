@@ -27,8 +27,13 @@ accepts all three, as any RFC 3550 receiver must, and skips them.
 
 Choices where the paper is silent
 ---------------------------------
-- Payload type 26: the static RTP/AVP payload type of JPEG (RFC 3551, table 5), because the
-  payload *is* a JPEG image. Any 0..127 value is accepted.
+- Payload type 96, a dynamic payload type (RFC 3551 section 3, range 96..127), with the encoding
+  name ``x-skynet-frame`` at 90 kHz (``a=rtpmap:96 x-skynet-frame/90000`` in SDP, RFC 8866 section
+  6.6; an unregistered "x-" name, RFC 4855 section 3): the payload is this project's own format
+  (length-prefixed metadata + a whole JPEG file, :mod:`protocol.imagery`), *not* the RFC 2435
+  JPEG payload that the static type 26 promises (RFC 3551, table 5), so no standard receiver is
+  told it can depacketise it. Standard video leaves the bus through ``skynet video`` (RFC 2435 /
+  RFC 6184). Any 0..127 value is accepted.
 - Media clock 90 kHz, the video clock of RFC 3551 (section 5); the timestamp is the capture
   time times the clock rate, modulo 2**32, with no random offset (RFC 3550 section 5.1 suggests
   one against known-plaintext attacks on encrypted streams; we do not encrypt at this layer and
@@ -57,6 +62,8 @@ import numpy as np
 
 __all__ = [
     "JPEG_PAYLOAD_TYPE",
+    "SKYNET_ENCODING_NAME",
+    "SKYNET_PAYLOAD_TYPE",
     "RTP_HEADER_LENGTH",
     "RTP_VERSION",
     "VIDEO_CLOCK_RATE",
@@ -67,11 +74,13 @@ __all__ = [
     "pack_frame",
     "parse_ssrc",
     "seq_add",
+    "seq_delta",
     "seq_diff",
     "seq_gt",
     "seq_lt",
     "ssrc_for",
     "ts_add",
+    "ts_delta",
     "ts_diff",
     "unpack_frame",
     "unwrap_sequence",
@@ -79,7 +88,9 @@ __all__ = [
 
 RTP_VERSION = 2
 RTP_HEADER_LENGTH = 12
-JPEG_PAYLOAD_TYPE = 26  # RFC 3551, table 5: JPEG, clock 90 kHz
+JPEG_PAYLOAD_TYPE = 26  # RFC 3551, table 5: JPEG (RFC 2435 payload), clock 90 kHz
+SKYNET_PAYLOAD_TYPE = 96  # dynamic (RFC 3551, section 3): the project's own frame format
+SKYNET_ENCODING_NAME = "x-skynet-frame"  # its SDP encoding name (rtpmap), clock 90 kHz
 VIDEO_CLOCK_RATE = 90_000  # RFC 3551, section 5
 
 SEQ_MOD = 1 << 16
@@ -111,6 +122,17 @@ def _check_u(value: int, mask: int, what: str) -> None:
         raise ValueError(f"{what} must be in 0..{mask}, got {value}")
 
 
+def seq_delta(a: int, b: int) -> int:
+    """:func:`seq_diff` without the range checks, for the hot path of callers whose sequence numbers
+    are already known to be 16-bit (parsed headers): the one home of the RFC 1982 arithmetic."""
+    return ((a - b + _SEQ_HALF) & _SEQ_MASK) - _SEQ_HALF
+
+
+def ts_delta(a: int, b: int) -> int:
+    """:func:`ts_diff` without the range checks (timestamps of parsed headers)."""
+    return ((a - b + _TS_HALF) & _TS_MASK) - _TS_HALF
+
+
 def seq_add(a: int, n: int) -> int:
     """Sequence number ``a`` advanced by ``n`` (any sign), modulo 2**16 (RFC 1982, 3.1).
 
@@ -140,7 +162,7 @@ def seq_diff(a: int, b: int) -> int:
     """
     _check_u(a, _SEQ_MASK, "sequence number")
     _check_u(b, _SEQ_MASK, "sequence number")
-    return ((a - b + _SEQ_HALF) & _SEQ_MASK) - _SEQ_HALF
+    return seq_delta(a, b)
 
 
 def seq_lt(a: int, b: int) -> bool:
@@ -167,7 +189,7 @@ def ts_diff(a: int, b: int) -> int:
     """
     _check_u(a, _TS_MASK, "timestamp")
     _check_u(b, _TS_MASK, "timestamp")
-    return ((a - b + _TS_HALF) & _TS_MASK) - _TS_HALF
+    return ts_delta(a, b)
 
 
 def unwrap_sequence(seqs: np.ndarray | list[int]) -> np.ndarray:
@@ -263,7 +285,7 @@ class RtpHeader:
     marker : bool
         M bit; for video, the last packet of a frame. Our frames are one packet each.
     payload_type : int
-        0..127; default 26 = JPEG (RFC 3551, table 5).
+        0..127; default 96 = ``x-skynet-frame`` (dynamic, :data:`SKYNET_PAYLOAD_TYPE`).
     version : int
         Always 2.
     padding, extension : bool
@@ -277,7 +299,7 @@ class RtpHeader:
     timestamp: int
     ssrc: int
     marker: bool = True
-    payload_type: int = JPEG_PAYLOAD_TYPE
+    payload_type: int = SKYNET_PAYLOAD_TYPE
     version: int = RTP_VERSION
     padding: bool = False
     extension: bool = False
@@ -473,7 +495,7 @@ class RtpSender:
     ssrc : int
         32-bit source id, normally ``ssrc_for(uav_id, camera)``.
     payload_type : int
-        0..127, default 26 (JPEG, RFC 3551).
+        0..127, default 96 (``x-skynet-frame``, :data:`SKYNET_PAYLOAD_TYPE`).
     clock_rate : int
         Media clock in Hz, default 90 000.
     initial_seq : int or None
@@ -493,7 +515,7 @@ class RtpSender:
     def __init__(
         self,
         ssrc: int,
-        payload_type: int = JPEG_PAYLOAD_TYPE,
+        payload_type: int = SKYNET_PAYLOAD_TYPE,
         clock_rate: int = VIDEO_CLOCK_RATE,
         initial_seq: int | None = None,
         rng: np.random.Generator | None = None,

@@ -24,8 +24,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "mission": ("services.launcher", "start the network, run the default mission, write the report"),
     "netem": ("services.netem.cli", "user-space impairment proxy (UDP/TCP) for latency/loss experiments"),
     "experiment": ("services.experiment.cli", "the mission over a grid of link loss/delay/jitter, with a table and plots"),
+    "video": ("services.video.service", "every UAV's camera as standard RTP/UDP (H.264 or JPEG) with SDP files"),
+    "web": ("services.web.service", "the live web page of the fleet (aiohttp, WebSocket)"),
+    "replay": ("services.recording.replay", "play a recorded mission (MCAP) back onto the bus"),
     "demo": ("services.demo", "gateway + a demo publisher/subscriber pair, printing what flows"),
-    "bench": ("services.bench", "benchmarks: bus, sim, plan, detect, mission"),
+    "schema": ("protocol.contract", "print the wire contract: key space, link classes, envelope, JSON Schemas"),
 }
 
 

@@ -21,7 +21,7 @@ from services.process import ProcessGroup, free_port_pair
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="skynet demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--count", type=int, default=10)
-    parser.add_argument("--fleet", default="demo")
+    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     args = parser.parse_args(argv)
     tcp, udp = free_port_pair()
     endpoints = multilink_endpoints("127.0.0.1", tcp, udp)

@@ -45,12 +45,21 @@ END_ACTION = {"kill": "restart", "cut": "restore", "partition": "heal"}
 KILLABLE = ("gateway", "planner", "detector")
 
 
+#: the latest a fault may begin or end, s (a day: longer than any mission; ``1e999s`` is refused, not scheduled
+#: for a time that never comes)
+MAX_FAULT_S = 86_400.0
+
+
 def parse_duration(tok: str, what: str) -> float:
-    """``500ms``, ``20s``, ``1.5min`` → seconds; a unit is required (the netem parser's units)."""
+    """``500ms``, ``20s``, ``1.5min`` → seconds; a unit is required (the netem parser's units); at most
+    :data:`MAX_FAULT_S` (so never infinite or NaN)."""
     try:
-        return parse_time_s(tok)
+        value = parse_time_s(tok)
     except ValueError as exc:
         raise ValueError(f"{what} {tok!r}: {exc}") from None
+    if not 0.0 <= value <= MAX_FAULT_S:  # also false for NaN
+        raise ValueError(f"{what} {tok!r}: must be between 0 s and {MAX_FAULT_S:.0f} s")
+    return value
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,12 @@ mission phase (``skynet mission``) or the network start (``skynet up``). A kille
 restarted with the same command line and ports; the launcher puts clean proxies on the links a
 fault cuts.
 
+A service that exits by itself (a crash, not a fault's kill) is restarted by the supervisor
+(:meth:`Network.start_supervisor`) with the same command line, after an exponential back-off
+(:mod:`services.restart`: 0.5 s doubling to 30 s, reset after 10 s of good run); each restart is
+logged and, in a mission, recorded as a fault (``restart``) in the report. The network is never
+stopped because one service ended.
+
 ``--secure`` turns on the gateway's authentication and access control: random passwords for
 ``gcs``, ``planner``, ``detector`` and ``uav1..N`` in a private temporary folder (removed at the
 end), the gateway started with ``--users`` and ``--acl``, each service with ``--user`` and its
@@ -41,10 +47,12 @@ import math
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from protocol import keys
 from protocol.bus import (
     PASSWORD_ENV,
     Bus,
@@ -57,6 +65,7 @@ from protocol.bus import (
 
 from .faults import FaultInjector, Resolved, cut_links, plan_faults
 from .process import ProcessGroup, free_port_pair
+from .restart import RestartTracker
 from .topology import (
     CLASSES,
     OPEN_TIMEOUT_MS,
@@ -71,9 +80,13 @@ from .topology import (
     skynet_link,
 )
 
+from edge.neighbourhood import FORMATION_SIZE
+from edge.runtime import CAPTURE_LINKS, frame_size, preview_rate
+
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
-READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up"}
+READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up", "video": "video up",
+         "web": "web up"}
 EDGE_READY = "board up"
 #: the link lease of the gateway and the clients (planner, detector, ground station) when links are
 #: proxied, s: the edges' own (edge.board, 2 s). Each side of
@@ -128,6 +141,7 @@ class Network:
     def __init__(self, args: argparse.Namespace, echo=sys.stdout, log_dir: Path | None = None,
                  ground_station: bool = False, plan: Plan | None = None):
         self.args = args
+        self.ground_station = ground_station
         self.plan = plan or make_plan(args, ground_station)
         #: transport/unicast/open_timeout of nodes whose links are proxied, ms (slower links, longer)
         self.open_timeout = open_timeout_ms(self.plan.impair.worst_delay_ms())
@@ -142,6 +156,12 @@ class Network:
         self.tmp = Path(tempfile.mkdtemp(prefix="skynet-net-"))
         self.creds = None
         self.injector: FaultInjector | None = None
+        #: restarts the supervisor made: {"service", "code", "failures", "delay_s", "at"}
+        self.restarts: list[dict] = []
+        #: told of each restart (name, text); a mission sets its runner's ``note_fault`` here
+        self.on_restart = None
+        self._sup_stop = threading.Event()
+        self._sup: threading.Thread | None = None
         if getattr(args, "secure", False):
             from services.gateway.credentials import generate
 
@@ -204,21 +224,26 @@ class Network:
     def edge_config(self, i: int) -> list[str]:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
         rules that keep its links on the proxies (:func:`services.topology.edge_mesh_config`)."""
-        if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied:
+        # several formations: no gossip autoconnect, or every edge would dial every other (issue 18)
+        formations = self.args.uavs > FORMATION_SIZE
+        if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied and not formations:
             return [] if self.creds is None else ["--config", str(self.creds.mesh_config)]
         base = json.loads(self.creds.mesh_config.read_text()) if self.creds is not None else None
         path = self.tmp / f"uav{i}.json5"
-        path.write_text(json.dumps(edge_mesh_config(self.plan.mesh, base, self.open_timeout)))
+        mesh = "proxied" if formations else self.plan.mesh  # proxied: autoconnect to nothing
+        path.write_text(json.dumps(edge_mesh_config(mesh, base, self.open_timeout)))
         path.chmod(0o600)
         return ["--config", str(path)]
 
     def mesh_connect(self, i: int) -> list[str]:
-        """Edge i's ``--connect`` to every edge j > i: through the proxies in front of j with the
+        """Edge i's ``--connect`` to every edge j > i of its formation: through the proxies in front of j with the
         proxied mesh, else straight to j's endpoints. Dialled endpoints are retried until they
         answer, while a peer learned by gossip is dialled when the gossip arrives: an edge that
         was not listening yet then stayed out of the mesh for good (seen under load in CI)."""
+        from edge.neighbourhood import members
+
         out = []
-        for j in range(i + 1, self.args.uavs + 1):
+        for j in (j for j in members(i, fleet=self.args.uavs) if j > i):  # its formation only (issue 18)
             ends = (self._proxy_pair(skynet_link(i, j), self.edge_endpoints[j]) if self.plan.mesh == "proxied"
                     else self.edge_endpoints[j])
             for e in ends:
@@ -244,29 +269,44 @@ class Network:
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9)."""
         from edge.formation import offsets_for, rotation_of
-        from services.planner.scenario import load_scenario_document
+        from protocol.scenario import load_scenario
 
-        sc = load_scenario_document(self.args.scenario)
-        start, goal = sc["start"], sc["goal"]
+        sc = load_scenario(self.args.scenario)
+        start, goal = sc.start, sc.goal
         yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
         R = rotation_of(0.0, 0.0, yaw)
-        ground = sc["box"]["lo"][2]
+        ground = sc.box.lo[2]
         out = []
         for off in offsets_for(n):
             p = (R @ off)[:2]
             out.append((round(start[0] + p[0], 3), round(start[1] + p[1], 3), ground))
         return out
 
+    def gateway_config(self) -> list[str]:
+        """``--config FILE`` of the gateway with ``--gcs-state-hz``: the clients' view of the states
+        downsampled (:mod:`services.gateway.downsample`), else nothing."""
+        hz = getattr(self.args, "gcs_state_hz", 0.0) or 0.0
+        if hz <= 0:
+            return []
+        from .gateway.downsample import state_downsampling
+
+        path = self.tmp / "gateway.json5"
+        path.write_text(json.dumps(state_downsampling(self.args.fleet, hz, self.args.uavs)))
+        return ["--config", str(path)]
+
     def start(self) -> None:
         a = self.args
         secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
         lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
-        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease,
+        thin = self.gateway_config()
+        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease, *thin,
                                           *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
         if not gw.wait_for(READY["gateway"], 30):
             raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
         scenario = ["--scenario", a.scenario] if a.scenario else []
         recovery = ["--imagery-cache", "0"] if getattr(a, "no_recovery", False) else []
+        hz = getattr(a, "preview_hz", None)
+        preview = [] if hz is None else ["--preview-hz", str(hz)]
         for i in range(1, a.uavs + 1):
             self.edge_endpoints[i] = multilink_endpoints(HOST, *free_port_pair())
         for i, home in enumerate(self.homes(a.uavs), start=1):
@@ -274,11 +314,18 @@ class Network:
                 "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
-                "--seed", str(a.seed + i), "--camera", a.camera, *scenario, *recovery])
+                "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
+                "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery])
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
+        save = ["--save-frames", a.save_frames] if getattr(a, "save_frames", None) else []
         self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
-                                        *no_recovery])
+                                        *no_recovery, *save])
+        if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
+            self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
+                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
+        if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
+            self.start_service("web", ["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -311,7 +358,48 @@ class Network:
         """Services that ended on their own (not those a fault killed)."""
         return [s.name for s in self.group.services if not s.alive() and not s.killed]
 
+    def start_supervisor(self, log: logging.Logger, tracker: RestartTracker | None = None,
+                         period_s: float = 0.2) -> None:
+        """Restart services that end by themselves (see the module docstring), in a thread until :meth:`stop`."""
+        tracker = tracker or RestartTracker()
+
+        def loop() -> None:
+            while not self._sup_stop.wait(period_s):
+                try:
+                    self.supervise(tracker, log)
+                except Exception:  # the supervisor outlives a failed pass, and says so
+                    log.exception("supervisor pass failed")
+
+        self._sup = threading.Thread(target=loop, name="supervisor", daemon=True)
+        self._sup.start()
+
+    def supervise(self, tracker: RestartTracker, log: logging.Logger) -> None:
+        """One pass: schedule the restart of services that ended on their own, start those that are due."""
+        if self.group.closed:
+            return
+        now = time.monotonic()
+        for svc in list(self.group.services):
+            if svc.alive() or svc.killed or tracker.pending(svc.name):
+                continue
+            p = tracker.exited(svc.name, now, now - svc.started, svc.proc.returncode)
+            log.error("%s exited with code %s after %.1f s; restarting it in %.1f s (quick failure %d in a row)",
+                      svc.name, p.code, now - svc.started, p.due - now, p.failures)
+        for p in tracker.due(now):
+            try:
+                svc = self.group.restart(p.name)
+            except RuntimeError:  # the group is stopping
+                return
+            text = f"exited with code {p.code}; restarted by the supervisor (run {svc.restarts + 1})"
+            self.restarts.append({"service": p.name, "code": p.code, "failures": p.failures,
+                                  "at": time.time(), "text": text})
+            log.warning("%s %s", p.name, text)
+            if self.on_restart is not None:
+                self.on_restart(p.name, text)
+
     def stop(self) -> dict:
+        self._sup_stop.set()
+        if self._sup is not None:
+            self._sup.join(5.0)
         if self.injector is not None:
             self.injector.cancel()  # then the group refuses restarts and its stop ends a restart's wait
         codes = self.group.stop()
@@ -338,8 +426,15 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
+    p.add_argument("--frame-size", type=frame_size, default="640x480", help="capture frame size WxH (4000x3000: the paper's 12 MP)")
+    p.add_argument("--preview-hz", type=preview_rate, default=None, metavar="HZ",
+                   help="live preview frames per UAV per second (default: the edge's, 2; 0 = off)")
+    p.add_argument("--gcs-state-hz", type=preview_rate, default=0.0, metavar="HZ",
+                   help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
+    p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
+                   help="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
     p.add_argument("--method", default="it+", help="the detector's method")
-    p.add_argument("--fleet", default="demo")
+    p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
     p.add_argument("--impair", action="append", default=[], metavar="NAME[/udp|/tcp]=SPEC",
                    help="netem impairment on a link or group of links (repeatable, later wins), e.g. "
@@ -355,6 +450,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "AT from the " + ("mission phase" if prog == "mission" else "network start"))
     p.add_argument("--secure", action="store_true",
                    help="gateway authentication and access control, with generated per-service passwords")
+    p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
+                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:5600+2(n-1)")
+    p.add_argument("--video-sdp", default="sdp", help="folder of the video streams' SDP files (with --video)")
+    p.add_argument("--web", default=None, metavar="[HOST]:PORT",
+                   help="serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)")
     if prog == "mission":
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
@@ -371,6 +471,8 @@ def main(argv: list[str] | None = None) -> int:
         plan = make_plan(args, ground_station=prog == "mission")
     except ValueError as e:
         parser.error(str(e))
+    if (args.video or args.web) and args.secure:
+        parser.error("--video and --web have no role in the access control yet: not with --secure")
     log = setup_logging(prog)
     stop = stop_event_on_signals()
     if prog == "up":
@@ -386,11 +488,9 @@ def main(argv: list[str] | None = None) -> int:
             injector = net.start_faults(log)
             if injector is not None:
                 injector.start(origin=time.time())
+            net.start_supervisor(log)  # a service that ends is restarted, the network stays up
             while not stop.wait(1.0):
-                dead = net.check_alive()
-                if dead:
-                    log.error("service(s) ended: %s", ", ".join(dead))
-                    break
+                pass
         finally:
             codes = net.stop()
             log.info("stopped: %s", codes)
@@ -401,31 +501,49 @@ def main(argv: list[str] | None = None) -> int:
 def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan | None = None) -> int:
     from services.gcs.cli import run_mission as gcs_mission
     from services.gcs.mission import MissionOptions
-    from services.planner.scenario import load_scenario_document
+    from protocol.scenario import load_scenario
 
-    out = Path(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
-    out.mkdir(parents=True, exist_ok=True)
+    from services.gcs.record import check_output_folder
+
+    # not writable or too little room: refused (RecordingError) before any service starts
+    out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     log_file = open(out / "services.log", "w")
+    args.save_frames = str((out / "frames").resolve())  # the captures, for the inspection deliverable
     net = Network(args, echo=log_file, ground_station=True, plan=plan)
-    scenario = load_scenario_document(args.scenario)
+    scenario = load_scenario(args.scenario)
     try:
         net.start()
         cfg = net.gcs_config()
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                                  speed=args.speed)
-        hooks = {}
         injector = net.start_faults(log)
-        if injector is not None:
-            def on_runner(runner) -> None:
+
+        def on_runner(runner) -> None:
+            net.on_restart = lambda name, text: runner.note_fault("restart", name, text)
+            if injector is not None:
                 injector.attach(runner)
                 injector.start()
 
-            hooks["on_runner"] = on_runner
+        hooks = {"on_runner": on_runner}
+        net.start_supervisor(log)
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
-            code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
-                               ground_truth=args.camera == "synthetic", **hooks)
+            web_server = None
+            if args.web:  # the live page in the ground station's process, with its plan (services.web)
+                from services.web.service import follow_runner, start_web
+
+                view, web_server = start_web(bus, args.web, scenario, log=log)
+                before = hooks.get("on_runner")
+                hooks["on_runner"] = lambda runner: (before and before(runner), follow_runner(view, runner))
+            try:
+                code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
+                                   ground_truth=args.camera == "synthetic", **hooks)
+            finally:
+                if web_server is not None:
+                    web_server.stop()
         if net.proxies:
             (out / "proxies.json").write_text(json.dumps(net.proxy_stats(), indent=1))
+        if net.restarts:
+            (out / "restarts.json").write_text(json.dumps(net.restarts, indent=1))
     finally:
         net.stop()
         log_file.close()

@@ -49,6 +49,8 @@ class Service:
     killed: bool = False
     #: how many times this service was started before this run of it
     restarts: int = 0
+    #: time.monotonic() when this run of it started
+    started: float = field(default_factory=time.monotonic)
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -76,6 +78,31 @@ class ProcessGroup:
         self._width = 10  # service names are right-aligned in this many columns
         self._lock = threading.Lock()  # membership: start/restart against stop
         self._closed = False
+        #: lines the echo file refused (full disk, closed file): they are kept in ``Service.lines`` only
+        self.echo_errors = 0
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`stop` began (no more starts or restarts)."""
+        return self._closed
+
+    def _echo(self, name: str, line: str) -> None:
+        """One prefixed line to the echo file; a write error is counted and said once on stderr, never
+        raised: a pump that died would leave the service blocked on a full pipe."""
+        try:
+            with self._echo_lock:
+                print(f"{name:>{self._width}} | {line}", file=self.echo, flush=True)
+        except (OSError, ValueError) as exc:  # ENOSPC, EFBIG, EIO, a closed file
+            with self._echo_lock:
+                self.echo_errors += 1
+                first = self.echo_errors == 1
+            if first:
+                where = getattr(self.echo, "name", "the log")
+                try:
+                    print(f"services' log {where} failed ({exc}); their output is still read, the last lines "
+                          f"of each are kept in memory only", file=sys.stderr, flush=True)
+                except (OSError, ValueError):
+                    pass
 
     def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None) -> Service:
         with self._lock:
@@ -90,22 +117,25 @@ class ProcessGroup:
         cmd = [sys.executable, "-m", "services.cli", *args]
         proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            text=True, bufsize=1, env=env, start_new_session=True,
+            text=True, errors="replace", bufsize=1, env=env, start_new_session=True,
         )
         svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts)
 
         def pump() -> None:
             assert proc.stdout is not None
+            listener = on_line
             for line in proc.stdout:
                 line = line.rstrip("\n")
                 svc.lines.append(line)
                 if len(svc.lines) > 5000:
                     del svc.lines[:1000]
-                if on_line:
-                    on_line(name, line)
+                if listener:
+                    try:
+                        listener(name, line)
+                    except Exception:  # the pump outlives its listener: the child must never block on its pipe
+                        listener = None
                 if self.echo is not None:
-                    with self._echo_lock:
-                        print(f"{name:>{self._width}} | {line}", file=self.echo, flush=True)
+                    self._echo(name, line)
 
         svc._reader = threading.Thread(target=pump, name=f"log:{name}", daemon=True)
         svc._reader.start()

@@ -73,7 +73,10 @@ class Links:
 
     @property
     def skynet(self) -> list[str]:
-        return [skynet_link(i, j) for i in range(1, self.uavs + 1) for j in range(i + 1, self.uavs + 1)]
+        """The SkyNet links: between the UAVs of each formation (:mod:`edge.neighbourhood`), not across."""
+        from edge.neighbourhood import formations
+
+        return [skynet_link(i, j) for f in formations(self.uavs) for i in f for j in f if j > i]
 
     def uav(self, text: str, what: str = "name") -> int:
         """The id of ``uavN``, checked against the fleet size."""
@@ -101,6 +104,9 @@ class Links:
         pair = _PAIR.fullmatch(name)
         if pair:
             i, j = (self.uav(f"uav{g}", "link") for g in pair.groups())
+            if skynet_link(i, j) not in self.skynet:
+                raise ValueError(f"link {name!r}: uav{i} and uav{j} fly in different formations "
+                                 "(SkyNet links only join UAVs of one formation)")
             return [skynet_link(i, j)]
         if _UAV.fullmatch(name):
             return [f"uav{self.uav(name, 'link')}"]

@@ -38,7 +38,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 __all__ = [
     "GRAVITY",
@@ -147,6 +146,20 @@ class DisturbanceParams:
         return cls(torque_amp=(0.03, 0.03, 0.01), gust_std=(1.0, 1.0, 0.3), wind_mean=(1.0, 0.5, 0.0))
 
 
+def ar1(a: float, w: np.ndarray, zi: float = 0.0) -> tuple[np.ndarray, float]:
+    """The first-order recursion ``y[n] = a y[n-1] + w[n]`` with ``y[0] = w[0] + zi``; returns ``y`` and
+    the state ``a y[-1]`` for the next block -- ``scipy.signal.lfilter([1], [1, -a], w, zi=[zi])``,
+    without importing scipy.signal (75 MB in every edge process, issue 18). A plain loop: one block
+    of 2000 steps is 10 s of simulated flight."""
+    y = np.empty(len(w))
+    prev = zi
+    for n, x in enumerate(w.tolist()):
+        prev = x + prev
+        y[n] = prev
+        prev *= a
+    return y, prev
+
+
 class Disturbance:
     """Seeded, bounded disturbance sequence sampled once per physics step.
 
@@ -158,7 +171,7 @@ class Disturbance:
     rng : numpy.random.Generator
         Source of all randomness (``numpy.random.default_rng(seed)``).
     block : int
-        Number of steps drawn at a time (vectorised with :func:`scipy.signal.lfilter`).
+        Number of steps drawn at a time (the noise drawn vectorised, filtered by :func:`ar1`).
     """
 
     def __init__(self, params: DisturbanceParams, dt: float, rng: np.random.Generator, block: int = 2000):
@@ -189,7 +202,7 @@ class Disturbance:
             a = self._a_t if i < 3 else self._a_g
             if self._k == 0:  # start the OU processes in their stationary distribution
                 self._zi[i, 0] = a * self._n0[i]
-            out[i], self._zi[i] = lfilter([1.0], [1.0, -a], w[i], zi=self._zi[i])
+            out[i], self._zi[i, 0] = ar1(a, w[i], float(self._zi[i, 0]))
         t = (self._k + np.arange(n)) * self.dt
         amp = np.asarray(p.torque_amp)[:, None]
         sin = np.sin(2 * math.pi * self._freq[:, None] * t + self._phase[:, None])

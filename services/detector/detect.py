@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .improved import it_plus_mask, reduction_factor
+from .improved import it_plus_bh_mask, it_plus_mask, reduction_factor
 from .iterative import C_S_UNGUARDED, iterative_threshold
 from .thresholds import (
     as_grey_u8,
@@ -76,6 +76,7 @@ METHODS: dict[str, MethodFn] = {
     "it": _it,
     "it-paper": _it_paper,
     "it+": it_plus_mask,
+    "it+bh": it_plus_bh_mask,
 }
 
 

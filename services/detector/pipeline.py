@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import time
 
-import cv2
 import numpy as np
 
+from edge.camera import decode_image
 from protocol.messages import Defect, DefectReport, ImageMeta
 
 from .detect import Detection, detect
@@ -22,17 +22,6 @@ from .detect import Detection, detect
 #: components smaller than this are not reported (the mask is unchanged)
 MIN_REPORT_AREA_PX = 12
 MAX_REPORTED_DEFECTS = 500
-
-
-def decode_image(data: bytes | memoryview) -> np.ndarray:
-    """Grey uint8 image from JPEG/PNG bytes; ``ValueError`` when they do not decode."""
-    buf = np.frombuffer(data, dtype=np.uint8)
-    if buf.size == 0:
-        raise ValueError("empty image")
-    img = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise ValueError("image bytes do not decode")
-    return img
 
 
 def pixels_to_world(meta: ImageMeta, px: np.ndarray) -> np.ndarray | None:
@@ -65,7 +54,7 @@ def to_report(meta: ImageMeta, det: Detection, stamp_report: float | None = None
 def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", **params: object) -> DefectReport:
     """Decode, detect and map one frame; a frame that does not decode gives an ``ok=False`` report."""
     try:
-        grey = decode_image(image)
+        grey = decode_image(image, grey=True)
     except ValueError as exc:
         return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
                             stamp_report=time.time(), method=method, ok=False, error=str(exc))

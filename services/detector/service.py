@@ -43,16 +43,18 @@ listener), queue drops and rejections.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import threading
 import time
 from collections import Counter
 
 from protocol import codec, keys
+from protocol.budget import for_topic
 from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.imagery import split_payload
 from protocol.jitter import Frame, JitterBuffers
 from protocol.links import COMMAND, TELEMETRY
-from protocol.messages import DefectReport, LinkStats
+from protocol.messages import DefectReport, FrameEvidence, LinkStats
 from protocol.rtp import RtpError, parse_ssrc, unpack_frame
 
 from .detect import METHODS
@@ -64,18 +66,38 @@ from .recovery import RecoveryTracker
 #: or a gateway restart), so the queue holds such a burst (~50 kB a frame: a few MB); the Zenoh
 #: callback never waits for it either way.
 QUEUE_FRAMES = 128
+#: cameras per UAV the detector keeps a jitter buffer for (SSRC ``0x534BUUCC`` with CC below this):
+#: the capture camera is 0, the preview camera 1 (edge.runtime); any other SSRC is rejected, so a
+#: sender cannot make the detector keep an unbounded number of buffers.
+MAX_CAMERAS = 4
+
+
+def frame_source(key: str, ssrc: int) -> tuple[int, int] | None:
+    """``(uav, camera)`` of a frame received on ``key`` with ``ssrc``, or None when the SSRC is not a
+    SkyNet camera's (RFC 3550 §8: SSRCs are the sender's to choose, so the receiver checks them) or
+    not one of the UAV whose camera key carried it (a UAV may write only its own keys)."""
+    try:
+        uav, camera = parse_ssrc(ssrc)
+        key_uav = keys.parse(key).uav
+    except ValueError:
+        return None
+    if key_uav != uav or camera >= MAX_CAMERAS:
+        return None
+    return uav, camera
 
 
 class DetectorService:
     """Binds the pipeline to the bus; see the module docstring."""
 
     def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = QUEUE_FRAMES,
-                 playout_delay_s: float = 0.05, log=None, recover: bool = True):
+                 playout_delay_s: float = 0.05, log=None, recover: bool = True, save_frames: str | None = None):
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")
         self.bus, self.method, self.log = bus, method, log
+        self.save_frames = save_frames  # folder for the analysed captures (the inspection deliverable's input)
         self.counts: Counter[str] = Counter()
         self.latency_ms: list[float] = []
+        self.analysed: Counter[int] = Counter()  # SSRC -> frames analysed (reports published)
         # late frames too: out of order, but captures all the same (coverage)
         self._jb = JitterBuffers(capacity=64, playout_delay_s=playout_delay_s, release_late=True)
         self._lock = threading.Lock()
@@ -87,8 +109,9 @@ class DetectorService:
         if recover:
             # frames lost on a lossy link are retransmitted from the cameras' caches; a plain
             # subscriber beside it sees what the link delivered the first time (recovered = the rest)
-            bus.subscribe_raw(cams, self._on_live)
-        bus.subscribe_raw(cams, self._on_frame, recover=bool(recover))
+            bus.subscribe_raw(cams, self._on_live, budget=for_topic("camera"))
+        # per-camera budget (protocol.budget): a flood of frames from one UAV is dropped before parsing
+        bus.subscribe_raw(cams, self._on_frame, recover=bool(recover), budget=for_topic("camera"))
         bus.token(keys.rcu_alive(bus.fleet, "detector"))
         self._t0 = time.time()
 
@@ -101,6 +124,12 @@ class DetectorService:
             self.counts["bad-rtp"] += 1
             if self.counts["bad-rtp"] == 1 and self.log:
                 self.log.warning("dropping a sample that is not an RTP frame: %s", exc)
+            return
+        if frame_source(str(sample.key_expr), header.ssrc) is None:
+            self.counts["bad-ssrc"] += 1
+            if self.counts["bad-ssrc"] == 1 and self.log:
+                self.log.warning("dropping a frame with SSRC %#010x on %s: not that UAV's camera (further ones "
+                                 "are only counted)", header.ssrc, sample.key_expr)
             return
         if len(payload) == 0:  # a camera's announce frame (edge.runtime.CameraLink.announce)
             self.counts["announce"] += 1
@@ -122,6 +151,8 @@ class DetectorService:
             header, payload = unpack_frame(sample.payload.to_bytes())
         except RtpError:
             return  # counted once, by _on_frame
+        if frame_source(str(sample.key_expr), header.ssrc) is None:
+            return  # counted once, by _on_frame
         if len(payload) == 0:
             return  # an announce frame: not a capture
         with self._lock:
@@ -142,12 +173,24 @@ class DetectorService:
             meta, image = split_payload(frame.payload)
         except codec.CodecError as exc:
             self.counts["bad-meta"] += 1
-            uav, _ = parse_ssrc(frame.ssrc) if (frame.ssrc >> 16) == 0x534B else (None, None)
-            if uav and 1 <= uav <= 255:
+            uav, _ = parse_ssrc(frame.ssrc)  # checked on arrival (frame_source)
+            if uav:
                 self.pub.put(DefectReport(uav=uav, capture_id=0, stamp_capture=0.0, stamp_report=time.time(),
                                           method=self.method, ok=False, error=f"bad metadata: {exc}"[:500]))
             return
+        if meta.uav != parse_ssrc(frame.ssrc)[0]:
+            self.counts["bad-meta"] += 1  # metadata naming another UAV than the camera that sent it
+            return
         report = analyse(meta, image, self.method)
+        # the evidence the ground station counts a capture on: which frame, and a digest of its image bytes
+        report = report.model_copy(update={"frame": FrameEvidence(ssrc=frame.ssrc, seq=frame.sequence,
+                                                                  digest=hashlib.sha256(image).hexdigest())})
+        with self._lock:
+            self.analysed[frame.ssrc] += 1
+        if self.save_frames and report.ok:
+            from services.inspection.deliverable import save_frame
+
+            save_frame(self.save_frames, meta, image)
         if not report.ok:
             self.counts["bad-image"] += 1
             if self.log:
@@ -163,21 +206,27 @@ class DetectorService:
         with self._lock:
             for ssrc in self._jb.sources:
                 st = self._jb[ssrc].stats()
-                uav, cam = parse_ssrc(ssrc)
+                try:
+                    uav, cam = parse_ssrc(ssrc)
+                except ValueError:  # never pushed (frame_source), but stats must not end the service
+                    continue
                 p = f"uav{uav}.cam{cam}"
                 metrics.update({f"{p}.received": st.received, f"{p}.delivered": st.delivered, f"{p}.lost": st.lost,
                                 f"{p}.late": st.late, f"{p}.duplicated": st.duplicated,
                                 f"{p}.reordered": st.reordered, f"{p}.jitter_ms": 1000 * st.jitter_s,
                                 f"{p}.fraction_lost": st.fraction_lost,
-                                f"{p}.recovered": self.recovery.recovered[ssrc] if self.recovery else 0})
+                                f"{p}.recovered": self.recovery.recovered[ssrc] if self.recovery else 0,
+                                f"{p}.analysed": self.analysed[ssrc]})
         metrics["imagery.recovery"] = int(self.recovery is not None)
-        missed = self.bus.counters.snapshot()["dropped"]
+        snap = self.bus.counters.snapshot()
+        missed = snap["dropped"]
         metrics["imagery.unrecovered"] = sum(v for k, v in missed.items() if k.startswith("missed:"))
         metrics["queue.dropped"] = self.work.dropped
         metrics["queue.processed"] = self.work.processed
         counts = dict(self.counts)
         return LinkStats(source="detector", stamp=time.time(), uptime_s=time.time() - self._t0,
-                         rejected={k: v for k, v in counts.items() if k.startswith("bad")},
+                         rejected={**{k: v for k, v in counts.items() if k.startswith("bad")},
+                                   **{k: v for k, v in snap["rejected"].items() if "|budget-" in k}},
                          metrics={**metrics, **{f"count.{k}": v for k, v in counts.items()}})
 
     def close(self) -> None:
@@ -200,6 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
     parser.add_argument("--no-recovery", action="store_true",
                         help="do not ask the cameras' caches for lost capture frames (plain best-effort)")
+    parser.add_argument("--save-frames", default=None, metavar="DIR",
+                        help="keep every analysed capture with its pose in DIR (input of the inspection deliverable)")
     return parser
 
 
@@ -210,15 +261,20 @@ def main(argv: list[str] | None = None) -> int:
     stop = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="detector") as bus:
         svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log,
-                              recover=not args.no_recovery)
+                              recover=not args.no_recovery, save_frames=args.save_frames)
         log.info("detector up: method %s, %d workers, recovery %s", args.method, args.workers,
                  "off" if args.no_recovery else "on")
         next_stats = time.monotonic() + 1.0
         while not stop.wait(0.01):
-            svc.poll()
-            if time.monotonic() >= next_stats:
-                svc.stats_pub.put(svc.stats())
-                next_stats += 1.0
+            try:
+                svc.poll()
+                if time.monotonic() >= next_stats:
+                    next_stats += 1.0
+                    svc.stats_pub.put(svc.stats())
+            except Exception:  # nothing a sender can do may end the service: counted, logged once
+                svc.counts["loop-error"] += 1
+                if svc.counts["loop-error"] == 1:
+                    log.exception("detector main loop pass failed (further ones are only counted)")
         svc.close()
         svc.stats_pub.put(svc.stats())
         log.info("shutting down: %s", dict(svc.counts))

@@ -20,15 +20,19 @@ from protocol.bus import (
     setup_logging,
     stop_event_on_signals,
 )
-from services.planner.scenario import load_scenario_document
+from protocol.scenario import Scenario, load_scenario
 
-from .mission import FRESH_STATE_S, MissionOptions, MissionRunner
+from .mission import MissionOptions, MissionRunner
 from .progress import LiveDisplay, render
+from .supervision import FRESH_STATE_S
 
 
-def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None, ground_truth: bool = True, on_runner=None) -> int:
+def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,
+                abort=None, ground_truth: bool = True, on_runner=None, record: bool = True) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
+
+    With ``out`` and ``record``, everything on the fleet's keys is also logged to ``out/mission.mcap``
+    (:mod:`services.recording`), from which the same report can be rebuilt.
 
     ``on_runner(runner)`` is called once, after the :class:`MissionRunner` is made and before it runs
     (the launcher's fault injector hooks in there: ``runner.note_fault``, ``runner.record.phases``).
@@ -40,19 +44,25 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
     def progress(runner: MissionRunner, force: bool = False) -> None:
         if display is None:
             return
-        phase = max(runner.record.phases, key=runner.record.phases.get) if runner.record.phases else "-"
+        snap = runner.snapshot()
         now = time.time()
-        with runner._lock:
-            states = dict(runner.latest)
-            ages = [1000 * (s.rx - s.msg.stamp) for s in runner.record.states[-60:]]
-            n_reports = len(runner.reports)
-        heard, lost = runner.last_heard(), runner.lost()
+        heard, lost = snap.last_heard, snap.lost
         notes = {u: "LOST" if u in lost else f"silent {now - heard[u]:.1f} s" for u in options.uavs
                  if u in lost or (u in heard and now - heard[u] > FRESH_STATE_S)}
-        display.update(render(phase, states, options.uavs, ages, n_reports, len(runner.planned_captures()), offsets,
-                              now - t_start, notes), force=force)
+        display.update(render(snap.phase, snap.states, options.uavs, snap.ages_ms, snap.reports,
+                              len(runner.planned_captures()), offsets, now - t_start, notes), force=force)
 
-    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort)
+    journal = None
+    if out:
+        from .record import check_output_folder
+
+        journal = check_output_folder(out) / "record.jsonl"  # RecordingError before anything flies
+    recorder = None
+    if out and record:  # before the runner subscribes, so the log holds every sample the runner gets
+        from services.recording.recorder import Recorder
+
+        recorder = Recorder(bus, Path(out) / "mission.mcap", log)
+    runner = MissionRunner(bus, scenario, options, on_progress=progress, log=log, abort=abort, journal=journal)
     if on_runner is not None:
         on_runner(runner)
     root = logging.getLogger()
@@ -64,18 +74,37 @@ def run_mission(bus: Bus, scenario: dict, options: MissionOptions, out: str | No
     try:
         record = runner.run()
         progress(runner, force=True)
+    except BaseException:
+        if recorder is not None:
+            recorder.close()
+        raise
     finally:
         root.handlers = saved
     from services.gcs.ground_truth import attach_ground_truth
 
     if ground_truth:
         attach_ground_truth(record)
+    if recorder is not None:  # the report is written from the frozen record the file rebuilds
+        record = recorder.finish(record, runner._lock)
     if out:
         from .report import write_report
 
         folder = Path(out)
-        write_report(record, folder)
+        try:
+            write_report(record, folder)
+        except OSError as exc:  # a full or broken disk: the report goes elsewhere, and we say where
+            import tempfile
+
+            fallback = Path(tempfile.mkdtemp(prefix="skynet-report-"))
+            log.error("could not write the report to %s (%s); writing it to %s instead (the journal %s keeps "
+                      "the record up to the failure)", folder, exc.strerror or exc, fallback, journal)
+            record.recording_errors.append(f"report not written to {folder} ({exc.strerror or exc}): it is in "
+                                           f"{fallback}")
+            folder = fallback
+            write_report(record, folder)
         log.info("report written to %s", folder / "report.md")
+        for err in record.recording_errors:
+            log.error("recording: %s", err)
     if record.success:
         log.info("mission succeeded: %d UAVs reached the goal, %d capture points imaged", len(options.uavs),
                  len(runner.planned_captures()))
@@ -98,6 +127,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", default=None, help="report folder")
     m.add_argument("--quiet", action="store_true")
     m.add_argument("--appear-timeout", type=float, default=30.0)
+    m.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap")
+    m.add_argument("--web", default=None, metavar="[HOST]:PORT",
+                   help="serve the live web page of the fleet there (e.g. :8080; loopback unless a host is given)")
     m.add_argument("--no-ground-truth", action="store_true",
                    help="the edges do not image the synthetic wall (real cameras, image folders): no defect scoring")
     return parser
@@ -106,13 +138,23 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     log = setup_logging("gcs")
-    scenario = load_scenario_document(args.scenario)
+    scenario = load_scenario(args.scenario)
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
     with Bus(config_from_args(args), fleet=args.fleet, name="gcs") as bus:
-        return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
-                           ground_truth=not args.no_ground_truth)
+        hooks, server = {}, None
+        if args.web:  # services.web: the live page, fed by this session
+            from services.web.service import follow_runner, start_web
+
+            view, server = start_web(bus, args.web, scenario, log=log)
+            hooks["on_runner"] = lambda runner: follow_runner(view, runner)
+        try:
+            return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
+                               ground_truth=not args.no_ground_truth, record=not args.no_record, **hooks)
+        finally:
+            if server is not None:
+                server.stop()
 
 
 if __name__ == "__main__":

@@ -3,15 +3,35 @@
 Plain pydantic data (no bus code), serialisable to JSON with ``record.model_dump_json()`` and
 back with ``MissionRecord.model_validate_json``, so a report can be re-made from a saved run.
 Every ``rx`` field is the wall-clock UNIX time the ground station received the item.
+
+Streamed and bounded (issue 12). :class:`Recorder` is how the ground station records: every item
+goes, as it arrives, to an append-only journal (``record.jsonl``: one JSON object a line, written
+by a thread of its own and flushed at least every :data:`FLUSH_S`, so a crash or a full disk keeps
+what came before), and into the in-memory :class:`MissionRecord` only up to a cap per kind
+(:data:`CAPS`; states beyond it are decimated, other kinds stop being kept in memory; the journal
+has them all). :func:`load_journal` rebuilds the record from the journal, a truncated last line
+included. :func:`check_output_folder` refuses to start a mission whose folder is not writable or
+has less than :data:`MIN_FREE_BYTES` free. A write error during the mission never stops it: the
+recorder stops writing, says once where the data went (the journal up to the failure, the rest in
+memory), and the record carries the error (``recording_errors``).
 """
 
 from __future__ import annotations
 
+import json
+import os
+import queue
+import shutil
+import tempfile
+import threading
+import time
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from protocol.messages import DefectReport, Event, LinkStats, MissionPlan, VehicleState
+from protocol.scenario import Scenario
 
 #: A UAV reached its goal when, at the end of its trajectory (progress 1, before landing), it is
 #: this close to its last planned waypoint, m. The mission's verdict and the report both use it.
@@ -106,7 +126,7 @@ class GroundTruthDefect(BaseModel):
 class MissionRecord(BaseModel):
     model_config = ConfigDict(extra="forbid")
     fleet: str
-    scenario: dict[str, Any]
+    scenario: Scenario | None = Field(default=None, description="the mission's scenario (None: not known)")
     speed: float = Field(description="simulation speed factor of the run")
     started: float = Field(description="wall-clock UNIX time the mission started")
     ended: float = 0.0
@@ -126,3 +146,199 @@ class MissionRecord(BaseModel):
     success: bool = False
     failures: list[str] = []
     phases: dict[str, float] = Field(default={}, description="phase name -> wall time it began")
+    recording_errors: list[str] = Field(default=[], description="what went wrong writing the record, and where "
+                                        "the data went")
+    not_kept: dict[str, int] = Field(default={}, description="items of each kind the in-memory record did not keep "
+                                     "(over its cap, Recorder); the journal has them")
+    imagery: dict[int, dict[str, int | None]] = Field(default={}, description="per UAV: frames sent, received, "
+                                                      "analysed, reported (services.gcs.evidence.ledger)")
+    rejected: dict[str, int] = Field(default={}, description="samples the ground station refused, 'key|kind' -> "
+                                     "count: undecodable, or over a source's budget (protocol.budget)")
+
+
+# ============================================================================ streamed, bounded recording
+#: free space the output folder must have when a mission starts, bytes (a 1-hour mission's journal at
+#: the budgets' rates is well under this; protocol.budget)
+MIN_FREE_BYTES = 64 * 1024 * 1024
+#: items of each kind the in-memory record keeps (the journal keeps all). States beyond the cap are
+#: decimated (every other one dropped, so the whole flight stays, at half the rate); the others stop.
+CAPS: dict[str, int] = {"states": 200_000, "defects": 20_000, "events": 2_000, "gateway_stats": 10_000,
+                        "detector_stats": 10_000, "commands": 20_000, "faults": 1_000, "incidents": 10_000}
+#: the journal is flushed at least this often, s
+FLUSH_S = 0.5
+#: items waiting for the journal's writer; beyond, new ones are not journalled (counted)
+JOURNAL_QUEUE = 20_000
+#: the kinds a journal line may carry, and their item models
+ITEM_MODELS: dict[str, type[BaseModel]] = {
+    "states": StateRx, "defects": DefectRx, "events": EventRx, "gateway_stats": StatsRx, "detector_stats": StatsRx,
+    "commands": CommandRecord, "faults": FaultRecord, "incidents": Incident,
+}
+
+
+class RecordingError(OSError):
+    """The output folder cannot take the mission's record (not writable, not enough room)."""
+
+
+def check_output_folder(folder: str | Path, min_free: int = MIN_FREE_BYTES) -> Path:
+    """Create ``folder`` if needed and check it is a writable directory with ``min_free`` bytes free.
+
+    Raises :class:`RecordingError` saying what is wrong (before any UAV takes off)."""
+    out = Path(folder)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-check-") as fh:
+            fh.write(b"x")
+            fh.flush()
+            os.fsync(fh.fileno())
+        free = shutil.disk_usage(out).free
+    except OSError as exc:
+        raise RecordingError(f"the report folder {out} is not writable: {exc.strerror or exc}") from None
+    if free < min_free:
+        raise RecordingError(f"the report folder {out} has {free / 1e6:.1f} MB free, less than the "
+                             f"{min_free / 1e6:.0f} MB a mission record needs")
+    return out
+
+
+class Recorder:
+    """Records into ``record`` (bounded, :data:`CAPS`) and streams every item to ``journal`` (a path, or
+    None for memory only). Thread-safe; :meth:`add` never blocks on the disk."""
+
+    def __init__(self, record: MissionRecord, journal: str | Path | None = None, log=None,
+                 caps: dict[str, int] | None = None, queue_size: int = JOURNAL_QUEUE):
+        self.record, self.log = record, log
+        self.caps = {**CAPS, **(caps or {})}
+        self.path = Path(journal) if journal is not None else None
+        self.lines = 0  # journal lines written
+        self.not_journalled = 0  # items the journal could not take (queue full, or after a write error)
+        self.failed: str | None = None
+        self._lock = threading.Lock()
+        self._decimate: dict[str, int] = {}
+        self._q: queue.Queue = queue.Queue(maxsize=queue_size)
+        self._thread: threading.Thread | None = None
+        self._fh = None
+        if self.path is not None:
+            self._fh = open(self.path, "a", encoding="utf-8")
+            head = record.model_dump(mode="json", include={"fleet", "scenario", "speed", "started"})
+            self._q.put(("header", json.dumps(head)))
+            self._thread = threading.Thread(target=self._write, name="journal", daemon=True)
+            self._thread.start()
+
+    # -- recording
+    def add(self, kind: str, item: BaseModel) -> None:
+        """Append ``item`` to the record's list ``kind`` (within its cap) and to the journal."""
+        with self._lock:
+            items: list = getattr(self.record, kind)
+            cap = self.caps.get(kind)
+            if cap is None or len(items) < cap:
+                items.append(item)
+            elif kind == "states":
+                before = len(items)
+                del items[1::2]  # decimate: the whole flight at half the rate
+                items.append(item)
+                self.record.not_kept[kind] = self.record.not_kept.get(kind, 0) + before - len(items) + 1
+            else:
+                self.record.not_kept[kind] = self.record.not_kept.get(kind, 0) + 1
+        self._journal(kind, item)
+
+    def _journal(self, kind: str, item: BaseModel) -> None:
+        if self._thread is None or self.failed is not None:
+            if self._thread is not None:
+                self.not_journalled += 1
+            return
+        try:
+            self._q.put_nowait((kind, item))
+        except queue.Full:
+            self.not_journalled += 1
+
+    def _write(self) -> None:
+        last_flush = time.monotonic()
+        while True:
+            try:
+                kind, item = self._q.get(timeout=FLUSH_S)
+            except queue.Empty:
+                kind = None
+            if kind == "end":
+                self._flush(final=True, footer=item)
+                return
+            if self.failed is not None:
+                continue  # drain: nothing more reaches the disk
+            try:
+                if kind == "header":
+                    self._fh.write(json.dumps({"k": "header", "v": json.loads(item)}) + "\n")
+                elif kind is not None:
+                    self._fh.write('{"k":"%s","v":%s}\n' % (kind, item.model_dump_json()))
+                if kind is not None:
+                    self.lines += 1
+                if kind is None or time.monotonic() - last_flush >= FLUSH_S:
+                    self._fh.flush()
+                    last_flush = time.monotonic()
+            except (OSError, ValueError) as exc:
+                self._fail(exc)
+
+    def _flush(self, final: bool, footer: str | None) -> None:
+        if self.failed is None:
+            try:
+                if footer is not None:
+                    self._fh.write(footer + "\n")
+                    self.lines += 1
+                self._fh.flush()
+                os.fsync(self._fh.fileno())
+            except (OSError, ValueError) as exc:
+                self._fail(exc)
+        if final:
+            try:
+                self._fh.close()
+            except OSError:
+                pass  # what was buffered is lost with the disk; the failure is already said
+
+    def _fail(self, exc: Exception) -> None:
+        where = (f"{self.path} keeps the record up to the failure ({self.lines} lines); the rest is kept in "
+                 f"memory only (bounded) and goes into the report")
+        self.failed = f"writing the mission journal failed ({exc}); {where}"
+        with self._lock:
+            self.record.recording_errors.append(self.failed)
+        if self.log:
+            self.log.error("%s. The mission goes on.", self.failed)
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Write the footer (everything that is not a list item: plan, verdict, ...), flush, fsync, close."""
+        if self._thread is None:
+            return
+        lists = set(ITEM_MODELS)
+        footer = json.dumps({"k": "footer", "v": self.record.model_dump(mode="json", exclude=lists)})
+        self._q.put(("end", footer))
+        self._thread.join(timeout)
+        self._thread = None
+        if self.not_journalled:
+            with self._lock:
+                self.record.recording_errors.append(f"{self.not_journalled} items did not reach the journal "
+                                                    f"{self.path}")
+
+
+def load_journal(path: str | Path) -> MissionRecord:
+    """The :class:`MissionRecord` of a journal written by :class:`Recorder` (every item, no caps).
+
+    A last line cut short (a crash, a full disk) is ignored, and so is a missing footer (the record
+    then has the header's fields and the items). ValueError if the file has no header."""
+    head: dict[str, Any] | None = None
+    footer: dict[str, Any] = {}
+    lists: dict[str, list] = {k: [] for k in ITEM_MODELS}
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            try:
+                row = json.loads(line)
+                kind, value = row["k"], row["v"]
+            except (ValueError, KeyError, TypeError):
+                continue  # a cut or damaged line
+            if kind == "header":
+                head = value
+            elif kind == "footer":
+                footer = value
+            elif kind in ITEM_MODELS:
+                try:
+                    lists[kind].append(ITEM_MODELS[kind].model_validate(value))
+                except ValueError:
+                    continue
+    if head is None:
+        raise ValueError(f"{path}: not a mission journal (no header line)")
+    return MissionRecord.model_validate({**head, **footer, **lists})

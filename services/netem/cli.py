@@ -48,23 +48,29 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
-import signal
 import sys
-import threading
 from typing import Any
 
+from protocol.bus import stopping_on_signals
 from services.netem.model import Impairment
 from services.netem.control import ControlServer, send_control
 from services.netem.proxy import DIRECTIONS, TcpProxy, UdpProxy, format_address, parse_address
 from services.netem.schedule import ScheduleError, Step, load_schedule
 
-__all__ = ["main", "build_parser", "build_ctl_parser", "ctl", "summary"]
+__all__ = ["main", "build_parser", "ctl", "summary"]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """``skynet netem udp|tcp ...`` (a proxy) and ``skynet netem ctl ...`` (a running proxy's control)."""
     parser = argparse.ArgumentParser(prog="skynet netem", description=__doc__.split("\n\n")[0])
-    parser.add_argument("kind", choices=("udp", "tcp"),
-                        help="which proxy (skynet netem ctl HOST:PORT COMMAND talks to a running one)")
+    commands = parser.add_subparsers(dest="kind", required=True, metavar="udp|tcp|ctl")
+    for kind in ("udp", "tcp"):
+        _proxy_arguments(commands.add_parser(kind, help=f"run a {kind.upper()} impairment proxy"))
+    _ctl_arguments(commands.add_parser("ctl", help="send one command to a running proxy's control channel"))
+    return parser
+
+
+def _proxy_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--listen", type=parse_address, default=("127.0.0.1", 0),
                         help="HOST:PORT the node connects to (port 0 = any free port)")
     parser.add_argument("--target", type=parse_address, required=True, help="HOST:PORT of the router")
@@ -79,22 +85,16 @@ def build_parser() -> argparse.ArgumentParser:
                         help="play a schedule file of timed changes (at 10s cut 5s ...)")
     parser.add_argument("--control", metavar="HOST:PORT", type=parse_address, default=None,
                         help="open a loopback UDP control channel (skynet netem ctl HOST:PORT COMMAND)")
-    return parser
 
 
-def build_ctl_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="skynet netem ctl",
-                                     description="send one command to a running proxy's control channel")
+def _ctl_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("address", type=parse_address, help="HOST:PORT of the control channel")
     parser.add_argument("command", nargs="+", help='set SPEC | cut [T] | restore | clear | stats')
     parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the reply")
-    return parser
 
 
-def ctl(argv: list[str]) -> int:
+def ctl(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """``skynet netem ctl HOST:PORT COMMAND...``: print the reply; 0 accepted, 2 refused, 1 no reply."""
-    parser = build_ctl_parser()
-    args = parser.parse_args(argv)
     if not args.timeout > 0:
         parser.error("--timeout must be > 0")
     command = args.command[0] if len(args.command) == 1 else shlex.join(args.command)
@@ -133,11 +133,10 @@ def summary(stats: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    if argv[:1] == ["ctl"]:
-        return ctl(argv[1:])
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+    if args.kind == "ctl":
+        return ctl(args, parser)
     if not args.interval > 0:
         parser.error("--interval must be > 0")
     try:
@@ -161,11 +160,12 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--control: {e}")
     if args.schedule is not None:
         proxy.play(steps, on_step=_log_step)
-    stop = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            previous[sig] = signal.signal(sig, lambda *_: stop.set())
+    with stopping_on_signals() as stop:
+        return _serve(args, proxy, control, impairment, stop)
+
+
+def _serve(args: argparse.Namespace, proxy: UdpProxy | TcpProxy, control: ControlServer | None,
+           impairment: Impairment, stop: Any) -> int:
     try:
         try:
             proxy.start()
@@ -194,8 +194,6 @@ def main(argv: list[str] | None = None) -> int:
         if control is not None:
             control.stop()
         proxy.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
 
 
 def _log_step(step: Step, error: str | None) -> None:

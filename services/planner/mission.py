@@ -19,6 +19,7 @@ from protocol.messages import Box, MissionPlan
 
 from .cost import Cost, PathProblem, path_collision_free
 from .ga import ga
+from .limits import Deadline, check_budget
 from .optimiser import OptResult
 from .pso import pso
 from .scenario import Scenario, validate_scenario
@@ -51,6 +52,7 @@ def optimise(
     iterations: int | None = None,
     waypoints: int | None = None,
     init: str | None = None,
+    time_budget_s: float | None = None,
 ) -> tuple[PathProblem, OptResult]:
     """Optimise the centroid path only; returns the problem and the optimiser's result.
 
@@ -64,9 +66,12 @@ def optimise(
     I = _int("iterations", sp.iterations if iterations is None else iterations, 1, 100000)
     n = _int("waypoints", sp.waypoints if waypoints is None else waypoints, 1, 200)
     s = _int("seed", seed, 0, 2**63 - 1)
+    # before any work: a request over the limits is refused at once (services.planner.limits)
+    check_budget(scenario.offsets.shape[0], scenario.cylinders().shape[0], P, I, n)
     problem = PathProblem.from_scenario(scenario, n)
     x0 = problem.initial_population(P, np.random.default_rng([s, 0]), init or sp.init, sp.corridor_width)
-    result = ALGORITHMS[algorithm](Cost(problem), x0, I, np.random.default_rng([s, 1]))
+    cost = Cost(problem) if time_budget_s is None else Deadline(Cost(problem), time_budget_s)
+    result = ALGORITHMS[algorithm](cost, x0, I, np.random.default_rng([s, 1]))
     return problem, result
 
 
@@ -78,11 +83,12 @@ def plan_details(
     iterations: int | None = None,
     waypoints: int | None = None,
     request_id: int = 0,
+    time_budget_s: float | None = None,
 ) -> tuple[MissionPlan, FormationTrajectories, OptResult]:
     """:func:`plan_mission` plus the dense trajectories and the optimiser's result."""
     t0 = time.perf_counter()
     sc = validate_scenario(scenario)
-    problem, res = optimise(sc, algorithm, seed, particles, iterations, waypoints)
+    problem, res = optimise(sc, algorithm, seed, particles, iterations, waypoints, time_budget_s=time_budget_s)
     V = problem.assemble(res.x[None])[0]
     ft = build_trajectories(sc, V, problem.inspection)
     free = ft.min_clearance >= 0 and path_collision_free(V, sc)
@@ -111,6 +117,7 @@ def plan_mission(
     particles: int | None = None,
     iterations: int | None = None,
     waypoints: int | None = None,
+    time_budget_s: float | None = None,
 ) -> MissionPlan:
     """Plan a formation inspection mission.
 
@@ -137,4 +144,5 @@ def plan_mission(
         For a malformed scenario (naming the field), an unknown algorithm, a bad budget, or a
         surface the formation cannot image in one pass.
     """
-    return plan_details(scenario, algorithm, seed, particles, iterations, waypoints)[0]
+    return plan_details(scenario, algorithm, seed, particles, iterations, waypoints,
+                        time_budget_s=time_budget_s)[0]

@@ -1,6 +1,6 @@
 """The planner RCU service: answers plan requests on ``skynet/<fleet>/rcu/planner/plan``.
 
-A :class:`PlanRequest` (command class, request/reply) carries the scenario document and the
+A :class:`PlanRequest` (command class, request/reply) carries the (typed) scenario and the
 algorithm, seed and budget; the reply is the :class:`MissionPlan` of
 :func:`services.planner.mission.plan_mission`. A malformed scenario or an infeasible request is
 answered with an error reply that says why (``reply_err`` + :class:`ErrorReply`). Planning runs
@@ -18,19 +18,24 @@ from protocol import keys
 from protocol.bus import Bus, Rejected, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.messages import MissionPlan, PlanRequest
 
+from .limits import TIME_BUDGET_S, TimeBudgetExceeded, TooLarge
 from .mission import plan_mission
-from .scenario import ScenarioError, validate_scenario
 
 
-def answer(request: PlanRequest) -> MissionPlan:
-    """The plan for one request; :class:`Rejected` (with the reason) when it cannot be planned."""
+def answer(request: PlanRequest, time_budget_s: float | None = TIME_BUDGET_S) -> MissionPlan:
+    """The plan for one request; :class:`Rejected` (with the reason) when it cannot be planned, is over
+    the limits (``too-large``, before any work) or runs out of its time budget (``timeout``).
+
+    The scenario was validated when the request was decoded (it is typed on the wire): a bad one
+    never reaches here, its reply names the field.
+    """
     try:
-        scenario = validate_scenario(request.scenario)
-    except (ScenarioError, ValueError) as exc:
-        raise Rejected(f"bad scenario: {exc}", code="bad-scenario") from None
-    try:
-        plan = plan_mission(scenario, algorithm=request.algorithm, seed=request.seed, particles=request.particles,
-                            iterations=request.iterations, waypoints=request.waypoints)
+        plan = plan_mission(request.scenario, algorithm=request.algorithm, seed=request.seed, particles=request.particles,
+                            iterations=request.iterations, waypoints=request.waypoints, time_budget_s=time_budget_s)
+    except TooLarge as exc:
+        raise Rejected(str(exc), code="too-large") from None
+    except TimeBudgetExceeded as exc:
+        raise Rejected(str(exc), code="timeout") from None
     except ValueError as exc:
         raise Rejected(f"cannot plan: {exc}", code="infeasible") from None
     return plan.model_copy(update={"request_id": request.request_id})
@@ -39,6 +44,8 @@ def answer(request: PlanRequest) -> MissionPlan:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet planner", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="client")
+    parser.add_argument("--time-budget", type=float, default=TIME_BUDGET_S, metavar="S",
+                        help="longest a plan request may take, s; then it is answered 'timeout' (services.planner.limits)")
     return parser
 
 
@@ -52,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         def handle(req: PlanRequest) -> MissionPlan:
             t0 = time.perf_counter()
             try:
-                plan = answer(req)
+                plan = answer(req, args.time_budget)
             except Rejected as exc:
                 log.warning("plan request %d refused: %s", req.request_id, exc.reason)
                 raise

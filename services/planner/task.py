@@ -14,7 +14,7 @@ the rows of shots are the heights of the UAVs in the formation (the formation fr
 change with heading), the columns are spaced at most ``g`` apart, and every shot is a point that
 the UAV taking it passes through, so the capture points lie on the UAVs' trajectories.
 
-Choices where the paper is silent (documented in ``scenarios/monorail.toml``): the paper's
+Choices where the paper is silent (documented in ``protocol/scenarios/monorail.toml``): the paper's
 34.4 mm focal length is read as a 35 mm-equivalent focal length with an equivalent 36 mm x 27 mm
 sensor for the 4:3 frame (square pixels); when the two axes give different stand-offs the
 smaller one is used, so that ``s_f`` is resolved on both axes. Columns are spread evenly from
@@ -30,6 +30,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from edge.optics import CameraModel, overlap_spacing
+from protocol.checks import positive as _positive
+
 from .scenario import Camera, Scenario, Surface
 
 __all__ = [
@@ -43,13 +46,6 @@ __all__ = [
     "formation_pass",
     "coverage",
 ]
-
-
-def _positive(name: str, value: float) -> float:
-    v = float(value)
-    if not math.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
-    return v
 
 
 def footprint(camera: Camera, smallest_feature: float) -> tuple[float, float]:
@@ -73,8 +69,7 @@ def footprint(camera: Camera, smallest_feature: float) -> tuple[float, float]:
     >>> footprint(Camera(resolution=(4000, 3000), sensor_mm=(36, 27), focal_mm=34.4), 0.0025)
     (5.0, 3.75)
     """
-    s_f = _positive("smallest_feature", smallest_feature)
-    return 0.5 * camera.resolution[0] * s_f, 0.5 * camera.resolution[1] * s_f
+    return CameraModel.of(camera).feature_footprint(smallest_feature)
 
 
 def standoff(camera: Camera, smallest_feature: float) -> float:
@@ -89,23 +84,17 @@ def standoff(camera: Camera, smallest_feature: float) -> float:
     >>> round(standoff(Camera(resolution=(4000, 3000), sensor_mm=(36, 27), focal_mm=34.4), 0.0025), 4)
     4.7778
     """
-    a_w, a_h = footprint(camera, smallest_feature)
-    return min(a_w * camera.focal_mm / camera.sensor_mm[0], a_h * camera.focal_mm / camera.sensor_mm[1])
+    return CameraModel.of(camera).standoff(smallest_feature)
 
 
 def footprint_at(camera: Camera, distance: float) -> tuple[float, float]:
     """Footprint (width, height) in metres of a shot taken square-on from ``distance`` metres."""
-    d = _positive("distance", distance)
-    return d * camera.sensor_mm[0] / camera.focal_mm, d * camera.sensor_mm[1] / camera.focal_mm
+    return CameraModel.of(camera).footprint(distance)
 
 
 def spacing(a_fov: float, overlap: float) -> float:
     """Largest spacing between neighbouring shots, ``g = (1 - o_p) a_fov`` (P3), metres."""
-    a = _positive("a_fov", a_fov)
-    o = float(overlap)
-    if not (math.isfinite(o) and 0.0 <= o < 1.0):
-        raise ValueError(f"overlap must lie in [0, 1), got {overlap!r}")
-    return (1.0 - o) * a
+    return overlap_spacing(a_fov, overlap)
 
 
 def grid_stations(length: float, a_fov: float, g: float) -> NDArray[np.float64]:

@@ -7,7 +7,7 @@ import pytest
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import TELEMETRY
-from protocol.messages import (CommandAck, Event, Hold, Mode, Takeoff, Trajectory, UploadTrajectory,
+from protocol.messages import (CommandAck, Event, Hold, Mode, Resume, Takeoff, Trajectory, UploadTrajectory,
                                VehicleState, Waypoint)
 from tests.conftest import spawn_node, wait_until as _wait
 
@@ -99,3 +99,78 @@ def test_imagery_cache_option_defaults_to_the_runtime_cache_and_refuses_negative
             parser.parse_args(["--uav", "1", "--imagery-cache", bad])
         assert exc.value.code == 2
     assert "--imagery-cache" in capsys.readouterr().err
+
+
+def test_failsafe_escalates_to_rtl_refuses_a_stale_resume_and_the_battery_failsafe_returns(group, gateway):
+    """Issue 12: with the ground station killed a UAV used to hold for ever, and a Resume that overtook the
+    first heartbeat resumed a UAV that failed safe again at once. Now the hold escalates to RTL after
+    --failsafe-escalate-after (here 2 s) and the UAV comes down; a Resume with no fresh heartbeat is refused.
+    A second UAV with a short battery (--endurance) returns to launch when it runs low."""
+    common = ["--fleet", FLEET, "--multilink", "--camera", "none", *[a for e in gateway for a in ("--connect", e)],
+              "--listen", "tcp/127.0.0.1:0", "--speed", "4", "--geofence", "0,0,0,100,100,40"]
+    e1 = group.start("uav1", ["edge", "--uav", "1", "--home", "10,10,0", "--failsafe-timeout", "1",
+                              "--failsafe-escalate-after", "2", *common])
+    e2 = group.start("uav2", ["edge", "--uav", "2", "--home", "20,10,0", "--endurance", "60",
+                              "--battery-low", "0.8", *common])
+    for svc in (e1, e2):
+        assert svc.wait_for("board up", 30), "\n".join(svc.lines)
+    states: dict[int, VehicleState] = {}
+    events: list[Event] = []
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
+        gcs.subscribe(keys.state(FLEET, "*"), lambda m, s: states.__setitem__(m.uav, m), expect=VehicleState,
+                      link=TELEMETRY)
+        gcs.subscribe(keys.all_events(FLEET), lambda m, s: events.append(m), expect=Event)
+        assert _wait(lambda: len(states) == 2, 30)
+        hb = spawn_node(f"""
+import time
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.links import COMMAND
+from protocol.messages import Heartbeat
+with Bus(BusConfig(mode="client", connect={gateway!r}, multilink=True), "{FLEET}", "hb") as bus:
+    pub = bus.publisher(keys.heartbeat("{FLEET}"), COMMAND)
+    for i in range(10000):
+        pub.put(Heartbeat(seq=i, stamp=time.time()))
+        time.sleep(0.2)
+""")
+        try:
+            for uav in (1, 2):
+                ack = gcs.request(keys.cmd(FLEET, uav), Takeoff(uav=uav, cmd_id=1, altitude=5), expect=CommandAck)
+                assert ack.ok and ack.message.accepted, ack
+            assert _wait(lambda: states[1].mode == Mode.HOLD and states[1].pos[2] > 4.5, 30), states[1]
+        finally:
+            hb.kill()  # the ground station dies
+            hb.communicate()
+        assert _wait(lambda: any(e.kind == "failsafe" and e.source == "uav/1" for e in events), 10), events
+        stale = gcs.request(keys.cmd(FLEET, 1), Resume(uav=1, cmd_id=2), expect=CommandAck)
+        assert stale.ok and not stale.message.accepted and "no fresh" in stale.message.reason
+        assert _wait(lambda: any(e.kind == "failsafe-escalated" and e.source == "uav/1" for e in events), 10), events
+        esc = next(e for e in events if e.kind == "failsafe-escalated")
+        assert esc.data["action"] == "rtl"
+        assert _wait(lambda: not states[1].armed, 60), states[1]  # back on the ground
+        assert _wait(lambda: any(e.kind == "battery-failsafe" and e.source == "uav/2" for e in events), 30), \
+            (states.get(2), events)
+        bat = next(e for e in events if e.kind == "battery-failsafe")
+        assert bat.data["action"] == "rtl" and bat.data["battery"] <= 0.8
+    assert e1.alive() and e2.alive()
+
+
+def test_an_edge_hears_only_its_formation(group, gateway):
+    """Issue 18: UAVs 1, 2 and 4 of a fleet flown as formations of three (1-3, 4-6): UAV 1 shares
+    state with UAV 2 only, UAV 4 with nobody, although every edge reaches every other."""
+    for uav, home in {1: "10,10,0", 2: "14,10,0", 4: "18,10,0"}.items():
+        svc = group.start(f"uav{uav}", [
+            "edge", "--uav", str(uav), "--fleet", FLEET, "--multilink", "--camera", "none",
+            *[a for e in gateway for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0", "--home", home])
+        assert svc.wait_for("board up", 30), "\n".join(svc.lines)
+    states: dict[int, VehicleState] = {}
+    events: list[Event] = []
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
+        gcs.subscribe(keys.state(FLEET, "*"), lambda m, s: states.__setitem__(m.uav, m), expect=VehicleState,
+                      link=TELEMETRY)
+        gcs.subscribe(keys.all_events(FLEET), lambda m, s: events.append(m), expect=Event)
+        assert _wait(lambda: len(states) == 3 and states[1].neighbours == 1 and states[2].neighbours == 1, 30), states
+        time.sleep(1.5)  # long enough for a state of UAV 4 to have reached UAV 1 had it subscribed
+        assert states[1].neighbours == 1 and states[2].neighbours == 1 and states[4].neighbours == 0, states
+        joined = {(e.source, e.data.get("neighbour")) for e in events if e.kind == "neighbour-up"}
+        assert not {pair for pair in joined if 4 in (pair[1], int(pair[0].split("/")[1]))}, joined

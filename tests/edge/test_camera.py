@@ -391,7 +391,7 @@ def test_frame_encoder_drops_oldest_when_full_and_closes() -> None:
     gate.set()
     enc.close()
     assert got == [0, 4, 5]  # the oldest waiting frames (1, 2, 3) were dropped
-    assert not enc._thread.is_alive()
+    assert not enc.alive
     with pytest.raises(ValueError):
         enc.submit(img, 7)
     enc.close()  # idempotent
@@ -424,8 +424,8 @@ def test_frame_encoder_close_without_drain() -> None:
     time.sleep(0.05)
     enc.close(timeout=0.0, drain=False)
     gate.set()
-    enc._thread.join(5)
-    assert not enc._thread.is_alive()
+    enc.close(timeout=5)  # idempotent: joins the worker
+    assert not enc.alive
     assert enc.encoded + enc.dropped == 5 and enc.dropped >= 3
 
 

@@ -17,6 +17,8 @@ from edge.runtime import (
     PREVIEW_CAMERA,
     PREVIEW_SIZE,
     cache_frames,
+    capture_link,
+    frame_size,
     make_camera,
     preview_rate,
 )
@@ -24,6 +26,7 @@ from edge.vehicle.driver import CaptureEvent
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.imagery import split_payload
+from protocol.links import IMAGERY, IMAGERY_RELIABLE
 from protocol.rtp import parse_ssrc, unpack_frame
 from tests.conftest import wait_until
 
@@ -109,3 +112,34 @@ def test_option_types_reject_bad_values():
     for bad in ("-1", "nan", "inf", "fast"):
         with pytest.raises(argparse.ArgumentTypeError):
             preview_rate(bad)
+
+
+def test_capture_link_goes_reliable_for_frames_that_span_several_datagrams():
+    assert capture_link("auto", (640, 480)) is IMAGERY  # one UDP datagram: the paper's RTP over UDP
+    assert capture_link("auto", (4000, 3000)) is IMAGERY_RELIABLE  # the paper's 12 MP GoPro frames
+    assert capture_link("best-effort", (4000, 3000)) is IMAGERY
+    assert capture_link("reliable", (640, 480)) is IMAGERY_RELIABLE
+    assert IMAGERY_RELIABLE.name == IMAGERY.name and IMAGERY_RELIABLE.reliable
+    with pytest.raises(ValueError):
+        capture_link("tcp", (640, 480))
+    assert frame_size("4000x3000") == "4000x3000"
+    for bad in ("640", "0x480", "axb", "640x480x3", "99999x10"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            frame_size(bad)
+
+
+def test_a_burst_of_12_mp_sized_frames_on_the_reliable_imagery_link_loses_none(gateway):
+    """Issue 18: 26 frames of 600 KB (a 12 MP JPEG, some ten UDP datagrams each) sent back to back
+    through the gateway, as the camera publishes them (recovery cache on), to a plain subscriber."""
+    got = []
+    cfg = BusConfig(mode="client", connect=gateway, multilink=True)
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 256, 600_000, dtype=np.uint8).tobytes() for _ in range(26)]
+    with Bus(cfg, FLEET, "ground") as ground, Bus(cfg, FLEET, "uav3") as edge:
+        ground.subscribe_raw(keys.camera(FLEET, "*"), lambda s: got.append(s.payload.to_bytes()))
+        pub = edge.publisher(keys.camera(FLEET, 3), IMAGERY_RELIABLE, cache=IMAGERY_CACHE_FRAMES)
+        time.sleep(1.0)  # the subscription reaches the edge through the gateway
+        for f in frames:
+            pub.put_bytes(f)
+        assert wait_until(lambda: len(got) >= len(frames), 30), f"{len(got)} of {len(frames)} frames arrived"
+    assert got == frames

@@ -208,3 +208,75 @@ def test_reconnect_pause_reaches_zenoh_in_whole_milliseconds():
                                                          "period_increase_factor": 2.0}
     with pytest.raises(pydantic.ValidationError, match="reconnect_max_s"):
         BusConfig(reconnect_max_s=0.0004)
+
+
+def test_cfg_changes_reach_the_zenoh_config_and_bad_ones_are_clear_errors():
+    """``--cfg KEY:VALUE`` as in zenoh-python's examples, applied after everything else."""
+    import argparse
+
+    from protocol.bus import add_bus_args, config_from_args
+
+    parser = argparse.ArgumentParser()
+    add_bus_args(parser)
+    args = parser.parse_args(["--lease", "2", "--cfg", "transport/link/tx/lease:3000",
+                              "--cfg", "scouting/gossip/enabled:false"])
+    conf = config_from_args(args).to_zenoh()
+    assert json.loads(conf.get_json("transport/link/tx/lease")) == 3000  # --cfg wins over --lease
+    assert json.loads(conf.get_json("scouting/gossip/enabled")) is False
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--cfg", "no-colon"])
+    bad = config_from_args(parser.parse_args(["--cfg", "transport/link/tx/lease:not json"]))
+    with pytest.raises(ValueError, match="--cfg transport/link/tx/lease"):
+        bad.to_zenoh()
+
+
+def test_rejection_table_is_bounded_under_a_flood_of_made_up_keys():
+    """Issue 12: every distinct rejected key used to add a row; past MAX_REJECT_KEYS they share one."""
+    from protocol.bus import MAX_REJECT_KEYS, Counters
+
+    c = Counters()
+    firsts = sum(c.reject(f"skynet/demo/uav/x{i}/state", "bad-msgpack") for i in range(10 * MAX_REJECT_KEYS))
+    assert len(c.rejected) == MAX_REJECT_KEYS + 1
+    assert firsts == MAX_REJECT_KEYS + 1  # each row logged once, the overflow row too
+    assert sum(c.rejected.values()) == 10 * MAX_REJECT_KEYS
+    assert c.rejected[("(other)", "bad-msgpack")] == 9 * MAX_REJECT_KEYS
+
+
+def test_budget_drops_a_flooding_source_and_keeps_the_good_one(gateway):
+    """Issue 12: one source floods 4 KB events on uav/1/event as fast as it can for 3 s while uav/2 sends its
+    20 Hz states; with the ground station's budgets (protocol.budget) the flood is cut to the event budget
+    (burst + rate x time) and counted per source, and every good state still gets through."""
+    from protocol.budget import LIMITS, for_topic
+    from protocol.messages import Event
+
+    events, states = [], []
+    with _client(gateway) as gcs:
+        gcs.subscribe(keys.all_events(FLEET), lambda m, s: events.append(m), expect=Event, link=COMMAND,
+                      budget=for_topic("event"))
+        gcs.subscribe(keys.state(FLEET, "*"), lambda m, s: states.append(m), expect=VehicleState, link=TELEMETRY,
+                      budget=for_topic("state"))
+        flooder = spawn_node(_peer_code(gateway, """
+from protocol.links import COMMAND
+ev = bus.publisher(keys.event("test", 1), COMMAND)
+st = bus.publisher(keys.state("test", 2), TELEMETRY)
+time.sleep(1.0)
+t0, n, k = time.monotonic(), 0, 0
+while time.monotonic() - t0 < 3.0:
+    ev.put(Event(source="uav1", stamp=time.time(), kind="flood", text="x" * 4000)); n += 1
+    if time.monotonic() - t0 > k * 0.05:
+        st.put(VehicleState(uav=2, seq=k, t=k * 0.05, stamp=time.time(), pos=(1, 2, 3), vel=(0, 0, 0),
+                            att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.HOLD)); k += 1
+print("sent", n, k, flush=True)
+time.sleep(0.5)
+"""))
+        out = flooder.communicate(timeout=60)[0]
+        assert "sent" in out, out
+        sent_events, sent_states = map(int, out.split("sent")[1].split()[:2])
+        time.sleep(0.5)
+        rejected = gcs.counters.snapshot()["rejected"]
+    lim = LIMITS["event"]
+    assert sent_events > 10 * (lim.burst + lim.rate_hz * 4.5), out  # it really was a flood
+    assert 0 < len(events) <= lim.burst + lim.rate_hz * 4.5  # 1 s before + 3 s of flood + 0.5 s slack
+    assert rejected[f"skynet/{FLEET}/uav/1/event|budget-rate"] >= sent_events - len(events) - 100
+    assert len(states) >= 0.95 * sent_states, (len(states), sent_states)
+    assert not any("uav/2/state" in k for k in rejected)

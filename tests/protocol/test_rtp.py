@@ -14,6 +14,8 @@ from hypothesis import strategies as st
 import protocol.rtp
 from protocol.rtp import (
     JPEG_PAYLOAD_TYPE,
+    SKYNET_ENCODING_NAME,
+    SKYNET_PAYLOAD_TYPE,
     RtpError,
     RtpHeader,
     RtpSender,
@@ -92,9 +94,11 @@ def test_known_wire_bytes() -> None:
     assert pack_frame(header, b"")[:2] == bytes([0x80, 0x7F])
 
 
-def test_defaults_are_jpeg_with_marker() -> None:
+def test_defaults_are_the_dynamic_skynet_type_with_marker() -> None:
+    # our payload is not RFC 2435 JPEG, so the default is the dynamic type 96 (x-skynet-frame), never 26
     h = RtpHeader(sequence=5, timestamp=6, ssrc=7)
-    assert (h.version, h.payload_type, h.marker, h.padding, h.extension, h.csrc_count) == (2, 26, True, False, False, 0)
+    assert (h.version, h.payload_type, h.marker, h.padding, h.extension, h.csrc_count) == (2, 96, True, False, False, 0)
+    assert SKYNET_PAYLOAD_TYPE == 96 and 96 <= SKYNET_PAYLOAD_TYPE <= 127 and SKYNET_ENCODING_NAME == "x-skynet-frame"
 
 
 @pytest.mark.parametrize(
@@ -369,7 +373,7 @@ def test_sender_sequence_wraps_and_stamps_capture_time() -> None:
     headers = [unpack_frame(p)[0] for p in packets]
     assert [h.sequence for h in headers] == [65534, 65535, 0, 1]
     assert [h.timestamp for h in headers] == [900_000 + 3000 * i for i in range(4)]
-    assert all(h.ssrc == 0x534B0200 and h.marker and h.payload_type == 26 for h in headers)
+    assert all(h.ssrc == 0x534B0200 and h.marker and h.payload_type == SKYNET_PAYLOAD_TYPE for h in headers)
     assert sender.next_sequence == 2
     assert (sender.packets_sent, sender.octets_sent) == (4, 16)
     assert bytes(unpack_frame(packets[2])[1]) == b"jpg2"

@@ -203,3 +203,14 @@ def test_injector_waits_for_the_mission_counts_overlapping_cuts_and_stops_at_don
                                                           ("restore", "uav1/tcp"), ("restore", "uav1/udp")]
     assert ("kill", "gateway") not in target.log  # the mission ended first
     assert runner.notes[1][2].endswith("cut uav2, uav3") and runner.notes[2][2].endswith("restored uav2, uav3")
+
+
+@pytest.mark.parametrize("text", ["1e999s kill gateway", "nans kill gateway", "10s kill gateway for 1e999s",
+                                  "100000s kill gateway", "-1s kill gateway"])
+def test_fault_times_out_of_range_are_refused(text):
+    """Issue 12 (fuzzing): ``1e999s`` was accepted as an AT that never comes; times are now 0..MAX_FAULT_S."""
+    from services.faults import MAX_FAULT_S, parse_fault
+
+    with pytest.raises(ValueError):
+        parse_fault(text)
+    assert parse_fault(f"{MAX_FAULT_S:.0f}s kill gateway").at_s == MAX_FAULT_S

@@ -150,3 +150,89 @@ def test_no_recovery_reaches_the_edges_and_the_detector():
         assert net.check_alive() == []
     finally:
         net.stop()
+
+
+def test_up_restarts_a_service_that_dies_instead_of_stopping_the_network():
+    """Issue 12: one service ending (here the planner, SIGKILLed from outside: a crash) used to stop the whole
+    network; now the supervisor restarts it after its back-off, says so, and the rest keeps running."""
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--fleet", "restart"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+
+    def read_until(pred, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            if not line:
+                return False
+            lines.append(line)
+            if pred(line):
+                return True
+        return False
+
+    try:
+        assert read_until(lambda ln: "network up" in ln, 60), "".join(lines[-40:])
+        children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+        planner = [int(p) for p in children
+                   if " planner " in open(f"/proc/{p}/cmdline").read().replace("\0", " ") + " "]
+        assert len(planner) == 1, children
+        os.killpg(planner[0], signal.SIGKILL)
+        assert read_until(lambda ln: "planner exited with code -9" in ln, 10), "".join(lines[-20:])
+        assert read_until(lambda ln: "restarted by the supervisor" in ln, 10), "".join(lines[-20:])
+        assert read_until(lambda ln: ln.strip().startswith("planner |") and "planner up" in ln, 30), \
+            "".join(lines[-20:])
+        assert proc.poll() is None  # the network is still up
+        after = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+        assert len(after) == 6 and str(planner[0]) not in after
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0
+
+
+def test_two_formations_fly_the_mission_each_its_own_skynet(tmp_path):
+    """Issue 18: six UAVs fly as two formations (1-3, 4-6); each edge hears only its formation."""
+    out = tmp_path / "report"
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--uavs", "6", "--speed", "4", "--quiet",
+                           "--out", str(out)], capture_output=True, text=True, timeout=400)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    assert report["success"] and not report["failures"]
+    assert set(report["uavs"]) == {str(u) for u in range(1, 7)}
+    assert all(fig["reached_goal"] for fig in report["uavs"].values()), report["uavs"]
+    assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M
+    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
+    record = json.loads((out / "record.json").read_text())
+    joined = {(int(e["msg"]["source"].split("/")[1]), e["msg"]["data"]["neighbour"]) for e in record["events"]
+              if e["msg"]["kind"] == "neighbour-up"}
+    formations = [(1, 2, 3), (4, 5, 6)]
+    assert joined == {(i, j) for f in formations for i in f for j in f if i != j}, sorted(joined)
+
+
+def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
+    """Issue 18: --frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config."""
+    from services.launcher import Network, build_parser
+
+    net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
+                                                 "1280x960", "--capture-link", "reliable", "--preview-hz", "0",
+                                                 "--gcs-state-hz", "5"]), echo=None)
+    try:
+        net.start()
+        for i in range(1, 5):
+            svc = net.group.get(f"uav{i}")
+            a = svc.args
+            assert a[a.index("--frame-size") + 1] == "1280x960" and a[a.index("--capture-link") + 1] == "reliable"
+            assert float(a[a.index("--preview-hz") + 1]) == 0.0
+            assert svc.wait_for("board up", 30), "\n".join(svc.lines[-20:])
+        gw = net.group.get("gateway").args
+        conf = json.loads(open(gw[gw.index("--config") + 1]).read())
+        assert [r["key_expr"] for r in conf["downsampling"][0]["rules"]] == [f"skynet/opts/uav/{u}/state" for u in range(1, 5)]
+        assert net.check_alive() == []
+    finally:
+        net.stop()
+    with pytest.raises(SystemExit):
+        build_parser("up").parse_args(["--frame-size", "big"])

@@ -204,3 +204,15 @@ def test_open_timeout_grows_with_the_worst_configured_delay():
     assert imp.worst_delay_ms() == 260.0  # delay + 3 jitter
     assert open_timeout_ms(0.0) == OPEN_TIMEOUT_MS
     assert open_timeout_ms(imp.worst_delay_ms()) == OPEN_TIMEOUT_MS + 8 * 260
+
+
+def test_skynet_links_join_only_the_uavs_of_one_formation():
+    from services.topology import Links
+
+    assert Links(3).skynet == ["uav1-uav2", "uav1-uav3", "uav2-uav3"]
+    six = Links(6).skynet
+    assert six == ["uav1-uav2", "uav1-uav3", "uav2-uav3", "uav4-uav5", "uav4-uav6", "uav5-uav6"]
+    assert len(Links(99).skynet) == 3 * 33  # linear in the fleet, not N(N-1)/2
+    assert Links(6).resolve("uav4-uav6") == ["uav4-uav6"]
+    with pytest.raises(ValueError, match="different formations"):
+        Links(6).resolve("uav1-uav4")

@@ -111,3 +111,17 @@ def test_bad_inertia_raises():
         ATSM((0.01, -1.0, 0.02))
     with pytest.raises(ValueError):
         run_step_test("pid")
+
+
+#: the yaw gains before issue 17 (Λ = 4, α_max = 0.3 N·m, ω̄ = 30): yaw settled in 1.26 s
+OLD_YAW = ATSMGains(lam=(8.0, 8.0, 4.0), alpha_max=(0.6, 0.6, 0.3), omega_bar=(30.0, 30.0, 30.0))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_yaw_settles_within_a_second_like_roll_and_pitch_without_more_chatter(seed):
+    new, old = run_step_test("atsm", seed=seed), run_step_test("atsm", seed=seed, gains=OLD_YAW)
+    assert old.settling_s[2] > 1.2  # what the issue measured
+    assert max(new.settling_s) <= 1.0, new.settling_s
+    assert new.chattering_std[2] <= old.chattering_std[2]
+    assert new.chattering_tv[2] <= old.chattering_tv[2]
+    assert new.overshoot_pct[2] < 5.0

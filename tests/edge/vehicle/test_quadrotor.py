@@ -140,3 +140,25 @@ def test_bad_construction_raises():
         Quadrotor(QuadParams(), pos=(0, 0, math.inf))
     with pytest.raises(ValueError):
         DisturbanceParams(gust_std=(-1.0, 0, 0))
+
+
+def test_ar1_is_scipys_first_order_filter_without_scipy_in_the_edge():
+    """Issue 18: the disturbance's OU filter without scipy.signal (75 MB per edge process)."""
+    import subprocess
+    import sys
+
+    import numpy as np
+    from scipy.signal import lfilter
+
+    from edge.vehicle.quadrotor import ar1
+
+    w = np.random.default_rng(3).normal(size=500)
+    for a, zi in [(0.97, 0.3), (0.0, 0.0), (0.999, -2.0)]:
+        y, zf = ar1(a, w, zi)
+        ref, ref_zf = lfilter([1.0], [1.0, -a], w, zi=[zi])
+        np.testing.assert_allclose(y, ref, rtol=1e-12, atol=1e-12)
+        assert zf == pytest.approx(float(ref_zf[0]), rel=1e-12, abs=1e-12)
+    code = ("import sys, edge.board, edge.runtime, edge.vehicle.sim, edge.camera; "
+            "print(sorted(m for m in sys.modules if m.startswith('scipy.signal')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr

@@ -180,3 +180,35 @@ def test_a_frame_late_for_playout_is_still_analysed(group, gateway):
     m = stats[-1].metrics
     assert m["uav4.cam0.lost"] == 1 and m["uav4.cam0.delivered"] == 2 and m["count.late-analysed"] == 1
     assert all(r.ok for r in reports.values())
+
+
+def test_hostile_frames_are_counted_and_the_detector_keeps_running(group, gateway):
+    """Issue 12: a frame with a foreign SSRC (0x12345678) on a UAV's own camera key, random bytes that read
+    as RTP version 2, and a frame with another UAV's SSRC used to end the detector (parse_ssrc in stats()).
+    Now each is a counted rejection (``bad-ssrc``) and a good frame sent after them is still analysed."""
+    svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
+                                   *[a for e in gateway for a in ("--connect", e)]])
+    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    reports: list[DefectReport] = []
+    stats: list[LinkStats] = []
+    rng = np.random.default_rng(12)
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "uav") as uav:
+        uav.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
+        uav.subscribe(keys.rcu_stats(FLEET, "detector"), lambda m, s: stats.append(m), expect=LinkStats)
+        assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
+        time.sleep(0.5)
+        pub = uav.publisher(keys.camera(FLEET, 2), IMAGERY)
+        grey, _ = crack_image((240, 320), rng, n_cracks=1)
+        jpeg = cv2.imencode(".jpg", grey)[1].tobytes()
+        pub.put_bytes(pack_image(RtpSender(0x12345678), _meta(2, 7, 320, 240), jpeg, time.time()))
+        pub.put_bytes(pack_image(RtpSender(ssrc_for(3)), _meta(3, 7, 320, 240), jpeg, time.time()))
+        for _ in range(200):  # random bytes whose first byte says RTP version 2
+            pub.put_bytes(bytes([0x80]) + rng.integers(0, 256, int(rng.integers(11, 200)), dtype=np.uint8).tobytes())
+        time.sleep(1.5)  # a few stats passes over whatever reached the jitter buffers
+        pub.put_bytes(pack_image(RtpSender(ssrc_for(2)), _meta(2, 8, 320, 240), jpeg, time.time()))
+        assert wait_until(lambda: any(r.ok and r.capture_id == 8 for r in reports), 20), reports
+        assert wait_until(lambda: stats and stats[-1].rejected.get("bad-ssrc", 0) >= 2, 10), stats[-1:]
+    assert svc.alive(), "\n".join(svc.lines[-20:])
+    assert not any(r.capture_id == 7 for r in reports)  # neither forged frame was analysed
+    assert stats[-1].metrics.get("count.loop-error", 0) == 0
+    assert sum("SSRC" in line for line in svc.lines) == 1  # logged once

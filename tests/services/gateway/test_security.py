@@ -123,7 +123,7 @@ def test_legitimate_flows_pass(net):
         # plan request and reply
         from services.planner.scenario import load_scenario
 
-        req = PlanRequest(request_id=3, scenario=load_scenario().model_dump(mode="json"), particles=6, iterations=3)
+        req = PlanRequest(request_id=3, scenario=load_scenario(), particles=6, iterations=3)
         plan = gcs.request(keys.planner(FLEET), req, expect=MissionPlan, timeout=30)
         assert plan.ok and plan.message.request_id == 3, (plan.error, _denials(net))
         # the heartbeat reaches a UAV

@@ -5,7 +5,7 @@ import time
 import pytest
 
 from protocol.bus import Bus, BusConfig
-from services.planner.scenario import load_scenario_document as load_scenario_doc
+from protocol.scenario import load_scenario
 from services.gcs.mission import MissionOptions, MissionRunner
 
 FLEET = "test"
@@ -30,7 +30,7 @@ def _run(gateway, uavs, appear_timeout=20.0):
                           command_attempts=2, particles=40, iterations=40)
     with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as bus:
         t0 = time.monotonic()
-        record = MissionRunner(bus, load_scenario_doc(None), opts).run()
+        record = MissionRunner(bus, load_scenario(), opts).run()
         return record, time.monotonic() - t0
 
 
@@ -62,12 +62,12 @@ def test_a_uav_that_refuses_its_upload_fails_the_mission(group, gateway, planner
 def test_scenario_formation_follows_the_number_of_uavs():
     from services.gcs.mission import with_formation_size
 
-    doc = load_scenario_doc(None)
+    doc = load_scenario()
     assert with_formation_size(doc, 3) is doc
     two = with_formation_size(doc, 2)
-    assert two["formation"]["offsets"] == [[0.0, 0.0, 2.0], [3.0, 0.0, -1.0]]
-    assert len(with_formation_size(doc, 5)["formation"]["offsets"]) == 5
-    assert len(doc["formation"]["offsets"]) == 3  # the caller's document is not changed
+    assert two.formation.offsets == [(0.0, 0.0, 2.0), (3.0, 0.0, -1.0)]
+    assert len(with_formation_size(doc, 5).formation.offsets) == 5
+    assert len(doc.formation.offsets) == 3  # the caller's scenario is not changed
 
 
 def test_the_common_start_leaves_time_for_every_start_command():
@@ -76,7 +76,7 @@ def test_the_common_start_leaves_time_for_every_start_command():
     from services.gcs.record import CommandRecord
 
     with Bus(BusConfig(mode="peer"), FLEET, "gcs") as bus:
-        runner = MissionRunner(bus, load_scenario_doc(None), MissionOptions(uavs=(1, 2, 3)))
+        runner = MissionRunner(bus, load_scenario(), MissionOptions(uavs=(1, 2, 3)))
         assert runner.start_margin_s() == 2.0  # nothing measured yet: the least margin
         runner.record.commands += [
             CommandRecord(uav=1, kind="takeoff", cmd_id=1, ok=True, accepted=True, elapsed_s=0.01, ack_s=[0.01]),
@@ -89,3 +89,71 @@ def test_the_common_start_leaves_time_for_every_start_command():
         runner.record.commands.append(
             CommandRecord(uav=3, kind="takeoff", cmd_id=4, ok=True, accepted=True, elapsed_s=60, ack_s=[60.0]))
         assert runner.start_margin_s() == 30.0  # bounded
+
+
+def test_forged_reports_with_a_dead_detector_fail_the_mission_and_say_why(group, gateway, planner):
+    """Issue 12: with no detector running, a forger publishing ok DefectReports for every capture (some naming no
+    frame, some with made-up frame evidence) made the mission end "success, every capture imaged" with 0 frames
+    received. Now such reports are not corroborated by the detector's statistics: the mission fails, saying why."""
+    import threading
+
+    from protocol import keys
+    from protocol.links import COMMAND
+    from protocol.messages import DefectReport, FrameEvidence
+    from protocol.rtp import ssrc_for
+
+    for uav in (1, 2):
+        assert _edge(group, gateway, uav).wait_for("board up", 30)
+    stop = threading.Event()
+
+    def forge() -> None:
+        with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "forger") as bus:
+            pub = bus.publisher(keys.defects(FLEET), COMMAND)
+            while not stop.wait(0.5):
+                for uav in (1, 2):
+                    for cid in range(60):
+                        now = time.time()
+                        pub.put(DefectReport(uav=uav, capture_id=cid, stamp_capture=now, stamp_report=now,
+                                             method="it+"))
+                        try:
+                            pub.put(DefectReport(uav=uav, capture_id=cid, stamp_capture=now, stamp_report=now,
+                                                 method="it+", frame=FrameEvidence(ssrc=ssrc_for(uav), seq=cid,
+                                                                                   digest="00" * 32)))
+                        except Exception:  # a protocol without frame evidence (before issue 12)
+                            pass
+
+    forger = threading.Thread(target=forge, daemon=True)
+    forger.start()
+    try:
+        record, _ = _run(gateway, (1, 2))
+    finally:
+        stop.set()
+        forger.join(10)
+    assert not record.success
+    why = [f for f in record.failures if "not corroborated" in f]
+    assert why and "no statistics were heard from the detector" in why[0], record.failures
+    assert record.imagery[1]["received"] is None and record.imagery[1]["sent"] > 0
+
+
+def test_snapshot_copies_the_live_figures():
+    """What the live display reads, taken under the runner's lock (the CLI does not reach into it)."""
+    from protocol import keys
+    from protocol.links import TELEMETRY
+    from protocol.messages import Mode, VehicleState
+    from tests.conftest import wait_until
+
+    with Bus(BusConfig(mode="peer"), FLEET, "gcs") as bus:
+        runner = MissionRunner(bus, load_scenario(), MissionOptions(uavs=(1, 2)))
+        snap = runner.snapshot()
+        assert (snap.phase, snap.states, snap.ages_ms, snap.reports, snap.lost) == ("-", {}, [], 0, {})
+        msg = VehicleState(uav=1, seq=0, t=0.0, stamp=time.time() - 0.25, pos=(0, 0, 5), vel=(0, 0, 0),
+                           att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.HOLD, armed=True)
+        bus.publisher(keys.state(FLEET, 1), TELEMETRY).put(msg)  # the session hears its own sample
+        assert wait_until(lambda: runner.snapshot().states, 10.0)
+        runner.phase("takeoff")
+        snap = runner.snapshot()
+        assert snap.phase == "takeoff" and snap.states == {1: msg} and len(snap.ages_ms) == 1
+        assert snap.ages_ms[0] >= 250.0
+        assert set(snap.last_heard) == {1}
+        snap.states.clear()
+        assert runner.snapshot().states == {1: msg}  # a copy

@@ -19,6 +19,7 @@ import pytest
 from edge.formation import DEFAULT_OFFSETS
 from protocol.messages import (Box, Defect, DefectReport, Event, Level, LinkStats, MissionPlan, Mode, Trajectory,
                                VehicleState, Waypoint)
+from protocol.scenario import Scenario
 from services.gcs.record import (CommandRecord, DefectRx, EventRx, GroundTruthDefect, MissionRecord, StateRx,
                                  StatsRx)
 from services.gcs.report import (PLOTS, Latency, convergence_iteration, latency_figures, planned_positions,
@@ -99,9 +100,10 @@ def build_record() -> MissionRecord:
                 for i, (u, k) in enumerate((u, k) for u in (1, 2, 3) for k in ("upload", "start"))]
     events = [EventRx(rx=STAMP0 + 12, msg=Event(source="uav3", stamp=STAMP0 + 12, kind="failsafe",
                                                 level=Level.WARNING, text="link lost: hold"))]
-    scenario = {"name": "straight", "start": [0, 0, 10], "goal": [0, 40, 10],
-                "formation": {"offsets": DEFAULT_OFFSETS.tolist()},
-                "obstacles": [{"centre": [10.0, 20.0], "radius": 1.0, "height": 12.0}]}
+    scenario = Scenario.model_validate(
+        {"name": "straight", "origin": {"lat": -33.87, "lon": 151.19}, "box": {"lo": [-20, -10, 0], "hi": [20, 50, 40]},
+         "start": [0, 0, 10], "goal": [0, 40, 10], "formation": {"offsets": DEFAULT_OFFSETS.tolist()},
+         "obstacles": [{"centre": [10.0, 20.0], "radius": 1.0, "height": 12.0}]})
     return MissionRecord(fleet="test", scenario=scenario, speed=1.0, started=STAMP0 - 1, ended=STAMP0 + 30,
                          plan=plan, plan_request_s=2.0, states=states, defects=defects, events=events,
                          detector_stats=det, commands=commands, ground_truth=truth, surface_corners=CORNERS,
@@ -229,7 +231,7 @@ def test_write_report_writes_every_file(record, summary, tmp_path):
 
 
 def test_an_empty_record_still_gives_a_report(tmp_path):
-    rec = MissionRecord(fleet="empty", scenario={}, speed=1.0, started=10.0)
+    rec = MissionRecord(fleet="empty", speed=1.0, started=10.0)
     s = write_report(rec, tmp_path)
     assert s.planner is None and s.uavs == {} and s.defects is None and s.wall_time_s is None
     assert s.formation.rms_m is None and s.links["telemetry"].latency_ms == Latency()
@@ -238,7 +240,7 @@ def test_an_empty_record_still_gives_a_report(tmp_path):
 
 
 def test_corners_from_the_scenario_and_no_corners_at_all(record):
-    scen = record.scenario | {"surface": {"corners": [list(c) for c in CORNERS]}}
+    scen = Scenario.model_validate(record.scenario.model_dump() | {"surface": {"corners": CORNERS}})
     s = summarise(record.model_copy(update={"surface_corners": [], "scenario": scen}))
     assert s.defects.recall == pytest.approx(2 / 3) and s.defects.precision == pytest.approx(3 / 5)
     s = summarise(record.model_copy(update={"surface_corners": []}))
@@ -248,20 +250,22 @@ def test_corners_from_the_scenario_and_no_corners_at_all(record):
 def test_bad_inputs_are_refused(record, tmp_path):
     with pytest.raises(ValueError, match="MissionRecord"):
         summarise({"fleet": "x"})
+    # a record's scenario is typed: a bad one is refused where the record is read, naming the field
+    doc = record.model_dump(mode="json")
     for offsets in ([[0, 0]], [[0, 0, 1], [1, 2]], [[0, 0, math.nan]], "abc"):
-        bad = record.model_copy(update={"scenario": {"formation": {"offsets": offsets}}})
+        bad = dict(doc, scenario=dict(doc["scenario"], formation={"offsets": offsets}))
         with pytest.raises(ValueError, match="offsets"):
             summarise(bad)
-    bad = record.model_copy(update={"surface_corners": [], "scenario": {"surface": {"corners": [[0, 0], [1]]}}})
+    bad = dict(doc, surface_corners=[], scenario=dict(doc["scenario"], surface={"corners": [[0, 0], [1]]}))
     with pytest.raises(ValueError, match="corners"):
         summarise(bad)
-    bad = record.model_copy(update={"scenario": {"obstacles": [{"centre": [1, 2], "radius": -1, "height": 3}]}})
+    bad = dict(doc, scenario=dict(doc["scenario"], obstacles=[{"centre": [1, 2], "radius": -1, "height": 3}]))
     with pytest.raises(ValueError, match="obstacles"):
         write_report(bad, tmp_path / "obst")
     assert not (tmp_path / "obst").exists()  # refused before anything is written
     (tmp_path / "file").write_text("")
     with pytest.raises(ValueError, match="not a directory"):
-        write_report(MissionRecord(fleet="x", scenario={}, speed=1.0, started=0.0), tmp_path / "file")
+        write_report(MissionRecord(fleet="x", speed=1.0, started=0.0), tmp_path / "file")
 
 
 def test_polyline_distance():
@@ -303,10 +307,11 @@ def test_latency_and_convergence_helpers():
 def test_docstring_examples():
     import doctest
 
+    import services.gcs.figures
     import services.gcs.report
 
-    result = doctest.testmod(services.gcs.report)
-    assert result.attempted > 0 and result.failed == 0
+    results = [doctest.testmod(m) for m in (services.gcs.report, services.gcs.figures)]  # the examples moved there
+    assert sum(r.attempted for r in results) > 0 and not any(r.failed for r in results)
 
 
 def test_edges_with_their_own_epochs_give_the_same_figures():

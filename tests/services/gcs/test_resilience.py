@@ -42,7 +42,7 @@ def record() -> MissionRecord:
     ts1 = [round(0.1 * i, 1) for i in range(101)] + [round(13.5 + 0.1 * i, 1) for i in range(66)]
     states = [state(1, t) for t in ts1] + [state(2, round(0.1 * i, 1)) for i in range(51)]
     return MissionRecord(
-        fleet="f", scenario={}, speed=8.0, started=M - 20, ended=M + 22, phases={"mission": M},
+        fleet="f", speed=8.0, started=M - 20, ended=M + 22, phases={"mission": M},
         states=states,
         events=[event(1, 5.6, "neighbour-lost", neighbour=2), event(1, 17.0, "failsafe-cleared", since=M + 15.0,
                                                                    held_s=2.0)],
@@ -98,7 +98,7 @@ def test_report_has_the_faults_section(record, tmp_path):
 
 
 def test_a_quiet_run_says_so():
-    rec = MissionRecord(fleet="f", scenario={}, speed=1.0, started=M)
+    rec = MissionRecord(fleet="f", speed=1.0, started=M)
     f = summarise(rec).faults
     assert f["faults"] == [] and f["uavs_lost"] == [] and f["commands"]["failed"] == []
     assert f["origin"] == "record start"

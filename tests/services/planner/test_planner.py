@@ -397,3 +397,11 @@ def test_cli_plan_writes_files(tmp_path, capsys):
     assert json.loads((tmp_path / "mission.geojson").read_text())["type"] == "FeatureCollection"
     assert "collision-free" in capsys.readouterr().out
     assert cli_main(["--scenario", str(tmp_path / "nope.toml")]) == 2
+
+
+def test_scenario_file_that_is_not_utf8_is_a_scenario_error(tmp_path):
+    """Issue 12 (fuzzing): bytes that are not UTF-8 let UnicodeDecodeError escape the loader."""
+    bad = tmp_path / "latin1.toml"
+    bad.write_bytes(b'name = "caf\xe9"\n')
+    with pytest.raises(ScenarioError, match="not UTF-8"):
+        load_scenario(bad)

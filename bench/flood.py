@@ -1,0 +1,179 @@
+"""Issue 12's benchmark: the mission while one writable key is flooded for 10 s, against no flood, in one run.
+
+For each case (``none`` and one flood per key a UAV or a forged RCU may write: ``uav/1/state`` with
+malformed bytes, ``uav/1/event`` with 4 KB events, ``uav/1/camera`` with 50 KB RTP-looking junk,
+``rcu/detector/defects`` with forged reports) it runs ``skynet mission --speed 4`` (a real network
+of processes on loopback), starts the flood 2 s into the mission phase from a client of the gateway
+in this process (as fast as it can, bounded to 10 s), and prints: mission success, telemetry age
+p50/p95/max of the states received *during* the flood window, samples sent by the flooder, what the
+ground station refused (budgets, decoding), the record's size, and the RSS of every service (and the
+ground station's process) before and after the flood. JSON goes to ``bench/results/flood.json``.
+
+    .venv/bin/python bench/flood.py [--cases none,event,...] [--seconds 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from protocol import keys  # noqa: E402
+from protocol.bus import Bus, BusConfig  # noqa: E402
+from protocol.links import COMMAND, IMAGERY, TELEMETRY  # noqa: E402
+from protocol.messages import DefectReport, Event, FrameEvidence  # noqa: E402
+from protocol.rtp import ssrc_for  # noqa: E402
+
+FLEET = "flood"
+CASES = ("none", "state", "event", "camera", "defects")
+
+
+def rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def services_rss(root: int) -> dict[str, float | None]:
+    """RSS of the mission process (the ground station) and of each child service, by name."""
+    out = {"gcs (mission process)": rss_mb(root)}
+    kids = subprocess.run(["pgrep", "-P", str(root)], capture_output=True, text=True).stdout.split()
+    for pid in kids:
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        words = [w.decode() for w in cmd]
+        if "services.cli" in words:
+            name = words[words.index("services.cli") + 1]
+            if name == "edge" and "--uav" in words:
+                name = f"uav{words[words.index('--uav') + 1]}"
+            out[name] = rss_mb(int(pid))
+    return out
+
+
+def flood(case: str, endpoints: list[str], seconds: float, stop: threading.Event) -> int:
+    """Publish the case's flood for ``seconds``; the samples sent."""
+    rng = np.random.default_rng(12)
+    with Bus(BusConfig(mode="client", connect=endpoints, multilink=True), FLEET, "flooder") as bus:
+        if case == "state":
+            pub, link = bus.publisher(keys.state(FLEET, 1), TELEMETRY), None
+            make = lambda i: b"\x01" + rng.integers(0, 256, 300, dtype=np.uint8).tobytes()  # noqa: E731
+        elif case == "event":
+            pub = bus.publisher(keys.event(FLEET, 1), COMMAND)
+            make = lambda i: Event(source="uav/1", stamp=time.time(), kind="flood", text="x" * 4000)  # noqa: E731
+        elif case == "camera":
+            pub = bus.publisher(keys.camera(FLEET, 1), IMAGERY)
+            junk = rng.integers(0, 256, 50_000, dtype=np.uint8).tobytes()
+            make = lambda i: bytes([0x80, 26]) + i.to_bytes(2, "big") + b"\0\0\0\0" + b"\x12\x34\x56\x78" + junk  # noqa
+        else:
+            pub = bus.publisher(keys.defects(FLEET), COMMAND)
+            make = lambda i: DefectReport(uav=1, capture_id=i % 40, stamp_capture=time.time(),  # noqa: E731
+                                          stamp_report=time.time(), method="it+",
+                                          frame=FrameEvidence(ssrc=ssrc_for(1), seq=i % 65536, digest="00" * 32))
+        n, t0 = 0, time.monotonic()
+        while time.monotonic() - t0 < seconds and not stop.is_set():
+            item = make(n)
+            pub.put_bytes(item) if isinstance(item, bytes) else pub.put(item)
+            n += 1
+            if case == "camera":
+                time.sleep(0.001)  # 50 KB frames: ~1000/s, more than any camera sends
+        return n
+
+
+def run_case(case: str, seconds: float, speed: float, onset: float) -> dict:
+    out = Path(tempfile.mkdtemp(prefix=f"skynet-flood-{case}-"))
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "mission", "--quiet", "--speed", str(speed),
+                             "--fleet", FLEET, "--out", str(out / "report")], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    mission = threading.Event()
+
+    def reader() -> None:
+        for line in proc.stdout:
+            lines.append(line)
+            if "phase: mission" in line:
+                mission.set()
+
+    threading.Thread(target=reader, daemon=True).start()
+    res: dict = {"case": case}
+    try:
+        if not mission.wait(180):
+            raise RuntimeError("no mission phase:\n" + "".join(lines[-30:]))
+        log = (out / "report" / "services.log").read_text()
+        m = re.search(r"listening on (tcp/[\d.:]+\?rel=1), (udp/[\d.:]+\?rel=0)", log)
+        endpoints = [m.group(1), m.group(2)]
+        time.sleep(onset)
+        res["rss_before_mb"] = services_rss(proc.pid)
+        t0 = time.time()
+        res["sent"] = 0 if case == "none" else flood(case, endpoints, seconds, threading.Event())
+        if case == "none":
+            time.sleep(seconds)
+        t1 = time.time()
+        res["window"] = (t0, t1)
+        res["rss_after_mb"] = services_rss(proc.pid)
+        proc.wait(600)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    rep = json.loads((out / "report" / "report.json").read_text())
+    rec_path = out / "report" / "record.json"
+    rec = json.loads(rec_path.read_text())
+    ages = [1000 * (s["rx"] - s["msg"]["stamp"]) for s in rec["states"] if t0 <= s["rx"] <= t1]
+    res.update(success=rep["success"], failures=rep["failures"][:3], states_in_window=len(ages),
+               age_ms={"p50": float(np.percentile(ages, 50)) if ages else None,
+                       "p95": float(np.percentile(ages, 95)) if ages else None,
+                       "max": float(max(ages)) if ages else None},
+               refused=sum(rec.get("rejected", {}).values()), record_mb=rec_path.stat().st_size / 1e6,
+               journal_mb=(out / "report" / "record.jsonl").stat().st_size / 1e6
+               if (out / "report" / "record.jsonl").exists() else None,
+               report_md_kb=(out / "report" / "report.md").stat().st_size / 1e3, folder=str(out))
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--cases", default=",".join(CASES))
+    p.add_argument("--seconds", type=float, default=10.0)
+    p.add_argument("--speed", type=float, default=4.0)
+    p.add_argument("--onset", type=float, default=2.0, help="flood starts this long into the mission phase, s")
+    p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "flood.json"))
+    args = p.parse_args(argv)
+    rows = []
+    for case in args.cases.split(","):
+        r = run_case(case, args.seconds, args.speed, args.onset)
+        rows.append(r)
+        a = r["age_ms"]
+        print(f"{case:>8}: success {r['success']}, flood sent {r['sent']}, refused {r['refused']}, telemetry age "
+              f"p50 {a['p50']:.1f} / p95 {a['p95']:.1f} / max {a['max']:.1f} ms over {r['states_in_window']} states, "
+              f"record.json {r['record_mb']:.2f} MB, journal {r['journal_mb']:.2f} MB, report.md "
+              f"{r['report_md_kb']:.0f} kB", flush=True)
+        for name in r["rss_before_mb"]:
+            b, e = r["rss_before_mb"][name], r["rss_after_mb"].get(name)
+            print(f"{'':>10}{name:<24} RSS {b or 0:7.1f} -> {e or 0:7.1f} MB")
+        if r["failures"]:
+            print(f"{'':>10}failures: {r['failures']}")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(rows, indent=1))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

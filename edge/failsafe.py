@@ -1,0 +1,127 @@
+"""The board's failsafe policy (issue 12): lost ground station, escalation, low battery, resume rules.
+
+Pure (no bus, no driver): :meth:`FailsafePolicy.step` says which action the board must take now,
+:meth:`FailsafePolicy.may_resume` whether a ``Resume`` may end the failsafe.
+
+Modelled on ArduPilot Copter's failsafes (ardupilot.org, "GCS Failsafe" and "Battery Failsafe"):
+
+* **GCS failsafe** (``FS_GCS_TIMEOUT``, 5 s): no ground-station heartbeat for ``timeout_s`` while
+  flying -> ``action`` (hold by default, ``--failsafe-action``). Where ArduPilot goes straight to
+  RTL or land, we hold first (the formation stays put and the mission can go on when the link
+  comes back) and **escalate** after ``escalate_after_s`` more seconds without a heartbeat to
+  ``escalate_action`` (``rtl`` by default, or ``land``; ``none`` holds for ever as before): a UAV
+  whose ground station is gone for good comes home instead of hovering until its battery dies.
+* **Battery failsafe** (``BATT_LOW_VOLT`` / ``BATT_CRT_VOLT`` and their actions): below
+  ``battery_low`` of its charge the UAV returns to launch, below ``battery_critical`` it lands
+  where it is; heartbeats do not clear it, and a ``Resume`` is refused.
+* **Resume** ends a GCS failsafe only once a heartbeat newer than the failsafe's start has been
+  heard within ``timeout_s``: a Resume that overtakes the first heartbeat after a gateway freeze
+  would otherwise resume a UAV that fails safe again at its next tick.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+ACTIONS = ("hold", "land", "rtl")
+ESCALATIONS = ("rtl", "land", "none")
+#: how much an action ends the flight: a failsafe never steps down (rtl -> hold)
+_SEVERITY = {"hold": 0, "rtl": 1, "land": 2}
+
+
+@dataclass(frozen=True)
+class FailsafeOptions:
+    timeout_s: float = 5.0
+    action: str = "hold"
+    escalate_after_s: float = 30.0
+    escalate_action: str = "rtl"
+    battery_low: float = 0.2
+    battery_critical: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.action not in ACTIONS:
+            raise ValueError(f"failsafe action {self.action!r}: one of {ACTIONS}")
+        if self.escalate_action not in ESCALATIONS:
+            raise ValueError(f"escalation {self.escalate_action!r}: one of {ESCALATIONS}")
+        if not (self.timeout_s > 0 and self.escalate_after_s >= 0):
+            raise ValueError("failsafe timeout must be > 0 s and the escalation time >= 0 s")
+        if not 0.0 <= self.battery_critical <= self.battery_low <= 1.0:
+            raise ValueError("need 0 <= battery_critical <= battery_low <= 1")
+
+
+@dataclass(frozen=True)
+class Decision:
+    """An action to take now, why (``gcs`` or ``battery``), an event kind and its text."""
+
+    action: str
+    reason: str
+    kind: str
+    text: str
+
+
+class FailsafePolicy:
+    """Failsafe state of one board; the board calls :meth:`step` every tick (times are wall seconds)."""
+
+    def __init__(self, options: FailsafeOptions | None = None):
+        self.opt = options or FailsafeOptions()
+        self.active = False  # a GCS failsafe is on (cleared by an accepted Resume)
+        self.since: float | None = None
+        self.escalated = False
+        self.battery: str | None = None  # "low" / "critical" once the battery failsafe fired
+        self.current: str | None = None  # the last action ordered
+
+    def _order(self, action: str, reason: str, kind: str, text: str) -> Decision | None:
+        if self.current is not None and _SEVERITY[action] < _SEVERITY[self.current]:
+            return None  # never step down: a UAV landing stays landing
+        self.current = action
+        return Decision(action, reason, kind, text)
+
+    def step(self, now: float, last_heartbeat: float | None, flying: bool, battery: float,
+             returning: bool = False) -> Decision | None:
+        """What to do now, or None. ``returning``: the UAV is already coming home (RTL): only the
+        critical battery (land) still applies, a lost ground station does not stop it."""
+        if not (flying or returning):
+            return None
+        o = self.opt
+        if battery <= o.battery_critical and self.battery != "critical":
+            self.battery = "critical"
+            return self._order("land", "battery", "battery-failsafe",
+                               f"battery at {battery:.0%} (critical {o.battery_critical:.0%}): land")
+        if returning:
+            return None
+        if battery <= o.battery_low and self.battery is None:
+            self.battery = "low"
+            return self._order("rtl", "battery", "battery-failsafe",
+                               f"battery at {battery:.0%} (low {o.battery_low:.0%}): return to launch")
+        if last_heartbeat is None:
+            return None  # never heard a ground station: nothing to lose
+        silent = now - last_heartbeat
+        if not self.active:
+            if silent <= o.timeout_s:
+                return None
+            self.active, self.since, self.escalated = True, now, False
+            return self._order(o.action, "gcs", "failsafe",
+                               f"no ground-station heartbeat for {silent:.1f} s: {o.action}")
+        if (not self.escalated and o.escalate_action != "none" and o.action == "hold"
+                and now - self.since >= o.escalate_after_s and silent > o.timeout_s):
+            self.escalated = True
+            return self._order(o.escalate_action, "gcs", "failsafe-escalated",
+                               f"no ground-station heartbeat for {silent:.1f} s, held {now - self.since:.1f} s: "
+                               f"{o.escalate_action}")
+        return None
+
+    def may_resume(self, now: float, last_heartbeat: float | None) -> str | None:
+        """None if a Resume may be applied now, else why not."""
+        if self.battery is not None:
+            return f"battery failsafe ({self.battery}): not resumed"
+        if not self.active:
+            return None
+        if last_heartbeat is None or last_heartbeat <= self.since or now - last_heartbeat > self.opt.timeout_s:
+            return "failsafe: no fresh ground-station heartbeat yet"
+        return None
+
+    def resumed(self) -> float | None:
+        """The Resume was applied: the GCS failsafe ends; returns when it began."""
+        since = self.since
+        self.active, self.since, self.escalated, self.current = False, None, False, None
+        return since

@@ -1,0 +1,351 @@
+"""The scenario: one typed model of the whole inspection problem, and its TOML file.
+
+A scenario holds everything the planner needs and every algorithm is compared on (PAPER.md
+Section 3, "load the scenario ... from an init file"): the operation box and its geodetic
+origin, the start and goal of the formation centroid, static obstacles (vertical cylinders), the
+planar surface to inspect, the camera, the task-assessment parameters ``s_f`` and ``o_p``
+(P1)-(P3), the formation offsets (P9), the cost weights β of (P5), the speed limits and the
+default optimiser budget.
+
+File format (TOML, read with :mod:`tomllib`; see ``scenarios/monorail.toml`` for a commented
+example, which is also the default scenario)::
+
+    name = "monorail"
+    start = [x, y, z]                 # centroid start, ENU m
+    goal = [x, y, z]
+    [origin]   lat, lon (deg), alt (m)   geodetic origin of the local ENU frame
+    [box]      lo = [x, y, z], hi = [x, y, z]
+    [[obstacles]]  centre = [x, y], radius, height   (vertical cylinders from z = 0)
+    [surface]  corners = [p0, p1, p2, p3]   (optional) vertical rectangle; p0-p1 bottom edge,
+               p3 above p0, normal (p1 - p0) x (p3 - p0) towards the inspection side
+    [camera]   resolution = [w, h] px, sensor_mm = [w, h], focal_mm
+    [inspection] smallest_feature (m), overlap (0..1), lead_in (m)
+    [formation]  offsets = [[x, y, z], ...] (formation frame: x along travel, y left, z up),
+                 min_separation (m)
+    [cost]     beta = [b1, b2, b3], uav_radius, danger_band, collision_penalty, altitude = [lo, hi],
+               max_turn_deg
+    [speeds]   cruise, inspect, max (m/s), accel, lateral_accel (m/s^2)
+    [planner]  particles, waypoints, iterations, init ("corridor" | "box"), corridor_width (m)
+
+Every section except ``origin``, ``box``, ``start`` and ``goal`` has defaults. The scenario is
+validated once, where it is loaded (:func:`load_scenario`) or received (it travels typed inside
+:class:`protocol.messages.PlanRequest` and the mission record), and read by attribute everywhere
+else. Bad documents raise :class:`ScenarioError` (a :class:`ValueError`) whose message names the
+file and the field, e.g. ``scenario field 'obstacles[2].radius': Input should be greater than 0``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+__all__ = [
+    "ScenarioError",
+    "Origin",
+    "Bounds",
+    "Cylinder",
+    "Surface",
+    "Camera",
+    "Inspection",
+    "FormationSpec",
+    "CostSpec",
+    "Speeds",
+    "PlannerSpec",
+    "Scenario",
+    "validate_scenario",
+    "load_scenario",
+    "default_scenario_path",
+]
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Coord = Annotated[float, Field(ge=-1.0e5, le=1.0e5, allow_inf_nan=False)]
+Vec3 = tuple[Coord, Coord, Coord]
+Vec2 = tuple[Coord, Coord]
+
+
+class ScenarioError(ValueError):
+    """A scenario file or document that does not describe a valid planning problem."""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class Origin(_Model):
+    """Geodetic origin of the local ENU frame: latitude, longitude (degrees), altitude (m)."""
+
+    lat: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)]
+    lon: Annotated[float, Field(ge=-180.0, le=180.0, allow_inf_nan=False)]
+    alt: Annotated[float, Field(ge=-1000.0, le=10000.0, allow_inf_nan=False)] = 0.0
+
+
+class Bounds(_Model):
+    """Operation box (geofence), ENU metres."""
+
+    lo: Vec3
+    hi: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "Bounds":
+        if any(h <= l for l, h in zip(self.lo, self.hi)):
+            raise ValueError("box.hi must exceed box.lo on every axis")
+        return self
+
+    def contains(self, p: Any, margin: float = 0.0) -> bool:
+        q = np.asarray(p, float)
+        return bool(np.all(q >= np.add(self.lo, -margin)) and np.all(q <= np.add(self.hi, margin)))
+
+
+class Cylinder(_Model):
+    """A vertical cylinder standing on z = 0: horizontal centre (m), radius (m), height (top z, m)."""
+
+    centre: Vec2
+    radius: Positive
+    height: Positive
+
+
+class Surface(_Model):
+    """A vertical planar rectangle to inspect.
+
+    ``corners`` p0, p1, p2, p3 in order: p0-p1 is the horizontal bottom edge, p3 lies above p0,
+    and the normal ``(p1 - p0) x (p3 - p0)`` points to the side the formation flies on.
+    """
+
+    corners: tuple[Vec3, Vec3, Vec3, Vec3]
+
+    @model_validator(mode="after")
+    def _rectangle(self) -> "Surface":
+        p = np.asarray(self.corners, float)
+        u, v = p[1] - p[0], p[3] - p[0]
+        lu, lv = float(np.linalg.norm(u)), float(np.linalg.norm(v))
+        if lu < 0.1 or lv < 0.1:
+            raise ValueError("surface.corners: edges must be at least 0.1 m long")
+        if not np.allclose(p[2], p[1] + v, atol=0.01):
+            raise ValueError("surface.corners: p2 must equal p1 + (p3 - p0) (a rectangle, in order)")
+        if abs(float(u @ v)) > 1e-3 * lu * lv:
+            raise ValueError("surface.corners: edges p0-p1 and p0-p3 must be perpendicular")
+        if abs(u[2]) > 0.01 or np.hypot(v[0], v[1]) > 0.01 or v[2] <= 0:
+            raise ValueError(
+                "surface.corners: only vertical walls are supported (p0-p1 horizontal, p3 above p0)"
+            )
+        return self
+
+    @property
+    def frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """``(p0, u, n)``: bottom-left corner, unit vector along the bottom edge, unit normal."""
+        p = np.asarray(self.corners, float)
+        u = p[1] - p[0]
+        u = u / np.linalg.norm(u)
+        n = np.cross(u, [0.0, 0.0, 1.0])
+        return p[0], u, n
+
+    @property
+    def length(self) -> float:
+        p = np.asarray(self.corners, float)
+        return float(np.linalg.norm(p[1] - p[0]))
+
+    @property
+    def z_range(self) -> tuple[float, float]:
+        return float(self.corners[0][2]), float(self.corners[3][2])
+
+
+class Camera(_Model):
+    """Pinhole camera: resolution (px), sensor size and focal length in the same unit (mm)."""
+
+    resolution: tuple[Annotated[int, Field(ge=1, le=100000)], Annotated[int, Field(ge=1, le=100000)]]
+    sensor_mm: tuple[Positive, Positive]
+    focal_mm: Positive
+
+
+class Inspection(_Model):
+    """Task-assessment parameters: smallest feature ``s_f`` (m), overlap ``o_p`` (P1)-(P3)."""
+
+    smallest_feature: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = 0.0025
+    overlap: Annotated[float, Field(ge=0.0, lt=1.0, allow_inf_nan=False)] = 0.2
+    lead_in: Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)] = 2.0
+
+
+class FormationSpec(_Model):
+    """Formation offsets ΔT_n (formation frame: x along travel, y left, z up) (P9)."""
+
+    offsets: list[Vec3] = Field(
+        default=[(0.0, 0.0, 2.0), (3.0, 0.0, -1.0), (-3.0, 0.0, -1.0)], min_length=1, max_length=32
+    )
+    min_separation: NonNeg = 2.0
+
+
+class CostSpec(_Model):
+    """Weights and shape parameters of the cost (P5); see :mod:`services.planner.cost`."""
+
+    beta: tuple[NonNeg, NonNeg, NonNeg] = (1.0, 1.0, 1.0)
+    uav_radius: NonNeg = 0.5
+    danger_band: Positive = 2.0
+    collision_penalty: NonNeg = 100.0
+    altitude: tuple[Finite, Finite] = (5.0, 38.0)
+    max_turn_deg: Annotated[float, Field(gt=0.0, le=180.0, allow_inf_nan=False)] = 60.0
+
+    @model_validator(mode="after")
+    def _band(self) -> "CostSpec":
+        if self.altitude[1] <= self.altitude[0]:
+            raise ValueError("cost.altitude: upper bound must exceed the lower bound")
+        return self
+
+
+class Speeds(_Model):
+    """Speed (m/s) and acceleration (m/s^2) limits of the formation."""
+
+    cruise: Annotated[float, Field(gt=0.0, le=30.0, allow_inf_nan=False)] = 2.5
+    inspect: Annotated[float, Field(gt=0.0, le=30.0, allow_inf_nan=False)] = 2.0
+    max: Annotated[float, Field(gt=0.0, le=30.0, allow_inf_nan=False)] = 5.0
+    accel: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)] = 1.0
+    lateral_accel: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)] = 1.0
+
+    @model_validator(mode="after")
+    def _max(self) -> "Speeds":
+        if self.cruise > self.max or self.inspect > self.max:
+            raise ValueError("speeds.max must be at least speeds.cruise and speeds.inspect")
+        return self
+
+
+class PlannerSpec(_Model):
+    """Default optimiser budget and initialisation."""
+
+    particles: Annotated[int, Field(ge=2, le=10000)] = 60
+    waypoints: Annotated[int, Field(ge=1, le=200)] = 10
+    iterations: Annotated[int, Field(ge=1, le=100000)] = 150
+    init: Literal["corridor", "box"] = "corridor"
+    corridor_width: Positive = 15.0
+
+
+class Scenario(_Model):
+    """The whole planning problem (see the module docstring for the file format)."""
+
+    name: Annotated[str, Field(max_length=256)] = "scenario"
+    origin: Origin
+    box: Bounds
+    start: Vec3
+    goal: Vec3
+    geodetic_far_corner: tuple[Finite, Finite, Finite] | None = None
+    obstacles: list[Cylinder] = Field(default=[], max_length=1000)
+    surface: Surface | None = None
+    camera: Camera = Camera(resolution=(4000, 3000), sensor_mm=(36.0, 27.0), focal_mm=34.4)
+    inspection: Inspection = Inspection()
+    formation: FormationSpec = FormationSpec()
+    cost: CostSpec = CostSpec()
+    speeds: Speeds = Speeds()
+    planner: PlannerSpec = PlannerSpec()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "Scenario":
+        for name in ("start", "goal"):
+            p = getattr(self, name)
+            if not self.box.contains(p):
+                raise ValueError(f"{name}: {tuple(p)} lies outside the box {self.box.lo}..{self.box.hi}")
+            for i, c in enumerate(self.obstacles):
+                if math.hypot(p[0] - c.centre[0], p[1] - c.centre[1]) < c.radius and p[2] < c.height:
+                    raise ValueError(f"{name}: {tuple(p)} lies inside obstacles[{i}]")
+        if self.surface is not None:
+            for i, q in enumerate(self.surface.corners):
+                if not self.box.contains(q):
+                    raise ValueError(f"surface.corners[{i}]: {tuple(q)} lies outside the box")
+        lo, hi = self.cost.altitude
+        if lo < self.box.lo[2] or hi > self.box.hi[2]:
+            raise ValueError("cost.altitude: the altitude band must lie within the box's z range")
+        return self
+
+    # ------------------------------------------------------------------ array views
+    @property
+    def lo(self) -> NDArray[np.float64]:
+        return np.asarray(self.box.lo, float)
+
+    @property
+    def hi(self) -> NDArray[np.float64]:
+        return np.asarray(self.box.hi, float)
+
+    @property
+    def offsets(self) -> NDArray[np.float64]:
+        return np.asarray(self.formation.offsets, float)
+
+    def cylinders(self) -> NDArray[np.float64]:
+        """Obstacles as an array ``(C, 4)``: centre x, centre y, radius, height."""
+        if not self.obstacles:
+            return np.zeros((0, 4))
+        return np.array([[*c.centre, c.radius, c.height] for c in self.obstacles], float)
+
+
+def _field_name(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "<root>"
+
+
+def _format(err: ValidationError) -> str:
+    lines = []
+    for e in err.errors():
+        msg = e["msg"].removeprefix("Value error, ")
+        name = _field_name(tuple(e["loc"]))
+        lines.append(f"scenario field {name!r}: {msg}" if name != "<root>" else f"scenario: {msg}")
+    return "; ".join(lines)
+
+
+def validate_scenario(doc: Any) -> Scenario:
+    """Validate a scenario document (a dict as read from TOML or carried by a plan request).
+
+    Raises
+    ------
+    ScenarioError
+        If the document is not a mapping or any field is missing or invalid; the message names
+        the field (``obstacles[2].radius``, ``start``, ...).
+    """
+    if isinstance(doc, Scenario):
+        return doc
+    if not isinstance(doc, dict):
+        raise ScenarioError(f"scenario must be a mapping, got {type(doc).__name__}")
+    try:
+        return Scenario.model_validate(doc)
+    except ValidationError as err:
+        raise ScenarioError(_format(err)) from None
+
+
+def default_scenario_path() -> Path:
+    """Path of the packaged default scenario (the paper's monorail bridge)."""
+    return Path(str(resources.files("protocol") / "scenarios" / "monorail.toml"))
+
+
+def load_scenario(path: str | Path | None = None) -> Scenario:
+    """Read and validate a scenario TOML file; ``None`` loads the default monorail scenario.
+
+    Raises
+    ------
+    ScenarioError
+        If the file cannot be read, is not valid TOML, or does not validate (the message names
+        the file and the field).
+    """
+    p = default_scenario_path() if path is None else Path(path)
+    try:
+        with open(p, "rb") as fh:
+            doc = tomllib.load(fh)
+    except OSError as exc:
+        raise ScenarioError(f"cannot read scenario file {p}: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"scenario file {p} is not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:  # TOML is UTF-8 (TOML v1.0.0, "Spec"); tomllib lets this one through
+        raise ScenarioError(f"scenario file {p} is not UTF-8 text: {exc.reason} at byte {exc.start}") from None
+    try:
+        return validate_scenario(doc)
+    except ScenarioError as exc:
+        raise ScenarioError(f"{p}: {exc}") from None
+

@@ -1,0 +1,69 @@
+"""What a mission must achieve, in one place: its planned capture points and the reached-goal check.
+
+Pure code over protocol messages, no bus code. The ground station's verdict
+(:meth:`services.gcs.mission.MissionRunner.judge`) and the report's figures
+(:mod:`services.gcs.figures`) both read these, so "planned", "imaged" and "reached" mean the
+same in the exit status and in ``report.json``.
+
+*Planned captures*: the ``(uav, capture_id)`` of every waypoint with a capture id (P9's
+trajectories as the planner sent them). *Imaged*: a planned capture with an ``ok``
+:class:`~protocol.messages.DefectReport`.
+
+*Reached goal*: the last position with the trajectory complete (progress 1, in MISSION or HOLD,
+i.e. before the ground station lands the formation; states in simulation-time order) is within
+:data:`services.gcs.record.GOAL_RADIUS_M` (2 m) of the last planned waypoint. When the
+trajectory never completed, the distance is measured from the last recorded position (the
+report shows it) and the mission's verdict fails the UAV whatever the distance.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocol.messages import DefectReport, Mode, Trajectory, VehicleState
+from services.gcs.record import GOAL_RADIUS_M
+
+__all__ = ["GOAL_RADIUS_M", "GoalCheck", "goal_check", "planned_captures", "imaged_captures"]
+
+
+def planned_captures(trajectories: Iterable[Trajectory]) -> set[tuple[int, int]]:
+    """``(uav, capture_id)`` of every waypoint with a capture id.
+
+    >>> from protocol.messages import Waypoint
+    >>> tr = Trajectory(uav=2, waypoints=[Waypoint(t=0.0, pos=(0, 0, 5)), Waypoint(t=1.0, pos=(1, 0, 5), capture_id=7)])
+    >>> planned_captures([tr])
+    {(2, 7)}
+    """
+    return {(t.uav, w.capture_id) for t in trajectories for w in t.waypoints if w.capture_id is not None}
+
+
+def imaged_captures(reports: Iterable[DefectReport]) -> set[tuple[int, int]]:
+    """``(uav, capture_id)`` of every ``ok`` defect report (planned or not)."""
+    return {(r.uav, r.capture_id) for r in reports if r.ok}
+
+
+@dataclass(frozen=True)
+class GoalCheck:
+    """Where one UAV's trajectory ended, measured against its goal (see the module docstring)."""
+
+    distance_m: float  # from the end position to the trajectory's last waypoint
+    completed: bool  # the end position is one with the trajectory complete (progress 1, MISSION or HOLD)
+
+    @property
+    def reached(self) -> bool:
+        """Within :data:`GOAL_RADIUS_M` of the goal (for the verdict, only together with ``completed``)."""
+        return self.distance_m <= GOAL_RADIUS_M
+
+
+def goal_check(states: Iterable[VehicleState], trajectory: Trajectory) -> GoalCheck | None:
+    """The reached-goal check of one UAV's states (any order) against its trajectory; ``None`` without states."""
+    ordered = sorted(states, key=lambda s: (s.t, s.seq))
+    if not ordered:
+        return None
+    done = [s for s in ordered if s.progress >= 1.0 and s.mode in (Mode.MISSION, Mode.HOLD)]
+    end = done[-1] if done else ordered[-1]
+    goal = np.asarray(trajectory.waypoints[-1].pos, dtype=float)
+    return GoalCheck(distance_m=float(np.linalg.norm(np.asarray(end.pos, dtype=float) - goal)), completed=bool(done))

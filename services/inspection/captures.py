@@ -1,0 +1,77 @@
+"""Capture frames of a synthetic wall at the planned shots, without the bus (pure).
+
+The mission's edges render each capture from :class:`edge.surface.SyntheticSurface` through
+:class:`edge.camera.SyntheticSource` at the camera pose of the capture point and send it as a
+JPEG with its :class:`protocol.messages.ImageMeta` (pose, intrinsics, range). This module does the
+same off-line for the shots of the scenario's formation pass (:func:`services.planner.task.formation_pass`,
+(P1)-(P3)), so the detector's precision, the crack measurements and the mosaic can be checked in a
+few seconds on any surface seed, and tests get frames with poses and a pixel ground truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from edge.camera import CameraPose, SyntheticSource, encode_jpeg
+from edge.runtime import camera_model, camera_rotation
+from edge.surface import SyntheticSurface
+from protocol.messages import ImageMeta, Intrinsics
+from protocol.scenario import Scenario
+from services.planner.task import formation_pass
+
+__all__ = ["Capture", "capture_meta", "synthetic_captures"]
+
+
+@dataclass(frozen=True)
+class Capture:
+    """One capture: its metadata, the JPEG bytes as sent, and the rendered truth mask."""
+
+    meta: ImageMeta
+    jpeg: bytes
+    truth: np.ndarray  # uint8 0/255, frame pixels
+
+
+def capture_meta(uav: int, capture_id: int, pos: np.ndarray, rot: np.ndarray, size: tuple[int, int],
+                 fx: float, fy: float, cx: float, cy: float, range_m: float | None) -> ImageMeta:
+    """The :class:`ImageMeta` of a frame (what :class:`edge.runtime.CameraLink` sends)."""
+    return ImageMeta(uav=uav, capture_id=capture_id, t=0.0, stamp=0.0, cam_pos=tuple(map(float, pos)),
+                     cam_rot=tuple(map(float, np.asarray(rot).ravel())),
+                     intrinsics=Intrinsics(width=size[0], height=size[1], fx=fx, fy=fy, cx=cx, cy=cy),
+                     range_m=range_m)
+
+
+def synthetic_captures(scenario: Scenario, surface: SyntheticSurface, frame_size: tuple[int, int] = (640, 480),
+                       jitter_m: float = 0.0, jitter_yaw_rad: float = 0.0, seed: int = 0,
+                       quality: int = 85) -> list[Capture]:
+    """Render every planned shot of ``scenario`` on ``surface`` (JPEG ``quality`` as the edges send).
+
+    ``jitter_m`` / ``jitter_yaw_rad`` perturb each pose (normal, that standard deviation), as the
+    formation's tracking error does in flight; the metadata carries the perturbed (true) pose.
+    """
+    ip = formation_pass(scenario)
+    if ip is None:
+        raise ValueError("the scenario has no surface to inspect")
+    model = camera_model(scenario, frame_size)
+    src = SyntheticSource(surface, model)
+    fx, fy, cx, cy = model.intrinsics()
+    rng = np.random.default_rng(seed)
+    out = []
+    n = surface.normal
+    for k, (pos, look, uav) in enumerate(zip(ip.positions, ip.look, ip.uav)):
+        p = np.asarray(pos, float) + (rng.normal(0.0, jitter_m, 3) if jitter_m > 0 else 0.0)
+        yaw = float(np.arctan2(look[1], look[0])) + (float(rng.normal(0.0, jitter_yaw_rad)) if jitter_yaw_rad else 0.0)
+        R = camera_rotation(yaw)
+        img, gt = src.render(CameraPose(position=p, rotation=R))
+        along = float(R[:, 2] @ n)
+        rng_m = float((surface.origin - p) @ n) / along if along < -1e-6 else None
+        meta = capture_meta(int(uav) + 1, k + 1, p, R, frame_size, fx, fy, cx, cy, rng_m)
+        out.append(Capture(meta=meta, jpeg=encode_jpeg(img, quality), truth=gt))
+    return out
+
+
+def decode(c: Capture) -> np.ndarray:
+    """The grey frame of a capture (as the detector decodes it)."""
+    return cv2.imdecode(np.frombuffer(c.jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)

@@ -1,0 +1,94 @@
+"""``skynet replay FILE [--speed K]``: a recorded mission played back onto the bus.
+
+Every logged bus sample is put again on its key, in receive-time order, with its link class
+(:func:`protocol.links.class_of_topic`), at ``K`` times the recorded pace (``--speed 0``: as
+fast as possible). Order per key is the file's order: one thread puts every sample, and each key
+has one publisher. ``--fleet NAME`` replays under another fleet name (the key's second chunk is
+swapped), so a past mission can be watched beside a live one (``skynet web --fleet NAME``).
+Messages keep their own stamps (a viewer's "last heard" is the receive time, not the stamp).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import Counter
+from pathlib import Path
+
+from protocol import keys
+from protocol.bus import Bus, Publisher, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.links import class_of_topic
+
+from .mcap_log import bus_bytes, read
+
+
+def plan_of(path: str | Path):
+    """(key, data, rx) of every bus sample of the file, in order (a generator; streams the file)."""
+    for item in read(path):
+        data = bus_bytes(item)
+        if data is not None:
+            yield item.topic, data, item.rx
+
+
+def rename_fleet(key: str, fleet: str | None) -> str:
+    if fleet is None:
+        return key
+    parts = key.split("/")
+    parts[1] = fleet
+    return "/".join(parts)
+
+
+def replay(bus: Bus, path: str | Path, speed: float = 1.0, fleet: str | None = None, stop=None) -> Counter:
+    """Put the file's samples on ``bus``; returns counts per link class (and ``skipped``)."""
+    if not (speed >= 0.0):
+        raise ValueError(f"speed must be >= 0, got {speed!r}")
+    pubs: dict[str, Publisher] = {}
+    counts: Counter[str] = Counter()
+    t_file0 = t_wall0 = None
+    for key, data, rx in plan_of(path):
+        if stop is not None and stop.is_set():
+            break
+        key = rename_fleet(key, fleet)
+        try:
+            topic = keys.parse(key).topic
+        except ValueError:
+            counts["skipped"] += 1
+            continue
+        if t_file0 is None:
+            t_file0, t_wall0 = rx, time.monotonic()
+        if speed > 0:
+            delay = t_wall0 + (rx - t_file0) / speed - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        if key not in pubs:
+            pubs[key] = bus.publisher(key, class_of_topic(topic))
+        pubs[key].put_bytes(data)
+        counts[class_of_topic(topic).name] += 1
+    return counts
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="skynet replay", description=__doc__.split("\n\n")[0])
+    add_bus_args(parser, mode="client")
+    parser.add_argument("file", help="an MCAP file written by the ground station (reports/.../mission.mcap)")
+    parser.add_argument("--speed", type=float, default=1.0, help="times the recorded pace (0: as fast as possible)")
+    parser.add_argument("--as-fleet", default=None, help="replay under this fleet name")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if not Path(args.file).is_file():
+        raise OSError(f"no such file: {args.file}")
+    log = setup_logging("replay")
+    stop = stop_event_on_signals()
+    with Bus(config_from_args(args), fleet=args.fleet, name="replay") as bus:
+        log.info("replay up: %s at %gx", args.file, args.speed)
+        counts = replay(bus, args.file, args.speed, args.as_fleet, stop)
+        time.sleep(0.5)  # let the last samples leave before the session closes
+        log.info("replayed: %s", dict(counts))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,140 @@
+"""``skynet video``: every UAV's camera as standard RTP over UDP, with an SDP file per stream.
+
+Subscribes to the fleet's live previews (``uav/*/preview``; with ``--capture`` also the capture
+frames, ``uav/*/camera``), and sends each UAV's pictures as H.264 (RFC 6184, default) or JPEG
+(RFC 2435, ``--codec mjpeg``) to ``--host`` (127.0.0.1 by default), one UDP port per stream:
+UAV n's preview on ``--port + 2 (n - 1)`` (5600, the port QGroundControl listens on, for UAV 1),
+its captures on ``--capture-port + 2 (n - 1)`` (even ports, RTCP's odd neighbour left free, RFC
+3550 section 11). ``--sdp-dir`` gets ``uav<n>-preview.sdp`` (and ``uav<n>-capture.sdp``) when a
+UAV's first frame arrives, or at start for ``--uavs N``, so a player can be opened first::
+
+    skynet video --uavs 3 -e tcp/127.0.0.1:7447
+    ffplay -protocol_whitelist file,udp,rtp sdp/uav1-preview.sdp
+
+The bus's frames are this project's own format (:mod:`protocol.imagery`, payload type 96); the
+empty announce frame of a camera's stream and frames that do not decode are skipped and counted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+
+from protocol import keys
+from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.imagery import unpack_image
+from protocol.rtp import ssrc_for
+
+from .sdp import sdp
+from .stream import VideoStream
+
+QUEUE_PICTURES = 2  # per stream: a live view drops the oldest picture rather than fall behind
+
+
+class VideoService:
+    """Binds :class:`~services.video.stream.VideoStream` per UAV and kind to the bus."""
+
+    def __init__(self, bus: Bus, codec: str = "h264", host: str = "127.0.0.1", port: int = 5600,
+                 capture_port: int | None = None, sdp_dir: str | Path = "sdp", log=None):
+        self.bus, self.codec, self.host, self.log = bus, codec, host, log
+        self.ports = {"preview": int(port)}
+        if capture_port is not None:
+            self.ports["capture"] = int(capture_port)
+        self.sdp_dir = Path(sdp_dir)
+        self.sdp_dir.mkdir(parents=True, exist_ok=True)
+        self.streams: dict[tuple[int, str], tuple[VideoStream, Ring]] = {}
+        self.counts: Counter[str] = Counter()
+        self._lock = threading.Lock()
+        bus.subscribe_raw(keys.preview(bus.fleet, "*"), lambda s: self._on_frame(s, "preview"))
+        if capture_port is not None:
+            bus.subscribe_raw(keys.camera(bus.fleet, "*"), lambda s: self._on_frame(s, "capture"))
+
+    def port_of(self, uav: int, kind: str) -> int:
+        port = self.ports[kind] + 2 * (uav - 1)
+        if not 0 < port < 65536:
+            raise ValueError(f"UAV {uav}'s {kind} port {port} is out of range")
+        return port
+
+    def sdp_path(self, uav: int, kind: str) -> Path:
+        return self.sdp_dir / f"uav{uav}-{kind}.sdp"
+
+    def stream(self, uav: int, kind: str) -> tuple[VideoStream, Ring]:
+        """The stream of one UAV's preview or captures, created (and its SDP written) on first use."""
+        with self._lock:
+            if (uav, kind) not in self.streams:
+                port = self.port_of(uav, kind)
+                vs = VideoStream(self.codec, self.host, port, ssrc_for(uav, 0 if kind == "capture" else 1))
+                ring = Ring(QUEUE_PICTURES, lambda job, vs=vs: self._send(vs, *job), name=f"video-uav{uav}-{kind}")
+                self.sdp_path(uav, kind).write_text(sdp(self.codec, self.host, port, f"SkyNet UAV {uav} {kind}"))
+                self.streams[(uav, kind)] = (vs, ring)
+                if self.log:
+                    self.log.info("UAV %d %s: %s RTP to %s:%d, %s", uav, kind, self.codec, self.host, port,
+                                  self.sdp_path(uav, kind))
+            return self.streams[(uav, kind)]
+
+    def _on_frame(self, sample, kind: str) -> None:
+        try:
+            header, meta, jpeg = unpack_image(sample.payload.to_bytes())
+        except ValueError:
+            self.counts["bad-frame"] += 1  # the announce frame (empty payload) lands here too
+            return
+        if meta.encoding != "jpeg" or len(jpeg) == 0:
+            self.counts["not-jpeg"] += 1
+            return
+        self.counts[f"in-{kind}"] += 1
+        _, ring = self.stream(meta.uav, kind)
+        ring.push((bytes(jpeg), meta.stamp))
+
+    def _send(self, vs: VideoStream, jpeg: bytes, stamp: float) -> None:
+        try:
+            vs.send(jpeg, stamp)
+            self.counts["sent"] += 1
+        except (ValueError, OSError) as exc:
+            self.counts["send-error"] += 1
+            if self.counts["send-error"] == 1 and self.log:
+                self.log.warning("a picture was not sent: %s", exc)
+
+    def close(self) -> None:
+        for vs, ring in list(self.streams.values()):
+            ring.close()
+            vs.close()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="skynet video", description=__doc__.split("\n\n")[0])
+    add_bus_args(parser, mode="client")
+    parser.add_argument("--codec", choices=["h264", "mjpeg"], default="h264",
+                        help="h264: RFC 6184 (libx264 via PyAV); mjpeg: RFC 2435")
+    parser.add_argument("--host", default="127.0.0.1", help="where the RTP goes (IPv4; loopback by default)")
+    parser.add_argument("--port", type=int, default=5600, help="UAV 1's preview port; UAV n's is PORT + 2(n-1)")
+    parser.add_argument("--capture", action="store_true", help="also stream the capture frames")
+    parser.add_argument("--capture-port", type=int, default=5700, help="UAV 1's capture port (with --capture)")
+    parser.add_argument("--uavs", type=int, default=0, help="write the SDP files of UAVs 1..N at start")
+    parser.add_argument("--sdp-dir", default="sdp", help="folder of the SDP files")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    log = setup_logging("video")
+    stop = stop_event_on_signals()
+    with Bus(config_from_args(args), fleet=args.fleet, name="video") as bus:
+        svc = VideoService(bus, args.codec, args.host, args.port, args.capture_port if args.capture else None,
+                           args.sdp_dir, log)
+        for uav in range(1, args.uavs + 1):
+            for kind in svc.ports:
+                svc.stream(uav, kind)
+        log.info("video up: %s to %s, preview from port %d, SDP in %s", args.codec, args.host, args.port,
+                 args.sdp_dir)
+        while not stop.wait(0.2):
+            pass
+        svc.close()
+        log.info("shutting down: %s", dict(svc.counts))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,155 @@
+"""The live fleet view: what the web page shows, built from the fleet's messages. Pure, no I/O.
+
+:class:`FleetView` is fed typed messages (states, events, defect reports, gateway statistics,
+preview JPEGs, the plan) and answers two JSON-ready documents:
+
+- :meth:`FleetView.static` — sent once per page (and again when the plan arrives): the scenario
+  (box, cylinders, the inspected wall's corners), the planned paths of the UAVs;
+- :meth:`FleetView.snapshot` — pushed at 5–10 Hz: per UAV the position, mode, battery, telemetry
+  rate (link health, Hz against the edges' 20 Hz) and last-heard age, captures, its flown path
+  (decimated to one point per :data:`TRAIL_STEP_M`), the preview frame's number; the formation
+  error (RMS of each UAV's distance to its planned slot, P9, over the UAVs in MISSION); the
+  defects found (positions on the wall map) and the last events (the timeline).
+
+Memory is bounded: trails, events and defects keep the newest :data:`TRAIL_POINTS`,
+:data:`EVENTS`, :data:`DEFECTS` entries.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from typing import Any
+
+from protocol.keys import DEFAULT_FLEET
+from protocol.messages import DefectReport, Event, MissionPlan, VehicleState
+from protocol.scenario import Scenario
+
+TRAIL_STEP_M = 0.5
+TRAIL_POINTS = 2000
+EVENTS = 200
+DEFECTS = 5000
+SENT_TRAIL = 400  # newest trail points per snapshot
+SENT_DEFECTS = 500  # newest defects per snapshot (the count is of all)
+RATE_WINDOW_S = 2.0
+STATE_HZ = 20.0  # the edges' telemetry rate (edge.runtime)
+
+
+def _r(v, nd: int = 2):
+    return [round(float(x), nd) for x in v]
+
+
+class _Uav:
+    def __init__(self) -> None:
+        self.state: VehicleState | None = None
+        self.rx = 0.0
+        self.arrivals: deque[float] = deque()
+        self.trail: deque[list[float]] = deque(maxlen=TRAIL_POINTS)
+        self.preview_seq = 0
+        self.preview: bytes | None = None
+
+
+class FleetView:
+    """Thread-safe: the bus callbacks feed it, the web server's task reads it."""
+
+    def __init__(self, scenario: Scenario | None = None, fleet: str = DEFAULT_FLEET, clock=time.time):
+        self.fleet, self.clock = fleet, clock
+        self.scenario = scenario
+        self.plan: MissionPlan | None = None
+        self._uavs: dict[int, _Uav] = {}
+        self._events: deque[dict] = deque(maxlen=EVENTS)
+        self._defects: deque[dict] = deque(maxlen=DEFECTS)
+        self.reports = 0
+        self.static_version = 0
+        self._lock = threading.Lock()
+
+    def _uav(self, uav: int) -> _Uav:
+        if uav not in self._uavs:
+            self._uavs[uav] = _Uav()
+        return self._uavs[uav]
+
+    # -- inputs
+    def on_state(self, msg: VehicleState, rx: float | None = None) -> None:
+        now = self.clock() if rx is None else rx
+        with self._lock:
+            u = self._uav(msg.uav)
+            u.state, u.rx = msg, now
+            u.arrivals.append(now)
+            while u.arrivals and u.arrivals[0] < now - RATE_WINDOW_S:
+                u.arrivals.popleft()
+            p = _r(msg.pos)
+            if not u.trail or math.dist(u.trail[-1], p) >= TRAIL_STEP_M:
+                u.trail.append(p)
+
+    def on_event(self, msg: Event) -> None:
+        with self._lock:
+            self._events.append({"t": msg.stamp, "source": msg.source, "kind": msg.kind, "level": msg.level.value,
+                                 "text": msg.text})
+
+    def on_defects(self, msg: DefectReport) -> None:
+        with self._lock:
+            self.reports += 1
+            for d in msg.defects:
+                if d.pos is not None:
+                    self._defects.append({"uav": msg.uav, "capture": msg.capture_id, "pos": _r(d.pos),
+                                          "length_m": d.length_m})
+
+    def on_preview(self, uav: int, jpeg: bytes) -> None:
+        with self._lock:
+            u = self._uav(uav)
+            u.preview, u.preview_seq = bytes(jpeg), u.preview_seq + 1
+
+    def set_plan(self, plan: MissionPlan) -> None:
+        with self._lock:
+            self.plan = plan
+            self.static_version += 1
+
+    def set_scenario(self, scenario: Scenario) -> None:
+        with self._lock:
+            self.scenario = scenario
+            self.static_version += 1
+
+    def preview(self, uav: int) -> bytes | None:
+        with self._lock:
+            u = self._uavs.get(uav)
+            return None if u is None else u.preview
+
+    # -- outputs
+    def static(self) -> dict[str, Any]:
+        with self._lock:
+            sc, plan = self.scenario, self.plan
+            out: dict[str, Any] = {"type": "static", "version": self.static_version, "fleet": self.fleet}
+            if sc is not None:
+                doc = sc.model_dump(mode="json")
+                out["box"] = doc["box"]
+                out["obstacles"] = doc["obstacles"]
+                if sc.surface is not None:
+                    out["wall"] = doc["surface"]["corners"]
+            if plan is not None:
+                out["planned"] = {str(t.uav): [_r(w.pos, 1) for w in t.waypoints[:: max(1, len(t.waypoints) // 400)]]
+                                  for t in plan.trajectories}
+                out["captures"] = len(plan.captures)
+            return out
+
+    def snapshot(self) -> dict[str, Any]:
+        now = self.clock()
+        with self._lock:
+            uavs, errs = {}, []
+            for uid, u in sorted(self._uavs.items()):
+                s = u.state
+                entry: dict[str, Any] = {"preview": u.preview_seq, "trail": list(u.trail)[-SENT_TRAIL:]}
+                if s is not None:
+                    recent = sum(1 for a in u.arrivals if a >= now - RATE_WINDOW_S)
+                    entry.update(pos=_r(s.pos), mode=s.mode.value, battery=round(s.battery, 3),
+                                 captures=s.captures, progress=round(s.progress, 3), neighbours=s.neighbours,
+                                 age_s=round(max(0.0, now - u.rx), 2), rate_hz=round(recent / RATE_WINDOW_S, 1),
+                                 health=round(min(1.0, recent / RATE_WINDOW_S / STATE_HZ), 2))
+                    if s.ref is not None and s.mode.value == "mission":
+                        errs.append(math.dist(s.pos, s.ref))
+                uavs[str(uid)] = entry
+            return {"type": "snapshot", "t": round(now, 3), "static_version": self.static_version, "uavs": uavs,
+                    "formation_error_m": round(math.sqrt(sum(e * e for e in errs) / len(errs)), 3) if errs else None,
+                    "defects": list(self._defects)[-SENT_DEFECTS:], "defect_count": len(self._defects), "reports": self.reports,
+                    "events": list(self._events)[-50:]}

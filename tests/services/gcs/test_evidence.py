@@ -1,0 +1,58 @@
+"""services.gcs.evidence (issue 12): captures count only on evidenced, corroborated reports."""
+
+import time
+
+from protocol.messages import DefectReport, FrameEvidence, LinkStats, Mode, VehicleState
+from protocol.rtp import ssrc_for
+from services.gcs.evidence import corroboration_failures, detector_totals, has_evidence, ledger
+
+D = "ab" * 32
+
+
+def _report(uav, cid, ssrc=None, ok=True):
+    frame = None if ssrc is False else FrameEvidence(ssrc=ssrc_for(uav) if ssrc is None else ssrc, seq=cid, digest=D)
+    return DefectReport(uav=uav, capture_id=cid, stamp_capture=1.0, stamp_report=2.0, method="it+", ok=ok, frame=frame)
+
+
+def _stats(uptime, **metrics):
+    return LinkStats(source="detector", stamp=time.time(), uptime_s=uptime,
+                     metrics={k.replace("_", "."): v for k, v in metrics.items()})
+
+
+def _state(uav, captures):
+    return VehicleState(uav=uav, seq=0, t=0, stamp=time.time(), pos=(0, 0, 0), vel=(0, 0, 0), att=(0, 0, 0),
+                        rates=(0, 0, 0), mode=Mode.MISSION, captures=captures)
+
+
+def test_only_reports_naming_a_frame_of_the_uavs_capture_camera_count():
+    assert has_evidence(_report(1, 3))
+    assert not has_evidence(_report(1, 3, ssrc=False))  # no evidence
+    assert not has_evidence(_report(1, 3, ssrc=ssrc_for(2)))  # another UAV's camera
+    assert not has_evidence(_report(1, 3, ssrc=ssrc_for(1, 1)))  # its preview camera
+    assert not has_evidence(_report(1, 3, ok=False))
+
+
+def test_forged_reports_without_a_detector_are_not_corroborated():
+    """The issue's attack: the detector is dead, forged ok reports for every capture (with made-up evidence)."""
+    book = ledger([1, 2], [_state(1, 13), _state(2, 13)], [_report(1, c) for c in range(13)], stats=[])
+    assert book[1] == {"sent": 13, "received": None, "analysed": None, "reported": 13, "unevidenced": 0}
+    fails = corroboration_failures(book)
+    assert len(fails) == 1 and "UAV 1" in fails[0] and "no statistics were heard from the detector" in fails[0]
+
+
+def test_more_reports_than_frames_analysed_fail_and_honest_ones_pass():
+    stats = [_stats(1, uav1_cam0_received=5, uav1_cam0_analysed=5)]
+    book = ledger([1], [_state(1, 13)], [_report(1, c) for c in range(13)], stats)
+    assert "analysed only 5" in corroboration_failures(book)[0]
+    book = ledger([1], [_state(1, 13)], [_report(1, c) for c in range(5)] + [_report(1, 9, ssrc=False)], stats)
+    fails = corroboration_failures(book)
+    assert len(fails) == 1 and "name no frame" in fails[0]
+    assert book[1]["reported"] == 5 and book[1]["unevidenced"] == 1
+
+
+def test_detector_restart_adds_up_its_runs():
+    stats = [_stats(1, uav1_cam0_received=3, uav1_cam0_analysed=3), _stats(9, uav1_cam0_received=8,
+             uav1_cam0_analysed=8), _stats(1, uav1_cam0_received=2, uav1_cam0_analysed=2),
+             _stats(2, uav1_cam0_received=4, uav1_cam0_analysed=4)]
+    assert detector_totals(stats, [1, 2]) == {1: {"received": 12, "analysed": 12}, 2: {"received": 0, "analysed": 0}}
+    assert detector_totals([], [1]) is None

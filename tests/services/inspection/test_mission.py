@@ -1,0 +1,73 @@
+"""The mission's deliverable: the detector keeps its captures (--save-frames, over the real bus) and
+the report builds the mosaic, defect table, GeoJSON and KML from them (services.inspection.mission)."""
+
+from __future__ import annotations
+
+import json
+import time
+
+from edge.runtime import synthetic_surface
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.imagery import pack_image
+from protocol.links import IMAGERY
+from protocol.messages import DefectReport
+from protocol.rtp import RtpSender, ssrc_for
+from services.gcs.record import MissionRecord
+from services.inspection.captures import synthetic_captures
+from services.inspection.deliverable import load_folder
+from services.inspection.mission import append_deliverable
+from protocol.scenario import load_scenario
+from tests.conftest import wait_until
+
+FLEET = "test"
+
+
+def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, gateway, tmp_path):
+    sc = load_scenario()
+    surf = synthetic_surface(sc, seed=7)
+    caps = synthetic_captures(sc, surf)[:8]
+    frames = tmp_path / "frames"
+    svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink", "--save-frames", str(frames),
+                                   *[a for e in gateway for a in ("--connect", e)]])
+    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    reports: list[DefectReport] = []
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "uav") as uav:
+        uav.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
+        assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
+        time.sleep(0.5)
+        pub = uav.publisher(keys.camera(FLEET, 1), IMAGERY)
+        sender = RtpSender(ssrc_for(1))
+        for c in caps:
+            meta = c.meta.model_copy(update={"uav": 1, "stamp": time.time()})
+            pub.put_bytes(pack_image(sender, meta, c.jpeg, time.time()))
+            time.sleep(0.05)
+        assert wait_until(lambda: len(reports) >= len(caps), 20)
+    kept, _, _ = load_folder(frames)
+    assert len(kept) == len(caps)
+    assert kept[0].meta.cam_pos == caps[0].meta.cam_pos
+
+    report = tmp_path / "report"
+    report.mkdir()
+    (frames).rename(report / "frames")
+    (report / "report.md").write_text("# report\n")
+    record = MissionRecord(fleet=FLEET, scenario=sc, speed=1.0, started=0.0,
+                           surface_corners=[tuple(map(float, p)) for p in surf.corners])
+    files: list[str] = []
+    written = append_deliverable(record, report, files)
+    assert files == written and "inspection/defects.geojson" in written
+    md = (report / "report.md").read_text()
+    assert "## Inspection deliverable" in md and "| id |" in md
+    doc = json.loads((report / "inspection" / "defects.json").read_text())
+    assert doc["frames"] == len(caps) and doc["defects"]
+    assert all(d["lla"] is not None for d in doc["defects"])
+
+
+def test_no_saved_captures_no_section(tmp_path):
+    (tmp_path / "report.md").write_text("# report\n")
+    record = MissionRecord(fleet=FLEET, speed=1.0, started=0.0)
+    assert append_deliverable(record, tmp_path) == []
+    assert (tmp_path / "report.md").read_text() == "# report\n"
+    (tmp_path / "frames").mkdir()
+    assert append_deliverable(record, tmp_path) == []
+    assert "Not built: the detector kept no captures" in (tmp_path / "report.md").read_text()

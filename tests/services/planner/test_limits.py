@@ -1,0 +1,42 @@
+"""services.planner.limits (issue 12): work checked before planning, a time budget while planning."""
+
+import time
+
+import pytest
+
+from services.planner.limits import (
+    MAX_CELLS,
+    MAX_WORK,
+    Deadline,
+    TimeBudgetExceeded,
+    TooLarge,
+    check_budget,
+    work_of,
+)
+from services.planner.mission import plan_mission
+from services.planner.scenario import load_scenario
+
+
+def test_the_papers_budget_is_far_inside_the_limits_and_the_schemas_largest_is_not():
+    cells, work = work_of(3, 10, 150, 300, 10)
+    assert cells == 49_500 and work == 14_850_000
+    assert 20 * work < MAX_WORK and 20 * cells < MAX_CELLS
+    check_budget(3, 10, 150, 300, 10)
+    with pytest.raises(TooLarge, match="units of work"):
+        check_budget(3, 10, 10_000, 100_000, 10)
+    with pytest.raises(TooLarge, match="elements"):
+        check_budget(3, 10, 10_000, 1, 200)
+
+
+def test_too_large_is_refused_before_any_work():
+    sc = load_scenario()
+    with pytest.raises(TooLarge):
+        plan_mission(sc, particles=10_000, iterations=100_000, waypoints=200)
+
+
+def test_deadline_ends_the_optimiser():
+    sc = load_scenario()
+    with pytest.raises(TimeBudgetExceeded, match="time budget of 0.2 s"):
+        plan_mission(sc, particles=150, iterations=10_000, time_budget_s=0.2)
+    with pytest.raises(ValueError):
+        Deadline(lambda x: x, 0)

@@ -1,0 +1,59 @@
+"""The fleet view's documents (services.web.view): what the page is told, bounded."""
+
+from __future__ import annotations
+
+import math
+
+from protocol.messages import Defect, DefectReport, Event, Mode, VehicleState
+from protocol.scenario import load_scenario
+from services.web import view as view_mod
+from services.web.view import FleetView
+
+
+def state(uav: int, seq: int, pos, ref=None, mode=Mode.MISSION) -> VehicleState:
+    return VehicleState(uav=uav, seq=seq, t=seq * 0.05, stamp=1000.0 + seq * 0.05, pos=pos, vel=(0, 0, 0),
+                        att=(0, 0, 0), rates=(0, 0, 0), mode=mode, battery=0.8, ref=ref, tau=1.0 if ref else None)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_snapshot_positions_health_age_and_formation_error() -> None:
+    clock = Clock()
+    v = FleetView(load_scenario(), fleet="f", clock=clock)
+    for k in range(40):  # 2 s of 20 Hz telemetry from UAV 1, 1 m from its slot
+        clock.t = 1000.0 + k * 0.05
+        v.on_state(state(1, k, (10.0 + k * 0.1, 5.0, 20.0), ref=(10.0 + k * 0.1, 6.0, 20.0)))
+    v.on_state(state(2, 0, (0.0, 0.0, 0.0), ref=(0.0, 0.0, 3.0)), rx=clock.t - 2.0)  # heard once, long ago
+    clock.t += 0.5
+    s = v.snapshot()
+    u1, u2 = s["uavs"]["1"], s["uavs"]["2"]
+    assert u1["pos"] == [13.9, 5.0, 20.0] and u1["mode"] == "mission" and u1["battery"] == 0.8
+    assert u1["age_s"] == 0.5 and u2["age_s"] == 2.5
+    assert 14 <= u1["rate_hz"] <= 16 and u2["rate_hz"] == 0.0  # 30 of the 40 states inside the last 2 s
+    assert u1["health"] == round(u1["rate_hz"] / 20, 2)
+    assert s["formation_error_m"] == round(math.sqrt((1 + 9) / 2), 3)
+    # the flown path is decimated (one point per 0.5 m): 3.9 m flown -> 8 points, not 40
+    assert 7 <= len(u1["trail"]) <= 9
+
+
+def test_static_scenario_defects_events_and_bounds(monkeypatch) -> None:
+    v = FleetView(load_scenario(), fleet="f")
+    st = v.static()
+    assert st["box"]["hi"] == [101.0, 141.0, 40.0] and len(st["obstacles"]) == 10 and len(st["wall"]) == 4
+    d = Defect(area_px=10, bbox=(1, 2, 3, 4), centroid_px=(2.0, 3.0), contrast=5.0, pos=(60.0, 50.0, 28.0))
+    v.on_defects(DefectReport(uav=2, capture_id=3, stamp_capture=1.0, stamp_report=2.0, method="it+",
+                              defects=[d, d.model_copy(update={"pos": None})]))
+    for k in range(view_mod.EVENTS + 20):
+        v.on_event(Event(source="gcs", stamp=float(k), kind="phase", text=f"p{k}"))
+    s = v.snapshot()
+    assert s["defect_count"] == 1 and s["reports"] == 1 and s["defects"][0]["pos"] == [60.0, 50.0, 28.0]
+    assert len(s["events"]) == 50 and s["events"][-1]["text"] == f"p{view_mod.EVENTS + 19}"
+    assert len(v._events) == view_mod.EVENTS  # bounded
+    v.on_preview(3, b"\xff\xd8jpeg")
+    assert v.snapshot()["uavs"]["3"]["preview"] == 1 and v.preview(3) == b"\xff\xd8jpeg" and v.preview(9) is None
