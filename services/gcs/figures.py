@@ -61,6 +61,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from edge.formation import DEFAULT_OFFSETS, formation_error
 from protocol.messages import Mode, Trajectory
+from services.gcs.clock_align import sim_time_shifts
 from services.gcs.record import GOAL_RADIUS_M, MissionRecord
 from services.gcs.resilience import fault_figures
 from services.gcs.scoring import DefectScore, score_defects
@@ -445,6 +446,9 @@ def _tracks(record: MissionRecord) -> dict[int, Track]:
     for s in record.states:
         by_uav.setdefault(s.msg.uav, []).append(s)
     out: dict[int, Track] = {}
+    # every UAV's sim time on one clock (edges started apart, without a shared --epoch: issue 14)
+    shift = sim_time_shifts({u: ([s.msg.t for s in v], [s.msg.stamp for s in v]) for u, v in by_uav.items()},
+                            record.speed) if np.isfinite(record.speed) and record.speed > 0 else {}
     for uav, items in sorted(by_uav.items()):
         seen: dict[int, Any] = {}
         for s in items:
@@ -456,7 +460,8 @@ def _tracks(record: MissionRecord) -> dict[int, Track]:
         placed = np.array([x.wp_index >= 0 or x.progress > 0 for x in m], dtype=bool)
         tracking = mission & placed if np.any(mission & placed) else mission
         out[uav] = Track(
-            uav=uav, t=np.array([x.t for x in m]), pos=np.array([x.pos for x in m], dtype=float).reshape(-1, 3),
+            uav=uav, t=np.array([x.t for x in m]) + shift.get(uav, 0.0),
+            pos=np.array([x.pos for x in m], dtype=float).reshape(-1, 3),
             mode=mode, seq=np.array([x.seq for x in m], dtype=np.int64), stamp=np.array([x.stamp for x in m]),
             rx=np.array([s.rx for s in items]), tracking=tracking, progress=np.array([x.progress for x in m]),
         )

@@ -312,3 +312,19 @@ def test_docstring_examples():
 
     results = [doctest.testmod(m) for m in (services.gcs.report, services.gcs.figures)]  # the examples moved there
     assert sum(r.attempted for r in results) > 0 and not any(r.failed for r in results)
+
+
+def test_edges_with_their_own_epochs_give_the_same_figures():
+    """Issue 14: under docker compose each edge's sim clock starts at its own container start. The
+    same flight with UAV 2's clock 1.25 s and UAV 3's 0.6 s of sim time ahead (same wall stamps) must
+    give the figures of the shared-epoch record, not a formation error of metres."""
+    rec = build_record()
+    skew = {1: 0.0, 2: 1.25, 3: 0.6}
+    states = [s.model_copy(update={"msg": s.msg.model_copy(update={"t": s.msg.t + skew[s.msg.uav]})})
+              for s in rec.states]
+    skewed = summarise(rec.model_copy(update={"states": states}))
+    base = summarise(rec)
+    assert skewed.formation.rms_m == pytest.approx(base.formation.rms_m, abs=1e-6)
+    assert skewed.formation.max_m == pytest.approx(base.formation.max_m, abs=1e-6)
+    for u in (1, 2, 3):
+        assert skewed.uavs[u].path_error_rms_m == pytest.approx(base.uavs[u].path_error_rms_m, abs=1e-6)

@@ -1,0 +1,211 @@
+#!/usr/bin/env bash
+# docker compose, end to end, on a real Docker engine (issue 14); .ci/run runs it after the test suite.
+#
+#   bash scripts/compose-e2e.sh            # the impaired mission (proves the plain path too) + the tc check
+#   COMPOSE_E2E_RUNS="plain netem split tc" bash scripts/compose-e2e.sh   # split: compose/ground.yml + edge.yml
+#
+# 1. an engine: the one DOCKER_HOST points at, else our own dockerd (scripts/docker-lib.sh: persistent
+#    data root /var/cache/skynet-docker, so the base image and the build layers are kept between runs);
+# 2. a base: python:3.11-slim if it can be pulled, else a local Debian one (scripts/docker-base.sh, once);
+# 3. `docker-compose build`, then per run `up --exit-code-from gcs`, asserting its exit status and the
+#    report (scripts/compose_check.py): success, every capture, formation RMS < 1 m; with `netem`
+#    (compose/netem.env: 100 ms on UAV 2's uplink through the user-space side-car) also that UAV 2's
+#    telemetry age grew by the delay and only UAV 2's; `tc` checks that the kernel-netem side-car fails
+#    `up` where the kernel has no netem qdisc (skipped where it has one);
+# 4. `down -v`, then no container and no network of the project may be left. Cleanup (down, the
+#    dockerd we started) runs on every exit, failure included.
+# Figures (image size, build times, up-to-verdict time, per-container CPU and memory) are printed and
+# written to bench/results/compose-e2e.json. Exit 0 when all holds; 0 with "SKIPPED: reason" when
+# this machine cannot run an engine (not root, no docker.io); 1 otherwise.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+ROOT="$PWD"
+RUNS="${COMPOSE_E2E_RUNS:-netem tc}"
+PROJECT="skynet-e2e-$$"
+PY="${PYTHON:-$ROOT/.venv/bin/python}"
+[ -x "$PY" ] || PY=python3
+OUT="$ROOT/bench/results"
+WORK="$(mktemp -d /tmp/skynet-e2e.XXXXXX)"
+REPORTS="$WORK/reports"
+mkdir -p "$OUT" "$REPORTS"
+# the report must be handed to the owner of the reports folder: make that someone other than root
+[ "$(id -u)" = 0 ] && chown 4321:4321 "$REPORTS"
+chmod 755 "$WORK"
+export SKYNET_REPORTS="$REPORTS"
+. scripts/docker-lib.sh
+
+log() { echo "compose-e2e: $*"; }
+now() { date +%s.%N; }
+since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
+compose() { docker-compose -p "$PROJECT" "$@"; }
+
+STATS_PID=""
+cleanup() {
+  rc=$?
+  set +e
+  [ -n "$STATS_PID" ] && kill "$STATS_PID" 2>/dev/null && wait "$STATS_PID" 2>/dev/null
+  if [ -n "${DOCKER_HOST:-}" ] || [ -S /var/run/docker.sock ]; then
+    compose --env-file compose/netem.env down -v --remove-orphans --timeout 5 >/dev/null 2>&1
+    compose --profile tc-netem down -v --remove-orphans --timeout 5 >/dev/null 2>&1
+    # whatever a profile or the split run left behind (compose v1 leaves a disabled profile's containers alone)
+    ids="$("$DOCKER" ps -aq --filter "name=^$PROJECT")"
+    [ -n "$ids" ] && "$DOCKER" rm -f $ids >/dev/null 2>&1
+    ids="$("$DOCKER" network ls -q --filter "name=^$PROJECT")"
+    [ -n "$ids" ] && "$DOCKER" network rm $ids >/dev/null 2>&1
+  fi
+  skynet_engine_down
+  rm -rf "$WORK"
+  exit "$rc"
+}
+trap cleanup EXIT
+trap 'exit 130' INT TERM
+
+if ! command -v docker-compose >/dev/null 2>&1; then
+  log "SKIPPED: Debian's docker-compose is not installed (.ci/run installs docker.io docker-compose debootstrap)"
+  exit 0
+fi
+set +e; skynet_engine_up; up_rc=$?; set -e
+if [ "$up_rc" != 0 ]; then
+  if [ "$(id -u)" != 0 ] || ! command -v dockerd >/dev/null 2>&1; then
+    log "SKIPPED: no Docker engine here and none can be started (needs root and docker.io)"; exit 0
+  fi
+  log "FAIL: could not start a Docker engine"; exit 1
+fi
+log "engine $(docker version --format '{{.Server.Version}}' 2>/dev/null) at ${DOCKER_HOST:-/var/run/docker.sock}"
+
+t=$(now)
+BASE_IMAGE="$(bash scripts/docker-base.sh)"
+export BASE_IMAGE
+base_s=$(since "$t")
+log "base image $BASE_IMAGE (${base_s} s)"
+
+t=$(now)
+compose build gateway >"$WORK/build.log" 2>&1 || { tail -n 40 "$WORK/build.log"; log "FAIL: build"; exit 1; }
+build_s=$(since "$t")
+steps="$(grep -c '^Step ' "$WORK/build.log" || true)"; cached="$(grep -c 'Using cache' "$WORK/build.log" || true)"
+image_mb=$(( $("$DOCKER" image inspect "skynet-inspect:${SKYNET_TAG:-latest}" --format '{{.Size}}') / 1000000 ))
+log "image ${image_mb} MB; build ${build_s} s (${cached} of ${steps} steps from the cache)"
+
+# per-container CPU and memory, sampled while a mission runs
+sample_stats() {
+  while sleep 5; do
+    "$DOCKER" stats --no-stream --format '{{.Name}} {{.CPUPerc}} {{.MemUsage}}' 2>/dev/null \
+      | grep "^${PROJECT}_" >>"$1" || true
+  done
+}
+
+failed=0
+declare -A UP_S
+for run in $RUNS; do
+  case "$run" in
+    plain) env=(); check=() ;;
+    netem) env=(--env-file compose/netem.env); check=(--impaired uav2 --delay-ms 100) ;;
+    tc)
+      # only meaningful where the kernel has no netem qdisc: there the profile must fail the run
+      if "$DOCKER" run --rm --network none --cap-add NET_ADMIN --entrypoint sh "skynet-inspect:${SKYNET_TAG:-latest}" \
+           -c 'tc qdisc add dev lo root netem delay 1ms' >/dev/null 2>&1; then
+        log "tc: this kernel has netem; the fail-loudly check does not apply (skipped)"; continue
+      fi
+      t=$(now)
+      set +e
+      # only the side-car and what it needs (gateway, uav1, uav2): compose v1 starts every container
+      # (gcs after the health checks) before it watches for exits, so a whole `up --exit-code-from gcs`
+      # would end just as loudly (exit 143 when tried), only a minute later
+      timeout 300 docker-compose -p "$PROJECT" --profile tc-netem up --exit-code-from tc-netem-uav2 tc-netem-uav2 \
+        >"$WORK/up-tc.log" 2>&1
+      rc=$?
+      set -e
+      compose --profile tc-netem down -v --remove-orphans --timeout 5 >/dev/null 2>&1 || true
+      if [ "$rc" = 0 ] || ! grep -q "cannot apply netem" "$WORK/up-tc.log"; then
+        tail -n 30 "$WORK/up-tc.log"; log "FAIL: tc: the kernel-netem profile did not fail the run (exit $rc)"; failed=1
+      else
+        log "tc: the kernel-netem profile failed the run as it must (exit $rc, $(since "$t") s)"
+      fi
+      continue ;;
+    split)
+      # compose/ground.yml + one compose/edge.yml project per UAV, as on four hosts; the "hosts'
+      # addresses" are this machine's address on a network of our own engine (nothing else is reached)
+      "$DOCKER" network create "$PROJECT-split" >/dev/null
+      hostip="$("$DOCKER" network inspect -f '{{(index .IPAM.Config 0).Gateway}}' "$PROJECT-split")"
+      name="e2e-split-$$"; t=$(now); rc=0
+      SKYNET_BIND="$hostip" docker-compose -p "$PROJECT-ground" -f compose/ground.yml up -d gateway \
+        >"$WORK/up-split.log" 2>&1 || rc=$?
+      homes=("" "40,8,0" "40.7,10.9,0" "39.3,5.1,0"); peers=""
+      for i in 1 2 3; do
+        SKYNET_UAV=$i SKYNET_HOME="${homes[$i]}" SKYNET_GATEWAY="$hostip" SKYNET_PEERS="$peers" \
+          SKYNET_BIND="$hostip" SKYNET_EDGE_TCP_PORT=$((27440 + i)) SKYNET_EDGE_UDP_PORT=$((27450 + i)) \
+          docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml up -d >>"$WORK/up-split.log" 2>&1 || rc=$?
+        peers="$peers tcp/$hostip:$((27440 + i))?rel=1 udp/$hostip:$((27450 + i))?rel=0"
+      done
+      if [ "$rc" = 0 ]; then
+        set +e
+        SKYNET_BIND="$hostip" SKYNET_RUN="$name" timeout 600 docker-compose -p "$PROJECT-ground" -f compose/ground.yml \
+          up --exit-code-from gcs >>"$WORK/up-split.log" 2>&1
+        rc=$?
+        set -e
+      fi
+      UP_S[$run]=$(since "$t")
+      for i in 1 2 3; do
+        SKYNET_UAV=$i SKYNET_GATEWAY=x docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml down -v --timeout 5 \
+          >/dev/null 2>&1 || true
+      done
+      docker-compose -p "$PROJECT-ground" -f compose/ground.yml down -v --timeout 5 >/dev/null 2>&1 || true
+      "$DOCKER" network rm "$PROJECT-split" >/dev/null 2>&1 || true
+      log "split: ground + 3 edge projects, up --exit-code-from gcs exited $rc after ${UP_S[$run]} s"
+      if [ "$rc" != 0 ]; then
+        grep -v "^\s*$" "$WORK/up-split.log" | tail -n 60; log "FAIL: split: the mission's exit status is $rc"; failed=1
+      elif ! "$PY" scripts/compose_check.py "$REPORTS/$name" --json "$OUT/compose-e2e-split.json"; then
+        log "FAIL: split: the report"; failed=1
+      fi
+      continue ;;
+    *) log "unknown run '$run' (plain, netem, split, tc)"; exit 1 ;;
+  esac
+  name="e2e-$run-$$"
+  : >"$WORK/stats-$run.txt"
+  sample_stats "$WORK/stats-$run.txt" & STATS_PID=$!
+  t=$(now)
+  set +e
+  SKYNET_RUN="$name" timeout 600 docker-compose -p "$PROJECT" "${env[@]}" up --exit-code-from gcs >"$WORK/up-$run.log" 2>&1
+  rc=$?
+  set -e
+  UP_S[$run]=$(since "$t")
+  kill "$STATS_PID" 2>/dev/null; wait "$STATS_PID" 2>/dev/null || true; STATS_PID=""
+  t=$(now)
+  compose "${env[@]}" down -v --remove-orphans --timeout 5 >/dev/null 2>&1
+  down_s=$(since "$t")
+  log "$run: up --exit-code-from gcs exited $rc after ${UP_S[$run]} s; down ${down_s} s"
+  awk '{ n[$1]++; c[$1] += $2 + 0; m = $3; sub(/MiB/, "", m); if (m ~ /GiB/) { sub(/GiB/, "", m); m *= 1024 }
+         if (m + 0 > mx[$1]) mx[$1] = m + 0 }
+       END { for (k in n) printf "compose-e2e:   %-28s cpu mean %5.1f %%  mem max %6.1f MiB\n", k, c[k] / n[k], mx[k] }' \
+    "$WORK/stats-$run.txt" | sort
+  cp "$WORK/stats-$run.txt" "$OUT/compose-e2e-stats-$run.txt"
+  if [ "$rc" != 0 ]; then
+    grep -v "^\s*$" "$WORK/up-$run.log" | tail -n 60; log "FAIL: $run: the mission's exit status is $rc"; failed=1; continue
+  fi
+  if ! "$PY" scripts/compose_check.py "$REPORTS/$name" "${check[@]}" --json "$OUT/compose-e2e-$run.json"; then
+    log "FAIL: $run: the report"; failed=1
+  fi
+  # the report folder and its files belong to the owner of the reports folder, not to root
+  owner="$(stat -c %u "$REPORTS")"; got="$(stat -c %u "$REPORTS/$name" "$REPORTS/$name/report.json" | sort -u)"
+  [ "$owner" = "$got" ] || { log "FAIL: $run: report owned by uid $got, the reports folder by uid $owner"; failed=1; }
+  rm -rf "$OUT/compose-e2e-$run-report"; mkdir -p "$OUT/compose-e2e-$run-report"
+  cp "$REPORTS/$name"/report.json "$REPORTS/$name"/record.json "$OUT/compose-e2e-$run-report/" 2>/dev/null || true
+done
+
+# nothing of the project may be left
+left_c="$("$DOCKER" ps -aq --filter "name=^$PROJECT" | wc -l)"
+left_n="$("$DOCKER" network ls -q --filter "name=^$PROJECT" | wc -l)"
+if [ "$left_c" != 0 ] || [ "$left_n" != 0 ]; then
+  log "FAIL: down left $left_c containers and $left_n networks"; failed=1
+fi
+"$DOCKER" image prune -f >/dev/null 2>&1 || true   # the previous build's dangling layers, not the cache in use
+
+ups="{}"
+for k in "${!UP_S[@]}"; do ups=$(echo "$ups" | "$PY" -c "import json,sys; d=json.load(sys.stdin); d['$k']=${UP_S[$k]}; print(json.dumps(d))"); done
+cat >"$OUT/compose-e2e.json" <<JSON
+{"base_image": "$BASE_IMAGE", "base_s": $base_s, "image_mb": $image_mb, "build_s": $build_s,
+ "build_steps": $steps, "build_steps_cached": $cached, "up_to_verdict_s": $ups, "ok": $([ "$failed" = 0 ] && echo true || echo false)}
+JSON
+log "figures in bench/results/compose-e2e*.json"
+if [ "$failed" != 0 ]; then log "FAILED"; exit 1; fi
+log "passed"

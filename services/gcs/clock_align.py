@@ -1,0 +1,58 @@
+"""Putting every UAV's simulation time on one clock before the report compares them (issue 14).
+
+Each edge stamps its states with its own simulation time ``t = (wall − epoch_n) × speed``
+(:class:`edge.clock.SimClock`) and the wall-clock time of publication ``stamp``. The launcher gives
+every edge one ``--epoch``; processes started on their own (docker compose, several hosts) each take
+their start as the epoch, so the same instant has a different ``t`` on each UAV — at 4× speed, 0.3 s
+of container start-up apart is 1.2 s of simulation time, which the report would read as the UAVs
+flying 1.2 s of trajectory apart.
+
+The wall clock is common (one host, or hosts kept in sync by NTP), so each UAV's epoch is recovered
+from its own states, ``epoch_n = median(stamp − t / speed)`` (the median ignores a stray state), and
+each UAV's times are moved onto the reference UAV's clock (the lowest id):
+``t' = t + (epoch_n − epoch_ref) × speed``. With a shared epoch the shifts are 0 to well under a
+millisecond, so launcher runs are unchanged. States at ``t = 0`` (published before the epoch, where
+the driver clamps the time) or with no stamp carry no epoch and are left out of the estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+__all__ = ["estimate_epoch", "sim_time_shifts"]
+
+
+def estimate_epoch(t: Iterable[float], stamp: Iterable[float], speed: float) -> float | None:
+    """The wall-clock epoch of one UAV's simulation clock, UNIX s; None when no state tells it.
+
+    Parameters
+    ----------
+    t, stamp : the states' simulation times, s, and publication wall-clock times, UNIX s (same length).
+    speed : the simulation speed factor (> 0, finite).
+    """
+    if not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
+        raise ValueError(f"speed must be a finite number > 0, got {speed!r}")
+    t_a, s_a = np.asarray(list(t), dtype=float), np.asarray(list(stamp), dtype=float)
+    if t_a.shape != s_a.shape:
+        raise ValueError("t and stamp must have the same length")
+    ok = np.isfinite(t_a) & np.isfinite(s_a) & (t_a > 0) & (s_a > 0)
+    if not np.any(ok):
+        return None
+    return float(np.median(s_a[ok] - t_a[ok] / speed))
+
+
+def sim_time_shifts(tracks: Mapping[int, tuple[Iterable[float], Iterable[float]]], speed: float) -> dict[int, float]:
+    """Per UAV, the simulation-time shift (s) that puts its ``t`` on the reference UAV's clock.
+
+    ``tracks`` maps a UAV id to its states' ``(t, stamp)``. The reference is the lowest id whose
+    epoch is known; a UAV whose epoch is not known (or every UAV, when none is) gets 0.
+    """
+    epochs = {u: estimate_epoch(t, s, speed) for u, (t, s) in tracks.items()}
+    known = sorted(u for u, e in epochs.items() if e is not None)
+    if not known:
+        return {u: 0.0 for u in tracks}
+    ref = epochs[known[0]]
+    return {u: 0.0 if e is None else float((e - ref) * speed) for u, e in epochs.items()}
