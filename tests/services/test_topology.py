@@ -26,11 +26,12 @@ EDGE_LEASE_S = 2.0
 
 
 class Probe:
-    """A client session on the gateway: the latest state of each UAV and the UAVs' liveliness."""
+    """A client session on the gateway (connected as the ground station is: mutual TLS when the network
+    runs secure): the latest state of each UAV and the UAVs' liveliness."""
 
-    def __init__(self, endpoints: list[str], fleet: str):
+    def __init__(self, config: BusConfig, fleet: str):
         self.fleet = fleet
-        self.bus = Bus(BusConfig(mode="client", connect=endpoints, multilink=True), fleet, "probe")
+        self.bus = Bus(config, fleet, "probe")
         self.lock = threading.Lock()
         self.last: dict[int, tuple[int, float]] = {}  # uav -> (neighbours, rx wall time)
         self.alive: dict[int, bool] = {}
@@ -83,7 +84,7 @@ def running():
         net = network(fleet, *extra)
         started.append((net, None))
         net.start()
-        probe = Probe(net.gateway_endpoints, fleet)
+        probe = Probe(net.gcs_config(), fleet)
         started[-1] = (net, probe)
         return net, probe
 
