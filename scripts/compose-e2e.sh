@@ -178,7 +178,8 @@ for run in $RUNS; do
     web_port="$("$PY" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
     profiles=(env COMPOSE_PROFILES=netem,web SKYNET_WEB_PORT="$web_port")
     ( while sleep 3; do
-        curl -sf --max-time 2 "http://127.0.0.1:$web_port/snapshot.json" >"$WORK/web.tmp" 2>/dev/null \
+        "$PY" -c 'import sys, urllib.request; sys.stdout.write(urllib.request.urlopen(sys.argv[1], timeout=2).read().decode())' \
+          "http://127.0.0.1:$web_port/snapshot.json" >"$WORK/web.tmp" 2>/dev/null \
           && grep -q '"mode"' "$WORK/web.tmp" && mv "$WORK/web.tmp" "$WORK/web.json"
       done ) & WEB_PID=$!
   fi
