@@ -356,6 +356,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="signed commands and heartbeats stamped further than this from now are stale")
     sec.add_argument("--mesh-uavs", type=int, default=None, metavar="N",
                      help="UAVs 1..N may link to this edge (ACL by certificate; default: those of --keys)")
+    sec.add_argument("--replay-state", default=None, metavar="FILE",
+                     help="where the replay window is kept (default: <keys>/uavN/replay.json; a read-only key set needs one)")
     sec.add_argument("--insecure", action="store_true",
                      help="accept unsigned commands and heartbeats, no TLS, no ACL (development only)")
     return parser

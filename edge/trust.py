@@ -135,13 +135,13 @@ def secure_setup(args, log=None) -> tuple[Gate, dict | None]:
     from services.gateway.acl import cert_access_control
 
     ks = KeySet(args.keys, f"uav{args.uav}")
-    verifier = ks.verifier(stale_s=args.trust_window)
+    verifier = ks.verifier(stale_s=args.trust_window, replay_file=getattr(args, "replay_state", None))
     n = args.mesh_uavs or max([args.uav, *ks.uavs()])
     peers = ["gateway", *(f"uav{i}" for i in range(1, n + 1))]
     endpoints = [*args.listen, *args.connect]
     tls = bool(endpoints) and all(e.startswith("tls/") for e in endpoints)
     if log:
         log.info("trust: commands signed by %s, replay window %s; %s", ", ".join(ks.trusted()) or "nobody",
-                 ks.replay_file, f"mutual TLS as uav{args.uav}, ACL by certificate for {', '.join(peers)}" if tls
+                 verifier.replay.path, f"mutual TLS as uav{args.uav}, ACL by certificate for {', '.join(peers)}" if tls
                  else "links without TLS: no certificate ACL (commands and heartbeats still verified)")
     return Gate(args.fleet, args.uav, verifier), cert_access_control(args.fleet, peers) if tls else None

@@ -99,7 +99,10 @@ class KeySet:
             out.add(line)
         return out
 
-    def verifier(self, stale_s: float | None = None, persist: bool = True) -> Verifier:
-        """A verifier of the trusted signers, with this node's persisted replay window."""
+    def verifier(self, stale_s: float | None = None, persist: bool = True,
+                 replay_file: str | Path | None = None) -> Verifier:
+        """A verifier of the trusted signers, with this node's persisted replay window (in
+        ``replay_file`` when given: a key set mounted read-only, e.g. docker compose's)."""
         kw = {} if stale_s is None else {"stale_s": stale_s}
-        return Verifier(self.trusted(), self.revoked(), ReplayStore(self.replay_file if persist else None), **kw)
+        path = (replay_file or self.replay_file) if persist else None
+        return Verifier(self.trusted(), self.revoked(), ReplayStore(path), **kw)

@@ -9,9 +9,13 @@
 # 2. a base: python:3.11-slim if it can be pulled, else a local Debian one (scripts/docker-base.sh, once);
 # 3. `docker-compose build`, then per run `up --exit-code-from gcs`, asserting its exit status and the
 #    report (scripts/compose_check.py): success, every capture, formation RMS < 1 m; with `netem`
-#    (compose/netem.env: 100 ms on UAV 2's uplink through the user-space side-car) also that UAV 2's
-#    telemetry age grew by the delay and only UAV 2's; `tc` checks that the kernel-netem side-car fails
-#    `up` where the kernel has no netem qdisc (skipped where it has one);
+#    (compose/netem.env: 100 ms on UAV 2's uplink and 50 ms on the SkyNet link uav1-uav2, user-space
+#    side-cars) also that UAV 2's telemetry age grew by the delay and only UAV 2's, and that traffic
+#    crossed both proxies of the SkyNet side-car; every mission runs secure (the default): each edge
+#    logs mutual TLS with the certificate ACL and signed commands, and afterwards a plain (non-TLS)
+#    Zenoh client is refused by the gateway while a client with the ground station's certificate gets
+#    in (a control); `tc` checks that the kernel-netem side-car fails `up` where the kernel has no
+#    netem qdisc (skipped where it has one);
 # 4. `down -v`, then no container and no network of the project may be left. Cleanup (down, the
 #    dockerd we started) runs on every exit, failure included.
 # Figures (image size, build times, up-to-verdict time, per-container CPU and memory) are printed and
@@ -32,6 +36,8 @@ mkdir -p "$OUT" "$REPORTS"
 [ "$(id -u)" = 0 ] && chown 4321:4321 "$REPORTS"
 chmod 755 "$WORK"
 export SKYNET_REPORTS="$REPORTS"
+# the compose key set: made by the keys service on the first run, reused after (kept out of the repository)
+export SKYNET_KEYS="${SKYNET_KEYS:-$WORK/keys}"
 . scripts/docker-lib.sh
 
 log() { echo "compose-e2e: $*"; }
@@ -40,12 +46,15 @@ since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
 compose() { docker-compose -p "$PROJECT" "$@"; }
 
 STATS_PID=""
+WEB_PID=""
 cleanup() {
   rc=$?
   set +e
   [ -n "$STATS_PID" ] && kill "$STATS_PID" 2>/dev/null && wait "$STATS_PID" 2>/dev/null
+  [ -n "$WEB_PID" ] && kill "$WEB_PID" 2>/dev/null && wait "$WEB_PID" 2>/dev/null
   if [ -n "${DOCKER_HOST:-}" ] || [ -S /var/run/docker.sock ]; then
     compose --env-file compose/netem.env down -v --remove-orphans --timeout 5 >/dev/null 2>&1
+    compose --profile web down -v --remove-orphans --timeout 5 >/dev/null 2>&1
     compose --profile tc-netem down -v --remove-orphans --timeout 5 >/dev/null 2>&1
     # whatever a profile or the split run left behind (compose v1 leaves a disabled profile's containers alone)
     ids="$("$DOCKER" ps -aq --filter "name=^$PROJECT")"
@@ -99,7 +108,7 @@ declare -A UP_S
 for run in $RUNS; do
   case "$run" in
     plain) env=(); check=() ;;
-    netem) env=(--env-file compose/netem.env); check=(--impaired uav2 --delay-ms 100) ;;
+    netem) env=(--env-file compose/netem.env); check=(--impaired uav2 --delay-ms 100) ;;  # + the web page
     tc)
       # only meaningful where the kernel has no netem qdisc: there the profile must fail the run
       if "$DOCKER" run --rm --network none --cap-add NET_ADMIN --entrypoint sh "skynet-inspect:${SKYNET_TAG:-latest}" \
@@ -163,15 +172,28 @@ for run in $RUNS; do
   name="e2e-$run-$$"
   : >"$WORK/stats-$run.txt"
   sample_stats "$WORK/stats-$run.txt" & STATS_PID=$!
+  profiles=()
+  if [ "$run" = netem ]; then
+    # the optional web page rides along (profile web, published on 127.0.0.1 only): poll its snapshot
+    web_port="$("$PY" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
+    profiles=(env COMPOSE_PROFILES=netem,web SKYNET_WEB_PORT="$web_port")
+    ( while sleep 3; do
+        "$PY" -c 'import sys, urllib.request; sys.stdout.write(urllib.request.urlopen(sys.argv[1], timeout=2).read().decode())' \
+          "http://127.0.0.1:$web_port/snapshot.json" >"$WORK/web.tmp" 2>/dev/null \
+          && grep -q '"mode"' "$WORK/web.tmp" && mv "$WORK/web.tmp" "$WORK/web.json"
+      done ) & WEB_PID=$!
+  fi
   t=$(now)
   set +e
-  SKYNET_RUN="$name" timeout 600 docker-compose -p "$PROJECT" "${env[@]}" up --exit-code-from gcs >"$WORK/up-$run.log" 2>&1
+  SKYNET_RUN="$name" timeout 600 "${profiles[@]}" docker-compose -p "$PROJECT" "${env[@]}" up --no-color \
+    --exit-code-from gcs >"$WORK/up-$run.log" 2>&1
   rc=$?
   set -e
+  [ -n "$WEB_PID" ] && { kill "$WEB_PID" 2>/dev/null; wait "$WEB_PID" 2>/dev/null || true; WEB_PID=""; }
   UP_S[$run]=$(since "$t")
   kill "$STATS_PID" 2>/dev/null; wait "$STATS_PID" 2>/dev/null || true; STATS_PID=""
   t=$(now)
-  compose "${env[@]}" down -v --remove-orphans --timeout 5 >/dev/null 2>&1
+  "${profiles[@]}" docker-compose -p "$PROJECT" "${env[@]}" down -v --remove-orphans --timeout 5 >/dev/null 2>&1
   down_s=$(since "$t")
   log "$run: up --exit-code-from gcs exited $rc after ${UP_S[$run]} s; down ${down_s} s"
   awk '{ n[$1]++; c[$1] += $2 + 0; m = $3; sub(/MiB/, "", m); if (m ~ /GiB/) { sub(/GiB/, "", m); m *= 1024 }
@@ -188,9 +210,59 @@ for run in $RUNS; do
   # the report folder and its files belong to the owner of the reports folder, not to root
   owner="$(stat -c %u "$REPORTS")"; got="$(stat -c %u "$REPORTS/$name" "$REPORTS/$name/report.json" | sort -u)"
   [ "$owner" = "$got" ] || { log "FAIL: $run: report owned by uid $got, the reports folder by uid $owner"; failed=1; }
+  # secure by default: every edge ran mutual TLS with the certificate ACL and verified signed commands
+  for u in 1 2 3; do
+    grep -E "uav${u}_1 +\| .*trust: commands signed by gcs.*mutual TLS as uav${u}, ACL by certificate" \
+      "$WORK/up-$run.log" >/dev/null || { log "FAIL: $run: uav$u did not log mutual TLS + ACL + signed commands"; failed=1; }
+  done
+  if [ "$run" = netem ]; then
+    # the SkyNet link uav1-uav2 ran through its side-car: traffic entered both proxies from UAV 2's side
+    for port in 7447 7448; do
+      grep -E "netem side-car uav1-uav2: .*tcp 0\.0\.0\.0:${port}->.* up: in [1-9]" "$WORK/up-$run.log" >/dev/null \
+        || { log "FAIL: $run: no traffic through the SkyNet side-car's tcp:$port"; failed=1; }
+    done
+    grep -E "netem side-car uav1-uav2: .*up: in" "$WORK/up-$run.log" | tail -n 2 | sed 's/^/compose-e2e:   /'
+    # the web page, on 127.0.0.1, showed the three UAVs (heard over TLS with the gcs certificate)
+    if [ -s "$WORK/web.json" ] && "$PY" -c 'import json, sys; d = json.load(open(sys.argv[1]))
+u = d["uavs"]; print("compose-e2e:   web page: UAVs", sorted(u), "modes", [u[k].get("mode") for k in sorted(u)])
+sys.exit(0 if {"1", "2", "3"} <= set(u) and all("mode" in u[k] for k in ("1", "2", "3")) else 1)' "$WORK/web.json"; then :
+    else log "FAIL: $run: the web page on 127.0.0.1:$web_port showed no fleet"; failed=1; fi
+  fi
   rm -rf "$OUT/compose-e2e-$run-report"; mkdir -p "$OUT/compose-e2e-$run-report"
   cp "$REPORTS/$name"/report.json "$REPORTS/$name"/record.json "$OUT/compose-e2e-$run-report/" 2>/dev/null || true
 done
+
+# the gateway refuses a plain client (no TLS), and admits one with the ground station's certificate (control)
+t=$(now)
+if compose up -d gateway >"$WORK/probe.log" 2>&1; then
+  probe='import sys, zenoh
+c = zenoh.Config()
+c.insert_json5("mode", "\"client\"")
+c.insert_json5("scouting/multicast/enabled", "false")
+c.insert_json5("connect/endpoints", "[\"" + sys.argv[1] + "\"]")
+if sys.argv[1].startswith("tls/"):
+    c.insert_json5("transport/link/tls", "{root_ca_certificate: \"/keys/ca.pem\", enable_mtls: true, "
+                   "connect_certificate: \"/keys/gcs/tls.pem\", connect_private_key: \"/keys/gcs/tls.key\"}")
+try:
+    zenoh.open(c).close()
+except Exception as e:
+    print("refused:", str(e)[:200]); sys.exit(3)
+print("connected")'
+  net="${PROJECT}_default"
+  for _ in $(seq 1 30); do "$DOCKER" exec "${PROJECT}_gateway_1" grep -Eq ':1D17 00000000:0000 0A' /proc/net/tcp && break; sleep 1; done
+  prc=0; "$DOCKER" run --rm --network "$net" -v "$SKYNET_KEYS:/keys:ro" -e RUST_LOG=off --entrypoint timeout \
+    "skynet-inspect:${SKYNET_TAG:-latest}" 60 python -c "$probe" "tcp/gateway:7447" >>"$WORK/probe.log" 2>&1 || prc=$?
+  trc=0; "$DOCKER" run --rm --network "$net" -v "$SKYNET_KEYS:/keys:ro" -e RUST_LOG=off --entrypoint timeout \
+    "skynet-inspect:${SKYNET_TAG:-latest}" 60 python -c "$probe" "tls/gateway:7447" >>"$WORK/probe.log" 2>&1 || trc=$?
+  if [ "$prc" = 3 ] && [ "$trc" = 0 ]; then
+    log "secure: a plain client is refused by the gateway, one with the gcs certificate connects ($(since "$t") s)"
+  else
+    cat "$WORK/probe.log"; log "FAIL: secure: plain client exit $prc (3 = refused), TLS client exit $trc (0 = connected)"; failed=1
+  fi
+else
+  cat "$WORK/probe.log"; log "FAIL: secure: could not start the gateway for the probe"; failed=1
+fi
+compose down -v --remove-orphans --timeout 5 >/dev/null 2>&1 || true
 
 # nothing of the project may be left
 left_c="$("$DOCKER" ps -aq --filter "name=^$PROJECT" | wc -l)"

@@ -37,6 +37,9 @@ VARIANTS = [
     (["-f", "docker-compose.yml", "-f", "compose/ports.yml"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/mavlink.yml"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/camera.yml"], {}),
+    (["-f", "docker-compose.yml", "-f", "compose/insecure.yml"], {}),
+    (["-f", "docker-compose.yml", "-f", "compose/insecure.yml", "--env-file", "compose/netem.env"], {}),
+    (["--profile", "web"], {}),
     (["-f", "compose/ground.yml"], {}),
     (["-f", "compose/edge.yml"], EDGE_ENV),
 ]
@@ -108,13 +111,15 @@ def _skynet_argv(name: str, svc: dict) -> list[str] | None:
     return None
 
 
-@pytest.mark.parametrize("path", ["docker-compose.yml", "compose/mavlink.yml", "compose/camera.yml",
+@pytest.mark.parametrize("path", ["docker-compose.yml", "compose/mavlink.yml", "compose/camera.yml", "compose/insecure.yml",
                                   "compose/ground.yml", "compose/edge.yml"])
 def test_every_service_runs_a_skynet_command_that_parses(path):
     services = _services(ROOT / path)
+    base = _services() if path in ("compose/mavlink.yml", "compose/camera.yml", "compose/insecure.yml") else {}
     for name, svc in services.items():
         if "command" not in svc:
             continue
+        svc = {**base.get(name, {}), **svc}  # an override keeps the base file's entrypoint
         argv = _skynet_argv(name, svc)
         if argv is None:
             continue
@@ -141,7 +146,10 @@ def test_the_base_network_and_its_gcs():
 
 
 def test_no_port_is_published_unless_asked_and_then_on_localhost():
-    assert not any("ports" in s for s in _services().values())
+    services = _services()
+    # only the optional web page (profile web) publishes, on 127.0.0.1
+    assert [n for n, s in services.items() if "ports" in s] == ["web"] and services["web"]["profiles"] == ["web"]
+    assert all(_defaults(p).startswith("127.0.0.1:") for p in services["web"]["ports"])
     ports = _services(ROOT / "compose/ports.yml")["gateway"]["ports"]
     assert ports and all(_defaults(p).startswith("127.0.0.1:") for p in ports)
     for path in ("compose/ground.yml", "compose/edge.yml", "compose/mavlink.yml"):
@@ -160,10 +168,21 @@ def test_netem_profile_is_a_user_space_side_car_that_fails_loudly():
     args = sidecar_parser().parse_args([_defaults(c) for c in side["command"]])
     assert args.expect > 0  # an unused side-car ends the run
     assert not Impairment.parse(args.impair).is_null and not Impairment.parse(env["NETEM_UAV2"]).is_null
-    # the env file points UAV 2 at its side-car, on both links of the multilink pair
+    # the env file points UAV 2 at its side-car, on both links of the TLS pair (both TCP: two TCP proxies)
     assert env["SKYNET_UAV2_UPLINK"] == "netem-uav2"
     uav2 = " ".join(services["uav2"]["command"])
-    assert "tcp/${SKYNET_UAV2_UPLINK:-gateway}:7447" in uav2 and "udp/${SKYNET_UAV2_UPLINK:-gateway}:7448" in uav2
+    assert "tls/${SKYNET_UAV2_UPLINK:-gateway}:7447?rel=1" in uav2 and "tls/${SKYNET_UAV2_UPLINK:-gateway}:7448?rel=0" in uav2
+    assert len(args.tcp) == 2 and not args.udp
+    # ... and its SkyNet link to UAV 1 at the SkyNet side-car, which forwards to UAV 1's listeners
+    assert env["SKYNET_UAV2_UAV1"] == "netem-uav1-uav2" and "netem" in services["netem-uav1-uav2"]["profiles"]
+    assert "tls/${SKYNET_UAV2_UAV1:-uav1}:7447?rel=1" in uav2 and "tls/${SKYNET_UAV2_UAV1:-uav1}:7448?rel=0" in uav2
+    sky = sidecar_parser().parse_args([_defaults(c) for c in services["netem-uav1-uav2"]["command"]])
+    assert sky.tcp == ["0.0.0.0:7447=uav1:7447", "0.0.0.0:7448=uav1:7448"] and sky.expect > 0
+    assert not Impairment.parse(env["NETEM_UAV1_UAV2"]).is_null
+    # every side-car's name is a SAN of a new key set (a dialler checks the name it dialled)
+    hosts = services["keys"]["command"]
+    for name in ("netem-uav1", "netem-uav2", "netem-uav3", "netem-uav1-uav2"):
+        assert name in services and name in hosts, name
     # the kernel variant exits non-zero where tc netem cannot be applied (and so ends `up --exit-code-from`)
     tc = services["tc-netem-uav2"]
     assert "NET_ADMIN" in tc["cap_add"] and tc["network_mode"] == "service:uav2"
@@ -221,3 +240,82 @@ def test_compose_check_reads_a_real_report(tmp_path):
     fails, figures = check.check(report, record, impaired="uav2", delay_ms=100)
     assert any("mission failed" in f for f in fails) and any("impairment not applied" in f for f in fails)
     assert set(figures["telemetry_age_ms"]) == {1, 2, 3}
+
+
+SKYNET_NODES = ("gateway", "uav1", "uav2", "uav3", "planner", "detector")
+
+
+def _endpoints(argv: list[str]) -> list[str]:
+    return [argv[i + 1] for i, a in enumerate(argv) if a in ("--connect", "--listen")]
+
+
+def test_secure_by_default_keys_read_only_tls_everywhere():
+    """Issue 11 item 7: a key set made or reused first, mounted read-only, --keys and tls/ endpoints everywhere."""
+    from services.composekeys import build_parser as keys_parser
+
+    services = _services()
+    keys = services["keys"]
+    # it makes or checks the set, then idles, healthy (a one-shot's exit would end `up --exit-code-from gcs`)
+    assert keys["restart"] == "no" and keys["entrypoint"][:2] == ["sh", "-c"]
+    assert keys["entrypoint"][2].startswith('python -m services.composekeys "$$@" && touch /tmp/keys-ready')
+    assert keys["healthcheck"]["test"] == ["CMD", "test", "-f", "/tmp/keys-ready"]
+    ka = keys_parser().parse_args(keys["command"])
+    assert str(ka.dir) == "/keys" and ka.uavs == 3
+    assert _defaults(keys["volumes"][0]) == "./.keys/compose:/keys"  # the only writable mount of the set
+    for name, svc in services.items():
+        mounts = [_defaults(v) for v in svc.get("volumes", [])]
+        if name == "keys" or name.startswith(("netem-", "tc-netem")):
+            continue
+        assert "./.keys/compose:/keys:ro" in mounts, name
+        argv = _skynet_argv(name, svc)
+        ends = _endpoints(argv)
+        assert ends and all(e.startswith("tls/") for e in ends), (name, ends)
+        assert {e.rsplit("?", 1)[1] for e in ends} == {"rel=1", "rel=0"}, name  # both reliability classes
+        if name == "web":  # the ground station's TLS identity, no signing key
+            assert "transport/link/tls/connect_certificate:'/keys/gcs/tls.pem'" in argv
+        else:
+            assert argv[argv.index("--keys") + 1] == "/keys", name
+        seen, todo = set(), [name]  # it starts after the keys service (directly or through what it waits for)
+        while todo:
+            for dep in services[todo.pop()].get("depends_on", {}):
+                if dep not in seen:
+                    seen.add(dep)
+                    todo.append(dep)
+        assert "keys" in seen, name
+    assert services["gateway"]["depends_on"]["keys"]["condition"] == "service_healthy"
+    for u in (1, 2, 3):  # the replay window in a writable volume of the edge's own
+        svc = services[f"uav{u}"]
+        argv = svc["command"]
+        assert argv[argv.index("--replay-state") + 1] == "/state/replay.json"
+        assert f"uav{u}-state:/state" in svc["volumes"] and services["uav1"]["depends_on"]["keys"]
+    assert set(_load(COMPOSE)["volumes"]) == {"uav1-state", "uav2-state", "uav3-state"}
+
+
+def _insecure(argv: list[str], edge: bool) -> list[str]:
+    """The secure base command made insecure: no --keys/--replay-state, TCP + UDP instead of the TLS pair."""
+    out, skip = [], 0
+    for a in argv:
+        if skip:
+            skip -= 1
+        elif a in ("--keys", "--replay-state"):
+            skip = 1
+        else:
+            out.append(("tcp/" if a.endswith("rel=1") else "udp/") + a[4:] if a.startswith("tls/") else a)
+    if edge:
+        out.insert(out.index("--mode") + 2, "--insecure")
+    return out
+
+
+def test_the_insecure_override_changes_only_the_trust_and_says_so():
+    base, over = _services(), _services(ROOT / "compose/insecure.yml")
+    for name in SKYNET_NODES:
+        assert over[name]["command"] == _insecure(base[name]["command"], name.startswith("uav")), name
+    gcs = over["gcs"]["command"][0]
+    assert "--keys" not in gcs and "tls/" not in gcs and "SKYNET_BANNER" in gcs
+    assert "INSECURE" in over["gcs"]["environment"]["SKYNET_BANNER"]
+    assert "INSECURE" in over["keys"]["environment"]["SKYNET_BANNER"] and "BANNER" in over["keys"]["entrypoint"][2]
+    for name in ("netem-uav1", "netem-uav2", "netem-uav3", "netem-uav1-uav2"):  # the UDP class back on UDP
+        args = sidecar_parser().parse_args([_defaults(c) for c in over[name]["command"]])
+        assert len(args.tcp) == 1 and len(args.udp) == 1, name
+    web = over["web"]["command"]
+    assert "--cfg" not in web and all(not e.startswith("tls/") for e in _endpoints(web))

@@ -212,3 +212,35 @@ def test_secure_fleet_smoke(secure_fleet, keyset):
         assert plain.ok and not plain.message.accepted and "unsigned" in plain.message.reason, plain
         ok = gcs.request(key, signer.sign(Takeoff(uav=1, cmd_id=2, altitude=5), key), expect=CommandAck)
         assert ok.ok and ok.message.accepted, ok
+
+
+def test_a_read_only_key_set_keeps_the_replay_window_elsewhere(tmp_path):
+    """docker compose mounts the key set read-only: ``--replay-state FILE`` holds the window instead."""
+    import argparse
+    import os
+    import stat
+
+    from edge.trust import secure_setup
+
+    root = init(tmp_path / "k", uavs=1)
+    state = tmp_path / "state" / "replay.json"
+    state.parent.mkdir()
+    gcs = KeySet(root, "gcs").signer()
+    modes = {p: p.stat().st_mode for p in [root, *root.rglob("*")]}
+    for p in modes:  # read-only, as a :ro mount is
+        os.chmod(p, modes[p] & ~(stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
+    try:
+        args = argparse.Namespace(uav=1, fleet=FLEET, keys=str(root), insecure=False, trust_window=10.0,
+                                  mesh_uavs=None, listen=[], connect=[], replay_state=str(state))
+        gate, _ = secure_setup(args)
+        env = gcs.sign(Land(uav=1, cmd_id=1), keys.cmd(FLEET, 1))
+        assert isinstance(gate.command(env), Land)
+        assert not (root / "uav1" / "replay.json").exists() and state.exists()
+        # a restarted edge reads it back: the same envelope is a replay
+        gate2, _ = secure_setup(args)
+        from protocol.signing import TrustError
+        with pytest.raises(TrustError, match="replayed"):
+            gate2.command(env)
+    finally:
+        for p, m in modes.items():
+            os.chmod(p, m)

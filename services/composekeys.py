@@ -1,0 +1,105 @@
+"""The key set of a docker compose network (issue 11 item 7, issue 14): reused, made once, or refused.
+
+    python -m services.composekeys /keys --uavs 3 --host netem-uav2 ... [--owner-of /reports]
+
+docker compose's one-shot ``keys`` service runs this before every other service starts; they then
+mount the same folder **read-only**. Unlike the launcher's :func:`services.trustmode.dev_keys`
+(which renames a new set into place), the folder here is a bind mount, so the set is written in
+place, and only into an empty folder:
+
+* a complete set (``ca.pem`` and every role's ``tls.pem``, :func:`services.keys.roles`) is reused
+  as it is: your own CA and keys included (README "docker compose", "Trust");
+* a folder without ``ca.pem`` gets a new development set (:func:`services.keys.init`) whose
+  certificates also carry the ``--host`` names as SANs: the impairment side-cars sit between a
+  dialler and its peer, and the dialler checks the peer's certificate against the name it dialled;
+* anything else (a set lacking a role) is refused with the reason (exit 2): a partial set may be
+  someone's own, and is never overwritten.
+
+A set lacking a ``--host`` SAN is used with a warning (only runs through those side-cars need them).
+With ``--owner-of PATH`` a new set is handed to the owner of PATH (the invoking user's ``./reports``),
+not left to root.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from cryptography import x509
+
+from services.keys import init, roles
+
+EXIT_REFUSED = 2
+
+
+def missing_roles(folder: Path, uavs: int) -> list[str]:
+    """The roles of a ``uavs``-UAV network without a certificate in ``folder``."""
+    return [r for r in roles(uavs) if not (folder / r / "tls.pem").is_file()]
+
+
+def missing_sans(folder: Path, hosts: list[str], role: str = "gateway") -> list[str]:
+    """The ``hosts`` that ``role``'s certificate does not name (DNS or IP SANs)."""
+    cert = x509.load_pem_x509_certificate((folder / role / "tls.pem").read_bytes())
+    try:
+        san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return list(hosts)
+    names = {*san.get_values_for_type(x509.DNSName), *(str(a) for a in san.get_values_for_type(x509.IPAddress))}
+    return [h for h in hosts if h not in names]
+
+
+def _chown_tree(folder: Path, ref: Path) -> None:
+    st = ref.stat()
+    for dirpath, dirnames, filenames in os.walk(folder):
+        for name in [dirpath, *(os.path.join(dirpath, n) for n in dirnames + filenames)]:
+            os.chown(name, st.st_uid, st.st_gid)
+
+
+def prepare(folder: Path, uavs: int, hosts: list[str], owner_of: Path | None = None) -> tuple[str, list[str]]:
+    """(``"reused"`` | ``"made"``, warnings); ValueError when the folder holds an incomplete set."""
+    folder = Path(folder)
+    warnings: list[str] = []
+    if not (folder / "ca.pem").exists():
+        if folder.exists() and any(folder.iterdir()):
+            raise ValueError(f"{folder} is not empty but holds no ca.pem: not a key set, left alone")
+        init(folder, uavs, hosts=tuple(hosts))
+        if owner_of is not None:
+            _chown_tree(folder, owner_of)
+        return "made", warnings
+    lacking = missing_roles(folder, uavs)
+    if lacking:
+        raise ValueError(f"{folder}: the key set has no certificate for {', '.join(lacking)} "
+                         f"(make a complete one: skynet keys init DIR --uavs {uavs} --force)")
+    unnamed = missing_sans(folder, hosts)
+    if unnamed:
+        warnings.append(f"the gateway's certificate does not name {', '.join(unnamed)}: links through those "
+                        "impairment side-cars will fail the TLS name check (README \"docker compose\")")
+    return "reused", warnings
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m services.composekeys", description=__doc__.split("\n\n")[0])
+    p.add_argument("dir", type=Path)
+    p.add_argument("--uavs", type=int, default=3)
+    p.add_argument("--host", action="append", default=[], help="extra SAN on every certificate of a new set")
+    p.add_argument("--owner-of", type=Path, default=None, metavar="PATH", help="give a new set to PATH's owner")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = build_parser().parse_args(argv)
+    try:
+        what, warnings = prepare(a.dir, a.uavs, a.host, a.owner_of)
+    except (ValueError, OSError) as exc:
+        print(f"keys: REFUSED: {exc}", file=sys.stderr, flush=True)
+        return EXIT_REFUSED
+    for w in warnings:
+        print(f"keys: WARNING: {w}", file=sys.stderr, flush=True)
+    print(f"keys: {what} the key set in {a.dir} ({a.uavs} UAVs): mounted read-only into every service", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
