@@ -25,6 +25,8 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from protocol.checks import finite_array, finite_vec3
+
 __all__ = [
     "DEFAULT_OFFSETS",
     "offsets_for",
@@ -65,20 +67,6 @@ def offsets_for(n: int) -> NDArray[np.float64]:
     return np.array(rows[:n], dtype=float)
 
 
-def _finite(a: ArrayLike, name: str) -> NDArray[np.float64]:
-    arr = np.asarray(a, dtype=float)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite (got NaN or inf)")
-    return arr
-
-
-def _vec3(a: ArrayLike, name: str) -> NDArray[np.float64]:
-    arr = _finite(a, name)
-    if arr.shape != (3,):
-        raise ValueError(f"{name} must have shape (3,), got {arr.shape}")
-    return arr
-
-
 def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np.float64]:
     """Rotation ``R_OF`` from the formation frame to the inertial frame (P7), ZYX Euler angles.
 
@@ -105,7 +93,7 @@ def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np
     array([0., 1., 0.])
     """
     phi, theta, psi = np.broadcast_arrays(
-        _finite(roll, "roll"), _finite(pitch, "pitch"), _finite(yaw, "yaw")
+        finite_array("roll", roll), finite_array("pitch", pitch), finite_array("yaw", yaw)
     )
     cf, sf = np.cos(phi), np.sin(phi)
     ct, st = np.cos(theta), np.sin(theta)
@@ -140,9 +128,9 @@ def errors_in_formation(
     ndarray, shape (..., 3)
         ``e^F`` in the formation frame (x along travel, y left, z up).
     """
-    d = _finite(desired, "desired")
-    a = _finite(actual, "actual")
-    R = _finite(R_OF, "R_OF")
+    d = finite_array("desired", desired)
+    a = finite_array("actual", actual)
+    R = finite_array("R_OF", R_OF)
     if d.shape[-1:] != (3,) or a.shape[-1:] != (3,) or R.shape[-2:] != (3, 3):
         raise ValueError("positions must end in axis 3 and R_OF in (3, 3)")
     e = d - a
@@ -164,8 +152,8 @@ def errors_to_inertial(e_F: ArrayLike, R_OF: ArrayLike) -> NDArray[np.float64]:
     ndarray, shape (..., 3)
         Inertial errors ``P_d − P``.
     """
-    e = _finite(e_F, "e_F")
-    R = _finite(R_OF, "R_OF")
+    e = finite_array("e_F", e_F)
+    R = finite_array("R_OF", R_OF)
     if e.shape[-1:] != (3,) or R.shape[-2:] != (3, 3):
         raise ValueError("e_F must end in axis 3 and R_OF in (3, 3)")
     return np.einsum("...ij,...j->...i", R, e)
@@ -196,10 +184,10 @@ def uav_positions(
     ndarray, shape (N, M, 3)
         ``out[i, n]`` is UAV n's position at path point i.
     """
-    c = np.atleast_2d(_finite(centroid, "centroid"))
+    c = np.atleast_2d(finite_array("centroid", centroid))
     if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] == 0:
         raise ValueError(f"centroid must have shape (N, 3) with N >= 1, got {c.shape}")
-    off = np.atleast_2d(_finite(offsets, "offsets"))
+    off = np.atleast_2d(finite_array("offsets", offsets))
     if off.ndim != 2 or off.shape[1] != 3 or off.shape[0] == 0:
         raise ValueError(f"offsets must have shape (M, 3) with M >= 1, got {off.shape}")
     n = c.shape[0]
@@ -225,7 +213,7 @@ def centroid_of(positions: ArrayLike) -> NDArray[np.float64]:
     -------
     ndarray, shape (3,)
     """
-    p = np.atleast_2d(_finite(positions, "positions"))
+    p = np.atleast_2d(finite_array("positions", positions))
     if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
         raise ValueError(f"positions must have shape (M, 3) with M >= 1, got {p.shape}")
     return p.mean(axis=0)
@@ -251,7 +239,7 @@ def headings(path: ArrayLike) -> NDArray[np.float64]:
     ndarray, shape (N,)
         ``ψ_i = atan2(dy_i, dx_i)`` in (−π, π].
     """
-    p = _finite(path, "path")
+    p = finite_array("path", path)
     if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
         raise ValueError(f"path must have shape (N, 3) with N >= 1, got {p.shape}")
     n = p.shape[0]
@@ -273,7 +261,7 @@ def headings(path: ArrayLike) -> NDArray[np.float64]:
 def _offset_of(offsets: Mapping[int, ArrayLike], uav: int) -> NDArray[np.float64]:
     if uav not in offsets:
         raise ValueError(f"no formation offset for UAV {uav}")
-    return _vec3(offsets[uav], f"offset of UAV {uav}")
+    return finite_vec3(f"offset of UAV {uav}", offsets[uav])
 
 
 def neighbour_correction(
@@ -331,7 +319,7 @@ others, drifts behind its plan (2.6 m at the goal with 50 ms of delay at 6x befo
     """
     if not math.isfinite(own_tau):
         raise ValueError("own_tau must be finite")
-    v = _vec3(own_ref_vel, "own_ref_vel")
+    v = finite_vec3("own_ref_vel", own_ref_vel)
     if not (math.isfinite(stale_after_s) and stale_after_s >= 0.0):
         raise ValueError("stale_after_s must be finite and >= 0")
     if not (0.0 <= gain <= 1.0):
@@ -348,7 +336,7 @@ others, drifts behind its plan (2.6 m at the goal with 50 ms of delay at 6x befo
         if age > stale_after_s:
             continue
         lead = max(age, 0.0) * clock_rate  # trajectory time the neighbour flew since its state
-        errs.append(_vec3(pos, f"position of UAV {j}") - _vec3(ref, f"plan of UAV {j}")
+        errs.append(finite_vec3(f"position of UAV {j}", pos) - finite_vec3(f"plan of UAV {j}", ref)
                     - v * (own_tau - tau_j - lead))
     if not errs:
         return np.zeros(3)
@@ -396,13 +384,13 @@ def formation_error(
     ids = sorted(i for i in positions if i in offsets)
     if not ids:
         raise ValueError("no UAV has both a position and an offset")
-    P = np.array([_vec3(positions[i], f"position of UAV {i}") for i in ids])
+    P = np.array([finite_vec3(f"position of UAV {i}", positions[i]) for i in ids])
     D = np.array([_offset_of(offsets, i) for i in ids])
     R = rotation_of(0.0, 0.0, yaw)
     if len(ids) == 1:
         if centroid is None:
             return 0.0
-        c = _vec3(centroid, "centroid")
+        c = finite_vec3("centroid", centroid)
         return float(np.linalg.norm(P[0] - (c + R @ D[0])))
     rel_p = P - P.mean(axis=0)
     rel_d = (D - D.mean(axis=0)) @ R.T

@@ -52,6 +52,7 @@ __all__ = [
     "Bounds",
     "Cylinder",
     "Surface",
+    "surface_frame",
     "Camera",
     "Inspection",
     "FormationSpec",
@@ -113,6 +114,42 @@ class Cylinder(_Model):
     height: Positive
 
 
+def surface_frame(corners: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Origin and unit axes ``(p0, u, v)`` of the surface frame.
+
+    Parameters
+    ----------
+    corners : array_like, shape (4, 3)
+        Surface corners p0, p1, p2, p3 (p0-p1 the bottom edge, p3 above p0), ENU metres.
+
+    Returns
+    -------
+    p0, u, v : ndarray, shape (3,)
+        ``u = (p1 - p0) / |p1 - p0|``; ``v`` the unit part of ``p3 - p0`` orthogonal to ``u``.
+
+    Raises
+    ------
+    ValueError
+        Wrong shape, non-finite values, or degenerate (zero-length or parallel) edges.
+    """
+    c = np.asarray(corners, dtype=float)
+    if c.shape != (4, 3):
+        raise ValueError(f"corners must have shape (4, 3), got {c.shape}")
+    if not np.all(np.isfinite(c)):
+        raise ValueError("corners must be finite (got NaN or inf)")
+    p0 = c[0]
+    a, b = c[1] - p0, c[3] - p0
+    la = float(np.linalg.norm(a))
+    if la < 1e-9:
+        raise ValueError("corners: the bottom edge corners[1] - corners[0] has zero length")
+    u = a / la
+    b = b - (b @ u) * u
+    lb = float(np.linalg.norm(b))
+    if lb < 1e-9:
+        raise ValueError("corners: corners[3] - corners[0] is zero or parallel to the bottom edge")
+    return p0, u, b / lb
+
+
 class Surface(_Model):
     """A vertical planar rectangle to inspect.
 
@@ -141,12 +178,10 @@ class Surface(_Model):
 
     @property
     def frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """``(p0, u, n)``: bottom-left corner, unit vector along the bottom edge, unit normal."""
-        p = np.asarray(self.corners, float)
-        u = p[1] - p[0]
-        u = u / np.linalg.norm(u)
-        n = np.cross(u, [0.0, 0.0, 1.0])
-        return p[0], u, n
+        """``(p0, u, n)``: bottom-left corner, unit vector along the bottom edge, unit normal ``u x v``
+        (:func:`surface_frame`; the wall is vertical, so ``v`` is straight up)."""
+        p0, u, v = surface_frame(self.corners)
+        return p0, u, np.cross(u, v)
 
     @property
     def length(self) -> float:

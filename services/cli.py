@@ -19,7 +19,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "planner": ("services.planner.service", "run the planner RCU service (plan requests)"),
     "plan": ("services.planner.cli", "plan offline: compare algorithms, export missions, bench"),
     "detector": ("services.detector.service", "run the detector RCU service (imagery -> defects)"),
-    "detect": ("services.detector.cli", "detect defects in images, evaluate on data sets, bench"),
+    "detect": ("services.detector.cli", "detect defects in images, evaluate on data sets"),
     "gcs": ("services.gcs.cli", "ground control station: run a mission over the bus"),
     "up": ("services.launcher", "start the whole network on this machine"),
     "mission": ("services.launcher", "start the network, run the default mission, write the report"),

@@ -1,16 +1,16 @@
-"""``skynet detect``: detect defects in an image, evaluate methods on a data set, or benchmark.
+"""``skynet detect``: detect defects in an image, or evaluate methods on a data set.
 
 Usage::
 
-    skynet detect IMAGE [--method M] [--out DIR]
+    skynet detect image IMAGE [--method M] [--out DIR]
     skynet detect eval --dataset DIR [--methods M ...] [--out DIR] [--sheet PNG] [--limit N]
-    skynet detect bench [bench/detect.py options]
+
+The detector's benchmark is a script of its own: ``python bench/detect.py``.
 """
 
 from __future__ import annotations
 
 import argparse
-import runpy
 import sys
 from pathlib import Path
 
@@ -21,16 +21,26 @@ from .detect import METHODS, detect
 __all__ = ["main"]
 
 
-def _eval(argv: list[str]) -> int:
-    from .evaluate import contact_sheet, evaluate, load_dataset, markdown_table, write_results
-
-    ap = argparse.ArgumentParser(prog="skynet detect eval", description="score methods on a data set")
+def build_parser() -> argparse.ArgumentParser:
+    """``skynet detect image|eval``, one subparser each."""
+    parser = argparse.ArgumentParser(prog="skynet detect", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True, metavar="image|eval")
+    ap = commands.add_parser("image", help="detect dark defects in one image")
+    ap.add_argument("image")
+    ap.add_argument("--method", default="it+", choices=list(METHODS))
+    ap.add_argument("--out", default=".", help="folder for <name>_mask.png and <name>_overlay.png")
+    ap = commands.add_parser("eval", help="score methods on a data set (Table II)")
     ap.add_argument("--dataset", required=True, help="folder with images/ and masks/")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     ap.add_argument("--out", help="write eval.md and eval.json here")
     ap.add_argument("--sheet", help="write a contact sheet PNG here")
     ap.add_argument("--limit", type=int, help="only the first N images")
-    a = ap.parse_args(argv)
+    return parser
+
+
+def _eval(a: argparse.Namespace) -> int:
+    from .evaluate import contact_sheet, evaluate, load_dataset, markdown_table, write_results
+
     try:
         samples = load_dataset(a.dataset, a.limit)
     except ValueError as e:
@@ -46,28 +56,7 @@ def _eval(argv: list[str]) -> int:
     return 0
 
 
-def _bench(argv: list[str]) -> int:
-    script = Path(__file__).resolve().parents[2] / "bench" / "detect.py"
-    if not script.exists():
-        print(f"skynet detect bench: {script} not found", file=sys.stderr)
-        return 2
-    old = sys.argv
-    try:
-        sys.argv = [str(script), *argv]
-        runpy.run_path(str(script), run_name="__main__")
-    except SystemExit as e:
-        return int(e.code or 0)
-    finally:
-        sys.argv = old
-    return 0
-
-
-def _image(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(prog="skynet detect", description="detect dark defects in one image")
-    ap.add_argument("image")
-    ap.add_argument("--method", default="it+", choices=list(METHODS))
-    ap.add_argument("--out", default=".", help="folder for <name>_mask.png and <name>_overlay.png")
-    a = ap.parse_args(argv)
+def _image(a: argparse.Namespace) -> int:
     bgr = cv2.imread(a.image, cv2.IMREAD_COLOR)
     if bgr is None:
         print(f"skynet detect: cannot read {a.image}", file=sys.stderr)
@@ -94,15 +83,8 @@ def _image(argv: list[str]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    if not args or args[0] in {"-h", "--help"}:
-        print(__doc__)
-        return 0
-    if args[0] == "eval":
-        return _eval(args[1:])
-    if args[0] == "bench":
-        return _bench(args[1:])
-    return _image(args)
+    a = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    return {"image": _image, "eval": _eval}[a.command](a)
 
 
 if __name__ == "__main__":

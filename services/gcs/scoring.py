@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from protocol.messages import DefectReport
+from protocol.scenario import surface_frame
 from services.gcs.record import GroundTruthDefect
 
 __all__ = ["DefectMatch", "DefectScore", "surface_frame", "surface_uv", "bbox_distance", "score_defects"]
@@ -105,42 +106,6 @@ class DefectScore:
     missed_ids: list[int] = field(default_factory=list)
     false_positives: list[tuple[int, int, float, float]] = field(default_factory=list)
     reported_uv: list[tuple[int, int, float, float]] = field(default_factory=list)
-
-
-def surface_frame(corners: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Origin and unit axes ``(p0, u, v)`` of the surface frame.
-
-    Parameters
-    ----------
-    corners : array_like, shape (4, 3)
-        Surface corners p0, p1, p2, p3 (p0-p1 the bottom edge, p3 above p0), ENU metres.
-
-    Returns
-    -------
-    p0, u, v : ndarray, shape (3,)
-        ``u = (p1 - p0) / |p1 - p0|``; ``v`` the unit part of ``p3 - p0`` orthogonal to ``u``.
-
-    Raises
-    ------
-    ValueError
-        Wrong shape, non-finite values, or degenerate (zero-length or parallel) edges.
-    """
-    c = np.asarray(corners, dtype=float)
-    if c.shape != (4, 3):
-        raise ValueError(f"corners must have shape (4, 3), got {c.shape}")
-    if not np.all(np.isfinite(c)):
-        raise ValueError("corners must be finite (got NaN or inf)")
-    p0 = c[0]
-    a, b = c[1] - p0, c[3] - p0
-    la = float(np.linalg.norm(a))
-    if la < 1e-9:
-        raise ValueError("corners: the bottom edge corners[1] - corners[0] has zero length")
-    u = a / la
-    b = b - (b @ u) * u
-    lb = float(np.linalg.norm(b))
-    if lb < 1e-9:
-        raise ValueError("corners: corners[3] - corners[0] is zero or parallel to the bottom edge")
-    return p0, u, b / lb
 
 
 def surface_uv(points: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:

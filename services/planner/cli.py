@@ -2,8 +2,8 @@
 
 Usage::
 
-    skynet plan [--scenario F] [--algorithm A] [--seed N] [--particles P] [--iterations I]
-                [--waypoints W] [--out DIR]         plan, write uav<N>.waypoints + mission.geojson
+    skynet plan mission [--scenario F] [--algorithm A] [--seed N] [--particles P] [--iterations I]
+                [--waypoints W] [--out DIR]         plan, write the mission files (WPL, .plan, KML, GeoJSON)
     skynet plan compare [--scenario F] [--seeds 20] [--particles 150] [--iterations 300] [--out DIR]
                                                     Table I + convergence.png + compare.json
     skynet plan bench [--scenario F] [--seeds 20] [--out FILE]
@@ -24,20 +24,39 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default=None, help="scenario TOML (default: the monorail bridge)")
 
 
-def _plan(argv: list[str]) -> int:
-    from .export import write_mission
-    from .mission import ALGORITHMS, plan_mission
-    from .scenario import load_scenario
+def build_parser() -> argparse.ArgumentParser:
+    """``skynet plan mission|compare|bench``, one subparser each."""
+    from .mission import ALGORITHMS
 
-    ap = argparse.ArgumentParser(prog="skynet plan", description="plan a formation inspection mission")
+    parser = argparse.ArgumentParser(prog="skynet plan", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True, metavar="mission|compare|bench")
+    ap = commands.add_parser("mission", help="plan a formation inspection mission and export it")
     _common(ap)
     ap.add_argument("--algorithm", default="theta-pso", choices=sorted(ALGORITHMS))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--particles", type=int, default=None)
     ap.add_argument("--iterations", type=int, default=None)
     ap.add_argument("--waypoints", type=int, default=None)
-    ap.add_argument("--out", default="out/plan", help="directory for the waypoint files and GeoJSON")
-    a = ap.parse_args(argv)
+    ap.add_argument("--out", default="out/plan", help="directory for the mission files")
+    ap = commands.add_parser("compare", help="Table I: GA, TLBO, PSO, θ-PSO")
+    _common(ap)
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--particles", type=int, default=150)
+    ap.add_argument("--iterations", type=int, default=300)
+    ap.add_argument("--waypoints", type=int, default=10)
+    ap.add_argument("--out", default="out/compare")
+    ap = commands.add_parser("bench", help="planner benchmark (paper's setting)")
+    _common(ap)
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--out", default="bench/results/plan.json")
+    return parser
+
+
+def _plan(a: argparse.Namespace) -> int:
+    from .export import write_mission
+    from .mission import plan_mission
+    from .scenario import load_scenario
+
     sc = load_scenario(a.scenario)
     plan = plan_mission(sc, a.algorithm, a.seed, a.particles, a.iterations, a.waypoints)
     files = write_mission(plan, a.out, sc.surface.corners if sc.surface is not None else None)
@@ -51,18 +70,10 @@ def _plan(argv: list[str]) -> int:
     return 0 if plan.collision_free else 1
 
 
-def _compare(argv: list[str]) -> int:
+def _compare(a: argparse.Namespace) -> int:
     from .compare import compare, convergence_plot, format_table
     from .scenario import load_scenario
 
-    ap = argparse.ArgumentParser(prog="skynet plan compare", description="Table I: GA, TLBO, PSO, θ-PSO")
-    _common(ap)
-    ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--particles", type=int, default=150)
-    ap.add_argument("--iterations", type=int, default=300)
-    ap.add_argument("--waypoints", type=int, default=10)
-    ap.add_argument("--out", default="out/compare")
-    a = ap.parse_args(argv)
     res = compare(load_scenario(a.scenario), a.seeds, a.particles, a.iterations, a.waypoints)
     print(format_table(res))
     out = Path(a.out)
@@ -72,15 +83,10 @@ def _compare(argv: list[str]) -> int:
     return 0
 
 
-def _bench(argv: list[str]) -> int:
+def _bench(a: argparse.Namespace) -> int:
     from .compare import bench, format_table
     from .scenario import load_scenario
 
-    ap = argparse.ArgumentParser(prog="skynet plan bench", description="planner benchmark (paper's setting)")
-    _common(ap)
-    ap.add_argument("--seeds", type=int, default=20)
-    ap.add_argument("--out", default="bench/results/plan.json")
-    a = ap.parse_args(argv)
     res = bench(load_scenario(a.scenario), seeds=a.seeds, out=a.out)
     print(format_table(res["compare"]))
     print(f"theta-pso {res['theta_pso_s']:.3f} s per plan (150 particles, 10 waypoints, 300 iterations)")
@@ -91,13 +97,9 @@ def _bench(argv: list[str]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
+    a = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        if args and args[0] == "compare":
-            return _compare(args[1:])
-        if args and args[0] == "bench":
-            return _bench(args[1:])
-        return _plan(args)
+        return {"mission": _plan, "compare": _compare, "bench": _bench}[a.command](a)
     except ValueError as exc:
         print(f"skynet plan: {exc}", file=sys.stderr)
         return 2

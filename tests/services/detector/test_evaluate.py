@@ -69,13 +69,13 @@ def test_cli_eval_writes_table_json_and_sheet(tmp_path, capsys):
 
 def test_cli_single_image(tmp_path, capsys):
     root = make_dataset(tmp_path / "ds", n=1)
-    rc = main([str(root / "images" / "000.png"), "--method", "it", "--out", str(tmp_path / "o")])
+    rc = main(["image", str(root / "images" / "000.png"), "--method", "it", "--out", str(tmp_path / "o")])
     assert rc == 0
     mask = cv2.imread(str(tmp_path / "o" / "000_mask.png"), cv2.IMREAD_GRAYSCALE)
     gt = cv2.imread(str(root / "masks" / "000.png"), cv2.IMREAD_GRAYSCALE)
     assert mask is not None and (mask[gt > 0] == 255).all()
     assert (tmp_path / "o" / "000_overlay.png").exists()
-    assert main([str(tmp_path / "missing.png")]) == 2
+    assert main(["image", str(tmp_path / "missing.png")]) == 2
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="DeepCrack training split not at /work/shared/data")

@@ -391,12 +391,12 @@ def test_compare_table_and_plot(tmp_path):
 
 
 def test_cli_plan_writes_files(tmp_path, capsys):
-    rc = cli_main(["--seed", "0", "--particles", "60", "--iterations", "100", "--out", str(tmp_path)])
+    rc = cli_main(["mission", "--seed", "0", "--particles", "60", "--iterations", "100", "--out", str(tmp_path)])
     assert rc == 0
     assert (tmp_path / "uav1.waypoints").read_text().startswith("QGC WPL 110")
     assert json.loads((tmp_path / "mission.geojson").read_text())["type"] == "FeatureCollection"
     assert "collision-free" in capsys.readouterr().out
-    assert cli_main(["--scenario", str(tmp_path / "nope.toml")]) == 2
+    assert cli_main(["mission", "--scenario", str(tmp_path / "nope.toml")]) == 2
 
 
 def test_scenario_file_that_is_not_utf8_is_a_scenario_error(tmp_path):
