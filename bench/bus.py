@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from protocol.bus import Bus, BusConfig  # noqa: E402
 from protocol.links import COMMAND, IMAGERY, TELEMETRY, LinkClass  # noqa: E402
-from services.process import free_port  # noqa: E402
+from services.orchestration.process import free_port  # noqa: E402
 
 IMPLS = ("raw", "bus")
 BULK = LinkClass("bulk", True, "block", "DATA", False)

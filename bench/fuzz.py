@@ -107,7 +107,7 @@ def _scenario(data: bytes) -> object:
 
 
 def _fault(data: bytes) -> object:
-    from services.faults import parse_fault
+    from services.orchestration.faults import parse_fault
 
     return parse_fault(_text(data))
 
@@ -138,7 +138,7 @@ def _budget(data: bytes) -> object:
 
 
 def targets() -> list[Target]:
-    from services.faults import MAX_FAULT_S  # noqa: F401  (import errors surface here, not per input)
+    from services.orchestration.faults import MAX_FAULT_S  # noqa: F401  (import errors surface here, not per input)
     from services.netem.schedule import ScheduleError
     from services.planner.scenario import ScenarioError, default_scenario_path
 

@@ -35,8 +35,8 @@ from protocol.keyset import KeySet  # noqa: E402
 from protocol.links import IMAGERY, TELEMETRY  # noqa: E402
 from protocol.messages import Land, Trajectory, UploadTrajectory, Waypoint  # noqa: E402
 from services.keys import init  # noqa: E402
-from services.process import ProcessGroup, free_port, free_port_pair  # noqa: E402
-from services.trustmode import tls_endpoints  # noqa: E402
+from services.orchestration.process import ProcessGroup, free_port, free_port_pair  # noqa: E402
+from services.orchestration.trustmode import tls_endpoints  # noqa: E402
 
 TRANSPORTS = ("plain", "tls")
 FLEET = "bench"

@@ -35,7 +35,7 @@ from protocol.imagery import pack_image  # noqa: E402
 from protocol.links import IMAGERY  # noqa: E402
 from protocol.messages import ImageMeta, Intrinsics  # noqa: E402
 from protocol.rtp import RtpSender, ssrc_for  # noqa: E402
-from services.process import ProcessGroup, free_port, free_port_pair  # noqa: E402
+from services.orchestration.process import ProcessGroup, free_port, free_port_pair  # noqa: E402
 from tests.services.video.test_service import picture, read_number  # noqa: E402
 
 

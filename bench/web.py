@@ -31,7 +31,7 @@ from protocol.imagery import pack_image  # noqa: E402
 from protocol.links import COMMAND, IMAGERY, TELEMETRY  # noqa: E402
 from protocol.messages import Defect, DefectReport, ImageMeta, Intrinsics, Mode, VehicleState  # noqa: E402
 from protocol.rtp import RtpSender, ssrc_for  # noqa: E402
-from services.process import ProcessGroup, free_port, free_port_pair  # noqa: E402
+from services.orchestration.process import ProcessGroup, free_port, free_port_pair  # noqa: E402
 
 
 def cpu_s(pid: int) -> float:

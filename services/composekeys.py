@@ -3,7 +3,7 @@
     python -m services.composekeys /keys --uavs 3 --host netem-uav2 ... [--owner-of /reports]
 
 docker compose's one-shot ``keys`` service runs this before every other service starts; they then
-mount the same folder **read-only**. Unlike the launcher's :func:`services.trustmode.dev_keys`
+mount the same folder **read-only**. Unlike the launcher's :func:`services.orchestration.trustmode.dev_keys`
 (which renames a new set into place), the folder here is a bind mount, so the set is written in
 place, and only into an empty folder:
 

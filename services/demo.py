@@ -15,7 +15,7 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig, multilink_endpoints
 from protocol.links import TELEMETRY
 from protocol.messages import CommandAck, Hold, Message, Mode, VehicleState
-from services.process import ProcessGroup, free_port_pair
+from services.orchestration.process import ProcessGroup, free_port_pair
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from protocol.bus import multilink_endpoints
-from services.process import ProcessGroup, free_port_pair
+from services.orchestration.process import ProcessGroup, free_port_pair
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 

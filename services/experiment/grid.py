@@ -71,8 +71,8 @@ def parse_recovery(text: str) -> tuple[bool, ...]:
 
 def check_links(text: str, uavs: int) -> str:
     """The ``--links`` target (``all/udp``, ``uplinks``, ``uav2/udp``, ...), checked with the launcher's
-    own grammar (:func:`services.topology.parse_impair`) for a fleet of ``uavs``."""
-    from services.topology import Links, parse_impair
+    own grammar (:func:`services.orchestration.topology.parse_impair`) for a fleet of ``uavs``."""
+    from services.orchestration.topology import Links, parse_impair
 
     text = str(text).strip()
     try:

@@ -77,7 +77,7 @@ class CommandRecord(BaseModel):
 class FaultRecord(BaseModel):
     """One fault injected into the run (or ended), as the injector told the ground station.
 
-    ``action`` is one of kill, restart, cut, restore, partition, heal (services.faults); ``at`` is the
+    ``action`` is one of kill, restart, cut, restore, partition, heal (services.orchestration.faults); ``at`` is the
     wall-clock UNIX time it happened.
     """
 
@@ -138,7 +138,7 @@ class MissionRecord(BaseModel):
     gateway_stats: list[StatsRx] = []
     detector_stats: list[StatsRx] = []
     commands: list[CommandRecord] = []
-    faults: list[FaultRecord] = Field(default=[], description="faults injected during the run (services.faults)")
+    faults: list[FaultRecord] = Field(default=[], description="faults injected during the run (services.orchestration.faults)")
     incidents: list[Incident] = Field(default=[], description="what the ground station saw of faults and did")
     heartbeats_sent: int = 0
     ground_truth: list[GroundTruthDefect] = []

@@ -22,7 +22,7 @@ from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import CommandAck, Event, Heartbeat, Land, Mode, Takeoff, VehicleState
 from protocol.signing import Signer
 from services.keys import init
-from services.process import free_port
+from services.orchestration.process import free_port
 from tests.conftest import wait_until
 
 FLEET = "test"

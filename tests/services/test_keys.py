@@ -11,7 +11,7 @@ from cryptography.x509.oid import NameOID
 from protocol.keyset import KeySet
 from protocol.signing import key_id, load_public
 from services import keys as pki
-from services.trustmode import dev_keys, resolve
+from services.orchestration.trustmode import dev_keys, resolve
 
 
 def test_init_writes_every_role_with_cn_and_private_modes(tmp_path):

@@ -202,7 +202,7 @@ def test_grants_refuse_bad_arguments():
 
 
 def _router(tmp_path, policy, passwords):
-    from services.process import free_port_pair
+    from services.orchestration.process import free_port_pair
 
     users = tmp_path / "users.txt"
     users.write_text("".join(f"{u}:{p}\n" for u, p in passwords.items()))

@@ -10,7 +10,7 @@ from protocol.bus import Bus, BusConfig, multilink_endpoints
 from protocol.links import TELEMETRY
 from protocol.messages import VehicleState
 from services.gateway.downsample import state_downsampling
-from services.process import free_port_pair
+from services.orchestration.process import free_port_pair
 from tests.conftest import wait_until
 
 FLEET = "thin"

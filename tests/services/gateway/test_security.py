@@ -22,7 +22,7 @@ from protocol.messages import (CommandAck, DefectReport, Heartbeat, Hold, ImageM
                                MissionPlan, Mode, PlanRequest, VehicleState)
 from protocol.rtp import RtpSender, ssrc_for
 from services.gateway.credentials import generate
-from services.process import ProcessGroup, free_port_pair
+from services.orchestration.process import ProcessGroup, free_port_pair
 
 FLEET = "sec"
 USERS = ["uav1", "uav2", "uav3", "gcs", "planner", "detector", "visitor"]

@@ -19,7 +19,7 @@ import time
 import pytest
 
 from services.netem.proxy import TcpProxy, UdpProxy
-from services.process import free_port_pair
+from services.orchestration.process import free_port_pair
 
 zenoh = pytest.importorskip("zenoh", reason="zenoh-python (eclipse-zenoh) is needed for the end-to-end split")
 

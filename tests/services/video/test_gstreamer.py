@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from services.process import free_port
+from services.orchestration.process import free_port
 from services.video.stream import VideoStream
 from tests.services.video.test_service import H, W, picture, read_number
 

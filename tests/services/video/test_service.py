@@ -23,7 +23,7 @@ from protocol.imagery import pack_image
 from protocol.links import IMAGERY
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import RtpSender, ssrc_for
-from services.process import free_port
+from services.orchestration.process import free_port
 
 av = pytest.importorskip("av", reason="PyAV (the av wheel) decodes the streams")
 

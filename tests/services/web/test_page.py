@@ -23,7 +23,7 @@ from protocol.imagery import pack_image
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
 from protocol.messages import Defect, DefectReport, Event, ImageMeta, Intrinsics, Mode, VehicleState
 from protocol.rtp import RtpSender, ssrc_for
-from services.process import free_port
+from services.orchestration.process import free_port
 
 FLEET = "test"
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"

@@ -19,7 +19,7 @@ AT counts from the start of the mission phase (the ground station's ``phase("mis
 after take-off) in ``skynet mission``, and from the network start in ``skynet up``.
 
 Pure parts: :func:`parse_fault`, :func:`resolve` (targets checked against the run's
-:class:`~services.topology.Links`), :func:`schedule` (the ordered begin/end steps, with
+:class:`~services.orchestration.topology.Links`), :func:`schedule` (the ordered begin/end steps, with
 overlapping kills of one service refused). :class:`FaultInjector` is the thin shell: a thread
 that waits for the origin, then acts on a :class:`Target` (the launcher's network: kill/restart
 a service, the proxies of a link) and reports every action and its end to ``note``
@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
 from services.netem.model import parse_time_s
-from services.topology import Links, link_ends
+from services.orchestration.topology import Links, link_ends
 
 Action = Literal["kill", "cut", "partition"]
 ACTIONS = ("kill", "cut", "partition")
@@ -189,7 +189,7 @@ def cut_links(items: Iterable[Resolved]) -> set[str]:
 
 # ----------------------------------------------------------------------------- the shell
 class Target(Protocol):
-    """What the injector acts on (the launcher's :class:`~services.launcher.Network`)."""
+    """What the injector acts on (the launcher's :class:`~services.orchestration.launcher.Network`)."""
 
     def kill(self, name: str) -> None: ...
 

@@ -2,7 +2,7 @@
 
 import pytest
 
-from services.restart import Backoff, RestartTracker
+from services.orchestration.restart import Backoff, RestartTracker
 
 
 def test_backoff_doubles_up_to_its_cap():

@@ -8,7 +8,7 @@ on Ctrl-C (SIGINT to every child so sessions close, then SIGTERM/SIGKILL for str
 this process (a Zenoh client, with the live progress display) and writes the report; its exit
 status is the mission's.
 
-Impairment experiments (issue 7; link names and grammar in :mod:`services.topology`):
+Impairment experiments (issue 7; link names and grammar in :mod:`services.orchestration.topology`):
 ``--impair NAME[/udp|/tcp]=SPEC`` puts user-space netem proxies (:mod:`services.netem`, a TCP and
 a UDP one per link) on the named links: ``uavN``, ``planner``, ``detector``, ``gcs`` (that node's
 uplink to the gateway — for an edge, the paper's 4G hop), ``uavI-uavJ`` (a SkyNet link between
@@ -19,7 +19,7 @@ not dial each other from gossip; edge i connects to a proxy pair in front of edg
 endpoints for every j > i. ``--no-recovery`` makes capture frames unrecoverable (edges publish
 imagery without the recovery cache, the detector subscribes without recovery).
 
-Faults (:mod:`services.faults`): ``--fault "20s kill gateway for 3s"``, ``"25s kill uav3"``,
+Faults (:mod:`services.orchestration.faults`): ``--fault "20s kill gateway for 3s"``, ``"25s kill uav3"``,
 ``"15s cut uplinks for 8s"``, ``"15s partition uav1-uav2 for 10s"``; AT counts from the
 mission phase (``skynet mission``) or the network start (``skynet up``). A killed service is
 restarted with the same command line and ports; the launcher puts clean proxies on the links a
@@ -27,11 +27,11 @@ fault cuts.
 
 A service that exits by itself (a crash, not a fault's kill) is restarted by the supervisor
 (:meth:`Network.start_supervisor`) with the same command line, after an exponential back-off
-(:mod:`services.restart`: 0.5 s doubling to 30 s, reset after 10 s of good run); each restart is
+(:mod:`services.orchestration.restart`: 0.5 s doubling to 30 s, reset after 10 s of good run); each restart is
 logged and, in a mission, recorded as a fault (``restart``) in the report. The network is never
 stopped because one service ended.
 
-Secure by default (issue 11, :mod:`services.trustmode`): a development key set (``--keys DIR``, else
+Secure by default (issue 11, :mod:`services.orchestration.trustmode`): a development key set (``--keys DIR``, else
 ``.keys/dev``), mutual TLS on a TLS multilink pair, access control by certificate common name on the
 gateway and on each edge, commands and heartbeats signed by the ground station; proxied runs keep
 plaintext TCP/UDP links (signed commands only); ``--insecure`` turns everything off.
@@ -156,7 +156,7 @@ class Network:
         self.log_dir = log_dir
         #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}
         self.proxies: dict[str, dict] = {}
-        #: TLS, certificate ACL, signed commands: secure by default (services.trustmode, issue 11)
+        #: TLS, certificate ACL, signed commands: secure by default (services.orchestration.trustmode, issue 11)
         self.trust = trustmode.resolve(args, proxied=bool(self.plan.proxied))
         self.gateway_endpoints = self.endpoint_pair()
         self.edge_endpoints: dict[int, list[str]] = {}
@@ -231,7 +231,7 @@ class Network:
 
     def client_config(self) -> Path:
         """The zenoh config of the clients (planner, detector, ground station) when links are proxied:
-        the edges' open timeout (:data:`services.topology.OPEN_TIMEOUT_MS`), so that a UDP handshake
+        the edges' open timeout (:data:`services.orchestration.topology.OPEN_TIMEOUT_MS`), so that a UDP handshake
         lost on an impaired link after a gateway restart is retried in seconds, not after zenoh's 10 s."""
         path = self.tmp / "client.json5"
         if not path.exists():
@@ -240,7 +240,7 @@ class Network:
 
     def edge_config(self, i: int) -> list[str]:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
-        rules that keep its links on the proxies (:func:`services.topology.edge_mesh_config`)."""
+        rules that keep its links on the proxies (:func:`services.orchestration.topology.edge_mesh_config`)."""
         # several formations: no gossip autoconnect, or every edge would dial every other (issue 18)
         formations = self.args.uavs > FORMATION_SIZE
         if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied and not formations:
@@ -317,7 +317,7 @@ class Network:
         hz = getattr(self.args, "gcs_state_hz", 0.0) or 0.0
         if hz <= 0:
             return []
-        from .gateway.downsample import state_downsampling
+        from ..gateway.downsample import state_downsampling
 
         path = self.tmp / "gateway.json5"
         path.write_text(json.dumps(state_downsampling(self.args.fleet, hz, self.args.uavs)))

@@ -4,7 +4,7 @@ Used by the launcher (``skynet up``), the demo and the tests, so that all of the
 network the same way: ``python -m services.cli <command> ...`` per service, each line of its
 output prefixed with the service's name, SIGINT then SIGTERM then SIGKILL on the way out.
 
-Fault injection (issue 7, :mod:`services.faults`) needs two more things: :meth:`ProcessGroup.kill`
+Fault injection (issue 7, :mod:`services.orchestration.faults`) needs two more things: :meth:`ProcessGroup.kill`
 (SIGKILL to the service's whole process group, as a crash would end it) and
 :meth:`ProcessGroup.restart` (the same command line and environment again, under the same
 name). Once :meth:`ProcessGroup.stop` has begun, a restart is refused, so that Ctrl-C during a

@@ -1,6 +1,6 @@
 """When the launcher restarts a service that exited on its own: exponential back-off, reset after a good run.
 
-Pure policy, no processes (the launcher's supervisor, :meth:`services.launcher.Network.supervise`,
+Pure policy, no processes (the launcher's supervisor, :meth:`services.orchestration.launcher.Network.supervise`,
 applies it). It follows Docker's restart policy ("An increasing delay (double the previous delay,
 starting at 100 milliseconds) is added before each restart"; the delay goes back to its start value
 once the container ran at least 10 seconds), with a longer first delay and a cap, as systemd's

@@ -1,8 +1,8 @@
-"""services.process (issue 12): the log pumps never die, whatever the echo file does."""
+"""services.orchestration.process (issue 12): the log pumps never die, whatever the echo file does."""
 
 import contextlib
 
-from services.process import ProcessGroup
+from services.orchestration.process import ProcessGroup
 
 
 def test_log_pump_survives_a_full_disk_and_keeps_reading(capfd):

@@ -1,6 +1,6 @@
 """The whole 3-UAV mission with ``--vehicle mavlink``: every edge flies its own sim autopilot over MAVLink.
 
-Same bounds as the built-in vehicle's mission (tests/services/test_launcher.py): every UAV at the
+Same bounds as the built-in vehicle's mission (tests/services/orchestration/test_launcher.py): every UAV at the
 goal, every capture imaged, formation RMS under 1 m.
 """
 

@@ -141,7 +141,7 @@ def test_bad_links_and_faults_are_one_line_errors(argv, needle):
 
 
 def test_no_recovery_reaches_the_edges_and_the_detector():
-    from services.launcher import Network, build_parser
+    from services.orchestration.launcher import Network, build_parser
 
     net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "norec", "--no-recovery", "--uavs", "2"]),
                   echo=None)
@@ -220,7 +220,7 @@ def test_two_formations_fly_the_mission_each_its_own_skynet(tmp_path):
 
 def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
     """Issue 18: --frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config."""
-    from services.launcher import Network, build_parser
+    from services.orchestration.launcher import Network, build_parser
 
     net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
                                                  "1280x960", "--capture-link", "reliable", "--preview-hz", "0",

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from services.faults import (
+from services.orchestration.faults import (
     FaultInjector,
     parse_duration,
     parse_fault,
@@ -16,8 +16,8 @@ from services.faults import (
     resolve,
     schedule,
 )
-from services.launcher import build_parser, make_plan
-from services.topology import Links, edge_mesh_config, link_seed, parse_impair
+from services.orchestration.launcher import build_parser, make_plan
+from services.orchestration.topology import Links, edge_mesh_config, link_seed, parse_impair
 from tests.conftest import wait_until
 
 L3 = Links(3)
@@ -209,7 +209,7 @@ def test_injector_waits_for_the_mission_counts_overlapping_cuts_and_stops_at_don
                                   "100000s kill gateway", "-1s kill gateway"])
 def test_fault_times_out_of_range_are_refused(text):
     """Issue 12 (fuzzing): ``1e999s`` was accepted as an AT that never comes; times are now 0..MAX_FAULT_S."""
-    from services.faults import MAX_FAULT_S, parse_fault
+    from services.orchestration.faults import MAX_FAULT_S, parse_fault
 
     with pytest.raises(ValueError):
         parse_fault(text)

@@ -11,7 +11,7 @@ Stated bounds (properties of the design, not speed measurements):
   the clients' and peers' reconnect pause (``BusConfig.reconnect_max_s``, 1 s) plus margin;
 * an edge killed is seen gone by the others and the ground station within its link lease
   (``EDGE_LEASE_S``, the board's default) plus ``LEASE_SLACK_S``;
-* the formation keeps the shape bound of the nominal mission (tests/services/test_launcher.py)
+* the formation keeps the shape bound of the nominal mission (tests/services/orchestration/test_launcher.py)
   through a SkyNet partition.
 """
 

@@ -1,6 +1,6 @@
 """The launcher's links with real processes (issue 7): SkyNet through proxies, faults on a running network.
 
-Each test starts a whole ``skynet up``-like :class:`~services.launcher.Network` in this process (gateway,
+Each test starts a whole ``skynet up``-like :class:`~services.orchestration.launcher.Network` in this process (gateway,
 three edges, planner, detector as child processes; the proxies in this process) and watches it from a
 probe client session on the gateway, as a ground station would. Edges' ``neighbours`` (states heard over
 SkyNet) and their ``neighbour-up``/``neighbour-lost`` log lines (liveliness) tell what each edge sees.
@@ -18,7 +18,7 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import TELEMETRY
 from protocol.messages import Hold, VehicleState
-from services.launcher import Network, build_parser
+from services.orchestration.launcher import Network, build_parser
 from tests.conftest import wait_until
 
 #: the edges' link lease (edge.board: --lease defaults to 2 s)
@@ -197,7 +197,7 @@ def test_uplinks_cut_longer_than_the_lease_come_back_after_the_restore(running):
 
 
 def test_open_timeout_grows_with_the_worst_configured_delay():
-    from services.topology import OPEN_TIMEOUT_MS, Links, open_timeout_ms, parse_impair
+    from services.orchestration.topology import OPEN_TIMEOUT_MS, Links, open_timeout_ms, parse_impair
 
     links = Links(3, ("planner", "detector", "gcs"))
     assert parse_impair([], links).worst_delay_ms() == 0.0
@@ -208,7 +208,7 @@ def test_open_timeout_grows_with_the_worst_configured_delay():
 
 
 def test_skynet_links_join_only_the_uavs_of_one_formation():
-    from services.topology import Links
+    from services.orchestration.topology import Links
 
     assert Links(3).skynet == ["uav1-uav2", "uav1-uav3", "uav2-uav3"]
     six = Links(6).skynet
