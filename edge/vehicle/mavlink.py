@@ -398,6 +398,7 @@ class MavlinkDriver(VehicleDriver):
         source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
         signing_key: str | None = None,
         gcs_endpoint: str | None = None,
+        gcs_video: Any = None,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -469,7 +470,7 @@ class MavlinkDriver(VehicleDriver):
         if gcs_endpoint is not None:
             from edge.vehicle.gcs_bridge import GcsBridge
 
-            self.bridge = GcsBridge(gcs_endpoint, self._write_raw)
+            self.bridge = GcsBridge(gcs_endpoint, self._write_raw, video=gcs_video)
         self._reader = threading.Thread(target=self._read_loop, name=f"mavlink-uav{uav}", daemon=True)
         self._reader.start()
 
