@@ -315,6 +315,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mavlink-gcs", default=None, metavar="ENDPOINT",
                         help="MAVLink endpoint for the operator's ground station (autopilot traffic forwarded), "
                              "e.g. udpout:127.0.0.1:14560")
+    parser.add_argument("--flight", choices=["guided", "auto"], default="guided",
+                        help="--vehicle mavlink: guided streams position targets; auto uploads the trajectory as a "
+                             "waypoint mission and flies it in AUTO, kept in formation by speed corrections")
     parser.add_argument("--mavlink-video", type=int, default=None, metavar="BASE_PORT",
                         help="with --mavlink-gcs: announce the preview stream of skynet video --port BASE_PORT "
                              "(this UAV's port BASE_PORT+2(uav-1)) as MAVLink VIDEO_STREAM_INFORMATION")

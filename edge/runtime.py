@@ -116,8 +116,11 @@ def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
 
         video = VideoStreamSpec(stream_port(args.mavlink_video, args.uav), *PREVIEW_SIZE,
                                 framerate=float(getattr(args, "preview_hz", PREVIEW_HZ)))
+    from .vehicle.mavlink import MavlinkParams
+
     return MavlinkDriver(args.uav, args.mavlink, home=args.home, signing_key=getattr(args, "mavlink_key", None),
-                         gcs_endpoint=getattr(args, "mavlink_gcs", None), gcs_video=video)
+                         gcs_endpoint=getattr(args, "mavlink_gcs", None), gcs_video=video,
+                         params=MavlinkParams(flight=getattr(args, "flight", "guided")))
 
 
 def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: int = SURFACE_SEED):
