@@ -46,6 +46,7 @@ driver call         MAVLink
 ==================  ===============================================================
 takeoff(alt)        DO_SET_MODE GUIDED, COMPONENT_ARM_DISARM(1), NAV_TAKEOFF(param7 = alt)
 start(t0)           DO_SET_MODE GUIDED if not in it; then SET_POSITION_TARGET_LOCAL_NED stream
+                    (flight "auto": mission upload first, AUTO from the start time, below)
 hold()              DO_SET_MODE GUIDED if not in it; position target at the current position
 resume()            as start, from the paused trajectory time
 land()              NAV_LAND (ArduCopter switches to LAND and disarms on the ground)
@@ -89,6 +90,24 @@ the transit to the first waypoint and the capture points run on that clock, exac
 the simulated vehicle: both drivers take the mission's reference from the same
 :class:`edge.vehicle.sequencer.MissionSequencer` (start, transit, wait, track, pause/resume,
 formation offset, captures). :meth:`step` never waits for the link; only commands do.
+
+Flight in AUTO (``MavlinkParams(flight="auto")``, ``skynet edge --flight auto``)
+--------------------------------------------------------------------------------
+The paper's way (:mod:`edge.vehicle.auto_flight`): ``start`` asks for HOME_POSITION, uploads the
+trajectory as a waypoint mission with the MAVLink mission protocol (MISSION_COUNT,
+MISSION_REQUEST_INT -> MISSION_ITEM_INT, MISSION_ACK; speed items per leg, capture triggers,
+no final RTL), then flies to the first waypoint and waits for the start time in GUIDED as
+above. When tracking begins it sends DO_SET_MISSION_CURRENT (the item after the last waypoint
+passed) and DO_SET_MODE AUTO from a helper thread (:meth:`step` never waits), streaming GUIDED
+targets until AUTO is acknowledged. In AUTO it streams no targets: it keeps the sequencer's
+reference (trajectory plus the board's formation correction of (P8)) and sends DO_CHANGE_SPEED
+(at most every ``auto_speed_period_s``) so that the along-track error goes to zero; captures fire
+on the trajectory clock as in GUIDED (the autopilot also fires its own DO_DIGICAM_CONTROL items).
+At the trajectory's end it switches back to GUIDED and holds. hold / land / RTL / resume work
+as in GUIDED (hold and resume go through GUIDED; resume flies back to the paused point and
+re-enters AUTO from the right item). While a mode switch is in flight, HEARTBEATs in either the
+old or the new mode are expected; any other mode is the pilot's (``external_modes``, logged) and
+the driver stops commanding until resumed.
 
 Only ArduCopter's custom-mode numbering is implemented; a PX4 autopilot (whose custom mode packs
 main and sub modes, and which needs OFFBOARD instead of GUIDED) is not.
