@@ -1011,7 +1011,12 @@ class MavlinkDriver(VehicleDriver):
                         if self._phase != expect:
                             return  # a command (hold, land, ...) came first
                     if seq is not None:
-                        self._command(M.MAV_CMD_DO_SET_MISSION_CURRENT, (float(seq),), "set the mission item")
+                        try:
+                            self._command(M.MAV_CMD_DO_SET_MISSION_CURRENT, (float(seq),), "set the mission item")
+                        except ValueError as exc:  # before ArduPilot 4.4: the MISSION_SET_CURRENT message
+                            if "UNSUPPORTED" not in str(exc):
+                                raise
+                            self._send("mission_set_current_send", self._sysid, self._compid, int(seq))
                     self._set_mode(mode)
                     with self._lock:
                         if self._phase == expect and mode == CopterMode.AUTO:
