@@ -315,6 +315,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mavlink-gcs", default=None, metavar="ENDPOINT",
                         help="MAVLink endpoint for the operator's ground station (autopilot traffic forwarded), "
                              "e.g. udpout:127.0.0.1:14560")
+    parser.add_argument("--flight", choices=["guided", "auto"], default="guided",
+                        help="--vehicle mavlink: guided streams position targets; auto uploads the trajectory as a "
+                             "waypoint mission and flies it in AUTO, kept in formation by speed corrections")
+    parser.add_argument("--mavlink-video", type=int, default=None, metavar="BASE_PORT",
+                        help="with --mavlink-gcs: announce the preview stream of skynet video --port BASE_PORT "
+                             "(this UAV's port BASE_PORT+2(uav-1)) as MAVLink VIDEO_STREAM_INFORMATION")
     parser.add_argument("--home", type=parse_vec, default=(0.0, 0.0, 0.0), help="launch point x,y,z (ENU m)")
     parser.add_argument("--rate", type=float, default=_DEFAULT.rate_hz, help="state publication rate, Hz")
     parser.add_argument("--stale", type=float, default=_DEFAULT.stale_s,

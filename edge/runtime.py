@@ -110,8 +110,17 @@ def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
                          seed=args.seed if args.seed is not None else args.uav)
     from .vehicle.mavlink import MavlinkDriver  # needs the "mavlink" extra
 
+    video = None
+    if getattr(args, "mavlink_video", None) is not None:  # the preview as skynet video sends it (UAV 1: base)
+        from .vehicle.mav_camera import VideoStreamSpec, stream_port
+
+        video = VideoStreamSpec(stream_port(args.mavlink_video, args.uav), *PREVIEW_SIZE,
+                                framerate=float(getattr(args, "preview_hz", PREVIEW_HZ)))
+    from .vehicle.mavlink import MavlinkParams
+
     return MavlinkDriver(args.uav, args.mavlink, home=args.home, signing_key=getattr(args, "mavlink_key", None),
-                         gcs_endpoint=getattr(args, "mavlink_gcs", None))
+                         gcs_endpoint=getattr(args, "mavlink_gcs", None), gcs_video=video,
+                         params=MavlinkParams(flight=getattr(args, "flight", "guided")))
 
 
 def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: int = SURFACE_SEED):

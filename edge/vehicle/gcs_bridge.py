@@ -11,12 +11,22 @@ MAV_COMP_ID_ONBOARD_COMPUTER, HEARTBEAT type MAV_TYPE_ONBOARD_CONTROLLER), never
 
 Packets are forwarded as raw frames: no re-encoding, so sequence numbers and signatures survive.
 A frame that does not parse is counted and dropped (a ground station cannot inject garbage).
+
+With ``video`` the bridge also speaks for the UAV's camera (:mod:`edge.vehicle.mav_camera`): a
+HEARTBEAT from component MAV_COMP_ID_CAMERA on the vehicle's system id once the autopilot has
+been heard, and the answers to the ground station's CAMERA_INFORMATION / VIDEO_STREAM_INFORMATION
+/ VIDEO_STREAM_STATUS requests; a command addressed to the camera component is not forwarded.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any, Callable
+
+from pymavlink.dialects.v20 import ardupilotmega as M
+
+from edge.vehicle.mav_camera import MavCamera, VideoStreamSpec
 
 __all__ = ["GcsBridge"]
 
@@ -29,9 +39,10 @@ class GcsBridge:
     endpoint : pymavlink connection string of the ground-station side (``udpout:HOST:PORT`` to reach
         a GCS listening there, ``udpin:HOST:PORT`` to be dialled by it).
     to_autopilot : writes one raw frame to the autopilot link.
+    video : the stream the camera component announces (None: no camera component).
     """
 
-    def __init__(self, endpoint: str, to_autopilot: Callable[[bytes], None]):
+    def __init__(self, endpoint: str, to_autopilot: Callable[[bytes], None], video: VideoStreamSpec | None = None):
         from edge.vehicle.mavlink import open_connection  # the same codec (and signing) as the driver's link
 
         self.endpoint = endpoint
@@ -40,6 +51,10 @@ class GcsBridge:
         self.to_gcs_count = 0
         self.from_gcs_count = 0
         self.dropped = 0
+        self.video = video
+        #: the camera component (created when the autopilot's system id is known)
+        self.camera: MavCamera | None = None
+        self._camera_beat = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="mavlink-gcs-bridge", daemon=True)
         self._thread.start()
@@ -49,14 +64,28 @@ class GcsBridge:
         buf = msg.get_msgbuf() if msg.get_type() != "BAD_DATA" else None
         if not buf:
             return
+        if self.video is not None and self.camera is None and msg.get_type() == "HEARTBEAT" \
+                and msg.autopilot != M.MAV_AUTOPILOT_INVALID and 1 <= msg.get_srcSystem() <= 255:
+            self.camera = MavCamera(self.video, msg.get_srcSystem())
         try:
             self._conn.write(bytes(buf))
             self.to_gcs_count += 1
         except OSError:
             self.dropped += 1
 
+    def _to_gcs_frames(self, frames: list[bytes]) -> None:
+        for f in frames:
+            try:
+                self._conn.write(f)
+            except OSError:
+                self.dropped += 1
+
     def _loop(self) -> None:
         while not self._stop.is_set():
+            cam = self.camera
+            if cam is not None and time.monotonic() - self._camera_beat >= 1.0:
+                self._camera_beat = time.monotonic()
+                self._to_gcs_frames([cam.heartbeat()])
             try:
                 msg = self._conn.recv_msg()
             except Exception:  # noqa: BLE001 - a bad datagram or a closed socket
@@ -70,6 +99,10 @@ class GcsBridge:
             if msg.get_type() == "BAD_DATA":
                 self.dropped += 1
                 continue
+            if cam is not None:
+                self._to_gcs_frames(cam.handle(msg))
+                if getattr(msg, "target_component", None) == cam.component:
+                    continue  # the camera's own business
             try:
                 self._to_autopilot(bytes(msg.get_msgbuf()))
                 self.from_gcs_count += 1

@@ -46,6 +46,7 @@ driver call         MAVLink
 ==================  ===============================================================
 takeoff(alt)        DO_SET_MODE GUIDED, COMPONENT_ARM_DISARM(1), NAV_TAKEOFF(param7 = alt)
 start(t0)           DO_SET_MODE GUIDED if not in it; then SET_POSITION_TARGET_LOCAL_NED stream
+                    (flight "auto": mission upload first, AUTO from the start time, below)
 hold()              DO_SET_MODE GUIDED if not in it; position target at the current position
 resume()            as start, from the paused trajectory time
 land()              NAV_LAND (ArduCopter switches to LAND and disarms on the ground)
@@ -90,12 +91,31 @@ the simulated vehicle: both drivers take the mission's reference from the same
 :class:`edge.vehicle.sequencer.MissionSequencer` (start, transit, wait, track, pause/resume,
 formation offset, captures). :meth:`step` never waits for the link; only commands do.
 
+Flight in AUTO (``MavlinkParams(flight="auto")``, ``skynet edge --flight auto``)
+--------------------------------------------------------------------------------
+The paper's way (:mod:`edge.vehicle.auto_flight`): ``start`` asks for HOME_POSITION, uploads the
+trajectory as a waypoint mission with the MAVLink mission protocol (MISSION_COUNT,
+MISSION_REQUEST_INT -> MISSION_ITEM_INT, MISSION_ACK; speed items per leg, capture triggers,
+no final RTL), then flies to the first waypoint and waits for the start time in GUIDED as
+above. When tracking begins it sends DO_SET_MISSION_CURRENT (the item after the last waypoint
+passed) and DO_SET_MODE AUTO from a helper thread (:meth:`step` never waits), streaming GUIDED
+targets until AUTO is acknowledged. In AUTO it streams no targets: it keeps the sequencer's
+reference (trajectory plus the board's formation correction of (P8)) and sends DO_CHANGE_SPEED
+(at most every ``auto_speed_period_s``) so that the along-track error goes to zero; captures fire
+on the trajectory clock as in GUIDED (the autopilot also fires its own DO_DIGICAM_CONTROL items).
+At the trajectory's end it switches back to GUIDED and holds. hold / land / RTL / resume work
+as in GUIDED (hold and resume go through GUIDED; resume flies back to the paused point and
+re-enters AUTO from the right item). While a mode switch is in flight, HEARTBEATs in either the
+old or the new mode are expected; any other mode is the pilot's (``external_modes``, logged) and
+the driver stops commanding until resumed.
+
 Only ArduCopter's custom-mode numbering is implemented; a PX4 autopilot (whose custom mode packs
 main and sub modes, and which needs OFFBOARD instead of GUIDED) is not.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
@@ -105,6 +125,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from edge.vehicle.apm import items as AI
 from edge.vehicle.apm.items import capture_params
 from edge.vehicle.apm.modes import CopterMode
 from edge.vehicle.apm.signing import SafeSigningMAVLink, enable_signing, parse_key
@@ -139,6 +160,7 @@ __all__ = [
     "command_name",
 ]
 
+log = logging.getLogger("skynet.mavlink")
 Vec3 = tuple[float, float, float]
 _Target = tuple[Vec3, "Vec3 | None", "Vec3 | None", float]  # ENU position, velocity, acceleration, yaw
 M = mavlink2
@@ -173,9 +195,9 @@ _GROUNDED = (Mode.IDLE, Mode.LANDED)
 _AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL, Mode.FAILSAFE)
 #: the autopilot mode each driver phase expects
 _PHASE_COPTER = {"takeoff": CopterMode.GUIDED, "hold": CopterMode.GUIDED, "mission": CopterMode.GUIDED,
-                 "land": CopterMode.LAND, "rtl": CopterMode.RTL}
+                 "land": CopterMode.LAND, "rtl": CopterMode.RTL, "auto": CopterMode.AUTO}
 _PHASE_MODE = {"idle": Mode.IDLE, "landed": Mode.LANDED, "takeoff": Mode.TAKEOFF, "hold": Mode.HOLD,
-               "mission": Mode.MISSION, "land": Mode.LAND, "rtl": Mode.RTL}
+               "mission": Mode.MISSION, "land": Mode.LAND, "rtl": Mode.RTL, "auto": Mode.MISSION}
 
 
 class VehicleLinkError(ValueError):
@@ -313,6 +335,12 @@ class MavlinkParams:
     appear_timeout_s : a command given before the autopilot's first HEARTBEAT waits this long for
         it to appear (an autopilot still booting, a link still coming up) before failing; 0 fails
         at once. A trajectory upload before then is stored without waiting.
+    flight : "guided" streams the reference as position targets; "auto" uploads the trajectory as
+        a waypoint mission and flies it in AUTO, kept in time by DO_CHANGE_SPEED
+        (:mod:`edge.vehicle.auto_flight`).
+    auto_speed_gain : along-track error to ground-speed gain in AUTO, 1/s.
+    auto_speed_period_s : at most one DO_CHANGE_SPEED per this many wall seconds (unless the
+        speed changes by more than 0.5 m/s).
     """
 
     transit_speed: float = 4.0
@@ -327,6 +355,9 @@ class MavlinkParams:
     interpolation: Literal["cubic", "linear"] = "cubic"
     accel_feedforward: bool = True
     appear_timeout_s: float = 10.0
+    flight: Literal["guided", "auto"] = "guided"
+    auto_speed_gain: float = 0.6
+    auto_speed_period_s: float = 0.1
 
     def __post_init__(self) -> None:
         for k in ("transit_speed", "start_radius", "arrive_radius", "offset_rate", "takeoff_tolerance",
@@ -342,6 +373,12 @@ class MavlinkParams:
             raise ValueError("retries must be an int in 0..10")
         if self.interpolation not in ("cubic", "linear"):
             raise ValueError("interpolation must be 'cubic' or 'linear'")
+        if self.flight not in ("guided", "auto"):
+            raise ValueError("flight must be 'guided' or 'auto'")
+        for k in ("auto_speed_gain", "auto_speed_period_s"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v <= 10):
+                raise ValueError(f"{k} must be in (0, 10]")
 
 
 @dataclass(frozen=True)
@@ -398,6 +435,7 @@ class MavlinkDriver(VehicleDriver):
         source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
         signing_key: str | None = None,
         gcs_endpoint: str | None = None,
+        gcs_video: Any = None,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -431,7 +469,7 @@ class MavlinkDriver(VehicleDriver):
         self._lock = threading.RLock()  # telemetry, phase, acks
         self._cv = threading.Condition(self._lock)
         self._send_lock = threading.Lock()
-        self._cmd_lock = threading.Lock()  # one COMMAND_LONG in flight
+        self._cmd_lock = threading.RLock()  # one COMMAND_LONG (or mode-switch sequence) in flight
         self._stop = threading.Event()
         self._closed = False
         # telemetry
@@ -447,6 +485,21 @@ class MavlinkDriver(VehicleDriver):
         self._acks: dict[int, tuple[int, int]] = {}  # command -> (result, rx)
         self._cmd_rx = 0  # receive index of the last accepted command's ack
         self._compid_locked = False
+        # AUTO flight: the autopilot's home, the mission protocol's replies, the uploaded plan
+        self._home_lla: tuple[float, float, float] | None = None
+        self._mission_rx: deque[Any] = deque(maxlen=64)
+        self._auto_plan: Any = None
+        self._auto_traj: Trajectory | None = None
+        self._traj: Trajectory | None = None
+        self._end_switch = False  # the AUTO mission ended: back to GUIDED to hold there
+        self._pending: set[int] = set()  # autopilot modes accepted while a mode switch is in flight
+        self._switching = False
+        self._speed_sent: tuple[float, float] | None = None  # (speed, monotonic) of the last DO_CHANGE_SPEED
+        #: DO_CHANGE_SPEED corrections sent in AUTO; mode switches to AUTO that failed (with why)
+        self.speed_commands = 0
+        self.auto_errors: list[str] = []
+        #: autopilot modes the driver did not command and noticed (ArduCopter names, in order)
+        self.external_modes: list[str] = []
         #: the autopilot's MAV_AUTOPILOT (from its HEARTBEAT; None until heard)
         self.autopilot: int | None = None
         #: undecodable datagrams, malformed values and send errors on the link
@@ -469,7 +522,7 @@ class MavlinkDriver(VehicleDriver):
         if gcs_endpoint is not None:
             from edge.vehicle.gcs_bridge import GcsBridge
 
-            self.bridge = GcsBridge(gcs_endpoint, self._write_raw)
+            self.bridge = GcsBridge(gcs_endpoint, self._write_raw, video=gcs_video)
         self._reader = threading.Thread(target=self._read_loop, name=f"mavlink-uav{uav}", daemon=True)
         self._reader.start()
 
@@ -573,6 +626,15 @@ class MavlinkDriver(VehicleDriver):
             elif kind == "STATUSTEXT":
                 text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
                 self._texts.append((now, int(msg.severity), text.rstrip("\x00")))
+            elif kind == "HOME_POSITION":
+                lla = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1e3)
+                if abs(lla[0]) <= 90 and abs(lla[1]) <= 180:
+                    self._home_lla = lla
+                    self._cv.notify_all()
+            elif kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"):
+                if msg.target_system == self._conn.mav.srcSystem:
+                    self._mission_rx.append(msg)
+                    self._cv.notify_all()
             elif kind == "COMMAND_ACK":
                 self._rx += 1
                 self._acks[int(msg.command)] = (int(msg.result), self._rx)
@@ -705,7 +767,11 @@ class MavlinkDriver(VehicleDriver):
         elif phase == "external":
             if hb.custom_mode == CopterMode.GUIDED:
                 self._hold_here()
-        elif hb.custom_mode != _PHASE_COPTER[phase]:
+        elif hb.custom_mode != _PHASE_COPTER[phase] and hb.custom_mode not in self._pending:
+            self.external_modes.append(copter_mode_name(hb.custom_mode))
+            log.warning("UAV %d: the autopilot is in %s, a mode the edge did not command (pilot or failsafe): "
+                        "the mission is paused and the edge stops commanding until resumed", self.uav,
+                        copter_mode_name(hb.custom_mode))
             self.mission.pause(self._t)
             if hb.custom_mode == CopterMode.GUIDED:
                 self._hold_here()
@@ -762,10 +828,12 @@ class MavlinkDriver(VehicleDriver):
         if self.heartbeat_age() is None and self._phase == "idle" and not self._closed:
             with self._lock:  # before the autopilot appears: stored here, flown once it is there
                 self.mission.load(traj)
+                self._traj = traj
             return
         self._require((Mode.IDLE, Mode.LANDED, Mode.TAKEOFF, Mode.HOLD), "upload a trajectory")
         with self._lock:
             self.mission.load(traj)
+            self._traj = traj
 
     def takeoff(self, altitude: float) -> None:
         self._require(_GROUNDED, "take off")
@@ -790,6 +858,8 @@ class MavlinkDriver(VehicleDriver):
     def start(self, t0: float | None = None) -> None:
         self._require((Mode.HOLD,), "start a mission")
         self.mission.check_start(t0)
+        if self.params.flight == "auto":
+            self._prepare_auto()
         self._ensure_guided()
         with self._lock:
             self.mission.start(self._t, self._pos, t0)
@@ -859,6 +929,130 @@ class MavlinkDriver(VehicleDriver):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    # ------------------------------------------------------------------ AUTO flight (edge.vehicle.auto_flight)
+    def _wait_home(self, timeout_s: float = 5.0) -> tuple[float, float, float]:
+        """The autopilot's HOME_POSITION (asked for with MAV_CMD_REQUEST_MESSAGE until it comes)."""
+        deadline = time.monotonic() + timeout_s
+        asked = -math.inf
+        with self._cv:
+            while self._home_lla is None:
+                now = time.monotonic()
+                if now >= deadline:
+                    raise VehicleLinkError(f"no HOME_POSITION from the autopilot in {timeout_s:g} s")
+                if now - asked >= 1.0:
+                    asked = now
+                    self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_REQUEST_MESSAGE, 0,
+                               M.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0)
+                self._cv.wait(0.1)
+            return self._home_lla
+
+    def _prepare_auto(self) -> None:
+        """Upload the trajectory as a waypoint mission unless the autopilot already has it."""
+        from edge.vehicle.auto_flight import autopilot_mission
+
+        traj = self._traj
+        if traj is None:
+            raise ValueError("no trajectory uploaded")
+        if self._auto_traj is traj and self._auto_plan is not None:
+            return
+        plan = autopilot_mission(traj, self.home, self._wait_home())
+        self._upload_items(plan.items)
+        self._auto_plan, self._auto_traj = plan, traj
+        log.info("UAV %d: trajectory uploaded to the autopilot as a mission of %d items (%d waypoints, %d captures)",
+                 self.uav, len(plan.items), len(plan.waypoint_seq), len(plan.capture_seq))
+
+    def _upload_items(self, items: tuple, timeout_s: float = 1.0, retries: int = 5) -> None:
+        """The MAVLink mission protocol's upload (https://mavlink.io/en/services/mission.html):
+        MISSION_COUNT, then MISSION_ITEM_INT for each MISSION_REQUEST(_INT), until MISSION_ACK."""
+        n = len(items)
+        with self._cmd_lock:
+            with self._cv:
+                self._mission_rx.clear()
+            self._send("mission_count_send", self._sysid, self._compid, n, M.MAV_MISSION_TYPE_MISSION)
+            tries, deadline = 0, time.monotonic() + timeout_s
+            while True:
+                with self._cv:
+                    while not self._mission_rx and time.monotonic() < deadline:
+                        self._cv.wait(max(0.0, deadline - time.monotonic()))
+                    msg = self._mission_rx.popleft() if self._mission_rx else None
+                if msg is None:
+                    tries += 1
+                    if tries > retries:
+                        raise VehicleLinkError(f"mission upload: no answer from the autopilot after {tries} tries")
+                    self._send("mission_count_send", self._sysid, self._compid, n, M.MAV_MISSION_TYPE_MISSION)
+                    deadline = time.monotonic() + timeout_s
+                    continue
+                if msg.get_type() == "MISSION_ACK":
+                    if msg.type != M.MAV_MISSION_ACCEPTED:
+                        e = M.enums["MAV_MISSION_RESULT"].get(int(msg.type))
+                        raise ValueError(f"mission upload refused by the autopilot: {e.name if e else msg.type}")
+                    return
+                seq = int(msg.seq)
+                if 0 <= seq < n:
+                    it = items[seq]
+                    self._send("mission_item_int_send", self._sysid, self._compid, seq, it.frame, it.command,
+                               int(seq == 0), 1, it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z,
+                               M.MAV_MISSION_TYPE_MISSION)
+                deadline = time.monotonic() + timeout_s
+
+    def _switch_async(self, mode: CopterMode, seq: int | None, expect: str) -> None:
+        """DO_SET_MISSION_CURRENT (``seq``) and DO_SET_MODE ``mode`` off the caller's thread (step never
+        waits for the link), while the driver stays in phase ``expect``; either mode is accepted meanwhile."""
+        with self._lock:
+            if self._switching:
+                return
+            self._switching = True
+            self._pending = {int(mode), *([CopterMode.GUIDED] if mode == CopterMode.AUTO else [CopterMode.AUTO])}
+
+        def run() -> None:
+            try:
+                with self._cmd_lock:
+                    with self._lock:
+                        if self._phase != expect:
+                            return  # a command (hold, land, ...) came first
+                    if seq is not None:
+                        try:
+                            self._command(M.MAV_CMD_DO_SET_MISSION_CURRENT, (float(seq),), "set the mission item")
+                        except ValueError as exc:  # before ArduPilot 4.4: the MISSION_SET_CURRENT message
+                            if "UNSUPPORTED" not in str(exc):
+                                raise
+                            self._send("mission_set_current_send", self._sysid, self._compid, int(seq))
+                    self._set_mode(mode)
+                    with self._lock:
+                        if self._phase == expect and mode == CopterMode.AUTO:
+                            self._phase = "auto"
+                            self._speed_sent = None
+                    log.info("UAV %d: flying %s%s", self.uav, mode.name,
+                             f" from mission item {seq}" if seq is not None else " (the AUTO mission ended: hold)")
+            except ValueError as exc:
+                self.auto_errors.append(str(exc))  # AUTO refused: the mission goes on in GUIDED
+                log.warning("UAV %d: mode switch to %s failed: %s", self.uav, mode.name, exc)
+            finally:
+                with self._lock:
+                    self._switching = False
+                    self._pending = set()
+
+        threading.Thread(target=run, name=f"mavlink-uav{self.uav}-switch", daemon=True).start()
+
+    def _auto_step(self, target: _Target) -> None:
+        """One AUTO tick: the formation-keeping speed (DO_CHANGE_SPEED, fire and forget)."""
+        from edge.vehicle.auto_flight import speed_correction
+
+        p, v, _, _ = target
+        if v is None:
+            return
+        speed = speed_correction(self._pos, p, v, gain=self.params.auto_speed_gain)
+        if speed is None:
+            return
+        now = time.monotonic()
+        last = self._speed_sent
+        if last is not None and now - last[1] < self.params.auto_speed_period_s and abs(speed - last[0]) < 0.5:
+            return
+        self._speed_sent = (speed, now)
+        self.speed_commands += 1
+        self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_DO_CHANGE_SPEED, 0,
+                   *AI.speed_params(min(speed, 20.0)))
+
     # ------------------------------------------------------------------ mission bookkeeping (under _lock)
     def _hold_here(self) -> None:
         self._phase = "hold"
@@ -900,6 +1094,7 @@ class MavlinkDriver(VehicleDriver):
             raise ValueError("until_t must be finite")
         events: list[CaptureEvent] = []
         target: _Target | None = None
+        auto_target: _Target | None = None
         with self._lock:
             dt = until_t - self._t
             self._t = until_t
@@ -914,7 +1109,23 @@ class MavlinkDriver(VehicleDriver):
                 self._next_target_mono = -math.inf
             if phase == "mission":
                 target = self._mission_reference(until_t, dt, events)
-            elif phase == "hold":
+                if (self.params.flight == "auto" and self._auto_plan is not None and self.mission.phase == "track"
+                        and not self._switching):
+                    from edge.vehicle.auto_flight import resume_item
+
+                    wp, _ = self.mission.progress(until_t)
+                    self._switch_async(CopterMode.AUTO, resume_item(self._auto_plan, wp), "mission")
+            elif phase == "auto":
+                ref = self._mission_reference(until_t, dt, events)
+                if self._phase == "hold":  # the trajectory's end: hold there in GUIDED
+                    self._end_switch = True
+                    phase = "hold"
+                else:
+                    auto_target = ref
+            if phase == "hold" and self._end_switch and not self._switching:
+                self._end_switch = False
+                self._switch_async(CopterMode.GUIDED, None, "hold")
+            if phase == "hold":
                 target = (self._hold[0], None, None, self._hold[1])
             # at most rate_hz on average; a tick up to 20 % of a period early still sends, so a board
             # ticking at exactly rate_hz is not halved by jitter
@@ -926,6 +1137,8 @@ class MavlinkDriver(VehicleDriver):
                 self._next_target_mono = due + period if now - due < period else now + period
         if target is not None:
             self._send_target(*target)
+        if auto_target is not None:
+            self._auto_step(auto_target)
         if self.params.trigger_camera:
             for ev in events:
                 self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_DO_DIGICAM_CONTROL, 0,

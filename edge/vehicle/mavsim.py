@@ -658,7 +658,7 @@ class MavlinkSimVehicle:
             if not (math.isfinite(msg.param2) and 0 < msg.param2 <= 20):
                 return M.MAV_RESULT_DENIED
             if ex is not None:
-                ex.speed = float(msg.param2)
+                ex.set_speed(self.sim.t, float(msg.param2))
             return M.MAV_RESULT_ACCEPTED
         if c == M.MAV_CMD_DO_DIGICAM_CONTROL:
             cid = I.capture_id((msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7))

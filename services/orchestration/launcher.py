@@ -348,7 +348,8 @@ class Network:
                 self.group.start(f"ap{i}", ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1),
                                             "--home", ",".join(map(str, home)), "--speed", str(a.speed),
                                             "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate"])
-                vehicle = ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{port}"]
+                vehicle = ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{port}",
+                           "--flight", getattr(a, "flight", "guided")]
             self.start_service(f"uav{i}", [
                 "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
@@ -476,6 +477,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--vehicle", choices=["sim", "mavlink"], default="sim",
                    help="sim: the built-in vehicle; mavlink: each edge flies a sim autopilot (skynet sim-autopilot) "
                         "over MAVLink on loopback")
+    p.add_argument("--flight", choices=["guided", "auto"], default="guided",
+                   help="--vehicle mavlink: guided (position targets) or auto (a waypoint mission flown in AUTO)")
     p.add_argument("--method", default="it+", help="the detector's method")
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")

@@ -102,6 +102,19 @@ class AutoMission:
         self._started.discard(seq)
         return True
 
+    def set_speed(self, t: float, speed: float) -> None:
+        """MAV_CMD_DO_CHANGE_SPEED as a command: the carrot goes on from where it is at the new speed
+        (the leg is rebased at the carrot, so a speed change never makes it jump)."""
+        if self._leg is not None:
+            start, end, t0 = self._leg
+            length = _dist(start, end)
+            s = min(length, self.speed * max(0.0, t - t0))
+            if length > 1e-9 and s < length:
+                f = s / length
+                carrot = tuple(b + (e - b) * f for b, e in zip(start, end))
+                self._leg = (carrot, end, max(t, t0))  # type: ignore[assignment]
+        self.speed = float(speed)
+
     def update(self, t: float, pos: Vec3, yaw: float, airborne: bool) -> tuple[Flight, list[tuple[str, int]]]:
         ev: list[tuple[str, int]] = []
         if not self._began:

@@ -1,7 +1,8 @@
 """The whole 3-UAV mission with ``--vehicle mavlink``: every edge flies its own sim autopilot over MAVLink.
 
-Same bounds as the built-in vehicle's mission (tests/services/orchestration/test_launcher.py): every UAV at the
-goal, every capture imaged, formation RMS under 1 m.
+In GUIDED (position targets streamed) and in AUTO (the trajectory uploaded as a waypoint mission,
+kept in formation by speed corrections). Same bounds as the built-in vehicle's mission
+(tests/services/orchestration/test_launcher.py): every UAV at the goal, every capture imaged, formation RMS under 1 m.
 """
 
 import json
@@ -15,10 +16,12 @@ pytest.importorskip("pymavlink", reason="--vehicle mavlink needs the 'mavlink' e
 FORMATION_RMS_BOUND_M = 1.0
 
 
-def test_mission_with_mavlink_vehicles_in_guided(tmp_path):
+@pytest.mark.parametrize("flight", ["guided", "auto"])
+def test_mission_with_mavlink_vehicles(tmp_path, flight):
     out = tmp_path / "report"
     proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--vehicle", "mavlink", "--speed", "8",
-                           "--quiet", "--out", str(out)], capture_output=True, text=True, timeout=300)
+                           "--flight", flight, "--quiet", "--out", str(out)], capture_output=True, text=True,
+                          timeout=300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     report = json.loads((out / "report.json").read_text())
     assert report["success"] and not report["failures"]
@@ -27,3 +30,6 @@ def test_mission_with_mavlink_vehicles_in_guided(tmp_path):
     assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M
     log = (out / "services.log").read_text()
     assert all(f"sim-autopilot: uav {i} (system id {i})" in log for i in (1, 2, 3))
+    flown = [f"UAV {i}: flying AUTO from mission item" in log for i in (1, 2, 3)]
+    assert flown == [flight == "auto"] * 3  # in AUTO the autopilots flew the uploaded missions
+    assert "a mode the edge did not command" not in log

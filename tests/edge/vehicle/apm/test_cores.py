@@ -135,6 +135,20 @@ def test_auto_walks_takeoff_speed_camera_waypoint_land():
     assert ("reached", 5) in ev and a.done and fl.kind == "hold"
 
 
+def test_a_speed_command_mid_leg_moves_the_carrot_on_without_a_jump():
+    items = [wp(0), PlanItem(1, 3, 16, x=0, y=0, z=5.0), PlanItem(2, 3, 16, x=20, y=0, z=5.0)]
+    a = AutoMission(items, flat, (0.0, 0.0, 0.0), speed=2.0, radius=0.5, start=2)
+    a._last_target = (0.0, 0.0, 5.0)
+    fl, _ = a.update(0.0, (0, 0, 5), 0.0, True)
+    fl, _ = a.update(3.0, (6, 0, 5), 0.0, True)
+    assert fl.pos[0] == pytest.approx(6.0)
+    a.set_speed(3.0, 4.0)  # DO_CHANGE_SPEED as a command (the sim autopilot's path)
+    fl, _ = a.update(3.0, (6, 0, 5), 0.0, True)
+    assert fl.pos[0] == pytest.approx(6.0) and fl.vel[0] == pytest.approx(4.0)  # no jump, new speed
+    fl, _ = a.update(4.0, (10, 0, 5), 0.0, True)
+    assert fl.pos[0] == pytest.approx(10.0)
+
+
 def test_mode_rules():
     ok = dict(airborne=False, armed=False, mission_items=0, first_nav=None)
     assert check_mode_change(4, **ok) == (CopterMode.GUIDED, "")

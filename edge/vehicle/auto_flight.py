@@ -1,0 +1,123 @@
+"""Flying the formation trajectory the paper's way: a waypoint mission in AUTO, kept in time by speed.
+
+The paper uploads each UAV's path to its Pixhawk with Mission Planner and lets the autopilot fly
+it (PAPER.md Section 4); :class:`edge.vehicle.mavlink.MavlinkDriver` with ``flight="auto"`` does
+the same from the edge. This module is its pure part (no link):
+
+- :func:`autopilot_mission`: the UAV's trajectory ``T_Fn`` of (P9) as mission items, built by the
+  one item builder (:func:`services.planner.export.mission_items`: NAV_WAYPOINT per waypoint,
+  CONDITION_YAW, DO_CHANGE_SPEED per leg so the plan's timing holds, DO_DIGICAM_CONTROL with the
+  capture id at each capture point), converted to MISSION_ITEM_INT fields about the autopilot's
+  own home (HOME_POSITION: latitude, longitude, altitude; our home is its ENU position in the
+  mission frame), altitudes relative to home. The final NAV_RETURN_TO_LAUNCH is left out: at the
+  end ArduCopter's AUTO holds where the mission ended ("mission complete") and the ground station
+  decides what comes next, as with the GUIDED flight.
+- :func:`resume_item`: the item AUTO continues from at trajectory time τ (the one after the last
+  waypoint passed, so that leg's speed item runs again).
+- :func:`speed_correction`: formation keeping in AUTO. The position the edge wants, ``P_d(t) + o``
+  (the trajectory reference plus the on-board formation correction ``o`` of (P8)), is compared
+  with the vehicle's; the along-track part of the error ``e = P − (P_d + o)`` is driven to zero
+  by the ground speed: ``v = |v_d| − k e·v̂_d`` (bounded), sent as MAV_CMD_DO_CHANGE_SPEED. The
+  across-track and vertical parts are the autopilot's own waypoint tracking (straight legs
+  between the plan's waypoints).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import pymap3d
+
+from edge.vehicle.apm import items as AI
+from protocol.messages import Trajectory
+
+__all__ = ["AutoItem", "AutoMissionPlan", "autopilot_mission", "resume_item", "speed_correction"]
+
+Vec3 = tuple[float, float, float]
+_GLOBAL = (AI.MAV_FRAME_GLOBAL, AI.MAV_FRAME_GLOBAL_RELATIVE_ALT)
+
+
+@dataclass(frozen=True)
+class AutoItem:
+    """MISSION_ITEM_INT's fields of one item (x, y: degrees × 1e7 in global frames)."""
+
+    seq: int
+    frame: int
+    command: int
+    param1: float = 0.0
+    param2: float = 0.0
+    param3: float = 0.0
+    param4: float = 0.0
+    x: int = 0
+    y: int = 0
+    z: float = 0.0
+
+
+@dataclass(frozen=True)
+class AutoMissionPlan:
+    """The items to upload and, per trajectory waypoint, the sequence number of its NAV_WAYPOINT."""
+
+    items: tuple[AutoItem, ...]
+    waypoint_seq: tuple[int, ...]
+    capture_seq: dict[int, int]  # capture id -> seq of its DO_DIGICAM_CONTROL
+
+
+def autopilot_mission(traj: Trajectory, home_enu: Vec3, home_lla: Vec3) -> AutoMissionPlan:
+    """The trajectory as mission items about the autopilot's home (see the module docstring).
+
+    ``home_enu``: the launch point in the mission's ENU frame, m; ``home_lla``: the autopilot's
+    HOME_POSITION (degrees, degrees, m).
+    """
+    from services.planner.export import mission_items  # the one item builder
+
+    lat0, lon0, h0 = (float(v) for v in home_lla)
+    if not (abs(lat0) <= 90 and abs(lon0) <= 180 and math.isfinite(h0)):
+        raise ValueError(f"home position {home_lla!r} is not a geodetic point")
+    hx, hy, hz = home_enu
+    # the mission frame's origin as the autopilot sees it: home minus home's ENU position
+    origin = pymap3d.enu2geodetic(-hx, -hy, -hz, lat0, lon0, h0)
+    out: list[AutoItem] = []
+    wps: list[int] = []
+    captures: dict[int, int] = {}
+    src = mission_items(traj, origin)
+    if src and src[-1].command == AI.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+        src = src[:-1]
+    for it in src:
+        p = it.params
+        seq = len(out)
+        if it.frame in _GLOBAL:
+            z = p[6] - hz if it.frame == AI.MAV_FRAME_GLOBAL_RELATIVE_ALT else p[6]  # above home
+            out.append(AutoItem(seq, it.frame, it.command, *p[:4], round(p[4] * 1e7), round(p[5] * 1e7), z))
+        else:
+            out.append(AutoItem(seq, it.frame, it.command, *p[:4], int(p[4]), int(p[5]), p[6]))
+        if seq >= 2 and it.command == AI.MAV_CMD_NAV_WAYPOINT:
+            wps.append(seq)
+        elif it.command == AI.MAV_CMD_DO_DIGICAM_CONTROL:
+            cid = AI.capture_id(p)
+            if cid is not None:
+                captures[cid] = seq
+    if len(wps) != len(traj.waypoints):
+        raise ValueError(f"mission has {len(wps)} waypoints for {len(traj.waypoints)} in the trajectory")
+    return AutoMissionPlan(tuple(out), tuple(wps), captures)
+
+
+def resume_item(plan: AutoMissionPlan, last_waypoint: int) -> int:
+    """The item AUTO continues from once waypoint ``last_waypoint`` (0-based, −1: none) is passed."""
+    k = max(0, min(int(last_waypoint), len(plan.waypoint_seq) - 1))
+    return min(plan.waypoint_seq[k] + 1, len(plan.items) - 1)
+
+
+def speed_correction(pos: Vec3, ref: Vec3, ref_vel: Vec3, gain: float = 0.6, min_speed: float = 0.2,
+                     max_gain: float = 2.0) -> float | None:
+    """Ground speed that closes the along-track error to the reference (None: the reference rests).
+
+    ``v = |v_d| − gain · (P − P_d)·v̂_d``, bounded to ``[min_speed, max_gain · |v_d| + 1]`` m/s.
+    """
+    vd = math.sqrt(sum(v * v for v in ref_vel))
+    if not math.isfinite(vd) or vd < 0.05:
+        return None
+    along = sum((p - r) * v for p, r, v in zip(pos, ref, ref_vel)) / vd
+    if not math.isfinite(along):
+        return None
+    return max(min_speed, min(max_gain * vd + 1.0, vd - gain * along))
