@@ -46,17 +46,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["ATSMGains", "ATSM", "TwistingController", "wrap_angle"]
+from .angles import wrap_angle
+
+__all__ = ["ATSMGains", "ATSM", "TwistingController"]
 
 Vec3 = tuple[float, float, float]
-
-
-def wrap_angle(a: float) -> float:
-    """Wrap an angle to (−π, π]."""
-    a = math.fmod(a + math.pi, 2.0 * math.pi)
-    if a <= 0.0:
-        a += 2.0 * math.pi
-    return a - math.pi
 
 
 @dataclass(frozen=True)

@@ -125,6 +125,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from edge.vehicle.angles import wrap_angle
 from edge.vehicle.apm import items as AI
 from edge.vehicle.apm.items import capture_params
 from edge.vehicle.apm.modes import CopterMode
@@ -235,17 +236,11 @@ def enu_to_ned(v: Any) -> np.ndarray:
     return ned_to_enu(v)
 
 
-def wrap(a: float) -> float:
-    """Angle wrapped to (−π, π]."""
-    w = math.remainder(a, 2.0 * math.pi)
-    return math.pi if w == -math.pi else w
-
-
 def yaw_ned_to_enu(yaw: float) -> float:
     """Heading from north, clockwise (NED) -> from east, counter-clockwise (ENU): ``π/2 − ψ``, wrapped."""
     if not math.isfinite(yaw):
         raise ValueError("yaw must be finite")
-    return wrap(math.pi / 2.0 - yaw)
+    return wrap_angle(math.pi / 2.0 - yaw)
 
 
 def yaw_enu_to_ned(yaw: float) -> float:

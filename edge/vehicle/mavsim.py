@@ -89,7 +89,8 @@ from edge.vehicle.apm.signing import enable_signing, parse_key
 from edge.vehicle.apm.streams import DEFAULT_RATES, StreamScheduler
 from edge.vehicle.driver import check_vec3
 from edge.vehicle.follower import Reference
-from edge.vehicle.mavlink import open_connection, wrap
+from edge.vehicle.angles import wrap_angle
+from edge.vehicle.mavlink import open_connection
 from edge.vehicle.quadrotor import DisturbanceParams
 from edge.vehicle.sim import SimDriver, SimParams
 from protocol.messages import Mode
@@ -409,7 +410,7 @@ class MavlinkSimVehicle:
         r = st.att
         self._send("camera_feedback_send", int(time.time() * 1e6), 0, 0, len(self.shots) - 1,
                    round(lat * 1e7), round(lon * 1e7), h, st.pos[2] - self.home[2], math.degrees(r[0]),
-                   -math.degrees(r[1]), math.degrees(wrap(math.pi / 2 - r[2])) % 360.0, 0.0, 1, len(self.shots))
+                   -math.degrees(r[1]), math.degrees(wrap_angle(math.pi / 2 - r[2])) % 360.0, 0.0, 1, len(self.shots))
 
     # ------------------------------------------------------------------ failsafes
     def _failsafe_gcs(self, now: float) -> None:
@@ -502,7 +503,7 @@ class MavlinkSimVehicle:
             self._send("local_position_ned_send", ms, p[1] - h[1], p[0] - h[0], -(p[2] - h[2]), v[1], v[0], -v[2])
         elif name == "ATTITUDE":
             r, q = st.att, st.rates
-            self._send("attitude_send", ms, r[0], -r[1], wrap(math.pi / 2 - r[2]), q[0], -q[1], -q[2])
+            self._send("attitude_send", ms, r[0], -r[1], wrap_angle(math.pi / 2 - r[2]), q[0], -q[1], -q[2])
         elif name == "SYS_STATUS":
             present = _SENSORS | M.MAV_SYS_STATUS_GEOFENCE | M.MAV_SYS_STATUS_PREARM_CHECK
             enabled = _SENSORS | M.MAV_SYS_STATUS_PREARM_CHECK | (
@@ -514,7 +515,7 @@ class MavlinkSimVehicle:
                        0, 0, 0, 0, 0, 0)
         elif name in ("GLOBAL_POSITION_INT", "GPS_RAW_INT", "VFR_HUD"):
             lat, lon, alt = self.enu_to_lla(p)
-            hdg = math.degrees(wrap(math.pi / 2 - st.att[2])) % 360.0
+            hdg = math.degrees(wrap_angle(math.pi / 2 - st.att[2])) % 360.0
             gs = math.hypot(v[0], v[1])
             if name == "GLOBAL_POSITION_INT":
                 self._send("global_position_int_send", ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
@@ -705,7 +706,7 @@ class MavlinkSimVehicle:
         leg = AutoMission([self._home_item(), it], self.item_enu, self.home, speed,
                           radius=self.params["WPNAV_RADIUS"] / 100.0, yaw_behavior=0)
         if math.isfinite(msg.param4):
-            leg._yaw = wrap(math.radians(90.0 - msg.param4))
+            leg._yaw = wrap_angle(math.radians(90.0 - msg.param4))
         self._hold_here()
         self._leg = leg
         return M.MAV_RESULT_ACCEPTED
@@ -805,7 +806,7 @@ class MavlinkSimVehicle:
         pos = (h[0] + msg.y, h[1] + msg.x, h[2] - msg.z) if use_pos else s.pos
         vel = (msg.vy, msg.vx, -msg.vz) if use_vel else _ZERO
         acc = (msg.afy, msg.afx, -msg.afz) if use_acc else _ZERO
-        yaw = s.att[2] if mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE else wrap(math.pi / 2 - msg.yaw)
+        yaw = s.att[2] if mask & M.POSITION_TARGET_TYPEMASK_YAW_IGNORE else wrap_angle(math.pi / 2 - msg.yaw)
         sim.set_external_reference(GuidedTarget(pos, vel, acc, yaw, sim.t))
         self.targets_received += 1
 

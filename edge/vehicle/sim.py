@@ -32,7 +32,8 @@ from typing import Literal
 
 import numpy as np
 
-from edge.vehicle.atsm import ATSM, ATSMGains, TwistingController, wrap_angle
+from edge.vehicle.angles import wrap_angle
+from edge.vehicle.atsm import ATSM, ATSMGains, TwistingController
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.follower import Reference
 from edge.vehicle.pid import PIDGains, PositionPID
