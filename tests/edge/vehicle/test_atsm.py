@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from edge.vehicle.atsm import ATSM, ATSMGains, TwistingController, wrap_angle
+from edge.vehicle.angles import wrap_angle
+from edge.vehicle.atsm import ATSM, ATSMGains, TwistingController
 from edge.vehicle.steptest import STEPS, run_step_test
 
 INERTIA = (0.011, 0.015, 0.021)
