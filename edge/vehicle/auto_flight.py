@@ -30,35 +30,20 @@ from dataclasses import dataclass
 import pymap3d
 
 from edge.vehicle.apm import items as AI
+from edge.vehicle.apm.missions import PlanItem
 from protocol.messages import Trajectory
 
-__all__ = ["AutoItem", "AutoMissionPlan", "autopilot_mission", "resume_item", "speed_correction"]
+__all__ = ["AutoMissionPlan", "autopilot_mission", "resume_item", "speed_correction"]
 
 Vec3 = tuple[float, float, float]
 _GLOBAL = (AI.MAV_FRAME_GLOBAL, AI.MAV_FRAME_GLOBAL_RELATIVE_ALT)
 
 
 @dataclass(frozen=True)
-class AutoItem:
-    """MISSION_ITEM_INT's fields of one item (x, y: degrees × 1e7 in global frames)."""
-
-    seq: int
-    frame: int
-    command: int
-    param1: float = 0.0
-    param2: float = 0.0
-    param3: float = 0.0
-    param4: float = 0.0
-    x: int = 0
-    y: int = 0
-    z: float = 0.0
-
-
-@dataclass(frozen=True)
 class AutoMissionPlan:
     """The items to upload and, per trajectory waypoint, the sequence number of its NAV_WAYPOINT."""
 
-    items: tuple[AutoItem, ...]
+    items: tuple[PlanItem, ...]
     waypoint_seq: tuple[int, ...]
     capture_seq: dict[int, int]  # capture id -> seq of its DO_DIGICAM_CONTROL
 
@@ -77,7 +62,7 @@ def autopilot_mission(traj: Trajectory, home_enu: Vec3, home_lla: Vec3) -> AutoM
     hx, hy, hz = home_enu
     # the mission frame's origin as the autopilot sees it: home minus home's ENU position
     origin = pymap3d.enu2geodetic(-hx, -hy, -hz, lat0, lon0, h0)
-    out: list[AutoItem] = []
+    out: list[PlanItem] = []
     wps: list[int] = []
     captures: dict[int, int] = {}
     src = mission_items(traj, origin)
@@ -88,9 +73,11 @@ def autopilot_mission(traj: Trajectory, home_enu: Vec3, home_lla: Vec3) -> AutoM
         seq = len(out)
         if it.frame in _GLOBAL:
             z = p[6] - hz if it.frame == AI.MAV_FRAME_GLOBAL_RELATIVE_ALT else p[6]  # above home
-            out.append(AutoItem(seq, it.frame, it.command, *p[:4], round(p[4] * 1e7), round(p[5] * 1e7), z))
+            x, y = round(p[4] * 1e7), round(p[5] * 1e7)
         else:
-            out.append(AutoItem(seq, it.frame, it.command, *p[:4], int(p[4]), int(p[5]), p[6]))
+            x, y, z = int(p[4]), int(p[5]), p[6]
+        out.append(PlanItem(seq=seq, frame=it.frame, command=it.command, param1=p[0], param2=p[1], param3=p[2],
+                            param4=p[3], x=x, y=y, z=z))
         if seq >= 2 and it.command == AI.MAV_CMD_NAV_WAYPOINT:
             wps.append(seq)
         elif it.command == AI.MAV_CMD_DO_DIGICAM_CONTROL:

@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from protocol.messages import ImageMeta
+from protocol.scenario import surface_frame
 
 __all__ = ["Plane", "Mosaic", "PosedFrame", "build_mosaic", "canvas_homography", "frame_gsd", "plane_from_frames"]
 
@@ -46,19 +47,9 @@ class Plane:
     @classmethod
     def from_corners(cls, corners: ArrayLike) -> Plane:
         """From the corners p0, p1, p2, p3 (p0-p1 the bottom edge, p3 above p0), ENU metres."""
+        p0, u, v = surface_frame(corners)  # the one surface frame (protocol.scenario); ValueError when degenerate
         c = np.asarray(corners, float)
-        if c.shape != (4, 3) or not np.all(np.isfinite(c)):
-            raise ValueError(f"corners must be 4 finite (x, y, z) points, got shape {c.shape}")
-        a, b = c[1] - c[0], c[3] - c[0]
-        w = float(np.linalg.norm(a))
-        if w < 1e-9:
-            raise ValueError("corners: zero-length bottom edge")
-        u = a / w
-        b = b - (b @ u) * u
-        h = float(np.linalg.norm(b))
-        if h < 1e-9:
-            raise ValueError("corners: degenerate rectangle")
-        return cls(c[0].copy(), u, b / h, w, h)
+        return cls(p0.copy(), u, v, float((c[1] - p0) @ u), float((c[3] - p0) @ v))
 
     @property
     def normal(self) -> NDArray[np.float64]:
