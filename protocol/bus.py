@@ -19,15 +19,13 @@ from __future__ import annotations
 
 import argparse
 import collections
-import contextlib
 import json
 import logging
 import os
-import signal
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Literal, Sequence
+from typing import Any, Callable, Literal
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, SecretStr
@@ -37,6 +35,7 @@ from .budget import Budget
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
 from .ring import Ring  # noqa: F401  (services take their rings from the bus)
+from .signals import STOP_SIGNALS, stop_event_on_signals, stopping_on_signals  # noqa: F401  (the services' stop)
 
 log = logging.getLogger("skynet.bus")
 
@@ -585,33 +584,6 @@ class Bus:
 
 
 # ----------------------------------------------------------------------------- process helpers
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
-def stop_event_on_signals(signals: Sequence[int] = STOP_SIGNALS,
-                          stop: threading.Event | None = None) -> threading.Event:
-    """An event set by SIGINT/SIGTERM, so a main loop can close cleanly (the one way every command stops).
-
-    Off the main thread (where Python cannot install handlers) the event is returned unhooked.
-    """
-    stop = stop or threading.Event()
-    if threading.current_thread() is threading.main_thread():
-        for s in signals:
-            signal.signal(s, lambda signum, frame: stop.set())
-    return stop
-
-
-@contextlib.contextmanager
-def stopping_on_signals(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[threading.Event]:
-    """:func:`stop_event_on_signals` for a command run in-process: the previous handlers come back on exit."""
-    previous = {s: signal.getsignal(s) for s in signals} if threading.current_thread() is threading.main_thread() else {}
-    try:
-        yield stop_event_on_signals(signals)
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-
-
 def setup_logging(name: str, level: str = "INFO") -> logging.Logger:
     logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO),
                         format=f"%(asctime)s {name} %(levelname)s %(message)s", datefmt="%H:%M:%S")

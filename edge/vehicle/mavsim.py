@@ -70,7 +70,6 @@ from __future__ import annotations
 import argparse
 import math
 import queue
-import signal
 import sys
 import threading
 import time
@@ -94,6 +93,7 @@ from edge.vehicle.mavlink import open_connection
 from edge.vehicle.quadrotor import DisturbanceParams
 from edge.vehicle.sim import SimDriver, SimParams
 from protocol.messages import Mode
+from protocol.signals import stop_event_on_signals
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
@@ -868,9 +868,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m edge.vehicle.mavs
     except ValueError as exc:
         print(f"mavsim: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_event_on_signals()
     print(f"mavsim up: uav {args.uav} on {args.connection}, speed x{args.speed:g}", flush=True)
     try:
         vehicle.run(stop)

@@ -15,13 +15,12 @@ initial parameters of every autopilot.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
 from edge.vehicle.mavsim import DEFAULT_ORIGIN, MavlinkSimVehicle, _param, _vec
 from edge.vehicle.quadrotor import DisturbanceParams
 from edge.vehicle.sim import SimParams
+from protocol.signals import stop_event_on_signals
 
 __all__ = ["build_parser", "main", "connection_for"]
 
@@ -75,9 +74,7 @@ def main(argv: list[str] | None = None) -> int:
             v.close()
         print(f"sim-autopilot: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_event_on_signals()
     for v in vehicles:
         v.start()
     try:

@@ -19,13 +19,12 @@ pointed at the side-car, e.g. ``SKYNET_UAV2_UPLINK`` was not set), which ends ``
 from __future__ import annotations
 
 import argparse
-import signal
 import socket
 import sys
-import threading
 import time
 from dataclasses import dataclass
 
+from protocol.signals import stop_event_on_signals
 from services.netem.cli import summary
 from services.netem.model import Impairment
 from services.netem.proxy import Address, TcpProxy, UdpProxy, format_address, parse_address
@@ -112,9 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as e:
         print(f"netem side-car {args.link}: cannot resolve a target: {e}", file=sys.stderr, flush=True)
         return EXIT_UNRESOLVED
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_event_on_signals()
     started = time.monotonic()
     try:
         for p in proxies.values():

@@ -221,26 +221,26 @@ class Network:
     def bus_args(self, name: str, mode: str) -> list[str]:
         args = ["--mode", mode, "--fleet", self.args.fleet, "--multilink"]
         if self.plan.proxied and mode == "client":
-            # equal leases on both ends (see GATEWAY_LEASE_S), a short open timeout (see client_config)
-            args += ["--lease", str(GATEWAY_LEASE_S), "--config", str(self.client_config())]
+            # equal leases on both ends (see GATEWAY_LEASE_S), a short open timeout (see client_cfg)
+            args += ["--lease", str(GATEWAY_LEASE_S), *[a for k, v in self.client_cfg() for a in ("--cfg", f"{k}:{v}")]]
         for e in self.endpoints_for(name):
             args += ["--connect", e]
         if self.creds is not None:
             args += ["--user", name]
         return args + self.key_args()
 
-    def client_config(self) -> Path:
-        """The zenoh config of the clients (planner, detector, ground station) when links are proxied:
-        the edges' open timeout (:data:`services.orchestration.topology.OPEN_TIMEOUT_MS`), so that a UDP handshake
-        lost on an impaired link after a gateway restart is retried in seconds, not after zenoh's 10 s."""
-        path = self.tmp / "client.json5"
-        if not path.exists():
-            path.write_text(json.dumps({"transport": {"unicast": {"open_timeout": self.open_timeout}}}))
-        return path
+    def client_cfg(self) -> list[tuple[str, str]]:
+        """The zenoh config change of the clients (planner, detector, ground station) when links are proxied
+        (``--cfg``): the edges' open timeout (:data:`services.orchestration.topology.OPEN_TIMEOUT_MS`), so
+        that a UDP handshake lost on an impaired link after a gateway restart is retried in seconds, not
+        after zenoh's 10 s."""
+        return [("transport/unicast/open_timeout", json.dumps(self.open_timeout))]
 
     def edge_config(self, i: int) -> list[str]:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
-        rules that keep its links on the proxies (:func:`services.orchestration.topology.edge_mesh_config`)."""
+        rules that keep its links on the proxies (:func:`services.orchestration.topology.edge_mesh_config`).
+        A file (mode 0600), not ``--cfg``: with ``--secure`` it holds the mesh's passwords, which must not
+        show on a command line."""
         # several formations: no gossip autoconnect, or every edge would dial every other (issue 18)
         formations = self.args.uavs > FORMATION_SIZE
         if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied and not formations:
@@ -280,7 +280,7 @@ class Network:
     def gcs_config(self) -> BusConfig:
         """The in-process ground station's session."""
         creds = {} if self.creds is None else {"user": "gcs", "password": self.creds.passwords["gcs"]}
-        lease = {"lease_s": GATEWAY_LEASE_S, "config_file": str(self.client_config())} if self.plan.proxied else {}
+        lease = {"lease_s": GATEWAY_LEASE_S, "cfg": self.client_cfg()} if self.plan.proxied else {}
         tls = {}
         if self.trust.keys is not None and self.trust.tls:
             from protocol.keyset import KeySet
@@ -312,16 +312,15 @@ class Network:
         return out
 
     def gateway_config(self) -> list[str]:
-        """``--config FILE`` of the gateway with ``--gcs-state-hz``: the clients' view of the states
-        downsampled (:mod:`services.gateway.downsample`), else nothing."""
+        """``--cfg downsampling:[...]`` of the gateway with ``--gcs-state-hz``: the clients' view of the
+        states downsampled (:mod:`services.gateway.downsample`), else nothing."""
         hz = getattr(self.args, "gcs_state_hz", 0.0) or 0.0
         if hz <= 0:
             return []
         from ..gateway.downsample import state_downsampling
 
-        path = self.tmp / "gateway.json5"
-        path.write_text(json.dumps(state_downsampling(self.args.fleet, hz, self.args.uavs)))
-        return ["--config", str(path)]
+        rules = state_downsampling(self.args.fleet, hz, self.args.uavs)
+        return [a for k, v in rules.items() for a in ("--cfg", f"{k}:{json.dumps(v)}")]
 
     def start(self) -> None:
         a = self.args

@@ -234,7 +234,8 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
             assert float(a[a.index("--preview-hz") + 1]) == 0.0
             assert svc.wait_for("board up", 30), "\n".join(svc.lines[-20:])
         gw = net.group.get("gateway").args
-        conf = json.loads(open(gw[gw.index("--config") + 1]).read())
+        cfg = [gw[k + 1] for k, a in enumerate(gw) if a == "--cfg" and gw[k + 1].startswith("downsampling:")]
+        conf = {"downsampling": json.loads(cfg[0].split(":", 1)[1])}
         assert [r["key_expr"] for r in conf["downsampling"][0]["rules"]] == [f"skynet/opts/uav/{u}/state" for u in range(1, 5)]
         assert net.check_alive() == []
     finally:

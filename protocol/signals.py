@@ -1,0 +1,36 @@
+"""Stopping on SIGINT/SIGTERM: the one way every command of the project stops (no Zenoh needed)."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator, Sequence
+
+__all__ = ["STOP_SIGNALS", "stop_event_on_signals", "stopping_on_signals"]
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def stop_event_on_signals(signals: Sequence[int] = STOP_SIGNALS,
+                          stop: threading.Event | None = None) -> threading.Event:
+    """An event set by SIGINT/SIGTERM, so a main loop can close cleanly (the one way every command stops).
+
+    Off the main thread (where Python cannot install handlers) the event is returned unhooked.
+    """
+    stop = stop or threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for s in signals:
+            signal.signal(s, lambda signum, frame: stop.set())
+    return stop
+
+
+@contextlib.contextmanager
+def stopping_on_signals(signals: Sequence[int] = STOP_SIGNALS) -> Iterator[threading.Event]:
+    """:func:`stop_event_on_signals` for a command run in-process: the previous handlers come back on exit."""
+    previous = {s: signal.getsignal(s) for s in signals} if threading.current_thread() is threading.main_thread() else {}
+    try:
+        yield stop_event_on_signals(signals)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
