@@ -102,6 +102,7 @@ class Board:
         self.stale: set[int] = set()  # formation members whose state went stale (event sent)
         self.seq = 0
         self.last_heartbeat: float | None = None
+        self._pilot_modes_seen = 0  # the driver's external_modes already reported
         o = options
         self.failsafe = FailsafePolicy(FailsafeOptions(
             timeout_s=o.failsafe_timeout_s, action=o.failsafe_action, escalate_after_s=o.failsafe_escalate_after_s,
@@ -231,6 +232,7 @@ class Board:
         for ev in captures:
             if self.camera is not None:
                 self.camera.capture(ev, now_wall)
+        self._report_pilot_modes()
         fresh = self._watch_staleness(now_wall)
         msg = st.to_message(self.uav, self.seq, now_wall).model_copy(update={"neighbours": fresh, **plan})
         if self.camera is not None:  # live preview: rate-limited, best-effort, encoded off this loop
@@ -238,6 +240,17 @@ class Board:
         self.seq += 1
         self.state_pub.put(msg)
         return msg
+
+    def _report_pilot_modes(self) -> None:
+        """An event for each autopilot mode the edge did not command (a pilot taking over, as in the paper;
+        the MAVLink driver's ``external_modes``): the driver has stopped commanding until resumed."""
+        modes = getattr(self.driver, "external_modes", None)
+        if modes is None or len(modes) <= self._pilot_modes_seen:
+            return
+        for mode in list(modes[self._pilot_modes_seen:]):
+            self.event("pilot-mode", f"the autopilot is in {mode}, a mode the edge did not command: it stops "
+                       "commanding until resumed", Level.WARNING, mode=mode)
+        self._pilot_modes_seen = len(modes)
 
     def _watch_staleness(self, now_wall: float) -> int:
         """Events when a formation member's state goes stale or fresh again; the number of fresh ones."""

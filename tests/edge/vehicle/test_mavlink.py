@@ -320,7 +320,7 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
     from protocol import keys
     from protocol.bus import Bus, BusConfig
     from protocol.links import TELEMETRY
-    from protocol.messages import CommandAck, Land, Start, Takeoff, UploadTrajectory, VehicleState
+    from protocol.messages import CommandAck, Event, Land, Start, Takeoff, UploadTrajectory, VehicleState
 
     fleet, port, epoch, speed = "mav", free_udp_port(), time.time(), 4.0
     veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=speed, epoch=epoch,
@@ -331,6 +331,7 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
         "--vehicle", "mavlink", "--mavlink", f"udpin:127.0.0.1:{port}", "--home", ",".join(map(str, HOME)),
         "--epoch", repr(epoch), "--speed", str(speed)])
     states: list[VehicleState] = []
+    events: list[Event] = []
 
     def wait(pred, timeout=20.0):
         deadline = time.monotonic() + timeout
@@ -342,6 +343,7 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
         assert edge.wait_for("board up", 30), "\n".join(edge.lines)
         with Bus(BusConfig(mode="client", connect=gateway, multilink=True), fleet, "gcs") as gcs:
             gcs.subscribe(keys.state(fleet, 1), lambda m, s: states.append(m), expect=VehicleState, link=TELEMETRY)
+            gcs.subscribe(keys.event(fleet, 1), lambda m, s: events.append(m), expect=Event)
             assert wait(lambda s: s.mode == Mode.IDLE), states[-1:]
 
             def cmd(msg):
@@ -359,6 +361,12 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
             assert wait(lambda s: s.mode == Mode.MISSION, 5), states[-1]
             assert wait(lambda s: s.mode == Mode.HOLD and s.captures == 3, 20), states[-1]
             assert math.dist(states[-1].pos, (HOME[0] + 8, HOME[1] + 2, HOME[2] + 5)) < 1.0
+            veh.pilot_mode(CopterMode.LOITER)  # a pilot takes over: the edge says so on the bus (issue 13)
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and not any(e.kind == "pilot-mode" for e in events):
+                time.sleep(0.05)
+            pilot = [e for e in events if e.kind == "pilot-mode"]
+            assert pilot and pilot[0].data["mode"] == "LOITER" and pilot[0].level == "warning", events
             assert cmd(Land(uav=1, cmd_id=5)).accepted
             assert wait(lambda s: s.mode == Mode.LANDED and not s.armed, 20), states[-1]
     finally:
