@@ -61,8 +61,8 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
 - disarms on the ground after landing and DISARM_DELAY s after arming without a takeoff.
 - :meth:`MavlinkSimVehicle.pilot_mode` flips the mode as the pilot's remote control would.
 
-Not simulated: MAVLink FTP, RC channels, SmartRTL (its failsafe choices use RTL), terrain, RTL_ALT
-(the simulation's RTL climbs to SimParams.rtl_altitude; the parameter is stored and reported).
+Not simulated: MAVLink FTP, RC channels, SmartRTL (its failsafe choices use RTL), terrain. RTL climbs
+to RTL_ALT above home (or stays higher), flies home and lands, as ArduCopter's RTL does.
 """
 
 from __future__ import annotations
@@ -737,8 +737,8 @@ class MavlinkSimVehicle:
                         self._leg = None
                 elif m == CopterMode.LAND:
                     sim.land()
-                elif m == CopterMode.RTL:
-                    sim.return_to_launch()
+                elif m == CopterMode.RTL:  # ArduCopter's RTL climbs to RTL_ALT (cm) above home first
+                    sim.return_to_launch(self.params["RTL_ALT"] / 100.0)
                 elif m == CopterMode.AUTO and prev != CopterMode.AUTO:
                     self._hold_here()
         except ValueError as exc:

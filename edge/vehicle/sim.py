@@ -288,15 +288,18 @@ class SimDriver(VehicleDriver):
         start = (here[0], here[1], self.ref_pos[2] if self.ref_pos[2] < here[2] else here[2])
         self._go((here[0], here[1], self.home[2] - 2.0), self.params.land_speed, start)
 
-    def return_to_launch(self) -> None:
+    def return_to_launch(self, altitude: float | None = None) -> None:
+        """Climb to ``max(here, altitude)`` above launch (default ``rtl_altitude``), fly home, land."""
         self._require(_AIRBORNE, "return to launch")
         if self.mode == Mode.RTL:
             return
+        if altitude is not None and not (math.isfinite(altitude) and altitude >= 0):
+            raise ValueError(f"return altitude must be finite and >= 0 m, got {altitude!r}")
         self.mode = Mode.RTL
         self._external = None
         self.mission.cancel()
         here = self._here()
-        self._rtl_z = max(here[2], self.home[2] + self.params.rtl_altitude)
+        self._rtl_z = max(here[2], self.home[2] + (self.params.rtl_altitude if altitude is None else altitude))
         self._rtl_leg = "climb"
         self._yaw_ref = self.quad.s[8]
         self._go((here[0], here[1], self._rtl_z), self.params.takeoff_speed, here)

@@ -187,7 +187,10 @@ def test_takeoff_reposition_rtl_land_and_disarm():
                                 and abs(p.longitude_deg - lon) < 5e-6 and abs(p.relative_altitude_m - 8.0) < 0.5, 120)
             assert there.relative_altitude_m == pytest.approx(8.0, abs=0.5)
             assert (192, 0) in s.veh.commands  # MAV_CMD_DO_REPOSITION accepted
-            await s.act.return_to_launch()
+            await s.act.set_return_to_launch_altitude(12.0)  # MAVSDK writes ArduPilot's RTL_ALT, in cm
+            assert s.veh.params["RTL_ALT"] == 1200
+            await s.act.return_to_launch()  # climbs to RTL_ALT above home first, as ArduCopter does
+            await first(s.tel.subscribe_position(), lambda p: p.relative_altitude_m > 11.5, 60)
             assert int(await first(s.tel.subscribe_landed_state(), lambda st: int(st) == 1, 180)) == 1
             p = s.veh.sim.state().pos
             assert math.hypot(p[0], p[1]) < 1.0 and s.veh.custom_mode == CopterMode.RTL
