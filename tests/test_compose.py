@@ -40,6 +40,7 @@ VARIANTS = [
     (["-f", "docker-compose.yml", "-f", "compose/insecure.yml"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/insecure.yml", "--env-file", "compose/netem.env"], {}),
     (["--profile", "web"], {}),
+    (["-f", "docker-compose.yml", "-f", "compose/video.yml"], {}),
     (["-f", "compose/ground.yml"], {}),
     (["-f", "compose/edge.yml"], EDGE_ENV),
 ]
@@ -152,7 +153,7 @@ def test_no_port_is_published_unless_asked_and_then_on_localhost():
     assert all(_defaults(p).startswith("127.0.0.1:") for p in services["web"]["ports"])
     ports = _services(ROOT / "compose/ports.yml")["gateway"]["ports"]
     assert ports and all(_defaults(p).startswith("127.0.0.1:") for p in ports)
-    for path in ("compose/ground.yml", "compose/edge.yml", "compose/mavlink.yml"):
+    for path in ("compose/ground.yml", "compose/edge.yml", "compose/mavlink.yml", "compose/video.yml"):
         for svc in _services(ROOT / path).values():
             assert all(_defaults(p).startswith("127.0.0.1:") for p in svc.get("ports", [])), path
 
