@@ -248,9 +248,10 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
     if role == "detector":
         return [
             Grant("ingress", ("declare_subscriber", "query"), (cam_all, keys.advanced(cam_all))),
-            Grant("ingress", ("put",), (keys.defects(fleet), keys.rcu_event(fleet, "detector"),
-                                        keys.rcu_stats(fleet, "detector"))),
-            Grant("ingress", ("liveliness_token",), (keys.rcu_alive(fleet, "detector"),)),
+            # every instance (detector, detector-K: services.detector.partition) on its own keys
+            Grant("ingress", ("put",), (keys.defects(fleet), keys.rcu_instances(fleet, "detector", "event"),
+                                        keys.rcu_instances(fleet, "detector", "stats"))),
+            Grant("ingress", ("liveliness_token",), (keys.rcu_instances(fleet, "detector", "alive"),)),
             Grant("egress", ("put", "reply"), (cam_all, keys.advanced(cam_all))),
             interest,
         ]
