@@ -47,6 +47,14 @@ def analyse_frame(meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: in
                                                             digest=hashlib.sha256(image).hexdigest())})
 
 
+def _init_worker() -> None:
+    """A worker ignores Ctrl-C: the signal goes to the whole process group, and the detector that owns the
+    pool shuts it down itself (:meth:`DetectorPool.close`) after draining its queue."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _warm() -> int:
     """Import the detection stack in a fresh worker (spawn imports lazily), so the first frame is not slow."""
     import os
@@ -74,7 +82,7 @@ class DetectorPool:
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx)
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx, initializer=_init_worker)
 
     def warm(self, timeout: float = 60.0) -> list[int]:
         """Start every worker process and import the detection stack in it; their pids."""

@@ -131,6 +131,8 @@ def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
     (["mission", "--fault", "3s kill gcs"], "gcs"),
     (["mission", "--fault", "3 kill gateway"], "'3'"),
     (["up", "--fault", "3s partition uav1-uav5 for 2s"], "uav5"),
+    (["up", "--uavs", "2", "--detectors", "3"], "--detectors 3"),
+    (["mission", "--uavs", "4", "--detectors", "2", "--fault", "3s kill detector"], "detector-0"),
 ])
 def test_bad_links_and_faults_are_one_line_errors(argv, needle):
     proc = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
@@ -241,3 +243,21 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
         net.stop()
     with pytest.raises(SystemExit):
         build_parser("up").parse_args(["--frame-size", "big"])
+
+
+def test_detectors_option_starts_partitioned_instances():
+    """Issue 18: ``--detectors 2`` starts detector-0 and detector-1, each on its partition of the UAV ids."""
+    from services.launcher import Network, build_parser
+
+    net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "parts", "--uavs", "4", "--detectors", "2"]),
+                  echo=None)
+    try:
+        net.start()
+        for k in (0, 1):
+            svc = net.group.get(f"detector-{k}")
+            a = svc.args
+            assert a[a.index("--partition") + 1] == f"{k}/2" and a[a.index("--max-uav") + 1] == "4"
+            assert svc.wait_for(f"detector up: detector-{k}, partition {k}/2", 60), "\n".join(svc.lines[-20:])
+        assert net.check_alive() == []
+    finally:
+        net.stop()
