@@ -1,8 +1,9 @@
 """Detector scaling benchmark (issue 18): capture->report latency for bursts of simultaneous frames.
 
 A real gateway and real ``skynet detector`` processes on loopback; a sender node plays N UAVs whose
-cameras each send one capture at the same instant (a formation reaching its capture points together),
-``--bursts`` times, ``--gap`` seconds apart. Side by side in one run, per configuration:
+cameras each send one capture at the same instant (a formation reaching its capture points together).
+Every configuration runs at once, each on a fleet of its own, and their bursts take turns, ``--gap``
+seconds apart, ``--bursts`` rounds (so a change in the machine's load falls on all of them):
 
 * ``1 process``: one instance, ``--workers 1`` (one detection process);
 * ``2 processes``: one instance, ``--workers 2``;
@@ -55,70 +56,69 @@ def _meta(uav: int, cid: int, w: int, h: int, stamp: float) -> ImageMeta:
                      intrinsics=Intrinsics(width=w, height=h, fx=500, fy=500, cx=w / 2, cy=h / 2), range_m=5.0)
 
 
-def run_config(name: str, args, jpegs: list[bytes], endpoints: list[str], group: ProcessGroup) -> dict:
-    w, h = args.size
-    instances = CONFIGS[name]
-    procs = []
-    for i, (part, workers) in enumerate(instances):
-        extra = [] if part is None else ["--partition", part, "--max-uav", str(args.uavs)]
-        svc = group.start(f"det-{name}-{i}", ["detector", "--fleet", FLEET, "--multilink", "--workers", str(workers),
-                                              *extra, *[a for e in endpoints for a in ("--connect", e)]])
-        procs.append(svc)
-    for svc in procs:
-        if not svc.wait_for("detector up", 60):
-            raise RuntimeError("\n".join(svc.lines[-20:]))
-    reports: list[tuple[float, DefectReport]] = []
-    lock = threading.Lock()
+class Config:
+    """One configuration's detector processes (on a fleet of its own) and what its reports said."""
 
-    def on_report(m: DefectReport, s) -> None:
-        with lock:
-            reports.append((time.time(), m))
+    def __init__(self, name: str, args, endpoints: list[str], group: ProcessGroup):
+        self.name, self.args, self.fleet = name, args, f"bench{name.replace('x', 'i')}"
+        self.instances = CONFIGS[name]
+        self.procs = []
+        for i, (part, workers) in enumerate(self.instances):
+            extra = [] if part is None else ["--partition", part, "--max-uav", str(args.uavs)]
+            self.procs.append(group.start(f"det-{name}-{i}", [
+                "detector", "--fleet", self.fleet, "--multilink", "--workers", str(workers), *extra,
+                *[a for e in endpoints for a in ("--connect", e)]]))
+        self.reports: list[DefectReport] = []
+        self.lock = threading.Lock()
+        self.bursts: list[float] = []
+        self.sent = 0
 
-    sent = 0
-    with Bus(BusConfig(mode="client", connect=endpoints, multilink=True), FLEET, "bench-uavs") as bus:
-        bus.subscribe(keys.defects(FLEET), on_report, expect=DefectReport)
-        names = ["detector"] if len(instances) == 1 else [f"detector-{k}" for k in range(len(instances))]
+    def attach(self, bus: Bus) -> None:
+        for svc in self.procs:
+            if not svc.wait_for("detector up", 90):
+                raise RuntimeError("\n".join(svc.lines[-20:]))
+        bus.subscribe(keys.defects(self.fleet), self._on_report, expect=DefectReport)
+        names = ["detector"] if len(self.instances) == 1 else [f"detector-{k}" for k in range(len(self.instances))]
         deadline = time.monotonic() + 20
-        while not all(bus.alive(keys.rcu_alive(FLEET, n)) for n in names) and time.monotonic() < deadline:
+        while not all(bus.alive(keys.rcu_alive(self.fleet, n)) for n in names) and time.monotonic() < deadline:
             time.sleep(0.1)
-        pubs = {u: bus.publisher(keys.camera(FLEET, u), IMAGERY_RELIABLE) for u in range(1, args.uavs + 1)}
-        senders = {u: RtpSender(ssrc_for(u)) for u in pubs}
-        time.sleep(1.0)
-        bursts = []
-        for b in range(args.bursts):
-            t0 = time.time()
-            for u, pub in pubs.items():  # every UAV at its capture point together
-                now = time.time()
-                pub.put_bytes(pack_image(senders[u], _meta(u, b, w, h, now), jpegs[(b * args.uavs + u) % len(jpegs)],
-                                         now))
-                sent += 1
-            bursts.append(t0)
-            time.sleep(args.gap)
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
-            with lock:
-                if len(reports) >= sent:
-                    break
-            time.sleep(0.05)
-        time.sleep(0.5)
-    for svc in procs:
-        group.kill(svc.name)
-    with lock:
-        got = list(reports)
-    lat = np.array([1000 * (m.stamp_report - m.stamp_capture) for _, m in got if m.ok])
-    seen = Counter((m.uav, m.capture_id) for _, m in got)
-    last = []
-    for b, t0 in enumerate(bursts):
-        ts = [m.stamp_report for _, m in got if m.capture_id == b]
-        if ts:
-            last.append(1000 * (max(ts) - t0))
-    return {"config": name, "label": LABEL[name], "instances": len(instances),
-            "processes": sum(wk for _, wk in instances), "sent": sent, "reports": len(got),
-            "distinct": len(seen), "duplicates": sum(c - 1 for c in seen.values()),
-            "p50_ms": float(np.percentile(lat, 50)) if len(lat) else None,
-            "p95_ms": float(np.percentile(lat, 95)) if len(lat) else None,
-            "max_ms": float(lat.max()) if len(lat) else None,
-            "burst_last_report_ms_median": float(np.median(last)) if last else None}
+        self.pubs = {u: bus.publisher(keys.camera(self.fleet, u), IMAGERY_RELIABLE) for u in range(1, self.args.uavs + 1)}
+        self.senders = {u: RtpSender(ssrc_for(u)) for u in self.pubs}
+
+    def _on_report(self, m: DefectReport, s) -> None:
+        with self.lock:
+            self.reports.append(m)
+
+    def burst(self, b: int, jpegs: list[bytes]) -> None:
+        w, h = self.args.size
+        self.bursts.append(time.time())
+        for u, pub in self.pubs.items():  # every UAV at its capture point together
+            now = time.time()
+            pub.put_bytes(pack_image(self.senders[u], _meta(u, b, w, h, now), jpegs[(b * self.args.uavs + u) % len(jpegs)],
+                                     now))
+            self.sent += 1
+
+    def done(self) -> bool:
+        with self.lock:
+            return len(self.reports) >= self.sent
+
+    def row(self) -> dict:
+        with self.lock:
+            got = list(self.reports)
+        lat = np.array([1000 * (m.stamp_report - m.stamp_capture) for m in got if m.ok])
+        seen = Counter((m.uav, m.capture_id) for m in got)
+        last = []
+        for b, t0 in enumerate(self.bursts):
+            ts = [m.stamp_report for m in got if m.capture_id == b]
+            if ts:
+                last.append(1000 * (max(ts) - t0))
+        return {"config": self.name, "label": LABEL[self.name], "instances": len(self.instances),
+                "processes": sum(wk for _, wk in self.instances), "sent": self.sent, "reports": len(got),
+                "distinct": len(seen), "duplicates": sum(c - 1 for c in seen.values()),
+                "p50_ms": float(np.percentile(lat, 50)) if len(lat) else None,
+                "p95_ms": float(np.percentile(lat, 95)) if len(lat) else None,
+                "max_ms": float(lat.max()) if len(lat) else None,
+                "burst_last_report_ms_median": float(np.median(last)) if last else None}
 
 
 def main() -> int:
@@ -143,9 +143,20 @@ def main() -> int:
                                      *[a for e in endpoints for a in ("--listen", e)]])
         if not gw.wait_for("router up", 30):
             raise RuntimeError("\n".join(gw.lines[-20:]))
-        for name in args.configs:
-            rows.append(run_config(name, args, jpegs, endpoints, group))
-            print(f"  {rows[-1]}", file=sys.stderr)
+        configs = [Config(name, args, endpoints, group) for name in args.configs]  # all started up front
+        with Bus(BusConfig(mode="client", connect=endpoints, multilink=True), "bench", "bench-uavs") as bus:
+            for c in configs:
+                c.attach(bus)
+            time.sleep(1.0)
+            for b in range(args.bursts):  # the configurations' bursts take turns: the same load on each
+                for c in configs:
+                    c.burst(b, jpegs)
+                    time.sleep(args.gap)
+            deadline = time.monotonic() + 30
+            while not all(c.done() for c in configs) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(0.5)
+        rows = [c.row() for c in configs]
     finally:
         group.stop()
     print(f"\nBursts of {args.uavs} simultaneous {w}x{h} captures, {args.bursts} bursts {args.gap} s apart "
