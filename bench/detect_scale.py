@@ -82,7 +82,8 @@ class Config:
         deadline = time.monotonic() + 20
         while not all(bus.alive(keys.rcu_alive(self.fleet, n)) for n in names) and time.monotonic() < deadline:
             time.sleep(0.1)
-        self.pubs = {u: bus.publisher(keys.camera(self.fleet, u), IMAGERY_RELIABLE) for u in range(1, self.args.uavs + 1)}
+        self.pubs = {u: bus.publisher(keys.camera(self.fleet, u), IMAGERY_RELIABLE)
+                     for u in range(1, self.args.uavs + 1)}
         self.senders = {u: RtpSender(ssrc_for(u)) for u in self.pubs}
 
     def _on_report(self, m: DefectReport, s) -> None:
@@ -94,8 +95,8 @@ class Config:
         self.bursts.append(time.time())
         for u, pub in self.pubs.items():  # every UAV at its capture point together
             now = time.time()
-            pub.put_bytes(pack_image(self.senders[u], _meta(u, b, w, h, now), jpegs[(b * self.args.uavs + u) % len(jpegs)],
-                                     now))
+            jpeg = jpegs[(b * self.args.uavs + u) % len(jpegs)]
+            pub.put_bytes(pack_image(self.senders[u], _meta(u, b, w, h, now), jpeg, now))
             self.sent += 1
 
     def done(self) -> bool:
