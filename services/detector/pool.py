@@ -49,10 +49,19 @@ def analyse_frame(meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: in
 
 def _init_worker() -> None:
     """A worker ignores Ctrl-C: the signal goes to the whole process group, and the detector that owns the
-    pool shuts it down itself (:meth:`DetectorPool.close`) after draining its queue."""
+    pool shuts it down itself (:meth:`DetectorPool.close`) after draining its queue. A worker whose detector
+    dies without closing it (SIGKILL, a crash) follows it at once instead of staying behind as an orphan."""
+    import os
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    parent = multiprocessing.parent_process()
+    if parent is not None:
+        def follow() -> None:
+            parent.join()  # returns when the parent's sentinel closes: it has ended
+            os._exit(0)
+
+        threading.Thread(target=follow, name="follow-parent", daemon=True).start()
 
 
 def _warm() -> int:

@@ -78,3 +78,36 @@ def test_bad_arguments_are_refused():
         DetectorPool(0)
     with pytest.raises(ValueError, match="start method"):
         DetectorPool(1, "fork")
+
+
+def test_workers_follow_a_detector_killed_without_closing_its_pool():
+    """A detector that is SIGKILLed (a fault, the OOM killer) leaves no worker processes behind."""
+    import signal
+    import subprocess
+    import sys
+
+    from tests.conftest import wait_until
+
+    code = ("from services.detector.pool import DetectorPool\n"
+            "import time\n"
+            "p = DetectorPool(2)\n"
+            "print(*p.warm(), flush=True)\n"
+            "time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(x) for x in proc.stdout.readline().split()]
+        assert len(pids) == 2 and all(_alive(p) for p in pids)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+        assert wait_until(lambda: not any(_alive(p) for p in pids), 10), pids
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return False
