@@ -261,3 +261,21 @@ def test_detectors_option_starts_partitioned_instances():
         assert net.check_alive() == []
     finally:
         net.stop()
+
+
+def test_mission_with_two_detectors_images_every_capture_once(tmp_path):
+    """Issue 18: ``--detectors 2`` (detector-0 and detector-1 sharing 4 UAVs' cameras, secure by default): the
+    mission succeeds, every capture is reported once, and the ledger's analysed counts sum both instances."""
+    out = tmp_path / "report"
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--uavs", "4", "--detectors", "2",
+                           "--speed", "8", "--quiet", "--out", str(out)], capture_output=True, text=True, timeout=400)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    assert report["success"] and not report["failures"]
+    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
+    record = json.loads((out / "record.json").read_text())
+    assert {s["msg"]["source"] for s in record["detector_stats"]} == {"detector-0", "detector-1"}
+    for uav, row in record["imagery"].items():
+        assert row["analysed"] == row["reported"] == row["sent"] > 0, (uav, row)
+    reported = [(d["msg"]["uav"], d["msg"]["capture_id"]) for d in record["defects"] if d["msg"]["ok"]]
+    assert len(reported) == len(set(reported))  # no capture analysed twice
