@@ -68,8 +68,11 @@ def _warm() -> int:
     """Import the detection stack in a fresh worker (spawn imports lazily), so the first frame is not slow."""
     import os
 
+    import time
+
     from . import pipeline  # noqa: F401
 
+    time.sleep(0.2)  # hold this worker, so that each of the pool's warm calls lands on another one
     return os.getpid()
 
 
