@@ -20,7 +20,7 @@ gcs         put the heartbeat and GCS events; query every UAV's ``cmd`` and the 
             receive everything of the fleet (states, events, defects, statistics, tokens).
 planner     declare and answer the planner queryable; its token, events and statistics.
 detector    receive the cameras and query their recovery caches; put defect reports,
-            its statistics and events; its token.
+            its statistics and events, its token (as ``detector`` or any instance ``detector-K``).
 gateway     another gateway (router) relaying this fleet: everything of the fleet.
 ==========  =====================================================================================
 
