@@ -120,6 +120,15 @@ def rcu_stats(fleet: str, name: str) -> str:
     return f"{fleet_root(fleet)}/rcu/{_chunk(name, 'service name')}/stats"
 
 
+def rcu_instances(fleet: str, name: str, topic: str) -> str:
+    """``rcu/<name>$*/<topic>``: every instance of an RCU (``detector``, ``detector-0``, ``detector-1``, ...;
+    services.detector.partition) on its ``alive``, ``event`` or ``stats`` key (``$*``: any characters
+    inside one chunk)."""
+    if topic not in ("alive", "event", "stats"):
+        raise KeyError_(f"rcu instance topic must be alive, event or stats, got {topic!r}")
+    return f"{fleet_root(fleet)}/rcu/{_chunk(name, 'service name')}$*/{topic}"
+
+
 def gateway_stats(fleet: str, gateway_id: str | int = "*") -> str:
     gid = "*" if gateway_id == "*" else _chunk(str(gateway_id), "gateway id")
     return f"{fleet_root(fleet)}/gateway/{gid}/stats"

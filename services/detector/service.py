@@ -3,8 +3,9 @@
 Frames arrive on ``skynet/<fleet>/uav/*/camera`` (RTP header + metadata + JPEG,
 :mod:`protocol.imagery`). The Zenoh callback only parses the 12-byte RTP header and pushes the
 frame into the per-camera jitter buffer (:mod:`protocol.jitter`); frames released in sequence
-order go to a bounded drop-oldest queue served by a small worker pool that decodes, detects
-(:mod:`services.detector.pipeline`) and publishes a :class:`DefectReport` on
+order go to a bounded drop-oldest queue served by a pool of worker *processes*
+(:mod:`services.detector.pool`: not bound by one GIL; a worker that dies is counted and replaced)
+that decode, detect (:mod:`services.detector.pipeline`) and publish a :class:`DefectReport` on
 ``skynet/<fleet>/rcu/detector/defects``. A slow frame never stalls the bus: when the pool falls
 behind, the oldest frames are dropped and counted. A frame that fails to decode is counted and
 reported (``ok=False``), never fatal. Frames lost on the way are asked for again from the
@@ -13,6 +14,10 @@ recovered is counted (``imagery.unrecovered``). ``--no-recovery`` subscribes pla
 frame the link loses stays lost. Live preview frames (``uav/<id>/preview``) are not analysed:
 the camera wildcard does not match them.
 
+Several instances share the fleet's cameras with ``--partition K/N`` (:mod:`services.detector.partition`):
+instance K subscribes only to the camera keys of the UAVs with ``id % N == K`` and is named
+``detector-K`` (its liveliness token and statistics key; its reports go to the common defects key).
+
 Each camera opens its stream with an empty "announce" frame (:meth:`edge.runtime.CameraLink.announce`)
 so that Zenoh's recovery sees a lost first capture as a gap like any other. The detector drops it
 on arrival (``count.announce``): it is not a capture, and it often arrives seconds after it was
@@ -20,7 +25,7 @@ sent (fetched from the cache when the detector starts), which would spoil the ji
 So without recovery a lost *first* capture of a camera is not counted ``lost`` (the jitter
 buffer starts at the first capture it sees); the report's coverage still misses it.
 
-Statistics go out once a second on ``skynet/<fleet>/rcu/detector/stats``; per camera
+Statistics go out once a second on ``skynet/<fleet>/rcu/<name>/stats`` (``detector`` or ``detector-K``); per camera
 (``uav<N>.cam<C>.<name>``): ``received``, ``delivered``, ``lost``, ``duplicated``,
 ``reordered``, ``jitter_ms`` (RFC 3550 A.8 interarrival jitter), ``fraction_lost`` as the jitter
 buffer counts them (:class:`protocol.jitter.JitterStats`), and
@@ -35,7 +40,7 @@ buffer counts them (:class:`protocol.jitter.JitterStats`), and
   ``--no-recovery``.
 
 and overall ``imagery.recovery`` (1 on, 0 off), ``imagery.unrecovered`` (Zenoh's miss
-listener), queue drops and rejections.
+listener), queue drops and rejections, ``pool.workers`` and ``pool.crashes`` (worker processes that died).
 
     skynet detector -m client -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
 """
@@ -43,7 +48,6 @@ listener), queue drops and rejections.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import threading
 import time
 from collections import Counter
@@ -54,11 +58,12 @@ from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_loggin
 from protocol.imagery import split_payload
 from protocol.jitter import Frame, JitterBuffers
 from protocol.links import COMMAND, TELEMETRY
-from protocol.messages import DefectReport, FrameEvidence, LinkStats
+from protocol.messages import DefectReport, LinkStats
 from protocol.rtp import RtpError, parse_ssrc, unpack_frame
 
 from .detect import METHODS
-from .pipeline import analyse
+from .partition import MAX_UAV, Partition
+from .pool import CONTEXTS, DetectorPool, WorkerCrashed
 from .recovery import RecoveryTracker
 
 #: frames waiting for a worker before the oldest is dropped. Capture frames are what coverage counts,
@@ -90,7 +95,8 @@ class DetectorService:
     """Binds the pipeline to the bus; see the module docstring."""
 
     def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = QUEUE_FRAMES,
-                 playout_delay_s: float = 0.05, log=None, recover: bool = True, save_frames: str | None = None):
+                 playout_delay_s: float = 0.05, log=None, recover: bool = True, save_frames: str | None = None,
+                 partition: Partition = Partition(), max_uav: int = MAX_UAV, context: str = "spawn"):
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")
         self.bus, self.method, self.log = bus, method, log
@@ -101,20 +107,24 @@ class DetectorService:
         # late frames too: out of order, but captures all the same (coverage)
         self._jb = JitterBuffers(capacity=64, playout_delay_s=playout_delay_s, release_late=True)
         self._lock = threading.Lock()
-        self.work = Ring(queue, self._process, name="detector", workers=workers)
+        self.partition, self.name = partition, partition.name
+        # detection in worker processes; one Ring thread per process keeps at most `workers` frames in flight
+        self.pool = DetectorPool(workers, context)
+        self.pool.warm()
+        self.work = Ring(queue, self._process, name=self.name, workers=workers)
         self.pub = bus.publisher(keys.defects(bus.fleet), COMMAND)
-        self.stats_pub = bus.publisher(keys.rcu_stats(bus.fleet, "detector"), TELEMETRY)
+        self.stats_pub = bus.publisher(keys.rcu_stats(bus.fleet, self.name), TELEMETRY)
         self.recovery = RecoveryTracker() if recover else None  # None: recovery off
-        cams = keys.camera(bus.fleet, "*")
-        if recover:
-            # frames lost on a lossy link are retransmitted from the cameras' caches; a plain
-            # subscriber beside it sees what the link delivered the first time (recovered = the rest)
-            bus.subscribe_raw(cams, self._on_live)
         # per-camera budget (protocol.budget), charged after the RTP header and SSRC check: frames of a
         # foreign SSRC on a camera's key are rejected without using up that camera's budget
         self._budget = for_topic("camera")
-        bus.subscribe_raw(cams, self._on_frame, recover=bool(recover))
-        bus.token(keys.rcu_alive(bus.fleet, "detector"))
+        for cams in partition.camera_keys(bus.fleet, max_uav):  # the wildcard, or this partition's UAVs
+            if recover:
+                # frames lost on a lossy link are retransmitted from the cameras' caches; a plain
+                # subscriber beside it sees what the link delivered the first time (recovered = the rest)
+                bus.subscribe_raw(cams, self._on_live)
+            bus.subscribe_raw(cams, self._on_frame, recover=bool(recover))
+        bus.token(keys.rcu_alive(bus.fleet, self.name))
         self._t0 = time.time()
 
     def _on_frame(self, sample) -> None:
@@ -198,10 +208,12 @@ class DetectorService:
         if meta.uav != parse_ssrc(frame.ssrc)[0]:  # the metadata must name the camera's own UAV
             self.counts[binding.MISMATCH] += 1
             return
-        report = analyse(meta, image, self.method)
-        # the evidence the ground station counts a capture on: which frame, and a digest of its image bytes
-        report = report.model_copy(update={"frame": FrameEvidence(ssrc=frame.ssrc, seq=frame.sequence,
-                                                                  digest=hashlib.sha256(image).hexdigest())})
+        try:  # in a worker process, with the evidence the ground station counts a capture on (pool.analyse_frame)
+            report = self.pool.analyse(meta, image, self.method, frame.ssrc, frame.sequence)
+        except WorkerCrashed as exc:
+            self.counts["worker-crashed"] += 1
+            report = DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
+                                  stamp_report=time.time(), method=self.method, ok=False, error=str(exc))
         with self._lock:
             self.analysed[frame.ssrc] += 1
         if self.save_frames and report.ok:
@@ -240,8 +252,10 @@ class DetectorService:
         metrics["imagery.unrecovered"] = sum(v for k, v in missed.items() if k.startswith("missed:"))
         metrics["queue.dropped"] = self.work.dropped
         metrics["queue.processed"] = self.work.processed
+        metrics["pool.workers"] = self.pool.workers
+        metrics["pool.crashes"] = self.pool.crashes
         counts = dict(self.counts)
-        return LinkStats(source="detector", stamp=time.time(), uptime_s=time.time() - self._t0,
+        return LinkStats(source=self.name, stamp=time.time(), uptime_s=time.time() - self._t0,
                          rejected={**{k: v for k, v in counts.items() if k.startswith("bad")},
                                    **{k: v for k, v in counts.items() if k.startswith("budget")}},
                          metrics={**metrics, **{f"count.{k}": v for k, v in counts.items()}})
@@ -254,13 +268,21 @@ class DetectorService:
         for f in rest:
             self.work.push(f)
         self.work.close(timeout=10.0)
+        self.pool.close()
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet detector", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="client")
     parser.add_argument("--method", default="it+", choices=sorted(METHODS), help="detection method")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=2, help="detection worker processes")
+    parser.add_argument("--start-method", default="spawn", choices=CONTEXTS,
+                        help="how the worker processes start (never fork: Zenoh's threads)")
+    parser.add_argument("--partition", type=Partition.parse, default=Partition(), metavar="K/N",
+                        help="analyse only the cameras of the UAVs with id %% N == K (one of N instances, named "
+                             "detector-K); default 0/1: every camera")
+    parser.add_argument("--max-uav", type=int, default=MAX_UAV,
+                        help="highest UAV id a partition subscribes to (one camera key per owned UAV)")
     parser.add_argument("--queue", type=int, default=QUEUE_FRAMES,
                         help="frames waiting for a worker before the oldest drop")
     parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
@@ -274,13 +296,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    log = setup_logging("detector")
+    name = args.partition.name
+    log = setup_logging(name)
     stop = stop_event_on_signals()
-    with Bus(config_from_args(args, role="detector"), fleet=args.fleet, name="detector") as bus:
+    with Bus(config_from_args(args, role="detector"), fleet=args.fleet, name=name) as bus:
         svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log,
-                              recover=not args.no_recovery, save_frames=args.save_frames)
-        log.info("detector up: method %s, %d workers, recovery %s", args.method, args.workers,
-                 "off" if args.no_recovery else "on")
+                              recover=not args.no_recovery, save_frames=args.save_frames,
+                              partition=args.partition, max_uav=args.max_uav, context=args.start_method)
+        log.info("detector up: %s, partition %s, method %s, %d worker processes, recovery %s", name,
+                 args.partition, args.method, args.workers, "off" if args.no_recovery else "on")
         next_stats = time.monotonic() + 1.0
         while not stop.wait(0.01):
             try:

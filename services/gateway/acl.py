@@ -20,7 +20,7 @@ gcs         put the heartbeat and GCS events; query every UAV's ``cmd`` and the 
             receive everything of the fleet (states, events, defects, statistics, tokens).
 planner     declare and answer the planner queryable; its token, events and statistics.
 detector    receive the cameras and query their recovery caches; put defect reports,
-            its statistics and events; its token.
+            its statistics and events, its token (as ``detector`` or any instance ``detector-K``).
 gateway     another gateway (router) relaying this fleet: everything of the fleet.
 ==========  =====================================================================================
 
@@ -248,9 +248,10 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
     if role == "detector":
         return [
             Grant("ingress", ("declare_subscriber", "query"), (cam_all, keys.advanced(cam_all))),
-            Grant("ingress", ("put",), (keys.defects(fleet), keys.rcu_event(fleet, "detector"),
-                                        keys.rcu_stats(fleet, "detector"))),
-            Grant("ingress", ("liveliness_token",), (keys.rcu_alive(fleet, "detector"),)),
+            # every instance (detector, detector-K: services.detector.partition) on its own keys
+            Grant("ingress", ("put",), (keys.defects(fleet), keys.rcu_instances(fleet, "detector", "event"),
+                                        keys.rcu_instances(fleet, "detector", "stats"))),
+            Grant("ingress", ("liveliness_token",), (keys.rcu_instances(fleet, "detector", "alive"),)),
             Grant("egress", ("put", "reply"), (cam_all, keys.advanced(cam_all))),
             interest,
         ]

@@ -12,7 +12,9 @@ count in its states), received and analysed (the detector), reported (evidenced,
 — goes into the record and the report.
 
 Counters restart with the detector: a statistics message whose uptime went back starts a new run,
-and the totals add the last figures of every run.
+and the totals add the last figures of every run. Several detector instances sharing the cameras
+(``--partition K/N``, :mod:`services.detector.partition`) are told apart by their statistics' ``source``
+(``detector-K``); each has its own runs, and the totals sum over the instances.
 """
 
 from __future__ import annotations
@@ -37,26 +39,28 @@ def detector_totals(stats: Iterable[LinkStats], uavs: Iterable[int]) -> dict[int
     uavs = list(uavs)
     names = ("received", "analysed")
     totals = {u: dict.fromkeys(names, 0) for u in uavs}
-    run = {u: dict.fromkeys(names, 0) for u in uavs}
-    last_uptime, seen = None, False
+    runs: dict[str, dict[int, dict[str, int]]] = {}  # instance (LinkStats.source) -> its current run
+    last_uptime: dict[str, float] = {}
     for st in stats:
-        seen = True
-        if last_uptime is not None and st.uptime_s < last_uptime:  # the detector restarted: a new run
+        run = runs.setdefault(st.source, {u: dict.fromkeys(names, 0) for u in uavs})
+        last = last_uptime.get(st.source)
+        if last is not None and st.uptime_s < last:  # that instance restarted: a new run
             for u in uavs:
                 for n in names:
                     totals[u][n] += run[u][n]
                     run[u][n] = 0
-        last_uptime = st.uptime_s
+        last_uptime[st.source] = st.uptime_s
         for u in uavs:
             for n in names:
                 v = st.metrics.get(f"uav{u}.cam{CAPTURE_CAMERA}.{n}")
                 if v is not None:
                     run[u][n] = max(run[u][n], int(v))
-    if not seen:
+    if not runs:
         return None
-    for u in uavs:
-        for n in names:
-            totals[u][n] += run[u][n]
+    for run in runs.values():
+        for u in uavs:
+            for n in names:
+                totals[u][n] += run[u][n]
     return totals
 
 

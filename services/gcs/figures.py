@@ -647,12 +647,12 @@ def _latest(stats: Sequence[Any]) -> Any | None:
 
 
 def _imagery_metrics(record: MissionRecord) -> dict[str, dict[str, float]]:
-    """Latest ``uavN.camC.<name>`` metrics of the detector, grouped by camera."""
-    st = _latest(record.detector_stats)
+    """Latest ``uavN.camC.<name>`` metrics of the detector, grouped by camera (the latest of each instance,
+    ``detector-K`` sharing the cameras by partition: services.detector.partition)."""
     out: dict[str, dict[str, float]] = {}
-    if st is None:
-        return out
-    for key, value in st.metrics.items():
+    sources = sorted({s.msg.source for s in record.detector_stats})
+    latest = [_latest([s for s in record.detector_stats if s.msg.source == src]) for src in sources]
+    for key, value in ((k, v) for st in latest for k, v in st.metrics.items()):
         parts = key.split(".")
         if len(parts) == 3 and parts[0].startswith("uav") and parts[1].startswith("cam"):
             out.setdefault(f"{parts[0]}.{parts[1]}", {})[parts[2]] = float(value)

@@ -152,7 +152,7 @@ class MissionRunner:
                       budget=for_topic("defects"))
         bus.subscribe(keys.gateway_stats(fleet), self._on_gw_stats, expect=LinkStats, link=TELEMETRY,
                       budget=for_topic("stats"))
-        bus.subscribe(keys.rcu_stats(fleet, "detector"), self._on_det_stats, expect=LinkStats, link=TELEMETRY,
+        bus.subscribe(keys.rcu_instances(fleet, "detector", "stats"), self._on_det_stats, expect=LinkStats, link=TELEMETRY,
                       budget=for_topic("stats"))
         self._hb_pub = bus.publisher(keys.heartbeat(fleet), COMMAND)
         bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)

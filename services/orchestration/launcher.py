@@ -124,6 +124,12 @@ def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
     links = Links(args.uavs, ("planner", "detector", "gcs") if ground_station else ("planner", "detector"))
     impair = parse_impair(getattr(args, "impair", None) or [], links)
     faults = plan_faults(getattr(args, "fault", None) or [], links)
+    detectors = getattr(args, "detectors", 1)
+    if not 1 <= detectors <= args.uavs:
+        raise ValueError(f"--detectors {detectors}: 1 to --uavs ({args.uavs}) instances")
+    if detectors > 1 and any(r.service == "detector" for r in faults):
+        raise ValueError("--fault kill detector: with --detectors N the instances are detector-0..N-1, which "
+                         "faults do not name (cut detector cuts every instance's uplink)")
     proxied = set(impair.links()) | cut_links(faults)
     skynet = {link for link in proxied if link_ends(link) is not None}
     mesh = getattr(args, "mesh", None)
@@ -268,10 +274,11 @@ class Network:
         return out
 
     # -- services
-    def start_service(self, name: str, args: list[str]):
-        """Start a service; with --secure its password goes in its environment, not on its command line."""
+    def start_service(self, name: str, args: list[str], user: str | None = None):
+        """Start a service; with --secure its password (``user``'s, default ``name``'s) goes in its environment,
+        not on its command line."""
         if self.creds is not None:
-            self.group.env[PASSWORD_ENV] = self.creds.passwords[name]
+            self.group.env[PASSWORD_ENV] = self.creds.passwords[user or name]
         try:
             return self.group.start(name, args)
         finally:
@@ -359,8 +366,12 @@ class Network:
         self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         save = ["--save-frames", a.save_frames] if getattr(a, "save_frames", None) else []
-        self.start_service("detector", ["detector", *self.bus_args("detector", "client"), "--method", a.method,
-                                        *no_recovery, *save])
+        n = getattr(a, "detectors", 1)  # N instances share the cameras by UAV id (services.detector.partition)
+        for k in range(n):
+            part = [] if n == 1 else ["--partition", f"{k}/{n}", "--max-uav", str(a.uavs)]
+            self.start_service("detector" if n == 1 else f"detector-{k}",
+                               ["detector", *self.bus_args("detector", "client"), "--method", a.method,
+                                *part, *no_recovery, *save], user="detector")
         if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
             self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
                                          "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
@@ -384,7 +395,7 @@ class Network:
         said it is up. The gateway's ports may still be held for a moment: it is retried until
         :data:`RESTART_TIMEOUT_S`."""
         t0 = time.monotonic()
-        ready = READY.get(name, EDGE_READY)
+        ready = READY.get(name.split("-")[0], EDGE_READY)  # detector-K: an instance of the detector
         while True:
             svc = self.group.restart(name)
             left = RESTART_TIMEOUT_S - (time.monotonic() - t0)
@@ -479,6 +490,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--flight", choices=["guided", "auto"], default="guided",
                    help="--vehicle mavlink: guided (position targets) or auto (a waypoint mission flown in AUTO)")
     p.add_argument("--method", default="it+", help="the detector's method")
+    p.add_argument("--detectors", type=int, default=1, metavar="N",
+                   help="detector instances sharing the cameras (detector-K analyses the UAVs with id %% N == K)")
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
     p.add_argument("--impair", action="append", default=[], metavar="NAME[/udp|/tcp]=SPEC",

@@ -36,7 +36,7 @@ def _list_of(topic: str, msg) -> str | None:
     if info.topic == "stats" and isinstance(msg, LinkStats):
         if info.area == "gateway":
             return "gateway_stats"
-        if info.area == "rcu" and info.name == "detector":
+        if info.area == "rcu" and (info.name == "detector" or info.name.startswith("detector-")):  # or an instance
             return "detector_stats"
     return None
 

@@ -212,3 +212,51 @@ def test_hostile_frames_are_counted_and_the_detector_keeps_running(group, gatewa
     assert not any(r.capture_id == 7 for r in reports)  # neither forged frame was analysed
     assert stats[-1].metrics.get("count.loop-error", 0) == 0
     assert sum("SSRC" in line for line in svc.lines) == 1  # logged once
+
+
+def test_two_partitioned_detectors_analyse_every_frame_of_four_uavs_exactly_once(group, gateway):
+    """Issue 18: ``--partition 0/2`` and ``1/2`` over the real bus; 4 UAVs' cameras send 5 captures each. Every
+    capture is reported exactly once, by the instance that owns its UAV (the other is not even delivered it:
+    its statistics never name that camera), and each instance has its own token and statistics key."""
+    from collections import Counter
+
+    uavs, per_uav = (1, 2, 3, 4), 5
+    for k in (0, 1):
+        svc = group.start(f"detector-{k}", ["detector", "--fleet", FLEET, "--multilink", "--partition", f"{k}/2",
+                                            "--max-uav", "8", *[a for e in gateway for a in ("--connect", e)]])
+        assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    reports: list[DefectReport] = []
+    stats: dict[str, LinkStats] = {}
+    rng = np.random.default_rng(18)
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "uavs") as bus:
+        bus.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
+        bus.subscribe(keys.rcu_instances(FLEET, "detector", "stats"),
+                      lambda m, s: stats.__setitem__(keys.parse(str(s.key_expr)).name, m), expect=LinkStats)
+        assert wait_until(lambda: all(bus.alive(keys.rcu_alive(FLEET, f"detector-{k}")) for k in (0, 1)), 10)
+        assert not bus.alive(keys.rcu_alive(FLEET, "detector"))
+        time.sleep(0.5)
+        pubs = {u: bus.publisher(keys.camera(FLEET, u), IMAGERY) for u in uavs}
+        senders = {u: RtpSender(ssrc_for(u)) for u in uavs}
+        for cid in range(per_uav):
+            for u in uavs:  # every UAV at its capture point together
+                grey, _ = crack_image((240, 320), rng, n_cracks=1)
+                jpeg = cv2.imencode(".jpg", grey)[1].tobytes()
+                pubs[u].put_bytes(pack_image(senders[u], _meta(u, cid, 320, 240), jpeg, time.time()))
+            time.sleep(0.05)
+        total = len(uavs) * per_uav
+        assert wait_until(lambda: len(reports) >= total and set(stats) == {"detector-0", "detector-1"} and sum(
+            st.metrics.get(f"uav{u}.cam0.analysed", 0) for st in stats.values() for u in uavs) == total, 30), \
+            (len(reports), {n: st.metrics for n, st in stats.items()})
+        time.sleep(1.0)  # a duplicate, if any, would arrive now
+    seen = Counter((r.uav, r.capture_id) for r in reports)
+    assert seen == Counter({(u, c): 1 for u in uavs for c in range(per_uav)})
+    assert all(r.ok and r.frame is not None for r in reports)
+    for k in (0, 1):
+        m = stats[f"detector-{k}"].metrics
+        assert stats[f"detector-{k}"].source == f"detector-{k}"
+        for u in uavs:
+            if u % 2 == k:
+                assert m[f"uav{u}.cam0.analysed"] == per_uav and m[f"uav{u}.cam0.received"] == per_uav
+            else:
+                assert f"uav{u}.cam0.received" not in m  # never delivered to this instance
+        assert m["pool.workers"] == 2 and m["pool.crashes"] == 0

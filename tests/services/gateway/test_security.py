@@ -205,3 +205,26 @@ def test_imagery_to_detector_with_recovery_and_defect_reports(net):
                                                            dstats[-1:])
         assert lossy.stats()["up"]["dropped"]["loss"] > 0  # frames were lost on the way ...
     assert all(r.ok and r.uav == 3 for r in reports.values())  # ... and recovered, each reported
+
+
+def test_detector_instances_speak_on_their_own_keys_and_no_other_rcus(net):
+    """Issue 18: the detector role may put statistics and hold a token as any instance (``detector-K``,
+    services.detector.partition), and still not as the planner."""
+    heard: list[tuple[str, str]] = []
+    with _client(net, "gcs") as gcs, _client(net, "detector") as det:
+        gcs.subscribe(keys.rcu_instances(FLEET, "detector", "stats"),
+                      lambda m, s: heard.append((str(s.key_expr), m.source)), expect=LinkStats)
+        gcs.subscribe(keys.rcu_stats(FLEET, "planner"), lambda m, s: heard.append((str(s.key_expr), m.source)),
+                      expect=LinkStats)
+        det.token(keys.rcu_alive(FLEET, "detector-1"))
+        time.sleep(1.0)
+        mine = det.publisher(keys.rcu_stats(FLEET, "detector-1"), TELEMETRY)
+        forged = det.publisher(keys.rcu_stats(FLEET, "planner"), TELEMETRY)
+        for _ in range(10):
+            mine.put(LinkStats(source="detector-1", stamp=time.time(), uptime_s=1.0))
+            forged.put(LinkStats(source="forged", stamp=time.time(), uptime_s=1.0))
+            time.sleep(0.05)
+        assert _wait(lambda: (keys.rcu_stats(FLEET, "detector-1"), "detector-1") in heard, 5), (heard, _denials(net))
+        assert _wait(lambda: gcs.alive(keys.rcu_alive(FLEET, "detector-1")), 5), _denials(net)
+        time.sleep(0.5)
+    assert not [h for h in heard if h[1] == "forged"]

@@ -14,8 +14,8 @@ def _report(uav, cid, ssrc=None, ok=True):
     return DefectReport(uav=uav, capture_id=cid, stamp_capture=1.0, stamp_report=2.0, method="it+", ok=ok, frame=frame)
 
 
-def _stats(uptime, **metrics):
-    return LinkStats(source="detector", stamp=time.time(), uptime_s=uptime,
+def _stats(uptime, source="detector", **metrics):
+    return LinkStats(source=source, stamp=time.time(), uptime_s=uptime,
                      metrics={k.replace("_", "."): v for k, v in metrics.items()})
 
 
@@ -56,3 +56,19 @@ def test_detector_restart_adds_up_its_runs():
              _stats(2, uav1_cam0_received=4, uav1_cam0_analysed=4)]
     assert detector_totals(stats, [1, 2]) == {1: {"received": 12, "analysed": 12}, 2: {"received": 0, "analysed": 0}}
     assert detector_totals([], [1]) is None
+
+
+def test_partitioned_detectors_sum_over_instances_each_with_its_own_runs():
+    """Issue 18: two instances (detector-0 and detector-1, --partition K/2) interleave their statistics; a
+    restart of one does not start a new run of the other, and the totals add both."""
+    stats = [_stats(1, "detector-0", uav2_cam0_received=2, uav2_cam0_analysed=2),
+             _stats(1, "detector-1", uav1_cam0_received=3, uav1_cam0_analysed=3),
+             _stats(5, "detector-0", uav2_cam0_received=4, uav2_cam0_analysed=4),
+             _stats(6, "detector-1", uav1_cam0_received=5, uav1_cam0_analysed=5),
+             _stats(2, "detector-0", uav2_cam0_received=1, uav2_cam0_analysed=1),  # detector-0 restarted
+             _stats(7, "detector-1", uav1_cam0_received=6, uav1_cam0_analysed=6)]
+    assert detector_totals(stats, [1, 2]) == {1: {"received": 6, "analysed": 6}, 2: {"received": 5, "analysed": 5}}
+    book = ledger([1, 2], [_state(1, 6), _state(2, 5)], [_report(1, c) for c in range(6)]
+                  + [_report(2, c) for c in range(5)], stats)
+    assert corroboration_failures(book) == []
+    assert book[2]["analysed"] == 5 and book[1]["analysed"] == 6

@@ -98,3 +98,30 @@ def test_summarise_is_the_summary_of_analyse(record, figs):
 def test_docstring_examples():
     result = doctest.testmod(services.gcs.figures)
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_imagery_metrics_merge_the_latest_of_every_detector_instance():
+    """Issue 18: two instances (detector-0, detector-1) each report their own cameras; the figures take the
+    latest statistics of each, not only of whichever instance spoke last."""
+    from protocol.messages import LinkStats
+    from services.gcs.figures import _imagery_metrics
+    from services.gcs.record import StatsRx
+
+    def st(src, stamp, **m):
+        return StatsRx(rx=stamp, msg=LinkStats(source=src, stamp=stamp, metrics={k.replace("_", "."): v
+                                                                                  for k, v in m.items()}))
+
+    stats = [st("detector-1", 1.0, uav1_cam0_analysed=2), st("detector-0", 2.0, uav2_cam0_analysed=3),
+             st("detector-1", 3.0, uav1_cam0_analysed=5)]
+    rec = MissionRecord(fleet="f", speed=1.0, started=0.0, detector_stats=stats)
+    assert _imagery_metrics(rec) == {"uav1.cam0": {"analysed": 5.0}, "uav2.cam0": {"analysed": 3.0}}
+
+
+def test_detector_instance_statistics_go_to_the_detector_list():
+    from protocol import keys
+    from protocol.messages import LinkStats
+    from services.recording.rebuild import _list_of
+
+    msg = LinkStats(source="detector-1", stamp=1.0)
+    assert _list_of(keys.rcu_stats("f", "detector-1"), msg) == "detector_stats"
+    assert _list_of(keys.rcu_stats("f", "planner"), msg) is None

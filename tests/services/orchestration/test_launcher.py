@@ -131,6 +131,8 @@ def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
     (["mission", "--fault", "3s kill gcs"], "gcs"),
     (["mission", "--fault", "3 kill gateway"], "'3'"),
     (["up", "--fault", "3s partition uav1-uav5 for 2s"], "uav5"),
+    (["up", "--uavs", "2", "--detectors", "3"], "--detectors 3"),
+    (["mission", "--uavs", "4", "--detectors", "2", "--fault", "3s kill detector"], "detector-0"),
 ])
 def test_bad_links_and_faults_are_one_line_errors(argv, needle):
     proc = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
@@ -242,3 +244,39 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
         net.stop()
     with pytest.raises(SystemExit):
         build_parser("up").parse_args(["--frame-size", "big"])
+
+
+def test_detectors_option_starts_partitioned_instances():
+    """Issue 18: ``--detectors 2`` starts detector-0 and detector-1, each on its partition of the UAV ids."""
+    from services.orchestration.launcher import Network, build_parser
+
+    net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "parts", "--uavs", "4", "--detectors", "2"]),
+                  echo=None)
+    try:
+        net.start()
+        for k in (0, 1):
+            svc = net.group.get(f"detector-{k}")
+            a = svc.args
+            assert a[a.index("--partition") + 1] == f"{k}/2" and a[a.index("--max-uav") + 1] == "4"
+            assert svc.wait_for(f"detector up: detector-{k}, partition {k}/2", 60), "\n".join(svc.lines[-20:])
+        assert net.check_alive() == []
+    finally:
+        net.stop()
+
+
+def test_mission_with_two_detectors_images_every_capture_once(tmp_path):
+    """Issue 18: ``--detectors 2`` (detector-0 and detector-1 sharing 4 UAVs' cameras, secure by default): the
+    mission succeeds, every capture is reported once, and the ledger's analysed counts sum both instances."""
+    out = tmp_path / "report"
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--uavs", "4", "--detectors", "2",
+                           "--speed", "8", "--quiet", "--out", str(out)], capture_output=True, text=True, timeout=400)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    assert report["success"] and not report["failures"]
+    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
+    record = json.loads((out / "record.json").read_text())
+    assert {s["msg"]["source"] for s in record["detector_stats"]} == {"detector-0", "detector-1"}
+    for uav, row in record["imagery"].items():
+        assert row["analysed"] == row["reported"] == row["sent"] > 0, (uav, row)
+    reported = [(d["msg"]["uav"], d["msg"]["capture_id"]) for d in record["defects"] if d["msg"]["ok"]]
+    assert len(reported) == len(set(reported))  # no capture analysed twice

@@ -1,0 +1,69 @@
+"""Sharing the fleet's cameras between detector instances by key partition (issue 18). Pure: no bus code.
+
+``--partition K/N`` makes an instance own the cameras of the UAVs whose id satisfies ``id % N == K``.
+Zenoh key expressions cannot say "id mod N", so an instance subscribes to each of its UAVs' camera
+keys (``skynet/<fleet>/uav/<id>/camera`` for its ids in 1..``max_uav``) instead of ``uav/*/camera``:
+the router delivers a frame only to the instance that owns it, so no frame is analysed twice, and
+since the N partitions cover 1..255 none is left out. ``0/1`` (the default) is the whole fleet on
+the one wildcard key.
+
+Each instance has its own name, ``detector-K`` (``detector`` when N = 1), for its liveliness token
+and statistics (``keys.rcu_alive`` / ``keys.rcu_stats``); the defect reports of every instance go to
+the one ``rcu/detector/defects`` key. The ground station hears every instance's statistics on
+``keys.rcu_instances(fleet, "detector", "stats")`` and sums them per UAV (:mod:`services.gcs.evidence`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from protocol import keys
+
+MAX_UAV = 255
+
+
+@dataclass(frozen=True)
+class Partition:
+    index: int = 0
+    count: int = 1
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.count, int) and 1 <= self.count <= MAX_UAV):
+            raise ValueError(f"partition count must be in 1..{MAX_UAV}, got {self.count!r}")
+        if not (isinstance(self.index, int) and 0 <= self.index < self.count):
+            raise ValueError(f"partition index must be in 0..{self.count - 1}, got {self.index!r}")
+
+    @classmethod
+    def parse(cls, text: str) -> "Partition":
+        """``"K/N"``, e.g. ``"1/2"``; raises ValueError saying what is wrong."""
+        k, sep, n = str(text).strip().partition("/")
+        if not sep or not k.strip().isdigit() or not n.strip().isdigit():
+            raise ValueError(f"partition must be K/N with 0 <= K < N (e.g. 0/2), got {text!r}")
+        return cls(int(k), int(n))
+
+    @property
+    def whole(self) -> bool:
+        return self.count == 1
+
+    def owns(self, uav: int) -> bool:
+        return uav % self.count == self.index
+
+    def uavs(self, max_uav: int = MAX_UAV) -> list[int]:
+        """The UAV ids in 1..max_uav this instance owns."""
+        if not 1 <= max_uav <= MAX_UAV:
+            raise ValueError(f"max UAV id must be in 1..{MAX_UAV}, got {max_uav}")
+        return [u for u in range(1, max_uav + 1) if self.owns(u)]
+
+    def camera_keys(self, fleet: str, max_uav: int = MAX_UAV) -> list[str]:
+        """The key expressions to subscribe to: the wildcard for the whole fleet, else one key per owned UAV."""
+        if self.whole:
+            return [keys.camera(fleet, "*")]
+        return [keys.camera(fleet, u) for u in self.uavs(max_uav)]
+
+    @property
+    def name(self) -> str:
+        """The instance's service name (liveliness token, statistics, ``LinkStats.source``)."""
+        return "detector" if self.whole else f"detector-{self.index}"
+
+    def __str__(self) -> str:
+        return f"{self.index}/{self.count}"

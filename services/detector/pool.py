@@ -1,0 +1,148 @@
+"""Detection in worker processes: a process pool that survives its workers (issue 18, "a detector that scales").
+
+Pure (no bus code). Detection is CPU-bound Python around OpenCV; in threads it shares one GIL, so a
+burst of simultaneous captures (every UAV of a formation reaching its capture point together) is
+served one frame at a time. :class:`DetectorPool` runs :func:`services.detector.pipeline.analyse` in
+``workers`` separate processes (:class:`concurrent.futures.ProcessPoolExecutor` with the ``spawn``
+start method by default: no fork of a process that holds Zenoh's threads; ``forkserver`` also works).
+
+The caller keeps the bounded queue (the detector's :class:`protocol.ring.Ring`, drop-oldest, counted)
+and calls :meth:`DetectorPool.analyse` from at most ``workers`` threads, so at most ``workers`` frames
+are in flight and nothing queues unboundedly inside the executor.
+
+A worker that dies (killed, out of memory, a crash in native code) breaks a ``ProcessPoolExecutor``
+for good (``BrokenProcessPool`` on every pending future). The pool then counts a crash, replaces the
+executor and runs the frames that were in flight once more; a frame that breaks a fresh worker a
+second time is given up (:class:`WorkerCrashed`), so a poison frame cannot crash the pool forever.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import multiprocessing
+import threading
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
+
+from protocol.messages import DefectReport, FrameEvidence, ImageMeta
+
+#: start methods that do not fork the parent's threads (Zenoh runs its own)
+CONTEXTS = ("spawn", "forkserver")
+
+
+class WorkerCrashed(RuntimeError):
+    """A job broke its worker process twice (once on the old pool, once on a fresh one)."""
+
+
+def analyse_frame(meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: int) -> DefectReport:
+    """One frame in a worker: decode, detect, map (:func:`~services.detector.pipeline.analyse`), and the
+    frame evidence the ground station checks (:mod:`services.gcs.evidence`: SSRC, RTP sequence number,
+    SHA-256 of the image bytes)."""
+    from .pipeline import analyse
+
+    report = analyse(meta, image, method)
+    return report.model_copy(update={"frame": FrameEvidence(ssrc=ssrc, seq=seq,
+                                                            digest=hashlib.sha256(image).hexdigest())})
+
+
+def _init_worker() -> None:
+    """A worker ignores Ctrl-C: the signal goes to the whole process group, and the detector that owns the
+    pool shuts it down itself (:meth:`DetectorPool.close`) after draining its queue. A worker whose detector
+    dies without closing it (SIGKILL, a crash) follows it at once instead of staying behind as an orphan."""
+    import os
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    parent = multiprocessing.parent_process()
+    if parent is not None:
+        def follow() -> None:
+            parent.join()  # returns when the parent's sentinel closes: it has ended
+            os._exit(0)
+
+        threading.Thread(target=follow, name="follow-parent", daemon=True).start()
+
+
+def _warm() -> int:
+    """Import the detection stack in a fresh worker (spawn imports lazily), so the first frame is not slow."""
+    import os
+
+    import time
+
+    from . import pipeline  # noqa: F401
+
+    time.sleep(0.2)  # hold this worker, so that each of the pool's warm calls lands on another one
+    return os.getpid()
+
+
+class DetectorPool:
+    """``workers`` detection processes; :meth:`analyse` blocks its (Ring worker) thread for one frame."""
+
+    def __init__(self, workers: int = 2, context: str = "spawn"):
+        if workers < 1:
+            raise ValueError("the pool needs at least one worker process")
+        if context not in CONTEXTS:
+            raise ValueError(f"start method {context!r}: choose from {CONTEXTS}")
+        self.workers = workers
+        self._ctx = multiprocessing.get_context(context)
+        self._lock = threading.Lock()
+        self._closed = False
+        self.crashes = 0  # executors replaced after a worker died
+        self.given_up = 0  # jobs that broke a fresh worker too
+        self._generation = 0
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx, initializer=_init_worker)
+
+    def warm(self, timeout: float = 60.0) -> list[int]:
+        """Start every worker process and import the detection stack in it; their pids."""
+        with self._lock:
+            pool = self._pool
+        futs = [pool.submit(_warm) for _ in range(self.workers)]
+        return [f.result(timeout) for f in futs]
+
+    def call(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """``fn(*args)`` in a worker process (``fn`` and the arguments must pickle); see the module docstring
+        for what a crash does. Exceptions raised by ``fn`` come back as they are."""
+        for attempt in (1, 2):
+            with self._lock:
+                if self._closed:
+                    raise RuntimeError("the detector pool is closed")
+                pool, generation = self._pool, self._generation
+            try:
+                return pool.submit(fn, *args).result()
+            except BrokenProcessPool:
+                self._replace(generation)
+                if attempt == 2:
+                    with self._lock:
+                        self.given_up += 1
+                    raise WorkerCrashed("the frame broke a detection worker twice") from None
+        raise AssertionError("unreachable")
+
+    def analyse(self, meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: int) -> DefectReport:
+        """:func:`analyse_frame` in a worker process."""
+        return self.call(analyse_frame, meta, bytes(image), method, ssrc, seq)
+
+    def _replace(self, generation: int) -> None:
+        """Replace a broken executor once, however many threads saw it break."""
+        with self._lock:
+            if self._closed or generation != self._generation:
+                return  # another thread has replaced it already
+            broken, self._pool = self._pool, self._new_pool()
+            self._generation += 1
+            self.crashes += 1
+        broken.shutdown(wait=False, cancel_futures=True)
+
+    def pids(self) -> list[int]:
+        """Worker processes alive now (for tests and statistics)."""
+        with self._lock:
+            procs = getattr(self._pool, "_processes", None) or {}
+            return [p.pid for p in list(procs.values()) if p.is_alive()]
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+            pool = self._pool
+        pool.shutdown(wait=True, cancel_futures=True)
