@@ -1,5 +1,6 @@
 """The board over the real bus: three edges and the gateway in processes (issue 3)."""
 
+import select
 import time
 
 import pytest
@@ -13,6 +14,36 @@ from tests.conftest import spawn_node, wait_until as _wait
 
 FLEET = "test"
 HOMES = {1: "10,10,0", 2: "14,10,0", 3: "6,10,0"}
+
+
+def heartbeats(gateway):
+    """A ground station's heartbeat (5 Hz) in its own process, returned once an edge hears it.
+
+    Under load the process takes seconds to start; an edge that never heard a heartbeat has no
+    failsafe armed (as ArduPilot's FS_GCS), so a test that kills it too early would wait in vain.
+    """
+    node = spawn_node(f"""
+import time
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.links import COMMAND
+from protocol.messages import Heartbeat
+with Bus(BusConfig(mode="client", connect={gateway!r}, multilink=True), "{FLEET}", "hb") as bus:
+    pub = bus.publisher(keys.heartbeat("{FLEET}"), COMMAND)
+    told = False
+    for i in range(100000):
+        pub.put(Heartbeat(seq=i, stamp=time.time()))
+        if not told and i >= 10 and pub.matching():
+            print("heard", flush=True)
+            told = True
+        time.sleep(0.2)
+""")
+    ready, _, _ = select.select([node.stdout], [], [], 60)
+    line = node.stdout.readline() if ready else ""
+    if line.strip() != "heard":
+        node.kill()
+        raise AssertionError(f"the heartbeat process never reached an edge: {line!r}")
+    return node
 
 
 @pytest.fixture
@@ -57,18 +88,7 @@ def test_board_state_sharing_commands_failsafe_and_liveliness(fleet, gateway):
         assert _wait(lambda: states[1].mode == Mode.HOLD and states[1].pos[2] > 4.5, 30), states[1]
 
         # failsafe: the ground-station side sends heartbeats, then dies
-        hb = spawn_node(f"""
-import time
-from protocol import keys
-from protocol.bus import Bus, BusConfig
-from protocol.links import COMMAND
-from protocol.messages import Heartbeat
-with Bus(BusConfig(mode="client", connect={gateway!r}, multilink=True), "{FLEET}", "hb") as bus:
-    pub = bus.publisher(keys.heartbeat("{FLEET}"), COMMAND)
-    for i in range(10000):
-        pub.put(Heartbeat(seq=i, stamp=time.time()))
-        time.sleep(0.2)
-""")
+        hb = heartbeats(gateway)
         try:
             time.sleep(2.0)
             assert not any(e.kind == "failsafe" for e in events)
@@ -121,18 +141,7 @@ def test_failsafe_escalates_to_rtl_refuses_a_stale_resume_and_the_battery_failsa
                       link=TELEMETRY)
         gcs.subscribe(keys.all_events(FLEET), lambda m, s: events.append(m), expect=Event)
         assert _wait(lambda: len(states) == 2, 30)
-        hb = spawn_node(f"""
-import time
-from protocol import keys
-from protocol.bus import Bus, BusConfig
-from protocol.links import COMMAND
-from protocol.messages import Heartbeat
-with Bus(BusConfig(mode="client", connect={gateway!r}, multilink=True), "{FLEET}", "hb") as bus:
-    pub = bus.publisher(keys.heartbeat("{FLEET}"), COMMAND)
-    for i in range(10000):
-        pub.put(Heartbeat(seq=i, stamp=time.time()))
-        time.sleep(0.2)
-""")
+        hb = heartbeats(gateway)
         try:
             for uav in (1, 2):
                 ack = gcs.request(keys.cmd(FLEET, uav), Takeoff(uav=uav, cmd_id=1, altitude=5), expect=CommandAck)
