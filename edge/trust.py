@@ -132,7 +132,7 @@ def secure_setup(args, log=None) -> tuple[Gate, dict | None]:
                         args.uav, "" if getattr(args, "insecure", False) else " (no --keys given)")
         return Gate(args.fleet, args.uav, None), None
     from protocol.keyset import KeySet
-    from services.gateway.acl import cert_access_control
+    from protocol.acl import cert_access_control
 
     ks = KeySet(args.keys, f"uav{args.uav}")
     verifier = ks.verifier(stale_s=args.trust_window, replay_file=getattr(args, "replay_state", None))

@@ -1,6 +1,6 @@
 """Per-source rate and size budgets on what a subscriber accepts (issue 12).
 
-Every key a role may write (:mod:`services.gateway.acl`) has a :class:`Limit`: a token bucket of
+Every key a role may write (:mod:`protocol.acl`) has a :class:`Limit`: a token bucket of
 samples per second with a burst (the classic policer: RFC 2697's single-rate meter, one colour:
 conforming or dropped) and a largest sample size. A :class:`Budget` keeps one bucket per *source*,
 the concrete key a sample arrived on: ``uav/<id>/state`` can only be written by ``uav<id>`` (the

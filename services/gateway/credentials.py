@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping
 
-from .acl import check_password, check_user, role_of
+from protocol.acl import check_password, check_user, role_of
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ connected sessions by kind and samples/bytes per link class seen on the fleet's 
 
 Authentication and access control (off by default): ``--users FILE`` (lines ``user:password``)
 makes every node that connects present one of those users (``--user``, and ``--password`` or
-``SKYNET_PASSWORD``); ``--acl`` adds the role rules of :mod:`services.gateway.acl` (default deny),
+``SKYNET_PASSWORD``); ``--acl`` adds the role rules of :mod:`protocol.acl` (default deny),
 roles from ``--roles FILE`` (lines ``user:role``) or from the user names (``uav1``..``uav255``,
 ``gcs``, ``planner``, ``detector``, ``gateway``).
 """
@@ -31,7 +31,7 @@ from protocol.bus import (Bus, BusConfig, add_bus_args, config_from_args, multil
 from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
 from protocol.messages import ClassCounters, LinkStats
 
-from . import acl
+from protocol import acl
 
 
 class GatewayConfig(BusConfig):

@@ -15,7 +15,7 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import TELEMETRY
 from protocol.messages import VehicleState
-from services.gateway.acl import read_users
+from protocol.acl import read_users
 
 FLEET = "secup"
 

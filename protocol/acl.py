@@ -1,8 +1,9 @@
-"""Who may say what at the gateway: users, roles and the Zenoh ``access_control`` rules.
+"""Who may say what on the bus: users, roles and the Zenoh ``access_control`` rules.
 
-Pure: builds plain dictionaries for the router's configuration from the key space
-(:mod:`protocol.keys`) and a fleet name; no Zenoh session here. The gateway
-(:mod:`services.gateway.service`) puts the result under ``access_control`` and the users file
+Part of the wire contract (every node that accepts links applies it: the gateway, and each edge on
+SkyNet with mutual TLS, :mod:`edge.trust`). Pure: builds plain dictionaries for the router's
+configuration from the key space (:mod:`protocol.keys`) and a fleet name; no Zenoh session here.
+The gateway (:mod:`services.gateway.service`) puts the result under ``access_control`` and the users file
 under ``transport/auth/usrpwd/dictionary_file`` (ZENOH.md, "Authentication and access control").
 
 Roles (DESIGN.md, "The network" and "Data flow of a mission"; ``F`` is the fleet):

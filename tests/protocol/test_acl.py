@@ -1,4 +1,4 @@
-"""The role rules of services.gateway.acl, evaluated the way Zenoh evaluates them (a rule allows a
+"""The role rules of protocol.acl, evaluated the way Zenoh evaluates them (a rule allows a
 message when its key expression *includes* the message's), and accepted by a real Zenoh router."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 import zenoh
 
 from protocol import keys
-from services.gateway import acl
+from protocol import acl
 
 F = "f"
 USERS = ["uav1", "uav2", "uav3", "gcs", "gcs-backup", "planner", "detector", "gateway2", "visitor"]
