@@ -31,6 +31,7 @@ import pymap3d
 
 from edge.vehicle.apm import items as AI
 from edge.vehicle.apm.missions import PlanItem
+from edge.vehicle.waypoint_mission import mission_items
 from protocol.messages import Trajectory
 
 __all__ = ["AutoMissionPlan", "autopilot_mission", "resume_item", "speed_correction"]
@@ -54,8 +55,6 @@ def autopilot_mission(traj: Trajectory, home_enu: Vec3, home_lla: Vec3) -> AutoM
     ``home_enu``: the launch point in the mission's ENU frame, m; ``home_lla``: the autopilot's
     HOME_POSITION (degrees, degrees, m).
     """
-    from services.planner.export import mission_items  # the one item builder
-
     lat0, lon0, h0 = (float(v) for v in home_lla)
     if not (abs(lat0) <= 90 and abs(lon0) <= 180 and math.isfinite(h0)):
         raise ValueError(f"home position {home_lla!r} is not a geodetic point")
