@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge.camera import CameraPose, SyntheticSource, encode_jpeg
+from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
 from edge.runtime import camera_model, camera_rotation, synthetic_surface
 from edge.surface import SyntheticSurface, textured_background
 from protocol.messages import ImageMeta, Intrinsics
@@ -73,8 +73,8 @@ def synthetic_captures(scenario: Scenario, surface: SyntheticSurface, frame_size
 
 
 def decode(c: Capture) -> np.ndarray:
-    """The grey frame of a capture (as the detector decodes it)."""
-    return cv2.imdecode(np.frombuffer(c.jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+    """The grey frame of a capture (as the detector decodes it: :func:`edge.camera.decode_image`)."""
+    return decode_image(c.jpeg, grey=True)
 
 
 def known_crack_wall(sc: Scenario) -> tuple[SyntheticSurface, list[tuple[float, float, float, float]]]:
