@@ -163,6 +163,9 @@ class McapLog:
             self._file.close()
 
 
+#: message classes by the schema name the log gives them (``skynet.<ClassName>``)
+_BY_NAME = {cls.__name__: cls for cls in MESSAGE_TYPES.values()}
+
 @dataclass(frozen=True)
 class Logged:
     """One message read back: topic, receive time (s), encoding, schema name, the stored bytes."""
@@ -179,10 +182,8 @@ class Logged:
         name = self.schema.removeprefix("skynet.")
         if self.encoding != "json" or not self.schema.startswith("skynet."):
             return None
-        for cls in MESSAGE_TYPES.values():
-            if cls.__name__ == name:
-                return cls.model_validate_json(self.data)
-        return None
+        cls = _BY_NAME.get(name)
+        return None if cls is None else cls.model_validate_json(self.data)
 
 
 def read(path: str | Path, topics: list[str] | None = None) -> Iterator[Logged]:
