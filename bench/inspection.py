@@ -15,38 +15,14 @@ import json
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edge.runtime import synthetic_surface  # noqa: E402
-from edge.surface import SyntheticSurface, textured_background  # noqa: E402
-from services.inspection.captures import decode, synthetic_captures  # noqa: E402
+from services.inspection.captures import decode, known_crack_wall, synthetic_captures  # noqa: E402
 from services.inspection.deliverable import inspect_frames  # noqa: E402
 from services.inspection.mosaic import Plane, PosedFrame  # noqa: E402
-from protocol.scenario import Scenario, load_scenario  # noqa: E402
-
-
-def known_wall(sc: Scenario) -> tuple[SyntheticSurface, list[tuple[float, float, float, float]]]:
-    ref = synthetic_surface(sc, seed=1)
-    h, w = ref.shape_px
-    ppm = ref.px_per_m
-    tex = textured_background((h, w), np.random.default_rng(3)).astype(np.float32)
-    mask = np.zeros((h, w), np.uint8)
-    truth = []
-    for i, u in enumerate(np.arange(2.0, 48.0, 3.5)):
-        wpx, length = (2, 3, 4, 5, 6)[i % 5], (1.0, 1.5, 2.0, 2.5)[i % 4]
-        v = 1.5 + 3.0 * ((i // 2) % 2)
-        one = np.zeros_like(mask)
-        box = cv2.boxPoints(((u * ppm, (ref.height_m - v) * ppm), (length * ppm, wpx), -(0, 20, 35, 60, 90, 130)[i % 6]))
-        cv2.fillConvexPoly(one, np.round(box * 16).astype(np.int32), 255, cv2.LINE_8, 4)
-        mask |= one
-        truth.append((u, v, length, np.count_nonzero(one) / (length * ppm) / ppm))
-    tex[mask > 0] *= 0.55
-    surf = SyntheticSurface(ref.origin, ref.u_axis, ref.v_axis, ref.width_m, ref.height_m, ppm,
-                            texture=np.clip(tex, 0, 255).astype(np.uint8), mask=mask)
-    return surf, truth
+from protocol.scenario import load_scenario  # noqa: E402
 
 
 def main() -> int:
@@ -55,7 +31,7 @@ def main() -> int:
     ap.add_argument("--method", default="it+")
     a = ap.parse_args()
     sc = load_scenario()
-    surf, truth = known_wall(sc)
+    surf, truth = known_crack_wall(sc)
     caps = synthetic_captures(sc, surf)
     frames = [PosedFrame(c.meta, decode(c)) for c in caps]
     runs = [inspect_frames(frames, Plane.from_corners(surf.corners), method=a.method) for _ in range(3)]

@@ -53,7 +53,6 @@ from .trust import Gate, command_id
 from .validate import validate_command
 from .vehicle.follower import Follower
 
-FAILSAFE_ACTIONS = ACTIONS
 
 
 @dataclass
@@ -343,7 +342,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--formation-size", type=int, default=_DEFAULT.formation_size,
                         help="UAVs per formation: the board shares state with its formation only (SkyNet)")
     parser.add_argument("--failsafe-timeout", type=float, default=_DEFAULT.failsafe_timeout_s)
-    parser.add_argument("--failsafe-action", choices=FAILSAFE_ACTIONS, default=_DEFAULT.failsafe_action)
+    parser.add_argument("--failsafe-action", choices=ACTIONS, default=_DEFAULT.failsafe_action)
     parser.add_argument("--failsafe-escalate", choices=ESCALATIONS, default=_DEFAULT.failsafe_escalate,
                         help="after a failsafe hold of --failsafe-escalate-after s: rtl, land or none")
     parser.add_argument("--failsafe-escalate-after", type=float, default=_DEFAULT.failsafe_escalate_after_s,

@@ -25,9 +25,9 @@ import threading
 import time
 from typing import Any
 
-from protocol import keys
+from protocol import binding, keys
 from protocol.messages import COMMAND_TYPES, Heartbeat, Message, Signed
-from protocol.signing import Refusal, TrustError, Verifier
+from protocol.signing import Refusal, TrustError, Verifier, unverified_inner
 
 #: at most one event per refusal reason per this many seconds
 EVENT_PERIOD_S = 1.0
@@ -77,11 +77,9 @@ class Gate:
             return exc
 
     def body_matches(self, key: str, msg: Message) -> bool:
-        """Whether the ``uav`` of ``msg`` is the UAV its key names (counted as ``body.mismatch`` if not)."""
-        try:
-            ok = keys.parse(key).uav == getattr(msg, "uav", None)
-        except keys.KeyError_:
-            ok = False
+        """Whether the ``uav`` of ``msg`` is the UAV its key names (:func:`protocol.binding.matches`;
+        counted as ``body.mismatch`` if not)."""
+        ok = binding.matches(key, getattr(msg, "uav", -1))
         if not ok:
             self._count("body.mismatch")
         return ok
@@ -108,14 +106,12 @@ def command_id(msg: Message) -> int:
     if isinstance(cmd_id, int):
         return cmd_id
     if isinstance(msg, Signed):
-        import base64
-
-        from protocol import codec
         try:
-            inner = codec.decode(base64.b64decode(msg.body), COMMAND_TYPES)
-            return int(getattr(inner, "cmd_id", 0))
-        except Exception:  # a refused envelope may hold anything
+            inner = unverified_inner(msg)
+        except ValueError:  # a refused envelope may hold anything: bad base64, bad bytes (CodecError)
             return 0
+        cmd_id = getattr(inner, "cmd_id", None)
+        return cmd_id if isinstance(inner, COMMAND_TYPES) and isinstance(cmd_id, int) else 0
     return 0
 
 

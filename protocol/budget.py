@@ -95,7 +95,6 @@ class Budget:
     max_sources: int = MAX_SOURCES
     _buckets: dict[str, TokenBucket] = field(default_factory=dict)
     dropped: Counter = field(default_factory=Counter)  # (source, reason) -> samples
-    admitted: int = 0
 
     def admit(self, source: str, nbytes: int, now: float) -> str | None:
         """None when the sample may go on; else why not: ``budget-size`` or ``budget-rate``."""
@@ -108,7 +107,6 @@ class Budget:
             if bucket is None:
                 bucket = self._buckets[source] = TokenBucket(self.limit.rate_hz, float(self.limit.burst))
             if bucket.take(now):
-                self.admitted += 1
                 return None
             reason = "budget-rate"
         self.dropped[(source, reason)] += 1

@@ -405,7 +405,6 @@ class Bus:
 
     def subscribe_raw(
         self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False,
-        budget: Budget | None = None,
     ) -> Any:
         """Subscribe to raw samples (e.g. RTP frames); the callback must not raise for bad input.
 
@@ -423,15 +422,6 @@ class Bus:
         def guarded(sample: zenoh.Sample) -> None:
             if self._closed:
                 return
-            if budget is not None:
-                source = str(sample.key_expr)
-                with self.counters.lock:
-                    reason = budget.admit(source, len(sample.payload), time.monotonic())
-                if reason is not None:
-                    if self.counters.reject(source, reason):
-                        log.warning("%s: %s over its budget (%s); further ones are only counted", self.name,
-                                    source, reason)
-                    return
             try:
                 target(sample)
             except Exception:

@@ -20,7 +20,10 @@ from __future__ import annotations
 
 import hashlib
 import multiprocessing
+import os
+import signal
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -51,9 +54,6 @@ def _init_worker() -> None:
     """A worker ignores Ctrl-C: the signal goes to the whole process group, and the detector that owns the
     pool shuts it down itself (:meth:`DetectorPool.close`) after draining its queue. A worker whose detector
     dies without closing it (SIGKILL, a crash) follows it at once instead of staying behind as an orphan."""
-    import os
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent = multiprocessing.parent_process()
     if parent is not None:
@@ -66,13 +66,9 @@ def _init_worker() -> None:
 
 def _warm() -> int:
     """Import the detection stack in a fresh worker (spawn imports lazily), so the first frame is not slow."""
-    import os
+    from . import pipeline  # noqa: F401  (the import is the point: in the worker, not the parent)
 
-    import time
-
-    from . import pipeline  # noqa: F401
-
-    time.sleep(0.2)  # hold this worker, so that each of the pool's warm calls lands on another one
+    time.sleep(0.2)  # best effort: hold this worker, so that each of the pool's warm calls lands on another one
     return os.getpid()
 
 
@@ -134,12 +130,6 @@ class DetectorPool:
             self._generation += 1
             self.crashes += 1
         broken.shutdown(wait=False, cancel_futures=True)
-
-    def pids(self) -> list[int]:
-        """Worker processes alive now (for tests and statistics)."""
-        with self._lock:
-            procs = getattr(self._pool, "_processes", None) or {}
-            return [p.pid for p in list(procs.values()) if p.is_alive()]
 
     def close(self) -> None:
         with self._lock:

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge.camera import CameraPose, SyntheticSource, encode_jpeg
-from edge.runtime import camera_model, camera_rotation
-from edge.surface import SyntheticSurface
+from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
+from edge.runtime import camera_model, camera_rotation, synthetic_surface
+from edge.surface import SyntheticSurface, textured_background
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import Scenario
 from services.planner.task import formation_pass
@@ -73,5 +73,30 @@ def synthetic_captures(scenario: Scenario, surface: SyntheticSurface, frame_size
 
 
 def decode(c: Capture) -> np.ndarray:
-    """The grey frame of a capture (as the detector decodes it)."""
-    return cv2.imdecode(np.frombuffer(c.jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+    """The grey frame of a capture (as the detector decodes it: :func:`edge.camera.decode_image`)."""
+    return decode_image(c.jpeg, grey=True)
+
+
+def known_crack_wall(sc: Scenario) -> tuple[SyntheticSurface, list[tuple[float, float, float, float]]]:
+    """The scenario's wall with 14 straight cracks of known length and width (rectangles 2..6 texture
+    pixels wide, 1..2.5 m long, at six angles) on the synthetic texture: ``(surface, truth)``, each truth
+    ``(u, v, length_m, width_px)`` (the width the drawn rectangle's pixel area over its length). The
+    measurements' test and bench/inspection.py score against it."""
+    ref = synthetic_surface(sc, seed=1)
+    h, w = ref.shape_px
+    ppm = ref.px_per_m
+    tex = textured_background((h, w), np.random.default_rng(3)).astype(np.float32)
+    mask = np.zeros((h, w), np.uint8)
+    truth = []
+    for i, u in enumerate(np.arange(2.0, 48.0, 3.5)):
+        wpx, length = (2, 3, 4, 5, 6)[i % 5], (1.0, 1.5, 2.0, 2.5)[i % 4]
+        v = 1.5 + 3.0 * ((i // 2) % 2)
+        one = np.zeros_like(mask)
+        box = cv2.boxPoints(((u * ppm, (ref.height_m - v) * ppm), (length * ppm, wpx), -(0, 20, 35, 60, 90, 130)[i % 6]))
+        cv2.fillConvexPoly(one, np.round(box * 16).astype(np.int32), 255, cv2.LINE_8, 4)
+        mask |= one
+        truth.append((u, v, length, np.count_nonzero(one) / (length * ppm) / ppm))
+    tex[mask > 0] *= 0.55
+    surf = SyntheticSurface(ref.origin, ref.u_axis, ref.v_axis, ref.width_m, ref.height_m, ppm,
+                            texture=np.clip(tex, 0, 255).astype(np.uint8), mask=mask)
+    return surf, truth

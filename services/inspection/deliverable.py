@@ -9,7 +9,7 @@ mission (the detector's saved captures) or from a folder of photos with poses
 2. frames and masks are warped onto the surface plane (:func:`services.inspection.mosaic.build_mosaic`);
 3. each 8-connected component of the mosaic's defect mask is one defect (a crack seen by two
    overlapping frames is one defect): its position (centroid) on the surface, in ENU and, with the
-   geodetic origin, in WGS-84 (:func:`services.planner.export.enu_to_geodetic`); its length, maximum
+   geodetic origin, in WGS-84 (:func:`edge.vehicle.waypoint_mission.enu_to_geodetic`); its length, maximum
    and mean width and severity class (:mod:`services.inspection.measure`, at the mosaic's scale);
    and a crop of the mosaic around it;
 4. files: ``mosaic.png`` (defects outlined and numbered), ``defects.json``, ``defects.md``,
@@ -41,6 +41,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from edge.vehicle.waypoint_mission import enu_to_geodetic
 from protocol.messages import ImageMeta
 from services.detector.detect import detect
 from services.detector.pipeline import MIN_REPORT_AREA_PX
@@ -106,8 +107,6 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
         enu = pl.to_world(uv)
         lla = None
         if origin is not None:
-            from services.planner.export import enu_to_geodetic
-
             lla = tuple(float(x) for x in enu_to_geodetic(enu, origin))
         d = m.as_dict()
         rows.append(InspectionDefect(

@@ -114,9 +114,10 @@ class McapLog:
         self._w.add_message(channel, t, data, _ns(publish_time_s) if publish_time_s is not None else t)
         self.messages += 1
 
-    def write_sample(self, key: str, data: bytes, rx_s: float) -> str:
-        """Log one bus sample; the kind it was logged as: ``json``, ``frame`` or ``raw``."""
-        if is_imagery(key):
+    def write_sample(self, key: str, data: bytes, rx_s: float, imagery: bool | None = None) -> str:
+        """Log one bus sample; the kind it was logged as: ``json``, ``frame`` or ``raw``
+        (``imagery``: :func:`is_imagery` of ``key``, when the caller has worked it out already)."""
+        if is_imagery(key) if imagery is None else imagery:
             self._add(self._channel(key, FRAME_ENCODING), rx_s, data)
             if self.previews_as_images and key.endswith("/preview"):
                 self._preview_image(key, data, rx_s)
@@ -163,6 +164,9 @@ class McapLog:
             self._file.close()
 
 
+#: message classes by the schema name the log gives them (``skynet.<ClassName>``)
+_BY_NAME = {cls.__name__: cls for cls in MESSAGE_TYPES.values()}
+
 @dataclass(frozen=True)
 class Logged:
     """One message read back: topic, receive time (s), encoding, schema name, the stored bytes."""
@@ -179,10 +183,8 @@ class Logged:
         name = self.schema.removeprefix("skynet.")
         if self.encoding != "json" or not self.schema.startswith("skynet."):
             return None
-        for cls in MESSAGE_TYPES.values():
-            if cls.__name__ == name:
-                return cls.model_validate_json(self.data)
-        return None
+        cls = _BY_NAME.get(name)
+        return None if cls is None else cls.model_validate_json(self.data)
 
 
 def read(path: str | Path, topics: list[str] | None = None) -> Iterator[Logged]:

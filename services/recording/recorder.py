@@ -79,7 +79,8 @@ class Recorder:
     def _on_sample(self, sample) -> None:
         if not self._closed.is_set():
             key = str(sample.key_expr)
-            (self._frames if is_imagery(key) else self._ring).push((key, sample.payload.to_bytes(), time.time()))
+            frame = is_imagery(key)
+            (self._frames if frame else self._ring).push((key, sample.payload.to_bytes(), time.time(), frame))
 
     def _write(self, item: tuple) -> None:
         t0 = time.thread_time()

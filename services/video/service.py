@@ -23,7 +23,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from protocol import keys
+from protocol import binding, keys
 from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.imagery import unpack_image
 from protocol.rtp import ssrc_for
@@ -84,8 +84,15 @@ class VideoService:
         if meta.encoding != "jpeg" or len(jpeg) == 0:
             self.counts["not-jpeg"] += 1
             return
+        if not binding.matches(str(sample.key_expr), meta.uav):  # a camera speaks only for its own UAV
+            self.counts[binding.MISMATCH] += 1
+            return
+        try:
+            _, ring = self.stream(meta.uav, kind)
+        except ValueError:  # the UAV's port beyond 65535 (a high --port and a large UAV id)
+            self.counts["bad-port"] += 1
+            return
         self.counts[f"in-{kind}"] += 1
-        _, ring = self.stream(meta.uav, kind)
         ring.push((bytes(jpeg), meta.stamp))
 
     def _send(self, vs: VideoStream, jpeg: bytes, stamp: float) -> None:

@@ -46,6 +46,7 @@ class WebServer:
         self._ready = threading.Event()
         self._stop: asyncio.Event | None = None
         self._error: BaseException | None = None
+        self._snapshot: tuple[float, str] | None = None  # (built at, JSON): shared by every page of a period
 
     def app(self) -> web.Application:
         app = web.Application()
@@ -68,6 +69,13 @@ class WebServer:
     async def _snap(self, request: web.Request) -> web.StreamResponse:
         return web.json_response(self.view.snapshot())
 
+    def _snapshot_text(self, now: float) -> str:
+        """The fleet's snapshot as JSON, built once per period for every page (the event loop's thread only)."""
+        cached = self._snapshot
+        if cached is None or now - cached[0] >= 0.5 * self.period_s:
+            cached = self._snapshot = (now, json.dumps(self.view.snapshot()))
+        return cached[1]
+
     async def _ws(self, request: web.Request) -> web.StreamResponse:
         ws = web.WebSocketResponse(heartbeat=10.0)
         await ws.prepare(request)
@@ -88,7 +96,7 @@ class WebServer:
                     doc = self.view.static()
                     version = doc["version"]
                     await ws.send_str(json.dumps(doc))
-                await ws.send_str(json.dumps(self.view.snapshot()))
+                await ws.send_str(self._snapshot_text(loop.time()))
                 self.sent += 1
                 next_t += self.period_s
                 await asyncio.sleep(max(0.0, next_t - loop.time()))

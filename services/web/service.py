@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import threading
 
-from protocol import keys
+from protocol import binding, keys
 from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.imagery import unpack_image
 from protocol.links import COMMAND, TELEMETRY
@@ -35,7 +35,7 @@ def attach(bus: Bus, view: FleetView) -> None:
             _, meta, jpeg = unpack_image(sample.payload.to_bytes())
         except ValueError:
             return  # an announce frame or a bad one: nothing to show
-        if len(jpeg):
+        if len(jpeg) and binding.matches(str(sample.key_expr), meta.uav):  # only its own UAV's tile
             view.on_preview(meta.uav, bytes(jpeg))
 
     bus.subscribe_raw(keys.preview(fleet, "*"), on_preview)

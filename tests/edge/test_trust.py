@@ -244,3 +244,21 @@ def test_a_read_only_key_set_keeps_the_replay_window_elsewhere(tmp_path):
     finally:
         for p, m in modes.items():
             os.chmod(p, m)
+
+
+@pytest.mark.parametrize("body", ["%%% not base64", "", "AAAA", None])
+def test_the_cmd_id_of_a_refused_envelope_is_read_without_trusting_it(body):
+    """A forged envelope's body may be anything: command_id gives 0 for garbage, never raises."""
+    import base64
+
+    from edge.trust import command_id
+    from protocol import codec
+    from protocol.messages import Heartbeat, Land, Signed
+
+    text = base64.b64encode(codec.encode(Heartbeat(seq=1, stamp=1.0))).decode() if body is None else body
+    env = Signed(signer="x", kid="0123456789abcdef", seq=1, stamp=1.0, to="skynet/demo/uav/1/cmd",
+                 type="cmd.land", body=text, sig="AAAA")
+    assert command_id(env) == 0  # garbage, or a body that is not a command
+    good = Signed(signer="x", kid="0123456789abcdef", seq=1, stamp=1.0, to="skynet/demo/uav/1/cmd", type="cmd.land",
+                  body=base64.b64encode(codec.encode(Land(uav=1, cmd_id=41))).decode(), sig="AAAA")
+    assert command_id(good) == 41

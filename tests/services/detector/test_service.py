@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from protocol import keys
+from protocol import binding, keys
 from protocol.bus import Bus, BusConfig
 from protocol.imagery import pack_image
 from protocol.links import IMAGERY
@@ -205,11 +205,15 @@ def test_hostile_frames_are_counted_and_the_detector_keeps_running(group, gatewa
         for _ in range(200):  # random bytes whose first byte says RTP version 2
             pub.put_bytes(bytes([0x80]) + rng.integers(0, 256, int(rng.integers(11, 200)), dtype=np.uint8).tobytes())
         time.sleep(1.5)  # a few stats passes over whatever reached the jitter buffers
-        pub.put_bytes(pack_image(RtpSender(ssrc_for(2)), _meta(2, 8, 320, 240), jpeg, time.time()))
+        own = RtpSender(ssrc_for(2))
+        # UAV 2's own camera, but metadata speaking for UAV 3 (issue 11: bodies bound to keys)
+        pub.put_bytes(pack_image(own, _meta(3, 9, 320, 240), jpeg, time.time()))
+        pub.put_bytes(pack_image(own, _meta(2, 8, 320, 240), jpeg, time.time()))
         assert wait_until(lambda: any(r.ok and r.capture_id == 8 for r in reports), 20), reports
         assert wait_until(lambda: stats and stats[-1].rejected.get("bad-ssrc", 0) >= 2, 10), stats[-1:]
+        assert wait_until(lambda: stats[-1].metrics.get(f"count.{binding.MISMATCH}", 0) >= 1, 10), stats[-1:]
     assert svc.alive(), "\n".join(svc.lines[-20:])
-    assert not any(r.capture_id == 7 for r in reports)  # neither forged frame was analysed
+    assert not any(r.capture_id in (7, 9) or r.uav == 3 for r in reports)  # no forged frame was analysed
     assert stats[-1].metrics.get("count.loop-error", 0) == 0
     assert sum("SSRC" in line for line in svc.lines) == 1  # logged once
 

@@ -11,9 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.runtime import synthetic_surface
-from edge.surface import SyntheticSurface, textured_background
-from services.inspection.captures import decode, synthetic_captures
+from services.inspection.captures import decode, known_crack_wall, synthetic_captures
 from services.inspection.deliverable import inspect_frames, load_folder, save_frame, write_deliverable
 from services.inspection.mosaic import Plane, PosedFrame, plane_from_frames
 from protocol.scenario import load_scenario
@@ -23,25 +21,7 @@ from protocol.scenario import load_scenario
 def wall():
     """The scenario's wall with straight cracks of known length and width (drawn as rectangles)."""
     sc = load_scenario()
-    ref = synthetic_surface(sc, seed=1)
-    h, w = ref.shape_px
-    ppm = ref.px_per_m
-    tex = textured_background((h, w), np.random.default_rng(3)).astype(np.float32)
-    mask = np.zeros((h, w), np.uint8)
-    truth = []
-    for i, u in enumerate(np.arange(2.0, 48.0, 3.5)):
-        wpx, length = (2, 3, 4, 5, 6)[i % 5], (1.0, 1.5, 2.0, 2.5)[i % 4]
-        ang = (0, 20, 35, 60, 90, 130)[i % 6]
-        v = 1.5 + 3.0 * ((i // 2) % 2)
-        one = np.zeros_like(mask)
-        box = cv2.boxPoints(((u * ppm, (ref.height_m - v) * ppm), (length * ppm, wpx), -ang))
-        cv2.fillConvexPoly(one, np.round(box * 16).astype(np.int32), 255, cv2.LINE_8, 4)
-        mask |= one
-        # the known width is the drawn rectangle's: its pixel area over its length
-        truth.append((u, v, length, np.count_nonzero(one) / (length * ppm) / ppm))
-    tex[mask > 0] *= 0.55
-    surf = SyntheticSurface(ref.origin, ref.u_axis, ref.v_axis, ref.width_m, ref.height_m, ppm,
-                            texture=np.clip(tex, 0, 255).astype(np.uint8), mask=mask)
+    surf, truth = known_crack_wall(sc)
     caps = synthetic_captures(sc, surf)
     return sc, surf, caps, truth
 

@@ -84,6 +84,9 @@ def test_video_service_streams_a_uav_preview_to_a_real_decoder(group, gateway, t
         pub = uav.publisher(keys.preview(FLEET, 2), IMAGERY)
         sender = RtpSender(ssrc_for(2, 1))
         pub.put_bytes(sender.frame(b"", time.time(), marker=False))  # the announce frame: skipped, not an error
+        ok, spoof = cv2.imencode(".jpg", picture(0))
+        forged = _meta(0, time.time()).model_copy(update={"uav": 3})  # speaking for UAV 3 on UAV 2's key
+        pub.put_bytes(pack_image(RtpSender(ssrc_for(3, 1)), forged, spoof.tobytes(), time.time()))
         i = 0
         # a live source: pictures keep coming until the decoder has enough (it may join late)
         while rx.is_alive() and i < 400:
@@ -94,6 +97,7 @@ def test_video_service_streams_a_uav_preview_to_a_real_decoder(group, gateway, t
             time.sleep(0.05)
     rx.join(5)
     assert not errors, errors
+    assert not (sdp_dir / "uav3-preview.sdp").exists()  # the forged picture opened no stream for UAV 3
     assert len(decoded) >= WANTED, (len(decoded), "\n".join(svc.lines))
     numbers = [n for n, *_ in decoded]
     assert all(b > a for a, b in zip(numbers, numbers[1:])), numbers  # in order
