@@ -138,6 +138,8 @@ def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery)
             else:
                 wait_until(lambda: cam_metric("delivered") + cam_metric("lost") >= N_FRAMES - 5, 10)
                 time.sleep(1.5)  # a last statistics period
+                # statistics are periodic: on a loaded machine wait for a period that counts every frame reported
+                wait_until(lambda: cam_metric("delivered") >= len(reports), 10)
             last = stats[-1].metrics
         dropped = lossy.stats()["down"]["dropped"]["loss"]
     assert dropped > 0  # the link really lost datagrams

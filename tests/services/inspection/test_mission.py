@@ -42,7 +42,7 @@ def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, ga
             meta = c.meta.model_copy(update={"uav": 1, "stamp": time.time()})
             pub.put_bytes(pack_image(sender, meta, c.jpeg, time.time()))
             time.sleep(0.05)
-        assert wait_until(lambda: len(reports) >= len(caps), 20)
+        assert wait_until(lambda: len(reports) >= len(caps), 60), (len(reports), "\n".join(svc.lines[-20:]))
     kept, _, _ = load_folder(frames)
     assert len(kept) == len(caps)
     assert kept[0].meta.cam_pos == caps[0].meta.cam_pos

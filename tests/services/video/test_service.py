@@ -108,4 +108,6 @@ def test_video_service_streams_a_uav_preview_to_a_real_decoder(group, gateway, t
     with_pts = [(n, pts) for n, pts, *_ in decoded if pts is not None]
     assert len(with_pts) >= WANTED - 2
     (n0, p0) = with_pts[0]
-    assert all(pts - p0 == (n - n0) * 9000 for n, pts in with_pts), with_pts
+    # (within one tick: wall-clock stamps near 1.8e9 s carry ~0.02 tick of float error, which rounding to the
+    # nearest tick can turn into one)
+    assert all(abs(pts - p0 - (n - n0) * 9000) <= 1 for n, pts in with_pts), with_pts
