@@ -29,6 +29,7 @@ and a camera (:mod:`edge.camera`) to the bus:
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import threading
 import time
@@ -69,12 +70,7 @@ class BoardOptions:
     uav: int
     rate_hz: float = 20.0
     stale_s: float = 1.0
-    failsafe_timeout_s: float = 5.0
-    failsafe_action: str = "hold"
-    failsafe_escalate_after_s: float = 30.0
-    failsafe_escalate: str = "rtl"
-    battery_low: float = 0.2
-    battery_critical: float = 0.1
+    failsafe: FailsafeOptions = field(default_factory=FailsafeOptions)  # link and battery failsafes (edge.failsafe)
     geofence: Box | None = None
     max_speed: float = 12.0
     formation_gain: float = 0.8
@@ -102,10 +98,7 @@ class Board:
         self.seq = 0
         self.last_heartbeat: float | None = None
         self._pilot_modes_seen = 0  # the driver's external_modes already reported
-        o = options
-        self.failsafe = FailsafePolicy(FailsafeOptions(
-            timeout_s=o.failsafe_timeout_s, action=o.failsafe_action, escalate_after_s=o.failsafe_escalate_after_s,
-            escalate_action=o.failsafe_escalate, battery_low=o.battery_low, battery_critical=o.battery_critical))
+        self.failsafe = FailsafePolicy(options.failsafe)
         self.trajectory = None
         self.follower = None
         fleet = bus.fleet
@@ -114,7 +107,7 @@ class Board:
         # only the formation's states: the cost per edge does not grow with the fleet (issue 18)
         self.neighbourhood = frozenset(neighbourhood_of(self.uav, options.formation_size))
         for j in sorted(self.neighbourhood):
-            bus.subscribe(keys.state(fleet, j), self._on_state, expect=VehicleState, link=TELEMETRY,
+            bus.subscribe(keys.state(fleet, j), functools.partial(self._on_state, j), expect=VehicleState, link=TELEMETRY,
                           budget=for_topic("state"))
         bus.subscribe(keys.heartbeat(fleet), self._on_heartbeat, expect=(Heartbeat, Signed), link=COMMAND,
                       budget=for_topic("heartbeat"))
@@ -123,9 +116,10 @@ class Board:
         bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
 
     # -- inputs (Zenoh callback threads)
-    def _on_state(self, msg: Message, sample) -> None:
+    def _on_state(self, uav: int, msg: Message, sample) -> None:
+        """A state on UAV ``uav``'s key (one subscription per formation neighbour)."""
         assert isinstance(msg, VehicleState)
-        if not self.gate.body_matches(str(sample.key_expr), msg):
+        if not self.gate.body_matches(uav, msg):
             self._refused("body.mismatch", f"a state saying UAV {msg.uav} on {sample.key_expr}")
             return
         if msg.uav in self.neighbourhood:
@@ -341,15 +335,15 @@ def build_parser() -> argparse.ArgumentParser:
                         help="share of the neighbours' mean position error corrected on board, 0..1")
     parser.add_argument("--formation-size", type=int, default=_DEFAULT.formation_size,
                         help="UAVs per formation: the board shares state with its formation only (SkyNet)")
-    parser.add_argument("--failsafe-timeout", type=float, default=_DEFAULT.failsafe_timeout_s)
-    parser.add_argument("--failsafe-action", choices=ACTIONS, default=_DEFAULT.failsafe_action)
-    parser.add_argument("--failsafe-escalate", choices=ESCALATIONS, default=_DEFAULT.failsafe_escalate,
+    parser.add_argument("--failsafe-timeout", type=float, default=_DEFAULT.failsafe.timeout_s)
+    parser.add_argument("--failsafe-action", choices=ACTIONS, default=_DEFAULT.failsafe.action)
+    parser.add_argument("--failsafe-escalate", choices=ESCALATIONS, default=_DEFAULT.failsafe.escalate_action,
                         help="after a failsafe hold of --failsafe-escalate-after s: rtl, land or none")
-    parser.add_argument("--failsafe-escalate-after", type=float, default=_DEFAULT.failsafe_escalate_after_s,
+    parser.add_argument("--failsafe-escalate-after", type=float, default=_DEFAULT.failsafe.escalate_after_s,
                         metavar="S")
-    parser.add_argument("--battery-low", type=float, default=_DEFAULT.battery_low,
+    parser.add_argument("--battery-low", type=float, default=_DEFAULT.failsafe.battery_low,
                         help="battery failsafe: return to launch below")
-    parser.add_argument("--battery-critical", type=float, default=_DEFAULT.battery_critical,
+    parser.add_argument("--battery-critical", type=float, default=_DEFAULT.failsafe.battery_critical,
                         help="battery failsafe: land below")
     parser.add_argument("--endurance", type=float, default=None, metavar="S",
                         help="simulated vehicle: hover time on a full battery, s (default 1200)")
@@ -393,11 +387,10 @@ def main(argv: list[str] | None = None) -> int:
     clock = SimClock(epoch=args.epoch if args.epoch is not None else time.time(), speed=args.speed)
     driver = make_driver(args, t0=clock.now())
     stop = stop_event_on_signals()
-    opts = BoardOptions(uav=args.uav, rate_hz=args.rate, stale_s=args.stale, failsafe_timeout_s=args.failsafe_timeout,
-                        failsafe_action=args.failsafe_action, geofence=args.geofence,
-                        failsafe_escalate=args.failsafe_escalate,
-                        failsafe_escalate_after_s=args.failsafe_escalate_after, battery_low=args.battery_low,
-                        battery_critical=args.battery_critical,
+    failsafe = FailsafeOptions(timeout_s=args.failsafe_timeout, action=args.failsafe_action,
+                               escalate_after_s=args.failsafe_escalate_after, escalate_action=args.failsafe_escalate,
+                               battery_low=args.battery_low, battery_critical=args.battery_critical)
+    opts = BoardOptions(uav=args.uav, rate_hz=args.rate, stale_s=args.stale, failsafe=failsafe, geofence=args.geofence,
                         formation_gain=args.formation_gain, formation_size=args.formation_size)
     from .trust import secure_setup
 

@@ -25,7 +25,7 @@ import threading
 import time
 from typing import Any
 
-from protocol import binding, keys
+from protocol import keys
 from protocol.messages import COMMAND_TYPES, Heartbeat, Message, Signed
 from protocol.signing import Refusal, TrustError, Verifier, unverified_inner
 
@@ -76,10 +76,11 @@ class Gate:
             self._count(f"heartbeat.{exc.reason.value}")
             return exc
 
-    def body_matches(self, key: str, msg: Message) -> bool:
-        """Whether the ``uav`` of ``msg`` is the UAV its key names (:func:`protocol.binding.matches`;
-        counted as ``body.mismatch`` if not)."""
-        ok = binding.matches(key, getattr(msg, "uav", -1))
+    def body_matches(self, uav: int, msg: Message) -> bool:
+        """Whether the ``uav`` of ``msg`` is ``uav``, the UAV whose key it came on (the board subscribes once
+        per neighbour, so the key is known without parsing it; :mod:`protocol.binding` for the rule);
+        counted as ``body.mismatch`` if not."""
+        ok = getattr(msg, "uav", -1) == uav
         if not ok:
             self._count("body.mismatch")
         return ok
