@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import textwrap
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -13,7 +15,8 @@ import pytest
 from protocol.bus import multilink_endpoints
 from services.orchestration.process import ProcessGroup, free_port_pair
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
 
 
 @pytest.fixture
@@ -33,6 +36,39 @@ def gateway(group):
                                   *[a for e in endpoints for a in ("--listen", e)]])
     assert svc.wait_for("router up", 20), "\n".join(svc.lines)
     return endpoints
+
+
+@dataclass(frozen=True)
+class MissionRun:
+    """A finished ``skynet mission``: its process and its report folder (read only)."""
+
+    proc: subprocess.CompletedProcess
+    out: Path
+
+    def report(self) -> dict:
+        return json.loads((self.out / "report.json").read_text())
+
+    def record(self) -> dict:
+        return json.loads((self.out / "record.json").read_text())
+
+    def failure(self) -> str:
+        """What to print when an assertion on this run fails."""
+        return self.proc.stdout[-3000:] + self.proc.stderr[-3000:]
+
+
+def fly_mission(out: Path, *argv: str, timeout: float = 400) -> MissionRun:
+    """``skynet mission --quiet --out OUT ARGV...`` in a subprocess (the whole network on loopback)."""
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--quiet", "--out", str(out), *argv],
+                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    return MissionRun(proc, out)
+
+
+@pytest.fixture(scope="session")
+def nominal_mission(tmp_path_factory) -> MissionRun:
+    """The paper's mission as README's first command flies it (three UAVs, secure, recorded), at 8x, flown
+    once per session: the tests that check different things of the same nominal mission (its report, its
+    MCAP rebuild and replay) read this one run instead of each flying their own (CI time)."""
+    return fly_mission(tmp_path_factory.mktemp("nominal") / "report", "--speed", "8", timeout=300)
 
 
 def wait_until(pred, timeout: float = 20.0, poll: float = 0.02) -> bool:

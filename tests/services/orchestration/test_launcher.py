@@ -9,6 +9,8 @@ import time
 
 import pytest
 
+from tests.conftest import fly_mission
+
 #: stated bounds of the end-to-end mission (README, "Mission")
 FORMATION_RMS_BOUND_M = 1.0
 DEFECT_RECALL_BOUND = 0.7
@@ -16,11 +18,9 @@ PLOTS = ["trajectories.png", "altitudes.png", "path_error.png", "formation_error
          "defects_map.png", "links.png"]
 
 
-def test_mission_through_the_launcher(tmp_path):
-    out = tmp_path / "report"
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--speed", "8", "--quiet", "--out", str(out)],
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+def test_mission_through_the_launcher(nominal_mission):
+    out, proc = nominal_mission.out, nominal_mission.proc
+    assert proc.returncode == 0, nominal_mission.failure()
     report = json.loads((out / "report.json").read_text())
     assert report["success"] and not report["failures"]
     assert set(report["uavs"]) == {"1", "2", "3"}
@@ -201,23 +201,28 @@ def test_up_restarts_a_service_that_dies_instead_of_stopping_the_network():
     assert proc.returncode == 0
 
 
-def test_two_formations_fly_the_mission_each_its_own_skynet(tmp_path):
-    """Issue 18: six UAVs fly as two formations (1-3, 4-6); each edge hears only its formation."""
-    out = tmp_path / "report"
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--uavs", "6", "--speed", "4", "--quiet",
-                           "--out", str(out)], capture_output=True, text=True, timeout=400)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    report = json.loads((out / "report.json").read_text())
+def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
+    """Issue 18, in one mission: six UAVs fly as two formations (1-3, 4-6), each edge hears only its formation;
+    ``--detectors 2`` (detector-0 and detector-1 sharing the six cameras, secure by default): every capture is
+    reported once, and the ledger's analysed counts sum both instances."""
+    run = fly_mission(tmp_path / "report", "--uavs", "6", "--detectors", "2", "--speed", "4")
+    assert run.proc.returncode == 0, run.failure()
+    report = run.report()
     assert report["success"] and not report["failures"]
     assert set(report["uavs"]) == {str(u) for u in range(1, 7)}
     assert all(fig["reached_goal"] for fig in report["uavs"].values()), report["uavs"]
     assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M
     assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
-    record = json.loads((out / "record.json").read_text())
+    record = run.record()
     joined = {(int(e["msg"]["source"].split("/")[1]), e["msg"]["data"]["neighbour"]) for e in record["events"]
               if e["msg"]["kind"] == "neighbour-up"}
     formations = [(1, 2, 3), (4, 5, 6)]
     assert joined == {(i, j) for f in formations for i in f for j in f if i != j}, sorted(joined)
+    assert {s["msg"]["source"] for s in record["detector_stats"]} == {"detector-0", "detector-1"}
+    for uav, row in record["imagery"].items():
+        assert row["analysed"] == row["reported"] == row["sent"] > 0, (uav, row)
+    reported = [(d["msg"]["uav"], d["msg"]["capture_id"]) for d in record["defects"] if d["msg"]["ok"]]
+    assert len(reported) == len(set(reported))  # no capture analysed twice
 
 
 def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
@@ -262,21 +267,3 @@ def test_detectors_option_starts_partitioned_instances():
         assert net.check_alive() == []
     finally:
         net.stop()
-
-
-def test_mission_with_two_detectors_images_every_capture_once(tmp_path):
-    """Issue 18: ``--detectors 2`` (detector-0 and detector-1 sharing 4 UAVs' cameras, secure by default): the
-    mission succeeds, every capture is reported once, and the ledger's analysed counts sum both instances."""
-    out = tmp_path / "report"
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--uavs", "4", "--detectors", "2",
-                           "--speed", "8", "--quiet", "--out", str(out)], capture_output=True, text=True, timeout=400)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    report = json.loads((out / "report.json").read_text())
-    assert report["success"] and not report["failures"]
-    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
-    record = json.loads((out / "record.json").read_text())
-    assert {s["msg"]["source"] for s in record["detector_stats"]} == {"detector-0", "detector-1"}
-    for uav, row in record["imagery"].items():
-        assert row["analysed"] == row["reported"] == row["sent"] > 0, (uav, row)
-    reported = [(d["msg"]["uav"], d["msg"]["capture_id"]) for d in record["defects"] if d["msg"]["ok"]]
-    assert len(reported) == len(set(reported))  # no capture analysed twice

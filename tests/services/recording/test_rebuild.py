@@ -4,11 +4,8 @@ from a replay of it onto the bus, has the live run's figures (states, captures, 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import time
 from collections import defaultdict
-from pathlib import Path
 
 from protocol import keys
 from protocol.bus import Bus, BusConfig
@@ -20,7 +17,6 @@ from protocol.signing import unverified_inner
 from services.recording.rebuild import rebuild, summary_of, with_lists
 from tests.conftest import wait_until
 
-ROOT = Path(__file__).resolve().parents[3]
 #: figures that use receive times: the recorder's callback runs beside the ground station's, not at
 #: the same microsecond, so these differ by about a millisecond and are left out of the comparison
 RX_FIGURES = ("latency_ms", "age_ms", "delivery_ms", "last_rx_s", "max_gap_s", "max_gap_ended_s", "rx")
@@ -39,11 +35,9 @@ def _figures(summary) -> dict:
     return _strip(json.loads(json.dumps(summary.to_dict() if hasattr(summary, "to_dict") else summary)))
 
 
-def test_mission_log_rebuilds_the_report_and_replays(group, gateway, tmp_path: Path) -> None:
-    out = tmp_path / "m"
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--speed", "8", "--quiet", "--out", str(out)],
-                          cwd=ROOT, capture_output=True, text=True, timeout=240)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+def test_mission_log_rebuilds_the_report_and_replays(nominal_mission, group, gateway) -> None:
+    out = nominal_mission.out
+    assert nominal_mission.proc.returncode == 0, nominal_mission.failure()
     live = json.loads((out / "report.json").read_text())
     path = out / "mission.mcap"
     assert path.stat().st_size > 0
