@@ -303,8 +303,9 @@ class Network:
         return KeySet(self.trust.keys, "gcs").signer()
 
     def homes(self, n: int) -> list[tuple[float, float, float]]:
-        """Launch points: the formation slots around the start, on the ground (P9)."""
-        from edge.formation import offsets_for, rotation_of
+        """Launch points: the formation slots around the start, on the ground (P9); a UAV stacked
+        above another launches beside it (:func:`edge.formation.home_offsets`)."""
+        from edge.formation import home_offsets, offsets_for, rotation_of
         from protocol.scenario import load_scenario
 
         sc = load_scenario(self.args.scenario)
@@ -313,8 +314,8 @@ class Network:
         R = rotation_of(0.0, 0.0, yaw)
         ground = sc.box.lo[2]
         out = []
-        for off in offsets_for(n):
-            p = (R @ off)[:2]
+        for xy in home_offsets(offsets_for(n)):
+            p = (R @ (xy[0], xy[1], 0.0))[:2]
             out.append((round(start[0] + p[0], 3), round(start[1] + p[1], 3), ground))
         return out
 

@@ -405,3 +405,36 @@ def test_scenario_file_that_is_not_utf8_is_a_scenario_error(tmp_path):
     bad.write_bytes(b'name = "caf\xe9"\n')
     with pytest.raises(ScenarioError, match="not UTF-8"):
         load_scenario(bad)
+
+
+# ----------------------------------------------------------------------------- fleets of several formations
+def test_a_fleet_of_24_in_stacked_rows_is_planned_inside_the_box_and_images_the_wall():
+    """Issue 18: 24 UAVs (eight formations of three) planned as one stacked fleet: every trajectory
+    inside the box, the top two rows take every shot at the stand-off, the rows below take none,
+    no two UAVs closer than the lattice pitch, every UAV above the altitude band's floor."""
+    from edge.formation import ROW_PITCH_M, offsets_for
+    from services.gcs.preflight import plan_problem
+    from services.planner.task import imaging_rows
+
+    off = offsets_for(24)
+    sc = validate_scenario(_doc(formation={"offsets": [tuple(o) for o in off], "min_separation": 2.0}))
+    ip = formation_pass(sc)
+    assert ip is not None and ip.uav.size == 26  # the same 26 shots as the paper's three
+    assert coverage(SC.surface, SC.camera, ip.positions, ip.look) == 1.0
+    assert set(np.unique(off[ip.uav, 2])) == {2.0, -1.0}  # only the two imaging rows shoot
+    np.testing.assert_array_equal(imaging_rows(off[:, 2], 6.0, 3.75), [-1.0, 2.0])
+    np.testing.assert_array_equal(imaging_rows([2.0, -1.0], 6.0, 3.75), [-1.0, 2.0])  # the paper's: both rows
+    plan, ft, _ = plan_details(sc, particles=60, iterations=60)
+    assert len(plan.trajectories) == 24 and len(plan.captures) == 26
+    assert plan_problem(plan, sc.formation.offsets) == ""  # fits the box (the line of 24 did not)
+    assert plan.collision_free and ft.min_clearance > 0
+    P = ft.positions  # (samples, 24, 3)
+    d = np.linalg.norm(P[:, :, None] - P[:, None], axis=-1) + np.eye(24) * 99
+    assert d.min() >= ROW_PITCH_M - 0.01
+    assert P[..., 2].min() >= SC.cost.altitude[0] - 1e-6
+
+
+def test_imaging_rows_fall_back_to_every_row_for_a_wall_too_tall():
+    from services.planner.task import imaging_rows
+
+    np.testing.assert_array_equal(imaging_rows([2.0, -1.0, -3.5], 20.0, 3.75), [-3.5, -1.0, 2.0])
