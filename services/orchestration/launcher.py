@@ -364,7 +364,10 @@ class Network:
                 "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
                 "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery,
                 *vehicle])
-        self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
+        # a large fleet's plan (issue 18) is computed while its edges load the machine: the planner may
+        # take up to 100 s of the ground station's 120 s plan timeout instead of its own 60 s default
+        budget = ["--time-budget", "100"] if a.uavs > 24 else []
+        self.start_service("planner", ["planner", *self.bus_args("planner", "client"), *budget])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         save = ["--save-frames", a.save_frames] if getattr(a, "save_frames", None) else []
         n = getattr(a, "detectors", 1)  # N instances share the cameras by UAV id (services.detector.partition)
