@@ -585,8 +585,9 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
         net.start()
         cfg = net.gcs_config()
         hooks_signer = net.gcs_signer()
+        # every edge imports and starts at once on the same cores: 48 of them took over 30 s to appear
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
-                                 speed=args.speed)
+                                 speed=args.speed, appear_timeout_s=max(30.0, 2.5 * args.uavs))
         injector = net.start_faults(log)
 
         def on_runner(runner) -> None:
