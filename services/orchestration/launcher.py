@@ -375,12 +375,17 @@ class Network:
             part = [] if n == 1 else ["--partition", f"{k}/{n}", "--max-uav", str(a.uavs)]
             self.start_service("detector" if n == 1 else f"detector-{k}",
                                ["detector", *self.bus_args("detector", "client"), "--method", a.method,
-                                *part, *no_recovery, *save], user="detector")
+                                *part, *no_recovery, *save, *self.detect_args()], user="detector")
         if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
             self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
                                          "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
         if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
             self.start_service("web", ["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
+
+    def detect_args(self) -> list[str]:
+        """``--detect-max-mp`` for the detector when given (a large frame detected on a reduced decode)."""
+        mp = getattr(self.args, "detect_max_mp", None)
+        return [] if mp is None else ["--detect-max-mp", str(mp)]
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -486,6 +491,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="live preview frames per UAV per second (default: the edge's, 2; 0 = off)")
     p.add_argument("--gcs-state-hz", type=preview_rate, default=0.0, metavar="HZ",
                    help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
+    p.add_argument("--detect-max-mp", type=float, default=None, metavar="MP",
+                   help="the detector detects frames above MP megapixels on a reduced decode (its default 3; 0: never)")
     p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
                    help="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
     p.add_argument("--vehicle", choices=["sim", "mavlink"], default="sim",
