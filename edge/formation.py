@@ -30,6 +30,9 @@ from protocol.checks import finite_array, finite_vec3
 __all__ = [
     "DEFAULT_OFFSETS",
     "offsets_for",
+    "home_offsets",
+    "MAX_ALONG_M",
+    "ROW_PITCH_M",
     "MAX_CORRECTION_M",
     "rotation_of",
     "errors_in_formation",
@@ -51,20 +54,65 @@ DEFAULT_OFFSETS.setflags(write=False)
 MAX_CORRECTION_M = 3.0
 
 
+#: Along-track half-length of the fleet, m: :func:`offsets_for` adds rows below instead of
+#: lengthening the line past it (the monorail start is 8 m from the box's side).
+MAX_ALONG_M = 6.0
+#: Pitch of the fleet's slots along travel (and of the two imaging rows in height), m.
+PITCH_M = 3.0
+#: Height pitch of the rows stacked under the two imaging rows, m (2.5: every pair stays above the
+#: scenario's 2 m minimum separation and 48 UAVs fit the monorail's altitude band at the wall).
+ROW_PITCH_M = 2.5
+
+
 def offsets_for(n: int) -> NDArray[np.float64]:
-    """Offsets ΔT_n for a formation of ``n`` UAVs (P9): the paper's triangle for the first three,
-    then further slots 3 m apart along travel on the same two rows (z = +2 and z = -1 m):
-    (3, 0, 2), (-3, 0, 2), (6, 0, -1), (-6, 0, -1), (6, 0, 2), ... so every pair stays at least
-    3 m apart. Row n-1 is UAV n.
+    """Offsets ΔT_n for a fleet of ``n`` UAVs (P9); row n-1 is UAV n.
+
+    The paper's triangle for the first three; then further slots 3 m apart along travel on the
+    same two rows (z = +2 and z = -1 m): (3, 0, 2), (-3, 0, 2), (6, 0, -1), (-6, 0, -1), (6, 0, 2),
+    (-6, 0, 2), (0, 0, -1), i.e. five columns up to :data:`MAX_ALONG_M` ahead and behind (10
+    UAVs, every pair at least 3 m apart). Larger fleets (issue 18) stack further rows of the same
+    five columns :data:`ROW_PITCH_M` apart *below* them (z = -3.5, -6, ...), each ordered
+    0, +3, -3, +6, -6. So the fleet's length along the track stays 12 m whatever N (a line of 24
+    was ±18 m and did not fit the monorail box at the start), the top two rows image the wall
+    (:func:`services.planner.task.imaging_rows`) and the rows below fly the same pass under them.
+    Formations of three (:mod:`edge.neighbourhood`) are consecutive ids.
     """
     if not isinstance(n, (int, np.integer)) or not 1 <= n <= 255:
         raise ValueError(f"formation size must be an int in 1..255, got {n!r}")
+    cols = [0.0]
+    for c in range(1, int(MAX_ALONG_M // PITCH_M) + 1):
+        cols += [PITCH_M * c, -PITCH_M * c]
     rows = [tuple(o) for o in DEFAULT_OFFSETS]
-    k = 1
+    for c in cols[1:]:  # fill the two imaging rows outward: ahead/behind on the top row, then the lower
+        if c > 0:
+            rows += [(c, 0.0, 2.0), (-c, 0.0, 2.0)]
+            if c + PITCH_M <= MAX_ALONG_M:
+                rows += [(c + PITCH_M, 0.0, -1.0), (-c - PITCH_M, 0.0, -1.0)]
+    rows.append((0.0, 0.0, -1.0))
+    z = -1.0
     while len(rows) < n:
-        rows += [(3.0 * k, 0.0, 2.0), (-3.0 * k, 0.0, 2.0), (3.0 * (k + 1), 0.0, -1.0), (-3.0 * (k + 1), 0.0, -1.0)]
-        k += 1
+        z -= ROW_PITCH_M
+        rows += [(x, 0.0, z) for x in cols]
     return np.array(rows[:n], dtype=float)
+
+
+def home_offsets(offsets: ArrayLike) -> NDArray[np.float64]:
+    """Ground positions of the fleet's launch points in the formation frame (x along travel, y left), m.
+
+    Under its slot, except where an earlier UAV already launches from that spot (slots stacked
+    above each other share x): such a UAV launches :data:`PITCH_M` further left per earlier one,
+    climbs there and flies level to its slot when started (the sequencer's transit). Row n-1 is
+    UAV n; ``(k, 2)``.
+    """
+    off = np.asarray(offsets, float).reshape(-1, 3)
+    seen: dict[float, int] = {}
+    out = np.zeros((off.shape[0], 2))
+    for i, (x, y, _) in enumerate(off):
+        key = round(float(x), 3)
+        k = seen.get(key, 0)
+        seen[key] = k + 1
+        out[i] = (x, y + PITCH_M * k)
+    return out
 
 
 def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np.float64]:

@@ -213,7 +213,7 @@ class FormationSpec(_Model):
     """Formation offsets ΔT_n (formation frame: x along travel, y left, z up) (P9)."""
 
     offsets: list[Vec3] = Field(
-        default=[(0.0, 0.0, 2.0), (3.0, 0.0, -1.0), (-3.0, 0.0, -1.0)], min_length=1, max_length=32
+        default=[(0.0, 0.0, 2.0), (3.0, 0.0, -1.0), (-3.0, 0.0, -1.0)], min_length=1, max_length=255
     )
     min_separation: NonNeg = 2.0
 

@@ -17,7 +17,7 @@ import numpy as np
 from edge.camera import decode_image
 from protocol.messages import Defect, DefectReport, ImageMeta
 
-from .detect import Detection, detect
+from .detect import Defect as PixelDefect, Detection, detect
 
 #: components smaller than this are not reported (the mask is unchanged)
 MIN_REPORT_AREA_PX = 12
@@ -51,12 +51,43 @@ def to_report(meta: ImageMeta, det: Detection, stamp_report: float | None = None
                         defect_fraction=det.defect_fraction)
 
 
-def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", **params: object) -> DefectReport:
-    """Decode, detect and map one frame; a frame that does not decode gives an ``ok=False`` report."""
+def detection_scale(width: int, height: int, max_pixels: int | None) -> int:
+    """The decode reduction (1, 2, 4 or 8) that brings a ``width`` x ``height`` frame to at most
+    ``max_pixels`` (None: always 1), so that the real-time report of a 12 MP frame costs what a
+    small frame's does (issue 18)."""
+    if max_pixels is None:
+        return 1
+    for f in (1, 2, 4):
+        if (width // f) * (height // f) <= max_pixels:
+            return f
+    return 8
+
+
+def scaled(det: Detection, f: int) -> Detection:
+    """``det`` found on a frame decoded at 1/``f`` size, in the full frame's pixels: a reduced pixel
+    ``i`` covers full pixels ``f i .. f i + f - 1`` (centre ``f i + (f - 1) / 2``). The mask stays small."""
+    if f == 1:
+        return det
+    out = [PixelDefect(area_px=d.area_px * f * f, bbox=tuple(int(v) * f for v in d.bbox),
+                  centroid=(d.centroid[0] * f + (f - 1) / 2, d.centroid[1] * f + (f - 1) / 2), contrast=d.contrast)
+           for d in det.defects]
+    return Detection(mask=det.mask, defects=out, method=det.method, threshold=det.threshold)
+
+
+def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", max_pixels: int | None = None,
+            **params: object) -> DefectReport:
+    """Decode, detect and map one frame; a frame that does not decode gives an ``ok=False`` report.
+
+    With ``max_pixels``, a larger frame is decoded at 1/2, 1/4 or 1/8 of its size
+    (:func:`detection_scale`) and its defects reported in full-frame pixels (:func:`scaled`): the
+    real-time report of a 12 MP capture. The kept frame (``--save-frames``, the inspection
+    deliverable) is the full one; a crack thinner than the reduction's pixel may go unreported.
+    """
+    f = detection_scale(meta.intrinsics.width, meta.intrinsics.height, max_pixels)
     try:
-        grey = decode_image(image, grey=True)
+        grey = decode_image(image, grey=True, reduce=f)
     except ValueError as exc:
         return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
                             stamp_report=time.time(), method=method, ok=False, error=str(exc))
-    det = detect(grey, method, min_defect_area=MIN_REPORT_AREA_PX, **params)
-    return to_report(meta, det)
+    det = detect(grey, method, min_defect_area=max(1, MIN_REPORT_AREA_PX // (f * f)), **params)
+    return to_report(meta, scaled(det, f))

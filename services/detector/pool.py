@@ -39,13 +39,14 @@ class WorkerCrashed(RuntimeError):
     """A job broke its worker process twice (once on the old pool, once on a fresh one)."""
 
 
-def analyse_frame(meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: int) -> DefectReport:
+def analyse_frame(meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: int,
+                  max_pixels: int | None = None) -> DefectReport:
     """One frame in a worker: decode, detect, map (:func:`~services.detector.pipeline.analyse`), and the
     frame evidence the ground station checks (:mod:`services.gcs.evidence`: SSRC, RTP sequence number,
     SHA-256 of the image bytes)."""
     from .pipeline import analyse
 
-    report = analyse(meta, image, method)
+    report = analyse(meta, image, method, max_pixels=max_pixels)
     return report.model_copy(update={"frame": FrameEvidence(ssrc=ssrc, seq=seq,
                                                             digest=hashlib.sha256(image).hexdigest())})
 
@@ -75,7 +76,8 @@ def _warm() -> int:
 class DetectorPool:
     """``workers`` detection processes; :meth:`analyse` blocks its (Ring worker) thread for one frame."""
 
-    def __init__(self, workers: int = 2, context: str = "spawn"):
+    def __init__(self, workers: int = 2, context: str = "spawn", max_pixels: int | None = None):
+        self.max_pixels = max_pixels  # frames above it are detected on a reduced decode (pipeline.analyse)
         if workers < 1:
             raise ValueError("the pool needs at least one worker process")
         if context not in CONTEXTS:
@@ -119,7 +121,7 @@ class DetectorPool:
 
     def analyse(self, meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: int) -> DefectReport:
         """:func:`analyse_frame` in a worker process."""
-        return self.call(analyse_frame, meta, bytes(image), method, ssrc, seq)
+        return self.call(analyse_frame, meta, bytes(image), method, ssrc, seq, self.max_pixels)
 
     def _replace(self, generation: int) -> None:
         """Replace a broken executor once, however many threads saw it break."""

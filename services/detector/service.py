@@ -96,7 +96,8 @@ class DetectorService:
 
     def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = QUEUE_FRAMES,
                  playout_delay_s: float = 0.05, log=None, recover: bool = True, save_frames: str | None = None,
-                 partition: Partition = Partition(), max_uav: int = MAX_UAV, context: str = "spawn"):
+                 partition: Partition = Partition(), max_uav: int = MAX_UAV, context: str = "spawn",
+                 max_pixels: int | None = None):
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")
         self.bus, self.method, self.log = bus, method, log
@@ -109,7 +110,7 @@ class DetectorService:
         self._lock = threading.Lock()
         self.partition, self.name = partition, partition.name
         # detection in worker processes; one Ring thread per process keeps at most `workers` frames in flight
-        self.pool = DetectorPool(workers, context)
+        self.pool = DetectorPool(workers, context, max_pixels)
         self.pool.warm()
         self.work = Ring(queue, self._process, name=self.name, workers=workers)
         self.pub = bus.publisher(keys.defects(bus.fleet), COMMAND)
@@ -281,6 +282,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
     parser.add_argument("--no-recovery", action="store_true",
                         help="do not ask the cameras' caches for lost capture frames (plain best-effort)")
+    parser.add_argument("--detect-max-mp", type=float, default=3.0, metavar="MP",
+                        help="detect on a 1/2, 1/4 or 1/8 decode of frames above MP megapixels (a 12 MP capture "
+                             "at 3 MP; the kept frame stays full size); 0: always full size")
     parser.add_argument("--save-frames", default=None, metavar="DIR",
                         help="keep every analysed capture with its pose in DIR (input of the inspection deliverable)")
     return parser
@@ -295,7 +299,8 @@ def main(argv: list[str] | None = None) -> int:
     with Bus(config_from_args(args, role="detector"), fleet=args.fleet, name=name) as bus:
         svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log,
                               recover=not args.no_recovery, save_frames=args.save_frames,
-                              partition=args.partition, max_uav=args.max_uav, context=args.start_method)
+                              partition=args.partition, max_uav=args.max_uav, context=args.start_method,
+                              max_pixels=int(args.detect_max_mp * 1e6) if args.detect_max_mp > 0 else None)
         log.info("detector up: %s, partition %s, method %s, %d worker processes, recovery %s", name,
                  args.partition, args.method, args.workers, "off" if args.no_recovery else "on")
         next_stats = time.monotonic() + 1.0

@@ -334,6 +334,14 @@ class MissionRunner:
             commands = list(self.record.commands)
         return start_margin(commands, self.opt.start_margin_s)
 
+    def transit_s(self, plan: MissionPlan) -> float:
+        """Wall seconds the farthest UAV needs to reach its first waypoint (:func:`.preflight.transit_margin_s`)."""
+        from .preflight import transit_margin_s
+
+        with self._lock:
+            here = {u: s.pos for u, s in self.latest.items()}
+        return transit_margin_s(here, plan, self.opt.speed)
+
     def _beat(self, seq: int) -> None:
         """Publish one heartbeat, signed when the runner has a signer (only a verified one holds off a failsafe)."""
         hb = Heartbeat(source="gcs", seq=seq, stamp=time.time())
@@ -373,7 +381,7 @@ class MissionRunner:
             self.wait_for(lambda: self.fleet_done(lambda u, s: s is not None and s.mode == Mode.HOLD),
                           self.sim_timeout(self.opt.takeoff_timeout_s), "every UAV to reach takeoff altitude")
             self.phase("mission")
-            t0 = time.time() + self.start_margin_s()
+            t0 = time.time() + self.start_margin_s() + self.transit_s(plan)
             self.command_all(lambda u, cid: Start(uav=u, cmd_id=cid, t0_stamp=t0), "start", parallel=True)
             with self._lock:
                 self._sup.on_started(self.opt.uavs, time.time())

@@ -56,3 +56,28 @@ def plan_problem(plan: MissionPlan, offsets: Sequence[Sequence[float]] | None = 
                  f"goal {margin_to_box(goal, plan.geofence):.1f} m from the box's side; fly fewer UAVs or move "
                  "the start and goal inward")
     return text
+
+
+#: the slowest level transit to the first waypoint assumed for a board, m/s (the simulated vehicle
+#: flies it at 4 m/s: ``edge.vehicle.sim.SimParams.transit_speed``)
+TRANSIT_SPEED_MS = 3.0
+
+
+def transit_margin_s(positions: dict[int, Sequence[float]], plan: MissionPlan, speed: float = 1.0,
+                     transit_speed: float = TRANSIT_SPEED_MS) -> float:
+    """Wall seconds the farthest UAV needs from where it holds to its trajectory's first waypoint.
+
+    The common start time must leave it that long (issue 18): a UAV stacked above another
+    launches beside it (:func:`edge.formation.home_offsets`) and flies level to its slot once
+    started; arriving after the start time it would begin its trajectory late, and formation
+    keeping would pull its formation back while the formations around it fly on. ``speed`` is
+    the mission clock's speed factor (simulated seconds per wall second).
+    """
+    if not (math.isfinite(speed) and speed > 0 and math.isfinite(transit_speed) and transit_speed > 0):
+        raise ValueError("speed and transit_speed must be finite and > 0")
+    far = 0.0
+    for traj in plan.trajectories:
+        p = positions.get(traj.uav)
+        if p is not None and traj.waypoints:
+            far = max(far, math.dist(tuple(p), traj.waypoints[0].pos))
+    return far / transit_speed / speed

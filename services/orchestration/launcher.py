@@ -303,8 +303,9 @@ class Network:
         return KeySet(self.trust.keys, "gcs").signer()
 
     def homes(self, n: int) -> list[tuple[float, float, float]]:
-        """Launch points: the formation slots around the start, on the ground (P9)."""
-        from edge.formation import offsets_for, rotation_of
+        """Launch points: the formation slots around the start, on the ground (P9); a UAV stacked
+        above another launches beside it (:func:`edge.formation.home_offsets`)."""
+        from edge.formation import home_offsets, offsets_for, rotation_of
         from protocol.scenario import load_scenario
 
         sc = load_scenario(self.args.scenario)
@@ -313,8 +314,8 @@ class Network:
         R = rotation_of(0.0, 0.0, yaw)
         ground = sc.box.lo[2]
         out = []
-        for off in offsets_for(n):
-            p = (R @ off)[:2]
+        for xy in home_offsets(offsets_for(n)):
+            p = (R @ (xy[0], xy[1], 0.0))[:2]
             out.append((round(start[0] + p[0], 3), round(start[1] + p[1], 3), ground))
         return out
 
@@ -363,7 +364,11 @@ class Network:
                 "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
                 "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery,
                 *vehicle])
-        self.start_service("planner", ["planner", *self.bus_args("planner", "client")])
+        # a large fleet's plan (issue 18) is computed while its edges load the machine: the planner may
+        # take up to 100 s of the ground station's 120 s plan timeout instead of its own 60 s default,
+        # and then answers with the best collision-free path it found (48 edges left it 157 of 300 iterations)
+        budget = ["--time-budget", "100", "--anytime"] if a.uavs > 24 else []
+        self.start_service("planner", ["planner", *self.bus_args("planner", "client"), *budget])
         no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
         save = ["--save-frames", a.save_frames] if getattr(a, "save_frames", None) else []
         n = getattr(a, "detectors", 1)  # N instances share the cameras by UAV id (services.detector.partition)
@@ -371,12 +376,17 @@ class Network:
             part = [] if n == 1 else ["--partition", f"{k}/{n}", "--max-uav", str(a.uavs)]
             self.start_service("detector" if n == 1 else f"detector-{k}",
                                ["detector", *self.bus_args("detector", "client"), "--method", a.method,
-                                *part, *no_recovery, *save], user="detector")
+                                *part, *no_recovery, *save, *self.detect_args()], user="detector")
         if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
             self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
                                          "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
         if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
             self.start_service("web", ["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
+
+    def detect_args(self) -> list[str]:
+        """``--detect-max-mp`` for the detector when given (a large frame detected on a reduced decode)."""
+        mp = getattr(self.args, "detect_max_mp", None)
+        return [] if mp is None else ["--detect-max-mp", str(mp)]
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -482,6 +492,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="live preview frames per UAV per second (default: the edge's, 2; 0 = off)")
     p.add_argument("--gcs-state-hz", type=preview_rate, default=0.0, metavar="HZ",
                    help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
+    p.add_argument("--detect-max-mp", type=float, default=None, metavar="MP",
+                   help="the detector detects frames above MP megapixels on a reduced decode (its default 3; 0: never)")
     p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
                    help="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
     p.add_argument("--vehicle", choices=["sim", "mavlink"], default="sim",
@@ -581,8 +593,9 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
         net.start()
         cfg = net.gcs_config()
         hooks_signer = net.gcs_signer()
+        # every edge imports and starts at once on the same cores: 48 of them took over 30 s to appear
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
-                                 speed=args.speed)
+                                 speed=args.speed, appear_timeout_s=max(30.0, 2.5 * args.uavs))
         injector = net.start_faults(log)
 
         def on_runner(runner) -> None:

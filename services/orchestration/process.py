@@ -70,8 +70,11 @@ class Service:
 class ProcessGroup:
     """Child services of one run; ``stop()`` ends them all, no orphans."""
 
-    def __init__(self, echo: IO[str] | None = sys.stdout, env: dict[str, str] | None = None):
+    def __init__(self, echo: IO[str] | None = sys.stdout, env: dict[str, str] | None = None,
+                 prefix: list[str] | None = None):
         self.services: list[Service] = []
+        #: run every service under this command (``ip netns exec NS``: :mod:`.netns`); it must exec the rest
+        self.prefix = list(prefix or [])
         self.echo = echo
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self._echo_lock = threading.Lock()
@@ -114,7 +117,7 @@ class ProcessGroup:
 
     def _spawn(self, name: str, args: list[str], env: dict[str, str],
                on_line: Callable[[str, str], None] | None, restarts: int = 0) -> Service:
-        cmd = [sys.executable, "-m", "services.cli", *args]
+        cmd = [*self.prefix, sys.executable, "-m", "services.cli", *args]
         proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             text=True, errors="replace", bufsize=1, env=env, start_new_session=True,

@@ -52,6 +52,7 @@ __all__ = [
     "point_segment_distance",
     "PathProblem",
     "Cost",
+    "cost_offsets",
     "clearance",
     "formation_points",
     "path_collision_free",
@@ -72,6 +73,38 @@ def point_segment_distance(p: ArrayLike, a: ArrayLike, b: ArrayLike) -> NDArray[
     t = np.clip(np.where(dd > 0, t, 0.0), 0.0, 1.0)
     q = a + t[..., None] * d
     return np.linalg.norm(p - q, axis=-1)
+
+
+def cost_offsets(offsets: ArrayLike, wall_height: float | None = None) -> NDArray[np.float64]:
+    """The UAVs the cost needs to look at: for a fleet stacked in columns (issue 18,
+    :func:`edge.formation.offsets_for`) the top and bottom UAV of each column and, between them,
+    as few as keep consecutive ones at most ``wall_height`` apart; every UAV of a fleet without
+    stacked UAVs (the paper's three: unchanged).
+
+    For the scenario's vertical cylinders standing on the ground, a column's lowest UAV is the
+    closest to every obstacle below its top, so the J2 obstacle terms are zero (clear of the
+    danger band) for the column exactly when they are for its kept UAVs, and so are the J3
+    altitude-band terms (its top and bottom); a column crosses the wall (height ``wall_height``)
+    exactly when a kept UAV does, since no two kept ones are farther apart than the wall is tall.
+    The magnitudes differ (fewer terms), the zero set does not; the plan's exact dense check
+    (``collision_free``) still looks at every UAV. The inter-UAV term uses all pairs (it is
+    constant for a rigid formation). Planning 48 UAVs then costs what 30 did.
+    """
+    off = np.asarray(offsets, float).reshape(-1, 3)
+    gap = np.inf if wall_height is None or not wall_height > 0 else float(wall_height)
+    keep = np.zeros(off.shape[0], bool)
+    cols: dict[tuple[float, float], list[int]] = {}
+    for k, (x, y, _) in enumerate(off):
+        cols.setdefault((round(float(x), 6), round(float(y), 6)), []).append(k)
+    for members in cols.values():
+        order = sorted(members, key=lambda k: -off[k, 2])  # top first
+        keep[order[0]] = keep[order[-1]] = True
+        last = off[order[0], 2]
+        for a, b in zip(order[1:], order[2:]):  # keep a when skipping it would leave a gap over `gap`
+            if last - off[b, 2] > gap + 1e-9:
+                keep[a] = True
+                last = off[a, 2]
+    return off[keep]
 
 
 @dataclass(frozen=True)
@@ -170,7 +203,8 @@ class Cost:
         self.problem = problem
         sc = problem.scenario
         self.cyl = sc.cylinders()
-        self.off = sc.offsets
+        full = sc.offsets
+        self.off = cost_offsets(full, None if sc.surface is None else float(np.ptp(sc.surface.z_range)))
         self.beta = np.asarray(sc.cost.beta, float)
         self.r_uav = sc.cost.uav_radius
         self.band = sc.cost.danger_band
@@ -179,11 +213,11 @@ class Cost:
         self.max_turn = np.deg2rad(sc.cost.max_turn_deg)
         self.evaluations = 0
         self._ws: dict[str, NDArray] = {}
-        M = self.off.shape[0]
-        i, j = np.triu_indices(M, 1)
-        dsep = np.linalg.norm(self.off[i] - self.off[j], axis=1)
+        i, j = np.triu_indices(full.shape[0], 1)
+        dsep = np.linalg.norm(full[i] - full[j], axis=1)
         dmin = sc.formation.min_separation
         self.sep_shortfall = float(np.sum(np.clip((dmin - dsep) / dmin, 0, None))) if dmin > 0 else 0.0
+        M = self.off.shape[0]
         # per-UAV offsets, broadcasting against (M, ...) arrays with three trailing axes
         self._ox, self._oy, self._oz = (self.off[:, k].reshape(M, 1, 1, 1).copy() for k in range(3))
         C = self.cyl.shape[0]

@@ -22,6 +22,8 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import numpy as np
+
 #: largest cost array, elements (M x max(C, K) x S x P)
 MAX_CELLS = 4_000_000
 #: cells x iterations of one request
@@ -70,12 +72,22 @@ class Deadline:
             raise ValueError(f"time budget must be > 0 s, got {budget_s!r}")
         self._cost, self.budget_s = cost, budget_s
         self.deadline = time.monotonic() + budget_s
+        #: the best decision vector evaluated so far and its cost, and the best cost after each call
+        #: (what an anytime answer is made of: services.planner.mission.optimise(anytime=True))
+        self.best_x: Any = None
+        self.best_cost = float("inf")
+        self.history: list[float] = []
 
     def __call__(self, x):
         if time.monotonic() > self.deadline:
             raise TimeBudgetExceeded(f"the plan's time budget of {self.budget_s:g} s ran out "
                                      f"after {self._cost.evaluations:,} evaluations")
-        return self._cost(x)
+        costs = self._cost(x)
+        i = int(np.argmin(costs))
+        if costs[i] < self.best_cost:
+            self.best_cost, self.best_x = float(costs[i]), np.array(np.asarray(x)[i], float)
+        self.history.append(self.best_cost)
+        return costs
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._cost, name)

@@ -19,7 +19,7 @@ from protocol.messages import Box, MissionPlan
 
 from .cost import Cost, PathProblem, path_collision_free
 from .ga import ga
-from .limits import Deadline, check_budget
+from .limits import Deadline, TimeBudgetExceeded, check_budget
 from .optimiser import OptResult
 from .pso import pso
 from .scenario import Scenario, validate_scenario
@@ -53,11 +53,15 @@ def optimise(
     waypoints: int | None = None,
     init: str | None = None,
     time_budget_s: float | None = None,
+    anytime: bool = False,
 ) -> tuple[PathProblem, OptResult]:
     """Optimise the centroid path only; returns the problem and the optimiser's result.
 
     All algorithms start from the same initial population for the same seed
-    (:meth:`PathProblem.initial_population`) and get the same budget of evaluations.
+    (:meth:`PathProblem.initial_population`) and get the same budget of evaluations. With
+    ``anytime``, a run that outlives ``time_budget_s`` returns the best path it had evaluated
+    (fewer iterations than asked: ``history`` says how many) instead of raising
+    :class:`~services.planner.limits.TimeBudgetExceeded`.
     """
     if algorithm not in ALGORITHMS:
         raise ValueError(f"unknown algorithm {algorithm!r}; choose one of {sorted(ALGORITHMS)}")
@@ -71,7 +75,14 @@ def optimise(
     problem = PathProblem.from_scenario(scenario, n)
     x0 = problem.initial_population(P, np.random.default_rng([s, 0]), init or sp.init, sp.corridor_width)
     cost = Cost(problem) if time_budget_s is None else Deadline(Cost(problem), time_budget_s)
-    result = ALGORITHMS[algorithm](cost, x0, I, np.random.default_rng([s, 1]))
+    t0 = time.perf_counter()
+    try:
+        result = ALGORITHMS[algorithm](cost, x0, I, np.random.default_rng([s, 1]))
+    except TimeBudgetExceeded:
+        if not anytime or getattr(cost, "best_x", None) is None:
+            raise
+        result = OptResult(algorithm=algorithm, x=cost.best_x, cost=cost.best_cost, history=np.asarray(cost.history),
+                           evaluations=cost.evaluations, wall_time_s=time.perf_counter() - t0)
     return problem, result
 
 
@@ -84,14 +95,24 @@ def plan_details(
     waypoints: int | None = None,
     request_id: int = 0,
     time_budget_s: float | None = None,
+    anytime: bool = False,
 ) -> tuple[MissionPlan, FormationTrajectories, OptResult]:
-    """:func:`plan_mission` plus the dense trajectories and the optimiser's result."""
+    """:func:`plan_mission` plus the dense trajectories and the optimiser's result.
+
+    With ``anytime`` (:func:`optimise`), the best path found when the time budget ran out is
+    planned only if it is collision free; otherwise the budget's exception is raised as without it.
+    """
     t0 = time.perf_counter()
     sc = validate_scenario(scenario)
-    problem, res = optimise(sc, algorithm, seed, particles, iterations, waypoints, time_budget_s=time_budget_s)
+    problem, res = optimise(sc, algorithm, seed, particles, iterations, waypoints, time_budget_s=time_budget_s,
+                            anytime=anytime)
     V = problem.assemble(res.x[None])[0]
     ft = build_trajectories(sc, V, problem.inspection)
     free = ft.min_clearance >= 0 and path_collision_free(V, sc)
+    asked = _int("iterations", sc.planner.iterations if iterations is None else iterations, 1, 100000)
+    if anytime and len(res.history) < asked + 1 and not free:
+        raise TimeBudgetExceeded(f"the plan's time budget of {time_budget_s:g} s ran out after {res.evaluations:,} "
+                                 "evaluations, and the best path so far is not collision free")
     plan = MissionPlan(
         request_id=request_id,
         algorithm=algorithm,
@@ -118,6 +139,7 @@ def plan_mission(
     iterations: int | None = None,
     waypoints: int | None = None,
     time_budget_s: float | None = None,
+    anytime: bool = False,
 ) -> MissionPlan:
     """Plan a formation inspection mission.
 
@@ -145,4 +167,4 @@ def plan_mission(
         surface the formation cannot image in one pass.
     """
     return plan_details(scenario, algorithm, seed, particles, iterations, waypoints,
-                        time_budget_s=time_budget_s)[0]
+                        time_budget_s=time_budget_s, anytime=anytime)[0]

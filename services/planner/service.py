@@ -22,7 +22,7 @@ from .limits import TIME_BUDGET_S, TimeBudgetExceeded, TooLarge
 from .mission import plan_mission
 
 
-def answer(request: PlanRequest, time_budget_s: float | None = TIME_BUDGET_S) -> MissionPlan:
+def answer(request: PlanRequest, time_budget_s: float | None = TIME_BUDGET_S, anytime: bool = False) -> MissionPlan:
     """The plan for one request; :class:`Rejected` (with the reason) when it cannot be planned, is over
     the limits (``too-large``, before any work) or runs out of its time budget (``timeout``).
 
@@ -31,7 +31,8 @@ def answer(request: PlanRequest, time_budget_s: float | None = TIME_BUDGET_S) ->
     """
     try:
         plan = plan_mission(request.scenario, algorithm=request.algorithm, seed=request.seed, particles=request.particles,
-                            iterations=request.iterations, waypoints=request.waypoints, time_budget_s=time_budget_s)
+                            iterations=request.iterations, waypoints=request.waypoints, time_budget_s=time_budget_s,
+                            anytime=anytime)
     except TooLarge as exc:
         raise Rejected(str(exc), code="too-large") from None
     except TimeBudgetExceeded as exc:
@@ -46,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_bus_args(parser, mode="client")
     parser.add_argument("--time-budget", type=float, default=TIME_BUDGET_S, metavar="S",
                         help="longest a plan request may take, s; then it is answered 'timeout' (services.planner.limits)")
+    parser.add_argument("--anytime", action="store_true",
+                        help="when the time budget runs out, answer with the best collision-free path found so far")
     return parser
 
 
@@ -59,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         def handle(req: PlanRequest) -> MissionPlan:
             t0 = time.perf_counter()
             try:
-                plan = answer(req, args.time_budget)
+                plan = answer(req, args.time_budget, args.anytime)
             except Rejected as exc:
                 log.warning("plan request %d refused: %s", req.request_id, exc.reason)
                 raise

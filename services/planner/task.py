@@ -43,6 +43,7 @@ __all__ = [
     "grid_stations",
     "camera_grid",
     "InspectionPass",
+    "imaging_rows",
     "formation_pass",
     "coverage",
 ]
@@ -188,14 +189,30 @@ class InspectionPass:
         return float(np.linalg.norm(self.exit - self.entry))
 
 
+def imaging_rows(z_offsets: ArrayLike, wall_height: float, a_h: float) -> NDArray[np.float64]:
+    """The formation rows (distinct z offsets, ascending) that image the wall in one pass.
+
+    The fewest top rows whose band (top - bottom + one footprint ``a_h``) covers the wall's
+    height, or every row if none does (:func:`formation_pass` then refuses the wall). Rows
+    below them (a fleet stacked in height, :func:`edge.formation.offsets_for`) fly the same pass
+    under the wall and take no shots; a formation of two rows images with both, as before.
+    """
+    heights = np.unique(np.round(np.asarray(z_offsets, float), 2))
+    for k in range(1, heights.size + 1):
+        rows = heights[-k:]
+        if rows[-1] - rows[0] + a_h >= wall_height - 1e-9:
+            return rows
+    return heights
+
+
 def formation_pass(scenario: Scenario) -> InspectionPass | None:
     """Plan the formation's pass along the scenario's wall (None if it has no surface).
 
     The centroid flies a straight line parallel to the wall, at the height that centres the
     band imaged by the UAV rows on the wall, at the distance that puts every UAV at the (P2)
     stand-off, from ``max|ΔT_x| + lead_in`` before one end of the wall to as far past the other
-    end, in the direction that makes start -> entry -> exit -> goal shortest. Each distinct UAV
-    height is a row of shots; a row's columns (``grid_stations`` with the (P3) spacing) are
+    end, in the direction that makes start -> entry -> exit -> goal shortest. Each imaging row (:func:`imaging_rows`: all
+    heights for a two-row formation) is a row of shots; a row's columns (``grid_stations`` with the (P3) spacing) are
     shared round-robin among the UAVs flying that row.
 
     Raises
@@ -218,14 +235,14 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
             "formation.offsets: every UAV must have the same lateral (y) offset to image a wall "
             "from the stand-off distance in one pass"
         )
-    heights = np.unique(np.round(off[:, 2], 2))
+    z0, z1 = surf.z_range
+    heights = imaging_rows(off[:, 2], z1 - z0, a_h)
     if heights.size > 1 and np.max(np.diff(heights)) > g_h + 1e-9:
         raise ValueError(
             f"formation.offsets: UAV rows {np.max(np.diff(heights)):.2f} m apart exceed the (P3) "
             f"spacing {g_h:.2f} m for overlap {insp.overlap}; lower inspection.overlap or "
             "bring the UAVs closer vertically"
         )
-    z0, z1 = surf.z_range
     band = float(heights[-1] - heights[0] + a_h)
     if z1 - z0 > band + 1e-9:
         raise ValueError(

@@ -215,13 +215,32 @@ def test_offsets_for_any_fleet_size_keep_three_metres_apart():
 
     np.testing.assert_array_equal(offsets_for(3), DEFAULT_OFFSETS)
     np.testing.assert_array_equal(offsets_for(2), DEFAULT_OFFSETS[:2])
-    for n in (1, 4, 7, 12):
+    for n in (1, 4, 7, 10):
         o = offsets_for(n)
         assert o.shape == (n, 3)
         d = np.linalg.norm(o[:, None] - o[None], axis=-1) + np.eye(n) * 99
         assert d.min() >= 3.0 - 1e-9
     with pytest.raises(ValueError):
         offsets_for(0)
+
+
+def test_large_fleets_stack_rows_below_instead_of_lengthening_the_line():
+    from edge.formation import MAX_ALONG_M, ROW_PITCH_M, home_offsets, offsets_for
+
+    for n in (11, 24, 48, 100):
+        o = offsets_for(n)
+        assert o.shape == (n, 3) and len({tuple(r) for r in o}) == n
+        assert np.abs(o[:, 0]).max() <= MAX_ALONG_M  # 12 m long whatever N (24 in a line was ±18 m)
+        assert np.all(o[:, 1] == 0.0)  # every UAV in the vertical plane of the path (one stand-off)
+        d = np.linalg.norm(o[:, None] - o[None], axis=-1) + np.eye(n) * 99
+        assert d.min() >= ROW_PITCH_M - 1e-9
+        top2 = o[o[:, 2] >= -1.0]
+        assert len(top2) == 10  # the two imaging rows are full before any row goes below
+        homes = home_offsets(o)  # stacked UAVs launch side by side, 3 m apart on the ground
+        g = np.linalg.norm(homes[:, None] - homes[None], axis=-1) + np.eye(n) * 99
+        assert g.min() >= 3.0 - 1e-9
+    np.testing.assert_array_equal(offsets_for(48)[:24], offsets_for(24))  # a larger fleet only adds slots
+    np.testing.assert_array_equal(home_offsets(offsets_for(3)), DEFAULT_OFFSETS[:, :2])  # the paper's: under the slots
 
 
 def test_neighbour_correction_from_shared_errors():

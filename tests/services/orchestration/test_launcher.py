@@ -231,7 +231,7 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
 
     net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
                                                  "1280x960", "--capture-link", "reliable", "--preview-hz", "0",
-                                                 "--gcs-state-hz", "5"]), echo=None)
+                                                 "--gcs-state-hz", "5", "--detect-max-mp", "1.5"]), echo=None)
     try:
         net.start()
         for i in range(1, 5):
@@ -244,6 +244,8 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
         cfg = [gw[k + 1] for k, a in enumerate(gw) if a == "--cfg" and gw[k + 1].startswith("downsampling:")]
         conf = {"downsampling": json.loads(cfg[0].split(":", 1)[1])}
         assert [r["key_expr"] for r in conf["downsampling"][0]["rules"]] == [f"skynet/opts/uav/{u}/state" for u in range(1, 5)]
+        det = net.group.get("detector").args
+        assert float(det[det.index("--detect-max-mp") + 1]) == 1.5
         assert net.check_alive() == []
     finally:
         net.stop()

@@ -40,3 +40,18 @@ def test_deadline_ends_the_optimiser():
         plan_mission(sc, particles=150, iterations=10_000, time_budget_s=0.2)
     with pytest.raises(ValueError):
         Deadline(lambda x: x, 0)
+
+
+def test_anytime_answers_with_the_best_collision_free_path_when_the_budget_runs_out():
+    """Issue 18: a fleet's edges starve the planner; with ``anytime`` it plans the best path it had."""
+    sc = load_scenario()
+    plan = plan_mission(sc, particles=150, iterations=10_000, time_budget_s=5.0, anytime=True)
+    assert 1 < len(plan.convergence) < 10_001  # stopped by the budget, not by the iterations
+    assert plan.collision_free and len(plan.trajectories) == 3 and len(plan.captures) == 26
+    assert plan.convergence[-1] == pytest.approx(plan.cost)
+    try:  # within a few milliseconds: the first swarm only, collision free or refused as without anytime
+        quick = plan_mission(sc, particles=150, iterations=10_000, time_budget_s=0.05, anytime=True)
+    except TimeBudgetExceeded as exc:
+        assert "not collision free" in str(exc) or "ran out" in str(exc)
+    else:
+        assert quick.collision_free

@@ -405,3 +405,66 @@ def test_scenario_file_that_is_not_utf8_is_a_scenario_error(tmp_path):
     bad.write_bytes(b'name = "caf\xe9"\n')
     with pytest.raises(ScenarioError, match="not UTF-8"):
         load_scenario(bad)
+
+
+# ----------------------------------------------------------------------------- fleets of several formations
+def test_a_fleet_of_24_in_stacked_rows_is_planned_inside_the_box_and_images_the_wall():
+    """Issue 18: 24 UAVs (eight formations of three) planned as one stacked fleet: every trajectory
+    inside the box, the top two rows take every shot at the stand-off, the rows below take none,
+    no two UAVs closer than the lattice pitch, every UAV above the altitude band's floor."""
+    from edge.formation import ROW_PITCH_M, offsets_for
+    from services.gcs.preflight import plan_problem
+    from services.planner.task import imaging_rows
+
+    off = offsets_for(24)
+    sc = validate_scenario(_doc(formation={"offsets": [tuple(o) for o in off], "min_separation": 2.0}))
+    ip = formation_pass(sc)
+    assert ip is not None and ip.uav.size == 26  # the same 26 shots as the paper's three
+    assert coverage(SC.surface, SC.camera, ip.positions, ip.look) == 1.0
+    assert set(np.unique(off[ip.uav, 2])) == {2.0, -1.0}  # only the two imaging rows shoot
+    np.testing.assert_array_equal(imaging_rows(off[:, 2], 6.0, 3.75), [-1.0, 2.0])
+    np.testing.assert_array_equal(imaging_rows([2.0, -1.0], 6.0, 3.75), [-1.0, 2.0])  # the paper's: both rows
+    plan, ft, _ = plan_details(sc, particles=60, iterations=60)
+    assert len(plan.trajectories) == 24 and len(plan.captures) == 26
+    assert plan_problem(plan, sc.formation.offsets) == ""  # fits the box (the line of 24 did not)
+    assert plan.collision_free and ft.min_clearance > 0
+    P = ft.positions  # (samples, 24, 3)
+    d = np.linalg.norm(P[:, :, None] - P[:, None], axis=-1) + np.eye(24) * 99
+    assert d.min() >= ROW_PITCH_M - 0.01
+    assert P[..., 2].min() >= SC.cost.altitude[0] - 1e-6
+
+
+def test_imaging_rows_fall_back_to_every_row_for_a_wall_too_tall():
+    from services.planner.task import imaging_rows
+
+    np.testing.assert_array_equal(imaging_rows([2.0, -1.0, -3.5], 20.0, 3.75), [-3.5, -1.0, 2.0])
+
+
+def test_cost_of_a_stacked_fleet_looks_at_fewer_uavs_with_the_same_zero_set(monkeypatch):
+    """services.planner.cost.cost_offsets: 48 UAVs cost as 28, the paper's three are unchanged, and
+    on a real swarm the reduced cost is clear of obstacles exactly where the full one is."""
+    import services.planner.cost as cost_mod
+    from edge.formation import offsets_for
+    from services.planner.cost import cost_offsets
+
+    np.testing.assert_array_equal(cost_offsets(offsets_for(3), 6.0), offsets_for(3))
+    red = cost_offsets(offsets_for(48), 6.0)
+    assert len(red) == 28
+    for x in np.unique(red[:, 0]):  # each column: its top and bottom, kept rows at most the wall's height apart
+        z = np.sort(red[red[:, 0] == x, 2])
+        col = offsets_for(48)[offsets_for(48)[:, 0] == x, 2]
+        assert z[0] == col.min() and z[-1] == col.max() and np.all(np.diff(z) <= 6.0)
+    sc = validate_scenario(_doc(formation={"offsets": [tuple(o) for o in offsets_for(48)], "min_separation": 2.0}))
+    pb = PathProblem.from_scenario(sc, 10)
+    _, res = optimise(sc, particles=60, iterations=60)  # one path clear of every obstacle ...
+    x = np.vstack([pb.initial_population(150, np.random.default_rng(0), "corridor", 15.0), res.x])  # ... and 150 not
+    reduced = Cost(pb)
+    monkeypatch.setattr(cost_mod, "cost_offsets", lambda off, h: np.asarray(off, float))
+    full = Cost(pb)
+    assert full.off.shape[0] == 48 and reduced.off.shape[0] == 28
+    jf, jr = full.terms(x), reduced.terms(x)
+    np.testing.assert_array_equal(jf[:, 0], jr[:, 0])  # J1: the centroid's length
+    assert np.all(jr[:, 1:] <= jf[:, 1:] + 1e-9)  # a subset of the UAVs' terms
+    hit_f, hit_r = jf[:, 1] >= sc.cost.collision_penalty, jr[:, 1] >= sc.cost.collision_penalty
+    assert 0 < np.count_nonzero(hit_f) < len(x)  # the swarm has paths into obstacles and paths clear of them
+    np.testing.assert_array_equal(hit_f, hit_r)  # ... and the reduced cost sees the same ones

@@ -1,0 +1,112 @@
+"""Several gateways: a router mesh of sites, and who attaches where (issue 18). Pure: no sockets, no bus.
+
+The paper's system has one gateway between SkyNet and the Internet side (Section 1). A fleet
+spread over places (or over more UAVs than one 4G cell carries) has one gateway per site: each
+gateway is a Zenoh router, the gateways connect to each other (a full mesh of router links:
+gateway k dials every gateway j < k), and Zenoh's router-to-router routing carries every sample
+and query between them. A UAV attaches to the gateway of its formation's site (formation g of
+:mod:`edge.neighbourhood` flies from site ``g % S``, so a formation's SkyNet neighbourhood never
+spans sites); the RCUs (planner, detector instances) and the ground station attach to any site.
+
+:func:`mesh` names the sites and the router links; :func:`veth_addresses` gives the addresses of
+the point-to-point links between the network namespaces that stand in for hosts on one machine
+(:mod:`services.orchestration.netns`): one /30 per router link, in ``10.18.0.0/16``.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from dataclasses import dataclass, field
+
+from edge.neighbourhood import FORMATION_SIZE, formation_index
+
+#: the private range the namespace links take their addresses from
+VETH_NET = ipaddress.ip_network("10.18.0.0/16")
+#: the router port every site's gateway listens on (each namespace has its own port space)
+GATEWAY_PORT = 7447
+
+
+@dataclass(frozen=True)
+class Site:
+    """One site: its gateway's name and the nodes attached to it."""
+
+    index: int
+    uavs: tuple[int, ...] = ()
+    rcus: tuple[str, ...] = ()
+
+    @property
+    def gateway(self) -> str:
+        return f"gw{self.index}"
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """The sites and the router links between their gateways (``(i, j)``, i < j: gateway j dials i)."""
+
+    sites: tuple[Site, ...]
+    links: tuple[tuple[int, int], ...] = field(default=())
+
+    def site_of(self, node: str | int) -> int:
+        """The site a UAV (by id) or an RCU (by name) attaches to."""
+        for s in self.sites:
+            if node in (s.uavs if isinstance(node, int) else s.rcus):
+                return s.index
+        raise KeyError(f"{node!r} is attached to no site")
+
+    def peers_of(self, site: int) -> tuple[int, ...]:
+        """The gateways gateway ``site`` dials (the lower-numbered ones)."""
+        return tuple(i for i, j in self.links if j == site)
+
+
+def site_of_uav(uav: int, sites: int, formation_size: int = FORMATION_SIZE) -> int:
+    """The site of UAV ``uav``: its formation's index modulo the number of sites."""
+    if not isinstance(sites, int) or sites < 1:
+        raise ValueError(f"sites must be an int >= 1, got {sites!r}")
+    return formation_index(uav, formation_size) % sites
+
+
+def mesh(uavs: int, sites: int, rcus: dict[str, int] | None = None,
+         formation_size: int = FORMATION_SIZE) -> Mesh:
+    """Sites ``0..sites-1`` with UAVs ``1..uavs`` by formation and ``rcus`` (name -> site; default:
+    every RCU at site 0), and a full mesh of router links.
+
+    >>> m = mesh(6, 2, {"planner": 1})
+    >>> [s.uavs for s in m.sites], m.links, m.site_of("planner")
+    ([(1, 2, 3), (4, 5, 6)], ((0, 1),), 1)
+    """
+    if not isinstance(uavs, int) or not 0 <= uavs <= 255:
+        raise ValueError(f"uavs must be an int in 0..255, got {uavs!r}")
+    if not isinstance(sites, int) or not 1 <= sites <= 16:
+        raise ValueError(f"sites must be an int in 1..16, got {sites!r}")
+    rcus = dict(rcus or {})
+    for name, s in rcus.items():
+        if not isinstance(s, int) or not 0 <= s < sites:
+            raise ValueError(f"RCU {name!r}: site {s!r} is not one of 0..{sites - 1}")
+    members: list[list[int]] = [[] for _ in range(sites)]
+    for u in range(1, uavs + 1):
+        members[site_of_uav(u, sites, formation_size)].append(u)
+    out = tuple(Site(k, tuple(members[k]), tuple(sorted(n for n, s in rcus.items() if s == k)))
+                for k in range(sites))
+    links = tuple((i, j) for j in range(sites) for i in range(j))
+    return Mesh(out, links)
+
+
+def veth_addresses(links: tuple[tuple[int, int], ...]) -> dict[tuple[int, int], tuple[str, str]]:
+    """Per router link ``(i, j)`` the addresses of its two ends, ``(site i's, site j's)``, each a /30
+    of :data:`VETH_NET` (link p: ``10.18.p/4.(4p+1)`` and ``+2``).
+
+    >>> veth_addresses(((0, 1), (0, 2)))
+    {(0, 1): ('10.18.0.1/30', '10.18.0.2/30'), (0, 2): ('10.18.0.5/30', '10.18.0.6/30')}
+    """
+    subnets = VETH_NET.subnets(new_prefix=30)
+    out = {}
+    for link in links:
+        net = next(subnets)
+        a, b = list(net.hosts())
+        out[link] = (f"{a}/30", f"{b}/30")
+    return out
+
+
+def router_endpoint(address: str, port: int = GATEWAY_PORT) -> str:
+    """The TCP endpoint of a gateway at ``address`` (a ``10.18.x.y/30`` interface address or a bare IP)."""
+    return f"tcp/{address.split('/')[0]}:{port}"

@@ -1,0 +1,54 @@
+"""services.detector.pipeline: a large frame's real-time report from a reduced decode (issue 18)."""
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from edge.camera import decode_image
+from edge.surface import crack_image
+from protocol.messages import ImageMeta, Intrinsics
+from services.detector.pipeline import analyse, detection_scale
+
+
+def _large(seed=4, shape=(1800, 2400)):
+    grey, truth = crack_image(shape, np.random.default_rng(seed), n_cracks=2, width_px=(6.0, 9.0))
+    h, w = shape
+    meta = ImageMeta(uav=2, capture_id=1, t=0.0, stamp=time.time(), cam_pos=(10.0, 0.0, 20.0),
+                     cam_rot=(1, 0, 0, 0, 0, 1, 0, -1, 0),
+                     intrinsics=Intrinsics(width=w, height=h, fx=2000, fy=2000, cx=w / 2, cy=h / 2), range_m=5.0)
+    return meta, cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes(), truth
+
+
+def test_detection_scale_brings_a_frame_under_the_limit():
+    assert detection_scale(4000, 3000, None) == 1
+    assert detection_scale(640, 480, 3_000_000) == 1
+    assert detection_scale(4000, 3000, 3_000_000) == 2  # the paper's 12 MP GoPro frame: 3 MP
+    assert detection_scale(4000, 3000, 1_000_000) == 4
+    assert detection_scale(20000, 20000, 1000) == 8
+
+
+def test_decode_reduced_sizes_and_bad_factor():
+    meta, jpeg, _ = _large()
+    assert decode_image(jpeg, grey=True).shape == (1800, 2400)
+    assert decode_image(jpeg, grey=True, reduce=2).shape == (900, 1200)
+    assert decode_image(jpeg, reduce=4).shape == (450, 600)  # reduced decodes are grey
+    with pytest.raises(ValueError, match="reduce"):
+        decode_image(jpeg, reduce=3)
+
+
+def test_a_reduced_report_finds_the_same_cracks_in_full_frame_pixels_and_on_the_wall():
+    meta, jpeg, truth = _large()
+    full = analyse(meta, jpeg, max_pixels=None)
+    half = analyse(meta, jpeg, max_pixels=1_200_000)  # 2400 x 1800 -> 1200 x 900
+    assert full.ok and half.ok and full.defects and half.defects
+    big = lambda r: max(r.defects, key=lambda d: d.area_px)  # noqa: E731
+    a, b = big(full), big(half)
+    # the same crack: centroid and extent in the full frame's pixels, area within a third, same wall point
+    assert np.hypot(a.centroid_px[0] - b.centroid_px[0], a.centroid_px[1] - b.centroid_px[1]) < 20
+    assert abs(a.bbox[2] - b.bbox[2]) < 30 and abs(a.bbox[3] - b.bbox[3]) < 30
+    assert 0.67 < b.area_px / a.area_px < 1.5
+    assert np.linalg.norm(np.subtract(a.pos, b.pos)) < 0.05  # metres on the wall
+    ys, xs = np.nonzero(truth)
+    assert b.bbox[0] <= xs.max() and b.bbox[0] + b.bbox[2] >= xs.min()  # where the planted cracks are

@@ -1,0 +1,69 @@
+"""Two gateways in two network namespaces (stand-ins for two hosts), a router link between them over a
+veth pair, the RCU and the UAVs attached to either (issue 18). Real processes, real Zenoh routing.
+
+Site 0: gateway gw0 and UAV 1; site 1: gateway gw1 (dialling gw0 at 10.18.0.1), UAV 4 and the
+planner. The ground station (this test, in the machine's own namespace) attaches to gw0 through a
+Unix socket. It must hear both UAVs' states, command UAV 4 and get a plan from the planner: every
+one of those crosses the router link.
+"""
+
+import time
+from pathlib import Path
+
+import pytest
+
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.links import TELEMETRY
+from protocol.messages import CommandAck, MissionPlan, PlanRequest, Takeoff, VehicleState
+from services.orchestration.netns import Namespaces, available
+from services.orchestration.process import ProcessGroup
+from services.orchestration.sites import GATEWAY_PORT, mesh, router_endpoint
+from services.planner.scenario import load_scenario
+from tests.conftest import wait_until
+
+FLEET = "sites"
+OK, WHY = available()
+pytestmark = pytest.mark.skipif(not OK, reason=f"no network namespaces here: {WHY}")
+
+
+def test_two_gateways_across_namespaces_route_states_commands_and_plans(tmp_path: Path):
+    m = mesh(6, 2, {"planner": 1})
+    sock = tmp_path / "gw0.sock"
+    local = f"tcp/127.0.0.1:{GATEWAY_PORT}"
+    with Namespaces(m) as ns:
+        groups = [ProcessGroup(echo=None, prefix=ns.prefix(s.index)) for s in m.sites]
+        try:
+            gw0 = groups[0].start("gw0", ["gateway", "--id", "gw0", "--fleet", FLEET,
+                                          "--listen", f"tcp/0.0.0.0:{GATEWAY_PORT}", "--listen", f"unixsock-stream/{sock}"])
+            peer = router_endpoint(ns.address(0, 1))
+            gw1 = groups[1].start("gw1", ["gateway", "--id", "gw1", "--fleet", FLEET,
+                                          "--listen", f"tcp/0.0.0.0:{GATEWAY_PORT}", "--connect", peer])
+            for g in (gw0, gw1):
+                assert g.wait_for("router up", 90), "\n".join(g.lines)
+            nodes = [groups[1].start("planner", ["planner", "--fleet", FLEET, "--mode", "client", "--connect", local])]
+            for uav in (1, 4):
+                site = m.site_of(uav)
+                nodes.append(groups[site].start(f"uav{uav}", [
+                    "edge", "--uav", str(uav), "--fleet", FLEET, "--camera", "none", "--connect", local,
+                    "--home", f"{10 * uav},10,0", "--geofence", "0,0,0,100,100,40"]))
+            assert nodes[0].wait_for("planner up", 90), "\n".join(nodes[0].lines)
+            for n in nodes[1:]:
+                assert n.wait_for("board up", 90), "\n".join(n.lines)
+
+            states: dict[int, VehicleState] = {}
+            with Bus(BusConfig(mode="client", connect=[f"unixsock-stream/{sock}"]), FLEET, "gcs") as gcs:
+                gcs.subscribe(keys.state(FLEET, "*"), lambda msg, s: states.__setitem__(msg.uav, msg),
+                              expect=VehicleState, link=TELEMETRY)
+                assert wait_until(lambda: {1, 4} <= set(states), 30), states  # UAV 4's cross gw1 -> gw0
+                ack = gcs.request(keys.cmd(FLEET, 4), Takeoff(uav=4, cmd_id=1, altitude=5), expect=CommandAck,
+                                  timeout=10)
+                assert ack.ok and ack.message.accepted, ack
+                req = PlanRequest(request_id=1, scenario=load_scenario(), particles=10, iterations=5)
+                plan = gcs.request(keys.planner(FLEET), req, expect=MissionPlan, timeout=60)
+                assert plan.ok and len(plan.message.trajectories) == 3, plan
+                # UAV 4 climbs (its states, routed through both gateways, say so)
+                assert wait_until(lambda: states[4].pos[2] > 1.0, 30), states[4]
+        finally:
+            for g in reversed(groups):
+                g.stop()

@@ -1,0 +1,33 @@
+"""Sites of a router mesh (issue 18): who attaches to which gateway, the router links, their addresses."""
+
+import pytest
+
+from edge.neighbourhood import formation_index
+from services.orchestration.sites import mesh, router_endpoint, site_of_uav, veth_addresses
+
+
+def test_formations_are_never_split_across_sites_and_every_uav_has_one():
+    m = mesh(24, 3, {"planner": 2, "detector": 1})
+    seen = [u for s in m.sites for u in s.uavs]
+    assert sorted(seen) == list(range(1, 25))
+    for s in m.sites:
+        assert {formation_index(u) % 3 for u in s.uavs} == {s.index}
+    assert m.site_of("planner") == 2 and m.site_of("detector") == 1 and m.site_of(7) == site_of_uav(7, 3) == 2
+    assert m.links == ((0, 1), (0, 2), (1, 2)) and m.peers_of(2) == (0, 1) and m.peers_of(0) == ()
+    with pytest.raises(KeyError):
+        m.site_of("gcs")
+
+
+def test_bad_sites_are_refused():
+    for bad in ((3, 0, None), (3, 17, None), (3, 2, {"planner": 2}), (256, 2, None)):
+        with pytest.raises(ValueError):
+            mesh(*bad)
+
+
+def test_veth_addresses_are_distinct_private_30s():
+    links = mesh(0, 4).links
+    addr = veth_addresses(links)
+    ips = [a for pair in addr.values() for a in pair]
+    assert len(ips) == len(set(ips)) == 2 * len(links) == 12
+    assert all(a.startswith("10.18.") and a.endswith("/30") for a in ips)
+    assert router_endpoint("10.18.0.5/30") == "tcp/10.18.0.5:7447"
