@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -66,10 +67,22 @@ def services_rss(root: int) -> dict[str, float | None]:
     return out
 
 
+#: who floods each case: a node that may write the key (the gateway's ACL by certificate: a compromised
+#: UAV 1, a forged detector), so the flood reaches every subscriber as it would in the field
+ROLE = {"state": "uav1", "event": "uav1", "camera": "uav1", "defects": "detector"}
+KEYS = Path(__file__).resolve().parents[1] / ".keys" / "dev"
+
+
 def flood(case: str, endpoints: list[str], seconds: float, stop: threading.Event) -> int:
     """Publish the case's flood for ``seconds``; the samples sent."""
     rng = np.random.default_rng(12)
-    with Bus(BusConfig(mode="client", connect=endpoints, multilink=True), FLEET, "flooder") as bus:
+    tls = {}
+    if endpoints[0].startswith("tls/"):  # the mission runs secure (the default): the flooder holds its role's keys
+        from protocol.keyset import KeySet
+
+        ks = KeySet(KEYS, ROLE[case])
+        tls = {"tls_ca": str(ks.ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
+    with Bus(BusConfig(mode="client", connect=endpoints, multilink=True, **tls), FLEET, "flooder") as bus:
         if case == "state":
             pub, link = bus.publisher(keys.state(FLEET, 1), TELEMETRY), None
             make = lambda i: b"\x01" + rng.integers(0, 256, 300, dtype=np.uint8).tobytes()  # noqa: E731
@@ -95,10 +108,10 @@ def flood(case: str, endpoints: list[str], seconds: float, stop: threading.Event
         return n
 
 
-def run_case(case: str, seconds: float, speed: float, onset: float) -> dict:
+def run_case(case: str, seconds: float, speed: float, onset: float, extra: list[str] | None = None) -> dict:
     out = Path(tempfile.mkdtemp(prefix=f"skynet-flood-{case}-"))
     proc = subprocess.Popen([sys.executable, "-m", "services.cli", "mission", "--quiet", "--speed", str(speed),
-                             "--fleet", FLEET, "--out", str(out / "report")], stdout=subprocess.PIPE,
+                             "--fleet", FLEET, "--out", str(out / "report"), *(extra or [])], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     mission = threading.Event()
@@ -115,7 +128,7 @@ def run_case(case: str, seconds: float, speed: float, onset: float) -> dict:
         if not mission.wait(180):
             raise RuntimeError("no mission phase:\n" + "".join(lines[-30:]))
         log = (out / "report" / "services.log").read_text()
-        m = re.search(r"listening on (tcp/[\d.:]+\?rel=1), (udp/[\d.:]+\?rel=0)", log)
+        m = re.search(r"listening on ((?:tcp|tls)/[\d.:]+\?rel=1), ((?:udp|tls)/[\d.:]+\?rel=0)", log)
         endpoints = [m.group(1), m.group(2)]
         time.sleep(onset)
         res["rss_before_mb"] = services_rss(proc.pid)
@@ -128,9 +141,13 @@ def run_case(case: str, seconds: float, speed: float, onset: float) -> dict:
         res["rss_after_mb"] = services_rss(proc.pid)
         proc.wait(600)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        if proc.poll() is None:  # Ctrl-C: the launcher stops every service it started (no orphans)
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(60)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
     rep = json.loads((out / "report" / "report.json").read_text())
     rec_path = out / "report" / "record.json"
     rec = json.loads(rec_path.read_text())
@@ -153,10 +170,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--speed", type=float, default=4.0)
     p.add_argument("--onset", type=float, default=2.0, help="flood starts this long into the mission phase, s")
     p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "flood.json"))
+    p.add_argument("--mission-arg", action="append", default=[], help="passed to skynet mission (repeatable), "
+                   "e.g. --mission-arg=--insecure")
     args = p.parse_args(argv)
     rows = []
     for case in args.cases.split(","):
-        r = run_case(case, args.seconds, args.speed, args.onset)
+        r = run_case(case, args.seconds, args.speed, args.onset, args.mission_arg)
         rows.append(r)
         a = r["age_ms"]
         print(f"{case:>8}: success {r['success']}, flood sent {r['sent']}, refused {r['refused']}, telemetry age "
