@@ -26,7 +26,13 @@ stats       1 Hz per service    10         20          256 KiB
 ==========  ==================  =========  ==========  =============================================
 
 A source that keeps inside its budget is never dropped; one that floods is cut to the budget's
-rate. At most :data:`MAX_SOURCES` sources get a bucket of their own; further ones share one
+rate. The rate is charged to well-formed samples only (garbage on a key must not use up the budget of
+the node that really writes it); garbage has a bucket of its own per source, with the same rate and
+burst (:meth:`Budget.admit_undecoded`, :meth:`Budget.charge_garbage`): a source that sent more
+undecodable samples than its budget allows has its samples dropped *before decoding* (``budget-garbage``)
+until that bucket refills, and a source whose rate is used up is dropped before decoding too: a flood,
+well-formed or not, costs the receiver a look-up per sample, not a msgpack parse and a validation
+(bench/flood.py, README "Hostile input"). At most :data:`MAX_SOURCES` sources get a bucket of their own; further ones share one
 (``(other)``), so a flood of made-up keys cannot grow the table.
 """
 
@@ -86,6 +92,12 @@ class TokenBucket:
             return True
         return False
 
+    def peek(self, now: float) -> float:
+        """The tokens there would be at ``now`` (nothing taken)."""
+        if self.last is None:
+            return self.burst
+        return min(self.burst, self.tokens + max(0.0, now - self.last) * self.rate)
+
 
 @dataclass
 class Budget:
@@ -94,6 +106,7 @@ class Budget:
     limit: Limit
     max_sources: int = MAX_SOURCES
     _buckets: dict[str, TokenBucket] = field(default_factory=dict)
+    _garbage: dict[str, TokenBucket] = field(default_factory=dict)  # per source: undecodable samples
     dropped: Counter = field(default_factory=Counter)  # (source, reason) -> samples
 
     def admit(self, source: str, nbytes: int, now: float) -> str | None:
@@ -118,6 +131,36 @@ class Budget:
             self.dropped[(source if source in self._buckets else OTHER, "budget-size")] += 1
             return "budget-size"
         return None
+
+    def _source(self, table: dict, source: str) -> str:
+        return source if source in table or len(table) < self.max_sources else OTHER
+
+    def admit_undecoded(self, source: str, nbytes: int, now: float) -> str | None:
+        """Everything that can be told before decoding: ``budget-size``; ``budget-rate`` while the source's
+        bucket is empty (its well-formed samples used up its rate: decoding this one would not change that);
+        ``budget-garbage`` while its garbage bucket is empty (more undecodable samples than its rate and
+        burst)."""
+        if nbytes > self.limit.max_bytes:
+            return self.admit_size(source, nbytes)
+        src = self._source(self._buckets, source)
+        bucket = self._buckets.get(src)
+        if bucket is not None and bucket.peek(now) < 1.0:  # its rate is used up: :meth:`admit_rate` would refuse
+            self.dropped[(src, "budget-rate")] += 1
+            return "budget-rate"
+        src = self._source(self._garbage, source)
+        bucket = self._garbage.get(src)
+        if bucket is None or bucket.peek(now) >= 1.0:
+            return None
+        self.dropped[(src, "budget-garbage")] += 1
+        return "budget-garbage"
+
+    def charge_garbage(self, source: str, now: float) -> None:
+        """A sample of ``source`` did not decode: it takes a token of the source's garbage bucket."""
+        src = self._source(self._garbage, source)
+        bucket = self._garbage.get(src)
+        if bucket is None:
+            bucket = self._garbage[src] = TokenBucket(self.limit.rate_hz, float(self.limit.burst))
+        bucket.take(now)
 
     def admit_rate(self, source: str, now: float) -> str | None:
         """The rate check alone (after a sample proved well-formed): None or ``budget-rate``."""

@@ -380,23 +380,38 @@ class Bus:
         cls_name = link.name if link else "any"
 
         def handle(sample: zenoh.Sample) -> None:
-            data = sample.payload.to_bytes()
-            counters.add(counters.received, cls_name, len(data))
+            payload = sample.payload
+            nbytes = len(payload)
+            counters.add(counters.received, cls_name, nbytes)
             source = str(sample.key_expr)
-            if budget is not None and not self._within_budget(budget, source, len(data), None):
-                return  # too large: not even decoded
-            msg = self._decode_or_count(source, data, expect)
+            if budget is None:
+                msg = self._decode_or_count(source, payload.to_bytes(), expect)
+                if msg is not None:
+                    callback(msg, sample)
+                return
+            now = time.monotonic()
+            if not self._within_budget(budget, source, nbytes, now, undecoded=True):
+                return  # too large, or a source flooding garbage: not even copied or decoded
+            msg = self._decode_or_count(source, payload.to_bytes(), expect)
+            if msg is None:  # garbage takes from the source's garbage bucket (protocol.budget)
+                with counters.lock:
+                    budget.charge_garbage(source, now)
             # the rate is charged only to well-formed samples, so that garbage on a key does not use up the
-            # budget of the source that really writes it (garbage is rejected, and counted, by decoding)
-            if msg is not None and (budget is None or self._within_budget(budget, source, None, time.monotonic())):
+            # budget of the source that really writes it
+            elif self._within_budget(budget, source, None, now):
                 callback(msg, sample)
 
         return self.subscribe_raw(key, handle, ring=ring)
 
-    def _within_budget(self, budget: Budget, source: str, nbytes: int | None, now: float | None) -> bool:
-        """Size (``nbytes``) or rate (``now``) check of ``budget``; a refusal is counted (logged once)."""
+    def _within_budget(self, budget: Budget, source: str, nbytes: int | None, now: float | None,
+                       undecoded: bool = False) -> bool:
+        """Size (``nbytes``) or rate (``now``) check of ``budget``, or (``undecoded``) what it can tell before
+        decoding (size, a source flooding garbage); a refusal is counted (logged once)."""
         with self.counters.lock:
-            reason = budget.admit_size(source, nbytes) if nbytes is not None else budget.admit_rate(source, now)
+            if undecoded:
+                reason = budget.admit_undecoded(source, nbytes, now)
+            else:
+                reason = budget.admit_size(source, nbytes) if nbytes is not None else budget.admit_rate(source, now)
         if reason is None:
             return True
         if self.counters.reject(source, reason):

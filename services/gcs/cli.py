@@ -66,6 +66,10 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
                            on_progress=progress, log=log, abort=abort, journal=journal, signer=signer)
     if on_runner is not None:
         on_runner(runner)
+    if ground_truth:  # before the flight, so that the journal's footer carries it (skynet report)
+        from services.gcs.ground_truth import attach_ground_truth
+
+        attach_ground_truth(runner.record)
     root = logging.getLogger()
     saved = list(root.handlers)
     if display is not None and display.tty:  # log lines go above the live block, not through it
@@ -81,13 +85,12 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         raise
     finally:
         root.handlers = saved
-    from services.gcs.ground_truth import attach_ground_truth
-
-    if ground_truth:
-        attach_ground_truth(record)
-    if recorder is not None:  # the report is written from the frozen record the file rebuilds
+    if recorder is not None:  # the MCAP log's summary: the record as it is now (services.recording.rebuild)
         record = recorder.finish(record, runner._lock)
-    if out:
+    if out:  # the report's input is the journal, read back (or the in-memory record if it failed: journal.py)
+        from .journal import report_record
+
+        record = report_record(runner.recorder, record, log)
         from .report import write_report
 
         folder = Path(out)

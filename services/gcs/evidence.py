@@ -128,4 +128,6 @@ def integrity_markdown(record) -> list[str]:
                + ", ".join(f"{k}: {v}" for k, v in record.not_kept.items()) + ".", ""]
     for err in record.recording_errors:
         md += [f"**Recording:** {err}", ""]
+    if record.report_input and record.report_input not in record.recording_errors:
+        md += [f"This report is computed from {record.report_input}.", ""]
     return md

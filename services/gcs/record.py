@@ -9,8 +9,9 @@ goes, as it arrives, to an append-only journal (``record.jsonl``: one JSON objec
 by a thread of its own and flushed at least every :data:`FLUSH_S`, so a crash or a full disk keeps
 what came before), and into the in-memory :class:`MissionRecord` only up to a cap per kind
 (:data:`CAPS`; states beyond it are decimated, other kinds stop being kept in memory; the journal
-has them all). :func:`load_journal` rebuilds the record from the journal, a truncated last line
-included. :func:`check_output_folder` refuses to start a mission whose folder is not writable or
+has them all). :func:`read_journal` reads the journal back, line by line, into a record bounded the same
+way (:func:`keep`): the report is computed from it (:mod:`services.gcs.journal`); a cut or corrupted line
+is counted and skipped. :func:`check_output_folder` refuses to start a mission whose folder is not writable or
 has less than :data:`MIN_FREE_BYTES` free. A write error during the mission never stops it: the
 recorder stops writing, says once where the data went (the journal up to the failure, the rest in
 memory), and the record carries the error (``recording_errors``).
@@ -25,6 +26,7 @@ import shutil
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -154,6 +156,8 @@ class MissionRecord(BaseModel):
                                                       "analysed, reported (services.gcs.evidence.ledger)")
     rejected: dict[str, int] = Field(default={}, description="samples the ground station refused, 'key|kind' -> "
                                      "count: undecodable, or over a source's budget (protocol.budget)")
+    report_input: str = Field(default="", description="what the report was computed from: the journal read back, "
+                              "or the in-memory record and why (services.gcs.journal.report_record)")
 
 
 # ============================================================================ streamed, bounded recording
@@ -199,6 +203,24 @@ def check_output_folder(folder: str | Path, min_free: int = MIN_FREE_BYTES) -> P
     return out
 
 
+def keep(record: MissionRecord, kind: str, item: BaseModel, caps: dict[str, int]) -> None:
+    """Append ``item`` to ``record``'s list ``kind`` within its cap (:data:`CAPS`): over the cap, states are
+    decimated (every other one dropped: the whole flight at half the rate) and other kinds are no longer
+    kept; either way ``record.not_kept`` counts what was let go. The one bounding policy of the live record
+    (:class:`Recorder`) and of the journal read back (:func:`read_journal`)."""
+    items: list = getattr(record, kind)
+    cap = caps.get(kind)
+    if cap is None or len(items) < cap:
+        items.append(item)
+    elif kind == "states":
+        before = len(items)
+        del items[1::2]
+        items.append(item)
+        record.not_kept[kind] = record.not_kept.get(kind, 0) + before - len(items) + 1
+    else:
+        record.not_kept[kind] = record.not_kept.get(kind, 0) + 1
+
+
 class Recorder:
     """Records into ``record`` (bounded, :data:`CAPS`) and streams every item to ``journal`` (a path, or
     None for memory only). Thread-safe; :meth:`add` never blocks on the disk."""
@@ -227,17 +249,7 @@ class Recorder:
     def add(self, kind: str, item: BaseModel) -> None:
         """Append ``item`` to the record's list ``kind`` (within its cap) and to the journal."""
         with self._lock:
-            items: list = getattr(self.record, kind)
-            cap = self.caps.get(kind)
-            if cap is None or len(items) < cap:
-                items.append(item)
-            elif kind == "states":
-                before = len(items)
-                del items[1::2]  # decimate: the whole flight at half the rate
-                items.append(item)
-                self.record.not_kept[kind] = self.record.not_kept.get(kind, 0) + before - len(items) + 1
-            else:
-                self.record.not_kept[kind] = self.record.not_kept.get(kind, 0) + 1
+            keep(self.record, kind, item, self.caps)
         self._journal(kind, item)
 
     def _journal(self, kind: str, item: BaseModel) -> None:
@@ -305,40 +317,105 @@ class Recorder:
         if self._thread is None:
             return
         lists = set(ITEM_MODELS)
-        footer = json.dumps({"k": "footer", "v": self.record.model_dump(mode="json", exclude=lists)})
+        with self._lock:  # said before the footer, so that the record read back says it too
+            if self.not_journalled and self.failed is None:
+                self.record.recording_errors.append(f"{self.not_journalled} items did not reach the journal "
+                                                    f"{self.path} (its queue was full)")
+            footer = json.dumps({"k": "footer", "v": self.record.model_dump(mode="json", exclude=lists)})
         self._q.put(("end", footer))
         self._thread.join(timeout)
+        if self._thread.is_alive():
+            self._fail(TimeoutError(f"the journal's writer did not finish within {timeout:.0f} s"))
         self._thread = None
-        if self.not_journalled:
-            with self._lock:
-                self.record.recording_errors.append(f"{self.not_journalled} items did not reach the journal "
-                                                    f"{self.path}")
 
 
-def load_journal(path: str | Path) -> MissionRecord:
-    """The :class:`MissionRecord` of a journal written by :class:`Recorder` (every item, no caps).
+@dataclass
+class JournalReadout:
+    """What :func:`read_journal` found in a journal besides the record."""
 
-    A last line cut short (a crash, a full disk) is ignored, and so is a missing footer (the record
-    then has the header's fields and the items). ValueError if the file has no header."""
+    lines: int = 0  # lines read
+    items: int = 0  # list items read (kept or let go by the caps)
+    damaged: int = 0  # lines that were not a journal line (cut, corrupted, an unknown kind or item): skipped
+    first_damaged: int | None = None  # the line number (from 1) of the first of them
+    footer: bool = False  # the footer was read (the mission ended and closed its journal)
+
+    def notes(self, path: str | Path) -> list[str]:
+        """What the record read back must say about its journal (none for a whole, undamaged one)."""
+        out = []
+        if self.damaged:
+            out.append(f"{path}: {self.damaged} damaged line(s) skipped (the first is line {self.first_damaged})")
+        if not self.footer:
+            out.append(f"{path} has no footer (the run did not close its journal): the plan, the verdict and "
+                       "the counters are not in it")
+        return out
+
+
+def read_journal(path: str | Path, caps: dict[str, int] | None = None) -> tuple[MissionRecord, JournalReadout]:
+    """The :class:`MissionRecord` of a journal written by :class:`Recorder`, read line by line into a record
+    bounded like the live one (``caps``, default :data:`CAPS`, through :func:`keep`), and what was found.
+
+    A line that is not a journal line (cut short by a crash or a full disk, corrupted, an item that does
+    not validate) is counted and skipped; a missing footer leaves the header's fields and the items. The
+    record's ``recording_errors`` say both (:meth:`JournalReadout.notes`) and ``not_kept`` counts what the
+    caps let go while reading. ValueError if the file has no header."""
+    caps = CAPS if caps is None else caps
+    out = JournalReadout()
     head: dict[str, Any] | None = None
     footer: dict[str, Any] = {}
-    lists: dict[str, list] = {k: [] for k in ITEM_MODELS}
+    record: MissionRecord | None = None
+
+    def damaged() -> None:
+        out.damaged += 1
+        out.first_damaged = out.first_damaged or out.lines
+
     with open(path, encoding="utf-8", errors="replace") as fh:
         for line in fh:
+            out.lines += 1
             try:
                 row = json.loads(line)
                 kind, value = row["k"], row["v"]
             except (ValueError, KeyError, TypeError):
-                continue  # a cut or damaged line
-            if kind == "header":
+                damaged()
+                continue
+            if kind == "header" and isinstance(value, dict) and head is None:
                 head = value
-            elif kind == "footer":
-                footer = value
-            elif kind in ITEM_MODELS:
                 try:
-                    lists[kind].append(ITEM_MODELS[kind].model_validate(value))
+                    record = MissionRecord.model_validate(head)
                 except ValueError:
+                    head = None
+                    damaged()
                     continue
-    if head is None:
+            elif kind == "footer" and isinstance(value, dict):
+                footer = value
+                out.footer = True
+            elif kind in ITEM_MODELS and record is not None:  # the Recorder writes the header first
+                try:
+                    item = ITEM_MODELS[kind].model_validate(value)
+                except ValueError:
+                    damaged()
+                    continue
+                out.items += 1
+                keep(record, kind, item, caps)
+            else:
+                damaged()
+    if record is None:
         raise ValueError(f"{path}: not a mission journal (no header line)")
-    return MissionRecord.model_validate({**head, **footer, **lists})
+    if footer:
+        lists = {k: getattr(record, k) for k in ITEM_MODELS}
+        not_kept = dict(record.not_kept)
+        try:
+            record = MissionRecord.model_validate({**head, **footer, **{k: [] for k in ITEM_MODELS}})
+        except ValueError:  # a footer that parses as JSON but not as a record: damaged too
+            out.footer = False
+            damaged()
+        else:
+            for k, items in lists.items():
+                setattr(record, k, items)
+            record.not_kept = not_kept  # what this reading let go, not what the live record did
+    record.recording_errors = [*record.recording_errors, *out.notes(path)]
+    return record, out
+
+
+def load_journal(path: str | Path, caps: dict[str, int] | None = None) -> MissionRecord:
+    """The record of :func:`read_journal` alone."""
+    return read_journal(path, caps)[0]

@@ -56,3 +56,31 @@ def test_size_and_rate_checks_apart():
     b = Budget(Limit(1.0, 2, 100))
     assert b.admit_size("k", 101) == "budget-size" and b.admit_size("k", 100) is None
     assert [b.admit_rate("k", 0.0) for _ in range(3)] == [None, None, "budget-rate"]
+
+
+def test_a_source_flooding_garbage_is_dropped_before_decoding_and_others_are_not():
+    """Garbage takes from the source's own garbage bucket; once empty, that source is dropped undecoded
+    (budget-garbage) until the bucket refills at the rate; a clean source is never touched."""
+    b = Budget(Limit(rate_hz=10.0, burst=5, max_bytes=100))
+    decoded = 0
+    for i in range(10_000):  # 10,000 undecodable samples in 1 s
+        now = i / 10_000
+        if b.admit_undecoded("uav/1/state", 50, now) is None:
+            decoded += 1
+            b.charge_garbage("uav/1/state", now)
+    assert decoded <= 5 + 10 * 1.0 + 1  # its burst plus 1 s of its rate
+    assert b.dropped[("uav/1/state", "budget-garbage")] == 10_000 - decoded
+    assert all(b.admit_undecoded("uav/2/state", 50, 1.0 + t / 20) is None for t in range(100))
+    assert b.admit_undecoded("uav/2/state", 101, 2.0) == "budget-size"
+    # after a quiet second the flooding source's bucket has refilled: it is decoded again
+    assert b.admit_undecoded("uav/1/state", 50, 2.5) is None
+
+
+def test_a_source_over_its_rate_is_dropped_before_decoding():
+    """Once well-formed samples used up a source's rate, the next ones are refused undecoded (the same
+    answer admit_rate would give after decoding), and it is admitted again as its bucket refills."""
+    b = Budget(Limit(rate_hz=10.0, burst=3, max_bytes=100))
+    assert [b.admit_undecoded("k", 10, 0.0) is None and b.admit_rate("k", 0.0) for _ in range(3)] == [None] * 3
+    assert b.admit_undecoded("k", 10, 0.0) == "budget-rate"
+    assert b.admit_undecoded("k", 10, 0.1) is None and b.admit_rate("k", 0.1) is None
+    assert b.dropped[("k", "budget-rate")] == 1 and b.admit_undecoded("other", 10, 0.1) is None

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from protocol.messages import Event, Mode, VehicleState
+from services.gcs.journal import report_record
 from services.gcs.record import (
     EventRx,
     MissionRecord,
@@ -63,8 +64,10 @@ def test_memory_is_bounded_and_the_journal_has_everything(tmp_path):
     assert len(rec.events) == 100 and rec.not_kept["events"] == 9_900
     assert len(rec.states) <= 64 and rec.states[0].msg.seq == 0 and rec.states[-1].msg.seq == 999
     assert len(rec.states) + rec.not_kept["states"] == 1000
-    back = load_journal(tmp_path / "record.jsonl")
+    back = load_journal(tmp_path / "record.jsonl", caps={})  # no caps: everything the journal has
     assert len(back.events) == 10_000 and len(back.states) == 1000
+    again = load_journal(tmp_path / "record.jsonl", caps={"events": 100, "states": 64})  # read back bounded
+    assert again.events == rec.events and again.states == rec.states and again.not_kept == rec.not_kept
     assert len(rec.model_dump_json()) < 1_000_000  # what record.json would hold
 
 
@@ -120,6 +123,8 @@ def test_a_full_disk_keeps_the_record_up_to_the_failure_and_says_where_the_rest_
         back = load_journal(mnt / "record.jsonl")
         assert 0 < len(back.events) < 300  # the record up to the failure is kept
         assert [e.msg.kind for e in back.events] == ["flood"] * len(back.events)
+        # the report is then computed from the in-memory record, and says so (services.gcs.journal)
+        assert report_record(r, rec) is rec and "in-memory record" in rec.report_input
 
 
 def test_output_folder_check_refuses_a_full_or_read_only_folder(tmp_path):

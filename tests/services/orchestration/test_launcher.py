@@ -38,6 +38,13 @@ def test_mission_through_the_launcher(nominal_mission):
     assert "ACL by certificate common name" in services and "INSECURE" not in services, services[-3000:]
     assert all(f"mutual TLS as uav{i}" in services for i in (1, 2, 3))
     assert not any(e["kind"] == "trust-refused" for e in report.get("events", []) if isinstance(e, dict))
+    # issue 12: the report is computed from the journal, and `skynet report` makes the same figures from it alone
+    assert "record.jsonl read back" in md
+    again = subprocess.run([sys.executable, "-m", "services.cli", "report", str(out / "record.jsonl"), "--out",
+                            str(tmp_path / "again")], capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0, again.stdout + again.stderr
+    rebuilt = json.loads((tmp_path / "again" / "report.json").read_text())
+    assert {k: v for k, v in rebuilt.items() if k != "files"} == {k: v for k, v in report.items() if k != "files"}
 
 
 def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
