@@ -18,7 +18,7 @@ PLOTS = ["trajectories.png", "altitudes.png", "path_error.png", "formation_error
          "defects_map.png", "links.png"]
 
 
-def test_mission_through_the_launcher(nominal_mission):
+def test_mission_through_the_launcher(nominal_mission, tmp_path):
     out, proc = nominal_mission.out, nominal_mission.proc
     assert proc.returncode == 0, nominal_mission.failure()
     report = json.loads((out / "report.json").read_text())
