@@ -5,7 +5,12 @@ heartbeat, capture and preview frames; ``@adv`` recovery traffic and liveliness 
 samples of the key space and are not logged) hands each sample with its receive time to a
 bounded drop-oldest ring (one for imagery frames, one for the rest); the rings' threads write it (:class:`~services.recording.mcap_log.McapLog`),
 so the Zenoh callback never waits for the disk and memory stays bounded (ring + one chunk). What
-the ring had to drop is counted and written in the file's ``skynet.recorder`` metadata.
+the ring had to drop is counted and written in the file's ``skynet.recorder`` metadata. Before the
+ring, each source is held to its topic's budget (:mod:`protocol.budget`, the subscribers' own limits,
+charged by the key a sample came on): a flood of one key costs the recorder a look-up per sample,
+not a log write, a decode and a compression on the ground station's GIL, and cannot evict the other
+sources' samples from the ring. Samples on keys outside the key space (:func:`protocol.keys.parse`)
+are not logged. Both are counted (``over-budget``, ``unknown-key``).
 
 :class:`RecordingBus` adds the ground station's requests: Zenoh queries are seen by no
 subscriber, so each command, acknowledgement, plan request and plan is logged where it is sent.
@@ -27,6 +32,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict
 
 from protocol import keys
+from protocol.budget import LIMITS, Budget
 from protocol.bus import Bus, Reply, Ring
 from protocol.links import COMMAND, LinkClass
 from protocol.messages import ErrorReply, Message
@@ -66,6 +72,8 @@ class Recorder:
         self._ring = Ring(queue, self._write, name="recorder")
         self._frames = Ring(frames, self._write, name="recorder-frames")
         self._closed = threading.Event()
+        self._budgets = {topic: Budget(limit) for topic, limit in LIMITS.items()}
+        self._budget_lock = threading.Lock()  # Zenoh may call back from several threads
         bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
 
     @property
@@ -77,10 +85,22 @@ class Recorder:
         return self._ring.dropped + self._frames.dropped
 
     def _on_sample(self, sample) -> None:
-        if not self._closed.is_set():
-            key = str(sample.key_expr)
-            frame = is_imagery(key)
-            (self._frames if frame else self._ring).push((key, sample.payload.to_bytes(), time.time(), frame))
+        if self._closed.is_set():
+            return
+        key, now = str(sample.key_expr), time.time()
+        try:
+            budget = self._budgets.get(keys.parse(key).topic)
+        except keys.KeyError_:
+            with self._budget_lock:
+                self.counts["unknown-key"] += 1
+            return
+        if budget is not None:
+            with self._budget_lock:
+                if budget.admit(key, len(sample.payload), now) is not None:
+                    self.counts["over-budget"] += 1
+                    return
+        frame = is_imagery(key)
+        (self._frames if frame else self._ring).push((key, sample.payload.to_bytes(), now, frame))
 
     def _write(self, item: tuple) -> None:
         t0 = time.thread_time()
