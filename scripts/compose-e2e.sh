@@ -45,6 +45,33 @@ now() { date +%s.%N; }
 since() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.1f", b - a }'; }
 compose() { docker-compose -p "$PROJECT" "$@"; }
 
+# wait until container $1 is healthy (at most $2 s); 1 if it is not
+wait_healthy() {
+  local end=$(( $(date +%s) + $2 )) st
+  while [ "$(date +%s)" -lt "$end" ]; do
+    st="$("$DOCKER" inspect -f '{{if .State.Health}}{{.State.Health.Status}}{{end}}' "$1" 2>/dev/null || true)"
+    [ "$st" = healthy ] && return 0
+    sleep 0.5
+  done
+  log "$1 not healthy after $2 s (${st:-no such container})"; return 1
+}
+# where an `up` of project $1 started at epoch $2 spent its time, from the engine's own events: when the
+# first container started, when each service first turned healthy, when gcs started and exited, and the end
+up_phases() {
+  "$DOCKER" events --since "$2" --until "$(date +%s.%N)" --filter "label=com.docker.compose.project=$1" \
+    --filter type=container --format '{{.TimeNano}} {{.Status}} {{index .Actor.Attributes "com.docker.compose.service"}}' \
+    2>/dev/null | awk -v t0="$2" '
+      function at(ns) { return sprintf("%.1f", ns / 1e9 - t0) }
+      $2 == "start" && !first { first = at($1) }
+      $2 == "start" && $3 == "gcs" { gs = at($1) }
+      $2 == "health_status:" && $3 == "healthy" && !(($4) in h) { h[$4] = at($1); order[++n] = $4 }
+      $2 == "die" && $3 == "gcs" { gd = at($1) }
+      $2 == "die" { last = at($1) }
+      END { printf "first start +%s s; healthy:", first
+            for (i = 1; i <= n; i++) printf " %s +%s", order[i], h[order[i]]
+            printf "; gcs start +%s, exit +%s; last container down +%s s\n", gs, gd, last }'
+}
+
 STATS_PID=""
 WEB_PID=""
 cleanup() {
@@ -61,6 +88,8 @@ cleanup() {
     [ -n "$ids" ] && "$DOCKER" rm -f $ids >/dev/null 2>&1
     ids="$("$DOCKER" network ls -q --filter "name=^$PROJECT")"
     [ -n "$ids" ] && "$DOCKER" network rm $ids >/dev/null 2>&1
+    ids="$("$DOCKER" volume ls -q --filter "name=^$PROJECT")"
+    [ -n "$ids" ] && "$DOCKER" volume rm $ids >/dev/null 2>&1
   fi
   skynet_engine_down
   rm -rf "$WORK"
@@ -132,40 +161,55 @@ for run in $RUNS; do
       fi
       continue ;;
     split)
-      # compose/ground.yml + one compose/edge.yml project per UAV, as on four hosts; the "hosts'
-      # addresses" are this machine's address on a network of our own engine (nothing else is reached)
+      # compose/ground.yml + one compose/edge.yml project per UAV, as on four hosts, secure like the
+      # others: the ground's keys service makes a set whose gateway certificate names SKYNET_BIND and
+      # whose uav1/uav2 certificates name their "hosts" (SKYNET_SANS), as a dialler checks. The "hosts'
+      # addresses" are this machine's address on a network of our own engine (nothing else is reached).
+      # Each node starts once the one it dials is healthy (gateway, then uav1, uav2, uav3: the launcher's
+      # order), so no edge's first dials hit a port with nothing behind it.
       "$DOCKER" network create "$PROJECT-split" >/dev/null
       hostip="$("$DOCKER" network inspect -f '{{(index .IPAM.Config 0).Gateway}}' "$PROJECT-split")"
       name="e2e-split-$$"; t=$(now); rc=0
-      SKYNET_BIND="$hostip" docker-compose -p "$PROJECT-ground" -f compose/ground.yml up -d gateway \
-        >"$WORK/up-split.log" 2>&1 || rc=$?
+      export SKYNET_BIND="$hostip" SKYNET_SANS="uav1=$hostip uav2=$hostip"
+      split_keys="$WORK/keys-split"
+      ground() { SKYNET_KEYS="$split_keys" docker-compose -p "$PROJECT-ground" -f compose/ground.yml "$@"; }
+      edge() { local i=$1; shift; SKYNET_KEYS="$split_keys" SKYNET_UAV=$i SKYNET_GATEWAY="$hostip" \
+        SKYNET_EDGE_TCP_PORT=$((27440 + i)) SKYNET_EDGE_PAIR_PORT=$((27450 + i)) \
+        docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml "$@"; }
+      ground up -d gateway >"$WORK/up-split.log" 2>&1 || rc=$?
+      [ "$rc" = 0 ] && { wait_healthy "${PROJECT}-ground_gateway_1" 120 || rc=$?; }
       homes=("" "40,8,0" "40.7,10.9,0" "39.3,5.1,0"); peers=""
       for i in 1 2 3; do
-        SKYNET_UAV=$i SKYNET_HOME="${homes[$i]}" SKYNET_GATEWAY="$hostip" SKYNET_PEERS="$peers" \
-          SKYNET_BIND="$hostip" SKYNET_EDGE_TCP_PORT=$((27440 + i)) SKYNET_EDGE_UDP_PORT=$((27450 + i)) \
-          docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml up -d >>"$WORK/up-split.log" 2>&1 || rc=$?
-        peers="$peers tcp/$hostip:$((27440 + i))?rel=1 udp/$hostip:$((27450 + i))?rel=0"
+        [ "$rc" = 0 ] || break
+        SKYNET_HOME="${homes[$i]}" SKYNET_PEERS="$peers" edge "$i" up -d >>"$WORK/up-split.log" 2>&1 || rc=$?
+        [ "$rc" = 0 ] && { wait_healthy "${PROJECT}-uav${i}_edge_1" 120 || rc=$?; }
+        peers="$peers tls/$hostip:$((27440 + i))?rel=1 tls/$hostip:$((27450 + i))?rel=0"
       done
       if [ "$rc" = 0 ]; then
         set +e
-        SKYNET_BIND="$hostip" SKYNET_RUN="$name" timeout 600 docker-compose -p "$PROJECT-ground" -f compose/ground.yml \
-          up --exit-code-from gcs >>"$WORK/up-split.log" 2>&1
+        SKYNET_RUN="$name" SKYNET_KEYS="$split_keys" timeout 600 docker-compose -p "$PROJECT-ground" \
+          -f compose/ground.yml up --no-color --exit-code-from gcs >>"$WORK/up-split.log" 2>&1
         rc=$?
         set -e
       fi
       UP_S[$run]=$(since "$t")
-      for i in 1 2 3; do
-        SKYNET_UAV=$i SKYNET_GATEWAY=x docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml down -v --timeout 5 \
-          >/dev/null 2>&1 || true
-      done
-      docker-compose -p "$PROJECT-ground" -f compose/ground.yml down -v --timeout 5 >/dev/null 2>&1 || true
+      for i in 1 2 3; do edge "$i" logs --no-color >"$WORK/edge-split-$i.log" 2>&1 || true; done
+      for i in 1 2 3; do edge "$i" down -v --timeout 5 >/dev/null 2>&1 || true; done
+      ground down -v --timeout 5 >/dev/null 2>&1 || true
+      unset SKYNET_BIND SKYNET_SANS
       "$DOCKER" network rm "$PROJECT-split" >/dev/null 2>&1 || true
       log "split: ground + 3 edge projects, up --exit-code-from gcs exited $rc after ${UP_S[$run]} s"
       if [ "$rc" != 0 ]; then
+        for i in 1 2 3; do grep -v "^\s*$" "$WORK/edge-split-$i.log" | tail -n 15; done
         grep -v "^\s*$" "$WORK/up-split.log" | tail -n 60; log "FAIL: split: the mission's exit status is $rc"; failed=1
       elif ! "$PY" scripts/compose_check.py "$REPORTS/$name" --json "$OUT/compose-e2e-split.json"; then
         log "FAIL: split: the report"; failed=1
       fi
+      # secure like the one-host file: every edge ran mutual TLS with the certificate ACL and signed commands
+      for i in 1 2 3; do
+        grep -Eq "trust: commands signed by gcs.*mutual TLS as uav${i}, ACL by certificate" "$WORK/edge-split-$i.log" \
+          || { log "FAIL: split: uav$i did not log mutual TLS + ACL + signed commands"; failed=1; }
+      done
       continue ;;
     *) log "unknown run '$run' (plain, netem, split, tc)"; exit 1 ;;
   esac
@@ -192,6 +236,7 @@ for run in $RUNS; do
   [ -n "$WEB_PID" ] && { kill "$WEB_PID" 2>/dev/null; wait "$WEB_PID" 2>/dev/null || true; WEB_PID=""; }
   UP_S[$run]=$(since "$t")
   kill "$STATS_PID" 2>/dev/null; wait "$STATS_PID" 2>/dev/null || true; STATS_PID=""
+  log "$run: phases: $(up_phases "$PROJECT" "$t")"
   t=$(now)
   "${profiles[@]}" docker-compose -p "$PROJECT" "${env[@]}" down -v --remove-orphans --timeout 5 >/dev/null 2>&1
   down_s=$(since "$t")
