@@ -162,20 +162,27 @@ for run in $RUNS; do
       continue ;;
     split)
       # compose/ground.yml + one compose/edge.yml project per UAV, as on four hosts, secure like the
-      # others: the ground's keys service makes a set whose gateway certificate names SKYNET_BIND and
-      # whose uav1/uav2 certificates name their "hosts" (SKYNET_SANS), as a dialler checks. The "hosts'
-      # addresses" are this machine's address on a network of our own engine (nothing else is reached).
+      # others: the ground's keys service makes a set whose certificates name the "hosts" (SKYNET_SANS),
+      # as a dialler checks. The hosts' network is one bridge of our own engine that every node joins
+      # under its host's name (nothing else is reached): between real hosts a published port's traffic
+      # is forwarded by the kernel, while this engine (--iptables=false) would relay it through a
+      # user-space docker-proxy per port, whose stalls under load outlasted the edges' 2 s lease (the
+      # split run's lost liveliness tokens); the ports are still published (on that bridge's address).
       # Each node starts once the one it dials is healthy (gateway, then uav1, uav2, uav3: the launcher's
       # order), so no edge's first dials hit a port with nothing behind it.
       "$DOCKER" network create "$PROJECT-split" >/dev/null
       hostip="$("$DOCKER" network inspect -f '{{(index .IPAM.Config 0).Gateway}}' "$PROJECT-split")"
       name="e2e-split-$$"; t=$(now); rc=0
-      export SKYNET_BIND="$hostip" SKYNET_SANS="uav1=$hostip uav2=$hostip"
+      export SKYNET_BIND="$hostip" SKYNET_SANS="gateway=ground-host uav1=uav1-host uav2=uav2-host"
       split_keys="$WORK/keys-split"
-      ground() { SKYNET_KEYS="$split_keys" docker-compose -p "$PROJECT-ground" -f compose/ground.yml "$@"; }
-      edge() { local i=$1; shift; SKYNET_KEYS="$split_keys" SKYNET_UAV=$i SKYNET_GATEWAY="$hostip" \
+      hosts_net() {  # an override: service $1 also on the hosts' network, as host name $2
+        printf 'networks:\n  hosts: {external: true, name: %s}\nservices:\n  %s:\n    networks:\n      default: {}\n      hosts: {aliases: [%s]}\n' \
+          "$PROJECT-split" "$1" "$2" >"$WORK/net-$2.yml"; echo "$WORK/net-$2.yml"; }
+      ground_net="$(hosts_net gateway ground-host)"
+      ground() { SKYNET_KEYS="$split_keys" docker-compose -p "$PROJECT-ground" -f compose/ground.yml -f "$ground_net" "$@"; }
+      edge() { local i=$1; shift; SKYNET_KEYS="$split_keys" SKYNET_UAV=$i SKYNET_GATEWAY=ground-host \
         SKYNET_EDGE_TCP_PORT=$((27440 + i)) SKYNET_EDGE_PAIR_PORT=$((27450 + i)) \
-        docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml "$@"; }
+        docker-compose -p "$PROJECT-uav$i" -f compose/edge.yml -f "$(hosts_net edge "uav$i-host")" "$@"; }
       ground up -d gateway >"$WORK/up-split.log" 2>&1 || rc=$?
       [ "$rc" = 0 ] && { wait_healthy "${PROJECT}-ground_gateway_1" 120 || rc=$?; }
       homes=("" "40,8,0" "40.7,10.9,0" "39.3,5.1,0"); peers=""
@@ -183,12 +190,12 @@ for run in $RUNS; do
         [ "$rc" = 0 ] || break
         SKYNET_HOME="${homes[$i]}" SKYNET_PEERS="$peers" edge "$i" up -d >>"$WORK/up-split.log" 2>&1 || rc=$?
         [ "$rc" = 0 ] && { wait_healthy "${PROJECT}-uav${i}_edge_1" 120 || rc=$?; }
-        peers="$peers tls/$hostip:$((27440 + i))?rel=1 tls/$hostip:$((27450 + i))?rel=0"
+        peers="$peers tls/uav$i-host:7447?rel=1 tls/uav$i-host:7448?rel=0"
       done
       if [ "$rc" = 0 ]; then
         set +e
         SKYNET_RUN="$name" SKYNET_KEYS="$split_keys" timeout 600 docker-compose -p "$PROJECT-ground" \
-          -f compose/ground.yml up --no-color --exit-code-from gcs >>"$WORK/up-split.log" 2>&1
+          -f compose/ground.yml -f "$ground_net" up --no-color --exit-code-from gcs >>"$WORK/up-split.log" 2>&1
         rc=$?
         set -e
       fi
