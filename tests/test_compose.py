@@ -345,6 +345,7 @@ def test_the_split_over_hosts_files_are_secure_by_default_with_the_hosts_address
         ends = _endpoints(argv)
         assert ends and all(e.startswith("tls/") for e in ends), (name, ends)
         assert {e.rsplit("?", 1)[1] for e in ends} == {"rel=1", "rel=0"} and argv[argv.index("--keys") + 1] == "/keys"
+        assert argv[argv.index("--lease") + 1] == "2", name  # the edges' lease on both ends of every link
     # the anchor's read-only mount reaches every service that does not list its own volumes
     anchor = _load(ROOT / "compose/ground.yml")["x-skynet"]["volumes"]
     assert [_defaults(v) for v in anchor] == ["../.keys/split:/keys:ro"]
@@ -353,7 +354,7 @@ def test_the_split_over_hosts_files_are_secure_by_default_with_the_hosts_address
     # the edge: TLS to the gateway and its peers, the ACL by certificate, the replay window, no gossip links
     argv = _skynet_argv("edge", edge)
     assert all(e.startswith("tls/") for e in _endpoints(argv)) and argv[argv.index("--keys") + 1] == "/keys"
-    assert "--replay-state" in argv and "--mesh-uavs" in argv
+    assert "--replay-state" in argv and "--mesh-uavs" in argv and argv[argv.index("--lease") + 1] == "2"
     assert "scouting/gossip/autoconnect:{router:[],peer:[]}" in argv
     assert [_defaults(v) for v in edge["volumes"]] == ["../.keys/split:/keys:ro", "edge-state:/state"]
     assert all(_defaults(p).endswith("/tcp") for p in edge["ports"])
