@@ -55,23 +55,29 @@ wait_healthy() {
   done
   log "$1 not healthy after $2 s (${st:-no such container})"; return 1
 }
-# where an `up` of project $1 started at epoch $2 spent its time, from the engine's own events: when the
-# first container started, when each service first turned healthy, when gcs started and exited, and the end
-up_phases() {
-  "$DOCKER" events --since "$2" --until "$(date +%s.%N)" --filter "label=com.docker.compose.project=$1" \
-    --filter type=container --format '{{.TimeNano}} {{.Status}} {{index .Actor.Attributes "com.docker.compose.service"}}' \
-    2>/dev/null | awk -v t0="$2" '
+# where an `up` spent its time, from the engine's own events (streamed while it runs: the engine keeps
+# only its last 256 events, and every health check makes three): when the first container started, when
+# each service first turned healthy, when gcs started and exited, when the last container went down
+events_start() {  # project, file
+  "$DOCKER" events --filter "label=com.docker.compose.project=$1" --filter type=container \
+    --filter event=start --filter event=die --filter event=health_status \
+    --format '{{.TimeNano}} {{.Status}} {{index .Actor.Attributes "com.docker.compose.service"}}' >"$2" 2>/dev/null &
+  EVENTS_PID=$!
+}
+up_phases() {  # file, epoch of the up's start
+  [ -n "$EVENTS_PID" ] && { kill "$EVENTS_PID" 2>/dev/null; wait "$EVENTS_PID" 2>/dev/null || true; EVENTS_PID=""; }
+  awk -v t0="$2" '
       function at(ns) { return sprintf("%.1f", ns / 1e9 - t0) }
-      $2 == "start" && !first { first = at($1) }
+      $2 == "start" && first == "" { first = at($1) }
       $2 == "start" && $3 == "gcs" { gs = at($1) }
       $2 == "health_status:" && $3 == "healthy" && !(($4) in h) { h[$4] = at($1); order[++n] = $4 }
       $2 == "die" && $3 == "gcs" { gd = at($1) }
       $2 == "die" { last = at($1) }
       END { printf "first start +%s s; healthy:", first
             for (i = 1; i <= n; i++) printf " %s +%s", order[i], h[order[i]]
-            printf "; gcs start +%s, exit +%s; last container down +%s s\n", gs, gd, last }'
+            printf "; gcs start +%s, exit +%s; last container down +%s s\n", gs, gd, last }' "$1"
 }
-
+EVENTS_PID=""
 STATS_PID=""
 WEB_PID=""
 cleanup() {
@@ -79,6 +85,7 @@ cleanup() {
   set +e
   [ -n "$STATS_PID" ] && kill "$STATS_PID" 2>/dev/null && wait "$STATS_PID" 2>/dev/null
   [ -n "$WEB_PID" ] && kill "$WEB_PID" 2>/dev/null && wait "$WEB_PID" 2>/dev/null
+  [ -n "$EVENTS_PID" ] && kill "$EVENTS_PID" 2>/dev/null && wait "$EVENTS_PID" 2>/dev/null
   if [ -n "${DOCKER_HOST:-}" ] || [ -S /var/run/docker.sock ]; then
     compose --env-file compose/netem.env down -v --remove-orphans --timeout 5 >/dev/null 2>&1
     compose --profile web down -v --remove-orphans --timeout 5 >/dev/null 2>&1
@@ -92,6 +99,12 @@ cleanup() {
     [ -n "$ids" ] && "$DOCKER" volume rm $ids >/dev/null 2>&1
   fi
   skynet_engine_down
+  # a failed run keeps its logs (every up, the split edges', the probe) for the post-mortem
+  if [ "$rc" != 0 ] || [ "${failed:-0}" != 0 ]; then
+    rm -rf "$OUT/compose-e2e-logs"; mkdir -p "$OUT/compose-e2e-logs"
+    cp "$WORK"/*.log "$OUT/compose-e2e-logs/" 2>/dev/null
+    echo "compose-e2e: logs kept in bench/results/compose-e2e-logs/"
+  fi
   rm -rf "$WORK"
   exit "$rc"
 }
@@ -132,6 +145,40 @@ sample_stats() {
   done
 }
 
+# the gateway refuses a plain client (no TLS), and admits one with the ground station's certificate (control);
+# both tries in one container. The gateway is left running: the tc check reuses it (and its keys service).
+PROBED=""
+probe_gateway() {
+  PROBED=1
+  local t; t=$(now)
+  if compose up -d gateway >"$WORK/probe.log" 2>&1 && wait_healthy "${PROJECT}_gateway_1" 90 >>"$WORK/probe.log"; then
+    local probe='import sys, zenoh
+for ep in sys.argv[1:]:
+    c = zenoh.Config()
+    c.insert_json5("mode", "\"client\"")
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("connect/endpoints", "[\"" + ep + "\"]")
+    if ep.startswith("tls/"):
+        c.insert_json5("transport/link/tls", "{root_ca_certificate: \"/keys/ca.pem\", enable_mtls: true, "
+                       "connect_certificate: \"/keys/gcs/tls.pem\", connect_private_key: \"/keys/gcs/tls.key\"}")
+    try:
+        zenoh.open(c).close()
+        print("probe", ep, "connected", flush=True)
+    except Exception as e:
+        print("probe", ep, "refused:", str(e)[:200], flush=True)'
+    "$DOCKER" run --rm --network "${PROJECT}_default" -v "$SKYNET_KEYS:/keys:ro" -e RUST_LOG=off --entrypoint timeout \
+      "skynet-inspect:${SKYNET_TAG:-latest}" 90 python -c "$probe" "tcp/gateway:7447" "tls/gateway:7447" \
+      >>"$WORK/probe.log" 2>&1 || true
+    if grep -q "^probe tcp/gateway:7447 refused" "$WORK/probe.log" && grep -q "^probe tls/gateway:7447 connected" "$WORK/probe.log"; then
+      log "secure: a plain client is refused by the gateway, one with the gcs certificate connects ($(since "$t") s)"
+    else
+      cat "$WORK/probe.log"; log "FAIL: secure: a plain client must be refused and a TLS one with the gcs certificate admitted"; failed=1
+    fi
+  else
+    cat "$WORK/probe.log"; log "FAIL: secure: could not start the gateway for the probe"; failed=1
+  fi
+}
+
 failed=0
 declare -A UP_S
 for run in $RUNS; do
@@ -144,6 +191,7 @@ for run in $RUNS; do
            -c 'tc qdisc add dev lo root netem delay 1ms' >/dev/null 2>&1; then
         log "tc: this kernel has netem; the fail-loudly check does not apply (skipped)"; continue
       fi
+      probe_gateway   # its gateway (and keys) stay up for this check
       t=$(now)
       set +e
       # only the side-car and what it needs (gateway, uav1, uav2): compose v1 starts every container
@@ -234,6 +282,7 @@ for run in $RUNS; do
           && grep -q '"mode"' "$WORK/web.tmp" && mv "$WORK/web.tmp" "$WORK/web.json"
       done ) & WEB_PID=$!
   fi
+  events_start "$PROJECT" "$WORK/events-$run.txt"
   t=$(now)
   set +e
   SKYNET_RUN="$name" timeout 600 "${profiles[@]}" docker-compose -p "$PROJECT" "${env[@]}" up --no-color \
@@ -243,7 +292,7 @@ for run in $RUNS; do
   [ -n "$WEB_PID" ] && { kill "$WEB_PID" 2>/dev/null; wait "$WEB_PID" 2>/dev/null || true; WEB_PID=""; }
   UP_S[$run]=$(since "$t")
   kill "$STATS_PID" 2>/dev/null; wait "$STATS_PID" 2>/dev/null || true; STATS_PID=""
-  log "$run: phases: $(up_phases "$PROJECT" "$t")"
+  log "$run: phases: $(up_phases "$WORK/events-$run.txt" "$t")"
   t=$(now)
   "${profiles[@]}" docker-compose -p "$PROJECT" "${env[@]}" down -v --remove-orphans --timeout 5 >/dev/null 2>&1
   down_s=$(since "$t")
@@ -284,36 +333,7 @@ sys.exit(0 if {"1", "2", "3"} <= set(u) and all("mode" in u[k] for k in ("1", "2
   cp "$REPORTS/$name"/report.json "$REPORTS/$name"/record.json "$OUT/compose-e2e-$run-report/" 2>/dev/null || true
 done
 
-# the gateway refuses a plain client (no TLS), and admits one with the ground station's certificate (control)
-t=$(now)
-if compose up -d gateway >"$WORK/probe.log" 2>&1; then
-  probe='import sys, zenoh
-c = zenoh.Config()
-c.insert_json5("mode", "\"client\"")
-c.insert_json5("scouting/multicast/enabled", "false")
-c.insert_json5("connect/endpoints", "[\"" + sys.argv[1] + "\"]")
-if sys.argv[1].startswith("tls/"):
-    c.insert_json5("transport/link/tls", "{root_ca_certificate: \"/keys/ca.pem\", enable_mtls: true, "
-                   "connect_certificate: \"/keys/gcs/tls.pem\", connect_private_key: \"/keys/gcs/tls.key\"}")
-try:
-    zenoh.open(c).close()
-except Exception as e:
-    print("refused:", str(e)[:200]); sys.exit(3)
-print("connected")'
-  net="${PROJECT}_default"
-  for _ in $(seq 1 30); do "$DOCKER" exec "${PROJECT}_gateway_1" grep -Eq ':1D17 00000000:0000 0A' /proc/net/tcp && break; sleep 1; done
-  prc=0; "$DOCKER" run --rm --network "$net" -v "$SKYNET_KEYS:/keys:ro" -e RUST_LOG=off --entrypoint timeout \
-    "skynet-inspect:${SKYNET_TAG:-latest}" 60 python -c "$probe" "tcp/gateway:7447" >>"$WORK/probe.log" 2>&1 || prc=$?
-  trc=0; "$DOCKER" run --rm --network "$net" -v "$SKYNET_KEYS:/keys:ro" -e RUST_LOG=off --entrypoint timeout \
-    "skynet-inspect:${SKYNET_TAG:-latest}" 60 python -c "$probe" "tls/gateway:7447" >>"$WORK/probe.log" 2>&1 || trc=$?
-  if [ "$prc" = 3 ] && [ "$trc" = 0 ]; then
-    log "secure: a plain client is refused by the gateway, one with the gcs certificate connects ($(since "$t") s)"
-  else
-    cat "$WORK/probe.log"; log "FAIL: secure: plain client exit $prc (3 = refused), TLS client exit $trc (0 = connected)"; failed=1
-  fi
-else
-  cat "$WORK/probe.log"; log "FAIL: secure: could not start the gateway for the probe"; failed=1
-fi
+[ -n "$PROBED" ] || probe_gateway
 compose down -v --remove-orphans --timeout 5 >/dev/null 2>&1 || true
 
 # nothing of the project may be left
