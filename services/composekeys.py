@@ -1,6 +1,6 @@
 """The key set of a docker compose network (issue 11 item 7, issue 14): reused, made once, or refused.
 
-    python -m services.composekeys /keys --uavs 3 --host netem-uav2 ... [--owner-of /reports]
+    python -m services.composekeys /keys --uavs 3 --host netem-uav2 ... [--san gateway=10.0.0.5 ...] [--owner-of /reports]
 
 docker compose's one-shot ``keys`` service runs this before every other service starts; they then
 mount the same folder **read-only**. Unlike the launcher's :func:`services.orchestration.trustmode.dev_keys`
@@ -12,10 +12,14 @@ place, and only into an empty folder:
 * a folder without ``ca.pem`` gets a new development set (:func:`services.keys.init`) whose
   certificates also carry the ``--host`` names as SANs: the impairment side-cars sit between a
   dialler and its peer, and the dialler checks the peer's certificate against the name it dialled;
+  ``--san ROLE=NAME[,NAME...]`` (:func:`services.keys.parse_sans`) adds one role's own, e.g. the
+  host addresses at which the split-over-hosts files (``compose/ground.yml``, ``compose/edge.yml``)
+  reach the gateway and each edge;
 * anything else (a set lacking a role) is refused with the reason (exit 2): a partial set may be
   someone's own, and is never overwritten.
 
-A set lacking a ``--host`` SAN is used with a warning (only runs through those side-cars need them).
+A set lacking a ``--host`` or ``--san`` SAN is used with a warning that names them (a link dialled at
+such a name fails its TLS handshake).
 With ``--owner-of PATH`` a new set is handed to the owner of PATH (the invoking user's ``./reports``),
 not left to root.
 """
@@ -23,13 +27,14 @@ not left to root.
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import os
 import sys
 from pathlib import Path
 
 from cryptography import x509
 
-from services.keys import init, roles
+from services.keys import init, parse_sans, roles
 
 EXIT_REFUSED = 2
 
@@ -47,7 +52,14 @@ def missing_sans(folder: Path, hosts: list[str], role: str = "gateway") -> list[
     except x509.ExtensionNotFound:
         return list(hosts)
     names = {*san.get_values_for_type(x509.DNSName), *(str(a) for a in san.get_values_for_type(x509.IPAddress))}
-    return [h for h in hosts if h not in names]
+    return [h for h in hosts if _canonical(h) not in names]
+
+
+def _canonical(name: str) -> str:
+    try:
+        return str(ipaddress.ip_address(name))
+    except ValueError:
+        return name
 
 
 def _chown_tree(folder: Path, ref: Path) -> None:
@@ -57,14 +69,16 @@ def _chown_tree(folder: Path, ref: Path) -> None:
             os.chown(name, st.st_uid, st.st_gid)
 
 
-def prepare(folder: Path, uavs: int, hosts: list[str], owner_of: Path | None = None) -> tuple[str, list[str]]:
+def prepare(folder: Path, uavs: int, hosts: list[str], owner_of: Path | None = None,
+            sans: dict[str, tuple[str, ...]] | None = None) -> tuple[str, list[str]]:
     """(``"reused"`` | ``"made"``, warnings); ValueError when the folder holds an incomplete set."""
     folder = Path(folder)
     warnings: list[str] = []
+    sans = sans or {}
     if not (folder / "ca.pem").exists():
         if folder.exists() and any(folder.iterdir()):
             raise ValueError(f"{folder} is not empty but holds no ca.pem: not a key set, left alone")
-        init(folder, uavs, hosts=tuple(hosts))
+        init(folder, uavs, hosts=tuple(hosts), sans=sans)
         if owner_of is not None:
             _chown_tree(folder, owner_of)
         return "made", warnings
@@ -76,6 +90,12 @@ def prepare(folder: Path, uavs: int, hosts: list[str], owner_of: Path | None = N
     if unnamed:
         warnings.append(f"the gateway's certificate does not name {', '.join(unnamed)}: links through those "
                         "impairment side-cars will fail the TLS name check (README \"docker compose\")")
+    for role, names in sorted(sans.items()):
+        unnamed = missing_sans(folder, list(names), role)
+        if unnamed:
+            warnings.append(f"{role}'s certificate does not name {', '.join(unnamed)}: a link dialled there will "
+                            f"fail the TLS name check (make the set again: skynet keys init DIR --force "
+                            f"--san {role}={','.join(names)} ...)")
     return "reused", warnings
 
 
@@ -84,6 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", type=Path)
     p.add_argument("--uavs", type=int, default=3)
     p.add_argument("--host", action="append", default=[], help="extra SAN on every certificate of a new set")
+    p.add_argument("--san", action="append", default=[], metavar="ROLE=NAME[,NAME...]",
+                   help="extra SANs on one role's certificate of a new set (space-separated specs allowed)")
     p.add_argument("--owner-of", type=Path, default=None, metavar="PATH", help="give a new set to PATH's owner")
     return p
 
@@ -91,7 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(argv)
     try:
-        what, warnings = prepare(a.dir, a.uavs, a.host, a.owner_of)
+        what, warnings = prepare(a.dir, a.uavs, a.host, a.owner_of, parse_sans(a.san))
     except (ValueError, OSError) as exc:
         print(f"keys: REFUSED: {exc}", file=sys.stderr, flush=True)
         return EXIT_REFUSED

@@ -3,7 +3,12 @@
 ``skynet keys init DIR [--uavs N]`` writes a CA, and per node (``gateway``, ``gcs``, ``planner``,
 ``detector``, ``uav1``..``uavN``) a TLS certificate whose common name is the role (ECDSA P-256,
 SANs ``<role>``, ``localhost`` and ``127.0.0.1``, server and client usage, signed by the CA) and an
-Ed25519 signing key pair; the ground station's public key goes to ``trust/`` (what the UAVs accept).
+Ed25519 signing key pair. A dialler checks its peer's certificate against the name or address it
+dialled (RFC 6125 section 6; an address against an ``iPAddress`` SAN, RFC 5280 section 4.2.1.6), so a node
+reached at a host's address needs that address in its certificate: ``--host NAME`` adds a SAN to every
+certificate, ``--san ROLE=NAME[,NAME...]`` to one role's (e.g. ``--san gateway=10.0.0.5,gw.example``;
+several specs may share one value, separated by spaces, and ``SKYNET_SANS`` in the environment adds
+more: what the split-over-hosts compose files pass, ``compose/ground.yml``); the ground station's public key goes to ``trust/`` (what the UAVs accept).
 Layout: :mod:`protocol.keyset`. Private keys are written mode 0600. An existing key set is kept
 unless ``--force`` (rotation: install a new set, restart the nodes).
 
@@ -22,6 +27,7 @@ import ipaddress
 import os
 import re
 import shutil
+import sys
 from pathlib import Path
 
 from cryptography import x509
@@ -90,16 +96,51 @@ def make_ca(now: dt.datetime, days: int = VALID_DAYS):
     return key, cert
 
 
+#: a DNS name a certificate may carry (RFC 1123 section 2.1 labels, at most 253 characters)
+_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
+
+
+def san_name(name: str) -> x509.GeneralName:
+    """``name`` as a SAN: an ``iPAddress`` for an IPv4/IPv6 address, else a ``dNSName``; ValueError otherwise."""
+    try:
+        return x509.IPAddress(ipaddress.ip_address(name))
+    except ValueError:
+        pass
+    if not (0 < len(name) <= 253 and all(_LABEL.fullmatch(label) for label in name.split("."))):
+        raise ValueError(f"{name!r} is neither an IP address nor a host name")
+    return x509.DNSName(name)
+
+
+def parse_sans(specs: list[str] | tuple[str, ...]) -> dict[str, tuple[str, ...]]:
+    """``["gateway=10.0.0.5,gw.example uav1=10.0.0.6", ...]`` -> ``{"gateway": ("10.0.0.5", "gw.example"), ...}``.
+
+    Each spec is ``ROLE=NAME[,NAME...]``; one string may hold several, separated by whitespace (so a
+    compose file can pass one variable); an empty string holds none. A role may be named more than once.
+    ValueError names the bad spec: an unknown role, no ``=``, no name, or a name that is neither an
+    address nor a host name.
+    """
+    out: dict[str, list[str]] = {}
+    for spec in (part for text in specs for part in text.split()):
+        role, sep, names = spec.partition("=")
+        if not sep or not names.strip(","):
+            raise ValueError(f"--san {spec!r}: expected ROLE=NAME[,NAME...], e.g. gateway=10.0.0.5,gw.example")
+        check_role(role)
+        for name in filter(None, names.split(",")):
+            san_name(name)
+            if name not in out.setdefault(role, []):
+                out[role].append(name)
+    return {r: tuple(n) for r, n in out.items()}
+
+
 def make_node_cert(role: str, ca_key, ca_cert, now: dt.datetime, days: int = VALID_DAYS, hosts: tuple[str, ...] = ()):
-    """A TLS key and certificate with common name ``role``, for both ends of a mutual-TLS link."""
+    """A TLS key and certificate with common name ``role``, for both ends of a mutual-TLS link; ``hosts``
+    are extra SANs (addresses or host names, :func:`san_name`)."""
     key = ec.generate_private_key(ec.SECP256R1())
-    sans: list[x509.GeneralName] = [x509.DNSName(role), x509.DNSName("localhost"),
-                                    x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]
-    for h in hosts:
-        try:
-            sans.append(x509.IPAddress(ipaddress.ip_address(h)))
-        except ValueError:
-            sans.append(x509.DNSName(h))
+    sans: list[x509.GeneralName] = []
+    for h in (role, "localhost", "127.0.0.1", *hosts):
+        san = san_name(h)
+        if san not in sans:
+            sans.append(san)
     cert = (x509.CertificateBuilder().subject_name(_name(role)).issuer_name(ca_cert.subject)
             .public_key(key.public_key()).serial_number(x509.random_serial_number())
             .not_valid_before(now - dt.timedelta(minutes=5)).not_valid_after(now + dt.timedelta(days=days))
@@ -113,9 +154,16 @@ def make_node_cert(role: str, ca_key, ca_cert, now: dt.datetime, days: int = VAL
 
 
 def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VALID_DAYS,
-         hosts: tuple[str, ...] = ()) -> Path:
-    """Write a complete development key set to ``folder`` (see :mod:`protocol.keyset`)."""
+         hosts: tuple[str, ...] = (), sans: dict[str, tuple[str, ...]] | None = None) -> Path:
+    """Write a complete development key set to ``folder`` (see :mod:`protocol.keyset`); ``hosts`` are SANs
+    of every certificate, ``sans`` (:func:`parse_sans`) of one role's."""
     folder = Path(folder)
+    sans = sans or {}
+    unknown = sorted(set(sans) - set(roles(uavs)))
+    if unknown:
+        raise ValueError(f"--san for {', '.join(unknown)}: not a node of a {uavs}-UAV key set")
+    for h in hosts:
+        san_name(h)
     if (folder / "ca.pem").exists():
         if not force:
             raise ValueError(f"{folder} already holds a key set (use --force to replace it)")
@@ -128,7 +176,7 @@ def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VAL
     _write(folder / "ca" / "ca.key", _pem_private(ca_key), private=True)
     _write(folder / "ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM))
     for role in roles(uavs):
-        key, cert = make_node_cert(role, ca_key, ca_cert, now, days, hosts)
+        key, cert = make_node_cert(role, ca_key, ca_cert, now, days, (*hosts, *sans.get(role, ())))
         _write(folder / role / "tls.key", _pem_private(key), private=True)
         _write(folder / role / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
         sk = Ed25519PrivateKey.generate()
@@ -184,6 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--uavs", type=int, default=3)
     p.add_argument("--days", type=int, default=VALID_DAYS, help="certificate validity")
     p.add_argument("--host", action="append", default=[], help="extra SAN (address or name) on every certificate")
+    p.add_argument("--san", action="append", default=[], metavar="ROLE=NAME[,NAME...]",
+                   help="extra SANs on one role's certificate, e.g. gateway=10.0.0.5,gw.example (repeatable; "
+                        "SKYNET_SANS in the environment adds more, space-separated)")
     p.add_argument("--force", action="store_true", help="replace an existing key set (rotation)")
     p = sub.add_parser("revoke", help="refuse a signing key from now on")
     p.add_argument("dir")
@@ -196,8 +247,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.action == "init":
-        folder = init(args.dir, args.uavs, args.force, args.days, tuple(args.host))
+        try:
+            sans = parse_sans([*args.san, os.environ.get("SKYNET_SANS", "")])
+            folder = init(args.dir, args.uavs, args.force, args.days, tuple(args.host), sans)
+        except ValueError as exc:
+            print(f"skynet keys: {exc}", file=sys.stderr)
+            return 2
         print(f"key set written to {folder} (CA key in {folder / 'ca' / 'ca.key'}: keep it off the vehicles)")
+        for role, names in sorted(sans.items()):
+            print(f"  {role}: extra SANs {', '.join(names)}")
     elif args.action == "revoke":
         print(f"revoked {revoke(args.dir, args.key)}")
     else:

@@ -42,7 +42,10 @@ VARIANTS = [
     (["--profile", "web"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/video.yml"], {}),
     (["-f", "compose/ground.yml"], {}),
+    (["-f", "compose/ground.yml"], {"SKYNET_BIND": "10.0.0.5", "SKYNET_SANS": "uav1=10.0.0.6 uav2=10.0.0.7,uav2.example"}),
     (["-f", "compose/edge.yml"], EDGE_ENV),
+    (["-f", "compose/edge.yml"], EDGE_ENV | {"SKYNET_PEERS": "tls/10.0.0.6:7447?rel=1 tls/10.0.0.6:7448?rel=0",
+                                            "SKYNET_BIND": "10.0.0.7"}),
 ]
 
 needs_compose = pytest.mark.skipif(shutil.which("docker-compose") is None,
@@ -320,3 +323,38 @@ def test_the_insecure_override_changes_only_the_trust_and_says_so():
         assert len(args.tcp) == 1 and len(args.udp) == 1, name
     web = over["web"]["command"]
     assert "--cfg" not in web and all(not e.startswith("tls/") for e in _endpoints(web))
+
+
+def test_the_split_over_hosts_files_are_secure_by_default_with_the_hosts_addresses_as_sans():
+    """compose/ground.yml makes (or reuses) a key set whose gateway certificate names SKYNET_BIND and whose
+    certificates name what SKYNET_SANS adds; it and compose/edge.yml mount it read-only and run TLS only."""
+    from services.composekeys import build_parser as keys_parser
+    from services.keys import parse_sans
+
+    ground, edge = _services(ROOT / "compose/ground.yml"), _services(ROOT / "compose/edge.yml")["edge"]
+    keys = ground["keys"]
+    ka = keys_parser().parse_args([_defaults(c) for c in keys["command"]])
+    assert str(ka.dir) == "/keys" and "gateway=${SKYNET_BIND:-127.0.0.1}" in keys["command"]
+    assert "${SKYNET_SANS:-}" in keys["command"] and parse_sans(ka.san) == {"gateway": ("127.0.0.1",)}
+    assert _defaults(keys["volumes"][0]) == "../.keys/split:/keys"  # the only writable mount of the set
+    for name in ("gateway", "planner", "detector", "gcs"):
+        svc = ground[name]
+        assert "../.keys/split:/keys:ro" in [_defaults(v) for v in svc.get("volumes", [])] or (
+            name != "gcs" and "volumes" not in svc), name
+        argv = _skynet_argv(name, svc)
+        ends = _endpoints(argv)
+        assert ends and all(e.startswith("tls/") for e in ends), (name, ends)
+        assert {e.rsplit("?", 1)[1] for e in ends} == {"rel=1", "rel=0"} and argv[argv.index("--keys") + 1] == "/keys"
+        assert argv[argv.index("--lease") + 1] == "2", name  # the edges' lease on both ends of every link
+    # the anchor's read-only mount reaches every service that does not list its own volumes
+    anchor = _load(ROOT / "compose/ground.yml")["x-skynet"]["volumes"]
+    assert [_defaults(v) for v in anchor] == ["../.keys/split:/keys:ro"]
+    assert ground["gateway"]["depends_on"]["keys"]["condition"] == "service_healthy"
+    assert all(_defaults(p).endswith("/tcp") for p in ground["gateway"]["ports"])  # both links of the pair: TCP
+    # the edge: TLS to the gateway and its peers, the ACL by certificate, the replay window, no gossip links
+    argv = _skynet_argv("edge", edge)
+    assert all(e.startswith("tls/") for e in _endpoints(argv)) and argv[argv.index("--keys") + 1] == "/keys"
+    assert "--replay-state" in argv and "--mesh-uavs" in argv and argv[argv.index("--lease") + 1] == "2"
+    assert "scouting/gossip/autoconnect:{router:[],peer:[]}" in argv
+    assert [_defaults(v) for v in edge["volumes"]] == ["../.keys/split:/keys:ro", "edge-state:/state"]
+    assert all(_defaults(p).endswith("/tcp") for p in edge["ports"])

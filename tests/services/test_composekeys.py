@@ -41,3 +41,13 @@ def test_anything_else_is_refused_and_left_alone(tmp_path, case, capsys):
         prepare(folder, 3, [])
     assert main([str(folder), "--uavs", "3"]) == 2 and "REFUSED" in capsys.readouterr().err
     assert sorted(p.name for p in folder.rglob("*")) == listing
+
+
+def test_role_sans_go_into_a_new_set_and_a_reused_set_without_them_is_warned_of(tmp_path, capsys):
+    folder = tmp_path / "split"
+    assert main([str(folder), "--uavs", "3", "--san", "gateway=172.30.0.1 uav1=172.30.0.1", "--san", ""]) == 0
+    assert missing_sans(folder, ["172.30.0.1"]) == [] and missing_sans(folder, ["172.30.0.1"], role="uav1") == []
+    assert missing_sans(folder, ["172.30.0.1"], role="uav2") == ["172.30.0.1"]
+    what, warnings = prepare(folder, 3, [], sans={"gateway": ("172.30.0.1",), "uav2": ("10.9.9.9",)})
+    assert what == "reused" and len(warnings) == 1 and "uav2's certificate does not name 10.9.9.9" in warnings[0]
+    assert main([str(folder), "--san", "gateway=bad_name"]) == 2 and "neither" in capsys.readouterr().err

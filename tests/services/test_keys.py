@@ -66,3 +66,66 @@ def test_dev_keys_reused_or_grown_and_insecure_resolves_to_nothing(tmp_path):
     assert plan.keys is None and not plan.tls and "INSECURE" in plan.warnings[0]
     Args.insecure, Args.keys = False, str(tmp_path / "dev")
     assert resolve(Args, proxied=True).tls is False and resolve(Args, proxied=False).tls
+
+
+def _sans(cert_path) -> set[str]:
+    cert = x509.load_pem_x509_certificate(cert_path.read_bytes())
+    san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    return {*san.get_values_for_type(x509.DNSName), *(str(a) for a in san.get_values_for_type(x509.IPAddress))}
+
+
+def test_parse_sans_takes_roles_lists_and_space_separated_specs_and_names_bad_ones():
+    assert pki.parse_sans(["gateway=10.0.0.5,gw.example", "uav1=10.0.0.6 uav2=fd00::2", "", "gateway=10.0.0.5"]) == {
+        "gateway": ("10.0.0.5", "gw.example"), "uav1": ("10.0.0.6",), "uav2": ("fd00::2",)}
+    for bad, why in [("gateway", "ROLE=NAME"), ("gateway=", "ROLE=NAME"), ("pilot=10.0.0.5", "role must be"),
+                     ("uav0=10.0.0.5", "role must be"), ("gateway=under_score", "neither"), ("gateway=10.0.0.5 name", "ROLE=NAME"),
+                     ("gateway=-bad.example", "neither"), ("gateway=a..b", "neither"), ("uav1=" + "a" * 64, "neither")]:
+        with pytest.raises(ValueError, match=why):
+            pki.parse_sans([bad])
+
+
+def test_a_role_san_goes_on_that_role_only_and_an_unknown_node_is_refused(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("SKYNET_SANS", "uav2=10.0.0.7")
+    assert pki.main(["init", str(tmp_path / "k"), "--uavs", "2", "--san", "gateway=10.0.0.5,gw.example",
+                     "--host", "netem-uav2"]) == 0
+    assert "gateway: extra SANs 10.0.0.5, gw.example" in capsys.readouterr().out
+    root = tmp_path / "k"
+    base = {"localhost", "127.0.0.1", "netem-uav2"}
+    assert _sans(root / "gateway" / "tls.pem") == base | {"gateway", "10.0.0.5", "gw.example"}
+    assert _sans(root / "uav2" / "tls.pem") == base | {"uav2", "10.0.0.7"}
+    assert _sans(root / "uav1" / "tls.pem") == base | {"uav1"}
+    monkeypatch.delenv("SKYNET_SANS")
+    assert pki.main(["init", str(tmp_path / "k3"), "--uavs", "2", "--san", "uav3=10.0.0.8"]) == 2
+    assert "uav3: not a node of a 2-UAV key set" in capsys.readouterr().err and not (tmp_path / "k3").exists()
+    with pytest.raises(ValueError, match="neither"):
+        pki.init(tmp_path / "k4", uavs=1, hosts=("bad name",))
+
+
+def test_an_extra_ip_san_verifies_for_that_address_in_a_real_tls_handshake(tmp_path, group):
+    """A real gateway process listens on tls/127.0.0.2 (a loopback address the default SANs do not name);
+    a client with uav1's certificate dials that address: admitted when the gateway's certificate carries
+    it (--san gateway=127.0.0.2), refused at the handshake when it does not (the control)."""
+    import socket
+
+    import zenoh
+
+    from protocol.bus import Bus, BusConfig
+    from services.orchestration.process import free_port
+
+    named = pki.init(tmp_path / "named", uavs=1, sans=pki.parse_sans(["gateway=127.0.0.2"]))
+    plain = pki.init(tmp_path / "plain", uavs=1)
+    assert "127.0.0.2" in _sans(named / "gateway" / "tls.pem") and "127.0.0.2" not in _sans(plain / "gateway" / "tls.pem")
+    for root, admitted in ((named, True), (plain, False)):
+        port = free_port(socket.SOCK_STREAM)
+        where = f"tls/127.0.0.2:{port}"
+        gw = group.start(f"gateway-{root.name}", ["gateway", "--fleet", "test", "--keys", str(root), "--listen", where])
+        assert gw.wait_for("router up", 20), "\n".join(gw.lines)
+        ks = KeySet(root, "uav1")
+        config = BusConfig(mode="client", connect=[where], tls_ca=str(ks.ca), tls_cert=str(ks.tls_cert),
+                           tls_key=str(ks.tls_key), connect_timeout_s=3.0)
+        try:
+            with Bus(config, "test", "uav1") as bus:
+                linked = bool(bus.routers())
+        except zenoh.ZError:
+            linked = False
+        assert linked is admitted, (root.name, gw.lines[-10:])
