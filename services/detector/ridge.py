@@ -39,11 +39,12 @@ walls (seeds 7, 11, 13; never the mission's own 2024) at least 0.95 at recall 1.
 means over images): CrackForest 0.536 (train half 0.521, held-out half 0.550), DeepCrack-train 0.738,
 against IT+ 0.367 / 0.715 and IT+bh 0.413 / 0.733.
 
-Tried and not kept (same grid): the bare ridge union (no relative floor; CrackForest up to 0.57 but
-DeepCrack 0.71-0.73 and mission precision 0.73-0.93); black-hat together with the ridge (no gain over
-IT+ with the ridge); an absolute contrast floor on ridges (0.08: CrackForest 0.53 -> 0.47); no
-fallback floor when IT+ keeps nothing (texture lines on crack-free frames: mission precision
-0.73-0.86); a stronger edge term ``γ`` 1 / 2 (CrackForest 0.510 / 0.437).
+Tried and not kept: the bare ridge union (no relative floor: CrackForest up to 0.57 but DeepCrack
+0.71-0.73); the black-hat of IT+bh on top (no gain over IT+ with the ridge: DeepCrack within 0.003);
+an absolute contrast floor 0.08 on every ridge (CrackForest 0.56 -> 0.53); a lower fallback floor
+0.05 when IT+ keeps nothing (texture lines on crack-free frames: mission precision 0.73-0.93); a
+stronger edge term ``γ`` 1 / 2 (CrackForest 0.510 / 0.437); scale 2.0 instead of 2.25 and a low
+hysteresis share of 3 % (CrackForest 0.01 lower).
 """
 
 from __future__ import annotations
