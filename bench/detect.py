@@ -6,6 +6,8 @@
 * tune     C_s and the size guard min_region of IT for both background readings, and IT+'s
            area guard and shape limits, on the DeepCrack *training* split only (the numbers
            behind the module defaults).
+* ridge    IT+r's parameters one at a time around its defaults, on DeepCrack-train and the
+           odd-numbered half of CrackForest, with the even half held out.
 * quality  Table II-style scores of every method on crackforest/ and deepcrack-train/, and
            IT's mean F over C_s on both (a diagnostic; nothing is chosen from it).
 * speed    IT vs OpenCV's Otsu (cv2.threshold + THRESH_OTSU), and IT+, side by side on the same
@@ -39,6 +41,7 @@ from services.detector.iterative import (  # noqa: E402
     iterative_threshold,
 )
 from services.detector.metrics import f_measure  # noqa: E402
+from services.detector.ridge import RIDGE_DEFAULTS, it_plus_ridge_mask  # noqa: E402
 from services.detector.thresholds import histogram  # noqa: E402
 
 DEFAULT_DATA = Path("/work/shared/data")
@@ -180,6 +183,35 @@ def tune(data: Path) -> dict[str, object]:
     return out
 
 
+# ----------------------------------------------------------------------------------------- ridge
+def ridge(data: Path) -> dict[str, object]:
+    """IT+r's grid on the training splits: DeepCrack-train and CrackForest's odd-numbered half
+    (001, 003, ...); the even half is printed apart as held out (nothing is chosen from it)."""
+    dc = load_dataset(data / "deepcrack-train")
+    cf = load_dataset(data / "crackforest")
+    train, test = cf[::2], cf[1::2]
+    base = dict(RIDGE_DEFAULTS)
+    grid = [{}] + [{k: v} for k, vs in (("sigma", (2.0, 2.5)), ("edge_weight", (0.0, 1.0)), ("q_low", (0.03, 0.045)),
+                                         ("rel_contrast", (0.4, 0.6)), ("fallback_contrast", (0.05, 0.1)))
+                   for v in vs]
+
+    def f(samples: list, kw: dict) -> float:
+        return float(np.mean([f_measure(it_plus_ridge_mask(s.grey, **kw)[0], s.mask)[0] for s in samples]))
+
+    print("\n### IT+r: one parameter at a time around the defaults (exact F; CrackForest train = odd-numbered "
+          "half, test = even half, held out)\n")
+    print("| change | DeepCrack-train | CrackForest train | CrackForest test |\n|---|---|---|---|")
+    rows = []
+    for ch in grid:
+        kw = {**base, **ch}
+        r = {"change": ch, "deepcrack_train": f(dc, kw), "crackforest_train": f(train, kw),
+             "crackforest_test": f(test, kw)}
+        rows.append(r)
+        print(f"| {ch or 'defaults'} | {r['deepcrack_train']:.3f} | {r['crackforest_train']:.3f} | "
+              f"{r['crackforest_test']:.3f} |")
+    return {"defaults": base, "rows": rows}
+
+
 # --------------------------------------------------------------------------------------- quality
 def quality(data: Path) -> dict[str, object]:
     out: dict[str, object] = {}
@@ -266,22 +298,28 @@ def _it_plus_bh(bgr: np.ndarray) -> np.ndarray:
     return detect(bgr, "it+bh", with_defects=False).mask
 
 
+def _it_plus_r(bgr: np.ndarray) -> np.ndarray:
+    return detect(bgr, "it+r", with_defects=False).mask
+
+
 def _it_plus_defects(bgr: np.ndarray) -> np.ndarray:
     return detect(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY), "it+").mask
 
 
 def speed(data: Path, repeats: int, threads: int) -> dict[str, object]:
     cv2.setNumThreads(threads)
-    fns = {"otsu (cv2)": _otsu_cv2, "it": _it, "it+": _it_plus, "it+bh": _it_plus_bh,
+    fns = {"otsu (cv2)": _otsu_cv2, "it": _it, "it+": _it_plus, "it+bh": _it_plus_bh, "it+r": _it_plus_r,
            "it+ with defect list": _it_plus_defects}
     out: dict[str, object] = {"cv2_threads": threads, "repeats": repeats,
                               "cpu": platform.processor() or platform.machine()}
     print(f"\n### Speed (OpenCV threads = {threads}; median over {repeats} interleaved blocks "
           "of >= 10 ms; BGR in, mask out)\n")
-    print("| size | method | ms/frame (median) | fps | vs Otsu |\n|---|---|---|---|---|")
+    print("| size | method | ms/frame (median) | fps | vs Otsu | CPU ms/frame | fps by CPU time |\n"
+          "|---|---|---|---|---|---|---|")
     for w, h in ((480, 320), (4000, 3000)):
         bgr = _frame(data, (w, h))
         times: dict[str, list[float]] = {k: [] for k in fns}
+        cpu: dict[str, list[float]] = {k: [] for k in fns}  # process CPU time: less hit by a loaded machine
         loops = {}
         for k, f in fns.items():  # warm-up, and calls per timed block (blocks of >= ~10 ms)
             t0 = time.perf_counter()
@@ -289,17 +327,21 @@ def speed(data: Path, repeats: int, threads: int) -> dict[str, object]:
             loops[k] = max(1, int(0.01 / max(time.perf_counter() - t0, 1e-6)))
         for _ in range(repeats):  # interleaved blocks: every method sees the same machine load
             for k, f in fns.items():
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 for _ in range(loops[k]):
                     f(bgr)
                 times[k].append((time.perf_counter() - t0) * 1e3 / loops[k])
+                cpu[k].append((time.process_time() - c0) * 1e3 / loops[k])
         med = {k: float(np.median(v)) for k, v in times.items()}
         key = f"{w}x{h}"
+        cmed = {k: float(np.median(v)) for k, v in cpu.items()}
         out[key] = {k: {"ms_median": med[k], "ms_p90": float(np.percentile(times[k], 90)),
-                        "fps": 1e3 / med[k], "ratio_to_otsu": med[k] / med["otsu (cv2)"]}
+                        "fps": 1e3 / med[k], "ratio_to_otsu": med[k] / med["otsu (cv2)"],
+                        "cpu_ms_median": cmed[k], "fps_cpu": 1e3 / max(cmed[k], 1e-6)}
                     for k in fns}
         for k in fns:
-            print(f"| {key} | {k} | {med[k]:.2f} | {1e3 / med[k]:.0f} | {med[k] / med['otsu (cv2)']:.2f}x |")
+            print(f"| {key} | {k} | {med[k]:.2f} | {1e3 / med[k]:.0f} | {med[k] / med['otsu (cv2)']:.2f}x | "
+                  f"{cmed[k]:.2f} | {1e3 / max(cmed[k], 1e-6):.0f} |")
     big = out["4000x3000"]
     out["goals"] = {
         "it_at_most_2x_otsu_480": out["480x320"]["it"]["ratio_to_otsu"] <= 2.0,  # type: ignore[index]
@@ -307,6 +349,8 @@ def speed(data: Path, repeats: int, threads: int) -> dict[str, object]:
         "it_30fps_12mp": big["it"]["fps"] >= 30,  # type: ignore[index]
         "it_plus_20fps_12mp": big["it+"]["fps"] >= 20,  # type: ignore[index]
         "it_plus_bh_20fps_12mp": big["it+bh"]["fps"] >= 20,  # type: ignore[index]
+        "it_plus_r_20fps_12mp": big["it+r"]["fps"] >= 20,  # type: ignore[index]
+        "it_plus_r_20fps_12mp_cpu": big["it+r"]["fps_cpu"] >= 20,  # type: ignore[index]
     }
     print(f"\ngoals: {out['goals']}")
     return out
@@ -315,20 +359,22 @@ def speed(data: Path, repeats: int, threads: int) -> dict[str, object]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder holding the data sets")
-    ap.add_argument("--only", nargs="+", choices=("tune", "quality", "speed"),
-                    default=["tune", "quality", "speed"])
+    ap.add_argument("--only", nargs="+", choices=("tune", "ridge", "quality", "speed"),
+                    default=["tune", "ridge", "quality", "speed"])
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--threads", type=int, default=1, help="cv2.setNumThreads for the speed runs")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "detect.json")
     a = ap.parse_args(argv)
     has_data = all((a.data / s).is_dir() for s in SETS)
     res: dict[str, object] = {}
-    if "tune" in a.only or "quality" in a.only:
+    if {"tune", "ridge", "quality"} & set(a.only):
         if not has_data:
             print(f"data sets not found under {a.data}: skipping tune and quality")
         else:
             if "tune" in a.only:
                 res["tune"] = tune(a.data)
+            if "ridge" in a.only:
+                res["ridge"] = ridge(a.data)
             if "quality" in a.only:
                 res["quality"] = quality(a.data)
     if "speed" in a.only:

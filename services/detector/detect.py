@@ -21,6 +21,7 @@ import numpy as np
 
 from .improved import it_plus_bh_mask, it_plus_mask, reduction_factor
 from .iterative import C_S_UNGUARDED, iterative_threshold
+from .ridge import it_plus_ridge_mask
 from .thresholds import (
     as_grey_u8,
     histogram,
@@ -77,6 +78,7 @@ METHODS: dict[str, MethodFn] = {
     "it-paper": _it_paper,
     "it+": it_plus_mask,
     "it+bh": it_plus_bh_mask,
+    "it+r": it_plus_ridge_mask,
 }
 
 

@@ -4,8 +4,13 @@
 defect's pixel centroid to the surface in world coordinates with the pinhole model of the
 frame's metadata: the ray ``K^-1 [u, v, 1]^T`` in the camera frame (OpenCV axes: x right,
 y down, z forward), scaled to the surface range along the optical axis, rotated and translated
-by the camera pose, ``X = p_cam + R_wc (range · K^-1 [u, v, 1]^T)``. Lengths follow from the
-ground sampling distance ``range / f`` metres per pixel (the inverse of (P2)).
+by the camera pose, ``X = p_cam + R_wc (range · K^-1 [u, v, 1]^T)``. A defect's length is its
+skeleton's, measured by the deliverable's own module (:func:`services.inspection.measure.measure_mask`,
+on the crack's half-depth pixels) at the ground sampling distance
+(:func:`services.inspection.measure.frame_scale`, ``range / f`` metres per pixel, the inverse of
+(P2)). On frames above the defect list's pixel budget (:func:`services.detector.detect.defects_of`
+works on blocks there, so its boxes are not the mask's components) the length falls back to the
+bounding-box diagonal.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import numpy as np
 
 from edge.camera import decode_image
 from protocol.messages import Defect, DefectReport, ImageMeta
+from services.inspection.measure import frame_scale, measure_mask
 
 from .detect import Defect as PixelDefect, Detection, detect
 
@@ -35,14 +41,32 @@ def pixels_to_world(meta: ImageMeta, px: np.ndarray) -> np.ndarray | None:
     return np.asarray(meta.cam_pos) + (meta.range_m * rays) @ R.T
 
 
-def to_report(meta: ImageMeta, det: Detection, stamp_report: float | None = None) -> DefectReport:
-    keep = [d for d in det.defects if d.area_px >= MIN_REPORT_AREA_PX][:MAX_REPORTED_DEFECTS]
-    world = pixels_to_world(meta, np.array([d.centroid for d in keep])) if keep else None
-    gsd = None if meta.range_m is None else meta.range_m / meta.intrinsics.fx  # m per pixel
+def skeleton_lengths(det: Detection, m_per_px: float, grey: np.ndarray | None = None,
+                     max_components: int = MAX_REPORTED_DEFECTS) -> dict[tuple[int, int, int, int], float]:
+    """Skeleton length (m) of the mask's components, by bounding box (x, y, w, h), largest first;
+    at most ``max_components`` of at least :data:`MIN_REPORT_AREA_PX` pixels."""
+    rows = measure_mask(det.mask, m_per_px, MIN_REPORT_AREA_PX, grey, max_components=max_components)
+    return {bbox: m.length_m for bbox, _, m in rows}
+
+
+def to_report(meta: ImageMeta, det: Detection, stamp_report: float | None = None,
+              grey: np.ndarray | None = None, scale: int = 1) -> DefectReport:
+    """The defect report of a detection; ``grey`` (the frame) sizes each crack on its half-depth pixels.
+
+    ``det`` and ``grey`` may be of the frame decoded at 1/``scale`` size (:func:`analyse`): the
+    cracks are measured there at ``scale`` times the ground sampling distance and reported in the
+    full frame's pixels (:func:`scaled`)."""
+    full = scaled(det, scale)
+    keep = [(d, r) for d, r in zip(full.defects, det.defects) if d.area_px >= MIN_REPORT_AREA_PX]
+    keep = keep[:MAX_REPORTED_DEFECTS]
+    world = pixels_to_world(meta, np.array([d.centroid for d, _ in keep])) if keep else None
+    k = meta.intrinsics
+    gsd = None if meta.range_m is None else frame_scale(meta.range_m, k.fx, k.fy)  # m per full-frame pixel
+    lengths = skeleton_lengths(det, gsd * scale, grey) if gsd is not None and keep else {}  # by reduced bbox
     defects = []
-    for i, d in enumerate(keep):
+    for i, (d, reduced) in enumerate(keep):
         pos = None if world is None else tuple(float(v) for v in world[i])
-        length = None if gsd is None else float(np.hypot(d.bbox[2], d.bbox[3]) * gsd)
+        length = None if gsd is None else lengths.get(reduced.bbox, float(np.hypot(d.bbox[2], d.bbox[3]) * gsd))
         defects.append(Defect(area_px=d.area_px, bbox=d.bbox, centroid_px=d.centroid, contrast=d.contrast,
                               pos=pos, length_m=length))
     return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
@@ -90,4 +114,4 @@ def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", max
         return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
                             stamp_report=time.time(), method=method, ok=False, error=str(exc))
     det = detect(grey, method, min_defect_area=max(1, MIN_REPORT_AREA_PX // (f * f)), **params)
-    return to_report(meta, scaled(det, f))
+    return to_report(meta, det, grey=grey, scale=f)

@@ -94,7 +94,7 @@ def frame_source(key: str, ssrc: int) -> tuple[int, int] | None:
 class DetectorService:
     """Binds the pipeline to the bus; see the module docstring."""
 
-    def __init__(self, bus: Bus, method: str = "it+", workers: int = 2, queue: int = QUEUE_FRAMES,
+    def __init__(self, bus: Bus, method: str = "it+r", workers: int = 2, queue: int = QUEUE_FRAMES,
                  playout_delay_s: float = 0.05, log=None, recover: bool = True, save_frames: str | None = None,
                  partition: Partition = Partition(), max_uav: int = MAX_UAV, context: str = "spawn",
                  max_pixels: int | None = None):
@@ -268,7 +268,7 @@ class DetectorService:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet detector", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="client")
-    parser.add_argument("--method", default="it+", choices=sorted(METHODS), help="detection method")
+    parser.add_argument("--method", default="it+r", choices=sorted(METHODS), help="detection method")
     parser.add_argument("--workers", type=int, default=2, help="detection worker processes")
     parser.add_argument("--start-method", default="spawn", choices=CONTEXTS,
                         help="how the worker processes start (never fork: Zenoh's threads)")

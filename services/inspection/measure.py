@@ -212,10 +212,12 @@ def measure_component(mask: np.ndarray, m_per_px: float, grey: np.ndarray | None
 
 
 def measure_mask(mask: np.ndarray, m_per_px: float, min_area_px: int = 1, grey: np.ndarray | None = None,
-                 margin: int = 8) -> list[tuple[tuple[int, int, int, int], tuple[float, float], CrackMeasure]]:
+                 margin: int = 8, max_components: int | None = None,
+                 ) -> list[tuple[tuple[int, int, int, int], tuple[float, float], CrackMeasure]]:
     """Every 8-connected component of ``mask``: ``(bbox x, y, w, h; centroid x, y; measure)``.
 
-    Sorted by area, largest first; components under ``min_area_px`` pixels are left out. With
+    Sorted by area, largest first; components under ``min_area_px`` pixels are left out, and only
+    the first ``max_components`` are measured when it is given. With
     ``grey`` each component is sized on its half-depth mask (in a window ``margin`` pixels wider
     than its box; other components in the window are masked out of it).
     """
@@ -227,6 +229,8 @@ def measure_mask(mask: np.ndarray, m_per_px: float, min_area_px: int = 1, grey: 
         x, y, w, h, a = (int(v) for v in stats[i])
         if a < min_area_px:
             continue
+        if max_components is not None and len(out) >= max_components:
+            break
         x0, y0, x1, y1 = max(0, x - margin), max(0, y - margin), min(W, x + w + margin), min(H, y + h + margin)
         lab = labels[y0:y1, x0:x1]
         sub = lab == i

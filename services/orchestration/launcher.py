@@ -501,7 +501,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "over MAVLink on loopback")
     p.add_argument("--flight", choices=["guided", "auto"], default="guided",
                    help="--vehicle mavlink: guided (position targets) or auto (a waypoint mission flown in AUTO)")
-    p.add_argument("--method", default="it+", help="the detector's method")
+    p.add_argument("--method", default="it+r", help="the detector's method")
     p.add_argument("--detectors", type=int, default=1, metavar="N",
                    help="detector instances sharing the cameras (detector-K analyses the UAVs with id %% N == K)")
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET)

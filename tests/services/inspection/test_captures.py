@@ -23,10 +23,13 @@ def test_it_plus_is_precise_at_full_recall(seed):
     assert len(caps) == 26 and decode(caps[0]).shape == (480, 640)
     gt = [GroundTruthDefect(id=d.id, pos=d.centroid_world, uv=d.centroid_uv, bbox_uv=d.bbox_uv, area_m2=d.area_m2)
           for d in surf.defects()]
-    s = score_defects([analyse(c.meta, c.jpeg) for c in caps], gt, surf.corners)
+    s = score_defects([analyse(c.meta, c.jpeg, "it+") for c in caps], gt, surf.corners)
     assert s.recall == 1.0
     assert s.precision >= 0.95
     # the old IT+ (guard always on, no contrast floor, bounding-box length rule) was far less precise
     old = dict(guard_contrast=0.0, min_contrast=0.0, min_long_elongation=0.0)
-    s_old = score_defects([analyse(c.meta, c.jpeg, **old) for c in caps], gt, surf.corners)
+    s_old = score_defects([analyse(c.meta, c.jpeg, "it+", **old) for c in caps], gt, surf.corners)
     assert s_old.precision < 0.6
+    # IT+r (the detector service's default): the ridge cue keeps the mission's wall precise
+    s_r = score_defects([analyse(c.meta, c.jpeg, "it+r") for c in caps], gt, surf.corners)
+    assert s_r.recall == 1.0 and s_r.precision >= 0.95
