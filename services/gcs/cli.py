@@ -85,12 +85,13 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         raise
     finally:
         root.handlers = saved
-    if recorder is not None:  # the MCAP log's summary: the record as it is now (services.recording.rebuild)
-        record = recorder.finish(record, runner._lock)
     if out:  # the report's input is the journal, read back (or the in-memory record if it failed: journal.py)
         from .journal import report_record
 
         record = report_record(runner.recorder, record, log)
+    if recorder is not None:  # the MCAP log's summary: the report's record (services.recording.rebuild), so
+        # that the log rebuilds the report even when a state came in after the journal was closed
+        record = recorder.finish(record, runner._lock)
         from .report import write_report
 
         folder = Path(out)

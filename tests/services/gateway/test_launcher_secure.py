@@ -16,6 +16,7 @@ from protocol.bus import Bus, BusConfig
 from protocol.links import TELEMETRY
 from protocol.messages import VehicleState
 from protocol.acl import read_users
+from tests.conftest import wait_until
 
 FLEET = "secup"
 
@@ -50,9 +51,12 @@ def test_up_secure_runs_an_authenticated_network_and_removes_its_credentials():
             while time.monotonic() < deadline and not (
                     {1, 2} <= set(states) and all(states[u].neighbours == 1 for u in (1, 2))):
                 time.sleep(0.1)
+            rcus = {keys.rcu_alive(FLEET, "planner"), keys.rcu_alive(FLEET, "detector")}
+            # the RCUs may come up after the UAVs have meshed (the detector starts its worker processes first)
+            wait_until(lambda: rcus <= set(gcs.alive(keys.fleet_all(FLEET))), 30)
             alive = set(gcs.alive(keys.fleet_all(FLEET)))
         assert {1, 2} <= set(states) and all(states[u].neighbours == 1 for u in (1, 2)), states  # mesh + gateway
-        assert {keys.rcu_alive(FLEET, "planner"), keys.rcu_alive(FLEET, "detector")} <= alive
+        assert rcus <= alive
     finally:
         proc.send_signal(signal.SIGINT)
         rest = proc.communicate(timeout=30)[0]
