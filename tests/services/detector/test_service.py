@@ -53,8 +53,10 @@ def test_detector_service_frames_in_reports_out(group, gateway):
         pub.put_bytes(b"\x00\x01 not even rtp")
         pub.put_bytes(sender.frame(b"\x00\x05abcde", time.time()))  # RTP fine, metadata garbage
         deadline = time.monotonic() + 20
-        while time.monotonic() < deadline and not (len(reports) >= 6 and stats and
-                                                   stats[-1].rejected.get("bad-rtp", 0) >= 1):
+        # statistics are periodic, and a frame that does not decode is counted by its worker after the
+        # report: wait for a period that counts all three rejections
+        while time.monotonic() < deadline and not (len(reports) >= 6 and stats and all(
+                stats[-1].rejected.get(k, 0) >= 1 for k in ("bad-rtp", "bad-image", "bad-meta"))):
             time.sleep(0.1)
     good = {r.capture_id: r for r in reports if r.ok}
     assert set(good) == {0, 1, 2, 3}

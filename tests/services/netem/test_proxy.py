@@ -90,10 +90,10 @@ def test_udp_loss_over_2000_packets_is_within_binomial_bounds(sink):
 def test_udp_delay_statistics_match_delay_and_jitter(sink, distribution, sd_per_jitter, within_one_sd):
     """One-way added delay of 400 datagrams through the proxy, ``delay 40ms jitter 10ms``.
 
-    Tolerances: mean within 4 standard errors plus 2 ms (the proxy's and the sink's thread
-    wake-ups only ever add delay); standard deviation within 20 % of the setting; the fraction
-    within one sd of the mean within 0.1 of the distribution's (tells uniform from normal);
-    uniform: nothing earlier than delay - jitter. ``unordered``, so the FIFO floor does not
+    The delays the proxy decided: mean within 4 standard errors, standard deviation within 20 % of
+    the setting, the fraction within one sd of the mean within 0.1 of the distribution's (tells
+    uniform from normal), uniform: nothing earlier than delay - jitter; and every datagram held at
+    least its decided delay, the median at most 2 ms more. ``unordered``, so the FIFO floor does not
     reshape the samples (they are 2 ms apart, jitter spans 20 ms).
     """
     n, delay, jitter = 400, 0.040, 0.010
@@ -105,21 +105,25 @@ def test_udp_delay_statistics_match_delay_and_jitter(sink, distribution, sd_per_
             time.sleep(0.002)
         sink.wait_count(n)
         c.close()
-    delays = [t - struct.unpack("!Id", d)[1] for t, d in sink.got]
-    assert len(delays) == n
+    assert len(sink.got) == n
+    # the delays the proxy's seeded impairer decided (replayed here: its "up" stream) have the
+    # distribution's statistics ...
+    rng = np.random.default_rng(np.random.SeedSequence(21).spawn(2)[0])
+    replay = Impairer(proxy.impairment("up"), rng)
+    decided = {i: replay.decide(0.0, 1)[0] for i in range(n)}
+    delays = list(decided.values())
     mean, sd = statistics.fmean(delays), statistics.stdev(delays)
     expected_sd = jitter * sd_per_jitter
-    assert -4 * expected_sd / n ** 0.5 < mean - delay < 4 * expected_sd / n ** 0.5 + 0.002, (mean, sd)
+    assert -4 * expected_sd / n ** 0.5 < mean - delay < 4 * expected_sd / n ** 0.5, (mean, sd)
     assert abs(sd / expected_sd - 1.0) < 0.2, (mean, sd)
     inside = sum(abs(x - mean) < expected_sd for x in delays) / n
     assert abs(inside - within_one_sd) < 0.1, inside
     if distribution == "uniform":
-        assert min(delays) >= delay - jitter - 0.0005
-    # and per datagram: the delay the seeded impairer decided (replayed here), never early
-    rng = np.random.default_rng(np.random.SeedSequence(21).spawn(2)[0])  # the proxy's "up" stream
-    replay = Impairer(proxy.impairment("up"), rng)
-    decided = {i: replay.decide(0.0, 1)[0] for i in range(n)}
-    extra = sorted(t - struct.unpack("!Id", d)[1] - decided[struct.unpack("!Id", d)[0]] for t, d in sink.got)
+        assert min(delays) >= delay - jitter
+    # ... and each datagram was held for its decided delay, never less, and (the median) at most a couple
+    # of milliseconds more: thread wake-ups only ever add delay, more on a loaded machine, which is why
+    # the statistics are not taken on the measured delays
+    extra = sorted(t - sent - decided[i] for t, (i, sent) in ((t, struct.unpack("!Id", d)) for t, d in sink.got))
     assert extra[0] > -0.0005 and extra[n // 2] < 0.002, (extra[0], extra[n // 2])
 
 
