@@ -112,4 +112,7 @@ def test_record_then_replay_at_10x_keeps_order_per_key(group, gateway, tmp_path:
         assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs), seqs  # in order, no duplicates
     assert got[keys.event("replayed", 2)] == list(range(0, 100, 10))  # reliable: all, in order
     frames = got[keys.preview("replayed", 1)]
-    assert frames == logged[keys.preview(FLEET, 1)][: len(frames)] and len(frames) >= 8
+    # best-effort like the states: nearly all, byte for byte, in the recorded order
+    recorded = logged[keys.preview(FLEET, 1)]
+    at = [recorded.index(f) for f in frames]  # ValueError: a frame the log does not hold
+    assert at == sorted(set(at)) and len(frames) >= 8, (at, len(recorded))
