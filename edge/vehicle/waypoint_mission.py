@@ -54,11 +54,16 @@ def _origin(origin: ArrayLike) -> tuple[float, float, float]:
     return float(o[0]), float(o[1]), float(o[2])
 
 
+def _triples(a: ArrayLike, name: str) -> NDArray[np.float64]:
+    p = np.asarray(a, float)
+    if p.shape[-1:] != (3,) or not np.all(np.isfinite(p)):
+        raise ValueError(f"{name} must be finite with a last axis of 3")
+    return p
+
+
 def enu_to_geodetic(enu: ArrayLike, origin: ArrayLike) -> NDArray[np.float64]:
     """Local ENU metres ``(..., 3)`` to ``(..., 3)`` latitude, longitude (deg), altitude (m)."""
-    p = np.asarray(enu, float)
-    if p.shape[-1:] != (3,) or not np.all(np.isfinite(p)):
-        raise ValueError("enu must be finite with a last axis of 3")
+    p = _triples(enu, "enu")
     lat0, lon0, h0 = _origin(origin)
     lat, lon, h = pymap3d.enu2geodetic(p[..., 0], p[..., 1], p[..., 2], lat0, lon0, h0)
     return np.stack([np.asarray(lat), np.asarray(lon), np.asarray(h)], axis=-1)
@@ -66,9 +71,7 @@ def enu_to_geodetic(enu: ArrayLike, origin: ArrayLike) -> NDArray[np.float64]:
 
 def geodetic_to_enu(lla: ArrayLike, origin: ArrayLike) -> NDArray[np.float64]:
     """Inverse of :func:`enu_to_geodetic`."""
-    q = np.asarray(lla, float)
-    if q.shape[-1:] != (3,) or not np.all(np.isfinite(q)):
-        raise ValueError("lla must be finite with a last axis of 3")
+    q = _triples(lla, "lla")
     lat0, lon0, h0 = _origin(origin)
     e, n, u = pymap3d.geodetic2enu(q[..., 0], q[..., 1], q[..., 2], lat0, lon0, h0)
     return np.stack([np.asarray(e), np.asarray(n), np.asarray(u)], axis=-1)
