@@ -390,7 +390,7 @@ class Bus:
                     callback(msg, sample)
                 return
             now = time.monotonic()
-            if not self._within_budget(budget, source, nbytes, now, undecoded=True):
+            if not self._within_budget(budget, source, nbytes, now):
                 return  # too large, or a source flooding garbage: not even copied or decoded
             msg = self._decode_or_count(source, payload.to_bytes(), expect)
             if msg is None:  # garbage takes from the source's garbage bucket (protocol.budget)
@@ -403,15 +403,14 @@ class Bus:
 
         return self.subscribe_raw(key, handle, ring=ring)
 
-    def _within_budget(self, budget: Budget, source: str, nbytes: int | None, now: float | None,
-                       undecoded: bool = False) -> bool:
-        """Size (``nbytes``) or rate (``now``) check of ``budget``, or (``undecoded``) what it can tell before
-        decoding (size, a source flooding garbage); a refusal is counted (logged once)."""
+    def _within_budget(self, budget: Budget, source: str, nbytes: int | None, now: float) -> bool:
+        """With ``nbytes``: what ``budget`` can tell before decoding (size, a used-up rate, a source flooding
+        garbage); without: the rate check of a well-formed sample. A refusal is counted (logged once)."""
         with self.counters.lock:
-            if undecoded:
+            if nbytes is not None:
                 reason = budget.admit_undecoded(source, nbytes, now)
             else:
-                reason = budget.admit_size(source, nbytes) if nbytes is not None else budget.admit_rate(source, now)
+                reason = budget.admit_rate(source, now)
         if reason is None:
             return True
         if self.counters.reject(source, reason):
