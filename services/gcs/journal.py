@@ -22,6 +22,12 @@ from .record import MissionRecord, Recorder, read_journal
 log = logging.getLogger("skynet.gcs.journal")
 
 
+def _read_back(path: Path, found) -> str:
+    """What the report's input was: the journal, with its lines and the damaged ones skipped."""
+    damaged = f", {found.damaged} damaged and skipped" if found.damaged else ""
+    return f"{path} read back ({found.lines} lines{damaged})"
+
+
 def report_record(recorder: Recorder, live: MissionRecord, logger: logging.Logger | None = None) -> MissionRecord:
     """The record the report is computed from: ``recorder``'s journal read back, or ``live`` (the in-memory
     record) when there is no journal, writing it failed, or it cannot be read back with its footer.
@@ -40,8 +46,7 @@ def report_record(recorder: Recorder, live: MissionRecord, logger: logging.Logge
             why = f"reading {path} back failed ({exc})"
         else:
             if found.footer:
-                back.report_input = (f"{path} read back ({found.lines} lines"
-                                     + (f", {found.damaged} damaged and skipped" if found.damaged else "") + ")")
+                back.report_input = _read_back(path, found)
                 return back
             why = f"{path} has no footer"
     note = (f"the report is computed from the in-memory record (bounded: {dict(live.not_kept) or 'nothing'} "
@@ -64,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     path = Path(args.journal)
     record, found = read_journal(path)  # ValueError / OSError: a one-line error (services.cli)
-    record.report_input = f"{path} read back ({found.lines} lines)"
+    record.report_input = _read_back(path, found)
     from .report import write_report
 
     out = Path(args.out) if args.out else path.parent
