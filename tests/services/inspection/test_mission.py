@@ -10,7 +10,7 @@ from edge.runtime import synthetic_surface
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.imagery import pack_image
-from protocol.links import IMAGERY
+from protocol.links import IMAGERY_RELIABLE
 from protocol.messages import DefectReport
 from protocol.rtp import RtpSender, ssrc_for
 from services.gcs.record import MissionRecord
@@ -36,7 +36,7 @@ def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, ga
         uav.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
         assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
         time.sleep(0.5)
-        pub = uav.publisher(keys.camera(FLEET, 1), IMAGERY)
+        pub = uav.publisher(keys.camera(FLEET, 1), IMAGERY_RELIABLE)  # this test is about keeping frames, not UDP loss
         sender = RtpSender(ssrc_for(1))
         for c in caps:
             meta = c.meta.model_copy(update={"uav": 1, "stamp": time.time()})
