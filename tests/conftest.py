@@ -17,6 +17,29 @@ from services.orchestration.process import ProcessGroup, free_port_pair
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
+#: the most UAVs a test flies with the launcher's default development key set (the six-UAV mission)
+DEV_KEYS_UAVS = 6
+
+
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
+def pytest_collection_modifyitems(config, items):
+    """Whole missions (marker ``mission``) share one pytest-xdist group: under ``--dist loadgroup`` they run
+    one after another on one worker while the other worker takes the rest of the suite, so no two missions
+    compete for the two cores (scripts/test.sh). Without xdist the marker changes nothing."""
+    for item in items:
+        if item.get_closest_marker("mission"):
+            item.add_marker(pytest.mark.xdist_group("mission"))
+
+
+
+@pytest.fixture(scope="session", autouse=True)
+def dev_keys():
+    """The launcher's default development key set (``.keys/dev``), made once for the largest fleet a test
+    flies: a smaller set would be rotated by the first larger mission while another test's network still
+    reads it (two pytest workers share the working folder). Atomic, so both workers end with one set."""
+    from services.orchestration import trustmode
+
+    return trustmode.dev_keys(ROOT / trustmode.DEFAULT_KEYS, DEV_KEYS_UAVS)
 
 
 @pytest.fixture

@@ -10,6 +10,8 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 from services.experiment.cli import main
 from services.experiment.grid import Cell, Run
 from services.experiment.runner import descendants, run_mission
@@ -87,6 +89,7 @@ def test_dry_run_prints_one_command_per_run(capsys):
     assert not Path("/tmp/nowhere").exists()
 
 
+@pytest.mark.mission
 def test_one_cell_experiment_end_to_end(tmp_path, capsys):
     """Slow (one whole mission, ~35 s wall at the default speed 6): the real thing, one tiny cell."""
     out = tmp_path / "exp"

@@ -91,6 +91,7 @@ def test_the_common_start_leaves_time_for_every_start_command():
         assert runner.start_margin_s() == 30.0  # bounded
 
 
+@pytest.mark.mission
 def test_forged_reports_with_a_dead_detector_fail_the_mission_and_say_why(group, gateway, planner):
     """Issue 12: with no detector running, a forger publishing ok DefectReports for every capture (some naming no
     frame, some with made-up frame evidence) made the mission end "success, every capture imaged" with 0 frames

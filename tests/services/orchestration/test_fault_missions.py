@@ -21,6 +21,8 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.mission  # whole missions: one at a time under xdist (tests/conftest.py)
+
 EDGE_LEASE_S = 2.0
 LEASE_SLACK_S = 1.0
 RESTART_SLACK_S = 3.0

@@ -18,6 +18,7 @@ PLOTS = ["trajectories.png", "altitudes.png", "path_error.png", "formation_error
          "defects_map.png", "links.png"]
 
 
+@pytest.mark.mission
 def test_mission_through_the_launcher(nominal_mission, tmp_path):
     out, proc = nominal_mission.out, nominal_mission.proc
     assert proc.returncode == 0, nominal_mission.failure()
@@ -111,6 +112,7 @@ def test_impairment_proxy_on_one_uav_delays_only_its_link():
         proc.communicate(timeout=30)
 
 
+@pytest.mark.mission
 def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
     """Every link, reliable ones too, 200 ms each way (issue 7's delay): the formation must not
     read late states as lagging neighbours, and the common start must wait for the last UAV's
@@ -208,6 +210,7 @@ def test_up_restarts_a_service_that_dies_instead_of_stopping_the_network():
     assert proc.returncode == 0
 
 
+@pytest.mark.mission
 def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
     """Issue 18, in one mission: six UAVs fly as two formations (1-3, 4-6), each edge hears only its formation;
     ``--detectors 2`` (detector-0 and detector-1 sharing the six cameras, secure by default): every capture is

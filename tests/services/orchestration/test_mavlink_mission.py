@@ -13,6 +13,8 @@ import pytest
 
 pytest.importorskip("pymavlink", reason="--vehicle mavlink needs the 'mavlink' extra")
 
+pytestmark = pytest.mark.mission  # whole missions: one at a time under xdist (tests/conftest.py)
+
 FORMATION_RMS_BOUND_M = 1.0
 
 

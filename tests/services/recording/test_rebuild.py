@@ -7,6 +7,8 @@ import json
 import time
 from collections import defaultdict
 
+import pytest
+
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.messages import CommandAck, DefectReport, MissionPlan, VehicleState
@@ -35,6 +37,7 @@ def _figures(summary) -> dict:
     return _strip(json.loads(json.dumps(summary.to_dict() if hasattr(summary, "to_dict") else summary)))
 
 
+@pytest.mark.mission
 def test_mission_log_rebuilds_the_report_and_replays(nominal_mission, group, gateway) -> None:
     out = nominal_mission.out
     assert nominal_mission.proc.returncode == 0, nominal_mission.failure()
