@@ -276,3 +276,37 @@ def test_detectors_option_starts_partitioned_instances():
         assert net.check_alive() == []
     finally:
         net.stop()
+
+
+def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_its_own():
+    """Issue 18, ``--sites``: each edge's uplink goes to its formation's site, the ground station and the default
+    RCUs to site 0, ``--rcu-site`` elsewhere; a bad count or RCU site is refused before anything starts."""
+    from services.orchestration.launcher import Network, build_parser, make_plan
+
+    def parse(*argv, prog="mission"):
+        return build_parser(prog).parse_args(["--fleet", "layout", *argv])
+
+    net = Network(parse("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1"), echo=None,
+                  ground_station=True)
+    try:
+        gw0, gw1 = net.site_endpoints
+        assert len(set(gw0) | set(gw1)) == 4 and all(e.startswith("tls/127.0.0.1:") for e in gw0 + gw1)
+        for i in range(1, 7):
+            args = net.bus_args(f"uav{i}", "peer")
+            connect = [args[k + 1] for k, a in enumerate(args) if a == "--connect"]
+            assert connect == (gw0 if i <= 3 else gw1), (i, connect)
+        assert net.gcs_config().connect == gw0
+        assert [net.site_of(n) for n in ("planner", "detector-0", "detector-1", "gcs")] == [0, 0, 1, 0]
+        lines = net.topology()
+        assert lines[0].startswith("site 0: gateway at ") and lines[0].endswith("uav1 uav2 uav3 gcs detector-0 planner")
+        assert "site 1: gateway-1" in lines[1] and "dialling gateway" in lines[1]
+        assert lines[1].endswith("uav4 uav5 uav6 detector-1")
+    finally:
+        net.stop()
+    for argv, why in ((("--uavs", "6", "--sites", "3"), "at most one site per formation"),
+                      (("--uavs", "6", "--sites", "0"), "at least one site"),
+                      (("--uavs", "6", "--sites", "2", "--rcu-site", "planner=2"), "not one of 0..1"),
+                      (("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1",
+                        "--impair", "detector=delay 5ms"), "different sites")):
+        with pytest.raises(ValueError, match=why):
+            make_plan(parse(*argv), ground_station=True)
