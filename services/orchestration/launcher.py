@@ -37,6 +37,7 @@ ones over the same kind of link as the uplinks (TLS by default: a gateway's cert
 ``gateway``, passes the other's ACL as the role ``gateway``); formation g's edges attach to site ``g % S``,
 the ground station to site 0, the planner and detector instances to site 0 unless ``--rcu-site NAME=K``.
 ``kill gateway`` and the restart of a gateway name site 0's; another site's is ``gateway-K`` to the supervisor.
+Not with ``--secure`` (see :func:`make_plan`).
 
 Secure by default (issue 11, :mod:`services.orchestration.trustmode`): a development key set (``--keys DIR``, else
 ``.keys/dev``), mutual TLS on a TLS multilink pair, access control by certificate common name on the
@@ -151,6 +152,11 @@ def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
     if mesh == "proxied":
         proxied |= set(links.skynet)
     n_sites = sitemap.check_sites(getattr(args, "sites", 1), args.uavs)
+    if n_sites > 1 and getattr(args, "secure", False):
+        # zenoh's user/password authentication is one way (the dialler presents a user, the dialled one
+        # does not): the dialling gateway's ACL has no subject for the gateway it dialled and denies it all
+        raise ValueError(f"--sites {n_sites} with --secure: the router link between two gateways cannot pass the "
+                         "user/password ACL (only the dialling side authenticates); use the default mutual TLS")
     rcus = ["planner", *(["detector"] if detectors == 1 else [f"detector-{k}" for k in range(detectors)])]
     where = sitemap.parse_rcu_sites(getattr(args, "rcu_site", None) or [], n_sites, rcus)
     if "detector" in proxied and len({s for n, s in where.items() if n.startswith("detector")}) > 1:
@@ -198,8 +204,6 @@ class Network:
             from services.gateway.credentials import generate
 
             users = ["gcs", "planner", "detector", *[f"uav{i}" for i in range(1, args.uavs + 1)]]
-            if len(self.site_endpoints) > 1:  # the gateways of sites 1.. authenticate to the ones they dial
-                users.append("gateway")
             self.creds = generate(self.tmp / "creds", users)
 
     # -- links
@@ -324,7 +328,7 @@ class Network:
     def start_service(self, name: str, args: list[str], user: str | None = None):
         """Start a service; with --secure its password (``user``'s, default ``name``'s) goes in its environment,
         not on its command line."""
-        if self.creds is not None and (user or name) in self.creds.passwords:
+        if self.creds is not None:
             self.group.env[PASSWORD_ENV] = self.creds.passwords[user or name]
         try:
             return self.group.start(name, args)
@@ -389,11 +393,9 @@ class Network:
             ident = [] if len(self.site_endpoints) == 1 else ["--id", site.gateway]
             dial = [x for j in self.plan.sites.peers_of(site.index) for e in self.site_endpoints[j]
                     for x in ("--connect", e)]
-            user = ["--user", "gateway"] if dial and self.creds is not None else []
-            gw = self.start_service(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *secure, *lease,
-                                           *thin, *user, *self.key_args(), *dial,
-                                           *[x for e in self.site_endpoints[site.index] for x in ("--listen", e)]],
-                                    user="gateway" if user else None)
+            gw = self.group.start(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *secure, *lease,
+                                         *thin, *self.key_args(), *dial,
+                                         *[x for e in self.site_endpoints[site.index] for x in ("--listen", e)]])
             if not gw.wait_for(READY["gateway"], 30):
                 raise RuntimeError(f"{name} did not start:\n" + "\n".join(gw.lines[-20:]))
         scenario = ["--scenario", a.scenario] if a.scenario else []
