@@ -10,12 +10,15 @@ at 1x. With ``--frames`` it also flies the paper's 12 MP frames (``--frame-size 
 capture frames on each link class side by side: capture-to-report p95 and the frames that
 reached the detector only through recovery (lost on a clean link) or not at all.
 
-    .venv/bin/python bench/scale.py [--uavs 3 12 24 48] [--speed 1] [--frames]
+    .venv/bin/python bench/scale.py [--uavs 3 12 24 48] [--speed 1] [--frames] [--sites 1 2]
                                     [--idle 3 12 24 48 99] [--out bench/results/scale.json]
 
 Fleets above 10 UAVs fly stacked in rows (:func:`edge.formation.offsets_for`), which the monorail
 box holds up to 50 UAVs; ``--idle`` measures any fleet as ``skynet up``: every edge on the
 ground, sharing state with its formation at 20 Hz.
+
+``--sites 1 2`` flies each N with each number of gateways (``skynet mission --sites S``, one per site,
+a router mesh on loopback; S up to the number of formations) one after the other, side by side.
 
 Heavy: N = 100 on 2 cores is most of the machine for several minutes. Never run in tests.
 """
@@ -206,9 +209,12 @@ def main() -> None:
     parser.add_argument("--baseline", type=Path, default=None,
                         help="another checkout of the project (with its .venv) whose `skynet up` runs the same "
                              "--idle sizes side by side, e.g. the tree before issue 18")
+    parser.add_argument("--sites", type=int, nargs="*", default=[1],
+                        help="numbers of gateways each N flies with (skynet mission --sites S), side by side")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "scale.json"))
     args = parser.parse_args()
-    runs = [(n, []) for n in args.uavs]
+    runs = [(n, [] if s == 1 else ["--sites", str(s)]) for n in args.uavs for s in args.sites
+            if s <= -(-n // 3)]  # at most one site per formation of 3
     if args.frames:
         runs += [(3, ["--frame-size", "4000x3000", "--capture-link", link]) for link in ("reliable", "best-effort")]
         # the detector's reduced decode (default: a 12 MP frame detected at 3 MP) against full-size detection

@@ -31,6 +31,14 @@ A service that exits by itself (a crash, not a fault's kill) is restarted by the
 logged and, in a mission, recorded as a fault (``restart``) in the report. The network is never
 stopped because one service ended.
 
+Several gateways (issue 18, :mod:`services.orchestration.sites`): ``--sites S`` starts one gateway per
+site (``gateway``, ``gateway-1`` .. ``gateway-{S-1}``, ids ``gw0`` ..), each dialling the lower-numbered
+ones over the same kind of link as the uplinks (TLS by default: a gateway's certificate, common name
+``gateway``, passes the other's ACL as the role ``gateway``); formation g's edges attach to site ``g % S``,
+the ground station to site 0, the planner and detector instances to site 0 unless ``--rcu-site NAME=K``.
+``kill gateway`` and the restart of a gateway name site 0's; another site's is ``gateway-K`` to the supervisor.
+Not with ``--secure`` (see :func:`make_plan`).
+
 Secure by default (issue 11, :mod:`services.orchestration.trustmode`): a development key set (``--keys DIR``, else
 ``.keys/dev``), mutual TLS on a TLS multilink pair, access control by certificate common name on the
 gateway and on each edge, commands and heartbeats signed by the ground station; proxied runs keep
@@ -70,6 +78,7 @@ from protocol.bus import (
 )
 
 from .faults import FaultInjector, Resolved, cut_links, plan_faults
+from . import sites as sitemap
 from . import trustmode
 from .process import ProcessGroup, free_port, free_port_pair
 from .restart import RestartTracker
@@ -115,6 +124,8 @@ class Plan:
     faults: list[Resolved]
     mesh: MeshMode
     proxied: set[str] = field(default_factory=set)
+    #: the sites (one gateway each, issue 18) and who attaches where (:mod:`.sites`)
+    sites: sitemap.Mesh | None = None
 
 
 def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
@@ -140,7 +151,18 @@ def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
                          "which needs --mesh proxied")
     if mesh == "proxied":
         proxied |= set(links.skynet)
-    return Plan(links, impair, faults, mesh, proxied)
+    n_sites = sitemap.check_sites(getattr(args, "sites", 1), args.uavs)
+    if n_sites > 1 and getattr(args, "secure", False):
+        # zenoh's user/password authentication is one way (the dialler presents a user, the dialled one
+        # does not): the dialling gateway's ACL has no subject for the gateway it dialled and denies it all
+        raise ValueError(f"--sites {n_sites} with --secure: the router link between two gateways cannot pass the "
+                         "user/password ACL (only the dialling side authenticates); use the default mutual TLS")
+    rcus = ["planner", *(["detector"] if detectors == 1 else [f"detector-{k}" for k in range(detectors)])]
+    where = sitemap.parse_rcu_sites(getattr(args, "rcu_site", None) or [], n_sites, rcus)
+    if "detector" in proxied and len({s for n, s in where.items() if n.startswith("detector")}) > 1:
+        raise ValueError("--impair/--fault on the detector link: its instances attach to different sites "
+                         "(one proxy pair in front of one gateway): keep them at one site")
+    return Plan(links, impair, faults, mesh, proxied, sitemap.mesh(args.uavs, n_sites, where))
 
 
 class Network:
@@ -164,7 +186,9 @@ class Network:
         self.proxies: dict[str, dict] = {}
         #: TLS, certificate ACL, signed commands: secure by default (services.orchestration.trustmode, issue 11)
         self.trust = trustmode.resolve(args, proxied=bool(self.plan.proxied))
-        self.gateway_endpoints = self.endpoint_pair()
+        #: the listen endpoints of each site's gateway (site 0: the ground station's)
+        self.site_endpoints = [self.endpoint_pair() for _ in self.plan.sites.sites]
+        self.gateway_endpoints = self.site_endpoints[0]
         self.edge_endpoints: dict[int, list[str]] = {}
         self.epoch = time.time() + 3.0
         self.tmp = Path(tempfile.mkdtemp(prefix="skynet-net-"))
@@ -189,6 +213,18 @@ class Network:
             return trustmode.tls_endpoints(HOST, free_port(), free_port())
         return multilink_endpoints(HOST, *free_port_pair())
 
+    def topology(self) -> list[str]:
+        """One line per site: its gateway, where it listens and dials, and the nodes attached to it."""
+        out = []
+        for site in self.plan.sites.sites:
+            dials = ", ".join(sitemap.gateway_process(j) for j in self.plan.sites.peers_of(site.index))
+            nodes = [*(f"uav{u}" for u in site.uavs), *(["gcs"] if site.index == 0 and self.ground_station else []),
+                     *site.rcus]
+            out.append(f"site {site.index}: {sitemap.gateway_process(site.index)} at "
+                       f"{' '.join(self.site_endpoints[site.index])}" + (f" dialling {dials}" if dials else "")
+                       + f"; attached: {' '.join(nodes) or 'nothing'}")
+        return out
+
     def key_args(self) -> list[str]:
         return [] if self.trust.keys is None else ["--keys", str(self.trust.keys)]
 
@@ -207,12 +243,27 @@ class Network:
         self.proxies[link]["udp"] = up
         return multilink_endpoints(HOST, tp.port, up.port)
 
-    def endpoints_for(self, name: str) -> list[str]:
-        """Where ``name`` connects: the gateway, or the proxies of its uplink."""
+    def site_of(self, name: str) -> int:
+        """The site whose gateway ``name`` attaches to: a UAV its formation's (``uavN``), an RCU (``planner``,
+        ``detector``, ``detector-K``) its ``--rcu-site``, the ground station and the rest site 0."""
+        m = self.plan.sites
+        if name.startswith("uav") and name[3:].isdigit():
+            return m.site_of(int(name[3:]))
+        if name == "detector":  # also the instances' shared link name: make_plan keeps a proxied one at one site
+            return min((s.index for s in m.sites for r in s.rcus if r.startswith("detector")), default=0)
+        try:
+            return m.site_of(name)
+        except KeyError:
+            return 0
+
+    def endpoints_for(self, name: str, site: int | None = None) -> list[str]:
+        """Where ``name`` connects: its site's gateway (``site``, default :meth:`site_of`), or the proxies of
+        its uplink."""
+        target = self.site_endpoints[self.site_of(name) if site is None else site]
         if name not in self.plan.proxied:
-            return self.gateway_endpoints
+            return target
         if name not in self.proxies:
-            self._proxy_pair(name, self.gateway_endpoints)
+            self._proxy_pair(name, target)
         return multilink_endpoints(HOST, self.proxies[name]["tcp"].port, self.proxies[name]["udp"].port)
 
     def link_proxies(self, link: str) -> list:
@@ -224,12 +275,12 @@ class Network:
     def proxy_stats(self) -> dict[str, dict[str, dict]]:
         return {link: {c: p.stats() for c, p in pair.items()} for link, pair in self.proxies.items()}
 
-    def bus_args(self, name: str, mode: str) -> list[str]:
+    def bus_args(self, name: str, mode: str, site: int | None = None) -> list[str]:
         args = ["--mode", mode, "--fleet", self.args.fleet, "--multilink"]
         if self.plan.proxied and mode == "client":
             # equal leases on both ends (see GATEWAY_LEASE_S), a short open timeout (see client_cfg)
             args += ["--lease", str(GATEWAY_LEASE_S), *[a for k, v in self.client_cfg() for a in ("--cfg", f"{k}:{v}")]]
-        for e in self.endpoints_for(name):
+        for e in self.endpoints_for(name, site):
             args += ["--connect", e]
         if self.creds is not None:
             args += ["--user", name]
@@ -337,11 +388,16 @@ class Network:
         secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
         lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
         thin = self.gateway_config()
-        gw = self.group.start("gateway", ["gateway", "--fleet", a.fleet, "--multilink", *secure, *lease, *thin,
-                                          *self.key_args(),
-                                          *[x for e in self.gateway_endpoints for x in ("--listen", e)]])
-        if not gw.wait_for(READY["gateway"], 30):
-            raise RuntimeError("the gateway did not start:\n" + "\n".join(gw.lines[-20:]))
+        for site in self.plan.sites.sites:  # one gateway per site, each dialling the lower-numbered ones
+            name = sitemap.gateway_process(site.index)
+            ident = [] if len(self.site_endpoints) == 1 else ["--id", site.gateway]
+            dial = [x for j in self.plan.sites.peers_of(site.index) for e in self.site_endpoints[j]
+                    for x in ("--connect", e)]
+            gw = self.group.start(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *secure, *lease,
+                                         *thin, *self.key_args(), *dial,
+                                         *[x for e in self.site_endpoints[site.index] for x in ("--listen", e)]])
+            if not gw.wait_for(READY["gateway"], 30):
+                raise RuntimeError(f"{name} did not start:\n" + "\n".join(gw.lines[-20:]))
         scenario = ["--scenario", a.scenario] if a.scenario else []
         recovery = ["--imagery-cache", "0"] if getattr(a, "no_recovery", False) else []
         hz = getattr(a, "preview_hz", None)
@@ -374,8 +430,10 @@ class Network:
         n = getattr(a, "detectors", 1)  # N instances share the cameras by UAV id (services.detector.partition)
         for k in range(n):
             part = [] if n == 1 else ["--partition", f"{k}/{n}", "--max-uav", str(a.uavs)]
-            self.start_service("detector" if n == 1 else f"detector-{k}",
-                               ["detector", *self.bus_args("detector", "client"), "--method", a.method,
+            name = "detector" if n == 1 else f"detector-{k}"
+            self.start_service(name,
+                               ["detector", *self.bus_args("detector", "client", self.site_of(name)),
+                                "--method", a.method,
                                 *part, *no_recovery, *save, *self.detect_args()], user="detector")
         if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
             self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
@@ -504,6 +562,12 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--method", default="it+r", help="the detector's method")
     p.add_argument("--detectors", type=int, default=1, metavar="N",
                    help="detector instances sharing the cameras (detector-K analyses the UAVs with id %% N == K)")
+    p.add_argument("--sites", type=int, default=1, metavar="S",
+                   help="gateways: one per site, meshed (each dials the lower-numbered ones); formation g "
+                        "(UAVs 3g+1..3g+3) attaches to site g %% S, the ground station to site 0 (1 <= S <= formations)")
+    p.add_argument("--rcu-site", action="append", default=[], metavar="NAME=K",
+                   help="attach an RCU to site K's gateway (repeatable; default site 0): planner, detector "
+                        "(every instance) or detector-K")
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
     p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
     p.add_argument("--impair", action="append", default=[], metavar="NAME[/udp|/tcp]=SPEC",
@@ -558,6 +622,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             net.start()
             log.info("network up: gateway at %s; Ctrl-C to stop", " ".join(net.gateway_endpoints))
+            if len(net.site_endpoints) > 1:
+                for line in net.topology():
+                    log.info("%s", line)
             for link in sorted(net.proxies):
                 log.info("proxies on %s: tcp %s, udp %s", link, *(net.proxies[link][c].port for c in CLASSES))
             if net.creds is not None:
@@ -591,6 +658,9 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     scenario = load_scenario(args.scenario)
     try:
         net.start()
+        if len(net.site_endpoints) > 1:
+            for line in net.topology():
+                log.info("%s", line)
         cfg = net.gcs_config()
         hooks_signer = net.gcs_signer()
         # every edge imports and starts at once on the same cores: 48 of them took over 30 s to appear

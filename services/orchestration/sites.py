@@ -18,7 +18,7 @@ from __future__ import annotations
 import ipaddress
 from dataclasses import dataclass, field
 
-from edge.neighbourhood import FORMATION_SIZE, formation_index
+from edge.neighbourhood import FORMATION_SIZE, formation_index, formations
 
 #: the private range the namespace links take their addresses from
 VETH_NET = ipaddress.ip_network("10.18.0.0/16")
@@ -89,6 +89,53 @@ def mesh(uavs: int, sites: int, rcus: dict[str, int] | None = None,
                 for k in range(sites))
     links = tuple((i, j) for j in range(sites) for i in range(j))
     return Mesh(out, links)
+
+
+def check_sites(sites: int, uavs: int, formation_size: int = FORMATION_SIZE) -> int:
+    """``--sites S`` checked against the fleet: at least one site, at most one per formation (a site
+    without a formation would have a gateway and no UAV). ValueError with a one-line message."""
+    if isinstance(sites, bool) or not isinstance(sites, int) or sites < 1:
+        raise ValueError(f"--sites {sites!r}: at least one site (one gateway each)")
+    n = len(formations(uavs, formation_size))
+    if sites > n:
+        raise ValueError(f"--sites {sites}: at most one site per formation ({uavs} UAVs fly as {n} "
+                         f"formation{'s' if n != 1 else ''} of up to {formation_size})")
+    return sites
+
+
+def parse_rcu_sites(items: list[str] | tuple[str, ...], sites: int, names: list[str] | tuple[str, ...]
+                    ) -> dict[str, int]:
+    """Where each RCU of the run attaches: ``--rcu-site NAME=K`` items over the default site 0.
+
+    ``names`` are the run's RCUs (``planner``, ``detector`` or ``detector-0..N-1``); ``detector``
+    also names every instance ``detector-K`` at once; later items override earlier ones.
+    ValueError names the bad item: no ``=``, an unknown RCU, a site outside ``0..sites-1``.
+
+    >>> parse_rcu_sites(["detector=1", "detector-0=0"], 2, ["planner", "detector-0", "detector-1"])
+    {'planner': 0, 'detector-0': 0, 'detector-1': 1}
+    """
+    out = {n: 0 for n in names}
+    for item in items:
+        name, sep, value = (part.strip() for part in item.partition("="))
+        if not sep or not name or not value:
+            raise ValueError(f"--rcu-site wants NAME=SITE, got {item!r}")
+        try:
+            site = int(value)
+        except ValueError:
+            site = -1
+        if not 0 <= site < sites:
+            raise ValueError(f"--rcu-site {item!r}: site {value!r} is not one of 0..{sites - 1} (--sites {sites})")
+        targets = [n for n in names if n == name or (name == "detector" and n.startswith("detector-"))]
+        if not targets:
+            raise ValueError(f"--rcu-site {item!r}: no RCU {name!r} in this run (RCUs: {', '.join(names)})")
+        for n in targets:
+            out[n] = site
+    return out
+
+
+def gateway_process(site: int) -> str:
+    """The launcher's process name of site ``site``'s gateway: ``gateway`` (site 0, what faults name), ``gateway-K``."""
+    return "gateway" if site == 0 else f"gateway-{site}"
 
 
 def veth_addresses(links: tuple[tuple[int, int], ...]) -> dict[tuple[int, int], tuple[str, str]]:

@@ -142,6 +142,8 @@ def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
     (["up", "--fault", "3s partition uav1-uav5 for 2s"], "uav5"),
     (["up", "--uavs", "2", "--detectors", "3"], "--detectors 3"),
     (["mission", "--uavs", "4", "--detectors", "2", "--fault", "3s kill detector"], "detector-0"),
+    (["up", "--uavs", "6", "--sites", "3"], "--sites 3"),
+    (["mission", "--uavs", "6", "--sites", "2", "--rcu-site", "planner=5"], "planner=5"),
 ])
 def test_bad_links_and_faults_are_one_line_errors(argv, needle):
     proc = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
@@ -214,9 +216,20 @@ def test_up_restarts_a_service_that_dies_instead_of_stopping_the_network():
 def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
     """Issue 18, in one mission: six UAVs fly as two formations (1-3, 4-6), each edge hears only its formation;
     ``--detectors 2`` (detector-0 and detector-1 sharing the six cameras, secure by default): every capture is
-    reported once, and the ledger's analysed counts sum both instances."""
-    run = fly_mission(tmp_path / "report", "--uavs", "6", "--detectors", "2", "--speed", "4")
+    reported once, and the ledger's analysed counts sum both instances. ``--sites 2``: formation 1 and
+    detector-0 on site 0's gateway (with the ground station and the planner), formation 2 and detector-1 on
+    site 1's, the two gateways linked by mutual TLS: everything of formation 2 reaches the ground station, and
+    each detector the other site's cameras, across the router link."""
+    run = fly_mission(tmp_path / "report", "--uavs", "6", "--detectors", "2", "--speed", "4",
+                      "--sites", "2", "--rcu-site", "detector-1=1")
     assert run.proc.returncode == 0, run.failure()
+    # the launcher's topology: each formation's edges on its site's gateway, gateway-1 dialling gateway
+    assert "site 0: gateway at tls/" in run.proc.stderr and "attached: uav1 uav2 uav3 gcs detector-0 planner" \
+        in run.proc.stderr, run.failure()
+    assert "site 1: gateway-1 at tls/" in run.proc.stderr and "dialling gateway; attached: uav4 uav5 uav6 " \
+        "detector-1" in run.proc.stderr, run.failure()
+    services = (run.out / "services.log").read_text()
+    assert services.count("ACL by certificate common name") == 2, services[-3000:]  # both gateways, secure
     report = run.report()
     assert report["success"] and not report["failures"]
     assert set(report["uavs"]) == {str(u) for u in range(1, 7)}
@@ -233,6 +246,14 @@ def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
         assert row["analysed"] == row["reported"] == row["sent"] > 0, (uav, row)
     reported = [(d["msg"]["uav"], d["msg"]["capture_id"]) for d in record["defects"] if d["msg"]["ok"]]
     assert len(reported) == len(set(reported))  # no capture analysed twice
+    # the mesh as the gateways saw it (their last statistics): two gateways, one router link between them,
+    # three edges (peers) on each, the ground station, the planner and detector-0 (clients) on gw0, detector-1 on gw1
+    last = {}
+    for st in record["gateway_stats"]:
+        last[st["msg"]["source"]] = st["msg"]["sessions"]
+    assert set(last) == {"gateway/gw0", "gateway/gw1"}, last
+    assert last["gateway/gw0"] == {"peer": 3, "router": 1, "client": 3}, last
+    assert last["gateway/gw1"] == {"peer": 3, "router": 1, "client": 1}, last
 
 
 def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
@@ -279,3 +300,50 @@ def test_detectors_option_starts_partitioned_instances():
         assert net.check_alive() == []
     finally:
         net.stop()
+
+
+def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_its_own():
+    """Issue 18, ``--sites``: each edge's uplink goes to its formation's site, the ground station and the default
+    RCUs to site 0, ``--rcu-site`` elsewhere; a bad count or RCU site is refused before anything starts."""
+    from services.orchestration.launcher import Network, build_parser, make_plan
+
+    def parse(*argv, prog="mission"):
+        return build_parser(prog).parse_args(["--fleet", "layout", *argv])
+
+    net = Network(parse("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1"), echo=None,
+                  ground_station=True)
+    try:
+        gw0, gw1 = net.site_endpoints
+        assert len(set(gw0) | set(gw1)) == 4 and all(e.startswith("tls/127.0.0.1:") for e in gw0 + gw1)
+        for i in range(1, 7):
+            args = net.bus_args(f"uav{i}", "peer")
+            connect = [args[k + 1] for k, a in enumerate(args) if a == "--connect"]
+            assert connect == (gw0 if i <= 3 else gw1), (i, connect)
+        assert net.gcs_config().connect == gw0
+        assert [net.site_of(n) for n in ("planner", "detector-0", "detector-1", "gcs")] == [0, 0, 1, 0]
+        lines = net.topology()
+        assert lines[0].startswith("site 0: gateway at ") and lines[0].endswith("uav1 uav2 uav3 gcs detector-0 planner")
+        assert "site 1: gateway-1" in lines[1] and "dialling gateway" in lines[1]
+        assert lines[1].endswith("uav4 uav5 uav6 detector-1")
+    finally:
+        net.stop()
+    # an impaired uplink: its proxies stand in front of its own site's gateway (plaintext links when proxied)
+    net = Network(parse("--uavs", "6", "--sites", "2", "--impair", "uav4=delay 5ms"), echo=None, ground_station=True)
+    try:
+        from protocol.bus import endpoint_address
+
+        net.endpoints_for("uav4")  # its proxies are made on first use
+        proxies = net.link_proxies("uav4")
+        targets = [f"{p.target[0]}:{p.target[1]}" for p in proxies]
+        assert targets == [endpoint_address(e) for e in net.site_endpoints[1]], (targets, net.site_endpoints)
+        assert net.endpoints_for("uav1") == net.site_endpoints[0]
+    finally:
+        net.stop()
+    for argv, why in ((("--uavs", "6", "--sites", "3"), "at most one site per formation"),
+                      (("--uavs", "6", "--sites", "0"), "at least one site"),
+                      (("--uavs", "6", "--sites", "2", "--rcu-site", "planner=2"), "not one of 0..1"),
+                      (("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1",
+                        "--impair", "detector=delay 5ms"), "different sites"),
+                      (("--uavs", "6", "--sites", "2", "--secure"), "use the default mutual TLS")):
+        with pytest.raises(ValueError, match=why):
+            make_plan(parse(*argv), ground_station=True)
