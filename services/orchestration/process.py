@@ -14,6 +14,7 @@ fault never leaves a process behind.
 from __future__ import annotations
 
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -22,10 +23,52 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import IO
 
 
+#: the lowest port :func:`free_port` hands out (above the registered ports services commonly use on a
+#: development machine: Zenoh's 7447/7448, MAVLink's 14550, video's 5600)
+LOWEST_LISTEN_PORT = 20000
+_random = random.SystemRandom()  # not the test's seeded ``random``: two parallel runs must not draw alike
+
+
+def ephemeral_range(path: str = "/proc/sys/net/ipv4/ip_local_port_range") -> tuple[int, int]:
+    """The kernel's ephemeral port range (where outgoing connections take their local ports)."""
+    try:
+        lo, hi = (int(w) for w in Path(path).read_text().split())
+        return lo, hi
+    except (OSError, ValueError):
+        return 32768, 60999  # Linux's default
+
+
+def listen_ports(ephemeral: tuple[int, int]) -> list[range]:
+    """The ranges :func:`free_port` draws from: from :data:`LOWEST_LISTEN_PORT` up, outside ``ephemeral``."""
+    lo, hi = ephemeral
+    return [r for r in (range(LOWEST_LISTEN_PORT, min(lo, 65536)), range(max(hi + 1, LOWEST_LISTEN_PORT), 65536))
+            if len(r) > 0]
+
+
 def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
+    """A port for a service to listen on, free now, drawn at random outside the kernel's ephemeral range.
+
+    Binding port 0 gives an ephemeral port, which any outgoing connection (a Zenoh client's, a
+    browser's) may take between this call and the service's own bind: then the service fails with
+    "Address already in use" and, restarted on the same port, never comes up (seen with 15 processes
+    on a loaded machine). A random draw outside that range keeps two launchers (two test workers)
+    apart as well. Falls back to port 0 when no drawn port is free.
+    """
+    ranges = listen_ports(ephemeral_range())
+    sizes = [len(r) for r in ranges]
+    for _ in range(64 if ranges else 0):
+        r = _random.choices(ranges, weights=sizes)[0]
+        port = r[_random.randrange(len(r))]
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind((host, port))
+            except OSError:
+                continue
+            return port
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind((host, 0))
         return s.getsockname()[1]

@@ -21,12 +21,11 @@ from edge.vehicle.apm.modes import CopterMode  # noqa: E402
 from edge.vehicle.mavlink import MavlinkDriver, open_connection  # noqa: E402
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
 from protocol.messages import Mode  # noqa: E402
+from services.orchestration.process import free_port  # noqa: E402
 
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)
 
 
 def wait_for(gcs, type, cond, limit_s=30.0, beat=True):

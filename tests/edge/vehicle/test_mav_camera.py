@@ -20,12 +20,11 @@ from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 from edge.vehicle.mav_camera import CAMERA_COMPONENT, MavCamera, VideoStreamSpec, stream_port  # noqa: E402
 from edge.vehicle.mavlink import MavlinkDriver, open_connection  # noqa: E402
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
+from services.orchestration.process import free_port  # noqa: E402
 
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)
 
 
 def test_stream_port_follows_skynet_video_and_the_spec_checks_its_fields():

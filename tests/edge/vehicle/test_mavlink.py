@@ -30,15 +30,14 @@ from edge.vehicle.mavlink import (  # noqa: E402
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 from protocol.messages import Mode, Trajectory, Waypoint  # noqa: E402
+from services.orchestration.process import free_port  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[3]
 HOME = (10.0, -5.0, 2.0)  # the launch point is not the ENU origin: the offset must be applied
 
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)
 
 
 @pytest.fixture

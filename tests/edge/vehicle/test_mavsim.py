@@ -30,14 +30,13 @@ from edge.vehicle.apm import items as I  # noqa: E402
 from edge.vehicle.apm.modes import CopterMode  # noqa: E402
 from edge.vehicle.mavsim import DEFAULT_ORIGIN, MavlinkSimVehicle  # noqa: E402
 from protocol.messages import Mode  # noqa: E402
+from services.orchestration.process import free_port  # noqa: E402
 
 O = DEFAULT_ORIGIN
 
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)
 
 
 def latlon(e: float, n: float) -> tuple[int, int]:

@@ -1,8 +1,11 @@
-"""services.orchestration.process (issue 12): the log pumps never die, whatever the echo file does."""
+"""services.orchestration.process: the log pumps never die, whatever the echo file does (issue 12); listening
+ports are drawn where no outgoing connection takes them."""
 
 import contextlib
+import socket
 
-from services.orchestration.process import ProcessGroup
+from services.orchestration.process import (LOWEST_LISTEN_PORT, ProcessGroup, ephemeral_range, free_port,
+                                            listen_ports)
 
 
 def test_log_pump_survives_a_full_disk_and_keeps_reading(capfd):
@@ -36,3 +39,23 @@ def test_pump_reads_undecodable_output():
         group.stop()
     assert svc.lines and not svc._reader.is_alive()
     assert any("\ufffd" in line for line in svc.lines), svc.lines
+
+
+def test_free_ports_are_outside_the_kernels_ephemeral_range_and_bindable():
+    """A listening port is never one an outgoing connection may take meanwhile (the kernel's ephemeral range)."""
+    lo, hi = ephemeral_range()
+    for kind in (socket.SOCK_STREAM, socket.SOCK_DGRAM):
+        ports = {free_port(kind) for _ in range(50)}
+        assert all(LOWEST_LISTEN_PORT <= p and not lo <= p <= hi for p in ports), sorted(ports)
+        assert len(ports) > 40  # drawn at random: two launchers side by side do not pick alike
+        with socket.socket(socket.AF_INET, kind) as s:
+            s.bind(("127.0.0.1", ports.pop()))
+
+
+def test_listen_ranges_around_the_ephemeral_one(tmp_path):
+    assert listen_ports((32768, 60999)) == [range(20000, 32768), range(61000, 65536)]
+    assert listen_ports((15000, 65535)) == []  # nothing outside it: free_port falls back to port 0
+    assert listen_ports((1024, 25000)) == [range(25001, 65536)]
+    bad = tmp_path / "range"
+    bad.write_text("not numbers\n")
+    assert ephemeral_range(str(bad)) == (32768, 60999) == ephemeral_range(str(tmp_path / "missing"))
