@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import signal
 import subprocess
@@ -54,9 +55,9 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
-def services_rss(root: int) -> dict[str, float | None]:
-    """RSS of the mission process (the ground station) and of each child service, by name."""
-    out = {"gcs (mission process)": rss_mb(root)}
+def service_pids(root: int) -> dict[str, int]:
+    """The mission process (the ground station) and each child service, by name."""
+    out = {"gcs (mission process)": root}
     kids = subprocess.run(["pgrep", "-P", str(root)], capture_output=True, text=True).stdout.split()
     for pid in kids:
         try:
@@ -68,8 +69,47 @@ def services_rss(root: int) -> dict[str, float | None]:
             name = words[words.index("services.cli") + 1]
             if name == "edge" and "--uav" in words:
                 name = f"uav{words[words.index('--uav') + 1]}"
-            out[name] = rss_mb(int(pid))
+            out[name] = int(pid)
     return out
+
+
+def services_rss(root: int) -> dict[str, float | None]:
+    """RSS of the mission process (the ground station) and of each child service, by name."""
+    return {name: rss_mb(pid) for name, pid in service_pids(root).items()}
+
+
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_s(pid: int) -> float | None:
+    """User + system CPU time of a process so far, s (/proc/PID/stat fields 14 and 15)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / TICK
+
+
+def machine_busy_s() -> tuple[float, float]:
+    """(busy, total) CPU seconds of the whole machine so far, all cores (/proc/stat)."""
+    vals = [int(v) for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
+    idle = vals[3] + vals[4]  # idle + iowait
+    return (sum(vals) - idle) / TICK, sum(vals) / TICK
+
+
+def cpu_usage(before: dict[str, float | None], after: dict[str, float | None], seconds: float) -> dict[str, float]:
+    """Share of one core each process used between two :func:`cpu_s` snapshots, %."""
+    return {n: round(100 * (after[n] - b) / seconds, 1) for n, b in before.items()
+            if b is not None and after.get(n) is not None}
+
+
+def seq_losses(states: list[dict], window: tuple[float, float] | None = None) -> dict[int, int]:
+    """Per UAV, states missing from its received sequence numbers (between its first and last received)."""
+    seqs: dict[int, set[int]] = {}
+    for s in states:
+        if window is None or window[0] <= s["rx"] <= window[1]:
+            seqs.setdefault(s["msg"]["uav"], set()).add(s["msg"]["seq"])
+    return {u: max(v) - min(v) + 1 - len(v) for u, v in sorted(seqs.items())}
 
 
 #: who floods each case: a node that may write the key (the gateway's ACL by certificate: a compromised
@@ -137,12 +177,20 @@ def run_case(case: str, seconds: float, speed: float, onset: float, extra: list[
         endpoints = [m.group(1), m.group(2)]
         time.sleep(onset)
         res["rss_before_mb"] = services_rss(proc.pid)
+        pids = {**service_pids(proc.pid), "flooder (bench process)": os.getpid()}
+        cpu0, busy0 = {n: cpu_s(p) for n, p in pids.items()}, machine_busy_s()
         t0 = time.time()
         res["sent"] = 0 if case == "none" else flood(case, endpoints, seconds, threading.Event())
         if case == "none":
             time.sleep(seconds)
         t1 = time.time()
+        cpu1, busy1 = {n: cpu_s(p) for n, p in pids.items()}, machine_busy_s()
         res["window"] = (t0, t1)
+        # share of one core per process during the flood window, and the machine's (2 cores = 200 %), the rest
+        # being other work on the machine
+        res["cpu_pct"] = cpu_usage(cpu0, cpu1, t1 - t0)
+        res["machine_busy_pct"] = round(100 * (busy1[0] - busy0[0]) / (t1 - t0), 1)
+        res["loadavg"] = os.getloadavg()[0]
         res["rss_after_mb"] = services_rss(proc.pid)
         proc.wait(600)
     finally:
@@ -158,6 +206,7 @@ def run_case(case: str, seconds: float, speed: float, onset: float, extra: list[
     rec = json.loads(rec_path.read_text())
     ages = [1000 * (s["rx"] - s["msg"]["stamp"]) for s in rec["states"] if t0 <= s["rx"] <= t1]
     res.update(success=rep["success"], failures=rep["failures"][:3], states_in_window=len(ages),
+               states_lost=seq_losses(rec["states"]), states_lost_in_window=seq_losses(rec["states"], (t0, t1)),
                age_ms={"p50": float(np.percentile(ages, 50)) if ages else None,
                        "p95": float(np.percentile(ages, 95)) if ages else None,
                        "max": float(max(ages)) if ages else None},
@@ -191,6 +240,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{'pass' if r['within_bound'] else 'FAIL'}) / max {a['max']:.1f} ms over {r['states_in_window']} states, "
               f"record.json {r['record_mb']:.2f} MB, journal {r['journal_mb']:.2f} MB, report.md "
               f"{r['report_md_kb']:.0f} kB", flush=True)
+        print(f"{'':>10}states lost (seq gaps) whole mission {r['states_lost']}, in the window "
+              f"{r['states_lost_in_window']}; CPU in the window (% of a core): "
+              + ", ".join(f"{n} {v:.0f}" for n, v in r["cpu_pct"].items())
+              + f"; machine {r['machine_busy_pct']:.0f} of 200, load {r['loadavg']:.1f}")
         for name in r["rss_before_mb"]:
             b, e = r["rss_before_mb"][name], r["rss_after_mb"].get(name)
             print(f"{'':>10}{name:<24} RSS {b or 0:7.1f} -> {e or 0:7.1f} MB")

@@ -55,7 +55,10 @@ def gateway(group):
     """A running ``skynet gateway`` (router) with the multilink endpoints; yields the endpoints."""
     tcp, udp = free_port_pair()
     endpoints = multilink_endpoints("127.0.0.1", tcp, udp)
+    # no ingress limit on states (services/gateway/ingress.py, tested in tests/services/gateway/test_ingress.py):
+    # the bus tests send states back to back through this router
     svc = group.start("gateway", ["gateway", "--fleet", "test", "--multilink", "--period", "0.3",
+                                  "--state-ingress-hz", "0",
                                   *[a for e in endpoints for a in ("--listen", e)]])
     assert svc.wait_for("router up", 20), "\n".join(svc.lines)
     return endpoints

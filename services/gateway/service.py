@@ -33,15 +33,22 @@ from protocol.messages import ClassCounters, LinkStats
 
 from protocol import acl
 
+from . import ingress
+
 
 class GatewayConfig(BusConfig):
     """The router's session config: a :class:`BusConfig` plus the users dictionary and the ACL."""
 
     dictionary_file: str | None = None
     access_control: dict[str, Any] | None = None
+    #: downsampling items added to those of the config file and ``--cfg`` (:mod:`services.gateway.ingress`)
+    downsampling: list[dict[str, Any]] = []
 
     def to_zenoh(self) -> zenoh.Config:
         conf = super().to_zenoh()
+        if self.downsampling:
+            current = json.loads(conf.get_json("downsampling") or "[]")
+            conf.insert_json5("downsampling", json.dumps(current + self.downsampling))
         if self.dictionary_file:
             conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(self.dictionary_file))
         if self.access_control is not None:
@@ -85,6 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--host", default="127.0.0.1", help="listen host when --port is used")
     parser.add_argument("--port", type=int, default=None, help="TCP port; UDP uses port+1 (multilink)")
     parser.add_argument("--period", type=float, default=1.0, help="statistics period, s")
+    parser.add_argument("--state-ingress-hz", type=ingress.rate_arg, default=ingress.STATE_INGRESS_HZ, metavar="HZ",
+                        help="states a connected session may send per UAV key through the gateway, at most one "
+                             "per 1/HZ (Zenoh ingress downsampling per face; services/gateway/ingress.py); 0: off")
     sec = parser.add_argument_group("authentication and access control")
     sec.add_argument("--users", default=None, metavar="FILE",
                      help="user/password authentication: every node must present a user of FILE (lines user:password)")
@@ -137,7 +147,8 @@ def main(argv: list[str] | None = None) -> int:
         listen = multilink_endpoints(args.host, 7447, 7448)
         multilink = True
     base = config_from_args(args, role="gateway", listen=listen, multilink=multilink)
-    config = GatewayConfig(**{**dict(base), **security_options(args, log)})
+    thin = ingress.state_ingress(args.fleet, args.state_ingress_hz) if args.state_ingress_hz else []
+    config = GatewayConfig(**{**dict(base), **security_options(args, log)}, downsampling=thin)
     if args.keys and config.access_control is None and listen and all(e.startswith("tls/") for e in listen):  # mutual TLS: ACL by certificate common name (issue 11)
         from protocol.keyset import KeySet
         names = ["gcs", "planner", "detector", "gateway", *(f"uav{i}" for i in KeySet(args.keys, "gateway").uavs())]

@@ -98,6 +98,7 @@ from .topology import (
 
 from edge.neighbourhood import FORMATION_SIZE
 from edge.runtime import CAPTURE_LINKS, frame_size, preview_rate
+from ..gateway.ingress import STATE_INGRESS_HZ, rate_arg as ingress_rate
 
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
@@ -373,13 +374,15 @@ class Network:
     def gateway_config(self) -> list[str]:
         """``--cfg downsampling:[...]`` of the gateway with ``--gcs-state-hz``: the clients' view of the
         states downsampled (:mod:`services.gateway.downsample`), else nothing."""
+        ingress = getattr(self.args, "state_ingress_hz", None)  # None: the gateway's default limit
+        out = [] if ingress is None else ["--state-ingress-hz", str(ingress)]
         hz = getattr(self.args, "gcs_state_hz", 0.0) or 0.0
         if hz <= 0:
-            return []
+            return out
         from ..gateway.downsample import state_downsampling
 
         rules = state_downsampling(self.args.fleet, hz, self.args.uavs)
-        return [a for k, v in rules.items() for a in ("--cfg", f"{k}:{json.dumps(v)}")]
+        return out + [a for k, v in rules.items() for a in ("--cfg", f"{k}:{json.dumps(v)}")]
 
     def start(self) -> None:
         a = self.args
@@ -550,6 +553,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="live preview frames per UAV per second (default: the edge's, 2; 0 = off)")
     p.add_argument("--gcs-state-hz", type=preview_rate, default=0.0, metavar="HZ",
                    help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
+    p.add_argument("--state-ingress-hz", type=ingress_rate, default=None, metavar="HZ",
+                   help=f"states per UAV key the gateway lets in from one session per second (default "
+                        f"{STATE_INGRESS_HZ:g}; 0: no limit; services/gateway/ingress.py)")
     p.add_argument("--detect-max-mp", type=float, default=None, metavar="MP",
                    help="the detector detects frames above MP megapixels on a reduced decode (its default 3; 0: never)")
     p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",

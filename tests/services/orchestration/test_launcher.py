@@ -257,12 +257,14 @@ def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
 
 
 def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
-    """Issue 18: --frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config."""
+    """Issue 18: --frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config
+    (and issue 12's --state-ingress-hz its option)."""
     from services.orchestration.launcher import Network, build_parser
 
     net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
                                                  "1280x960", "--capture-link", "reliable", "--preview-hz", "0",
-                                                 "--gcs-state-hz", "5", "--detect-max-mp", "1.5"]), echo=None)
+                                                 "--gcs-state-hz", "5", "--detect-max-mp", "1.5",
+                                                 "--state-ingress-hz", "150"]), echo=None)
     try:
         net.start()
         for i in range(1, 5):
@@ -275,6 +277,7 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
         cfg = [gw[k + 1] for k, a in enumerate(gw) if a == "--cfg" and gw[k + 1].startswith("downsampling:")]
         conf = {"downsampling": json.loads(cfg[0].split(":", 1)[1])}
         assert [r["key_expr"] for r in conf["downsampling"][0]["rules"]] == [f"skynet/opts/uav/{u}/state" for u in range(1, 5)]
+        assert float(gw[gw.index("--state-ingress-hz") + 1]) == 150.0  # issue 12: the gateway's ingress limit
         det = net.group.get("detector").args
         assert float(det[det.index("--detect-max-mp") + 1]) == 1.5
         assert net.check_alive() == []
