@@ -372,8 +372,9 @@ class Network:
         return out
 
     def gateway_config(self) -> list[str]:
-        """``--cfg downsampling:[...]`` of the gateway with ``--gcs-state-hz``: the clients' view of the
-        states downsampled (:mod:`services.gateway.downsample`), else nothing."""
+        """The gateways' traffic options: ``--state-ingress-hz`` when given (else the gateway's default per-face
+        limit, :mod:`services.gateway.ingress`), and with ``--gcs-state-hz`` a ``--cfg downsampling:[...]`` that
+        thins the clients' view of the states (:mod:`services.gateway.downsample`)."""
         ingress = getattr(self.args, "state_ingress_hz", None)  # None: the gateway's default limit
         out = [] if ingress is None else ["--state-ingress-hz", str(ingress)]
         hz = getattr(self.args, "gcs_state_hz", 0.0) or 0.0
