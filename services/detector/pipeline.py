@@ -28,6 +28,12 @@ from .detect import Defect as PixelDefect, Detection, detect
 #: components smaller than this are not reported (the mask is unchanged)
 MIN_REPORT_AREA_PX = 12
 MAX_REPORTED_DEFECTS = 500
+#: the real-time report's pixel budget, megapixels (``skynet detector --detect-max-mp``): a 12 MP capture is
+#: detected on its 1/4 decode, 1000 x 750 (issue 18). That samples the wall at 4 x its ground sampling distance
+#: (5.0 mm at the paper's 4.78 m), finer than the 640 x 480 frames (7.8 mm) every inspection test passes on; the
+#: 1/2 decode (3 MP) is above the defect list's pixel budget (detect.defects_of), whose lengths fall back to the
+#: bounding-box diagonal, and takes 4-5 times as long. The kept frame (the deliverable's input) stays full size.
+DETECT_MAX_MP = 1.0
 
 
 def pixels_to_world(meta: ImageMeta, px: np.ndarray) -> np.ndarray | None:
