@@ -341,7 +341,7 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     model = camera_model(scenario, (w, h))
     surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
     # the synthetic capture: no ground-truth mask (never sent) and a magnified view warped at the size the
-    # texture fills, then resized (edge.camera.SyntheticSource, upsample: a 12 MP frame in ~6 ms, not ~47)
+    # texture fills, then resized (edge.camera.SyntheticSource, upsample: a 12 MP frame in ~8 ms, not 22-60)
     source = (SyntheticSource(surface, model, mask=False, upsample=True) if args.camera == "synthetic"
               else make_source(args.camera, surface=surface, camera=model))
     cache = getattr(args, "imagery_cache", IMAGERY_CACHE_FRAMES)
@@ -349,7 +349,8 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     preview = None
     if preview_hz > 0 and surface is not None:
         small = camera_model(scenario, PREVIEW_SIZE)
-        preview = PreviewStream(bus, args.uav, SyntheticSource(surface, small, mask=False), small, rate_hz=preview_hz, log=log)
+        preview = PreviewStream(bus, args.uav, SyntheticSource(surface, small, mask=False), small, rate_hz=preview_hz,
+                                log=log)
     elif preview_hz > 0:
         log.info("live preview off: only the synthetic camera previews (%s is read by the captures alone)",
                  args.camera)
