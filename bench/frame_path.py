@@ -22,7 +22,7 @@ The capture stamp is the edge's wall clock when its control loop sees the captur
 includes the synthetic camera's render (a real camera's exposure and read-out) and its JPEG encode
 (a real camera also delivers JPEG; it encodes in hardware).
 
-    .venv/bin/python bench/frame_path.py [--speeds 4 1] [--baseline DIR] [--repeat 3]
+    .venv/bin/python bench/frame_path.py [--speeds 4 1] [--baseline DIR] [--extra='--detectors 3'] [--repeat 3]
                                          [--no-missions] [--out bench/results/frame_path.json]
 
 Heavy: each mission is ~1-2 minutes of the whole machine. Never run in tests.
@@ -35,6 +35,7 @@ import json
 import math
 import os
 import re
+import shlex
 import statistics
 import subprocess
 import sys
@@ -137,7 +138,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--speeds", type=float, nargs="*", default=[4.0, 1.0])
     parser.add_argument("--baseline", type=Path, default=None, help="checkout of the tree before (its modules)")
-    parser.add_argument("--extra", nargs="*", default=[], help="more mission options for this tree's runs")
+    parser.add_argument("--extra", type=shlex.split, default=[],
+                        help="more mission options for this tree's runs, one string; without --baseline, this tree "
+                             "also runs without them, side by side (e.g. --extra='--detectors 3')")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--no-missions", action="store_true")
     parser.add_argument("--out", default=str(ROOT / "bench" / "results" / "frame_path.json"))
@@ -150,9 +153,10 @@ def main() -> None:
     if not args.no_missions:
         with tempfile.TemporaryDirectory() as tmp:
             for i, speed in enumerate(args.speeds):
-                for checkout in ([args.baseline, None] if args.baseline else [None]):
-                    row = mission(speed, Path(tmp) / f"run-{i}-{'base' if checkout else 'this'}", checkout,
-                                  [] if checkout else args.extra)
+                # the baseline tree, or (without one) this tree without --extra, then this tree with --extra
+                pairs = [(args.baseline, [])] if args.baseline else ([(None, [])] if args.extra else [])
+                for j, (checkout, extra) in enumerate([*pairs, (None, args.extra)]):
+                    row = mission(speed, Path(tmp) / f"run-{i}-{j}", checkout, extra)
                     runs.append(row)
                     print(json.dumps(row), flush=True)
         print("\n| tree | speed | success | reports | capture->report p50 / p95 ms | lost / recovered "
