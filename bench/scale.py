@@ -217,7 +217,7 @@ def main() -> None:
             if s <= -(-n // 3)]  # at most one site per formation of 3
     if args.frames:
         runs += [(3, ["--frame-size", "4000x3000", "--capture-link", link]) for link in ("reliable", "best-effort")]
-        # the detector's reduced decode (default: a 12 MP frame detected at 3 MP) against full-size detection
+        # the detector's reduced decode (default 1 MP: a 12 MP frame detected on its 1/4 decode) against full size
         runs += [(3, ["--frame-size", "4000x3000", "--capture-link", "reliable", "--detect-max-mp", "0"])]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -44,6 +44,7 @@ __all__ = [
     "decode_jpeg",
     "encode_jpeg",
     "make_source",
+    "upsample_factor",
 ]
 
 log = logging.getLogger(__name__)
@@ -93,6 +94,27 @@ class FrameSource(Protocol):
         ...
 
 
+def upsample_factor(texels_per_px: float, frame_size: tuple[int, int], limit: float = 0.5) -> int:
+    """The reduction 2^k at which :class:`SyntheticSource` warps a magnified view before resizing it
+    to the frame: the largest with at most ``limit`` texture pixels per reduced pixel (``k = 0``
+    when the frame does not magnify that much), and with a reduced frame of at least 16 pixels a
+    side. ``texels_per_px`` is the texture pixels per frame pixel (the homography's Jacobian).
+
+    Raises
+    ------
+    ValueError
+        On a non-finite or non-positive scale or limit.
+    """
+    if not (math.isfinite(texels_per_px) and texels_per_px > 0):
+        raise ValueError(f"texture pixels per frame pixel must be finite and > 0, got {texels_per_px!r}")
+    if not (math.isfinite(limit) and limit > 0):
+        raise ValueError(f"limit must be finite and > 0, got {limit!r}")
+    f = 1
+    while texels_per_px * f * 2 <= limit and min(frame_size) // (f * 2) >= 16:
+        f *= 2
+    return f
+
+
 class SyntheticSource:
     """The view of a :class:`~edge.surface.SyntheticSurface` from the camera pose.
 
@@ -122,13 +144,26 @@ class SyntheticSource:
         (the texture already has grain).
     seed : int or None
         Seed of the sensor noise.
+    mask : bool
+        Render the ground-truth mask with each frame (default). False: :meth:`grab` gives
+        ``mask=None`` and saves the mask's warp (the edge's captures never send it).
+    upsample : bool
+        Where the frame magnifies the texture (fewer than :data:`MAGNIFY_LIMIT` texture pixels per
+        frame pixel, e.g. 0.125 for a 12 MP frame of the default 100 px/m wall at 4.8 m), warp at
+        1/2^k of the frame size, the smallest that keeps ``1 / MAGNIFY_LIMIT`` reduced pixels per
+        texture pixel, and resize that (bilinear) to the frame: the frame holds no detail the texture
+        has not, and the warp's cost is that of the reduced frame (issue 18: 12 MP captures).
+        Default False (one warp at the frame size). The mask is always warped at full size.
     """
 
     #: frame pixels of texture, at most, before a coarser texture level is used
     MINIFY_LIMIT = 2.0
+    #: with ``upsample``: texture pixels per reduced frame pixel, at most (0.5: two pixels per texel)
+    MAGNIFY_LIMIT = 0.5
 
     def __init__(self, surface: SyntheticSurface, camera: CameraModel, sky: int = 200,
-                 noise_sigma: float = 0.0, seed: int | None = None) -> None:
+                 noise_sigma: float = 0.0, seed: int | None = None, *, mask: bool = True,
+                 upsample: bool = False) -> None:
         if not isinstance(surface, SyntheticSurface):
             raise ValueError(f"surface must be a SyntheticSurface, got {type(surface).__name__}")
         if not isinstance(camera, CameraModel):
@@ -139,6 +174,7 @@ class SyntheticSource:
             raise ValueError(f"noise_sigma must be finite and >= 0, got {noise_sigma!r}")
         self.surface, self.camera, self.sky = surface, camera, int(sky)
         self.noise_sigma = float(noise_sigma)
+        self.with_mask, self.upsample = bool(mask), bool(upsample)
         self._rng = np.random.default_rng(seed)
         self._A = surface.pixel_to_world_matrix()
         self._levels: dict[int, tuple[NDArray[np.uint8], NDArray[np.uint8]]] = {0: (surface.texture, surface.mask)}
@@ -191,10 +227,11 @@ class SyntheticSource:
         return self._levels[level]
 
     # ------------------------------------------------------------------ rendering
-    def render(self, pose: CameraPose) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
-        """The grey frame and its ground-truth mask seen from ``pose`` (see the class docstring)."""
+    def render(self, pose: CameraPose) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None]:
+        """The grey frame and its ground-truth mask seen from ``pose`` (see the class docstring);
+        the mask is None when the source was made with ``mask=False``."""
         w, h = self.camera.resolution
-        sky = np.full((h, w), self.sky, np.uint8), np.zeros((h, w), np.uint8)
+        sky = np.full((h, w), self.sky, np.uint8), (np.zeros((h, w), np.uint8) if self.with_mask else None)
         H = self.homography(pose)
         if H is None:
             return sky
@@ -227,15 +264,30 @@ class SyntheticSource:
         S = np.array([[f, 0.0, f * lx0 + (f - 1) / 2.0], [0.0, f, f * ly0 + (f - 1) / 2.0], [0.0, 0.0, 1.0]])
         Hl = H @ S
         tex_roi, mask_roi = tex[ly0:ly1, lx0:lx1], mask[ly0:ly1, lx0:lx1]
-        img = cv2.warpPerspective(tex_roi, Hl, (w, h), flags=cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_CONSTANT, borderValue=self.sky)
-        gt = cv2.warpPerspective(mask_roi, Hl, (w, h), flags=cv2.INTER_NEAREST,
-                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        up = upsample_factor(minify, (w, h), self.MAGNIFY_LIMIT) if self.upsample else 1
+        if up > 1:
+            # reduced pixel x' is frame pixel up x' + (up - 1) / 2: the centres cv2.resize assumes
+            sw, sh = -(-w // up), -(-h // up)
+            D = np.array([[1.0 / up, 0.0, -(up - 1) / (2.0 * up)], [0.0, 1.0 / up, -(up - 1) / (2.0 * up)],
+                          [0.0, 0.0, 1.0]])
+            small = cv2.warpPerspective(tex_roi, D @ Hl, (sw, sh), flags=cv2.INTER_LINEAR,
+                                        borderMode=cv2.BORDER_CONSTANT, borderValue=self.sky)
+            img = cv2.resize(small, (sw * up, sh * up), interpolation=cv2.INTER_LINEAR)
+            if img.shape != (h, w):
+                img = np.ascontiguousarray(img[:h, :w])
+        else:
+            img = cv2.warpPerspective(tex_roi, Hl, (w, h), flags=cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=self.sky)
+        gt = None
+        if self.with_mask:
+            gt = cv2.warpPerspective(mask_roi, Hl, (w, h), flags=cv2.INTER_NEAREST,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         if len(poly) != 4 or not np.allclose(poly, [[-0.5, -0.5], [w - 0.5, -0.5], [w - 0.5, h - 0.5], [-0.5, h - 0.5]]):
             seen = np.zeros((h, w), np.uint8)
             cv2.fillConvexPoly(seen, np.round(poly * 16).astype(np.int32), 1, cv2.LINE_8, 4)
             img[seen == 0] = self.sky
-            gt[seen == 0] = 0
+            if gt is not None:
+                gt[seen == 0] = 0
         return img, gt
 
     @staticmethod
@@ -245,10 +297,12 @@ class SyntheticSource:
         return (Hinv[:2, :2] * x[2] - np.outer(x[:2], Hinv[2, :2])) / x[2] ** 2
 
     def grab(self, pose: CameraPose | None, t: float) -> Frame:
-        """Render the frame at ``pose`` (all sky without a pose), with its ground-truth mask."""
+        """Render the frame at ``pose`` (all sky without a pose), with its ground-truth mask (None
+        with ``mask=False``)."""
         if pose is None:
             w, h = self.camera.resolution
-            img, gt = np.full((h, w), self.sky, np.uint8), np.zeros((h, w), np.uint8)
+            img = np.full((h, w), self.sky, np.uint8)
+            gt = np.zeros((h, w), np.uint8) if self.with_mask else None
         else:
             img, gt = self.render(pose)
         if self.noise_sigma > 0:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import json
 import logging
 import math
 import threading
@@ -36,6 +37,7 @@ from protocol.links import IMAGERY, IMAGERY_RELIABLE, LinkClass
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import RtpSender, ssrc_for
 from protocol.scenario import Scenario, load_scenario
+from protocol.stages import LOG_PREFIX, StageTimes
 
 from .camera import CameraModel, CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
 from .surface import DEFAULT_PX_PER_M, SyntheticSurface
@@ -173,6 +175,8 @@ class CameraLink:
         self.encoder = FrameEncoder(self._publish, capacity=4, quality=quality)
         self.preview_stream = preview
         self.sent = 0
+        # where a capture's time goes on the edge (protocol.stages; logged at close, bench/frame_path.py)
+        self.times = StageTimes()
         self.announce()
 
     def announce(self) -> None:
@@ -204,6 +208,7 @@ class CameraLink:
         R = camera_rotation(ev.att[2])
         pose = CameraPose(position=np.asarray(ev.pos, dtype=float), rotation=R)
         frame = self.source.grab(pose, ev.t)
+        self.times.add("render", time.time() - stamp)
         if frame is None:
             if self.log:
                 self.log.warning("capture %d: the camera gave no frame", ev.capture_id)
@@ -213,10 +218,16 @@ class CameraLink:
         meta = ImageMeta(uav=self.uav, capture_id=ev.capture_id, t=max(0.0, ev.t), stamp=stamp,
                          cam_pos=tuple(map(float, ev.pos)), cam_rot=tuple(map(float, R.ravel())),
                          intrinsics=self.intrinsics(w, h), range_m=rng if rng and rng <= 1000 else None)
-        self.encoder.submit(frame.image, meta)
+        self.encoder.submit(frame.image, (meta, time.time()))
 
-    def _publish(self, meta: ImageMeta, jpeg: bytes) -> None:
+    def _publish(self, tag: tuple[ImageMeta, float], jpeg: bytes) -> None:
+        meta, submitted = tag
+        t0 = time.time()
+        self.times.add("encode", t0 - submitted)  # the encoder's queue and the encode
         self.pub.put_bytes(pack_image(self.sender, meta, jpeg, meta.stamp))
+        t1 = time.time()
+        self.times.add("publish", t1 - t0)
+        self.times.add("shutter-to-sent", t1 - meta.stamp)
         self.sent += 1
 
     def preview(self, pos, att, t: float, now_wall: float) -> bool:
@@ -233,6 +244,8 @@ class CameraLink:
             self.preview_stream.close()
         self.encoder.close()
         self.source.close()
+        if self.log and self.times.stages:
+            self.log.info("%s uav%d %s", LOG_PREFIX, self.uav, json.dumps(self.times.summary()))
 
 
 class PreviewStream:
@@ -327,13 +340,17 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     scenario = load_scenario(args.scenario)
     model = camera_model(scenario, (w, h))
     surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
-    source = make_source(args.camera, surface=surface, camera=model)
+    # the synthetic capture: no ground-truth mask (never sent) and a magnified view warped at the size the
+    # texture fills, then resized (edge.camera.SyntheticSource, upsample: a 12 MP frame in ~8 ms, not 22-60)
+    source = (SyntheticSource(surface, model, mask=False, upsample=True) if args.camera == "synthetic"
+              else make_source(args.camera, surface=surface, camera=model))
     cache = getattr(args, "imagery_cache", IMAGERY_CACHE_FRAMES)
     preview_hz = float(getattr(args, "preview_hz", PREVIEW_HZ) or 0.0)
     preview = None
     if preview_hz > 0 and surface is not None:
         small = camera_model(scenario, PREVIEW_SIZE)
-        preview = PreviewStream(bus, args.uav, SyntheticSource(surface, small), small, rate_hz=preview_hz, log=log)
+        preview = PreviewStream(bus, args.uav, SyntheticSource(surface, small, mask=False), small, rate_hz=preview_hz,
+                                log=log)
     elif preview_hz > 0:
         log.info("live preview off: only the synthetic camera previews (%s is read by the captures alone)",
                  args.camera)

@@ -66,9 +66,23 @@ def _init_worker() -> None:
 
 
 def _warm() -> int:
-    """Import the detection stack in a fresh worker (spawn imports lazily), so the first frame is not slow."""
-    from . import pipeline  # noqa: F401  (the import is the point: in the worker, not the parent)
+    """Import the detection stack in a fresh worker (spawn imports lazily) and analyse one small frame of a
+    crack, so the first capture is not slow: the crack's skeleton imports scikit-image's morphology on first
+    use (services.inspection.measure), 0.5-1 s that the first frame of each worker paid (issue 18: the p95 of
+    a 26-frame mission with two workers was those two frames)."""
+    import cv2
+    import numpy as np
 
+    from protocol.messages import ImageMeta, Intrinsics
+
+    from .pipeline import analyse
+
+    grey = np.full((96, 128), 160, np.uint8)
+    cv2.line(grey, (10, 20), (118, 76), 60, 3)
+    jpeg = cv2.imencode(".jpg", grey)[1].tobytes()
+    meta = ImageMeta(uav=1, capture_id=0, t=0.0, stamp=0.0, cam_pos=(0.0, 0.0, 0.0), cam_rot=(1, 0, 0, 0, 1, 0, 0, 0, 1),
+                     intrinsics=Intrinsics(width=128, height=96, fx=100.0, fy=100.0, cx=64.0, cy=48.0), range_m=1.0)
+    analyse(meta, jpeg, "it+r")
     time.sleep(0.2)  # best effort: hold this worker, so that each of the pool's warm calls lands on another one
     return os.getpid()
 

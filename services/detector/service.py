@@ -48,6 +48,7 @@ listener), queue drops and rejections, ``pool.workers`` and ``pool.crashes`` (wo
 from __future__ import annotations
 
 import argparse
+import json
 import threading
 import time
 from collections import Counter
@@ -60,9 +61,11 @@ from protocol.jitter import Frame, JitterBuffers
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, LinkStats
 from protocol.rtp import RtpError, parse_ssrc, unpack_frame
+from protocol.stages import LOG_PREFIX, StageTimes
 
 from .detect import METHODS
 from .partition import MAX_UAV, Partition
+from .pipeline import DETECT_MAX_MP
 from .pool import CONTEXTS, DetectorPool, WorkerCrashed
 from .recovery import RecoveryTracker
 
@@ -105,6 +108,7 @@ class DetectorService:
         self.counts: Counter[str] = Counter()
         self.latency_ms: list[float] = []
         self.analysed: Counter[int] = Counter()  # SSRC -> frames analysed (reports published)
+        self.times = StageTimes()  # shutter -> arrival -> queue -> worker -> published (protocol.stages)
         # late frames too: out of order, but captures all the same (coverage)
         self._jb = JitterBuffers(capacity=64, playout_delay_s=playout_delay_s, release_late=True)
         self._lock = threading.Lock()
@@ -190,6 +194,7 @@ class DetectorService:
             self.work.push(f)
 
     def _process(self, frame: Frame) -> None:
+        started = time.time()
         try:
             meta, image = split_payload(frame.payload)
         except codec.CodecError as exc:
@@ -204,6 +209,11 @@ class DetectorService:
             return
         try:  # in a worker process, with the evidence the ground station counts a capture on (pool.analyse_frame)
             report = self.pool.analyse(meta, image, self.method, frame.ssrc, frame.sequence)
+            done = time.time()
+            with self._lock:
+                self.times.add("shutter-to-arrival", frame.arrival_s - meta.stamp)
+                self.times.add("queue", started - frame.arrival_s)  # the playout hold and the queue
+                self.times.add("worker", done - started)  # to the worker process and back: decode, detect, map
         except WorkerCrashed as exc:
             self.counts["worker-crashed"] += 1
             report = DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
@@ -223,6 +233,9 @@ class DetectorService:
             self.latency_ms.append(1000 * (report.stamp_report - report.stamp_capture))
             del self.latency_ms[:-1000]
         self.pub.put(report)
+        if report.ok:
+            with self._lock:
+                self.times.add("published", time.time() - meta.stamp)
 
     def stats(self) -> LinkStats:
         metrics: dict[str, float] = {}
@@ -248,6 +261,8 @@ class DetectorService:
         metrics["queue.processed"] = self.work.processed
         metrics["pool.workers"] = self.pool.workers
         metrics["pool.crashes"] = self.pool.crashes
+        with self._lock:
+            metrics.update(self.times.metrics())
         counts = dict(self.counts)
         return LinkStats(source=self.name, stamp=time.time(), uptime_s=time.time() - self._t0,
                          rejected={**{k: v for k, v in counts.items() if k.startswith("bad")},
@@ -282,9 +297,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
     parser.add_argument("--no-recovery", action="store_true",
                         help="do not ask the cameras' caches for lost capture frames (plain best-effort)")
-    parser.add_argument("--detect-max-mp", type=float, default=3.0, metavar="MP",
+    parser.add_argument("--detect-max-mp", type=float, default=DETECT_MAX_MP, metavar="MP",
                         help="detect on a 1/2, 1/4 or 1/8 decode of frames above MP megapixels (a 12 MP capture "
-                             "at 3 MP; the kept frame stays full size); 0: always full size")
+                             "at 0.75 MP by default; the kept frame stays full size); 0: always full size")
     parser.add_argument("--save-frames", default=None, metavar="DIR",
                         help="keep every analysed capture with its pose in DIR (input of the inspection deliverable)")
     return parser
@@ -316,6 +331,7 @@ def main(argv: list[str] | None = None) -> int:
                     log.exception("detector main loop pass failed (further ones are only counted)")
         svc.close()
         svc.stats_pub.put(svc.stats())
+        log.info("%s %s %s", LOG_PREFIX, name, json.dumps(svc.times.summary()))
         log.info("shutting down: %s", dict(svc.counts))
     return 0
 

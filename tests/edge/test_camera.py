@@ -23,6 +23,7 @@ from edge.camera import (
     decode_jpeg,
     encode_jpeg,
     make_source,
+    upsample_factor,
 )
 from edge.runtime import camera_rotation
 from edge.surface import SyntheticSurface, crack_image
@@ -179,6 +180,43 @@ def test_view_straight_at_a_crack_agrees_with_the_surface_mask(wall: SyntheticSu
     assert (view & truth).sum() > 0.9 * truth.sum()
     # and the cracks are darker in the frame
     assert frame.image[view].mean() < frame.image[~view].mean() - 20
+
+
+def test_upsample_factor_keeps_two_frame_pixels_per_texel() -> None:
+    assert upsample_factor(0.125, (4000, 3000)) == 4  # the paper's 12 MP frame of a 100 px/m wall at 4.78 m
+    assert upsample_factor(0.24, (640, 480)) == 2
+    assert upsample_factor(0.3, (640, 480)) == 1 and upsample_factor(3.0, (640, 480)) == 1
+    assert upsample_factor(1e-6, (64, 48)) == 2  # the reduced frame keeps 16 pixels a side
+    assert upsample_factor(0.125, (4000, 3000), limit=0.25) == 2
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(ValueError):
+            upsample_factor(bad, (640, 480))
+    with pytest.raises(ValueError):
+        upsample_factor(0.1, (640, 480), limit=0.0)
+
+
+def test_upsampled_12_mp_view_matches_the_direct_warp(wall: SyntheticSurface) -> None:
+    stills = GOPRO.scaled(4000, 3000)
+    d = max(wall.defects(), key=lambda d: d.area_px)
+    cracked = 0
+    for pose in (CameraPose.facing(d.centroid_world, wall.normal, 4.778),
+                 CameraPose.looking([57.0, 60, 28], math.radians(20))):  # oblique: sky beside the wall
+        direct = SyntheticSource(wall, stills).grab(pose, 0.0)
+        fast = SyntheticSource(wall, stills, upsample=True).grab(pose, 0.0)
+        lean = SyntheticSource(wall, stills, mask=False, upsample=True).grab(pose, 0.0)
+        assert fast.image.shape == direct.image.shape == (3000, 4000) and fast.image.dtype == np.uint8
+        diff = np.abs(fast.image.astype(int) - direct.image)
+        assert diff.mean() < 1.0 and np.percentile(diff, 99) <= 4  # bilinear of bilinear: grey levels apart
+        assert np.array_equal(fast.mask, direct.mask)  # the mask is always warped at full size
+        assert lean.mask is None and np.array_equal(lean.image, fast.image)
+        view = direct.mask > 0
+        if view.any():  # the cracks are there (the view straight at the largest one)
+            cracked += 1
+            assert fast.image[view].mean() < fast.image[~view].mean() - 20
+        assert np.array_equal(fast.image == 200, direct.image == 200) or (
+            (fast.image == 200) != (direct.image == 200)).mean() < 0.01  # the same sky
+    assert cracked == 1
+    assert SyntheticSource(wall, stills, mask=False).grab(None, 0.0).mask is None
 
 
 def test_oblique_view_shows_sky_above_the_horizon(wall: SyntheticSurface) -> None:

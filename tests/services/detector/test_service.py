@@ -56,7 +56,8 @@ def test_detector_service_frames_in_reports_out(group, gateway):
         # statistics are periodic, and a frame that does not decode is counted by its worker after the
         # report: wait for a period that counts all three rejections
         while time.monotonic() < deadline and not (len(reports) >= 6 and stats and all(
-                stats[-1].rejected.get(k, 0) >= 1 for k in ("bad-rtp", "bad-image", "bad-meta"))):
+                stats[-1].rejected.get(k, 0) >= 1 for k in ("bad-rtp", "bad-image", "bad-meta"))
+                and stats[-1].metrics.get("path.published.n", 0) >= 4):
             time.sleep(0.1)
     good = {r.capture_id: r for r in reports if r.ok}
     assert set(good) == {0, 1, 2, 3}
@@ -71,6 +72,9 @@ def test_detector_service_frames_in_reports_out(group, gateway):
     last = stats[-1]
     assert last.rejected["bad-rtp"] >= 1 and last.rejected["bad-image"] >= 1 and last.rejected["bad-meta"] >= 1
     assert last.metrics["uav2.cam0.delivered"] >= 6
+    # where the frames' time went (protocol.stages): a sample per analysed frame in each stage
+    assert last.metrics["path.worker.n"] >= 4 and last.metrics["path.queue.n"] >= 4
+    assert last.metrics["path.worker.max_ms"] >= last.metrics["path.worker.p50_ms"] > 0
     assert svc.alive()
 
 
