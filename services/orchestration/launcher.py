@@ -558,7 +558,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help=f"states per UAV key the gateway lets in from one session per second (default "
                         f"{STATE_INGRESS_HZ:g}; 0: no limit; services/gateway/ingress.py)")
     p.add_argument("--detect-max-mp", type=float, default=None, metavar="MP",
-                   help="the detector detects frames above MP megapixels on a reduced decode (its default 3; 0: never)")
+                   help="the detector detects frames above MP megapixels on a reduced decode (its default 1; 0: never)")
     p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
                    help="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
     p.add_argument("--vehicle", choices=["sim", "mavlink"], default="sim",
