@@ -48,18 +48,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
+from frame_budget import timed  # noqa: E402  (bench/frame_budget.py)
 from mission import find, write_rows  # noqa: E402  (bench/mission.py)
 
 FRAME = "4000x3000"
-
-
-def timed(fn, repeat: int) -> tuple[object, float]:
-    out, ts = None, []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        ts.append(1000 * (time.perf_counter() - t0))
-    return out, statistics.median(ts)
 
 
 def steps(repeat: int) -> dict[str, float]:
