@@ -211,9 +211,11 @@ def main() -> None:
                              "--idle sizes side by side, e.g. the tree before issue 18")
     parser.add_argument("--sites", type=int, nargs="*", default=[1],
                         help="numbers of gateways each N flies with (skynet mission --sites S), side by side")
+    parser.add_argument("--mission-args", nargs="*", default=[],
+                        help="more options of every mission run's skynet mission, e.g. --gcs-state-hz 5")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "scale.json"))
     args = parser.parse_args()
-    runs = [(n, [] if s == 1 else ["--sites", str(s)]) for n in args.uavs for s in args.sites
+    runs = [(n, ([] if s == 1 else ["--sites", str(s)]) + args.mission_args) for n in args.uavs for s in args.sites
             if s <= -(-n // 3)]  # at most one site per formation of 3
     if args.frames:
         runs += [(3, ["--frame-size", "4000x3000", "--capture-link", link]) for link in ("reliable", "best-effort")]
