@@ -286,6 +286,20 @@ def command_name(command: int) -> str:
     return e.name if e is not None else f"MAVLINK_MSG_ID_{int(command)}"
 
 
+class _Clients(set):
+    """pymavlink's ``udpin:`` peer set, iterated over a snapshot.
+
+    ``mavudp.write`` sends to every address that has sent to it, iterating this set, while the reader
+    thread's ``recv`` adds each new sender: a datagram from a new address (anyone on the network) arriving
+    during a send raised ``RuntimeError: Set changed size during iteration`` out of the driver's command
+    (seen in CI: a forged packet from another port during a takeoff). The snapshot is taken in one C call,
+    under the GIL, so no thread can add meanwhile.
+    """
+
+    def __iter__(self):
+        return iter(tuple(set.__iter__(self)))
+
+
 def open_connection(connection: str, source_system: int, source_component: int) -> Any:
     """A pymavlink connection (``udpin:``, ``udpout:``, ``tcp:``, serial, ...) speaking MAVLink 2.
 
@@ -304,6 +318,8 @@ def open_connection(connection: str, source_system: int, source_component: int) 
         raise ValueError(f"cannot open MAVLink connection {connection!r}: {exc}") from exc
     conn.mav = SafeSigningMAVLink(conn, srcSystem=source_system, srcComponent=source_component)
     conn.mav.robust_parsing = True
+    if isinstance(getattr(conn, "clients", None), set):
+        conn.clients = _Clients(conn.clients)
     conn.WIRE_PROTOCOL_VERSION = "2.0"
     return conn
 

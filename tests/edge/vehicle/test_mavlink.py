@@ -24,7 +24,7 @@ pytest.importorskip("pymavlink",
 
 from edge.vehicle.mavlink import (  # noqa: E402
     TYPE_MASK_POS_VEL_ACC_YAW, TYPE_MASK_POS_VEL_YAW, TYPE_MASK_POS_YAW, CopterMode, MavlinkDriver, MavlinkParams, VehicleLinkError,
-    attitude_ned_to_enu, copter_mode, enu_to_ned, ned_to_enu, rates_frd_to_flu, result_name, yaw_enu_to_ned,
+    attitude_ned_to_enu, copter_mode, enu_to_ned, ned_to_enu, open_connection, rates_frd_to_flu, result_name, yaw_enu_to_ned,
     yaw_ned_to_enu,
 )
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
@@ -405,3 +405,35 @@ def test_commands_wait_for_an_autopilot_that_appears_later():
         drv.close()
         if veh is not None:
             veh.close()
+
+
+def test_a_new_sender_during_a_send_does_not_break_the_udpin_link():
+    """pymavlink's ``udpin:`` link sends to every address that ever sent to it, iterating a set the reader
+    thread adds each new sender to: one datagram from a new address during a send raised RuntimeError out
+    of a takeoff (seen in CI). The driver's connection iterates a snapshot."""
+    import threading
+
+    conn = open_connection(f"udpin:127.0.0.1:{free_udp_port()}", 255, 190)
+    try:
+        clients = conn.clients
+        assert type(clients).__name__ == "_Clients"
+        stop = threading.Event()
+
+        def senders_come_and_go() -> None:  # what recv does for each new address, and write's expiry
+            i = 0
+            while not stop.is_set():
+                clients.add(("127.0.0.1", 40000 + i % 50))
+                clients.discard(("127.0.0.1", 40000 + (i + 25) % 50))
+                i += 1
+
+        churn = threading.Thread(target=senders_come_and_go)
+        churn.start()
+        try:
+            for _ in range(20_000):
+                for _address in clients:
+                    pass
+        finally:
+            stop.set()
+            churn.join()
+    finally:
+        conn.close()

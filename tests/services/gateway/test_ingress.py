@@ -41,7 +41,10 @@ def _state(k: int) -> VehicleState:
 
 def _flood_through_gateway(group, hz: float) -> tuple[list[int], int, int, float]:
     """A gateway with ``--state-ingress-hz hz``; a subscriber client, the real UAV 1 (a client sending GOOD
-    states, reliable) and a flooder client (FLOOD malformed best-effort samples on uav/1/state), at once.
+    states, reliable) and a flooder client (FLOOD malformed samples on uav/1/state), at once. The flood is
+    sent reliable (blocking when a queue is full), so what does not reach the subscriber is what the limit
+    cut, not what a loaded machine's full best-effort queues dropped (879 of 20,000 arrived that way in one
+    two-worker CI run without the limit).
     Returns the good seqs received, the flood samples received and sent, and the seconds from the flood's first
     sample sent to its last one received."""
     ep = [f"tcp/127.0.0.1:{free_port()}"]
@@ -62,9 +65,14 @@ def _flood_through_gateway(group, hz: float) -> tuple[list[int], int, int, float
     key = keys.state(FLEET, 1)
     with Bus(cfg, FLEET, "gcs") as gcs, Bus(cfg, FLEET, "uav1") as uav, Bus(cfg, FLEET, "flooder") as bad:
         gcs.subscribe_raw(key, on_sample)
-        real, flooder = uav.publisher(key, COMMAND), bad.publisher(key, TELEMETRY)
-        real.put(_state(0))  # the subscription has reached the gateway once the first state comes back
-        assert wait_until(lambda: good == [0], 10), good
+        real, flooder = uav.publisher(key, COMMAND), bad.publisher(key, COMMAND)
+        def primed() -> bool:  # the subscription has reached the gateway once a state comes back
+            real.put(_state(0))
+            return wait_until(lambda: bool(good), 0.5)
+
+        assert wait_until(primed, 10), "the subscriber's route never reached the gateway"
+        time.sleep(0.2)
+        good.clear()
 
         def fly() -> None:
             for k in range(1, GOOD):
@@ -77,7 +85,7 @@ def _flood_through_gateway(group, hz: float) -> tuple[list[int], int, int, float
         for i in range(FLOOD):
             flooder.put_bytes(b"FLOOD" + i.to_bytes(4, "big") + bytes(300))
         uav1.join()
-        wait_until(lambda: len(good) >= GOOD, 10)
+        wait_until(lambda: len(good) >= GOOD - 1 and (hz > 0 or flood[0] >= FLOOD), 20)
         time.sleep(0.3)  # the flood's tail
     # the gateway passed every flood sample it let through between the flood's start and the last one's arrival
     return good, flood[0], FLOOD, max(0.0, flood[1] - t0)
@@ -85,7 +93,7 @@ def _flood_through_gateway(group, hz: float) -> tuple[list[int], int, int, float
 
 def test_a_flood_from_one_session_is_cut_at_the_gateway_while_the_real_uav_states_all_pass(group):
     good, flooded, sent, took = _flood_through_gateway(group, STATE_INGRESS_HZ)
-    assert good == list(range(GOOD))  # every state of the real UAV, in order: its face has an interval of its own
+    assert good == list(range(1, GOOD))  # every state of the real UAV, in order: its face has an interval of its own
     # at most one flood sample per 1/rate on the flooder's face (plus the first) while the gateway saw the flood:
     # a count, bounded by the flood's own span, however slowly a loaded machine passes it on
     assert flooded <= STATE_INGRESS_HZ * took + 2, (flooded, took)
@@ -93,9 +101,8 @@ def test_a_flood_from_one_session_is_cut_at_the_gateway_while_the_real_uav_state
 
 
 def test_without_the_limit_the_flood_reaches_the_subscriber(group):
-    """The control: with ``--state-ingress-hz 0`` the same flood reaches the subscriber, far above the limited
-    case's bound (what the receivers' budgets then have to drop, one Python callback per sample). Not all of it:
-    best-effort samples are dropped where a queue is full (8,388 of 20,000 arrived on a loaded machine)."""
+    """The control: with ``--state-ingress-hz 0`` the same flood reaches the subscriber whole (what the
+    receivers' budgets then have to drop, one Python callback per sample)."""
     good, flooded, sent, took = _flood_through_gateway(group, 0)
-    assert good == list(range(GOOD))
-    assert flooded > sent / 10, (flooded, sent)
+    assert good == list(range(1, GOOD))
+    assert flooded == sent, (flooded, sent)
