@@ -292,12 +292,36 @@ class _Clients(set):
     ``mavudp.write`` sends to every address that has sent to it, iterating this set, while the reader
     thread's ``recv`` adds each new sender: a datagram from a new address (anyone on the network) arriving
     during a send raised ``RuntimeError: Set changed size during iteration`` out of the driver's command
-    (seen in CI: a forged packet from another port during a takeoff). The snapshot is taken in one C call,
-    under the GIL, so no thread can add meanwhile.
+    (seen in CI: a forged packet from another port during a takeoff). Every change pymavlink makes (add,
+    discard, remove, ``-=``) and the snapshot take one lock (a snapshot copied without it still raised once:
+    the copy is not atomic under the GIL).
     """
 
+    def __init__(self, *args) -> None:
+        super().__init__(*args)
+        self._lock = threading.Lock()
+
+    def add(self, item) -> None:
+        with self._lock:
+            set.add(self, item)
+
+    def discard(self, item) -> None:
+        with self._lock:
+            set.discard(self, item)
+
+    def remove(self, item) -> None:
+        with self._lock:
+            set.remove(self, item)
+
+    def __isub__(self, other):
+        with self._lock:
+            set.difference_update(self, other)
+        return self
+
     def __iter__(self):
-        return iter(tuple(set.__iter__(self)))
+        with self._lock:
+            snapshot = set.copy(self)
+        return iter(snapshot)
 
 
 def open_connection(connection: str, source_system: int, source_component: int) -> Any:

@@ -30,7 +30,6 @@ from typing import IO
 #: the lowest port :func:`free_port` hands out (above the registered ports services commonly use on a
 #: development machine: Zenoh's 7447/7448, MAVLink's 14550, video's 5600)
 LOWEST_LISTEN_PORT = 20000
-_random = random.SystemRandom()  # not the test's seeded ``random``: two parallel runs must not draw alike
 
 
 def ephemeral_range(path: str = "/proc/sys/net/ipv4/ip_local_port_range") -> tuple[int, int]:
@@ -49,20 +48,45 @@ def listen_ports(ephemeral: tuple[int, int]) -> list[range]:
             if len(r) > 0]
 
 
+class _PortCursor:
+    """Walks the listening ranges one port after the other from a random start, so one process never hands
+    out a port twice (until it has gone round) and two processes start far apart."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._ports: list[int] | None = None
+        self._at = 0
+
+    def next(self) -> int | None:
+        with self._lock:
+            if self._ports is None:
+                self._ports = [p for r in listen_ports(ephemeral_range()) for p in r]
+                self._at = random.SystemRandom().randrange(len(self._ports)) if self._ports else 0
+            if not self._ports:
+                return None
+            port = self._ports[self._at]
+            self._at = (self._at + 1) % len(self._ports)
+            return port
+
+
+_cursor = _PortCursor()
+
+
 def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
-    """A port for a service to listen on, free now, drawn at random outside the kernel's ephemeral range.
+    """A port for a service to listen on, free now, outside the kernel's ephemeral range.
 
     Binding port 0 gives an ephemeral port, which any outgoing connection (a Zenoh client's, a
     browser's) may take between this call and the service's own bind: then the service fails with
     "Address already in use" and, restarted on the same port, never comes up (seen with 15 processes
-    on a loaded machine). A random draw outside that range keeps two launchers (two test workers)
-    apart as well. Falls back to port 0 when no drawn port is free.
+    on a loaded machine). Ports come from a cursor (:class:`_PortCursor`): never the same one twice in a
+    process, as random draws were (a launcher's ~20 ports collided about once in a hundred launches), and
+    from a random start, so two launchers (two test workers) are far apart. Falls back to port 0 when no
+    port of the ranges is free.
     """
-    ranges = listen_ports(ephemeral_range())
-    sizes = [len(r) for r in ranges]
-    for _ in range(64 if ranges else 0):
-        r = _random.choices(ranges, weights=sizes)[0]
-        port = r[_random.randrange(len(r))]
+    for _ in range(64):
+        port = _cursor.next()
+        if port is None:
+            break
         with socket.socket(socket.AF_INET, kind) as s:
             try:
                 s.bind((host, port))
