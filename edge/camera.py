@@ -435,10 +435,12 @@ class VideoCaptureSource:
 
 
 def make_source(spec: str, surface: SyntheticSurface | None = None, camera: CameraModel | None = None,
-                *, loop: bool = True, grey: bool | None = None) -> FrameSource:
+                *, loop: bool = True, grey: bool | None = None, mask: bool = True,
+                upsample: bool = False) -> FrameSource:
     """A frame source from a spec string.
 
-    - ``"synthetic"``: :class:`SyntheticSource` of ``surface`` and ``camera`` (both required);
+    - ``"synthetic"``: :class:`SyntheticSource` of ``surface`` and ``camera`` (both required), with its
+      ``mask`` and ``upsample`` options;
     - ``"video:<url or index>"``: :class:`VideoCaptureSource` (``grey`` default False);
     - anything else: a folder for :class:`FolderSource` (``grey`` default True); when the folder
       is a data set's ``images/`` with a sibling ``masks/``, the masks come along as ground truth.
@@ -454,7 +456,7 @@ def make_source(spec: str, surface: SyntheticSurface | None = None, camera: Came
     if spec == "synthetic":
         if surface is None or camera is None:
             raise ValueError("the synthetic camera needs the scenario's surface and camera")
-        return SyntheticSource(surface, camera)
+        return SyntheticSource(surface, camera, mask=mask, upsample=upsample)
     if spec.startswith("video:"):
         return VideoCaptureSource(spec[len("video:"):], grey=bool(grey))
     folder = Path(spec)

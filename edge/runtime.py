@@ -342,8 +342,7 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
     # the synthetic capture: no ground-truth mask (never sent) and a magnified view warped at the size the
     # texture fills, then resized (edge.camera.SyntheticSource, upsample: a 12 MP frame in ~8 ms, not 22-60)
-    source = (SyntheticSource(surface, model, mask=False, upsample=True) if args.camera == "synthetic"
-              else make_source(args.camera, surface=surface, camera=model))
+    source = make_source(args.camera, surface=surface, camera=model, mask=False, upsample=True)
     cache = getattr(args, "imagery_cache", IMAGERY_CACHE_FRAMES)
     preview_hz = float(getattr(args, "preview_hz", PREVIEW_HZ) or 0.0)
     preview = None

@@ -209,15 +209,16 @@ class DetectorService:
             return
         try:  # in a worker process, with the evidence the ground station counts a capture on (pool.analyse_frame)
             report = self.pool.analyse(meta, image, self.method, frame.ssrc, frame.sequence)
+        except WorkerCrashed as exc:
+            self.counts["worker-crashed"] += 1
+            report = DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
+                                  stamp_report=time.time(), method=self.method, ok=False, error=str(exc))
+        else:
             done = time.time()
             with self._lock:
                 self.times.add("shutter-to-arrival", frame.arrival_s - meta.stamp)
                 self.times.add("queue", started - frame.arrival_s)  # the playout hold and the queue
                 self.times.add("worker", done - started)  # to the worker process and back: decode, detect, map
-        except WorkerCrashed as exc:
-            self.counts["worker-crashed"] += 1
-            report = DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
-                                  stamp_report=time.time(), method=self.method, ok=False, error=str(exc))
         with self._lock:
             self.analysed[frame.ssrc] += 1
         if self.save_frames and report.ok:

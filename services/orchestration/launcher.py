@@ -402,6 +402,9 @@ class Network:
                                          *[x for e in self.site_endpoints[site.index] for x in ("--listen", e)]])
             if not gw.wait_for(READY["gateway"], 30):
                 raise RuntimeError(f"{name} did not start:\n" + "\n".join(gw.lines[-20:]))
+        if len(self.site_endpoints) > 1:
+            for line in self.topology():
+                logging.getLogger("skynet.launcher").info("%s", line)
         scenario = ["--scenario", a.scenario] if a.scenario else []
         recovery = ["--imagery-cache", "0"] if getattr(a, "no_recovery", False) else []
         hz = getattr(a, "preview_hz", None)
@@ -629,9 +632,6 @@ def main(argv: list[str] | None = None) -> int:
         try:
             net.start()
             log.info("network up: gateway at %s; Ctrl-C to stop", " ".join(net.gateway_endpoints))
-            if len(net.site_endpoints) > 1:
-                for line in net.topology():
-                    log.info("%s", line)
             for link in sorted(net.proxies):
                 log.info("proxies on %s: tcp %s, udp %s", link, *(net.proxies[link][c].port for c in CLASSES))
             if net.creds is not None:
@@ -665,9 +665,6 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     scenario = load_scenario(args.scenario)
     try:
         net.start()
-        if len(net.site_endpoints) > 1:
-            for line in net.topology():
-                log.info("%s", line)
         cfg = net.gcs_config()
         hooks_signer = net.gcs_signer()
         # every edge imports and starts at once on the same cores: 48 of them took over 30 s to appear
