@@ -256,6 +256,11 @@ class PreviewStream:
     rendered, counted in :attr:`skipped`). The worker renders the frame with its own source (a
     :class:`~edge.camera.SyntheticSource` at the preview size), encodes it and publishes it on
     ``uav/<id>/preview`` without cache or recovery.
+
+    A frame is rendered only while somebody watches: when Zenoh's matching status says no
+    subscriber matches the preview key, a due offer is counted in :attr:`unwatched` and nothing is
+    rendered (issue 18: the render and encode were a quarter of an idle edge's CPU, spent on frames
+    that nobody received).
     """
 
     def __init__(self, bus: Bus, uav: int, source, model, rate_hz: float = PREVIEW_HZ,
@@ -272,7 +277,7 @@ class PreviewStream:
         self._slot: tuple | None = None
         self._cond = threading.Condition()
         self._closed = False
-        self.offered = self.sent = self.skipped = self.failed = 0
+        self.offered = self.sent = self.skipped = self.failed = self.unwatched = 0
         self._thread = threading.Thread(target=self._run, name=f"preview-uav{uav}", daemon=True)
         self._thread.start()
 
@@ -282,6 +287,9 @@ class PreviewStream:
         # a steady grid of due times; the first offer, or one after a stall, restarts the grid from now
         late = now_wall - self._next_due >= self.period_s
         self._next_due = (now_wall if late else self._next_due) + self.period_s
+        if self.pub.matching() is False:
+            self.unwatched += 1
+            return False
         with self._cond:
             if self._slot is not None:
                 self.skipped += 1

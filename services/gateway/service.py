@@ -158,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     meter = TrafficMeter()
     with Bus(config, fleet=args.fleet, name="gateway") as bus:
         log.info("router up, listening on %s", ", ".join(listen) or "(config file)")
-        bus.subscribe_raw(keys.fleet_all(args.fleet), lambda s: meter.observe(str(s.key_expr), len(s.payload)))
+        for key in keys.metered(args.fleet):  # not the previews: a meter would make every camera render them
+            bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
         stats_key = keys.gateway_stats(args.fleet, args.id)
         pub = bus.publisher(stats_key, TELEMETRY)
         t0 = time.time()

@@ -90,6 +90,31 @@ def test_preview_is_small_rate_limited_best_effort_and_apart_from_captures(gatew
         assert meta.intrinsics.width == PREVIEW_SIZE[0] and 50 < img.mean() < 200  # the wall, not the sky
 
 
+def test_preview_renders_only_while_somebody_watches(gateway):
+    """No subscriber on the preview key: due offers are counted as unwatched and nothing is rendered;
+    once a viewer subscribes (through the gateway), frames flow to it."""
+    got = []
+    cfg = BusConfig(mode="client", connect=gateway, multilink=True)
+    with Bus(cfg, FLEET, "uav3") as edge:
+        cam = make_camera(_args(preview_hz=5.0), edge, log)
+        try:
+            stream = cam.preview_stream
+            pos, att = _facing_the_wall(cam)
+            t0 = time.time()
+            assert stream.pub.matching() is False
+            assert sum(cam.preview(pos, att, 0.02 * i, t0 + 0.02 * i) for i in range(60)) == 0
+            assert (stream.unwatched, stream.offered, stream.sent) == (6, 0, 0)
+            with Bus(cfg, FLEET, "ground") as viewer:
+                viewer.subscribe_raw(keys.preview(FLEET, "*"), got.append)
+                assert wait_until(lambda: stream.pub.matching(), 10)
+                t1 = t0 + 10.0
+                assert sum(cam.preview(pos, att, 0.02 * i, t1 + 0.02 * i) for i in range(60)) == 6
+                assert wait_until(lambda: len(got) >= 1, 10)
+            assert stream.unwatched == 6 and stream.sent >= 1
+        finally:
+            cam.close()
+
+
 def test_imagery_cache_zero_is_a_plain_publisher_and_preview_can_be_off(gateway):
     cfg = BusConfig(mode="client", connect=gateway, multilink=True)
     with Bus(cfg, FLEET, "uav3") as edge:

@@ -66,4 +66,17 @@ def test_preview_is_a_uav_key_the_camera_wildcard_does_not_match():
     assert not cams.intersects(zenoh.KeyExpr(key))  # the detector never sees preview frames
     assert not zenoh.KeyExpr(keys.advanced(keys.camera("f", "*"))).intersects(zenoh.KeyExpr(key))
     assert cams.intersects(zenoh.KeyExpr(keys.camera("f", 2)))
-    assert zenoh.KeyExpr(keys.fleet_all("f")).intersects(zenoh.KeyExpr(key))  # the gateway meters it
+    assert zenoh.KeyExpr(keys.fleet_all("f")).intersects(zenoh.KeyExpr(key))  # the recorder takes it
+    assert not any(zenoh.KeyExpr(m).intersects(zenoh.KeyExpr(key)) for m in keys.metered("f"))  # the meter not
+
+
+@pytest.mark.parametrize("key", [
+    keys.state("f", 1), keys.cmd("f", 255), keys.camera("f", 9), keys.event("f", 2), keys.alive("f", 2),
+    keys.planner("f"), keys.defects("f"), keys.gateway_stats("f", 1), keys.heartbeat("f"), keys.gcs_event("f"),
+    keys.rcu_alive("f", "detector-1"), keys.rcu_event("f", "planner"), keys.rcu_stats("f", "detector"),
+])
+def test_the_meter_takes_every_key_but_the_previews(key):
+    import zenoh
+
+    assert sum(zenoh.KeyExpr(m).intersects(zenoh.KeyExpr(key)) for m in keys.metered("f")) == 1
+    assert not any(zenoh.KeyExpr(m).intersects(zenoh.KeyExpr(key)) for m in keys.metered("g"))
