@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import functools
 import math
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -310,6 +311,17 @@ def parse_vec(text: str) -> tuple[float, float, float]:
     return v  # type: ignore[return-value]
 
 
+def niceness(text: str) -> int:
+    """argparse type of ``--nice``: an int in 0..19 (``nice(2)``: 19 is the lowest priority)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an int in 0..19, got {text!r}") from None
+    if not 0 <= n <= 19:
+        raise argparse.ArgumentTypeError(f"expected an int in 0..19, got {text!r}")
+    return n
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet edge", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="peer")
@@ -360,6 +372,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="link of capture frames: best-effort (UDP), reliable (TCP), or auto: reliable above 1 MP")
     parser.add_argument("--preview-hz", type=preview_rate, default=PREVIEW_HZ, metavar="HZ",
                         help="live preview frames per second (320x240, best-effort, never recovered; 0 = off)")
+    parser.add_argument("--nice", type=niceness, default=0, metavar="N",
+                        help="lower this board's CPU priority by N (0..19): a simulated fleet sharing one machine "
+                             "with the services (services.orchestration.fleet_load)")
     parser.add_argument("--imagery-cache", type=cache_frames, default=IMAGERY_CACHE_FRAMES, metavar="N",
                         help="capture frames kept for retransmission to a detector that lost them "
                              "(0: no recovery, capture frames are best-effort like previews)")
@@ -381,6 +396,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.lease is None:
         args.lease = 2.0
     log = setup_logging(f"uav{args.uav}")
+    if args.nice:
+        os.nice(args.nice)
     from .clock import SimClock
     from .runtime import make_camera, make_driver
 

@@ -97,7 +97,9 @@ from .topology import (
 )
 
 from edge.neighbourhood import FORMATION_SIZE
+from edge.board import niceness
 from edge.runtime import CAPTURE_LINKS, frame_size, preview_rate
+from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET, fleet_load
 from ..gateway.ingress import STATE_INGRESS_HZ, rate_arg as ingress_rate
 
 HOST = "127.0.0.1"
@@ -179,6 +181,9 @@ class Network:
         self.args = args
         self.ground_station = ground_station
         self.plan = plan or make_plan(args, ground_station)
+        #: the fleet-size defaults: the ground station's state feed, previews, the edges' priority
+        self.load = fleet_load(args.uavs, getattr(args, "gcs_state_hz", None), getattr(args, "preview_hz", None),
+                               getattr(args, "edge_nice", None))
         #: transport/unicast/open_timeout of nodes whose links are proxied, ms (slower links, longer)
         self.open_timeout = open_timeout_ms(self.plan.impair.worst_delay_ms())
         self.group = ProcessGroup(echo=echo)
@@ -377,7 +382,7 @@ class Network:
         thins the clients' view of the states (:mod:`services.gateway.downsample`)."""
         ingress = getattr(self.args, "state_ingress_hz", None)  # None: the gateway's default limit
         out = [] if ingress is None else ["--state-ingress-hz", str(ingress)]
-        hz = getattr(self.args, "gcs_state_hz", 0.0) or 0.0
+        hz = self.load.gcs_state_hz
         if hz <= 0:
             return out
         from ..gateway.downsample import state_downsampling
@@ -407,8 +412,10 @@ class Network:
                 logging.getLogger("skynet.launcher").info("%s", line)
         scenario = ["--scenario", a.scenario] if a.scenario else []
         recovery = ["--imagery-cache", "0"] if getattr(a, "no_recovery", False) else []
-        hz = getattr(a, "preview_hz", None)
-        preview = [] if hz is None else ["--preview-hz", str(hz)]
+        preview = ["--preview-hz", f"{self.load.preview_hz:g}"]
+        nice = ["--nice", str(self.load.edge_nice)] if self.load.edge_nice else []
+        if self.load.chosen:
+            logging.getLogger("skynet.launcher").info("%d UAVs on one machine: %s", a.uavs, "; ".join(self.load.chosen))
         for i in range(1, a.uavs + 1):
             self.edge_endpoints[i] = self.endpoint_pair()
         for i, home in enumerate(self.homes(a.uavs), start=1):
@@ -425,7 +432,7 @@ class Network:
                 *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
                 "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
                 "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
-                "--capture-link", getattr(a, "capture_link", "auto"), *preview, *scenario, *recovery,
+                "--capture-link", getattr(a, "capture_link", "auto"), *preview, *nice, *scenario, *recovery,
                 *vehicle])
         # a large fleet's plan (issue 18) is computed while its edges load the machine: the planner may
         # take up to 100 s of the ground station's 120 s plan timeout instead of its own 60 s default,
@@ -554,9 +561,14 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
     p.add_argument("--frame-size", type=frame_size, default="640x480", help="capture frame size WxH (4000x3000: the paper's 12 MP)")
     p.add_argument("--preview-hz", type=preview_rate, default=None, metavar="HZ",
-                   help="live preview frames per UAV per second (default: the edge's, 2; 0 = off)")
-    p.add_argument("--gcs-state-hz", type=preview_rate, default=0.0, metavar="HZ",
-                   help="states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz)")
+                   help=f"live preview frames per UAV per second (default: {PREVIEW_BUDGET:g} for the fleet, at most "
+                        "the edge's 2 per UAV; 0 = off)")
+    p.add_argument("--gcs-state-hz", type=preview_rate, default=None, metavar="HZ",
+                   help=f"states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz; "
+                        f"default: all up to {GCS_STATE_BUDGET:g} for the fleet, else {GCS_STATE_BUDGET:g}/N)")
+    p.add_argument("--edge-nice", type=niceness, default=None, metavar="N",
+                   help=f"the edges' niceness (default: {EDGE_NICE} above {NICE_ABOVE} UAVs, else 0; "
+                        "services/orchestration/fleet_load.py)")
     p.add_argument("--state-ingress-hz", type=ingress_rate, default=None, metavar="HZ",
                    help=f"states per UAV key the gateway lets in from one session per second (default "
                         f"{STATE_INGRESS_HZ:g}; 0: no limit; services/gateway/ingress.py)")

@@ -183,3 +183,16 @@ def test_an_edge_hears_only_its_formation(group, gateway):
         assert states[1].neighbours == 1 and states[2].neighbours == 1 and states[4].neighbours == 0, states
         joined = {(e.source, e.data.get("neighbour")) for e in events if e.kind == "neighbour-up"}
         assert not {pair for pair in joined if 4 in (pair[1], int(pair[0].split("/")[1]))}, joined
+
+
+def test_nice_option_takes_a_niceness_and_refuses_the_rest():
+    import argparse
+
+    from edge.board import build_parser, niceness
+
+    assert niceness("0") == 0 and niceness("19") == 19
+    for bad in ("-1", "20", "x", "1.5"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            niceness(bad)
+    assert build_parser().parse_args(["--uav", "2", "--nice", "5"]).nice == 5
+    assert build_parser().parse_args(["--uav", "2"]).nice == 0
