@@ -82,6 +82,19 @@ def _cpu_rss(pid: int) -> tuple[float, int] | None:
     return (int(f[11]) + int(f[12])) / TICK, int(f[21]) * PAGE  # utime + stime (s), rss (bytes)
 
 
+def _pss(pid: int) -> int | None:
+    """The proportional set size (bytes): RSS with each shared page divided among the processes mapping it.
+    RSS counts the shared libraries (zenoh, cv2, numpy: ~60 MB) in full in every edge; PSS is what one more
+    edge costs the machine."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
 class EdgeSampler(threading.Thread):
     """Every ``period`` s: the CPU seconds and RSS of each edge under ``root``."""
 
@@ -89,13 +102,20 @@ class EdgeSampler(threading.Thread):
         super().__init__(daemon=True)
         self.root, self.n, self.period = root, n, period
         self.samples: list[tuple[float, dict[int, tuple[float, int]]]] = []
+        self.pss: dict[int, int] = {}  # max over the run, every 5th sample
         self.stop = threading.Event()
 
     def run(self) -> None:
+        k = 0
         while not self.stop.wait(self.period):
             now = time.monotonic()
             got = {p: v for p in _edges(self.root) if (v := _cpu_rss(p)) is not None}
             self.samples.append((now, got))
+            k += 1
+            if k % 5 == 1:
+                for p in got:
+                    if (m := _pss(p)) is not None:
+                        self.pss[p] = max(self.pss.get(p, 0), m)
 
     def figures(self) -> dict:
         full = [(t, s) for t, s in self.samples if len(s) >= self.n]
@@ -104,7 +124,9 @@ class EdgeSampler(threading.Thread):
             for p, (_, r) in s.items():
                 rss[p] = max(rss.get(p, 0), r)
         out = {"edge_rss_mb_median": statistics.median(rss.values()) / 2**20 if rss else None,
-               "edge_rss_mb_max": max(rss.values()) / 2**20 if rss else None}
+               "edge_rss_mb_max": max(rss.values()) / 2**20 if rss else None,
+               "edge_pss_mb_median": statistics.median(self.pss.values()) / 2**20 if self.pss else None,
+               "edge_pss_mb_sum": sum(self.pss.values()) / 2**20 if self.pss else None}
         if len(full) >= 3:
             # the edges alive in both the first and the last full sample: their CPU over that window
             (t0, a), (t1, b) = full[0], full[-1]
@@ -238,17 +260,18 @@ def main() -> None:
     if args.baseline:
         f["up baseline"] = fit(rows, ["up", f"baseline {args.baseline}"])
     print("\n| N | args | success | CPU s | CPU / UAV / sim s | edge cores / UAV | edge RSS MB (median) "
-          "| telemetry age p95 ms | capture->report p95 ms | recovered / lost | plan s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| edge PSS MB (median) | telemetry age p95 ms | capture->report p95 ms | recovered / lost | plan s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     nan = float("nan")
     for r in rows:
         if r["args"][:1] == ["up"]:
             print(f"| {r['uavs']} | {' '.join(r['args'])} (no mission) | exit {r['exit']} | - | - | {r.get('edge_cores_per_uav') or nan:.4f} | "
-                  f"{r.get('edge_rss_mb_median') or nan:.0f} | - | - | - | - |")
+                  f"{r.get('edge_rss_mb_median') or nan:.0f} | {r.get('edge_pss_mb_median') or nan:.0f} | - | - | - | - |")
             continue
         print(f"| {r['uavs']} | {' '.join(r['args'])} | {r['success']} | {r['cpu_s']:.0f} | "
               f"{r['cpu_per_uav_per_sim_s']:.4f} | {r.get('edge_cores_per_uav') or nan:.4f} | "
-              f"{r.get('edge_rss_mb_median') or nan:.0f} | {r['telemetry_age_p95_ms'] or nan:.1f} | "
+              f"{r.get('edge_rss_mb_median') or nan:.0f} | {r.get('edge_pss_mb_median') or nan:.0f} | "
+              f"{r['telemetry_age_p95_ms'] or nan:.1f} | "
               f"{r['capture_to_report_p95_ms'] or nan:.0f} | {r['frames_recovered']:.0f} / {r['frames_lost']:.0f} | "
               f"{r['plan_s'] or nan:.2f} |")
     print("\nedge cores vs N:", json.dumps(f))

@@ -224,12 +224,13 @@ class ReportSummary:
     defects: DefectScore | None
     links: dict[str, LinkFigures]
     imagery: dict[str, dict[str, float]]
-    gateway: dict[str, Any]
+    gateway: dict[str, Any]  # the latest statistics of any gateway (one per site: every one in ``gateways``)
     events: list[dict[str, Any]]
     phases: dict[str, float]
     notes: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
     faults: dict[str, Any] = field(default_factory=dict)  # services.gcs.resilience.fault_figures
+    gateways: dict[str, dict[str, Any]] = field(default_factory=dict)  # source -> its latest statistics
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (non-finite floats become ``None``).
@@ -646,6 +647,13 @@ def _latest(stats: Sequence[Any]) -> Any | None:
     return max(stats, key=lambda s: (s.msg.stamp, s.rx)).msg if stats else None
 
 
+def _gateway_figures(gw: Any) -> dict[str, Any]:
+    """One gateway's :class:`~protocol.messages.LinkStats` as the report's plain figures."""
+    return {"source": gw.source, "uptime_s": gw.uptime_s, "sessions": dict(gw.sessions), "rejected": dict(gw.rejected),
+            "classes": {k: {"samples": v.samples, "bytes": v.bytes} for k, v in gw.classes.items()},
+            "metrics": dict(gw.metrics)}
+
+
 def _imagery_metrics(record: MissionRecord) -> dict[str, dict[str, float]]:
     """Latest ``uavN.camC.<name>`` metrics of the detector, grouped by camera (the latest of each instance,
     ``detector-K`` sharing the cameras by partition: services.detector.partition)."""
@@ -799,12 +807,9 @@ def analyse(record: MissionRecord) -> ReportFigures:
             duration_s={tr.uav: tr.waypoints[-1].t - tr.waypoints[0].t for tr in p.trajectories},
         )
     gw = _latest(record.gateway_stats)
-    gateway: dict[str, Any] = {}
-    if gw is not None:
-        gateway = {"source": gw.source, "uptime_s": gw.uptime_s, "sessions": dict(gw.sessions),
-                   "rejected": dict(gw.rejected),
-                   "classes": {k: {"samples": v.samples, "bytes": v.bytes} for k, v in gw.classes.items()},
-                   "metrics": dict(gw.metrics)}
+    gateway = {} if gw is None else _gateway_figures(gw)
+    gateways = {src: _gateway_figures(_latest([x for x in record.gateway_stats if x.msg.source == src]))
+                for src in sorted({x.msg.source for x in record.gateway_stats})}  # one per site (--sites)
     events = [{"rx": e.rx, "source": e.msg.source, "stamp": e.msg.stamp, "kind": e.msg.kind,
                "level": e.msg.level.value, "text": e.msg.text, "data": dict(e.msg.data)}
               for e in sorted(record.events, key=lambda e: e.rx)[:MAX_REPORT_EVENTS]]  # a flood stays out
@@ -820,7 +825,7 @@ def analyse(record: MissionRecord) -> ReportFigures:
         measured_speed=(sim / wall_states) if sim is not None and wall_states > 0 else None,
         planner=planner, uavs=uavs, formation=formation, captures=captures, defects=defects, links=links,
         imagery=imagery, gateway=gateway, events=events, phases=dict(record.phases), notes=notes,
-        faults=fault_figures(record),
+        faults=fault_figures(record), gateways=gateways,
     )
     return ReportFigures(summary=summary, tracks=tracks, trajectories=trajs, anchors=anchors, paths=paths,
                          formation=formation_series, latencies=latencies, offsets=offsets, corners=corners,

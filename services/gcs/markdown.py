@@ -126,8 +126,17 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
         md += ["No events.", ""]
     if len(record.events) > len(s.events):
         md += [f"{len(record.events) - len(s.events)} more events are in record.json / record.jsonl.", ""]
-    if s.gateway.get("rejected"):
-        md += ["Gateway rejections: " + ", ".join(f"{k}: {v}" for k, v in s.gateway["rejected"].items()) + ".", ""]
+    if len(s.gateways) > 1:  # one gateway per site: each one's sessions and traffic
+        md += ["## Gateways", "", _table(
+            ["gateway", "sessions", "samples", "MB", "rejected"],
+            [[src, ", ".join(f"{k} {v}" for k, v in sorted(g["sessions"].items())),
+              str(sum(c["samples"] for c in g["classes"].values())),
+              _fmt(sum(c["bytes"] for c in g["classes"].values()) / 1e6, 2),
+              str(sum(g["rejected"].values()))] for src, g in s.gateways.items()]), ""]
+    for src, g in (s.gateways.items() if s.gateways else [(s.gateway.get("source"), s.gateway)]):
+        if g.get("rejected"):
+            where = f" ({src})" if len(s.gateways) > 1 else ""
+            md += [f"Gateway rejections{where}: " + ", ".join(f"{k}: {v}" for k, v in g["rejected"].items()) + ".", ""]
     md += integrity_markdown(record)
     return "\n".join(md)
 

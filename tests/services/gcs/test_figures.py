@@ -125,3 +125,26 @@ def test_detector_instance_statistics_go_to_the_detector_list():
     msg = LinkStats(source="detector-1", stamp=1.0)
     assert _list_of(keys.rcu_stats("f", "detector-1"), msg) == "detector_stats"
     assert _list_of(keys.rcu_stats("f", "planner"), msg) is None
+
+
+def test_every_gateway_has_its_latest_statistics_in_the_report():
+    """Issue 18, --sites: one gateway per site; the summary keeps each one's latest statistics (``gateway``
+    stays the latest of any) and the Markdown page has a row per gateway and each one's rejections."""
+    from protocol.messages import ClassCounters, LinkStats
+    from services.gcs.markdown import markdown
+    from services.gcs.record import StatsRx
+
+    def st(src, stamp, samples, rejected=None):
+        return StatsRx(rx=stamp, msg=LinkStats(source=src, stamp=stamp, uptime_s=stamp, sessions={"peer": 3},
+                                               classes={"telemetry": ClassCounters(samples=samples, bytes=100 * samples)},
+                                               rejected=rejected or {}))
+
+    stats = [st("gateway/gw0", 1.0, 10), st("gateway/gw1", 2.0, 20, {"unknown-key": 4}), st("gateway/gw0", 3.0, 30)]
+    rec = MissionRecord(fleet="f", speed=1.0, started=0.0, gateway_stats=stats)
+    s = summarise(rec)
+    assert s.gateway["source"] == "gateway/gw0" and s.gateway["classes"]["telemetry"]["samples"] == 30
+    assert {k: g["classes"]["telemetry"]["samples"] for k, g in s.gateways.items()} == {"gateway/gw0": 30,
+                                                                                          "gateway/gw1": 20}
+    md = markdown(rec, s)
+    assert "## Gateways" in md and "| gateway/gw1 | peer 3 | 20 |" in md
+    assert "Gateway rejections (gateway/gw1): unknown-key: 4." in md
