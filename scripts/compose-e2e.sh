@@ -2,7 +2,8 @@
 # docker compose, end to end, on a real Docker engine (issue 14); .ci/run runs it after the test suite.
 #
 #   bash scripts/compose-e2e.sh            # the impaired mission (proves the plain path too) + the tc check
-#   COMPOSE_E2E_RUNS="plain netem split tc" bash scripts/compose-e2e.sh   # split: compose/ground.yml + edge.yml
+#   COMPOSE_E2E_RUNS="plain netem sites split tc" bash scripts/compose-e2e.sh   # split: compose/ground.yml + edge.yml;
+#                                                                       # sites: compose/sites.yml (two gateways)
 #
 # 1. an engine: the one DOCKER_HOST points at, else our own dockerd (scripts/docker-lib.sh: persistent
 #    data root /var/cache/skynet-docker, so the base image and the build layers are kept between runs);
@@ -185,6 +186,7 @@ for run in $RUNS; do
   case "$run" in
     plain) env=(); check=() ;;
     netem) env=(--env-file compose/netem.env); check=(--impaired uav2 --delay-ms 100) ;;  # + the web page
+    sites) env=(-f docker-compose.yml -f compose/sites.yml); check=(--gateways 2) ;;  # six UAVs, two gateways
     tc)
       # only meaningful where the kernel has no netem qdisc: there the profile must fail the run
       if "$DOCKER" run --rm --network none --cap-add NET_ADMIN --entrypoint sh "skynet-inspect:${SKYNET_TAG:-latest}" \
@@ -266,12 +268,14 @@ for run in $RUNS; do
           || { log "FAIL: split: uav$i did not log mutual TLS + ACL + signed commands"; failed=1; }
       done
       continue ;;
-    *) log "unknown run '$run' (plain, netem, split, tc)"; exit 1 ;;
+    *) log "unknown run '$run' (plain, netem, sites, split, tc)"; exit 1 ;;
   esac
   name="e2e-$run-$$"
   : >"$WORK/stats-$run.txt"
   sample_stats "$WORK/stats-$run.txt" & STATS_PID=$!
   profiles=()
+  # compose/sites.yml: a six-UAV key set of its own (the keys service never overwrites the three-UAV one)
+  [ "$run" = sites ] && profiles=(env SKYNET_KEYS="$WORK/keys-sites")
   if [ "$run" = netem ]; then
     # the optional web page rides along (profile web, published on 127.0.0.1 only): poll its snapshot
     web_port="$("$PY" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
@@ -312,7 +316,8 @@ for run in $RUNS; do
   owner="$(stat -c %u "$REPORTS")"; got="$(stat -c %u "$REPORTS/$name" "$REPORTS/$name/report.json" | sort -u)"
   [ "$owner" = "$got" ] || { log "FAIL: $run: report owned by uid $got, the reports folder by uid $owner"; failed=1; }
   # secure by default: every edge ran mutual TLS with the certificate ACL and verified signed commands
-  for u in 1 2 3; do
+  uavs="1 2 3"; [ "$run" = sites ] && uavs="1 2 3 4 5 6"
+  for u in $uavs; do
     grep -E "uav${u}_1 +\| .*trust: commands signed by gcs.*mutual TLS as uav${u}, ACL by certificate" \
       "$WORK/up-$run.log" >/dev/null || { log "FAIL: $run: uav$u did not log mutual TLS + ACL + signed commands"; failed=1; }
   done

@@ -6,7 +6,8 @@ Exit 0 when every check holds, 1 otherwise (each failed check printed). The chec
 succeeded; every planned capture was imaged; the formation RMS shape error is under 1 m (as with the
 launcher, README "Experiments"); and, with ``--impaired``, the named UAV's telemetry age (rx − stamp,
 median over its MISSION-phase states) exceeds every other UAV's by at least 80 % of ``--delay-ms``
-(the impairment was applied on its link and only there).
+(the impairment was applied on its link and only there); with ``--gateways N`` (compose/sites.yml), that
+the report has the statistics of N gateways and that each one has a router link to another and UAV peers.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def telemetry_age_ms(record: dict[str, Any]) -> dict[int, float]:
 
 
 def check(report: dict[str, Any], record: dict[str, Any], impaired: str | None = None,
-          delay_ms: float = 0.0) -> tuple[list[str], dict[str, Any]]:
+          delay_ms: float = 0.0, gateways: int | None = None) -> tuple[list[str], dict[str, Any]]:
     """(failures, figures) of one mission; no failure means the run is what the issue asks for."""
     fails: list[str] = []
     cap = report.get("captures") or {}
@@ -57,6 +58,15 @@ def check(report: dict[str, Any], record: dict[str, Any], impaired: str | None =
         elif ages[uav] - max(others) < DELAY_FRACTION * delay_ms:
             fails.append(f"impairment not applied: {impaired} telemetry age {ages[uav]:.1f} ms vs others "
                          f"{max(others):.1f} ms (expected at least {DELAY_FRACTION * delay_ms:.0f} ms more)")
+    if gateways is not None:
+        gws = report.get("gateways") or {}
+        figures["gateways"] = {k: g.get("sessions") for k, g in gws.items()}
+        if len(gws) != gateways:
+            fails.append(f"{len(gws)} gateways in the report ({sorted(gws)}), expected {gateways}")
+        for k, g in gws.items():
+            sessions = g.get("sessions") or {}
+            if not sessions.get("router") or not sessions.get("peer"):
+                fails.append(f"{k}: sessions {sessions}: expected a router link and UAV peers")
     return fails, figures
 
 
@@ -65,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("report_dir", type=Path)
     p.add_argument("--impaired", default=None, help="the UAV whose uplink was impaired, e.g. uav2")
     p.add_argument("--delay-ms", type=float, default=0.0, help="the delay added on that link, ms")
+    p.add_argument("--gateways", type=int, default=None, help="the number of gateways (sites) the run had")
     p.add_argument("--json", type=Path, default=None, help="write the figures here")
     a = p.parse_args(argv)
     try:
@@ -73,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as e:
         print(f"compose check: cannot read the report in {a.report_dir}: {e}", file=sys.stderr)
         return 1
-    fails, figures = check(report, record, a.impaired, a.delay_ms)
+    fails, figures = check(report, record, a.impaired, a.delay_ms, a.gateways)
     print("compose check: " + json.dumps(figures))
     if a.json is not None:
         a.json.parent.mkdir(parents=True, exist_ok=True)

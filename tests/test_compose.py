@@ -41,6 +41,7 @@ VARIANTS = [
     (["-f", "docker-compose.yml", "-f", "compose/insecure.yml", "--env-file", "compose/netem.env"], {}),
     (["--profile", "web"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/video.yml"], {}),
+    (["-f", "docker-compose.yml", "-f", "compose/sites.yml"], {}),
     (["-f", "compose/ground.yml"], {}),
     (["-f", "compose/ground.yml"], {"SKYNET_BIND": "10.0.0.5", "SKYNET_SANS": "uav1=10.0.0.6 uav2=10.0.0.7,uav2.example"}),
     (["-f", "compose/edge.yml"], EDGE_ENV),
@@ -116,10 +117,11 @@ def _skynet_argv(name: str, svc: dict) -> list[str] | None:
 
 
 @pytest.mark.parametrize("path", ["docker-compose.yml", "compose/mavlink.yml", "compose/camera.yml", "compose/insecure.yml",
-                                  "compose/ground.yml", "compose/edge.yml"])
+                                  "compose/ground.yml", "compose/edge.yml", "compose/sites.yml"])
 def test_every_service_runs_a_skynet_command_that_parses(path):
     services = _services(ROOT / path)
-    base = _services() if path in ("compose/mavlink.yml", "compose/camera.yml", "compose/insecure.yml") else {}
+    base = _services() if path in ("compose/mavlink.yml", "compose/camera.yml", "compose/insecure.yml",
+                                   "compose/sites.yml") else {}
     for name, svc in services.items():
         if "command" not in svc:
             continue
@@ -358,3 +360,38 @@ def test_the_split_over_hosts_files_are_secure_by_default_with_the_hosts_address
     assert "scouting/gossip/autoconnect:{router:[],peer:[]}" in argv
     assert [_defaults(v) for v in edge["volumes"]] == ["../.keys/split:/keys:ro", "edge-state:/state"]
     assert all(_defaults(p).endswith("/tcp") for p in edge["ports"])
+
+
+def test_the_sites_override_is_the_launchers_two_site_layout():
+    """compose/sites.yml is `skynet mission --uavs 6 --sites 2 --rcu-site detector=1` in containers: each UAV on
+    its formation's site's gateway (services.orchestration.sites), gateway-1 dialling gateway, the homes of the
+    launcher, a six-UAV key set naming gateway-1, the ground station flying six, the detector at site 1."""
+    from services.orchestration.launcher import Network, build_parser
+    from services.orchestration.sites import gateway_process, site_of_uav
+
+    over = _services(ROOT / "compose/sites.yml")
+    net = Network(build_parser("mission").parse_args(["--fleet", "demo", "--uavs", "6"]), echo=None)
+    try:
+        homes = net.homes(6)
+    finally:
+        net.stop()
+
+    def dialled(cmd):
+        return {_defaults(c).split("/")[1].split(":")[0] for k, c in zip(cmd, cmd[1:]) if k == "--connect"}
+
+    base = _services()
+    for u in range(1, 7):
+        cmd = (over.get(f"uav{u}") or base[f"uav{u}"])["command"]
+        gateways = dialled(cmd) & {"gateway", "gateway-1"}
+        assert gateways == {gateway_process(site_of_uav(u, 2))}, (u, gateways)
+        home = [float(x) for x in cmd[cmd.index("--home") + 1].split(",")]
+        assert home == pytest.approx(list(homes[u - 1]), abs=0.06), u
+        mates = dialled(cmd) - {"gateway", "gateway-1"}
+        assert mates == {f"uav{v}" for v in range(3 * ((u - 1) // 3) + 1, u)}, (u, mates)  # its formation only
+    assert dialled(over["gateway-1"]["command"]) == {"gateway"}
+    assert over["gateway-1"]["command"][1:3] == ["--id", "gw1"] and over["gateway"]["command"][1:3] == ["--id", "gw0"]
+    keys = over["keys"]["command"]
+    assert keys[keys.index("--uavs") + 1] == "6" and "gateway-1" in keys
+    assert over["gcs"]["environment"]["SKYNET_GCS_ARGS"].startswith("--uavs 6")
+    assert dialled(over["detector"]["command"]) == {"gateway-1"}
+    assert {"uav4", "uav5", "uav6"} <= set(over["gcs"]["depends_on"])
