@@ -235,6 +235,8 @@ def main() -> None:
                         help="numbers of gateways each N flies with (skynet mission --sites S), side by side")
     parser.add_argument("--mission-args", nargs="*", default=[],
                         help="more options of every mission run's skynet mission, e.g. --gcs-state-hz 5")
+    parser.add_argument("--reports", type=Path, default=None,
+                        help="keep each mission's report folder under DIR/run-K (default: a temporary folder)")
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "scale.json"))
     args = parser.parse_args()
     runs = [(n, ([] if s == 1 else ["--sites", str(s)]) + args.mission_args) for n in args.uavs for s in args.sites
@@ -246,7 +248,7 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, (n, extra) in enumerate(runs):
-            row = run_one(n, args.speed, Path(tmp) / f"run-{i}", extra)
+            row = run_one(n, args.speed, (args.reports or Path(tmp)) / f"run-{i}", extra)
             rows.append(row)
             print(json.dumps({k: v for k, v in row.items() if k != "captures"}), flush=True)
         for n in args.idle:

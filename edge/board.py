@@ -322,6 +322,24 @@ def niceness(text: str) -> int:
     return n
 
 
+def yield_cpu(n: int) -> tuple[int, int | None]:
+    """Lower this process's CPU priority by ``n``: its nice value (``nice(2)``) and, where the kernel groups
+    the processes of a session for scheduling (``CONFIG_SCHED_AUTOGROUP``, ``sched(7)`` "The autogroup
+    feature"), its autogroup's nice too: there a process's nice only orders it against its own session,
+    and the launcher starts every service in a session of its own, so without the autogroup's value the
+    edges would still share the CPU equally with the services. Returns (nice, autogroup nice or None
+    where there are no autogroups)."""
+    nice = os.nice(n)
+    try:
+        with open("/proc/self/autogroup", "w") as f:
+            f.write(str(n))
+        with open("/proc/self/autogroup") as f:
+            group = int(f.read().split("nice")[1])
+    except (OSError, ValueError, IndexError):
+        group = None
+    return nice, group
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet edge", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="peer")
@@ -397,7 +415,7 @@ def main(argv: list[str] | None = None) -> int:
         args.lease = 2.0
     log = setup_logging(f"uav{args.uav}")
     if args.nice:
-        os.nice(args.nice)
+        yield_cpu(args.nice)
     from .clock import SimClock
     from .runtime import make_camera, make_driver
 

@@ -13,7 +13,8 @@ Three defaults follow the fleet's size, each overridden by its own option:
 - **The simulated boards' priority** (``--edge-nice``): above :data:`NICE_ABOVE` UAVs the edges run at
   nice :data:`EDGE_NICE`, so that when the fleet asks for more than the machine has, the services (the
   gateway, planner, detector, ground station: on real hardware other computers) keep their pace and
-  the simulated boards share what is left. At 48 UAVs with equal priority the detector's workers got a
+  the simulated boards share what is left (the edge sets its session's autogroup nice too:
+  :func:`edge.board.yield_cpu`). At 48 UAVs with equal priority the detector's workers got a
   50th of the CPU each: capture-to-report p50 9.9 s for a 60 ms detection.
 """
 
@@ -28,7 +29,7 @@ from edge.runtime import PREVIEW_HZ
 GCS_STATE_BUDGET = 240.0  # states per second the ground station takes from the whole fleet
 PREVIEW_BUDGET = 12.0  # preview frames per second for the whole fleet
 NICE_ABOVE = 12  # fleets above this many UAVs run their edges niced
-EDGE_NICE = 5
+EDGE_NICE = 10
 STATE_HZ = BoardOptions(uav=1).rate_hz  # what every edge publishes
 
 __all__ = ["EDGE_NICE", "FleetLoad", "GCS_STATE_BUDGET", "NICE_ABOVE", "PREVIEW_BUDGET", "fleet_load"]
@@ -57,7 +58,7 @@ def fleet_load(uavs: int, gcs_state_hz: float | None = None, preview_hz: float |
     >>> fleet_load(3)
     FleetLoad(gcs_state_hz=0.0, preview_hz=2.0, edge_nice=0, chosen=())
     >>> fleet_load(48).gcs_state_hz, fleet_load(48).preview_hz, fleet_load(48).edge_nice
-    (5.0, 0.25, 5)
+    (5.0, 0.25, 10)
     """
     if isinstance(uavs, bool) or not isinstance(uavs, int) or not 1 <= uavs <= 255:
         raise ValueError(f"fleet size must be an int in 1..255, got {uavs!r}")

@@ -196,3 +196,23 @@ def test_nice_option_takes_a_niceness_and_refuses_the_rest():
             niceness(bad)
     assert build_parser().parse_args(["--uav", "2", "--nice", "5"]).nice == 5
     assert build_parser().parse_args(["--uav", "2"]).nice == 0
+
+
+def test_yield_cpu_lowers_the_priority_of_the_process_and_of_its_session_group():
+    """In a session of its own (as the launcher starts an edge): nice 7, and with the kernel's autogroups
+    (sched(7)) the group's nice 7 too, or the nice would not count against the other services' sessions."""
+    import subprocess
+    import sys
+
+    code = ("import os; from edge.board import yield_cpu; n, g = yield_cpu(7); "
+            "print(n, os.getpriority(os.PRIO_PROCESS, 0), g)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         start_new_session=True)
+    assert out.returncode == 0, out.stderr
+    nice, prio, group = out.stdout.split()
+    assert int(nice) == 7 and int(prio) == 7
+    try:
+        autogroups = open("/proc/sys/kernel/sched_autogroup_enabled").read().strip() == "1"
+    except OSError:
+        autogroups = False
+    assert group == ("7" if autogroups else "None")
