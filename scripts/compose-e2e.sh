@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # docker compose, end to end, on a real Docker engine (issue 14); .ci/run runs it after the test suite.
 #
-#   bash scripts/compose-e2e.sh            # the impaired mission (proves the plain path too) + the tc check
+#   bash scripts/compose-e2e.sh            # the impaired mission (proves the plain path too), two sites, the tc check
 #   COMPOSE_E2E_RUNS="plain netem sites split tc" bash scripts/compose-e2e.sh   # split: compose/ground.yml + edge.yml;
 #                                                                       # sites: compose/sites.yml (two gateways)
 #
@@ -25,7 +25,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 ROOT="$PWD"
-RUNS="${COMPOSE_E2E_RUNS:-netem tc}"
+RUNS="${COMPOSE_E2E_RUNS:-netem sites tc}"
 PROJECT="skynet-e2e-$$"
 PY="${PYTHON:-$ROOT/.venv/bin/python}"
 [ -x "$PY" ] || PY=python3
