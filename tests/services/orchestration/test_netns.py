@@ -1,12 +1,15 @@
 """Two gateways in two network namespaces (stand-ins for two hosts), a router link between them over a
 veth pair, the RCU and the UAVs attached to either (issue 18). Real processes, real Zenoh routing.
 
-Site 0: gateway gw0 and UAV 1; site 1: gateway gw1 (dialling gw0 at 10.18.0.1), UAV 4 and the
-planner. The ground station (this test, in the machine's own namespace) attaches to gw0 through a
-Unix socket. It must hear both UAVs' states, command UAV 4 and get a plan from the planner: every
-one of those crosses the router link.
+Site 0: gateway gw0 and UAV 1; site 1: gateway gw1, UAV 4 and the planner. gw1 dials gw0 at 10.18.0.1
+through the project's user-space impairment proxy (``skynet netem tcp``, in site 1's namespace: the
+stand-in for a slow link between two hosts), which delays the router link by 50 ms each way. The
+ground station (this test, in the machine's own namespace) attaches to gw0 through a Unix socket. It
+must hear both UAVs' states, command UAV 4 and get a plan from the planner: every one of those
+crosses the router link, so UAV 4's states arrive later than UAV 1's by the proxy's delay.
 """
 
+import statistics
 import time
 from pathlib import Path
 
@@ -25,6 +28,8 @@ from tests.conftest import wait_until
 FLEET = "sites"
 OK, WHY = available()
 pytestmark = pytest.mark.skipif(not OK, reason=f"no network namespaces here: {WHY}")
+PROXY_PORT = GATEWAY_PORT + 10  # in site 1's namespace: its own port space
+DELAY_MS = 50
 
 
 def test_two_gateways_across_namespaces_route_states_commands_and_plans(tmp_path: Path):
@@ -36,9 +41,12 @@ def test_two_gateways_across_namespaces_route_states_commands_and_plans(tmp_path
         try:
             gw0 = groups[0].start("gw0", ["gateway", "--id", "gw0", "--fleet", FLEET,
                                           "--listen", f"tcp/0.0.0.0:{GATEWAY_PORT}", "--listen", f"unixsock-stream/{sock}"])
-            peer = router_endpoint(ns.address(0, 1))
-            gw1 = groups[1].start("gw1", ["gateway", "--id", "gw1", "--fleet", FLEET,
-                                          "--listen", f"tcp/0.0.0.0:{GATEWAY_PORT}", "--connect", peer])
+            gw0_addr = router_endpoint(ns.address(0, 1)).removeprefix("tcp/")
+            proxy = groups[1].start("netem", ["netem", "tcp", "--listen", f"127.0.0.1:{PROXY_PORT}", "--target",
+                                              gw0_addr, "--impair", f"delay {DELAY_MS}ms", "--interval", "1"])
+            assert proxy.wait_for("tcp", 30), "\n".join(proxy.lines)
+            gw1 = groups[1].start("gw1", ["gateway", "--id", "gw1", "--fleet", FLEET, "--listen",
+                                          f"tcp/0.0.0.0:{GATEWAY_PORT}", "--connect", f"tcp/127.0.0.1:{PROXY_PORT}"])
             for g in (gw0, gw1):
                 assert g.wait_for("router up", 90), "\n".join(g.lines)
             nodes = [groups[1].start("planner", ["planner", "--fleet", FLEET, "--mode", "client", "--connect", local])]
@@ -52,9 +60,14 @@ def test_two_gateways_across_namespaces_route_states_commands_and_plans(tmp_path
                 assert n.wait_for("board up", 90), "\n".join(n.lines)
 
             states: dict[int, VehicleState] = {}
+            ages: dict[int, list[float]] = {1: [], 4: []}
+
+            def on_state(msg: VehicleState, _sample) -> None:
+                states[msg.uav] = msg
+                ages.setdefault(msg.uav, []).append(time.time() - msg.stamp)
+
             with Bus(BusConfig(mode="client", connect=[f"unixsock-stream/{sock}"]), FLEET, "gcs") as gcs:
-                gcs.subscribe(keys.state(FLEET, "*"), lambda msg, s: states.__setitem__(msg.uav, msg),
-                              expect=VehicleState, link=TELEMETRY)
+                gcs.subscribe(keys.state(FLEET, "*"), on_state, expect=VehicleState, link=TELEMETRY)
                 assert wait_until(lambda: {1, 4} <= set(states), 30), states  # UAV 4's cross gw1 -> gw0
                 ack = gcs.request(keys.cmd(FLEET, 4), Takeoff(uav=4, cmd_id=1, altitude=5), expect=CommandAck,
                                   timeout=10)
@@ -64,6 +77,9 @@ def test_two_gateways_across_namespaces_route_states_commands_and_plans(tmp_path
                 assert plan.ok and len(plan.message.trajectories) == 3, plan
                 # UAV 4 climbs (its states, routed through both gateways, say so)
                 assert wait_until(lambda: states[4].pos[2] > 1.0, 30), states[4]
+            # UAV 4's states cross the impaired router link, UAV 1's do not (one clock: this machine's)
+            extra_ms = 1e3 * (statistics.median(ages[4][-100:]) - statistics.median(ages[1][-100:]))
+            assert 0.8 * DELAY_MS <= extra_ms <= 3 * DELAY_MS, (extra_ms, len(ages[1]), len(ages[4]))
         finally:
             for g in reversed(groups):
                 g.stop()
