@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("services.orchestration.launcher", "start the whole network on this machine"),
     "mission": ("services.orchestration.launcher", "start the network, run the default mission, write the report"),
     "netem": ("services.netem.cli", "user-space impairment proxy (UDP/TCP) for latency/loss experiments"),
+    "bridge": ("services.orchestration.bridge", "forward a TCP port to a Unix socket or back (into a network namespace)"),
     "experiment": ("services.experiment.cli", "the mission over a grid of link loss/delay/jitter, with a table and plots"),
     "video": ("services.video.service", "every UAV's camera as standard RTP/UDP (H.264 or JPEG) with SDP files"),
     "web": ("services.web.service", "the live web page of the fleet (aiohttp, WebSocket)"),

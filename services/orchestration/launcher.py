@@ -161,6 +161,13 @@ def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
         raise ValueError(f"--sites {n_sites} with --secure: the router link between two gateways cannot pass the "
                          "user/password ACL (only the dialling side authenticates); use the default mutual TLS")
     rcus = ["planner", *(["detector"] if detectors == 1 else [f"detector-{k}" for k in range(detectors)])]
+    if getattr(args, "netns", False):
+        if getattr(args, "insecure", False) or getattr(args, "secure", False):
+            raise ValueError("--netns needs the default TLS links (both of a pair are TCP, which the forwarders "
+                             "between namespaces carry): not with --insecure or --secure")
+        if proxied or faults:
+            raise ValueError("--netns with --impair/--fault: the launcher's link proxies run in the machine's own "
+                             "namespace, not in the sites'; impair the router links with skynet netem by hand")
     where = sitemap.parse_rcu_sites(getattr(args, "rcu_site", None) or [], n_sites, rcus)
     if "detector" in proxied and len({s for n, s in where.items() if n.startswith("detector")}) > 1:
         raise ValueError("--impair/--fault on the detector link: its instances attach to different sites "
@@ -181,6 +188,8 @@ class Network:
         self.args = args
         self.ground_station = ground_station
         self.plan = plan or make_plan(args, ground_station)
+        #: --netns: one network namespace per site (services.orchestration.netns), opened by start()
+        self.ns = None
         #: the fleet-size defaults: the ground station's state feed, previews, the edges' priority
         self.load = fleet_load(args.uavs, getattr(args, "gcs_state_hz", None), getattr(args, "preview_hz", None),
                                getattr(args, "edge_nice", None))
@@ -337,9 +346,51 @@ class Network:
         if self.creds is not None:
             self.group.env[PASSWORD_ENV] = self.creds.passwords[user or name]
         try:
-            return self.group.start(name, args)
+            return self.group.start(name, args, prefix=self.prefix_of(name))
         finally:
             self.group.env.pop(PASSWORD_ENV, None)
+
+    #: services that stay in the machine's own namespace with --netns (what a user reaches from here)
+    MAIN_NAMESPACE = ("web", "video")
+
+    def prefix_of(self, name: str) -> list[str]:
+        """The command that runs ``name`` in its site's namespace (--netns), else none."""
+        if self.ns is None or name in self.MAIN_NAMESPACE:
+            return []
+        return self.ns.prefix(self.site_of(name))
+
+    def netns_router_link(self, site: int, peer: int) -> list[str]:
+        """--netns: gateway ``site`` dials gateway ``peer`` through the project's TCP proxy (``skynet netem tcp``,
+        in ``site``'s namespace, on its loopback) to ``peer``'s veth address: the TLS session runs end to end and
+        is checked against 127.0.0.1, the name in the key set's certificates. The endpoints to dial."""
+        out = []
+        for e in self.site_endpoints[peer]:
+            port = int(endpoint_address(e).rsplit(":", 1)[1])
+            local = free_port()
+            target = f"{self.ns.address(peer, site).split('/')[0]}:{port}"
+            name = f"link-{sitemap.gateway_process(site)}-{sitemap.gateway_process(peer)}-{port}"
+            fwd = self.group.start(name, ["netem", "tcp", "--listen", f"{HOST}:{local}", "--target", target,
+                                          "--interval", "60"], prefix=self.ns.prefix(site))
+            if not fwd.wait_for("netem tcp listening", 30):
+                raise RuntimeError(f"{name} did not start:\n" + "\n".join(fwd.lines[-20:]))
+            out.append(e.replace(f"{HOST}:{port}", f"{HOST}:{local}"))
+        return out
+
+    def netns_bridges(self) -> None:
+        """--netns: site 0's gateway reached from the machine's own namespace (the ground station, skynet web,
+        a user's tools) at its own endpoints: a Unix socket bridge inside site 0 and one outside it
+        (:mod:`services.orchestration.bridge`), carrying the TLS session end to end."""
+        for e in self.site_endpoints[0]:
+            port = int(endpoint_address(e).rsplit(":", 1)[1])
+            sock = self.tmp / f"gateway-{port}.sock"
+            inner = self.group.start(f"bridge-in-{port}", ["bridge", "--listen", f"unix:{sock}",
+                                                            "--target", f"tcp:{HOST}:{port}"], prefix=self.ns.prefix(0))
+            if not inner.wait_for("bridge up", 30):
+                raise RuntimeError("the namespace bridge did not start:\n" + "\n".join(inner.lines[-20:]))
+            outer = self.group.start(f"bridge-out-{port}", ["bridge", "--listen", f"tcp:{HOST}:{port}",
+                                                             "--target", f"unix:{sock}"])
+            if not outer.wait_for("bridge up", 30):
+                raise RuntimeError("the namespace bridge did not start:\n" + "\n".join(outer.lines[-20:]))
 
     def gcs_config(self) -> BusConfig:
         """The in-process ground station's session."""
@@ -397,16 +448,30 @@ class Network:
         secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
         lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
         thin = self.gateway_config()
+        if getattr(a, "netns", False):
+            from .netns import Namespaces, available
+
+            ok, why = available()
+            if not ok:
+                raise RuntimeError(f"--netns: no network namespaces here: {why}")
+            self.ns = Namespaces(self.plan.sites).open()
         for site in self.plan.sites.sites:  # one gateway per site, each dialling the lower-numbered ones
             name = sitemap.gateway_process(site.index)
             ident = [] if len(self.site_endpoints) == 1 else ["--id", site.gateway]
-            dial = [x for j in self.plan.sites.peers_of(site.index) for e in self.site_endpoints[j]
-                    for x in ("--connect", e)]
+            peers = self.plan.sites.peers_of(site.index)
+            targets = ([e for j in peers for e in self.netns_router_link(site.index, j)] if self.ns is not None
+                       else [e for j in peers for e in self.site_endpoints[j]])
+            listen = self.site_endpoints[site.index]
+            if self.ns is not None:  # also on its veths, for the router links' proxies
+                listen = [e.replace(f"/{HOST}:", "/0.0.0.0:") for e in listen]
             gw = self.group.start(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *secure, *lease,
-                                         *thin, *self.key_args(), *dial,
-                                         *[x for e in self.site_endpoints[site.index] for x in ("--listen", e)]])
+                                         *thin, *self.key_args(), *[x for e in targets for x in ("--connect", e)],
+                                         *[x for e in listen for x in ("--listen", e)]],
+                                  prefix=[] if self.ns is None else self.ns.prefix(site.index))
             if not gw.wait_for(READY["gateway"], 30):
                 raise RuntimeError(f"{name} did not start:\n" + "\n".join(gw.lines[-20:]))
+            if self.ns is not None and site.index == 0:
+                self.netns_bridges()
         if len(self.site_endpoints) > 1:
             for line in self.topology():
                 logging.getLogger("skynet.launcher").info("%s", line)
@@ -424,7 +489,8 @@ class Network:
                 port = free_port_pair()[1]
                 self.group.start(f"ap{i}", ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1),
                                             "--home", ",".join(map(str, home)), "--speed", str(a.speed),
-                                            "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate"])
+                                            "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate"],
+                                 prefix=self.prefix_of(f"uav{i}"))  # beside its edge
                 vehicle = ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{port}",
                            "--flight", getattr(a, "flight", "guided")]
             self.start_service(f"uav{i}", [
@@ -541,6 +607,8 @@ class Network:
         for pair in self.proxies.values():
             for p in pair.values():
                 p.stop()
+        if self.ns is not None:
+            self.ns.close()
         shutil.rmtree(self.tmp, ignore_errors=True)
         return codes
 
@@ -566,6 +634,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--gcs-state-hz", type=preview_rate, default=None, metavar="HZ",
                    help=f"states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz; "
                         f"default: all up to {GCS_STATE_BUDGET:g} for the fleet, else {GCS_STATE_BUDGET:g}/N)")
+    p.add_argument("--netns", action="store_true",
+                   help="each site in a network namespace of its own, as a stand-in for a host (root; "
+                        "services/orchestration/netns.py): router links over veth pairs through skynet netem's "
+                        "proxy, site 0 reached from here through a Unix socket bridge")
     p.add_argument("--edge-nice", type=niceness, default=None, metavar="N",
                    help=f"the edges' niceness (default: {EDGE_NICE} above {NICE_ABOVE} UAVs, else 0; "
                         "services/orchestration/fleet_load.py)")

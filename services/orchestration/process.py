@@ -118,6 +118,8 @@ class Service:
     restarts: int = 0
     #: time.monotonic() when this run of it started
     started: float = field(default_factory=time.monotonic)
+    #: the command it runs under besides the group's (``ip netns exec NS``: a site's namespace)
+    prefix: list[str] = field(default_factory=list)
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -174,22 +176,26 @@ class ProcessGroup:
                 except (OSError, ValueError):
                     pass
 
-    def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None) -> Service:
+    def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None,
+              prefix: list[str] | None = None) -> Service:
+        """Start ``name`` (``prefix``: a command of its own to run under, e.g. its site's namespace; kept
+        for its restarts)."""
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"cannot start {name}: the process group is stopping")
-            svc = self._spawn(name, list(args), dict(self.env), on_line)
+            svc = self._spawn(name, list(args), dict(self.env), on_line, prefix=list(prefix or []))
             self.services.append(svc)
         return svc
 
     def _spawn(self, name: str, args: list[str], env: dict[str, str],
-               on_line: Callable[[str, str], None] | None, restarts: int = 0) -> Service:
-        cmd = [*self.prefix, sys.executable, "-m", "services.cli", *args]
+               on_line: Callable[[str, str], None] | None, restarts: int = 0,
+               prefix: list[str] | None = None) -> Service:
+        cmd = [*self.prefix, *(prefix or []), sys.executable, "-m", "services.cli", *args]
         proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             text=True, errors="replace", bufsize=1, env=env, start_new_session=True,
         )
-        svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts)
+        svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts, prefix=list(prefix or []))
 
         def pump() -> None:
             assert proc.stdout is not None
@@ -246,7 +252,7 @@ class ProcessGroup:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"cannot restart {name}: the process group is stopping")
-            svc = self._spawn(name, old.args, old.env, old.on_line, restarts=old.restarts + 1)
+            svc = self._spawn(name, old.args, old.env, old.on_line, restarts=old.restarts + 1, prefix=old.prefix)
             self.services[self.services.index(old)] = svc
         return svc
 

@@ -9,7 +9,9 @@ must hear both UAVs' states, command UAV 4 and get a plan from the planner: ever
 crosses the router link, so UAV 4's states arrive later than UAV 1's by the proxy's delay.
 """
 
+import os
 import statistics
+import subprocess
 import time
 from pathlib import Path
 
@@ -83,3 +85,46 @@ def test_two_gateways_across_namespaces_route_states_commands_and_plans(tmp_path
         finally:
             for g in reversed(groups):
                 g.stop()
+
+
+def _netns_of(pid: int) -> str:
+    return os.readlink(f"/proc/{pid}/ns/net")
+
+
+def test_the_launcher_runs_each_site_in_a_namespace_of_its_own():
+    """``skynet up --sites 2 --netns`` (secure, the default): each site's gateway, edges and RCUs in the site's
+    namespace, the router link through the project's proxy over the veth, and site 0 reached from the
+    machine's own namespace through the Unix socket bridges with the ground station's certificate: this test
+    hears all six UAVs (formation 2's through the router link) and both gateways' statistics."""
+    from protocol.messages import LinkStats
+    from services.orchestration.launcher import Network, build_parser
+
+    args = build_parser("up").parse_args(["--fleet", "netns", "--uavs", "6", "--sites", "2", "--netns",
+                                          "--rcu-site", "planner=1", "--speed", "4"])
+    net = Network(args, echo=None)
+    try:
+        net.start()
+        g = net.group
+        for i in range(1, 7):
+            assert g.get(f"uav{i}").wait_for("board up", 60), "\n".join(g.get(f"uav{i}").lines[-20:])
+        here = _netns_of(os.getpid())
+        site0, site1 = _netns_of(g.get("gateway").proc.pid), _netns_of(g.get("gateway-1").proc.pid)
+        assert len({here, site0, site1}) == 3
+        assert [_netns_of(g.get(f"uav{i}").proc.pid) for i in range(1, 7)] == [site0] * 3 + [site1] * 3
+        assert _netns_of(g.get("planner").proc.pid) == site1 and _netns_of(g.get("detector").proc.pid) == site0
+        links = [s for s in g.services if s.name.startswith("link-gateway-1-gateway-")]
+        assert len(links) == 2 and all(_netns_of(s.proc.pid) == site1 for s in links)
+        states: dict[int, float] = {}
+        stats: dict[str, LinkStats] = {}
+        with Bus(net.gcs_config(), "netns", "gcs") as gcs:
+            gcs.subscribe(keys.state("netns", "*"), lambda m, s: states.__setitem__(m.uav, m.stamp),
+                          expect=VehicleState, link=TELEMETRY)
+            gcs.subscribe(keys.gateway_stats("netns"), lambda m, s: stats.__setitem__(m.source, m),
+                          expect=LinkStats, link=TELEMETRY)
+            assert wait_until(lambda: set(states) == set(range(1, 7)), 60), states
+            assert wait_until(lambda: {"gateway/gw0", "gateway/gw1"} <= set(stats)
+                              and all(s.sessions.get("router") == 1 for s in stats.values()), 30), stats
+    finally:
+        net.stop()
+    assert net.ns is not None and not any(n in subprocess.run(["ip", "netns", "list"], capture_output=True,
+                                                              text=True).stdout for n in net.ns.names)

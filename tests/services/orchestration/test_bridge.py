@@ -1,0 +1,75 @@
+"""skynet bridge: TCP <-> Unix socket byte forwarding, real processes and sockets."""
+
+import argparse
+import socket
+import threading
+from pathlib import Path
+
+import pytest
+
+from services.orchestration.bridge import Address, address
+from services.orchestration.process import ProcessGroup, free_port
+
+
+def test_address_parses_tcp_and_unix_and_refuses_the_rest():
+    assert address("tcp:127.0.0.1:7447") == Address("tcp", host="127.0.0.1", port=7447)
+    assert address("unix:/tmp/x.sock") == Address("unix", path="/tmp/x.sock")
+    for bad in ("tcp:127.0.0.1", "tcp::80", "tcp:h:0", "tcp:h:70000", "unix:", "udp:h:1", "x"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            address(bad)
+
+
+def _echo_server() -> tuple[socket.socket, int]:
+    srv = socket.create_server(("127.0.0.1", 0))
+
+    def serve() -> None:
+        while True:
+            try:
+                c, _ = srv.accept()
+            except OSError:
+                return
+            threading.Thread(target=lambda c=c: [c.sendall(d) for d in iter(lambda: c.recv(65536), b"")],
+                             daemon=True).start()
+
+    threading.Thread(target=serve, daemon=True).start()
+    return srv, srv.getsockname()[1]
+
+
+def test_two_bridges_carry_a_tcp_stream_through_a_unix_socket_both_ways(tmp_path: Path):
+    srv, port = _echo_server()
+    sock, front = tmp_path / "b.sock", free_port()
+    group = ProcessGroup(echo=None)
+    try:
+        inner = group.start("inner", ["bridge", "--listen", f"unix:{sock}", "--target", f"tcp:127.0.0.1:{port}"])
+        outer = group.start("outer", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"unix:{sock}"])
+        for b in (inner, outer):
+            assert b.wait_for("bridge up", 30), b.lines
+        payload = bytes(range(256)) * 4096  # 1 MiB
+        with socket.create_connection(("127.0.0.1", front), timeout=10) as c:
+            got = bytearray()
+            sender = threading.Thread(target=c.sendall, args=(payload,))
+            sender.start()
+            while len(got) < len(payload):
+                chunk = c.recv(65536)
+                assert chunk, f"closed after {len(got)} bytes"
+                got += chunk
+            sender.join()
+        assert bytes(got) == payload
+    finally:
+        group.stop()
+        srv.close()
+    assert any("bridge down: 1 connections" in line for line in outer.lines), outer.lines
+
+
+def test_an_unreachable_target_closes_the_connection_and_is_counted(tmp_path: Path):
+    front = free_port()
+    group = ProcessGroup(echo=None)
+    try:
+        b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"unix:{tmp_path}/none"])
+        assert b.wait_for("bridge up", 30), b.lines
+        with socket.create_connection(("127.0.0.1", front), timeout=10) as c:
+            c.settimeout(10)
+            assert c.recv(10) == b""  # closed, not hung
+    finally:
+        group.stop()
+    assert any("1 target failures" in line for line in b.lines), b.lines
