@@ -42,6 +42,7 @@ VARIANTS = [
     (["--profile", "web"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/video.yml"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/sites.yml"], {}),
+    ([], {"SKYNET_FRAME_SIZE": "4000x3000"}),
     (["-f", "compose/ground.yml"], {}),
     (["-f", "compose/ground.yml"], {"SKYNET_BIND": "10.0.0.5", "SKYNET_SANS": "uav1=10.0.0.6 uav2=10.0.0.7,uav2.example"}),
     (["-f", "compose/edge.yml"], EDGE_ENV),
@@ -109,6 +110,7 @@ def _skynet_argv(name: str, svc: dict) -> list[str] | None:
         part = re.sub(r"\$\{?SKYNET_(GATEWAY)\}?", "ground", part)
         part = re.sub(r"\$\{?SKYNET_(HOME)\}?", "0,0,0", part)
         part = re.sub(r"\$\{?SKYNET_(CAMERA)\}?", "synthetic", part)
+        part = re.sub(r"\$\{?SKYNET_(FRAME_SIZE)\}?", "640x480", part)
         part = re.sub(r"\$\{?[A-Za-z_]+\}?", "", part)  # the rest: empty (extra args, peers, the run name)
         argv = shlex.split(part.strip().removeprefix("exec "))
         assert argv[0] == "skynet", f"{name}: {argv}"
@@ -395,3 +397,19 @@ def test_the_sites_override_is_the_launchers_two_site_layout():
     assert over["gcs"]["environment"]["SKYNET_GCS_ARGS"].startswith("--uavs 6")
     assert dialled(over["detector"]["command"]) == {"gateway-1"}
     assert {"uav4", "uav5", "uav6"} <= set(over["gcs"]["depends_on"])
+
+
+@pytest.mark.parametrize("path", ["docker-compose.yml", "compose/camera.yml", "compose/insecure.yml", "compose/mavlink.yml",
+                                  "compose/sites.yml", "compose/edge.yml"])
+def test_every_edge_takes_the_frame_size_from_skynet_frame_size(path):
+    """Issue 18: ``SKYNET_FRAME_SIZE=4000x3000`` gives every edge of every file the paper's 12 MP frames (capture
+    frames above 1 MP then go on the reliable link: the edge's --capture-link auto); the default is 640x480."""
+    edges = {n: s for n, s in _services(ROOT / path).items() if n.startswith("uav") or n == "edge"}
+    assert edges
+    for name, svc in edges.items():
+        text = " ".join(svc["command"])
+        if "$${SKYNET_FRAME_SIZE}" in text:  # compose/edge.yml's shell form
+            assert svc["environment"]["SKYNET_FRAME_SIZE"] == "${SKYNET_FRAME_SIZE:-640x480}", name
+        else:
+            cmd = svc["command"]
+            assert cmd[cmd.index("--frame-size") + 1] == "${SKYNET_FRAME_SIZE:-640x480}", (path, name)
