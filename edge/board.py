@@ -327,9 +327,13 @@ def yield_cpu(n: int) -> tuple[int, int | None]:
     the processes of a session for scheduling (``CONFIG_SCHED_AUTOGROUP``, ``sched(7)`` "The autogroup
     feature"), its autogroup's nice too: there a process's nice only orders it against its own session,
     and the launcher starts every service in a session of its own, so without the autogroup's value the
-    edges would still share the CPU equally with the services. Returns (nice, autogroup nice or None
-    where there are no autogroups)."""
+    edges would still share the CPU equally with the services. The autogroup is the whole session's, so it
+    is set only when this process leads its session (as the launcher starts it), never for a shell that
+    ran ``skynet edge --nice``. Returns (nice, autogroup nice, or None where it was left alone or there
+    are no autogroups)."""
     nice = os.nice(n)
+    if os.getsid(0) != os.getpid():
+        return nice, None
     try:
         with open("/proc/self/autogroup", "w") as f:
             f.write(str(n))

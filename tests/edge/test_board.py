@@ -216,3 +216,6 @@ def test_yield_cpu_lowers_the_priority_of_the_process_and_of_its_session_group()
     except OSError:
         autogroups = False
     assert group == ("7" if autogroups else "None")
+    # not a session leader (run from a shell): the session's group, shared with the shell, is left alone
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.split()[2] == "None", (out.stdout, out.stderr)
