@@ -23,7 +23,7 @@ from protocol.bus import (
 from protocol.scenario import Scenario, load_scenario
 
 from .mission import MissionOptions, MissionRunner
-from .progress import LiveDisplay, render
+from .progress import HeadingHold, LiveDisplay, render
 from .supervision import FRESH_STATE_S
 
 
@@ -38,6 +38,7 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
     (the launcher's fault injector hooks in there: ``runner.note_fault``, ``runner.record.phases``).
     """
     display = None if quiet else LiveDisplay()
+    heading = HeadingHold()  # the formation heading, held across slow moments (services.gcs.progress)
     offsets = {i + 1: tuple(o) for i, o in enumerate(formation.offsets_for(len(options.uavs)))}
     t_start = time.time()
 
@@ -50,7 +51,7 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         notes = {u: "LOST" if u in lost else f"silent {now - heard[u]:.1f} s" for u in options.uavs
                  if u in lost or (u in heard and now - heard[u] > FRESH_STATE_S)}
         display.update(render(snap.phase, snap.states, options.uavs, snap.ages_ms, snap.reports,
-                              len(runner.planned_captures()), offsets, now - t_start, notes), force=force)
+                              len(runner.planned_captures()), offsets, now - t_start, notes, heading), force=force)
 
     journal = None
     if out:

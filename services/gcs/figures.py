@@ -98,7 +98,7 @@ MAX_REPORT_EVENTS = 500
 #: Tolerance of the defect scoring (:func:`services.gcs.scoring.score_defects`), m.
 DEFECT_TOLERANCE_M = 0.3
 #: Below this horizontal centroid speed the formation heading is held, m/s.
-_HEADING_MIN_SPEED = 0.3
+HEADING_MIN_SPEED = 0.3
 #: The centroid velocity giving the formation heading is averaged over this window, s.
 _HEADING_WINDOW_S = 1.0
 #: Link flow -> the name its latency is repeated under in ``report.json``.
@@ -589,7 +589,7 @@ def shape_errors(t: ArrayLike, positions: Mapping[int, ArrayLike], offsets: Mapp
     Ca = np.stack([np.interp(a, t, C[:, k]) for k in range(2)], axis=1)
     Cb = np.stack([np.interp(b, t, C[:, k]) for k in range(2)], axis=1)
     vel = (Cb - Ca) / np.maximum(b - a, 1e-9)[:, None]
-    valid = np.hypot(vel[:, 0], vel[:, 1]) >= _HEADING_MIN_SPEED
+    valid = np.hypot(vel[:, 0], vel[:, 1]) >= HEADING_MIN_SPEED
     yaw = np.zeros(t.size)
     if np.any(valid):
         idx = np.maximum.accumulate(np.where(valid, np.arange(t.size), -1))

@@ -17,7 +17,8 @@ from typing import IO
 import numpy as np
 
 from edge import formation
-from protocol.messages import VehicleState
+from protocol.messages import Mode, VehicleState
+from services.gcs.figures import HEADING_MIN_SPEED
 
 
 def bar(fraction: float, width: int = 24) -> str:
@@ -26,19 +27,40 @@ def bar(fraction: float, width: int = 24) -> str:
     return "█" * full + "·" * (width - full)
 
 
-def formation_rms(states: dict[int, VehicleState], offsets: dict[int, tuple[float, float, float]]) -> float | None:
-    ids = [u for u in states if u in offsets]
+class HeadingHold:
+    """The formation heading ψ of the live line, taken as the report takes it (:mod:`services.gcs.figures`):
+    that of the fleet's mean horizontal velocity, held while the fleet is slower than
+    :data:`~services.gcs.figures.HEADING_MIN_SPEED` (hovering at a capture point or the goal); 0 before
+    any motion."""
+
+    def __init__(self) -> None:
+        self.yaw = 0.0
+
+    def update(self, vel: np.ndarray) -> float:
+        if math.hypot(float(vel[0]), float(vel[1])) > HEADING_MIN_SPEED:
+            self.yaw = math.atan2(float(vel[1]), float(vel[0]))
+        return self.yaw
+
+
+def formation_rms(states: dict[int, VehicleState], offsets: dict[int, tuple[float, float, float]],
+                  heading: HeadingHold | None = None) -> float | None:
+    """RMS shape error (P6) of the latest states of the UAVs flying the formation (MISSION or HOLD: on the
+    ground, taking off or landing there is no formation to keep, and a landed one has lost its heights:
+    the last line said 1.4-2.0 m where the report, mission phase only, said 0.12); ``heading`` keeps ψ
+    across slow moments (one per display)."""
+    ids = [u for u in states if u in offsets and states[u].mode in (Mode.MISSION, Mode.HOLD)]
     if len(ids) < 2:
         return None
     vel = np.mean([states[u].vel for u in ids], axis=0)
-    yaw = math.atan2(vel[1], vel[0]) if math.hypot(vel[0], vel[1]) > 0.3 else 0.0
+    yaw = (heading or HeadingHold()).update(vel)
     return formation.formation_error({u: states[u].pos for u in ids}, None, yaw, offsets)
 
 
 def render(phase: str, states: dict[int, VehicleState], uavs: tuple[int, ...], ages_ms: list[float],
            reports: int, captures_planned: int, offsets: dict[int, tuple[float, float, float]], elapsed_s: float,
-           notes: dict[int, str] | None = None) -> list[str]:
-    """The live block; ``notes`` adds a word per UAV (``LOST``, ``silent 3.2 s``) after its line."""
+           notes: dict[int, str] | None = None, heading: HeadingHold | None = None) -> list[str]:
+    """The live block; ``notes`` adds a word per UAV (``LOST``, ``silent 3.2 s``) after its line; ``heading``
+    holds the formation heading from one call to the next (:class:`HeadingHold`)."""
     lines = [f"mission {elapsed_s:6.1f} s  phase: {phase}"]
     notes = notes or {}
     for u in uavs:
@@ -49,7 +71,7 @@ def render(phase: str, states: dict[int, VehicleState], uavs: tuple[int, ...], a
             continue
         lines.append(f"  UAV {u}  {bar(s.progress)} {100 * s.progress:5.1f} %  {s.mode.value:<8} "
                      f"z {s.pos[2]:5.1f} m  {math.hypot(*s.vel):4.1f} m/s  captures {s.captures}{note}")
-    err = formation_rms(states, offsets)
+    err = formation_rms(states, offsets, heading)
     age = f"{statistics.median(ages_ms):.1f} ms" if ages_ms else "-"
     lines.append(f"  formation RMS error {'-' if err is None else f'{err:.2f} m'}   telemetry age p50 {age}   "
                  f"defect reports {reports}/{captures_planned}")
