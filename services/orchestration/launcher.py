@@ -131,6 +131,11 @@ class Plan:
     sites: sitemap.Mesh | None = None
 
 
+def _port_of(endpoint: str) -> int:
+    """The port of a Zenoh endpoint such as ``tls/127.0.0.1:7447?rel=1``."""
+    return int(endpoint_address(endpoint).rsplit(":", 1)[1])
+
+
 def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
     """Check ``--impair``, ``--fault`` and ``--mesh`` against the run; ValueError with a one-line message."""
     if args.uavs < 1:
@@ -359,20 +364,26 @@ class Network:
             return []
         return self.ns.prefix(self.site_of(name))
 
+    def start_ready(self, name: str, args: list[str], ready: str, prefix: list[str] | None = None):
+        """Start a process of the network's own plumbing (gateway, namespace proxy or bridge) and wait up to
+        30 s for its ``ready`` line; RuntimeError with its last lines if it does not come up."""
+        svc = self.group.start(name, args, prefix=prefix)
+        if not svc.wait_for(ready, 30):
+            raise RuntimeError(f"{name} did not start:\n" + "\n".join(svc.lines[-20:]))
+        return svc
+
     def netns_router_link(self, site: int, peer: int) -> list[str]:
         """--netns: gateway ``site`` dials gateway ``peer`` through the project's TCP proxy (``skynet netem tcp``,
         in ``site``'s namespace, on its loopback) to ``peer``'s veth address: the TLS session runs end to end and
         is checked against 127.0.0.1, the name in the key set's certificates. The endpoints to dial."""
         out = []
         for e in self.site_endpoints[peer]:
-            port = int(endpoint_address(e).rsplit(":", 1)[1])
+            port = _port_of(e)
             local = free_port()
             target = f"{self.ns.address(peer, site).split('/')[0]}:{port}"
-            name = f"link-{sitemap.gateway_process(site)}-{sitemap.gateway_process(peer)}-{port}"
-            fwd = self.group.start(name, ["netem", "tcp", "--listen", f"{HOST}:{local}", "--target", target,
-                                          "--interval", "60"], prefix=self.ns.prefix(site))
-            if not fwd.wait_for("netem tcp listening", 30):
-                raise RuntimeError(f"{name} did not start:\n" + "\n".join(fwd.lines[-20:]))
+            self.start_ready(f"link-{sitemap.gateway_process(site)}-{sitemap.gateway_process(peer)}-{port}",
+                             ["netem", "tcp", "--listen", f"{HOST}:{local}", "--target", target, "--interval", "60"],
+                             "netem tcp listening", prefix=self.ns.prefix(site))
             out.append(e.replace(f"{HOST}:{port}", f"{HOST}:{local}"))
         return out
 
@@ -381,16 +392,12 @@ class Network:
         a user's tools) at its own endpoints: a Unix socket bridge inside site 0 and one outside it
         (:mod:`services.orchestration.bridge`), carrying the TLS session end to end."""
         for e in self.site_endpoints[0]:
-            port = int(endpoint_address(e).rsplit(":", 1)[1])
+            port = _port_of(e)
             sock = self.tmp / f"gateway-{port}.sock"
-            inner = self.group.start(f"bridge-in-{port}", ["bridge", "--listen", f"unix:{sock}",
-                                                            "--target", f"tcp:{HOST}:{port}"], prefix=self.ns.prefix(0))
-            if not inner.wait_for("bridge up", 30):
-                raise RuntimeError("the namespace bridge did not start:\n" + "\n".join(inner.lines[-20:]))
-            outer = self.group.start(f"bridge-out-{port}", ["bridge", "--listen", f"tcp:{HOST}:{port}",
-                                                             "--target", f"unix:{sock}"])
-            if not outer.wait_for("bridge up", 30):
-                raise RuntimeError("the namespace bridge did not start:\n" + "\n".join(outer.lines[-20:]))
+            self.start_ready(f"bridge-in-{port}", ["bridge", "--listen", f"unix:{sock}", "--target",
+                                                   f"tcp:{HOST}:{port}"], "bridge up", prefix=self.ns.prefix(0))
+            self.start_ready(f"bridge-out-{port}", ["bridge", "--listen", f"tcp:{HOST}:{port}", "--target",
+                                                    f"unix:{sock}"], "bridge up")
 
     def gcs_config(self) -> BusConfig:
         """The in-process ground station's session."""
@@ -464,12 +471,10 @@ class Network:
             listen = self.site_endpoints[site.index]
             if self.ns is not None:  # also on its veths, for the router links' proxies
                 listen = [e.replace(f"/{HOST}:", "/0.0.0.0:") for e in listen]
-            gw = self.group.start(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *secure, *lease,
-                                         *thin, *self.key_args(), *[x for e in targets for x in ("--connect", e)],
-                                         *[x for e in listen for x in ("--listen", e)]],
-                                  prefix=[] if self.ns is None else self.ns.prefix(site.index))
-            if not gw.wait_for(READY["gateway"], 30):
-                raise RuntimeError(f"{name} did not start:\n" + "\n".join(gw.lines[-20:]))
+            self.start_ready(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *secure, *lease, *thin,
+                                    *self.key_args(), *[x for e in targets for x in ("--connect", e)],
+                                    *[x for e in listen for x in ("--listen", e)]],
+                             READY["gateway"], prefix=[] if self.ns is None else self.ns.prefix(site.index))
             if self.ns is not None and site.index == 0:
                 self.netns_bridges()
         if len(self.site_endpoints) > 1:
