@@ -50,7 +50,9 @@ from protocol.signing import TrustError
 from . import formation
 from .failsafe import ACTIONS, ESCALATIONS, FailsafeOptions, FailsafePolicy
 from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
-from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size, preview_rate
+from protocol.checks import rate_arg
+
+from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size
 from .trust import Gate, command_id
 from .validate import validate_command
 from .vehicle.follower import Follower
@@ -392,7 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--frame-size", type=frame_size, default="640x480", help="delivered frame size WxH")
     parser.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
                         help="link of capture frames: best-effort (UDP), reliable (TCP), or auto: reliable above 1 MP")
-    parser.add_argument("--preview-hz", type=preview_rate, default=PREVIEW_HZ, metavar="HZ",
+    parser.add_argument("--preview-hz", type=rate_arg, default=PREVIEW_HZ, metavar="HZ",
                         help="live preview frames per second (320x240, best-effort, never recovered; 0 = off)")
     parser.add_argument("--nice", type=niceness, default=0, metavar="N",
                         help="lower this board's CPU priority by N (0..19): a simulated fleet sharing one machine "

@@ -93,17 +93,6 @@ def cache_frames(text: str) -> int:
     return n
 
 
-def preview_rate(text: str) -> float:
-    """argparse type of ``--preview-hz``: a finite rate >= 0 Hz (0 = no live preview)."""
-    try:
-        hz = float(text)
-    except (TypeError, ValueError):
-        raise argparse.ArgumentTypeError(f"expected a rate in Hz >= 0, got {text!r}") from None
-    if not math.isfinite(hz) or hz < 0:
-        raise argparse.ArgumentTypeError(f"expected a rate in Hz >= 0, got {text!r}")
-    return hz
-
-
 def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
     if args.vehicle == "sim":
         wind = DisturbanceParams.moderate() if args.wind == "moderate" else DisturbanceParams()

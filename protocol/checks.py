@@ -1,14 +1,15 @@
-"""Argument checks shared by every layer: one wording of "must be finite and positive" and of 3-vectors."""
+"""Argument checks shared by every layer: one wording of "must be finite and positive", of rates and of 3-vectors."""
 
 from __future__ import annotations
 
+import argparse
 import math
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["positive", "finite_array", "finite_vec3"]
+__all__ = ["positive", "rate", "rate_arg", "finite_array", "finite_vec3"]
 
 
 def positive(name: str, value: Any) -> float:
@@ -20,6 +21,23 @@ def positive(name: str, value: Any) -> float:
     if not (math.isfinite(v) and v > 0):
         raise ValueError(f"{name} must be finite and > 0, got {value!r}")
     return v
+
+
+def rate(name: str, value: Any) -> float:
+    """``value`` as a float rate in Hz, a number (not a bool or a string) finite and >= 0 (0: off);
+    ValueError naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"{name} must be a finite rate >= 0 Hz, got {value!r}")
+    return float(value)
+
+
+def rate_arg(text: str) -> float:
+    """argparse type of a rate option (``--preview-hz``, ``--gcs-state-hz``, ``--state-ingress-hz``): a finite
+    rate >= 0 Hz, 0 meaning off."""
+    try:
+        return rate("rate", float(text))
+    except (TypeError, ValueError):
+        raise argparse.ArgumentTypeError(f"expected a rate in Hz >= 0, got {text!r}") from None
 
 
 def finite_array(name: str, value: ArrayLike) -> NDArray[np.float64]:

@@ -27,7 +27,6 @@ Pure: builds the config document, no bus code. Zenoh's config: ``downsampling`` 
 
 from __future__ import annotations
 
-import argparse
 import math
 
 from protocol import keys
@@ -48,13 +47,3 @@ def state_ingress(fleet: str, hz: float = STATE_INGRESS_HZ) -> list[dict]:
     rules = [{"key_expr": keys.state(fleet, u), "freq": float(hz)} for u in UAV_IDS]
     return [{"id": "state-ingress", "messages": ["put"], "flows": ["ingress"], "rules": rules}]
 
-
-def rate_arg(text: str) -> float:
-    """argparse type of ``--state-ingress-hz``: a finite rate >= 0 Hz (0: no ingress limit)."""
-    try:
-        hz = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a rate in Hz: {text!r}") from None
-    if not math.isfinite(hz) or hz < 0:
-        raise argparse.ArgumentTypeError(f"the ingress rate must be a finite rate >= 0 Hz, got {text!r}")
-    return hz

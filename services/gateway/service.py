@@ -33,6 +33,8 @@ from protocol.messages import ClassCounters, LinkStats
 
 from protocol import acl
 
+from protocol.checks import rate_arg
+
 from . import ingress
 
 
@@ -92,7 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--host", default="127.0.0.1", help="listen host when --port is used")
     parser.add_argument("--port", type=int, default=None, help="TCP port; UDP uses port+1 (multilink)")
     parser.add_argument("--period", type=float, default=1.0, help="statistics period, s")
-    parser.add_argument("--state-ingress-hz", type=ingress.rate_arg, default=ingress.STATE_INGRESS_HZ, metavar="HZ",
+    parser.add_argument("--state-ingress-hz", type=rate_arg, default=ingress.STATE_INGRESS_HZ, metavar="HZ",
                         help="states a connected session may send per UAV key through the gateway, at most one "
                              "per 1/HZ (Zenoh ingress downsampling per face; services/gateway/ingress.py); 0: off")
     sec = parser.add_argument_group("authentication and access control")

@@ -20,11 +20,11 @@ Three defaults follow the fleet's size, each overridden by its own option:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from edge.board import BoardOptions
 from edge.runtime import PREVIEW_HZ
+from protocol.checks import rate
 
 GCS_STATE_BUDGET = 240.0  # states per second the ground station takes from the whole fleet
 PREVIEW_BUDGET = 12.0  # preview frames per second for the whole fleet
@@ -43,14 +43,6 @@ class FleetLoad:
     chosen: tuple[str, ...] = ()  # what the fleet's size decided (for the launcher's log line)
 
 
-def _rate(value: float | None, what: str) -> float | None:
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"{what} must be a finite rate >= 0 Hz, got {value!r}")
-    return float(value)
-
-
 def fleet_load(uavs: int, gcs_state_hz: float | None = None, preview_hz: float | None = None,
                edge_nice: int | None = None) -> FleetLoad:
     """The three settings for a fleet of ``uavs``; a given value (not None) is kept as it is.
@@ -62,7 +54,8 @@ def fleet_load(uavs: int, gcs_state_hz: float | None = None, preview_hz: float |
     """
     if isinstance(uavs, bool) or not isinstance(uavs, int) or not 1 <= uavs <= 255:
         raise ValueError(f"fleet size must be an int in 1..255, got {uavs!r}")
-    gcs, preview = _rate(gcs_state_hz, "gcs state rate"), _rate(preview_hz, "preview rate")
+    gcs = None if gcs_state_hz is None else rate("gcs state rate", gcs_state_hz)
+    preview = None if preview_hz is None else rate("preview rate", preview_hz)
     if edge_nice is not None and (isinstance(edge_nice, bool) or not isinstance(edge_nice, int)
                                   or not 0 <= edge_nice <= 19):
         raise ValueError(f"edge niceness must be an int in 0..19, got {edge_nice!r}")

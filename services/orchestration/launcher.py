@@ -98,9 +98,10 @@ from .topology import (
 
 from edge.neighbourhood import FORMATION_SIZE
 from edge.board import niceness
-from edge.runtime import CAPTURE_LINKS, frame_size, preview_rate
+from edge.runtime import CAPTURE_LINKS, frame_size
+from protocol.checks import rate_arg
 from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET, fleet_load
-from ..gateway.ingress import STATE_INGRESS_HZ, rate_arg as ingress_rate
+from ..gateway.ingress import STATE_INGRESS_HZ
 
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
@@ -633,10 +634,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
     p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
     p.add_argument("--frame-size", type=frame_size, default="640x480", help="capture frame size WxH (4000x3000: the paper's 12 MP)")
-    p.add_argument("--preview-hz", type=preview_rate, default=None, metavar="HZ",
+    p.add_argument("--preview-hz", type=rate_arg, default=None, metavar="HZ",
                    help=f"live preview frames per UAV per second (default: {PREVIEW_BUDGET:g} for the fleet, at most "
                         "the edge's 2 per UAV; 0 = off)")
-    p.add_argument("--gcs-state-hz", type=preview_rate, default=None, metavar="HZ",
+    p.add_argument("--gcs-state-hz", type=rate_arg, default=None, metavar="HZ",
                    help=f"states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz; "
                         f"default: all up to {GCS_STATE_BUDGET:g} for the fleet, else {GCS_STATE_BUDGET:g}/N)")
     p.add_argument("--netns", action="store_true",
@@ -646,7 +647,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--edge-nice", type=niceness, default=None, metavar="N",
                    help=f"the edges' niceness (default: {EDGE_NICE} above {NICE_ABOVE} UAVs, else 0; "
                         "services/orchestration/fleet_load.py)")
-    p.add_argument("--state-ingress-hz", type=ingress_rate, default=None, metavar="HZ",
+    p.add_argument("--state-ingress-hz", type=rate_arg, default=None, metavar="HZ",
                    help=f"states per UAV key the gateway lets in from one session per second (default "
                         f"{STATE_INGRESS_HZ:g}; 0: no limit; services/gateway/ingress.py)")
     p.add_argument("--detect-max-mp", type=float, default=None, metavar="MP",

@@ -20,11 +20,11 @@ from edge.runtime import (
     capture_link,
     frame_size,
     make_camera,
-    preview_rate,
 )
 from edge.vehicle.driver import CaptureEvent
 from protocol import keys
 from protocol.bus import Bus, BusConfig
+from protocol.checks import rate_arg
 from protocol.imagery import split_payload
 from protocol.links import IMAGERY, IMAGERY_RELIABLE
 from protocol.rtp import parse_ssrc, unpack_frame
@@ -130,13 +130,13 @@ def test_imagery_cache_zero_is_a_plain_publisher_and_preview_can_be_off(gateway)
 
 def test_option_types_reject_bad_values():
     assert cache_frames("0") == 0 and cache_frames("64") == 64
-    assert preview_rate("0") == 0.0 and preview_rate("2.5") == 2.5
+    assert rate_arg("0") == 0.0 and rate_arg("2.5") == 2.5
     for bad in ("-1", "x", "1.5"):
         with pytest.raises(argparse.ArgumentTypeError):
             cache_frames(bad)
     for bad in ("-1", "nan", "inf", "fast"):
         with pytest.raises(argparse.ArgumentTypeError):
-            preview_rate(bad)
+            rate_arg(bad)
 
 
 def test_capture_link_goes_reliable_for_frames_that_span_several_datagrams():

@@ -12,7 +12,8 @@ from protocol import codec, keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import Mode, VehicleState
-from services.gateway.ingress import STATE_INGRESS_HZ, UAV_IDS, rate_arg, state_ingress
+from protocol.checks import rate_arg
+from services.gateway.ingress import STATE_INGRESS_HZ, UAV_IDS, state_ingress
 from services.orchestration.process import free_port
 from tests.conftest import wait_until
 
