@@ -806,10 +806,12 @@ def analyse(record: MissionRecord) -> ReportFigures:
             waypoints={tr.uav: len(tr.waypoints) for tr in p.trajectories},
             duration_s={tr.uav: tr.waypoints[-1].t - tr.waypoints[0].t for tr in p.trajectories},
         )
-    gw = _latest(record.gateway_stats)
-    gateway = {} if gw is None else _gateway_figures(gw)
-    gateways = {src: _gateway_figures(_latest([x for x in record.gateway_stats if x.msg.source == src]))
-                for src in sorted({x.msg.source for x in record.gateway_stats})}  # one per site (--sites)
+    per_source: dict[str, list[Any]] = {}
+    for x in record.gateway_stats:  # one gateway per site (--sites)
+        per_source.setdefault(x.msg.source, []).append(x)
+    latest = {src: _latest(xs) for src, xs in sorted(per_source.items())}
+    gateways = {src: _gateway_figures(gw) for src, gw in latest.items()}
+    gateway = gateways[max(latest, key=lambda src: latest[src].stamp)] if latest else {}
     events = [{"rx": e.rx, "source": e.msg.source, "stamp": e.msg.stamp, "kind": e.msg.kind,
                "level": e.msg.level.value, "text": e.msg.text, "data": dict(e.msg.data)}
               for e in sorted(record.events, key=lambda e: e.rx)[:MAX_REPORT_EVENTS]]  # a flood stays out

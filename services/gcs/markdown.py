@@ -133,8 +133,8 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
               str(sum(c["samples"] for c in g["classes"].values())),
               _fmt(sum(c["bytes"] for c in g["classes"].values()) / 1e6, 2),
               str(sum(g["rejected"].values()))] for src, g in s.gateways.items()]), ""]
-    for src, g in (s.gateways.items() if s.gateways else [(s.gateway.get("source"), s.gateway)]):
-        if g.get("rejected"):
+    for src, g in s.gateways.items():
+        if g["rejected"]:
             where = f" ({src})" if len(s.gateways) > 1 else ""
             md += [f"Gateway rejections{where}: " + ", ".join(f"{k}: {v}" for k, v in g["rejected"].items()) + ".", ""]
     md += integrity_markdown(record)
