@@ -73,3 +73,27 @@ def test_an_unreachable_target_closes_the_connection_and_is_counted(tmp_path: Pa
     finally:
         group.stop()
     assert any("1 target failures" in line for line in b.lines), b.lines
+
+
+def test_connections_above_the_limit_are_closed_at_once_and_counted(tmp_path: Path):
+    """A local flood of connections cannot grow the bridge without bound: above --max-conns each new one is
+    closed at once (counted), while the one within the limit keeps flowing."""
+    srv, port = _echo_server()
+    front = free_port()
+    group = ProcessGroup(echo=None)
+    try:
+        b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"tcp:127.0.0.1:{port}",
+                              "--max-conns", "1"])
+        assert b.wait_for("bridge up", 30), b.lines
+        with socket.create_connection(("127.0.0.1", front), timeout=10) as first:
+            first.sendall(b"ping")
+            assert first.recv(4) == b"ping"
+            for _ in range(3):
+                with socket.create_connection(("127.0.0.1", front), timeout=10) as extra:
+                    assert extra.recv(10) == b""  # closed, not queued
+            first.sendall(b"pong")
+            assert first.recv(4) == b"pong"
+    finally:
+        group.stop()
+        srv.close()
+    assert any("1 connections, 3 refused" in line for line in b.lines), b.lines
