@@ -9,7 +9,7 @@ import pytest
 from protocol import binding, keys
 from protocol.bus import Bus, BusConfig
 from protocol.imagery import pack_image
-from protocol.links import IMAGERY
+from protocol.links import IMAGERY, IMAGERY_RELIABLE
 from protocol.messages import DefectReport, ImageMeta, Intrinsics, LinkStats
 from protocol.rtp import RtpSender, ssrc_for
 from edge.surface import crack_image
@@ -247,7 +247,9 @@ def test_two_partitioned_detectors_analyse_every_frame_of_four_uavs_exactly_once
         assert wait_until(lambda: all(bus.alive(keys.rcu_alive(FLEET, f"detector-{k}")) for k in (0, 1)), 10)
         assert not bus.alive(keys.rcu_alive(FLEET, "detector"))
         time.sleep(0.5)
-        pubs = {u: bus.publisher(keys.camera(FLEET, u), IMAGERY) for u in uavs}
+        # reliable: what is checked is the partition, not the loss of a best-effort datagram (one of 20 frames
+        # went missing once in a two-worker CI run, a mission loading the other core)
+        pubs = {u: bus.publisher(keys.camera(FLEET, u), IMAGERY_RELIABLE) for u in uavs}
         senders = {u: RtpSender(ssrc_for(u)) for u in uavs}
         for cid in range(per_uav):
             for u in uavs:  # every UAV at its capture point together
@@ -258,7 +260,8 @@ def test_two_partitioned_detectors_analyse_every_frame_of_four_uavs_exactly_once
         total = len(uavs) * per_uav
         assert wait_until(lambda: len(reports) >= total and set(stats) == {"detector-0", "detector-1"} and sum(
             st.metrics.get(f"uav{u}.cam0.analysed", 0) for st in stats.values() for u in uavs) == total, 30), \
-            (len(reports), {n: st.metrics for n, st in stats.items()})
+            (len(reports), {n: {k: v for k, v in st.metrics.items() if k.endswith((".received", ".analysed", ".lost"))}
+                            for n, st in stats.items()})
         time.sleep(1.0)  # a duplicate, if any, would arrive now
     seen = Counter((r.uav, r.capture_id) for r in reports)
     assert seen == Counter({(u, c): 1 for u in uavs for c in range(per_uav)})
