@@ -100,10 +100,20 @@ def planner_public_key(root: str | Path) -> Ed25519PublicKey:
     return load_public(Path(root) / PLANNER / "sign.pub")
 
 
+class _NonceFreshness(ReplayStore):
+    """No sequence window for plans: an answer is fresh by the request's nonce it carries (checked by
+    :func:`binding_problem`), and every answer must be judged. A sequence window would let the first
+    of two answers decide which other is "replayed" (a stolen key signing with a far-future sequence
+    would silence the real planner instead of making a :class:`Conflict`)."""
+
+    def accept(self, stream: str, seq: int) -> bool:
+        return True
+
+
 def plan_verifier(public: Ed25519PublicKey | Iterable[Ed25519PublicKey], revoked: Iterable[str] = ()) -> Verifier:
-    """A verifier that trusts the planner's key(s) only, with an in-memory replay window."""
+    """A verifier that trusts the planner's key(s) only; freshness is the request's nonce."""
     keys = [public] if isinstance(public, Ed25519PublicKey) else list(public)
-    return Verifier({PLANNER: keys}, revoked, ReplayStore(None), stale_s=PLAN_STALE_S)
+    return Verifier({PLANNER: keys}, revoked, _NonceFreshness(None), stale_s=PLAN_STALE_S)
 
 
 def open_answer(answer: Message, request: PlanRequest, to: str, verifier: Verifier | None,
