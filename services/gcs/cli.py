@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
     signer = plan_verifier = None
-    if args.keys:  # commands and heartbeats signed end to end (issue 11), plans signed by the planner
+    if args.keys:  # commands and heartbeats signed end to end, plans signed by the planner
         from protocol.keyset import KeySet
         signer = KeySet(args.keys, "gcs").signer()
         plan_verifier = plan_verifier_of(args.keys)

@@ -65,18 +65,14 @@ def _segment_hit(a: Sequence[float], b: Sequence[float], scenario: Scenario) -> 
 def scenario_problem(plan: MissionPlan, scenario: Scenario, uavs: Sequence[int] | None = None) -> str:
     """Why ``plan`` leaves the operator's ``scenario`` (naming the UAV and the waypoint), or ``""``.
 
-    Checked, in this order: the plan's geofence lies within the scenario's box and its origin is the
-    scenario's; with ``uavs``, one trajectory per UAV and none for another; every waypoint inside the
-    box and outside every obstacle, and every straight segment between two waypoints clear of the
-    obstacles (the box is convex: its waypoints inside, a segment is too); the centroid path inside
-    the box; every capture point of a UAV of the plan, inside the box, outside the obstacles and, with
+    Checked, in this order: the plan's origin is the scenario's; with ``uavs``, one trajectory per UAV
+    and none for another; every waypoint inside the box and outside every obstacle, and every straight
+    segment between two waypoints clear of the obstacles (the box is convex: its waypoints inside, a
+    segment is too); the centroid path inside the box; the plan's geofence within the box; every capture point of a UAV of the plan, inside the box, outside the obstacles and, with
     a surface, in front of it looking at it (the normal (p1 - p0) x (p3 - p0) of
     :class:`protocol.scenario.Surface`).
     """
     box = scenario_box(scenario)
-    if not (box.contains(plan.geofence.lo) and box.contains(plan.geofence.hi)):
-        return (f"the plan's geofence {_fmt(plan.geofence.lo)}..{_fmt(plan.geofence.hi)} reaches outside the "
-                f"scenario's box {_fmt(box.lo)}..{_fmt(box.hi)}")
     o = scenario.origin
     if (abs(plan.origin[0] - o.lat) > ORIGIN_TOL_DEG or abs(plan.origin[1] - o.lon) > ORIGIN_TOL_DEG
             or abs(plan.origin[2] - o.alt) > ORIGIN_TOL_M):
@@ -103,6 +99,9 @@ def scenario_problem(plan: MissionPlan, scenario: Scenario, uavs: Sequence[int] 
     for i, p in enumerate(plan.centroid_path):
         if not box.contains(p):
             return f"centroid path point {i} at {_fmt(p)} is outside the scenario's box"
+    if not (box.contains(plan.geofence.lo) and box.contains(plan.geofence.hi)):
+        return (f"the plan's geofence {_fmt(plan.geofence.lo)}..{_fmt(plan.geofence.hi)} reaches outside the "
+                f"scenario's box {_fmt(box.lo)}..{_fmt(box.hi)}")
     frame = scenario.surface.frame if scenario.surface is not None else None
     for c in plan.captures:
         if c.uav not in flown:

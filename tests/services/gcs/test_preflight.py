@@ -83,11 +83,11 @@ def test_a_plan_inside_the_scenario_passes_and_the_fence_is_the_scenarios():
 def test_the_rogue_planners_plan_is_refused_whatever_its_own_geofence_says():
     sc, plan = _plan(3)
     bad = rogue(plan)
-    why = scenario_problem(bad, sc, (1, 2, 3))
-    assert "geofence" in why and "reaches outside the scenario's box" in why, why
-    # the same trajectories with the scenario's own fence: the first waypoint outside is named, with its UAV
-    why = scenario_problem(bad.model_copy(update={"geofence": plan.geofence}), sc, (1, 2, 3))
+    why = scenario_problem(bad, sc, (1, 2, 3))  # the first waypoint outside is named, with its UAV
     assert why.startswith("UAV 1 waypoint ") and "outside the scenario's box" in why, why
+    # trajectories inside, but a fence of its own wider than the scenario's box: refused too
+    why = scenario_problem(plan.model_copy(update={"geofence": bad.geofence}), sc, (1, 2, 3))
+    assert "geofence" in why and "reaches outside the scenario's box" in why, why
     # and the old check, which trusted the plan's fence, let it through: the reason for this one
     assert plan_problem(bad, sc.formation.offsets) == ""
     assert "outside the geofence" in plan_problem(bad, sc.formation.offsets, scenario_box(sc))

@@ -91,9 +91,9 @@ def bus_args(endpoints: list[str]) -> list[str]:
     return ["--fleet", FLEET, "--keys", str(KEYS), "--multilink", *[a for e in endpoints for a in ("-e", e)]]
 
 
-def start_rogue(endpoints: list[str], mode: str) -> subprocess.Popen:
-    """The rogue planner process, once its queryable is declared."""
-    proc = subprocess.Popen([sys.executable, "-c", ROGUE, mode, *bus_args(endpoints)], cwd=ROOT,
+def start_rogue(endpoints: list[str], mode: str, args: list[str] | None = None) -> subprocess.Popen:
+    """The rogue planner process (``args``: its bus options, else the secure network's), once its queryable is declared."""
+    proc = subprocess.Popen([sys.executable, "-c", ROGUE, mode, *(bus_args(endpoints) if args is None else args)], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     seen = []
     while not seen or "rogue up" not in seen[-1]:
@@ -156,3 +156,51 @@ def test_a_rogue_planner_never_steers_the_fleet_out_of_the_scenario(network, tmp
     assert max(w["pos"][2] for t in plan["trajectories"] for w in t["waypoints"]) <= record["scenario"]["box"]["hi"][2]
     flown = {s["msg"]["uav"] for s in record["states"] if s["msg"]["armed"]}
     assert flown == {1, 2, 3} and not outside_box(record), outside_box(record)[:5]
+
+
+# ----------------------------------------------------------------------------- --insecure: no keys, same rules
+INSECURE = "rogueins"
+
+
+def _request_plan(gateway: list[str]):
+    """The ground station's plan step alone (no fleet needed), without a key set: (plan or failure, record)."""
+    from protocol.bus import Bus, BusConfig
+    from protocol.scenario import load_scenario
+    from services.gcs.mission import MissionFailed, MissionOptions, MissionRunner
+
+    opts = MissionOptions(uavs=(1, 2, 3), particles=40, iterations=40, plan_timeout_s=60.0)
+    with Bus(BusConfig(mode="client", connect=gateway, multilink=True), INSECURE, "gcs") as bus:
+        runner = MissionRunner(bus, load_scenario(), opts)
+        try:
+            return runner.request_plan(), runner.record
+        except MissionFailed as exc:
+            return str(exc), runner.record
+
+
+def test_insecure_unsigned_plans_are_taken_only_inside_the_scenario_and_without_a_second_voice(group, gateway):
+    plain = ["--fleet", INSECURE, "--multilink", *[a for e in gateway for a in ("-e", e)]]
+    # the rogue alone (no planner): its answer is bound to the request but leaves the scenario's box
+    rogue = start_rogue(gateway, "unsigned", plain)
+    try:
+        outcome, record = _request_plan(gateway)
+    finally:
+        stop(rogue)
+    assert isinstance(outcome, str) and "the plan leaves the scenario: UAV 1 waypoint" in outcome, outcome
+    assert any(e.msg.kind == "plan-refused" and "UAV 1 waypoint" in e.msg.text for e in record.events), record.events
+
+    # the real planner and the rogue 5 s later: two different answers, neither taken
+    planner = group.start("planner", ["planner", *plain])
+    assert planner.wait_for("planner up", 30), "\n".join(planner.lines)
+    rogue = start_rogue(gateway, "unsigned", plain)
+    try:
+        outcome, record = _request_plan(gateway)
+    finally:
+        said = stop(rogue)
+    assert "rogue answers 1" in said, said
+    assert isinstance(outcome, str) and "2 different plans answered plan request 1" in outcome, outcome
+    assert [e.msg.kind for e in record.events] == ["plan-conflict"], record.events
+
+    # the planner alone: its unsigned plan, bound to the request, is taken
+    outcome, record = _request_plan(gateway)
+    assert not isinstance(outcome, str), outcome
+    assert outcome.nonce and outcome.scenario_digest and not record.events
