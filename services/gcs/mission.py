@@ -13,6 +13,12 @@ is not sent commands (a failed command record says so). The waits are extended b
 fleet stood still, up to ``stall_limit_s``.
 
 Heartbeats continue throughout. Every command ends in the record acknowledged or failed.
+
+The plan's authority is the operator's scenario (:meth:`MissionRunner.request_plan`): every answer
+to the plan request is gathered and judged (:mod:`protocol.planauth`: the planner's signature, the
+request's nonce and scenario digest, one plan only), the plan must stay inside the scenario
+(:func:`services.gcs.preflight.scenario_problem`), and the edges get the scenario's box as their
+geofence, never the plan's.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.scenario import FormationSpec, Scenario
 from protocol.messages import (
+    Box,
     DefectReport,
     Event,
     Heartbeat,
@@ -521,7 +528,7 @@ class MissionRunner:
         with self._lock:
             return all(not s.armed for u, s in self.latest.items() if u in self.opt.uavs and u not in self._sup.lost)
 
-    def fence(self):
+    def fence(self) -> Box:
         """The geofence the edges get: the operator's scenario box (:func:`.preflight.scenario_box`)."""
         from .preflight import scenario_box
 
