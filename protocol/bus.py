@@ -510,14 +510,15 @@ class Bus:
         settle_s: float = 10.0,
         link: LinkClass = COMMAND,
         max_replies: int = 16,
+        settles: Callable[[Message], bool] | None = None,
     ) -> list[Reply]:
         """Send a query to *every* matching queryable and gather every answer, unconsolidated.
 
         Where several sessions may answer the same key (any holder of one identity), the caller
         must see them all instead of Zenoh's consolidated "latest" one. Gathers until every
-        answerer finished, ``timeout`` passed, or ``settle_s`` after the first ok answer (a second
-        answer later than that is not waited for); at most ``max_replies`` (the rest counted as
-        rejected). Each answer is a :class:`Reply` as :meth:`request` makes them; an empty list
+        answerer finished, ``timeout`` passed, or ``settle_s`` after the first ok answer that
+        ``settles`` accepts (any ok answer without it; so a garbage answer does not start the clock),
+        a later answer is not waited for; at most ``max_replies`` (the rest counted as rejected). Each answer is a :class:`Reply` as :meth:`request` makes them; an empty list
         means nobody answered.
         """
         import queue as _queue
@@ -559,7 +560,7 @@ class Bus:
             if reply is done:
                 break
             out.append(self._one_reply(key, reply, expect, t0))
-            if out[-1].ok:
+            if out[-1].ok and (settles is None or settles(out[-1].message)):
                 deadline = min(deadline, time.monotonic() + settle_s)
         return out
 

@@ -289,8 +289,17 @@ class MissionRunner:
                           seed=self.opt.seed, particles=self.opt.particles, iterations=self.opt.iterations,
                           waypoints=self.opt.waypoints)
         where = keys.planner(self.bus.fleet)
+        digest = planauth.scenario_digest(scenario)
+
+        def acceptable(answer) -> bool:  # only an answer that would be taken starts the settle window
+            try:
+                planauth.open_answer(answer, req, where, self.plan_verifier, digest)
+            except planauth.PlanRefused:
+                return False
+            return True
+
         replies = self.bus.request_all(where, req, expect=(MissionPlan, Signed), timeout=self.opt.plan_timeout_s,
-                                       settle_s=self.opt.plan_settle_s)
+                                       settle_s=self.opt.plan_settle_s, settles=acceptable)
         answers = [r.message for r in replies if r.ok and r.message is not None]
         errors = [r.error for r in replies if not r.ok]
         self.record.plan_request_s = next((r.elapsed_s for r in replies if r.ok), replies[0].elapsed_s if replies else 0.0)

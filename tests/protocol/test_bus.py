@@ -350,8 +350,12 @@ time.sleep(40)
             first = client.request_all(keys.cmd(FLEET, 7), Hold(uav=7, cmd_id=2), expect=CommandAck, timeout=30,
                                        settle_s=0.3)
             assert [r.message.reason for r in first] == ["fast"], first
+            # only an answer the caller would take starts the settle window: "fast" does not, "late" is waited for
+            picky = client.request_all(keys.cmd(FLEET, 7), Hold(uav=7, cmd_id=3), expect=CommandAck, timeout=30,
+                                       settle_s=0.3, settles=lambda m: m.reason == "late")
+            assert sorted(r.message.reason for r in picky) == ["fast", "late"], picky
             t0 = time.monotonic()
-            assert client.request_all(keys.cmd(FLEET, 9), Hold(uav=9, cmd_id=3), timeout=60) == []
+            assert client.request_all(keys.cmd(FLEET, 9), Hold(uav=9, cmd_id=4), timeout=60) == []
             assert time.monotonic() - t0 < 30  # not the query's timeout: nobody there ends it at once
     finally:
         for node in nodes:

@@ -134,8 +134,13 @@ def test_a_rogue_planner_never_steers_the_fleet_out_of_the_scenario(network, tmp
     assert "rogue answers 1" in said, said
     why = proc.stdout[-3000:] + proc.stderr[-3000:]
     assert proc.returncode != 0 and not record["success"], why
-    assert any("2 different plans answered plan request 1" in f for f in record["failures"]), record["failures"]
-    assert any(e["msg"]["kind"] == "plan-conflict" and e["msg"]["source"] == "gcs" for e in record["events"]), why
+    # two signed answers: a conflict (on a machine so loaded that the real planner answers more than the
+    # settle window after the rogue, the rogue's plan is the only one and leaves the scenario: refused too)
+    kinds = {(e["msg"]["kind"], e["msg"]["source"]) for e in record["events"]}
+    if ("plan-conflict", "gcs") in kinds:
+        assert any("2 different plans answered plan request 1" in f for f in record["failures"]), record["failures"]
+    else:
+        assert any("the plan leaves the scenario: UAV 1 waypoint" in f for f in record["failures"]), (record["failures"], why)
     assert "takeoff" not in record["phases"] and not record["commands"], record["phases"]
     assert not any(s["msg"]["armed"] for s in record["states"])
     assert not outside_box(record)
