@@ -178,6 +178,6 @@ def choose(answers: Sequence[Message], request: PlanRequest, to: str, verifier: 
     if len(plans) > 1:
         raise Conflict(f"{len(plans)} different plans answered plan request {request.request_id} "
                        f"({out.accepted} answers passed the planner's signature and the binding): a second "
-                       "session holds the planner's identity; no plan is taken")
+                       "session answers as the planner; no plan is taken")
     out.plan = next(iter(plans.values()), None)
     return out
