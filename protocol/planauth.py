@@ -97,7 +97,12 @@ def planner_public_key(root: str | Path) -> Ed25519PublicKey:
     Deliberately not ``trust/``: that folder lists the signers the UAVs obey, and a UAV must never
     take a command signed by the planner.
     """
-    return load_public(Path(root) / PLANNER / "sign.pub")
+    path = Path(root) / PLANNER / "sign.pub"
+    try:
+        return load_public(path)
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the planner's public key, which the ground station verifies plans "
+                         f"with ({exc.strerror or exc}); copy planner/sign.pub of the key set there") from None
 
 
 class _NonceFreshness(ReplayStore):

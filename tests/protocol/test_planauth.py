@@ -8,6 +8,7 @@ import pytest
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
 from protocol import codec, planauth
+from protocol.keyset import KeySet
 from protocol.messages import MissionPlan, PlanRequest, Signed
 from protocol.scenario import load_scenario
 from protocol.signing import Signer
@@ -137,3 +138,16 @@ def test_the_wire_types_refuse_a_malformed_nonce_or_digest():
         codec.decode(codec.encode(plan.model_copy(update={"scenario_digest": "f" * 63})), MissionPlan)
     assert isinstance(codec.decode(codec.encode(Signer("planner", Ed25519PrivateKey.generate()).sign(plan, TO))),
                       Signed)
+
+
+def test_the_ground_station_reads_the_planners_public_key_from_the_key_set_or_says_what_is_missing(tmp_path):
+    from services.keys import init
+
+    root = init(tmp_path / "keys", uavs=1)
+    req, plan = _base()
+    signed = KeySet(root, "planner").signer().sign(plan, TO)  # what `skynet planner --keys` answers with
+    assert planauth.open_answer(signed, req, TO, planauth.plan_verifier(planauth.planner_public_key(root))) == plan
+    assert not (root / "trust" / "planner.pub").exists()  # the UAVs never trust the planner's signature
+    (root / "planner" / "sign.pub").unlink()
+    with pytest.raises(ValueError, match="cannot read the planner's public key"):
+        planauth.planner_public_key(root)
