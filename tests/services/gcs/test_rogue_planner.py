@@ -137,6 +137,7 @@ def test_a_rogue_planner_never_steers_the_fleet_out_of_the_scenario(network, tmp
     # two signed answers: a conflict (on a machine so loaded that the real planner answers more than the
     # settle window after the rogue, the rogue's plan is the only one and leaves the scenario: refused too)
     kinds = {(e["msg"]["kind"], e["msg"]["source"]) for e in record["events"]}
+    print("rogue with the planner's key:", record["failures"][0][:160])
     if ("plan-conflict", "gcs") in kinds:
         assert any("2 different plans answered plan request 1" in f for f in record["failures"]), record["failures"]
     else:
