@@ -3,9 +3,10 @@
 A :class:`PlanRequest` (command class, request/reply) carries the (typed) scenario and the
 algorithm, seed and budget; the reply is the :class:`MissionPlan` of
 :func:`services.planner.mission.plan_mission`, bound to its request (id, nonce, scenario digest)
-and, with ``--keys``, signed with the planner's key (:mod:`protocol.planauth`). A malformed scenario or an infeasible request is
-answered with an error reply that says why (``reply_err`` + :class:`ErrorReply`). Planning runs
-on the queryable's own worker thread, so a long plan never blocks Zenoh's callback thread.
+and, with ``--keys``, signed with the planner's key (:mod:`protocol.planauth`). A malformed
+scenario or an infeasible request is answered with an error reply that says why (``reply_err`` +
+:class:`ErrorReply`). Planning runs on the queryable's own worker thread, so a long plan never
+blocks Zenoh's callback thread.
 
     skynet planner -m client -e tcp/127.0.0.1:7447?rel=1 --multilink
 """
