@@ -54,7 +54,7 @@ from protocol.checks import rate_arg
 
 from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size
 from .trust import Gate, command_id
-from .validate import validate_command
+from .validate import narrowed_fence, validate_command
 from .vehicle.follower import Follower
 
 
@@ -187,10 +187,15 @@ class Board:
     def _apply(self, cmd: Message, signed: bool = False) -> None:
         d = self.driver
         if isinstance(cmd, UploadTrajectory):
+            fence = self.opt.geofence
+            if cmd.geofence is not None and signed:  # a signed mission's fence narrows the board's, never widens it
+                fence = narrowed_fence(self.opt.geofence, cmd.geofence)
             d.upload(cmd.trajectory)
             self.trajectory, self.follower = cmd.trajectory, Follower(cmd.trajectory)
-            if cmd.geofence is not None and self.opt.geofence is None and signed:
-                self.opt.geofence = cmd.geofence  # a signed mission's fence; never an unsigned uploader's
+            if fence is not self.opt.geofence:
+                if self.opt.geofence is not None and fence != self.opt.geofence:
+                    self.event("geofence-narrowed", f"geofence {tuple(fence.lo)}..{tuple(fence.hi)}")
+                self.opt.geofence = fence  # never an unsigned uploader's
         elif isinstance(cmd, Takeoff):
             d.takeoff(cmd.altitude)
         elif isinstance(cmd, Start):

@@ -33,6 +33,23 @@ def trajectory_problem(traj: Trajectory, geofence: Box | None, max_speed: float)
     return ""
 
 
+def narrowed_fence(current: Box | None, offered: Box) -> Box:
+    """The board's fence after a signed upload offers ``offered``: never wider than ``current``.
+
+    The fence the board was configured with (``--geofence``) or first given by the ground station
+    is a ceiling: a later fence can only narrow it (the intersection of the two boxes). ValueError
+    when the two do not overlap (nothing could be flown in both).
+    """
+    if current is None:
+        return offered
+    lo = tuple(max(a, b) for a, b in zip(current.lo, offered.lo))
+    hi = tuple(min(a, b) for a, b in zip(current.hi, offered.hi))
+    if any(h <= l for l, h in zip(lo, hi)):
+        raise ValueError("the uploaded geofence does not overlap the board's geofence "
+                         f"{tuple(current.lo)}..{tuple(current.hi)}")
+    return Box(lo=lo, hi=hi)
+
+
 def validate_command(cmd: Message, uav: int, geofence: Box | None, max_speed: float) -> str:
     """Why ``cmd`` must be refused by UAV ``uav``, or ``""`` when it may reach the vehicle."""
     target = getattr(cmd, "uav", None)
@@ -41,8 +58,11 @@ def validate_command(cmd: Message, uav: int, geofence: Box | None, max_speed: fl
     if isinstance(cmd, UploadTrajectory):
         if cmd.trajectory.uav != uav:
             return f"trajectory is for UAV {cmd.trajectory.uav}"
-        fence = geofence if geofence is not None else cmd.geofence
-        return trajectory_problem(cmd.trajectory, fence, max_speed)
+        # inside the board's fence and inside the one it comes with (neither may widen the other)
+        why = trajectory_problem(cmd.trajectory, geofence, max_speed)
+        if not why and cmd.geofence is not None:
+            why = trajectory_problem(cmd.trajectory, cmd.geofence, max_speed)
+        return why
     if isinstance(cmd, Takeoff) and geofence is not None:
         if cmd.altitude > geofence.hi[2] - geofence.lo[2]:
             return f"takeoff altitude {cmd.altitude:.1f} m is above the geofence"

@@ -501,6 +501,86 @@ class Bus:
             return Reply(False, None, f"query failed: {exc}", time.perf_counter() - t0)
         return Reply(False, None, f"no reply from {key} (nobody listening)", time.perf_counter() - t0)
 
+    def request_all(
+        self,
+        key: str,
+        msg: Message,
+        expect: type[Message] | tuple[type[Message], ...] | None = None,
+        timeout: float = 2.0,
+        settle_s: float = 10.0,
+        link: LinkClass = COMMAND,
+        max_replies: int = 16,
+        settles: Callable[[Message], bool] | None = None,
+    ) -> list[Reply]:
+        """Send a query to *every* matching queryable and gather every answer, unconsolidated.
+
+        Where several sessions may answer the same key (any holder of one identity), the caller
+        must see them all instead of Zenoh's consolidated "latest" one. Gathers until every
+        answerer finished, ``timeout`` passed, or ``settle_s`` after the first ok answer that
+        ``settles`` accepts (any ok answer without it; so a garbage answer does not start the clock),
+        a later answer is not waited for; at most ``max_replies`` (the rest counted as rejected). Each answer is a :class:`Reply` as :meth:`request` makes them; an empty list
+        means nobody answered.
+        """
+        import queue as _queue
+
+        t0 = time.perf_counter()
+        payload = codec.encode(msg)
+        self.counters.add(self.counters.sent, link.name, len(payload))
+        inbox: _queue.Queue = _queue.Queue(maxsize=max_replies + 1)
+        done = object()
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            try:
+                inbox.put_nowait(reply)
+            except _queue.Full:
+                self.counters.reject(key, "too-many-replies")
+
+        def on_end() -> None:
+            try:
+                inbox.put_nowait(done)
+            except _queue.Full:
+                pass
+
+        try:
+            self.session.get(key, payload=payload, encoding=encoding_of(msg), timeout=timeout,
+                             target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                             handler=zenoh.handlers.Callback(on_reply, on_end), **link.request_qos())
+        except zenoh.ZError as exc:
+            return [Reply(False, None, f"query failed: {exc}", time.perf_counter() - t0)]
+        out: list[Reply] = []
+        deadline = time.monotonic() + timeout + 1.0  # the query's own timeout ends the stream first
+        while len(out) < max_replies:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            try:
+                reply = inbox.get(timeout=left)
+            except _queue.Empty:
+                break
+            if reply is done:
+                break
+            out.append(self._one_reply(key, reply, expect, t0))
+            if out[-1].ok and (settles is None or settles(out[-1].message)):
+                deadline = min(deadline, time.monotonic() + settle_s)
+        return out
+
+    def _one_reply(self, key: str, reply: zenoh.Reply, expect, t0: float) -> Reply:
+        """One Zenoh reply as a :class:`Reply` (decoded as ``expect``, or the error it carries)."""
+        if reply.ok is not None:
+            try:
+                answer = codec.decode(reply.ok.payload.to_bytes(), expect)
+            except codec.CodecError as exc:
+                self.counters.reject(key, exc.kind)
+                return Reply(False, None, f"bad reply: {exc}", time.perf_counter() - t0)
+            return Reply(True, answer, "", time.perf_counter() - t0)
+        err = reply.err
+        text = err.payload.to_bytes() if err is not None else b""
+        try:
+            reason = codec.decode(text, ErrorReply).reason
+        except codec.CodecError:
+            reason = text.decode("utf-8", "replace")[:500] or "error reply"
+        return Reply(False, None, reason, time.perf_counter() - t0)
+
     def serve(
         self,
         key: str,

@@ -22,7 +22,7 @@ from . import codec, keys
 from .links import LINK_CLASSES, LinkClass, class_of_topic
 from .messages import (
     COMMAND_TYPES, MESSAGE_TYPES, CommandAck, DefectReport, ErrorReply, Event, Heartbeat, LinkStats, Message,
-    MissionPlan, PlanRequest, VehicleState,
+    MissionPlan, PlanRequest, Signed, VehicleState,
 )
 
 _FLEET = "FLEET"
@@ -65,8 +65,9 @@ def key_space() -> list[KeySpec]:
         (keys.alive(f, "*"), "alive", "liveliness", (), (), "liveliness token of one UAV's board"),
         (keys.heartbeat(f), "heartbeat", "put", (Heartbeat.TYPE,), (), "the ground station's heartbeat (edge failsafe)"),
         (keys.gcs_event(f), "event", "put", (Event.TYPE,), (), "events of the ground station"),
-        (keys.planner(f), "plan", "query", (PlanRequest.TYPE,), (MissionPlan.TYPE, ErrorReply.TYPE),
-         "the planner RCU: a plan request, answered by the mission plan"),
+        (keys.planner(f), "plan", "query", (PlanRequest.TYPE,), (MissionPlan.TYPE, Signed.TYPE, ErrorReply.TYPE),
+         "the planner RCU: a plan request, answered by the mission plan bound to the request's nonce and "
+         "scenario digest, signed by the planner's key with a key set (protocol.planauth)"),
         (keys.defects(f), "defects", "put", (DefectReport.TYPE,), (), "the detector RCU's defect reports"),
         (keys.rcu_alive(f, _NAME), "alive", "liveliness", (), (), "liveliness token of an RCU"),
         (keys.rcu_event(f, _NAME), "event", "put", (Event.TYPE,), (), "events of an RCU"),

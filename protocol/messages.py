@@ -222,9 +222,16 @@ class Signed(Message):
 
 
 # ----------------------------------------------------------------------------- planning
+#: a request's nonce: 16 to 64 lower-case hex digits (``""``: an unbound request)
+Nonce = Annotated[str, Field(max_length=64, pattern=r"^([0-9a-f]{16,64})?$")]
+#: a SHA-256 digest in hex (``""``: none)
+Digest = Annotated[str, Field(max_length=64, pattern=r"^([0-9a-f]{64})?$")]
+
+
 class PlanRequest(Message):
     TYPE: ClassVar[str] = "plan.request"
     request_id: Annotated[int, Field(ge=0)] = 0
+    nonce: Nonce = Field("", description="fresh random hex per request; the plan must echo it (protocol.planauth)")
     scenario: Scenario = Field(description="the whole planning problem (protocol.scenario)")
     algorithm: Short = "theta-pso"
     seed: Annotated[int, Field(ge=0)] = 0
@@ -257,6 +264,8 @@ class MissionPlan(Message):
     geofence: Box
     origin: tuple[Finite, Finite, Finite] = Field(description="geodetic origin lat, lon (deg), alt (m)")
     standoff_m: Finite = 0.0
+    nonce: Nonce = Field("", description="the request's nonce (protocol.planauth)")
+    scenario_digest: Digest = Field("", description="SHA-256 of the request's scenario (protocol.planauth)")
 
 
 class ErrorReply(Message):

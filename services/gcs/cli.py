@@ -27,8 +27,17 @@ from .progress import HeadingHold, LiveDisplay, render
 from .supervision import FRESH_STATE_S
 
 
+def plan_verifier_of(root):
+    """The ground station's verifier of plans: the planner's public key of the key set ``root``, its revocations."""
+    from protocol import planauth
+    from protocol.keyset import KeySet
+
+    return planauth.plan_verifier(planauth.planner_public_key(root), KeySet(root, "gcs").revoked())
+
+
 def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None, ground_truth: bool = True, on_runner=None, record: bool = True, signer=None) -> int:
+                abort=None, ground_truth: bool = True, on_runner=None, record: bool = True, signer=None,
+                plan_verifier=None) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
 
     With ``out`` and ``record``, everything on the fleet's keys is also logged to ``out/mission.mcap``
@@ -64,7 +73,8 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
 
         recorder = Recorder(bus, Path(out) / "mission.mcap", log)
     runner = MissionRunner(bus if recorder is None else RecordingBus(bus, recorder), scenario, options,
-                           on_progress=progress, log=log, abort=abort, journal=journal, signer=signer)
+                           on_progress=progress, log=log, abort=abort, journal=journal, signer=signer,
+                           plan_verifier=plan_verifier)
     if on_runner is not None:
         on_runner(runner)
     if ground_truth:  # before the flight, so that the journal's footer carries it (skynet report)
@@ -148,10 +158,11 @@ def main(argv: list[str] | None = None) -> int:
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                              speed=args.speed, appear_timeout_s=args.appear_timeout)
     abort = stop_event_on_signals()
-    signer = None
-    if args.keys:  # commands and heartbeats signed end to end (issue 11)
+    signer = plan_verifier = None
+    if args.keys:  # commands and heartbeats signed end to end, plans signed by the planner
         from protocol.keyset import KeySet
         signer = KeySet(args.keys, "gcs").signer()
+        plan_verifier = plan_verifier_of(args.keys)
     else:
         log.warning("INSECURE: commands and heartbeats go unsigned (no --keys)")
     with Bus(config_from_args(args, role="gcs"), fleet=args.fleet, name="gcs") as bus:
@@ -164,6 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
                                ground_truth=not args.no_ground_truth, record=not args.no_record, signer=signer,
+                               plan_verifier=plan_verifier,
                                **hooks)
         finally:
             if server is not None:

@@ -13,6 +13,12 @@ is not sent commands (a failed command record says so). The waits are extended b
 fleet stood still, up to ``stall_limit_s``.
 
 Heartbeats continue throughout. Every command ends in the record acknowledged or failed.
+
+The plan's authority is the operator's scenario (:meth:`MissionRunner.request_plan`): every answer
+to the plan request is gathered and judged (:mod:`protocol.planauth`: the planner's signature, the
+request's nonce and scenario digest, one plan only), the plan must stay inside the scenario
+(:func:`services.gcs.preflight.scenario_problem`), and the edges get the scenario's box as their
+geofence, never the plan's.
 """
 
 from __future__ import annotations
@@ -23,22 +29,25 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-from protocol import binding, keys
+from protocol import binding, keys, planauth
 from protocol.budget import for_topic
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
 from protocol.scenario import FormationSpec, Scenario
 from protocol.messages import (
+    Box,
     DefectReport,
     Event,
     Heartbeat,
     Land,
+    Level,
     LinkStats,
     MissionPlan,
     Mode,
     PlanRequest,
     Resume,
     SetFormation,
+    Signed,
     Start,
     Takeoff,
     UploadTrajectory,
@@ -92,6 +101,7 @@ class MissionOptions:
     heartbeat_hz: float = 2.0
     appear_timeout_s: float = 30.0
     plan_timeout_s: float = 120.0
+    plan_settle_s: float = 10.0  # wall s other answers to the plan request are waited for after the first
     command_timeout_s: float = 2.0
     start_margin_s: float = 2.0  # least time between the start commands and the common start t0, wall s
     command_attempts: int = 4
@@ -123,9 +133,12 @@ class Snapshot:
 class MissionRunner:
     def __init__(self, bus: Bus, scenario: Scenario, options: MissionOptions,
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
-                 abort: threading.Event | None = None, journal=None, signer=None):
+                 abort: threading.Event | None = None, journal=None, signer=None, plan_verifier=None):
         self.bus, self.opt, self.log = bus, options, log
         self.signer = signer  # protocol.signing.Signer: commands and heartbeats signed end to end (issue 11)
+        #: protocol.signing.Verifier of the planner's key (protocol.planauth.plan_verifier); None: unsigned plans
+        #: are taken (--insecure, --secure without a key set), still bound to the request and checked
+        self.plan_verifier = plan_verifier
         self.abort = abort or threading.Event()
         scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
@@ -265,28 +278,66 @@ class MissionRunner:
             time.sleep(0.2)
 
     def request_plan(self) -> MissionPlan:
+        """Ask for the plan and take it only on the operator's authority (:mod:`protocol.planauth`,
+        :func:`.preflight.scenario_problem`): every answer of the request is gathered; one without the
+        planner's signature, the request's nonce or the scenario's digest is refused (an event says why),
+        two different accepted answers refuse the plan, and the one plan left must stay inside the
+        scenario. MissionFailed before anything is uploaded otherwise."""
         self.phase("planning")
-        req = PlanRequest(request_id=1, scenario=self.record.scenario, algorithm=self.opt.algorithm,
+        scenario = self.record.scenario
+        req = PlanRequest(request_id=1, nonce=planauth.new_nonce(), scenario=scenario, algorithm=self.opt.algorithm,
                           seed=self.opt.seed, particles=self.opt.particles, iterations=self.opt.iterations,
                           waypoints=self.opt.waypoints)
-        reply = self.bus.request(keys.planner(self.bus.fleet), req, expect=MissionPlan,
-                                 timeout=self.opt.plan_timeout_s)
-        self.record.plan_request_s = reply.elapsed_s
-        if not reply.ok:
-            raise MissionFailed(f"the planner did not deliver a plan: {reply.error}")
-        plan = reply.message
-        assert isinstance(plan, MissionPlan)
+        where = keys.planner(self.bus.fleet)
+        digest = planauth.scenario_digest(scenario)
+
+        def acceptable(answer) -> bool:  # only an answer that would be taken starts the settle window
+            try:
+                planauth.open_answer(answer, req, where, self.plan_verifier, digest)
+            except planauth.PlanRefused:
+                return False
+            return True
+
+        replies = self.bus.request_all(where, req, expect=(MissionPlan, Signed), timeout=self.opt.plan_timeout_s,
+                                       settle_s=self.opt.plan_settle_s, settles=acceptable)
+        answers = [r.message for r in replies if r.ok and r.message is not None]
+        errors = [r.error for r in replies if not r.ok]
+        self.record.plan_request_s = next((r.elapsed_s for r in replies if r.ok), replies[0].elapsed_s if replies else 0.0)
+        try:
+            choice = planauth.choose(answers, req, where, self.plan_verifier)
+        except planauth.Conflict as exc:
+            self.plan_event("plan-conflict", str(exc))
+            raise MissionFailed(f"refused before takeoff: {exc}") from None
+        for why in choice.refused:
+            self.plan_event("plan-refused", why)
+        if choice.plan is None:
+            why = "; ".join(choice.refused + errors) or f"no reply from {where} (nobody listening)"
+            raise MissionFailed(f"the planner did not deliver a plan: {why}")
+        plan = choice.plan
         missing = set(self.opt.uavs) - {t.uav for t in plan.trajectories}
         if missing:
             raise MissionFailed(f"the plan has no trajectory for UAV(s) {sorted(missing)}")
-        from .preflight import plan_problem  # before any upload: the whole fleet fits, or nobody flies
+        from .preflight import plan_problem, scenario_box, scenario_problem  # before any upload: all fit, or nobody flies
 
-        problem = plan_problem(plan, self.record.scenario.formation.offsets)
+        problem = scenario_problem(plan, scenario, self.opt.uavs)
+        if problem:
+            self.plan_event("plan-refused", f"the plan leaves the scenario: {problem}")
+            self.record.plan = plan
+            raise MissionFailed(f"refused before takeoff: the plan leaves the scenario: {problem}")
+        problem = plan_problem(plan, scenario.formation.offsets, scenario_box(scenario))
         if problem:
             self.record.plan = plan
             raise MissionFailed(f"refused before takeoff: {problem}")
         self.record.plan = plan
         return plan
+
+    def plan_event(self, kind: str, text: str) -> None:
+        """Record the ground station's own warning about a plan answer (the report's events)."""
+        ev = Event(source="gcs", stamp=time.time(), kind=kind, level=Level.WARNING, text=text[:2000])
+        with self._lock:
+            self.recorder.add("events", EventRx(rx=time.time(), msg=ev))
+        if self.log:
+            self.log.warning("%s: %s", kind, text)
 
     def command(self, make: Callable[[int], object]) -> CommandRecord:
         """Send one command with retries and back-off (:func:`services.gcs.commands.send`); a
@@ -372,8 +423,9 @@ class MissionRunner:
             hb.start()
             self.phase("upload")
             traj = {t.uav: t for t in plan.trajectories}
+            fence = self.fence()  # the scenario's box: never the plan's own geofence
             self.command_all(lambda u, cid: UploadTrajectory(uav=u, cmd_id=cid, trajectory=traj[u],
-                                                             geofence=plan.geofence), "its trajectory upload")
+                                                             geofence=fence), "its trajectory upload")
             offsets = dict(zip(self.opt.uavs, self.record.scenario.formation.offsets))
             self.command_all(lambda u, cid: SetFormation(uav=u, cmd_id=cid, offsets=offsets), "the formation")
             self.phase("takeoff")
@@ -485,11 +537,17 @@ class MissionRunner:
         with self._lock:
             return all(not s.armed for u, s in self.latest.items() if u in self.opt.uavs and u not in self._sup.lost)
 
+    def fence(self) -> Box:
+        """The geofence the edges get: the operator's scenario box (:func:`.preflight.scenario_box`)."""
+        from .preflight import scenario_box
+
+        return scenario_box(self.record.scenario)
+
     def takeoff_altitude(self, uav: int) -> float:
         plan = self.record.plan
         first = next(t for t in plan.trajectories if t.uav == uav).waypoints[0].pos
         home_z = self.latest[uav].pos[2] if uav in self.latest else 0.0
-        return max(2.0, min(first[2] - home_z, plan.geofence.hi[2] - home_z - 1.0))
+        return max(2.0, min(first[2] - home_z, self.fence().hi[2] - home_z - 1.0))
 
     def mission_done(self) -> bool:
         """Every UAV still counted finished its trajectory (or came down on its own: not waited for)."""

@@ -418,6 +418,13 @@ class Network:
         from protocol.keyset import KeySet
         return KeySet(self.trust.keys, "gcs").signer()
 
+    def plan_verifier(self):
+        """The ground station's verifier of the planner's signed plans (None without a key set)."""
+        if self.trust.keys is None:
+            return None
+        from services.gcs.cli import plan_verifier_of
+        return plan_verifier_of(self.trust.keys)
+
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9); a UAV stacked
         above another launches beside it (:func:`edge.formation.home_offsets`)."""
@@ -781,6 +788,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
             try:
                 code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
                                    ground_truth=args.camera == "synthetic", signer=hooks_signer,
+                                   plan_verifier=net.plan_verifier(),
                                    record=not args.no_record, **hooks)
             finally:
                 if web_server is not None:

@@ -2,9 +2,11 @@
 
 A :class:`PlanRequest` (command class, request/reply) carries the (typed) scenario and the
 algorithm, seed and budget; the reply is the :class:`MissionPlan` of
-:func:`services.planner.mission.plan_mission`. A malformed scenario or an infeasible request is
-answered with an error reply that says why (``reply_err`` + :class:`ErrorReply`). Planning runs
-on the queryable's own worker thread, so a long plan never blocks Zenoh's callback thread.
+:func:`services.planner.mission.plan_mission`, bound to its request (id, nonce, scenario digest)
+and, with ``--keys``, signed with the planner's key (:mod:`protocol.planauth`). A malformed
+scenario or an infeasible request is answered with an error reply that says why (``reply_err`` +
+:class:`ErrorReply`). Planning runs on the queryable's own worker thread, so a long plan never
+blocks Zenoh's callback thread.
 
     skynet planner -m client -e tcp/127.0.0.1:7447?rel=1 --multilink
 """
@@ -14,9 +16,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from protocol import keys
+from protocol import keys, planauth
 from protocol.bus import Bus, Rejected, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
-from protocol.messages import MissionPlan, PlanRequest
+from protocol.messages import Message, MissionPlan, PlanRequest
 
 from .limits import TIME_BUDGET_S, TimeBudgetExceeded, TooLarge
 from .mission import plan_mission
@@ -39,7 +41,7 @@ def answer(request: PlanRequest, time_budget_s: float | None = TIME_BUDGET_S, an
         raise Rejected(str(exc), code="timeout") from None
     except ValueError as exc:
         raise Rejected(f"cannot plan: {exc}", code="infeasible") from None
-    return plan.model_copy(update={"request_id": request.request_id})
+    return planauth.bind(plan, request)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,9 +59,17 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     log = setup_logging("planner")
     stop = stop_event_on_signals()
-    with Bus(config_from_args(args, role="planner"), fleet=args.fleet, name="planner") as bus:
+    signer = None
+    if getattr(args, "keys", None):  # the ground station takes only plans signed with this key
+        from protocol.keyset import KeySet
 
-        def handle(req: PlanRequest) -> MissionPlan:
+        signer = KeySet(args.keys, "planner").signer()
+    else:
+        log.warning("INSECURE: plans go unsigned (no --keys)")
+    with Bus(config_from_args(args, role="planner"), fleet=args.fleet, name="planner") as bus:
+        where = keys.planner(args.fleet)
+
+        def handle(req: PlanRequest) -> Message:
             t0 = time.perf_counter()
             try:
                 plan = answer(req, args.time_budget, args.anytime)
@@ -68,9 +78,9 @@ def main(argv: list[str] | None = None) -> int:
                 raise
             log.info("plan %d: %s seed %d cost %.2f collision-free %s in %.2f s", req.request_id, plan.algorithm,
                      plan.seed, plan.cost, plan.collision_free, time.perf_counter() - t0)
-            return plan
+            return plan if signer is None else signer.sign(plan, where)
 
-        bus.serve(keys.planner(args.fleet), handle, expect=PlanRequest, ring=4)
+        bus.serve(where, handle, expect=PlanRequest, ring=4)
         bus.token(keys.rcu_alive(args.fleet, "planner"))
         log.info("planner up")
         stop.wait()

@@ -171,6 +171,15 @@ class RecordingBus:
     def __getattr__(self, name: str):
         return getattr(self._bus, name)
 
+    def request_all(self, key: str, msg: Message, expect=None, timeout: float = 2.0, settle_s: float = 10.0,
+                    link: LinkClass = COMMAND, **kw) -> list[Reply]:
+        """:meth:`~protocol.bus.Bus.request_all`, every answer logged as received (a signed plan in its envelope)."""
+        t_sent = time.time()
+        replies = self._bus.request_all(key, msg, expect=expect, timeout=timeout, settle_s=settle_s, link=link, **kw)
+        for reply in replies or [Reply(False, None, "no answer")]:
+            self._recorder.log_request(key, msg, t_sent, reply, t_sent + reply.elapsed_s)
+        return replies
+
     def request(self, key: str, msg: Message, expect=None, timeout: float = 2.0, link: LinkClass = COMMAND) -> Reply:
         t_sent = time.time()
         reply = self._bus.request(key, msg, expect=expect, timeout=timeout, link=link)

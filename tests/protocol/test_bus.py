@@ -327,3 +327,37 @@ time.sleep(0.5)
     assert rejected[f"skynet/{FLEET}/uav/1/event|budget-rate"] >= sent_events - len(events) - 100
     assert len(states) >= 0.95 * sent_states, (len(states), sent_states)
     assert not any("uav/2/state" in k for k in rejected)
+
+
+def test_request_all_gathers_every_answer_and_waits_only_the_settle_window(gateway):
+    """Two sessions answer one key (one at once, one 4 s later): both are seen, unconsolidated; a short
+    settle window stops waiting for the late one; nobody there is an empty list at once."""
+    nodes = [spawn_node(_peer_code(gateway, f"""
+def handle(cmd):
+    time.sleep({delay})
+    return CommandAck(uav=7, cmd_id=cmd.cmd_id, accepted=True, reason="{name}")
+bus.serve(keys.cmd("{FLEET}", 7), handle, ring=4)
+bus.token(keys.alive("{FLEET}", {uav}))
+time.sleep(40)
+""")) for name, delay, uav in (("fast", 0.0, 7), ("late", 4.0, 8))]
+    try:
+        with _client(gateway) as client:
+            assert _wait(lambda: len(client.alive(keys.alive(FLEET, "*"))) >= 2, 20)
+            both = client.request_all(keys.cmd(FLEET, 7), Hold(uav=7, cmd_id=1), expect=CommandAck, timeout=30,
+                                      settle_s=20.0)
+            assert sorted(r.message.reason for r in both if r.ok) == ["fast", "late"], both
+            assert both[0].message.reason == "fast" and both[1].elapsed_s >= 4.0
+            first = client.request_all(keys.cmd(FLEET, 7), Hold(uav=7, cmd_id=2), expect=CommandAck, timeout=30,
+                                       settle_s=0.3)
+            assert [r.message.reason for r in first] == ["fast"], first
+            # only an answer the caller would take starts the settle window: "fast" does not, "late" is waited for
+            picky = client.request_all(keys.cmd(FLEET, 7), Hold(uav=7, cmd_id=3), expect=CommandAck, timeout=30,
+                                       settle_s=0.3, settles=lambda m: m.reason == "late")
+            assert sorted(r.message.reason for r in picky) == ["fast", "late"], picky
+            t0 = time.monotonic()
+            assert client.request_all(keys.cmd(FLEET, 9), Hold(uav=9, cmd_id=4), timeout=60) == []
+            assert time.monotonic() - t0 < 30  # not the query's timeout: nobody there ends it at once
+    finally:
+        for node in nodes:
+            node.kill()
+            node.communicate()

@@ -55,3 +55,70 @@ def test_span_and_margin():
     box = Box(lo=(0, 0, 0), hi=(100, 140, 40))
     assert margin_to_box((40, 8, 30), box) == pytest.approx(8.0)
     assert margin_to_box((-2, 50, 30), box) == pytest.approx(-2.0)
+
+
+# ----------------------------------------------------------------------------- the plan against the scenario
+from protocol.messages import CapturePoint, Trajectory, Waypoint  # noqa: E402
+from services.gcs.preflight import scenario_box, scenario_problem  # noqa: E402
+
+
+def rogue(plan, dx: float = 420.0, top: float = 120.0):
+    """The attack's plan: a 6 km geofence, every trajectory shifted ``dx`` m east and climbing to ``top`` m."""
+    trajs = []
+    for t in plan.trajectories:
+        n = len(t.waypoints)
+        wps = [w.model_copy(update={"pos": (w.pos[0] + dx * i / max(1, n - 1), w.pos[1],
+                                            w.pos[2] + (top - w.pos[2]) * i / max(1, n - 1))})
+               for i, w in enumerate(t.waypoints)]
+        trajs.append(Trajectory(uav=t.uav, waypoints=wps))
+    return plan.model_copy(update={"trajectories": trajs, "geofence": Box(lo=(-3000, -3000, 0), hi=(3000, 3000, 150))})
+
+
+def test_a_plan_inside_the_scenario_passes_and_the_fence_is_the_scenarios():
+    sc, plan = _plan(3)
+    assert plan.collision_free and scenario_problem(plan, sc, (1, 2, 3)) == ""
+    assert scenario_box(sc) == Box(lo=sc.box.lo, hi=sc.box.hi)
+
+
+def test_the_rogue_planners_plan_is_refused_whatever_its_own_geofence_says():
+    sc, plan = _plan(3)
+    bad = rogue(plan)
+    why = scenario_problem(bad, sc, (1, 2, 3))  # the first waypoint outside is named, with its UAV
+    assert why.startswith("UAV 1 waypoint ") and "outside the scenario's box" in why, why
+    # trajectories inside, but a fence of its own wider than the scenario's box: refused too
+    why = scenario_problem(plan.model_copy(update={"geofence": bad.geofence}), sc, (1, 2, 3))
+    assert "geofence" in why and "reaches outside the scenario's box" in why, why
+    # and the old check, which trusted the plan's fence, let it through: the reason for this one
+    assert plan_problem(bad, sc.formation.offsets) == ""
+    assert "outside the geofence" in plan_problem(bad, sc.formation.offsets, scenario_box(sc))
+
+
+def test_obstacles_segments_origin_uavs_and_captures_are_checked():
+    sc, plan = _plan(3)
+    t0 = plan.trajectories[0]
+    c = sc.obstacles[0]  # a cylinder of the monorail bridge
+    inside = (c.centre[0], c.centre[1], c.height / 2)
+    wps = [w.model_copy() for w in t0.waypoints]
+    wps[3] = wps[3].model_copy(update={"pos": inside})
+    hit = plan.model_copy(update={"trajectories": [Trajectory(uav=1, waypoints=wps), *plan.trajectories[1:]]})
+    assert scenario_problem(hit, sc) == f"UAV 1 waypoint 3 at ({inside[0]:.1f}, {inside[1]:.1f}, {inside[2]:.1f}) is inside obstacle 0"
+    # two waypoints on either side of the cylinder: the segment between them goes through it
+    a = (c.centre[0] - c.radius - 1, c.centre[1], 5.0)
+    b = (c.centre[0] + c.radius + 1, c.centre[1], 5.0)
+    through = Trajectory(uav=1, waypoints=[Waypoint(t=0, pos=a), Waypoint(t=5, pos=b)])
+    why = scenario_problem(plan.model_copy(update={"trajectories": [through, *plan.trajectories[1:]]}), sc)
+    assert why.startswith("UAV 1 segment from waypoint 0 to 1 passes through obstacle 0"), why
+    assert "origin" in scenario_problem(plan.model_copy(update={"origin": (0.0, 0.0, 0.0)}), sc)
+    assert "UAV(s) [3], not in the mission" in scenario_problem(plan, sc, (1, 2))
+    twice = plan.model_copy(update={"trajectories": [*plan.trajectories, plan.trajectories[0]]})
+    assert "more than one trajectory for UAV(s) [1]" in scenario_problem(twice, sc)
+    cap = plan.captures[0]
+    behind = cap.model_copy(update={"look": tuple(-v for v in cap.look)})
+    why = scenario_problem(plan.model_copy(update={"captures": [behind, *plan.captures[1:]]}), sc)
+    assert f"capture point {cap.capture_id}" in why and "does not face" in why, why
+    far = CapturePoint(capture_id=99, uav=1, pos=(500.0, 50.0, 30.0), look=(1.0, 0.0, 0.0), t=1.0)
+    assert "capture point 99 at (500.0, 50.0, 30.0) is outside" in scenario_problem(
+        plan.model_copy(update={"captures": [*plan.captures, far]}), sc)
+    stray = far.model_copy(update={"uav": 9, "pos": cap.pos})
+    assert "for UAV 9, which has no trajectory" in scenario_problem(
+        plan.model_copy(update={"captures": [stray]}), sc)

@@ -58,7 +58,8 @@ def test_mission_log_rebuilds_the_report_and_replays(nominal_mission, group, gat
     sent = [unverified_inner(q.message()) for q in queries]  # signed commands (issue 11): the log keeps the envelope
     assert {(m.uav, m.cmd_id) for m in sent} == {(c.uav, c.cmd_id) for c in commands}
     assert all(isinstance(r, CommandAck) and r.accepted for r in replies)
-    plans = [i.message() for i in items if i.kind == "reply" and i.topic == keys.planner("demo")]
+    # the planner's answer as received: its signed envelope, the plan inside it the one the mission took
+    plans = [unverified_inner(i.message()) for i in items if i.kind == "reply" and i.topic == keys.planner("demo")]
     assert len(plans) == 1 and isinstance(plans[0], MissionPlan) and plans[0] == summary_of(path).record.plan
     assert all(bus_bytes(i) is None for i in items if i.kind != "sample")  # a replay never commands a UAV
 
