@@ -27,12 +27,12 @@ from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, Event, VehicleState
 from protocol.scenario import Scenario
 
+from services.recording.replay import REPLAY_MARK
+
 from .server import TOKEN_ENV, WebServer, parse_listen
 from .tally import DefectTally
 from .view import FleetView
 
-#: the attachment ``skynet replay`` puts on every sample it replays (services.recording.replay)
-REPLAY_MARK = b"skynet-replay"
 
 
 def replayed(sample) -> bool:
