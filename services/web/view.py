@@ -136,11 +136,11 @@ class FleetView:
                 self._note(msg.stamp_report, f"uav/{msg.uav}", "defect-report",
                            f"capture {msg.capture_id}: {len(msg.defects)} detection(s)")
 
-    def set_inspection(self, defects: int, frames: int, final: bool = False) -> None:
+    def set_inspection(self, defects: int, frames: int) -> None:
         """The deduplicated defect count of ``frames`` captures, as the mission report counts it
-        (services.inspection: one defect per connected crack on the mosaic); ``final`` when it is the report's."""
+        (services.inspection: one defect per connected crack on the mosaic; services.web.tally)."""
         with self._lock:
-            self.inspection = {"defects": int(defects), "frames": int(frames), "final": bool(final)}
+            self.inspection = {"defects": int(defects), "frames": int(frames)}
 
     def on_preview(self, uav: int, jpeg: bytes) -> None:
         with self._lock:

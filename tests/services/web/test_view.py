@@ -88,7 +88,7 @@ def test_the_deduplicated_count_is_the_inspections() -> None:
     v = FleetView(load_scenario(), fleet="f")
     v.set_inspection(19, 60)
     s = v.snapshot()
-    assert s["defect_count"] == 19 and s["inspection"] == {"defects": 19, "frames": 60, "final": False}
+    assert s["defect_count"] == 19 and s["inspection"] == {"defects": 19, "frames": 60}
 
 
 def test_source_live_replay_or_both() -> None:
