@@ -91,17 +91,20 @@ class Access:
     def host_ok(self, host: str | None) -> bool:
         return bool(host) and _host_name(host) in self.hosts
 
-    def origin_ok(self, origin: str | None) -> bool:
-        """No ``Origin`` (a script, not a browser page) or this server's own ``http://HOST:PORT``."""
+    def origin_ok(self, origin: str | None, host: str | None = None) -> bool:
+        """No ``Origin`` (a script, not a browser page), or this page's own: ``http://`` and the ``Host`` the
+        request was sent to (name and port; behind a published container port the port is the outside one)."""
         if origin is None:
             return True
         try:
-            parts = urlsplit(origin)
-            port = parts.port
+            o = urlsplit(origin)
+            h = urlsplit("//" + (host or ""))
+            o_port, h_port = o.port or 80, h.port or 80
         except ValueError:
             return False
-        return (parts.scheme == "http" and parts.hostname is not None and parts.hostname.lower() in self.hosts
-                and (port or 80) == self.port)
+        return (o.scheme == "http" and o.hostname is not None and o.hostname.lower() in self.hosts
+                and (h.hostname is None or (o.hostname.lower() == h.hostname.lower() and o_port == h_port))
+                and (host is not None or o_port == self.port))
 
     def token_ok(self, query: str | None, cookie: str | None, header: str | None) -> bool:
         given = query or cookie
@@ -115,7 +118,7 @@ class Access:
         """Why a request is refused (one line), or None when it may be served."""
         if not self.host_ok(host):
             return f"Host {host!r} is not one this page answers to"
-        if not self.origin_ok(origin):
+        if not self.origin_ok(origin, host):
             return f"Origin {origin!r} is not this page's"
         if not self.token_ok(query, cookie, header):
             return "no valid access token: open the URL the server printed (with ?token=...)"

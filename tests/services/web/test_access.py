@@ -99,8 +99,11 @@ def test_a_foreign_origin_is_refused_the_websocket_and_the_json(server) -> None:
         assert run(ws_first(ws, origin=origin)) == 403, origin
         assert run(status(f"http://127.0.0.1:{server.port}/snapshot.json?token={TOKEN}",
                           headers={"Origin": origin})) == 403, origin
-    for origin in (f"http://127.0.0.1:{server.port}", f"http://localhost:{server.port}"):
-        assert run(ws_first(ws, origin=origin))["type"] == "static", origin
+    for name in ("127.0.0.1", "localhost"):  # the page's own origin: the host it was loaded from
+        hp = f"{name}:{server.port}"
+        assert run(ws_first(ws, origin=f"http://{hp}", headers={"Host": hp}))["type"] == "static", name
+    # another origin of this machine (a page on localhost asking 127.0.0.1) is another site
+    assert run(ws_first(ws, origin=f"http://localhost:{server.port}")) == 403
 
 
 def test_a_rebinding_host_is_refused(server) -> None:
@@ -122,6 +125,10 @@ def test_access_rules() -> None:
     assert a.origin_ok(None) and a.origin_ok("http://localhost:8080") and a.origin_ok("http://[::1]:8080")
     assert not a.origin_ok("http://localhost:8081") and not a.origin_ok("http://localhost") and not a.origin_ok("file://")
     assert not a.origin_ok("http://[bad") and not a.origin_ok("http://localhost:99999")
+    # behind a published port (a container's 8080 on the host's 18080): Origin and Host agree, the port is theirs
+    assert a.origin_ok("http://127.0.0.1:18080", "127.0.0.1:18080")
+    assert not a.origin_ok("http://127.0.0.1:18080", "127.0.0.1:8080")
+    assert not a.origin_ok("http://localhost:8080", "127.0.0.1:8080")  # another origin of the same machine
     assert a.token_ok(TOKEN, None, None) and a.token_ok(None, TOKEN, None) and a.token_ok(None, None, f"Bearer {TOKEN}")
     assert not a.token_ok(None, None, None) and not a.token_ok(TOKEN[:-1], None, None)
     assert a.refusal("127.0.0.1:8080", None, None, TOKEN, None) is None
