@@ -58,6 +58,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import shutil
 import sys
 import tempfile
@@ -528,11 +529,11 @@ class Network:
             self.start_web_service(["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
 
     def start_web_service(self, args: list[str]) -> None:
-        """``skynet web`` with a token of this launch in its environment (services.web.server), so that the
-        launcher prints the page's URL: :meth:`web_url`."""
+        """``skynet web`` with the page's token in its environment (the launcher's own ``SKYNET_WEB_TOKEN``,
+        else random), so that the launcher prints the page's URL: :meth:`web_url`."""
         from services.web.server import TOKEN_ENV, new_token
 
-        self.web_token = new_token()
+        self.web_token = os.environ.get(TOKEN_ENV) or new_token()
         self.group.env[TOKEN_ENV] = self.web_token
         try:
             self.start_service("web", args)

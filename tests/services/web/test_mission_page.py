@@ -134,3 +134,37 @@ def test_mission_page_timeline_defect_count_and_its_replay(group, gateway, tmp_p
             assert driver.execute_script("return document.querySelectorAll('#uavs tbody tr').length") >= 1
         finally:
             driver.quit()
+
+
+def test_up_prints_the_page_url_with_its_token_and_the_page_serves_the_fleet() -> None:
+    """``skynet up --web``: the launcher prints the page's URL with the token it handed the page's process;
+    that URL serves the live fleet, nothing is served without it. ``--insecure`` because the page's own
+    identity in the key set (the secure mode's ``web`` role) is not part of this test."""
+    import signal
+
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--insecure", "--web",
+                             f"127.0.0.1:{port}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    lines: list[str] = []
+    reader = lines_of(proc, lines)
+    try:
+        assert wait_until(lambda: printed_url(lines) is not None or proc.poll() is not None, 90), lines[-20:]
+        url = printed_url(lines)
+        assert url and re.fullmatch(rf"http://127\.0\.0\.1:{port}/\?token=[A-Za-z0-9_-]{{16,}}", url), lines[-20:]
+        token = url.split("token=", 1)[1]
+
+        def uavs() -> set[str]:
+            code, body = get(f"http://127.0.0.1:{port}/snapshot.json", token)
+            return set(json.loads(body)["uavs"]) if code == 200 else set()
+
+        assert wait_until(lambda: {"1", "2", "3"} <= uavs(), 90), lines[-30:]
+        assert get(f"http://127.0.0.1:{port}/snapshot.json")[0] == 403
+        assert get(f"http://127.0.0.1:{port}/snapshot.json", "x" * 32)[0] == 403
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        reader.join(10)
