@@ -185,7 +185,7 @@ class WebServer:
     def app(self) -> web.Application:
         app = web.Application(middlewares=[self._guard])
         app.add_routes([web.get("/", self._index), web.get("/app.js", self._js), web.get("/ws", self._ws),
-                        web.get("/preview/{uav:\\d+}.jpg", self._preview), web.get("/snapshot.json", self._snap)])
+                        web.get("/preview/{uav:\\d{1,3}}.jpg", self._preview), web.get("/snapshot.json", self._snap)])
         return app
 
     async def _index(self, request: web.Request) -> web.StreamResponse:

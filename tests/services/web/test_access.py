@@ -88,7 +88,10 @@ def test_the_token_serves_every_route_and_becomes_a_cookie(server) -> None:
     code, csp, snap, first = run(session())
     assert snap["type"] == "snapshot" and first["type"] == "static" and first["fleet"] == "f"
     assert "script-src 'self'" in csp and "frame-ancestors 'none'" in csp
-    assert run(status(base + "/snapshot.json", headers={"Authorization": f"token {TOKEN}"})) == 200  # scripts
+    auth = {"Authorization": f"token {TOKEN}"}  # scripts
+    assert run(status(base + "/snapshot.json", headers=auth)) == 200
+    assert run(status(base + "/preview/7.jpg", headers=auth)) == 404  # no preview yet
+    assert run(status(base + "/preview/" + "9" * 5000 + ".jpg", headers=auth)) == 404  # not a UAV number
     assert server.url == f"http://127.0.0.1:{server.port}/?token={TOKEN}"
 
 
