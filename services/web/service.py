@@ -72,7 +72,7 @@ def follow_runner(view: FleetView, runner, stop: threading.Event | None = None,
     stop = stop or threading.Event()
 
     def run() -> None:
-        plan_sent, phases, failures = False, set(), 0
+        plan_sent, phases, failures, incidents, faults = False, set(), 0, 0, 0
         while not stop.wait(0.5):
             rec = runner.record
             if not plan_sent and rec.plan is not None:
@@ -89,6 +89,12 @@ def follow_runner(view: FleetView, runner, stop: threading.Event | None = None,
             for text in list(rec.failures)[failures:]:
                 failures += 1
                 view.note(view.clock(), "gcs", "failure", str(text), "warning")
+            for inc in list(rec.incidents)[incidents:]:  # what the ground station saw of a fault and did
+                incidents += 1
+                view.note(inc.at, "gcs" if inc.uav is None else f"uav/{inc.uav}", inc.kind, inc.text, "warning")
+            for f in list(rec.faults)[faults:]:  # faults injected into the run (or supervisor restarts)
+                faults += 1
+                view.note(f.at, "faults", f.action, f"{f.target} {f.text}".strip(), "warning")
             if "done" in phases:
                 return
 

@@ -8,6 +8,7 @@ from protocol.messages import Defect, DefectReport, Event, Mode, VehicleState
 from protocol.scenario import load_scenario
 from services.web import view as view_mod
 from services.web.view import FleetView
+from tests.conftest import wait_until
 
 
 def state(uav: int, seq: int, pos, ref=None, mode=Mode.MISSION) -> VehicleState:
@@ -108,3 +109,33 @@ def test_source_live_replay_or_both() -> None:
     r = FleetView(load_scenario(), fleet="demo" + view_mod.REPLAY_FLEET_SUFFIX, clock=clock)
     r.on_state(state(1, 0, (0.0, 0.0, 0.0)))
     assert r.snapshot()["source"] == "replay"
+
+
+def test_follow_runner_puts_the_ground_stations_phases_failures_incidents_and_faults_on_the_timeline() -> None:
+    import threading
+    import types
+
+    from services.gcs.record import FaultRecord, Incident, MissionRecord
+    from services.web.service import follow_runner
+
+    rec = MissionRecord(fleet="f", speed=1.0, started=1000.0)
+    runner = types.SimpleNamespace(record=rec)
+    v = FleetView(load_scenario(), fleet="f")
+    stop = threading.Event()
+    rec.phases.update(discovery=1000.0, planning=1001.0)
+    t = follow_runner(v, runner, stop)
+    try:
+        assert wait_until(lambda: len(v.snapshot()["events"]) == 2, 10)
+        rec.incidents.append(Incident(at=1002.0, kind="uav-lost", uav=2, text="UAV 2 unheard for 3.0 s"))
+        rec.faults.append(FaultRecord(at=1003.0, action="kill", target="uav2"))
+        rec.failures.append("UAV 2 did not land")
+        rec.phases["done"] = 1004.0
+        t.join(10)
+        assert not t.is_alive()  # "done": nothing more to follow
+    finally:
+        stop.set()
+    ev = [(e["source"], e["kind"], e["text"], e["level"]) for e in v.snapshot()["events"]]
+    assert ev[:5] == [("gcs", "phase", "discovery", "info"), ("gcs", "phase", "planning", "info"),
+                      ("uav/2", "uav-lost", "UAV 2 unheard for 3.0 s", "warning"), ("faults", "kill", "uav2", "warning"),
+                      ("gcs", "phase", "done", "info")]
+    assert ev[5] == ("gcs", "failure", "UAV 2 did not land", "warning")  # the time it was seen (now)
