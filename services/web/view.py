@@ -11,8 +11,9 @@ preview JPEGs, the plan) and answers two JSON-ready documents:
   error (RMS of each UAV's distance to its planned slot, P9, over the UAVs in MISSION); the
   detections (every defect of every frame's report, placed on the wall map), the defects
   (``defect_count``: the mission report's own count, a crack seen by overlapping frames counted once,
-  set by :meth:`FleetView.set_inspection`; None until known); the timeline (the mission's phases,
-  captures, defect reports, events and warnings); ``source``: whether the data shown is live or a
+  set by :meth:`FleetView.set_inspection`; None until known); the timeline (the mission's phases:
+  the ground station's where it runs the page, each UAV's mode changes everywhere; captures, defect
+  reports, events and warnings); ``source``: whether the data shown is live or a
   replay of a recorded mission (``skynet replay``).
 
 Everything from the bus is data: the page renders it as text (``static/app.js``).
@@ -100,6 +101,8 @@ class FleetView:
         with self._lock:
             self._hear(now, replayed)
             u = self._uav(msg.uav)
+            if u.state is not None and u.state.mode != msg.mode:  # the UAV's own phases, seen by any page
+                self._note(msg.stamp, f"uav/{msg.uav}", "mode", f"{u.state.mode.value} -> {msg.mode.value}")
             if msg.captures > u.captures:
                 self._note(msg.stamp, f"uav/{msg.uav}", "capture",
                            f"capture {msg.captures}" if msg.captures == u.captures + 1

@@ -2,10 +2,10 @@
 recording replayed (``skynet replay``) and watched with ``skynet web``.
 
 The mission prints the page's URL with its token; without it the page answers 403. Read through the
-printed URL while the mission flies, the page's timeline has the mission's phases, captures and defect
-reports; its defect count is the report's (a crack seen by overlapping frames counted once) and is
-below the per-frame detections. The replay of the mission's MCAP is labelled a replay, in headless
-Chromium when it is installed.
+printed URL while the mission flies, the page's timeline has the mission's phases (the ground
+station's and the UAVs' mode changes), captures and defect reports; its defect count is the report's (a crack seen by overlapping frames counted once) and is
+below the per-frame detections. The replay of the mission's MCAP is labelled a replay (in headless
+Chromium when it is installed) and its timeline has the UAVs' mode changes, captures and defect reports.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def test_mission_page_timeline_defect_count_and_its_replay(group, gateway, tmp_p
     last = snaps[-1]
     kinds = {e["kind"] for s in snaps for e in s["events"]}
     phases = {e["text"] for s in snaps for e in s["events"] if e["kind"] == "phase"}
-    assert {"phase", "capture", "defect-report"} <= kinds, kinds
+    assert {"phase", "mode", "capture", "defect-report"} <= kinds, kinds
     assert {"discovery", "planning", "takeoff", "mission"} <= phases, phases
     assert all(s["source"] in ("live", None) for s in snaps)
     # the defect count: the report's way (the page's last count of all captures equals report.md's), below
@@ -134,6 +134,13 @@ def test_mission_page_timeline_defect_count_and_its_replay(group, gateway, tmp_p
             assert driver.execute_script("return document.querySelectorAll('#uavs tbody tr').length") >= 1
         finally:
             driver.quit()
+
+    def replayed_kinds() -> set[str]:
+        code, body = get(f"http://127.0.0.1:{wport}/snapshot.json", wtoken)
+        return {e["kind"] for e in json.loads(body)["events"]} if code == 200 else set()
+
+    # the replay's timeline: the UAVs' phases (mode changes), captures and defect reports, from the recording
+    assert wait_until(lambda: {"mode", "capture", "defect-report"} <= replayed_kinds(), 90), replayed_kinds()
 
 
 def test_up_prints_the_page_url_with_its_token_and_the_page_serves_the_fleet() -> None:

@@ -69,6 +69,7 @@ def test_timeline_has_phases_captures_defect_reports_and_warnings() -> None:
     v.on_state(state(1, 1, (1.0, 2.0, 3.0)).model_copy(update={"captures": 1}))
     v.on_state(state(1, 2, (1.0, 2.0, 3.0)).model_copy(update={"captures": 3}))  # two captures between states
     v.on_state(state(1, 3, (1.0, 2.0, 3.0)).model_copy(update={"captures": 3}))  # none new
+    v.on_state(state(1, 4, (1.0, 2.0, 3.0), mode=Mode.LAND).model_copy(update={"captures": 3}))
     d = Defect(area_px=10, bbox=(1, 2, 3, 4), centroid_px=(2.0, 3.0), contrast=5.0, pos=(60.0, 50.0, 28.0))
     v.on_defects(DefectReport(uav=1, capture_id=2, stamp_capture=1001.0, stamp_report=1001.5, method="it+",
                               defects=[d, d]))
@@ -79,7 +80,7 @@ def test_timeline_has_phases_captures_defect_reports_and_warnings() -> None:
     v.on_event(Event(source="uav/2", stamp=1004.0, kind="neighbour-lost", text="UAV 3 left", level="warning"))
     ev = [(e["kind"], e["text"], e["level"]) for e in v.snapshot()["events"]]
     assert ev == [("phase", "mission", "info"), ("capture", "capture 1", "info"), ("capture", "captures 2-3", "info"),
-                  ("defect-report", "capture 2: 2 detection(s)", "info"),
+                  ("mode", "mission -> land", "info"), ("defect-report", "capture 2: 2 detection(s)", "info"),
                   ("defect-report", "capture 4: no result", "warning"),
                   ("neighbour-lost", "UAV 3 left", "warning")]
     assert v.snapshot()["detections"] == 2
