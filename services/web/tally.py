@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
+import signal
 import threading
 import time
 from collections.abc import Sequence
@@ -41,6 +43,19 @@ def count_defects(frames_dir: str, corners: Sequence[Sequence[float]] | None) ->
     return len(inspect_frames(frames, plane).defects), len(frames)
 
 
+def _worker_init(parent: int) -> None:
+    """The counting process: Ctrl-C is the parent's to handle (no traceback from here), and it ends when the
+    parent is gone, however it ended (a killed parent closes no queue)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
 def captures_in(frames_dir: str | Path) -> int:
     """Captures saved so far (their pose files)."""
     try:
@@ -64,7 +79,8 @@ class DefectTally:
         self._thread: threading.Thread | None = None
 
     def start(self) -> "DefectTally":
-        self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=_worker_init, initargs=(os.getpid(),))
         self._thread = threading.Thread(target=self._run, name="web-tally", daemon=True)
         self._thread.start()
         return self

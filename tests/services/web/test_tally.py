@@ -53,3 +53,41 @@ def test_the_page_counts_the_defects_of_a_captures_folder_as_the_report_does(tmp
     detections = sum(len(detect(decode(c), "it+", min_defect_area=MIN_REPORT_AREA_PX).defects) for c in caps)
     assert page > 0 and detections > page
     assert captures_in(frames) == len(caps) and captures_in(tmp_path / "none") == 0
+
+
+def test_the_counting_process_ends_with_its_parent(tmp_path) -> None:
+    """A page killed with SIGKILL leaves no counting process behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    code = f"""
+import sys, time
+from protocol.scenario import load_scenario
+from services.web.tally import DefectTally
+from services.web.view import FleetView
+t = DefectTally(FleetView(load_scenario()), {str(tmp_path)!r}, None).start()
+t._pool.submit(int, 1).result()  # the worker is up
+print(next(iter(t._pool._processes)), flush=True)
+time.sleep(60)
+"""
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                              cwd=str(__import__("pathlib").Path(__file__).resolve().parents[3]))
+    worker = int(parent.stdout.readline())
+    os.kill(worker, 0)  # alive
+    parent.send_signal(signal.SIGKILL)
+    parent.wait(10)
+
+    def gone() -> bool:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            return True
+        try:  # a zombie not yet reaped by init counts as gone
+            return open(f"/proc/{worker}/stat").read().split(") ")[1].startswith("Z")
+        except OSError:
+            return True
+        return False
+
+    assert wait_until(gone, 15)
