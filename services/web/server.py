@@ -167,7 +167,7 @@ class WebServer:
         if reason is not None:
             self.refused += 1
             if self.refused <= 10 or self.refused % 1000 == 0:
-                log.warning("web: refused %s %s (%s; %d refused so far)", request.method, request.path, reason,
+                log.warning("web: refused %s %r (%s; %d refused so far)", request.method, request.path, reason,
                             self.refused)
             return web.Response(status=403, text=reason + "\n")
         response = await handler(request)

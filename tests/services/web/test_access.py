@@ -148,3 +148,10 @@ def test_a_short_token_is_a_one_line_error() -> None:
     p = subprocess.run([sys.executable, "-m", "services.cli", "web", "--token", "short"], capture_output=True,
                        text=True, timeout=60)
     assert p.returncode == 2 and "at least 16 characters" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_a_refusal_is_logged_on_one_line_without_terminal_escapes(server, caplog) -> None:
+    caplog.set_level("WARNING", logger="services.web.server")
+    assert run(status(f"http://127.0.0.1:{server.port}/%1b]0;pwned%07%0d%0aforged")) == 403
+    lines = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+    assert lines and all("\x1b" not in m and "\x07" not in m and "\n" not in m for m in lines), lines
