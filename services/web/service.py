@@ -34,7 +34,6 @@ from .tally import DefectTally
 from .view import FleetView
 
 
-
 def replayed(sample) -> bool:
     """Whether a sample was put by ``skynet replay`` (its attachment says so)."""
     att = getattr(sample, "attachment", None)
