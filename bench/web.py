@@ -2,7 +2,8 @@
 
 A gateway and a ``skynet web`` process run as in a deployment; this script publishes N UAVs'
 states at 20 Hz and previews at 2 Hz (and a defect report a second) on the bus, while a
-WebSocket client (aiohttp) reads the page's feed as a browser would. Figures: snapshots per
+WebSocket client (aiohttp) reads the page's feed as a browser would (with the page's access token,
+handed to the process in its environment). Figures: snapshots per
 second received, mean snapshot size, the web process's CPU (user+system over wall time).
 
     .venv/bin/python bench/web.py [--seconds 20] [--out bench/results/web.json]
@@ -28,6 +29,7 @@ sys.path.insert(0, str(ROOT))
 from protocol import keys  # noqa: E402
 from protocol.bus import Bus, BusConfig, multilink_endpoints  # noqa: E402
 from protocol.imagery import pack_image  # noqa: E402
+from services.web.server import TOKEN_ENV, new_token  # noqa: E402
 from protocol.links import COMMAND, IMAGERY, TELEMETRY  # noqa: E402
 from protocol.messages import Defect, DefectReport, ImageMeta, Intrinsics, Mode, VehicleState  # noqa: E402
 from protocol.rtp import RtpSender, ssrc_for  # noqa: E402
@@ -89,6 +91,8 @@ def run(n: int, seconds: float) -> dict:
         gw = group.start("gateway", ["gateway", "--fleet", "bench", "--multilink", *[a for e in ends for a in ("--listen", e)]])
         assert gw.wait_for("router up", 30)
         port = free_port()
+        token = new_token()
+        group.env[TOKEN_ENV] = token
         web = group.start("web", ["web", "--fleet", "bench", "--multilink", "--listen-web", f"127.0.0.1:{port}",
                                   *[a for e in ends for a in ("--connect", e)]])
         assert web.wait_for("web up", 30), web.lines
@@ -97,7 +101,7 @@ def run(n: int, seconds: float) -> dict:
             th.start()
             time.sleep(2.0)
             c0, t0 = cpu_s(web.proc.pid), time.monotonic()
-            snaps, size, _ = asyncio.run(read_ws(f"http://127.0.0.1:{port}/ws", seconds))
+            snaps, size, _ = asyncio.run(read_ws(f"http://127.0.0.1:{port}/ws?token={token}", seconds))
             wall = time.monotonic() - t0
             cpu = cpu_s(web.proc.pid) - c0
             stop.set()

@@ -281,8 +281,9 @@ class Publisher:
     def put(self, msg: Message) -> int:
         return self.put_bytes(codec.encode(msg), encoding_of(msg))
 
-    def put_bytes(self, data: bytes, encoding: zenoh.Encoding | None = None) -> int:
-        self._put(data, encoding=encoding)
+    def put_bytes(self, data: bytes, encoding: zenoh.Encoding | None = None, attachment: bytes | None = None) -> int:
+        """Put ``data``; ``attachment``: Zenoh's per-sample attachment (a replay's mark, services.recording.replay)."""
+        self._put(data, encoding=encoding, attachment=attachment)
         n = len(data)
         self.samples += 1
         self.bytes += n

@@ -279,10 +279,11 @@ for run in $RUNS; do
   if [ "$run" = netem ]; then
     # the optional web page rides along (profile web, published on 127.0.0.1 only): poll its snapshot
     web_port="$("$PY" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
-    profiles=(env COMPOSE_PROFILES=netem,web SKYNET_WEB_PORT="$web_port")
+    web_token="$("$PY" -c 'import secrets; print(secrets.token_urlsafe(24))')"
+    profiles=(env COMPOSE_PROFILES=netem,web SKYNET_WEB_PORT="$web_port" SKYNET_WEB_TOKEN="$web_token")
     ( while sleep 3; do
-        "$PY" -c 'import sys, urllib.request; sys.stdout.write(urllib.request.urlopen(sys.argv[1], timeout=2).read().decode())' \
-          "http://127.0.0.1:$web_port/snapshot.json" >"$WORK/web.tmp" 2>/dev/null \
+        "$PY" -c 'import sys, urllib.request; sys.stdout.write(urllib.request.urlopen(urllib.request.Request(sys.argv[1], headers={"Authorization": "token " + sys.argv[2]}), timeout=2).read().decode())' \
+          "http://127.0.0.1:$web_port/snapshot.json" "$web_token" >"$WORK/web.tmp" 2>/dev/null \
           && grep -q '"mode"' "$WORK/web.tmp" && mv "$WORK/web.tmp" "$WORK/web.json"
       done ) & WEB_PID=$!
   fi

@@ -170,8 +170,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.web:  # services.web: the live page, fed by this session
             from services.web.service import follow_runner, start_web
 
-            view, server = start_web(bus, args.web, scenario, log=log)
-            hooks["on_runner"] = lambda runner: follow_runner(view, runner)
+            # the report's inspection section reads OUT/frames (the detector's --save-frames): the page counts those
+            frames = str(Path(args.out) / "frames") if args.out else None
+            view, server = start_web(bus, args.web, scenario, log=log, frames=frames)
+            hooks["on_runner"] = lambda runner: follow_runner(view, runner, tally=server.tally)
         try:
             return run_mission(bus, scenario, options, args.out, args.quiet, log, abort=abort,
                                ground_truth=not args.no_ground_truth, record=not args.no_record, signer=signer,

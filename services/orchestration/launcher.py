@@ -58,6 +58,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import shutil
 import sys
 import tempfile
@@ -532,7 +533,26 @@ class Network:
             self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
                                          "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
         if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
-            self.start_service("web", ["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
+            self.start_web_service(["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
+
+    def start_web_service(self, args: list[str]) -> None:
+        """``skynet web`` with the page's token in its environment (the launcher's own ``SKYNET_WEB_TOKEN``,
+        else random), so that the launcher prints the page's URL: :meth:`web_url`."""
+        from services.web.server import TOKEN_ENV, new_token
+
+        self.web_token = os.environ.get(TOKEN_ENV) or new_token()
+        self.group.env[TOKEN_ENV] = self.web_token
+        try:
+            self.start_service("web", args)
+        finally:
+            self.group.env.pop(TOKEN_ENV, None)
+
+    def web_url(self) -> str | None:
+        """The URL of the page ``skynet up --web`` started, with its token (None without a page)."""
+        from services.web.server import page_url, parse_listen
+
+        token = getattr(self, "web_token", None)
+        return None if token is None else page_url(*parse_listen(self.args.web), token)
 
     def detect_args(self) -> list[str]:
         """``--detect-max-mp`` for the detector when given (a large frame detected on a reduced decode)."""
@@ -729,6 +749,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             net.start()
             log.info("network up: gateway at %s; Ctrl-C to stop", " ".join(net.gateway_endpoints))
+            if net.web_url():
+                log.info("web page at %s", net.web_url())
             for link in sorted(net.proxies):
                 log.info("proxies on %s: tcp %s, udp %s", link, *(net.proxies[link][c].port for c in CLASSES))
             if net.creds is not None:
@@ -782,9 +804,10 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
             if args.web:  # the live page in the ground station's process, with its plan (services.web)
                 from services.web.service import follow_runner, start_web
 
-                view, web_server = start_web(bus, args.web, scenario, log=log)
+                view, web_server = start_web(bus, args.web, scenario, log=log, frames=args.save_frames)
                 before = hooks.get("on_runner")
-                hooks["on_runner"] = lambda runner: (before and before(runner), follow_runner(view, runner))
+                hooks["on_runner"] = lambda runner: (before and before(runner),
+                                                     follow_runner(view, runner, tally=web_server.tally))
             try:
                 code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
                                    ground_truth=args.camera == "synthetic", signer=hooks_signer,

@@ -7,6 +7,8 @@ has one publisher. ``--fleet NAME`` replays under another fleet name (the key's 
 swapped), so a past mission can be watched beside a live one (``skynet web --fleet NAME``).
 ``--reliable`` sends everything reliably (best-effort telemetry
 replayed at 10x on a busy machine loses some states, as it would live). Messages keep their own stamps (a viewer's "last heard" is the receive time, not the stamp).
+Every replayed sample carries the attachment :data:`REPLAY_MARK`, so a viewer tells a replay from live data
+(the web page labels it a replay).
 """
 
 from __future__ import annotations
@@ -21,6 +23,9 @@ from protocol.bus import Bus, Publisher, add_bus_args, config_from_args, setup_l
 from protocol.links import COMMAND, class_of_topic
 
 from .mcap_log import bus_bytes, read
+
+#: the Zenoh attachment of every replayed sample (services.web.service reads it)
+REPLAY_MARK = b"skynet-replay"
 
 
 def plan_of(path: str | Path):
@@ -68,7 +73,7 @@ def replay(bus: Bus, path: str | Path, speed: float = 1.0, fleet: str | None = N
                 time.sleep(delay)
         if key not in pubs:
             pubs[key] = bus.publisher(key, COMMAND if reliable else class_of_topic(topic))
-        pubs[key].put_bytes(data)
+        pubs[key].put_bytes(data, attachment=REPLAY_MARK)
         counts[class_of_topic(topic).name] += 1
     return counts
 

@@ -8,6 +8,15 @@ Routes:
   changes, then a snapshot every ``1 / rate`` s (5–10 Hz); the client sends nothing;
 - ``GET /snapshot.json`` one snapshot (for scripts and tests).
 
+Access (:class:`Access`): the page is readable by its operator only, not by another site open in the same
+browser. Every route wants the server's access token, as Jupyter does: the server prints its URL with
+``?token=...`` (random per start unless given); after that first load the token travels in a cookie
+(``HttpOnly``, ``SameSite=Strict``) so the page's own fetches and WebSocket carry it; scripts may send it
+as ``Authorization: token T``. A request whose ``Host`` is not the bound address, a loopback name or a
+name the operator allows (DNS rebinding: a hostile name resolved to 127.0.0.1), or whose ``Origin`` is
+not this server's (cross-site WebSocket hijacking, RFC 6455 Section 10.2), gets 403 before the token is
+even looked at. Responses carry a Content-Security-Policy that allows this server's own scripts only.
+
 :class:`WebServer` runs the aiohttp application on its own thread and event loop, so the ground
 station (a synchronous program) starts it with :meth:`start` and ends it with :meth:`stop`.
 """
@@ -15,15 +24,104 @@ station (a synchronous program) starts it with :meth:`start` and ends it with :m
 from __future__ import annotations
 
 import asyncio
+import hmac
 import json
+import logging
+import secrets
 import threading
+from collections.abc import Iterable
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
 from .view import FleetView
 
 STATIC = Path(__file__).with_name("static")
+log = logging.getLogger(__name__)
+
+#: environment variable that hands a process its page token (not on the command line, where ``ps`` shows it)
+TOKEN_ENV = "SKYNET_WEB_TOKEN"
+#: host names every page answers to besides its bound address
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+_WILDCARD = ("", "0.0.0.0", "::")
+
+
+def new_token() -> str:
+    """A random access token (192 bits, URL-safe)."""
+    return secrets.token_urlsafe(24)
+
+
+def _host_name(host: str) -> str:
+    """``"[::1]:8080"`` -> ``"::1"``, ``"Example.COM:80"`` -> ``"example.com"``, ``"h"`` -> ``"h"``."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        end = host.find("]")
+        return host[1:end] if end > 0 else host
+    name, sep, port = host.rpartition(":")
+    return name if sep and port.isdigit() and ":" not in name else host
+
+
+def page_url(host: str, port: int, token: str) -> str:
+    """The URL the operator opens: loopback shown as ``127.0.0.1``, IPv6 bracketed, the token in the query."""
+    shown = "127.0.0.1" if host in _WILDCARD else host
+    if ":" in shown:
+        shown = f"[{shown}]"
+    return f"http://{shown}:{port}/?token={token}"
+
+
+class Access:
+    """Who may read the page (the module docstring): the ``Host``, ``Origin`` and token checks. Pure.
+
+    ``host`` is the bound address; ``allowed_hosts`` more names the page answers to (a name the operator
+    reaches it by, for instance through an SSH tunnel or on a LAN with a non-loopback ``host``).
+    """
+
+    def __init__(self, host: str, port: int, token: str, allowed_hosts: Iterable[str] = ()):
+        if not token or len(token) < 16:
+            raise ValueError("the page's access token must be at least 16 characters")
+        self.token, self.port = token, int(port)
+        names = {*LOOPBACK_NAMES, *(h.strip().lower() for h in allowed_hosts if h.strip())}
+        if host not in _WILDCARD:
+            names.add(_host_name(host))
+        self.hosts = frozenset(names)
+        self.cookie = f"skynet-token-{self.port}"  # one per port: two pages on one machine keep their own
+
+    def host_ok(self, host: str | None) -> bool:
+        return bool(host) and _host_name(host) in self.hosts
+
+    def origin_ok(self, origin: str | None, host: str | None = None) -> bool:
+        """No ``Origin`` (a script, not a browser page), or this page's own: ``http://`` and the ``Host`` the
+        request was sent to (name and port; behind a published container port the port is the outside one)."""
+        if origin is None:
+            return True
+        try:
+            o = urlsplit(origin)
+            h = urlsplit("//" + (host or ""))
+            o_port, h_port = o.port or 80, h.port or 80
+        except ValueError:
+            return False
+        return (o.scheme == "http" and o.hostname is not None and o.hostname.lower() in self.hosts
+                and (h.hostname is None or (o.hostname.lower() == h.hostname.lower() and o_port == h_port))
+                and (host is not None or o_port == self.port))
+
+    def token_ok(self, query: str | None, cookie: str | None, header: str | None) -> bool:
+        given = query or cookie
+        if not given and header:
+            scheme, _, value = header.partition(" ")
+            given = value.strip() if scheme.lower() in ("token", "bearer") else None
+        return bool(given) and hmac.compare_digest(given.encode(), self.token.encode())
+
+    def refusal(self, host: str | None, origin: str | None, query: str | None, cookie: str | None,
+                header: str | None) -> str | None:
+        """Why a request is refused (one line), or None when it may be served."""
+        if not self.host_ok(host):
+            return f"Host {host!r} is not one this page answers to"
+        if not self.origin_ok(origin, host):
+            return f"Origin {origin!r} is not this page's"
+        if not self.token_ok(query, cookie, header):
+            return "no valid access token: open the URL the server printed (with ?token=...)"
+        return None
 
 
 def parse_listen(spec: str) -> tuple[str, int]:
@@ -35,10 +133,17 @@ def parse_listen(spec: str) -> tuple[str, int]:
 
 
 class WebServer:
-    def __init__(self, view: FleetView, host: str = "127.0.0.1", port: int = 8080, rate_hz: float = 10.0):
+    def __init__(self, view: FleetView, host: str = "127.0.0.1", port: int = 8080, rate_hz: float = 10.0,
+                 token: str | None = None, allowed_hosts: Iterable[str] = ()):
         if not 1.0 <= rate_hz <= 30.0:
             raise ValueError(f"web update rate must be in 1..30 Hz, got {rate_hz!r}")
         self.view, self.host, self.port, self.period_s = view, host, int(port), 1.0 / rate_hz
+        self.token = token or new_token()
+        self.allowed_hosts = tuple(allowed_hosts)
+        self.access = Access(host, self.port, self.token, self.allowed_hosts)
+        self.refused = 0  # requests refused by the access checks
+        self.tally = None  # services.web.tally.DefectTally, when the page counts defects as the report does
+        self.on_stop = None  # called by stop()
         self.sent = 0  # snapshots sent, all clients
         self.clients = 0
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -48,10 +153,38 @@ class WebServer:
         self._error: BaseException | None = None
         self._snapshot: tuple[float, str] | None = None  # (built at, JSON): shared by every page of a period
 
+    @property
+    def url(self) -> str:
+        """The page's URL with its token (what the operator opens)."""
+        return page_url(self.host, self.port, self.token)
+
+    @web.middleware
+    async def _guard(self, request: web.Request, handler) -> web.StreamResponse:
+        h = request.headers
+        reason = self.access.refusal(h.get("Host"), h.get("Origin"), request.query.get("token"),
+                                     request.cookies.get(self.access.cookie), h.get("Authorization"))
+        if reason is not None:
+            self.refused += 1
+            if self.refused <= 10 or self.refused % 1000 == 0:
+                log.warning("web: refused %s %r (%s; %d refused so far)", request.method, request.path, reason,
+                            self.refused)
+            return web.Response(status=403, text=reason + "\n")
+        response = await handler(request)
+        if response.prepared:  # a WebSocket, already answered
+            return response
+        response.headers["Content-Security-Policy"] = (
+            "default-src 'none'; script-src 'self'; connect-src 'self' ws://" + h["Host"] + "; img-src 'self'; "
+            "style-src 'self' 'unsafe-inline'; frame-ancestors 'none'; base-uri 'none'; form-action 'none'")
+        response.headers["X-Content-Type-Options"] = "nosniff"
+        response.headers["Referrer-Policy"] = "no-referrer"  # the token in the URL is not passed on
+        if request.query.get("token"):
+            response.set_cookie(self.access.cookie, self.token, httponly=True, samesite="Strict", path="/")
+        return response
+
     def app(self) -> web.Application:
-        app = web.Application()
+        app = web.Application(middlewares=[self._guard])
         app.add_routes([web.get("/", self._index), web.get("/app.js", self._js), web.get("/ws", self._ws),
-                        web.get("/preview/{uav:\\d+}.jpg", self._preview), web.get("/snapshot.json", self._snap)])
+                        web.get("/preview/{uav:\\d{1,3}}.jpg", self._preview), web.get("/snapshot.json", self._snap)])
         return app
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
@@ -134,11 +267,14 @@ class WebServer:
         site = web.TCPSite(runner, self.host, self.port)
         await site.start()
         self.port = runner.addresses[0][1]  # the real port when 0 was asked for
+        self.access = Access(self.host, self.port, self.token, self.allowed_hosts)
         self._ready.set()
         await self._stop.wait()
         await runner.cleanup()
 
     def stop(self) -> None:
+        if self.on_stop is not None:
+            self.on_stop()
         if self._loop is not None and self._stop is not None and self._thread and self._thread.is_alive():
             self._loop.call_soon_threadsafe(self._stop.set)
             self._thread.join(10)

@@ -9,9 +9,15 @@ preview JPEGs, the plan) and answers two JSON-ready documents:
   rate (link health, Hz against the edges' 20 Hz) and last-heard age, captures, its flown path
   (decimated to one point per :data:`TRAIL_STEP_M`), the preview frame's number; the formation
   error (RMS of each UAV's distance to its planned slot, P9, over the UAVs in MISSION); the
-  defects found (positions on the wall map) and the last events (the timeline).
+  detections (every defect of every frame's report, placed on the wall map), the defects
+  (``defect_count``: the mission report's own count, a crack seen by overlapping frames counted once,
+  set by :meth:`FleetView.set_inspection`; None until known); the timeline (the mission's phases:
+  the ground station's where it runs the page, each UAV's mode changes everywhere; captures, defect
+  reports, events and warnings); ``source``: whether the data shown is live or a
+  replay of a recorded mission (``skynet replay``).
 
-Memory is bounded: trails, events and defects keep the newest :data:`TRAIL_POINTS`,
+Everything from the bus is data: the page renders it as text (``static/app.js``).
+Memory is bounded: trails, events and detections keep the newest :data:`TRAIL_POINTS`,
 :data:`EVENTS`, :data:`DEFECTS` entries.
 """
 
@@ -33,6 +39,9 @@ EVENTS = 200
 DEFECTS = 5000
 SENT_TRAIL = 400  # newest trail points per snapshot
 SENT_DEFECTS = 500  # newest defects per snapshot (the count is of all)
+SENT_EVENTS = 100  # newest timeline entries per snapshot
+REPLAY_FLEET_SUFFIX = "-replay"  # the fleet name ``skynet replay`` plays a recording under, beside the live one
+SOURCE_WINDOW_S = 5.0  # data heard within this long decides the page's "live" / "replay" label
 RATE_WINDOW_S = 2.0
 STATE_HZ = 20.0  # the edges' telemetry rate (edge.runtime)
 
@@ -49,6 +58,7 @@ class _Uav:
         self.trail: deque[list[float]] = deque(maxlen=TRAIL_POINTS)
         self.preview_seq = 0
         self.preview: bytes | None = None
+        self.captures = 0
 
 
 class FleetView:
@@ -62,7 +72,10 @@ class FleetView:
         self._events: deque[dict] = deque(maxlen=EVENTS)
         self._defects: deque[dict] = deque(maxlen=DEFECTS)
         self.reports = 0
+        self.detections = 0  # every placed defect of every report (a crack seen in 3 frames counts 3)
+        self.inspection: dict[str, Any] | None = None  # the deduplicated count (set_inspection)
         self.static_version = 0
+        self._heard = {"live": -math.inf, "replay": -math.inf}  # when each kind of data was last heard
         self._lock = threading.Lock()
 
     def _uav(self, uav: int) -> _Uav:
@@ -70,11 +83,31 @@ class FleetView:
             self._uavs[uav] = _Uav()
         return self._uavs[uav]
 
-    # -- inputs
-    def on_state(self, msg: VehicleState, rx: float | None = None) -> None:
+    # -- inputs (``replayed``: the sample came from ``skynet replay``, services.web.service tells)
+    def _hear(self, now: float, replayed: bool) -> None:
+        kind = "replay" if replayed or self.fleet.endswith(REPLAY_FLEET_SUFFIX) else "live"
+        self._heard[kind] = max(self._heard[kind], now)
+
+    def _note(self, t: float, source: str, kind: str, text: str, level: str = "info") -> None:
+        self._events.append({"t": t, "source": source, "kind": kind, "level": level, "text": text})
+
+    def note(self, t: float, source: str, kind: str, text: str, level: str = "info") -> None:
+        """A timeline entry from this process (the ground station's phases and warnings)."""
+        with self._lock:
+            self._note(t, source, kind, text, level)
+
+    def on_state(self, msg: VehicleState, rx: float | None = None, replayed: bool = False) -> None:
         now = self.clock() if rx is None else rx
         with self._lock:
+            self._hear(now, replayed)
             u = self._uav(msg.uav)
+            if u.state is not None and u.state.mode != msg.mode:  # the UAV's own phases, seen by any page
+                self._note(msg.stamp, f"uav/{msg.uav}", "mode", f"{u.state.mode.value} -> {msg.mode.value}")
+            if msg.captures > u.captures:
+                self._note(msg.stamp, f"uav/{msg.uav}", "capture",
+                           f"capture {msg.captures}" if msg.captures == u.captures + 1
+                           else f"captures {u.captures + 1}-{msg.captures}")
+                u.captures = msg.captures
             u.state, u.rx = msg, now
             u.arrivals.append(now)
             while u.arrivals and u.arrivals[0] < now - RATE_WINDOW_S:
@@ -83,18 +116,34 @@ class FleetView:
             if not u.trail or math.dist(u.trail[-1], p) >= TRAIL_STEP_M:
                 u.trail.append(p)
 
-    def on_event(self, msg: Event) -> None:
+    def on_event(self, msg: Event, replayed: bool = False) -> None:
         with self._lock:
-            self._events.append({"t": msg.stamp, "source": msg.source, "kind": msg.kind, "level": msg.level.value,
-                                 "text": msg.text})
+            self._hear(self.clock(), replayed)
+            self._note(msg.stamp, msg.source, msg.kind, msg.text, msg.level.value)
 
-    def on_defects(self, msg: DefectReport) -> None:
+    def on_defects(self, msg: DefectReport, replayed: bool = False) -> None:
         with self._lock:
+            self._hear(self.clock(), replayed)
             self.reports += 1
+            placed = 0
             for d in msg.defects:
                 if d.pos is not None:
+                    placed += 1
                     self._defects.append({"uav": msg.uav, "capture": msg.capture_id, "pos": _r(d.pos),
                                           "length_m": d.length_m})
+            self.detections += placed
+            if not msg.ok:
+                self._note(msg.stamp_report, f"uav/{msg.uav}", "defect-report",
+                           f"capture {msg.capture_id}: no result", "warning")
+            elif msg.defects:
+                self._note(msg.stamp_report, f"uav/{msg.uav}", "defect-report",
+                           f"capture {msg.capture_id}: {len(msg.defects)} detection(s)")
+
+    def set_inspection(self, defects: int, frames: int) -> None:
+        """The deduplicated defect count of ``frames`` captures, as the mission report counts it
+        (services.inspection: one defect per connected crack on the mosaic; services.web.tally)."""
+        with self._lock:
+            self.inspection = {"defects": int(defects), "frames": int(frames)}
 
     def on_preview(self, uav: int, jpeg: bytes) -> None:
         with self._lock:
@@ -149,7 +198,12 @@ class FleetView:
                     if s.ref is not None and s.mode.value == "mission":
                         errs.append(math.dist(s.pos, s.ref))
                 uavs[str(uid)] = entry
+            live, replay = (now - self._heard[k] <= SOURCE_WINDOW_S for k in ("live", "replay"))
+            insp = self.inspection
             return {"type": "snapshot", "t": round(now, 3), "static_version": self.static_version, "uavs": uavs,
                     "formation_error_m": round(math.sqrt(sum(e * e for e in errs) / len(errs)), 3) if errs else None,
-                    "defects": list(self._defects)[-SENT_DEFECTS:], "defect_count": len(self._defects), "reports": self.reports,
-                    "events": list(self._events)[-50:]}
+                    "source": "live+replay" if live and replay else "replay" if replay else "live" if live else None,
+                    "defects": list(self._defects)[-SENT_DEFECTS:], "detections": self.detections,
+                    "defect_count": None if insp is None else insp["defects"],
+                    "inspection": None if insp is None else dict(insp), "reports": self.reports,
+                    "events": sorted(list(self._events)[-SENT_EVENTS:], key=lambda e: e["t"])}

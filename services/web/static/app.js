@@ -1,10 +1,12 @@
 // SkyNet Inspect live fleet page: plain JavaScript, no build step. Reads the WebSocket at /ws:
 // a "static" document (scenario, planned paths) then "snapshot"s at 5-10 Hz (services/web/view.py).
+// Everything in them came from the bus: it is put in the page as text (textContent, DOM nodes), never as HTML.
 "use strict";
 const COLOURS = ["#4cf", "#fc4", "#f6c", "#6f6", "#f84", "#a8f", "#ccc", "#4fa", "#f44", "#48f", "#ff8", "#8ff"];
 let world = null;          // the static document
 let snap = null;           // the newest snapshot
 let updates = [];          // arrival times of snapshots (update rate shown in the header)
+let connected = false;     // the WebSocket is open
 window.skynet = { snapshots: 0 };  // read by the browser test
 
 function colour(uav) { return COLOURS[(Number(uav) - 1) % COLOURS.length]; }
@@ -75,41 +77,72 @@ function drawWall() {
 
 function fmt(v, nd) { return v === undefined || v === null ? "-" : Number(v).toFixed(nd); }
 
+function el(tag, text, cls) {  // an element holding text as text (bus data is never parsed as HTML)
+  const e = document.createElement(tag);
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  if (cls) e.className = cls;
+  return e;
+}
+
+function safeUav(uav) { return /^[0-9]{1,3}$/.test(String(uav)) ? String(uav) : null; }  // keys are UAV numbers
+
 function updateTable() {
   const body = document.querySelector("#uavs tbody"), previews = document.getElementById("previews");
   const rows = [];
-  for (const [uav, u] of Object.entries(snap.uavs)) {
-    rows.push(`<tr data-uav="${uav}"><td style="color:${colour(uav)}">${uav}</td><td class="mode">${u.mode || "-"}</td>` +
-      `<td>${u.battery === undefined ? "-" : Math.round(100 * u.battery) + " %"}</td><td>${fmt(u.rate_hz, 1)}</td>` +
-      `<td class="${u.age_s > 1 ? "stale" : ""}">${fmt(u.age_s, 1)} s</td><td>${u.captures ?? "-"}</td>` +
-      `<td>${u.progress === undefined ? "-" : Math.round(100 * u.progress) + " %"}</td>` +
-      `<td class="pos">${u.pos ? u.pos.map((v) => v.toFixed(1)).join(", ") : "-"}</td></tr>`);
+  for (const [key, u] of Object.entries(snap.uavs)) {
+    const uav = safeUav(key);
+    if (uav === null) continue;
+    const tr = document.createElement("tr");
+    tr.dataset.uav = uav;
+    const id = el("td", uav); id.style.color = colour(uav); tr.appendChild(id);
+    tr.appendChild(el("td", u.mode || "-", "mode"));
+    tr.appendChild(el("td", u.battery === undefined ? "-" : Math.round(100 * u.battery) + " %"));
+    tr.appendChild(el("td", fmt(u.rate_hz, 1)));
+    tr.appendChild(el("td", fmt(u.age_s, 1) + " s", u.age_s > 1 ? "stale" : ""));
+    tr.appendChild(el("td", u.captures ?? "-"));
+    tr.appendChild(el("td", u.progress === undefined ? "-" : Math.round(100 * u.progress) + " %"));
+    tr.appendChild(el("td", Array.isArray(u.pos) ? u.pos.map((v) => Number(v).toFixed(1)).join(", ") : "-", "pos"));
+    rows.push(tr);
     let img = document.getElementById("preview-" + uav);
     if (!img && u.preview > 0) {
       const fig = document.createElement("figure");
-      fig.innerHTML = `<img id="preview-${uav}" alt="UAV ${uav} preview"><figcaption>UAV ${uav}</figcaption>`;
+      img = document.createElement("img");
+      img.id = "preview-" + uav; img.alt = "UAV " + uav + " preview";
+      fig.appendChild(img); fig.appendChild(el("figcaption", "UAV " + uav));
       previews.appendChild(fig);
-      img = document.getElementById("preview-" + uav);
     }
     if (img && u.preview > 0 && img.dataset.seq !== String(u.preview)) {
       img.dataset.seq = String(u.preview);
-      img.src = `/preview/${uav}.jpg?n=${u.preview}`;
+      img.src = "/preview/" + uav + ".jpg?n=" + encodeURIComponent(String(u.preview));
     }
   }
-  body.innerHTML = rows.join("");
+  body.replaceChildren(...rows);
 }
+
+const LEVELS = new Set(["info", "warning", "error"]);
 
 function updateEvents() {
   const box = document.getElementById("events");
-  box.innerHTML = snap.events.slice().reverse().map((e) =>
-    `<div class="${e.level}">${new Date(e.t * 1000).toISOString().slice(11, 19)} ${e.source} ${e.kind} ${e.text}</div>`).join("");
+  const lines = snap.events.slice().reverse().map((e) => {
+    const t = Number(e.t), when = Number.isFinite(t) && Math.abs(t) < 1e11 ? new Date(t * 1000).toISOString().slice(11, 19) : "--:--:--";
+    const line = el("div", `${when} ${e.source} ${e.kind} ${e.text}`, LEVELS.has(e.level) ? e.level : "");
+    line.dataset.kind = String(e.kind);
+    return line;
+  });
+  box.replaceChildren(...lines);
 }
 
 function render() {
   if (!snap) return;
   document.getElementById("formation").textContent = snap.formation_error_m === null ? "-" : snap.formation_error_m.toFixed(2) + " m";
-  document.getElementById("defect-count").textContent = snap.defect_count;
-  document.getElementById("reports").textContent = snap.reports;
+  document.getElementById("defect-count").textContent = snap.defect_count === null ? "-" : String(snap.defect_count);
+  document.getElementById("detections").textContent = String(snap.detections);
+  document.getElementById("reports").textContent = String(snap.reports);
+  const conn = document.getElementById("conn");  // the data's source once the page is connected
+  if (connected) {
+    conn.textContent = snap.source === "replay" ? "replay" : snap.source === "live+replay" ? "live + replay" : "live";
+    conn.className = snap.source && snap.source !== "live" ? "replay" : "";
+  }
   const now = performance.now();
   updates = updates.filter((t) => t > now - 2000);
   document.getElementById("rate").textContent = (updates.length / 2).toFixed(1);
@@ -119,8 +152,13 @@ function render() {
 
 function connect() {
   const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws");
-  ws.onopen = () => { document.getElementById("conn").textContent = "live"; };
-  ws.onclose = () => { document.getElementById("conn").textContent = "reconnecting"; setTimeout(connect, 1000); };
+  ws.onopen = () => { connected = true; document.getElementById("conn").textContent = "live"; };
+  ws.onclose = () => {
+    connected = false;
+    const conn = document.getElementById("conn");
+    conn.textContent = "reconnecting"; conn.className = "";
+    setTimeout(connect, 1000);
+  };
   ws.onmessage = (ev) => {
     const msg = JSON.parse(ev.data);
     if (msg.type === "static") { world = msg; document.getElementById("fleet").textContent = msg.fleet; }

@@ -1,13 +1,16 @@
 """The live web page in a real headless browser (Debian's chromium through selenium + chromium-driver).
 
 A ``skynet web`` process follows the bus; this test puts three moving UAVs, their live previews,
-an event and a defect report on the bus, and a headless chromium loads the page: the UAVs' positions
-change between two readings, a preview image is decoded, the defect count shows; a screenshot is
-saved to ``tests/artifacts/web-page.png`` (git-ignored).
+an event and a defect report on the bus, and a headless chromium loads the page at the URL the
+service printed (with its access token): the UAVs' positions change between two readings, a preview
+image is decoded, the detections show; a screenshot is saved to ``tests/artifacts/web-page.png``
+(git-ignored). Hostile event text on uav2's, the planner's and the detector's own event keys is shown
+as text and runs no script.
 """
 
 from __future__ import annotations
 
+import re
 import shutil
 import threading
 import time
@@ -26,6 +29,13 @@ from protocol.rtp import RtpSender, ssrc_for
 from services.orchestration.process import free_port
 
 FLEET = "test"
+#: event texts that run script if a page puts them in as HTML
+HOSTILE = ('<img src=x onerror="window.__xss=(window.__xss||0)+1">',
+           '<svg onload="window.__xss=(window.__xss||0)+1"></svg>',
+           '</div><script>window.__xss=(window.__xss||0)+1</script>')
+#: (key, source) of the event keys the hostile texts arrive on: a UAV's, the planner's, the detector's
+HOSTILE_KEYS = ((keys.event(FLEET, 2), "uav/2"), (keys.rcu_event(FLEET, "planner"), "planner"),
+                (keys.rcu_event(FLEET, "detector"), "detector"))
 ARTIFACTS = Path(__file__).resolve().parents[2] / "artifacts"
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 DRIVER = shutil.which("chromedriver")
@@ -41,6 +51,7 @@ def feed(bus: Bus, stop: threading.Event) -> None:
     senders = {u: RtpSender(ssrc_for(u, 1)) for u in (1, 2, 3)}
     bus.publisher(keys.gcs_event(FLEET), COMMAND).put(Event(source="gcs", stamp=time.time(), kind="phase",
                                                            text="mission"))
+    hostile = [(bus.publisher(key, COMMAND), source) for key, source in HOSTILE_KEYS]
     img = np.zeros((240, 320, 3), np.uint8)
     img[60:180, 80:240] = (30, 160, 220)
     jpeg = cv2.imencode(".jpg", img)[1].tobytes()
@@ -56,6 +67,10 @@ def feed(bus: Bus, stop: threading.Event) -> None:
                                  cam_rot=(1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0),
                                  intrinsics=Intrinsics(width=320, height=240, fx=300.0, fy=300.0, cx=160.0, cy=120.0))
                 previews[u].put_bytes(pack_image(senders[u], meta, jpeg, now))
+        if k % 10 == 0:  # again and again: whenever the page looks, they are in its timeline
+            for pub, source in hostile:
+                for text in HOSTILE:
+                    pub.put(Event(source=source, stamp=now, kind="note", text=text))
         if k % 20 == 0:
             d = Defect(area_px=40, bbox=(1, 1, 5, 5), centroid_px=(3.0, 3.0), contrast=9.0, pos=(60.0, 50.0 + k % 30, 28.0))
             bus.publisher(keys.defects(FLEET), COMMAND).put(
@@ -63,7 +78,11 @@ def feed(bus: Bus, stop: threading.Event) -> None:
         k += 1
 
 
-def test_page_shows_moving_uavs_a_preview_and_the_defects(group, gateway) -> None:
+def d_text(driver, element_id: str) -> str:
+    return driver.execute_script("return document.getElementById(arguments[0]).textContent", element_id)
+
+
+def test_page_shows_moving_uavs_a_preview_the_defects_and_hostile_text_as_text(group, gateway) -> None:
     from selenium.webdriver.chrome.options import Options
     from selenium.webdriver.chrome.service import Service
     from selenium.webdriver.common.by import By
@@ -73,6 +92,8 @@ def test_page_shows_moving_uavs_a_preview_and_the_defects(group, gateway) -> Non
     svc = group.start("web", ["web", "--fleet", FLEET, "--multilink", "--listen-web", f"127.0.0.1:{port}",
                               *[a for e in gateway for a in ("--connect", e)]])
     assert svc.wait_for("web up", 30), "\n".join(svc.lines)
+    printed = [m.group(1) for line in svc.lines if (m := re.search(r"web page at (\S+)", line))]
+    assert printed and re.fullmatch(rf"http://127\.0\.0\.1:{port}/\?token=[A-Za-z0-9_-]{{16,}}", printed[0]), svc.lines
     opts = Options()
     opts.binary_location = CHROMIUM
     for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1280,1100"):
@@ -83,7 +104,10 @@ def test_page_shows_moving_uavs_a_preview_and_the_defects(group, gateway) -> Non
         feeder.start()
         driver = webdriver.Chrome(service=Service(executable_path=DRIVER), options=opts)
         try:
-            driver.get(f"http://127.0.0.1:{port}/")
+            driver.get(f"http://127.0.0.1:{port}/")  # without the token: refused, no page
+            assert "access token" in driver.find_element(By.TAG_NAME, "body").text
+            assert driver.execute_script("return window.skynet === undefined")
+            driver.get(printed[0])
             wait = WebDriverWait(driver, 30)
             wait.until(lambda d: d.find_element(By.ID, "conn").text == "live")
             wait.until(lambda d: d.execute_script("return document.querySelectorAll('#uavs tbody tr').length") == 3)
@@ -102,8 +126,15 @@ def test_page_shows_moving_uavs_a_preview_and_the_defects(group, gateway) -> Non
             assert cell(2, "mode") == "mission"
             wait.until(lambda d: d.execute_script(
                 "const i = document.getElementById('preview-1'); return !!i && i.complete && i.naturalWidth === 320"))
-            wait.until(lambda d: int(d.find_element(By.ID, "defect-count").text) >= 1)
+            wait.until(lambda d: int(d.find_element(By.ID, "detections").text) >= 1)
+            assert d_text(driver, "defect-count") == "-"  # no captures folder: no deduplicated count to show
             wait.until(lambda d: "mission" in d.find_element(By.ID, "events").text)
+            # hostile text from each of the three keys is shown as text, and no element or script came of it
+            for _, source in HOSTILE_KEYS:
+                wait.until(lambda d: all(f"{source} note {t}" in d.find_element(By.ID, "events").text for t in HOSTILE))
+            assert driver.execute_script("return document.querySelectorAll('#events img, #events svg, "
+                                         "#events script').length") == 0
+            assert driver.execute_script("return window.__xss === undefined")
             wait.until(lambda d: d.execute_script("return window.skynet.snapshots") >= 5)  # the feed keeps coming
             ARTIFACTS.mkdir(exist_ok=True)
             time.sleep(0.5)  # one more frame drawn for the picture (nothing asserted on time)
