@@ -553,7 +553,8 @@ class Network:
                                 *part, *no_recovery, *save, *self.detect_args()], user="detector")
         if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
             self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
-                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
+                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp),
+                                         "--port", str(getattr(a, "video_port", 5600))])
         if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
             self.start_service("web", ["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
 
@@ -774,8 +775,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--insecure", action="store_true",
                    help="no TLS, no access control, unsigned commands: development only")
     p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
-                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:5600+2(n-1)")
+                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:PORT+2(n-1) (--video-port)")
     p.add_argument("--video-sdp", default="sdp", help="folder of the video streams' SDP files (with --video)")
+    p.add_argument("--video-port", type=int, default=5600, metavar="PORT",
+                   help="UAV 1's preview port (with --video); UAV n's is PORT + 2(n-1)")
     p.add_argument("--web", default=None, metavar="[HOST]:PORT",
                    help="serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)")
     p.add_argument("--network", default=None, metavar="FILE",
