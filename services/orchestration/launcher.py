@@ -862,7 +862,9 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
                 with runner._lock:
                     runner.record.failures.append(f"{name} did not start: {reason}")
 
-            for name, reason in dict(net.start_failures).items():  # found before the runner was made
+            for r in list(net.restarts):  # made before the runner was (while the services came up)
+                runner.note_fault(SUPERVISOR_RESTART, r["service"], r["text"])
+            for name, reason in dict(net.start_failures).items():
                 start_failure(name, reason)
             net.on_start_failure = start_failure
             if injector is not None:

@@ -296,3 +296,38 @@ def test_what_cannot_attach_says_why_in_one_line(network, tmp_path: Path) -> Non
     eps = [a for e in desc["endpoints"] for a in ("-e", e)]
     _one_line_error(skynet(tmp_path, "web", "--listen-web", f":{free_port()}", "--multilink", *eps, "--keys",
                            str(other), timeout=120), "no gateway answered", "is it this network's key set")
+
+
+def test_up_tells_a_service_that_cannot_start_and_stops_restarting_it(tmp_path: Path) -> None:
+    (tmp_path / "sdp-file").write_text("a file where the SDP folder should be\n")
+    tool = Tool(tmp_path, "up", "--uavs", "1", "--video", "h264", "--video-sdp", "sdp-file",
+                "--video-port", str(free_port() & ~1))
+    try:
+        assert tool.wait_for("video did not start", 120), tool.text()
+        line = next(ln for ln in tool.lines if "video did not start" in ln)
+        assert "exited 3 times without coming up" in line and "sdp-file" in line, line
+        time.sleep(3.0)
+        assert sum("restarted by the supervisor" in ln for ln in tool.lines) == 2, tool.text()  # and no more
+        assert tool.proc.poll() is None  # the rest of the network keeps running
+    finally:
+        assert tool.stop() == 0, tool.text()
+
+
+def test_a_mission_whose_video_cannot_start_fails_and_says_why(tmp_path: Path) -> None:
+    from tests.conftest import fly_mission
+
+    (tmp_path / "sdp-file").write_text("a file where the SDP folder should be\n")
+    run = fly_mission(tmp_path / "report", "--speed", "8", "--video", "h264", "--video-sdp",
+                      str(tmp_path / "sdp-file"), "--video-port", str(free_port() & ~1), timeout=400)
+    assert run.proc.returncode != 0, run.failure()
+    terminal = run.proc.stdout + run.proc.stderr
+    assert "video did not start" in terminal and "mission failed: video did not start" in terminal, run.failure()
+    report = run.report()
+    assert not report["success"] and any(f.startswith("video did not start") for f in report["failures"])
+    outcome = next(ln for ln in (run.out / "report.md").read_text().splitlines() if ln.startswith("Outcome:"))
+    assert "video did not start" in outcome
+    faults = report["faults"]
+    assert faults["faults"] == []  # nothing was injected
+    assert [x["action"] for x in faults["supervision"]] == ["supervisor-restart", "supervisor-restart",
+                                                           "start-failed"], faults["supervision"]
+    assert faults["seen_again"] == []
