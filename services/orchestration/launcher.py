@@ -646,7 +646,8 @@ class Network:
         """Leave the running network's description where the tools find it (:mod:`.attach`); removed by
         :meth:`stop`."""
         path = attach.network_path(getattr(self.args, "network", None))
-        desc = attach.describe(self.args.fleet, self.gateway_endpoints, self.trust.keys, self.trust.tls)
+        desc = attach.describe(self.args.fleet, self.gateway_endpoints, self.trust.keys, self.trust.tls,
+                               passwords=self.creds is not None)
         self.description = attach.write(path, desc)
         return self.description
 
