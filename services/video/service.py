@@ -112,9 +112,18 @@ class VideoService:
             vs.close()
 
 
+class _ShowDefaults(argparse.ArgumentDefaultsHelpFormatter):
+    """Help with each option's default, except where there is none to tell (None, off, an empty list)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or action.default is False or action.default == []:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet video", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                                     formatter_class=_ShowDefaults)
     add_bus_args(parser, mode="client")
     add_network_arg(parser)
     parser.add_argument("--codec", choices=["h264", "mjpeg"], default="h264",
