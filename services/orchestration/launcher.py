@@ -642,13 +642,18 @@ class Network:
             if self.on_restart is not None:
                 self.on_restart(p.name, text)
 
-    def describe(self) -> Path:
+    def describe(self) -> Path | None:
         """Leave the running network's description where the tools find it (:mod:`.attach`); removed by
-        :meth:`stop`."""
+        :meth:`stop`. A folder it cannot be written to is said, not fatal (None): the tools then need ``-e``."""
         path = attach.network_path(getattr(self.args, "network", None))
         desc = attach.describe(self.args.fleet, self.gateway_endpoints, self.trust.keys, self.trust.tls,
                                passwords=self.creds is not None)
-        self.description = attach.write(path, desc)
+        try:
+            self.description = attach.write(path, desc)
+        except OSError as exc:
+            logging.getLogger("skynet.launcher").warning(
+                "could not describe the network in %s (%s): skynet web/video/replay need -e %s", path,
+                exc.strerror or exc, " -e ".join(self.gateway_endpoints))
         return self.description
 
     def start_failed(self, name: str, reason: str, log: logging.Logger | None = None) -> None:
@@ -821,8 +826,9 @@ def main(argv: list[str] | None = None) -> int:
                 injector.start(origin=time.time())
             net.start_supervisor(log)  # a service that ends is restarted, the network stays up
             described = net.describe()
-            log.info("network described in %s: `skynet web`, `skynet video`, `skynet replay FILE` attach to it "
-                     "from this folder with no options", described)
+            if described is not None:
+                log.info("network described in %s: `skynet web`, `skynet video`, `skynet replay FILE` attach to it "
+                         "from this folder with no options", described)
             while not stop.wait(1.0):
                 pass
         finally:

@@ -121,3 +121,17 @@ def test_zenohs_refusals_become_sentences():
                                      "replay")
     assert text.startswith("no gateway answered at tls/") and "replay's identity in /k" in text
     assert "Timeout!" not in text
+
+
+def test_a_folder_the_description_cannot_go_to_is_said_not_fatal(tmp_path, caplog):
+    from services.orchestration.launcher import Network, build_parser
+
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where the .skynet folder would go")
+    args = build_parser("up").parse_args(["--insecure", "--network", str(blocker / "network.json")])
+    net = Network(args)
+    try:
+        assert net.describe() is None
+        assert "could not describe the network" in caplog.text and "-e tcp/" in caplog.text
+    finally:
+        net.stop()
