@@ -23,6 +23,13 @@ planner     declare and answer the planner queryable; its token, events and stat
 detector    receive the cameras and query their recovery caches; put defect reports,
             its statistics and events, its token (as ``detector`` or any instance ``detector-K``).
 gateway     another gateway (router) relaying this fleet: everything of the fleet.
+web         the live page (``skynet web``): receive everything of the fleet and of its replay fleet
+            (:func:`protocol.keys.replay_fleet`); it may not put, query or answer anything.
+video       ``skynet video``: receive the cameras' previews and capture frames of the fleet and of its
+            replay fleet; nothing else.
+replay      ``skynet replay``: put anything on the replay fleet's keys (``skynet/F-replay/**``), and
+            nothing on the live fleet: a recording replayed by mistake onto ``F`` would be taken for
+            the live UAVs (and a replay carries no command, but it must not be able to look like one).
 ==========  =====================================================================================
 
 Every role may also be *told* of subscribers, queryables and liveliness interests anywhere in
@@ -52,13 +59,15 @@ from typing import Any, Iterable, Mapping, NamedTuple
 
 from protocol import keys
 
-ROLES = ("uav", "gcs", "planner", "detector", "gateway")
+ROLES = ("uav", "gcs", "planner", "detector", "gateway", "web", "video", "replay")
+#: roles of the tools that attach to a running network (``skynet web``, ``video``, ``replay``)
+ATTACHED_ROLES = ("web", "video", "replay")
 #: the message kinds of Zenoh's ACL (zenoh 1.x ``AclMessage``)
 MESSAGES = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable", "liveliness_token",
             "liveliness_query", "declare_liveliness_subscriber")
 _USER = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 _UAV_NAME = re.compile(r"^uav([0-9]{1,3})$")
-_ROLE_NAME = re.compile(r"^(gcs|planner|detector|gateway)([0-9]*|[-_.][A-Za-z0-9_.-]*)$")
+_ROLE_NAME = re.compile(r"^(gcs|planner|detector|gateway|web|video|replay)([0-9]*|[-_.][A-Za-z0-9_.-]*)$")
 #: characters a password may not contain (the dictionary file is ``user:password`` per line)
 _PASSWORD_BAD = re.compile(r"[\s:;=#]")
 
@@ -152,7 +161,8 @@ def role_of(user: str, role: str | None = None) -> Principal:
     if role is not None:
         if text in ROLES and text != "uav":
             return Principal(user, text)
-        raise ValueError(f"{user!r}: unknown role {role!r}; expected uavN (1..255), gcs, planner, detector or gateway")
+        raise ValueError(f"{user!r}: unknown role {role!r}; expected uavN (1..255), gcs, planner, detector, gateway, "
+                         "web, video or replay")
     m = _ROLE_NAME.match(text)
     if m:
         return Principal(user, m.group(1))
@@ -259,7 +269,27 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
     if role == "gateway":
         both = (keys.fleet_all(fleet), keys.advanced(cam_all))
         return [Grant("ingress", MESSAGES, both), Grant("egress", MESSAGES, both)]
+    if role in ATTACHED_ROLES:
+        return attached_grants(fleet, role)
     raise ValueError(f"unknown role {role!r}; expected one of {ROLES}")
+
+
+def attached_grants(fleet: str, role: str) -> list[Grant]:
+    """The grants of the tools that attach to a running network (module table): ``web`` and ``video`` read
+    (the live fleet and its replay fleet), ``replay`` writes the replay fleet only."""
+    replay = keys.replay_fleet(fleet)
+    if role == "replay":
+        return [Grant("ingress", ("put",), (keys.fleet_all(replay),)),
+                Grant("egress", _INTEREST, (keys.fleet_all(replay),))]
+    if role == "web":
+        seen = (keys.fleet_all(fleet), keys.fleet_all(replay))
+    elif role == "video":
+        seen = tuple(k for f in (fleet, replay) for k in (keys.preview(f, "*"), keys.camera(f, "*")))
+    else:
+        raise ValueError(f"{role!r} is not a role of an attached tool ({', '.join(ATTACHED_ROLES)})")
+    return [Grant("ingress", ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"), seen),
+            Grant("egress", ("put", "liveliness_token"), seen),
+            Grant("egress", _INTEREST, (keys.fleet_all(fleet), keys.fleet_all(replay)))]
 
 
 def access_control(fleet: str, principals: Iterable[Principal], by: str = "usernames") -> dict[str, Any]:

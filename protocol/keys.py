@@ -139,6 +139,20 @@ def all_events(fleet: str) -> str:
     return f"{fleet_root(fleet)}/**/event"
 
 
+#: the fleet name a recorded mission is replayed under by default (``skynet replay``): beside the live fleet,
+#: never on its keys (its command keys above all)
+REPLAY_SUFFIX = "-replay"
+
+
+def replay_fleet(fleet: str) -> str:
+    """The fleet a replay of ``fleet``'s recording goes to by default (``demo`` -> ``demo-replay``).
+
+    >>> replay_fleet("demo")
+    'demo-replay'
+    """
+    return _chunk(f"{_chunk(fleet, 'fleet')}{REPLAY_SUFFIX}", "fleet")
+
+
 def fleet_all(fleet: str) -> str:
     """Every key of the fleet (``**`` does not match ``@``-chunks: see :func:`advanced`)."""
     return f"{fleet_root(fleet)}/**"

@@ -10,7 +10,7 @@ Layout (written by ``skynet keys init DIR``, :mod:`services.keys`)::
     DIR/trust/<signer>.pub      public keys whose signatures the UAVs accept (the ground station's)
     DIR/revoked.txt             revoked key ids (:func:`protocol.signing.key_id`), one per line
 
-``role`` is ``gateway``, ``gcs``, ``planner``, ``detector`` or ``uavN``. A node on a real vehicle
+``role`` is ``gateway``, ``gcs``, ``planner``, ``detector``, ``video``, ``web``, ``replay`` or ``uavN``. A node on a real vehicle
 gets only ``ca.pem``, its own ``<role>/`` folder, ``trust/`` and ``revoked.txt``. Rotation is a new
 key set in place (no code change); a key listed in ``revoked.txt`` is refused even while still in
 ``trust/``.
@@ -26,14 +26,14 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from .signing import ReplayStore, Signer, Verifier, load_public
 
-_ROLE = re.compile(r"^(gateway|gcs|planner|detector|uav([1-9][0-9]{0,2}))$")
+_ROLE = re.compile(r"^(gateway|gcs|planner|detector|video|web|replay|uav([1-9][0-9]{0,2}))$")
 _KID = re.compile(r"^[0-9a-f]{16}$")
 
 
 def check_role(role: str) -> str:
     m = _ROLE.match(role or "")
     if not m or (m.group(2) and int(m.group(2)) > 255):
-        raise ValueError(f"role must be gateway, gcs, planner, detector or uav1..uav255, got {role!r}")
+        raise ValueError(f"role must be gateway, gcs, planner, detector, video, web, replay or uav1..uav255, got {role!r}")
     return role
 
 

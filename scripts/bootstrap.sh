@@ -10,7 +10,9 @@ if [ ! -x .venv/bin/python ]; then
 fi
 stamp=".venv/.installed-$extras"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "installing SkyNet Inspect and its dependencies into .venv ([$extras]; about a minute, more on a slow network)..." >&2
   .venv/bin/python -m pip install -q --disable-pip-version-check -U pip >/dev/null
   .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[$extras]"
   touch "$stamp"
+  echo "installed into .venv" >&2
 fi

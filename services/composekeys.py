@@ -34,7 +34,7 @@ from pathlib import Path
 
 from cryptography import x509
 
-from services.keys import init, parse_sans, roles
+from services.keys import enlarge, init, parse_sans, roles
 
 EXIT_REFUSED = 2
 
@@ -83,6 +83,14 @@ def prepare(folder: Path, uavs: int, hosts: list[str], owner_of: Path | None = N
             _chown_tree(folder, owner_of)
         return "made", warnings
     lacking = missing_roles(folder, uavs)
+    # an older set without the tools' identities (they dial, they need no host names): issued by its own CA;
+    # a set lacking a node's identity (which may need its host's names) is refused as before
+    if lacking and set(lacking) <= {"video", "web", "replay"} and (folder / "ca" / "ca.key").is_file():
+        added = enlarge(folder, uavs)
+        if owner_of is not None and added:
+            _chown_tree(folder, owner_of)
+        warnings += [f"the key set lacked {', '.join(added)}: issued by its own CA"] if added else []
+        lacking = missing_roles(folder, uavs)
     if lacking:
         raise ValueError(f"{folder}: the key set has no certificate for {', '.join(lacking)} "
                          f"(make a complete one: skynet keys init DIR --uavs {uavs} --force)")

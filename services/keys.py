@@ -1,7 +1,7 @@
 """``skynet keys``: a development fleet PKI.
 
 ``skynet keys init DIR [--uavs N]`` writes a CA, and per node (``gateway``, ``gcs``, ``planner``,
-``detector``, ``uav1``..``uavN``) a TLS certificate whose common name is the role (ECDSA P-256,
+``detector``, the attached tools ``video``, ``web`` and ``replay``, ``uav1``..``uavN``) a TLS certificate whose common name is the role (ECDSA P-256,
 SANs ``<role>``, ``localhost`` and ``127.0.0.1``, server and client usage, signed by the CA) and an
 Ed25519 signing key pair. A dialler checks its peer's certificate against the name or address it
 dialled (RFC 6125 section 6; an address against an ``iPAddress`` SAN, RFC 5280 section 4.2.1.6), so a node
@@ -40,7 +40,7 @@ from protocol.keyset import KeySet, check_role
 from protocol.signing import key_id, load_public
 
 #: the roles every key set has, besides the UAVs
-SERVICE_ROLES = ("gateway", "gcs", "planner", "detector")
+SERVICE_ROLES = ("gateway", "gcs", "planner", "detector", "video", "web", "replay")
 #: who signs what the UAVs obey
 COMMAND_SIGNERS = ("gcs",)
 VALID_DAYS = 365
@@ -189,10 +189,54 @@ def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VAL
     return folder
 
 
-def ensure(folder: str | Path, uavs: int) -> Path:
-    """Reuse the key set in ``folder`` if it covers ``uavs`` UAVs, else make a new one."""
+def missing(folder: str | Path, uavs: int) -> list[str]:
+    """The roles of a ``uavs``-UAV key set that ``folder`` has no certificate for."""
     folder = Path(folder)
-    if (folder / "ca.pem").exists() and all((folder / r / "tls.pem").exists() for r in roles(uavs)):
+    return [r for r in roles(uavs) if not (folder / r / "tls.pem").exists()]
+
+
+def enlarge(folder: str | Path, uavs: int, days: int = VALID_DAYS) -> list[str]:
+    """Issue the roles ``folder`` lacks (:func:`missing`) with its own CA, keeping every existing identity;
+    the roles added. Needs the CA key (``ca/ca.key``): a set without it (a vehicle's copy) is not enlarged
+    (ValueError). Each role is written to a temporary folder and renamed into place, so two launchers
+    enlarging the same set at once each install whole identities (the second rename of a role fails and
+    its copy is dropped)."""
+    import tempfile
+
+    folder = Path(folder)
+    lacking = missing(folder, uavs)
+    if not lacking:
+        return []
+    ca_key_path, ca_path = folder / "ca" / "ca.key", folder / "ca.pem"
+    if not (ca_key_path.is_file() and ca_path.is_file()):
+        raise ValueError(f"{folder} lacks {', '.join(lacking)} and has no CA key to issue them")
+    ca_key = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
+    ca_cert = x509.load_pem_x509_certificate(ca_path.read_bytes())
+    now = dt.datetime.now(dt.timezone.utc)
+    added = []
+    for role in lacking:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{role}-", dir=folder))
+        key, cert = make_node_cert(role, ca_key, ca_cert, now, days)
+        _write(tmp / "tls.key", _pem_private(key), private=True)
+        _write(tmp / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
+        sk = Ed25519PrivateKey.generate()
+        _write(tmp / "sign.key", _pem_private(sk), private=True)
+        _write(tmp / "sign.pub", _pem_public(sk.public_key()))
+        try:
+            os.rename(tmp, folder / role)  # fails when another process installed it first
+            added.append(role)
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return added
+
+
+def ensure(folder: str | Path, uavs: int) -> Path:
+    """Reuse the key set in ``folder`` if it covers ``uavs`` UAVs (enlarged with its own CA when it lacks
+    roles, :func:`enlarge`), else make a new one."""
+    folder = Path(folder)
+    if (folder / "ca.pem").exists() and (folder / "ca" / "ca.key").exists():
+        enlarge(folder, uavs)
+    if (folder / "ca.pem").exists() and not missing(folder, uavs):
         return folder
     return init(folder, uavs, force=True)
 

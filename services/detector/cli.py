@@ -18,7 +18,11 @@ import cv2
 
 from .detect import METHODS, detect
 
-__all__ = ["main"]
+__all__ = ["main", "DEFAULT_METHOD"]
+
+#: the method ``skynet detect image`` uses unless told: the detector service's (``skynet detector --method``),
+#: so an image checked by hand is judged as in a mission
+DEFAULT_METHOD = "it+r"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -27,7 +31,8 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, metavar="image|eval")
     ap = commands.add_parser("image", help="detect dark defects in one image")
     ap.add_argument("image")
-    ap.add_argument("--method", default="it+", choices=list(METHODS))
+    ap.add_argument("--method", default=DEFAULT_METHOD, choices=list(METHODS),
+                    help="detection method (default: %(default)s, the detector service's)")
     ap.add_argument("--out", default=".", help="folder for <name>_mask.png and <name>_overlay.png")
     ap = commands.add_parser("eval", help="score methods on a data set (Table II)")
     ap.add_argument("--dataset", required=True, help="folder with images/ and masks/")

@@ -153,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     config = GatewayConfig(**{**dict(base), **security_options(args, log)}, downsampling=thin)
     if args.keys and config.access_control is None and listen and all(e.startswith("tls/") for e in listen):  # mutual TLS: ACL by certificate common name (issue 11)
         from protocol.keyset import KeySet
-        names = ["gcs", "planner", "detector", "gateway", *(f"uav{i}" for i in KeySet(args.keys, "gateway").uavs())]
+        names = ["gcs", "planner", "detector", "gateway", *acl.ATTACHED_ROLES,
+                 *(f"uav{i}" for i in KeySet(args.keys, "gateway").uavs())]
         config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
         log.info("mutual TLS on tls/ links; ACL by certificate common name for %s", ", ".join(names))
     stop = stop_event_on_signals()

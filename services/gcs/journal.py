@@ -9,6 +9,10 @@ computed from the in-memory record instead (bounded by :data:`~services.gcs.reco
 (``report_input``, ``recording_errors``).
 
     skynet report reports/mission-<time>/record.jsonl [--out FOLDER]
+    skynet report reports/mission-<time>/mission.mcap [--out FOLDER]
+
+The inspection section (mosaic, defect table) is rebuilt from the captures the detector kept, ``frames/``
+beside the journal (``--frames DIR``), as the mission's own report was.
 """
 
 from __future__ import annotations
@@ -60,20 +64,40 @@ def report_record(recorder: Recorder, live: MissionRecord, logger: logging.Logge
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="skynet report", description="the mission report from its journal alone")
-    p.add_argument("journal", help="record.jsonl of a mission (skynet mission / skynet gcs mission --out)")
+    p.add_argument("journal", help="record.jsonl of a mission (skynet mission / skynet gcs mission --out), or its "
+                                   "MCAP log (mission.mcap)")
     p.add_argument("--out", default=None, help="report folder (default: the journal's folder)")
+    p.add_argument("--frames", default=None, metavar="DIR",
+                   help="the captures the detector kept, for the inspection section (default: frames/ beside "
+                        "the journal)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     path = Path(args.journal)
-    record, found = read_journal(path)  # ValueError / OSError: a one-line error (services.cli)
-    record.report_input = _read_back(path, found)
     from .report import write_report
 
     out = Path(args.out) if args.out else path.parent
-    summary = write_report(record, out)
+    frames = Path(args.frames) if args.frames else path.parent / "frames"
+    if path.suffix == ".mcap":  # the MCAP log's mission record (services.recording.rebuild)
+        from services.recording.rebuild import rebuild
+
+        from mcap.exceptions import McapError
+
+        try:
+            record = rebuild(path)  # NotAMissionLog (a ValueError): a one-line error (services.cli)
+        except (McapError, EOFError) as exc:
+            raise ValueError(f"{path}: not an MCAP mission log ({exc})") from None
+        record.report_input = f"{path} rebuilt"
+        summary = write_report(record, out, frames)
+        cap = summary.captures
+        print(f"report written to {out / 'report.md'}: success {summary.success}, {cap.imaged}/{cap.planned} "
+              f"capture points imaged, rebuilt from {path}")
+        return 0
+    record, found = read_journal(path)  # ValueError / OSError: a one-line error (services.cli)
+    record.report_input = _read_back(path, found)
+    summary = write_report(record, out, frames)
     for note in found.notes(path):
         print(f"skynet report: {note}")
     cap = summary.captures

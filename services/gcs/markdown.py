@@ -147,7 +147,8 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
     if not f:
         return md + ["No record of faults.", ""]
     cmds = f["commands"]
-    quiet = not (f["faults"] or f["uavs_lost"] or f["failsafes"] or f["resumes"] or f["gcs_link"] or cmds["failed"]
+    supervision = f.get("supervision") or []
+    quiet = not (f["faults"] or supervision or f["uavs_lost"] or f["failsafes"] or f["resumes"] or f["gcs_link"] or cmds["failed"]
                  or f["skynet"])
     if quiet:
         return md + [f"No fault injected or seen; {cmds['acknowledged']} of {cmds['sent']} commands acknowledged.", ""]
@@ -158,6 +159,11 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
                                               for x in f["faults"]]), ""]
     else:
         md += ["No fault injected.", ""]
+    if supervision:
+        md += ["The launcher's supervisor (not injected faults):", "",
+               _table(["t", "what", "service", "detail"],
+                      [[_fmt(x["t_s"], 1, " s"), "did not start" if x["action"] == "start-failed" else "restarted",
+                        x["target"], x["text"]] for x in supervision]), ""]
     for x in f["seen_again"]:
         line = (f"{x['after'].capitalize()} of {x['target']} at {_fmt(x['t_s'], 1, ' s')} (down since "
                 f"{_fmt(x['began_s'], 1, ' s')}): fleet seen again at {_fmt(x['fleet_seen_s'], 2, ' s')}, "

@@ -79,7 +79,8 @@ class CommandRecord(BaseModel):
 class FaultRecord(BaseModel):
     """One fault injected into the run (or ended), as the injector told the ground station.
 
-    ``action`` is one of kill, restart, cut, restore, partition, heal (services.orchestration.faults); ``at`` is the
+    ``action`` is one of kill, restart, cut, restore, partition, heal (services.orchestration.faults), or what the
+    launcher's supervisor did: supervisor-restart, start-failed (not injected); ``at`` is the
     wall-clock UNIX time it happened.
     """
 

@@ -79,7 +79,8 @@ __all__ = [
 
 
 # ============================================================================ entry point
-def write_report(record: MissionRecord | dict[str, Any], folder: str | Path) -> ReportSummary:
+def write_report(record: MissionRecord | dict[str, Any], folder: str | Path,
+                 frames: str | Path | None = None) -> ReportSummary:
     """Write the mission report of ``record`` into ``folder`` (created if needed).
 
     Files: ``record.json``, ``report.json``, ``report.md`` and the plots :data:`PLOTS` (a plot
@@ -89,6 +90,9 @@ def write_report(record: MissionRecord | dict[str, Any], folder: str | Path) -> 
     ----------
     record : MissionRecord
     folder : str or Path
+    frames : str or Path, optional
+        The captures the detector kept, for the inspection deliverable (default ``folder/frames``: a
+        report rebuilt elsewhere, ``skynet report --out``, names the mission's own).
 
     Returns
     -------
@@ -111,6 +115,6 @@ def write_report(record: MissionRecord | dict[str, Any], folder: str | Path) -> 
     plots = write_plots(record, figs, out)
     summary.files = ["record.json", "report.json", "report.md", *plots]
     (out / "report.md").write_text(markdown(record, summary))
-    append_deliverable(record, out, summary.files)  # mosaic, defect table (issue 17)
+    append_deliverable(record, out, summary.files, frames)  # mosaic, defect table
     (out / "report.json").write_text(json.dumps(summary.to_dict(), indent=1, allow_nan=False))
     return summary

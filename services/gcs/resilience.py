@@ -7,7 +7,8 @@ injector counts from; the record's start when there was no mission phase).
 What is measured (our choices where the issue is silent):
 
 * *Faults*: what the injector noted (``record.faults``: kill, restart, cut, restore, partition,
-  heal).
+  heal); *supervision*: what the launcher's supervisor noted in the same list (:data:`SUPERVISION_ACTIONS`),
+  listed apart.
 * *UAVs lost and back*: the ground station's incidents (``record.incidents``): when a UAV's
   liveliness token went away, when it was counted lost, when it came back.
 * *Failsafes*: the boards' ``failsafe`` events (time = the board's stamp, when it happened, even
@@ -34,12 +35,16 @@ from typing import Any
 
 from .record import MissionRecord
 
-__all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "fault_figures", "reception_gaps"]
+__all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "SUPERVISION_ACTIONS", "fault_figures", "reception_gaps"]
 
 #: A pause in a UAV's state reception longer than this is listed as a gap, s (states come at 20 Hz).
 GAP_S = 1.0
 #: The boards' SkyNet events shown (edge.board).
 NEIGHBOUR_EVENTS = ("neighbour-lost", "neighbour-up", "neighbour-stale", "neighbour-fresh")
+#: What the launcher's supervisor noted (services.orchestration.launcher): a service it restarted after it ended
+#: by itself, one that could not start. Nobody injected them: they are listed apart from the faults, with no
+#: recovery figures (a restart of a service that never came up interrupts nothing).
+SUPERVISION_ACTIONS = ("supervisor-restart", "start-failed")
 #: Fault ends after which the ground station's reception of the fleet is measured -> their beginnings.
 _BEGIN_OF = {"restart": ("kill",), "restore": ("cut",)}
 
@@ -77,7 +82,9 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
         return round(x - t0, 3)
 
     faults = [{"t_s": t(f.at), "action": f.action, "target": f.target, "text": f.text}
-              for f in sorted(record.faults, key=lambda f: f.at)]
+              for f in sorted(record.faults, key=lambda f: f.at) if f.action not in SUPERVISION_ACTIONS]
+    supervision = [{"t_s": t(f.at), "action": f.action, "target": f.target, "text": f.text}
+                   for f in sorted(record.faults, key=lambda f: f.at) if f.action in SUPERVISION_ACTIONS]
     incidents = sorted(record.incidents, key=lambda i: i.at)
 
     # UAVs: token gone -> (lost) -> back
@@ -168,6 +175,7 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
     return {
         "origin": "mission phase start" if "mission" in record.phases else "record start",
         "faults": faults,
+        "supervision": supervision,
         "uavs_lost": episodes,
         "still_lost": sorted(u for u in open_ep if open_ep[u]["lost_s"] is not None),
         "gcs_link": links,

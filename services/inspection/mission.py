@@ -31,11 +31,12 @@ def _origin(record: MissionRecord) -> tuple[float, float, float] | None:
     return o.lat, o.lon, o.alt
 
 
-def append_deliverable(record: MissionRecord, folder: str | Path, files: list[str] | None = None) -> list[str]:
-    """Build the deliverable from ``folder/frames`` (if any) and append its section to
+def append_deliverable(record: MissionRecord, folder: str | Path, files: list[str] | None = None,
+                       frames: str | Path | None = None) -> list[str]:
+    """Build the deliverable from ``frames`` (default ``folder/frames``; if any) and append its section to
     ``folder/report.md``; the files written (relative to ``folder``) are added to ``files``."""
     out = Path(folder)
-    frames_dir = out / "frames"
+    frames_dir = Path(frames) if frames is not None else out / "frames"
     if not frames_dir.is_dir():
         return []
     lines = ["", "## Inspection deliverable", ""]

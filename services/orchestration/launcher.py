@@ -28,8 +28,15 @@ fault cuts.
 A service that exits by itself (a crash, not a fault's kill) is restarted by the supervisor
 (:meth:`Network.start_supervisor`) with the same command line, after an exponential back-off
 (:mod:`services.orchestration.restart`: 0.5 s doubling to 30 s, reset after 10 s of good run); each restart is
-logged and, in a mission, recorded as a fault (``restart``) in the report. The network is never
-stopped because one service ended.
+logged and, in a mission, recorded as the supervisor's (``supervisor-restart``), apart from injected faults. A
+service that exits :data:`START_ATTEMPTS` times without ever printing its ready line cannot start: it is not
+restarted again, its reason (its last error line) is logged, and ``skynet mission``, which waits for the
+services it asked for (planner, detector, video) before the flight, fails with that reason in the report's
+outcome. The network is never stopped because one service ended.
+
+Attaching (:mod:`services.orchestration.attach`): while it runs, the network is described in
+``.skynet/network.json`` (``--network FILE``), where ``skynet web``, ``skynet video`` and ``skynet replay`` find
+it when given no endpoint.
 
 Several gateways (issue 18, :mod:`services.orchestration.sites`): ``--sites S`` starts one gateway per
 site (``gateway``, ``gateway-1`` .. ``gateway-{S-1}``, ids ``gw0`` ..), each dialling the lower-numbered
@@ -80,9 +87,14 @@ from protocol.bus import (
 
 from .faults import FaultInjector, Resolved, cut_links, plan_faults
 from . import sites as sitemap
-from . import trustmode
+from . import attach, trustmode
 from .process import ProcessGroup, free_port, free_port_pair
 from .restart import RestartTracker
+
+#: what the mission's record calls a restart made by the launcher's supervisor, and a service that could not
+#: start (``FaultRecord.action``; reported apart from injected faults, services.gcs.resilience)
+SUPERVISOR_RESTART = "supervisor-restart"
+START_FAILED = "start-failed"
 from .topology import (
     CLASSES,
     OPEN_TIMEOUT_MS,
@@ -118,6 +130,17 @@ EDGE_READY = "board up"
 GATEWAY_LEASE_S = 2.0
 #: how long a restarted service may take to come up (the gateway retries a busy port meanwhile)
 RESTART_TIMEOUT_S = 30.0
+#: a service that exits this many times in a row without ever coming up cannot start (not restarted again)
+START_ATTEMPTS = 3
+#: how long ``skynet mission`` waits for the requested services to come up before the flight, s
+START_TIMEOUT_S = 90.0
+
+
+def ready_line(name: str) -> str | None:
+    """The line service ``name`` prints once it is up (``uavN``: its board; ``detector-K``: a detector)."""
+    if name.startswith("uav") and name[3:].isdigit():
+        return EDGE_READY
+    return READY.get(name.split("-")[0])
 
 
 @dataclass
@@ -222,10 +245,17 @@ class Network:
         self.on_restart = None
         self._sup_stop = threading.Event()
         self._sup: threading.Thread | None = None
+        #: the running network's description file (:meth:`describe`), None until written
+        self.description: Path | None = None
+        #: services that cannot start ({name: reason}, :meth:`start_failed`); told to ``on_start_failure``
+        self.start_failures: dict[str, str] = {}
+        self.on_start_failure = None
         if getattr(args, "secure", False):
             from services.gateway.credentials import generate
 
-            users = ["gcs", "planner", "detector", *[f"uav{i}" for i in range(1, args.uavs + 1)]]
+            users = ["gcs", "planner", "detector", *[f"uav{i}" for i in range(1, args.uavs + 1)],
+                     *(["video"] if getattr(args, "video", None) else []),
+                     *(["web"] if getattr(args, "web", None) else [])]
             self.creds = generate(self.tmp / "creds", users)
 
     # -- links
@@ -353,7 +383,7 @@ class Network:
         if self.creds is not None:
             self.group.env[PASSWORD_ENV] = self.creds.passwords[user or name]
         try:
-            return self.group.start(name, args, prefix=self.prefix_of(name))
+            return self.group.start(name, args, prefix=self.prefix_of(name), ready=ready_line(name))
         finally:
             self.group.env.pop(PASSWORD_ENV, None)
 
@@ -531,7 +561,8 @@ class Network:
                                 *part, *no_recovery, *save, *self.detect_args()], user="detector")
         if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
             self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
-                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp)])
+                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp),
+                                         "--port", str(getattr(a, "video_port", 5600))])
         if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
             self.start_web_service(["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
 
@@ -606,16 +637,26 @@ class Network:
         self._sup.start()
 
     def supervise(self, tracker: RestartTracker, log: logging.Logger) -> None:
-        """One pass: schedule the restart of services that ended on their own, start those that are due."""
+        """One pass: schedule the restart of services that ended on their own, start those that are due.
+
+        A service that exits :data:`START_ATTEMPTS` times in a row without ever having come up (its ready
+        line, :func:`ready_line`) cannot start: it is not restarted again, and :meth:`start_failed` says why
+        (:attr:`start_failures`, :attr:`on_start_failure`). One that came up once and then ended crashed
+        after working: it is restarted, and the restart is reported as the supervisor's, not as a fault."""
         if self.group.closed:
             return
         now = time.monotonic()
         for svc in list(self.group.services):
-            if svc.alive() or svc.killed or tracker.pending(svc.name):
+            if svc.alive() or svc.killed or tracker.pending(svc.name) or svc.name in self.start_failures:
+                continue
+            if svc.ready_text is not None and not svc.ever_ready and svc.restarts + 1 >= START_ATTEMPTS:
+                self.start_failed(svc.name, f"exited {svc.restarts + 1} times without coming up, last with code "
+                                            f"{svc.proc.returncode}: {svc.reason()}", log)
                 continue
             p = tracker.exited(svc.name, now, now - svc.started, svc.proc.returncode)
-            log.error("%s exited with code %s after %.1f s; restarting it in %.1f s (quick failure %d in a row)",
-                      svc.name, p.code, now - svc.started, p.due - now, p.failures)
+            how = "before it came up" if svc.ready_text is not None and not svc.ever_ready else f"after {now - svc.started:.1f} s"
+            log.error("%s exited with code %s %s (%s); restarting it in %.1f s (quick failure %d in a row)",
+                      svc.name, p.code, how, svc.reason(), p.due - now, p.failures)
         for p in tracker.due(now):
             try:
                 svc = self.group.restart(p.name)
@@ -628,7 +669,57 @@ class Network:
             if self.on_restart is not None:
                 self.on_restart(p.name, text)
 
+    def describe(self) -> Path | None:
+        """Leave the running network's description where the tools find it (:mod:`.attach`); removed by
+        :meth:`stop`. A folder it cannot be written to is said, not fatal (None): the tools then need ``-e``."""
+        path = attach.network_path(getattr(self.args, "network", None))
+        desc = attach.describe(self.args.fleet, self.gateway_endpoints, self.trust.keys, self.trust.tls,
+                               passwords=self.creds is not None)
+        try:
+            self.description = attach.write(path, desc)
+        except OSError as exc:
+            logging.getLogger("skynet.launcher").warning(
+                "could not describe the network in %s (%s): skynet web/video/replay need -e %s", path,
+                exc.strerror or exc, " -e ".join(self.gateway_endpoints))
+        return self.description
+
+    def start_failed(self, name: str, reason: str, log: logging.Logger | None = None) -> None:
+        """Note that ``name`` cannot start (not restarted again): :attr:`start_failures`, the log, the hook."""
+        if name in self.start_failures:
+            return
+        self.start_failures[name] = reason
+        (log or logging.getLogger("skynet.launcher")).error("%s did not start: %s", name, reason)
+        if self.on_start_failure is not None:
+            self.on_start_failure(name, reason)
+
+    def wait_started(self, names: list[str], timeout_s: float, log: logging.Logger | None = None) -> dict[str, str]:
+        """Wait until each of ``names`` came up or cannot start (the supervisor decides, :meth:`supervise`),
+        at most ``timeout_s``; one still not up then cannot start either. The failures ({name: reason})."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not self.group.closed:
+            pending = [n for n in names if n not in self.start_failures and not self.group.get(n).ever_ready]
+            if not pending:
+                break
+            time.sleep(0.2)
+        for n in names:
+            if n not in self.start_failures and not self.group.get(n).ever_ready:
+                self.start_failed(n, f"not up after {timeout_s:.0f} s ({self.group.get(n).reason()})", log)
+        return {n: self.start_failures[n] for n in names if n in self.start_failures}
+
+    def requested(self) -> list[str]:
+        """The services a run asks for besides the edges: planner, detector(s), and video / web when asked."""
+        n = getattr(self.args, "detectors", 1)
+        out = ["planner", *(["detector"] if n == 1 else [f"detector-{k}" for k in range(n)])]
+        if getattr(self.args, "video", None):
+            out.append("video")
+        if getattr(self.args, "web", None) and not self.ground_station:
+            out.append("web")
+        return out
+
     def stop(self) -> dict:
+        if self.description is not None:
+            attach.remove(self.description)
+            self.description = None
         self._sup_stop.set()
         if self._sup is not None:
             self._sup.join(5.0)
@@ -717,10 +808,15 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--insecure", action="store_true",
                    help="no TLS, no access control, unsigned commands: development only")
     p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
-                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:5600+2(n-1)")
+                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:PORT+2(n-1) (--video-port)")
     p.add_argument("--video-sdp", default="sdp", help="folder of the video streams' SDP files (with --video)")
+    p.add_argument("--video-port", type=int, default=5600, metavar="PORT",
+                   help="UAV 1's preview port (with --video); UAV n's is PORT + 2(n-1)")
     p.add_argument("--web", default=None, metavar="[HOST]:PORT",
                    help="serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)")
+    p.add_argument("--network", default=None, metavar="FILE",
+                   help=f"where to describe the running network for skynet web/video/replay (default: "
+                        f"${attach.NETWORK_ENV} or {attach.NETWORK_FILE}; removed at the end)")
     if prog == "mission":
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
@@ -738,8 +834,6 @@ def main(argv: list[str] | None = None) -> int:
         plan = make_plan(args, ground_station=prog == "mission")
     except ValueError as e:
         parser.error(str(e))
-    if (args.video or args.web) and args.secure:
-        parser.error("--video and --web have no role in the access control yet: not with --secure")
     log = setup_logging(prog)
     if args.insecure and args.secure:
         parser.error("--insecure and --secure exclude each other")
@@ -760,6 +854,10 @@ def main(argv: list[str] | None = None) -> int:
             if injector is not None:
                 injector.start(origin=time.time())
             net.start_supervisor(log)  # a service that ends is restarted, the network stays up
+            described = net.describe()
+            if described is not None:
+                log.info("network described in %s: `skynet web`, `skynet video`, `skynet replay FILE` attach to it "
+                         "from this folder with no options", described)
             while not stop.wait(1.0):
                 pass
         finally:
@@ -784,6 +882,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     scenario = load_scenario(args.scenario)
     try:
         net.start()
+        net.describe()
         cfg = net.gcs_config()
         hooks_signer = net.gcs_signer()
         # every edge imports and starts at once on the same cores: 48 of them took over 30 s to appear
@@ -792,13 +891,27 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
         injector = net.start_faults(log)
 
         def on_runner(runner) -> None:
-            net.on_restart = lambda name, text: runner.note_fault("restart", name, text)
+            net.on_restart = lambda name, text: runner.note_fault(SUPERVISOR_RESTART, name, text)
+
+            def start_failure(name: str, reason: str) -> None:
+                runner.note_fault(START_FAILED, name, reason)
+                with runner._lock:
+                    runner.record.failures.append(f"{name} did not start: {reason}")
+
+            for r in list(net.restarts):  # made before the runner was (while the services came up)
+                runner.note_fault(SUPERVISOR_RESTART, r["service"], r["text"])
+            for name, reason in dict(net.start_failures).items():
+                start_failure(name, reason)
+            net.on_start_failure = start_failure
             if injector is not None:
                 injector.attach(runner)
                 injector.start()
 
         hooks = {"on_runner": on_runner}
         net.start_supervisor(log)
+        failed = net.wait_started(net.requested(), START_TIMEOUT_S + 2.0 * args.uavs, log)
+        if failed:
+            log.error("the mission will fail: %s", "; ".join(f"{n} did not start ({r})" for n, r in failed.items()))
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
             web_server = None
             if args.web:  # the live page in the ground station's process, with its plan (services.web)

@@ -4,7 +4,11 @@ Used by the launcher (``skynet up``), the demo and the tests, so that all of the
 network the same way: ``python -m services.cli <command> ...`` per service, each line of its
 output prefixed with the service's name, SIGINT then SIGTERM then SIGKILL on the way out.
 
-Fault injection (issue 7, :mod:`services.orchestration.faults`) needs two more things: :meth:`ProcessGroup.kill`
+A service may name the line it prints once it is up (``ready``): the group notes when that line shows
+(:attr:`Service.ready_at`) and whether any run of it ever came up (:attr:`Service.ever_ready`), so the
+launcher tells a service that cannot start from one that crashed after working.
+
+Fault injection (:mod:`services.orchestration.faults`) needs two more things: :meth:`ProcessGroup.kill`
 (SIGKILL to the service's whole process group, as a crash would end it) and
 :meth:`ProcessGroup.restart` (the same command line and environment again, under the same
 name). Once :meth:`ProcessGroup.stop` has begun, a restart is refused, so that Ctrl-C during a
@@ -120,9 +124,33 @@ class Service:
     started: float = field(default_factory=time.monotonic)
     #: the command it runs under besides the group's (``ip netns exec NS``: a site's namespace)
     prefix: list[str] = field(default_factory=list)
+    #: the line it prints once it is up (None: not watched); :attr:`ready_at` is set when it shows
+    ready_text: str | None = None
+    #: time.monotonic() when this run printed :attr:`ready_text` (None: not yet, or not watched)
+    ready_at: float | None = None
+    #: an earlier run of it came up (so an exit of this one is a crash after working, not a failure to start)
+    was_ready: bool = False
 
     def alive(self) -> bool:
         return self.proc.poll() is None
+
+    @property
+    def ever_ready(self) -> bool:
+        """This run or an earlier one came up (printed its ready line)."""
+        return self.was_ready or self.ready_at is not None
+
+    def reason(self, lines: int = 200) -> str:
+        """Why it ended, in one line: its last line saying error (a one-line CLI error, an exception's
+        last line), else its last non-empty line, else its exit status."""
+        tail = [ln.strip() for ln in list(self.lines)[-lines:] if ln.strip()]
+        for ln in reversed(tail):
+            low = ln.lower()
+            if "error" in low or "exception" in low or "refused" in low or "cannot" in low:
+                return ln[:400]
+        if tail:
+            return tail[-1][:400]
+        code = self.proc.poll()
+        return f"exited with code {code} without a word" if code is not None else "no output"
 
     def wait_for(self, text: str, timeout: float = 20.0) -> bool:
         """Wait until a line containing ``text`` was printed (or the process ended)."""
@@ -177,25 +205,26 @@ class ProcessGroup:
                     pass
 
     def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None,
-              prefix: list[str] | None = None) -> Service:
+              prefix: list[str] | None = None, ready: str | None = None) -> Service:
         """Start ``name`` (``prefix``: a command of its own to run under, e.g. its site's namespace; kept
-        for its restarts)."""
+        for its restarts; ``ready``: the line it prints once up, watched for :attr:`Service.ready_at`)."""
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"cannot start {name}: the process group is stopping")
-            svc = self._spawn(name, list(args), dict(self.env), on_line, prefix=list(prefix or []))
+            svc = self._spawn(name, list(args), dict(self.env), on_line, prefix=list(prefix or []), ready=ready)
             self.services.append(svc)
         return svc
 
     def _spawn(self, name: str, args: list[str], env: dict[str, str],
                on_line: Callable[[str, str], None] | None, restarts: int = 0,
-               prefix: list[str] | None = None) -> Service:
+               prefix: list[str] | None = None, ready: str | None = None, was_ready: bool = False) -> Service:
         cmd = [*self.prefix, *(prefix or []), sys.executable, "-m", "services.cli", *args]
         proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             text=True, errors="replace", bufsize=1, env=env, start_new_session=True,
         )
-        svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts, prefix=list(prefix or []))
+        svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts, prefix=list(prefix or []),
+                      ready_text=ready, was_ready=was_ready)
 
         def pump() -> None:
             assert proc.stdout is not None
@@ -203,6 +232,8 @@ class ProcessGroup:
             for line in proc.stdout:
                 line = line.rstrip("\n")
                 svc.lines.append(line)
+                if svc.ready_at is None and svc.ready_text is not None and svc.ready_text in line:
+                    svc.ready_at = time.monotonic()
                 if len(svc.lines) > 5000:
                     del svc.lines[:1000]
                 if listener:
@@ -252,7 +283,8 @@ class ProcessGroup:
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"cannot restart {name}: the process group is stopping")
-            svc = self._spawn(name, old.args, old.env, old.on_line, restarts=old.restarts + 1, prefix=old.prefix)
+            svc = self._spawn(name, old.args, old.env, old.on_line, restarts=old.restarts + 1, prefix=old.prefix,
+                              ready=old.ready_text, was_ready=old.ever_ready)
             self.services[self.services.index(old)] = svc
         return svc
 

@@ -52,6 +52,12 @@ def dev_keys(folder: str | Path, uavs: int) -> Path:
 
     if complete():
         return folder
+    if (folder / "ca" / "ca.key").is_file():  # an older set lacking roles (UAVs, tools): issued by its own CA
+        from services.keys import enlarge
+
+        enlarge(folder, max(uavs, 3))
+        if complete():
+            return folder
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".keys-", dir=folder.parent))
     ensure(tmp, max(uavs, 3))

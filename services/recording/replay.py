@@ -3,8 +3,11 @@
 Every logged bus sample is put again on its key, in receive-time order, with its link class
 (:func:`protocol.links.class_of_topic`), at ``K`` times the recorded pace (``--speed 0``: as
 fast as possible). Order per key is the file's order: one thread puts every sample, and each key
-has one publisher. ``--fleet NAME`` replays under another fleet name (the key's second chunk is
-swapped), so a past mission can be watched beside a live one (``skynet web --fleet NAME``).
+has one publisher. The samples go under the replay fleet ``FLEET-replay`` (:func:`protocol.keys.replay_fleet`;
+``--as-fleet NAME`` another name: the key's second chunk is swapped), so a past mission is watched beside a
+live one (``skynet web --fleet FLEET-replay``) and never lands on the live fleet's keys (the ``replay`` role of
+:mod:`protocol.acl` may put nothing else). Without ``-e`` it attaches to the network running here
+(:mod:`services.orchestration.attach`).
 ``--reliable`` sends everything reliably (best-effort telemetry
 replayed at 10x on a busy machine loses some states, as it would live). Messages keep their own stamps (a viewer's "last heard" is the receive time, not the stamp).
 Every replayed sample carries the attachment :data:`REPLAY_MARK`, so a viewer tells a replay from live data
@@ -19,7 +22,8 @@ from collections import Counter
 from pathlib import Path
 
 from protocol import keys
-from protocol.bus import Bus, Publisher, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.bus import Bus, Publisher, add_bus_args, setup_logging, stop_event_on_signals
+from services.orchestration.attach import add_network_arg, open_bus
 from protocol.links import COMMAND, class_of_topic
 
 from .mcap_log import bus_bytes, read
@@ -81,9 +85,12 @@ def replay(bus: Bus, path: str | Path, speed: float = 1.0, fleet: str | None = N
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet replay", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="client")
+    add_network_arg(parser)
     parser.add_argument("file", help="an MCAP file written by the ground station (reports/.../mission.mcap)")
     parser.add_argument("--speed", type=float, default=1.0, help="times the recorded pace (0: as fast as possible)")
-    parser.add_argument("--as-fleet", default=None, help="replay under this fleet name")
+    parser.add_argument("--as-fleet", default=None,
+                        help="replay under this fleet name (default: FLEET-replay, beside the live fleet: the replay "
+                             "identity may put nothing on the live fleet's keys)")
     parser.add_argument("--reliable", action="store_true",
                         help="every sample reliable and blocking (nothing dropped), not on its own link class")
     return parser
@@ -95,9 +102,10 @@ def main(argv: list[str] | None = None) -> int:
         raise OSError(f"no such file: {args.file}")
     log = setup_logging("replay")
     stop = stop_event_on_signals()
-    with Bus(config_from_args(args), fleet=args.fleet, name="replay") as bus:
-        log.info("replay up: %s at %gx", args.file, args.speed)
-        counts = replay(bus, args.file, args.speed, args.as_fleet, stop, reliable=args.reliable)
+    with open_bus(args, "replay", argv) as bus:
+        as_fleet = args.as_fleet or keys.replay_fleet(args.fleet)
+        log.info("replay up: %s at %gx as fleet %s", args.file, args.speed, as_fleet)
+        counts = replay(bus, args.file, args.speed, as_fleet, stop, reliable=args.reliable)
         time.sleep(0.5)  # let the last samples leave before the session closes
         log.info("replayed: %s", dict(counts))
     return 0

@@ -24,9 +24,11 @@ from collections import Counter
 from pathlib import Path
 
 from protocol import binding, keys
-from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.bus import Bus, Ring, add_bus_args, setup_logging, stop_event_on_signals
 from protocol.imagery import unpack_image
 from protocol.rtp import ssrc_for
+
+from services.orchestration.attach import add_network_arg
 
 from .sdp import sdp
 from .stream import VideoStream
@@ -110,9 +112,20 @@ class VideoService:
             vs.close()
 
 
+class _ShowDefaults(argparse.ArgumentDefaultsHelpFormatter):
+    """Help with each option's default, except where there is none to tell (None, off, an empty list)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or action.default is False or action.default == []:
+            return action.help
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="skynet video", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="skynet video", description=__doc__.split("\n\n")[0],
+                                     formatter_class=_ShowDefaults)
     add_bus_args(parser, mode="client")
+    add_network_arg(parser)
     parser.add_argument("--codec", choices=["h264", "mjpeg"], default="h264",
                         help="h264: RFC 6184 (libx264 via PyAV); mjpeg: RFC 2435")
     parser.add_argument("--host", default="127.0.0.1", help="where the RTP goes (IPv4; loopback by default)")
@@ -125,10 +138,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from services.orchestration.attach import open_bus
+
     args = build_parser().parse_args(argv)
     log = setup_logging("video")
     stop = stop_event_on_signals()
-    with Bus(config_from_args(args), fleet=args.fleet, name="video") as bus:
+    with open_bus(args, "video", argv) as bus:
         svc = VideoService(bus, args.codec, args.host, args.port, args.capture_port if args.capture else None,
                            args.sdp_dir, log)
         for uav in range(1, args.uavs + 1):

@@ -21,7 +21,7 @@ import os
 import threading
 
 from protocol import binding, keys
-from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.bus import Bus, add_bus_args, setup_logging, stop_event_on_signals
 from protocol.imagery import unpack_image
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, Event, VehicleState
@@ -125,6 +125,9 @@ def start_web(bus: Bus, spec: str, scenario: Scenario | None, rate_hz: float = 1
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet web", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="client")
+    from services.orchestration.attach import add_network_arg
+
+    add_network_arg(parser)
     parser.add_argument("--listen-web", default=":8080", help="[HOST]:PORT of the page (loopback by default)")
     parser.add_argument("--rate", type=float, default=10.0, help="snapshots per second on the WebSocket")
     parser.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
@@ -153,7 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     stop = stop_event_on_signals()
     from protocol.scenario import load_scenario
 
-    with Bus(config_from_args(args), fleet=args.fleet, name="web") as bus:
+    from services.orchestration.attach import open_bus
+
+    with open_bus(args, "web", argv) as bus:
         _, server = start_web(bus, args.listen_web, load_scenario(args.scenario), args.rate, log, token=args.token,
                               allowed_hosts=tuple(args.allow_host), frames=args.frames)
         log.info("web up")

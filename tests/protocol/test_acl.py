@@ -257,3 +257,49 @@ def test_camera_recovery_needs_the_detectors_query_and_reply_grants(tmp_path, dr
         assert got == list(range(60))
     else:
         assert 0 < len(got) < 60 and got == sorted(got)
+
+
+R = keys.replay_fleet(F)
+
+
+@pytest.fixture(scope="module")
+def tool_policy():
+    principals, unassigned = acl.assign_roles(["web", "video", "replay", "gcs"])
+    assert not unassigned
+    return acl.access_control(F, principals)
+
+
+@pytest.mark.parametrize("user,flow,message,key,expected", [
+    # the page reads the live fleet and its replays, and says nothing
+    ("web", "ingress", "declare_subscriber", keys.state(F, "*"), True),
+    ("web", "egress", "put", keys.state(F, 2), True),
+    ("web", "egress", "put", keys.defects(F), True),
+    ("web", "egress", "put", keys.state(R, 2), True),
+    ("web", "ingress", "put", keys.state(F, 2), False),
+    ("web", "ingress", "put", keys.gcs_event(F), False),
+    ("web", "ingress", "query", keys.cmd(F, 1), False),
+    ("web", "egress", "put", keys.state("other", 2), False),
+    # the video reads the cameras only
+    ("video", "egress", "put", keys.preview(F, 3), True),
+    ("video", "egress", "put", keys.camera(F, 3), True),
+    ("video", "egress", "put", keys.preview(R, 3), True),
+    ("video", "egress", "put", keys.state(F, 3), False),
+    ("video", "ingress", "put", keys.preview(F, 3), False),
+    ("video", "ingress", "query", keys.cmd(F, 3), False),
+    # a replay writes the replay fleet, never the live one (its command keys least of all)
+    ("replay", "ingress", "put", keys.state(R, 1), True),
+    ("replay", "ingress", "put", keys.defects(R), True),
+    ("replay", "ingress", "put", keys.state(F, 1), False),
+    ("replay", "ingress", "put", keys.heartbeat(F), False),
+    ("replay", "ingress", "query", keys.cmd(F, 1), False),
+    ("replay", "ingress", "query", keys.cmd(R, 1), False),
+    ("replay", "egress", "put", keys.state(F, 1), False),
+    # the ground station does not hear replays
+    ("gcs", "egress", "put", keys.state(R, 1), False),
+])
+def test_the_tools_roles_read_or_write_the_replay_fleet_only(tool_policy, user, flow, message, key, expected):
+    assert allowed(tool_policy, user, flow, message, key) is expected
+
+
+def test_the_tools_roles_are_accepted_by_a_real_router(tmp_path):
+    test_zenoh_router_accepts_the_policy(tmp_path, ["web", "video", "replay", "uav1", "gcs"])

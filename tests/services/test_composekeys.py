@@ -51,3 +51,16 @@ def test_role_sans_go_into_a_new_set_and_a_reused_set_without_them_is_warned_of(
     what, warnings = prepare(folder, 3, [], sans={"gateway": ("172.30.0.1",), "uav2": ("10.9.9.9",)})
     assert what == "reused" and len(warnings) == 1 and "uav2's certificate does not name 10.9.9.9" in warnings[0]
     assert main([str(folder), "--san", "gateway=bad_name"]) == 2 and "neither" in capsys.readouterr().err
+
+
+def test_an_older_set_without_the_tools_identities_is_enlarged_not_refused(tmp_path):
+    import shutil
+
+    folder = tmp_path / "older"
+    keys.init(folder, 3)
+    ca = (folder / "ca.pem").read_bytes()
+    shutil.rmtree(folder / "web")
+    shutil.rmtree(folder / "replay")
+    what, warnings = prepare(folder, 3, [])
+    assert what == "reused" and any("web" in w and "replay" in w for w in warnings), warnings
+    assert (folder / "web" / "tls.pem").is_file() and (folder / "ca.pem").read_bytes() == ca

@@ -58,7 +58,8 @@ def test_dev_keys_reused_or_grown_and_insecure_resolves_to_nothing(tmp_path):
     first = (a / "ca.pem").read_bytes()
     assert (dev_keys(tmp_path / "dev", 3) / "ca.pem").read_bytes() == first  # 3 are always made
     grown = dev_keys(tmp_path / "dev", 5)
-    assert (grown / "uav5" / "tls.pem").exists() and (grown / "ca.pem").read_bytes() != first
+    # enlarged by its own CA: the identities already handed out stay valid
+    assert (grown / "uav5" / "tls.pem").exists() and (grown / "ca.pem").read_bytes() == first
 
     class Args:
         insecure, secure, keys, uavs = True, False, None, 3
@@ -129,3 +130,30 @@ def test_an_extra_ip_san_verifies_for_that_address_in_a_real_tls_handshake(tmp_p
         except zenoh.ZError:
             linked = False
         assert linked is admitted, (root.name, gw.lines[-10:])
+
+
+def test_an_older_set_without_the_tools_identities_is_enlarged_by_its_own_ca(tmp_path):
+    folder = pki.init(tmp_path / "old", 3)
+    gcs_cert = (folder / "gcs" / "tls.pem").read_bytes()
+    import shutil
+    for role in ("video", "web", "replay"):  # as a key set made before the tools had identities
+        shutil.rmtree(folder / role)
+    assert pki.missing(folder, 3) == ["video", "web", "replay"]
+    assert dev_keys(folder, 3) == folder
+    assert pki.missing(folder, 3) == [] and (folder / "gcs" / "tls.pem").read_bytes() == gcs_cert
+    ca = x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
+    for role in ("video", "web", "replay"):
+        cert = x509.load_pem_x509_certificate((folder / role / "tls.pem").read_bytes())
+        assert cert.issuer == ca.subject
+        cert.verify_directly_issued_by(ca)  # raises if another CA signed it
+        assert oct((folder / role / "tls.key").stat().st_mode & 0o777) == "0o600"
+    assert not [p for p in folder.iterdir() if p.name.startswith(".")]  # no temporary folder left
+
+
+def test_enlarging_needs_the_ca_key_and_says_so(tmp_path):
+    folder = pki.init(tmp_path / "vehicle", 1)
+    import shutil
+    shutil.rmtree(folder / "ca")
+    shutil.rmtree(folder / "web")
+    with pytest.raises(ValueError, match="no CA key"):
+        pki.enlarge(folder, 1)

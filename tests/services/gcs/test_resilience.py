@@ -102,3 +102,24 @@ def test_a_quiet_run_says_so():
     f = summarise(rec).faults
     assert f["faults"] == [] and f["uavs_lost"] == [] and f["commands"]["failed"] == []
     assert f["origin"] == "record start"
+
+
+def test_supervisor_restarts_and_start_failures_are_listed_apart_from_injected_faults(record):
+    from services.gcs.markdown import _faults_markdown
+
+    noted = [FaultRecord(at=M + 2.0, action="supervisor-restart", target="video",
+                         text="exited with code 2; restarted by the supervisor (run 2)"),
+             FaultRecord(at=M + 4.0, action="start-failed", target="video", text="exited 3 times without coming up")]
+    rec = record.model_copy(update={"faults": [*record.faults, *noted]})
+    f = fault_figures(rec)
+    assert [x["action"] for x in f["faults"]] == ["kill", "kill", "restart"]  # only what was injected
+    assert [(x["action"], x["target"]) for x in f["supervision"]] == [("supervisor-restart", "video"),
+                                                                       ("start-failed", "video")]
+    assert [x["target"] for x in f["seen_again"]] == ["gateway"]  # no recovery line for the supervisor's restart
+    md = "\n".join(_faults_markdown(f))
+    injected, supervisor = md.split("The launcher's supervisor (not injected faults):")
+    assert "video" not in injected and "did not start" in supervisor and "restarted" in supervisor
+    # a run with nothing injected and only the supervisor's restart is not "quiet"
+    only = MissionRecord(fleet="f", speed=8.0, started=M - 20, ended=M + 22, phases={"mission": M}, faults=noted)
+    md = "\n".join(_faults_markdown(fault_figures(only)))
+    assert "No fault injected." in md and "did not start" in md

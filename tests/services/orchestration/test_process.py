@@ -59,3 +59,20 @@ def test_listen_ranges_around_the_ephemeral_one(tmp_path):
     bad = tmp_path / "range"
     bad.write_text("not numbers\n")
     assert ephemeral_range(str(bad)) == (32768, 60999) == ephemeral_range(str(tmp_path / "missing"))
+
+
+def test_a_service_ready_line_is_noted_and_carried_over_restarts():
+    from tests.conftest import wait_until
+
+    with ProcessGroup(echo=None) as g:
+        # a tool that cannot attach: a one-line error, exit 2, never ready
+        bad = g.start("bad", ["video", "--network", "/nonexistent/network.json"], ready="video up")
+        assert wait_until(lambda: not bad.alive(), 30)
+        assert bad.ready_at is None and not bad.ever_ready
+        assert bad.reason().startswith("skynet video: error: no network running here"), bad.lines
+        again = g.restart("bad")
+        assert again.ready_text == "video up" and not again.was_ready and again.restarts == 1
+        # a service that printed its line was ready, and a later run of it was ready once
+        ok = g.start("schema", ["schema"], ready="SkyNet wire contract")
+        assert wait_until(lambda: ok.ready_at is not None, 30), ok.lines[-5:]
+        assert g.restart("schema").was_ready
