@@ -36,10 +36,12 @@ GST = shutil.which("gst-launch-1.0")
 pytestmark = pytest.mark.mission  # a whole network of processes: one at a time with the missions
 WANTED = 5
 FLEET = keys.DEFAULT_FLEET
+#: the web page's access token, handed to every page this module starts (``SKYNET_WEB_TOKEN``)
+TOKEN = "composed-test-token-0123456789"
 
 
 def _env() -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
+    return {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1", "SKYNET_WEB_TOKEN": TOKEN}
 
 
 def skynet(cwd: Path, *argv: str, timeout: float = 90) -> subprocess.CompletedProcess:
@@ -170,7 +172,7 @@ def _gst_jpeg(port: int, wanted: int = WANTED) -> int:
 
 
 def _snapshot(port: int) -> dict:
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/snapshot.json", timeout=10) as r:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/snapshot.json?token={TOKEN}", timeout=10) as r:
         return json.loads(r.read())
 
 
@@ -199,14 +201,14 @@ def test_up_serves_the_page_with_live_data(network) -> None:
     assert wait_until(lambda: _live_uavs(network.web_port) == {"1", "2", "3"}, 30), _snapshot(network.web_port)
     snap = _snapshot(network.web_port)
     assert all(s["rate_hz"] > 1 for s in snap["uavs"].values()), snap
-    with urllib.request.urlopen(f"http://127.0.0.1:{network.web_port}/", timeout=10) as r:
+    with urllib.request.urlopen(f"http://127.0.0.1:{network.web_port}/?token={TOKEN}", timeout=10) as r:
         assert b"SkyNet" in r.read()
     # the WebSocket the page reads: a static document, then snapshots
     import aiohttp
     import asyncio
 
     async def ws() -> list[dict]:
-        async with aiohttp.ClientSession() as s, s.ws_connect(f"http://127.0.0.1:{network.web_port}/ws") as w:
+        async with aiohttp.ClientSession() as s, s.ws_connect(f"http://127.0.0.1:{network.web_port}/ws?token={TOKEN}") as w:
             return [json.loads((await w.receive(timeout=10)).data) for _ in range(3)]
 
     docs = asyncio.run(ws())

@@ -145,12 +145,12 @@ def test_mission_page_timeline_defect_count_and_its_replay(group, gateway, tmp_p
 
 def test_up_prints_the_page_url_with_its_token_and_the_page_serves_the_fleet() -> None:
     """``skynet up --web``: the launcher prints the page's URL with the token it handed the page's process;
-    that URL serves the live fleet, nothing is served without it. ``--insecure`` because the page's own
-    identity in the key set (the secure mode's ``web`` role) is not part of this test."""
+    that URL serves the live fleet, nothing is served without it; in the default secure mode (the page's own
+    identity in the key set)."""
     import signal
 
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--insecure", "--web",
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--web",
                              f"127.0.0.1:{port}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True)
     lines: list[str] = []
