@@ -52,7 +52,8 @@ def settled_rss(pid: int, wait_s: float = 8.0) -> float:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--n", type=int, default=4000, help="declarations per round (each round grows quadratically in time)")
+    ap.add_argument("--n", type=int, default=4000,
+                    help="declarations per round (the declaring takes longer than linearly)")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     ks = dev_keys(Path(tempfile.mkdtemp(prefix="skynet-decl-")) / "keys", 3)

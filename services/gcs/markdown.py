@@ -139,8 +139,8 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
     for src, g in s.gateways.items():
         if g["rejected"]:
             where = f" ({src})" if len(s.gateways) > 1 else ""
-            md += [f"Gateway rejections{md_text(where)}: " + ", ".join(f"{md_text(k)}: {v}" for k, v in g["rejected"].items())
-                   + ".", ""]
+            md += [f"Gateway rejections{md_text(where)}: "
+                   + ", ".join(f"{md_text(k)}: {v}" for k, v in g["rejected"].items()) + ".", ""]
     md += integrity_markdown(record)
     return "\n".join(md)
 

@@ -1,4 +1,4 @@
-"""``skynet bridge``: a byte stream forwarder between a TCP port and a Unix socket, either way (issue 18).
+"""``skynet bridge``: a byte stream forwarder between a TCP port and a Unix socket, either way.
 
 Network namespaces share the file system, not the network: a node of the machine's own namespace (the
 ground station of ``skynet mission --netns``) reaches site 0's gateway inside its namespace through a
@@ -185,8 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--target", type=address, required=True, help="tcp:HOST:PORT or unix:PATH to forward to")
     p.add_argument("--max-conns", type=int, default=64, help="connections at once (more are closed, counted)")
     p.add_argument("--idle-timeout", type=float, default=IDLE_TIMEOUT_S, metavar="S",
-                   help=f"close a connection that carries no byte either way for S seconds (default {IDLE_TIMEOUT_S:g}; "
-                        "keep it above the Zenoh keep-alive period, lease/4, of the links it carries)")
+                   help=f"close a connection that carries no byte either way for S seconds (default "
+                        f"{IDLE_TIMEOUT_S:g}; keep it above the Zenoh keep-alive period, lease/4, of the links "
+                        "it carries)")
     return p
 
 
