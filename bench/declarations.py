@@ -55,11 +55,14 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=4000,
                     help="declarations per round (the declaring takes longer than linearly)")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--gateway-env", action="append", default=[], metavar="NAME=VALUE",
+                    help="an environment variable for the gateway process (e.g. MALLOC_ARENA_MAX=1)")
     a = ap.parse_args()
     ks = dev_keys(Path(tempfile.mkdtemp(prefix="skynet-decl-")) / "keys", 3)
     ends = tls_endpoints("127.0.0.1", free_port(), free_port())
-    group = ProcessGroup(echo=None)
-    out: dict = {"n": a.n}
+    env = dict(x.split("=", 1) for x in a.gateway_env)
+    group = ProcessGroup(echo=None, env=env)
+    out: dict = {"n": a.n, "gateway_env": env}
     try:
         gw = group.start("gw", ["gateway", "--fleet", FLEET, "--multilink", "--keys", str(ks),
                                 *[x for e in ends for x in ("--listen", e)]])
