@@ -1,9 +1,18 @@
-"""Bodies bound to keys: a message saying ``uav=N`` must travel on UAV N's key (issue 11, item 4).
+"""Bodies bound to keys: a message may speak only for the node whose key it travels on.
 
-With access control by certificate common name a node may put only on its own keys; this check
-makes the *body* agree with the key, so that a state (event, image) put on uav2's key that says
-``uav=1`` is refused instead of being shown as UAV 1. Readers (edge, ground station, detector)
-call :func:`matches` and count a mismatch with ``Bus.counters.reject(key, MISMATCH)``.
+With access control by certificate common name a node may put only on its own keys (protocol.acl);
+this check makes the *body* agree with the key, so that a state (event, image) put on uav2's key that
+says ``uav=1`` is refused instead of being shown as UAV 1, and an event on ``uav/2/event`` that
+claims the source ``gcs`` (or ``planner``, ``detector-0``, ``gateway/1``) is refused instead of
+being shown as theirs. Readers (edge, ground station, detector) call :func:`matches` (or
+:func:`source_matches`) and count a mismatch with ``Bus.counters.reject(key, MISMATCH)``.
+
+The source a key allows (:func:`source_of`), by the key's area (protocol.keys)::
+
+    skynet/<fleet>/uav/<N>/...        uav/<N>
+    skynet/<fleet>/gcs/...            gcs
+    skynet/<fleet>/rcu/<name>/...     <name>            (planner, detector, detector-0, ...)
+    skynet/<fleet>/gateway/<id>/...   gateway/<id>
 """
 
 from __future__ import annotations
@@ -14,11 +23,35 @@ from . import keys
 MISMATCH = "body-mismatch"
 
 
-def matches(key: str, uav: int | None, source: str | None = None) -> bool:
-    """Whether ``uav`` (a body's ``uav`` field) or ``source`` (an event's ``uav/N``) is the UAV of ``key``.
+def source_of(key: str) -> str | None:
+    """The only ``source`` a body on ``key`` may claim; None when ``key`` is not a key of the key space."""
+    try:
+        info = keys.parse(key)
+    except keys.KeyError_:
+        return None
+    if info.area == "uav":
+        return f"uav/{info.uav}"
+    if info.area == "gcs":
+        return "gcs"
+    if info.area == "rcu":
+        return info.name
+    if info.area == "gateway":
+        return f"gateway/{info.name}"
+    return None
 
-    Keys outside the UAV area (ground station, RCUs) carry no UAV id: a body there must not claim
-    one through ``source``.
+
+def source_matches(key: str, source: str | None) -> bool:
+    """Whether a body's claimed ``source`` is the one of ``key`` (:func:`source_of`); any source, any role."""
+    expected = source_of(key)
+    return expected is not None and source == expected
+
+
+def matches(key: str, uav: int | None, source: str | None = None) -> bool:
+    """Whether ``uav`` (a body's ``uav`` field) is the UAV of ``key``, or, without ``uav``, whether
+    ``source`` (an event's or statistics' ``source``) is the source of ``key`` (:func:`source_matches`).
+
+    Keys outside the UAV area (ground station, RCUs, gateways) carry no UAV id: a body there that
+    names a UAV does not match.
     """
     try:
         info = keys.parse(key)
@@ -26,6 +59,6 @@ def matches(key: str, uav: int | None, source: str | None = None) -> bool:
         return False
     if uav is not None:
         return info.uav == uav
-    if source is not None and source.startswith("uav/"):
-        return info.uav is not None and source == f"uav/{info.uav}"
+    if source is not None:
+        return source_matches(key, source)
     return True

@@ -670,7 +670,16 @@ class Bus:
 
 # ----------------------------------------------------------------------------- process helpers
 def setup_logging(name: str, level: str = "INFO") -> logging.Logger:
-    logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO),
-                        format=f"%(asctime)s {name} %(levelname)s %(message)s", datefmt="%H:%M:%S")
+    """The process's log on stderr, one line a record, with text from other nodes escaped
+    (:class:`protocol.textsafe.SafeFormatter`)."""
+    from .textsafe import SafeFormatter
+
+    root = logging.getLogger()
+    before = set(root.handlers)
+    fmt, datefmt = f"%(asctime)s {name} %(levelname)s %(message)s", "%H:%M:%S"
+    logging.basicConfig(level=getattr(logging, level.upper(), logging.INFO), format=fmt, datefmt=datefmt)
+    for h in root.handlers:
+        if h not in before:
+            h.setFormatter(SafeFormatter(fmt, datefmt))
     zenoh.init_log_from_env_or("error")
     return logging.getLogger(f"skynet.{name}")

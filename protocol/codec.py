@@ -9,6 +9,8 @@ service can count rejections per kind and never sees another exception type.
 
 from __future__ import annotations
 
+import json
+import sys
 from typing import Any, TypeVar
 
 import msgpack
@@ -83,6 +85,8 @@ def _unpack(data: bytes | bytearray | memoryview) -> tuple[int, str, Any]:
         obj = msgpack.unpackb(
             data, raw=False, strict_map_key=True, use_list=True
         )
+    except msgpack.StackError:  # deeper than the C unpacker's stack (1024 levels): refused, no recursion
+        raise CodecError("bad-bytes", "msgpack nested too deeply") from None
     except Exception as exc:  # msgpack raises several unrelated types on garbage
         raise CodecError("bad-bytes", f"not msgpack: {type(exc).__name__}: {exc}"[:300]) from None
     if not (isinstance(obj, list) and len(obj) == 3 and isinstance(obj[1], str)):
@@ -116,3 +120,13 @@ def decode(data: bytes | bytearray | memoryview, expect: type[M] | tuple[type[M]
         raise CodecError("invalid", f"{tag}: {where}: {first.get('msg')}"[:500], tag) from None
     except (TypeError, ValueError, RecursionError) as exc:
         raise CodecError("invalid", f"{tag}: {exc}"[:500], tag) from None
+
+
+def loads_json(text: str | bytes | bytearray) -> Any:
+    """:func:`json.loads` for input from outside (a file, a journal line, a message): JSON nested deeper than
+    Python's recursion limit is a one-line :class:`ValueError`, like any other bad JSON, never a
+    ``RecursionError`` (RFC 8259 section 9: a parser may limit the depth of nesting)."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise ValueError(f"JSON nested too deeply (more than about {sys.getrecursionlimit()} levels)") from None

@@ -379,8 +379,13 @@ def load_scenario(path: str | Path | None = None) -> Scenario:
         raise ScenarioError(f"scenario file {p} is not valid TOML: {exc}") from None
     except UnicodeDecodeError as exc:  # TOML is UTF-8 (TOML v1.0.0, "Spec"); tomllib lets this one through
         raise ScenarioError(f"scenario file {p} is not UTF-8 text: {exc.reason} at byte {exc.start}") from None
+    except RecursionError:  # tomllib recurses once per nested array or inline table
+        raise ScenarioError(f"scenario file {p} is nested too deeply to read (arrays or inline tables "
+                            "within each other, deeper than Python's recursion limit)") from None
     try:
         return validate_scenario(doc)
     except ScenarioError as exc:
         raise ScenarioError(f"{p}: {exc}") from None
+    except RecursionError:
+        raise ScenarioError(f"{p}: nested too deeply to validate") from None
 

@@ -11,6 +11,8 @@ import argparse
 import importlib
 import sys
 
+from protocol.textsafe import printable
+
 #: subcommand -> (module, help line). The module's ``main(argv)`` receives the remaining args.
 COMMANDS: dict[str, tuple[str, str]] = {
     "gateway": ("services.gateway.service", "run the gateway router relay (SkyNet <-> Internet)"),
@@ -59,10 +61,14 @@ def main(argv: list[str] | None = None) -> int:
         return int(module.main(rest) or 0)
     except KeyboardInterrupt:
         return 130
+    except RecursionError:  # a parser given input nested deeper than Python's stack (a crafted file)
+        print(f"skynet {name}: error: input nested too deeply to read (recursion limit "
+              f"{sys.getrecursionlimit()})", file=sys.stderr)
+        return 2
     except Exception as exc:
         # bad input (a value, a file, an endpoint Zenoh refuses) is the user's to fix: say what, no traceback
         if isinstance(exc, (ValueError, OSError, argparse.ArgumentTypeError)) or type(exc).__name__ == "ZError":
-            print(f"skynet {name}: error: {exc}", file=sys.stderr)
+            print(f"skynet {name}: error: {printable(exc)}", file=sys.stderr)
             return 2
         raise
 

@@ -23,6 +23,7 @@ from collections.abc import Iterable
 
 from protocol.messages import DefectReport, LinkStats, VehicleState
 from protocol.rtp import ssrc_for
+from protocol.textsafe import md_text
 
 #: the camera whose frames are captures (edge.runtime: previews use camera 1)
 CAPTURE_CAMERA = 0
@@ -122,12 +123,12 @@ def integrity_markdown(record) -> list[str]:
     if record.rejected:
         top = sorted(record.rejected.items(), key=lambda kv: -kv[1])[:20]
         md += ["Refused by the ground station (key|reason: samples): "
-               + ", ".join(f"{k}: {v}" for k, v in top) + ".", ""]
+               + ", ".join(f"{md_text(k)}: {v}" for k, v in top) + ".", ""]
     if record.not_kept:
         md += ["Not kept in memory (over the caps; in record.jsonl): "
                + ", ".join(f"{k}: {v}" for k, v in record.not_kept.items()) + ".", ""]
     for err in record.recording_errors:
-        md += [f"**Recording:** {err}", ""]
+        md += [f"**Recording:** {md_text(err)}", ""]
     if record.report_input and record.report_input not in record.recording_errors:
-        md += [f"This report is computed from {record.report_input}.", ""]
+        md += [f"This report is computed from {md_text(record.report_input)}.", ""]
     return md

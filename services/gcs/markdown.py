@@ -12,6 +12,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
+from protocol.textsafe import md_text
 from services.gcs.evidence import integrity_markdown
 from services.gcs.figures import ReportSummary
 from services.gcs.record import MissionRecord
@@ -30,8 +31,10 @@ def _fmt(x: Any, nd: int = 2, unit: str = "") -> str:
 
 
 def _table(head: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A GFM table; every cell is literal text (:func:`protocol.textsafe.md_text`): a cell holding text from
+    another node (an event's, a refusal's) stays one cell of one row, its HTML and Markdown inert."""
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    lines += ["| " + " | ".join(md_text(c) for c in r) + " |" for r in rows]
     return "\n".join(lines)
 
 
@@ -39,8 +42,8 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
     """The text of ``report.md`` for the figures ``s`` of ``record``."""
     md: list[str] = [f"# Mission report: fleet `{s.fleet}`", ""]
     outcome = "**success**" if s.success else "**failed**"
-    md += [f"Outcome: {outcome}" + (f" ({'; '.join(s.failures)})" if s.failures else "") + ".", ""]
-    md += [f"> Note: {n}." for n in s.notes] + ([""] if s.notes else [])
+    md += [f"Outcome: {outcome}" + (f" ({'; '.join(md_text(f) for f in s.failures)})" if s.failures else "") + ".", ""]
+    md += [f"> Note: {md_text(n)}." for n in s.notes] + ([""] if s.notes else [])
     scen = record.scenario.name if record.scenario else "–"
     md += ["## Experimental setup", "",
            _table(["item", "value"], [
@@ -121,7 +124,7 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
     if s.events:
         md += [_table(["rx", "source", "level", "kind", "text"],
                       [[_fmt(e["rx"] - s.started, 2, " s"), e["source"], e["level"], e["kind"],
-                        str(e["text"]).replace("|", "/")] for e in s.events]), ""]
+                        e["text"]] for e in s.events]), ""]
     else:
         md += ["No events.", ""]
     if len(record.events) > len(s.events):
@@ -136,7 +139,8 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
     for src, g in s.gateways.items():
         if g["rejected"]:
             where = f" ({src})" if len(s.gateways) > 1 else ""
-            md += [f"Gateway rejections{where}: " + ", ".join(f"{k}: {v}" for k, v in g["rejected"].items()) + ".", ""]
+            md += [f"Gateway rejections{md_text(where)}: "
+                   + ", ".join(f"{md_text(k)}: {v}" for k, v in g["rejected"].items()) + ".", ""]
     md += integrity_markdown(record)
     return "\n".join(md)
 
@@ -209,5 +213,5 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
     if cmds["failed"]:
         md += ["", _table(["UAV", "command", "id", "acknowledged", "tries", "reason"],
                           [[x["uav"], x["kind"], x["cmd_id"], _fmt(x["acknowledged"]), x["attempts"],
-                            str(x["reason"]).replace("|", "/")] for x in cmds["failed"]])]
+                            x["reason"]] for x in cmds["failed"]])]
     return md + [""]

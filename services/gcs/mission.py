@@ -201,10 +201,16 @@ class MissionRunner:
                 self.reports[(msg.uav, msg.capture_id)] = msg
 
     def _on_gw_stats(self, msg, sample) -> None:
+        if not binding.source_matches(str(sample.key_expr), msg.source):  # statistics only for their own node
+            self.bus.counters.reject(str(sample.key_expr), binding.MISMATCH)
+            return
         with self._lock:
             self.recorder.add("gateway_stats", StatsRx(rx=time.time(), msg=msg))
 
     def _on_det_stats(self, msg, sample) -> None:
+        if not binding.source_matches(str(sample.key_expr), msg.source):  # statistics only for their own node
+            self.bus.counters.reject(str(sample.key_expr), binding.MISMATCH)
+            return
         with self._lock:
             self.recorder.add("detector_stats", StatsRx(rx=time.time(), msg=msg))
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from edge import formation
 from protocol.messages import Mode, VehicleState
+from protocol.textsafe import printable
 from services.gcs.figures import HEADING_MIN_SPEED
 
 
@@ -89,11 +90,12 @@ class LiveDisplay:
         self._lock = threading.Lock()
 
     def message(self, text: str) -> None:
-        """Print a line above the live block (log messages), then redraw the block."""
+        """Print a line above the live block (log messages), then redraw the block; control characters in
+        ``text`` (which may quote another node) are printed as escapes, so only the display moves the cursor."""
         with self._lock:
             if self.tty and self._drawn:
                 self.stream.write(f"\x1b[{self._drawn}F\x1b[J")
-            self.stream.write(text + "\n")
+            self.stream.write(printable(text, keep="\n") + "\n")
             if self.tty and self._lines:
                 for line in self._lines:
                     self.stream.write("\x1b[2K" + line + "\n")

@@ -32,6 +32,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from protocol import codec
 from protocol.messages import DefectReport, Event, LinkStats, MissionPlan, VehicleState
 from protocol.scenario import Scenario
 
@@ -373,7 +374,7 @@ def read_journal(path: str | Path, caps: dict[str, int] | None = None) -> tuple[
         for line in fh:
             out.lines += 1
             try:
-                row = json.loads(line)
+                row = codec.loads_json(line)  # nested too deeply: a ValueError, counted like any damaged line
                 kind, value = row["k"], row["v"]
             except (ValueError, KeyError, TypeError):
                 damaged()

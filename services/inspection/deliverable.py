@@ -35,14 +35,15 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from xml.sax.saxutils import escape
 
 import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from edge.vehicle.waypoint_mission import enu_to_geodetic
+from protocol import codec
 from protocol.messages import ImageMeta
+from protocol.textsafe import md_text, xml_text
 from services.detector.detect import detect
 from services.detector.pipeline import MIN_REPORT_AREA_PX
 
@@ -155,7 +156,7 @@ def markdown_table(defects: Sequence[InspectionDefect], crops: bool = True, limi
     for d in defects[:limit]:
         ll = f"{d.lla[0]:.7f}, {d.lla[1]:.7f}" if d.lla else "-"
         c = f"![{d.id}]({d.crop})" if crops and d.crop else "-"
-        cls = d.severity if d.resolved else f"{d.severity} (below 1 px)"
+        cls = md_text(d.severity if d.resolved else f"{d.severity} (below 1 px)")
         lines.append(f"| {d.id} | {d.u_m:.2f}, {d.v_m:.2f} | {ll} | {d.length_m:.2f} | "
                      f"{d.width_max_mm:.0f} / {d.width_mean_mm:.0f} | {cls} | {c} |")
     return "\n".join(lines)
@@ -182,11 +183,11 @@ def kml(defects: Sequence[InspectionDefect], name: str = "SkyNet Inspect defects
             continue
         desc = (f"length {d.length_m:.2f} m, width max {d.width_max_mm:.0f} mm, mean {d.width_mean_mm:.0f} mm, "
                 f"class {d.severity}")
-        marks.append(f"<Placemark><name>defect {d.id}</name><description>{escape(desc)}</description>"
+        marks.append(f"<Placemark><name>defect {d.id}</name><description>{xml_text(desc)}</description>"
                      f"<Point><altitudeMode>absolute</altitudeMode><coordinates>{d.lla[1]:.9f},{d.lla[0]:.9f},"
                      f"{d.lla[2]:.3f}</coordinates></Point></Placemark>")
     return ('<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2"><Document>'
-            f"<name>{escape(name)}</name>" + "".join(marks) + "</Document></kml>\n")
+            f"<name>{xml_text(name)}</name>" + "".join(marks) + "</Document></kml>\n")
 
 
 def write_deliverable(res: Deliverable, out: str | Path) -> list[str]:
@@ -232,7 +233,7 @@ def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tup
         if not side.exists():
             raise ValueError(f"{p.name}: no pose file {side.name}")
         try:
-            meta = _meta_from(json.loads(side.read_text()), i)
+            meta = _meta_from(codec.loads_json(side.read_text()), i)
         except (json.JSONDecodeError, ValueError) as exc:
             raise ValueError(f"{side.name}: {exc}") from None
         g = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
@@ -246,7 +247,7 @@ def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tup
     sj = root / "surface.json"
     if sj.exists():
         try:
-            doc = json.loads(sj.read_text())
+            doc = codec.loads_json(sj.read_text())
             if doc.get("corners") is not None:
                 plane = Plane.from_corners(doc["corners"])
             if doc.get("origin") is not None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from protocol.textsafe import md_text
 from services.gcs.record import MissionRecord
 
 from .deliverable import inspect_frames, load_folder, markdown_table, write_deliverable
@@ -48,7 +49,7 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
         res = inspect_frames(frames, plane, _origin(record))
         written = [f"{FOLDER}/{f}" for f in write_deliverable(res, out / FOLDER)]
     except ValueError as exc:
-        lines.append(f"Not built: {exc}.")
+        lines.append(f"Not built: {md_text(exc)}.")
         with open(out / "report.md", "a") as fh:
             fh.write("\n".join(lines) + "\n")
         return []

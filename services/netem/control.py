@@ -13,6 +13,7 @@ import socket
 import threading
 from typing import Any
 
+from protocol import codec
 from services.netem.proxy import _MAX_DATAGRAM, Address, _check_address, _ProxyBase, _resolve, format_address
 
 __all__ = ["ControlServer", "send_control"]
@@ -140,4 +141,4 @@ def send_control(address: Address | str, command: str, timeout_s: float = 3.0) -
             data = s.recv(_MAX_DATAGRAM)
         except TimeoutError as e:
             raise TimeoutError(f"no reply from {format_address(addr)} within {timeout_s} s") from e
-    return json.loads(data)
+    return codec.loads_json(data)  # the reply of a process on that address: deep nesting is a ValueError

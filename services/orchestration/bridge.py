@@ -1,4 +1,4 @@
-"""``skynet bridge``: a byte stream forwarder between a TCP port and a Unix socket, either way (issue 18).
+"""``skynet bridge``: a byte stream forwarder between a TCP port and a Unix socket, either way.
 
 Network namespaces share the file system, not the network: a node of the machine's own namespace (the
 ground station of ``skynet mission --netns``) reaches site 0's gateway inside its namespace through a
@@ -9,7 +9,12 @@ the certificate's name check) runs end to end: the bridges carry ciphertext.
 
 Each accepted connection opens one to the target and copies both ways until either side closes; a
 target that refuses is logged and the accepted connection closed. Bounded: at most ``--max-conns``
-connections at once (further ones are closed at once, counted), 64 KiB reads.
+connections at once, 64 KiB reads, and no connection stays idle: one that carries no byte either way for
+``--idle-timeout`` seconds is closed, and a new connection at the limit takes the place of the one idle the
+longest when that one has been idle :data:`EVICT_IDLE_S` or more (otherwise it is closed at once); all
+counted. A Zenoh link is never that quiet: it sends a keep-alive every lease/4 (2.5 s with the default
+10 s lease, ``transport/link/tx/lease``), so only a dead or hostile connection is closed, and a local process
+holding ``--max-conns`` idle connections no longer locks the ground station out.
 """
 
 from __future__ import annotations
@@ -19,10 +24,16 @@ import asyncio
 import logging
 import os
 import signal
+import time
 from dataclasses import dataclass
 
 log = logging.getLogger("skynet.bridge")
 CHUNK = 1 << 16
+#: default --idle-timeout, s: six Zenoh leases (10 s), 24 keep-alive periods
+IDLE_TIMEOUT_S = 60.0
+#: a connection idle this long gives its place to a new one at --max-conns: four keep-alive periods of the
+#: default lease, so a live Zenoh link is never taken for an idle one
+EVICT_IDLE_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -56,9 +67,29 @@ async def _open(target: Address):
     return await asyncio.open_connection(target.host, target.port)
 
 
-async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+class _Conn:
+    """One bridged connection: its two writers and when a byte last went either way."""
+
+    def __init__(self, writer: asyncio.StreamWriter) -> None:
+        self.writers = [writer]
+        self.last = time.monotonic()
+
+    def idle_s(self, now: float) -> float:
+        return now - self.last
+
+    def close(self) -> None:
+        for w in self.writers:
+            try:
+                w.close()
+            except (ConnectionError, OSError, RuntimeError):
+                pass
+
+
+async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, conn: _Conn | None = None) -> None:
     try:
         while data := await reader.read(CHUNK):
+            if conn is not None:
+                conn.last = time.monotonic()
             writer.write(data)
             await writer.drain()
     except (ConnectionError, OSError):
@@ -71,17 +102,35 @@ async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> N
 
 
 class Bridge:
-    def __init__(self, listen: Address, target: Address, max_conns: int = 64):
+    def __init__(self, listen: Address, target: Address, max_conns: int = 64, idle_timeout_s: float = IDLE_TIMEOUT_S,
+                 evict_idle_s: float = EVICT_IDLE_S):
         self.listen, self.target, self.max_conns = listen, target, max_conns
-        self.open = self.accepted = self.refused = self.failed = 0
+        self.idle_timeout_s, self.evict_idle_s = idle_timeout_s, min(evict_idle_s, idle_timeout_s)
+        self.open = self.accepted = self.refused = self.failed = self.idle_closed = self.evicted = 0
+        self._conns: set[_Conn] = set()
+
+    def _evict_one(self) -> bool:
+        """Close the connection idle the longest if it has been idle :attr:`evict_idle_s`; whether one was."""
+        now = time.monotonic()
+        oldest = max(self._conns, key=lambda c: c.idle_s(now), default=None)
+        if oldest is None or oldest.idle_s(now) < self.evict_idle_s:
+            return False
+        self._conns.discard(oldest)
+        oldest.close()
+        self.evicted += 1
+        self.open -= 1  # its place is taken now; its own task no longer counts it (see _serve)
+        oldest.writers.clear()
+        return True
 
     async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        if self.open >= self.max_conns:
+        if self.open >= self.max_conns and not self._evict_one():
             self.refused += 1
             writer.close()
             return
         self.open += 1
         self.accepted += 1
+        conn = _Conn(writer)
+        self._conns.add(conn)
         try:
             try:
                 t_reader, t_writer = await _open(self.target)
@@ -90,9 +139,27 @@ class Bridge:
                 log.warning("bridge: cannot reach %s: %s", self.target, exc)
                 writer.close()
                 return
-            await asyncio.gather(_pipe(reader, t_writer), _pipe(t_reader, writer))
+            if conn not in self._conns:  # evicted or timed out while the target was opening
+                t_writer.close()
+                return
+            conn.writers.append(t_writer)
+            await asyncio.gather(_pipe(reader, t_writer, conn), _pipe(t_reader, writer, conn))
         finally:
-            self.open -= 1
+            if conn in self._conns:
+                self._conns.discard(conn)
+                self.open -= 1
+            conn.close()
+
+    async def _reap_idle(self) -> None:
+        """Close every connection idle for :attr:`idle_timeout_s` (checked a few times per timeout)."""
+        while True:
+            await asyncio.sleep(min(1.0, self.idle_timeout_s / 4))
+            now = time.monotonic()
+            for conn in [c for c in self._conns if c.idle_s(now) >= self.idle_timeout_s]:
+                self._conns.discard(conn)
+                self.open -= 1
+                self.idle_closed += 1
+                conn.close()
 
     async def run(self, stop: asyncio.Event) -> None:
         if self.listen.kind == "unix":
@@ -102,10 +169,14 @@ class Bridge:
         else:
             server = await asyncio.start_server(self._serve, self.listen.host, self.listen.port)
         print(f"bridge up: {self.listen} -> {self.target}", flush=True)
-        async with server:
-            await stop.wait()
-        print(f"bridge down: {self.accepted} connections, {self.refused} refused, {self.failed} target failures",
-              flush=True)
+        reaper = asyncio.ensure_future(self._reap_idle())
+        try:
+            async with server:
+                await stop.wait()
+        finally:
+            reaper.cancel()
+        print(f"bridge down: {self.accepted} connections, {self.refused} refused, {self.failed} target failures, "
+              f"{self.idle_closed} closed idle, {self.evicted} evicted idle at the limit", flush=True)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -113,6 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", type=address, required=True, help="tcp:HOST:PORT or unix:PATH to accept on")
     p.add_argument("--target", type=address, required=True, help="tcp:HOST:PORT or unix:PATH to forward to")
     p.add_argument("--max-conns", type=int, default=64, help="connections at once (more are closed, counted)")
+    p.add_argument("--idle-timeout", type=float, default=IDLE_TIMEOUT_S, metavar="S",
+                   help=f"close a connection that carries no byte either way for S seconds (default "
+                        f"{IDLE_TIMEOUT_S:g}; keep it above the Zenoh keep-alive period, lease/4, of the links "
+                        "it carries)")
     return p
 
 
@@ -120,8 +195,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.max_conns < 1:
         raise SystemExit("skynet bridge: --max-conns must be at least 1")
+    if not 0.1 <= args.idle_timeout <= 86400:
+        raise SystemExit("skynet bridge: --idle-timeout must be within 0.1..86400 s")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    bridge = Bridge(args.listen, args.target, args.max_conns)
+    bridge = Bridge(args.listen, args.target, args.max_conns, args.idle_timeout)
 
     async def go() -> None:
         stop = asyncio.Event()

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
+from protocol.textsafe import printable
+
 
 #: the lowest port :func:`free_port` hands out (above the registered ports services commonly use on a
 #: development machine: Zenoh's 7447/7448, MAVLink's 14550, video's 5600)
@@ -191,7 +193,7 @@ class ProcessGroup:
         raised: a pump that died would leave the service blocked on a full pipe."""
         try:
             with self._echo_lock:
-                print(f"{name:>{self._width}} | {line}", file=self.echo, flush=True)
+                print(f"{name:>{self._width}} | {printable(line)}", file=self.echo, flush=True)
         except (OSError, ValueError) as exc:  # ENOSPC, EFBIG, EIO, a closed file
             with self._echo_lock:
                 self.echo_errors += 1

@@ -53,7 +53,9 @@ from edge.vehicle.waypoint_mission import (  # noqa: F401  (their home; exported
     MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_FRAME_MISSION,
     MissionItem, _compass_deg, _origin, enu_to_geodetic, geodetic_to_enu, mission_items,
 )
+from protocol import codec
 from protocol.messages import MissionPlan, Trajectory
+from protocol.textsafe import xml_text
 
 __all__ = [
     "MAV_CMD_NAV_WAYPOINT",
@@ -206,7 +208,7 @@ def parse_qgc_plan(doc: dict[str, Any] | str) -> tuple[list[MissionItem], list[l
 
     Raises ValueError for anything that is not a version-2 Plan of SimpleItems.
     """
-    d = json.loads(doc) if isinstance(doc, str) else doc
+    d = codec.loads_json(doc) if isinstance(doc, str) else doc
     if not isinstance(d, dict) or d.get("fileType") != "Plan":
         raise ValueError("not a QGroundControl plan: fileType must be 'Plan'")
     m = d.get("mission") or {}
@@ -233,8 +235,6 @@ def parse_qgc_plan(doc: dict[str, Any] | str) -> tuple[list[MissionItem], list[l
 
 def mission_kml(plan: MissionPlan, surface: ArrayLike | None = None) -> str:
     """KML 2.2 of a plan: a LineString per UAV, a Point per capture, the surface (4 ENU corners) as a Polygon."""
-    from xml.sax.saxutils import escape
-
     o = plan.origin
 
     def coords(p: ArrayLike) -> str:
@@ -254,7 +254,7 @@ def mission_kml(plan: MissionPlan, surface: ArrayLike | None = None) -> str:
         marks.append("<Placemark><name>inspected surface</name><Polygon><altitudeMode>absolute</altitudeMode>"
                      f"<outerBoundaryIs><LinearRing><coordinates>{coords(ring)}</coordinates></LinearRing>"
                      "</outerBoundaryIs></Polygon></Placemark>")
-    name = escape(f"SkyNet Inspect mission ({plan.algorithm})")
+    name = xml_text(f"SkyNet Inspect mission ({plan.algorithm})")
     return ('<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2"><Document>'
             f"<name>{name}</name>" + "".join(marks) + "</Document></kml>\n")
 
@@ -309,7 +309,7 @@ def mission_geojson(plan: MissionPlan) -> dict[str, Any]:
 
 def parse_geojson(doc: dict[str, Any] | str, origin: ArrayLike) -> dict[str, NDArray[np.float64]]:
     """Read the LineStrings back to ENU: ``{"centroid": (N, 3), "uav1": ..., ...}``."""
-    d = json.loads(doc) if isinstance(doc, str) else doc
+    d = codec.loads_json(doc) if isinstance(doc, str) else doc
     if not isinstance(d, dict) or d.get("type") != "FeatureCollection":
         raise ValueError("not a GeoJSON FeatureCollection")
     out: dict[str, NDArray[np.float64]] = {}

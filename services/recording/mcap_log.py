@@ -41,7 +41,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-from mcap.reader import make_reader
+import heapq
+import io
+import struct
+from typing import Any
+
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError as _LibError
+from mcap.records import Channel, Chunk, ChunkIndex, Footer, Message as McapMessage, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
 from protocol import codec, keys
@@ -187,13 +196,164 @@ class Logged:
         return None if cls is None else cls.model_validate_json(self.data)
 
 
-def read(path: str | Path, topics: list[str] | None = None) -> Iterator[Logged]:
-    """Every message of the file in receive-time order (streamed chunk by chunk)."""
-    with open(path, "rb") as f:
-        for schema, channel, message in make_reader(f).iter_messages(topics=topics, log_time_order=True):
-            yield Logged(channel.topic, message.log_time / 1e9, channel.message_encoding,
-                         schema.name if schema is not None else "", message.data,
-                         channel.metadata.get("skynet.kind", "sample"))
+#: the most bytes one chunk may decompress to, and the longest record read: the recorder writes chunks of
+#: 1 MiB plus at most one message (:data:`protocol.codec.MAX_MESSAGE_BYTES`, 8 MiB); other writers' chunks
+#: are typically 1-4 MiB. A file past it is refused before anything is allocated.
+MAX_CHUNK_BYTES = 64 << 20
+_FOOTER_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, summary_crc
+_MAGIC_SIZE = 8
+
+
+class McapReadError(ValueError):
+    """An MCAP file that cannot be read within the bounds (a damaged or crafted file): one line, no traceback."""
+
+
+def _chunk_records(chunk: Chunk, where: str, limit: int) -> list[Any]:
+    """The records of ``chunk``, decompressed only when its declared sizes are within ``limit``
+    (MCAP spec, "Chunk": ``uncompressed_size``; zstd's frame header, RFC 8878 section 3.1.1.1.4)."""
+    if chunk.compression not in ("zstd", ""):
+        raise McapReadError(f"{where}: chunk compression {chunk.compression!r} is not read (zstd or none)")
+    size = chunk.uncompressed_size
+    if size > limit:
+        raise McapReadError(f"{where}: a chunk declares {size} bytes uncompressed, more than the {limit} bytes "
+                            "a chunk may hold here (a damaged or crafted file)")
+    if chunk.compression == "zstd":
+        try:
+            framed = zstandard.frame_content_size(chunk.data)  # -1: not in the frame header
+        except zstandard.ZstdError as exc:
+            raise McapReadError(f"{where}: a chunk is not zstd data ({exc})") from None
+        if framed > size:  # zstd would allocate what the frame says, whatever the chunk record says
+            raise McapReadError(f"{where}: a chunk's zstd frame declares {framed} bytes, its record {size} "
+                                "(a damaged or crafted file)")
+    try:
+        return breakup_chunk(chunk)
+    except (zstandard.ZstdError, _LibError, struct.error, ValueError, EOFError) as exc:
+        raise McapReadError(f"{where}: a chunk does not decode ({type(exc).__name__}: {exc})"[:300]) from None
+
+
+def _records(stream: IO[bytes], limit: int, skip_magic: bool) -> Iterator[Any]:
+    """The file's top-level records from the stream's position, chunks left compressed, each record's length
+    checked against ``limit`` before it is read (the mcap library's ``record_size_limit``)."""
+    return StreamReader(stream, skip_magic=skip_magic, emit_chunks=True, record_size_limit=limit).records
+
+
+def _summary(f: IO[bytes], size: int, limit: int) -> tuple[dict[int, Schema], dict[int, Channel], list[ChunkIndex]]:
+    """Schemas, channels and chunk indexes of the summary section (MCAP spec, "Summary Section"); empty
+    lists when the file has none (a file cut short)."""
+    if size < 2 * _MAGIC_SIZE + _FOOTER_SIZE:
+        return {}, {}, []
+    f.seek(size - _FOOTER_SIZE - _MAGIC_SIZE)
+    try:
+        footer = next(iter(_records(f, limit, skip_magic=True)), None)
+    except (_LibError, struct.error, EOFError, UnicodeDecodeError):  # cut short: no footer, read it linearly
+        return {}, {}, []
+    if not isinstance(footer, Footer) or not 0 < footer.summary_start < size:
+        return {}, {}, []
+    f.seek(footer.summary_start)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    indexes: list[ChunkIndex] = []
+    for rec in _records(f, limit, skip_magic=True):
+        if isinstance(rec, Schema):
+            schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            channels[rec.id] = rec
+        elif isinstance(rec, ChunkIndex):
+            indexes.append(rec)
+        elif isinstance(rec, Footer):
+            break
+    return schemas, channels, indexes
+
+
+def _indexed(f: IO[bytes], where: str, size: int, limit: int, schemas, channels, indexes: list[ChunkIndex],
+             wanted: set[int] | None = None) -> Iterator[tuple[Schema | None, Channel, McapMessage]]:
+    """Messages in log-time order through the chunk index: chunks opened lazily in start-time order and their
+    messages merged (what the mcap library's seeking reader does), each chunk checked before it is read;
+    ``wanted``: only these channels, skipping the chunks whose message index says they hold none of them."""
+    heap: list[tuple[int, int, int, int, Any]] = []
+    for ci in indexes:
+        if wanted is None or not ci.message_index_offsets or wanted & set(ci.message_index_offsets):
+            heapq.heappush(heap, (ci.message_start_time, 0, ci.chunk_start_offset, -1, ci))
+    while heap:
+        _, kind, offset, index, item = heapq.heappop(heap)
+        if kind == 1:
+            schema = schemas.get(channels[item.channel_id].schema_id)
+            yield schema, channels[item.channel_id], item
+            continue
+        if not 0 < offset < size or item.chunk_length > limit + 1024:
+            raise McapReadError(f"{where}: a chunk index points outside the file or at a chunk of "
+                                f"{item.chunk_length} bytes (more than {limit})")
+        f.seek(offset)
+        head = f.read(9)
+        if len(head) < 9 or head[0] != 0x06:  # the Chunk opcode (MCAP spec, "Chunk (op=0x06)")
+            raise McapReadError(f"{where}: no chunk at byte {offset}")
+        length = struct.unpack("<Q", head[1:])[0]
+        if length > limit + 1024 or offset + 9 + length > size:
+            raise McapReadError(f"{where}: the chunk at byte {offset} is {length} bytes long (more than {limit}, "
+                                "or past the end of the file)")
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(length))))
+        for k, rec in enumerate(_chunk_records(chunk, f"{where} (chunk at byte {offset})", limit)):
+            if isinstance(rec, McapMessage) and (wanted is None or rec.channel_id in wanted):
+                if rec.channel_id not in channels:
+                    raise McapReadError(f"{where}: a message on channel {rec.channel_id}, which the file never "
+                                        "declares")
+                heapq.heappush(heap, (rec.log_time, 1, offset, k, rec))
+
+
+def _linear(f: IO[bytes], where: str, limit: int) -> Iterator[tuple[Schema | None, Channel, McapMessage]]:
+    """Messages in file order, for a file without a chunk index (cut short before its summary)."""
+    f.seek(0)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    for rec in _records(f, limit, skip_magic=False):
+        batch = _chunk_records(rec, where, limit) if isinstance(rec, Chunk) else [rec]
+        for r in batch:
+            if isinstance(r, Schema):
+                schemas[r.id] = r
+            elif isinstance(r, Channel):
+                channels[r.id] = r
+            elif isinstance(r, McapMessage) and r.channel_id in channels:
+                yield schemas.get(channels[r.channel_id].schema_id), channels[r.channel_id], r
+        if isinstance(rec, Footer):
+            break
+
+
+def messages(path: str | Path, max_chunk_bytes: int = MAX_CHUNK_BYTES,
+             topics: list[str] | None = None) -> Iterator[tuple[Schema | None, Channel, McapMessage]]:
+    """``(schema, channel, message)`` of every message of an MCAP file, in log-time order, streamed chunk by
+    chunk; no chunk decompresses to more than ``max_chunk_bytes`` and no record longer than that is read.
+
+    Raises :class:`McapReadError` (a ValueError, one line) for a damaged or crafted file."""
+    where = str(path)
+    try:
+        with open(path, "rb") as f:
+            size = f.seek(0, io.SEEK_END)
+            f.seek(0)
+            if f.read(_MAGIC_SIZE) != b"\x89MCAP0\r\n":
+                raise McapReadError(f"{where}: not an MCAP file (no MCAP magic)")
+            schemas, channels, indexes = _summary(f, size, max_chunk_bytes)
+            if indexes:
+                wanted = None if topics is None else {i for i, c in channels.items() if c.topic in topics}
+                yield from _indexed(f, where, size, max_chunk_bytes, schemas, channels, indexes, wanted)
+            else:
+                yield from _linear(f, where, max_chunk_bytes)
+    except McapReadError:
+        raise
+    except (_LibError, struct.error, EOFError, UnicodeDecodeError, KeyError) as exc:
+        raise McapReadError(f"{where}: not a readable MCAP file ({type(exc).__name__}: {exc})"[:300]) from None
+
+
+def read(path: str | Path, topics: list[str] | None = None,
+         max_chunk_bytes: int = MAX_CHUNK_BYTES) -> Iterator[Logged]:
+    """Every message of the file in receive-time order (streamed chunk by chunk, each chunk bounded:
+    :func:`messages`)."""
+    wanted = None if topics is None else set(topics)
+    for schema, channel, message in messages(path, max_chunk_bytes, topics):
+        if wanted is not None and channel.topic not in wanted:
+            continue
+        yield Logged(channel.topic, message.log_time / 1e9, channel.message_encoding,
+                     schema.name if schema is not None else "", message.data,
+                     channel.metadata.get("skynet.kind", "sample"))
 
 
 def bus_bytes(item: Logged) -> bytes | None:

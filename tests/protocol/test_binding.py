@@ -9,3 +9,23 @@ def test_body_must_name_the_uav_of_its_key():
     assert not binding.matches(keys.gcs_event("f"), None, "uav/1")  # no UAV key: may not claim one
     assert binding.matches(keys.gcs_event("f"), None, "gcs")
     assert not binding.matches("not/a/skynet/key", 1)
+
+
+def test_every_role_speaks_only_for_its_own_key():
+    own = {
+        keys.event("f", 2): "uav/2",
+        keys.gcs_event("f"): "gcs",
+        keys.heartbeat("f"): "gcs",
+        keys.rcu_event("f", "planner"): "planner",
+        keys.rcu_stats("f", "detector-0"): "detector-0",
+        keys.rcu_event("f", "detector"): "detector",
+        keys.gateway_stats("f", "1"): "gateway/1",
+    }
+    claims = set(own.values()) | {"uav/1", "uav2", "detector-1", "gateway/2", "", "gcs ", "uav/2/../gcs"}
+    for key, source in own.items():
+        assert binding.source_of(key) == source
+        assert binding.matches(key, None, source) and binding.source_matches(key, source)
+        for forged in claims - {source}:
+            assert not binding.matches(key, None, forged), (key, forged)  # e.g. uav/2/event claiming "gcs"
+            assert not binding.source_matches(key, forged), (key, forged)
+    assert binding.source_of("skynet/f/uav/2/bogus") is None and not binding.source_matches("x/y", "gcs")

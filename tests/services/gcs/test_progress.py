@@ -57,3 +57,21 @@ def test_the_formation_heading_is_held_when_the_fleet_hovers_and_the_ground_has_
     landed = {u: s.model_copy(update={"mode": Mode.LANDED, "vel": (0.0, 0.0, 0.0)}) for u, s in at((0, 2, 0)).items()}
     assert formation_rms(landed, offsets, heading) is None
     assert "formation RMS error -" in render("landing", landed, (1, 2, 3), [], 26, 26, offsets, 99.0)[-1]
+
+
+def test_a_message_above_the_live_block_cannot_move_the_terminal_cursor():
+    import io
+
+    from services.gcs.progress import LiveDisplay
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    out = Tty()
+    d = LiveDisplay(out)
+    d.update(["mission   1.0 s  phase: mission"], force=True)
+    d.message("event from uav/2: \x1b[2J\x1b]0;pwned\x07 text\nsecond line")
+    text = out.getvalue()
+    assert "\\x1b[2J\\x1b]0;pwned\\x07 text\nsecond line" in text  # escaped; a traceback's line breaks kept
+    assert "\x1b[2J" not in text and "\x07" not in text

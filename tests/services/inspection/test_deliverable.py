@@ -84,3 +84,22 @@ def test_bad_folders_are_reported(tmp_path):
     (tmp_path / "a.json").write_text('{"cam_pos": [0, 0, "x"]}')
     with pytest.raises(ValueError, match="a.json"):
         load_folder(tmp_path)
+
+
+def test_kml_and_geojson_of_defects_carry_hostile_text_as_data():
+    import geojson
+    from lxml import etree
+
+    from protocol.textsafe import printable
+    from services.inspection.deliverable import InspectionDefect, geojson as to_geojson, kml
+    from tests.protocol.test_textsafe import HOSTILE
+
+    d = InspectionDefect(id=1, u_m=1.0, v_m=2.0, enu=(1.0, 2.0, 3.0), lla=(-33.8, 151.2, 10.0), length_m=0.5,
+                         width_max_mm=3.0, width_mean_mm=2.0, area_m2=0.01, severity=HOSTILE, resolved=True,
+                         bbox_px=(0, 0, 4, 4))
+    root = etree.fromstring(kml([d], name=HOSTILE).encode())
+    ns = {"k": "http://www.opengis.net/kml/2.2"}
+    assert root.findtext("k:Document/k:name", namespaces=ns) == printable(HOSTILE)
+    assert root.findtext(".//k:Placemark/k:description", namespaces=ns).endswith(f"class {printable(HOSTILE)}")
+    doc = geojson.loads(json.dumps(to_geojson([d])))
+    assert doc.is_valid and doc["features"][0]["properties"]["severity"] == HOSTILE

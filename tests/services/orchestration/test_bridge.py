@@ -1,6 +1,7 @@
 """skynet bridge: TCP <-> Unix socket byte forwarding, real processes and sockets."""
 
 import argparse
+import select
 import socket
 import threading
 from pathlib import Path
@@ -97,3 +98,68 @@ def test_connections_above_the_limit_are_closed_at_once_and_counted(tmp_path: Pa
         group.stop()
         srv.close()
     assert any("1 connections, 3 refused" in line for line in b.lines), b.lines
+
+
+def _hold_idle(front: int, n: int) -> list[socket.socket]:
+    """``n`` connections that send nothing (what any local process can open)."""
+    return [socket.create_connection(("127.0.0.1", front), timeout=10) for _ in range(n)]
+
+
+def _closed_by_peer(c: socket.socket, timeout: float) -> bool:
+    c.settimeout(timeout)
+    try:
+        return c.recv(10) == b""
+    except (socket.timeout, OSError):
+        return False
+
+
+def test_64_idle_connections_are_closed_after_the_idle_timeout_and_a_real_one_flows():
+    """The issue's lock-out: 64 idle connections (the default --max-conns) held by another local process.
+    The bridge closes each after --idle-timeout, and a connection that carries bytes then flows."""
+    srv, port = _echo_server()
+    front = free_port()
+    group = ProcessGroup(echo=None)
+    idle: list[socket.socket] = []
+    try:
+        b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"tcp:127.0.0.1:{port}",
+                              "--idle-timeout", "2"])
+        assert b.wait_for("bridge up", 30), b.lines
+        idle = _hold_idle(front, 64)
+        assert all(_closed_by_peer(c, 30) for c in idle)  # each one closed by the bridge, none left hanging
+        with socket.create_connection(("127.0.0.1", front), timeout=10) as real:
+            real.sendall(b"ping")
+            assert real.recv(4) == b"ping"
+    finally:
+        for c in idle:
+            c.close()
+        group.stop()
+        srv.close()
+    assert any("64 closed idle" in line for line in b.lines), b.lines
+
+
+def test_at_the_limit_a_new_connection_takes_the_place_of_one_idle_for_long():
+    """With a long idle timeout, 64 idle connections still do not lock a new one out: at --max-conns the
+    connection idle the longest (idle for 10 s or more) is closed for it; a fresh flood is refused."""
+    srv, port = _echo_server()
+    front = free_port()
+    group = ProcessGroup(echo=None)
+    idle: list[socket.socket] = []
+    try:
+        b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"tcp:127.0.0.1:{port}",
+                              "--idle-timeout", "600"])
+        assert b.wait_for("bridge up", 30), b.lines
+        idle = _hold_idle(front, 64)
+        with socket.create_connection(("127.0.0.1", front), timeout=10) as early:  # all 64 fresh: refused
+            assert _closed_by_peer(early, 10)
+        threading.Event().wait(10.5)  # EVICT_IDLE_S
+        with socket.create_connection(("127.0.0.1", front), timeout=10) as real:
+            real.sendall(b"ping")
+            assert real.recv(4) == b"ping"
+        readable, _, _ = select.select(idle, [], [], 2.0)
+        assert sum(_closed_by_peer(c, 1) for c in readable) == 1  # exactly one gave its place
+    finally:
+        for c in idle:
+            c.close()
+        group.stop()
+        srv.close()
+    assert any("1 refused" in line and "1 evicted idle" in line for line in b.lines), b.lines

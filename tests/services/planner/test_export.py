@@ -166,3 +166,25 @@ def test_kml_paths_captures_and_surface(plan, tmp_path):
         parse_kml("<kml", plan.origin)
     files = write_mission(plan, tmp_path, SC.surface.corners)
     assert {f.name for f in files} >= {"uav1.waypoints", "uav1.plan", "mission.geojson", "mission.kml"}
+
+
+def test_a_hostile_algorithm_name_is_data_in_the_kml_and_the_geojson(plan, tmp_path):
+    """The plan comes from another node: its text reaches the KML and GeoJSON files as data, read back intact
+    by an XML parser (KML) and a GeoJSON reader."""
+    import geojson
+    from lxml import etree
+
+    from protocol.textsafe import printable
+    from tests.protocol.test_textsafe import HOSTILE
+
+    rogue = plan.model_copy(update={"algorithm": HOSTILE})
+    files = {f.name: f for f in write_mission(rogue, tmp_path, SC.surface.corners)}
+    root = etree.fromstring(files["mission.kml"].read_bytes())
+    ns = {"k": "http://www.opengis.net/kml/2.2"}
+    assert root.findtext("k:Document/k:name", namespaces=ns) == printable(f"SkyNet Inspect mission ({HOSTILE})")
+    assert len(root.findall(".//k:Placemark", ns)) == len(plan.trajectories) + len(plan.captures) + 1
+    doc = geojson.loads(files["mission.geojson"].read_text())
+    assert doc.is_valid, doc.errors()
+    assert doc["properties"]["algorithm"] == HOSTILE  # JSON carries every character as it came
+    assert np.max(np.abs(parse_kml(files["mission.kml"].read_text(), plan.origin)["uav1"]
+                         - [w.pos for w in plan.trajectories[0].waypoints])) < 0.01
