@@ -87,7 +87,7 @@ EXAMPLES: dict[str, dict[str, Any]] = {
     "cmd.takeoff": dict(uav=1, cmd_id=1, altitude=20.0),
     CommandAck.TYPE: dict(uav=1, cmd_id=1, accepted=True, reason=""),
     Heartbeat.TYPE: dict(source="gcs", seq=7, stamp=1767225600.0),
-    Event.TYPE: dict(source="uav1", stamp=1767225600.0, kind="failsafe", level="warning",
+    Event.TYPE: dict(source="uav/1", stamp=1767225600.0, kind="failsafe", level="warning",
                      text="no ground-station heartbeat for 5.0 s: hold", data={"held_s": 0.0}),
 }
 

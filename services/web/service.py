@@ -41,13 +41,29 @@ def replayed(sample) -> bool:
 
 
 def attach(bus: Bus, view: FleetView) -> None:
+    """Show the fleet's states, events, defect reports and previews; a state or event that speaks for
+    another node than its key's (:mod:`protocol.binding`) is refused and counted, never shown."""
     fleet = bus.fleet
-    bus.subscribe(keys.state(fleet, "*"), lambda m, s: view.on_state(m, replayed=replayed(s)), expect=VehicleState,
-                  link=TELEMETRY)
-    bus.subscribe(keys.all_events(fleet), lambda m, s: view.on_event(m, replayed=replayed(s)), expect=Event,
-                  link=COMMAND)
-    bus.subscribe(keys.defects(fleet), lambda m, s: view.on_defects(m, replayed=replayed(s)), expect=DefectReport,
-                  link=COMMAND)
+
+    def bound(ok: bool, key: str) -> bool:
+        if not ok:
+            bus.counters.reject(key, binding.MISMATCH)
+        return ok
+
+    def on_state(m: VehicleState, s) -> None:
+        if bound(binding.matches(str(s.key_expr), m.uav), str(s.key_expr)):
+            view.on_state(m, replayed=replayed(s))
+
+    def on_event(m: Event, s) -> None:
+        if bound(binding.source_matches(str(s.key_expr), m.source), str(s.key_expr)):
+            view.on_event(m, replayed=replayed(s))
+
+    def on_defects(m: DefectReport, s) -> None:  # one key for every detector instance (the ACL guards it)
+        view.on_defects(m, replayed=replayed(s))
+
+    bus.subscribe(keys.state(fleet, "*"), on_state, expect=VehicleState, link=TELEMETRY)
+    bus.subscribe(keys.all_events(fleet), on_event, expect=Event, link=COMMAND)
+    bus.subscribe(keys.defects(fleet), on_defects, expect=DefectReport, link=COMMAND)
 
     def on_preview(sample) -> None:
         try:
