@@ -151,11 +151,16 @@ def main(argv: list[str] | None = None) -> int:
     base = config_from_args(args, role="gateway", listen=listen, multilink=multilink)
     thin = ingress.state_ingress(args.fleet, args.state_ingress_hz) if args.state_ingress_hz else []
     config = GatewayConfig(**{**dict(base), **security_options(args, log)}, downsampling=thin)
-    if args.keys and config.access_control is None and listen and all(e.startswith("tls/") for e in listen):  # mutual TLS: ACL by certificate common name (issue 11)
+    if args.keys and config.access_control is None:
+        # mutual TLS: ACL by certificate common name on every listener; a tcp/ or udp/ listener admits no
+        # certificate, so what arrives there matches no subject and is denied everything (default deny)
         from protocol.keyset import KeySet
-        names = ["gcs", "planner", "detector", "gateway", *(f"uav{i}" for i in KeySet(args.keys, "gateway").uavs())]
+        names = KeySet(args.keys, "gateway").admitted()
         config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
-        log.info("mutual TLS on tls/ links; ACL by certificate common name for %s", ", ".join(names))
+        log.info("ACL by certificate common name for %s", ", ".join(names))
+        plain = [e for e in listen if not e.startswith("tls/")]
+        if plain:
+            log.warning("listeners without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
     stop = stop_event_on_signals()
     meter = TrafficMeter()
     with Bus(config, fleet=args.fleet, name="gateway") as bus:

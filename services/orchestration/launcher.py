@@ -250,18 +250,28 @@ class Network:
         return [] if self.trust.keys is None else ["--keys", str(self.trust.keys)]
 
     def _proxy_pair(self, link: str, target: list[str]) -> list[str]:
-        """Start the TCP and UDP proxies of ``link`` in front of ``target`` (a multilink endpoint
-        pair); the endpoints to connect to instead."""
+        """Start the proxies of ``link`` in front of ``target`` (a multilink endpoint pair); the endpoints to
+        connect to instead. A TLS pair (the default secure mode) gets two TCP proxies: the TLS session runs end
+        to end through them, so the link keeps its encryption, its certificates and the ACL; the best-effort
+        class ("udp" in an impairment) is then a TLS stream too, where loss is retransmission delay."""
         from services.netem.proxy import TcpProxy, UdpProxy
 
         tcp_target, udp_target = (endpoint_address(e) for e in target)
+        tls = all(e.startswith("tls/") for e in target)
         seed = self.args.seed
         tp = TcpProxy((HOST, 0), tcp_target, self.plan.impair.spec(link, "tcp"),
                       seed=link_seed(seed, link, "tcp")).start()
         self.proxies[link] = {"tcp": tp}
-        up = UdpProxy((HOST, 0), udp_target, self.plan.impair.spec(link, "udp"),
-                      seed=link_seed(seed, link, "udp")).start()
+        up = (TcpProxy if tls else UdpProxy)((HOST, 0), udp_target, self.plan.impair.spec(link, "udp"),
+                                             seed=link_seed(seed, link, "udp")).start()
         self.proxies[link]["udp"] = up
+        return self._proxied_ends(link)
+
+    def _proxied_ends(self, link: str) -> list[str]:
+        """The endpoints of ``link``'s proxies, TLS when its proxies are both TCP."""
+        tp, up = self.proxies[link]["tcp"], self.proxies[link]["udp"]
+        if up.kind == "tcp":
+            return trustmode.tls_endpoints(HOST, tp.port, up.port)
         return multilink_endpoints(HOST, tp.port, up.port)
 
     def site_of(self, name: str) -> int:
@@ -285,7 +295,7 @@ class Network:
             return target
         if name not in self.proxies:
             self._proxy_pair(name, target)
-        return multilink_endpoints(HOST, self.proxies[name]["tcp"].port, self.proxies[name]["udp"].port)
+        return self._proxied_ends(name)
 
     def link_proxies(self, link: str) -> list:
         """The proxies of a link (TCP then UDP); KeyError if the link has none."""
@@ -686,7 +696,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="the older user/password mode: gateway authentication and access control with generated "
                         "per-service passwords, no TLS, unsigned commands (default: TLS, certificate ACL, signed)")
     p.add_argument("--keys", default=None, metavar="DIR",
-                   help=f"fleet key set (skynet keys init); default: a development set in {trustmode.DEFAULT_KEYS}")
+                   help=f"fleet key set (skynet keys init); default: a development set in ${trustmode.KEYS_ENV} or {trustmode.DEFAULT_KEYS}")
     p.add_argument("--insecure", action="store_true",
                    help="no TLS, no access control, unsigned commands: development only")
     p.add_argument("--video", choices=["h264", "mjpeg"], default=None,

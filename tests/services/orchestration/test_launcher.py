@@ -80,8 +80,9 @@ def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
     assert "shutting down" in rest
 
 
-def test_impairment_proxy_on_one_uav_delays_only_its_link():
+def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
     from protocol import keys
+    from protocol.keyset import KeySet
     from protocol.bus import Bus, BusConfig
     from protocol.links import TELEMETRY
     from protocol.messages import VehicleState
@@ -98,7 +99,10 @@ def test_impairment_proxy_on_one_uav_delays_only_its_link():
                 endpoints = line.split("gateway at ")[1].split(";")[0].split()
         assert endpoints, "the launcher never reported its gateway"
         ages: dict[int, list[float]] = {1: [], 2: []}
-        with Bus(BusConfig(mode="client", connect=endpoints, multilink=True), "imp", "probe") as bus:
+        ks = KeySet(dev_keys, "gcs")  # an impaired network keeps mutual TLS: the probe is the ground station
+        config = BusConfig(mode="client", connect=endpoints, multilink=True, tls_ca=str(ks.tls_ca),
+                           tls_cert=str(ks.tls_cert), tls_key=str(ks.tls_key))
+        with Bus(config, "imp", "probe") as bus:
             bus.subscribe(keys.state("imp", "*"), lambda m, s: ages.get(m.uav, []).append(time.time() - m.stamp),
                           expect=VehicleState, link=TELEMETRY)
             deadline = time.monotonic() + 30

@@ -1,0 +1,128 @@
+"""Trust at the seams, with real processes and real certificates: a gateway with a plaintext listener, an
+impaired network started by the launcher, a revoked or re-issued node, a node posing as the gateway.
+
+Each key set is made in the test's own temporary folder (never the user's ``.keys/dev``).
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+import zenoh
+
+from protocol import keys
+from protocol.bus import Bus, BusConfig
+from protocol.keyset import KeySet
+from protocol.links import TELEMETRY
+from protocol.messages import Hold, Mode, VehicleState
+from services.keys import init
+from services.orchestration.process import free_port
+from tests.conftest import wait_until
+
+FLEET = "seams"
+
+
+def tls(ks: KeySet, mode: str, connect: list[str], **kw) -> BusConfig:
+    return BusConfig(mode=mode, connect=connect, tls_ca=str(ks.tls_ca), tls_cert=str(ks.tls_cert),
+                     tls_key=str(ks.tls_key), connect_timeout_s=3.0, **kw)
+
+
+def opened(config: BusConfig, name: str) -> Bus | None:
+    """A session, or None when it cannot open at all (refused at the TLS handshake, nobody answering)."""
+    try:
+        return Bus(config, FLEET, name)
+    except zenoh.ZError:
+        return None
+
+
+def state(uav: int, seq: int = 0) -> VehicleState:
+    return VehicleState(uav=uav, seq=seq, t=0.0, stamp=time.time(), pos=(1.0, 2.0, 3.0), vel=(0, 0, 0),
+                        att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.HOLD)
+
+
+class Watch:
+    """States received on one session, by UAV."""
+
+    def __init__(self, bus: Bus):
+        self.got: dict[int, int] = {}
+        bus.subscribe(keys.state(FLEET, "*"), self._on, expect=VehicleState, link=TELEMETRY)
+
+    def _on(self, msg: VehicleState, sample) -> None:
+        self.got[msg.uav] = self.got.get(msg.uav, 0) + 1
+
+
+def test_a_gateway_with_keys_applies_its_acl_to_a_plaintext_listener_too(tmp_path, group):
+    ks_dir = init(tmp_path / "keys", uavs=2)
+    tls_port, tcp_port = free_port(socket.SOCK_STREAM), free_port(socket.SOCK_STREAM)
+    tls_ep, tcp_ep = f"tls/127.0.0.1:{tls_port}", f"tcp/127.0.0.1:{tcp_port}"
+    gw = group.start("gateway", ["gateway", "--fleet", FLEET, "--keys", str(ks_dir), "--listen", tls_ep,
+                                 "--listen", tcp_ep, "--state-ingress-hz", "0"])
+    assert gw.wait_for("router up", 20), "\n".join(gw.lines)
+    assert any("without TLS" in ln and tcp_ep in ln for ln in gw.lines), gw.lines[-10:]
+    gcs = Bus(tls(KeySet(ks_dir, "gcs"), "client", [tls_ep]), FLEET, "gcs")
+    uav1 = Bus(tls(KeySet(ks_dir, "uav1"), "client", [tls_ep]), FLEET, "uav1")
+    uav2 = Bus(tls(KeySet(ks_dir, "uav2"), "client", [tls_ep]), FLEET, "uav2")
+    anon = Bus(BusConfig(mode="client", connect=[tcp_ep], connect_timeout_s=3.0), FLEET, "anon")
+    try:
+        seen, stolen = Watch(gcs), Watch(anon)
+        asked: list[str] = []
+        anon.serve(keys.cmd(FLEET, 1), lambda msg, q: asked.append("anon"))
+        time.sleep(1.0)
+        for i in range(30):
+            uav1.publisher(keys.state(FLEET, 1), TELEMETRY).put(state(1, i))
+            uav2.publisher(keys.state(FLEET, 1), TELEMETRY).put(state(1, 1000 + i))  # uav2 speaking for uav1
+            anon.publisher(keys.state(FLEET, 2), TELEMETRY).put(state(2, i))  # the anonymous one for uav2
+            time.sleep(0.03)
+        assert wait_until(lambda: seen.got.get(1, 0) >= 20, 10), seen.got
+        time.sleep(0.5)
+        assert seen.got.get(1, 0) == 30, f"uav2's forged states for uav1 reached the ground station: {seen.got}"
+        assert 2 not in seen.got, "the anonymous client's states reached the ground station"
+        assert 1 not in stolen.got, f"the anonymous client read uav1's states: {stolen.got}"  # (its own: local)
+        reply = gcs.request(keys.cmd(FLEET, 1), Hold(uav=1, cmd_id=1), timeout=1.0)
+        assert not reply.ok and asked == [], (reply, asked)
+    finally:
+        for b in (anon, uav2, uav1, gcs):
+            b.close()
+
+
+def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
+    """``skynet up --impair uav2="delay 1ms"`` through the launcher, default secure mode: the links run through the
+    netem proxies and still carry mutual TLS, so an anonymous client (plaintext, or TLS without a certificate) opens
+    no session on the gateway, on an edge or on a proxy, while the ground station sees the fleet and commands it."""
+    from services.orchestration.launcher import Network, build_parser
+    from tests.services.orchestration.test_topology import Probe
+
+    args = build_parser("up").parse_args(["--speed", "8", "--fleet", FLEET, "--camera", "none",
+                                          "--keys", str(tmp_path / "keys"), "--impair", "uav2=delay 1ms"])
+    net = Network(args, echo=None)
+    assert net.trust.tls and net.plan.proxied
+    net.start()
+    probe = None
+    try:
+        probe = Probe(net.gcs_config(), FLEET)
+        assert wait_until(lambda: all(probe.fresh(u) for u in (1, 2, 3)), 40), probe.last
+        assert all(probe.answered(u) for u in (1, 2, 3))
+        targets = [*net.gateway_endpoints, *(e for ends in net.edge_endpoints.values() for e in ends),
+                   *(net._proxied_ends(link) for link in net.proxies)]
+        targets = [e for t in targets for e in ([t] if isinstance(t, str) else t)]
+        assert any(p["udp"].kind == "tcp" for p in net.proxies.values()), "the best-effort class is proxied as TLS"
+        gcs_ks = KeySet(tmp_path / "keys", "gcs")
+        for where in targets:
+            plain = where.replace("tls/", "tcp/")
+            for config in (BusConfig(mode="client", connect=[plain], connect_timeout_s=2.0),
+                           BusConfig(mode="client", connect=[where], tls_ca=str(gcs_ks.tls_ca), connect_timeout_s=2.0)):
+                bus = opened(config, "anon")
+                if bus is not None:  # (a session that opens must get nothing: it should not open at all)
+                    try:
+                        seen = Watch(bus)
+                        time.sleep(1.0)
+                        assert seen.got == {} and not bus.routers() and not bus.peers(), (where, seen.got)
+                    finally:
+                        bus.close()
+        assert all(probe.fresh(u) for u in (1, 2, 3)), probe.last
+    finally:
+        if probe is not None:
+            probe.close()
+        net.stop()
