@@ -130,3 +130,41 @@ def test_an_extra_ip_san_verifies_for_that_address_in_a_real_tls_handshake(tmp_p
         except zenoh.ZError:
             linked = False
         assert linked is admitted, (root.name, gw.lines[-10:])
+
+
+def test_dev_keys_grows_twice_in_one_process_and_under_concurrent_launchers_leaving_nothing_behind(tmp_path):
+    import threading
+
+    for n in (1, 4, 5):  # two rotations in one process: no name collision
+        assert (dev_keys(tmp_path / "dev", n) / f"uav{max(n, 3)}" / "tls.pem").exists()
+    cas: list[bytes] = []
+
+    def launch() -> None:
+        cas.append((dev_keys(tmp_path / "shared", 4) / "ca.pem").read_bytes())
+
+    threads = [threading.Thread(target=launch) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(cas) == 4 and len(set(cas)) == 1, "concurrent launchers ended with different key sets"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dev", "shared"], list(tmp_path.iterdir())
+
+
+def test_reissue_gives_a_new_generation_and_revokes_the_old_certificate_and_key(tmp_path):
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    folder = pki.init(tmp_path / "k", uavs=2, hosts=("gw.example",))
+    assert pki.reissue(folder, "uav2") == "uav2.g2" and pki.reissue(folder, "uav2") == "uav2.g3"
+    cert = x509.load_pem_x509_certificate((folder / "uav2" / "tls.pem").read_bytes())
+    assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == "uav2.g3"
+    assert "gw.example" in _sans(folder / "uav2" / "tls.pem")  # the SANs carry over
+    ks = KeySet(folder, "uav1")
+    assert ks.revoked_certs() == {"uav2", "uav2.g2"} and "uav2.g3" in ks.admitted()
+    life = cert.not_valid_after_utc - cert.not_valid_before_utc
+    assert life.days <= pki.NODE_DAYS
+    pki.reissue(folder, "gcs")  # the command signer: trust/ follows, the old key is revoked
+    assert len(KeySet(folder, "uav1").trusted()["gcs"]) == 1 and len(ks.revoked()) == 3
+    with pytest.raises(ValueError, match="no node"):
+        pki.reissue(folder, "uav7")

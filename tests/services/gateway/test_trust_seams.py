@@ -18,7 +18,7 @@ from protocol.keyset import KeySet
 from protocol.links import TELEMETRY
 from protocol.messages import Hold, Mode, VehicleState
 from services.keys import init
-from services.orchestration.process import free_port
+from services.orchestration.process import ProcessGroup, free_port
 from tests.conftest import wait_until
 
 FLEET = "seams"
@@ -126,3 +126,86 @@ def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
         if probe is not None:
             probe.close()
         net.stop()
+
+
+def _as_uav2(cert_dir, where: list[str], mode: str) -> Bus | None:
+    """A session with the uav2 certificate and key copied into ``cert_dir`` (a stolen or superseded one)."""
+    return opened(BusConfig(mode=mode, connect=where, listen=[] if mode == "peer" else [],
+                            tls_ca=str(cert_dir / "ca.pem"), tls_cert=str(cert_dir / "tls.pem"),
+                            tls_key=str(cert_dir / "tls.key"), connect_timeout_s=3.0), "uav2")
+
+
+def _speak_as_uav2(bus: Bus, seconds: float = 2.0) -> None:
+    token = bus.token(keys.alive(FLEET, 2))
+    pub = bus.publisher(keys.state(FLEET, 2), TELEMETRY)
+    for i in range(int(seconds / 0.05)):
+        pub.put(state(2, i))
+        time.sleep(0.05)
+    token.undeclare()
+
+
+def _network(group, ks_dir, tag: str) -> tuple[list[str], list[str], object]:
+    """A gateway and edge uav1 (its own listener) on the key set as it is now; their endpoints and uav1's process."""
+    gw = [f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
+    edge1 = [f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
+    g = group.start(f"gateway-{tag}", ["gateway", "--fleet", FLEET, "--keys", str(ks_dir), "--listen", gw[0],
+                                        "--state-ingress-hz", "0"])
+    assert g.wait_for("router up", 20), "\n".join(g.lines)
+    e = group.start(f"uav1-{tag}", ["edge", "--uav", "1", "--home", "10,10,0", "--fleet", FLEET, "--keys",
+                                    str(ks_dir), "--camera", "none", "--speed", "4", "--failsafe-timeout", "60",
+                                    "--geofence", "0,0,0,100,100,40", "--connect", gw[0], "--listen", edge1[0]])
+    assert e.wait_for("board up", 30), "\n".join(e.lines)
+    return gw, edge1, e
+
+
+def test_a_revoked_node_is_refused_by_the_gateway_and_an_edge_and_a_reissued_one_admitted(tmp_path, group):
+    """``skynet keys revoke DIR uav2``: after the restart, uav2's certificate gets nothing through the gateway and an
+    edge ignores it; ``skynet keys reissue DIR uav2`` (same CA): the new certificate is admitted, the old one not."""
+    import shutil
+
+    from services.keys import main as keys_main
+
+    ks_dir = init(tmp_path / "keys", uavs=3)
+    stolen = tmp_path / "stolen"
+    stolen.mkdir()
+    for name in ("tls.pem", "tls.key"):
+        shutil.copy(ks_dir / "uav2" / name, stolen / name)
+    shutil.copy(ks_dir / "ca.pem", stolen / "ca.pem")
+    assert keys_main(["revoke", str(ks_dir), "uav2"]) == 0
+    assert "uav2" not in KeySet(ks_dir, "gcs").admitted()
+
+    def heard(gw: list[str], edge: list[str], uav1, cert_dir, tag: str) -> tuple[bool, bool]:
+        """(the gateway passed uav2's states to the ground station, edge uav1 saw uav2 join) for ``cert_dir``."""
+        before = len([ln for ln in uav1.lines if "UAV 2 joined" in ln])
+        with Bus(tls(KeySet(ks_dir, "gcs"), "client", gw), FLEET, "gcs") as gcs:
+            seen = Watch(gcs)
+            time.sleep(0.5)
+            for where, mode in ((gw, "client"), (edge, "peer")):
+                bus = _as_uav2(cert_dir, where, mode)
+                if bus is not None:
+                    try:
+                        _speak_as_uav2(bus)
+                    finally:
+                        bus.close()
+            time.sleep(0.5)
+            joined = wait_until(lambda: len([ln for ln in uav1.lines if "UAV 2 joined" in ln]) > before, 2)
+            return 2 in seen.got, joined
+
+    gw, edge1, uav1 = _network(group, ks_dir, "revoked")
+    assert heard(gw, edge1, uav1, stolen, "revoked") == (False, False)
+    assert keys_main(["reissue", str(ks_dir), "uav2"]) == 0
+    admitted = KeySet(ks_dir, "gcs").admitted()
+    assert "uav2.g2" in admitted and "uav2" not in admitted
+    group.stop()  # restart: the nodes read the key set at start
+    new = tmp_path / "new"
+    new.mkdir()
+    for name in ("tls.pem", "tls.key"):
+        shutil.copy(ks_dir / "uav2" / name, new / name)
+    shutil.copy(ks_dir / "ca.pem", new / "ca.pem")
+    again = ProcessGroup(echo=None)
+    try:
+        gw, edge1, uav1 = _network(again, ks_dir, "reissued")
+        assert heard(gw, edge1, uav1, new, "new") == (True, True), uav1.lines[-10:]
+        assert heard(gw, edge1, uav1, stolen, "old") == (False, False)
+    finally:
+        again.stop()
