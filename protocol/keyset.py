@@ -2,8 +2,12 @@
 
 Layout (written by ``skynet keys init DIR``, :mod:`services.keys`)::
 
-    DIR/ca.pem                  the fleet CA certificate (every node: TLS trust anchor)
-    DIR/ca/ca.key               the CA's private key (stays with whoever issues certificates)
+    DIR/ca.pem                  the fleet's two CA certificates: the node CA and the router CA (what the
+                                gateway and the UAVs trust: they accept links from both kinds)
+    DIR/router-ca.pem           the router CA alone, which issues only gateway certificates: what a
+                                client (gcs, planner, detector, ...) trusts at the end of its dial
+    DIR/ca/ca.key, ca/node-ca.pem, ca/router-ca.key   the CAs' private keys (stay with whoever issues
+                                certificates) and the node CA alone
     DIR/<role>/tls.pem, tls.key the node's TLS certificate (common name = role) and its key
     DIR/<role>/sign.key         the node's Ed25519 signing key (only the gcs key signs commands)
     DIR/<role>/sign.pub         its public half
@@ -71,8 +75,14 @@ class KeySet:
 
     @property
     def tls_ca(self) -> Path:
-        """The trust anchors of this node's TLS links."""
-        return self.ca
+        """The trust anchors of this node's TLS links. A node that only dials the gateway (every role but the
+        gateway and the UAVs) trusts the router CA alone, so whatever answers its dial must hold a gateway
+        certificate: a stolen node certificate cannot pose as its router. The gateway and the UAVs accept links
+        from both kinds and trust both CAs; what an impostor says there is bound by the ACL of its own common name."""
+        router = self.root / "router-ca.pem"
+        if self.role == "gateway" or self.role.startswith("uav") or not router.is_file():
+            return self.ca
+        return router
 
     @property
     def node(self) -> Path:

@@ -48,6 +48,9 @@ from protocol.signing import key_id, load_public
 
 #: the roles every key set has, besides the UAVs
 SERVICE_ROLES = ("gateway", "gcs", "planner", "detector")
+#: the roles whose certificates the router CA issues (what a client accepts at the other end of its dial)
+ROUTER_ROLES = ("gateway",)
+ROUTER_CA_CN = "SkyNet Inspect dev router CA"
 #: who signs what the UAVs obey
 COMMAND_SIGNERS = ("gcs",)
 #: node certificate lifetime, days
@@ -94,9 +97,9 @@ def _name(cn: str) -> x509.Name:
                       x509.NameAttribute(NameOID.COMMON_NAME, cn)])
 
 
-def make_ca(now: dt.datetime, days: int = CA_DAYS):
+def make_ca(now: dt.datetime, days: int = CA_DAYS, cn: str = "SkyNet Inspect dev CA"):
     key = ec.generate_private_key(ec.SECP256R1())
-    name = _name("SkyNet Inspect dev CA")
+    name = _name(cn)
     cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
             .serial_number(x509.random_serial_number()).not_valid_before(now - dt.timedelta(minutes=5))
             .not_valid_after(now + dt.timedelta(days=days))
@@ -187,10 +190,18 @@ def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VAL
     os.chmod(folder, 0o700)
     now = dt.datetime.now(dt.timezone.utc)
     ca_key, ca_cert = make_ca(now, max(days, CA_DAYS))
+    # gateways get their certificates from a CA of their own, the only one the clients trust for their dial: a
+    # node certificate cannot stand in for the gateway (protocol.keyset, "tls_ca")
+    router_key, router_cert = make_ca(now, max(days, CA_DAYS), ROUTER_CA_CN)
     _write(folder / "ca" / "ca.key", _pem_private(ca_key), private=True)
-    _write(folder / "ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM))
+    _write(folder / "ca" / "node-ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM))
+    _write(folder / "ca" / "router-ca.key", _pem_private(router_key), private=True)
+    _write(folder / "router-ca.pem", router_cert.public_bytes(serialization.Encoding.PEM))
+    _write(folder / "ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM)
+           + router_cert.public_bytes(serialization.Encoding.PEM))
     for role in roles(uavs):
-        key, cert = make_node_cert(role, ca_key, ca_cert, now, days, (*hosts, *sans.get(role, ())))
+        issuer = (router_key, router_cert) if role in ROUTER_ROLES else (ca_key, ca_cert)
+        key, cert = make_node_cert(role, *issuer, now, days, (*hosts, *sans.get(role, ())))
         _write(folder / role / "tls.key", _pem_private(key), private=True)
         _write(folder / role / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
         sk = Ed25519PrivateKey.generate()
@@ -260,7 +271,8 @@ def reissue(folder: str | Path, role: str, days: int = NODE_DAYS) -> str:
     folder = Path(folder)
     check_role(role)
     node = folder / role
-    ca_key_path = folder / "ca" / "ca.key"
+    router = role in ROUTER_ROLES and (folder / "router-ca.pem").exists()
+    ca_key_path = folder / "ca" / ("router-ca.key" if router else "ca.key")
     if not (node / "tls.pem").is_file():
         raise ValueError(f"{folder}: no node {role!r}")
     if not ca_key_path.is_file():
@@ -270,7 +282,8 @@ def reissue(folder: str | Path, role: str, days: int = NODE_DAYS) -> str:
     gen = int(old_cn.rsplit(".g", 1)[1]) if ".g" in old_cn else 1
     new_cn = f"{role}.g{gen + 1}"
     ca_key = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
-    ca_cert = x509.load_pem_x509_certificate((folder / "ca.pem").read_bytes())
+    ca_pem = folder / ("router-ca.pem" if router else "ca" / Path("node-ca.pem"))
+    ca_cert = x509.load_pem_x509_certificate((ca_pem if ca_pem.exists() else folder / "ca.pem").read_bytes())
     try:
         old_sans = old_cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
         hosts = tuple(str(n.value) for n in old_sans)
@@ -295,7 +308,7 @@ def reissue(folder: str | Path, role: str, days: int = NODE_DAYS) -> str:
 def usable(folder: str | Path, uavs: int) -> bool:
     """Whether ``folder`` holds a key set covering ``uavs`` UAVs whose certificates are not about to expire."""
     folder = Path(folder)
-    return ((folder / "ca.pem").exists() and (folder / "certs.txt").exists()
+    return ((folder / "ca.pem").exists() and (folder / "certs.txt").exists() and (folder / "router-ca.pem").exists()
             and all((folder / r / "tls.pem").exists() for r in roles(uavs)) and not expiring(folder))
 
 

@@ -418,7 +418,7 @@ class Network:
         if self.trust.keys is not None and self.trust.tls:
             from protocol.keyset import KeySet
             ks = KeySet(self.trust.keys, "gcs")
-            tls = {"tls_ca": str(ks.ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
+            tls = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
         return BusConfig(mode="client", connect=self.endpoints_for("gcs"), multilink=True, **creds, **lease, **tls)
 
     def gcs_signer(self):

@@ -16,14 +16,16 @@ from services.orchestration.trustmode import dev_keys, resolve
 
 def test_init_writes_every_role_with_cn_and_private_modes(tmp_path):
     root = pki.init(tmp_path / "k", uavs=2)
-    ca = x509.load_pem_x509_certificate((root / "ca.pem").read_bytes())
+    ca, router = x509.load_pem_x509_certificates((root / "ca.pem").read_bytes())  # the node CA, the router CA
+    assert x509.load_pem_x509_certificate((root / "router-ca.pem").read_bytes()) == router
     for role in ("gateway", "gcs", "planner", "detector", "uav1", "uav2"):
         cert = x509.load_pem_x509_certificate((root / role / "tls.pem").read_bytes())
         assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == role
-        cert.verify_directly_issued_by(ca)
+        cert.verify_directly_issued_by(router if role == "gateway" else ca)  # only gateways by the router CA
         for private in ("tls.key", "sign.key"):
             assert stat.S_IMODE((root / role / private).stat().st_mode) == 0o600
     assert stat.S_IMODE((root / "ca" / "ca.key").stat().st_mode) == 0o600
+    assert stat.S_IMODE((root / "ca" / "router-ca.key").stat().st_mode) == 0o600
     ks = KeySet(root, "uav1")
     assert list(ks.trusted()) == ["gcs"] and ks.uavs() == [1, 2] and ks.revoked() == set()
 

@@ -209,3 +209,26 @@ def test_a_revoked_node_is_refused_by_the_gateway_and_an_edge_and_a_reissued_one
         assert heard(gw, edge1, uav1, stolen, "old") == (False, False)
     finally:
         again.stop()
+
+
+def test_a_router_presenting_a_node_certificate_is_refused_by_a_client(tmp_path, group):
+    """A router that presents uav2's (valid, same fleet) certificate: the ground station's and the planner's dial
+    fails at the handshake, while a router with the gateway's certificate is reached (the control)."""
+    ks_dir = init(tmp_path / "keys", uavs=2)
+    uav2 = KeySet(ks_dir, "uav2")
+    impostor_ep = [f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
+    impostor = Bus(BusConfig(mode="router", listen=impostor_ep, tls_ca=str(uav2.tls_ca), tls_cert=str(uav2.tls_cert),
+                             tls_key=str(uav2.tls_key)), FLEET, "impostor")
+    real_ep = [f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
+    gw = group.start("gateway", ["gateway", "--fleet", FLEET, "--keys", str(ks_dir), "--listen", real_ep[0]])
+    assert gw.wait_for("router up", 20), "\n".join(gw.lines)
+    try:
+        for role in ("gcs", "planner"):
+            ks = KeySet(ks_dir, role)
+            assert opened(tls(ks, "client", impostor_ep), role) is None, f"{role} reached a router holding uav2's cert"
+            real = opened(tls(ks, "client", real_ep), role)
+            assert real is not None and real.routers(), f"{role} did not reach the real gateway"
+            real.close()
+        assert not impostor.session.info.transports(), "a client session reached the impostor"
+    finally:
+        impostor.close()
