@@ -12,7 +12,7 @@ through user-space TCP proxies (two per link, one per reliability class), so imp
 fault-injected runs keep the same identities, encryption and ACL as any other run; the best-effort
 class is a TLS stream there as everywhere in secure mode (loss on it is retransmission delay, not
 lost datagrams: the paper's UDP class with datagram loss needs ``--insecure``). ``--insecure``
-turns all of it off, loudly; ``--secure`` is the older user/password mode (no TLS, no signatures).
+turns all of it off, loudly.
 """
 
 from __future__ import annotations
@@ -89,9 +89,7 @@ def dev_keys(folder: str | Path, uavs: int) -> Path:
 
 def resolve(args, proxied: bool) -> TrustPlan:
     """The trust plan of the launcher's options."""
-    if getattr(args, "insecure", False) or getattr(args, "secure", False):
-        warn = [INSECURE_BANNER] if getattr(args, "insecure", False) else [
-            "--secure: user/password authentication and the gateway's ACL only (no TLS, unsigned commands)"]
-        return TrustPlan(None, False, warn)
+    if getattr(args, "insecure", False):
+        return TrustPlan(None, False, [INSECURE_BANNER])
     keys = dev_keys(getattr(args, "keys", None) or default_keys(), args.uavs)
     return TrustPlan(keys.resolve(), True)

@@ -350,7 +350,6 @@ def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_it
                       (("--uavs", "6", "--sites", "0"), "at least one site"),
                       (("--uavs", "6", "--sites", "2", "--rcu-site", "planner=2"), "not one of 0..1"),
                       (("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1",
-                        "--impair", "detector=delay 5ms"), "different sites"),
-                      (("--uavs", "6", "--sites", "2", "--secure"), "use the default mutual TLS")):
+                        "--impair", "detector=delay 5ms"), "different sites")):
         with pytest.raises(ValueError, match=why):
             make_plan(parse(*argv), ground_station=True)
