@@ -232,3 +232,21 @@ def test_a_router_presenting_a_node_certificate_is_refused_by_a_client(tmp_path,
         assert not impostor.session.info.transports(), "a client session reached the impostor"
     finally:
         impostor.close()
+
+
+@pytest.mark.mission
+def test_an_impaired_mission_behind_the_accept_guard_succeeds_with_tls_and_the_acl(tmp_path):
+    """``skynet mission --impair uav2="delay 1ms" --accept-guard``, default secure mode, a key set of its own: the
+    proxied links keep mutual TLS and the ACL on the gateway and on every edge, and the mission succeeds."""
+    from tests.conftest import fly_mission
+
+    run = fly_mission(tmp_path / "report", "--speed", "4", "--keys", str(tmp_path / "keys"),
+                      "--impair", "uav2=delay 1ms", "--accept-guard")
+    assert run.proc.returncode == 0, run.failure()
+    assert "plaintext" not in run.proc.stderr and "INSECURE" not in run.proc.stderr, run.failure()
+    services = (run.out / "services.log").read_text()
+    assert services.count("ACL by certificate common name") == 1, services[-3000:]  # the gateway
+    assert services.count("mutual TLS as uav") == 3, services[-3000:]  # every edge, with its ACL
+    assert "accept guard on" in services, services[-3000:]
+    report = run.report()
+    assert report["success"] and not report["failures"], report["failures"]
