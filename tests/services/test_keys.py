@@ -170,3 +170,33 @@ def test_reissue_gives_a_new_generation_and_revokes_the_old_certificate_and_key(
     assert len(KeySet(folder, "uav1").trusted()["gcs"]) == 1 and len(ks.revoked()) == 3
     with pytest.raises(ValueError, match="no node"):
         pki.reissue(folder, "uav7")
+
+
+def test_revoked_names_and_admitted_names_are_read_and_checked(tmp_path):
+    folder = pki.init(tmp_path / "k", uavs=2)
+    ks = KeySet(folder, "gateway")
+    assert ks.admitted() == ["gateway", "gcs", "planner", "detector", "uav1", "uav2"]
+    assert "cert uav2" in pki.revoke(folder, "uav2")
+    assert ks.revoked_certs() == {"uav2"} and "uav2" not in ks.admitted() and len(ks.revoked()) == 1
+    (folder / "certs.txt").unlink()  # an older key set: every node folder's role, less the revoked ones
+    assert "uav1" in ks.admitted() and "uav2" not in ks.admitted()
+    (folder / "revoked.txt").write_text("cert not a name!\n")
+    with pytest.raises(ValueError, match="line 1"):
+        ks.revoked_certs()
+    with pytest.raises(ValueError, match="no node"):
+        pki.revoke_node(folder, "uav9")
+
+
+def test_an_edge_acl_leaves_out_a_revoked_uav_and_names_a_reissued_one(tmp_path):
+    import argparse
+
+    from edge.trust import secure_setup
+
+    folder = pki.init(tmp_path / "k", uavs=3)
+    pki.revoke(folder, "uav3")
+    pki.reissue(folder, "uav2")
+    args = argparse.Namespace(uav=1, fleet="f", keys=str(folder), insecure=False, trust_window=10.0,
+                              replay_state=None, mesh_uavs=3, listen=["tls/127.0.0.1:0"], connect=[])
+    _, acl = secure_setup(args)
+    names = {n for s in acl["subjects"] for n in s["cert_common_names"]}
+    assert names == {"gateway", "uav1", "uav2.g2"}, names
