@@ -293,7 +293,7 @@ class Network:
             # equal leases on both ends (see GATEWAY_LEASE_S), a short open timeout (see client_cfg)
             args += ["--lease", str(GATEWAY_LEASE_S), *[a for k, v in self.client_cfg() for a in ("--cfg", f"{k}:{v}")]]
         for e in self.endpoints_for(name, site):
-            args += ["--connect", e]
+            args += ["--connect", trustmode.gateway_dial(e, self.trust.keys)]
         return args + self.key_args()
 
     def client_cfg(self) -> list[tuple[str, str]]:
@@ -391,7 +391,8 @@ class Network:
             from protocol.keyset import KeySet
             ks = KeySet(self.trust.keys, "gcs")
             tls = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
-        return BusConfig(mode="client", connect=self.endpoints_for("gcs"), multilink=True, **lease, **tls)
+        connect = [trustmode.gateway_dial(e, self.trust.keys) for e in self.endpoints_for("gcs")]
+        return BusConfig(mode="client", connect=connect, multilink=True, **lease, **tls)
 
     def gcs_signer(self):
         """The ground station's signer (None: --insecure, unsigned commands)."""
@@ -455,7 +456,8 @@ class Network:
                 listen = [e.replace(f"/{HOST}:", "/0.0.0.0:") for e in listen]
             self.start_ready(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *lease, *thin,
                                     *(["--accept-guard"] if getattr(a, "accept_guard", False) else []),
-                                    *self.key_args(), *[x for e in targets for x in ("--connect", e)],
+                                    *self.key_args(),
+                                    *[x for e in targets for x in ("--connect", trustmode.gateway_dial(e, self.trust.keys))],
                                     *[x for e in listen for x in ("--listen", e)]],
                              READY["gateway"], prefix=[] if self.ns is None else self.ns.prefix(site.index))
             if self.ns is not None and site.index == 0:

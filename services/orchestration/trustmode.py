@@ -42,6 +42,19 @@ def tls_endpoints(host: str, reliable_port: int, best_effort_port: int) -> list[
     return [f"tls/{host}:{reliable_port}?rel=1", f"tls/{host}:{best_effort_port}?rel=0"]
 
 
+def gateway_dial(endpoint: str, keys: Path | None) -> str:
+    """``endpoint`` of a gateway, dialled trusting the key set's router CA alone (Zenoh's per-endpoint TLS
+    configuration, ``#root_ca_certificate_file=...``): a UAV, which trusts both CAs for the links it accepts,
+    then reaches only a gateway certificate when it dials the gateway. Unchanged without TLS or a router CA."""
+    router = None if keys is None else Path(keys) / "router-ca.pem"
+    if not endpoint.startswith("tls/") or "#" in endpoint or router is None or not router.is_file():
+        return endpoint
+    path = str(router.resolve())
+    if any(c in path for c in ";=#?"):  # the endpoint's configuration syntax: leave it to the node's own CAs
+        return endpoint
+    return f"{endpoint}#root_ca_certificate_file={path}"
+
+
 def default_keys() -> Path:
     """The development key set's folder: ``$SKYNET_KEYS`` when set (the test suite's own temporary set), else
     :data:`DEFAULT_KEYS`."""

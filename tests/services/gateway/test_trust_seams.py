@@ -229,6 +229,20 @@ def test_a_router_presenting_a_node_certificate_is_refused_by_a_client(tmp_path,
             real = opened(tls(ks, "client", real_ep), role)
             assert real is not None and real.routers(), f"{role} did not reach the real gateway"
             real.close()
+        # a UAV trusts both CAs (it accepts links from both kinds), and dials the gateway trusting the router CA alone
+        from services.orchestration.trustmode import gateway_dial
+
+        uav1 = KeySet(ks_dir, "uav1")
+        bus = opened(tls(uav1, "peer", [gateway_dial(impostor_ep[0], ks_dir)]), "uav1")  # (a peer opens unlinked)
+        if bus is not None:
+            time.sleep(1.0)
+            linked = bool(bus.routers())
+            bus.close()
+            assert not linked, "uav1 reached a router holding uav2's cert"
+        real = opened(tls(uav1, "peer", [gateway_dial(real_ep[0], ks_dir)]), "uav1")
+        assert real is not None and real.routers(), "uav1 did not reach the real gateway"
+        real.close()
+        assert gateway_dial("tcp/127.0.0.1:1", ks_dir) == "tcp/127.0.0.1:1"
         assert not impostor.session.info.transports(), "a client session reached the impostor"
     finally:
         impostor.close()
