@@ -1,8 +1,10 @@
 """``skynet keys``: a development fleet PKI.
 
-``skynet keys init DIR [--uavs N]`` writes a CA, and per node (``gateway``, ``gcs``, ``planner``,
-``detector``, ``uav1``..``uavN``) a TLS certificate whose common name is the role (ECDSA P-256,
-SANs ``<role>``, ``localhost`` and ``127.0.0.1``, server and client usage, signed by the CA) and an
+``skynet keys init DIR [--uavs N]`` writes two CAs (the router CA signs the gateways' certificates, the node
+CA everyone else's: a client trusts the router CA alone for its dial, :attr:`protocol.keyset.KeySet.tls_ca`),
+and per node (``gateway``, ``gcs``, ``planner``, ``detector``, ``uav1``..``uavN``) a TLS certificate whose
+common name is the role (ECDSA P-256, SANs ``<role>``, ``localhost`` and ``127.0.0.1``, server and client
+usage) and an
 Ed25519 signing key pair. A dialler checks its peer's certificate against the name or address it
 dialled (RFC 6125 section 6; an address against an ``iPAddress`` SAN, RFC 5280 section 4.2.1.6), so a node
 reached at a host's address needs that address in its certificate: ``--host NAME`` adds a SAN to every
