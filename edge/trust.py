@@ -11,7 +11,7 @@ heartbeat and state callbacks:
 * :meth:`Gate.heartbeat` — True only for a heartbeat that verifies: only those reset the failsafe
   timer, so a forger sending heartbeats does not hold the failsafe off.
 * :meth:`Gate.body_matches` — a state/event/report whose ``uav`` field is not the one in its key
-  expression is refused (a node cannot speak for another, issue 11 item 4).
+  expression is refused (a node cannot speak for another).
 
 Every refusal is counted per reason (``refused``), and :meth:`Gate.report` rate-limits the events
 the board raises about them (one per reason per :data:`EVENT_PERIOD_S`, with the count since the
@@ -128,17 +128,21 @@ def secure_setup(args, log=None) -> tuple[Gate, dict | None]:
             log.warning("INSECURE: uav%d obeys unsigned commands and heartbeats from anyone on the bus%s",
                         args.uav, "" if getattr(args, "insecure", False) else " (no --keys given)")
         return Gate(args.fleet, args.uav, None), None
-    from protocol.keyset import KeySet
+    from protocol.keyset import KeySet, role_of_cn
     from protocol.acl import cert_access_control
 
     ks = KeySet(args.keys, f"uav{args.uav}")
     verifier = ks.verifier(stale_s=args.trust_window, replay_file=getattr(args, "replay_state", None))
     n = args.mesh_uavs or max([args.uav, *ks.uavs()])
-    peers = ["gateway", *(f"uav{i}" for i in range(1, n + 1))]
+    mesh = {"gateway", *(f"uav{i}" for i in range(1, n + 1))}
+    # certs.txt names the current certificates; a key set without it (older, or a vehicle's) admits the roles
+    names = ks.admitted() if (ks.root / "certs.txt").exists() else sorted(mesh - ks.revoked_certs())
+    peers = [cn for cn in names if role_of_cn(cn) in mesh]
     endpoints = [*args.listen, *args.connect]
-    tls = bool(endpoints) and all(e.startswith("tls/") for e in endpoints)
+    plain = [e for e in endpoints if not e.startswith("tls/")]
     if log:
-        log.info("trust: commands signed by %s, replay window %s; %s", ", ".join(ks.trusted()) or "nobody",
-                 verifier.replay.path, f"mutual TLS as uav{args.uav}, ACL by certificate for {', '.join(peers)}" if tls
-                 else "links without TLS: no certificate ACL (commands and heartbeats still verified)")
-    return Gate(args.fleet, args.uav, verifier), cert_access_control(args.fleet, peers) if tls else None
+        log.info("trust: commands signed by %s, replay window %s; mutual TLS as uav%d, ACL by certificate for %s",
+                 ", ".join(ks.trusted()) or "nobody", verifier.replay.path, args.uav, ", ".join(peers))
+        if plain:
+            log.warning("links without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
+    return Gate(args.fleet, args.uav, verifier), cert_access_control(args.fleet, peers)

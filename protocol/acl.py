@@ -41,7 +41,7 @@ The rules are per UAV: user ``uav3`` gets a subject of its own whose rules name
 the gateway. The gateway's own session (its statistics, its traffic meter) is inside the router
 and is not filtered. With user/password authentication, links that the UAV peers open directly to
 each other (SkyNet) do not pass through the router and are not filtered: the UAV mesh is trusted.
-With mutual TLS (issue 11, :func:`cert_access_control`) the same rules have subjects by certificate
+With mutual TLS (:func:`cert_access_control`) the same rules have subjects by certificate
 common name and every edge enforces them too, for the gateway and the other UAVs: a UAV may put
 only its own keys on the mesh as well, and nothing else (a ground station, a planner) may link to
 an edge at all.
@@ -304,7 +304,7 @@ def access_control(fleet: str, principals: Iterable[Principal], by: str = "usern
         subject: the default (deny) applies to them.
     by : str
         What names a subject: ``usernames`` (user/password authentication) or
-        ``cert_common_names`` (mutual TLS: the certificate's common name is the role, issue 11).
+        ``cert_common_names`` (mutual TLS: the certificate's common name names the role).
 
     Returns
     -------
@@ -345,11 +345,13 @@ def access_control(fleet: str, principals: Iterable[Principal], by: str = "usern
 
 
 def cert_access_control(fleet: str, names: Iterable[str]) -> dict[str, Any]:
-    """The ``access_control`` of a mutual-TLS node: subjects by certificate common name (= role name).
+    """The ``access_control`` of a mutual-TLS node: subjects by certificate common name (the role, ``.gN`` after a reissue).
 
     The gateway lists every node of the fleet; an edge lists the gateway and the other UAVs, the
     nodes that may link to it (SkyNet): a UAV may then put only its own keys on the mesh too, and
     anything else that reaches an edge directly (a ground station, an attacker with some certificate)
     is denied everything.
     """
-    return access_control(fleet, [role_of(n) for n in names], by="cert_common_names")
+    from protocol.keyset import role_of_cn
+
+    return access_control(fleet, [role_of(n, role_of_cn(n)) for n in names], by="cert_common_names")

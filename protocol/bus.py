@@ -172,7 +172,7 @@ def config_from_args(args: argparse.Namespace, role: str | None = None, **overri
         from .keyset import KeySet
 
         ks = KeySet(args.keys, role)
-        overrides = {"tls_ca": str(ks.ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key), **overrides}
+        overrides = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key), **overrides}
     values = dict(
         mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config,
         lease_s=args.lease, multilink=args.multilink, shared_memory=args.shm,

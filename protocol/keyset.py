@@ -2,18 +2,27 @@
 
 Layout (written by ``skynet keys init DIR``, :mod:`services.keys`)::
 
-    DIR/ca.pem                  the fleet CA certificate (every node: TLS trust anchor)
-    DIR/ca/ca.key               the CA's private key (stays with whoever issues certificates)
+    DIR/ca.pem                  the fleet's two CA certificates: the node CA and the router CA (what the
+                                gateway and the UAVs trust: they accept links from both kinds)
+    DIR/router-ca.pem           the router CA alone, which issues only gateway certificates: what a
+                                client (gcs, planner, detector, ...) trusts at the end of its dial
+    DIR/ca/ca.key, ca/node-ca.pem, ca/router-ca.key   the CAs' private keys (stay with whoever issues
+                                certificates) and the node CA alone
     DIR/<role>/tls.pem, tls.key the node's TLS certificate (common name = role) and its key
     DIR/<role>/sign.key         the node's Ed25519 signing key (only the gcs key signs commands)
     DIR/<role>/sign.pub         its public half
     DIR/trust/<signer>.pub      public keys whose signatures the UAVs accept (the ground station's)
-    DIR/revoked.txt             revoked key ids (:func:`protocol.signing.key_id`), one per line
+    DIR/revoked.txt             revoked key ids (:func:`protocol.signing.key_id`), one per line, and revoked
+                                certificates, ``cert <common name>`` per line
+    DIR/certs.txt               the common names of the current node certificates, one per line: the
+                                only names the access control admits (:meth:`KeySet.admitted`)
 
-``role`` is ``gateway``, ``gcs``, ``planner``, ``detector``, ``video``, ``web``, ``replay`` or ``uavN``. A node on a real vehicle
-gets only ``ca.pem``, its own ``<role>/`` folder, ``trust/`` and ``revoked.txt``. Rotation is a new
-key set in place (no code change); a key listed in ``revoked.txt`` is refused even while still in
-``trust/``.
+``role`` is ``gateway``, ``gcs``, ``planner``, ``detector``, ``video``, ``web``, ``replay`` or ``uavN``. A node
+on a real vehicle gets only ``ca.pem``, its own ``<role>/`` folder, ``trust/``, ``certs.txt`` and ``revoked.txt``.
+Rotation is a new key set in place (no code change), or one node's new certificate and key (``skynet keys
+reissue``: its common name gets a generation, ``uav2.g2``, so the ACL, which names subjects by common
+name, admits the new certificate and no longer the old one); a key listed in ``revoked.txt`` is
+refused even while still in ``trust/``, a revoked certificate's common name is admitted nowhere.
 """
 
 from __future__ import annotations
@@ -28,6 +37,16 @@ from .signing import ReplayStore, Signer, Verifier, load_public
 
 _ROLE = re.compile(r"^(gateway|gcs|planner|detector|video|web|replay|uav([1-9][0-9]{0,2}))$")
 _KID = re.compile(r"^[0-9a-f]{16}$")
+#: a certificate's common name: the role, then ``.gN`` from its second issue on
+_CN = re.compile(r"^([a-z]+[0-9]*)(?:\.g([1-9][0-9]{0,5}))?$")
+
+
+def role_of_cn(cn: str) -> str:
+    """The role a node certificate's common name speaks for (``uav2.g3`` -> ``uav2``); ValueError otherwise."""
+    m = _CN.match(cn or "")
+    if not m:
+        raise ValueError(f"not a node certificate name: {cn!r}")
+    return check_role(m.group(1))
 
 
 def check_role(role: str) -> str:
@@ -53,6 +72,17 @@ class KeySet:
     @property
     def ca(self) -> Path:
         return self.root / "ca.pem"
+
+    @property
+    def tls_ca(self) -> Path:
+        """The trust anchors of this node's TLS links. A node that only dials the gateway (every role but the
+        gateway and the UAVs) trusts the router CA alone, so whatever answers its dial must hold a gateway
+        certificate: a stolen node certificate cannot pose as its router. The gateway and the UAVs accept links
+        from both kinds and trust both CAs; what an impostor says there is bound by the ACL of its own common name."""
+        router = self.root / "router-ca.pem"
+        if self.role == "gateway" or self.role.startswith("uav") or not router.is_file():
+            return self.ca
+        return router
 
     @property
     def node(self) -> Path:
@@ -85,19 +115,56 @@ class KeySet:
             out.setdefault(path.name.split(".")[0], []).append(load_public(path))
         return out
 
-    def revoked(self) -> set[str]:
+    def _revocations(self) -> tuple[set[str], set[str]]:
+        """(revoked key ids, revoked certificate common names) of ``revoked.txt``."""
         path = self.root / "revoked.txt"
+        kids: set[str] = set()
+        names: set[str] = set()
         if not path.exists():
-            return set()
-        out = set()
+            return kids, names
         for n, raw in enumerate(path.read_text().splitlines(), start=1):
             line = raw.split("#", 1)[0].strip()
             if not line:
                 continue
-            if not _KID.match(line):
-                raise ValueError(f"{path} line {n}: expected a 16-hex-digit key id, got {line!r}")
-            out.add(line)
-        return out
+            kind, _, name = line.partition(" ")
+            if kind == "cert" and name.strip():
+                try:
+                    role_of_cn(name.strip())
+                except ValueError as exc:
+                    raise ValueError(f"{path} line {n}: {exc}") from None
+                names.add(name.strip())
+            elif _KID.match(line):
+                kids.add(line)
+            else:
+                raise ValueError(f"{path} line {n}: expected a 16-hex-digit key id or 'cert NAME', got {line!r}")
+        return kids, names
+
+    def revoked(self) -> set[str]:
+        """Revoked signing key ids."""
+        return self._revocations()[0]
+
+    def revoked_certs(self) -> set[str]:
+        """Common names of revoked certificates."""
+        return self._revocations()[1]
+
+    def admitted(self) -> list[str]:
+        """The certificate common names the access control admits: ``certs.txt`` (else, in an older key set,
+        every node folder's role), less the revoked ones."""
+        path = self.root / "certs.txt"
+        if path.exists():
+            names = []
+            for n, raw in enumerate(path.read_text().splitlines(), start=1):
+                line = raw.split("#", 1)[0].strip()
+                if line:
+                    try:
+                        role_of_cn(line)
+                    except ValueError as exc:
+                        raise ValueError(f"{path} line {n}: {exc}") from None
+                    names.append(line)
+        else:
+            names = sorted(p.name for p in self.root.iterdir() if (p / "tls.pem").is_file() and _ROLE.match(p.name))
+        gone = self.revoked_certs()
+        return [n for n in names if n not in gone]
 
     def verifier(self, stale_s: float | None = None, persist: bool = True,
                  replay_file: str | Path | None = None) -> Verifier:

@@ -1,8 +1,10 @@
 """``skynet keys``: a development fleet PKI.
 
-``skynet keys init DIR [--uavs N]`` writes a CA, and per node (``gateway``, ``gcs``, ``planner``,
-``detector``, the attached tools ``video``, ``web`` and ``replay``, ``uav1``..``uavN``) a TLS certificate whose common name is the role (ECDSA P-256,
-SANs ``<role>``, ``localhost`` and ``127.0.0.1``, server and client usage, signed by the CA) and an
+``skynet keys init DIR [--uavs N]`` writes two CAs (the router CA signs the gateways' certificates, the node
+CA everyone else's: a client trusts the router CA alone for its dial, :attr:`protocol.keyset.KeySet.tls_ca`),
+and per node (``gateway``, ``gcs``, ``planner``, ``detector``, the attached tools ``video``, ``web`` and
+``replay``, ``uav1``..``uavN``) a TLS certificate whose common name is the role (ECDSA P-256, SANs ``<role>``,
+``localhost`` and ``127.0.0.1``, server and client usage) and an
 Ed25519 signing key pair. A dialler checks its peer's certificate against the name or address it
 dialled (RFC 6125 section 6; an address against an ``iPAddress`` SAN, RFC 5280 section 4.2.1.6), so a node
 reached at a host's address needs that address in its certificate: ``--host NAME`` adds a SAN to every
@@ -12,8 +14,15 @@ more: what the split-over-hosts compose files pass, ``compose/ground.yml``); the
 Layout: :mod:`protocol.keyset`. Private keys are written mode 0600. An existing key set is kept
 unless ``--force`` (rotation: install a new set, restart the nodes).
 
-``skynet keys revoke DIR KEYID|PUBFILE`` appends a key id to ``revoked.txt``;
-``skynet keys show DIR`` lists the nodes, their key ids and certificate expiry.
+``skynet keys revoke DIR NODE|KEYID|PUBFILE`` revokes a node (its certificate's common name, refused by the ACL
+of the gateway and of every edge from their next start, and its signing key) or one signing key;
+``skynet keys reissue DIR NODE`` gives one node a new certificate (common name ``NODE.gN``, the next
+generation) and signing key with the same CA, revoking the old ones; ``skynet keys show DIR`` lists the
+nodes, their key ids and certificate expiry.
+
+Lifetimes: node certificates :data:`NODE_DAYS` (a lost vehicle's certificate that no revocation list reached
+stops working within a month, and re-issuing is one command), the CA :data:`CA_DAYS` (it stays offline
+with the operator; replacing it means re-keying every node).
 
 This is for development and tests: on real vehicles the CA key lives offline with the operator
 (README, "Trust").
@@ -41,9 +50,18 @@ from protocol.signing import key_id, load_public
 
 #: the roles every key set has, besides the UAVs
 SERVICE_ROLES = ("gateway", "gcs", "planner", "detector", "video", "web", "replay")
+#: the roles whose certificates the router CA issues (what a client accepts at the other end of its dial)
+ROUTER_ROLES = ("gateway",)
+ROUTER_CA_CN = "SkyNet Inspect dev router CA"
 #: who signs what the UAVs obey
 COMMAND_SIGNERS = ("gcs",)
-VALID_DAYS = 365
+#: node certificate lifetime, days
+NODE_DAYS = 30
+#: CA certificate lifetime, days
+CA_DAYS = 5 * 365
+VALID_DAYS = NODE_DAYS
+#: a development key set whose certificates expire within this many days is replaced (trustmode.dev_keys)
+RENEW_DAYS = 2
 
 
 def roles(uavs: int) -> list[str]:
@@ -81,9 +99,9 @@ def _name(cn: str) -> x509.Name:
                       x509.NameAttribute(NameOID.COMMON_NAME, cn)])
 
 
-def make_ca(now: dt.datetime, days: int = VALID_DAYS):
+def make_ca(now: dt.datetime, days: int = CA_DAYS, cn: str = "SkyNet Inspect dev CA"):
     key = ec.generate_private_key(ec.SECP256R1())
-    name = _name("SkyNet Inspect dev CA")
+    name = _name(cn)
     cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
             .serial_number(x509.random_serial_number()).not_valid_before(now - dt.timedelta(minutes=5))
             .not_valid_after(now + dt.timedelta(days=days))
@@ -132,16 +150,17 @@ def parse_sans(specs: list[str] | tuple[str, ...]) -> dict[str, tuple[str, ...]]
     return {r: tuple(n) for r, n in out.items()}
 
 
-def make_node_cert(role: str, ca_key, ca_cert, now: dt.datetime, days: int = VALID_DAYS, hosts: tuple[str, ...] = ()):
-    """A TLS key and certificate with common name ``role``, for both ends of a mutual-TLS link; ``hosts``
-    are extra SANs (addresses or host names, :func:`san_name`)."""
+def make_node_cert(role: str, ca_key, ca_cert, now: dt.datetime, days: int = VALID_DAYS, hosts: tuple[str, ...] = (),
+                   cn: str | None = None):
+    """A TLS key and certificate with common name ``cn`` (default ``role``), for both ends of a mutual-TLS link;
+    ``hosts`` are extra SANs (addresses or host names, :func:`san_name`)."""
     key = ec.generate_private_key(ec.SECP256R1())
     sans: list[x509.GeneralName] = []
     for h in (role, "localhost", "127.0.0.1", *hosts):
         san = san_name(h)
         if san not in sans:
             sans.append(san)
-    cert = (x509.CertificateBuilder().subject_name(_name(role)).issuer_name(ca_cert.subject)
+    cert = (x509.CertificateBuilder().subject_name(_name(cn or role)).issuer_name(ca_cert.subject)
             .public_key(key.public_key()).serial_number(x509.random_serial_number())
             .not_valid_before(now - dt.timedelta(minutes=5)).not_valid_after(now + dt.timedelta(days=days))
             .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
@@ -172,11 +191,19 @@ def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VAL
     folder.mkdir(parents=True, exist_ok=True)
     os.chmod(folder, 0o700)
     now = dt.datetime.now(dt.timezone.utc)
-    ca_key, ca_cert = make_ca(now, days)
+    ca_key, ca_cert = make_ca(now, max(days, CA_DAYS))
+    # gateways get their certificates from a CA of their own, the only one the clients trust for their dial: a
+    # node certificate cannot stand in for the gateway (protocol.keyset, "tls_ca")
+    router_key, router_cert = make_ca(now, max(days, CA_DAYS), ROUTER_CA_CN)
     _write(folder / "ca" / "ca.key", _pem_private(ca_key), private=True)
-    _write(folder / "ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM))
+    _write(folder / "ca" / "node-ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM))
+    _write(folder / "ca" / "router-ca.key", _pem_private(router_key), private=True)
+    _write(folder / "router-ca.pem", router_cert.public_bytes(serialization.Encoding.PEM))
+    _write(folder / "ca.pem", ca_cert.public_bytes(serialization.Encoding.PEM)
+           + router_cert.public_bytes(serialization.Encoding.PEM))
     for role in roles(uavs):
-        key, cert = make_node_cert(role, ca_key, ca_cert, now, days, (*hosts, *sans.get(role, ())))
+        issuer = (router_key, router_cert) if role in ROUTER_ROLES else (ca_key, ca_cert)
+        key, cert = make_node_cert(role, *issuer, now, days, (*hosts, *sans.get(role, ())))
         _write(folder / role / "tls.key", _pem_private(key), private=True)
         _write(folder / role / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
         sk = Ed25519PrivateKey.generate()
@@ -184,8 +211,9 @@ def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VAL
         _write(folder / role / "sign.pub", _pem_public(sk.public_key()))
         if role in COMMAND_SIGNERS:
             _write(folder / "trust" / f"{role}.pub", _pem_public(sk.public_key()))
+    _write(folder / "certs.txt", "".join(f"{r}\n" for r in roles(uavs)).encode())
     if not (folder / "revoked.txt").exists():
-        _write(folder / "revoked.txt", b"# revoked signing key ids (skynet keys revoke), one per line\n")
+        _write(folder / "revoked.txt", b"# revoked signing key ids and 'cert NAME' lines (skynet keys revoke)\n")
     return folder
 
 
@@ -197,7 +225,7 @@ def missing(folder: str | Path, uavs: int) -> list[str]:
 
 def enlarge(folder: str | Path, uavs: int, days: int = VALID_DAYS) -> list[str]:
     """Issue the roles ``folder`` lacks (:func:`missing`) with its own CA, keeping every existing identity;
-    the roles added. Needs the CA key (``ca/ca.key``): a set without it (a vehicle's copy) is not enlarged
+    the roles added. Needs the CA key (``ca/ca.key``; the router CA's roles are not issued so): a set without it (a vehicle's copy) is not enlarged
     (ValueError). Each role is written to a temporary folder and renamed into place, so two launchers
     enlarging the same set at once each install whole identities (the second rename of a role fails and
     its copy is dropped)."""
@@ -207,7 +235,12 @@ def enlarge(folder: str | Path, uavs: int, days: int = VALID_DAYS) -> list[str]:
     lacking = missing(folder, uavs)
     if not lacking:
         return []
-    ca_key_path, ca_path = folder / "ca" / "ca.key", folder / "ca.pem"
+    router = [r for r in lacking if r in ROUTER_ROLES]
+    if router:
+        raise ValueError(f"{folder} lacks {', '.join(router)}: a router certificate comes only with a new key set")
+    ca_key_path, ca_path = folder / "ca" / "ca.key", folder / "ca" / "node-ca.pem"
+    if not ca_path.is_file():  # a set made before the router CA: its one CA
+        ca_path = folder / "ca.pem"
     if not (ca_key_path.is_file() and ca_path.is_file()):
         raise ValueError(f"{folder} lacks {', '.join(lacking)} and has no CA key to issue them")
     ca_key = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
@@ -227,22 +260,128 @@ def enlarge(folder: str | Path, uavs: int, days: int = VALID_DAYS) -> list[str]:
             added.append(role)
         except OSError:
             shutil.rmtree(tmp, ignore_errors=True)
+    if added and (folder / "certs.txt").exists():  # the new names admitted by the access control
+        names = KeySet(folder, "gcs").admitted()
+        _write(folder / "certs.txt", "".join(f"{n}\n" for n in sorted({*names, *added})).encode())
     return added
 
 
-def ensure(folder: str | Path, uavs: int) -> Path:
-    """Reuse the key set in ``folder`` if it covers ``uavs`` UAVs (enlarged with its own CA when it lacks
-    roles, :func:`enlarge`), else make a new one."""
+def expiring(folder: str | Path, within_days: float = RENEW_DAYS) -> bool:
+    """Whether the CA or a node certificate of ``folder`` expires within ``within_days`` (or is unreadable)."""
+    limit = dt.datetime.now(dt.timezone.utc) + dt.timedelta(days=within_days)
     folder = Path(folder)
-    if (folder / "ca.pem").exists() and (folder / "ca" / "ca.key").exists():
-        enlarge(folder, uavs)
-    if (folder / "ca.pem").exists() and not missing(folder, uavs):
+    try:
+        for pem in (folder / "ca.pem", *sorted(folder.glob("*/tls.pem"))):
+            if x509.load_pem_x509_certificate(pem.read_bytes()).not_valid_after_utc < limit:
+                return True
+    except (OSError, ValueError):
+        return True
+    return False
+
+
+def _cn(cert_path: Path) -> str:
+    cert = x509.load_pem_x509_certificate(cert_path.read_bytes())
+    return cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+
+
+def _set_certs(folder: Path, old: str, new: str | None) -> None:
+    """Replace (or, ``new`` None, drop) ``old`` in ``certs.txt``."""
+    ks = KeySet(folder, "gcs")
+    names = [n for n in ks.admitted() if n != old] + ([new] if new else [])
+    _write(folder / "certs.txt", "".join(f"{n}\n" for n in sorted(names)).encode())
+
+
+def _append_revoked(folder: Path, lines: list[str]) -> None:
+    path = folder / "revoked.txt"
+    text = path.read_text() if path.exists() else ""
+    if text and not text.endswith("\n"):
+        text += "\n"
+    _write(path, (text + "".join(f"{ln}\n" for ln in lines)).encode())
+
+
+def revoke_node(folder: str | Path, role: str) -> list[str]:
+    """Revoke node ``role``: its certificate's common name (the ACLs admit it no more) and its signing key; the
+    lines added to ``revoked.txt``."""
+    folder = Path(folder)
+    check_role(role)
+    node = folder / role
+    if not (node / "tls.pem").is_file():
+        raise ValueError(f"{folder}: no node {role!r}")
+    lines = [f"cert {_cn(node / 'tls.pem')}", key_id(load_public(node / "sign.pub"))]
+    _append_revoked(folder, lines)
+    _set_certs(folder, lines[0][5:], None)
+    for pub in (folder / "trust").glob(f"{role}.*pub"):  # a revoked signer is trusted no more
+        if pub.name.split(".")[0] == role:
+            pub.unlink()
+    return lines
+
+
+def reissue(folder: str | Path, role: str, days: int = NODE_DAYS) -> str:
+    """A new certificate (common name ``role.gN``, the next generation, same SANs) and signing key for node
+    ``role``, signed by the key set's CA; the old certificate and key are revoked. Returns the new common name."""
+    folder = Path(folder)
+    check_role(role)
+    node = folder / role
+    router = role in ROUTER_ROLES and (folder / "router-ca.pem").exists()
+    ca_key_path = folder / "ca" / ("router-ca.key" if router else "ca.key")
+    if not (node / "tls.pem").is_file():
+        raise ValueError(f"{folder}: no node {role!r}")
+    if not ca_key_path.is_file():
+        raise ValueError(f"{folder}: no CA key ({ca_key_path}): re-issue where the CA key is kept")
+    old_cert = x509.load_pem_x509_certificate((node / "tls.pem").read_bytes())
+    old_cn = _cn(node / "tls.pem")
+    gen = int(old_cn.rsplit(".g", 1)[1]) if ".g" in old_cn else 1
+    new_cn = f"{role}.g{gen + 1}"
+    ca_key = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
+    ca_pem = folder / ("router-ca.pem" if router else "ca" / Path("node-ca.pem"))
+    ca_cert = x509.load_pem_x509_certificate((ca_pem if ca_pem.exists() else folder / "ca.pem").read_bytes())
+    try:
+        old_sans = old_cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+        hosts = tuple(str(n.value) for n in old_sans)
+    except x509.ExtensionNotFound:
+        hosts = ()
+    now = dt.datetime.now(dt.timezone.utc)
+    key, cert = make_node_cert(role, ca_key, ca_cert, now, days, hosts, cn=new_cn)
+    old_kid = key_id(load_public(node / "sign.pub"))
+    _write(node / "tls.key", _pem_private(key), private=True)
+    _write(node / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
+    sk = Ed25519PrivateKey.generate()
+    _write(node / "sign.key", _pem_private(sk), private=True)
+    _write(node / "sign.pub", _pem_public(sk.public_key()))
+    if role in COMMAND_SIGNERS:
+        _write(folder / "trust" / f"{role}.pub", _pem_public(sk.public_key()))
+    _append_revoked(folder, [f"cert {old_cn}", old_kid])
+    _set_certs(folder, old_cn, new_cn)
+    (node / "replay.json").unlink(missing_ok=True)
+    return new_cn
+
+
+def usable(folder: str | Path, uavs: int) -> bool:
+    """Whether ``folder`` holds a key set covering ``uavs`` UAVs whose certificates are not about to expire."""
+    folder = Path(folder)
+    return ((folder / "ca.pem").exists() and (folder / "certs.txt").exists() and (folder / "router-ca.pem").exists()
+            and all((folder / r / "tls.pem").exists() for r in roles(uavs)) and not expiring(folder))
+
+
+def ensure(folder: str | Path, uavs: int) -> Path:
+    """Reuse the key set in ``folder`` if it covers ``uavs`` UAVs (:func:`usable`; enlarged with its own CA when it
+    lacks node roles, :func:`enlarge`), else make a new one."""
+    folder = Path(folder)
+    if (folder / "router-ca.pem").exists() and (folder / "ca" / "ca.key").exists() and not expiring(folder):
+        try:
+            enlarge(folder, uavs)
+        except ValueError:
+            pass  # not enlargeable: a new set below
+    if usable(folder, uavs):
         return folder
     return init(folder, uavs, force=True)
 
 
 def revoke(folder: str | Path, what: str) -> str:
-    """Add a key id (or the id of a public key file) to ``revoked.txt``; returns the id."""
+    """Revoke a node (``uav2``: :func:`revoke_node`) or add a key id (or the id of a public key file) to
+    ``revoked.txt``; returns what was revoked."""
+    if not Path(what).is_file() and (Path(folder) / what / "tls.pem").is_file():
+        return ", ".join(revoke_node(folder, what))
     kid = key_id(load_public(what)) if Path(what).is_file() else what.strip().lower()
     if not re.fullmatch(r"[0-9a-f]{16}", kid):
         raise ValueError(f"expected a 16-hex-digit key id or a public key file, got {what!r}")
@@ -274,15 +413,19 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("init", help="write a development key set (CA, per-node TLS certificates and signing keys)")
     p.add_argument("dir")
     p.add_argument("--uavs", type=int, default=3)
-    p.add_argument("--days", type=int, default=VALID_DAYS, help="certificate validity")
+    p.add_argument("--days", type=int, default=NODE_DAYS, help=f"node certificate validity (CA: {CA_DAYS} days)")
     p.add_argument("--host", action="append", default=[], help="extra SAN (address or name) on every certificate")
     p.add_argument("--san", action="append", default=[], metavar="ROLE=NAME[,NAME...]",
                    help="extra SANs on one role's certificate, e.g. gateway=10.0.0.5,gw.example (repeatable; "
                         "SKYNET_SANS in the environment adds more, space-separated)")
     p.add_argument("--force", action="store_true", help="replace an existing key set (rotation)")
-    p = sub.add_parser("revoke", help="refuse a signing key from now on")
+    p = sub.add_parser("revoke", help="revoke a node (its certificate and signing key) or one signing key")
     p.add_argument("dir")
-    p.add_argument("key", help="key id (16 hex digits) or a public key file")
+    p.add_argument("key", help="a node (uav2, planner, ...), a key id (16 hex digits) or a public key file")
+    p = sub.add_parser("reissue", help="a new certificate and signing key for one node, same CA; the old ones revoked")
+    p.add_argument("dir")
+    p.add_argument("node", help="uav2, planner, ...")
+    p.add_argument("--days", type=int, default=NODE_DAYS, help="certificate validity")
     p = sub.add_parser("show", help="list the nodes, key ids and certificate expiry")
     p.add_argument("dir")
     return parser
@@ -300,8 +443,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"key set written to {folder} (CA key in {folder / 'ca' / 'ca.key'}: keep it off the vehicles)")
         for role, names in sorted(sans.items()):
             print(f"  {role}: extra SANs {', '.join(names)}")
-    elif args.action == "revoke":
-        print(f"revoked {revoke(args.dir, args.key)}")
+    elif args.action in ("revoke", "reissue"):
+        try:
+            if args.action == "revoke":
+                print(f"revoked {revoke(args.dir, args.key)} (restart the gateway and the edges to apply)")
+            else:
+                print(f"{args.node}: new certificate {reissue(args.dir, args.node, args.days)}; give the node its "
+                      f"folder, every node certs.txt and revoked.txt, and restart them")
+        except (ValueError, OSError) as exc:
+            print(f"skynet keys: {exc}", file=sys.stderr)
+            return 2
     else:
         print("\n".join(show(args.dir)))
     return 0

@@ -33,13 +33,22 @@ def pytest_collection_modifyitems(config, items):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def dev_keys():
-    """The launcher's default development key set (``.keys/dev``), made once for the largest fleet a test
-    flies: a smaller set would be rotated by the first larger mission while another test's network still
-    reads it (two pytest workers share the working folder). Atomic, so both workers end with one set."""
+def dev_keys(tmp_path_factory):
+    """The launcher's default development key set for this test session: a folder of its own (``$SKYNET_KEYS``,
+    inherited by every process the tests start), never the user's ``.keys/dev``; made once for the largest fleet
+    a test flies, so no mission rotates it while another test's network reads it."""
+    import os
+
     from services.orchestration import trustmode
 
-    return trustmode.dev_keys(ROOT / trustmode.DEFAULT_KEYS, DEV_KEYS_UAVS)
+    folder = tmp_path_factory.mktemp("dev-keys") / "dev"
+    old = os.environ.get(trustmode.KEYS_ENV)
+    os.environ[trustmode.KEYS_ENV] = str(folder)
+    yield trustmode.dev_keys(folder, DEV_KEYS_UAVS)
+    if old is None:
+        os.environ.pop(trustmode.KEYS_ENV, None)
+    else:
+        os.environ[trustmode.KEYS_ENV] = old
 
 
 @pytest.fixture

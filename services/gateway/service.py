@@ -26,8 +26,8 @@ from typing import Any
 import zenoh
 
 from protocol import keys
-from protocol.bus import (Bus, BusConfig, add_bus_args, config_from_args, multilink_endpoints, setup_logging,
-                          stop_event_on_signals)
+from protocol.bus import (Bus, BusConfig, add_bus_args, config_from_args, endpoint_address, multilink_endpoints,
+                          setup_logging, stop_event_on_signals)
 from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
 from protocol.messages import ClassCounters, LinkStats
 
@@ -97,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--state-ingress-hz", type=rate_arg, default=ingress.STATE_INGRESS_HZ, metavar="HZ",
                         help="states a connected session may send per UAV key through the gateway, at most one "
                              "per 1/HZ (Zenoh ingress downsampling per face; services/gateway/ingress.py); 0: off")
+    parser.add_argument("--accept-guard", action="store_true",
+                        help="accept tls/ connections in a guard that passes on only those starting a TLS handshake "
+                             "(services/gateway/guard.py): connect-and-close or silent floods never reach zenoh")
     sec = parser.add_argument_group("authentication and access control")
     sec.add_argument("--users", default=None, metavar="FILE",
                      help="user/password authentication: every node must present a user of FILE (lines user:password)")
@@ -136,6 +139,28 @@ def security_options(args: argparse.Namespace, log=None) -> dict[str, Any]:
     return out
 
 
+def guarded(listen: list[str], log=None) -> tuple[list[str], list[Any]]:
+    """Each ``tls/HOST:PORT`` listener moved to a loopback port behind an accept guard on HOST:PORT
+    (:mod:`services.gateway.guard`); the listeners zenoh opens instead, and the started guards."""
+    from services.orchestration.process import free_port
+    import socket
+
+    from .guard import Guard
+
+    out, guards = [], []
+    for e in listen:
+        host, _, port = endpoint_address(e).rpartition(":")
+        if not e.startswith("tls/") or port == "0":
+            out.append(e)
+            continue
+        inner = free_port(socket.SOCK_STREAM)
+        guards.append(Guard((host.strip("[]"), int(port)), ("127.0.0.1", inner)).start())
+        out.append(e.replace(f"{host}:{port}", f"127.0.0.1:{inner}", 1))
+        if log:
+            log.info("accept guard on %s:%s -> zenoh's TLS listener on 127.0.0.1:%d", host, port, inner)
+    return out, guards
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -148,15 +173,22 @@ def main(argv: list[str] | None = None) -> int:
     if not listen and not args.config:
         listen = multilink_endpoints(args.host, 7447, 7448)
         multilink = True
+    guards = []
+    if args.accept_guard:
+        listen, guards = guarded(listen, log)
     base = config_from_args(args, role="gateway", listen=listen, multilink=multilink)
     thin = ingress.state_ingress(args.fleet, args.state_ingress_hz) if args.state_ingress_hz else []
     config = GatewayConfig(**{**dict(base), **security_options(args, log)}, downsampling=thin)
-    if args.keys and config.access_control is None and listen and all(e.startswith("tls/") for e in listen):  # mutual TLS: ACL by certificate common name (issue 11)
+    if args.keys and config.access_control is None:
+        # mutual TLS: ACL by certificate common name on every listener; a tcp/ or udp/ listener admits no
+        # certificate, so what arrives there matches no subject and is denied everything (default deny)
         from protocol.keyset import KeySet
-        names = ["gcs", "planner", "detector", "gateway", *acl.ATTACHED_ROLES,
-                 *(f"uav{i}" for i in KeySet(args.keys, "gateway").uavs())]
+        names = KeySet(args.keys, "gateway").admitted()
         config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
-        log.info("mutual TLS on tls/ links; ACL by certificate common name for %s", ", ".join(names))
+        log.info("ACL by certificate common name for %s", ", ".join(names))
+        plain = [e for e in listen if not e.startswith("tls/")]
+        if plain:
+            log.warning("listeners without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
     stop = stop_event_on_signals()
     meter = TrafficMeter()
     with Bus(config, fleet=args.fleet, name="gateway") as bus:
@@ -168,10 +200,13 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.time()
         while not stop.wait(args.period):
             snap = bus.counters.snapshot()
-            rejected = {"unknown-key": meter.unknown, **{k: v for k, v in snap["rejected"].items()}}
+            rejected = {"unknown-key": meter.unknown, **{k: v for k, v in snap["rejected"].items()},
+                        **{f"guard-{k}": v for g in guards for k, v in g.counts.items() if k != "pass"}}
             pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - t0,
                               sessions=session_counts(bus), classes=meter.classes(), rejected=rejected))
         log.info("shutting down")
+    for g in guards:
+        g.stop()
     return 0
 
 

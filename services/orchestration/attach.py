@@ -58,13 +58,12 @@ def ca_fingerprint(key_folder: str | Path) -> str | None:
 
 
 def describe(fleet: str, endpoints: list[str], key_folder: str | Path | None, tls: bool,
-             pid: int | None = None, passwords: bool = False) -> dict[str, Any]:
-    """The description of a running network (JSON-ready); ``passwords``: the older user/password mode
-    (``--secure``), whose passwords are never written here."""
+             pid: int | None = None) -> dict[str, Any]:
+    """The description of a running network (JSON-ready): endpoints and the key set's folder, no secret."""
     keys.fleet_root(fleet)
     folder = None if key_folder is None else str(Path(key_folder).resolve())
     return {"version": VERSION, "fleet": fleet, "replay_fleet": keys.replay_fleet(fleet),
-            "endpoints": list(endpoints), "keys": folder, "tls": bool(tls), "passwords": bool(passwords),
+            "endpoints": list(endpoints), "keys": folder, "tls": bool(tls),
             "ca_sha256": None if folder is None else ca_fingerprint(folder),
             "host": socket.gethostname(), "pid": os.getpid() if pid is None else pid, "started": time.time()}
 
@@ -178,9 +177,6 @@ def attach(args: argparse.Namespace, role: str, argv: list[str] | None = None) -
         if not (node / "tls.pem").is_file():
             raise AttachError(f"the key set {args.keys} has no identity for {role} (an older set: start the "
                               f"network again, which enlarges it, or `skynet keys init --force`)")
-    if desc.get("passwords") and not getattr(args, "user", None):
-        raise AttachError(f"the network in {path} runs the user/password mode (--secure): give --user {role} and "
-                          "its password in SKYNET_PASSWORD (the launcher logged where its users file is)")
     args.connect = list(desc["endpoints"])
     args.multilink = True
     args.mode = "client"

@@ -44,19 +44,12 @@ ones over the same kind of link as the uplinks (TLS by default: a gateway's cert
 ``gateway``, passes the other's ACL as the role ``gateway``); formation g's edges attach to site ``g % S``,
 the ground station to site 0, the planner and detector instances to site 0 unless ``--rcu-site NAME=K``.
 ``kill gateway`` and the restart of a gateway name site 0's; another site's is ``gateway-K`` to the supervisor.
-Not with ``--secure`` (see :func:`make_plan`).
 
-Secure by default (issue 11, :mod:`services.orchestration.trustmode`): a development key set (``--keys DIR``, else
-``.keys/dev``), mutual TLS on a TLS multilink pair, access control by certificate common name on the
-gateway and on each edge, commands and heartbeats signed by the ground station; proxied runs keep
-plaintext TCP/UDP links (signed commands only); ``--insecure`` turns everything off.
-
-``--secure`` (the older mode, no TLS and unsigned commands) turns on the gateway's authentication and
-access control: random passwords for
-``gcs``, ``planner``, ``detector`` and ``uav1..N`` in a private temporary folder (removed at the
-end), the gateway started with ``--users`` and ``--acl``, each service with ``--user`` and its
-password in ``SKYNET_PASSWORD``, the edges with the UAVs' dictionary (``--config``, see
-:mod:`services.gateway.credentials`) so that they accept each other's links.
+Secure by default (:mod:`services.orchestration.trustmode`): a development key set (``--keys DIR``, else
+``$SKYNET_KEYS`` or ``.keys/dev``), mutual TLS on a TLS multilink pair, access control by certificate common
+name on the gateway and on each edge, commands and heartbeats signed by the ground station, in every mode:
+proxied (impaired, fault-injected) links carry the same TLS sessions through TCP proxies; ``--insecure``
+turns everything off.
 """
 
 from __future__ import annotations
@@ -76,7 +69,6 @@ from pathlib import Path
 
 from protocol import keys
 from protocol.bus import (
-    PASSWORD_ENV,
     Bus,
     BusConfig,
     endpoint_address,
@@ -185,16 +177,11 @@ def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
     if mesh == "proxied":
         proxied |= set(links.skynet)
     n_sites = sitemap.check_sites(getattr(args, "sites", 1), args.uavs)
-    if n_sites > 1 and getattr(args, "secure", False):
-        # zenoh's user/password authentication is one way (the dialler presents a user, the dialled one
-        # does not): the dialling gateway's ACL has no subject for the gateway it dialled and denies it all
-        raise ValueError(f"--sites {n_sites} with --secure: the router link between two gateways cannot pass the "
-                         "user/password ACL (only the dialling side authenticates); use the default mutual TLS")
     rcus = ["planner", *(["detector"] if detectors == 1 else [f"detector-{k}" for k in range(detectors)])]
     if getattr(args, "netns", False):
-        if getattr(args, "insecure", False) or getattr(args, "secure", False):
+        if getattr(args, "insecure", False):
             raise ValueError("--netns needs the default TLS links (both of a pair are TCP, which the forwarders "
-                             "between namespaces carry): not with --insecure or --secure")
+                             "between namespaces carry): not with --insecure")
         if proxied or faults:
             raise ValueError("--netns with --impair/--fault: the launcher's link proxies run in the machine's own "
                              "namespace, not in the sites'; impair the router links with skynet netem by hand")
@@ -229,7 +216,7 @@ class Network:
         self.log_dir = log_dir
         #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}
         self.proxies: dict[str, dict] = {}
-        #: TLS, certificate ACL, signed commands: secure by default (services.orchestration.trustmode, issue 11)
+        #: TLS, certificate ACL, signed commands: secure by default, impaired or not (services.orchestration.trustmode)
         self.trust = trustmode.resolve(args, proxied=bool(self.plan.proxied))
         #: the listen endpoints of each site's gateway (site 0: the ground station's)
         self.site_endpoints = [self.endpoint_pair() for _ in self.plan.sites.sites]
@@ -237,7 +224,6 @@ class Network:
         self.edge_endpoints: dict[int, list[str]] = {}
         self.epoch = time.time() + 3.0
         self.tmp = Path(tempfile.mkdtemp(prefix="skynet-net-"))
-        self.creds = None
         self.injector: FaultInjector | None = None
         #: restarts the supervisor made: {"service", "code", "failures", "delay_s", "at"}
         self.restarts: list[dict] = []
@@ -250,13 +236,6 @@ class Network:
         #: services that cannot start ({name: reason}, :meth:`start_failed`); told to ``on_start_failure``
         self.start_failures: dict[str, str] = {}
         self.on_start_failure = None
-        if getattr(args, "secure", False):
-            from services.gateway.credentials import generate
-
-            users = ["gcs", "planner", "detector", *[f"uav{i}" for i in range(1, args.uavs + 1)],
-                     *(["video"] if getattr(args, "video", None) else []),
-                     *(["web"] if getattr(args, "web", None) else [])]
-            self.creds = generate(self.tmp / "creds", users)
 
     # -- links
     def endpoint_pair(self) -> list[str]:
@@ -281,18 +260,28 @@ class Network:
         return [] if self.trust.keys is None else ["--keys", str(self.trust.keys)]
 
     def _proxy_pair(self, link: str, target: list[str]) -> list[str]:
-        """Start the TCP and UDP proxies of ``link`` in front of ``target`` (a multilink endpoint
-        pair); the endpoints to connect to instead."""
+        """Start the proxies of ``link`` in front of ``target`` (a multilink endpoint pair); the endpoints to
+        connect to instead. A TLS pair (the default secure mode) gets two TCP proxies: the TLS session runs end
+        to end through them, so the link keeps its encryption, its certificates and the ACL; the best-effort
+        class ("udp" in an impairment) is then a TLS stream too, where loss is retransmission delay."""
         from services.netem.proxy import TcpProxy, UdpProxy
 
         tcp_target, udp_target = (endpoint_address(e) for e in target)
+        tls = all(e.startswith("tls/") for e in target)
         seed = self.args.seed
         tp = TcpProxy((HOST, 0), tcp_target, self.plan.impair.spec(link, "tcp"),
                       seed=link_seed(seed, link, "tcp")).start()
         self.proxies[link] = {"tcp": tp}
-        up = UdpProxy((HOST, 0), udp_target, self.plan.impair.spec(link, "udp"),
-                      seed=link_seed(seed, link, "udp")).start()
+        up = (TcpProxy if tls else UdpProxy)((HOST, 0), udp_target, self.plan.impair.spec(link, "udp"),
+                                             seed=link_seed(seed, link, "udp")).start()
         self.proxies[link]["udp"] = up
+        return self._proxied_ends(link)
+
+    def _proxied_ends(self, link: str) -> list[str]:
+        """The endpoints of ``link``'s proxies, TLS when its proxies are both TCP."""
+        tp, up = self.proxies[link]["tcp"], self.proxies[link]["udp"]
+        if up.kind == "tcp":
+            return trustmode.tls_endpoints(HOST, tp.port, up.port)
         return multilink_endpoints(HOST, tp.port, up.port)
 
     def site_of(self, name: str) -> int:
@@ -316,7 +305,7 @@ class Network:
             return target
         if name not in self.proxies:
             self._proxy_pair(name, target)
-        return multilink_endpoints(HOST, self.proxies[name]["tcp"].port, self.proxies[name]["udp"].port)
+        return self._proxied_ends(name)
 
     def link_proxies(self, link: str) -> list:
         """The proxies of a link (TCP then UDP); KeyError if the link has none."""
@@ -333,9 +322,7 @@ class Network:
             # equal leases on both ends (see GATEWAY_LEASE_S), a short open timeout (see client_cfg)
             args += ["--lease", str(GATEWAY_LEASE_S), *[a for k, v in self.client_cfg() for a in ("--cfg", f"{k}:{v}")]]
         for e in self.endpoints_for(name, site):
-            args += ["--connect", e]
-        if self.creds is not None:
-            args += ["--user", name]
+            args += ["--connect", trustmode.gateway_dial(e, self.trust.keys)]
         return args + self.key_args()
 
     def client_cfg(self) -> list[tuple[str, str]]:
@@ -348,13 +335,12 @@ class Network:
     def edge_config(self, i: int) -> list[str]:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
         rules that keep its links on the proxies (:func:`services.orchestration.topology.edge_mesh_config`).
-        A file (mode 0600), not ``--cfg``: with ``--secure`` it holds the mesh's passwords, which must not
-        show on a command line."""
+        A file (mode 0600)."""
         # several formations: no gossip autoconnect, or every edge would dial every other (issue 18)
         formations = self.args.uavs > FORMATION_SIZE
         if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied and not formations:
-            return [] if self.creds is None else ["--config", str(self.creds.mesh_config)]
-        base = json.loads(self.creds.mesh_config.read_text()) if self.creds is not None else None
+            return []
+        base = None
         path = self.tmp / f"uav{i}.json5"
         mesh = "proxied" if formations else self.plan.mesh  # proxied: autoconnect to nothing
         path.write_text(json.dumps(edge_mesh_config(mesh, base, self.open_timeout)))
@@ -378,14 +364,9 @@ class Network:
 
     # -- services
     def start_service(self, name: str, args: list[str], user: str | None = None):
-        """Start a service; with --secure its password (``user``'s, default ``name``'s) goes in its environment,
-        not on its command line."""
-        if self.creds is not None:
-            self.group.env[PASSWORD_ENV] = self.creds.passwords[user or name]
-        try:
-            return self.group.start(name, args, prefix=self.prefix_of(name), ready=ready_line(name))
-        finally:
-            self.group.env.pop(PASSWORD_ENV, None)
+        """Start a service (in its site's namespace with --netns); ``user`` is the identity it runs as (unused: the
+        key set gives each service its certificate by role)."""
+        return self.group.start(name, args, prefix=self.prefix_of(name), ready=ready_line(name))
 
     #: services that stay in the machine's own namespace with --netns (what a user reaches from here)
     MAIN_NAMESPACE = ("web", "video")
@@ -433,17 +414,17 @@ class Network:
 
     def gcs_config(self) -> BusConfig:
         """The in-process ground station's session."""
-        creds = {} if self.creds is None else {"user": "gcs", "password": self.creds.passwords["gcs"]}
         lease = {"lease_s": GATEWAY_LEASE_S, "cfg": self.client_cfg()} if self.plan.proxied else {}
         tls = {}
         if self.trust.keys is not None and self.trust.tls:
             from protocol.keyset import KeySet
             ks = KeySet(self.trust.keys, "gcs")
-            tls = {"tls_ca": str(ks.ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
-        return BusConfig(mode="client", connect=self.endpoints_for("gcs"), multilink=True, **creds, **lease, **tls)
+            tls = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
+        connect = [trustmode.gateway_dial(e, self.trust.keys) for e in self.endpoints_for("gcs")]
+        return BusConfig(mode="client", connect=connect, multilink=True, **lease, **tls)
 
     def gcs_signer(self):
-        """The ground station's signer (None: --insecure / --secure, unsigned commands)."""
+        """The ground station's signer (None: --insecure, unsigned commands)."""
         if self.trust.keys is None:
             return None
         from protocol.keyset import KeySet
@@ -491,7 +472,6 @@ class Network:
         a = self.args
         for w in self.trust.warnings:
             logging.getLogger("skynet.launcher").warning("%s", w)
-        secure = [] if self.creds is None else ["--users", str(self.creds.users_file), "--acl"]
         lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
         thin = self.gateway_config()
         if getattr(a, "netns", False):
@@ -510,8 +490,10 @@ class Network:
             listen = self.site_endpoints[site.index]
             if self.ns is not None:  # also on its veths, for the router links' proxies
                 listen = [e.replace(f"/{HOST}:", "/0.0.0.0:") for e in listen]
-            self.start_ready(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *secure, *lease, *thin,
-                                    *self.key_args(), *[x for e in targets for x in ("--connect", e)],
+            self.start_ready(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *lease, *thin,
+                                    *(["--accept-guard"] if getattr(a, "accept_guard", False) else []),
+                                    *self.key_args(),
+                                    *[x for e in targets for x in ("--connect", trustmode.gateway_dial(e, self.trust.keys))],
                                     *[x for e in listen for x in ("--listen", e)]],
                              READY["gateway"], prefix=[] if self.ns is None else self.ns.prefix(site.index))
             if self.ns is not None and site.index == 0:
@@ -673,8 +655,7 @@ class Network:
         """Leave the running network's description where the tools find it (:mod:`.attach`); removed by
         :meth:`stop`. A folder it cannot be written to is said, not fatal (None): the tools then need ``-e``."""
         path = attach.network_path(getattr(self.args, "network", None))
-        desc = attach.describe(self.args.fleet, self.gateway_endpoints, self.trust.keys, self.trust.tls,
-                               passwords=self.creds is not None)
+        desc = attach.describe(self.args.fleet, self.gateway_endpoints, self.trust.keys, self.trust.tls)
         try:
             self.description = attach.write(path, desc)
         except OSError as exc:
@@ -800,11 +781,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|"
                         "detector" + ("|gcs" if prog == "mission" else "") + ", partition uavI-uavJ|uavN|skynet; "
                         "AT from the " + ("mission phase" if prog == "mission" else "network start"))
-    p.add_argument("--secure", action="store_true",
-                   help="the older user/password mode: gateway authentication and access control with generated "
-                        "per-service passwords, no TLS, unsigned commands (default: TLS, certificate ACL, signed)")
     p.add_argument("--keys", default=None, metavar="DIR",
-                   help=f"fleet key set (skynet keys init); default: a development set in {trustmode.DEFAULT_KEYS}")
+                   help=f"fleet key set (skynet keys init); default: a development set in ${trustmode.KEYS_ENV} or {trustmode.DEFAULT_KEYS}")
+    p.add_argument("--accept-guard", action="store_true",
+                   help="the gateways accept TLS connections through a guard that drops those not starting a TLS "
+                        "handshake (connect-and-close or silent floods; services/gateway/guard.py, bench/accept.py)")
     p.add_argument("--insecure", action="store_true",
                    help="no TLS, no access control, unsigned commands: development only")
     p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
@@ -835,8 +816,6 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         parser.error(str(e))
     log = setup_logging(prog)
-    if args.insecure and args.secure:
-        parser.error("--insecure and --secure exclude each other")
     stop = stop_event_on_signals()
     if prog == "up":
         net = Network(args, plan=plan)
@@ -847,9 +826,6 @@ def main(argv: list[str] | None = None) -> int:
                 log.info("web page at %s", net.web_url())
             for link in sorted(net.proxies):
                 log.info("proxies on %s: tcp %s, udp %s", link, *(net.proxies[link][c].port for c in CLASSES))
-            if net.creds is not None:
-                log.info("authentication and access control on; users file (passwords) in %s",
-                         net.creds.users_file.parent)
             injector = net.start_faults(log)
             if injector is not None:
                 injector.start(origin=time.time())

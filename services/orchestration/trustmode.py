@@ -1,16 +1,18 @@
-"""How ``skynet up`` / ``skynet mission`` secure the network (issue 11): secure by default.
+"""How ``skynet up`` / ``skynet mission`` secure the network: secure by default, one model in every mode.
 
-Default: a development key set (``--keys DIR``, else ``.keys/dev`` in the working folder, made by
+Default: a development key set (``--keys DIR``, else ``$SKYNET_KEYS``, else ``.keys/dev`` in the working folder, made by
 :func:`services.keys.ensure` on first use and reused after), mutual TLS on every link with the
 reliability classes kept on separate links (``tls/H:P?rel=1`` for commands, ``tls/H:Q?rel=0``
 for telemetry and imagery: both are TCP underneath, see README "Trust"), access control by
 certificate common name on the gateway and on each edge, commands and heartbeats signed by the
 ground station and verified by the edges.
 
-When a link is proxied (``--impair``, cut or partition faults) the user-space netem proxies model
-the paper's UDP class, so the links stay plaintext TCP + UDP (no TLS, no certificate ACL) and
-this says so; commands and heartbeats are still signed end to end. ``--insecure`` turns all of it
-off, loudly; ``--secure`` is the older user/password mode (no TLS, no signatures).
+When a link is proxied (``--impair``, cut or partition faults) the TLS sessions run end to end
+through user-space TCP proxies (two per link, one per reliability class), so impaired and
+fault-injected runs keep the same identities, encryption and ACL as any other run; the best-effort
+class is a TLS stream there as everywhere in secure mode (loss on it is retransmission delay, not
+lost datagrams: the paper's UDP class with datagram loss needs ``--insecure``). ``--insecure``
+turns all of it off, loudly.
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from pathlib import Path
 
 #: where a development key set is kept between runs (git-ignored)
 DEFAULT_KEYS = Path(".keys") / "dev"
+#: environment variable naming another folder for the development key set
+KEYS_ENV = "SKYNET_KEYS"
 INSECURE_BANNER = ("INSECURE (--insecure): no TLS, no access control, unsigned commands and heartbeats - "
                    "anyone who reaches these ports can command the UAVs")
 
@@ -38,49 +42,76 @@ def tls_endpoints(host: str, reliable_port: int, best_effort_port: int) -> list[
     return [f"tls/{host}:{reliable_port}?rel=1", f"tls/{host}:{best_effort_port}?rel=0"]
 
 
+def gateway_dial(endpoint: str, keys: Path | None) -> str:
+    """``endpoint`` of a gateway, dialled trusting the key set's router CA alone (Zenoh's per-endpoint TLS
+    configuration, ``#root_ca_certificate_file=...``): a UAV, which trusts both CAs for the links it accepts,
+    then reaches only a gateway certificate when it dials the gateway. Unchanged without TLS or a router CA."""
+    router = None if keys is None else Path(keys) / "router-ca.pem"
+    if not endpoint.startswith("tls/") or "#" in endpoint or router is None or not router.is_file():
+        return endpoint
+    path = str(router.resolve())
+    if any(c in path for c in ";=#?"):  # the endpoint's configuration syntax: leave it to the node's own CAs
+        return endpoint
+    return f"{endpoint}#root_ca_certificate_file={path}"
+
+
+def default_keys() -> Path:
+    """The development key set's folder: ``$SKYNET_KEYS`` when set (the test suite's own temporary set), else
+    :data:`DEFAULT_KEYS`."""
+    return Path(os.environ.get(KEYS_ENV) or DEFAULT_KEYS)
+
+
 def dev_keys(folder: str | Path, uavs: int) -> Path:
-    """A development key set in ``folder`` covering ``uavs`` UAVs: reused, or made atomically (several
-    launchers starting at once all end up with the same complete set)."""
+    """A development key set in ``folder`` covering ``uavs`` UAVs: reused, or made under an exclusive lock on the
+    parent folder (several launchers starting at once all end up with the same complete set; a smaller set is
+    replaced in one rename and removed, leaving nothing behind)."""
+    import fcntl
     import shutil
 
-    from services.keys import ensure, roles
+    from services.keys import ensure, usable
 
     folder = Path(folder)
 
     def complete() -> bool:
-        return (folder / "ca.pem").exists() and all((folder / r / "tls.pem").exists() for r in roles(uavs))
+        return usable(folder, uavs)
 
     if complete():
         return folder
-    if (folder / "ca" / "ca.key").is_file():  # an older set lacking roles (UAVs, tools): issued by its own CA
-        from services.keys import enlarge
-
-        enlarge(folder, max(uavs, 3))
-        if complete():
-            return folder
     folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".keys-", dir=folder.parent))
-    ensure(tmp, max(uavs, 3))
+    fd = os.open(folder.parent, os.O_RDONLY)
     try:
-        os.rename(tmp, folder)  # atomic; fails when the folder exists and is not empty
-    except OSError:
-        if not complete():  # an older, smaller set: put aside (rotation), install the new one
-            os.rename(folder, folder.with_name(f"{folder.name}.old-{os.getpid()}"))
-            os.rename(tmp, folder)
-        else:  # another launcher won the race: use its set
+        fcntl.flock(fd, fcntl.LOCK_EX)  # a directory can be locked: no lock file left behind
+        if complete():  # another launcher made it while this one waited
+            return folder
+        if (folder / "ca" / "ca.key").is_file() and (folder / "router-ca.pem").is_file():
+            from services.keys import enlarge  # an older set lacking roles (UAVs, tools): issued by its own CA
+
+            try:
+                enlarge(folder, max(uavs, 3))
+            except ValueError:
+                pass  # not enlargeable: replaced below
+            if complete():
+                return folder
+        tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}-new-", dir=folder.parent))
+        try:
+            ensure(tmp, max(uavs, 3))
+            if folder.exists():  # an older, smaller set: replaced (rotation)
+                aside = Path(tempfile.mkdtemp(prefix=f".{folder.name}-old-", dir=folder.parent))
+                os.rename(folder, aside / folder.name)
+                os.rename(tmp, folder)
+                shutil.rmtree(aside, ignore_errors=True)
+            else:
+                os.rename(tmp, folder)
+        finally:
             shutil.rmtree(tmp, ignore_errors=True)
+    finally:
+        os.close(fd)  # releases the lock
     return folder
 
 
 def resolve(args, proxied: bool) -> TrustPlan:
     """The trust plan of the launcher's options."""
-    if getattr(args, "insecure", False) or getattr(args, "secure", False):
-        warn = [INSECURE_BANNER] if getattr(args, "insecure", False) else [
-            "--secure: user/password authentication and the gateway's ACL only (no TLS, unsigned commands)"]
-        return TrustPlan(None, False, warn)
-    keys = dev_keys(getattr(args, "keys", None) or DEFAULT_KEYS, args.uavs)
-    plan = TrustPlan(keys.resolve(), not proxied)
-    if proxied:
-        plan.warnings.append("links proxied (impairment/faults): plaintext TCP/UDP links without TLS or "
-                             "certificate ACL; commands and heartbeats still signed")
-    return plan
+    if getattr(args, "insecure", False):
+        return TrustPlan(None, False, [INSECURE_BANNER])
+    keys = dev_keys(getattr(args, "keys", None) or default_keys(), args.uavs)
+    return TrustPlan(keys.resolve(), True)

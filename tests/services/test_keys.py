@@ -16,14 +16,16 @@ from services.orchestration.trustmode import dev_keys, resolve
 
 def test_init_writes_every_role_with_cn_and_private_modes(tmp_path):
     root = pki.init(tmp_path / "k", uavs=2)
-    ca = x509.load_pem_x509_certificate((root / "ca.pem").read_bytes())
+    ca, router = x509.load_pem_x509_certificates((root / "ca.pem").read_bytes())  # the node CA, the router CA
+    assert x509.load_pem_x509_certificate((root / "router-ca.pem").read_bytes()) == router
     for role in ("gateway", "gcs", "planner", "detector", "uav1", "uav2"):
         cert = x509.load_pem_x509_certificate((root / role / "tls.pem").read_bytes())
         assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == role
-        cert.verify_directly_issued_by(ca)
+        cert.verify_directly_issued_by(router if role == "gateway" else ca)  # only gateways by the router CA
         for private in ("tls.key", "sign.key"):
             assert stat.S_IMODE((root / role / private).stat().st_mode) == 0o600
     assert stat.S_IMODE((root / "ca" / "ca.key").stat().st_mode) == 0o600
+    assert stat.S_IMODE((root / "ca" / "router-ca.key").stat().st_mode) == 0o600
     ks = KeySet(root, "uav1")
     assert list(ks.trusted()) == ["gcs"] and ks.uavs() == [1, 2] and ks.revoked() == set()
 
@@ -66,7 +68,8 @@ def test_dev_keys_reused_or_grown_and_insecure_resolves_to_nothing(tmp_path):
     plan = resolve(Args, proxied=False)
     assert plan.keys is None and not plan.tls and "INSECURE" in plan.warnings[0]
     Args.insecure, Args.keys = False, str(tmp_path / "dev")
-    assert resolve(Args, proxied=True).tls is False and resolve(Args, proxied=False).tls
+    assert resolve(Args, proxied=True).tls and resolve(Args, proxied=False).tls  # one model, impaired or not
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dev"], "no debris beside the key set"
 
 
 def _sans(cert_path) -> set[str]:
@@ -157,3 +160,71 @@ def test_enlarging_needs_the_ca_key_and_says_so(tmp_path):
     shutil.rmtree(folder / "web")
     with pytest.raises(ValueError, match="no CA key"):
         pki.enlarge(folder, 1)
+
+
+def test_dev_keys_grows_twice_in_one_process_and_under_concurrent_launchers_leaving_nothing_behind(tmp_path):
+    import threading
+
+    for n in (1, 4, 5):  # two rotations in one process: no name collision
+        assert (dev_keys(tmp_path / "dev", n) / f"uav{max(n, 3)}" / "tls.pem").exists()
+    cas: list[bytes] = []
+
+    def launch() -> None:
+        cas.append((dev_keys(tmp_path / "shared", 4) / "ca.pem").read_bytes())
+
+    threads = [threading.Thread(target=launch) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(cas) == 4 and len(set(cas)) == 1, "concurrent launchers ended with different key sets"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dev", "shared"], list(tmp_path.iterdir())
+
+
+def test_reissue_gives_a_new_generation_and_revokes_the_old_certificate_and_key(tmp_path):
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    folder = pki.init(tmp_path / "k", uavs=2, hosts=("gw.example",))
+    assert pki.reissue(folder, "uav2") == "uav2.g2" and pki.reissue(folder, "uav2") == "uav2.g3"
+    cert = x509.load_pem_x509_certificate((folder / "uav2" / "tls.pem").read_bytes())
+    assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == "uav2.g3"
+    assert "gw.example" in _sans(folder / "uav2" / "tls.pem")  # the SANs carry over
+    ks = KeySet(folder, "uav1")
+    assert ks.revoked_certs() == {"uav2", "uav2.g2"} and "uav2.g3" in ks.admitted()
+    life = cert.not_valid_after_utc - cert.not_valid_before_utc
+    assert life.days <= pki.NODE_DAYS
+    pki.reissue(folder, "gcs")  # the command signer: trust/ follows, the old key is revoked
+    assert len(KeySet(folder, "uav1").trusted()["gcs"]) == 1 and len(ks.revoked()) == 3
+    with pytest.raises(ValueError, match="no node"):
+        pki.reissue(folder, "uav7")
+
+
+def test_revoked_names_and_admitted_names_are_read_and_checked(tmp_path):
+    folder = pki.init(tmp_path / "k", uavs=2)
+    ks = KeySet(folder, "gateway")
+    assert ks.admitted() == ["gateway", "gcs", "planner", "detector", "video", "web", "replay", "uav1", "uav2"]
+    assert "cert uav2" in pki.revoke(folder, "uav2")
+    assert ks.revoked_certs() == {"uav2"} and "uav2" not in ks.admitted() and len(ks.revoked()) == 1
+    (folder / "certs.txt").unlink()  # an older key set: every node folder's role, less the revoked ones
+    assert "uav1" in ks.admitted() and "uav2" not in ks.admitted()
+    (folder / "revoked.txt").write_text("cert not a name!\n")
+    with pytest.raises(ValueError, match="line 1"):
+        ks.revoked_certs()
+    with pytest.raises(ValueError, match="no node"):
+        pki.revoke_node(folder, "uav9")
+
+
+def test_an_edge_acl_leaves_out_a_revoked_uav_and_names_a_reissued_one(tmp_path):
+    import argparse
+
+    from edge.trust import secure_setup
+
+    folder = pki.init(tmp_path / "k", uavs=3)
+    pki.revoke(folder, "uav3")
+    pki.reissue(folder, "uav2")
+    args = argparse.Namespace(uav=1, fleet="f", keys=str(folder), insecure=False, trust_window=10.0,
+                              replay_state=None, mesh_uavs=3, listen=["tls/127.0.0.1:0"], connect=[])
+    _, acl = secure_setup(args)
+    names = {n for s in acl["subjects"] for n in s["cert_common_names"]}
+    assert names == {"gateway", "uav1", "uav2.g2"}, names

@@ -69,7 +69,6 @@ def test_endpoints_given_by_hand_win(tmp_path, keyset):
     ("fleet", "carries fleet blue"),
     ("other-keys", "not the running network's key set"),
     ("no-identity", "has no identity for video"),
-    ("passwords", "give --user video"),
 ])
 def test_what_cannot_attach_is_said_in_one_line(tmp_path, keyset, case, words):
     path = tmp_path / "net.json"
@@ -86,8 +85,6 @@ def test_what_cannot_attach_is_said_in_one_line(tmp_path, keyset, case, words):
         dead = subprocess.Popen([sys.executable, "-c", "pass"])
         dead.wait()
         _written(tmp_path, keyset, pid=dead.pid).rename(path)
-    elif case == "passwords":
-        _written(tmp_path, keyset, passwords=True).rename(path)
     elif case != "missing":
         _written(tmp_path, keyset).rename(path)
     if case == "fleet":

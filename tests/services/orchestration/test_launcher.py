@@ -80,8 +80,9 @@ def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
     assert "shutting down" in rest
 
 
-def test_impairment_proxy_on_one_uav_delays_only_its_link():
+def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
     from protocol import keys
+    from protocol.keyset import KeySet
     from protocol.bus import Bus, BusConfig
     from protocol.links import TELEMETRY
     from protocol.messages import VehicleState
@@ -98,7 +99,10 @@ def test_impairment_proxy_on_one_uav_delays_only_its_link():
                 endpoints = line.split("gateway at ")[1].split(";")[0].split()
         assert endpoints, "the launcher never reported its gateway"
         ages: dict[int, list[float]] = {1: [], 2: []}
-        with Bus(BusConfig(mode="client", connect=endpoints, multilink=True), "imp", "probe") as bus:
+        ks = KeySet(dev_keys, "gcs")  # an impaired network keeps mutual TLS: the probe is the ground station
+        config = BusConfig(mode="client", connect=endpoints, multilink=True, tls_ca=str(ks.tls_ca),
+                           tls_cert=str(ks.tls_cert), tls_key=str(ks.tls_key))
+        with Bus(config, "imp", "probe") as bus:
             bus.subscribe(keys.state("imp", "*"), lambda m, s: ages.get(m.uav, []).append(time.time() - m.stamp),
                           expect=VehicleState, link=TELEMETRY)
             deadline = time.monotonic() + 30
@@ -320,9 +324,9 @@ def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_it
         assert len(set(gw0) | set(gw1)) == 4 and all(e.startswith("tls/127.0.0.1:") for e in gw0 + gw1)
         for i in range(1, 7):
             args = net.bus_args(f"uav{i}", "peer")
-            connect = [args[k + 1] for k, a in enumerate(args) if a == "--connect"]
+            connect = [args[k + 1].split("#")[0] for k, a in enumerate(args) if a == "--connect"]  # (#router CA)
             assert connect == (gw0 if i <= 3 else gw1), (i, connect)
-        assert net.gcs_config().connect == gw0
+        assert [e.split("#")[0] for e in net.gcs_config().connect] == gw0
         assert [net.site_of(n) for n in ("planner", "detector-0", "detector-1", "gcs")] == [0, 0, 1, 0]
         lines = net.topology()
         assert lines[0].startswith("site 0: gateway at ") and lines[0].endswith("uav1 uav2 uav3 gcs detector-0 planner")
@@ -330,7 +334,7 @@ def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_it
         assert lines[1].endswith("uav4 uav5 uav6 detector-1")
     finally:
         net.stop()
-    # an impaired uplink: its proxies stand in front of its own site's gateway (plaintext links when proxied)
+    # an impaired uplink: its proxies stand in front of its own site's gateway (the TLS sessions through them)
     net = Network(parse("--uavs", "6", "--sites", "2", "--impair", "uav4=delay 5ms"), echo=None, ground_station=True)
     try:
         from protocol.bus import endpoint_address
@@ -346,7 +350,6 @@ def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_it
                       (("--uavs", "6", "--sites", "0"), "at least one site"),
                       (("--uavs", "6", "--sites", "2", "--rcu-site", "planner=2"), "not one of 0..1"),
                       (("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1",
-                        "--impair", "detector=delay 5ms"), "different sites"),
-                      (("--uavs", "6", "--sites", "2", "--secure"), "use the default mutual TLS")):
+                        "--impair", "detector=delay 5ms"), "different sites")):
         with pytest.raises(ValueError, match=why):
             make_plan(parse(*argv), ground_station=True)
