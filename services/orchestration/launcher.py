@@ -879,15 +879,16 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
             for name, reason in dict(net.start_failures).items():
                 start_failure(name, reason)
             net.on_start_failure = start_failure
+            # the services asked for, before the flight; the runner listens already (the edges' first events)
+            failed = net.wait_started(net.requested(), START_TIMEOUT_S + 2.0 * args.uavs, log)
+            if failed:
+                log.error("the mission will fail: %s", "; ".join(f"{n} did not start ({r})" for n, r in failed.items()))
             if injector is not None:
                 injector.attach(runner)
                 injector.start()
 
         hooks = {"on_runner": on_runner}
         net.start_supervisor(log)
-        failed = net.wait_started(net.requested(), START_TIMEOUT_S + 2.0 * args.uavs, log)
-        if failed:
-            log.error("the mission will fail: %s", "; ".join(f"{n} did not start ({r})" for n, r in failed.items()))
         with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
             web_server = None
             if args.web:  # the live page in the ground station's process, with its plan (services.web)
