@@ -96,6 +96,7 @@ class MissionOptions:
     start_margin_s: float = 2.0  # least time between the start commands and the common start t0, wall s
     command_attempts: int = 4
     takeoff_timeout_s: float = 60.0  # simulated seconds
+    ready_timeout_s: float = 120.0  # wall s every autopilot is waited for before takeoff (services/gcs/readiness.py)
     mission_margin: float = 1.5  # x planned duration, simulated
     land_timeout_s: float = 60.0  # simulated seconds
     report_wait_s: float = 5.0  # wall seconds to wait for the last defect reports
@@ -264,6 +265,29 @@ class MissionRunner:
                                     f"{self.opt.appear_timeout_s:.0f} s)")
             time.sleep(0.2)
 
+    def wait_ready(self) -> None:
+        """Wait until every UAV's autopilot is ready to fly; refuse naming each UAV and its reason after
+        ``ready_timeout_s`` (:mod:`.readiness`)."""
+        from .readiness import not_ready, refusal
+
+        self.phase("readiness")
+        t0, told = time.monotonic(), False
+        while True:
+            with self._lock:
+                waiting = not_ready(dict(self.latest), self.opt.uavs)
+            if not waiting:
+                return
+            if self.log and not told:
+                told = True
+                self.log.info("waiting for the autopilots: %s", "; ".join(f"UAV {u}: {w}" for u, w in waiting.items()))
+            if self.abort.is_set():
+                raise MissionFailed("aborted by the operator while waiting for the autopilots")
+            if time.monotonic() - t0 > self.opt.ready_timeout_s:
+                raise MissionFailed(refusal(waiting, time.monotonic() - t0))
+            if self.on_progress:
+                self.on_progress(self)
+            time.sleep(0.2)
+
     def request_plan(self) -> MissionPlan:
         self.phase("planning")
         req = PlanRequest(request_id=1, scenario=self.record.scenario, algorithm=self.opt.algorithm,
@@ -376,6 +400,7 @@ class MissionRunner:
                                                              geofence=plan.geofence), "its trajectory upload")
             offsets = dict(zip(self.opt.uavs, self.record.scenario.formation.offsets))
             self.command_all(lambda u, cid: SetFormation(uav=u, cmd_id=cid, offsets=offsets), "the formation")
+            self.wait_ready()
             self.phase("takeoff")
             self.command_all(lambda u, cid: Takeoff(uav=u, cmd_id=cid, altitude=self.takeoff_altitude(u)), "takeoff")
             self.wait_for(lambda: self.fleet_done(lambda u, s: s is not None and s.mode == Mode.HOLD),
