@@ -112,7 +112,9 @@ targets until AUTO is acknowledged. In AUTO it streams no targets: it keeps the 
 reference (trajectory plus the board's formation correction of (P8)) and sends DO_CHANGE_SPEED
 (at most every ``auto_speed_period_s``) so that the along-track error goes to zero; captures fire
 on the trajectory clock as in GUIDED (the autopilot also fires its own DO_DIGICAM_CONTROL items).
-At the trajectory's end it switches back to GUIDED and holds. hold / land / RTL / resume work
+At the trajectory's end it switches back to GUIDED and holds, once the autopilot reports the last
+waypoint reached (MISSION_ITEM_REACHED; at most ``auto_end_wait_s`` later). The mission keeps
+only the waypoints ArduCopter can fly at the planned speed (:func:`.auto_flight.decimate`). hold / land / RTL / resume work
 as in GUIDED (hold and resume go through GUIDED; resume flies back to the paused point and
 re-enters AUTO from the right item). While a mode switch is in flight, HEARTBEATs in either the
 old or the new mode are expected; any other mode is the pilot's (``external_modes``, logged) and
@@ -393,6 +395,9 @@ class MavlinkParams:
     auto_speed_gain : along-track error to ground-speed gain in AUTO, 1/s.
     auto_speed_period_s : at most one DO_CHANGE_SPEED per this many wall seconds (unless the
         speed changes by more than 0.5 m/s).
+    auto_end_wait_s : when the trajectory's clock runs out in AUTO, the switch to GUIDED waits for
+        the autopilot to reach the mission's last waypoint (MISSION_ITEM_REACHED) at most this
+        long, wall s, so that its last capture items run.
     """
 
     transit_speed: float = 4.0
@@ -410,6 +415,7 @@ class MavlinkParams:
     flight: Literal["guided", "auto"] = "guided"
     auto_speed_gain: float = 0.6
     auto_speed_period_s: float = 0.1
+    auto_end_wait_s: float = 5.0
 
     def __post_init__(self) -> None:
         for k in ("transit_speed", "start_radius", "arrive_radius", "offset_rate", "takeoff_tolerance",
@@ -427,7 +433,7 @@ class MavlinkParams:
             raise ValueError("interpolation must be 'cubic' or 'linear'")
         if self.flight not in ("guided", "auto"):
             raise ValueError("flight must be 'guided' or 'auto'")
-        for k in ("auto_speed_gain", "auto_speed_period_s"):
+        for k in ("auto_speed_gain", "auto_speed_period_s", "auto_end_wait_s"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v <= 10):
                 raise ValueError(f"{k} must be in (0, 10]")
@@ -550,6 +556,8 @@ class MavlinkDriver(VehicleDriver):
         self._auto_traj: Trajectory | None = None
         self._traj: Trajectory | None = None
         self._end_switch = False  # the AUTO mission ended: back to GUIDED to hold there
+        self._end_mono = 0.0  # when the trajectory's clock ran out in AUTO
+        self._reached_seq = -1  # the autopilot's latest MISSION_ITEM_REACHED
         self._pending: set[int] = set()  # autopilot modes accepted while a mode switch is in flight
         self._switching = False
         self._speed_sent: tuple[float, float] | None = None  # (speed, monotonic) of the last DO_CHANGE_SPEED
@@ -693,6 +701,8 @@ class MavlinkDriver(VehicleDriver):
                 bit = M.MAV_SYS_STATUS_PREARM_CHECK
                 if msg.onboard_control_sensors_present & bit and msg.onboard_control_sensors_enabled & bit:
                     self._prearm_ok = bool(msg.onboard_control_sensors_health & bit)
+            elif kind == "MISSION_ITEM_REACHED":
+                self._reached_seq = max(self._reached_seq, int(msg.seq))
             elif kind == "EKF_STATUS_REPORT":
                 self._ekf_flags = int(msg.flags)
             elif kind == "STATUSTEXT":
@@ -1068,9 +1078,11 @@ class MavlinkDriver(VehicleDriver):
             return
         plan = autopilot_mission(traj, self.home, self._wait_home())
         self._upload_items(plan.items)
+        with self._lock:
+            self._reached_seq = -1
         self._auto_plan, self._auto_traj = plan, traj
         log.info("UAV %d: trajectory uploaded to the autopilot as a mission of %d items (%d waypoints, %d captures)",
-                 self.uav, len(plan.items), len(plan.waypoint_seq), len(plan.capture_seq))
+                 self.uav, len(plan.items), len(set(plan.waypoint_seq)), len(plan.capture_seq))
 
     def _upload_items(self, items: tuple, timeout_s: float = 1.0, retries: int = 5) -> None:
         """The MAVLink mission protocol's upload (https://mavlink.io/en/services/mission.html):
@@ -1144,6 +1156,13 @@ class MavlinkDriver(VehicleDriver):
                     self._pending = set()
 
         threading.Thread(target=run, name=f"mavlink-uav{self.uav}-switch", daemon=True).start()
+
+    def _auto_finished(self) -> bool:
+        """The autopilot reached the mission's last waypoint (its capture items ran), or
+        ``auto_end_wait_s`` passed since the trajectory's clock ran out (under ``_lock``)."""
+        plan = self._auto_plan
+        last = max(plan.waypoint_seq) if plan is not None and plan.waypoint_seq else -1
+        return self._reached_seq >= last or time.monotonic() - self._end_mono > self.params.auto_end_wait_s
 
     def _auto_step(self, target: _Target) -> None:
         """One AUTO tick: the formation-keeping speed (DO_CHANGE_SPEED, fire and forget)."""
@@ -1228,12 +1247,14 @@ class MavlinkDriver(VehicleDriver):
                     self._switch_async(CopterMode.AUTO, resume_item(self._auto_plan, wp), "mission")
             elif phase == "auto":
                 ref = self._mission_reference(until_t, dt, events)
-                if self._phase == "hold":  # the trajectory's end: hold there in GUIDED
+                if self._phase == "hold":  # the trajectory's end: hold there in GUIDED once AUTO finished
                     self._end_switch = True
+                    self._end_mono = time.monotonic()
+                    self._pending = {int(CopterMode.AUTO)}
                     phase = "hold"
                 else:
                     auto_target = ref
-            if phase == "hold" and self._end_switch and not self._switching:
+            if phase == "hold" and self._end_switch and not self._switching and self._auto_finished():
                 self._end_switch = False
                 self._switch_async(CopterMode.GUIDED, None, "hold")
             if phase == "hold":

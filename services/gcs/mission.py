@@ -549,6 +549,11 @@ class MissionRunner:
                 check = goal_check((s.msg for s in rec.states if s.msg.uav == t.uav), t)  # services.gcs.verdict
                 if check is None or not (check.completed and check.reached):
                     rec.failures.append(f"UAV {t.uav} did not reach its goal {tuple(round(v, 1) for v in goal)}")
+            from .capture_pose import far_captures, far_text  # frames taken away from their capture points
+
+            far = far_captures(rec.plan.trajectories, (s.msg for s in rec.states), (d.msg for d in rec.defects))
+            if far:
+                rec.failures.append(far_text(far))
             missing = self.missing_captures()
             if missing:
                 rec.failures.append(f"{len(missing)} of {len(self.planned_captures())} capture points were not imaged: "
