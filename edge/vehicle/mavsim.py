@@ -72,6 +72,10 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
 
 Not simulated: MAVLink FTP, RC channels, SmartRTL (its failsafe choices use RTL), terrain. RTL climbs
 to RTL_ALT above home (or stays higher), flies home and lands, as ArduCopter's RTL does.
+Still unlike ArduCopter's firmware: stream rates are one set for every peer (the firmware keeps
+them per link) and STATUSTEXT goes to every peer; mission uploads while booting are accepted (the
+firmware answers MAV_MISSION_NO_SPACE); the parameter names are 4.5's only; LOITER holds altitude
+(the firmware follows the RC sticks).
 """
 
 from __future__ import annotations
