@@ -549,9 +549,14 @@ class MissionRunner:
                 check = goal_check((s.msg for s in rec.states if s.msg.uav == t.uav), t)  # services.gcs.verdict
                 if check is None or not (check.completed and check.reached):
                     rec.failures.append(f"UAV {t.uav} did not reach its goal {tuple(round(v, 1) for v in goal)}")
-            from .capture_pose import far_captures, far_text  # frames taken away from their capture points
+            from .capture_pose import CAPTURE_TOLERANCE_M, capture_errors, far_text  # frames off their points
 
-            far = far_captures(rec.plan.trajectories, (s.msg for s in rec.states), (d.msg for d in rec.defects))
+            errs = capture_errors(rec.plan.trajectories, (s.msg for s in rec.states), (d.msg for d in rec.defects))
+            far = {k: d for k, d in errs.items() if d > CAPTURE_TOLERANCE_M}
+            if errs and self.log:
+                ds = sorted(errs.values())
+                self.log.info("capture positions: %d frames placed, error median %.2f m, max %.2f m (tolerance %g m)",
+                              len(ds), ds[len(ds) // 2], ds[-1], CAPTURE_TOLERANCE_M)
             if far:
                 rec.failures.append(far_text(far))
             missing = self.missing_captures()
