@@ -609,6 +609,7 @@ class MavlinkDriver(VehicleDriver):
         conn = self._conn
         last_hb = -math.inf
         last_req = -math.inf
+        heard = False
         while not self._stop.is_set():
             try:
                 msg = conn.recv_msg()
@@ -619,6 +620,8 @@ class MavlinkDriver(VehicleDriver):
                 msg = None
             now = time.monotonic()
             if msg is not None:
+                if not heard:  # the first packet: a udpin link can answer now, so say we are here at once
+                    heard, last_hb = True, -math.inf
                 if self.bridge is not None:
                     self.bridge.to_gcs(msg)
                 self._on_message(msg, now)

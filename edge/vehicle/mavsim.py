@@ -72,10 +72,10 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
 
 Not simulated: MAVLink FTP, RC channels, SmartRTL (its failsafe choices use RTL), terrain. RTL climbs
 to RTL_ALT above home (or stays higher), flies home and lands, as ArduCopter's RTL does.
-Still unlike ArduCopter's firmware: stream rates are one set for every peer (the firmware keeps
-them per link) and STATUSTEXT goes to every peer; mission uploads while booting are accepted (the
-firmware answers MAV_MISSION_NO_SPACE); the parameter names are 4.5's only; LOITER holds altitude
-(the firmware follows the RC sticks).
+As the firmware, STATUSTEXT is sent only once the link has carried a packet from a peer, and a
+mission upload while booting is answered MAV_MISSION_NO_SPACE. Still unlike it: stream rates are
+one set for every peer (the firmware keeps them per link); the parameter names are 4.5's only;
+LOITER holds altitude (the firmware follows the RC sticks).
 """
 
 from __future__ import annotations
@@ -266,6 +266,7 @@ class MavlinkSimVehicle:
         self._armed_at = 0.0
         self._was_airborne = False
         self._boot_seen = -math.inf  # boot time up to which the start-up STATUSTEXTs were sent
+        self._peer_heard = False  # a packet arrived on the link (STATUSTEXT goes only to such links)
         self._prearm_sent = -math.inf
         #: camera shots (capture ids, DO_DIGICAM_CONTROL param6), commands answered (command, result)
         self.shots: list[int] = []
@@ -625,8 +626,10 @@ class MavlinkSimVehicle:
                    int(self.custom_mode), status)
 
     def _text(self, severity: int, text: str) -> None:
+        """A STATUSTEXT, sent (as by the firmware) only once the link has carried a packet from a peer."""
         self.statustexts.append(text)
-        self._send("statustext_send", severity, text.encode()[:50])
+        if self._peer_heard:
+            self._send("statustext_send", severity, text.encode()[:50])
 
     # ------------------------------------------------------------------ input
     def _for_me(self, msg: Any) -> bool:
@@ -635,6 +638,8 @@ class MavlinkSimVehicle:
     def _handle(self, msg: Any) -> None:
         kind = msg.get_type()
         src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if kind != "BAD_DATA":
+            self._peer_heard = True
         if kind == "HEARTBEAT":
             if msg.type == M.MAV_TYPE_GCS:
                 self.gcs_heartbeats += 1
@@ -664,6 +669,9 @@ class MavlinkSimVehicle:
         elif kind == "REQUEST_DATA_STREAM":
             self.streams.request_data_stream(msg.req_stream_id, msg.req_message_rate, msg.start_stop)
         elif kind == "MISSION_COUNT":
+            if self.boot.booting(self.boot_time()):  # the firmware's mission storage is not up yet
+                self._send("mission_ack_send", src[0], src[1], M.MAV_MISSION_NO_SPACE, msg.mission_type)
+                return
             self._out(self.missions.count(src, msg.mission_type, msg.count, now))
         elif kind in ("MISSION_ITEM_INT", "MISSION_ITEM"):
             int_msg = kind == "MISSION_ITEM_INT"

@@ -33,6 +33,9 @@ class Gcs:
         self.texts: list[str] = []
         self.seen: dict[str, int] = {}
 
+    def beat(self) -> None:
+        self.m.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
     def recv(self, timeout: float = 0.1):
         msg = self.m.recv_match(blocking=True, timeout=timeout)
         if msg is not None:
@@ -86,6 +89,7 @@ def session(request):
     veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, **{"speed": 4.0, **opts}).start()
     try:
         gcs.first_heartbeat = gcs.wait("HEARTBEAT", limit_s=10)
+        gcs.beat()  # the link has carried a packet: the autopilot's STATUSTEXTs come to it
         yield gcs, veh
     finally:
         gcs.close()
@@ -241,3 +245,31 @@ def test_the_driver_falls_back_to_request_data_stream_when_set_message_interval_
     finally:
         drv.close()
         ap.close()
+
+
+def test_no_mission_upload_while_booting():
+    port = free_port(socket.SOCK_DGRAM)
+    gcs = Gcs(port)
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, speed=1.0, boot_scale=1.0).start()
+    try:
+        assert gcs.wait("HEARTBEAT", limit_s=10).system_status == M.MAV_STATE_BOOT
+        gcs.m.mav.mission_count_send(1, 1, 2, M.MAV_MISSION_TYPE_MISSION)
+        assert gcs.wait("MISSION_ACK", limit_s=5).type == M.MAV_MISSION_NO_SPACE
+    finally:
+        gcs.close()
+        veh.close()
+
+
+def test_statustext_goes_only_to_a_link_that_carried_a_packet():
+    port = free_port(socket.SOCK_DGRAM)
+    gcs = Gcs(port)
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, speed=1.0, boot_scale=0.02).start()
+    try:
+        assert "STATUSTEXT" not in gcs.drain(2.5)  # a silent listener: HEARTBEATs only
+        assert ORIGIN_TEXT in veh.statustexts and GPS_TEXT in veh.statustexts  # said, but to no link
+        gcs.beat()
+        assert gcs.mode(3) == M.MAV_RESULT_FAILED  # AUTO without a mission
+        assert gcs.said(lambda t: t.startswith("Mode change to AUTO failed"), limit_s=5)
+    finally:
+        gcs.close()
+        veh.close()
