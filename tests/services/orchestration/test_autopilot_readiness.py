@@ -24,8 +24,8 @@ def mission(tmp_path, *args: str) -> tuple[subprocess.CompletedProcess, dict, st
 
 
 def test_the_ground_station_waits_for_autopilots_still_starting_and_the_mission_succeeds(tmp_path):
-    # GUIDED allowed 42 x 2 = 84 simulated s after power-on: ~10 wall s at x8, later than the plan is ready
-    proc, report, text = mission(tmp_path, "--autopilot-boot-scale", "2")
+    # GUIDED allowed 42 x 3 = 126 simulated s after power-on: ~16 wall s at x8, later than the plan is ready
+    proc, report, text = mission(tmp_path, "--autopilot-boot-scale", "3")
     assert proc.returncode == 0, text[-3000:]
     assert report["success"] and not report["failures"]
     assert report["captures"]["imaged"] == report["captures"]["planned"] > 0
