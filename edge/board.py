@@ -235,6 +235,9 @@ class Board:
                 self.camera.capture(ev, now_wall)
         self._report_pilot_modes()
         fresh = self._watch_staleness(now_wall)
+        readiness = getattr(self.driver, "readiness", None)  # an autopilot's readiness (MAVLink drivers)
+        if readiness is not None:
+            plan = {**plan, "autopilot": readiness()}
         msg = st.to_message(self.uav, self.seq, now_wall).model_copy(update={"neighbours": fresh, **plan})
         if self.camera is not None:  # live preview: rate-limited, best-effort, encoded off this loop
             self.camera.preview(msg.pos, msg.att, msg.t, now_wall)

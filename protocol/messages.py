@@ -60,6 +60,20 @@ class Mode(str, Enum):
     FAILSAFE = "failsafe"
 
 
+class AutopilotReadiness(Message):
+    """An autopilot's readiness to fly, as its edge sees it (MAVLink vehicles; absent for the built-in sim)."""
+
+    TYPE: ClassVar[str] = "autopilot"
+    ready: bool = Field(description="every check below passes: the ground station may command a takeoff")
+    heartbeat: bool = Field(description="the autopilot's HEARTBEAT heard within the link timeout")
+    status: Annotated[str, Field(max_length=32)] = Field(
+        default="", description="its HEARTBEAT system_status (MAV_STATE without the prefix, lower case: boot, standby...)")
+    home: bool = Field(default=False, description="its home position is known (HOME_POSITION)")
+    position: bool = Field(default=False, description="its position estimate is absolute (EKF_STATUS_REPORT)")
+    armable: bool = Field(default=False, description="its pre-arm checks pass (SYS_STATUS pre-arm bit healthy)")
+    reason: Short = Field(default="", description="why it is not ready: its own latest pre-arm or refusal text")
+
+
 class VehicleState(Message):
     TYPE: ClassVar[str] = "state"
     uav: UavId
@@ -81,6 +95,8 @@ class VehicleState(Message):
     )
     ref: Vec3 | None = Field(default=None, description="planned position (own slot, P9) now, ENU m; in MISSION")
     tau: Seconds | None = Field(default=None, description="trajectory time now, s; in MISSION")
+    autopilot: AutopilotReadiness | None = Field(
+        default=None, description="the autopilot's readiness (MAVLink vehicles); None: the built-in vehicle, always ready")
 
 
 # ----------------------------------------------------------------------------- trajectories

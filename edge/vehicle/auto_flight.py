@@ -12,6 +12,14 @@ the same from the edge. This module is its pure part (no link):
   mission frame), altitudes relative to home. The final NAV_RETURN_TO_LAUNCH is left out: at the
   end ArduCopter's AUTO holds where the mission ended ("mission complete") and the ground station
   decides what comes next, as with the GUIDED flight.
+- :func:`decimate`: the waypoints the mission keeps. The planner's trajectories are dense (~0.8 m
+  apart) and ArduCopter's S-curve navigation flies such legs at ~0.5 m/s whatever the speed items
+  say (a leg takes at least ~1.8 s, :data:`edge.vehicle.apm.auto.MIN_LEG_S`), while ~8 m legs fly
+  the planned speed. So consecutive waypoints are merged into one leg: always while the leg would
+  last less than ``min_leg_s`` (2 s, above ArduCopter's ~1.8 s), then while the dropped ones lie
+  within ``tolerance_m`` of it, the planned speed along it stays within ``speed_tol`` and the leg
+  lasts at most ``max_leg_s``; capture points, holds (zero-length legs) and both ends are always
+  kept (two capture points closer than ``min_leg_s`` make a leg ArduCopter flies slower).
 - :func:`resume_item`: the item AUTO continues from at trajectory time τ (the one after the last
   waypoint passed, so that leg's speed item runs again).
 - :func:`speed_correction`: formation keeping in AUTO. The position the edge wants, ``P_d(t) + o``
@@ -34,7 +42,7 @@ from edge.vehicle.apm.missions import PlanItem
 from edge.vehicle.waypoint_mission import mission_items
 from protocol.messages import Trajectory
 
-__all__ = ["AutoMissionPlan", "autopilot_mission", "resume_item", "speed_correction"]
+__all__ = ["AutoMissionPlan", "autopilot_mission", "decimate", "resume_item", "speed_correction"]
 
 Vec3 = tuple[float, float, float]
 _GLOBAL = (AI.MAV_FRAME_GLOBAL, AI.MAV_FRAME_GLOBAL_RELATIVE_ALT)
@@ -45,8 +53,47 @@ class AutoMissionPlan:
     """The items to upload and, per trajectory waypoint, the sequence number of its NAV_WAYPOINT."""
 
     items: tuple[PlanItem, ...]
-    waypoint_seq: tuple[int, ...]
+    waypoint_seq: tuple[int, ...]  # per trajectory waypoint: its NAV_WAYPOINT, or the last kept one's before it
     capture_seq: dict[int, int]  # capture id -> seq of its DO_DIGICAM_CONTROL
+
+
+def _off_segment(p: Vec3, a: Vec3, b: Vec3) -> float:
+    """Distance of point p from segment ab, m."""
+    ab = [y - x for x, y in zip(a, b)]
+    n2 = sum(v * v for v in ab)
+    if n2 < 1e-12:
+        return math.dist(p, a)
+    u = max(0.0, min(1.0, sum((q - x) * v for q, x, v in zip(p, a, ab)) / n2))
+    return math.dist(p, [x + u * v for x, v in zip(a, ab)])
+
+
+def decimate(traj: Trajectory, tolerance_m: float = 0.3, speed_tol: float = 0.1,
+             max_leg_s: float = 8.0, min_leg_s: float = 2.0) -> list[int]:
+    """Indices of the trajectory waypoints a mission keeps (see the module docstring); sorted, first and last in."""
+    if not (0 < tolerance_m <= 10 and 0 <= speed_tol <= 1 and 0 <= min_leg_s < max_leg_s <= 600):
+        raise ValueError("tolerance_m in (0, 10], speed_tol in [0, 1], 0 <= min_leg_s < max_leg_s <= 600")
+    w = traj.waypoints
+    n = len(w)
+    leg_len = [math.dist(w[k].pos, w[k + 1].pos) for k in range(n - 1)]
+    leg_v = [leg_len[k] / (w[k + 1].t - w[k].t) for k in range(n - 1)]
+    kept = [0]
+    k = 0
+    while k < n - 1:
+        j = k + 1
+        while j < n - 1 and w[j].capture_id is None and leg_len[j - 1] >= 0.01 and leg_len[j] >= 0.01:
+            nxt = j + 1
+            if w[j].t - w[k].t < min_leg_s:
+                j = nxt  # too short a leg for ArduCopter to fly at speed: drop j whatever the shape
+                continue
+            v = sum(leg_len[k:nxt]) / (w[nxt].t - w[k].t)
+            if (w[nxt].t - w[k].t > max_leg_s or any(abs(leg_v[m] - v) > speed_tol * max(v, 1e-6)
+                                                     for m in range(k, nxt))
+                    or any(_off_segment(w[m].pos, w[k].pos, w[nxt].pos) > tolerance_m for m in range(k + 1, nxt))):
+                break
+            j = nxt
+        kept.append(j)
+        k = j
+    return kept
 
 
 def autopilot_mission(traj: Trajectory, home_enu: Vec3, home_lla: Vec3) -> AutoMissionPlan:
@@ -64,7 +111,8 @@ def autopilot_mission(traj: Trajectory, home_enu: Vec3, home_lla: Vec3) -> AutoM
     out: list[PlanItem] = []
     wps: list[int] = []
     captures: dict[int, int] = {}
-    src = mission_items(traj, origin)
+    keep = decimate(traj)
+    src = mission_items(Trajectory(uav=traj.uav, waypoints=[traj.waypoints[i] for i in keep]), origin)
     if src and src[-1].command == AI.MAV_CMD_NAV_RETURN_TO_LAUNCH:
         src = src[:-1]
     for it in src:
@@ -83,9 +131,15 @@ def autopilot_mission(traj: Trajectory, home_enu: Vec3, home_lla: Vec3) -> AutoM
             cid = AI.capture_id(p)
             if cid is not None:
                 captures[cid] = seq
-    if len(wps) != len(traj.waypoints):
-        raise ValueError(f"mission has {len(wps)} waypoints for {len(traj.waypoints)} in the trajectory")
-    return AutoMissionPlan(tuple(out), tuple(wps), captures)
+    if len(wps) != len(keep):
+        raise ValueError(f"mission has {len(wps)} waypoints for {len(keep)} kept of the trajectory")
+    per_wp: list[int] = []
+    m = 0
+    for i in range(len(traj.waypoints)):
+        while m + 1 < len(keep) and keep[m + 1] <= i:
+            m += 1
+        per_wp.append(wps[m])
+    return AutoMissionPlan(tuple(out), tuple(per_wp), captures)
 
 
 def resume_item(plan: AutoMissionPlan, last_waypoint: int) -> int:

@@ -27,8 +27,17 @@ Link
 A reader thread keeps the latest HEARTBEAT (armed flag, ArduCopter custom mode),
 LOCAL_POSITION_NED, ATTITUDE, SYS_STATUS (``battery_remaining``), STATUSTEXT and COMMAND_ACK;
 it sends our own HEARTBEAT at 1 Hz as a GCS (system 255 by default, so that ArduPilot's GCS
-failsafe watches this link) and asks for the telemetry streams with MAV_CMD_SET_MESSAGE_INTERVAL
-(20 Hz position and attitude, 2 Hz SYS_STATUS) while they are missing. The first autopilot
+failsafe watches this link) and asks for every message it uses, since ArduPilot sends only
+HEARTBEAT until asked: MAV_CMD_SET_MESSAGE_INTERVAL for each (:data:`STREAMS`: 20 Hz position and
+attitude, 2 Hz SYS_STATUS, 1 Hz EKF_STATUS_REPORT, 0.5 Hz HOME_POSITION), again every 2 s while
+one is missing; an autopilot that answers it UNSUPPORTED or FAILED gets the legacy
+REQUEST_DATA_STREAM for the groups holding them instead (:data:`LEGACY_STREAMS`).
+
+Readiness (:meth:`MavlinkDriver.readiness`, in the edge's state): HEARTBEAT heard, its
+system_status past BOOT, home known (HOME_POSITION), an absolute position estimate
+(EKF_STATUS_REPORT flags as ArduCopter's ``position_ok()``, :func:`.apm.boot.position_ok`), the
+pre-arm checks passing (SYS_STATUS pre-arm bit healthy), and the autopilot's latest "PreArm:",
+"Arm:" or mode-refusal STATUSTEXT as the reason while it is not ready. The first autopilot
 heard (a HEARTBEAT whose ``autopilot`` is not MAV_AUTOPILOT_INVALID) becomes the target, unless
 ``sysid`` names one. Without a HEARTBEAT for ``heartbeat_timeout_s`` (3 s, the usual GCS "link
 lost" time) the state's mode is FAILSAFE and every command raises :class:`VehicleLinkError`
@@ -103,7 +112,9 @@ targets until AUTO is acknowledged. In AUTO it streams no targets: it keeps the 
 reference (trajectory plus the board's formation correction of (P8)) and sends DO_CHANGE_SPEED
 (at most every ``auto_speed_period_s``) so that the along-track error goes to zero; captures fire
 on the trajectory clock as in GUIDED (the autopilot also fires its own DO_DIGICAM_CONTROL items).
-At the trajectory's end it switches back to GUIDED and holds. hold / land / RTL / resume work
+At the trajectory's end it switches back to GUIDED and holds, once the autopilot reports the last
+waypoint reached (MISSION_ITEM_REACHED; at most ``auto_end_wait_s`` later). The mission keeps
+only the waypoints ArduCopter can fly at the planned speed (:func:`.auto_flight.decimate`). hold / land / RTL / resume work
 as in GUIDED (hold and resume go through GUIDED; resume flies back to the paused point and
 re-enters AUTO from the right item). While a mode switch is in flight, HEARTBEATs in either the
 old or the new mode are expected; any other mode is the pilot's (``external_modes``, logged) and
@@ -127,12 +138,13 @@ import numpy as np
 
 from edge.vehicle.angles import wrap_angle
 from edge.vehicle.apm import items as AI
+from edge.vehicle.apm.boot import position_ok
 from edge.vehicle.apm.items import capture_params
 from edge.vehicle.apm.modes import CopterMode
 from edge.vehicle.apm.signing import SafeSigningMAVLink, enable_signing, parse_key
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.sequencer import MissionSequencer
-from protocol.messages import Mode, Trajectory
+from protocol.messages import AutopilotReadiness, Mode, Trajectory
 
 try:  # pymavlink is the optional "mavlink" extra
     from pymavlink import mavutil
@@ -188,9 +200,16 @@ TYPE_MASK_POS_VEL_ACC_YAW = M.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
 #: SET_POSITION_TARGET_LOCAL_NED type_mask: position and yaw only (2552)
 TYPE_MASK_POS_YAW = TYPE_MASK_POS_VEL_YAW | _IGNORE_VEL
 
-#: telemetry the driver asks for: message id -> rate, Hz
-STREAMS = {M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 20.0, M.MAVLINK_MSG_ID_ATTITUDE: 20.0,
-           M.MAVLINK_MSG_ID_SYS_STATUS: 2.0}
+#: telemetry the driver asks for: message name -> (id, rate Hz)
+STREAMS = {"LOCAL_POSITION_NED": (M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 20.0),
+           "ATTITUDE": (M.MAVLINK_MSG_ID_ATTITUDE, 20.0), "SYS_STATUS": (M.MAVLINK_MSG_ID_SYS_STATUS, 2.0),
+           "EKF_STATUS_REPORT": (M.MAVLINK_MSG_ID_EKF_STATUS_REPORT, 1.0),
+           "HOME_POSITION": (M.MAVLINK_MSG_ID_HOME_POSITION, 0.5)}
+#: the REQUEST_DATA_STREAM groups (ArduCopter's) holding them: name -> (MAV_DATA_STREAM, rate Hz)
+LEGACY_STREAMS = {"LOCAL_POSITION_NED": (M.MAV_DATA_STREAM_POSITION, 20), "ATTITUDE": (M.MAV_DATA_STREAM_EXTRA1, 20),
+                  "SYS_STATUS": (M.MAV_DATA_STREAM_EXTENDED_STATUS, 2), "EKF_STATUS_REPORT": (M.MAV_DATA_STREAM_EXTRA3, 1)}
+#: STATUSTEXT prefixes and fragments that say why an autopilot will not fly yet
+_NOT_READY_TEXTS = ("PreArm:", "Arm:", "requires position", "Need Position")
 
 _GROUNDED = (Mode.IDLE, Mode.LANDED)
 _AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL, Mode.FAILSAFE)
@@ -376,6 +395,9 @@ class MavlinkParams:
     auto_speed_gain : along-track error to ground-speed gain in AUTO, 1/s.
     auto_speed_period_s : at most one DO_CHANGE_SPEED per this many wall seconds (unless the
         speed changes by more than 0.5 m/s).
+    auto_end_wait_s : when the trajectory's clock runs out in AUTO, the switch to GUIDED waits for
+        the autopilot to reach the mission's last waypoint (MISSION_ITEM_REACHED) at most this
+        long, wall s, so that its last capture items run.
     """
 
     transit_speed: float = 4.0
@@ -393,6 +415,7 @@ class MavlinkParams:
     flight: Literal["guided", "auto"] = "guided"
     auto_speed_gain: float = 0.6
     auto_speed_period_s: float = 0.1
+    auto_end_wait_s: float = 5.0
 
     def __post_init__(self) -> None:
         for k in ("transit_speed", "start_radius", "arrive_radius", "offset_rate", "takeoff_tolerance",
@@ -410,7 +433,7 @@ class MavlinkParams:
             raise ValueError("interpolation must be 'cubic' or 'linear'")
         if self.flight not in ("guided", "auto"):
             raise ValueError("flight must be 'guided' or 'auto'")
-        for k in ("auto_speed_gain", "auto_speed_period_s"):
+        for k in ("auto_speed_gain", "auto_speed_period_s", "auto_end_wait_s"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v <= 10):
                 raise ValueError(f"{k} must be in (0, 10]")
@@ -422,6 +445,7 @@ class _Heartbeat:
     custom_mode: int
     rx: int  # receive index (orders heartbeats against command acks)
     mono: float  # time.monotonic() of reception
+    status: int = M.MAV_STATE_STANDBY  # system_status
 
 
 class MavlinkDriver(VehicleDriver):
@@ -520,6 +544,11 @@ class MavlinkDriver(VehicleDriver):
         self._acks: dict[int, tuple[int, int]] = {}  # command -> (result, rx)
         self._cmd_rx = 0  # receive index of the last accepted command's ack
         self._compid_locked = False
+        # readiness: EKF_STATUS_REPORT flags, SYS_STATUS pre-arm bit, the latest "not ready" text
+        self._ekf_flags: int | None = None
+        self._prearm_ok: bool | None = None
+        self._not_ready_text = ""
+        self._legacy_streams = False
         # AUTO flight: the autopilot's home, the mission protocol's replies, the uploaded plan
         self._home_lla: tuple[float, float, float] | None = None
         self._mission_rx: deque[Any] = deque(maxlen=64)
@@ -527,6 +556,8 @@ class MavlinkDriver(VehicleDriver):
         self._auto_traj: Trajectory | None = None
         self._traj: Trajectory | None = None
         self._end_switch = False  # the AUTO mission ended: back to GUIDED to hold there
+        self._end_mono = 0.0  # when the trajectory's clock ran out in AUTO
+        self._reached_seq = -1  # the autopilot's latest MISSION_ITEM_REACHED
         self._pending: set[int] = set()  # autopilot modes accepted while a mode switch is in flight
         self._switching = False
         self._speed_sent: tuple[float, float] | None = None  # (speed, monotonic) of the last DO_CHANGE_SPEED
@@ -578,6 +609,7 @@ class MavlinkDriver(VehicleDriver):
         conn = self._conn
         last_hb = -math.inf
         last_req = -math.inf
+        heard = False
         while not self._stop.is_set():
             try:
                 msg = conn.recv_msg()
@@ -588,6 +620,8 @@ class MavlinkDriver(VehicleDriver):
                 msg = None
             now = time.monotonic()
             if msg is not None:
+                if not heard:  # the first packet: a udpin link can answer now, so say we are here at once
+                    heard, last_hb = True, -math.inf
                 if self.bridge is not None:
                     self.bridge.to_gcs(msg)
                 self._on_message(msg, now)
@@ -601,13 +635,22 @@ class MavlinkDriver(VehicleDriver):
                 self._request_streams(now)
 
     def _request_streams(self, now: float) -> None:
-        """Ask (again) for every telemetry stream not heard for 1 s (fire and forget)."""
-        names = {M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: "LOCAL_POSITION_NED", M.MAVLINK_MSG_ID_ATTITUDE: "ATTITUDE",
-                 M.MAVLINK_MSG_ID_SYS_STATUS: "SYS_STATUS"}
-        for msg_id, hz in STREAMS.items():
-            if now - self._last_mono.get(names[msg_id], -math.inf) > 1.0:
+        """Ask (again) for every telemetry message not heard lately (fire and forget): SET_MESSAGE_INTERVAL,
+        or REQUEST_DATA_STREAM for its group once the autopilot refused SET_MESSAGE_INTERVAL."""
+        groups: set[tuple[int, int]] = set()
+        for name, (msg_id, hz) in STREAMS.items():
+            if now - self._last_mono.get(name, -math.inf) <= max(1.0, 2.5 / hz):
+                continue
+            if not self._legacy_streams:
                 self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                            msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
+            elif name in LEGACY_STREAMS:
+                groups.add(LEGACY_STREAMS[name])
+            elif name == "HOME_POSITION":
+                self._send("command_long_send", self._sysid, self._compid, M.MAV_CMD_GET_HOME_POSITION, 0,
+                           0, 0, 0, 0, 0, 0, 0)
+        for group, hz in sorted(groups):
+            self._send("request_data_stream_send", self._sysid, self._compid, group, hz, 1)
 
     def _on_message(self, msg: Any, now: float) -> None:
         kind = msg.get_type()
@@ -631,7 +674,7 @@ class MavlinkDriver(VehicleDriver):
                     return
                 self._rx += 1
                 self._hb = _Heartbeat(bool(msg.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED), int(msg.custom_mode),
-                                      self._rx, now)
+                                      self._rx, now, int(msg.system_status))
                 self._last_mono[kind] = now
                 self._cv.notify_all()
             return
@@ -658,9 +701,19 @@ class MavlinkDriver(VehicleDriver):
             elif kind == "SYS_STATUS":
                 if 0 <= msg.battery_remaining <= 100:
                     self._battery = msg.battery_remaining / 100.0
+                bit = M.MAV_SYS_STATUS_PREARM_CHECK
+                if msg.onboard_control_sensors_present & bit and msg.onboard_control_sensors_enabled & bit:
+                    self._prearm_ok = bool(msg.onboard_control_sensors_health & bit)
+            elif kind == "MISSION_ITEM_REACHED":
+                self._reached_seq = max(self._reached_seq, int(msg.seq))
+            elif kind == "EKF_STATUS_REPORT":
+                self._ekf_flags = int(msg.flags)
             elif kind == "STATUSTEXT":
                 text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else str(msg.text)
-                self._texts.append((now, int(msg.severity), text.rstrip("\x00")))
+                text = text.rstrip("\x00")
+                self._texts.append((now, int(msg.severity), text))
+                if any(k in text for k in _NOT_READY_TEXTS):
+                    self._not_ready_text = text[:200]
             elif kind == "HOME_POSITION":
                 lla = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1e3)
                 if abs(lla[0]) <= 90 and abs(lla[1]) <= 180:
@@ -671,9 +724,45 @@ class MavlinkDriver(VehicleDriver):
                     self._mission_rx.append(msg)
                     self._cv.notify_all()
             elif kind == "COMMAND_ACK":
+                if (msg.command == M.MAV_CMD_SET_MESSAGE_INTERVAL and not self._legacy_streams
+                        and msg.result in (M.MAV_RESULT_UNSUPPORTED, M.MAV_RESULT_FAILED)):
+                    self._legacy_streams = True
+                    log.info("UAV %d: the autopilot refused SET_MESSAGE_INTERVAL: asking with REQUEST_DATA_STREAM",
+                             self.uav)
                 self._rx += 1
                 self._acks[int(msg.command)] = (int(msg.result), self._rx)
                 self._cv.notify_all()
+
+    def readiness(self) -> AutopilotReadiness:
+        """The autopilot's readiness to fly (see the module docstring), with its own reason when not ready."""
+        with self._lock:
+            hb, home, flags, prearm, text = self._hb, self._home_lla, self._ekf_flags, self._prearm_ok, \
+                self._not_ready_text
+            local = "LOCAL_POSITION_NED" in self._last_mono
+        heard = self.link_ok
+        e = M.enums["MAV_STATE"].get(hb.status) if hb is not None else None
+        status = e.name.removeprefix("MAV_STATE_").lower() if e is not None else ""
+        booting = hb is None or hb.status in (M.MAV_STATE_UNINIT, M.MAV_STATE_BOOT, M.MAV_STATE_CALIBRATING)
+        position = position_ok(flags) if flags is not None else (home is not None and local)
+        armable = prearm is not False
+        home_ok = home is not None
+        ready = heard and not booting and home_ok and position and armable
+        why = ""
+        if not ready:
+            if not heard:
+                why = str(self._link_error() or "no HEARTBEAT")
+            elif booting:
+                why = f"the autopilot is starting (system status {status or 'unknown'})"
+            elif not home_ok:
+                why = "no home position yet"
+            elif not position:
+                why = "no absolute position estimate yet (EKF not using GPS)"
+            else:
+                why = "its pre-arm checks fail"
+            if text and heard:
+                why += f"; the autopilot says: {text}"
+        return AutopilotReadiness(ready=ready, heartbeat=heard, status=status, home=home_ok, position=position,
+                                  armable=armable, reason=why[:256])
 
     def heartbeat_age(self) -> float | None:
         """Seconds since the last autopilot HEARTBEAT (None: none yet)."""
@@ -992,9 +1081,11 @@ class MavlinkDriver(VehicleDriver):
             return
         plan = autopilot_mission(traj, self.home, self._wait_home())
         self._upload_items(plan.items)
+        with self._lock:
+            self._reached_seq = -1
         self._auto_plan, self._auto_traj = plan, traj
         log.info("UAV %d: trajectory uploaded to the autopilot as a mission of %d items (%d waypoints, %d captures)",
-                 self.uav, len(plan.items), len(plan.waypoint_seq), len(plan.capture_seq))
+                 self.uav, len(plan.items), len(set(plan.waypoint_seq)), len(plan.capture_seq))
 
     def _upload_items(self, items: tuple, timeout_s: float = 1.0, retries: int = 5) -> None:
         """The MAVLink mission protocol's upload (https://mavlink.io/en/services/mission.html):
@@ -1068,6 +1159,13 @@ class MavlinkDriver(VehicleDriver):
                     self._pending = set()
 
         threading.Thread(target=run, name=f"mavlink-uav{self.uav}-switch", daemon=True).start()
+
+    def _auto_finished(self) -> bool:
+        """The autopilot reached the mission's last waypoint (its capture items ran), or
+        ``auto_end_wait_s`` passed since the trajectory's clock ran out (under ``_lock``)."""
+        plan = self._auto_plan
+        last = max(plan.waypoint_seq) if plan is not None and plan.waypoint_seq else -1
+        return self._reached_seq >= last or time.monotonic() - self._end_mono > self.params.auto_end_wait_s
 
     def _auto_step(self, target: _Target) -> None:
         """One AUTO tick: the formation-keeping speed (DO_CHANGE_SPEED, fire and forget)."""
@@ -1152,12 +1250,14 @@ class MavlinkDriver(VehicleDriver):
                     self._switch_async(CopterMode.AUTO, resume_item(self._auto_plan, wp), "mission")
             elif phase == "auto":
                 ref = self._mission_reference(until_t, dt, events)
-                if self._phase == "hold":  # the trajectory's end: hold there in GUIDED
+                if self._phase == "hold":  # the trajectory's end: hold there in GUIDED once AUTO finished
                     self._end_switch = True
+                    self._end_mono = time.monotonic()
+                    self._pending = {int(CopterMode.AUTO)}
                     phase = "hold"
                 else:
                     auto_target = ref
-            if phase == "hold" and self._end_switch and not self._switching:
+            if phase == "hold" and self._end_switch and not self._switching and self._auto_finished():
                 self._end_switch = False
                 self._switch_async(CopterMode.GUIDED, None, "hold")
             if phase == "hold":

@@ -12,14 +12,22 @@ is the socket shell. It runs in a thread (tests), as ``python -m edge.vehicle.ma
 
 Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA):
 
-- **HEARTBEAT** 1 Hz: ArduCopter custom mode (:mod:`.apm.modes`), base_mode CUSTOM_MODE_ENABLED |
-  STABILIZE | GUIDED (| SAFETY_ARMED), system status STANDBY / ACTIVE (CRITICAL in a failsafe).
-- **Telemetry** at the rates of :mod:`.apm.streams` (wall clock): SYS_STATUS (gyro, accel, mag,
+- **HEARTBEAT** 1 Hz: ArduCopter custom mode (:mod:`.apm.modes`), base_mode as ArduCopter's
+  (:func:`.apm.modes.base_mode`: 81 disarmed, 217 flying in GUIDED or AUTO), system status BOOT
+  while booting, STANDBY on the ground (armed or not), ACTIVE only airborne, CRITICAL in a failsafe.
+- **Start-up** (:mod:`.apm.boot`, ``boot_scale``; 1 = ArduCopter's own times, the CLI's default):
+  BOOT ~2 s; home (HOME_POSITION, LOCAL_POSITION_NED) after "EKF3 IMU0 origin set" ~20 s; arming
+  refused with "PreArm:"/"Arm:" STATUSTEXT until ~24 s; GUIDED/AUTO/LOITER/RTL/BRAKE refused ("Mode
+  change to GUIDED failed: requires position") until "EKF3 IMU0 is using GPS" ~42 s;
+  EKF_STATUS_REPORT flags follow.
+- **Telemetry** only when asked, as ArduCopter's firmware: HEARTBEAT alone until a request
+  (SET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM, REQUEST_MESSAGE); ``stream_all`` (``--stream-all``)
+  streams the set below unasked at the rates of :mod:`.apm.streams` (wall clock): SYS_STATUS (gyro, accel, mag,
   GPS, AHRS, geofence, pre-arm sensors present/enabled/healthy, as ArduCopter sets them; geofence
   enabled with FENCE_ENABLE, unhealthy while breached; pre-arm healthy unless ``refuse_arming``),
   GPS_RAW_INT (3D fix, 12 satellites), GLOBAL_POSITION_INT, LOCAL_POSITION_NED (NED about home),
   ATTITUDE (FRD), VFR_HUD, BATTERY_STATUS, EXTENDED_SYS_STATE (landed state), HOME_POSITION,
-  MISSION_CURRENT. Geodetic positions: the ENU frame's ``origin`` (lat, lon, alt) with pymap3d.
+  MISSION_CURRENT, EKF_STATUS_REPORT. Geodetic positions: the ENU frame's ``origin`` (lat, lon, alt) with pymap3d.
 - **Requests**: SET_MESSAGE_INTERVAL / GET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM, REQUEST_MESSAGE
   (any streamed message, AUTOPILOT_VERSION, and the rest DENIED), REQUEST_AUTOPILOT_CAPABILITIES,
   GET_HOME_POSITION. AUTOPILOT_VERSION: ArduCopter 4.5.7 official, MISSION_INT | COMMAND_INT |
@@ -42,7 +50,8 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
   anything else              MAV_RESULT_UNSUPPORTED
   =========================  ==============================================================
 
-- **Parameters** (:mod:`.apm.params`), SYSID_THISMAV = ``uav``. **Missions, fences, rally points**
+- **Parameters** (:mod:`.apm.params`), SYSID_THISMAV = ``uav``; an unknown name is answered with
+  PARAM_ERROR (DOES_NOT_EXIST). **Missions, fences, rally points**
   (:mod:`.apm.missions`); AUTO flies the mission (:mod:`.apm.auto`) with MISSION_CURRENT and
   MISSION_ITEM_REACHED, and CAMERA_FEEDBACK for each shot.
 - **GUIDED**, airborne, follows SET_POSITION_TARGET_LOCAL_NED (MAV_FRAME_LOCAL_NED) as ArduCopter's
@@ -63,6 +72,10 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
 
 Not simulated: MAVLink FTP, RC channels, SmartRTL (its failsafe choices use RTL), terrain. RTL climbs
 to RTL_ALT above home (or stays higher), flies home and lands, as ArduCopter's RTL does.
+As the firmware, STATUSTEXT is sent only once the link has carried a packet from a peer, and a
+mission upload while booting is answered MAV_MISSION_NO_SPACE. Still unlike it: stream rates are
+one set for every peer (the firmware keeps them per link); the parameter names are 4.5's only;
+LOITER holds altitude (the firmware follows the RC sticks).
 """
 
 from __future__ import annotations
@@ -82,10 +95,11 @@ from edge.clock import SimClock
 from edge.vehicle.apm import items as I
 from edge.vehicle.apm.auto import AutoMission, Flight
 from edge.vehicle.apm.missions import FENCE, MISSION, MissionServer, PlanItem, item_from_message
-from edge.vehicle.apm.modes import ARMABLE, FENCE_ACTIONS, FS_GCS_ACTIONS, CopterMode, check_mode_change
+from edge.vehicle.apm.boot import BootTimeline
+from edge.vehicle.apm.modes import ARMABLE, FENCE_ACTIONS, FS_GCS_ACTIONS, CopterMode, base_mode, check_mode_change
 from edge.vehicle.apm.params import ParamTable
 from edge.vehicle.apm.signing import enable_signing, parse_key
-from edge.vehicle.apm.streams import DEFAULT_RATES, StreamScheduler
+from edge.vehicle.apm.streams import ARDUCOPTER_RATES, DEFAULT_RATES, StreamScheduler
 from edge.vehicle.driver import check_vec3
 from edge.vehicle.follower import Reference
 from edge.vehicle.angles import wrap_angle
@@ -120,7 +134,9 @@ _SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL |
 _ON_GROUND = (Mode.IDLE, Mode.LANDED)
 _STREAM_IDS = {n: getattr(M, f"MAVLINK_MSG_ID_{n}") for n in (
     "HEARTBEAT", "SYS_STATUS", "GPS_RAW_INT", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE", "VFR_HUD",
-    "BATTERY_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION", "MISSION_CURRENT")}
+    "BATTERY_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION", "MISSION_CURRENT", "EKF_STATUS_REPORT")}
+#: ArduPilot repeats failing pre-arm checks as STATUSTEXT this often while disarmed, s
+PREARM_REPORT_S = 30.0
 _ZERO: Vec3 = (0.0, 0.0, 0.0)
 
 
@@ -183,7 +199,7 @@ class MavlinkSimVehicle:
     seed : int
         Disturbance seed.
     telemetry_hz : float
-        GLOBAL_POSITION_INT, LOCAL_POSITION_NED and ATTITUDE default rate, Hz (wall clock).
+        GLOBAL_POSITION_INT, LOCAL_POSITION_NED and ATTITUDE default rate with ``stream_all``, Hz (wall clock).
     refuse_arming : bool
         Refuse COMPONENT_ARM_DISARM(1) with a PreArm STATUSTEXT (can be changed at any time).
     origin : (lat, lon, alt)
@@ -192,6 +208,11 @@ class MavlinkSimVehicle:
         MAVLink 2 signing key (64 hex digits or a passphrase); None: unsigned.
     param_overrides : dict
         Initial parameter values (e.g. ``{"FS_GCS_ENABLE": 1}``).
+    boot_scale : float
+        Start-up times as a fraction of ArduCopter's (:class:`.apm.boot.BootTimeline`): 1 as the
+        firmware (the CLI's default), 0 ready at once (this class's default, for embedding).
+    stream_all : bool
+        Stream the telemetry set unasked (the old stand-in's behaviour) instead of HEARTBEAT only.
     """
 
     def __init__(
@@ -209,6 +230,8 @@ class MavlinkSimVehicle:
         origin: Vec3 = DEFAULT_ORIGIN,
         mavlink_key: str | None = None,
         param_overrides: dict[str, float] | None = None,
+        boot_scale: float = 0.0,
+        stream_all: bool = False,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -217,6 +240,7 @@ class MavlinkSimVehicle:
         o = check_vec3(origin, "origin")
         if abs(o[0]) > 90 or abs(o[1]) > 180:
             raise ValueError("origin must be (lat, lon, alt) in degrees and metres")
+        self.boot = BootTimeline(scale=boot_scale)
         self.uav = uav
         self.home = check_vec3(home, "home")
         self.origin = o
@@ -225,9 +249,10 @@ class MavlinkSimVehicle:
         self._t_boot = self.clock.now()
         self.params = ParamTable(**{"SYSID_THISMAV": uav, **(param_overrides or {})})
         self.home_lla = self.enu_to_lla(self.home)
-        rates = dict(DEFAULT_RATES)
-        for n in ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE"):
-            rates[n] = float(telemetry_hz)
+        rates = dict(DEFAULT_RATES if stream_all else ARDUCOPTER_RATES)
+        if stream_all:
+            for n in ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE"):
+                rates[n] = float(telemetry_hz)
         self.streams = StreamScheduler(_STREAM_IDS, rates)
         self.missions = MissionServer(home=self._home_item)
         self._conn = open_connection(connection, uav, M.MAV_COMP_ID_AUTOPILOT1)
@@ -240,6 +265,9 @@ class MavlinkSimVehicle:
         self.prearm_text = "PreArm: arming refused by the simulator (refuse_arming)"
         self._armed_at = 0.0
         self._was_airborne = False
+        self._boot_seen = -math.inf  # boot time up to which the start-up STATUSTEXTs were sent
+        self._peer_heard = False  # a packet arrived on the link (STATUSTEXT goes only to such links)
+        self._prearm_sent = -math.inf
         #: camera shots (capture ids, DO_DIGICAM_CONTROL param6), commands answered (command, result)
         self.shots: list[int] = []
         self.commands: list[tuple[int, int]] = []
@@ -338,12 +366,39 @@ class MavlinkSimVehicle:
         except ValueError as exc:
             self.errors.append(f"step: {exc}")
         self._after_step(now)
+        self._startup_texts()
         for name in self.streams.due(now):
             self._stream(name)
 
     @property
     def airborne(self) -> bool:
         return self.sim.mode not in _ON_GROUND
+
+    # ------------------------------------------------------------------ start-up (apm.boot)
+    def boot_time(self) -> float:
+        """Simulated seconds since power-on."""
+        return self.clock.now() - self._t_boot
+
+    @property
+    def home_known(self) -> bool:
+        return self.boot.home_known(self.boot_time())
+
+    @property
+    def position_ok(self) -> bool:
+        return self.boot.position(self.boot_time())
+
+    def _startup_texts(self) -> None:
+        """The EKF's start-up STATUSTEXTs, and the failing pre-arm check every PREARM_REPORT_S while disarmed."""
+        t = self.boot_time()
+        if self.boot.booting(t):
+            return
+        for text in self.boot.texts_between(self._boot_seen, t):
+            self._text(M.MAV_SEVERITY_INFO, text)
+        self._boot_seen = t
+        why = self.boot.prearm_failure(t)
+        if why is not None and not self.armed and t - self._prearm_sent >= PREARM_REPORT_S:
+            self._prearm_sent = t
+            self._text(M.MAV_SEVERITY_CRITICAL, f"PreArm: {why}")
 
     def _after_step(self, now: float) -> None:
         sim = self.sim
@@ -499,7 +554,14 @@ class MavlinkSimVehicle:
         st = self.sim.state()
         ms = self._boot_ms()
         p, v = st.pos, st.vel
-        if name == "LOCAL_POSITION_NED":
+        home = self.home_known
+        if name in ("LOCAL_POSITION_NED", "HOME_POSITION") and not home:
+            return True  # no EKF origin yet: ArduPilot sends neither
+        if name == "EKF_STATUS_REPORT":
+            flags = self.boot.ekf_flags(self.boot_time())
+            var = 0.02 if flags & 16 else 0.5
+            self._send("ekf_status_report_send", flags, var, var, 0.02, 0.02, 0.0, 0.0)
+        elif name == "LOCAL_POSITION_NED":
             self._send("local_position_ned_send", ms, p[1] - h[1], p[0] - h[0], -(p[2] - h[2]), v[1], v[0], -v[2])
         elif name == "ATTITUDE":
             r, q = st.att, st.rates
@@ -508,8 +570,9 @@ class MavlinkSimVehicle:
             present = _SENSORS | M.MAV_SYS_STATUS_GEOFENCE | M.MAV_SYS_STATUS_PREARM_CHECK
             enabled = _SENSORS | M.MAV_SYS_STATUS_PREARM_CHECK | (
                 M.MAV_SYS_STATUS_GEOFENCE if self.params["FENCE_ENABLE"] else 0)
+            armable = not self.refuse_arming and self.boot.prearm_failure(self.boot_time()) is None
             health = _SENSORS | (0 if self.fence_breached else M.MAV_SYS_STATUS_GEOFENCE) | (
-                0 if self.refuse_arming else M.MAV_SYS_STATUS_PREARM_CHECK)
+                M.MAV_SYS_STATUS_PREARM_CHECK if armable else 0)
             pct = int(round(100 * min(1.0, max(0.0, st.battery))))
             self._send("sys_status_send", present, enabled, health, 100, self._voltage_mv(st), 150, pct,
                        0, 0, 0, 0, 0, 0)
@@ -517,6 +580,8 @@ class MavlinkSimVehicle:
             lat, lon, alt = self.enu_to_lla(p)
             hdg = math.degrees(wrap_angle(math.pi / 2 - st.att[2])) % 360.0
             gs = math.hypot(v[0], v[1])
+            if not home:  # ArduPilot sends the (unset, zero) location before the EKF has an origin
+                lat = lon = alt = 0.0
             if name == "GLOBAL_POSITION_INT":
                 self._send("global_position_int_send", ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
                            round((p[2] - h[2]) * 1000), round(v[1] * 100), round(v[0] * 100), round(-v[2] * 100),
@@ -553,16 +618,18 @@ class MavlinkSimVehicle:
         return int(15000 + 1800 * min(1.0, max(0.0, st.battery)))
 
     def send_heartbeat(self) -> None:
-        base = (M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED
-                | M.MAV_MODE_FLAG_GUIDED_ENABLED | (M.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0))
-        status = (M.MAV_STATE_CRITICAL if self.gcs_failsafe else M.MAV_STATE_ACTIVE if self.armed
-                  else M.MAV_STATE_STANDBY)
+        flying = self.airborne
+        base = base_mode(self.custom_mode, armed=self.armed, flying=flying)
+        status = (M.MAV_STATE_CRITICAL if self.gcs_failsafe else M.MAV_STATE_BOOT if self.boot.booting(self.boot_time())
+                  else M.MAV_STATE_ACTIVE if flying else M.MAV_STATE_STANDBY)
         self._send("heartbeat_send", M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_ARDUPILOTMEGA, base,
                    int(self.custom_mode), status)
 
     def _text(self, severity: int, text: str) -> None:
+        """A STATUSTEXT, sent (as by the firmware) only once the link has carried a packet from a peer."""
         self.statustexts.append(text)
-        self._send("statustext_send", severity, text.encode()[:50])
+        if self._peer_heard:
+            self._send("statustext_send", severity, text.encode()[:50])
 
     # ------------------------------------------------------------------ input
     def _for_me(self, msg: Any) -> bool:
@@ -571,6 +638,8 @@ class MavlinkSimVehicle:
     def _handle(self, msg: Any) -> None:
         kind = msg.get_type()
         src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if kind != "BAD_DATA":
+            self._peer_heard = True
         if kind == "HEARTBEAT":
             if msg.type == M.MAV_TYPE_GCS:
                 self.gcs_heartbeats += 1
@@ -594,12 +663,15 @@ class MavlinkSimVehicle:
         elif kind == "PARAM_REQUEST_LIST":
             self._out(self.params.request_list())
         elif kind == "PARAM_REQUEST_READ":
-            self._out(self.params.request_read(msg.param_id, msg.param_index))
+            self._out(self.params.request_read(msg.param_id, msg.param_index, src))
         elif kind == "PARAM_SET":
-            self._out(self.params.param_set(msg.param_id, msg.param_value))
+            self._out(self.params.param_set(msg.param_id, msg.param_value, src))
         elif kind == "REQUEST_DATA_STREAM":
             self.streams.request_data_stream(msg.req_stream_id, msg.req_message_rate, msg.start_stop)
         elif kind == "MISSION_COUNT":
+            if self.boot.booting(self.boot_time()):  # the firmware's mission storage is not up yet
+                self._send("mission_ack_send", src[0], src[1], M.MAV_MISSION_NO_SPACE, msg.mission_type)
+                return
             self._out(self.missions.count(src, msg.mission_type, msg.count, now))
         elif kind in ("MISSION_ITEM_INT", "MISSION_ITEM"):
             int_msg = kind == "MISSION_ITEM_INT"
@@ -684,6 +756,8 @@ class MavlinkSimVehicle:
             self._stream("AUTOPILOT_VERSION")
             return M.MAV_RESULT_ACCEPTED
         if c == M.MAV_CMD_GET_HOME_POSITION:
+            if not self.home_known:
+                return M.MAV_RESULT_FAILED
             self._stream("HOME_POSITION")
             return M.MAV_RESULT_ACCEPTED
         return M.MAV_RESULT_UNSUPPORTED
@@ -723,9 +797,14 @@ class MavlinkSimVehicle:
         items = self.missions.mission()
         first_nav = next((it.command for it in items[1:] if it.command in (16, 20, 21, 22)), None)
         m, why = check_mode_change(mode, airborne=self.airborne, armed=self.armed,
-                                   mission_items=max(0, len(items) - 1), first_nav=first_nav)
+                                   mission_items=max(0, len(items) - 1), first_nav=first_nav,
+                                   position_ok=self.position_ok)
         if m is None:
-            self._text(M.MAV_SEVERITY_WARNING, f"Mode change to {mode:g} failed: {why}"[:50])
+            try:
+                name = CopterMode(int(mode)).name
+            except (ValueError, OverflowError):
+                name = f"{mode:g}"
+            self._text(M.MAV_SEVERITY_WARNING, f"Mode change to {name} failed: {why}"[:50])
             return M.MAV_RESULT_FAILED
         sim = self.sim
         prev = self.custom_mode
@@ -765,6 +844,10 @@ class MavlinkSimVehicle:
             return M.MAV_RESULT_ACCEPTED
         if self.refuse_arming:
             self._text(M.MAV_SEVERITY_CRITICAL, self.prearm_text)
+            return M.MAV_RESULT_FAILED
+        why = self.boot.prearm_failure(self.boot_time())
+        if why is not None:
+            self._text(M.MAV_SEVERITY_CRITICAL, f"Arm: {why}")
             return M.MAV_RESULT_FAILED
         if self.custom_mode not in ARMABLE:
             self._text(M.MAV_SEVERITY_CRITICAL, f"Arm: Mode not armable")
@@ -853,7 +936,17 @@ def build_parser(prog: str = "python -m edge.vehicle.mavsim") -> argparse.Argume
     p.add_argument("--mavlink-key", default=None, help="MAVLink 2 signing key: 64 hex digits or a passphrase")
     p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
                    help="initial parameter value (repeatable), e.g. FS_GCS_ENABLE=1")
+    add_firmware_options(p)
     return p
+
+
+def add_firmware_options(p: argparse.ArgumentParser) -> None:
+    """``--boot-scale`` and ``--stream-all`` (shared with ``skynet sim-autopilot``)."""
+    p.add_argument("--boot-scale", type=float, default=1.0,
+                   help="start-up times as a fraction of ArduCopter's (1: BOOT 2 s, home 20 s, armable 24 s, "
+                        "GUIDED/AUTO 42 s; 0: ready at once)")
+    p.add_argument("--stream-all", action="store_true",
+                   help="stream telemetry unasked (ArduCopter sends only HEARTBEAT until a ground station asks)")
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m edge.vehicle.mavsim") -> int:
@@ -864,7 +957,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m edge.vehicle.mavs
                                     params=SimParams(disturbance=wind), seed=args.seed,
                                     telemetry_hz=args.telemetry_hz, refuse_arming=args.refuse_arming,
                                     origin=args.origin, mavlink_key=args.mavlink_key,
-                                    param_overrides=dict(args.param))
+                                    param_overrides=dict(args.param), boot_scale=args.boot_scale,
+                                    stream_all=args.stream_all)
     except ValueError as exc:
         print(f"mavsim: {exc}", file=sys.stderr)
         return 2

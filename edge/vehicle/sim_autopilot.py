@@ -9,7 +9,9 @@ N). Point QGroundControl, Mission Planner, MAVProxy or MAVSDK at those ports::
 
 ``--home`` (repeatable, in ``--uav`` order) sets each launch point in the scenario's ENU frame
 (default: the origin for all); ``--mavlink-key`` signs every link; ``--param NAME=VALUE`` sets
-initial parameters of every autopilot.
+initial parameters of every autopilot. Like ArduCopter's firmware, each sends only HEARTBEAT
+until asked for telemetry (``--stream-all``: everything unasked) and takes ArduCopter's start-up
+times (~42 s until GUIDED and AUTO are allowed; ``--boot-scale 0.1`` ten times faster, 0 at once).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from edge.vehicle.mavsim import DEFAULT_ORIGIN, MavlinkSimVehicle, _param, _vec
+from edge.vehicle.mavsim import DEFAULT_ORIGIN, MavlinkSimVehicle, _param, _vec, add_firmware_options
 from edge.vehicle.quadrotor import DisturbanceParams
 from edge.vehicle.sim import SimParams
 from protocol.signals import stop_event_on_signals
@@ -47,6 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wind", choices=["calm", "moderate"], default="calm")
     p.add_argument("--mavlink-key", default=None, help="MAVLink 2 signing key: 64 hex digits or a passphrase")
     p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE")
+    add_firmware_options(p)
     return p
 
 
@@ -67,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
                                               speed=args.speed, epoch=args.epoch,
                                               params=SimParams(disturbance=wind),
                                               seed=args.seed + uav, origin=args.origin,
-                                              mavlink_key=args.mavlink_key, param_overrides=dict(args.param)))
+                                              mavlink_key=args.mavlink_key, param_overrides=dict(args.param),
+                                              boot_scale=args.boot_scale, stream_all=args.stream_all))
             print(f"sim-autopilot: uav {uav} (system id {uav}) on {conn}", flush=True)
     except ValueError as exc:
         for v in vehicles:

@@ -143,6 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", default=None, help="report folder")
     m.add_argument("--quiet", action="store_true")
     m.add_argument("--appear-timeout", type=float, default=30.0)
+    m.add_argument("--ready-timeout", type=float, default=120.0, metavar="S",
+                   help="wait this long for every UAV's autopilot to be ready before takeoff, then refuse")
     m.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap")
     m.add_argument("--web", default=None, metavar="[HOST]:PORT",
                    help="serve the live web page of the fleet there (e.g. :8080; loopback unless a host is given)")
@@ -156,7 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     log = setup_logging("gcs")
     scenario = load_scenario(args.scenario)
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
-                             speed=args.speed, appear_timeout_s=args.appear_timeout)
+                             speed=args.speed, appear_timeout_s=args.appear_timeout,
+                             ready_timeout_s=args.ready_timeout)
     abort = stop_event_on_signals()
     signer = plan_verifier = None
     if args.keys:  # commands and heartbeats signed end to end, plans signed by the planner

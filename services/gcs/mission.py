@@ -106,6 +106,7 @@ class MissionOptions:
     start_margin_s: float = 2.0  # least time between the start commands and the common start t0, wall s
     command_attempts: int = 4
     takeoff_timeout_s: float = 60.0  # simulated seconds
+    ready_timeout_s: float = 120.0  # wall s every autopilot is waited for before takeoff (services/gcs/readiness.py)
     mission_margin: float = 1.5  # x planned duration, simulated
     land_timeout_s: float = 60.0  # simulated seconds
     report_wait_s: float = 5.0  # wall seconds to wait for the last defect reports
@@ -283,6 +284,29 @@ class MissionRunner:
                                     f"{self.opt.appear_timeout_s:.0f} s)")
             time.sleep(0.2)
 
+    def wait_ready(self) -> None:
+        """Wait until every UAV's autopilot is ready to fly; refuse naming each UAV and its reason after
+        ``ready_timeout_s`` (:mod:`.readiness`)."""
+        from .readiness import not_ready, refusal
+
+        self.phase("readiness")
+        t0, told = time.monotonic(), False
+        while True:
+            with self._lock:
+                waiting = not_ready(dict(self.latest), self.opt.uavs)
+            if not waiting:
+                return
+            if self.log and not told:
+                told = True
+                self.log.info("waiting for the autopilots: %s", "; ".join(f"UAV {u}: {w}" for u, w in waiting.items()))
+            if self.abort.is_set():
+                raise MissionFailed("aborted by the operator while waiting for the autopilots")
+            if time.monotonic() - t0 > self.opt.ready_timeout_s:
+                raise MissionFailed(refusal(waiting, time.monotonic() - t0))
+            if self.on_progress:
+                self.on_progress(self)
+            time.sleep(0.2)
+
     def request_plan(self) -> MissionPlan:
         """Ask for the plan and take it only on the operator's authority (:mod:`protocol.planauth`,
         :func:`.preflight.scenario_problem`): every answer of the request is gathered; one without the
@@ -434,6 +458,7 @@ class MissionRunner:
                                                              geofence=fence), "its trajectory upload")
             offsets = dict(zip(self.opt.uavs, self.record.scenario.formation.offsets))
             self.command_all(lambda u, cid: SetFormation(uav=u, cmd_id=cid, offsets=offsets), "the formation")
+            self.wait_ready()
             self.phase("takeoff")
             self.command_all(lambda u, cid: Takeoff(uav=u, cmd_id=cid, altitude=self.takeoff_altitude(u)), "takeoff")
             self.wait_for(lambda: self.fleet_done(lambda u, s: s is not None and s.mode == Mode.HOLD),
@@ -588,6 +613,16 @@ class MissionRunner:
                 check = goal_check((s.msg for s in rec.states if s.msg.uav == t.uav), t)  # services.gcs.verdict
                 if check is None or not (check.completed and check.reached):
                     rec.failures.append(f"UAV {t.uav} did not reach its goal {tuple(round(v, 1) for v in goal)}")
+            from .capture_pose import CAPTURE_TOLERANCE_M, capture_errors, far_text  # frames off their points
+
+            errs = capture_errors(rec.plan.trajectories, (s.msg for s in rec.states), (d.msg for d in rec.defects))
+            far = {k: d for k, d in errs.items() if d > CAPTURE_TOLERANCE_M}
+            if errs and self.log:
+                ds = sorted(errs.values())
+                self.log.info("capture positions: %d frames placed, error median %.2f m, max %.2f m (tolerance %g m)",
+                              len(ds), ds[len(ds) // 2], ds[-1], CAPTURE_TOLERANCE_M)
+            if far:
+                rec.failures.append(far_text(far))
             missing = self.missing_captures()
             if missing:
                 rec.failures.append(f"{len(missing)} of {len(self.planned_captures())} capture points were not imaged: "

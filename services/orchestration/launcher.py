@@ -515,7 +515,8 @@ class Network:
                 port = free_port_pair()[1]
                 self.group.start(f"ap{i}", ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1),
                                             "--home", ",".join(map(str, home)), "--speed", str(a.speed),
-                                            "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate"],
+                                            "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate",
+                                            "--boot-scale", f"{getattr(a, 'autopilot_boot_scale', 1.0):g}"],
                                  prefix=self.prefix_of(f"uav{i}"))  # beside its edge
                 vehicle = ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{port}",
                            "--flight", getattr(a, "flight", "guided")]
@@ -756,6 +757,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--vehicle", choices=["sim", "mavlink"], default="sim",
                    help="sim: the built-in vehicle; mavlink: each edge flies a sim autopilot (skynet sim-autopilot) "
                         "over MAVLink on loopback")
+    p.add_argument("--autopilot-boot-scale", type=float, default=1.0, metavar="F",
+                   help="--vehicle mavlink: the sim autopilots' start-up times as a fraction of ArduCopter's "
+                        "(1: GUIDED/AUTO after 42 simulated s; 0.1 ten times faster; 0 at once)")
+    p.add_argument("--ready-timeout", type=float, default=120.0, metavar="S",
+                   help="the ground station waits this long for every UAV's autopilot to be ready, then refuses")
     p.add_argument("--flight", choices=["guided", "auto"], default="guided",
                    help="--vehicle mavlink: guided (position targets) or auto (a waypoint mission flown in AUTO)")
     p.add_argument("--method", default="it+r", help="the detector's method")
@@ -863,7 +869,8 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
         hooks_signer = net.gcs_signer()
         # every edge imports and starts at once on the same cores: 48 of them took over 30 s to appear
         options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
-                                 speed=args.speed, appear_timeout_s=max(30.0, 2.5 * args.uavs))
+                                 speed=args.speed, appear_timeout_s=max(30.0, 2.5 * args.uavs),
+                                 ready_timeout_s=args.ready_timeout)
         injector = net.start_faults(log)
 
         def on_runner(runner) -> None:

@@ -9,7 +9,10 @@ item                        behaviour (ArduCopter's, ardupilot.org/copter/docs/m
 NAV_TAKEOFF (22)            ``("takeoff", alt)``: climb to ``z`` above home where the vehicle
                             is; reached within ``takeoff_tol`` of that altitude
 NAV_WAYPOINT (16)           a carrot moves from where the leg starts to the waypoint at the
-                            current speed (WPNAV_SPEED, or the last DO_CHANGE_SPEED); reached when
+                            current speed (WPNAV_SPEED, or the last DO_CHANGE_SPEED), but a leg
+                            takes at least ``min_leg_s`` (1.8 s: ArduCopter's S-curve navigation
+                            flies ~0.8 m legs at ~0.45 m/s, "Reached command" every ~1.8 s,
+                            while ~8 m legs fly the planned 2.25 m/s); reached when
                             the carrot is there and the vehicle within WPNAV_RADIUS; then waits
                             param1 s (hold time). The next leg starts when the carrot arrived
                             (plus the hold), not at the update that noticed it
@@ -39,10 +42,12 @@ from typing import Callable
 from edge.vehicle.apm import items as I
 from edge.vehicle.apm.missions import PlanItem
 
-__all__ = ["AutoMission", "Flight", "MAV_CMD_CONDITION_YAW"]
+__all__ = ["AutoMission", "Flight", "MAV_CMD_CONDITION_YAW", "MIN_LEG_S"]
 
 Vec3 = tuple[float, float, float]
 MAV_CMD_CONDITION_YAW = 115
+#: least time ArduCopter takes for a waypoint leg, s (its S-curves: see the table above)
+MIN_LEG_S = 1.8
 
 
 @dataclass(frozen=True)
@@ -69,10 +74,12 @@ class AutoMission:
     to_enu : PlanItem -> ENU position of a positioned item (relative altitude above home)
     home : ENU home position
     speed : WPNAV_SPEED, m/s; radius : WPNAV_RADIUS, m; yaw_behavior : WP_YAW_BEHAVIOR
+    min_leg_s : least time a waypoint leg takes, s (0: legs at the set speed whatever their length)
     """
 
     def __init__(self, items: list[PlanItem], to_enu: Callable[[PlanItem], Vec3], home: Vec3, speed: float,
-                 radius: float = 2.0, yaw_behavior: int = 2, takeoff_tol: float = 0.3, start: int = 1):
+                 radius: float = 2.0, yaw_behavior: int = 2, takeoff_tol: float = 0.3, start: int = 1,
+                 min_leg_s: float = MIN_LEG_S):
         self.items = list(items)
         self.to_enu = to_enu
         self.home = home
@@ -80,10 +87,12 @@ class AutoMission:
         self.radius = float(radius)
         self.yaw_behavior = int(yaw_behavior)
         self.takeoff_tol = float(takeoff_tol)
+        self.min_leg_s = max(0.0, float(min_leg_s))
         self.current = max(1, int(start))
         self.done = False
         self.shots = 0
         self._leg: tuple[Vec3, Vec3, float] | None = None  # start, end, t_start
+        self._leg_cap = math.inf  # the current leg's speed cap (min_leg_s), m/s
         self._hold_until: float | None = None
         self._yaw: float | None = None
         self._trig_dist = 0.0
@@ -102,13 +111,18 @@ class AutoMission:
         self._started.discard(seq)
         return True
 
+    def _leg_speed(self) -> float:
+        """The speed the current leg is flown at: the set speed, capped so that the whole leg (as it was
+        when it began: a speed change rebases it, not its cap) lasts ``min_leg_s``."""
+        return min(self.speed, self._leg_cap)
+
     def set_speed(self, t: float, speed: float) -> None:
         """MAV_CMD_DO_CHANGE_SPEED as a command: the carrot goes on from where it is at the new speed
         (the leg is rebased at the carrot, so a speed change never makes it jump)."""
         if self._leg is not None:
             start, end, t0 = self._leg
             length = _dist(start, end)
-            s = min(length, self.speed * max(0.0, t - t0))
+            s = min(length, self._leg_speed() * max(0.0, t - t0))
             if length > 1e-9 and s < length:
                 f = s / length
                 carrot = tuple(b + (e - b) * f for b, e in zip(start, end))
@@ -213,23 +227,26 @@ class AutoMission:
             t0 = self._t_free if self._t_free is not None and 0.0 <= t - self._t_free < 0.5 else t
             self._leg = (start, end, t0)
             self._t_free = None
+            whole = _dist(start, end)
+            self._leg_cap = whole / self.min_leg_s if self.min_leg_s > 0 and whole > 0 else math.inf
             d = (end[0] - start[0], end[1] - start[1])
             if self.yaw_behavior != 0 and math.hypot(*d) > 2.0:
                 self._yaw = math.atan2(d[1], d[0])
         start, end, t0 = self._leg
         length = _dist(start, end)
-        s = self.speed * max(0.0, t - t0)
+        speed = self._leg_speed()
+        s = speed * max(0.0, t - t0)
         yaw = self._yaw or 0.0
         if length > 1e-9 and s < length:
             u = tuple((e - b) / length for b, e in zip(start, end))
             carrot = tuple(b + ui * s for b, ui in zip(start, u))
-            vel = tuple(ui * self.speed for ui in u)
+            vel = tuple(ui * speed for ui in u)
             return Flight("goto", carrot, vel, yaw), False  # type: ignore[arg-type]
         self._last_target = end
         if _dist(pos, end) > self.radius:
             return Flight("goto", end, yaw=yaw), False
         if self._hold_until is None:
-            arrived = t0 + (length / self.speed if self.speed > 0 else 0.0)
+            arrived = t0 + (length / speed if speed > 0 else 0.0)
             self._hold_until = max(arrived, t - 0.5) + max(0.0, hold_s)
         if t >= self._hold_until:
             self._t_free = self._hold_until

@@ -10,6 +10,8 @@ STATUSTEXT ArduCopter sends ("Mode change to AUTO failed: ..."):
   NAV item must be a NAV_TAKEOFF ("Missing Takeoff Cmd"). Armed on the ground in AUTO, the
   mission starts at once, as ArduCopter with AUTO_OPTIONS bit 2 ("allow takeoff without
   raising throttle"; this simulation has no throttle stick).
+- GUIDED, AUTO, LOITER, RTL, BRAKE, POSHOLD and SMART_RTL need a position estimate (ArduCopter's
+  ``requires_position()``): before the EKF uses GPS the change is refused with "requires position".
 - Arming is allowed in STABILIZE, GUIDED and LOITER (ArduCopter refuses arming in AUTO, RTL,
   LAND and BRAKE unless AUTO_OPTIONS bit 0 allows AUTO).
 """
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-__all__ = ["CopterMode", "SUPPORTED_MODES", "ARMABLE", "check_mode_change", "FS_GCS_ACTIONS", "FENCE_ACTIONS"]
+__all__ = ["CopterMode", "SUPPORTED_MODES", "ARMABLE", "REQUIRES_POSITION", "base_mode", "check_mode_change", "FS_GCS_ACTIONS", "FENCE_ACTIONS"]
 
 
 class CopterMode(IntEnum):
@@ -39,6 +41,25 @@ class CopterMode(IntEnum):
 SUPPORTED_MODES = frozenset({CopterMode.STABILIZE, CopterMode.AUTO, CopterMode.GUIDED, CopterMode.LOITER,
                              CopterMode.RTL, CopterMode.LAND, CopterMode.BRAKE})
 ARMABLE = frozenset({CopterMode.STABILIZE, CopterMode.GUIDED, CopterMode.LOITER})
+#: modes whose ``requires_position()`` is true in ArduCopter (mode.h)
+REQUIRES_POSITION = frozenset({CopterMode.AUTO, CopterMode.GUIDED, CopterMode.LOITER, CopterMode.RTL,
+                               CopterMode.BRAKE, CopterMode.POSHOLD, CopterMode.SMART_RTL})
+#: modes that run the horizontal position controller (MAV_MODE_FLAG_GUIDED_ENABLED while it is active)
+_POSITION_CONTROL = REQUIRES_POSITION | {CopterMode.LAND}
+
+#: MAV_MODE_FLAG bits (common.xml)
+_CUSTOM, _GUIDED, _STABILIZE, _MANUAL, _ARMED = 1, 8, 16, 64, 128
+
+
+def base_mode(mode: int, *, armed: bool, flying: bool) -> int:
+    """HEARTBEAT.base_mode as ArduCopter computes it (GCS_MAVLINK_Copter::base_mode): STABILIZE_ENABLED,
+    MANUAL_INPUT_ENABLED and CUSTOM_MODE_ENABLED always; GUIDED_ENABLED while the horizontal position
+    controller runs (a position mode, armed and flying); SAFETY_ARMED when armed. So 81 disarmed (any
+    mode), 209 armed on the ground or in STABILIZE, 217 flying in GUIDED or AUTO."""
+    flags = _STABILIZE | _MANUAL | _CUSTOM | (_ARMED if armed else 0)
+    if armed and flying and mode in _POSITION_CONTROL:
+        flags |= _GUIDED
+    return flags
 
 #: FS_GCS_ENABLE value -> the mode the GCS failsafe switches to (2: AUTO continues, else RTL)
 FS_GCS_ACTIONS = {1: CopterMode.RTL, 2: CopterMode.RTL, 3: CopterMode.RTL, 4: CopterMode.LAND,
@@ -48,11 +69,11 @@ FENCE_ACTIONS = {1: CopterMode.RTL, 2: CopterMode.LAND, 3: CopterMode.RTL, 4: Co
 
 
 def check_mode_change(mode: float, *, airborne: bool, armed: bool, mission_items: int,
-                      first_nav: int | None) -> tuple[CopterMode | None, str]:
+                      first_nav: int | None, position_ok: bool = True) -> tuple[CopterMode | None, str]:
     """``(mode, "")`` when the change to ``mode`` is allowed, else ``(None, reason)``.
 
     ``mission_items`` counts the stored mission's items after home; ``first_nav`` is the command
-    of its first NAV item (None without one).
+    of its first NAV item (None without one); ``position_ok`` says the EKF has an absolute position.
     """
     try:
         m = CopterMode(int(mode))
@@ -60,6 +81,8 @@ def check_mode_change(mode: float, *, airborne: bool, armed: bool, mission_items
         return None, "unknown mode"
     if mode != int(mode) or m not in SUPPORTED_MODES:
         return None, "not supported"
+    if m in REQUIRES_POSITION and not position_ok:
+        return None, "requires position"
     if m == CopterMode.STABILIZE and airborne:
         return None, "not simulated in flight"
     if m == CopterMode.RTL and not (armed and airborne):

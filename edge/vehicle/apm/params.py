@@ -4,7 +4,9 @@ Protocol (https://mavlink.io/en/services/parameter.html), as ArduPilot answers i
 
 - PARAM_REQUEST_LIST: every parameter as PARAM_VALUE, in index order (``param_count`` = table size);
 - PARAM_REQUEST_READ: by ``param_index``, or by ``param_id`` when the index is −1; an unknown
-  name or index gets no answer (ArduPilot stays silent too);
+  name or index is answered at once with PARAM_ERROR (common.xml, message 345) error
+  MAV_PARAM_ERROR_DOES_NOT_EXIST addressed to the requester, as current ArduCopter does (older
+  firmware stayed silent and clients retried for seconds);
 - PARAM_SET: the new value is stored and echoed as PARAM_VALUE. ArduPilot ints travel as floats
   holding the integer value ("cast", not the bytewise C union); the declared range is enforced
   here (ArduPilot's ground stations enforce it; a value outside it, NaN or a non-integer for an
@@ -25,12 +27,14 @@ import math
 from dataclasses import dataclass
 
 __all__ = ["MAV_PARAM_TYPE_INT8", "MAV_PARAM_TYPE_INT16", "MAV_PARAM_TYPE_INT32", "MAV_PARAM_TYPE_REAL32",
+           "MAV_PARAM_ERROR_DOES_NOT_EXIST",
            "ParamSpec", "ParamTable", "COPTER_PARAMS"]
 
 MAV_PARAM_TYPE_INT8 = 2
 MAV_PARAM_TYPE_INT16 = 4
 MAV_PARAM_TYPE_INT32 = 6
 MAV_PARAM_TYPE_REAL32 = 9
+MAV_PARAM_ERROR_DOES_NOT_EXIST = 1
 
 Out = tuple[str, dict]
 
@@ -116,20 +120,34 @@ class ParamTable:
         """PARAM_REQUEST_LIST: every PARAM_VALUE."""
         return [self._value(i) for i in range(len(self.specs))]
 
-    def request_read(self, param_id: object, param_index: int) -> list[Out]:
-        """PARAM_REQUEST_READ: one PARAM_VALUE, or nothing for an unknown parameter."""
+    @staticmethod
+    def _error(param_id: object, param_index: int, requester: tuple[int, int] | None) -> list[Out]:
+        if requester is None:
+            return []
+        raw = param_id if isinstance(param_id, (bytes, bytearray)) else str(param_id).encode("ascii", "replace")
+        return [("param_error", dict(target_system=requester[0], target_component=requester[1],
+                                     param_id=bytes(raw)[:16], param_index=int(param_index),
+                                     error=MAV_PARAM_ERROR_DOES_NOT_EXIST))]
+
+    def request_read(self, param_id: object, param_index: int,
+                     requester: tuple[int, int] | None = None) -> list[Out]:
+        """PARAM_REQUEST_READ: one PARAM_VALUE; for an unknown parameter PARAM_ERROR to ``requester``
+        (system, component), or nothing without one."""
         if param_index >= 0:
-            return [self._value(param_index)] if param_index < len(self.specs) else []
+            if param_index < len(self.specs):
+                return [self._value(param_index)]
+            return self._error(param_id, max(-1, min(param_index, 32767)), requester)
         name = _name(param_id)
         if name not in self._by_name:
-            return []
+            return self._error(param_id, -1, requester)
         return [self._value(self.specs.index(self._by_name[name]))]
 
-    def param_set(self, param_id: object, value: float) -> list[Out]:
-        """PARAM_SET: store when valid; answer the (new or unchanged) value; nothing for an unknown name."""
+    def param_set(self, param_id: object, value: float, requester: tuple[int, int] | None = None) -> list[Out]:
+        """PARAM_SET: store when valid; answer the (new or unchanged) value; PARAM_ERROR (or nothing
+        without a ``requester``) for an unknown name."""
         name = _name(param_id)
         if name not in self._by_name:
             self.rejected += 1
-            return []
+            return self._error(param_id, -1, requester)
         self.set(name, value)
         return self.request_read(name, -1)

@@ -1,7 +1,10 @@
 """The telemetry scheduler: which message is due when, as ArduPilot's stream rates work.
 
-- Each streamable message has a rate (Hz; 0 = off). :meth:`StreamScheduler.due` returns the
-  messages whose period has elapsed since they were last sent (wall clock).
+- Each streamable message has a rate (Hz; 0 = off). As ArduCopter's firmware (its SRn_* stream
+  rates are 0 on a link a ground station has not configured), only HEARTBEAT is sent unasked
+  (:data:`ARDUCOPTER_RATES`); :data:`DEFAULT_RATES` is the "stream everything" alternative.
+  :meth:`StreamScheduler.due` returns the messages whose period has elapsed since they were last
+  sent (wall clock).
 - MAV_CMD_SET_MESSAGE_INTERVAL (511): param1 message id, param2 interval in µs; −1 stops it, 0
   restores its default (common.xml). An id the vehicle cannot produce is MAV_RESULT_DENIED, as
   ArduPilot answers. MAV_CMD_GET_MESSAGE_INTERVAL (510) answers MESSAGE_INTERVAL.
@@ -9,7 +12,8 @@
   MAV_DATA_STREAM group and a rate; ArduCopter's groups (GCS_Mavlink.cpp ``STREAM_*`` lists,
   the subset this vehicle produces): EXTENDED_STATUS (2) = SYS_STATUS, GPS_RAW_INT,
   MISSION_CURRENT; POSITION (6) = GLOBAL_POSITION_INT, LOCAL_POSITION_NED; EXTRA1 (10) =
-  ATTITUDE; EXTRA2 (11) = VFR_HUD; EXTRA3 (12) = BATTERY_STATUS, EXTENDED_SYS_STATE; ALL (0) = all
+  ATTITUDE; EXTRA2 (11) = VFR_HUD; EXTRA3 (12) = BATTERY_STATUS, EXTENDED_SYS_STATE,
+  EKF_STATUS_REPORT; ALL (0) = all
   of them. ``start_stop`` 0 stops the group.
 - Rates are capped at 50 Hz.
 """
@@ -18,7 +22,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["StreamScheduler", "DEFAULT_RATES", "STREAM_GROUPS", "MAX_RATE_HZ"]
+__all__ = ["StreamScheduler", "DEFAULT_RATES", "ARDUCOPTER_RATES", "STREAM_GROUPS", "MAX_RATE_HZ"]
 
 MAX_RATE_HZ = 50.0
 
@@ -35,7 +39,11 @@ DEFAULT_RATES: dict[str, float] = {
     "EXTENDED_SYS_STATE": 2.0,
     "HOME_POSITION": 0.5,
     "MISSION_CURRENT": 1.0,
+    "EKF_STATUS_REPORT": 1.0,
 }
+
+#: what ArduCopter sends before anyone asks: HEARTBEAT only
+ARDUCOPTER_RATES: dict[str, float] = {"HEARTBEAT": 1.0}
 
 #: MAV_DATA_STREAM id -> the messages of ArduCopter's group
 STREAM_GROUPS: dict[int, tuple[str, ...]] = {
@@ -43,7 +51,7 @@ STREAM_GROUPS: dict[int, tuple[str, ...]] = {
     6: ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED"),
     10: ("ATTITUDE",),
     11: ("VFR_HUD",),
-    12: ("BATTERY_STATUS", "EXTENDED_SYS_STATE"),
+    12: ("BATTERY_STATUS", "EXTENDED_SYS_STATE", "EKF_STATUS_REPORT"),
 }
 STREAM_GROUPS[0] = tuple(n for g in (2, 6, 10, 11, 12) for n in STREAM_GROUPS[g])
 

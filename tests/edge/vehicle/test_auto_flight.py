@@ -17,11 +17,12 @@ import pytest
 pytest.importorskip("pymavlink", reason="needs the 'mavlink' extra")
 
 from edge.vehicle.apm import items as AI  # noqa: E402
-from edge.vehicle.auto_flight import autopilot_mission, resume_item, speed_correction  # noqa: E402
+from edge.vehicle.apm.auto import AutoMission  # noqa: E402
+from edge.vehicle.auto_flight import autopilot_mission, decimate, resume_item, speed_correction  # noqa: E402
 from edge.vehicle.follower import Follower  # noqa: E402
 from edge.vehicle.mavlink import CopterMode, MavlinkDriver, MavlinkParams  # noqa: E402
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
-from protocol.messages import Mode  # noqa: E402
+from protocol.messages import Mode, Trajectory, Waypoint  # noqa: E402
 from tests.edge.vehicle.test_mavlink import HOME, fly, free_udp_port, trajectory  # noqa: E402
 
 HOME_LLA = (21.0278, 105.8342, 12.0)
@@ -98,7 +99,6 @@ def test_auto_flies_the_trajectory_in_time_with_every_capture(auto_link):
     events = fly(drv, veh, lambda s: s.mode == Mode.HOLD and s.progress == 1.0, 30.0, watch)
     assert CopterMode.AUTO in modes and veh.reached  # flown by the autopilot's mission (MISSION_ITEM_REACHED)
     assert [e.capture_id for e in events] == [11, 12, 13]
-    assert sorted(set(veh.shots)) == [11, 12, 13]  # the autopilot's own DO_DIGICAM_CONTROL items
     assert len(errors) > 10 and max(errors) < 1.0  # in time: the plan's speeds plus the corrections
     assert drv.speed_commands > 0 and not drv.auto_errors and not drv.external_modes
     end = time.monotonic() + 5.0
@@ -106,6 +106,8 @@ def test_auto_flies_the_trajectory_in_time_with_every_capture(auto_link):
         drv.step(veh.clock.now())
         time.sleep(0.01)
     assert veh.custom_mode == CopterMode.GUIDED and drv.state().mode == Mode.HOLD
+    # GUIDED only once the autopilot reached its last waypoint: its own DO_DIGICAM_CONTROL items all ran
+    assert sorted(set(veh.shots)) == [11, 12, 13] and veh.reached[-1] == max(drv._auto_plan.waypoint_seq)
 
 
 def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_auto(auto_link):
@@ -130,3 +132,93 @@ def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_a
     events += fly(drv, veh, lambda s: s.mode == Mode.HOLD and s.progress == 1.0, 30.0)
     assert [e.capture_id for e in events] == [11, 12, 13]
     assert veh.reached and drv.external_modes == ["LOITER"] and not drv.auto_errors
+
+
+# ---------------------------------------------------------------------------------- dense trajectories
+def dense(z: float, spacing: float = 0.8, speed: float = 2.0) -> Trajectory:
+    """16 m east then 8 m north at ``speed``, a waypoint every ``spacing`` m (the planner's density),
+    captures at the corner and the end."""
+    x0, y0 = HOME[0], HOME[1]
+    pts = [(x0 + k * spacing, y0) for k in range(int(16 / spacing) + 1)]
+    pts += [(x0 + 16, y0 + k * spacing) for k in range(1, int(8 / spacing) + 1)]
+    wps, t = [], 0.0
+    for k, (x, y) in enumerate(pts):
+        if k:
+            t += math.dist(pts[k - 1], (x, y)) / speed
+        cid = 21 if (x, y) == (x0 + 16, y0) else 22 if k == len(pts) - 1 else None
+        wps.append(Waypoint(t=t, pos=(x, y, z), yaw=0.0, capture_id=cid))
+    return Trajectory(uav=1, waypoints=wps)
+
+
+def fly_items(items, limit_s: float = 200.0) -> tuple[float, list[int]]:
+    """Sim time AUTO (:class:`AutoMission`, ArduCopter's leg timing) takes to walk the mission with the
+    vehicle on its carrot, and the shots taken."""
+    to_enu = lambda it: tuple(HOME[k] + d for k, d in enumerate(pymap3d.geodetic2enu(
+        it.x / 1e7, it.y / 1e7, HOME_LLA[2] + it.z, *HOME_LLA)))
+    a = AutoMission(list(items), to_enu, HOME, speed=10.0, radius=0.5)
+    t, pos, shots = 0.0, (HOME[0], HOME[1], HOME[2] + 5.0), []
+    while not a.done and t < limit_s:
+        fl, ev = a.update(t, pos, 0.0, True)
+        shots += [v for k, v in ev if k == "shot"]
+        if fl.kind in ("goto", "hold"):
+            pos = fl.pos
+        t += 0.05
+    return t, shots
+
+
+def test_a_dense_mission_is_flown_slowly_as_by_arducopter_and_the_decimated_one_at_plan_speed():
+    traj = dense(HOME[2] + 5.0)
+    planned = traj.waypoints[-1].t  # 12 s at 2 m/s
+    keep = decimate(traj)
+    assert keep[0] == 0 and keep[-1] == len(traj.waypoints) - 1 and len(keep) < len(traj.waypoints) / 4
+    assert all(traj.waypoints[i].capture_id is None or i in keep for i in range(len(traj.waypoints)))
+    for a, b in zip(keep, keep[1:]):  # every dropped waypoint lies on its leg
+        for m in range(a + 1, b):
+            assert abs(traj.waypoints[m].pos[1] - traj.waypoints[a].pos[1]) < 0.31 or \
+                abs(traj.waypoints[m].pos[0] - traj.waypoints[a].pos[0]) < 0.31
+    plan = autopilot_mission(traj, HOME, HOME_LLA)
+    assert len(set(plan.waypoint_seq)) == len(keep) and len(plan.waypoint_seq) == len(traj.waypoints)
+    slow_items = _dense_items(traj)  # one NAV_WAYPOINT per 0.8 m
+    assert sum(it.command == AI.MAV_CMD_NAV_WAYPOINT for it in slow_items) == len(traj.waypoints) + 1
+    t_slow, _ = fly_items(slow_items)
+    t_plan, shots = fly_items(plan.items)
+    assert t_slow > 2.5 * planned  # ~0.45 m/s: what ArduCopter does with 0.8 m legs
+    assert t_plan < planned + 4.0 and shots == [21, 22]  # the decimated mission keeps the plan's timing
+    assert resume_item(plan, 3) == plan.waypoint_seq[0] + 1  # a dropped waypoint resumes after the last kept
+
+
+def _dense_items(traj: Trajectory):
+    """The mission without decimation (every waypoint a NAV_WAYPOINT), as MISSION_ITEM_INT fields."""
+    from edge.vehicle.apm.missions import PlanItem
+    from edge.vehicle.waypoint_mission import mission_items
+
+    origin = pymap3d.enu2geodetic(-HOME[0], -HOME[1], -HOME[2], *HOME_LLA)
+    out = []
+    for it in mission_items(traj, origin)[:-1]:
+        p = it.params
+        glob = it.frame in (0, 3)
+        out.append(PlanItem(seq=len(out), frame=it.frame, command=it.command, param1=p[0], param2=p[1],
+                            param3=p[2], param4=p[3], x=round(p[4] * 1e7) if glob else int(p[4]),
+                            y=round(p[5] * 1e7) if glob else int(p[5]), z=p[6] - HOME[2] if it.frame == 3 else p[6]))
+    return out
+
+
+def test_auto_flies_a_dense_trajectory_in_time(auto_link):
+    drv, veh = auto_link
+    drv.takeoff(5.0)
+    fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
+    traj = dense(HOME[2] + 5.0)
+    drv.upload(traj)
+    ref = Follower(traj)
+    drv.start(veh.clock.now() + 1.0)
+    errors = []
+
+    def watch(s):
+        if s.mode == Mode.MISSION and 0.0 < s.progress < 1.0 and veh.custom_mode == CopterMode.AUTO:
+            q = veh.sim.state()
+            errors.append(math.dist(q.pos, ref.reference(s.progress * ref.duration + q.t - s.t)[0]))
+
+    events = fly(drv, veh, lambda s: s.mode == Mode.HOLD and s.progress == 1.0, 40.0, watch)
+    assert [e.capture_id for e in events] == [21, 22]
+    assert len(errors) > 10 and max(errors) < 1.5, max(errors, default=None)  # at plan speed, not ~0.5 m/s
+    assert not drv.auto_errors

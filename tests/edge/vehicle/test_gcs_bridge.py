@@ -50,6 +50,9 @@ def test_ground_station_watches_takes_over_and_keeps_the_gcs_failsafe_meaningful
         drv.wait_heartbeat(10)
         hb = wait_for(gcs, "HEARTBEAT", lambda h: h.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA)
         assert hb.get_srcSystem() == 1  # the autopilot itself, forwarded
+        # the operator's ground station asks for its own telemetry (ArduCopter sends only HEARTBEAT unasked)
+        gcs.mav.command_long_send(1, 1, M.MAV_CMD_SET_MESSAGE_INTERVAL, 0, M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                                  250000, 0, 0, 0, 0, 0)
         drv.takeoff(5.0)
         wait_for(gcs, "GLOBAL_POSITION_INT", lambda g: drv.step(veh.clock.now()) is not None
                  and drv.state().mode == Mode.HOLD, 60)  # the board steps the driver on its clock

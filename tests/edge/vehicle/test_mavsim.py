@@ -67,10 +67,19 @@ def run(coro, limit_s: float = 240.0):
     return asyncio.run(asyncio.wait_for(coro, limit_s))
 
 
-class Session:
-    """One sim autopilot and a MAVSDK ground station listening for it."""
+RATES = ("position", "home", "gps_info", "raw_gps", "in_air", "landed_state", "battery", "attitude_euler",
+         "velocity_ned", "position_velocity_ned", "health")
 
-    def __init__(self, speed: float = 4.0, **opts):
+
+class Session:
+    """One sim autopilot and a MAVSDK ground station listening for it.
+
+    As against ArduCopter's firmware, which sends only HEARTBEAT until asked, the session asks for its
+    telemetry with MAVSDK's ``set_rate_*`` (SET_MESSAGE_INTERVAL) unless ``ask_rates`` is False.
+    """
+
+    def __init__(self, speed: float = 4.0, ask_rates: bool = True, **opts):
+        self.ask_rates = ask_rates
         self.port = free_udp_port()
         self.veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{self.port}", 1, speed=speed, **opts).start()
         self.sdk: Mavsdk | None = None
@@ -83,6 +92,9 @@ class Session:
         self.system = system
         self.tel, self.act = TelemetryAsync(system), ActionAsync(system)
         self.mis, self.par = MissionRawAsync(system), ParamAsync(system)
+        if self.ask_rates:
+            for name in RATES:
+                await getattr(self.tel, f"set_rate_{name}")(10.0)
         return self
 
     async def __aexit__(self, *exc):
@@ -118,6 +130,16 @@ def test_discovery_health_and_every_telemetry_kind():
             await first(s.tel.subscribe_heading())
             await first(s.tel.subscribe_position_velocity_ned())
             await first(s.tel.subscribe_flight_mode())
+    run(go())
+
+
+def test_mavsdk_without_rate_requests_gets_no_position_as_from_the_firmware():
+    async def go():
+        async with Session(ask_rates=False) as s:
+            assert int(await s.system.autopilot_type()) == int(mavsdk.Autopilot.ARDUPILOT)
+            with pytest.raises(asyncio.TimeoutError):
+                await first(s.tel.subscribe_position(), limit_s=4.0)
+            assert s.veh.streams.rate["GLOBAL_POSITION_INT"] == 0
     run(go())
 
 
@@ -262,6 +284,8 @@ def gcs_link(request):
     try:
         hb = gcs.m.wait_heartbeat(timeout=10)
         assert hb is not None and gcs.m.target_system == 1
+        # what MAVProxy asks on connecting (its default "streamrate 4"): ArduCopter sends nothing else unasked
+        gcs.m.mav.request_data_stream_send(1, 1, M.MAV_DATA_STREAM_ALL, 4, 1)
         yield gcs, veh
     finally:
         gcs.close()

@@ -1,0 +1,39 @@
+"""The fleet's readiness before takeoff: every UAV's autopilot ready to fly, or a refusal naming who and why.
+
+A real autopilot is not ready at once: ArduCopter boots (~2 s), sets its EKF origin and home
+(~20 s), passes its pre-arm checks (~24 s) and allows GUIDED and AUTO only once its EKF uses GPS
+(~42 s) (edge/vehicle/apm/boot.py). Its edge reports what the autopilot says in each state's
+``autopilot`` field (protocol.messages.AutopilotReadiness); the built-in vehicle reports none
+and is always ready. The ground station waits until every UAV is ready, up to a timeout, and
+then refuses the mission with each waiting UAV's own reason, before any takeoff command.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+
+from protocol.messages import VehicleState
+
+__all__ = ["not_ready", "refusal"]
+
+
+def not_ready(states: Mapping[int, VehicleState | None], uavs: Iterable[int]) -> dict[int, str]:
+    """UAV -> why it is not ready to take off (empty: every UAV is ready).
+
+    A UAV without a state yet is not ready ("no state heard"); a state without ``autopilot`` is
+    ready (the built-in vehicle); otherwise its ``ready`` flag decides and its ``reason`` says why.
+    """
+    out: dict[int, str] = {}
+    for u in uavs:
+        s = states.get(u)
+        if s is None:
+            out[u] = "no state heard from its edge"
+        elif s.autopilot is not None and not s.autopilot.ready:
+            out[u] = s.autopilot.reason or "its autopilot is not ready (no reason given)"
+    return out
+
+
+def refusal(waiting: Mapping[int, str], waited_s: float) -> str:
+    """The one-line refusal after ``waited_s`` seconds: each waiting UAV and its autopilot's reason."""
+    parts = "; ".join(f"UAV {u}: {why}" for u, why in sorted(waiting.items()))
+    return f"refused before takeoff: autopilot not ready after {waited_s:.0f} s ({parts})"
