@@ -6,8 +6,10 @@ of the surface while still counting as "imaged". So the verdict measures, for ev
 defect report, the UAV's position at the frame's capture time (``stamp_capture``, the edge's
 wall clock) interpolated linearly between the UAV's two nearest published states (their
 ``stamp``, the same edge's clock) and refuses a frame farther than :data:`CAPTURE_TOLERANCE_M`
-from its planned capture point (the trajectory waypoint with that capture id). A frame with no
-state within :data:`MAX_GAP_S` of it cannot be placed and is not judged here.
+from its planned capture point (the trajectory waypoint with that capture id). Across a gap in the
+states longer than :data:`MAX_GAP_S` (a lost link) a frame is placed only at a state within
+:data:`NEAR_S` of it (a wall second is several simulated ones at an accelerated run); one that
+cannot be placed is not judged here.
 """
 
 from __future__ import annotations
@@ -18,15 +20,17 @@ from collections.abc import Iterable
 
 from protocol.messages import DefectReport, Trajectory, VehicleState
 
-__all__ = ["CAPTURE_TOLERANCE_M", "MAX_GAP_S", "capture_errors", "far_captures", "far_text"]
+__all__ = ["CAPTURE_TOLERANCE_M", "MAX_GAP_S", "NEAR_S", "capture_errors", "far_captures", "far_text"]
 
 #: a frame taken farther than this from its capture point is refused, m: above the formation's
 #: corrections (P8, at most the edge's 3 m offset bound) plus the tracking lag of a MAVLink vehicle
 #: at an accelerated simulation (up to ~3.4 m seen in GUIDED at x8), far below the tens of metres
 #: of a mission flown off its clock
 CAPTURE_TOLERANCE_M = 5.0
-#: a capture time farther than this from every state of its UAV is not placed, s
+#: states farther apart than this are not interpolated between, s (wall clock)
 MAX_GAP_S = 1.0
+#: across a gap (or beyond the first or last state), a capture is placed only at a state this close to it, s
+NEAR_S = 0.1
 
 Key = tuple[int, int]
 
@@ -36,13 +40,13 @@ def _position_at(stamps: list[float], states: list[VehicleState], t: float) -> t
     if 0 < i < len(stamps):
         a, b = states[i - 1], states[i]
         span = b.stamp - a.stamp
-        if span > 2 * MAX_GAP_S:
+        if span > MAX_GAP_S:
             near = a if t - a.stamp <= b.stamp - t else b
-            return tuple(near.pos) if abs(near.stamp - t) <= MAX_GAP_S else None
+            return tuple(near.pos) if abs(near.stamp - t) <= NEAR_S else None
         f = (t - a.stamp) / span if span > 0 else 0.0
         return tuple(pa + f * (pb - pa) for pa, pb in zip(a.pos, b.pos))
     near = states[0] if i == 0 else states[-1]
-    return tuple(near.pos) if abs(near.stamp - t) <= MAX_GAP_S else None
+    return tuple(near.pos) if abs(near.stamp - t) <= NEAR_S else None
 
 
 def capture_errors(trajectories: Iterable[Trajectory], states: Iterable[VehicleState],

@@ -37,3 +37,11 @@ def test_unplaceable_unplanned_and_failed_frames_are_not_judged_here():
     assert capture_errors([TRAJ], states, [report(99, 0.05)]) == {}  # not a planned capture
     assert capture_errors([TRAJ], states, [report(7, 0.05, ok=False)]) == {}
     assert capture_errors([TRAJ], [], [report(7, 0.05)]) == {}
+
+
+def test_a_frame_inside_a_gap_in_the_states_is_placed_only_at_a_state_next_to_it():
+    # a lost link: no state between t = 8 and t = 12 (the UAV flew on at 2 m/s); the frame of capture 7 at
+    # t = 10 is where planned, but the nearest states are 2 s (4 m) away: not placed, so not refused
+    states = [state(k / 10, 2 * k / 10) for k in range(0, 81)] + [state(k / 10, 2 * k / 10) for k in range(120, 301)]
+    assert capture_errors([TRAJ], states, [report(7, 10.0)]) == {}
+    assert capture_errors([TRAJ], states, [report(7, 8.05)])[(2, 7)] == pytest.approx(4.0)  # next to t = 8

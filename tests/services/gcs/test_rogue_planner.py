@@ -17,16 +17,17 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
+import os
 import sys
 import time
 from pathlib import Path
 
 import pytest
 
+from services.orchestration import trustmode
 from tests.conftest import ROOT
 
 FLEET = "rogueplan"
-KEYS = ROOT / ".keys" / "dev"
 
 ROGUE = r"""
 import sys, time
@@ -88,7 +89,8 @@ def network():
 
 
 def bus_args(endpoints: list[str]) -> list[str]:
-    return ["--fleet", FLEET, "--keys", str(KEYS), "--multilink", *[a for e in endpoints for a in ("-e", e)]]
+    keyset = os.environ[trustmode.KEYS_ENV]  # the session's own key set, the one `skynet up` uses (tests/conftest.py)
+    return ["--fleet", FLEET, "--keys", keyset, "--multilink", *[a for e in endpoints for a in ("-e", e)]]
 
 
 def start_rogue(endpoints: list[str], mode: str, args: list[str] | None = None) -> subprocess.Popen:
