@@ -26,7 +26,7 @@ def bar_image() -> np.ndarray:
 
 
 def test_registry_names_every_method():
-    assert set(METHODS) == {"otsu", "ve", "sauvola", "itth", "sdd", "it", "it-paper", "it+", "it+bh", "it+r"}
+    assert set(METHODS) == {"otsu", "ve", "sauvola", "itth", "sdd", "it", "it-paper", "it+", "it+bh", "it+r", "learned"}
 
 
 def test_it_paper_is_the_bare_stop_rule():
