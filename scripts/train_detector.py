@@ -372,7 +372,7 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--out", required=True, help="folder for the ONNX model, train_run.json and the best weights")
     t.add_argument("--name", default="crack_unet.onnx")
     t.add_argument("--seed", type=int, default=7)
-    t.add_argument("--epochs", type=int, default=24)
+    t.add_argument("--epochs", type=int, default=36)
     t.add_argument("--minutes", type=float, default=0, help="stop after the epoch that passes this wall time")
     t.add_argument("--crop", type=int, default=128)
     t.add_argument("--batch", type=int, default=16)
