@@ -13,6 +13,8 @@
 * speed    IT vs OpenCV's Otsu (cv2.threshold + THRESH_OTSU), and IT+, side by side on the same
            BGR frames at 480x320 and 4000x3000, grey conversion and mask output included,
            OpenCV limited to ``--threads`` (default 1: "one core").
+* learned  the learned method (a small U-Net, services/detector/learned.py) beside IT+r on its
+           held-out folds (quality) and at 640x480 and a 12 MP capture's 1/4 decode (speed).
 
 Prints Markdown tables and writes all numbers as JSON (bench/results/ is git-ignored).
 """
@@ -221,7 +223,8 @@ def quality(data: Path) -> dict[str, object]:
             print(f"\n(skipping {name}: {folder} not found)")
             continue
         samples = load_dataset(folder)
-        ev = evaluate(samples, list(METHODS), dataset=name)
+        # the learned method is scored on its held-out folds only (``learned``): it was trained on the rest
+        ev = evaluate(samples, [m for m in METHODS if m != "learned"], dataset=name)
         print("\n" + markdown_table(ev))
         m = ev.mean
         goals = {
@@ -356,11 +359,60 @@ def speed(data: Path, repeats: int, threads: int) -> dict[str, object]:
     return out
 
 
+# --------------------------------------------------------------------------------------- learned
+def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
+    """The learned method beside IT+r: exact and 2-px F, precision, recall on the shipped model's held-out
+    folds (:func:`services.detector.learned.splits`: CrackForest's even-numbered half, every fifth
+    DeepCrack-train image; never trained on nor used for model selection), and ms per frame (grey in, mask
+    out, OpenCV limited to ``threads``) at 640x480 and on a 12 MP capture's 1/4 decode (1000x750, the
+    detector's real-time input, services.detector.pipeline)."""
+    from edge.camera import decode_image
+    from services.detector.learned import splits
+
+    cv2.setNumThreads(threads)
+    methods = ["learned", "it+r"]
+    out: dict[str, object] = {"methods": methods, "cv2_threads": threads, "repeats": repeats}
+    for name in SETS:
+        folder = data / name
+        if not folder.is_dir():
+            print(f"\n(skipping {name}: {folder} not found)")
+            continue
+        samples = load_dataset(folder)
+        held = set(splits([s.name for s in samples], name)["test"])
+        ev = evaluate([s for s in samples if s.name in held], methods, dataset=f"{name} held-out fold")
+        print("\n" + markdown_table(ev))
+        out[name] = {"images": ev.names, "mean": ev.mean}
+    frames = {"640x480": cv2.cvtColor(_frame(data, (640, 480)), cv2.COLOR_BGR2GRAY)}
+    jpeg = cv2.imencode(".jpg", _frame(data, (4000, 3000)), [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes()
+    frames["12 MP at 1/4 (1000x750)"] = decode_image(jpeg, grey=True, reduce=4)
+    print(f"\n### Learned vs IT+r speed (OpenCV threads = {threads}; median of {repeats} interleaved runs; "
+          "grey in, mask out)\n\n| frame | method | ms/frame (median) | p90 | CPU ms/frame |\n|---|---|---|---|---|")
+    speed_rows: dict[str, object] = {}
+    for key, grey in frames.items():
+        times: dict[str, list[float]] = {m: [] for m in methods}
+        cpu: dict[str, list[float]] = {m: [] for m in methods}
+        for m in methods:
+            detect(grey, m, with_defects=False)  # warm-up (the model loads once)
+        for _ in range(repeats):
+            for m in methods:
+                t0, c0 = time.perf_counter(), time.process_time()
+                detect(grey, m, with_defects=False)
+                times[m].append((time.perf_counter() - t0) * 1e3)
+                cpu[m].append((time.process_time() - c0) * 1e3)
+        speed_rows[key] = {m: {"ms_median": float(np.median(times[m])), "ms_p90": float(np.percentile(times[m], 90)),
+                               "cpu_ms_median": float(np.median(cpu[m]))} for m in methods}
+        for m in methods:
+            r = speed_rows[key][m]  # type: ignore[index]
+            print(f"| {key} | {m} | {r['ms_median']:.1f} | {r['ms_p90']:.1f} | {r['cpu_ms_median']:.1f} |")
+    out["speed"] = speed_rows
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder holding the data sets")
-    ap.add_argument("--only", nargs="+", choices=("tune", "ridge", "quality", "speed"),
-                    default=["tune", "ridge", "quality", "speed"])
+    ap.add_argument("--only", nargs="+", choices=("tune", "ridge", "quality", "speed", "learned"),
+                    default=["tune", "ridge", "quality", "speed", "learned"])
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--threads", type=int, default=1, help="cv2.setNumThreads for the speed runs")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "detect.json")
@@ -379,6 +431,8 @@ def main(argv: list[str] | None = None) -> int:
                 res["quality"] = quality(a.data)
     if "speed" in a.only:
         res["speed"] = speed(a.data, a.repeats, a.threads)
+    if "learned" in a.only:
+        res["learned"] = learned(a.data, a.repeats, a.threads)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(res, indent=1))
     print(f"\nwrote {a.out}")

@@ -89,6 +89,14 @@ def _image(a: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    if "learned" in ([a.method] if a.command == "image" else a.methods):
+        from .learned import ModelError, load_model
+
+        try:  # a bad model file: one line naming it
+            load_model()
+        except ModelError as exc:
+            print(f"skynet detect: {exc}", file=sys.stderr)
+            return 2
     return {"image": _image, "eval": _eval}[a.command](a)
 
 

@@ -4,7 +4,8 @@ Polarity: defects are darker than the background; a global method marks the pixe
 Every method in :data:`METHODS` maps a grey ``uint8`` image (plus keyword parameters) to a
 binary mask (uint8 0/255) and its global threshold (``None`` for the local Sauvola). ``"it"`` is
 the paper's IT with our size guard (the default, see :mod:`services.detector.iterative`);
-``"it-paper"`` is IT with the paper's bare stop rule and its own DeepCrack-chosen ``C_s``.
+``"it-paper"`` is IT with the paper's bare stop rule and its own DeepCrack-chosen ``C_s``;
+``"learned"`` is a small U-Net run by ``cv2.dnn`` (:mod:`services.detector.learned`).
 
 Defects are the 8-connected components of the mask, each with its pixel area, bounding box,
 centroid and its interclass contrast (P19) against the local background: the non-defect pixels
@@ -21,6 +22,7 @@ import numpy as np
 
 from .improved import it_plus_bh_mask, it_plus_mask, reduction_factor
 from .iterative import C_S_UNGUARDED, iterative_threshold
+from .learned import learned_mask
 from .ridge import it_plus_ridge_mask
 from .thresholds import (
     as_grey_u8,
@@ -79,6 +81,7 @@ METHODS: dict[str, MethodFn] = {
     "it+": it_plus_mask,
     "it+bh": it_plus_bh_mask,
     "it+r": it_plus_ridge_mask,
+    "learned": learned_mask,
 }
 
 

@@ -65,11 +65,12 @@ def _init_worker() -> None:
         threading.Thread(target=follow, name="follow-parent", daemon=True).start()
 
 
-def _warm() -> int:
+def _warm(method: str = "it+r") -> int:
     """Import the detection stack in a fresh worker (spawn imports lazily) and analyse one small frame of a
-    crack, so the first capture is not slow: the crack's skeleton imports scikit-image's morphology on first
-    use (services.inspection.measure), 0.5-1 s that the first frame of each worker paid (issue 18: the p95 of
-    a 26-frame mission with two workers was those two frames)."""
+    crack with ``method``, so the first capture is not slow: the crack's skeleton imports scikit-image's
+    morphology on first use (services.inspection.measure), 0.5-1 s that the first frame of each worker paid
+    (the p95 of a 26-frame mission with two workers was those two frames); the learned method reads its
+    model here, once per worker (a bad model file raises its one-line error to :meth:`DetectorPool.warm`)."""
     import cv2
     import numpy as np
 
@@ -82,7 +83,7 @@ def _warm() -> int:
     jpeg = cv2.imencode(".jpg", grey)[1].tobytes()
     meta = ImageMeta(uav=1, capture_id=0, t=0.0, stamp=0.0, cam_pos=(0.0, 0.0, 0.0), cam_rot=(1, 0, 0, 0, 1, 0, 0, 0, 1),
                      intrinsics=Intrinsics(width=128, height=96, fx=100.0, fy=100.0, cx=64.0, cy=48.0), range_m=1.0)
-    analyse(meta, jpeg, "it+r")
+    analyse(meta, jpeg, method)
     time.sleep(0.2)  # best effort: hold this worker, so that each of the pool's warm calls lands on another one
     return os.getpid()
 
@@ -108,11 +109,11 @@ class DetectorPool:
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx, initializer=_init_worker)
 
-    def warm(self, timeout: float = 60.0) -> list[int]:
-        """Start every worker process and import the detection stack in it; their pids."""
+    def warm(self, timeout: float = 60.0, method: str = "it+r") -> list[int]:
+        """Start every worker process and import the detection stack (and ``method``'s model) in it; their pids."""
         with self._lock:
             pool = self._pool
-        futs = [pool.submit(_warm) for _ in range(self.workers)]
+        futs = [pool.submit(_warm, method) for _ in range(self.workers)]
         return [f.result(timeout) for f in futs]
 
     def call(self, fn: Callable[..., Any], *args: Any) -> Any:

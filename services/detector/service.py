@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import threading
 import time
 from collections import Counter
@@ -115,7 +116,7 @@ class DetectorService:
         self.partition, self.name = partition, partition.name
         # detection in worker processes; one Ring thread per process keeps at most `workers` frames in flight
         self.pool = DetectorPool(workers, context, max_pixels)
-        self.pool.warm()
+        self.pool.warm(method=method)
         self.work = Ring(queue, self._process, name=self.name, workers=workers)
         self.pub = bus.publisher(keys.defects(bus.fleet), COMMAND)
         self.stats_pub = bus.publisher(keys.rcu_stats(bus.fleet, self.name), TELEMETRY)
@@ -311,6 +312,14 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     name = args.partition.name
     log = setup_logging(name)
+    if args.method == "learned":  # a bad model file: one line naming it, before the bus and the workers start
+        from .learned import ModelError, load_model
+
+        try:
+            load_model()
+        except ModelError as exc:
+            print(f"skynet detector: {exc}", file=sys.stderr)
+            return 2
     stop = stop_event_on_signals()
     with Bus(config_from_args(args, role="detector"), fleet=args.fleet, name=name) as bus:
         svc = DetectorService(bus, args.method, args.workers, args.queue, args.playout_delay, log,

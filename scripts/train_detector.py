@@ -1,0 +1,393 @@
+#!/usr/bin/env python3
+"""Train the learned crack detector (a small U-Net) and export it as ONNX (a development tool).
+
+Usage (the ``train`` extra: ``pip install -e '.[train]'``)::
+
+    nice -n 19 python scripts/train_detector.py train --data DIR --out services/detector/models \
+        [--epochs N] [--minutes M] [--seed S]
+    python scripts/train_detector.py evaluate --data DIR --model services/detector/models/crack_unet.onnx --out DIR
+
+``DIR`` holds ``crackforest/`` and ``deepcrack-train/`` (each ``images/`` and ``masks/``). The splits are
+fixed by name before any training (:func:`services.detector.learned.splits`): CrackForest's even-numbered
+half (the odd sorted indices) and every fifth DeepCrack-train image are held out for testing and never seen
+by training or model selection; of the rest, every eighth image is the validation set (choice of epoch and
+threshold), the others are trained on.
+
+Why JAX: its CPU wheels are ~100 MB (PyTorch's registry wheels pull ~3 GB of CUDA libraries), XLA compiles
+the whole training step for the CPU, and the network is a dozen convolutions, so no layer library is
+needed: the parameters are a dict of arrays that :func:`export_onnx` writes as an ONNX graph with the
+``onnx`` package's helper API (OpenCV's ``cv2.dnn`` runs it at inference, :mod:`services.detector.learned`).
+
+Network (U-Net, Ronneberger et al. 2015, narrowed): widths 8-16-32-64 over four scales, two 3x3
+convolutions per encoder scale, one per decoder scale after nearest upsampling and concatenation with the
+skip, a 1x1 head. No normalisation layers: the input is standardised per image (zero mean, unit variance),
+which also makes the model indifferent to exposure. Loss: binary cross-entropy plus soft Dice (the Dice
+term targets the F-measure directly under the ~3 % crack share). The decision threshold chosen on
+validation is folded into the head's bias, so the exported model's probability 0.5 is the cut.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from services.detector.learned import splits  # noqa: E402  (the split is the shipped model's contract)
+
+log = logging.getLogger("train_detector")
+
+WIDTHS = (8, 16, 32, 64)
+DATASETS = ("crackforest", "deepcrack-train")
+THRESHOLDS = np.round(np.arange(0.20, 0.86, 0.05), 2)
+
+
+# ---------------------------------------------------------------- data
+def load_pairs(root: Path, dataset: str, part: str, limit: int | None = None) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(name, grey uint8, mask bool) of one split of ``root/dataset``."""
+    d = root / dataset
+    names = [p.stem for p in sorted((d / "images").iterdir()) if p.suffix.lower() in (".jpg", ".png")]
+    if not names:
+        raise SystemExit(f"train_detector: no images in {d / 'images'}")
+    out = []
+    for n in splits(names, dataset)[part][:limit]:
+        img = next(p for p in (d / "images").iterdir() if p.stem == n)
+        g = cv2.imread(str(img), cv2.IMREAD_GRAYSCALE)
+        m = cv2.imread(str(d / "masks" / f"{n}.png"), cv2.IMREAD_GRAYSCALE)
+        if g is None or m is None or g.shape != m.shape:
+            raise SystemExit(f"train_detector: cannot read {img} or its mask")
+        out.append((n, g, m > 127))
+    return out
+
+
+def standardise(g: np.ndarray) -> np.ndarray:
+    """Per-image zero mean, unit variance (float32); the runtime does the same."""
+    x = g.astype(np.float32)
+    return (x - x.mean()) / (x.std() + 1.0)
+
+
+def augment(rng: np.random.Generator, g: np.ndarray, m: np.ndarray, crop: int) -> tuple[np.ndarray, np.ndarray]:
+    """One training crop: random scale (0.75-1.33), gamma (0.7-1.4), crop (70 % centred near a crack
+    pixel), flips and 90-degree turns, Gaussian blur or noise; standardised over the scaled image."""
+    s = math.exp(rng.uniform(math.log(0.75), math.log(1.33)))
+    if abs(s - 1) > 0.03:
+        h, w = g.shape
+        size = (max(crop, round(w * s)), max(crop, round(h * s)))
+        g = cv2.resize(g, size, interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+        m = cv2.resize(m.astype(np.uint8) * 255, size, interpolation=cv2.INTER_LINEAR) > 127
+    gamma = math.exp(rng.uniform(math.log(0.7), math.log(1.4)))
+    g = (255.0 * (g.astype(np.float32) / 255.0) ** gamma).astype(np.float32)
+    x = standardise(g)
+    h, w = x.shape
+    ys, xs = np.nonzero(m)
+    if len(ys) and rng.random() < 0.7:
+        k = rng.integers(len(ys))
+        cy = int(np.clip(ys[k] + rng.integers(-crop // 3, crop // 3 + 1), crop // 2, h - crop + crop // 2))
+        cx = int(np.clip(xs[k] + rng.integers(-crop // 3, crop // 3 + 1), crop // 2, w - crop + crop // 2))
+        y0, x0 = cy - crop // 2, cx - crop // 2
+    else:
+        y0, x0 = int(rng.integers(0, h - crop + 1)), int(rng.integers(0, w - crop + 1))
+    x, mm = x[y0:y0 + crop, x0:x0 + crop], m[y0:y0 + crop, x0:x0 + crop]
+    k = int(rng.integers(4))
+    x, mm = np.rot90(x, k), np.rot90(mm, k)
+    if rng.random() < 0.5:
+        x, mm = x[:, ::-1], mm[:, ::-1]
+    r = rng.random()
+    if r < 0.2:
+        x = cv2.GaussianBlur(np.ascontiguousarray(x), (3, 3), rng.uniform(0.3, 0.9))
+    elif r < 0.4:
+        x = x + rng.normal(0, rng.uniform(0.05, 0.2), x.shape).astype(np.float32)
+    return np.ascontiguousarray(x, np.float32), np.ascontiguousarray(mm, np.float32)
+
+
+# ---------------------------------------------------------------- model (JAX)
+def layer_shapes() -> dict[str, tuple[int, int, int, int]]:
+    """Name -> HWIO kernel shape of every convolution."""
+    c1, c2, c3, c4 = WIDTHS
+    return {
+        "e1a": (3, 3, 1, c1), "e1b": (3, 3, c1, c1),
+        "e2a": (3, 3, c1, c2), "e2b": (3, 3, c2, c2),
+        "e3a": (3, 3, c2, c3), "e3b": (3, 3, c3, c3),
+        "e4a": (3, 3, c3, c4), "e4b": (3, 3, c4, c4),
+        "d3": (3, 3, c4 + c3, c3), "d2": (3, 3, c3 + c2, c2), "d1": (3, 3, c2 + c1, c1),
+        "head": (1, 1, c1, 1),
+    }
+
+
+def init_params(seed: int) -> dict[str, dict[str, np.ndarray]]:
+    """He-normal kernels, zero biases (the head's bias at the crack prior, logit(0.03))."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for name, shp in layer_shapes().items():
+        fan_in = shp[0] * shp[1] * shp[2]
+        w = rng.normal(0, math.sqrt(2.0 / fan_in), shp).astype(np.float32)
+        b = np.zeros(shp[3], np.float32)
+        if name == "head":
+            w *= 0.1
+            b[:] = math.log(0.03 / 0.97)
+        out[name] = {"w": w, "b": b}
+    return out
+
+
+def forward(params, x):  # noqa: ANN001, ANN201 - JAX pytrees
+    """Logits (N, H, W, 1) of NHWC input; H and W multiples of 8."""
+    import jax
+    import jax.numpy as jnp
+    from jax import lax
+
+    def conv(name, h):  # noqa: ANN001, ANN202
+        p = params[name]
+        return lax.conv_general_dilated(h, p["w"], (1, 1), "SAME",
+                                        dimension_numbers=("NHWC", "HWIO", "NHWC")) + p["b"]
+
+    def pool(h):  # noqa: ANN001, ANN202
+        return lax.reduce_window(h, -jnp.inf, lax.max, (1, 2, 2, 1), (1, 2, 2, 1), "VALID")
+
+    def up(h):  # noqa: ANN001, ANN202
+        return jnp.repeat(jnp.repeat(h, 2, axis=1), 2, axis=2)
+
+    r = jax.nn.relu
+    e1 = r(conv("e1b", r(conv("e1a", x))))
+    e2 = r(conv("e2b", r(conv("e2a", pool(e1)))))
+    e3 = r(conv("e3b", r(conv("e3a", pool(e2)))))
+    e4 = r(conv("e4b", r(conv("e4a", pool(e3)))))
+    d3 = r(conv("d3", jnp.concatenate([up(e4), e3], axis=-1)))
+    d2 = r(conv("d2", jnp.concatenate([up(d3), e2], axis=-1)))
+    d1 = r(conv("d1", jnp.concatenate([up(d2), e1], axis=-1)))
+    return conv("head", d1)
+
+
+def loss_fn(params, x, y):  # noqa: ANN001, ANN201
+    """Mean binary cross-entropy plus soft Dice loss (1 - 2|P∩Y| / (|P| + |Y|)) over the batch."""
+    import jax
+    import jax.numpy as jnp
+
+    z = forward(params, x)[..., 0]
+    bce = jnp.mean(jnp.maximum(z, 0) - z * y + jnp.log1p(jnp.exp(-jnp.abs(z))))
+    p = jax.nn.sigmoid(z)
+    dice = 1 - (2 * jnp.sum(p * y) + 1) / (jnp.sum(p) + jnp.sum(y) + 1)
+    return bce + dice
+
+
+def pad8(x: np.ndarray) -> tuple[np.ndarray, int, int]:
+    h, w = x.shape
+    ph, pw = (-h) % 8, (-w) % 8
+    return (np.pad(x, ((0, ph), (0, pw)), mode="reflect") if ph or pw else x), h, w
+
+
+def f_exact(pred: np.ndarray, gt: np.ndarray) -> float:
+    """Defect-class F with exact pixels (same empty-case rule as services.detector.metrics)."""
+    tp = np.count_nonzero(pred & gt)
+    np_, ng = np.count_nonzero(pred), np.count_nonzero(gt)
+    p = tp / np_ if np_ else (1.0 if ng == 0 else 0.0)
+    r = tp / ng if ng else (1.0 if np_ == 0 else 0.0)
+    return 2 * p * r / (p + r) if p + r else 0.0
+
+
+def validate(predict, val) -> dict[str, float]:  # noqa: ANN001
+    """Mean exact F on the validation images at every threshold of :data:`THRESHOLDS`."""
+    probs = [predict(g) for _, g, _ in val]
+    return {f"{t:.2f}": float(np.mean([f_exact(p > t, m) for p, (_, _, m) in zip(probs, val)])) for t in THRESHOLDS}
+
+
+def train(a: argparse.Namespace) -> int:
+    import jax
+    import jax.numpy as jnp
+    import optax
+
+    root, out = Path(a.data), Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(a.seed)
+    tr = [s for d in DATASETS for s in load_pairs(root, d, "train", a.limit)]
+    val = [s for d in DATASETS for s in load_pairs(root, d, "val", a.limit)]
+    log.info("train %d images, validation %d images", len(tr), len(val))
+    params = jax.tree_util.tree_map(jnp.asarray, init_params(a.seed))
+    steps_per_epoch = max(1, (len(tr) * a.crops_per_image) // a.batch)
+    sched = optax.cosine_onecycle_schedule(a.epochs * steps_per_epoch, a.lr, pct_start=0.1)
+    opt = optax.adamw(sched, weight_decay=1e-4)
+    state = opt.init(params)
+
+    @jax.jit
+    def step(params, state, x, y):  # noqa: ANN001, ANN202
+        loss, g = jax.value_and_grad(loss_fn)(params, x, y)
+        upd, state = opt.update(g, state, params)
+        return optax.apply_updates(params, upd), state, loss
+
+    fwd = jax.jit(lambda p, x: jax.nn.sigmoid(forward(p, x)))
+
+    def predict_with(p):  # noqa: ANN001, ANN202
+        def predict(g: np.ndarray) -> np.ndarray:
+            x, h, w = pad8(standardise(g))
+            return np.asarray(fwd(p, x[None, :, :, None]))[0, :h, :w, 0]
+        return predict
+
+    run: dict[str, object] = {
+        "seed": a.seed, "widths": WIDTHS, "crop": a.crop, "batch": a.batch, "lr": a.lr,
+        "epochs_planned": a.epochs, "crops_per_image": a.crops_per_image,
+        "split": {"rule": splits.__doc__, "train": len(tr), "val": len(val)}, "epochs": [],
+    }
+    best = (-1.0, None, None, -1)
+    t0 = time.monotonic()
+    for ep in range(a.epochs):
+        order = rng.permutation(np.repeat(np.arange(len(tr)), a.crops_per_image))
+        losses = []
+        for i in range(steps_per_epoch):
+            idx = order[i * a.batch:(i + 1) * a.batch]
+            xs, ys = zip(*(augment(rng, tr[k][1], tr[k][2], a.crop) for k in idx))
+            params, state, loss = step(params, state, jnp.asarray(np.stack(xs)[..., None]), jnp.asarray(np.stack(ys)))
+            losses.append(float(loss))
+        fs = validate(predict_with(params), val)
+        t_best = max(fs, key=fs.get)
+        row = {"epoch": ep + 1, "loss": float(np.mean(losses)), "val_f": fs[t_best], "val_threshold": float(t_best),
+               "minutes": (time.monotonic() - t0) / 60}
+        run["epochs"].append(row)
+        log.info("epoch %d: loss %.4f, validation exact F %.4f at %s (%.1f min)", ep + 1, row["loss"], fs[t_best],
+                 t_best, row["minutes"])
+        if fs[t_best] > best[0]:
+            best = (fs[t_best], jax.tree_util.tree_map(np.asarray, params), float(t_best), ep + 1)
+            np.savez(out / "crack_unet_best.npz", **{f"{k}.{j}": v for k, d in best[1].items() for j, v in d.items()})
+        (out / "train_run.json").write_text(json.dumps(run, indent=1))
+        if a.minutes and row["minutes"] > a.minutes:
+            log.info("time budget of %.0f min reached", a.minutes)
+            break
+    run["best"] = {"epoch": best[3], "val_f": best[0], "threshold": best[2]}
+    path = export_onnx(best[1], best[2], out / a.name)
+    x = np.random.default_rng(1).normal(size=(1, 64, 96, 1)).astype(np.float32)
+    ref = np.asarray(fwd(jax.tree_util.tree_map(jnp.asarray, best[1]), x))[0, :, :, 0]
+    got = onnx_probe(path, x[0, :, :, 0], best[2])
+    run["export_max_abs_diff"] = float(np.max(np.abs(ref - got)))
+    run["onnx"] = {"file": path.name, "bytes": path.stat().st_size}
+    (out / "train_run.json").write_text(json.dumps(run, indent=1))
+    log.info("wrote %s (%d bytes; cv2.dnn vs JAX max |diff| %.2e) and %s", path, path.stat().st_size,
+             run["export_max_abs_diff"], out / "train_run.json")
+    return 0
+
+
+# ---------------------------------------------------------------- export (onnx helper API)
+def export_onnx(params: dict[str, dict[str, np.ndarray]], threshold: float, path: Path) -> Path:
+    """The network as an ONNX graph (opset 13, NCHW, input ``x`` (1, 1, H, W) standardised grey, output ``p``
+    (1, 1, H, W) crack probability with ``threshold`` folded into the head so that ``p > 0.5`` is the cut)."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    inits, nodes = [], []
+
+    def const(name: str, arr: np.ndarray) -> str:
+        inits.append(numpy_helper.from_array(arr, name))
+        return name
+
+    def conv(name: str, x: str, relu: bool = True) -> str:
+        w = np.ascontiguousarray(params[name]["w"].transpose(3, 2, 0, 1))  # HWIO -> OIHW
+        b = params[name]["b"].astype(np.float32)
+        if name == "head":
+            b = b - np.float32(math.log(threshold / (1 - threshold)))
+        k = w.shape[2] // 2
+        nodes.append(helper.make_node("Conv", [x, const(f"{name}.w", w), const(f"{name}.b", b)], [f"{name}.c"],
+                                      kernel_shape=list(w.shape[2:]), pads=[k, k, k, k], strides=[1, 1]))
+        if not relu:
+            return f"{name}.c"
+        nodes.append(helper.make_node("Relu", [f"{name}.c"], [f"{name}.r"]))
+        return f"{name}.r"
+
+    def pool(x: str) -> str:
+        nodes.append(helper.make_node("MaxPool", [x], [f"{x}.p"], kernel_shape=[2, 2], strides=[2, 2]))
+        return f"{x}.p"
+
+    scales = const("up.scales", np.array([1, 1, 2, 2], np.float32))
+
+    def up_cat(x: str, skip: str) -> str:
+        nodes.append(helper.make_node("Resize", [x, "", scales], [f"{x}.u"], mode="nearest",
+                                      coordinate_transformation_mode="asymmetric", nearest_mode="floor"))
+        nodes.append(helper.make_node("Concat", [f"{x}.u", skip], [f"{x}.cat"], axis=1))
+        return f"{x}.cat"
+
+    e1 = conv("e1b", conv("e1a", "x"))
+    e2 = conv("e2b", conv("e2a", pool(e1)))
+    e3 = conv("e3b", conv("e3a", pool(e2)))
+    e4 = conv("e4b", conv("e4a", pool(e3)))
+    d3 = conv("d3", up_cat(e4, e3))
+    d2 = conv("d2", up_cat(d3, e2))
+    d1 = conv("d1", up_cat(d2, e1))
+    nodes.append(helper.make_node("Sigmoid", [conv("head", d1, relu=False)], ["p"]))
+    graph = helper.make_graph(
+        nodes, "crack_unet",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 1, "H", "W"])],
+        [helper.make_tensor_value_info("p", TensorProto.FLOAT, [1, 1, "H", "W"])], inits)
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)], producer_name="skynet-train")
+    model.ir_version = 8
+    model.doc_string = f"crack U-Net {'-'.join(map(str, WIDTHS))}; p > 0.5 is a crack pixel (threshold {threshold:.2f})"
+    onnx.checker.check_model(model)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    onnx.save(model, str(path))
+    return path
+
+
+def onnx_probe(path: Path, x: np.ndarray, threshold: float) -> np.ndarray:
+    """The exported model's probability on ``x`` (H, W) through ``cv2.dnn``, un-folding ``threshold`` so it
+    compares with the JAX forward pass."""
+    net = cv2.dnn.readNetFromONNX(str(path))
+    net.setInput(x[None, None].astype(np.float32))
+    p = np.clip(net.forward()[0, 0].astype(np.float64), 1e-7, 1 - 1e-7)
+    z = np.log(p / (1 - p)) + math.log(threshold / (1 - threshold))
+    return 1 / (1 + np.exp(-z))
+
+
+# ---------------------------------------------------------------- evaluation
+def evaluate_held_out(a: argparse.Namespace) -> int:
+    """Score the shipped model and ``it+r`` on both held-out test folds; write ``eval_<dataset>.md/.json``."""
+    import os
+
+    if a.model:
+        os.environ["SKYNET_DETECTOR_MODEL"] = str(Path(a.model).resolve())
+    from services.detector.evaluate import Sample, evaluate, write_results
+
+    summary = {}
+    for d in DATASETS:
+        samples = [Sample(n, g, np.where(m, 255, 0).astype(np.uint8)) for n, g, m in load_pairs(Path(a.data), d, "test")]
+        ev = evaluate(samples, a.methods, dataset=f"{d} (held-out test fold)")
+        if a.out:
+            write_results(ev, a.out, stem=f"eval_{d}")
+        summary[d] = {"images": len(samples), **ev.mean}
+        for m, r in ev.mean.items():
+            print(f"{d:16s} {m:8s} F {r['f']:.4f}  F(2px) {r['f_tol']:.4f}  P {r['precision']:.4f}  "
+                  f"R {r['recall']:.4f}  {r['ms']:.1f} ms")
+    if a.out:
+        (Path(a.out) / "eval_summary.json").write_text(json.dumps(summary, indent=1))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="train_detector.py", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    t = sub.add_parser("train", help="train and export the model")
+    t.add_argument("--data", required=True, help="folder holding crackforest/ and deepcrack-train/")
+    t.add_argument("--out", required=True, help="folder for the ONNX model, train_run.json and the best weights")
+    t.add_argument("--name", default="crack_unet.onnx")
+    t.add_argument("--seed", type=int, default=7)
+    t.add_argument("--epochs", type=int, default=36)
+    t.add_argument("--minutes", type=float, default=0, help="stop after the epoch that passes this wall time")
+    t.add_argument("--crop", type=int, default=128)
+    t.add_argument("--batch", type=int, default=16)
+    t.add_argument("--crops-per-image", type=int, default=2)
+    t.add_argument("--lr", type=float, default=3e-3)
+    t.add_argument("--limit", type=int, help="only the first N images of each split (a smoke run)")
+    e = sub.add_parser("evaluate", help="score the model and it+r on the held-out test folds")
+    e.add_argument("--data", required=True)
+    e.add_argument("--model", help="ONNX file (default: the shipped one)")
+    e.add_argument("--methods", nargs="+", default=["learned", "it+r"])
+    e.add_argument("--out", help="folder for eval_<dataset>.md/.json and eval_summary.json")
+    a = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
+    return {"train": train, "evaluate": evaluate_held_out}[a.command](a)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

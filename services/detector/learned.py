@@ -1,0 +1,148 @@
+"""The learned crack detector: a small U-Net shipped as ONNX and run by OpenCV's ``cv2.dnn``.
+
+Pure (no bus code). The network (Ronneberger et al. 2015, narrowed to widths 8-16-32-64 over four scales;
+trained by ``scripts/train_detector.py``, figures in docs/detector.md) maps a standardised grey image
+(zero mean, unit variance over the whole frame) to a crack probability per pixel; the decision threshold
+chosen on the validation split is folded into the model, so ``p > 0.5`` is the crack mask.
+
+The model file is :data:`MODEL_PATH` unless the environment variable :data:`MODEL_ENV` names another;
+it is read once per process (once per detector worker, :mod:`services.detector.pool`). A file that is
+missing, unreadable or not this model gives :class:`ModelError` with a one-line message naming it.
+
+Frames above :data:`TILE_PX` pixels are segmented in overlapping tiles (each cut with a
+:data:`TILE_MARGIN` pixel margin that is computed and dropped), so memory stays bounded whatever the size.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import threading
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .thresholds import as_grey_u8
+
+__all__ = ["MODEL_ENV", "MODEL_PATH", "ModelError", "learned_mask", "load_model", "model_path", "probability", "splits"]
+
+log = logging.getLogger(__name__)
+
+MODEL_PATH = Path(__file__).resolve().with_name("models") / "crack_unet.onnx"
+MODEL_ENV = "SKYNET_DETECTOR_MODEL"
+#: the network pools three times: inputs are padded to a multiple of this
+STRIDE = 8
+#: frames above this many pixels are segmented in tiles of TILE x TILE (plus margins)
+TILE_PX = 2_000_000
+TILE = 1024
+TILE_MARGIN = 32
+#: a larger file is not this model (the shipped one is well under 1 MB)
+MAX_MODEL_BYTES = 64 * 1024 * 1024
+
+_cache: dict[str, cv2.dnn.Net] = {}
+_lock = threading.Lock()  # a cv2.dnn.Net is not safe to run from two threads at once
+
+
+class ModelError(RuntimeError):
+    """The learned detector's model file is missing or not a usable model (message: one line, naming it)."""
+
+
+def model_path() -> Path:
+    """The model file in use: ``$SKYNET_DETECTOR_MODEL`` when set, else the shipped :data:`MODEL_PATH`."""
+    env = os.environ.get(MODEL_ENV, "").strip()
+    return Path(env) if env else MODEL_PATH
+
+
+def _probe(net: cv2.dnn.Net, where: Path) -> None:
+    """Run the net on a small frame: it must give one probability per pixel."""
+    net.setInput(np.zeros((1, 1, 16, 24), np.float32))
+    out = net.forward()
+    if out.shape != (1, 1, 16, 24) or not np.all(np.isfinite(out)):
+        raise ModelError(f"learned detector model {where}: not a crack segmentation model "
+                         f"(output {tuple(out.shape)} for a 1x1x16x24 input)")
+
+
+def load_model(path: str | Path | None = None) -> cv2.dnn.Net:
+    """The ``cv2.dnn`` network of ``path`` (default :func:`model_path`), read and checked once per process."""
+    p = Path(path) if path is not None else model_path()
+    key = str(p.resolve()) if p.exists() else str(p)
+    with _lock:
+        if key in _cache:
+            return _cache[key]
+        if not p.is_file():
+            raise ModelError(f"learned detector model {p}: no such file")
+        size = p.stat().st_size
+        if size == 0 or size > MAX_MODEL_BYTES:
+            raise ModelError(f"learned detector model {p}: {size} bytes is not a model file")
+        try:
+            net = cv2.dnn.readNetFromONNX(str(p))
+        except cv2.error as exc:
+            why = re.search(r"error: \([^)]*\) (.*?)(?: in function .*)?$", str(exc).strip().splitlines()[-1])
+            reason = (why.group(1) if why else "unreadable").replace(f": {p}", "")[:160]
+            raise ModelError(f"learned detector model {p}: not a readable ONNX model (OpenCV: {reason})") from None
+        if net.empty():
+            raise ModelError(f"learned detector model {p}: empty network")
+        try:
+            _probe(net, p)
+        except cv2.error:
+            raise ModelError(f"learned detector model {p}: the network does not run on a grey image") from None
+        net.setPreferableBackend(cv2.dnn.DNN_BACKEND_OPENCV)
+        _cache[key] = net
+        log.info("learned detector model %s loaded (%d bytes)", p, size)
+        return net
+
+
+def _run(net: cv2.dnn.Net, x: np.ndarray) -> np.ndarray:
+    """Probability map of one standardised float32 block (any size; padded to :data:`STRIDE`)."""
+    h, w = x.shape
+    ph, pw = (-h) % STRIDE, (-w) % STRIDE
+    if ph or pw:
+        x = cv2.copyMakeBorder(x, 0, ph, 0, pw, cv2.BORDER_REPLICATE)
+    with _lock:
+        net.setInput(x[None, None])
+        out = net.forward()
+    return out[0, 0, :h, :w]
+
+
+def probability(grey: np.ndarray, model: str | Path | None = None) -> np.ndarray:
+    """Crack probability (float32, the image's shape) of a grey (or BGR) image; ``> 0.5`` is a crack."""
+    g = as_grey_u8(grey)
+    net = load_model(model)
+    x = g.astype(np.float32)
+    x = (x - float(x.mean())) / (float(x.std()) + 1.0)
+    H, W = x.shape
+    if H * W <= TILE_PX:
+        return _run(net, x)
+    out = np.empty((H, W), np.float32)
+    m = TILE_MARGIN
+    for y0 in range(0, H, TILE):
+        for x0 in range(0, W, TILE):
+            y1, x1 = min(H, y0 + TILE), min(W, x0 + TILE)
+            ya, xa = max(0, y0 - m), max(0, x0 - m)
+            p = _run(net, np.ascontiguousarray(x[ya:min(H, y1 + m), xa:min(W, x1 + m)]))
+            out[y0:y1, x0:x1] = p[y0 - ya:y0 - ya + (y1 - y0), x0 - xa:x0 - xa + (x1 - x0)]
+    return out
+
+
+def learned_mask(grey: np.ndarray, model: str | Path | None = None) -> tuple[np.ndarray, None]:
+    """Mask (uint8 0/255) of the pixels the network gives a crack probability above 0.5; no global threshold."""
+    return np.where(probability(grey, model) > 0.5, 255, 0).astype(np.uint8), None
+
+
+def splits(names: list[str], dataset: str) -> dict[str, list[str]]:
+    """The shipped model's fixed train / val / test split of one data set's image names, by sorted index ``i``.
+
+    test (never trained on nor used for model selection): CrackForest ``i`` odd (its even-numbered half,
+    the half IT+r's parameters were not chosen on), any other set ``i % 5 == 4`` (a fifth); of the rest,
+    by index ``j``: val ``j % 8 == 7`` (choice of epoch and threshold), train the others."""
+    names = sorted(names)
+    if dataset == "crackforest":
+        test = [n for i, n in enumerate(names) if i % 2 == 1]
+    else:
+        test = [n for i, n in enumerate(names) if i % 5 == 4]
+    held = set(test)
+    rest = [n for n in names if n not in held]
+    return {"train": [n for j, n in enumerate(rest) if j % 8 != 7],
+            "val": [n for j, n in enumerate(rest) if j % 8 == 7], "test": test}
