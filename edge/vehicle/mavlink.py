@@ -1197,6 +1197,21 @@ class MavlinkDriver(VehicleDriver):
             raise ValueError("waypoint speed must be finite and > 0")
         return self.set_param_si("wp_speed", speed)
 
+    def _default_speed(self, items: tuple) -> None:
+        """Make the plan's first leg speed the autopilot's waypoint speed too: ArduCopter starts (and re-enters)
+        AUTO at WPNAV_SPEED / WP_SPD until the next DO_CHANGE_SPEED item. Best effort: a warning if refused."""
+        speed = next((it.param2 for it in items if it.command == AI.MAV_CMD_DO_CHANGE_SPEED
+                      and math.isfinite(it.param2) and it.param2 > 0), None)
+        if speed is None:
+            return
+        try:
+            got = self.set_waypoint_speed(min(float(speed), 20.0))
+        except ValueError as exc:
+            log.warning("UAV %d: the autopilot's waypoint speed was not set: %s", self.uav, exc)
+            return
+        log.info("UAV %d: waypoint speed %.2f m/s set as %s (ArduCopter %s parameter names)", self.uav, got,
+                 param_name("wp_speed", self.param_scheme or SCHEMES[0]), self.param_scheme)
+
     def _prepare_auto(self) -> None:
         """Upload the trajectory as a waypoint mission unless the autopilot already has it."""
         from edge.vehicle.auto_flight import autopilot_mission
@@ -1208,6 +1223,7 @@ class MavlinkDriver(VehicleDriver):
             return
         plan = autopilot_mission(traj, self.home, self._wait_home())
         self._upload_items(plan.items)
+        self._default_speed(plan.items)
         with self._lock:
             self._reached_seq = -1
         self._auto_plan, self._auto_traj = plan, traj
