@@ -63,6 +63,15 @@ return_to_launch()  NAV_RETURN_TO_LAUNCH (RTL mode)
 capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = the capture id, apm.items)
 ==================  ===============================================================
 
+Parameters (:mod:`.apm.params`): :meth:`MavlinkDriver.read_param` / :meth:`~MavlinkDriver.set_param`
+speak the parameter protocol (PARAM_REQUEST_READ / PARAM_SET, answered by PARAM_VALUE or
+PARAM_ERROR). ArduCopter 4.7 renamed the parameters the project uses and moved them to SI units;
+:meth:`~MavlinkDriver.learn_param_scheme` reads 4.7's MAV_SYSID and falls back on 4.6's
+SYSID_THISMAV on PARAM_ERROR (or silence), and :meth:`~MavlinkDriver.set_param_si` /
+:meth:`~MavlinkDriver.read_param_si` use the learnt name and unit (WPNAV_SPEED cm/s or WP_SPD
+m/s, RTL_ALT cm or RTL_ALT_M m, LAND_SPEED cm/s or LAND_SPD_MS m/s). In AUTO flight the plan's
+first leg speed becomes the waypoint speed (ArduCopter starts and re-enters AUTO at it).
+
 Hold is a position target in GUIDED rather than LOITER/BRAKE: it keeps the vehicle in the
 mode the driver streams in, so resume needs no mode change, and ArduCopter holds the last
 position target if the companion stops talking.

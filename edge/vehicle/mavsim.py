@@ -51,7 +51,8 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
   =========================  ==============================================================
 
 - **Parameters** (:mod:`.apm.params`), SYSID_THISMAV (4.7: MAV_SYSID) = ``uav``, in the names and
-  units of ``firmware`` (4.6 or 4.7); an unknown name is answered with PARAM_ERROR (DOES_NOT_EXIST). **Missions, fences, rally points**
+  units of ``firmware`` (4.6 or 4.7); an unknown name is answered with PARAM_ERROR (DOES_NOT_EXIST).
+  **Missions, fences, rally points**
   (:mod:`.apm.missions`); AUTO flies the mission (:mod:`.apm.auto`) with MISSION_CURRENT and
   MISSION_ITEM_REACHED, and CAMERA_FEEDBACK for each shot.
 - **GUIDED**, airborne, follows SET_POSITION_TARGET_LOCAL_NED (MAV_FRAME_LOCAL_NED) as ArduCopter's
