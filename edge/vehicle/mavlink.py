@@ -66,11 +66,12 @@ capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = the
 Parameters (:mod:`.apm.params`): :meth:`MavlinkDriver.read_param` / :meth:`~MavlinkDriver.set_param`
 speak the parameter protocol (PARAM_REQUEST_READ / PARAM_SET, answered by PARAM_VALUE or
 PARAM_ERROR). ArduCopter 4.7 renamed the parameters the project uses and moved them to SI units;
-:meth:`~MavlinkDriver.learn_param_scheme` reads 4.7's MAV_SYSID and falls back on 4.6's
-SYSID_THISMAV on PARAM_ERROR (or silence), and :meth:`~MavlinkDriver.set_param_si` /
-:meth:`~MavlinkDriver.read_param_si` use the learnt name and unit (WPNAV_SPEED cm/s or WP_SPD
-m/s, RTL_ALT cm or RTL_ALT_M m, LAND_SPEED cm/s or LAND_SPD_MS m/s). In AUTO flight the plan's
-first leg speed becomes the waypoint speed (ArduCopter starts and re-enters AUTO at it).
+:meth:`~MavlinkDriver.learn_param_scheme` reads 4.7's WP_SPD and falls back on 4.6's
+WPNAV_SPEED on PARAM_ERROR (or silence), and :meth:`~MavlinkDriver.set_param_si` /
+:meth:`~MavlinkDriver.read_param_si` use the learnt name and unit, else the other scheme's
+(WPNAV_SPEED cm/s or WP_SPD m/s, RTL_ALT cm or RTL_ALT_M m, LAND_SPEED cm/s or LAND_SPD_MS m/s).
+In AUTO flight the plan's first leg speed becomes the waypoint speed (ArduCopter starts and
+re-enters AUTO at it).
 
 Hold is a position target in GUIDED rather than LOITER/BRAKE: it keeps the vehicle in the
 mode the driver streams in, so resume needs no mode change, and ArduCopter holds the last
@@ -1160,14 +1161,14 @@ class MavlinkDriver(VehicleDriver):
 
     def learn_param_scheme(self, timeout_s: float = 1.0) -> str:
         """The autopilot's parameter naming scheme (:data:`.apm.params.SCHEMES`), learnt once: read 4.7's
-        MAV_SYSID; a value means "4.7"; PARAM_ERROR (or silence, as firmware before PARAM_ERROR) means
-        reading 4.6's SYSID_THISMAV, whose value means "4.6"."""
+        WP_SPD (a rename shipped in 4.7.0); a value means "4.7"; PARAM_ERROR (or silence, as firmware before
+        PARAM_ERROR) means reading 4.6's WPNAV_SPEED, whose value means "4.6"."""
         if self.param_scheme is not None:
             return self.param_scheme
         scheme = None
         for candidate in reversed(SCHEMES):
             try:
-                value = self.read_param(param_name("sysid", candidate), timeout_s=timeout_s, retries=1)
+                value = self.read_param(param_name("wp_speed", candidate), timeout_s=timeout_s, retries=1)
             except VehicleLinkError:
                 if candidate == SCHEMES[0]:
                     raise
@@ -1176,29 +1177,36 @@ class MavlinkDriver(VehicleDriver):
                 scheme = candidate
                 break
         if scheme is None:
-            raise ValueError("the autopilot has neither MAV_SYSID nor SYSID_THISMAV: unknown parameter scheme")
+            raise ValueError("the autopilot has neither WP_SPD nor WPNAV_SPEED: unknown parameter scheme")
         self.param_scheme = scheme
         log.info("UAV %d: autopilot parameters in ArduCopter %s's naming scheme", self.uav, scheme)
         return scheme
 
+    def _spelling(self, key: str) -> tuple[str, str, float]:
+        """(name, scheme of that name, current raw value) of renamed parameter ``key``: the learnt scheme's
+        name, else the other scheme's (firmware mid-way through the renames, e.g. 4.7.0 kept SYSID_THISMAV)."""
+        first = self.learn_param_scheme()
+        for scheme in (first, *(x for x in SCHEMES if x != first)):
+            name = param_name(key, scheme)
+            raw = self.read_param(name)
+            if raw is not None:
+                return name, scheme, raw
+        raise ValueError(f"the autopilot has no parameter {' or '.join(param_name(key, x) for x in SCHEMES)}")
+
     def read_param_si(self, key: str) -> float:
         """Renamed parameter ``key`` (:data:`.apm.params.RENAMED`, e.g. "wp_speed") in SI units (m, m/s)."""
-        scheme = self.learn_param_scheme()
-        name = param_name(key, scheme)
-        raw = self.read_param(name)
-        if raw is None:
-            raise ValueError(f"parameter {name} does not exist on the autopilot")
+        _, scheme, raw = self._spelling(key)
         return from_raw(key, raw, scheme)
 
     def set_param_si(self, key: str, si: float) -> float:
         """Set renamed parameter ``key`` from a value in SI units, in the autopilot's name and unit; the value
         stored, in SI units."""
-        scheme = self.learn_param_scheme()
+        name, scheme, _ = self._spelling(key)
         ptype = param_type(key, scheme)
         raw = to_raw(key, si, scheme)
         if ptype != M.MAV_PARAM_TYPE_REAL32:
             raw = float(round(raw))
-        return from_raw(key, self.set_param(param_name(key, scheme), raw, ptype), scheme)
+        return from_raw(key, self.set_param(name, raw, ptype), scheme)
 
     def set_waypoint_speed(self, speed: float) -> float:
         """The autopilot's default waypoint speed (WPNAV_SPEED cm/s in 4.6, WP_SPD m/s in 4.7), m/s."""

@@ -75,8 +75,8 @@ Not simulated: MAVLink FTP, RC channels, SmartRTL (its failsafe choices use RTL)
 to RTL_ALT above home (or stays higher), flies home and lands, as ArduCopter's RTL does.
 As the firmware, STATUSTEXT is sent only once the link has carried a packet from a peer, and a
 mission upload while booting is answered MAV_MISSION_NO_SPACE. Still unlike it: stream rates are
-one set for every peer (the firmware keeps them per link); only the renamed parameters
-the project uses follow 4.7's scheme (WPNAV_RADIUS and the others keep 4.6's names);
+one set for every peer (the firmware keeps them per link); only the parameters the project
+uses follow 4.7's renames (:data:`.apm.params.RENAMED`);
 LOITER holds altitude (the firmware follows the RC sticks).
 """
 
@@ -650,7 +650,7 @@ class MavlinkSimVehicle:
         if kind == "HEARTBEAT":
             if msg.type == M.MAV_TYPE_GCS:
                 self.gcs_heartbeats += 1
-            if src[0] == int(self.params["SYSID_MYGCS"]):
+            if src[0] == int(self.params[self.params.name("gcs_sysid")]):
                 self._gcs_mono = time.monotonic()
             return
         if kind == "BAD_DATA" or not hasattr(msg, "target_system") or not self._for_me(msg):
@@ -707,7 +707,7 @@ class MavlinkSimVehicle:
 
     def _new_auto(self, start: int = 1) -> AutoMission:
         return AutoMission(self.missions.mission(), self.item_enu, self.home, self.params.si("wp_speed"),
-                           radius=self.params["WPNAV_RADIUS"] / 100.0, yaw_behavior=0, start=start)
+                           radius=self.params.si("wp_radius"), yaw_behavior=0, start=start)
 
     def _command(self, msg: Any, is_int: bool) -> int:
         c = msg.command
@@ -785,7 +785,7 @@ class MavlinkSimVehicle:
         it = PlanItem(1, frame, I.MAV_CMD_NAV_WAYPOINT, x=int(msg.x), y=int(msg.y), z=float(msg.z))
         speed = msg.param1 if math.isfinite(msg.param1) and msg.param1 > 0 else self.params.si("wp_speed")
         leg = AutoMission([self._home_item(), it], self.item_enu, self.home, speed,
-                          radius=self.params["WPNAV_RADIUS"] / 100.0, yaw_behavior=0)
+                          radius=self.params.si("wp_radius"), yaw_behavior=0)
         if math.isfinite(msg.param4):
             leg._yaw = wrap_angle(math.radians(90.0 - msg.param4))
         self._hold_here()
@@ -957,7 +957,7 @@ def add_firmware_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--firmware-version", choices=SCHEMES, default=DEFAULT_SCHEME,
                    help="parameter names and units of this ArduCopter version: 4.6 (stable 4.5/4.6: SYSID_THISMAV, "
                         "WPNAV_SPEED cm/s, RTL_ALT cm, LAND_SPEED, ARMING_CHECK) or 4.7 (4.7+: MAV_SYSID, WP_SPD m/s, "
-                        "RTL_ALT_M m, LAND_SPD_MS, ARMING_SKIPCHK)")
+                        "RTL_ALT_M m, LAND_SPD_MS, ARMING_SKIPCHK, WP_RADIUS_M, MAV_GCS_SYSID)")
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m edge.vehicle.mavsim") -> int:

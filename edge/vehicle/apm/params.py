@@ -21,10 +21,14 @@ polygon), FENCE_ACTION 1 (RTL or land), FENCE_ALT_MAX 100 m, FENCE_RADIUS 300 m,
 DISARM_DELAY 10 s, LAND_SPEED 50 cm/s, ARMING_CHECK 1 (all checks), SYSID_THISMAV, SYSID_MYGCS 255.
 
 Two naming schemes (:data:`SCHEMES`): stable ArduCopter 4.5/4.6 use the names above; 4.7+ renamed
-those the project uses and moved them to SI units (:data:`RENAMED`): SYSID_THISMAV -> MAV_SYSID,
-WPNAV_SPEED (cm/s) -> WP_SPD (m/s), RTL_ALT (cm) -> RTL_ALT_M (m), LAND_SPEED (cm/s) ->
-LAND_SPD_MS (m/s), ARMING_CHECK (bitmask of checks to run, 1 = all) -> ARMING_SKIPCHK (bitmask of
-checks to skip, 0 = none skipped). A name of the other scheme does not exist (PARAM_ERROR), as
+those the project uses and moved them to SI units (:data:`RENAMED`; ArduPilot's "Parameter Name
+Changes" page, 4.6 -> 4.7): WPNAV_SPEED / _UP / _DN (cm/s) -> WP_SPD / WP_SPD_UP / WP_SPD_DN (m/s),
+WPNAV_RADIUS (cm) -> WP_RADIUS_M (m), RTL_ALT (cm) -> RTL_ALT_M (m), LAND_SPEED (cm/s) ->
+LAND_SPD_MS (m/s), SYSID_MYGCS -> MAV_GCS_SYSID, ARMING_CHECK (bitmask of checks to run, 1 = all)
+-> ARMING_SKIPCHK (bitmask of checks to skip, 0 = none; "not a pure rename": a value is not
+converted, only the all-checks defaults correspond). SYSID_THISMAV -> MAV_SYSID is ArduPilot's GCS
+parameter group (``MAV_SYSID``, as 4.8.0-dev SITL answers); that page lists it as not renamed in
+4.7.0, so a client should look a name up in either spelling (the driver does). A name of the other scheme does not exist (PARAM_ERROR), as
 on the firmware. :func:`to_raw` / :func:`from_raw` convert a value in SI units to and from a
 scheme's parameter; :func:`scheme_of_version` maps AUTOPILOT_VERSION's ``flight_sw_version``.
 """
@@ -108,6 +112,10 @@ RENAMED: tuple[Renamed, ...] = (
     Renamed("rtl_alt", "RTL_ALT", ParamSpec("RTL_ALT_M", 15.0, 2.0, 3000.0, F), 0.01),
     Renamed("land_speed", "LAND_SPEED", ParamSpec("LAND_SPD_MS", 0.5, 0.3, 2.0, F), 0.01),
     Renamed("arming_skip", "ARMING_CHECK", ParamSpec("ARMING_SKIPCHK", 0, 0, 0x7FFFFFFF, I32), None),
+    Renamed("gcs_sysid", "SYSID_MYGCS", ParamSpec("MAV_GCS_SYSID", 255, 1, 255, I16)),
+    Renamed("wp_radius", "WPNAV_RADIUS", ParamSpec("WP_RADIUS_M", 2.0, 0.05, 10.0, F), 0.01),
+    Renamed("wp_speed_up", "WPNAV_SPEED_UP", ParamSpec("WP_SPD_UP", 2.5, 0.1, 10.0, F), 0.01),
+    Renamed("wp_speed_dn", "WPNAV_SPEED_DN", ParamSpec("WP_SPD_DN", 1.5, 0.1, 5.0, F), 0.01),
 )
 _RENAMED = {r.key: r for r in RENAMED}
 

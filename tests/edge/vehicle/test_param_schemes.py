@@ -27,8 +27,10 @@ from edge.vehicle.mavlink import MavlinkDriver, MavlinkParams, open_connection  
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
 
 GCS = (255, 190)
-OLD = {"SYSID_THISMAV", "WPNAV_SPEED", "RTL_ALT", "LAND_SPEED", "ARMING_CHECK"}
-NEW = {"MAV_SYSID", "WP_SPD", "RTL_ALT_M", "LAND_SPD_MS", "ARMING_SKIPCHK"}
+OLD = {"SYSID_THISMAV", "WPNAV_SPEED", "RTL_ALT", "LAND_SPEED", "ARMING_CHECK", "SYSID_MYGCS", "WPNAV_RADIUS",
+       "WPNAV_SPEED_UP", "WPNAV_SPEED_DN"}
+NEW = {"MAV_SYSID", "WP_SPD", "RTL_ALT_M", "LAND_SPD_MS", "ARMING_SKIPCHK", "MAV_GCS_SYSID", "WP_RADIUS_M",
+       "WP_SPD_UP", "WP_SPD_DN"}
 
 
 def free_udp_port() -> int:
@@ -45,7 +47,8 @@ def test_each_scheme_has_its_names_and_units_and_the_same_si_values():
     # the raw values in each scheme's unit: cm/s and cm in 4.6, m/s and m in 4.7
     assert (old["WPNAV_SPEED"], old["RTL_ALT"], old["LAND_SPEED"]) == (1000.0, 1500.0, 50.0)
     assert (new["WP_SPD"], new["RTL_ALT_M"], new["LAND_SPD_MS"]) == (10.0, 15.0, 0.5)
-    for key in ("wp_speed", "rtl_alt", "land_speed"):
+    assert (old["WPNAV_RADIUS"], new["WP_RADIUS_M"], old["SYSID_MYGCS"], new["MAV_GCS_SYSID"]) == (200, 2, 255, 255)
+    for key in ("wp_speed", "rtl_alt", "land_speed", "wp_radius", "wp_speed_up", "wp_speed_dn"):
         assert old.si(key) == pytest.approx(new.si(key))
     # ARMING_CHECK enables checks (1: all), ARMING_SKIPCHK names checks to skip (0: none): both "all checks"
     assert old["ARMING_CHECK"] == 1 and new["ARMING_SKIPCHK"] == 0
@@ -203,6 +206,27 @@ def test_driver_learns_the_scheme_and_sets_parameters_in_the_autopilots_units(li
             drv.set_waypoint_speed(bad)
     with pytest.raises(ValueError):
         drv.read_param("X" * 17)
+
+
+def test_driver_finds_a_parameter_in_the_other_spelling():
+    """Firmware part-way through the renames (ArduPilot's rename page: 4.7.0 has WP_SPD but kept SYSID_THISMAV)."""
+    from edge.vehicle.apm.params import ParamSpec
+
+    port = free_udp_port()
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", params=MavlinkParams(heartbeat_timeout_s=3.0))
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, speed=4.0, firmware="4.7")
+    specs = tuple(ParamSpec("SYSID_THISMAV", 1, 1, 255, s.type) if s.name == "MAV_SYSID" else s
+                  for s in copter_params("4.7"))
+    veh.params = ParamTable(specs, scheme="4.7", SYSID_THISMAV=1)
+    veh.start()
+    try:
+        drv.wait_heartbeat(10.0)
+        assert drv.learn_param_scheme() == "4.7"
+        assert drv.read_param_si("sysid") == 1 and drv.read_param("MAV_SYSID") is None
+        assert drv.set_waypoint_speed(2.0) == pytest.approx(2.0) and veh.params["WP_SPD"] == pytest.approx(2.0)
+    finally:
+        drv.close()
+        veh.close()
 
 
 def test_driver_survives_hostile_param_messages():
