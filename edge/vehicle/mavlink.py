@@ -63,6 +63,16 @@ return_to_launch()  NAV_RETURN_TO_LAUNCH (RTL mode)
 capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = the capture id, apm.items)
 ==================  ===============================================================
 
+Parameters (:mod:`.apm.params`): :meth:`MavlinkDriver.read_param` / :meth:`~MavlinkDriver.set_param`
+speak the parameter protocol (PARAM_REQUEST_READ / PARAM_SET, answered by PARAM_VALUE or
+PARAM_ERROR). ArduCopter 4.7 renamed the parameters the project uses and moved them to SI units;
+:meth:`~MavlinkDriver.learn_param_scheme` reads 4.7's WP_SPD and falls back on 4.6's
+WPNAV_SPEED on PARAM_ERROR (or silence), and :meth:`~MavlinkDriver.set_param_si` /
+:meth:`~MavlinkDriver.read_param_si` use the learnt name and unit, else the other scheme's
+(WPNAV_SPEED cm/s or WP_SPD m/s, RTL_ALT cm or RTL_ALT_M m, LAND_SPEED cm/s or LAND_SPD_MS m/s).
+In AUTO flight the plan's first leg speed becomes the waypoint speed (ArduCopter starts and
+re-enters AUTO at it).
+
 Hold is a position target in GUIDED rather than LOITER/BRAKE: it keeps the vehicle in the
 mode the driver streams in, so resume needs no mode change, and ArduCopter holds the last
 position target if the companion stops talking.
@@ -141,6 +151,7 @@ from edge.vehicle.apm import items as AI
 from edge.vehicle.apm.boot import position_ok
 from edge.vehicle.apm.items import capture_params
 from edge.vehicle.apm.modes import CopterMode
+from edge.vehicle.apm.params import SCHEMES, from_raw, param_name, param_type, to_raw
 from edge.vehicle.apm.signing import SafeSigningMAVLink, enable_signing, parse_key
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.sequencer import MissionSequencer
@@ -222,6 +233,13 @@ _PHASE_MODE = {"idle": Mode.IDLE, "landed": Mode.LANDED, "takeoff": Mode.TAKEOFF
 
 class VehicleLinkError(ValueError):
     """No (recent) HEARTBEAT from the autopilot, or no COMMAND_ACK: the vehicle cannot be commanded."""
+
+
+def _param_id(raw: Any) -> str:
+    """A PARAM_VALUE / PARAM_ERROR ``param_id`` (char[16], not NUL-terminated at 16) as text."""
+    if isinstance(raw, (bytes, bytearray)):
+        raw = bytes(raw).split(b"\0", 1)[0].decode("ascii", "replace")
+    return str(raw).split("\0", 1)[0].strip()[:16]
 
 
 # ---------------------------------------------------------------------------------- conversions
@@ -558,6 +576,11 @@ class MavlinkDriver(VehicleDriver):
         self._end_switch = False  # the AUTO mission ended: back to GUIDED to hold there
         self._end_mono = 0.0  # when the trajectory's clock ran out in AUTO
         self._reached_seq = -1  # the autopilot's latest MISSION_ITEM_REACHED
+        # parameters: the latest PARAM_VALUE per name and the names answered PARAM_ERROR (receive index)
+        self._param_rx: dict[str, tuple[float, int]] = {}
+        self._param_err: dict[str, int] = {}
+        #: the autopilot's parameter naming scheme ("4.6" or "4.7", :mod:`.apm.params`); None until learnt
+        self.param_scheme: str | None = None
         self._pending: set[int] = set()  # autopilot modes accepted while a mode switch is in flight
         self._switching = False
         self._speed_sent: tuple[float, float] | None = None  # (speed, monotonic) of the last DO_CHANGE_SPEED
@@ -718,6 +741,20 @@ class MavlinkDriver(VehicleDriver):
                 lla = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1e3)
                 if abs(lla[0]) <= 90 and abs(lla[1]) <= 180:
                     self._home_lla = lla
+                    self._cv.notify_all()
+            elif kind == "PARAM_VALUE":
+                name = _param_id(msg.param_id)
+                if name and math.isfinite(msg.param_value) and len(self._param_rx) < 4096:
+                    self._rx += 1
+                    self._param_rx[name] = (float(msg.param_value), self._rx)
+                    self._cv.notify_all()
+                elif name:
+                    self.link_errors += 1
+            elif kind == "PARAM_ERROR":
+                name = _param_id(msg.param_id)
+                if msg.target_system == self._conn.mav.srcSystem and name and len(self._param_err) < 4096:
+                    self._rx += 1
+                    self._param_err[name] = self._rx
                     self._cv.notify_all()
             elif kind in ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK"):
                 if msg.target_system == self._conn.mav.srcSystem:
@@ -1070,6 +1107,128 @@ class MavlinkDriver(VehicleDriver):
                 self._cv.wait(0.1)
             return self._home_lla
 
+    # ------------------------------------------------------------------ parameters
+    def _param_exchange(self, name: str, send: tuple, timeout_s: float, retries: int) -> float | None:
+        """Send ``send`` (a PARAM_REQUEST_READ or PARAM_SET) until a PARAM_VALUE of ``name`` or a PARAM_ERROR for it
+        arrives after it: the value, or None for PARAM_ERROR (the parameter does not exist)."""
+        if len(name) > 16 or not name.isascii():
+            raise ValueError(f"bad parameter name {name!r}")
+        err = self._link_error()
+        if err is not None:
+            raise err
+        with self._cmd_lock:
+            for _ in range(retries + 1):
+                with self._cv:
+                    rx0 = self._rx
+                self._send(*send)
+                deadline = time.monotonic() + timeout_s
+                with self._cv:
+                    while True:
+                        got = self._param_rx.get(name)
+                        if got is not None and got[1] > rx0:
+                            return got[0]
+                        if self._param_err.get(name, -1) > rx0:
+                            return None
+                        left = deadline - time.monotonic()
+                        if left <= 0:
+                            break
+                        self._cv.wait(left)
+        raise VehicleLinkError(f"no answer from the autopilot for parameter {name} "
+                               f"({timeout_s:g} s x {retries + 1} attempts)")
+
+    def read_param(self, name: str, timeout_s: float = 1.0, retries: int = 2) -> float | None:
+        """PARAM_REQUEST_READ by name: the value as the autopilot stores it, or None when it answers PARAM_ERROR
+        (no such parameter); :class:`VehicleLinkError` without an answer."""
+        raw = name.encode("ascii", "replace")
+        return self._param_exchange(name, ("param_request_read_send", self._sysid, self._compid, raw, -1),
+                                    timeout_s, retries)
+
+    def set_param(self, name: str, value: float, param_type: int = M.MAV_PARAM_TYPE_REAL32,
+                  timeout_s: float = 1.0, retries: int = 2) -> float:
+        """PARAM_SET and wait for the echoed PARAM_VALUE (ArduPilot's ints travel as float values). Raises
+        ValueError when the parameter does not exist or the autopilot kept another value (refused)."""
+        value = float(value)
+        if not math.isfinite(value):
+            raise ValueError(f"parameter {name}: value must be finite")
+        raw = name.encode("ascii", "replace")
+        got = self._param_exchange(name, ("param_set_send", self._sysid, self._compid, raw, value, param_type),
+                                   timeout_s, retries)
+        if got is None:
+            raise ValueError(f"parameter {name} does not exist on the autopilot")
+        if not math.isclose(got, value, rel_tol=1e-6, abs_tol=1e-6):
+            raise ValueError(f"parameter {name}: the autopilot kept {got:g} instead of {value:g}")
+        return got
+
+    def learn_param_scheme(self, timeout_s: float = 1.0) -> str:
+        """The autopilot's parameter naming scheme (:data:`.apm.params.SCHEMES`), learnt once: read 4.7's
+        WP_SPD (a rename shipped in 4.7.0); a value means "4.7"; PARAM_ERROR (or silence, as firmware before
+        PARAM_ERROR) means reading 4.6's WPNAV_SPEED, whose value means "4.6"."""
+        if self.param_scheme is not None:
+            return self.param_scheme
+        scheme = None
+        for candidate in reversed(SCHEMES):
+            try:
+                value = self.read_param(param_name("wp_speed", candidate), timeout_s=timeout_s, retries=1)
+            except VehicleLinkError:
+                if candidate == SCHEMES[0]:
+                    raise
+                continue
+            if value is not None:
+                scheme = candidate
+                break
+        if scheme is None:
+            raise ValueError("the autopilot has neither WP_SPD nor WPNAV_SPEED: unknown parameter scheme")
+        self.param_scheme = scheme
+        log.info("UAV %d: autopilot parameters in ArduCopter %s's naming scheme", self.uav, scheme)
+        return scheme
+
+    def _spelling(self, key: str) -> tuple[str, str, float]:
+        """(name, scheme of that name, current raw value) of renamed parameter ``key``: the learnt scheme's
+        name, else the other scheme's (firmware mid-way through the renames, e.g. 4.7.0 kept SYSID_THISMAV)."""
+        first = self.learn_param_scheme()
+        for scheme in (first, *(x for x in SCHEMES if x != first)):
+            name = param_name(key, scheme)
+            raw = self.read_param(name)
+            if raw is not None:
+                return name, scheme, raw
+        raise ValueError(f"the autopilot has no parameter {' or '.join(param_name(key, x) for x in SCHEMES)}")
+
+    def read_param_si(self, key: str) -> float:
+        """Renamed parameter ``key`` (:data:`.apm.params.RENAMED`, e.g. "wp_speed") in SI units (m, m/s)."""
+        _, scheme, raw = self._spelling(key)
+        return from_raw(key, raw, scheme)
+
+    def set_param_si(self, key: str, si: float) -> float:
+        """Set renamed parameter ``key`` from a value in SI units, in the autopilot's name and unit; the value
+        stored, in SI units."""
+        name, scheme, _ = self._spelling(key)
+        ptype = param_type(key, scheme)
+        raw = to_raw(key, si, scheme)
+        if ptype != M.MAV_PARAM_TYPE_REAL32:
+            raw = float(round(raw))
+        return from_raw(key, self.set_param(name, raw, ptype), scheme)
+
+    def set_waypoint_speed(self, speed: float) -> float:
+        """The autopilot's default waypoint speed (WPNAV_SPEED cm/s in 4.6, WP_SPD m/s in 4.7), m/s."""
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError("waypoint speed must be finite and > 0")
+        return self.set_param_si("wp_speed", speed)
+
+    def _default_speed(self, items: tuple) -> None:
+        """Make the plan's first leg speed the autopilot's waypoint speed too: ArduCopter starts (and re-enters)
+        AUTO at WPNAV_SPEED / WP_SPD until the next DO_CHANGE_SPEED item. Best effort: a warning if refused."""
+        speed = next((it.param2 for it in items if it.command == AI.MAV_CMD_DO_CHANGE_SPEED
+                      and math.isfinite(it.param2) and it.param2 > 0), None)
+        if speed is None:
+            return
+        try:
+            got = self.set_waypoint_speed(min(float(speed), 20.0))
+        except ValueError as exc:
+            log.warning("UAV %d: the autopilot's waypoint speed was not set: %s", self.uav, exc)
+            return
+        log.info("UAV %d: waypoint speed %.2f m/s set as %s (ArduCopter %s parameter names)", self.uav, got,
+                 param_name("wp_speed", self.param_scheme or SCHEMES[0]), self.param_scheme)
+
     def _prepare_auto(self) -> None:
         """Upload the trajectory as a waypoint mission unless the autopilot already has it."""
         from edge.vehicle.auto_flight import autopilot_mission
@@ -1081,6 +1240,7 @@ class MavlinkDriver(VehicleDriver):
             return
         plan = autopilot_mission(traj, self.home, self._wait_home())
         self._upload_items(plan.items)
+        self._default_speed(plan.items)
         with self._lock:
             self._reached_seq = -1
         self._auto_plan, self._auto_traj = plan, traj

@@ -50,8 +50,9 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
   anything else              MAV_RESULT_UNSUPPORTED
   =========================  ==============================================================
 
-- **Parameters** (:mod:`.apm.params`), SYSID_THISMAV = ``uav``; an unknown name is answered with
-  PARAM_ERROR (DOES_NOT_EXIST). **Missions, fences, rally points**
+- **Parameters** (:mod:`.apm.params`), SYSID_THISMAV (4.7: MAV_SYSID) = ``uav``, in the names and
+  units of ``firmware`` (4.6 or 4.7); an unknown name is answered with PARAM_ERROR (DOES_NOT_EXIST).
+  **Missions, fences, rally points**
   (:mod:`.apm.missions`); AUTO flies the mission (:mod:`.apm.auto`) with MISSION_CURRENT and
   MISSION_ITEM_REACHED, and CAMERA_FEEDBACK for each shot.
 - **GUIDED**, airborne, follows SET_POSITION_TARGET_LOCAL_NED (MAV_FRAME_LOCAL_NED) as ArduCopter's
@@ -74,7 +75,8 @@ Not simulated: MAVLink FTP, RC channels, SmartRTL (its failsafe choices use RTL)
 to RTL_ALT above home (or stays higher), flies home and lands, as ArduCopter's RTL does.
 As the firmware, STATUSTEXT is sent only once the link has carried a packet from a peer, and a
 mission upload while booting is answered MAV_MISSION_NO_SPACE. Still unlike it: stream rates are
-one set for every peer (the firmware keeps them per link); the parameter names are 4.5's only;
+one set for every peer (the firmware keeps them per link); only the parameters the project
+uses follow 4.7's renames (:data:`.apm.params.RENAMED`);
 LOITER holds altitude (the firmware follows the RC sticks).
 """
 
@@ -97,7 +99,7 @@ from edge.vehicle.apm.auto import AutoMission, Flight
 from edge.vehicle.apm.missions import FENCE, MISSION, MissionServer, PlanItem, item_from_message
 from edge.vehicle.apm.boot import BootTimeline
 from edge.vehicle.apm.modes import ARMABLE, FENCE_ACTIONS, FS_GCS_ACTIONS, CopterMode, base_mode, check_mode_change
-from edge.vehicle.apm.params import ParamTable
+from edge.vehicle.apm.params import DEFAULT_SCHEME, SCHEMES, ParamTable, flight_sw_version, param_name
 from edge.vehicle.apm.signing import enable_signing, parse_key
 from edge.vehicle.apm.streams import ARDUCOPTER_RATES, DEFAULT_RATES, StreamScheduler
 from edge.vehicle.driver import check_vec3
@@ -213,6 +215,9 @@ class MavlinkSimVehicle:
         firmware (the CLI's default), 0 ready at once (this class's default, for embedding).
     stream_all : bool
         Stream the telemetry set unasked (the old stand-in's behaviour) instead of HEARTBEAT only.
+    firmware : str
+        Parameter naming scheme (:data:`.apm.params.SCHEMES`): "4.6" (stable 4.5/4.6 names, cm and
+        cm/s) or "4.7" (4.7+ names, m and m/s); AUTOPILOT_VERSION reports a matching version.
     """
 
     def __init__(
@@ -232,6 +237,7 @@ class MavlinkSimVehicle:
         param_overrides: dict[str, float] | None = None,
         boot_scale: float = 0.0,
         stream_all: bool = False,
+        firmware: str = DEFAULT_SCHEME,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -247,7 +253,8 @@ class MavlinkSimVehicle:
         self.clock = SimClock(epoch=epoch, speed=speed)
         self.sim = SimDriver(uav, params=params, seed=seed, home=self.home, t0=self.clock.now())
         self._t_boot = self.clock.now()
-        self.params = ParamTable(**{"SYSID_THISMAV": uav, **(param_overrides or {})})
+        self.params = ParamTable(scheme=firmware, **{param_name("sysid", firmware): uav, **(param_overrides or {})})
+        self.flight_sw_version = FLIGHT_SW_VERSION if firmware == "4.6" else flight_sw_version(firmware)
         self.home_lla = self.enu_to_lla(self.home)
         rates = dict(DEFAULT_RATES if stream_all else ARDUCOPTER_RATES)
         if stream_all:
@@ -546,7 +553,7 @@ class MavlinkSimVehicle:
             self.send_heartbeat()
             return True
         if name == "AUTOPILOT_VERSION":
-            self._send("autopilot_version_send", CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8,
+            self._send("autopilot_version_send", CAPABILITIES, self.flight_sw_version, 0, 0, 0, [0] * 8, [0] * 8,
                        [0] * 8, 0x1209, 0x5740, self.uav)
             return True
         if name not in _STREAM_IDS:
@@ -643,7 +650,7 @@ class MavlinkSimVehicle:
         if kind == "HEARTBEAT":
             if msg.type == M.MAV_TYPE_GCS:
                 self.gcs_heartbeats += 1
-            if src[0] == int(self.params["SYSID_MYGCS"]):
+            if src[0] == int(self.params[self.params.name("gcs_sysid")]):
                 self._gcs_mono = time.monotonic()
             return
         if kind == "BAD_DATA" or not hasattr(msg, "target_system") or not self._for_me(msg):
@@ -699,8 +706,8 @@ class MavlinkSimVehicle:
         return True
 
     def _new_auto(self, start: int = 1) -> AutoMission:
-        return AutoMission(self.missions.mission(), self.item_enu, self.home, self.params["WPNAV_SPEED"] / 100.0,
-                           radius=self.params["WPNAV_RADIUS"] / 100.0, yaw_behavior=0, start=start)
+        return AutoMission(self.missions.mission(), self.item_enu, self.home, self.params.si("wp_speed"),
+                           radius=self.params.si("wp_radius"), yaw_behavior=0, start=start)
 
     def _command(self, msg: Any, is_int: bool) -> int:
         c = msg.command
@@ -776,9 +783,9 @@ class MavlinkSimVehicle:
         if frame not in (I.MAV_FRAME_GLOBAL, I.MAV_FRAME_GLOBAL_RELATIVE_ALT) or not math.isfinite(msg.z):
             return M.MAV_RESULT_DENIED
         it = PlanItem(1, frame, I.MAV_CMD_NAV_WAYPOINT, x=int(msg.x), y=int(msg.y), z=float(msg.z))
-        speed = msg.param1 if math.isfinite(msg.param1) and msg.param1 > 0 else self.params["WPNAV_SPEED"] / 100
+        speed = msg.param1 if math.isfinite(msg.param1) and msg.param1 > 0 else self.params.si("wp_speed")
         leg = AutoMission([self._home_item(), it], self.item_enu, self.home, speed,
-                          radius=self.params["WPNAV_RADIUS"] / 100.0, yaw_behavior=0)
+                          radius=self.params.si("wp_radius"), yaw_behavior=0)
         if math.isfinite(msg.param4):
             leg._yaw = wrap_angle(math.radians(90.0 - msg.param4))
         self._hold_here()
@@ -817,7 +824,7 @@ class MavlinkSimVehicle:
                 elif m == CopterMode.LAND:
                     sim.land()
                 elif m == CopterMode.RTL:  # ArduCopter's RTL climbs to RTL_ALT (cm) above home first
-                    sim.return_to_launch(self.params["RTL_ALT"] / 100.0)
+                    sim.return_to_launch(self.params.si("rtl_alt"))
                 elif m == CopterMode.AUTO and prev != CopterMode.AUTO:
                     self._hold_here()
         except ValueError as exc:
@@ -947,6 +954,10 @@ def add_firmware_options(p: argparse.ArgumentParser) -> None:
                         "GUIDED/AUTO 42 s; 0: ready at once)")
     p.add_argument("--stream-all", action="store_true",
                    help="stream telemetry unasked (ArduCopter sends only HEARTBEAT until a ground station asks)")
+    p.add_argument("--firmware-version", choices=SCHEMES, default=DEFAULT_SCHEME,
+                   help="parameter names and units of this ArduCopter version: 4.6 (stable 4.5/4.6: SYSID_THISMAV, "
+                        "WPNAV_SPEED cm/s, RTL_ALT cm, LAND_SPEED, ARMING_CHECK) or 4.7 (4.7+: MAV_SYSID, WP_SPD m/s, "
+                        "RTL_ALT_M m, LAND_SPD_MS, ARMING_SKIPCHK, WP_RADIUS_M, MAV_GCS_SYSID)")
 
 
 def main(argv: list[str] | None = None, prog: str = "python -m edge.vehicle.mavsim") -> int:
@@ -958,7 +969,7 @@ def main(argv: list[str] | None = None, prog: str = "python -m edge.vehicle.mavs
                                     telemetry_hz=args.telemetry_hz, refuse_arming=args.refuse_arming,
                                     origin=args.origin, mavlink_key=args.mavlink_key,
                                     param_overrides=dict(args.param), boot_scale=args.boot_scale,
-                                    stream_all=args.stream_all)
+                                    stream_all=args.stream_all, firmware=args.firmware_version)
     except ValueError as exc:
         print(f"mavsim: {exc}", file=sys.stderr)
         return 2

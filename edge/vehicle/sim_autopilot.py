@@ -12,6 +12,8 @@ N). Point QGroundControl, Mission Planner, MAVProxy or MAVSDK at those ports::
 initial parameters of every autopilot. Like ArduCopter's firmware, each sends only HEARTBEAT
 until asked for telemetry (``--stream-all``: everything unasked) and takes ArduCopter's start-up
 times (~42 s until GUIDED and AUTO are allowed; ``--boot-scale 0.1`` ten times faster, 0 at once).
+``--firmware-version 4.7`` presents ArduCopter 4.7's parameter names and units (MAV_SYSID, WP_SPD
+m/s, RTL_ALT_M m, ...) instead of stable 4.6's (the default: what released firmware runs).
 """
 
 from __future__ import annotations
@@ -71,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
                                               params=SimParams(disturbance=wind),
                                               seed=args.seed + uav, origin=args.origin,
                                               mavlink_key=args.mavlink_key, param_overrides=dict(args.param),
-                                              boot_scale=args.boot_scale, stream_all=args.stream_all))
+                                              boot_scale=args.boot_scale, stream_all=args.stream_all,
+                                              firmware=args.firmware_version))
             print(f"sim-autopilot: uav {uav} (system id {uav}) on {conn}", flush=True)
     except ValueError as exc:
         for v in vehicles:

@@ -516,7 +516,8 @@ class Network:
                 self.group.start(f"ap{i}", ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1),
                                             "--home", ",".join(map(str, home)), "--speed", str(a.speed),
                                             "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate",
-                                            "--boot-scale", f"{getattr(a, 'autopilot_boot_scale', 1.0):g}"],
+                                            "--boot-scale", f"{getattr(a, 'autopilot_boot_scale', 1.0):g}",
+                                            "--firmware-version", getattr(a, "autopilot_firmware", "4.6")],
                                  prefix=self.prefix_of(f"uav{i}"))  # beside its edge
                 vehicle = ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{port}",
                            "--flight", getattr(a, "flight", "guided")]
@@ -760,6 +761,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--autopilot-boot-scale", type=float, default=1.0, metavar="F",
                    help="--vehicle mavlink: the sim autopilots' start-up times as a fraction of ArduCopter's "
                         "(1: GUIDED/AUTO after 42 simulated s; 0.1 ten times faster; 0 at once)")
+    p.add_argument("--autopilot-firmware", choices=["4.6", "4.7"], default="4.6",
+                   help="--vehicle mavlink: the sim autopilots' parameter names and units: 4.6 (stable 4.5/4.6: "
+                        "WPNAV_SPEED cm/s, RTL_ALT cm, ...) or 4.7 (4.7+: WP_SPD m/s, RTL_ALT_M m, ...)")
     p.add_argument("--ready-timeout", type=float, default=120.0, metavar="S",
                    help="the ground station waits this long for every UAV's autopilot to be ready, then refuses")
     p.add_argument("--flight", choices=["guided", "auto"], default="guided",

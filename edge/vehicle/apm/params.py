@@ -18,7 +18,19 @@ FS_GCS_ENABLE 0 (0 off, 1 RTL, 2 continue in AUTO, 3 SmartRTL or RTL, 4 SmartRTL
 6 auto DO_LAND_START or RTL, 7 brake or land), FS_GCS_TIMEOUT 5 s, WPNAV_SPEED 1000 cm/s,
 WPNAV_RADIUS 200 cm, RTL_ALT 1500 cm, FENCE_ENABLE 0, FENCE_TYPE 7 (max altitude | circle |
 polygon), FENCE_ACTION 1 (RTL or land), FENCE_ALT_MAX 100 m, FENCE_RADIUS 300 m, FENCE_MARGIN 2 m,
-DISARM_DELAY 10 s, LAND_SPEED 50 cm/s, SYSID_THISMAV, SYSID_MYGCS 255.
+DISARM_DELAY 10 s, LAND_SPEED 50 cm/s, ARMING_CHECK 1 (all checks), SYSID_THISMAV, SYSID_MYGCS 255.
+
+Two naming schemes (:data:`SCHEMES`): stable ArduCopter 4.5/4.6 use the names above; 4.7+ renamed
+those the project uses and moved them to SI units (:data:`RENAMED`; ArduPilot's "Parameter Name
+Changes" page, 4.6 -> 4.7): WPNAV_SPEED / _UP / _DN (cm/s) -> WP_SPD / WP_SPD_UP / WP_SPD_DN (m/s),
+WPNAV_RADIUS (cm) -> WP_RADIUS_M (m), RTL_ALT (cm) -> RTL_ALT_M (m), LAND_SPEED (cm/s) ->
+LAND_SPD_MS (m/s), SYSID_MYGCS -> MAV_GCS_SYSID, ARMING_CHECK (bitmask of checks to run, 1 = all)
+-> ARMING_SKIPCHK (bitmask of checks to skip, 0 = none; "not a pure rename": a value is not
+converted, only the all-checks defaults correspond). SYSID_THISMAV -> MAV_SYSID is ArduPilot's GCS
+parameter group (``MAV_SYSID``, as 4.8.0-dev SITL answers); that page lists it as not renamed in
+4.7.0, so a client should look a name up in either spelling (the driver does). A name of the other scheme does not exist (PARAM_ERROR), as
+on the firmware. :func:`to_raw` / :func:`from_raw` convert a value in SI units to and from a
+scheme's parameter; :func:`scheme_of_version` maps AUTOPILOT_VERSION's ``flight_sw_version``.
 """
 
 from __future__ import annotations
@@ -28,7 +40,8 @@ from dataclasses import dataclass
 
 __all__ = ["MAV_PARAM_TYPE_INT8", "MAV_PARAM_TYPE_INT16", "MAV_PARAM_TYPE_INT32", "MAV_PARAM_TYPE_REAL32",
            "MAV_PARAM_ERROR_DOES_NOT_EXIST",
-           "ParamSpec", "ParamTable", "COPTER_PARAMS"]
+           "ParamSpec", "ParamTable", "COPTER_PARAMS", "SCHEMES", "DEFAULT_SCHEME", "Renamed", "RENAMED",
+           "copter_params", "param_name", "param_type", "to_raw", "from_raw", "scheme_of_version", "flight_sw_version"]
 
 MAV_PARAM_TYPE_INT8 = 2
 MAV_PARAM_TYPE_INT16 = 4
@@ -56,6 +69,7 @@ class ParamSpec:
 
 I8, I16, I32, F = MAV_PARAM_TYPE_INT8, MAV_PARAM_TYPE_INT16, MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32
 COPTER_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("ARMING_CHECK", 1, 0, 0x7FFFFFFF, I32),
     ParamSpec("DISARM_DELAY", 10, 0, 127, I8),
     ParamSpec("FENCE_ACTION", 1, 0, 7, I8),
     ParamSpec("FENCE_ALT_MAX", 100.0, 10.0, 1000.0, F),
@@ -76,6 +90,91 @@ COPTER_PARAMS: tuple[ParamSpec, ...] = (
 )
 
 
+#: the naming schemes: "4.6" (ArduCopter 4.5 and 4.6, stable) and "4.7" (4.7 and later)
+SCHEMES = ("4.6", "4.7")
+DEFAULT_SCHEME = "4.6"
+
+
+@dataclass(frozen=True)
+class Renamed:
+    """A parameter renamed in 4.7: its key, its 4.6 name and 4.7 spec; ``scale`` is SI units per 4.6 unit
+    (0.01 for cm -> m); None for a value that is not converted but re-meant (ARMING_SKIPCHK)."""
+
+    key: str
+    old: str
+    new: ParamSpec
+    scale: float | None = 1.0
+
+
+RENAMED: tuple[Renamed, ...] = (
+    Renamed("sysid", "SYSID_THISMAV", ParamSpec("MAV_SYSID", 1, 1, 255, I16)),
+    Renamed("wp_speed", "WPNAV_SPEED", ParamSpec("WP_SPD", 10.0, 0.1, 20.0, F), 0.01),
+    Renamed("rtl_alt", "RTL_ALT", ParamSpec("RTL_ALT_M", 15.0, 2.0, 3000.0, F), 0.01),
+    Renamed("land_speed", "LAND_SPEED", ParamSpec("LAND_SPD_MS", 0.5, 0.3, 2.0, F), 0.01),
+    Renamed("arming_skip", "ARMING_CHECK", ParamSpec("ARMING_SKIPCHK", 0, 0, 0x7FFFFFFF, I32), None),
+    Renamed("gcs_sysid", "SYSID_MYGCS", ParamSpec("MAV_GCS_SYSID", 255, 1, 255, I16)),
+    Renamed("wp_radius", "WPNAV_RADIUS", ParamSpec("WP_RADIUS_M", 2.0, 0.05, 10.0, F), 0.01),
+    Renamed("wp_speed_up", "WPNAV_SPEED_UP", ParamSpec("WP_SPD_UP", 2.5, 0.1, 10.0, F), 0.01),
+    Renamed("wp_speed_dn", "WPNAV_SPEED_DN", ParamSpec("WP_SPD_DN", 1.5, 0.1, 5.0, F), 0.01),
+)
+_RENAMED = {r.key: r for r in RENAMED}
+
+
+def _check_scheme(scheme: str) -> str:
+    if scheme not in SCHEMES:
+        raise ValueError(f"unknown firmware parameter scheme {scheme!r} (one of {', '.join(SCHEMES)})")
+    return scheme
+
+
+def copter_params(scheme: str = DEFAULT_SCHEME) -> tuple[ParamSpec, ...]:
+    """The parameter table of a scheme: 4.6's, or 4.7's with :data:`RENAMED` swapped in."""
+    if _check_scheme(scheme) == "4.6":
+        return COPTER_PARAMS
+    old = {r.old: r.new for r in RENAMED}
+    return tuple(old.get(s.name, s) for s in COPTER_PARAMS)
+
+
+def param_name(key: str, scheme: str) -> str:
+    """The name of renamed parameter ``key`` (:data:`RENAMED`) in ``scheme``."""
+    r = _RENAMED[key]
+    return r.old if _check_scheme(scheme) == "4.6" else r.new.name
+
+
+def param_type(key: str, scheme: str) -> int:
+    """The MAV_PARAM_TYPE of renamed parameter ``key`` in ``scheme``."""
+    name = param_name(key, scheme)
+    return next(s.type for s in copter_params(scheme) if s.name == name)
+
+
+def to_raw(key: str, si: float, scheme: str) -> float:
+    """A value in SI units (m, m/s) as stored in the scheme's parameter (cm, cm/s in 4.6)."""
+    r = _RENAMED[key]
+    if r.scale is None:
+        raise ValueError(f"{key} has no unit conversion")
+    return float(si) / r.scale if _check_scheme(scheme) == "4.6" else float(si)
+
+
+def from_raw(key: str, raw: float, scheme: str) -> float:
+    """The scheme's stored value of ``key`` in SI units."""
+    r = _RENAMED[key]
+    if r.scale is None:
+        raise ValueError(f"{key} has no unit conversion")
+    return float(raw) * r.scale if _check_scheme(scheme) == "4.6" else float(raw)
+
+
+def flight_sw_version(scheme: str) -> int:
+    """AUTOPILOT_VERSION's ``flight_sw_version`` of the scheme's firmware (major<<24 | minor<<16 | patch<<8 |
+    FIRMWARE_VERSION_TYPE_OFFICIAL 255): 4.6.0 or 4.7.0."""
+    minor = 6 if _check_scheme(scheme) == "4.6" else 7
+    return (4 << 24) | (minor << 16) | 255
+
+
+def scheme_of_version(version: int) -> str:
+    """The naming scheme of firmware ``flight_sw_version`` (4.7 and later: "4.7"; earlier: "4.6")."""
+    major, minor = (int(version) >> 24) & 0xFF, (int(version) >> 16) & 0xFF
+    return "4.7" if (major, minor) >= (4, 7) else "4.6"
+
+
 def _name(raw: object) -> str:
     if isinstance(raw, (bytes, bytearray)):
         raw = bytes(raw).split(b"\0", 1)[0].decode("ascii", "replace")
@@ -85,7 +184,10 @@ def _name(raw: object) -> str:
 class ParamTable:
     """The vehicle's parameters: values by name, in a fixed index order (sorted by name, as ArduPilot lists)."""
 
-    def __init__(self, specs: tuple[ParamSpec, ...] = COPTER_PARAMS, **overrides: float):
+    def __init__(self, specs: tuple[ParamSpec, ...] | None = None, *, scheme: str = DEFAULT_SCHEME,
+                 **overrides: float):
+        self.scheme = _check_scheme(scheme)
+        specs = copter_params(scheme) if specs is None else specs
         self.specs = tuple(sorted(specs, key=lambda s: s.name))
         self._by_name = {s.name: s for s in self.specs}
         self.values = {s.name: float(s.default) for s in self.specs}
@@ -96,6 +198,14 @@ class ParamTable:
 
     def __getitem__(self, name: str) -> float:
         return self.values[name]
+
+    def name(self, key: str) -> str:
+        """This table's name of renamed parameter ``key`` (e.g. "wp_speed": WPNAV_SPEED or WP_SPD)."""
+        return param_name(key, self.scheme)
+
+    def si(self, key: str) -> float:
+        """Renamed parameter ``key``'s value in SI units (m, m/s) whatever the scheme."""
+        return from_raw(key, self.values[self.name(key)], self.scheme)
 
     def set(self, name: str, value: float) -> bool:
         """Store ``value``; False (and counted) when the name is unknown or the value is out of its range."""
