@@ -1,4 +1,4 @@
-"""Detector scaling benchmark (issue 18): capture->report latency for bursts of simultaneous frames.
+"""Detector scaling benchmark: capture->report latency for bursts of simultaneous frames.
 
 A real gateway and real ``skynet detector`` processes on loopback; a sender node plays N UAVs whose
 cameras each send one capture at the same instant (a formation reaching its capture points together).

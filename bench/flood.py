@@ -1,4 +1,4 @@
-"""Issue 12's benchmark: the mission while one writable key is flooded for 10 s, against no flood, in one run.
+"""The flood benchmark: the mission while one writable key is flooded for 10 s, against no flood, in one run.
 
 For each case (``none`` and one flood per key a UAV or a forged RCU may write: ``uav/1/state`` with
 malformed bytes, ``uav/1/event`` with 4 KB events, ``uav/1/camera`` with 50 KB RTP-looking junk,

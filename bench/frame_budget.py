@@ -1,4 +1,4 @@
-"""Where a 12 MP capture's time goes between the camera and the defect report (issue 18).
+"""Where a 12 MP capture's time goes between the camera and the defect report.
 
 Each step of the path timed on its own, on this machine (median of ``--repeat`` runs): the edge's
 JPEG encode (quality 85) of a 4000x3000 grey frame of cracks; its transfer as one 12 MP sample on

@@ -1,4 +1,4 @@
-"""Where a 12 MP capture's time goes from the shutter to the ground station, before vs after (issue 18).
+"""Where a 12 MP capture's time goes from the shutter to the ground station, before vs after.
 
 Two parts, one run:
 

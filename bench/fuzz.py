@@ -1,4 +1,4 @@
-"""Fuzzing every decoder and input entry point (issue 12): only typed errors, no crash, hang or growth.
+"""Fuzzing every decoder and input entry point: only typed errors, no crash, hang or growth.
 
 Each target takes bytes (text targets decode them as UTF-8 with replacement, as a command line or a
 file would arrive) and may raise only the error types it documents; anything else is a *crash*, an

@@ -2,7 +2,7 @@
 
 A thin wrapper over :mod:`services.experiment`: flies the default mission with every best-effort
 link impaired (``--links all/udp``: each node's uplink and the SkyNet links) at 200 ms delay and
-0, 20 and 40 % random loss, with imagery recovery on and off, then checks the goals of issue 7:
+0, 20 and 40 % random loss, with imagery recovery on and off, then checks the impairment goals:
 
 - 20 % loss, 200 ms delay, recovery on: the mission completes, 100 % of commands are
   acknowledged, capture coverage is 100 %, telemetry age p95 < 500 ms;

@@ -4,7 +4,7 @@ For each speed factor, runs ``skynet mission`` (all services as processes on loo
 reports the mission's wall time and CPU time (the launcher and every service, from
 ``wait4``'s rusage), the capture-to-defect-report latency (median, p95) with three UAVs
 streaming, and the telemetry age at the ground station (median, p95), read from the mission's
-own report.json. Goals (issue 6): capture-to-report p95 < 150 ms; telemetry age p95 < 50 ms.
+own report.json. Goals: capture-to-report p95 < 150 ms; telemetry age p95 < 50 ms.
 
     .venv/bin/python bench/mission.py [--speeds 1 4] [--out bench/results/mission.json]
 """

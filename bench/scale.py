@@ -1,4 +1,4 @@
-"""Scale benchmark (issue 18): the mission for fleets of N UAVs at real time, and 12 MP frames.
+"""Scale benchmark: the mission for fleets of N UAVs at real time, and 12 MP frames.
 
 For each N, runs ``skynet mission --uavs N --speed S`` (all services as processes on loopback)
 and reports: success; CPU per UAV per simulated second (every process of the run, from
@@ -230,7 +230,7 @@ def main() -> None:
                         "(not given to --baseline), e.g. --preview-hz 0")
     parser.add_argument("--baseline", type=Path, default=None,
                         help="another checkout of the project (with its .venv) whose `skynet up` runs the same "
-                             "--idle sizes side by side, e.g. the tree before issue 18")
+                             "--idle sizes side by side, e.g. an older tree")
     parser.add_argument("--sites", type=int, nargs="*", default=[1],
                         help="numbers of gateways each N flies with (skynet mission --sites S), side by side")
     parser.add_argument("--mission-args", nargs="*", default=[],

@@ -1,4 +1,4 @@
-"""What trust costs (issue 11), side by side in one run.
+"""What trust costs, side by side in one run.
 
 * sign and verify per command (µs): Ed25519 envelope of a ``Land`` and of a 300-waypoint upload,
   codec included (:mod:`protocol.signing`);

@@ -10,7 +10,7 @@ and a camera (:mod:`edge.camera`) to the bus:
   (P8)-(P9), ignoring neighbours older than ``--stale`` s: when SkyNet is partitioned the
   correction goes back to zero (at the sequencer's offset rate) and the UAV flies its planned
   slot, and it comes back with the neighbours' states. A formation member whose state goes stale
-  gives a ``neighbour-stale`` event, and ``neighbour-fresh`` when heard again (issue 7); its
+  gives a ``neighbour-stale`` event, and ``neighbour-fresh`` when heard again; its
   liveliness token leaving or joining gives ``neighbour-lost`` / ``neighbour-up``;
 * serves commands on ``.../uav/<id>/cmd``: validated (schema, geofence, finite numbers, sane
   speeds) and acknowledged accepted or rejected with a reason — nothing invalid reaches the
@@ -107,7 +107,7 @@ class Board:
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
-        # only the formation's states: the cost per edge does not grow with the fleet (issue 18)
+        # only the formation's states: the cost per edge does not grow with the fleet
         self.neighbourhood = frozenset(neighbourhood_of(self.uav, options.formation_size))
         for j in sorted(self.neighbourhood):
             bus.subscribe(keys.state(fleet, j), functools.partial(self._on_state, j), expect=VehicleState, link=TELEMETRY,
@@ -410,7 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--imagery-cache", type=cache_frames, default=IMAGERY_CACHE_FRAMES, metavar="N",
                         help="capture frames kept for retransmission to a detector that lost them "
                              "(0: no recovery, capture frames are best-effort like previews)")
-    sec = parser.add_argument_group("trust (issue 11; see edge.trust)")
+    sec = parser.add_argument_group("trust (see edge.trust)")
     sec.add_argument("--trust-window", type=float, default=10.0, metavar="S",
                      help="signed commands and heartbeats stamped further than this from now are stale")
     sec.add_argument("--mesh-uavs", type=int, default=None, metavar="N",

@@ -152,7 +152,7 @@ class SyntheticSource:
         frame pixel, e.g. 0.125 for a 12 MP frame of the default 100 px/m wall at 4.8 m), warp at
         1/2^k of the frame size, the smallest that keeps ``1 / MAGNIFY_LIMIT`` reduced pixels per
         texture pixel, and resize that (bilinear) to the frame: the frame holds no detail the texture
-        has not, and the warp's cost is that of the reduced frame (issue 18: 12 MP captures).
+        has not, and the warp's cost is that of the reduced frame (12 MP captures).
         Default False (one warp at the frame size). The mask is always warped at full size.
     """
 

@@ -1,4 +1,4 @@
-"""The board's failsafe policy (issue 12): lost ground station, escalation, low battery, resume rules.
+"""The board's failsafe policy: lost ground station, escalation, low battery, resume rules.
 
 Pure (no bus, no driver): :meth:`FailsafePolicy.step` says which action the board must take now,
 :meth:`FailsafePolicy.may_resume` whether a ``Resume`` may end the failsafe.

@@ -70,7 +70,7 @@ def offsets_for(n: int) -> NDArray[np.float64]:
     The paper's triangle for the first three; then further slots 3 m apart along travel on the
     same two rows (z = +2 and z = -1 m): (3, 0, 2), (-3, 0, 2), (6, 0, -1), (-6, 0, -1), (6, 0, 2),
     (-6, 0, 2), (0, 0, -1), i.e. five columns up to :data:`MAX_ALONG_M` ahead and behind (10
-    UAVs, every pair at least 3 m apart). Larger fleets (issue 18) stack further rows of the same
+    UAVs, every pair at least 3 m apart). Larger fleets stack further rows of the same
     five columns :data:`ROW_PITCH_M` apart *below* them (z = -3.5, -6, ...), each ordered
     0, +3, -3, +6, -6. So the fleet's length along the track stays 12 m whatever N (a line of 24
     was ±18 m and did not fit the monorail box at the start), the top two rows image the wall

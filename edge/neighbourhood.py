@@ -1,4 +1,4 @@
-"""SkyNet neighbourhoods: which UAVs share state with which (issue 18).
+"""SkyNet neighbourhoods: which UAVs share state with which.
 
 The paper flies one formation of three UAVs, each sharing its state with the two others over
 SkyNet (Section 3). A fleet of N UAVs flies as several such formations (N = 3k): formation g

@@ -1,6 +1,6 @@
 """Wiring of the edge process: which driver, which camera, and the camera's bus binding.
 
-The camera sends two imagery streams (issue 7):
+The camera sends two imagery streams:
 
 - **capture frames** on ``uav/<id>/camera``, one per capture point: what the detector analyses
   and what coverage counts. With ``imagery_cache`` N > 0 (default :data:`IMAGERY_CACHE_FRAMES`)
@@ -55,7 +55,7 @@ PREVIEW_QUALITY = 60
 PREVIEW_CAMERA = 1
 #: seed of the synthetic surface: one wall for the whole fleet, whatever the UAV
 SURFACE_SEED = 2024
-#: ``--capture-link auto``: capture frames larger than this (pixels) go on the reliable link (issue 18)
+#: ``--capture-link auto``: capture frames larger than this (pixels) go on the reliable link
 RELIABLE_CAPTURE_ABOVE_PX = 1_000_000
 CAPTURE_LINKS = ("auto", "best-effort", "reliable")
 
@@ -248,7 +248,7 @@ class PreviewStream:
 
     A frame is rendered only while somebody watches: when Zenoh's matching status says no
     subscriber matches the preview key, a due offer is counted in :attr:`unwatched` and nothing is
-    rendered (issue 18: the render and encode were a quarter of an idle edge's CPU, spent on frames
+    rendered (the render and encode were a quarter of an idle edge's CPU, spent on frames
     that nobody received).
     """
 
@@ -322,7 +322,7 @@ class PreviewStream:
 
 def release_freed_memory() -> None:
     """Hand the heap freed by start-up temporaries back to the system (glibc ``malloc_trim``):
-    building the synthetic wall leaves about 24 MB free but held in every edge (issue 18).
+    building the synthetic wall leaves about 24 MB free but held in every edge.
     A no-op where there is no glibc."""
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)

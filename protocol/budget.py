@@ -1,4 +1,4 @@
-"""Per-source rate and size budgets on what a subscriber accepts (issue 12).
+"""Per-source rate and size budgets on what a subscriber accepts.
 
 Every key a role may write (:mod:`protocol.acl`) has a :class:`Limit`: a token bucket of
 samples per second with a burst (the classic policer: RFC 2697's single-rate meter, one colour:

@@ -90,7 +90,7 @@ class BusConfig(BaseModel):
                 endpoints = [{"strategy": "allOf", "locators": endpoints}]
             put("connect/endpoints", endpoints)
             # a restarted gateway (or a healed link) is found again within about this pause; zenoh's
-            # default backs off to 4 s, which made the fleet reappear up to 4 s after a restart (issue 7)
+            # default backs off to 4 s, which made the fleet reappear up to 4 s after a restart
             max_ms = int(self.reconnect_max_s * 1000)  # >= 1: a 0 ms pause would retry without pause
             put("connect/retry", {"period_init_ms": min(250, max_ms), "period_max_ms": max_ms,
                                   "period_increase_factor": 2})
@@ -111,7 +111,7 @@ class BusConfig(BaseModel):
             put("transport/auth/usrpwd/user", self.user)
             put("transport/auth/usrpwd/password", self.password.get_secret_value())
         if self.tls_ca is not None:
-            # mutual TLS on tls/ links, both as listener and as dialler (issue 11): every link presents the
+            # mutual TLS on tls/ links, both as listener and as dialler: every link presents the
             # node's certificate and checks the other's against the fleet CA; ACL subjects are common names
             put("transport/link/tls", {"root_ca_certificate": self.tls_ca, "enable_mtls": True,
                                        "listen_certificate": self.tls_cert, "listen_private_key": self.tls_key,

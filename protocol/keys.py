@@ -162,7 +162,7 @@ def metered(fleet: str) -> tuple[str, ...]:
     """Every key of :func:`fleet_all` except the live previews: what the gateway's traffic meter subscribes to.
 
     A subscription is a viewer to Zenoh: with one on ``**`` every preview publisher's matching status
-    says it is watched, and every camera renders and encodes its preview for nobody (issue 18). The
+    says it is watched, and every camera renders and encodes its preview for nobody. The
     previews are therefore not metered; every other key still is.
     """
     root = fleet_root(fleet)

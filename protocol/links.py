@@ -59,7 +59,7 @@ _CONGESTION = {
 COMMAND = LinkClass("command", reliable=True, congestion="block", priority="INTERACTIVE_HIGH", express=False)
 TELEMETRY = LinkClass("telemetry", reliable=False, congestion="drop", priority="DATA_HIGH", express=True)
 IMAGERY = LinkClass("imagery", reliable=False, congestion="drop", priority="DATA_LOW", express=False)
-#: imagery too large for one UDP datagram (issue 18: a 12 MP JPEG is about 600 KB, some ten datagrams,
+#: imagery too large for one UDP datagram (a 12 MP JPEG is about 600 KB, some ten datagrams,
 #: and losing any one loses the frame, even on a clean loopback): the same class on the reliable link
 IMAGERY_RELIABLE = LinkClass("imagery", reliable=True, congestion="block", priority="DATA_LOW", express=False)
 

@@ -334,7 +334,7 @@ class Defect(Message):
 
 class FrameEvidence(Message):
     """The frame a defect report was computed from: its RTP source and sequence number (RFC 3550 §5.1) and
-    the SHA-256 of the image bytes the detector analysed (issue 12: a capture counts only with it)."""
+    the SHA-256 of the image bytes the detector analysed (a capture counts only with it)."""
 
     TYPE: ClassVar[str] = "frame.evidence"
     ssrc: Annotated[int, Field(ge=0, le=2**32 - 1)]

@@ -1,4 +1,4 @@
-"""Where a frame's time goes: bounded per-stage duration samples and their percentiles (issue 18).
+"""Where a frame's time goes: bounded per-stage duration samples and their percentiles.
 
 Pure (no bus code). The edge's camera (:class:`edge.runtime.CameraLink`: render, encoder queue,
 encode, publish) and the detector (:class:`services.detector.service.DetectorService`: shutter to

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# docker compose, end to end, on a real Docker engine (issue 14); .ci/run runs it after the test suite.
+# docker compose, end to end, on a real Docker engine; .ci/run runs it after the test suite.
 #
 #   bash scripts/compose-e2e.sh            # the impaired mission (proves the plain path too), two sites, the tc check
 #   COMPOSE_E2E_RUNS="plain netem sites split tc" bash scripts/compose-e2e.sh   # split: compose/ground.yml + edge.yml;

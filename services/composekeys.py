@@ -1,4 +1,4 @@
-"""The key set of a docker compose network (issue 11 item 7, issue 14): reused, made once, or refused.
+"""The key set of a docker compose network: reused, made once, or refused.
 
     python -m services.composekeys /keys --uavs 3 --host netem-uav2 ... [--san gateway=10.0.0.5 ...] [--owner-of /reports]
 

@@ -1,4 +1,4 @@
-"""docker compose: the compose files, overrides and image recipe (issues 6 and 14).
+"""docker compose: the compose files, overrides and image recipe.
 
 The real thing (an engine, a build, `up --exit-code-from gcs`, the report) is scripts/compose-e2e.sh,
 which .ci/run runs; these tests check the files without an engine: Debian's docker-compose validates
@@ -258,7 +258,7 @@ def _endpoints(argv: list[str]) -> list[str]:
 
 
 def test_secure_by_default_keys_read_only_tls_everywhere():
-    """Issue 11 item 7: a key set made or reused first, mounted read-only, --keys and tls/ endpoints everywhere."""
+    """a key set made or reused first, mounted read-only, --keys and tls/ endpoints everywhere."""
     from services.composekeys import build_parser as keys_parser
 
     services = _services()
@@ -402,7 +402,7 @@ def test_the_sites_override_is_the_launchers_two_site_layout():
 @pytest.mark.parametrize("path", ["docker-compose.yml", "compose/camera.yml", "compose/insecure.yml", "compose/mavlink.yml",
                                   "compose/sites.yml", "compose/edge.yml"])
 def test_every_edge_takes_the_frame_size_from_skynet_frame_size(path):
-    """Issue 18: ``SKYNET_FRAME_SIZE=4000x3000`` gives every edge of every file the paper's 12 MP frames (capture
+    """``SKYNET_FRAME_SIZE=4000x3000`` gives every edge of every file the paper's 12 MP frames (capture
     frames above 1 MP then go on the reliable link: the edge's --capture-link auto); the default is 640x480."""
     edges = {n: s for n, s in _services(ROOT / path).items() if n.startswith("uav") or n == "edge"}
     assert edges

@@ -149,7 +149,7 @@ class DisturbanceParams:
 def ar1(a: float, w: np.ndarray, zi: float = 0.0) -> tuple[np.ndarray, float]:
     """The first-order recursion ``y[n] = a y[n-1] + w[n]`` with ``y[0] = w[0] + zi``; returns ``y`` and
     the state ``a y[-1]`` for the next block -- ``scipy.signal.lfilter([1], [1, -a], w, zi=[zi])``,
-    without importing scipy.signal (75 MB in every edge process, issue 18). A plain loop: one block
+    without importing scipy.signal (75 MB in every edge process). A plain loop: one block
     of 2000 steps is 10 s of simulated flight."""
     y = np.empty(len(w))
     prev = zi

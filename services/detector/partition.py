@@ -1,4 +1,4 @@
-"""Sharing the fleet's cameras between detector instances by key partition (issue 18). Pure: no bus code.
+"""Sharing the fleet's cameras between detector instances by key partition. Pure: no bus code.
 
 ``--partition K/N`` makes an instance own the cameras of the UAVs whose id satisfies ``id % N == K``.
 Zenoh key expressions cannot say "id mod N", so an instance subscribes to each of its UAVs' camera

@@ -29,7 +29,7 @@ from .detect import Defect as PixelDefect, Detection, detect
 MIN_REPORT_AREA_PX = 12
 MAX_REPORTED_DEFECTS = 500
 #: the real-time report's pixel budget, megapixels (``skynet detector --detect-max-mp``): a 12 MP capture is
-#: detected on its 1/4 decode, 1000 x 750 (issue 18). That samples the wall at 4 x its ground sampling distance
+#: detected on its 1/4 decode, 1000 x 750. That samples the wall at 4 x its ground sampling distance
 #: (5.0 mm at the paper's 4.78 m), finer than the 640 x 480 frames (7.8 mm) every inspection test passes on; the
 #: 1/2 decode (3 MP) takes 3-5 times as long and is above the defect list's pixel budget (detect.defects_of works
 #: on blocks there), so a crack whose block box is not its mask's box falls back to the bounding-box diagonal
@@ -85,7 +85,7 @@ def to_report(meta: ImageMeta, det: Detection, stamp_report: float | None = None
 def detection_scale(width: int, height: int, max_pixels: int | None) -> int:
     """The decode reduction (1, 2, 4 or 8) that brings a ``width`` x ``height`` frame to at most
     ``max_pixels`` (None: always 1), so that the real-time report of a 12 MP frame costs what a
-    small frame's does (issue 18)."""
+    small frame's does."""
     if max_pixels is None:
         return 1
     for f in (1, 2, 4):

@@ -1,4 +1,4 @@
-"""Detection in worker processes: a process pool that survives its workers (issue 18, "a detector that scales").
+"""Detection in worker processes: a process pool that survives its workers ("a detector that scales").
 
 Pure (no bus code). Detection is CPU-bound Python around OpenCV; in threads it shares one GIL, so a
 burst of simultaneous captures (every UAV of a formation reaching its capture point together) is

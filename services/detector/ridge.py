@@ -1,4 +1,4 @@
-"""IT+r: IT+ united with the crack-like part of a Hessian ridge response (issue 17, "a better detector
+"""IT+r: IT+ united with the crack-like part of a Hessian ridge response ("a better detector
 for textured surfaces").
 
 Beyond the paper. On a textured surface (CrackForest's asphalt) a crack is a thin line barely darker

@@ -143,7 +143,7 @@ class DetectorService:
             if self.counts["bad-rtp"] == 1 and self.log:
                 self.log.warning("dropping a sample that is not an RTP frame: %s", exc)
             return
-        if frame_source(str(sample.key_expr), header.ssrc) is None:  # bodies bound to keys (issue 11)
+        if frame_source(str(sample.key_expr), header.ssrc) is None:  # bodies bound to keys
             self.counts["bad-ssrc"] += 1
             if self.counts["bad-ssrc"] == 1 and self.log:
                 self.log.warning("dropping a frame with SSRC %#010x on %s: not that UAV's camera (further ones "

@@ -1,6 +1,6 @@
 """The experiment grid: lists of link conditions -> cells -> seeded runs -> mission commands (pure).
 
-An experiment (issue 7) flies the same mission under every combination of random loss, delay,
+An experiment flies the same mission under every combination of random loss, delay,
 jitter and imagery recovery, ``repeat`` times each. Cells differ only in the impairment: repeat
 ``k`` of every cell uses the seed ``seed + k`` (common random numbers), so a difference between
 two cells is the links' doing, not the wind's or the proxies' dice.

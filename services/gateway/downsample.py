@@ -1,4 +1,4 @@
-"""The ground station's view of a large fleet as a downsampled feed (issue 18).
+"""The ground station's view of a large fleet as a downsampled feed.
 
 Every edge publishes its state at 20 Hz; its formation neighbours need every one of them (P8),
 the ground station does not: its map, progress and report are fine with a few states a second

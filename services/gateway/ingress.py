@@ -1,4 +1,4 @@
-"""Per-face ingress limits at the gateway (issue 12): a flood of a state key is cut where it enters.
+"""Per-face ingress limits at the gateway: a flood of a state key is cut where it enters.
 
 The receivers' per-source budgets (:mod:`protocol.budget`) drop a flood, but only after each of them
 has taken every flood sample through a Python callback: under a 10 s flood of malformed states

@@ -1,4 +1,4 @@
-"""Putting every UAV's simulation time on one clock before the report compares them (issue 14).
+"""Putting every UAV's simulation time on one clock before the report compares them.
 
 Each edge stamps its states with its own simulation time ``t = (wall − epoch_n) × speed``
 (:class:`edge.clock.SimClock`) and the wall-clock time of publication ``stamp``. The launcher gives

@@ -1,4 +1,4 @@
-"""Evidence for the verdict (issue 12): a capture counts as imaged only on a report the detector can stand behind.
+"""Evidence for the verdict: a capture counts as imaged only on a report the detector can stand behind.
 
 Pure (no bus code). A :class:`~protocol.messages.DefectReport` counts towards coverage only when it
 names the frame it was computed from (:class:`~protocol.messages.FrameEvidence`: the SSRC of the

@@ -447,7 +447,7 @@ def _tracks(record: MissionRecord) -> dict[int, Track]:
     for s in record.states:
         by_uav.setdefault(s.msg.uav, []).append(s)
     out: dict[int, Track] = {}
-    # every UAV's sim time on one clock (edges started apart, without a shared --epoch: issue 14)
+    # every UAV's sim time on one clock (edges started apart, without a shared --epoch)
     shift = sim_time_shifts({u: ([s.msg.t for s in v], [s.msg.stamp for s in v]) for u, v in by_uav.items()},
                             record.speed) if np.isfinite(record.speed) and record.speed > 0 else {}
     for uav, items in sorted(by_uav.items()):

@@ -6,7 +6,7 @@
 step that cannot complete (a UAV that never appears, refuses its upload, a planner that does
 not answer, a timeout) ends the mission with a failure that says why, never a hang.
 
-Faults (issue 7). A supervisor thread binds :class:`services.gcs.supervision.Supervisor` (the
+Faults. A supervisor thread binds :class:`services.gcs.supervision.Supervisor` (the
 policy, pure: lost UAVs, the own link, standing still, failsafe resumes) to the bus for the whole
 mission; commands go out through :mod:`services.gcs.commands` (retries, back-off), and a lost UAV
 is not sent commands (a failed command record says so). The waits are extended by the time the
@@ -136,7 +136,7 @@ class MissionRunner:
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
                  abort: threading.Event | None = None, journal=None, signer=None, plan_verifier=None):
         self.bus, self.opt, self.log = bus, options, log
-        self.signer = signer  # protocol.signing.Signer: commands and heartbeats signed end to end (issue 11)
+        self.signer = signer  # protocol.signing.Signer: commands and heartbeats signed end to end
         #: protocol.signing.Verifier of the planner's key (protocol.planauth.plan_verifier); None: unsigned plans
         #: are taken (--insecure, --secure without a key set), still bound to the request and checked
         self.plan_verifier = plan_verifier

@@ -6,7 +6,7 @@ its surface for the capture points) and never against anything the plan says abo
 own ``geofence`` is not trusted: a planner identity in the wrong hands could answer with any fence).
 
 The boards refuse a trajectory that leaves the geofence (:func:`edge.validate.trajectory_problem`),
-but one by one during the upload: with a fleet too long for the box (issue 18: 24 UAVs in one
+but one by one during the upload: with a fleet too long for the box (24 UAVs in one
 formation span ±18 m along the track, the monorail start is 8 m from the box's edge) UAV 23's
 upload was refused after 22 UAVs had theirs. This check runs the boards' own geofence test on
 the whole plan before anything is uploaded, and says why the fleet does not fit.
@@ -171,7 +171,7 @@ def transit_margin_s(positions: dict[int, Sequence[float]], plan: MissionPlan, s
                      transit_speed: float = TRANSIT_SPEED_MS) -> float:
     """Wall seconds the farthest UAV needs from where it holds to its trajectory's first waypoint.
 
-    The common start time must leave it that long (issue 18): a UAV stacked above another
+    The common start time must leave it that long: a UAV stacked above another
     launches beside it (:func:`edge.formation.home_offsets`) and flies level to its slot once
     started; arriving after the start time it would begin its trajectory late, and formation
     keeping would pull its formation back while the formations around it fly on. ``speed`` is

@@ -4,7 +4,7 @@ Plain pydantic data (no bus code), serialisable to JSON with ``record.model_dump
 back with ``MissionRecord.model_validate_json``, so a report can be re-made from a saved run.
 Every ``rx`` field is the wall-clock UNIX time the ground station received the item.
 
-Streamed and bounded (issue 12). :class:`Recorder` is how the ground station records: every item
+Streamed and bounded. :class:`Recorder` is how the ground station records: every item
 goes, as it arrives, to an append-only journal (``record.jsonl``: one JSON object a line, written
 by a thread of its own and flushed at least every :data:`FLUSH_S`, so a crash or a full disk keeps
 what came before), and into the in-memory :class:`MissionRecord` only up to a cap per kind
@@ -107,7 +107,7 @@ INCIDENT_KINDS = (
 
 
 class Incident(BaseModel):
-    """Something the ground station noticed about a fault, or did about one (issue 7)."""
+    """Something the ground station noticed about a fault, or did about one."""
 
     model_config = ConfigDict(extra="forbid")
     at: float = Field(description="wall-clock UNIX time")

@@ -1,4 +1,4 @@
-"""What the faults of a run did, read from its record: the report's "Faults and recovery" (issue 7).
+"""What the faults of a run did, read from its record: the report's "Faults and recovery".
 
 Pure code over a :class:`~services.gcs.record.MissionRecord`, no bus. Times are seconds since the
 start of the mission phase (the ground station's ``phase("mission")``, the origin the fault

@@ -1,4 +1,4 @@
-"""The ground station's supervision of the fleet during a mission (issue 7): events and time in, decisions out.
+"""The ground station's supervision of the fleet during a mission: events and time in, decisions out.
 
 Pure code, no bus and no clock of its own: :class:`Supervisor` is fed what the ground station
 observes, each with the wall time it was observed (a UAV's state, its liveliness token going

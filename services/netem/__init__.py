@@ -12,7 +12,7 @@ proxies let the experiments reproduce such a link on one machine.
   :class:`~services.netem.proxy.TcpProxy`, real sockets, one per Zenoh link.
 * :mod:`services.netem.schedule` — pure: the command grammar (``set SPEC``, ``cut [T]``,
   ``restore``, ``clear``, ``stats``) and schedule files (``at 25s cut 5s``) that change a
-  running proxy's conditions (issue 7).
+  running proxy's conditions.
 * :mod:`services.netem.control` — the loopback UDP control channel of a running proxy
   (:class:`~services.netem.control.ControlServer`, :func:`~services.netem.control.send_control`).
 * :mod:`services.netem.cli` — ``skynet netem udp|tcp --listen ... --target ... --impair ...

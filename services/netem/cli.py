@@ -8,7 +8,7 @@ Point the node at the listen address instead of the router's (``tcp/127.0.0.1:90
 object per line); Ctrl-C or SIGTERM stops the proxy and prints the final counters. The first
 line, ``netem <kind> listening on HOST:PORT -> TARGET``, tells a launcher the bound port.
 
-Changing conditions while it runs (issue 7)
+Changing conditions while it runs
 -------------------------------------------
 ``--schedule FILE`` plays a schedule file, steps timed from the proxy start (format in
 :mod:`services.netem.schedule`)::

@@ -24,7 +24,7 @@ kind in front of the router's ``tcp/...?rel=1`` and ``udp/...?rel=0`` endpoints.
 Both proxies: ``start()``, ``stop()`` (joins every thread, closes every socket; queued data is
 discarded), ``stats()``, ``with`` blocks, port 0 (read :attr:`address` after ``start``).
 
-Conditions change while a proxy runs (issue 7), from any thread:
+Conditions change while a proxy runs, from any thread:
 
 * ``update(spec, direction="both")`` — a new impairment from now on (None or "" = clean link);
   packets already decided keep their release times; seeds, counters and the outage origin (the

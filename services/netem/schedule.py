@@ -1,7 +1,6 @@
 """Changing a link's conditions while it runs: the command grammar and the schedule file (pure).
 
-Issue 7, "Impairment proxy": *conditions can change while it runs (a control command or a
-schedule file)*. One small grammar serves both, so a schedule line is a control command with a
+Conditions can change while a proxy runs (a control command or a schedule file). One small grammar serves both, so a schedule line is a control command with a
 time in front of it. :func:`parse_command` reads one command, :func:`parse_schedule` a whole
 schedule; the proxy (:meth:`services.netem.proxy.UdpProxy.apply`, ``play``) carries them out.
 

@@ -8,7 +8,7 @@ One container stands on one link (an edge's uplink to the gateway): a TCP and a 
 dial and forward to the real target. It works on any kernel (no netem qdisc needed, unlike
 ``tc qdisc ... netem``; see ../shared/DOCKER.md).
 
-A side-car that cannot apply its impairment must fail the run, not let it pass unimpaired (issue 14):
+A side-car that cannot apply its impairment must fail the run, not let it pass unimpaired:
 it exits non-zero when the impairment does not parse (2), when a target never resolves (3), and when
 no packet has crossed one of its proxies ``--expect`` seconds after the start (4: the node was not
 pointed at the side-car, e.g. ``SKYNET_UAV2_UPLINK`` was not set), which ends ``docker compose up

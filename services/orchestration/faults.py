@@ -1,6 +1,6 @@
 """Scripted fault injection during a run: the ``--fault`` grammar, its schedule, and the injector.
 
-Issue 7, "Faults": the gateway killed and restarted, one edge killed, the uplink cut for longer
+The faults: the gateway killed and restarted, one edge killed, the uplink cut for longer
 than the failsafe time, SkyNet partitioned. A fault is written ``AT ACTION TARGET [for D]``
 (``--fault``, repeatable; times with a unit: ``500ms``, ``20s``, ``2min``):
 
@@ -40,7 +40,7 @@ from services.orchestration.topology import Links, link_ends
 
 Action = Literal["kill", "cut", "partition"]
 ACTIONS = ("kill", "cut", "partition")
-#: the actions noted when a fault ends (``MissionRunner.note_fault``; issue 7 interfaces)
+#: the actions noted when a fault ends (``MissionRunner.note_fault``)
 END_ACTION = {"kill": "restart", "cut": "restore", "partition": "heal"}
 KILLABLE = ("gateway", "planner", "detector")
 

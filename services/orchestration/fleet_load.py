@@ -1,4 +1,4 @@
-"""What the launcher gives a large simulated fleet on one machine (issue 18): pure policy, no processes.
+"""What the launcher gives a large simulated fleet on one machine: pure policy, no processes.
 
 Three defaults follow the fleet's size, each overridden by its own option:
 

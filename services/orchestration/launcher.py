@@ -8,7 +8,7 @@ on Ctrl-C (SIGINT to every child so sessions close, then SIGTERM/SIGKILL for str
 this process (a Zenoh client, with the live progress display) and writes the report; its exit
 status is the mission's.
 
-Impairment experiments (issue 7; link names and grammar in :mod:`services.orchestration.topology`):
+Impairment experiments (link names and grammar in :mod:`services.orchestration.topology`):
 ``--impair NAME[/udp|/tcp]=SPEC`` puts user-space netem proxies (:mod:`services.netem`, a TCP and
 a UDP one per link) on the named links: ``uavN``, ``planner``, ``detector``, ``gcs`` (that node's
 uplink to the gateway — for an edge, the paper's 4G hop), ``uavI-uavJ`` (a SkyNet link between
@@ -38,7 +38,7 @@ Attaching (:mod:`services.orchestration.attach`): while it runs, the network is 
 ``.skynet/network.json`` (``--network FILE``), where ``skynet web``, ``skynet video`` and ``skynet replay`` find
 it when given no endpoint.
 
-Several gateways (issue 18, :mod:`services.orchestration.sites`): ``--sites S`` starts one gateway per
+Several gateways (:mod:`services.orchestration.sites`): ``--sites S`` starts one gateway per
 site (``gateway``, ``gateway-1`` .. ``gateway-{S-1}``, ids ``gw0`` ..), each dialling the lower-numbered
 ones over the same kind of link as the uplinks (TLS by default: a gateway's certificate, common name
 ``gateway``, passes the other's ACL as the role ``gateway``); formation g's edges attach to site ``g % S``,
@@ -144,7 +144,7 @@ class Plan:
     faults: list[Resolved]
     mesh: MeshMode
     proxied: set[str] = field(default_factory=set)
-    #: the sites (one gateway each, issue 18) and who attaches where (:mod:`.sites`)
+    #: the sites (one gateway each) and who attaches where (:mod:`.sites`)
     sites: sitemap.Mesh | None = None
 
 
@@ -336,7 +336,7 @@ class Network:
         """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
         rules that keep its links on the proxies (:func:`services.orchestration.topology.edge_mesh_config`).
         A file (mode 0600)."""
-        # several formations: no gossip autoconnect, or every edge would dial every other (issue 18)
+        # several formations: no gossip autoconnect, or every edge would dial every other
         formations = self.args.uavs > FORMATION_SIZE
         if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied and not formations:
             return []
@@ -355,7 +355,7 @@ class Network:
         from edge.neighbourhood import members
 
         out = []
-        for j in (j for j in members(i, fleet=self.args.uavs) if j > i):  # its formation only (issue 18)
+        for j in (j for j in members(i, fleet=self.args.uavs) if j > i):  # its formation only
             ends = (self._proxy_pair(skynet_link(i, j), self.edge_endpoints[j]) if self.plan.mesh == "proxied"
                     else self.edge_endpoints[j])
             for e in ends:
@@ -528,7 +528,7 @@ class Network:
                 "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
                 "--capture-link", getattr(a, "capture_link", "auto"), *preview, *nice, *scenario, *recovery,
                 *vehicle])
-        # a large fleet's plan (issue 18) is computed while its edges load the machine: the planner may
+        # a large fleet's plan is computed while its edges load the machine: the planner may
         # take up to 100 s of the ground station's 120 s plan timeout instead of its own 60 s default,
         # and then answers with the best collision-free path it found (48 edges left it 157 of 300 iterations)
         budget = ["--time-budget", "100", "--anytime"] if a.uavs > 24 else []

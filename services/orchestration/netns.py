@@ -1,4 +1,4 @@
-"""Network namespaces as stand-in hosts on one machine (issue 18): one per site, veth pairs between them.
+"""Network namespaces as stand-in hosts on one machine: one per site, veth pairs between them.
 
 Each site of a :class:`services.orchestration.sites.Mesh` gets its own namespace (its own
 loopback and port space, as a separate host would have) and every router link a veth pair with a

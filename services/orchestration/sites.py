@@ -1,4 +1,4 @@
-"""Several gateways: a router mesh of sites, and who attaches where (issue 18). Pure: no sockets, no bus.
+"""Several gateways: a router mesh of sites, and who attaches where. Pure: no sockets, no bus.
 
 The paper's system has one gateway between SkyNet and the Internet side (Section 1). A fleet
 spread over places (or over more UAVs than one 4G cell carries) has one gateway per site: each

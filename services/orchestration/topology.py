@@ -11,7 +11,7 @@ Link names
 * an uplink is named by its node: ``uav1`` .. ``uavN``, ``planner``, ``detector``, ``gcs``;
 * a SkyNet link by its two edges, lower id first: ``uav1-uav2``.
 
-``--impair NAME[/udp|/tcp]=SPEC`` (repeatable; issue 7 interfaces): NAME is a link name or a
+``--impair NAME[/udp|/tcp]=SPEC`` (repeatable): NAME is a link name or a
 group — ``uplinks`` (every node's uplink), ``skynet`` (every SkyNet link), ``all`` (both). The
 suffix picks the reliability class: ``/udp`` the best-effort link, ``/tcp`` the reliable one,
 none = both (zenoh's multilink setup, ZENOH.md "One link per reliability class"). SPEC is the

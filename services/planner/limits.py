@@ -1,4 +1,4 @@
-"""Bounded work for the planner (issue 12): limits checked before any work, and a time budget per request.
+"""Bounded work for the planner: limits checked before any work, and a time budget per request.
 
 The cost (P5, :class:`services.planner.cost.Cost`) evaluates every particle, UAV, segment and
 obstacle in whole-array numpy operations, so one evaluation of a swarm holds arrays of

@@ -1,4 +1,4 @@
-"""Every fuzz target of bench/fuzz.py under hypothesis (issue 12): any bytes give a result or a typed error.
+"""Every fuzz target of bench/fuzz.py under hypothesis: any bytes give a result or a typed error.
 
 Fast and bounded (a few hundred examples per target, mutations of the same valid seeds as the script
 plus hypothesis's own bytes); the script runs >= 100,000 inputs per target."""

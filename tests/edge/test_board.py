@@ -1,4 +1,4 @@
-"""The board over the real bus: three edges and the gateway in processes (issue 3)."""
+"""The board over the real bus: three edges and the gateway in processes."""
 
 import select
 import time
@@ -122,7 +122,7 @@ def test_imagery_cache_option_defaults_to_the_runtime_cache_and_refuses_negative
 
 
 def test_failsafe_escalates_to_rtl_refuses_a_stale_resume_and_the_battery_failsafe_returns(group, gateway):
-    """Issue 12: with the ground station killed a UAV used to hold for ever, and a Resume that overtook the
+    """with the ground station killed a UAV used to hold for ever, and a Resume that overtook the
     first heartbeat resumed a UAV that failed safe again at once. Now the hold escalates to RTL after
     --failsafe-escalate-after (here 2 s) and the UAV comes down; a Resume with no fresh heartbeat is refused.
     A second UAV with a short battery (--endurance) returns to launch when it runs low."""
@@ -165,7 +165,7 @@ def test_failsafe_escalates_to_rtl_refuses_a_stale_resume_and_the_battery_failsa
 
 
 def test_an_edge_hears_only_its_formation(group, gateway):
-    """Issue 18: UAVs 1, 2 and 4 of a fleet flown as formations of three (1-3, 4-6): UAV 1 shares
+    """UAVs 1, 2 and 4 of a fleet flown as formations of three (1-3, 4-6): UAV 1 shares
     state with UAV 2 only, UAV 4 with nobody, although every edge reaches every other."""
     for uav, home in {1: "10,10,0", 2: "14,10,0", 4: "18,10,0"}.items():
         svc = group.start(f"uav{uav}", [

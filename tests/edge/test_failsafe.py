@@ -1,4 +1,4 @@
-"""edge.failsafe (issue 12): escalation after a hold, battery failsafe, resume only after a fresh heartbeat."""
+"""edge.failsafe: escalation after a hold, battery failsafe, resume only after a fresh heartbeat."""
 
 import pytest
 

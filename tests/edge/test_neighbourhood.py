@@ -1,4 +1,4 @@
-"""SkyNet neighbourhoods: formations of three, neighbours only within one (issue 18)."""
+"""SkyNet neighbourhoods: formations of three, neighbours only within one."""
 
 import pytest
 

@@ -1,4 +1,4 @@
-"""The edge camera's bus binding (issue 7): capture frames with or without a recovery cache, and the
+"""The edge camera's bus binding: capture frames with or without a recovery cache, and the
 live preview stream (small, low-rate, plain best-effort, on its own key) -- over a real gateway."""
 
 from __future__ import annotations
@@ -154,7 +154,7 @@ def test_capture_link_goes_reliable_for_frames_that_span_several_datagrams():
 
 
 def test_a_burst_of_12_mp_sized_frames_on_the_reliable_imagery_link_loses_none(gateway):
-    """Issue 18: 26 frames of 600 KB (a 12 MP JPEG, some ten UDP datagrams each) sent back to back
+    """26 frames of 600 KB (a 12 MP JPEG, some ten UDP datagrams each) sent back to back
     through the gateway, as the camera publishes them (recovery cache on), to a plain subscriber."""
     got = []
     cfg = BusConfig(mode="client", connect=gateway, multilink=True)

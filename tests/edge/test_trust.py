@@ -1,4 +1,4 @@
-"""Issue 11's attacks against real processes over real mutual TLS: each now fails for the attacker.
+"""Attacks against real processes over real mutual TLS: each now fails for the attacker.
 
 A key set from ``skynet keys init``; the gateway and two edges run as processes with ``--keys``
 on ``tls/`` endpoints (ACL by certificate common name on the gateway and on each edge). The test

@@ -1,4 +1,4 @@
-"""protocol.budget (issue 12): per-source token buckets and size caps."""
+"""protocol.budget: per-source token buckets and size caps."""
 
 import pytest
 from hypothesis import given, settings, strategies as st

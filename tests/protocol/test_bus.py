@@ -202,7 +202,7 @@ def test_recovery_retransmits_best_effort_samples_lost_on_a_lossy_udp_link(gatew
 
 
 def test_reconnect_pause_reaches_zenoh_in_whole_milliseconds():
-    """A lost connect endpoint is retried within reconnect_max_s (issue 7); a pause that would round to 0 ms is refused."""
+    """A lost connect endpoint is retried within reconnect_max_s; a pause that would round to 0 ms is refused."""
     conf = BusConfig(mode="client", connect=["tcp/127.0.0.1:7447"], reconnect_max_s=1.0).to_zenoh()
     assert json.loads(conf.get_json("connect/retry")) == {"period_init_ms": 250, "period_max_ms": 1000,
                                                          "period_increase_factor": 2.0}
@@ -231,7 +231,7 @@ def test_cfg_changes_reach_the_zenoh_config_and_bad_ones_are_clear_errors():
 
 
 def test_rejection_table_is_bounded_under_a_flood_of_made_up_keys():
-    """Issue 12: every distinct rejected key used to add a row; past MAX_REJECT_KEYS they share one."""
+    """every distinct rejected key used to add a row; past MAX_REJECT_KEYS they share one."""
     from protocol.bus import MAX_REJECT_KEYS, Counters
 
     c = Counters()
@@ -243,7 +243,7 @@ def test_rejection_table_is_bounded_under_a_flood_of_made_up_keys():
 
 
 def test_a_garbage_flood_is_dropped_before_decoding_and_the_good_source_keeps_flowing(gateway):
-    """Issue 12: a writer floods malformed bytes on uav/1/state for 3 s while uav/2 sends its 20 Hz states.
+    """a writer floods malformed bytes on uav/1/state for 3 s while uav/2 sends its 20 Hz states.
     Once uav/1/state has sent more garbage than its budget, its samples are dropped before decoding
     (budget-garbage): at most its burst plus rate x time are decoded, and no good state is refused."""
     from protocol.budget import LIMITS, for_topic
@@ -290,7 +290,7 @@ time.sleep(0.5)
 
 
 def test_budget_drops_a_flooding_source_and_keeps_the_good_one(gateway):
-    """Issue 12: one source floods 4 KB events on uav/1/event as fast as it can for 3 s while uav/2 sends its
+    """one source floods 4 KB events on uav/1/event as fast as it can for 3 s while uav/2 sends its
     20 Hz states; with the ground station's budgets (protocol.budget) the flood is cut to the event budget
     (burst + rate x time) and counted per source, and every good state still gets through."""
     from protocol.budget import LIMITS, for_topic

@@ -114,7 +114,7 @@ def test_bad_inertia_raises():
         run_step_test("pid")
 
 
-#: the yaw gains before issue 17 (Λ = 4, α_max = 0.3 N·m, ω̄ = 30): yaw settled in 1.26 s
+#: the earlier yaw gains (Λ = 4, α_max = 0.3 N·m, ω̄ = 30): yaw settled in 1.26 s
 OLD_YAW = ATSMGains(lam=(8.0, 8.0, 4.0), alpha_max=(0.6, 0.6, 0.3), omega_bar=(30.0, 30.0, 30.0))
 
 

@@ -363,7 +363,7 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
             assert wait(lambda s: s.mode == Mode.MISSION, 5), states[-1]
             assert wait(lambda s: s.mode == Mode.HOLD and s.captures == 3, 20), states[-1]
             assert math.dist(states[-1].pos, (HOME[0] + 8, HOME[1] + 2, HOME[2] + 5)) < 1.0
-            veh.pilot_mode(CopterMode.LOITER)  # a pilot takes over: the edge says so on the bus (issue 13)
+            veh.pilot_mode(CopterMode.LOITER)  # a pilot takes over: the edge says so on the bus
             deadline = time.monotonic() + 10
             while time.monotonic() < deadline and not any(e.kind == "pilot-mode" for e in events):
                 time.sleep(0.05)

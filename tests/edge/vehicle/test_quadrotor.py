@@ -143,7 +143,7 @@ def test_bad_construction_raises():
 
 
 def test_ar1_is_scipys_first_order_filter_without_scipy_in_the_edge():
-    """Issue 18: the disturbance's OU filter without scipy.signal (75 MB per edge process)."""
+    """the disturbance's OU filter without scipy.signal (75 MB per edge process)."""
     import subprocess
     import sys
 

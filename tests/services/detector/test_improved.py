@@ -1,6 +1,6 @@
 """IT+ beyond the area guard and the bounding-box shape rule: the per-component contrast floor
 (P19), the length rule that needs real elongation, and the guard that a crack-free frame does not
-trigger (issue 17)."""
+trigger."""
 
 from __future__ import annotations
 

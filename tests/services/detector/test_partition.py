@@ -1,4 +1,4 @@
-"""services.detector.partition (issue 18): N instances cover every UAV exactly once, on concrete keys."""
+"""services.detector.partition: N instances cover every UAV exactly once, on concrete keys."""
 
 import pytest
 import zenoh

@@ -1,6 +1,6 @@
 """services.detector.pipeline: a crack's length in a per-frame report comes from its skeleton, the same
-measurement as the inspection deliverable's (services.inspection.measure), not its bounding box (issue 17);
-a large frame's real-time report comes from a reduced decode, in full-frame pixels (issue 18)."""
+measurement as the inspection deliverable's (services.inspection.measure), not its bounding box;
+a large frame's real-time report comes from a reduced decode, in full-frame pixels."""
 
 from __future__ import annotations
 

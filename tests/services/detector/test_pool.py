@@ -1,4 +1,4 @@
-"""services.detector.pool (issue 18): detection in real worker processes; a dead worker is counted and replaced."""
+"""services.detector.pool: detection in real worker processes; a dead worker is counted and replaced."""
 
 import os
 import time

@@ -1,5 +1,5 @@
 """IT+r: IT+ united with Hessian ridges under a contrast floor relative to IT+'s own cracks
-(services.detector.ridge, issue 17)."""
+(services.detector.ridge)."""
 
 from __future__ import annotations
 

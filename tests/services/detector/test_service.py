@@ -1,4 +1,4 @@
-"""The detector service end to end over the real bus (issue 5): frames in, reports out, corrupt frames counted."""
+"""The detector service end to end over the real bus: frames in, reports out, corrupt frames counted."""
 
 import time
 
@@ -100,7 +100,7 @@ ONSET_S = 3.0  # the proxy passes everything before, so that the detector's UDP 
 
 @pytest.mark.parametrize("recovery", [True, False], ids=["recovery-on", "recovery-off"])
 def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery):
-    """Issue 7: with recovery on (camera cache + recovering subscriber) every capture frame lost on the
+    """with recovery on (camera cache + recovering subscriber) every capture frame lost on the
     detector's lossy UDP link still arrives and is counted ``recovered``; with it off (``--imagery-cache 0``,
     ``--no-recovery``) frames are lost for good. Real processes, a real lossy UDP proxy (seeded)."""
     from edge.camera import CameraModel
@@ -191,7 +191,7 @@ def test_a_frame_late_for_playout_is_still_analysed(group, gateway):
 
 
 def test_hostile_frames_are_counted_and_the_detector_keeps_running(group, gateway):
-    """Issue 12: a frame with a foreign SSRC (0x12345678) on a UAV's own camera key, random bytes that read
+    """a frame with a foreign SSRC (0x12345678) on a UAV's own camera key, random bytes that read
     as RTP version 2, and a frame with another UAV's SSRC used to end the detector (parse_ssrc in stats()).
     Now each is a counted rejection (``bad-ssrc``) and a good frame sent after them is still analysed."""
     svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
@@ -214,7 +214,7 @@ def test_hostile_frames_are_counted_and_the_detector_keeps_running(group, gatewa
             pub.put_bytes(bytes([0x80]) + rng.integers(0, 256, int(rng.integers(11, 200)), dtype=np.uint8).tobytes())
         time.sleep(1.5)  # a few stats passes over whatever reached the jitter buffers
         own = RtpSender(ssrc_for(2))
-        # UAV 2's own camera, but metadata speaking for UAV 3 (issue 11: bodies bound to keys)
+        # UAV 2's own camera, but metadata speaking for UAV 3 (bodies bound to keys)
         pub.put_bytes(pack_image(own, _meta(3, 9, 320, 240), jpeg, time.time()))
         pub.put_bytes(pack_image(own, _meta(2, 8, 320, 240), jpeg, time.time()))
         assert wait_until(lambda: any(r.ok and r.capture_id == 8 for r in reports), 20), reports
@@ -227,7 +227,7 @@ def test_hostile_frames_are_counted_and_the_detector_keeps_running(group, gatewa
 
 
 def test_two_partitioned_detectors_analyse_every_frame_of_four_uavs_exactly_once(group, gateway):
-    """Issue 18: ``--partition 0/2`` and ``1/2`` over the real bus; 4 UAVs' cameras send 5 captures each. Every
+    """``--partition 0/2`` and ``1/2`` over the real bus; 4 UAVs' cameras send 5 captures each. Every
     capture is reported exactly once, by the instance that owns its UAV (the other is not even delivered it:
     its statistics never name that camera), and each instance has its own token and statistics key."""
     from collections import Counter

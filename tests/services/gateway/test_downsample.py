@@ -1,4 +1,4 @@
-"""The ground station's downsampled view of the fleet's states through the gateway (issue 18)."""
+"""The ground station's downsampled view of the fleet's states through the gateway."""
 
 import json
 import time

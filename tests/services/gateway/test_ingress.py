@@ -1,4 +1,4 @@
-"""The gateway's per-face ingress limit on state keys (issue 12): one session's flood is cut where it
+"""The gateway's per-face ingress limit on state keys: one session's flood is cut where it
 enters, while another session's states on the same key all pass (real gateway process, real clients)."""
 
 from __future__ import annotations

@@ -208,7 +208,7 @@ def test_imagery_to_detector_with_recovery_and_defect_reports(net):
 
 
 def test_detector_instances_speak_on_their_own_keys_and_no_other_rcus(net):
-    """Issue 18: the detector role may put statistics and hold a token as any instance (``detector-K``,
+    """the detector role may put statistics and hold a token as any instance (``detector-K``,
     services.detector.partition), and still not as the planner."""
     heard: list[tuple[str, str]] = []
     with _client(net, "gcs") as gcs, _client(net, "detector") as det:

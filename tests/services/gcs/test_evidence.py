@@ -1,4 +1,4 @@
-"""services.gcs.evidence (issue 12): captures count only on evidenced, corroborated reports."""
+"""services.gcs.evidence: captures count only on evidenced, corroborated reports."""
 
 import time
 
@@ -59,7 +59,7 @@ def test_detector_restart_adds_up_its_runs():
 
 
 def test_partitioned_detectors_sum_over_instances_each_with_its_own_runs():
-    """Issue 18: two instances (detector-0 and detector-1, --partition K/2) interleave their statistics; a
+    """two instances (detector-0 and detector-1, --partition K/2) interleave their statistics; a
     restart of one does not start a new run of the other, and the totals add both."""
     stats = [_stats(1, "detector-0", uav2_cam0_received=2, uav2_cam0_analysed=2),
              _stats(1, "detector-1", uav1_cam0_received=3, uav1_cam0_analysed=3),

@@ -101,7 +101,7 @@ def test_docstring_examples():
 
 
 def test_imagery_metrics_merge_the_latest_of_every_detector_instance():
-    """Issue 18: two instances (detector-0, detector-1) each report their own cameras; the figures take the
+    """two instances (detector-0, detector-1) each report their own cameras; the figures take the
     latest statistics of each, not only of whichever instance spoke last."""
     from protocol.messages import LinkStats
     from services.gcs.figures import _imagery_metrics
@@ -128,7 +128,7 @@ def test_detector_instance_statistics_go_to_the_detector_list():
 
 
 def test_every_gateway_has_its_latest_statistics_in_the_report():
-    """Issue 18, --sites: one gateway per site; the summary keeps each one's latest statistics (``gateway``
+    """--sites: one gateway per site; the summary keeps each one's latest statistics (``gateway``
     stays the latest of any) and the Markdown page has a row per gateway and each one's rejections."""
     from protocol.messages import ClassCounters, LinkStats
     from services.gcs.markdown import markdown

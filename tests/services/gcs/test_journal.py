@@ -1,4 +1,4 @@
-"""services.gcs.journal (issue 12): the mission report computed from the journal (record.jsonl) alone."""
+"""services.gcs.journal: the mission report computed from the journal (record.jsonl) alone."""
 
 from __future__ import annotations
 

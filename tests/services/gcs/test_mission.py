@@ -1,4 +1,4 @@
-"""Ground-station failures end the mission with a clear message, never a hang (issue 6)."""
+"""Ground-station failures end the mission with a clear message, never a hang."""
 
 import time
 
@@ -93,7 +93,7 @@ def test_the_common_start_leaves_time_for_every_start_command():
 
 @pytest.mark.mission
 def test_forged_reports_with_a_dead_detector_fail_the_mission_and_say_why(group, gateway, planner):
-    """Issue 12: with no detector running, a forger publishing ok DefectReports for every capture (some naming no
+    """with no detector running, a forger publishing ok DefectReports for every capture (some naming no
     frame, some with made-up frame evidence) made the mission end "success, every capture imaged" with 0 frames
     received. Now such reports are not corroborated by the detector's statistics: the mission fails, saying why."""
     import threading
@@ -120,7 +120,7 @@ def test_forged_reports_with_a_dead_detector_fail_the_mission_and_say_why(group,
                             pub.put(DefectReport(uav=uav, capture_id=cid, stamp_capture=now, stamp_report=now,
                                                  method="it+", frame=FrameEvidence(ssrc=ssrc_for(uav), seq=cid,
                                                                                    digest="00" * 32)))
-                        except Exception:  # a protocol without frame evidence (before issue 12)
+                        except Exception:  # a protocol without frame evidence (an older protocol)
                             pass
 
     forger = threading.Thread(target=forge, daemon=True)

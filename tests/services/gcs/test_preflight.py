@@ -1,4 +1,4 @@
-"""Pre-flight fit of a plan in the scenario's box (issue 18), on real plans of the planner."""
+"""Pre-flight fit of a plan in the scenario's box, on real plans of the planner."""
 
 import pytest
 

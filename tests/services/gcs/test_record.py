@@ -1,4 +1,4 @@
-"""services.gcs.record (issue 12): the streamed, bounded mission record and the output-folder check."""
+"""services.gcs.record: the streamed, bounded mission record and the output-folder check."""
 
 from __future__ import annotations
 
@@ -107,7 +107,7 @@ def tiny_tmpfs(size: str):
 
 
 def test_a_full_disk_keeps_the_record_up_to_the_failure_and_says_where_the_rest_is():
-    """Issue 12: on a full 64 KB tmpfs the mission record used to be lost whole (0-byte files at the end).
+    """on a full 64 KB tmpfs the mission record used to be lost whole (0-byte files at the end).
     Now the journal holds everything up to the failure, recording goes on in memory, and the error says so."""
     with tiny_tmpfs("64k") as mnt:
         rec = _record()

@@ -315,7 +315,7 @@ def test_docstring_examples():
 
 
 def test_edges_with_their_own_epochs_give_the_same_figures():
-    """Issue 14: under docker compose each edge's sim clock starts at its own container start. The
+    """under docker compose each edge's sim clock starts at its own container start. The
     same flight with UAV 2's clock 1.25 s and UAV 3's 0.6 s of sim time ahead (same wall stamps) must
     give the figures of the shared-epoch record, not a formation error of metres."""
     rec = build_record()

@@ -1,4 +1,4 @@
-"""Conditions changed while a proxy runs (issue 7): update, cut, restore, schedules, the control
+"""Conditions changed while a proxy runs: update, cut, restore, schedules, the control
 channel — on real sockets on 127.0.0.1. Bounds are generous: a step may be applied a scheduler
 slice late on the 2 shared cores, so observations keep guard bands around every change."""
 

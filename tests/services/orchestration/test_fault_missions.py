@@ -1,4 +1,4 @@
-"""Whole missions through the launcher with one scripted fault each (issue 7, "Faults").
+"""Whole missions through the launcher with one scripted fault each ("Faults").
 
 Each test runs ``skynet mission --speed 8 --fault ...`` in a subprocess (real gateway, edges,
 planner, detector, proxies) and reads the run's report.json. Times of faults count from the

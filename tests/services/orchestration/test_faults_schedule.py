@@ -1,4 +1,4 @@
-"""Pure parts of issue 7's launcher: link names and ``--impair`` grammar, ``--fault`` parsing and schedule,
+"""Pure parts of the launcher's faults: link names and ``--impair`` grammar, ``--fault`` parsing and schedule,
 the injector's bookkeeping (no processes: the injector acts on a recording target)."""
 
 from __future__ import annotations
@@ -208,7 +208,7 @@ def test_injector_waits_for_the_mission_counts_overlapping_cuts_and_stops_at_don
 @pytest.mark.parametrize("text", ["1e999s kill gateway", "nans kill gateway", "10s kill gateway for 1e999s",
                                   "100000s kill gateway", "-1s kill gateway"])
 def test_fault_times_out_of_range_are_refused(text):
-    """Issue 12 (fuzzing): ``1e999s`` was accepted as an AT that never comes; times are now 0..MAX_FAULT_S."""
+    """Fuzzing found that ``1e999s`` was accepted as an AT that never comes; times are now 0..MAX_FAULT_S."""
     from services.orchestration.faults import MAX_FAULT_S, parse_fault
 
     with pytest.raises(ValueError):

@@ -1,4 +1,4 @@
-"""The launcher's fleet-size defaults (issue 18): the ground station's state feed, previews, the edges' priority."""
+"""The launcher's fleet-size defaults: the ground station's state feed, previews, the edges' priority."""
 
 import json
 

@@ -1,4 +1,4 @@
-"""The whole system through the launcher at an accelerated clock (issue 6)."""
+"""The whole system through the launcher at an accelerated clock."""
 
 import json
 import os
@@ -34,12 +34,12 @@ def test_mission_through_the_launcher(nominal_mission, tmp_path):
         assert (out / name).stat().st_size > 0, name
     md = (out / "report.md").read_text()
     assert all(f"({p})" in md for p in PLOTS)
-    # secure by default (issue 11): mutual TLS, ACL by certificate on the gateway and every edge, signed commands
+    # secure by default: mutual TLS, ACL by certificate on the gateway and every edge, signed commands
     services = (out / "services.log").read_text()
     assert "ACL by certificate common name" in services and "INSECURE" not in services, services[-3000:]
     assert all(f"mutual TLS as uav{i}" in services for i in (1, 2, 3))
     assert not any(e["kind"] == "trust-refused" for e in report.get("events", []) if isinstance(e, dict))
-    # issue 12: the report is computed from the journal, and `skynet report` makes the same figures from it alone
+    # the report is computed from the journal, and `skynet report` makes the same figures from it alone
     assert "record.jsonl read back" in md
     again = subprocess.run([sys.executable, "-m", "services.cli", "report", str(out / "record.jsonl"), "--out",
                             str(tmp_path / "again")], capture_output=True, text=True, timeout=120)
@@ -118,7 +118,7 @@ def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
 
 @pytest.mark.mission
 def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
-    """Every link, reliable ones too, 200 ms each way (issue 7's delay): the formation must not
+    """Every link, reliable ones too, 200 ms each way (the impairment goals' delay): the formation must not
     read late states as lagging neighbours, and the common start must wait for the last UAV's
     Start; either fault left the fleet 2.7 m behind its plan and the mission failed. The delay
     starts once the sessions are open (``after 4s``, before the upload): opened through 200 ms
@@ -175,7 +175,7 @@ def test_no_recovery_reaches_the_edges_and_the_detector():
 
 
 def test_up_restarts_a_service_that_dies_instead_of_stopping_the_network():
-    """Issue 12: one service ending (here the planner, SIGKILLed from outside: a crash) used to stop the whole
+    """one service ending (here the planner, SIGKILLed from outside: a crash) used to stop the whole
     network; now the supervisor restarts it after its back-off, says so, and the rest keeps running."""
     proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--fleet", "restart"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -218,7 +218,7 @@ def test_up_restarts_a_service_that_dies_instead_of_stopping_the_network():
 
 @pytest.mark.mission
 def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
-    """Issue 18, in one mission: six UAVs fly as two formations (1-3, 4-6), each edge hears only its formation;
+    """In one mission: six UAVs fly as two formations (1-3, 4-6), each edge hears only its formation;
     ``--detectors 2`` (detector-0 and detector-1 sharing the six cameras, secure by default): every capture is
     reported once, and the ledger's analysed counts sum both instances. ``--sites 2``: formation 1 and
     detector-0 on site 0's gateway (with the ground station and the planner), formation 2 and detector-1 on
@@ -261,8 +261,8 @@ def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
 
 
 def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
-    """Issue 18: --frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config
-    (and issue 12's --state-ingress-hz its option)."""
+    """--frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config
+    (and --state-ingress-hz its option)."""
     from services.orchestration.launcher import Network, build_parser
 
     net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
@@ -281,7 +281,7 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
         cfg = [gw[k + 1] for k, a in enumerate(gw) if a == "--cfg" and gw[k + 1].startswith("downsampling:")]
         conf = {"downsampling": json.loads(cfg[0].split(":", 1)[1])}
         assert [r["key_expr"] for r in conf["downsampling"][0]["rules"]] == [f"skynet/opts/uav/{u}/state" for u in range(1, 5)]
-        assert float(gw[gw.index("--state-ingress-hz") + 1]) == 150.0  # issue 12: the gateway's ingress limit
+        assert float(gw[gw.index("--state-ingress-hz") + 1]) == 150.0  # the gateway's ingress limit
         det = net.group.get("detector").args
         assert float(det[det.index("--detect-max-mp") + 1]) == 1.5
         assert net.check_alive() == []
@@ -292,7 +292,7 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
 
 
 def test_detectors_option_starts_partitioned_instances():
-    """Issue 18: ``--detectors 2`` starts detector-0 and detector-1, each on its partition of the UAV ids."""
+    """``--detectors 2`` starts detector-0 and detector-1, each on its partition of the UAV ids."""
     from services.orchestration.launcher import Network, build_parser
 
     net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "parts", "--uavs", "4", "--detectors", "2"]),
@@ -310,7 +310,7 @@ def test_detectors_option_starts_partitioned_instances():
 
 
 def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_its_own():
-    """Issue 18, ``--sites``: each edge's uplink goes to its formation's site, the ground station and the default
+    """``--sites``: each edge's uplink goes to its formation's site, the ground station and the default
     RCUs to site 0, ``--rcu-site`` elsewhere; a bad count or RCU site is refused before anything starts."""
     from services.orchestration.launcher import Network, build_parser, make_plan
 

@@ -1,5 +1,5 @@
 """Two gateways in two network namespaces (stand-ins for two hosts), a router link between them over a
-veth pair, the RCU and the UAVs attached to either (issue 18). Real processes, real Zenoh routing.
+veth pair, the RCU and the UAVs attached to either. Real processes, real Zenoh routing.
 
 Site 0: gateway gw0 and UAV 1; site 1: gateway gw1, UAV 4 and the planner. gw1 dials gw0 at 10.18.0.1
 through the project's user-space impairment proxy (``skynet netem tcp``, in site 1's namespace: the

@@ -1,4 +1,4 @@
-"""services.orchestration.process: the log pumps never die, whatever the echo file does (issue 12); listening
+"""services.orchestration.process: the log pumps never die, whatever the echo file does; listening
 ports are drawn where no outgoing connection takes them."""
 
 import contextlib

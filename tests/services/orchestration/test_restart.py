@@ -1,4 +1,4 @@
-"""The launcher's restart policy (issue 12): back-off doubling to a cap, reset after a good run."""
+"""The launcher's restart policy: back-off doubling to a cap, reset after a good run."""
 
 import pytest
 

@@ -1,4 +1,4 @@
-"""Sites of a router mesh (issue 18): who attaches to which gateway, the router links, their addresses."""
+"""Sites of a router mesh: who attaches to which gateway, the router links, their addresses."""
 
 import pytest
 

@@ -1,4 +1,4 @@
-"""The launcher's links with real processes (issue 7): SkyNet through proxies, faults on a running network.
+"""The launcher's links with real processes: SkyNet through proxies, faults on a running network.
 
 Each test starts a whole ``skynet up``-like :class:`~services.orchestration.launcher.Network` in this process (gateway,
 three edges, planner, detector as child processes; the proxies in this process) and watches it from a

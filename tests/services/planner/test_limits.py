@@ -1,4 +1,4 @@
-"""services.planner.limits (issue 12): work checked before planning, a time budget while planning."""
+"""services.planner.limits: work checked before planning, a time budget while planning."""
 
 import time
 
@@ -43,7 +43,7 @@ def test_deadline_ends_the_optimiser():
 
 
 def test_anytime_answers_with_the_best_collision_free_path_when_the_budget_runs_out():
-    """Issue 18: a fleet's edges starve the planner; with ``anytime`` it plans the best path it had."""
+    """a fleet's edges starve the planner; with ``anytime`` it plans the best path it had."""
     sc = load_scenario()
     plan = plan_mission(sc, particles=150, iterations=10_000, time_budget_s=5.0, anytime=True)
     assert 1 < len(plan.convergence) < 10_001  # stopped by the budget, not by the iterations

@@ -400,7 +400,7 @@ def test_cli_plan_writes_files(tmp_path, capsys):
 
 
 def test_scenario_file_that_is_not_utf8_is_a_scenario_error(tmp_path):
-    """Issue 12 (fuzzing): bytes that are not UTF-8 let UnicodeDecodeError escape the loader."""
+    """Fuzzing found that bytes that are not UTF-8 let UnicodeDecodeError escape the loader."""
     bad = tmp_path / "latin1.toml"
     bad.write_bytes(b'name = "caf\xe9"\n')
     with pytest.raises(ScenarioError, match="not UTF-8"):
@@ -409,7 +409,7 @@ def test_scenario_file_that_is_not_utf8_is_a_scenario_error(tmp_path):
 
 # ----------------------------------------------------------------------------- fleets of several formations
 def test_a_fleet_of_24_in_stacked_rows_is_planned_inside_the_box_and_images_the_wall():
-    """Issue 18: 24 UAVs (eight formations of three) planned as one stacked fleet: every trajectory
+    """24 UAVs (eight formations of three) planned as one stacked fleet: every trajectory
     inside the box, the top two rows take every shot at the stand-off, the rows below take none,
     no two UAVs closer than the lattice pitch, every UAV above the altitude band's floor."""
     from edge.formation import ROW_PITCH_M, offsets_for

@@ -1,4 +1,4 @@
-"""The planner service over the real bus (issue 4): plan requests answered, bad ones refused with a reason."""
+"""The planner service over the real bus: plan requests answered, bad ones refused with a reason."""
 
 import time
 
@@ -44,7 +44,7 @@ def test_planner_answers_plan_requests_over_the_bus(group, gateway):
 
 
 def test_oversized_and_overlong_plan_requests_are_refused_and_free_the_worker(group, gateway):
-    """Issue 12: the schema's largest request (10,000 particles x 100,000 iterations) would hold the planner for
+    """the schema's largest request (10,000 particles x 100,000 iterations) would hold the planner for
     hours and 200 waypoints took gigabytes; both are now refused before any work ("too large"). A request within
     the limits that outlasts the time budget (here 1 s) is answered "timeout" and the next request is served."""
     svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink", "--time-budget", "1",

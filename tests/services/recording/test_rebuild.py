@@ -55,7 +55,7 @@ def test_mission_log_rebuilds_the_report_and_replays(nominal_mission, group, gat
     replies = [i.message() for i in items if i.kind == "reply" and i.topic.endswith("/cmd")]
     commands = summary_of(path).record.commands
     assert len(queries) == len(replies) == sum(c.attempts for c in commands) > 0
-    sent = [unverified_inner(q.message()) for q in queries]  # signed commands (issue 11): the log keeps the envelope
+    sent = [unverified_inner(q.message()) for q in queries]  # signed commands: the log keeps the envelope
     assert {(m.uav, m.cmd_id) for m in sent} == {(c.uav, c.cmd_id) for c in commands}
     assert all(isinstance(r, CommandAck) and r.accepted for r in replies)
     # the planner's answer as received: its signed envelope, the plan inside it the one the mission took
