@@ -22,6 +22,7 @@ import collections
 import json
 import logging
 import os
+import queue
 import threading
 import time
 from dataclasses import dataclass, field
@@ -483,21 +484,7 @@ class Bus:
             replies = self.session.get(key, payload=payload, encoding=encoding_of(msg), timeout=timeout,
                                        **link.request_qos())
             for reply in replies:
-                if reply.ok is not None:
-                    data = reply.ok.payload.to_bytes()
-                    try:
-                        answer = codec.decode(data, expect)
-                    except codec.CodecError as exc:
-                        self.counters.reject(key, exc.kind)
-                        return Reply(False, None, f"bad reply: {exc}", time.perf_counter() - t0)
-                    return Reply(True, answer, "", time.perf_counter() - t0)
-                err = reply.err
-                text = err.payload.to_bytes() if err is not None else b""
-                try:
-                    reason = codec.decode(text, ErrorReply).reason
-                except codec.CodecError:
-                    reason = text.decode("utf-8", "replace") or "error reply"
-                return Reply(False, None, reason, time.perf_counter() - t0)
+                return self._one_reply(key, reply, expect, t0)  # the consolidated answer
         except zenoh.ZError as exc:
             return Reply(False, None, f"query failed: {exc}", time.perf_counter() - t0)
         return Reply(False, None, f"no reply from {key} (nobody listening)", time.perf_counter() - t0)
@@ -522,24 +509,22 @@ class Bus:
         a later answer is not waited for; at most ``max_replies`` (the rest counted as rejected). Each answer is a :class:`Reply` as :meth:`request` makes them; an empty list
         means nobody answered.
         """
-        import queue as _queue
-
         t0 = time.perf_counter()
         payload = codec.encode(msg)
         self.counters.add(self.counters.sent, link.name, len(payload))
-        inbox: _queue.Queue = _queue.Queue(maxsize=max_replies + 1)
+        inbox: queue.Queue = queue.Queue(maxsize=max_replies + 1)
         done = object()
 
         def on_reply(reply: zenoh.Reply) -> None:
             try:
                 inbox.put_nowait(reply)
-            except _queue.Full:
+            except queue.Full:
                 self.counters.reject(key, "too-many-replies")
 
         def on_end() -> None:
             try:
                 inbox.put_nowait(done)
-            except _queue.Full:
+            except queue.Full:
                 pass
 
         try:
@@ -556,7 +541,7 @@ class Bus:
                 break
             try:
                 reply = inbox.get(timeout=left)
-            except _queue.Empty:
+            except queue.Empty:
                 break
             if reply is done:
                 break
