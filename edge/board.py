@@ -40,7 +40,8 @@ from dataclasses import dataclass, field
 from protocol import keys
 from protocol.budget import for_topic
 from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
-from protocol.links import COMMAND, TELEMETRY
+from protocol.links import COMMAND, LINK_LEASE_S, TELEMETRY
+from protocol.readiness import notify_ready
 from protocol.messages import (
     Box, CommandAck, Event, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
     Signed, Start, Takeoff, UploadTrajectory, VehicleState, COMMAND_TYPES,
@@ -426,7 +427,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.lease is None:
-        args.lease = 2.0
+        args.lease = LINK_LEASE_S
     log = setup_logging(f"uav{args.uav}")
     if args.nice:
         yield_cpu(args.nice)
@@ -449,6 +450,7 @@ def main(argv: list[str] | None = None) -> int:
         camera = make_camera(args, bus, log)
         board = Board(bus, driver, clock, opts, camera=camera, log=log, gate=gate)
         log.info("board up: uav %d, %s driver, camera %s, speed x%g", args.uav, args.vehicle, args.camera, args.speed)
+        notify_ready("edge", f"uav{args.uav}")
         period = 1.0 / args.rate
         next_t = time.monotonic()
         tick_errors = 0

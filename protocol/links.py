@@ -23,6 +23,14 @@ import zenoh
 
 Congestion = Literal["block", "drop", "block_first"]
 
+#: the link lease of the UAVs' boards and, when links are proxied or stall, of every node on the other end of
+#: their links (``transport/link/tx/lease``), s. A UAV that drops off silently is seen gone after it (ZENOH.md
+#: "Liveliness"). Each side of a zenoh link declares it dead after the *other* side's lease without news: with
+#: zenoh's 10 s on the gateway, an uplink cut for 3 s left the edges on their old session while the gateway had
+#: already dropped it, and the gateway then refused their data ("Route data with unknown scope") for good;
+#: with equal leases both sides drop the session and reopen.
+LINK_LEASE_S = 2.0
+
 
 @dataclass(frozen=True)
 class LinkClass:

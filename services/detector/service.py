@@ -61,6 +61,7 @@ from protocol.imagery import split_payload
 from protocol.jitter import Frame, JitterBuffers
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, LinkStats
+from protocol.readiness import notify_ready
 from protocol.rtp import RtpError, parse_ssrc, unpack_frame
 from protocol.stages import LOG_PREFIX, StageTimes
 
@@ -328,6 +329,7 @@ def main(argv: list[str] | None = None) -> int:
                               max_pixels=int(args.detect_max_mp * 1e6) if args.detect_max_mp > 0 else None)
         log.info("detector up: %s, partition %s, method %s, %d worker processes, recovery %s", name,
                  args.partition, args.method, args.workers, "off" if args.no_recovery else "on")
+        notify_ready("detector", name)
         next_stats = time.monotonic() + 1.0
         while not stop.wait(0.01):
             try:

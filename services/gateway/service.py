@@ -29,6 +29,7 @@ from protocol import keys
 from protocol.bus import (Bus, BusConfig, add_bus_args, config_from_args, endpoint_address, multilink_endpoints,
                           setup_logging, stop_event_on_signals)
 from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
+from protocol.readiness import notify_ready
 from protocol.messages import ClassCounters, LinkStats
 
 from protocol import acl
@@ -193,6 +194,7 @@ def main(argv: list[str] | None = None) -> int:
     meter = TrafficMeter()
     with Bus(config, fleet=args.fleet, name="gateway") as bus:
         log.info("router up, listening on %s", ", ".join(listen) or "(config file)")
+        notify_ready("gateway", args.id)
         for key in keys.metered(args.fleet):  # not the previews: a meter would make every camera render them
             bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
         stats_key = keys.gateway_stats(args.fleet, args.id)

@@ -52,6 +52,7 @@ import sys
 from typing import Any
 
 from protocol.bus import stopping_on_signals
+from protocol.readiness import notify_ready
 from services.netem.model import Impairment
 from services.netem.control import ControlServer, send_control
 from services.netem.proxy import DIRECTIONS, TcpProxy, UdpProxy, format_address, parse_address
@@ -176,6 +177,7 @@ def _serve(args: argparse.Namespace, proxy: UdpProxy | TcpProxy, control: Contro
             return 1
         print(f"netem {args.kind} listening on {format_address(proxy.address)} -> "
               f"{format_address(proxy.target)} [{args.direction}: {impairment.to_text()}]", flush=True)
+        notify_ready("netem")
         if control is not None:
             print(f"netem control on {format_address(control.address)}", flush=True)
         waited = 0.0

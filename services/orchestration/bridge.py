@@ -27,6 +27,8 @@ import signal
 import time
 from dataclasses import dataclass
 
+from protocol.readiness import notify_ready
+
 log = logging.getLogger("skynet.bridge")
 CHUNK = 1 << 16
 #: default --idle-timeout, s: six Zenoh leases (10 s), 24 keep-alive periods
@@ -169,6 +171,7 @@ class Bridge:
         else:
             server = await asyncio.start_server(self._serve, self.listen.host, self.listen.port)
         print(f"bridge up: {self.listen} -> {self.target}", flush=True)
+        notify_ready("bridge")
         reaper = asyncio.ensure_future(self._reap_idle())
         try:
             async with server:

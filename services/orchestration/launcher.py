@@ -29,7 +29,8 @@ A service that exits by itself (a crash, not a fault's kill) is restarted by the
 (:meth:`Network.start_supervisor`) with the same command line, after an exponential back-off
 (:mod:`services.orchestration.restart`: 0.5 s doubling to 30 s, reset after 10 s of good run); each restart is
 logged and, in a mission, recorded as the supervisor's (``supervisor-restart``), apart from injected faults. A
-service that exits :data:`START_ATTEMPTS` times without ever printing its ready line cannot start: it is not
+service that exits :data:`START_ATTEMPTS` times without ever signalling that it is up (a line on its ready pipe,
+:mod:`protocol.readiness`; not its log text) cannot start: it is not
 restarted again, its reason (its last error line) is logged, and ``skynet mission``, which waits for the
 services it asked for (planner, detector, video) before the flight, fails with that reason in the report's
 outcome. The network is never stopped because one service ended.
@@ -50,6 +51,9 @@ Secure by default (:mod:`services.orchestration.trustmode`): a development key s
 name on the gateway and on each edge, commands and heartbeats signed by the ground station, in every mode:
 proxied (impaired, fault-injected) links carry the same TLS sessions through TCP proxies; ``--insecure``
 turns everything off.
+
+The plan (:mod:`services.orchestration.plan`): every process, endpoint, identity and command line of a run is
+computed first, as data, without starting anything; ``--dry-run`` prints it (``--json``: as JSON) and exits.
 """
 
 from __future__ import annotations
@@ -57,69 +61,39 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import os
 import shutil
 import sys
 import tempfile
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from protocol import keys
-from protocol.bus import (
-    Bus,
-    BusConfig,
-    endpoint_address,
-    multilink_endpoints,
-    setup_logging,
-    stop_event_on_signals,
-)
+from protocol.bus import Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
+from protocol.checks import rate_arg
+from protocol.links import LINK_LEASE_S
 
-from .faults import FaultInjector, Resolved, cut_links, plan_faults
-from . import sites as sitemap
+from edge.board import niceness
+from edge.runtime import CAPTURE_LINKS, frame_size
+
 from . import attach, trustmode
-from .process import ProcessGroup, free_port, free_port_pair
+from .faults import FaultInjector
+from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET
+from .plan import (HOST, CountingPorts, LaunchOptions, NetworkPlan, Plan, ProcessSpec, Trust, free_ports, gateway_thinning,
+                   make_plan, network_plan)
+from .process import ProcessGroup
 from .restart import RestartTracker
+from .topology import CLASSES, open_timeout_ms
+from ..gateway.ingress import STATE_INGRESS_HZ
+
+__all__ = ["Network", "Plan", "make_plan", "build_parser", "main", "run_mission", "SUPERVISOR_RESTART",
+           "START_FAILED"]
 
 #: what the mission's record calls a restart made by the launcher's supervisor, and a service that could not
 #: start (``FaultRecord.action``; reported apart from injected faults, services.gcs.resilience)
 SUPERVISOR_RESTART = "supervisor-restart"
 START_FAILED = "start-failed"
-from .topology import (
-    CLASSES,
-    OPEN_TIMEOUT_MS,
-    open_timeout_ms,
-    Impairments,
-    Links,
-    MeshMode,
-    edge_mesh_config,
-    link_ends,
-    link_seed,
-    parse_impair,
-    skynet_link,
-)
-
-from edge.neighbourhood import FORMATION_SIZE
-from edge.board import niceness
-from edge.runtime import CAPTURE_LINKS, frame_size
-from protocol.checks import rate_arg
-from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET, fleet_load
-from ..gateway.ingress import STATE_INGRESS_HZ
-
-HOST = "127.0.0.1"
-#: the line each service prints when it is up (waited for after a restart)
-READY = {"gateway": "router up", "planner": "planner up", "detector": "detector up", "video": "video up",
-         "web": "web up"}
-EDGE_READY = "board up"
-#: the link lease of the gateway and the clients (planner, detector, ground station) when links are
-#: proxied, s: the edges' own (edge.board, 2 s). Each side of
-#: a zenoh link declares it dead after the *other* side's lease without news; with zenoh's default
-#: (10 s) on the gateway, an uplink cut for 3 s left the edges on their old session while the
-#: gateway had already dropped it, and after the restore the gateway refused their data ("Route
-#: data with unknown scope") for good. With equal leases both sides drop the session and reopen.
-GATEWAY_LEASE_S = 2.0
 #: how long a restarted service may take to come up (the gateway retries a busy port meanwhile)
 RESTART_TIMEOUT_S = 30.0
 #: a service that exits this many times in a row without ever coming up cannot start (not restarted again)
@@ -128,102 +102,51 @@ START_ATTEMPTS = 3
 START_TIMEOUT_S = 90.0
 
 
-def ready_line(name: str) -> str | None:
-    """The line service ``name`` prints once it is up (``uavN``: its board; ``detector-K``: a detector)."""
-    if name.startswith("uav") and name[3:].isdigit():
-        return EDGE_READY
-    return READY.get(name.split("-")[0])
-
-
-@dataclass
-class Plan:
-    """What the command line asks of the network, checked: impairments, faults, proxied links, mesh."""
-
-    links: Links
-    impair: Impairments
-    faults: list[Resolved]
-    mesh: MeshMode
-    proxied: set[str] = field(default_factory=set)
-    #: the sites (one gateway each) and who attaches where (:mod:`.sites`)
-    sites: sitemap.Mesh | None = None
-
-
-def _port_of(endpoint: str) -> int:
-    """The port of a Zenoh endpoint such as ``tls/127.0.0.1:7447?rel=1``."""
-    return int(endpoint_address(endpoint).rsplit(":", 1)[1])
-
-
-def make_plan(args: argparse.Namespace, ground_station: bool) -> Plan:
-    """Check ``--impair``, ``--fault`` and ``--mesh`` against the run; ValueError with a one-line message."""
-    if args.uavs < 1:
-        raise ValueError(f"--uavs {args.uavs}: at least one UAV")
-    links = Links(args.uavs, ("planner", "detector", "gcs") if ground_station else ("planner", "detector"))
-    impair = parse_impair(getattr(args, "impair", None) or [], links)
-    faults = plan_faults(getattr(args, "fault", None) or [], links)
-    detectors = getattr(args, "detectors", 1)
-    if not 1 <= detectors <= args.uavs:
-        raise ValueError(f"--detectors {detectors}: 1 to --uavs ({args.uavs}) instances")
-    if detectors > 1 and any(r.service == "detector" for r in faults):
-        raise ValueError("--fault kill detector: with --detectors N the instances are detector-0..N-1, which "
-                         "faults do not name (cut detector cuts every instance's uplink)")
-    proxied = set(impair.links()) | cut_links(faults)
-    skynet = {link for link in proxied if link_ends(link) is not None}
-    mesh = getattr(args, "mesh", None)
-    if mesh is None:
-        mesh = "proxied" if skynet else "direct"
-    elif mesh == "direct" and skynet:
-        raise ValueError(f"--mesh direct: SkyNet link(s) {', '.join(sorted(skynet))} are impaired or faulted, "
-                         "which needs --mesh proxied")
-    if mesh == "proxied":
-        proxied |= set(links.skynet)
-    n_sites = sitemap.check_sites(getattr(args, "sites", 1), args.uavs)
-    rcus = ["planner", *(["detector"] if detectors == 1 else [f"detector-{k}" for k in range(detectors)])]
-    if getattr(args, "netns", False):
-        if getattr(args, "insecure", False):
-            raise ValueError("--netns needs the default TLS links (both of a pair are TCP, which the forwarders "
-                             "between namespaces carry): not with --insecure")
-        if proxied or faults:
-            raise ValueError("--netns with --impair/--fault: the launcher's link proxies run in the machine's own "
-                             "namespace, not in the sites'; impair the router links with skynet netem by hand")
-    where = sitemap.parse_rcu_sites(getattr(args, "rcu_site", None) or [], n_sites, rcus)
-    if "detector" in proxied and len({s for n, s in where.items() if n.startswith("detector")}) > 1:
-        raise ValueError("--impair/--fault on the detector link: its instances attach to different sites "
-                         "(one proxy pair in front of one gateway): keep them at one site")
-    return Plan(links, impair, faults, mesh, proxied, sitemap.mesh(args.uavs, n_sites, where))
-
-
 class Network:
-    """The processes of one run, the proxies on its links and the endpoints each node connects to.
+    """The processes of one run (its :class:`~.plan.NetworkPlan`), the proxies on its links, and their supervision.
 
     ``ground_station``: the run has an in-process GCS (``skynet mission``), whose uplink can be
     impaired. :meth:`kill`, :meth:`restart` and :meth:`link_proxies` are what the fault injector
     acts on.
     """
 
+    #: services that stay in the machine's own namespace with --netns (what a user reaches from here)
+    MAIN_NAMESPACE = ("web", "video")
+
     def __init__(self, args: argparse.Namespace, echo=sys.stdout, log_dir: Path | None = None,
                  ground_station: bool = False, plan: Plan | None = None):
+        from protocol.scenario import load_scenario
+
         self.args = args
         self.ground_station = ground_station
         self.plan = plan or make_plan(args, ground_station)
         #: --netns: one network namespace per site (services.orchestration.netns), opened by start()
         self.ns = None
-        #: the fleet-size defaults: the ground station's state feed, previews, the edges' priority
-        self.load = fleet_load(args.uavs, getattr(args, "gcs_state_hz", None), getattr(args, "preview_hz", None),
-                               getattr(args, "edge_nice", None))
-        #: transport/unicast/open_timeout of nodes whose links are proxied, ms (slower links, longer)
-        self.open_timeout = open_timeout_ms(self.plan.impair.worst_delay_ms())
         self.group = ProcessGroup(echo=echo)
         self.log_dir = log_dir
-        #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}
+        #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}, started by start()
         self.proxies: dict[str, dict] = {}
         #: TLS, certificate ACL, signed commands: secure by default, impaired or not (services.orchestration.trustmode)
         self.trust = trustmode.resolve(args, proxied=bool(self.plan.proxied))
-        #: the listen endpoints of each site's gateway (site 0: the ground station's)
-        self.site_endpoints = [self.endpoint_pair() for _ in self.plan.sites.sites]
-        self.gateway_endpoints = self.site_endpoints[0]
-        self.edge_endpoints: dict[int, list[str]] = {}
         self.epoch = time.time() + 3.0
         self.tmp = Path(tempfile.mkdtemp(prefix="skynet-net-"))
+        self.web_token: str | None = None
+        if getattr(args, "web", None) and not ground_station:
+            from services.web.server import TOKEN_ENV, new_token
+
+            self.web_token = os.environ.get(TOKEN_ENV) or new_token()
+        #: the whole network as data (:mod:`.plan`): every process, endpoint, identity and command line
+        self.layout: NetworkPlan = network_plan(
+            LaunchOptions.from_args(args), load_scenario(args.scenario),
+            Trust.of(self.trust.keys, self.trust.tls), free_ports, ground_station=ground_station, epoch=self.epoch,
+            workdir=str(self.tmp), web_token=self.web_token or "", checked=self.plan)
+        #: the fleet-size defaults: the ground station's state feed, previews, the edges' priority
+        self.load = self.layout.load
+        #: the listen endpoints of each site's gateway (site 0: the ground station's)
+        self.site_endpoints = self.layout.site_endpoints
+        self.gateway_endpoints = self.site_endpoints[0]
+        self.edge_endpoints: dict[int, list[str]] = {
+            int(p.name[3:]): list(p.listens) for p in self.layout.processes if p.role == "edge"}
         self.injector: FaultInjector | None = None
         #: restarts the supervisor made: {"service", "code", "failures", "delay_s", "at"}
         self.restarts: list[dict] = []
@@ -238,44 +161,23 @@ class Network:
         self.on_start_failure = None
 
     # -- links
-    def endpoint_pair(self) -> list[str]:
-        """A node's listen endpoints: the TLS pair, or TCP + UDP."""
-        if self.trust.tls:
-            return trustmode.tls_endpoints(HOST, free_port(), free_port())
-        return multilink_endpoints(HOST, *free_port_pair())
-
     def topology(self) -> list[str]:
         """One line per site: its gateway, where it listens and dials, and the nodes attached to it."""
-        out = []
-        for site in self.plan.sites.sites:
-            dials = ", ".join(sitemap.gateway_process(j) for j in self.plan.sites.peers_of(site.index))
-            nodes = [*(f"uav{u}" for u in site.uavs), *(["gcs"] if site.index == 0 and self.ground_station else []),
-                     *site.rcus]
-            out.append(f"site {site.index}: {sitemap.gateway_process(site.index)} at "
-                       f"{' '.join(self.site_endpoints[site.index])}" + (f" dialling {dials}" if dials else "")
-                       + f"; attached: {' '.join(nodes) or 'nothing'}")
-        return out
+        return self.layout.topology()
 
-    def key_args(self) -> list[str]:
-        return [] if self.trust.keys is None else ["--keys", str(self.trust.keys)]
-
-    def _proxy_pair(self, link: str, target: list[str]) -> list[str]:
-        """Start the proxies of ``link`` in front of ``target`` (a multilink endpoint pair); the endpoints to
-        connect to instead. A TLS pair (the default secure mode) gets two TCP proxies: the TLS session runs end
-        to end through them, so the link keeps its encryption, its certificates and the ACL; the best-effort
-        class ("udp" in an impairment) is then a TLS stream too, where loss is retransmission delay."""
+    def _start_proxies(self) -> None:
+        """Start the plan's proxies (:class:`~.plan.ProxySpec`): a TLS pair (the default secure mode) gets two TCP
+        proxies, the TLS session running end to end through them, so the link keeps its encryption, its
+        certificates and the ACL; the best-effort class ("udp" in an impairment) is then a TLS stream too, where
+        loss is retransmission delay."""
         from services.netem.proxy import TcpProxy, UdpProxy
 
-        tcp_target, udp_target = (endpoint_address(e) for e in target)
-        tls = all(e.startswith("tls/") for e in target)
-        seed = self.args.seed
-        tp = TcpProxy((HOST, 0), tcp_target, self.plan.impair.spec(link, "tcp"),
-                      seed=link_seed(seed, link, "tcp")).start()
-        self.proxies[link] = {"tcp": tp}
-        up = (TcpProxy if tls else UdpProxy)((HOST, 0), udp_target, self.plan.impair.spec(link, "udp"),
-                                             seed=link_seed(seed, link, "udp")).start()
-        self.proxies[link]["udp"] = up
-        return self._proxied_ends(link)
+        for spec in self.layout.proxies.values():
+            pair = {}
+            for cls, port, target, imp, seed, kind in zip(CLASSES, spec.ports, spec.targets, spec.impairments,
+                                                          spec.seeds, ("tcp", spec.udp_kind)):
+                pair[cls] = (TcpProxy if kind == "tcp" else UdpProxy)((HOST, port), target, imp, seed=seed).start()
+            self.proxies[spec.link] = pair
 
     def _proxied_ends(self, link: str) -> list[str]:
         """The endpoints of ``link``'s proxies, TLS when its proxies are both TCP."""
@@ -287,25 +189,10 @@ class Network:
     def site_of(self, name: str) -> int:
         """The site whose gateway ``name`` attaches to: a UAV its formation's (``uavN``), an RCU (``planner``,
         ``detector``, ``detector-K``) its ``--rcu-site``, the ground station and the rest site 0."""
-        m = self.plan.sites
-        if name.startswith("uav") and name[3:].isdigit():
-            return m.site_of(int(name[3:]))
-        if name == "detector":  # also the instances' shared link name: make_plan keeps a proxied one at one site
-            return min((s.index for s in m.sites for r in s.rcus if r.startswith("detector")), default=0)
         try:
-            return m.site_of(name)
+            return self.layout.get(name).site
         except KeyError:
             return 0
-
-    def endpoints_for(self, name: str, site: int | None = None) -> list[str]:
-        """Where ``name`` connects: its site's gateway (``site``, default :meth:`site_of`), or the proxies of
-        its uplink."""
-        target = self.site_endpoints[self.site_of(name) if site is None else site]
-        if name not in self.plan.proxied:
-            return target
-        if name not in self.proxies:
-            self._proxy_pair(name, target)
-        return self._proxied_ends(name)
 
     def link_proxies(self, link: str) -> list:
         """The proxies of a link (TCP then UDP); KeyError if the link has none."""
@@ -316,111 +203,23 @@ class Network:
     def proxy_stats(self) -> dict[str, dict[str, dict]]:
         return {link: {c: p.stats() for c, p in pair.items()} for link, pair in self.proxies.items()}
 
-    def bus_args(self, name: str, mode: str, site: int | None = None) -> list[str]:
-        args = ["--mode", mode, "--fleet", self.args.fleet, "--multilink"]
-        if self.plan.proxied and mode == "client":
-            # equal leases on both ends (see GATEWAY_LEASE_S), a short open timeout (see client_cfg)
-            args += ["--lease", str(GATEWAY_LEASE_S), *[a for k, v in self.client_cfg() for a in ("--cfg", f"{k}:{v}")]]
-        for e in self.endpoints_for(name, site):
-            args += ["--connect", trustmode.gateway_dial(e, self.trust.keys)]
-        return args + self.key_args()
-
-    def client_cfg(self) -> list[tuple[str, str]]:
-        """The zenoh config change of the clients (planner, detector, ground station) when links are proxied
-        (``--cfg``): the edges' open timeout (:data:`services.orchestration.topology.OPEN_TIMEOUT_MS`), so
-        that a UDP handshake lost on an impaired link after a gateway restart is retried in seconds, not
-        after zenoh's 10 s."""
-        return [("transport/unicast/open_timeout", json.dumps(self.open_timeout))]
-
-    def edge_config(self, i: int) -> list[str]:
-        """``--config FILE`` of edge ``i``: the secured mesh's dictionary and/or the gossip autoconnect
-        rules that keep its links on the proxies (:func:`services.orchestration.topology.edge_mesh_config`).
-        A file (mode 0600)."""
-        # several formations: no gossip autoconnect, or every edge would dial every other
-        formations = self.args.uavs > FORMATION_SIZE
-        if self.plan.mesh == "direct" and f"uav{i}" not in self.plan.proxied and not formations:
-            return []
-        base = None
-        path = self.tmp / f"uav{i}.json5"
-        mesh = "proxied" if formations else self.plan.mesh  # proxied: autoconnect to nothing
-        path.write_text(json.dumps(edge_mesh_config(mesh, base, self.open_timeout)))
-        path.chmod(0o600)
-        return ["--config", str(path)]
-
-    def mesh_connect(self, i: int) -> list[str]:
-        """Edge i's ``--connect`` to every edge j > i of its formation: through the proxies in front of j with the
-        proxied mesh, else straight to j's endpoints. Dialled endpoints are retried until they
-        answer, while a peer learned by gossip is dialled when the gossip arrives: an edge that
-        was not listening yet then stayed out of the mesh for good (seen under load in CI)."""
-        from edge.neighbourhood import members
-
-        out = []
-        for j in (j for j in members(i, fleet=self.args.uavs) if j > i):  # its formation only
-            ends = (self._proxy_pair(skynet_link(i, j), self.edge_endpoints[j]) if self.plan.mesh == "proxied"
-                    else self.edge_endpoints[j])
-            for e in ends:
-                out += ["--connect", e]
-        return out
-
-    # -- services
-    def start_service(self, name: str, args: list[str], user: str | None = None):
-        """Start a service (in its site's namespace with --netns); ``user`` is the identity it runs as (unused: the
-        key set gives each service its certificate by role)."""
-        return self.group.start(name, args, prefix=self.prefix_of(name), ready=ready_line(name))
-
-    #: services that stay in the machine's own namespace with --netns (what a user reaches from here)
-    MAIN_NAMESPACE = ("web", "video")
-
-    def prefix_of(self, name: str) -> list[str]:
-        """The command that runs ``name`` in its site's namespace (--netns), else none."""
-        if self.ns is None or name in self.MAIN_NAMESPACE:
-            return []
-        return self.ns.prefix(self.site_of(name))
-
-    def start_ready(self, name: str, args: list[str], ready: str, prefix: list[str] | None = None):
-        """Start a process of the network's own plumbing (gateway, namespace proxy or bridge) and wait up to
-        30 s for its ``ready`` line; RuntimeError with its last lines if it does not come up."""
-        svc = self.group.start(name, args, prefix=prefix)
-        if not svc.wait_for(ready, 30):
-            raise RuntimeError(f"{name} did not start:\n" + "\n".join(svc.lines[-20:]))
-        return svc
-
-    def netns_router_link(self, site: int, peer: int) -> list[str]:
-        """--netns: gateway ``site`` dials gateway ``peer`` through the project's TCP proxy (``skynet netem tcp``,
-        in ``site``'s namespace, on its loopback) to ``peer``'s veth address: the TLS session runs end to end and
-        is checked against 127.0.0.1, the name in the key set's certificates. The endpoints to dial."""
-        out = []
-        for e in self.site_endpoints[peer]:
-            port = _port_of(e)
-            local = free_port()
-            target = f"{self.ns.address(peer, site).split('/')[0]}:{port}"
-            self.start_ready(f"link-{sitemap.gateway_process(site)}-{sitemap.gateway_process(peer)}-{port}",
-                             ["netem", "tcp", "--listen", f"{HOST}:{local}", "--target", target, "--interval", "60"],
-                             "netem tcp listening", prefix=self.ns.prefix(site))
-            out.append(e.replace(f"{HOST}:{port}", f"{HOST}:{local}"))
-        return out
-
-    def netns_bridges(self) -> None:
-        """--netns: site 0's gateway reached from the machine's own namespace (the ground station, skynet web,
-        a user's tools) at its own endpoints: a Unix socket bridge inside site 0 and one outside it
-        (:mod:`services.orchestration.bridge`), carrying the TLS session end to end."""
-        for e in self.site_endpoints[0]:
-            port = _port_of(e)
-            sock = self.tmp / f"gateway-{port}.sock"
-            self.start_ready(f"bridge-in-{port}", ["bridge", "--listen", f"unix:{sock}", "--target",
-                                                   f"tcp:{HOST}:{port}"], "bridge up", prefix=self.ns.prefix(0))
-            self.start_ready(f"bridge-out-{port}", ["bridge", "--listen", f"tcp:{HOST}:{port}", "--target",
-                                                    f"unix:{sock}"], "bridge up")
+    def gateway_config(self) -> list[str]:
+        """The gateways' traffic options (:func:`.plan.gateway_thinning`)."""
+        return gateway_thinning(LaunchOptions.from_args(self.args), self.load)
 
     def gcs_config(self) -> BusConfig:
         """The in-process ground station's session."""
-        lease = {"lease_s": GATEWAY_LEASE_S, "cfg": self.client_cfg()} if self.plan.proxied else {}
+        lease = {"lease_s": LINK_LEASE_S, "cfg": [("transport/unicast/open_timeout", json.dumps(
+            open_timeout_ms(self.plan.impair.worst_delay_ms())))]} if self.plan.proxied else {}
         tls = {}
         if self.trust.keys is not None and self.trust.tls:
             from protocol.keyset import KeySet
             ks = KeySet(self.trust.keys, "gcs")
             tls = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
-        connect = [trustmode.gateway_dial(e, self.trust.keys) for e in self.endpoints_for("gcs")]
+        try:
+            connect = list(self.layout.get("gcs").connects)
+        except KeyError:  # skynet up: no ground station in the plan; a client of site 0's gateway
+            connect = [trustmode.gateway_dial(e, self.trust.keys) for e in self.gateway_endpoints]
         return BusConfig(mode="client", connect=connect, multilink=True, **lease, **tls)
 
     def gcs_signer(self):
@@ -437,142 +236,63 @@ class Network:
         from services.gcs.cli import plan_verifier_of
         return plan_verifier_of(self.trust.keys)
 
-    def homes(self, n: int) -> list[tuple[float, float, float]]:
-        """Launch points: the formation slots around the start, on the ground (P9); a UAV stacked
-        above another launches beside it (:func:`edge.formation.home_offsets`)."""
-        from edge.formation import home_offsets, offsets_for, rotation_of
-        from protocol.scenario import load_scenario
+    def homes(self, n: int | None = None) -> list[tuple[float, float, float]]:
+        """Launch points (:func:`.plan.homes`: the scenario's formation offsets around its start)."""
+        return list(self.layout.homes[:n])
 
-        sc = load_scenario(self.args.scenario)
-        start, goal = sc.start, sc.goal
-        yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
-        R = rotation_of(0.0, 0.0, yaw)
-        ground = sc.box.lo[2]
-        out = []
-        for xy in home_offsets(offsets_for(n)):
-            p = (R @ (xy[0], xy[1], 0.0))[:2]
-            out.append((round(start[0] + p[0], 3), round(start[1] + p[1], 3), ground))
-        return out
+    # -- services
+    def prefix_of(self, name: str) -> list[str]:
+        """The command that runs ``name`` in its site's namespace (--netns), else none."""
+        try:
+            ns = self.layout.get(name).namespace
+        except KeyError:
+            ns = None if name in self.MAIN_NAMESPACE else self.site_of(name)
+        if self.ns is None or ns is None:
+            return []
+        return self.ns.prefix(ns)
 
-    def gateway_config(self) -> list[str]:
-        """The gateways' traffic options: ``--state-ingress-hz`` when given (else the gateway's default per-face
-        limit, :mod:`services.gateway.ingress`), and with ``--gcs-state-hz`` a ``--cfg downsampling:[...]`` that
-        thins the clients' view of the states (:mod:`services.gateway.downsample`)."""
-        ingress = getattr(self.args, "state_ingress_hz", None)  # None: the gateway's default limit
-        out = [] if ingress is None else ["--state-ingress-hz", str(ingress)]
-        hz = self.load.gcs_state_hz
-        if hz <= 0:
-            return out
-        from ..gateway.downsample import state_downsampling
-
-        rules = state_downsampling(self.args.fleet, hz, self.args.uavs)
-        return out + [a for k, v in rules.items() for a in ("--cfg", f"{k}:{json.dumps(v)}")]
+    def start_process(self, spec: ProcessSpec):
+        """Start one process of the plan; one the plan says to wait for (gateway, namespace proxy or bridge) must
+        signal it is up within 30 s, else RuntimeError with its last lines."""
+        svc = self.group.start(spec.name, list(spec.argv), prefix=self.prefix_of(spec.name), ready=spec.ready,
+                               env=spec.env or None)
+        if spec.wait and not svc.wait_ready(30):
+            raise RuntimeError(f"{spec.name} did not start:\n" + "\n".join(svc.lines[-20:]))
+        return svc
 
     def start(self) -> None:
-        a = self.args
+        launcher_log = logging.getLogger("skynet.launcher")
         for w in self.trust.warnings:
-            logging.getLogger("skynet.launcher").warning("%s", w)
-        lease = ["--lease", str(GATEWAY_LEASE_S)] if self.plan.proxied else []
-        thin = self.gateway_config()
-        if getattr(a, "netns", False):
+            launcher_log.warning("%s", w)
+        for path, text in self.layout.files.items():
+            Path(path).write_text(text)
+            Path(path).chmod(0o600)
+        self._start_proxies()
+        if getattr(self.args, "netns", False):
             from .netns import Namespaces, available
 
             ok, why = available()
             if not ok:
                 raise RuntimeError(f"--netns: no network namespaces here: {why}")
             self.ns = Namespaces(self.plan.sites).open()
-        for site in self.plan.sites.sites:  # one gateway per site, each dialling the lower-numbered ones
-            name = sitemap.gateway_process(site.index)
-            ident = [] if len(self.site_endpoints) == 1 else ["--id", site.gateway]
-            peers = self.plan.sites.peers_of(site.index)
-            targets = ([e for j in peers for e in self.netns_router_link(site.index, j)] if self.ns is not None
-                       else [e for j in peers for e in self.site_endpoints[j]])
-            listen = self.site_endpoints[site.index]
-            if self.ns is not None:  # also on its veths, for the router links' proxies
-                listen = [e.replace(f"/{HOST}:", "/0.0.0.0:") for e in listen]
-            self.start_ready(name, ["gateway", *ident, "--fleet", a.fleet, "--multilink", *lease, *thin,
-                                    *(["--accept-guard"] if getattr(a, "accept_guard", False) else []),
-                                    *self.key_args(),
-                                    *[x for e in targets for x in ("--connect", trustmode.gateway_dial(e, self.trust.keys))],
-                                    *[x for e in listen for x in ("--listen", e)]],
-                             READY["gateway"], prefix=[] if self.ns is None else self.ns.prefix(site.index))
-            if self.ns is not None and site.index == 0:
-                self.netns_bridges()
-        if len(self.site_endpoints) > 1:
-            for line in self.topology():
-                logging.getLogger("skynet.launcher").info("%s", line)
-        scenario = ["--scenario", a.scenario] if a.scenario else []
-        recovery = ["--imagery-cache", "0"] if getattr(a, "no_recovery", False) else []
-        preview = ["--preview-hz", f"{self.load.preview_hz:g}"]
-        nice = ["--nice", str(self.load.edge_nice)] if self.load.edge_nice else []
-        if self.load.chosen:
-            logging.getLogger("skynet.launcher").info("%d UAVs on one machine: %s", a.uavs, "; ".join(self.load.chosen))
-        for i in range(1, a.uavs + 1):
-            self.edge_endpoints[i] = self.endpoint_pair()
-        for i, home in enumerate(self.homes(a.uavs), start=1):
-            vehicle = []
-            if getattr(a, "vehicle", "sim") == "mavlink":  # a sim autopilot per UAV, on loopback UDP
-                port = free_port_pair()[1]
-                self.group.start(f"ap{i}", ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1),
-                                            "--home", ",".join(map(str, home)), "--speed", str(a.speed),
-                                            "--epoch", str(self.epoch), "--seed", str(a.seed + i), "--wind", "moderate",
-                                            "--boot-scale", f"{getattr(a, 'autopilot_boot_scale', 1.0):g}",
-                                            "--firmware-version", getattr(a, "autopilot_firmware", "4.6")],
-                                 prefix=self.prefix_of(f"uav{i}"))  # beside its edge
-                vehicle = ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{port}",
-                           "--flight", getattr(a, "flight", "guided")]
-            self.start_service(f"uav{i}", [
-                "edge", "--uav", str(i), *self.bus_args(f"uav{i}", "peer"), *self.mesh_connect(i),
-                *self.edge_config(i), *[x for e in self.edge_endpoints[i] for x in ("--listen", e)],
-                "--home", ",".join(map(str, home)), "--speed", str(a.speed), "--epoch", str(self.epoch),
-                "--seed", str(a.seed + i), "--camera", a.camera, "--frame-size", getattr(a, "frame_size", "640x480"),
-                "--capture-link", getattr(a, "capture_link", "auto"), *preview, *nice, *scenario, *recovery,
-                *vehicle])
-        # a large fleet's plan is computed while its edges load the machine: the planner may
-        # take up to 100 s of the ground station's 120 s plan timeout instead of its own 60 s default,
-        # and then answers with the best collision-free path it found (48 edges left it 157 of 300 iterations)
-        budget = ["--time-budget", "100", "--anytime"] if a.uavs > 24 else []
-        self.start_service("planner", ["planner", *self.bus_args("planner", "client"), *budget])
-        no_recovery = ["--no-recovery"] if getattr(a, "no_recovery", False) else []
-        save = ["--save-frames", a.save_frames] if getattr(a, "save_frames", None) else []
-        n = getattr(a, "detectors", 1)  # N instances share the cameras by UAV id (services.detector.partition)
-        for k in range(n):
-            part = [] if n == 1 else ["--partition", f"{k}/{n}", "--max-uav", str(a.uavs)]
-            name = "detector" if n == 1 else f"detector-{k}"
-            self.start_service(name,
-                               ["detector", *self.bus_args("detector", "client", self.site_of(name)),
-                                "--method", a.method,
-                                *part, *no_recovery, *save, *self.detect_args()], user="detector")
-        if getattr(a, "video", None):  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
-            self.start_service("video", ["video", *self.bus_args("video", "client"), "--codec", a.video,
-                                         "--uavs", str(a.uavs), "--sdp-dir", str(a.video_sdp),
-                                         "--port", str(getattr(a, "video_port", 5600))])
-        if getattr(a, "web", None) and not self.ground_station:  # skynet up: the page as its own process
-            self.start_web_service(["web", *self.bus_args("web", "client"), "--listen-web", a.web, *scenario])
-
-    def start_web_service(self, args: list[str]) -> None:
-        """``skynet web`` with the page's token in its environment (the launcher's own ``SKYNET_WEB_TOKEN``,
-        else random), so that the launcher prints the page's URL: :meth:`web_url`."""
-        from services.web.server import TOKEN_ENV, new_token
-
-        self.web_token = os.environ.get(TOKEN_ENV) or new_token()
-        self.group.env[TOKEN_ENV] = self.web_token
-        try:
-            self.start_service("web", args)
-        finally:
-            self.group.env.pop(TOKEN_ENV, None)
+        said = False
+        for spec in self.layout.processes:
+            if spec.in_process:
+                continue
+            if spec.role not in ("gateway", "link", "bridge") and not said:
+                said = True
+                if len(self.site_endpoints) > 1:
+                    for line in self.topology():
+                        launcher_log.info("%s", line)
+                if self.load.chosen:
+                    launcher_log.info("%d UAVs on one machine: %s", self.args.uavs, "; ".join(self.load.chosen))
+            self.start_process(spec)
 
     def web_url(self) -> str | None:
         """The URL of the page ``skynet up --web`` started, with its token (None without a page)."""
         from services.web.server import page_url, parse_listen
 
-        token = getattr(self, "web_token", None)
-        return None if token is None else page_url(*parse_listen(self.args.web), token)
-
-    def detect_args(self) -> list[str]:
-        """``--detect-max-mp`` for the detector when given (a large frame detected on a reduced decode)."""
-        mp = getattr(self.args, "detect_max_mp", None)
-        return [] if mp is None else ["--detect-max-mp", str(mp)]
+        return None if self.web_token is None else page_url(*parse_listen(self.args.web), self.web_token)
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -588,14 +308,13 @@ class Network:
 
     def restart(self, name: str) -> float:
         """Start a killed service again with the same command line (same ports); the seconds until it
-        said it is up. The gateway's ports may still be held for a moment: it is retried until
+        signalled it is up. The gateway's ports may still be held for a moment: it is retried until
         :data:`RESTART_TIMEOUT_S`."""
         t0 = time.monotonic()
-        ready = READY.get(name.split("-")[0], EDGE_READY)  # detector-K: an instance of the detector
         while True:
             svc = self.group.restart(name)
             left = RESTART_TIMEOUT_S - (time.monotonic() - t0)
-            if svc.wait_for(ready, max(left, 0.1)):
+            if svc.wait_ready(max(left, 0.1)):
                 return time.monotonic() - t0
             if svc.alive() or time.monotonic() - t0 > RESTART_TIMEOUT_S:
                 raise RuntimeError(f"{name} did not come back up:\n" + "\n".join(svc.lines[-10:]))
@@ -624,7 +343,7 @@ class Network:
         """One pass: schedule the restart of services that ended on their own, start those that are due.
 
         A service that exits :data:`START_ATTEMPTS` times in a row without ever having come up (its ready
-        line, :func:`ready_line`) cannot start: it is not restarted again, and :meth:`start_failed` says why
+        signal, :mod:`protocol.readiness`) cannot start: it is not restarted again, and :meth:`start_failed` says why
         (:attr:`start_failures`, :attr:`on_start_failure`). One that came up once and then ended crashed
         after working: it is restarted, and the restart is reported as the supervisor's, not as a fault."""
         if self.group.closed:
@@ -633,12 +352,12 @@ class Network:
         for svc in list(self.group.services):
             if svc.alive() or svc.killed or tracker.pending(svc.name) or svc.name in self.start_failures:
                 continue
-            if svc.ready_text is not None and not svc.ever_ready and svc.restarts + 1 >= START_ATTEMPTS:
+            if svc.ready and not svc.ever_ready and svc.restarts + 1 >= START_ATTEMPTS:
                 self.start_failed(svc.name, f"exited {svc.restarts + 1} times without coming up, last with code "
                                             f"{svc.proc.returncode}: {svc.reason()}", log)
                 continue
             p = tracker.exited(svc.name, now, now - svc.started, svc.proc.returncode)
-            how = "before it came up" if svc.ready_text is not None and not svc.ever_ready else f"after {now - svc.started:.1f} s"
+            how = "before it came up" if svc.ready and not svc.ever_ready else f"after {now - svc.started:.1f} s"
             log.error("%s exited with code %s %s (%s); restarting it in %.1f s (quick failure %d in a row)",
                       svc.name, p.code, how, svc.reason(), p.due - now, p.failures)
         for p in tracker.due(now):
@@ -808,6 +527,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--network", default=None, metavar="FILE",
                    help=f"where to describe the running network for skynet web/video/replay (default: "
                         f"${attach.NETWORK_ENV} or {attach.NETWORK_FILE}; removed at the end)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="print the network this command would start (every process, its endpoints, identity and "
+                        "command line) and exit: nothing is started, no key set made")
+    p.add_argument("--json", action="store_true", help="with --dry-run: the plan as JSON")
     if prog == "mission":
         p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
         p.add_argument("--quiet", action="store_true", help="no live progress display")
@@ -825,6 +548,16 @@ def main(argv: list[str] | None = None) -> int:
         plan = make_plan(args, ground_station=prog == "mission")
     except ValueError as e:
         parser.error(str(e))
+    from protocol.scenario import ScenarioError, load_scenario
+
+    try:
+        load_scenario(args.scenario)
+    except ScenarioError as e:
+        parser.error(f"--scenario: {e}")
+    if args.dry_run:
+        return dry_run(args, plan, prog == "mission")
+    if args.json:
+        parser.error("--json: only with --dry-run")
     log = setup_logging(prog)
     stop = stop_event_on_signals()
     if prog == "up":
@@ -851,6 +584,27 @@ def main(argv: list[str] | None = None) -> int:
             log.info("stopped: %s", codes)
         return 0
     return run_mission(args, log, stop, plan)
+
+
+def dry_run(args: argparse.Namespace, plan: Plan, ground_station: bool, out=None) -> int:
+    """``--dry-run``: print the plan (a table, or JSON with ``--json``) and exit 0; nothing is started, no port
+    is bound (ports are numbered from 7447), no key set is made (its folder is named)."""
+    from protocol.scenario import load_scenario
+
+    out = out or sys.stdout
+    keys_dir = trustmode.planned_keys(args)
+    if ground_station:
+        args.save_frames = str(Path(args.out or "reports/mission-<time>") / "frames")
+    scenario = load_scenario(args.scenario)
+    layout = network_plan(LaunchOptions.from_args(args), scenario,
+                          Trust.of(None if keys_dir is None else str(keys_dir), keys_dir is not None),
+                          CountingPorts(7447), ground_station=ground_station, epoch=0.0, workdir="<run>",
+                          web_token="<random>", checked=plan)
+    if args.json:
+        print(json.dumps(layout.to_json(), indent=1), file=out)
+    else:
+        print(layout.table(), file=out)
+    return 0
 
 
 def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan | None = None) -> int:

@@ -4,9 +4,13 @@ Used by the launcher (``skynet up``), the demo and the tests, so that all of the
 network the same way: ``python -m services.cli <command> ...`` per service, each line of its
 output prefixed with the service's name, SIGINT then SIGTERM then SIGKILL on the way out.
 
-A service may name the line it prints once it is up (``ready``): the group notes when that line shows
-(:attr:`Service.ready_at`) and whether any run of it ever came up (:attr:`Service.ever_ready`), so the
-launcher tells a service that cannot start from one that crashed after working.
+A service started with ``ready=True`` gets a ready pipe (:mod:`protocol.readiness`: its write end's number in
+``SKYNET_READY_FD``; the service writes one line ``ready <role> <name>`` once it is up, as systemd's
+``sd_notify`` does): the group notes when that line arrives (:attr:`Service.ready_at`, not from the log text,
+which is for humans) and whether any run of it ever came up (:attr:`Service.ever_ready`), so the launcher tells
+a service that cannot start from one that crashed after working. A pipe, not the liveliness tokens: it needs no
+session, identity or ACL grant on the launcher's side, works for the gateway (the router itself), for the
+plumbing that has no bus (proxies, bridges) and across network namespaces, and a restart gets a fresh one.
 
 Fault injection (:mod:`services.orchestration.faults`) needs two more things: :meth:`ProcessGroup.kill`
 (SIGKILL to the service's whole process group, as a crash would end it) and
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import os
 import random
+import select
 import signal
 import socket
 import subprocess
@@ -30,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
+from protocol.readiness import MAX_LINE, READY_FD_ENV, parse_ready
 from protocol.textsafe import printable
 
 
@@ -115,6 +121,7 @@ class Service:
     proc: subprocess.Popen
     lines: list[str] = field(default_factory=list)
     _reader: threading.Thread | None = None
+    _ready_reader: threading.Thread | None = field(default=None, repr=False)
     args: list[str] = field(default_factory=list)
     env: dict[str, str] = field(default_factory=dict, repr=False)
     on_line: Callable[[str, str], None] | None = None
@@ -126,10 +133,12 @@ class Service:
     started: float = field(default_factory=time.monotonic)
     #: the command it runs under besides the group's (``ip netns exec NS``: a site's namespace)
     prefix: list[str] = field(default_factory=list)
-    #: the line it prints once it is up (None: not watched); :attr:`ready_at` is set when it shows
-    ready_text: str | None = None
-    #: time.monotonic() when this run printed :attr:`ready_text` (None: not yet, or not watched)
+    #: it signals when it is up (a ready pipe, :mod:`protocol.readiness`); :attr:`ready_at` is set when it does
+    ready: bool = False
+    #: time.monotonic() when this run signalled it is up (None: not yet, or not watched)
     ready_at: float | None = None
+    #: ``(role, name)`` of its ready line
+    ready_as: tuple[str, str] | None = None
     #: an earlier run of it came up (so an exit of this one is a crash after working, not a failure to start)
     was_ready: bool = False
 
@@ -138,7 +147,7 @@ class Service:
 
     @property
     def ever_ready(self) -> bool:
-        """This run or an earlier one came up (printed its ready line)."""
+        """This run or an earlier one came up (signalled it is up)."""
         return self.was_ready or self.ready_at is not None
 
     def reason(self, lines: int = 200) -> str:
@@ -154,6 +163,19 @@ class Service:
         code = self.proc.poll()
         return f"exited with code {code} without a word" if code is not None else "no output"
 
+    def wait_ready(self, timeout: float = 20.0) -> bool:
+        """Wait until this run signalled it is up (True), or it ended or ``timeout`` passed (False)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.ready_at is not None:
+                return True
+            if not self.alive():
+                if self._ready_reader is not None:
+                    self._ready_reader.join(1.0)  # a line written just before the exit
+                return self.ready_at is not None
+            time.sleep(0.02)
+        return self.ready_at is not None
+
     def wait_for(self, text: str, timeout: float = 20.0) -> bool:
         """Wait until a line containing ``text`` was printed (or the process ended)."""
         deadline = time.monotonic() + timeout
@@ -164,6 +186,31 @@ class Service:
                 return any(text in line for line in list(self.lines))
             time.sleep(0.05)
         return False
+
+
+def _read_ready(svc: Service, fd: int) -> None:
+    """Read ``svc``'s ready pipe until its ready line, its end, or the process's exit (a descendant that kept
+    the write end open does not hold the reader); anything but one well-formed line is ignored."""
+    buf = b""
+    try:
+        while len(buf) <= MAX_LINE:
+            readable, _, _ = select.select([fd], [], [], 0.2)
+            if not readable:
+                if svc.proc.poll() is not None:
+                    return
+                continue
+            chunk = os.read(fd, MAX_LINE + 1 - len(buf))
+            if not chunk:
+                return
+            buf += chunk
+            if b"\n" in buf:
+                who = parse_ready(buf[:buf.index(b"\n") + 1])
+                if who is not None:
+                    svc.ready_as = who
+                    svc.ready_at = time.monotonic()
+                return
+    finally:
+        os.close(fd)
 
 
 class ProcessGroup:
@@ -207,26 +254,45 @@ class ProcessGroup:
                     pass
 
     def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None,
-              prefix: list[str] | None = None, ready: str | None = None) -> Service:
+              prefix: list[str] | None = None, ready: bool = False, env: dict[str, str] | None = None) -> Service:
         """Start ``name`` (``prefix``: a command of its own to run under, e.g. its site's namespace; kept
-        for its restarts; ``ready``: the line it prints once up, watched for :attr:`Service.ready_at`)."""
+        for its restarts; ``ready``: give it a ready pipe and watch it, :attr:`Service.ready_at`; ``env``:
+        variables of its own over the group's)."""
         with self._lock:
             if self._closed:
                 raise RuntimeError(f"cannot start {name}: the process group is stopping")
-            svc = self._spawn(name, list(args), dict(self.env), on_line, prefix=list(prefix or []), ready=ready)
+            svc = self._spawn(name, list(args), {**self.env, **(env or {})}, on_line, prefix=list(prefix or []),
+                              ready=ready)
             self.services.append(svc)
         return svc
 
     def _spawn(self, name: str, args: list[str], env: dict[str, str],
                on_line: Callable[[str, str], None] | None, restarts: int = 0,
-               prefix: list[str] | None = None, ready: str | None = None, was_ready: bool = False) -> Service:
+               prefix: list[str] | None = None, ready: bool = False, was_ready: bool = False) -> Service:
         cmd = [*self.prefix, *(prefix or []), sys.executable, "-m", "services.cli", *args]
-        proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-            text=True, errors="replace", bufsize=1, env=env, start_new_session=True,
-        )
+        env = {k: v for k, v in env.items() if k != READY_FD_ENV}  # never an inherited one
+        rfd = wfd = None
+        if ready:
+            rfd, wfd = os.pipe()
+        try:
+            proc = subprocess.Popen(
+                cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                text=True, errors="replace", bufsize=1, start_new_session=True,
+                env=env if wfd is None else {**env, READY_FD_ENV: str(wfd)}, pass_fds=() if wfd is None else (wfd,),
+            )
+        except BaseException:
+            for fd in (rfd, wfd):
+                if fd is not None:
+                    os.close(fd)
+            raise
+        if wfd is not None:
+            os.close(wfd)  # the child holds the only write end: its exit ends the pipe
         svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts, prefix=list(prefix or []),
-                      ready_text=ready, was_ready=was_ready)
+                      ready=ready, was_ready=was_ready)
+        if rfd is not None:
+            svc._ready_reader = threading.Thread(target=_read_ready, args=(svc, rfd), name=f"ready:{name}",
+                                                 daemon=True)
+            svc._ready_reader.start()
 
         def pump() -> None:
             assert proc.stdout is not None
@@ -234,8 +300,6 @@ class ProcessGroup:
             for line in proc.stdout:
                 line = line.rstrip("\n")
                 svc.lines.append(line)
-                if svc.ready_at is None and svc.ready_text is not None and svc.ready_text in line:
-                    svc.ready_at = time.monotonic()
                 if len(svc.lines) > 5000:
                     del svc.lines[:1000]
                 if listener:
@@ -286,7 +350,7 @@ class ProcessGroup:
             if self._closed:
                 raise RuntimeError(f"cannot restart {name}: the process group is stopping")
             svc = self._spawn(name, old.args, old.env, old.on_line, restarts=old.restarts + 1, prefix=old.prefix,
-                              ready=old.ready_text, was_ready=old.ever_ready)
+                              ready=old.ready, was_ready=old.ever_ready)
             self.services[self.services.index(old)] = svc
         return svc
 

@@ -47,12 +47,18 @@ def gateway_dial(endpoint: str, keys: Path | None) -> str:
     configuration, ``#root_ca_certificate_file=...``): a UAV, which trusts both CAs for the links it accepts,
     then reaches only a gateway certificate when it dials the gateway. Unchanged without TLS or a router CA."""
     router = None if keys is None else Path(keys) / "router-ca.pem"
-    if not endpoint.startswith("tls/") or "#" in endpoint or router is None or not router.is_file():
+    return dial_with_ca(endpoint, None if router is None or not router.is_file() else str(router.resolve()))
+
+
+def dial_with_ca(endpoint: str, router_ca: str | None) -> str:
+    """``endpoint`` with ``#root_ca_certificate_file=ROUTER_CA`` (a TLS endpoint only; pure: the file is not
+    looked at). Unchanged without a CA, for a non-TLS endpoint, one that has its own configuration, or a path
+    holding the endpoint syntax's characters (then the node's own CAs are used)."""
+    if not endpoint.startswith("tls/") or "#" in endpoint or router_ca is None:
         return endpoint
-    path = str(router.resolve())
-    if any(c in path for c in ";=#?"):  # the endpoint's configuration syntax: leave it to the node's own CAs
+    if any(c in router_ca for c in ";=#?"):
         return endpoint
-    return f"{endpoint}#root_ca_certificate_file={path}"
+    return f"{endpoint}#root_ca_certificate_file={router_ca}"
 
 
 def default_keys() -> Path:
@@ -115,3 +121,10 @@ def resolve(args, proxied: bool) -> TrustPlan:
         return TrustPlan(None, False, [INSECURE_BANNER])
     keys = dev_keys(getattr(args, "keys", None) or default_keys(), args.uavs)
     return TrustPlan(keys.resolve(), True)
+
+
+def planned_keys(args) -> Path | None:
+    """The key set's folder a run would use, without making it (a dry run): None with ``--insecure``."""
+    if getattr(args, "insecure", False):
+        return None
+    return (Path(getattr(args, "keys", None) or default_keys())).resolve()

@@ -19,6 +19,7 @@ import time
 from protocol import keys, planauth
 from protocol.bus import Bus, Rejected, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.messages import Message, MissionPlan, PlanRequest
+from protocol.readiness import notify_ready
 
 from .limits import TIME_BUDGET_S, TimeBudgetExceeded, TooLarge
 from .mission import plan_mission
@@ -83,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         bus.serve(where, handle, expect=PlanRequest, ring=4)
         bus.token(keys.rcu_alive(args.fleet, "planner"))
         log.info("planner up")
+        notify_ready("planner")
         stop.wait()
         log.info("shutting down")
     return 0

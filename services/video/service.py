@@ -27,6 +27,7 @@ from protocol import binding, keys
 from protocol.bus import Bus, Ring, add_bus_args, setup_logging, stop_event_on_signals
 from protocol.imagery import unpack_image
 from protocol.rtp import ssrc_for
+from protocol.readiness import notify_ready
 
 from services.orchestration.attach import add_network_arg
 
@@ -151,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
                 svc.stream(uav, kind)
         log.info("video up: %s to %s, preview from port %d, SDP in %s", args.codec, args.host, args.port,
                  args.sdp_dir)
+        notify_ready("video")
         while not stop.wait(0.2):
             pass
         svc.close()

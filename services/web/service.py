@@ -26,6 +26,7 @@ from protocol.imagery import unpack_image
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, Event, VehicleState
 from protocol.scenario import Scenario
+from protocol.readiness import notify_ready
 
 from services.recording.replay import REPLAY_MARK
 
@@ -178,6 +179,7 @@ def main(argv: list[str] | None = None) -> int:
         _, server = start_web(bus, args.listen_web, load_scenario(args.scenario), args.rate, log, token=args.token,
                               allowed_hosts=tuple(args.allow_host), frames=args.frames)
         log.info("web up")
+        notify_ready("web")
         stop.wait()
         server.stop()
     return 0

@@ -323,9 +323,9 @@ def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_it
         gw0, gw1 = net.site_endpoints
         assert len(set(gw0) | set(gw1)) == 4 and all(e.startswith("tls/127.0.0.1:") for e in gw0 + gw1)
         for i in range(1, 7):
-            args = net.bus_args(f"uav{i}", "peer")
+            args = list(net.layout.get(f"uav{i}").argv)
             connect = [args[k + 1].split("#")[0] for k, a in enumerate(args) if a == "--connect"]  # (#router CA)
-            assert connect == (gw0 if i <= 3 else gw1), (i, connect)
+            assert connect[:2] == (gw0 if i <= 3 else gw1), (i, connect)
         assert [e.split("#")[0] for e in net.gcs_config().connect] == gw0
         assert [net.site_of(n) for n in ("planner", "detector-0", "detector-1", "gcs")] == [0, 0, 1, 0]
         lines = net.topology()
@@ -339,11 +339,11 @@ def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_it
     try:
         from protocol.bus import endpoint_address
 
-        net.endpoints_for("uav4")  # its proxies are made on first use
-        proxies = net.link_proxies("uav4")
-        targets = [f"{p.target[0]}:{p.target[1]}" for p in proxies]
-        assert targets == [endpoint_address(e) for e in net.site_endpoints[1]], (targets, net.site_endpoints)
-        assert net.endpoints_for("uav1") == net.site_endpoints[0]
+        proxy = net.layout.proxies["uav4"]
+        assert list(proxy.targets) == [endpoint_address(e) for e in net.site_endpoints[1]], (proxy, net.site_endpoints)
+        uav4 = net.layout.get("uav4").connects
+        assert [e.split("#")[0] for e in uav4[:2]] == proxy.endpoints()
+        assert [e.split("#")[0] for e in net.layout.get("uav1").connects[:2]] == net.site_endpoints[0]
     finally:
         net.stop()
     for argv, why in ((("--uavs", "6", "--sites", "3"), "at most one site per formation"),

@@ -61,18 +61,63 @@ def test_listen_ranges_around_the_ephemeral_one(tmp_path):
     assert ephemeral_range(str(bad)) == (32768, 60999) == ephemeral_range(str(tmp_path / "missing"))
 
 
-def test_a_service_ready_line_is_noted_and_carried_over_restarts():
+def test_a_service_ready_signal_is_noted_and_carried_over_restarts():
+    """Readiness comes from the service's ready pipe (protocol.readiness), not from its log text."""
+    from protocol.readiness import READY_FD_ENV
     from tests.conftest import wait_until
 
     with ProcessGroup(echo=None) as g:
         # a tool that cannot attach: a one-line error, exit 2, never ready
-        bad = g.start("bad", ["video", "--network", "/nonexistent/network.json"], ready="video up")
+        bad = g.start("bad", ["video", "--network", "/nonexistent/network.json"], ready=True)
         assert wait_until(lambda: not bad.alive(), 30)
-        assert bad.ready_at is None and not bad.ever_ready
+        assert not bad.wait_ready(5) and bad.ready_at is None and not bad.ever_ready
         assert bad.reason().startswith("skynet video: error: no network running here"), bad.lines
         again = g.restart("bad")
-        assert again.ready_text == "video up" and not again.was_ready and again.restarts == 1
-        # a service that printed its line was ready, and a later run of it was ready once
-        ok = g.start("schema", ["schema"], ready="SkyNet wire contract")
-        assert wait_until(lambda: ok.ready_at is not None, 30), ok.lines[-5:]
-        assert g.restart("schema").was_ready
+        assert again.ready and not again.was_ready and again.restarts == 1
+        # a service that signalled was ready, and a later run of it was ready once
+        gw = g.start("gateway", ["gateway", "--fleet", "ready", "--listen", "tcp/127.0.0.1:0"], ready=True)
+        assert gw.wait_ready(30), gw.lines[-5:]
+        assert gw.ready_as == ("gateway", "1") and READY_FD_ENV not in gw.env
+        assert any("router up" in ln for ln in gw.lines)  # the line for humans stays
+        assert g.restart("gateway").was_ready
+        # a process that prints the words of a ready line is not ready: only its pipe counts
+        liar = g.start("liar", ["schema"], ready=True)
+        assert not liar.wait_ready(30) and liar.ready_at is None
+
+
+def test_the_ready_line_is_checked():
+    from protocol.readiness import parse_ready, ready_line
+
+    assert parse_ready(ready_line("edge", "uav3")) == ("edge", "uav3")
+    for bad in (b"ready edge uav3", b"ready edge\n", b"READY=1\n", b"ready e u x\n", b"ready \xff u\n",
+                b"ready edge " + b"u" * 300 + b"\n", b"ready edge ../x\n"):
+        assert parse_ready(bad) is None, bad
+    for role, name in (("edge", "a b"), ("", "x"), ("edge", "x" * 65)):
+        try:
+            ready_line(role, name)
+        except ValueError:
+            continue
+        raise AssertionError((role, name))
+
+
+def test_notify_ready_writes_one_line_only_to_a_pipe(tmp_path, monkeypatch):
+    """The service side: nothing without the variable; a pipe gets one line and is closed; anything else (a
+    standard stream, a file, garbage) is left alone with a warning, never an exception."""
+    import os
+
+    from protocol.readiness import READY_FD_ENV, notify_ready
+
+    monkeypatch.delenv(READY_FD_ENV, raising=False)
+    assert notify_ready("edge", "uav1") is False
+    r, w = os.pipe()
+    try:
+        monkeypatch.setenv(READY_FD_ENV, str(w))
+        assert notify_ready("edge", "uav1") is True and READY_FD_ENV not in os.environ
+        assert os.read(r, 100) == b"ready edge uav1\n" and os.read(r, 100) == b""  # written, then closed
+    finally:
+        os.close(r)
+    with open(tmp_path / "f", "w") as f:
+        for value in ("1", str(f.fileno()), "nope", "99999"):
+            monkeypatch.setenv(READY_FD_ENV, value)
+            assert notify_ready("edge", "uav1") is False
+    assert (tmp_path / "f").read_text() == ""
