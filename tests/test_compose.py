@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from protocol.links import LINK_LEASE_S
 from services.cli import COMMANDS
 from services.netem.model import Impairment
 from services.netem.sidecar import build_parser as sidecar_parser
@@ -279,10 +280,8 @@ def test_secure_by_default_keys_read_only_tls_everywhere():
         ends = _endpoints(argv)
         assert ends and all(e.startswith("tls/") for e in ends), (name, ends)
         assert {e.rsplit("?", 1)[1] for e in ends} == {"rel=1", "rel=0"}, name  # both reliability classes
-        if name == "web":  # the ground station's TLS identity, no signing key
-            assert "transport/link/tls/connect_certificate:'/keys/gcs/tls.pem'" in argv
-        else:
-            assert argv[argv.index("--keys") + 1] == "/keys", name
+        assert argv[argv.index("--keys") + 1] == "/keys", name  # its own identity of the key set
+        assert not any("/keys/" in a for a in argv), (name, argv)  # never another role's certificate
         seen, todo = set(), [name]  # it starts after the keys service (directly or through what it waits for)
         while todo:
             for dep in services[todo.pop()].get("depends_on", {}):
@@ -349,7 +348,7 @@ def test_the_split_over_hosts_files_are_secure_by_default_with_the_hosts_address
         ends = _endpoints(argv)
         assert ends and all(e.startswith("tls/") for e in ends), (name, ends)
         assert {e.rsplit("?", 1)[1] for e in ends} == {"rel=1", "rel=0"} and argv[argv.index("--keys") + 1] == "/keys"
-        assert argv[argv.index("--lease") + 1] == "2", name  # the edges' lease on both ends of every link
+        assert float(argv[argv.index("--lease") + 1]) == LINK_LEASE_S, name  # the edges' lease on both ends
     # the anchor's read-only mount reaches every service that does not list its own volumes
     anchor = _load(ROOT / "compose/ground.yml")["x-skynet"]["volumes"]
     assert [_defaults(v) for v in anchor] == ["../.keys/split:/keys:ro"]
@@ -358,7 +357,7 @@ def test_the_split_over_hosts_files_are_secure_by_default_with_the_hosts_address
     # the edge: TLS to the gateway and its peers, the ACL by certificate, the replay window, no gossip links
     argv = _skynet_argv("edge", edge)
     assert all(e.startswith("tls/") for e in _endpoints(argv)) and argv[argv.index("--keys") + 1] == "/keys"
-    assert "--replay-state" in argv and "--mesh-uavs" in argv and argv[argv.index("--lease") + 1] == "2"
+    assert "--replay-state" in argv and "--mesh-uavs" in argv and float(argv[argv.index("--lease") + 1]) == LINK_LEASE_S
     assert "scouting/gossip/autoconnect:{router:[],peer:[]}" in argv
     assert [_defaults(v) for v in edge["volumes"]] == ["../.keys/split:/keys:ro", "edge-state:/state"]
     assert all(_defaults(p).endswith("/tcp") for p in edge["ports"])
@@ -413,3 +412,30 @@ def test_every_edge_takes_the_frame_size_from_skynet_frame_size(path):
         else:
             cmd = svc["command"]
             assert cmd[cmd.index("--frame-size") + 1] == "${SKYNET_FRAME_SIZE:-640x480}", (path, name)
+
+
+def test_web_and_video_containers_run_as_their_own_identities():
+    """``skynet web`` and ``skynet video`` read the fleet as the key set's ``web`` and ``video`` identities (the
+    ACL's read-only subjects), not with the ground station's certificate: ``--keys /keys`` and the service's role
+    (protocol.bus.config_from_args) pick ``/keys/web`` and ``/keys/video``."""
+    from protocol.acl import ATTACHED_ROLES
+    from services.keys import roles
+
+    web = _services()["web"]
+    video = _services(ROOT / "compose/video.yml")["video"]
+    for role, svc in (("web", web), ("video", video)):
+        argv = [_defaults(c) for c in svc["command"]]
+        assert argv[0] == role and argv[argv.index("--keys") + 1] == "/keys", argv
+        assert not any("gcs" in a for a in argv) and "--cfg" not in argv, argv
+        assert "./.keys/compose:/keys:ro" in [_defaults(v) for v in svc["volumes"]]
+        assert role in ATTACHED_ROLES and role in roles(3)  # the key set a compose run makes has that identity
+
+
+def test_every_ground_node_has_the_edges_link_lease():
+    """The base file's gateway, planner, detector and ground station run with the one link lease
+    (protocol.links.LINK_LEASE_S) the edges have by default: equal leases on both ends of every link."""
+    services = _services()
+    for name in ("gateway", "planner", "detector", "gcs"):
+        argv = _skynet_argv(name, services[name])
+        assert float(argv[argv.index("--lease") + 1]) == LINK_LEASE_S, name
+

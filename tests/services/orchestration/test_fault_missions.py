@@ -21,9 +21,11 @@ import sys
 
 import pytest
 
+from protocol.links import LINK_LEASE_S
+
 pytestmark = pytest.mark.mission  # whole missions: one at a time under xdist (tests/conftest.py)
 
-EDGE_LEASE_S = 2.0
+EDGE_LEASE_S = LINK_LEASE_S  # the board's default lease
 LEASE_SLACK_S = 1.0
 RESTART_SLACK_S = 3.0
 FORMATION_RMS_BOUND_M = 1.0

@@ -17,12 +17,13 @@ import pytest
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import TELEMETRY
+from protocol.links import LINK_LEASE_S
 from protocol.messages import Hold, VehicleState
 from services.orchestration.launcher import Network, build_parser
 from tests.conftest import wait_until
 
-#: the edges' link lease (edge.board: --lease defaults to 2 s)
-EDGE_LEASE_S = 2.0
+#: the edges' link lease (edge.board: --lease defaults to it)
+EDGE_LEASE_S = LINK_LEASE_S
 
 
 class Probe:
