@@ -68,8 +68,8 @@ def gateway(group):
     # the bus tests send states back to back through this router
     svc = group.start("gateway", ["gateway", "--fleet", "test", "--multilink", "--period", "0.3",
                                   "--state-ingress-hz", "0",
-                                  *[a for e in endpoints for a in ("--listen", e)]])
-    assert svc.wait_for("router up", 20), "\n".join(svc.lines)
+                                  *[a for e in endpoints for a in ("--listen", e)]], ready=True)
+    assert svc.wait_ready(20), "\n".join(svc.lines)  # its ready signal (protocol.readiness)
     return endpoints
 
 

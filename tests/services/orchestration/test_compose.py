@@ -30,6 +30,7 @@ from services.orchestration.attach import NETWORK_FILE
 from services.orchestration.process import free_port
 from services.recording.mcap_log import McapLog
 from tests.conftest import ROOT, wait_until
+from tests.readiness import ReadyPipe
 
 av = pytest.importorskip("av")
 GST = shutil.which("gst-launch-1.0")
@@ -53,8 +54,11 @@ class Tool:
     """A ``skynet`` command running in the background, its output collected."""
 
     def __init__(self, cwd: Path, *argv: str):
-        self.proc = subprocess.Popen([sys.executable, "-m", "services.cli", *argv], cwd=cwd, env=_env(),
+        self.ready = ReadyPipe()  # its ready signal (protocol.readiness)
+        self.proc = subprocess.Popen([sys.executable, "-m", "services.cli", *argv], cwd=cwd,
+                                     env=self.ready.env(_env()), pass_fds=self.ready.pass_fds,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.ready.started()
         self.lines: list[str] = []
         threading.Thread(target=self._pump, daemon=True).start()
 
@@ -65,6 +69,10 @@ class Tool:
     def wait_for(self, text: str, timeout: float = 60) -> bool:
         return wait_until(lambda: any(text in ln for ln in self.lines) or self.proc.poll() is not None, timeout) \
             and any(text in ln for ln in self.lines)
+
+    def wait_ready(self, timeout: float = 60) -> tuple[str, str] | None:
+        """``(role, name)`` once the tool signalled it is up; None if it ended first."""
+        return self.ready.wait(self.proc, timeout)
 
     def text(self) -> str:
         return "\n".join(self.lines[-60:])
@@ -220,7 +228,7 @@ def test_video_attaches_with_no_options_and_streams_jpeg_that_ffmpeg_and_gstream
     tool = Tool(network.cwd, "video", "--codec", "mjpeg", "--port", str(port), "--sdp-dir", "sdp-jpeg",
                 "--uavs", "3")
     try:
-        assert tool.wait_for("video up", 60), tool.text()
+        assert tool.wait_ready(60) == ("video", "video"), tool.text()
         assert "with video's identity" in tool.text()
         sdp = network.cwd / "sdp-jpeg" / "uav3-preview.sdp"
         assert "JPEG/90000" in sdp.read_text()
@@ -251,7 +259,7 @@ def test_web_and_replay_attach_and_a_replay_never_reaches_the_live_fleet(network
     shown = Tool(network.cwd, "web", "--listen-web", f":{replay_port}", "--fleet", keys.replay_fleet(FLEET))
     mcap = _recording(tmp_path / "mission.mcap")
     try:
-        assert live.wait_for("web up", 60) and shown.wait_for("web up", 60), live.text() + shown.text()
+        assert live.wait_ready(60) == shown.wait_ready(60) == ("web", "web"), live.text() + shown.text()
         assert wait_until(lambda: _live_uavs(live_port) >= {"1", "2", "3"}, 30), live.text()
         # told to write on the live fleet: the replay identity may not, the live page never shows it
         forced = skynet(network.cwd, "replay", str(mcap), "--speed", "0", "--reliable", "--as-fleet", FLEET)

@@ -10,6 +10,7 @@ import time
 import pytest
 
 from tests.conftest import fly_mission
+from tests.readiness import wait_ready
 
 #: stated bounds of the end-to-end mission (README, "Mission")
 FORMATION_RMS_BOUND_M = 1.0
@@ -164,11 +165,10 @@ def test_no_recovery_reaches_the_edges_and_the_detector():
                   echo=None)
     try:
         net.start()
-        for name, ready, flag in [("uav1", "board up", "--imagery-cache"), ("uav2", "board up", "--imagery-cache"),
-                                  ("detector", "detector up", "--no-recovery")]:
+        for name, flag in [("uav1", "--imagery-cache"), ("uav2", "--imagery-cache"), ("detector", "--no-recovery")]:
             svc = net.group.get(name)
             assert flag in svc.args and (flag != "--imagery-cache" or svc.args[svc.args.index(flag) + 1] == "0")
-            assert svc.wait_for(ready, 30), "\n".join(svc.lines[-20:])
+            wait_ready(svc)
         assert net.check_alive() == []
     finally:
         net.stop()
@@ -276,7 +276,7 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
             a = svc.args
             assert a[a.index("--frame-size") + 1] == "1280x960" and a[a.index("--capture-link") + 1] == "reliable"
             assert float(a[a.index("--preview-hz") + 1]) == 0.0
-            assert svc.wait_for("board up", 30), "\n".join(svc.lines[-20:])
+            assert wait_ready(svc).ready_as == ("edge", f"uav{i}")
         gw = net.group.get("gateway").args
         cfg = [gw[k + 1] for k, a in enumerate(gw) if a == "--cfg" and gw[k + 1].startswith("downsampling:")]
         conf = {"downsampling": json.loads(cfg[0].split(":", 1)[1])}
@@ -303,7 +303,7 @@ def test_detectors_option_starts_partitioned_instances():
             svc = net.group.get(f"detector-{k}")
             a = svc.args
             assert a[a.index("--partition") + 1] == f"{k}/2" and a[a.index("--max-uav") + 1] == "4"
-            assert svc.wait_for(f"detector up: detector-{k}, partition {k}/2", 60), "\n".join(svc.lines[-20:])
+            assert wait_ready(svc, 60).ready_as == ("detector", f"detector-{k}")
         assert net.check_alive() == []
     finally:
         net.stop()

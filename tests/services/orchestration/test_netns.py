@@ -26,6 +26,7 @@ from services.orchestration.process import ProcessGroup
 from services.orchestration.sites import GATEWAY_PORT, mesh, router_endpoint
 from services.planner.scenario import load_scenario
 from tests.conftest import wait_until
+from tests.readiness import wait_ready
 
 FLEET = "sites"
 OK, WHY = available()
@@ -42,24 +43,27 @@ def test_two_gateways_across_namespaces_route_states_commands_and_plans(tmp_path
         groups = [ProcessGroup(echo=None, prefix=ns.prefix(s.index)) for s in m.sites]
         try:
             gw0 = groups[0].start("gw0", ["gateway", "--id", "gw0", "--fleet", FLEET,
-                                          "--listen", f"tcp/0.0.0.0:{GATEWAY_PORT}", "--listen", f"unixsock-stream/{sock}"])
+                                          "--listen", f"tcp/0.0.0.0:{GATEWAY_PORT}", "--listen", f"unixsock-stream/{sock}"],
+                                  ready=True)
             gw0_addr = router_endpoint(ns.address(0, 1)).removeprefix("tcp/")
             proxy = groups[1].start("netem", ["netem", "tcp", "--listen", f"127.0.0.1:{PROXY_PORT}", "--target",
-                                              gw0_addr, "--impair", f"delay {DELAY_MS}ms", "--interval", "1"])
-            assert proxy.wait_for("tcp", 30), "\n".join(proxy.lines)
+                                              gw0_addr, "--impair", f"delay {DELAY_MS}ms", "--interval", "1"],
+                                     ready=True)
+            wait_ready(proxy)
             gw1 = groups[1].start("gw1", ["gateway", "--id", "gw1", "--fleet", FLEET, "--listen",
-                                          f"tcp/0.0.0.0:{GATEWAY_PORT}", "--connect", f"tcp/127.0.0.1:{PROXY_PORT}"])
+                                          f"tcp/0.0.0.0:{GATEWAY_PORT}", "--connect", f"tcp/127.0.0.1:{PROXY_PORT}"],
+                                  ready=True)
             for g in (gw0, gw1):
-                assert g.wait_for("router up", 90), "\n".join(g.lines)
-            nodes = [groups[1].start("planner", ["planner", "--fleet", FLEET, "--mode", "client", "--connect", local])]
+                wait_ready(g, 90)
+            nodes = [groups[1].start("planner", ["planner", "--fleet", FLEET, "--mode", "client", "--connect", local],
+                                     ready=True)]
             for uav in (1, 4):
                 site = m.site_of(uav)
                 nodes.append(groups[site].start(f"uav{uav}", [
                     "edge", "--uav", str(uav), "--fleet", FLEET, "--camera", "none", "--connect", local,
-                    "--home", f"{10 * uav},10,0", "--geofence", "0,0,0,100,100,40"]))
-            assert nodes[0].wait_for("planner up", 90), "\n".join(nodes[0].lines)
-            for n in nodes[1:]:
-                assert n.wait_for("board up", 90), "\n".join(n.lines)
+                    "--home", f"{10 * uav},10,0", "--geofence", "0,0,0,100,100,40"], ready=True))
+            for n in nodes:
+                wait_ready(n, 90)
 
             states: dict[int, VehicleState] = {}
             ages: dict[int, list[float]] = {1: [], 4: []}
@@ -106,7 +110,7 @@ def test_the_launcher_runs_each_site_in_a_namespace_of_its_own():
         net.start()
         g = net.group
         for i in range(1, 7):
-            assert g.get(f"uav{i}").wait_for("board up", 60), "\n".join(g.get(f"uav{i}").lines[-20:])
+            wait_ready(g.get(f"uav{i}"), 60)
         here = _netns_of(os.getpid())
         site0, site1 = _netns_of(g.get("gateway").proc.pid), _netns_of(g.get("gateway-1").proc.pid)
         assert len({here, site0, site1}) == 3

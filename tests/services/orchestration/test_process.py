@@ -15,8 +15,8 @@ def test_log_pump_survives_a_full_disk_and_keeps_reading(capfd):
     full = open("/dev/full", "w")
     group = ProcessGroup(echo=full)
     try:
-        gw = group.start("gateway", ["gateway", "--fleet", "pump", "--listen", "tcp/127.0.0.1:0"])
-        assert gw.wait_for("router up", 30), gw.lines
+        gw = group.start("gateway", ["gateway", "--fleet", "pump", "--listen", "tcp/127.0.0.1:0"], ready=True)
+        assert gw.wait_ready(30), gw.lines
     finally:
         group.stop()
         with contextlib.suppress(OSError):

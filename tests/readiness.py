@@ -1,0 +1,76 @@
+"""Waiting for a service the way the launcher does: on its ready signal (protocol.readiness), not its log text.
+
+``start_ready(group, name, argv)`` starts ``python -m services.cli ARGV`` in a
+:class:`~services.orchestration.process.ProcessGroup` with a ready pipe and waits for its ``ready <role> <name>``
+line; ``wait_ready(svc)`` waits on one already started with ``ready=True``. Either fails the test with the
+service's last output lines when it does not come up.
+"""
+
+from __future__ import annotations
+
+from services.orchestration.process import ProcessGroup, Service
+
+
+def wait_ready(svc: Service, timeout: float = 30.0) -> Service:
+    """``svc`` once it signalled it is up; AssertionError with its last lines otherwise."""
+    assert svc.ready, f"{svc.name} was started without a ready pipe (ready=True)"
+    assert svc.wait_ready(timeout), f"{svc.name} did not signal it is up within {timeout:g} s:\n" + "\n".join(
+        list(svc.lines)[-20:])
+    return svc
+
+
+def start_ready(group: ProcessGroup, name: str, argv: list[str], timeout: float = 30.0, **kw) -> Service:
+    """Start ``name`` with a ready pipe and wait until it is up (:func:`wait_ready`)."""
+    return wait_ready(group.start(name, argv, ready=True, **kw), timeout)
+
+
+class ReadyPipe:
+    """A ready pipe for a process started without a process group (``subprocess.Popen``)::
+
+        pipe = ReadyPipe()
+        proc = subprocess.Popen(argv, env=pipe.env(os.environ), pass_fds=pipe.pass_fds)
+        pipe.started()          # closes the parent's copy of the write end
+        assert pipe.wait(proc, 60) == ("video", "video")
+    """
+
+    def __init__(self) -> None:
+        import os
+
+        self._r, self._w = os.pipe()
+        self.pass_fds = (self._w,)
+        self.seen: tuple[str, str] | None = None
+
+    def env(self, base: dict[str, str]) -> dict[str, str]:
+        from protocol.readiness import READY_FD_ENV
+
+        return {**base, READY_FD_ENV: str(self._w)}
+
+    def started(self) -> None:
+        import os
+
+        os.close(self._w)
+
+    def wait(self, proc, timeout: float = 30.0) -> tuple[str, str] | None:
+        """``(role, name)`` of the process's ready line, None if it ended or ``timeout`` passed first."""
+        import os
+        import select
+        import time
+
+        from protocol.readiness import MAX_LINE, parse_ready
+
+        if self.seen is not None:
+            return self.seen
+        deadline, buf = time.monotonic() + timeout, b""
+        while time.monotonic() < deadline and len(buf) <= MAX_LINE:
+            if not select.select([self._r], [], [], 0.2)[0]:
+                if proc.poll() is not None:
+                    return None
+                continue
+            chunk = os.read(self._r, MAX_LINE + 1 - len(buf))
+            if not chunk:
+                return None
+            buf += chunk
+            if b"\n" in buf:
+                self.seen = parse_ready(buf[:buf.index(b"\n") + 1])
+                return self.seen
+        return None
