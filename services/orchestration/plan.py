@@ -298,7 +298,7 @@ class NetworkPlan:
                 "processes": [proc(p) for p in self.processes],
                 "proxies": [{**asdict(x), "endpoints": x.endpoints()} for x in self.proxies.values()],
                 "files": sorted(self.files),
-                "faults": [str(f) for f in self.checked.faults]}
+                "faults": [r.fault.text for r in self.checked.faults]}
 
     def table(self) -> str:
         """A readable table of the processes, then each one's command line, the proxies and the sites."""
@@ -494,9 +494,10 @@ def network_plan(o: LaunchOptions, scenario: Scenario, trust: Trust, ports: Port
         ends = proxy(link, target) if link in checked.proxied else target
         return [trustmode.dial_with_ca(e, trust.router_ca) for e in ends]
 
+    # proxied links: the edges' lease on the ground too (protocol.links.LINK_LEASE_S), and the clients' open
+    # timeout the edges' (topology.OPEN_TIMEOUT_MS): a UDP handshake lost on an impaired link is retried in seconds
     lease = ["--lease", str(LINK_LEASE_S)] if checked.proxied else []
-    client_lease = [*lease, *[a for k, v in [("transport/unicast/open_timeout", json.dumps(timeout))]
-                              for a in ("--cfg", f"{k}:{v}")]] if checked.proxied else []
+    client_lease = [*lease, "--cfg", f"transport/unicast/open_timeout:{json.dumps(timeout)}"] if checked.proxied else []
     netns = o.netns
     thin = gateway_thinning(o, load)
     ident = None if trust.keys is None else "gateway"

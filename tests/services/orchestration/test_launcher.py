@@ -263,8 +263,11 @@ def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
 def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
     """--frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config
     (and --state-ingress-hz its option)."""
+    from protocol.scenario import load_scenario
     from services.orchestration.launcher import Network, build_parser
+    from services.orchestration.plan import fence_arg
 
+    fence = fence_arg(load_scenario(None))
     net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
                                                  "1280x960", "--capture-link", "reliable", "--preview-hz", "0",
                                                  "--gcs-state-hz", "5", "--detect-max-mp", "1.5",
@@ -276,6 +279,7 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
             a = svc.args
             assert a[a.index("--frame-size") + 1] == "1280x960" and a[a.index("--capture-link") + 1] == "reliable"
             assert float(a[a.index("--preview-hz") + 1]) == 0.0
+            assert a[a.index("--geofence") + 1] == fence  # the scenario's box, the ceiling of any upload's fence
             assert wait_ready(svc).ready_as == ("edge", f"uav{i}")
         gw = net.group.get("gateway").args
         cfg = [gw[k + 1] for k, a in enumerate(gw) if a == "--cfg" and gw[k + 1].startswith("downsampling:")]
