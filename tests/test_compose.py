@@ -367,15 +367,12 @@ def test_the_sites_override_is_the_launchers_two_site_layout():
     """compose/sites.yml is `skynet mission --uavs 6 --sites 2 --rcu-site detector=1` in containers: each UAV on
     its formation's site's gateway (services.orchestration.sites), gateway-1 dialling gateway, the homes of the
     launcher, a six-UAV key set naming gateway-1, the ground station flying six, the detector at site 1."""
-    from services.orchestration.launcher import Network, build_parser
+    from protocol.scenario import load_scenario
+    from services.orchestration.plan import homes as launch_points
     from services.orchestration.sites import gateway_process, site_of_uav
 
     over = _services(ROOT / "compose/sites.yml")
-    net = Network(build_parser("mission").parse_args(["--fleet", "demo", "--uavs", "6"]), echo=None)
-    try:
-        homes = net.homes(6)
-    finally:
-        net.stop()
+    homes = launch_points(load_scenario(None), 6)
 
     def dialled(cmd):
         return {_defaults(c).split("/")[1].split(":")[0] for k, c in zip(cmd, cmd[1:]) if k == "--connect"}
@@ -438,4 +435,16 @@ def test_every_ground_node_has_the_edges_link_lease():
     for name in ("gateway", "planner", "detector", "gcs"):
         argv = _skynet_argv(name, services[name])
         assert float(argv[argv.index("--lease") + 1]) == LINK_LEASE_S, name
+
+
+def test_the_base_files_homes_are_the_launchers():
+    """Each edge of the base file launches where ``skynet mission`` launches it: the default scenario's formation
+    offsets around its start (services.orchestration.plan.homes)."""
+    from protocol.scenario import load_scenario
+    from services.orchestration.plan import homes as launch_points
+
+    services = _services()
+    for u, home in enumerate(launch_points(load_scenario(None), 3), start=1):
+        cmd = services[f"uav{u}"]["command"]
+        assert [float(x) for x in cmd[cmd.index("--home") + 1].split(",")] == pytest.approx(list(home), abs=0.06), u
 
