@@ -27,8 +27,8 @@ def main(argv: list[str] | None = None) -> int:
     endpoints = multilink_endpoints("127.0.0.1", tcp, udp)
     with ProcessGroup() as group:
         gw = group.start("gateway", ["gateway", "--fleet", args.fleet, *sum((["--listen", e] for e in endpoints), []),
-                                     "--multilink"])
-        if not gw.wait_for("router up"):
+                                     "--multilink"], ready=True)
+        if not gw.wait_ready():
             print("gateway did not start")
             return 1
         peer_cfg = BusConfig(mode="peer", connect=endpoints, listen=["tcp/127.0.0.1:0"], multilink=True)
