@@ -73,6 +73,7 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
 from protocol.checks import rate_arg
 from protocol.links import LINK_LEASE_S
+from protocol.readiness import notify_ready
 
 from edge.board import niceness
 from edge.runtime import CAPTURE_LINKS, frame_size
@@ -408,6 +409,14 @@ class Network:
                 self.start_failed(n, f"not up after {timeout_s:.0f} s ({self.group.get(n).reason()})", log)
         return {n: self.start_failures[n] for n in names if n in self.start_failures}
 
+    def supervised(self) -> list[str]:
+        """The processes that signal when they are up (every one the plan starts but the sim autopilots)."""
+        return [s.name for s in self.group.services if s.ready]
+
+    def all_up(self) -> bool:
+        """Every process that signals readiness has come up at least once."""
+        return all(s.ever_ready for s in self.group.services if s.ready)
+
     def requested(self) -> list[str]:
         """The services a run asks for besides the edges: planner, detector(s), and video / web when asked."""
         n = getattr(self.args, "detectors", 1)
@@ -577,8 +586,12 @@ def main(argv: list[str] | None = None) -> int:
             if described is not None:
                 log.info("network described in %s: `skynet web`, `skynet video`, `skynet replay FILE` attach to it "
                          "from this folder with no options", described)
-            while not stop.wait(1.0):
-                pass
+            announced = False
+            while not stop.wait(1.0 if announced else 0.2):
+                if not announced and net.all_up():
+                    announced = True  # the launcher's own ready signal: every service it started is up
+                    log.info("all services up: %s", " ".join(net.supervised()))
+                    notify_ready("launcher", "up")
         finally:
             codes = net.stop()
             log.info("stopped: %s", codes)

@@ -5,12 +5,13 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
 
 from tests.conftest import fly_mission
-from tests.readiness import wait_ready
+from tests.readiness import ReadyPipe, wait_ready
 
 #: stated bounds of the end-to-end mission (README, "Mission")
 FORMATION_RMS_BOUND_M = 1.0
@@ -50,35 +51,32 @@ def test_mission_through_the_launcher(nominal_mission, tmp_path):
 
 
 def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
+    """``skynet up`` signals it is up (its own ready pipe, as its services do to it) once every service it
+    started has signalled; Ctrl-C then ends them all."""
+    pipe = ReadyPipe()
     proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4"], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    lines = []
-    deadline = time.monotonic() + 60
-    names = {"gateway", "uav1", "uav2", "uav3", "planner", "detector"}
-    seen = set()
+                            stderr=subprocess.STDOUT, text=True, env=pipe.env(dict(os.environ)),
+                            pass_fds=pipe.pass_fds)
+    pipe.started()
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # never a full pipe
+    reader.start()
     try:
-        while time.monotonic() < deadline and not {"network-up", *names} <= seen:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            lines.append(line)
-            if "network up" in line:
-                seen.add("network-up")
-            for n in names:
-                if line.strip().startswith(f"{n} |") and ("up" in line):
-                    seen.add(n)
-        assert {"network-up", *names} <= seen, "".join(lines[-40:])
+        assert pipe.wait(proc, 90) == ("launcher", "up"), "".join(lines[-40:])
         pids = [int(p) for p in subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
                                                text=True).stdout.split()]
         assert len(pids) == 6
     finally:
         proc.send_signal(signal.SIGINT)
-        rest = proc.communicate(timeout=30)[0]
+        proc.wait(30)
+        reader.join(10)
+    rest = "".join(lines)
     assert proc.returncode == 0, rest[-2000:]
     for pid in pids:
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
     assert "shutting down" in rest
+    assert "network up" in rest and "all services up: gateway uav1 uav2 uav3 planner detector" in rest, rest[-3000:]
 
 
 def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
