@@ -121,3 +121,50 @@ def test_notify_ready_writes_one_line_only_to_a_pipe(tmp_path, monkeypatch):
             monkeypatch.setenv(READY_FD_ENV, value)
             assert notify_ready("edge", "uav1") is False
     assert (tmp_path / "f").read_text() == ""
+
+
+class _Proc:
+    """A stand-in for a child process: alive until ``ended`` is set."""
+
+    def __init__(self) -> None:
+        self.ended = False
+
+    def poll(self):
+        return 0 if self.ended else None
+
+
+def test_the_ready_reader_takes_only_one_well_formed_line_and_never_hangs():
+    """The child is untrusted: garbage, an endless line, a line never finished, or a child that exits without a
+    word leave it not ready, and the reader always ends (bounded read, no wait past the child's exit)."""
+    import os
+    import threading
+    import time
+
+    from services.orchestration.process import Service, _read_ready
+
+    def run(data: bytes | None, end: bool = True, close: bool = True) -> Service:
+        svc = Service("x", _Proc(), ready=True)
+        r, w = os.pipe()
+        t = threading.Thread(target=_read_ready, args=(svc, r), daemon=True)
+        t.start()
+        if data:
+            os.write(w, data)
+        if close:
+            os.close(w)
+        if end:
+            svc.proc.ended = True
+        t.join(5)
+        assert not t.is_alive()
+        if not close:
+            os.close(w)
+        return svc
+
+    assert run(b"ready edge uav1\n").ready_as == ("edge", "uav1")
+    assert run(b"ready edge uav1\nready edge uav2\n").ready_as == ("edge", "uav1")  # the first line only
+    for bad in (b"router up\n", b"ready\x00edge uav1\n", b"x" * 1000, b"ready edge uav1"):
+        svc = run(bad)
+        assert svc.ready_at is None and svc.ready_as is None, bad
+    # a child that exits while a descendant still holds the write end: the reader ends on the exit
+    t0 = time.monotonic()
+    svc = run(b"ready ed", end=True, close=False)
+    assert svc.ready_at is None and time.monotonic() - t0 < 5
