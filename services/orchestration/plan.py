@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from protocol import keys
 from protocol.bus import multilink_endpoints
 from protocol.links import LINK_LEASE_S
 from protocol.scenario import Scenario
@@ -110,7 +111,7 @@ class LaunchOptions:
     """The options of ``skynet up`` / ``skynet mission`` the network depends on (the launcher's flags)."""
 
     uavs: int = 3
-    fleet: str = "demo"
+    fleet: str = keys.DEFAULT_FLEET
     scenario: str | None = None
     speed: float = 4.0
     camera: str = "synthetic"
