@@ -49,7 +49,7 @@ def feed(bus: Bus, stop: threading.Event) -> None:
     states = {u: bus.publisher(keys.state(FLEET, u), TELEMETRY) for u in (1, 2, 3)}
     previews = {u: bus.publisher(keys.preview(FLEET, u), IMAGERY) for u in (1, 2, 3)}
     senders = {u: RtpSender(ssrc_for(u, 1)) for u in (1, 2, 3)}
-    bus.publisher(keys.gcs_event(FLEET), COMMAND).put(Event(source="gcs", stamp=time.time(), kind="phase",
+    bus.publisher(keys.gcs_event(FLEET), COMMAND).put(Event(source="gcs", stamp=time.time(), kind="plan-refused",
                                                            text="mission"))
     hostile = [(bus.publisher(key, COMMAND), source) for key, source in HOSTILE_KEYS]
     img = np.zeros((240, 320, 3), np.uint8)
@@ -70,7 +70,7 @@ def feed(bus: Bus, stop: threading.Event) -> None:
         if k % 10 == 0:  # again and again: whenever the page looks, they are in its timeline
             for pub, source in hostile:
                 for text in HOSTILE:
-                    pub.put(Event(source=source, stamp=now, kind="note", text=text))
+                    pub.put(Event(source=source, stamp=now, kind="pilot-mode", text=text))
         if k % 20 == 0:
             d = Defect(area_px=40, bbox=(1, 1, 5, 5), centroid_px=(3.0, 3.0), contrast=9.0, pos=(60.0, 50.0 + k % 30, 28.0))
             bus.publisher(keys.defects(FLEET), COMMAND).put(

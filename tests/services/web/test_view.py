@@ -51,7 +51,7 @@ def test_static_scenario_defects_events_and_bounds(monkeypatch) -> None:
     v.on_defects(DefectReport(uav=2, capture_id=3, stamp_capture=1.0, stamp_report=2.0, method="it+",
                               defects=[d, d.model_copy(update={"pos": None})]))
     for k in range(view_mod.EVENTS + 20):
-        v.on_event(Event(source="gcs", stamp=float(k), kind="phase", text=f"p{k}"))
+        v.on_event(Event(source="gcs", stamp=float(k), kind="neighbour-up", text=f"p{k}"))
     s = v.snapshot()
     assert s["detections"] == 1 and s["reports"] == 1 and s["defects"][0]["pos"] == [60.0, 50.0, 28.0]
     assert s["defect_count"] is None  # the deduplicated count is the report's (set_inspection), not the detections
@@ -99,7 +99,7 @@ def test_source_live_replay_or_both() -> None:
     assert v.snapshot()["source"] is None  # nothing heard
     v.on_state(state(1, 0, (0.0, 0.0, 0.0)))
     assert v.snapshot()["source"] == "live"
-    v.on_event(Event(source="uav/1", stamp=1.0, kind="k", text="t"), replayed=True)
+    v.on_event(Event(source="uav/1", stamp=1.0, kind="neighbour-up", text="t"), replayed=True)
     assert v.snapshot()["source"] == "live+replay"
     clock.t += view_mod.SOURCE_WINDOW_S + 1
     v.on_state(state(1, 1, (0.0, 0.0, 0.0)), replayed=True)
