@@ -42,6 +42,10 @@ __all__ = [
     "headings",
     "neighbour_correction",
     "formation_error",
+    "HEADING_MIN_SPEED",
+    "HEADING_WINDOW_S",
+    "ShapeErrorMeter",
+    "tracking_error",
 ]
 
 #: Desired offsets ΔT_n of UAVs 1, 2, 3 in the formation frame, metres (P9); row n-1 is UAV n.
@@ -443,3 +447,90 @@ def formation_error(
     rel_p = P - P.mean(axis=0)
     rel_d = (D - D.mean(axis=0)) @ R.T
     return float(np.sqrt(np.mean(np.sum((rel_p - rel_d) ** 2, axis=1))))
+
+
+#: Below this horizontal centroid speed the formation heading is held, m/s.
+HEADING_MIN_SPEED = 0.3
+#: The centroid velocity giving the formation heading is averaged over the last this long, s.
+HEADING_WINDOW_S = 1.0
+
+
+class ShapeErrorMeter:
+    """The formation error: :func:`formation_error` (P6)-(P9, the shape of the formation against its
+    offsets, translation not counted) along a stream of the fleet's positions, with the one heading rule
+    that the mission report, the terminal line and the web page share.
+
+    Heading ψ: that of the centroid's horizontal velocity over the last :data:`HEADING_WINDOW_S` (its
+    displacement since then divided by the time, one-sided, causal: a live display computes what the report
+    later does), held at its last value while that speed is below :data:`HEADING_MIN_SPEED`. Samples before
+    the first heading have none yet: :meth:`add` answers None for them and :meth:`series` gives them the first
+    heading found (ψ = 0 when the fleet never moves fast enough).
+    """
+
+    def __init__(self, offsets: Mapping[int, ArrayLike], window_s: float = HEADING_WINDOW_S,
+                 min_speed: float = HEADING_MIN_SPEED) -> None:
+        self.offsets, self.window_s, self.min_speed = offsets, float(window_s), float(min_speed)
+        self.yaw: float | None = None
+        self.first_yaw: float | None = None  # the first heading found
+        self._hist: list[tuple[float, NDArray[np.float64]]] = []  # (t, centroid xy) within the window
+
+    def _heading(self, t: float, c: NDArray[np.float64]) -> float | None:
+        h = self._hist
+        h.append((t, c))
+        while len(h) > 2 and h[1][0] <= t - self.window_s:
+            del h[0]
+        t0 = max(h[0][0], t - self.window_s)
+        if not t > t0:
+            return self.yaw
+        if h[0][0] < t0:  # the centroid at the window's start, between its first two samples
+            (ta, ca), (tb, cb) = h[0], h[1]
+            c0 = ca + (cb - ca) * ((t0 - ta) / (tb - ta))
+        else:
+            c0 = h[0][1]
+        vel = (c - c0) / (t - t0)
+        if math.hypot(float(vel[0]), float(vel[1])) >= self.min_speed:
+            self.yaw = math.atan2(float(vel[1]), float(vel[0]))
+            if self.first_yaw is None:
+                self.first_yaw = self.yaw
+        return self.yaw
+
+    def add(self, t: float, positions: Mapping[int, ArrayLike]) -> float | None:
+        """The error at time ``t`` (s, increasing) of ``positions`` (by UAV id, at least two with an offset),
+        metres; None while no heading is known yet."""
+        ids = [u for u in sorted(positions) if u in self.offsets]
+        if len(ids) < 2:
+            raise ValueError("the formation error needs at least two UAVs with an offset")
+        if self._hist and not t > self._hist[-1][0]:
+            raise ValueError("sample times must increase")
+        pos = {u: finite_vec3(f"position of UAV {u}", positions[u]) for u in ids}
+        yaw = self._heading(float(t), np.mean([pos[u] for u in ids], axis=0)[:2])
+        return None if yaw is None else formation_error(pos, None, yaw, self.offsets)
+
+    @classmethod
+    def series(cls, t: ArrayLike, positions: Mapping[int, ArrayLike], offsets: Mapping[int, ArrayLike],
+               **rule: float) -> NDArray[np.float64]:
+        """The error at each of the times ``t`` (N,) of ``positions`` (by UAV id, (N, 3) each), metres."""
+        t = np.asarray(t, dtype=float)
+        ids = [u for u in sorted(positions) if u in offsets]
+        if t.ndim != 1 or t.size == 0 or len(ids) < 2:
+            raise ValueError("need N >= 1 sample times and at least two UAVs with an offset")
+        pos = {u: np.asarray(positions[u], dtype=float) for u in ids}
+        if any(p.shape != (t.size, 3) for p in pos.values()):
+            raise ValueError(f"positions must have shape ({t.size}, 3)")
+        meter = cls(offsets, **rule)
+        out = [meter.add(float(t[k]), {u: pos[u][k] for u in ids}) for k in range(t.size)]
+        first = 0.0 if meter.first_yaw is None else meter.first_yaw
+        return np.array([formation_error({u: pos[u][k] for u in ids}, None, first, offsets) if e is None else e
+                         for k, e in enumerate(out)])
+
+
+def tracking_error(positions: Mapping[int, ArrayLike], refs: Mapping[int, ArrayLike]) -> float | None:
+    """RMS distance of each UAV from its own planned position now (its slot, P9), metres; over the UAVs
+    present in both mappings, None if none. Not the formation error: a formation that lags its plan as a
+    whole keeps its shape (no formation error) and shows here."""
+    ids = [u for u in sorted(positions) if u in refs]
+    if not ids:
+        return None
+    d2 = [float(np.sum((finite_vec3(f"position of UAV {u}", positions[u])
+                        - finite_vec3(f"plan of UAV {u}", refs[u])) ** 2)) for u in ids]
+    return math.sqrt(sum(d2) / len(d2))

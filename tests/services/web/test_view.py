@@ -38,7 +38,8 @@ def test_snapshot_positions_health_age_and_formation_error() -> None:
     assert u1["age_s"] == 0.5 and u2["age_s"] == 2.5
     assert 14 <= u1["rate_hz"] <= 16 and u2["rate_hz"] == 0.0  # 30 of the 40 states inside the last 2 s
     assert u1["health"] == round(u1["rate_hz"] / 20, 2)
-    assert s["formation_error_m"] == round(math.sqrt((1 + 9) / 2), 3)
+    assert s["tracking_error_m"] == round(math.sqrt((1 + 9) / 2), 3)  # each UAV against its own slot
+    assert s["formation_error_m"] is None  # one sample of the two UAVs' shape: no heading yet
     # the flown path is decimated (one point per 0.5 m): 3.9 m flown -> 8 points, not 40
     assert 7 <= len(u1["trail"]) <= 9
 
