@@ -32,7 +32,7 @@ from collections import deque
 from typing import Any
 
 from edge.formation import DEFAULT_OFFSETS, ShapeErrorMeter, tracking_error
-from protocol.keys import DEFAULT_FLEET
+from protocol.keys import DEFAULT_FLEET, REPLAY_SUFFIX
 from protocol.messages import DefectReport, Event, MissionPlan, VehicleState
 from protocol.scenario import Scenario
 
@@ -43,7 +43,7 @@ DEFECTS = 5000
 SENT_TRAIL = 400  # newest trail points per snapshot
 SENT_DEFECTS = 500  # newest defects per snapshot (the count is of all)
 SENT_EVENTS = 100  # newest timeline entries per snapshot
-REPLAY_FLEET_SUFFIX = "-replay"  # the fleet name ``skynet replay`` plays a recording under, beside the live one
+REPLAY_FLEET_SUFFIX = REPLAY_SUFFIX  # the fleet name ``skynet replay`` plays a recording under, beside the live one
 SOURCE_WINDOW_S = 5.0  # data heard within this long decides the page's "live" / "replay" label
 RATE_WINDOW_S = 2.0
 STATE_HZ = 20.0  # the edges' telemetry rate (edge.runtime)
