@@ -27,21 +27,20 @@ def bar(fraction: float, width: int = 24) -> str:
 
 class HeadingHold:
     """The formation error's memory from one redraw to the next: a :class:`edge.formation.ShapeErrorMeter`
-    (the heading rule of the report and the web page), made for the offsets of the first call."""
+    (the rule of the report and the web page), made for the offsets of the first call."""
 
     def __init__(self) -> None:
         self.meter: formation.ShapeErrorMeter | None = None
+        self._t = -math.inf
 
     def error(self, t: float, positions: dict, offsets: dict) -> float | None:
+        """The newest error known after the fleet's positions at ``t`` (that of half a heading window ago)."""
         if self.meter is None or self.meter.offsets != offsets:
-            self.meter = formation.ShapeErrorMeter(offsets)
-        hist = self.meter._hist
-        if hist and not t > hist[-1][0]:  # no newer state since the last redraw
-            return self._last
-        self._last = self.meter.add(t, positions)
-        return self._last
-
-    _last: float | None = None
+            self.meter, self._t = formation.ShapeErrorMeter(offsets), -math.inf
+        if t > self._t:  # else no newer state since the last redraw
+            self._t = t
+            self.meter.add(t, positions)
+        return self.meter.latest
 
 
 def flying_formation(states: dict[int, VehicleState], offsets: dict) -> list[int]:

@@ -85,7 +85,6 @@ class FleetView:
         self._heard = {"live": -math.inf, "replay": -math.inf}  # when each kind of data was last heard
         self._shape: ShapeErrorMeter | None = None  # the formation error's heading memory
         self._shape_t = -math.inf
-        self._shape_last: float | None = None
         self._lock = threading.Lock()
 
     def _uav(self, uav: int) -> _Uav:
@@ -189,11 +188,12 @@ class FleetView:
         if len(ids) < 2:
             return None
         t = max(states[u].t for u in ids)
+        if self._shape is None or self._shape.offsets != offsets:
+            self._shape, self._shape_t = ShapeErrorMeter(offsets), -math.inf
         if t > self._shape_t:
-            if self._shape is None or self._shape.offsets != offsets:
-                self._shape = ShapeErrorMeter(offsets)
-            self._shape_t, self._shape_last = t, self._shape.add(t, {u: states[u].pos for u in ids})
-        return self._shape_last
+            self._shape_t = t
+            self._shape.add(t, {u: states[u].pos for u in ids})
+        return self._shape.latest
 
     # -- outputs
     def static(self) -> dict[str, Any]:
