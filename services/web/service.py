@@ -109,6 +109,8 @@ def follow_runner(view: FleetView, runner, stop: threading.Event | None = None,
         while not stop.wait(0.5):
             rec = runner.record
             if not plan_sent and rec.plan is not None:
+                if rec.scenario is not None and rec.scenario is not view.scenario:  # its formation: one offset per UAV
+                    view.set_scenario(rec.scenario)
                 view.set_plan(rec.plan)
                 plan_sent = True
             if tally is not None and rec.surface_corners:

@@ -141,3 +141,12 @@ def test_follow_runner_puts_the_ground_stations_phases_failures_incidents_and_fa
                       ("uav/2", "uav-lost", "UAV 2 unheard for 3.0 s", "warning"), ("faults", "kill", "uav2", "warning"),
                       ("gcs", "phase", "done", "info")]
     assert ev[5] == ("gcs", "failure", "UAV 2 did not land", "warning")  # the time it was seen (now)
+
+
+def test_the_formation_error_uses_the_missions_offsets_one_per_uav() -> None:
+    from services.gcs.mission import with_formation_size
+
+    v = FleetView(load_scenario(), fleet="f")
+    assert sorted(v.offsets()) == [1, 2, 3]
+    v.set_scenario(with_formation_size(load_scenario(), 5))  # follow_runner: the runner's scenario with the plan
+    assert sorted(v.offsets()) == [1, 2, 3, 4, 5]
