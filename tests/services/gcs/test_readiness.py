@@ -42,13 +42,14 @@ def test_the_readiness_travels_in_the_state_and_hostile_values_are_refused():
 HOSTILE = "\x1b[2J\x1b]0;pwned\x07\r\n12:00:00 gcs INFO mission succeeded <img src=x onerror=alert(1)> | `x` \u202e"
 
 
-def test_a_hostile_refusal_reason_is_escaped_in_the_log_line_and_in_report_md(tmp_path):
+def test_a_hostile_refusal_reason_is_escaped_in_the_log_line_and_in_report_md():
     """An autopilot's reason is another node's text: its control characters and HTML stay inert."""
     import logging
 
     from protocol.textsafe import SafeFormatter
+    from services.gcs.markdown import markdown
     from services.gcs.record import MissionRecord
-    from services.gcs.report import write_report
+    from services.gcs.report import summarise
 
     waiting = not_ready({1: state(1, AutopilotReadiness(ready=False, heartbeat=True, reason=HOSTILE))}, [1])
     line = refusal(waiting, 120.0)
@@ -57,8 +58,7 @@ def test_a_hostile_refusal_reason_is_escaped_in_the_log_line_and_in_report_md(tm
     logged = SafeFormatter("%(levelname)s %(message)s").format(rec)
     assert logged.isprintable() and logged.startswith("ERROR mission failed: refused before takeoff")
     record = MissionRecord(fleet="f", speed=1.0, started=0.0, failures=[line])
-    write_report(record, tmp_path)
-    md = (tmp_path / "report.md").read_text()
+    md = markdown(record, summarise(record))  # report.md's text (services.gcs.report.write_report)
     outcome = next(ln for ln in md.splitlines() if ln.startswith("Outcome:"))
     assert "refused before takeoff" in outcome and "\x1b" not in md and "\u202e" not in md and "\x07" not in md
     assert "<img" not in md and "&lt;img src=x onerror=alert(1)&gt;" in outcome and "\\|" in outcome
