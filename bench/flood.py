@@ -133,7 +133,7 @@ def flood(case: str, endpoints: list[str], seconds: float, stop: threading.Event
             make = lambda i: b"\x01" + rng.integers(0, 256, 300, dtype=np.uint8).tobytes()  # noqa: E731
         elif case == "event":
             pub = bus.publisher(keys.event(FLEET, 1), COMMAND)
-            make = lambda i: Event(source="uav/1", stamp=time.time(), kind="flood", text="x" * 4000)  # noqa: E731
+            make = lambda i: Event(source="uav/1", stamp=time.time(), kind="trust-refused", text="x" * 4000)  # noqa: E731
         elif case == "camera":
             pub = bus.publisher(keys.camera(FLEET, 1), IMAGERY)
             junk = rng.integers(0, 256, 50_000, dtype=np.uint8).tobytes()

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import logging
 import math
 import os
 import threading
@@ -43,7 +44,7 @@ from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, sto
 from protocol.links import COMMAND, LINK_LEASE_S, TELEMETRY
 from protocol.readiness import notify_ready
 from protocol.messages import (
-    Box, CommandAck, Event, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
+    Box, CommandAck, Event, EventKind, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
     Signed, Start, Takeoff, UploadTrajectory, VehicleState, COMMAND_TYPES,
 )
 from protocol.signing import TrustError
@@ -58,6 +59,8 @@ from .trust import Gate, command_id
 from .validate import narrowed_fence, validate_command
 from .vehicle.follower import Follower
 
+
+logger = logging.getLogger("skynet.edge.board")
 
 
 @dataclass
@@ -137,11 +140,11 @@ class Board:
         if uav not in self.neighbourhood:  # itself, or a UAV of another formation
             return
         if alive:
-            self.event("neighbour-up", f"UAV {uav} joined SkyNet", neighbour=uav)
+            self.event(EventKind.NEIGHBOUR_UP, f"UAV {uav} joined SkyNet", neighbour=uav)
         else:
             self.neighbours.pop(uav, None)
             self.stale.discard(uav)
-            self.event("neighbour-lost", f"UAV {uav} left SkyNet (liveliness lost)", Level.WARNING, neighbour=uav)
+            self.event(EventKind.NEIGHBOUR_LOST, f"UAV {uav} left SkyNet (liveliness lost)", Level.WARNING, neighbour=uav)
 
     def _on_heartbeat(self, msg: Message, sample) -> None:
         refused = self.gate.heartbeat(msg)
@@ -154,9 +157,9 @@ class Board:
         """A rate-limited ``trust-refused`` event (edge.trust counts every refusal)."""
         n = self.gate.report(what)
         if n:
-            self.event("trust-refused", text, Level.WARNING, what=what, count=n)
+            self.event(EventKind.TRUST_REFUSED, text, Level.WARNING, what=what, count=n)
 
-    def event(self, kind: str, text: str, level: Level = Level.INFO, **data) -> None:
+    def event(self, kind: EventKind, text: str, level: Level = Level.INFO, **data) -> None:
         self.event_pub.put(Event(source=f"uav/{self.uav}", stamp=time.time(), kind=kind, level=level, text=text,
                                  data=data))
         if self.log:
@@ -182,7 +185,7 @@ class Board:
 
     def _ack(self, cmd, accepted: bool, reason: str) -> CommandAck:
         if not accepted:
-            self.event("command-rejected", f"{cmd.kind} #{cmd.cmd_id}: {reason}", Level.WARNING)
+            self.event(EventKind.COMMAND_REJECTED, f"{cmd.kind} #{cmd.cmd_id}: {reason}", Level.WARNING)
         return CommandAck(uav=self.uav, cmd_id=cmd.cmd_id, accepted=accepted, reason=reason)
 
     def _apply(self, cmd: Message, signed: bool = False) -> None:
@@ -195,7 +198,7 @@ class Board:
             self.trajectory, self.follower = cmd.trajectory, Follower(cmd.trajectory)
             if fence is not self.opt.geofence:
                 if self.opt.geofence is not None and fence != self.opt.geofence:
-                    self.event("geofence-narrowed", f"geofence {tuple(fence.lo)}..{tuple(fence.hi)}")
+                    self.event(EventKind.GEOFENCE_NARROWED, f"geofence {tuple(fence.lo)}..{tuple(fence.hi)}")
                 self.opt.geofence = fence  # never an unsigned uploader's
         elif isinstance(cmd, Takeoff):
             d.takeoff(cmd.altitude)
@@ -215,7 +218,7 @@ class Board:
                 # the "failsafe" event may have been lost with the link that caused it: this one
                 # says again when it began, for the report's failsafe -> resume time
                 since = self.failsafe.resumed() or now
-                self.event("failsafe-cleared", f"resumed by command after {now - since:.1f} s of failsafe",
+                self.event(EventKind.FAILSAFE_CLEARED, f"resumed by command after {now - since:.1f} s of failsafe",
                            since=round(since, 3), held_s=round(now - since, 3))
             d.resume()
         elif isinstance(cmd, ReturnToLaunch):
@@ -253,7 +256,7 @@ class Board:
         if modes is None or len(modes) <= self._pilot_modes_seen:
             return
         for mode in list(modes[self._pilot_modes_seen:]):
-            self.event("pilot-mode", f"the autopilot is in {mode}, a mode the edge did not command: it stops "
+            self.event(EventKind.PILOT_MODE, f"the autopilot is in {mode}, a mode the edge did not command: it stops "
                        "commanding until resumed", Level.WARNING, mode=mode)
         self._pilot_modes_seen = len(modes)
 
@@ -266,10 +269,10 @@ class Board:
                 fresh += 1
                 if j in self.stale:
                     self.stale.discard(j)
-                    self.event("neighbour-fresh", f"UAV {j}'s state heard again over SkyNet", neighbour=j)
+                    self.event(EventKind.NEIGHBOUR_FRESH, f"UAV {j}'s state heard again over SkyNet", neighbour=j)
             elif j not in self.stale and j in self.opt.offsets:
                 self.stale.add(j)
-                self.event("neighbour-stale", f"UAV {j}'s state is {age:.1f} s old: formation keeping without it",
+                self.event(EventKind.NEIGHBOUR_STALE, f"UAV {j}'s state is {age:.1f} s old: formation keeping without it",
                            Level.WARNING, neighbour=j, age_s=round(age, 3))
         return fresh
 
@@ -292,18 +295,33 @@ class Board:
         return {"ref": tuple(map(float, pos)), "tau": max(0.0, float(tau))}
 
     def _check_failsafe(self, st, now_wall: float) -> None:
+        """Apply the failsafe policy's decision (or the retry of a failed one): a vehicle that does not take
+        the action is never reported as having taken it (:meth:`edge.failsafe.FailsafePolicy.failed`)."""
         flying = st.armed and st.mode in (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION)
         decision = self.failsafe.step(now_wall, self.last_heartbeat, flying, st.battery,
                                       returning=st.armed and st.mode == Mode.RTL)
         if decision is None:
+            decision = self.failsafe.retry(now_wall, airborne=st.armed and st.mode != Mode.LANDED)
+        if decision is None:
             return
+        data: dict = {"action": decision.action, "reason": decision.reason, "battery": round(float(st.battery), 3)}
+        if self.last_heartbeat is not None:
+            data["silent_s"] = round(now_wall - self.last_heartbeat, 3)
         try:
             {"hold": self.driver.hold, "land": self.driver.land, "rtl": self.driver.return_to_launch}[decision.action]()
-        except ValueError:
-            pass
-        silent = None if self.last_heartbeat is None else round(now_wall - self.last_heartbeat, 3)
-        self.event(decision.kind, decision.text, Level.WARNING, action=decision.action, reason=decision.reason,
-                   battery=round(float(st.battery), 3), **({} if silent is None else {"silent_s": silent}))
+        except Exception as exc:  # a refusal or a lost vehicle link (VehicleLinkError is a ValueError)
+            error = (str(exc) or type(exc).__name__)[:200]
+            failure = self.failsafe.failed(decision.action, error, now_wall)
+            (logger.warning if isinstance(exc, ValueError) else logger.exception)(
+                "uav %d failsafe %s: %s", self.uav, decision.kind, failure.text)
+            self.event(decision.kind, f"{decision.text}; {failure.text}", Level.ERROR, **data, ok=False,
+                       failed=decision.action, error=error, next_action=failure.next_action,
+                       attempts=failure.attempts)
+            return
+        retries = self.failsafe.done()
+        if retries:
+            data["attempts"] = retries + 1
+        self.event(decision.kind, decision.text, Level.WARNING, **data, ok=True)
 
 
 def parse_box(text: str | None) -> Box | None:

@@ -42,6 +42,10 @@ __all__ = [
     "headings",
     "neighbour_correction",
     "formation_error",
+    "HEADING_MIN_SPEED",
+    "HEADING_WINDOW_S",
+    "ShapeErrorMeter",
+    "tracking_error",
 ]
 
 #: Desired offsets ΔT_n of UAVs 1, 2, 3 in the formation frame, metres (P9); row n-1 is UAV n.
@@ -443,3 +447,116 @@ def formation_error(
     rel_p = P - P.mean(axis=0)
     rel_d = (D - D.mean(axis=0)) @ R.T
     return float(np.sqrt(np.mean(np.sum((rel_p - rel_d) ** 2, axis=1))))
+
+
+#: Below this horizontal centroid speed the formation heading is held, m/s.
+HEADING_MIN_SPEED = 0.3
+#: The centroid velocity giving the formation heading is averaged over this window centred on each time, s.
+HEADING_WINDOW_S = 1.0
+
+
+class ShapeErrorMeter:
+    """The formation error: :func:`formation_error` (P6)-(P9, the shape of the formation against its
+    offsets, translation not counted) along a stream of the fleet's positions, with the one heading rule
+    that the mission report, the terminal line and the web page share.
+
+    Heading ψ at time t: that of the centroid's horizontal velocity over ``[t − w/2, t + w/2]``
+    (:data:`HEADING_WINDOW_S`; clipped to the samples seen at the series' ends), held at its last value while
+    that speed is below :data:`HEADING_MIN_SPEED`. A sample's error is therefore known once ``w/2`` of later
+    samples arrived (a live display shows the error of half a window ago), or at :meth:`flush`. Samples before
+    the first heading have none: :meth:`add` gives None for them and :meth:`series` gives them the first
+    heading found (ψ = 0 when the fleet never moves fast enough).
+    """
+
+    def __init__(self, offsets: Mapping[int, ArrayLike], window_s: float = HEADING_WINDOW_S,
+                 min_speed: float = HEADING_MIN_SPEED) -> None:
+        self.offsets, self.half, self.min_speed = offsets, float(window_s) / 2, float(min_speed)
+        self.yaw: float | None = None
+        self.first_yaw: float | None = None  # the first heading found
+        self.latest: float | None = None  # the newest sample's error known
+        self._t0: float | None = None  # the first sample's time
+        self._buf: list[tuple[float, NDArray[np.float64], dict[int, NDArray[np.float64]]]] = []
+        self._next = 0  # index in _buf of the first sample not evaluated yet
+
+    def _centroid_at(self, t: float) -> NDArray[np.float64]:
+        ts = [x[0] for x in self._buf]
+        return np.array([np.interp(t, ts, [x[1][k] for x in self._buf]) for k in range(2)])
+
+    def _evaluate(self, k: int, t_end: float) -> tuple[float, float | None]:
+        t, _, pos = self._buf[k]
+        a, b = max(t - self.half, self._t0), min(t + self.half, t_end)
+        vel = (self._centroid_at(b) - self._centroid_at(a)) / max(b - a, 1e-9)
+        if math.hypot(float(vel[0]), float(vel[1])) >= self.min_speed:
+            self.yaw = math.atan2(float(vel[1]), float(vel[0]))
+            if self.first_yaw is None:
+                self.first_yaw = self.yaw
+        err = None if self.yaw is None else formation_error(pos, None, self.yaw, self.offsets)
+        if err is not None:
+            self.latest = err
+        return t, err
+
+    def _drain(self, t_end: float, everything: bool) -> list[tuple[float, float | None]]:
+        out = []
+        while self._next < len(self._buf) and (everything or self._buf[self._next][0] + self.half <= t_end):
+            out.append(self._evaluate(self._next, t_end))
+            self._next += 1
+        # keep what later windows still reach: one sample at or before the next one's window start
+        if self._next < len(self._buf):
+            start = self._buf[self._next][0] - self.half
+            drop = 0
+            while drop + 1 < len(self._buf) and self._buf[drop + 1][0] <= start:
+                drop += 1
+            del self._buf[:drop]
+            self._next -= drop
+        return out
+
+    def add(self, t: float, positions: Mapping[int, ArrayLike]) -> list[tuple[float, float | None]]:
+        """A sample: ``positions`` (by UAV id, at least two with an offset) at time ``t`` (s, increasing).
+        Returns the (time, error in metres or None) of the samples whose window it completed, oldest first."""
+        ids = [u for u in sorted(positions) if u in self.offsets]
+        if len(ids) < 2:
+            raise ValueError("the formation error needs at least two UAVs with an offset")
+        t = float(t)
+        if not math.isfinite(t) or (self._buf and not t > self._buf[-1][0]):
+            raise ValueError("sample times must be finite and increase")
+        pos = {u: finite_vec3(f"position of UAV {u}", positions[u]) for u in ids}
+        if self._t0 is None:
+            self._t0 = t
+        self._buf.append((t, np.mean([pos[u] for u in ids], axis=0)[:2], pos))
+        return self._drain(t, everything=False)
+
+    def flush(self) -> list[tuple[float, float | None]]:
+        """The errors of the samples still waiting for later ones (the series ends: windows clipped to it)."""
+        return self._drain(self._buf[-1][0], everything=True) if self._buf else []
+
+    @classmethod
+    def series(cls, t: ArrayLike, positions: Mapping[int, ArrayLike], offsets: Mapping[int, ArrayLike],
+               **rule: float) -> NDArray[np.float64]:
+        """The error at each of the times ``t`` (N,) of ``positions`` (by UAV id, (N, 3) each), metres."""
+        t = np.asarray(t, dtype=float)
+        ids = [u for u in sorted(positions) if u in offsets]
+        if t.ndim != 1 or t.size == 0 or len(ids) < 2:
+            raise ValueError("need N >= 1 sample times and at least two UAVs with an offset")
+        pos = {u: np.asarray(positions[u], dtype=float) for u in ids}
+        if any(p.shape != (t.size, 3) for p in pos.values()):
+            raise ValueError(f"positions must have shape ({t.size}, 3)")
+        meter = cls(offsets, **rule)
+        out: list[float | None] = []
+        for k in range(t.size):
+            out += [e for _, e in meter.add(float(t[k]), {u: pos[u][k] for u in ids})]
+        out += [e for _, e in meter.flush()]
+        first = 0.0 if meter.first_yaw is None else meter.first_yaw
+        return np.array([formation_error({u: pos[u][k] for u in ids}, None, first, offsets) if e is None else e
+                         for k, e in enumerate(out)])
+
+
+def tracking_error(positions: Mapping[int, ArrayLike], refs: Mapping[int, ArrayLike]) -> float | None:
+    """RMS distance of each UAV from its own planned position now (its slot, P9), metres; over the UAVs
+    present in both mappings, None if none. Not the formation error: a formation that lags its plan as a
+    whole keeps its shape (no formation error) and shows here."""
+    ids = [u for u in sorted(positions) if u in refs]
+    if not ids:
+        return None
+    d2 = [float(np.sum((finite_vec3(f"position of UAV {u}", positions[u])
+                        - finite_vec3(f"plan of UAV {u}", refs[u])) ** 2)) for u in ids]
+    return math.sqrt(sum(d2) / len(d2))

@@ -11,7 +11,7 @@ unknown fields and rejects NaN/inf, so nothing malformed reaches a vehicle or an
 from __future__ import annotations
 
 import math
-from enum import Enum
+from enum import Enum, StrEnum
 from typing import Annotated, Any, ClassVar, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -381,11 +381,34 @@ class Level(str, Enum):
     ERROR = "error"
 
 
+class EventKind(StrEnum):
+    """What an :class:`Event` reports; every kind a node publishes, and no other (an unknown kind is a schema
+    failure, rejected and counted as an unknown field is: every publisher is part of this system).
+
+    A UAV's board (edge.board, edge.failsafe) and the ground station (services.gcs.mission) publish them."""
+
+    NEIGHBOUR_UP = "neighbour-up"  # a formation member's liveliness token appeared
+    NEIGHBOUR_LOST = "neighbour-lost"  # ... and left (the member left SkyNet)
+    NEIGHBOUR_STALE = "neighbour-stale"  # a formation member's state is older than the stale limit
+    NEIGHBOUR_FRESH = "neighbour-fresh"  # ... and heard again
+    TRUST_REFUSED = "trust-refused"  # a command, heartbeat or state refused by the trust gate (rate-limited)
+    COMMAND_REJECTED = "command-rejected"  # a command refused by validation or the vehicle
+    GEOFENCE_NARROWED = "geofence-narrowed"  # a signed upload narrowed the board's geofence
+    PILOT_MODE = "pilot-mode"  # the autopilot entered a mode the edge did not command
+    FAILSAFE = "failsafe"  # the ground station's heartbeat lost: the failsafe action (data: action, ok)
+    FAILSAFE_ESCALATED = "failsafe-escalated"  # a failsafe hold escalated (rtl or land)
+    FAILSAFE_RETRY = "failsafe-retry"  # a failsafe action the vehicle did not take, tried again or replaced
+    FAILSAFE_CLEARED = "failsafe-cleared"  # a Resume ended the failsafe (data: since, held_s)
+    BATTERY_FAILSAFE = "battery-failsafe"  # a low (rtl) or critical (land) battery
+    PLAN_CONFLICT = "plan-conflict"  # the ground station got differing plans for one request
+    PLAN_REFUSED = "plan-refused"  # the ground station refused a plan answer
+
+
 class Event(Message):
     TYPE: ClassVar[str] = "event"
     source: Short
     stamp: Seconds
-    kind: Short
+    kind: EventKind
     level: Level = Level.INFO
     text: Text = ""
     data: dict[Short, Union[bool, int, Finite, Short]] = {}

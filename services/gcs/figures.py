@@ -23,10 +23,9 @@ tracking state's ``t − progress · duration`` (the first MISSION state's ``t``
 not reported). A pause (hold, resume) therefore shows as a growing time-aligned error.
 
 *Formation error.* The UAVs' positions are linearly interpolated to common times (the union of
-their state times inside the window where every UAV tracks), the heading ψ is that of the flown
-centroid's horizontal velocity averaged over 1 s (held at its last value while the centroid moves
-slower than 0.3 m/s; before the first such time, the first heading found) and :func:`edge.formation.formation_error` gives the RMS shape error (P6)-(P9) at each
-time, with the scenario's offsets (``scenario.formation.offsets``, row n−1 for UAV n) or
+their state times inside the window where every UAV tracks) and :class:`edge.formation.ShapeErrorMeter`
+gives the RMS shape error (P6)-(P9) at each time (the heading ψ: the flown centroid's horizontal velocity over
+the last 1 s, held while it moves slower than 0.3 m/s; the terminal line and the web page use the same rule), with the scenario's offsets (``scenario.formation.offsets``, row n−1 for UAV n) or
 :data:`edge.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
 planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
 heading of the centroid's motion is not always the one the planner placed the slots with.
@@ -59,7 +58,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge.formation import DEFAULT_OFFSETS, formation_error
+from edge.formation import DEFAULT_OFFSETS, ShapeErrorMeter
 from protocol.messages import Mode, Trajectory
 from services.gcs.clock_align import sim_time_shifts
 from services.gcs.record import GOAL_RADIUS_M, MissionRecord
@@ -97,10 +96,6 @@ __all__ = [
 MAX_REPORT_EVENTS = 500
 #: Tolerance of the defect scoring (:func:`services.gcs.scoring.score_defects`), m.
 DEFECT_TOLERANCE_M = 0.3
-#: Below this horizontal centroid speed the formation heading is held, m/s.
-HEADING_MIN_SPEED = 0.3
-#: The centroid velocity giving the formation heading is averaged over this window, s.
-_HEADING_WINDOW_S = 1.0
 #: Link flow -> the name its latency is repeated under in ``report.json``.
 LATENCY_NAMES = {"telemetry": "age_ms", "imagery": "capture_to_report_ms", "defect_reports": "delivery_ms",
                  "command": "ack_ms"}
@@ -556,47 +551,9 @@ def _uav_figures(uav: int, track: Track | None, traj: Trajectory | None, imaged:
 
 def shape_errors(t: ArrayLike, positions: Mapping[int, ArrayLike], offsets: Mapping[int, ArrayLike]
                  ) -> NDArray[np.float64]:
-    """Formation shape error at each time, heading from the centroid's own motion, metres.
-
-    Parameters
-    ----------
-    t : array_like, shape (N,)
-        Increasing sample times, s.
-    positions : mapping int -> array_like (N, 3)
-        Every UAV's position at those times (at least two UAVs with an offset).
-    offsets : mapping int -> (3,)
-        Formation offsets ΔT_n (P9).
-
-    Returns
-    -------
-    ndarray, shape (N,)
-        :func:`edge.formation.formation_error` (P6)-(P9) at each time, with the heading ψ of the
-        centroid's horizontal velocity averaged over 1 s (one-sided at the ends), held at its
-        last value while that speed is below 0.3 m/s (before the first faster time: the first
-        heading found; never faster: ψ = 0).
-    """
-    t = np.asarray(t, dtype=float)
-    ids = [u for u in sorted(positions) if u in offsets]
-    if t.ndim != 1 or t.size == 0 or len(ids) < 2:
-        raise ValueError("need N >= 1 sample times and at least two UAVs with an offset")
-    pos = {u: np.asarray(positions[u], dtype=float) for u in ids}
-    if any(p.shape != (t.size, 3) for p in pos.values()):
-        raise ValueError(f"positions must have shape ({t.size}, 3)")
-    C = np.mean([pos[u] for u in ids], axis=0)
-    # the plain sample-to-sample difference turns position noise into heading noise at low speed
-    a = np.clip(t - _HEADING_WINDOW_S / 2, t[0], t[-1])
-    b = np.clip(t + _HEADING_WINDOW_S / 2, t[0], t[-1])
-    Ca = np.stack([np.interp(a, t, C[:, k]) for k in range(2)], axis=1)
-    Cb = np.stack([np.interp(b, t, C[:, k]) for k in range(2)], axis=1)
-    vel = (Cb - Ca) / np.maximum(b - a, 1e-9)[:, None]
-    valid = np.hypot(vel[:, 0], vel[:, 1]) >= HEADING_MIN_SPEED
-    yaw = np.zeros(t.size)
-    if np.any(valid):
-        idx = np.maximum.accumulate(np.where(valid, np.arange(t.size), -1))
-        idx[idx < 0] = int(np.argmax(valid))
-        yaw = np.arctan2(vel[idx, 1], vel[idx, 0])
-    return np.array([formation_error({u: pos[u][k] for u in ids}, C[k], float(yaw[k]), offsets)
-                     for k in range(t.size)])
+    """The formation error at each time (:meth:`edge.formation.ShapeErrorMeter.series`: the one definition the
+    terminal line and the web page use too)."""
+    return ShapeErrorMeter.series(t, positions, offsets)
 
 
 def _formation(tracks: Mapping[int, Track], trajs: Mapping[int, Trajectory], offsets: Mapping[int, NDArray[np.float64]],

@@ -38,6 +38,7 @@ from protocol.messages import (
     Box,
     DefectReport,
     Event,
+    EventKind,
     Heartbeat,
     Land,
     Level,
@@ -336,10 +337,10 @@ class MissionRunner:
         try:
             choice = planauth.choose(answers, req, where, self.plan_verifier)
         except planauth.Conflict as exc:
-            self.plan_event("plan-conflict", str(exc))
+            self.plan_event(EventKind.PLAN_CONFLICT, str(exc))
             raise MissionFailed(f"refused before takeoff: {exc}") from None
         for why in choice.refused:
-            self.plan_event("plan-refused", why)
+            self.plan_event(EventKind.PLAN_REFUSED, why)
         if choice.plan is None:
             why = "; ".join(choice.refused + errors) or f"no reply from {where} (nobody listening)"
             raise MissionFailed(f"the planner did not deliver a plan: {why}")
@@ -351,7 +352,7 @@ class MissionRunner:
 
         problem = scenario_problem(plan, scenario, self.opt.uavs)
         if problem:
-            self.plan_event("plan-refused", f"the plan leaves the scenario: {problem}")
+            self.plan_event(EventKind.PLAN_REFUSED, f"the plan leaves the scenario: {problem}")
             self.record.plan = plan
             raise MissionFailed(f"refused before takeoff: the plan leaves the scenario: {problem}")
         problem = plan_problem(plan, scenario.formation.offsets, scenario_box(scenario))
@@ -361,7 +362,7 @@ class MissionRunner:
         self.record.plan = plan
         return plan
 
-    def plan_event(self, kind: str, text: str) -> None:
+    def plan_event(self, kind: EventKind, text: str) -> None:
         """Record the ground station's own warning about a plan answer (the report's events)."""
         ev = Event(source="gcs", stamp=time.time(), kind=kind, level=Level.WARNING, text=text[:2000])
         with self._lock:

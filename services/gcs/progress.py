@@ -14,12 +14,9 @@ import threading
 import time
 from typing import IO
 
-import numpy as np
-
 from edge import formation
 from protocol.messages import Mode, VehicleState
 from protocol.textsafe import printable
-from services.gcs.figures import HEADING_MIN_SPEED
 
 
 def bar(fraction: float, width: int = 24) -> str:
@@ -29,32 +26,40 @@ def bar(fraction: float, width: int = 24) -> str:
 
 
 class HeadingHold:
-    """The formation heading ψ of the live line, taken as the report takes it (:mod:`services.gcs.figures`):
-    that of the fleet's mean horizontal velocity, held while the fleet is slower than
-    :data:`~services.gcs.figures.HEADING_MIN_SPEED` (hovering at a capture point or the goal); 0 before
-    any motion."""
+    """The formation error's memory from one redraw to the next: a :class:`edge.formation.ShapeErrorMeter`
+    (the rule of the report and the web page), made for the offsets of the first call."""
 
     def __init__(self) -> None:
-        self.yaw = 0.0
+        self.meter: formation.ShapeErrorMeter | None = None
+        self._t = -math.inf
 
-    def update(self, vel: np.ndarray) -> float:
-        if math.hypot(float(vel[0]), float(vel[1])) > HEADING_MIN_SPEED:
-            self.yaw = math.atan2(float(vel[1]), float(vel[0]))
-        return self.yaw
+    def error(self, t: float, positions: dict, offsets: dict) -> float | None:
+        """The newest error known after the fleet's positions at ``t`` (that of half a heading window ago)."""
+        if self.meter is None or self.meter.offsets != offsets:
+            self.meter, self._t = formation.ShapeErrorMeter(offsets), -math.inf
+        if t > self._t:  # else no newer state since the last redraw
+            self._t = t
+            self.meter.add(t, positions)
+        return self.meter.latest
+
+
+def flying_formation(states: dict[int, VehicleState], offsets: dict) -> list[int]:
+    """The UAVs that fly the formation now (MISSION or HOLD: on the ground, taking off or landing there is no
+    formation to keep); none unless at least two."""
+    ids = [u for u in sorted(states) if u in offsets and states[u].mode in (Mode.MISSION, Mode.HOLD)]
+    return ids if len(ids) >= 2 else []
 
 
 def formation_rms(states: dict[int, VehicleState], offsets: dict[int, tuple[float, float, float]],
                   heading: HeadingHold | None = None) -> float | None:
-    """RMS shape error (P6) of the latest states of the UAVs flying the formation (MISSION or HOLD: on the
-    ground, taking off or landing there is no formation to keep, and a landed one has lost its heights:
-    the last line said 1.4-2.0 m where the report, mission phase only, said 0.12); ``heading`` keeps ψ
-    across slow moments (one per display)."""
-    ids = [u for u in states if u in offsets and states[u].mode in (Mode.MISSION, Mode.HOLD)]
-    if len(ids) < 2:
+    """The formation error (:class:`edge.formation.ShapeErrorMeter`) of the latest states of the UAVs flying
+    the formation, at the newest state's time; ``heading`` keeps the heading across redraws (one per
+    display); None with fewer than two flying or before the fleet has moved."""
+    ids = flying_formation(states, offsets)
+    if not ids:
         return None
-    vel = np.mean([states[u].vel for u in ids], axis=0)
-    yaw = (heading or HeadingHold()).update(vel)
-    return formation.formation_error({u: states[u].pos for u in ids}, None, yaw, offsets)
+    return (heading or HeadingHold()).error(max(states[u].t for u in ids), {u: states[u].pos for u in ids},
+                                            offsets)
 
 
 def render(phase: str, states: dict[int, VehicleState], uavs: tuple[int, ...], ages_ms: list[float],

@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 
 from protocol.messages import VehicleState
+from protocol.textsafe import printable
 
 __all__ = ["not_ready", "refusal"]
 
@@ -34,6 +35,7 @@ def not_ready(states: Mapping[int, VehicleState | None], uavs: Iterable[int]) ->
 
 
 def refusal(waiting: Mapping[int, str], waited_s: float) -> str:
-    """The one-line refusal after ``waited_s`` seconds: each waiting UAV and its autopilot's reason."""
-    parts = "; ".join(f"UAV {u}: {why}" for u, why in sorted(waiting.items()))
+    """The one-line refusal after ``waited_s`` seconds: each waiting UAV and its autopilot's reason (the
+    autopilot's text, control characters escaped: :func:`protocol.textsafe.printable`)."""
+    parts = "; ".join(f"UAV {u}: {printable(why)}" for u, why in sorted(waiting.items()))
     return f"refused before takeoff: autopilot not ready after {waited_s:.0f} s ({parts})"

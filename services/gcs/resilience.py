@@ -33,6 +33,8 @@ from collections import defaultdict
 from itertools import pairwise
 from typing import Any
 
+from protocol.messages import EventKind
+
 from .record import MissionRecord
 
 __all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "SUPERVISION_ACTIONS", "fault_figures", "reception_gaps"]
@@ -40,7 +42,7 @@ __all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "SUPERVISION_ACTIONS", "fault_figures", 
 #: A pause in a UAV's state reception longer than this is listed as a gap, s (states come at 20 Hz).
 GAP_S = 1.0
 #: The boards' SkyNet events shown (edge.board).
-NEIGHBOUR_EVENTS = ("neighbour-lost", "neighbour-up", "neighbour-stale", "neighbour-fresh")
+NEIGHBOUR_EVENTS = (EventKind.NEIGHBOUR_LOST, EventKind.NEIGHBOUR_UP, EventKind.NEIGHBOUR_STALE, EventKind.NEIGHBOUR_FRESH)
 #: What the launcher's supervisor noted (services.orchestration.launcher): a service it restarted after it ended
 #: by itself, one that could not start. Nobody injected them: they are listed apart from the faults, with no
 #: recovery figures (a restart of a service that never came up interrupts nothing).
@@ -112,12 +114,12 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
     # failsafes (board events) and resumes (ground station)
     failsafes = []
     for e in record.events:
-        if e.msg.kind == "failsafe":
+        if e.msg.kind == EventKind.FAILSAFE:
             failsafes.append({"uav": _uav_of(e.msg.source), "t_s": t(e.msg.stamp), "rx_s": t(e.rx),
                               "action": e.msg.data.get("action"), "silent_s": e.msg.data.get("silent_s")})
     for e in record.events:  # a failsafe whose own event was lost with the link: its "cleared" event tells
         since = e.msg.data.get("since")
-        if e.msg.kind == "failsafe-cleared" and isinstance(since, (int, float)):
+        if e.msg.kind == EventKind.FAILSAFE_CLEARED and isinstance(since, (int, float)):
             u = _uav_of(e.msg.source)
             if not any(f["uav"] == u and abs(f["t_s"] - t(since)) < 0.5 for f in failsafes):
                 failsafes.append({"uav": u, "t_s": t(since), "rx_s": None, "action": None, "silent_s": None})

@@ -3,8 +3,8 @@
 :func:`attach` subscribes a :class:`~services.web.view.FleetView` to the fleet's states, events,
 defect reports and live previews; :func:`follow_runner` hands it the ground station's plan when
 the planner has answered, its phases and warnings for the timeline. ``skynet web`` is the page on
-its own (for instance beside ``skynet replay``, to watch a recorded mission: samples the replay
-marks, or a fleet named ``F-replay``, are shown as a replay, not as live data)::
+its own (for instance beside ``skynet replay``, to watch a recorded mission: a fleet named ``F-replay``
+is shown as a replay, not as live data; the replay's mark on a sample counts only there)::
 
     skynet web --listen-web :8080 -e tcp/127.0.0.1:7447
 
@@ -35,10 +35,28 @@ from .tally import DefectTally
 from .view import FleetView
 
 
-def replayed(sample) -> bool:
-    """Whether a sample was put by ``skynet replay`` (its attachment says so)."""
+#: the rejection counted for a replay mark on a key outside a replay fleet (the mark is then ignored)
+MISPLACED_MARK = "replay-mark"
+
+
+def replayed(sample, counters=None) -> bool:
+    """Whether a sample was put by ``skynet replay``: it carries the replay mark (its attachment) *and* came
+    on a key of a replay fleet (``F-replay``: the only keys the replay identity may write, protocol.acl). Any
+    node may attach the mark, so on another fleet's key it proves nothing: ignored, and counted in
+    ``counters`` as :data:`MISPLACED_MARK`."""
     att = getattr(sample, "attachment", None)
-    return att is not None and att.to_bytes() == REPLAY_MARK
+    if att is None or att.to_bytes() != REPLAY_MARK:
+        return False
+    key = str(sample.key_expr)
+    try:
+        fleet = keys.parse(key).fleet
+    except keys.KeyError_:
+        fleet = ""
+    if fleet.endswith(keys.REPLAY_SUFFIX):
+        return True
+    if counters is not None:
+        counters.reject(key, MISPLACED_MARK)
+    return False
 
 
 def attach(bus: Bus, view: FleetView) -> None:
@@ -53,14 +71,14 @@ def attach(bus: Bus, view: FleetView) -> None:
 
     def on_state(m: VehicleState, s) -> None:
         if bound(binding.matches(str(s.key_expr), m.uav), str(s.key_expr)):
-            view.on_state(m, replayed=replayed(s))
+            view.on_state(m, replayed=replayed(s, bus.counters))
 
     def on_event(m: Event, s) -> None:
         if bound(binding.source_matches(str(s.key_expr), m.source), str(s.key_expr)):
-            view.on_event(m, replayed=replayed(s))
+            view.on_event(m, replayed=replayed(s, bus.counters))
 
     def on_defects(m: DefectReport, s) -> None:  # one key for every detector instance (the ACL guards it)
-        view.on_defects(m, replayed=replayed(s))
+        view.on_defects(m, replayed=replayed(s, bus.counters))
 
     bus.subscribe(keys.state(fleet, "*"), on_state, expect=VehicleState, link=TELEMETRY)
     bus.subscribe(keys.all_events(fleet), on_event, expect=Event, link=COMMAND)
@@ -92,6 +110,8 @@ def follow_runner(view: FleetView, runner, stop: threading.Event | None = None,
         while not stop.wait(0.5):
             rec = runner.record
             if not plan_sent and rec.plan is not None:
+                if rec.scenario is not None and rec.scenario is not view.scenario:  # its formation: one offset per UAV
+                    view.set_scenario(rec.scenario)
                 view.set_plan(rec.plan)
                 plan_sent = True
             if tally is not None and rec.surface_corners:

@@ -8,7 +8,9 @@ preview JPEGs, the plan) and answers two JSON-ready documents:
 - :meth:`FleetView.snapshot` — pushed at 5–10 Hz: per UAV the position, mode, battery, telemetry
   rate (link health, Hz against the edges' 20 Hz) and last-heard age, captures, its flown path
   (decimated to one point per :data:`TRAIL_STEP_M`), the preview frame's number; the formation
-  error (RMS of each UAV's distance to its planned slot, P9, over the UAVs in MISSION); the
+  error (the shape error of the report and the terminal line, :class:`edge.formation.ShapeErrorMeter`, over
+  the UAVs flying the formation) and, apart, the tracking error (RMS of each UAV's distance to its own
+  planned slot, P9, over the UAVs in MISSION: :func:`edge.formation.tracking_error`); the
   detections (every defect of every frame's report, placed on the wall map), the defects
   (``defect_count``: the mission report's own count, a crack seen by overlapping frames counted once,
   set by :meth:`FleetView.set_inspection`; None until known); the timeline (the mission's phases:
@@ -29,7 +31,8 @@ import time
 from collections import deque
 from typing import Any
 
-from protocol.keys import DEFAULT_FLEET
+from edge.formation import DEFAULT_OFFSETS, ShapeErrorMeter, tracking_error
+from protocol.keys import DEFAULT_FLEET, REPLAY_SUFFIX
 from protocol.messages import DefectReport, Event, MissionPlan, VehicleState
 from protocol.scenario import Scenario
 
@@ -40,10 +43,14 @@ DEFECTS = 5000
 SENT_TRAIL = 400  # newest trail points per snapshot
 SENT_DEFECTS = 500  # newest defects per snapshot (the count is of all)
 SENT_EVENTS = 100  # newest timeline entries per snapshot
-REPLAY_FLEET_SUFFIX = "-replay"  # the fleet name ``skynet replay`` plays a recording under, beside the live one
+REPLAY_FLEET_SUFFIX = REPLAY_SUFFIX  # the fleet name ``skynet replay`` plays a recording under, beside the live one
 SOURCE_WINDOW_S = 5.0  # data heard within this long decides the page's "live" / "replay" label
 RATE_WINDOW_S = 2.0
 STATE_HZ = 20.0  # the edges' telemetry rate (edge.runtime)
+
+
+def _round(x: float | None, nd: int = 3) -> float | None:
+    return None if x is None else round(x, nd)
 
 
 def _r(v, nd: int = 2):
@@ -76,6 +83,8 @@ class FleetView:
         self.inspection: dict[str, Any] | None = None  # the deduplicated count (set_inspection)
         self.static_version = 0
         self._heard = {"live": -math.inf, "replay": -math.inf}  # when each kind of data was last heard
+        self._shape: ShapeErrorMeter | None = None  # the formation error's heading memory
+        self._shape_t = -math.inf
         self._lock = threading.Lock()
 
     def _uav(self, uav: int) -> _Uav:
@@ -165,6 +174,27 @@ class FleetView:
             u = self._uavs.get(uav)
             return None if u is None else u.preview
 
+    def offsets(self) -> dict[int, tuple[float, float, float]]:
+        """The formation offsets ΔT_n by UAV (the scenario's, else the default triangle's)."""
+        rows = self.scenario.formation.offsets if self.scenario is not None else DEFAULT_OFFSETS
+        return {i + 1: tuple(map(float, o)) for i, o in enumerate(rows)}
+
+    def _formation_error(self) -> float | None:
+        """The formation error of the latest states (services.gcs.progress.formation_rms's rule: the UAVs in
+        MISSION or HOLD, at the newest state's time)."""
+        offsets = self.offsets()
+        states = {u: x.state for u, x in self._uavs.items() if x.state is not None}
+        ids = [u for u in sorted(states) if u in offsets and states[u].mode.value in ("mission", "hold")]
+        if len(ids) < 2:
+            return None
+        t = max(states[u].t for u in ids)
+        if self._shape is None or self._shape.offsets != offsets:
+            self._shape, self._shape_t = ShapeErrorMeter(offsets), -math.inf
+        if t > self._shape_t:
+            self._shape_t = t
+            self._shape.add(t, {u: states[u].pos for u in ids})
+        return self._shape.latest
+
     # -- outputs
     def static(self) -> dict[str, Any]:
         with self._lock:
@@ -185,7 +215,7 @@ class FleetView:
     def snapshot(self) -> dict[str, Any]:
         now = self.clock()
         with self._lock:
-            uavs, errs = {}, []
+            uavs, pos, refs = {}, {}, {}
             for uid, u in sorted(self._uavs.items()):
                 s = u.state
                 entry: dict[str, Any] = {"preview": u.preview_seq, "trail": list(u.trail)[-SENT_TRAIL:]}
@@ -196,12 +226,13 @@ class FleetView:
                                  age_s=round(max(0.0, now - u.rx), 2), rate_hz=round(recent / RATE_WINDOW_S, 1),
                                  health=round(min(1.0, recent / RATE_WINDOW_S / STATE_HZ), 2))
                     if s.ref is not None and s.mode.value == "mission":
-                        errs.append(math.dist(s.pos, s.ref))
+                        pos[uid], refs[uid] = s.pos, s.ref
                 uavs[str(uid)] = entry
             live, replay = (now - self._heard[k] <= SOURCE_WINDOW_S for k in ("live", "replay"))
             insp = self.inspection
             return {"type": "snapshot", "t": round(now, 3), "static_version": self.static_version, "uavs": uavs,
-                    "formation_error_m": round(math.sqrt(sum(e * e for e in errs) / len(errs)), 3) if errs else None,
+                    "formation_error_m": _round(self._formation_error()),
+                    "tracking_error_m": _round(tracking_error(pos, refs)),
                     "source": "live+replay" if live and replay else "replay" if replay else "live" if live else None,
                     "defects": list(self._defects)[-SENT_DEFECTS:], "detections": self.detections,
                     "defect_count": None if insp is None else insp["defects"],

@@ -61,3 +61,32 @@ def test_a_uav_returning_home_is_not_stopped_by_a_lost_ground_station_but_lands_
     assert p.step(100, 0, flying=False, battery=0.5, returning=True) is None  # RTL commanded: no hold
     assert p.step(101, 0, False, 0.15, returning=True) is None  # low battery: it is already returning
     assert p.step(102, 0, False, 0.05, returning=True).action == "land"
+
+
+def test_a_failed_action_is_retried_after_the_retry_period_and_rtl_falls_back_to_land():
+    p = FailsafePolicy(FailsafeOptions(retry_s=2.0))
+    d = p.step(0.0, 0.0, True, 0.15)  # low battery: rtl
+    assert d.action == "rtl"
+    f = p.failed("rtl", "denied", 0.0)
+    assert (f.next_action, f.attempts, f.retry_at) == ("land", 1, 2.0) and "trying land instead" in f.text
+    assert p.retry(1.9, airborne=True) is None
+    d = p.retry(2.0, airborne=True)
+    assert (d.action, d.kind, d.reason) == ("land", "failsafe-retry", "retry")
+    assert p.retry(10.0, airborne=True) is None  # handed out once
+    f = p.failed("land", "no ack", 2.0)
+    assert (f.next_action, f.attempts) == ("land", 2)
+    assert p.step(3.0, 0.0, True, 0.15) is None  # the retry is not superseded by a milder order
+    assert p.retry(4.0, airborne=True).action == "land"
+    assert p.done() == 2 and p.failures == 0 and p.pending is None
+
+
+def test_a_pending_retry_ends_on_the_ground_or_with_a_resume():
+    p = FailsafePolicy()
+    p.step(6.0, 0.0, True, 1.0)
+    p.failed("hold", "link lost", 6.0)
+    assert p.retry(100.0, airborne=False) is None and p.pending is None
+    p.failed("hold", "link lost", 6.0)
+    p.resumed()
+    assert p.pending is None and p.retry(100.0, airborne=True) is None
+    with pytest.raises(ValueError):
+        FailsafeOptions(retry_s=0)

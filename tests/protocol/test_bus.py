@@ -309,7 +309,7 @@ st = bus.publisher(keys.state("test", 2), TELEMETRY)
 time.sleep(1.0)
 t0, n, k = time.monotonic(), 0, 0
 while time.monotonic() - t0 < 3.0:
-    ev.put(Event(source="uav1", stamp=time.time(), kind="flood", text="x" * 4000)); n += 1
+    ev.put(Event(source="uav1", stamp=time.time(), kind="trust-refused", text="x" * 4000)); n += 1
     if time.monotonic() - t0 > k * 0.05:
         st.put(VehicleState(uav=2, seq=k, t=k * 0.05, stamp=time.time(), pos=(1, 2, 3), vel=(0, 0, 0),
                             att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.HOLD)); k += 1

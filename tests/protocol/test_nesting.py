@@ -58,7 +58,7 @@ def test_the_wire_codec_refuses_deep_msgpack_as_bad_bytes():
     with pytest.raises(codec.CodecError) as exc:
         codec.decode(deep)
     assert exc.value.kind == "bad-bytes" and "nested too deeply" in str(exc.value)
-    within = [1, "event", {"source": "uav/1", "stamp": 1.0, "kind": "k", "data": {"x": [[[[[[1]]]]]]}}]
+    within = [1, "event", {"source": "uav/1", "stamp": 1.0, "kind": "failsafe", "data": {"x": [[[[[[1]]]]]]}}]
     with pytest.raises(codec.CodecError) as exc:  # shallow enough to unpack: the schema refuses it
         codec.decode(msgpack.packb(within))
     assert exc.value.kind == "invalid"

@@ -135,6 +135,7 @@ function updateEvents() {
 function render() {
   if (!snap) return;
   document.getElementById("formation").textContent = snap.formation_error_m === null ? "-" : snap.formation_error_m.toFixed(2) + " m";
+  document.getElementById("tracking").textContent = snap.tracking_error_m === null ? "-" : snap.tracking_error_m.toFixed(2) + " m";
   document.getElementById("defect-count").textContent = snap.defect_count === null ? "-" : String(snap.defect_count);
   document.getElementById("detections").textContent = String(snap.detections);
   document.getElementById("reports").textContent = String(snap.reports);

@@ -67,10 +67,10 @@ def test_hostile_event_text_reaches_the_ground_station_stderr_escaped(dev_keys):
             pub = rogue.publisher(keys.event(FLEET, 2), COMMAND)
             # until the ground station has subscribed and logged it (it starts after this session)
             for _ in range(120):
-                pub.put(Event(source="gcs", stamp=time.time(), kind="forged", level=Level.WARNING,
+                pub.put(Event(source="gcs", stamp=time.time(), kind="plan-refused", level=Level.WARNING,
                               text="FORGED-SOURCE"))
-                pub.put(Event(source="uav/2", stamp=time.time(), kind="note", level=Level.WARNING, text=HOSTILE))
-                if _wait(lambda: any("event from uav/2: note" in ln for ln in gcs_lines), 0.5):
+                pub.put(Event(source="uav/2", stamp=time.time(), kind="pilot-mode", level=Level.WARNING, text=HOSTILE))
+                if _wait(lambda: any("event from uav/2: pilot-mode" in ln for ln in gcs_lines), 0.5):
                     break
     finally:
         for p in (gcs, up):
@@ -83,7 +83,7 @@ def test_hostile_event_text_reaches_the_ground_station_stderr_escaped(dev_keys):
                 except subprocess.TimeoutExpired:
                     p.kill()
     out = "".join(gcs_lines)
-    logged = [ln for ln in gcs_lines if "event from uav/2: note" in ln]
+    logged = [ln for ln in gcs_lines if "event from uav/2: pilot-mode" in ln]
     assert logged, out[-3000:]
     assert "\x1b" not in out and "\x07" not in out and "\x9b" not in out and "\u202e" not in out, repr(out[-2000:])
     line = logged[0]

@@ -23,7 +23,7 @@ def _journal(tmp_path: Path) -> tuple[Path, MissionRecord]:
     """test_report's synthetic mission journalled the ground station's way, with an event of hostile text."""
     full = build_record()
     full.events.append(EventRx(rx=full.events[-1].rx + 1.0, msg=Event(
-        source="uav/2", stamp=full.events[-1].rx + 1.0, kind="note", level=Level.WARNING, text=HOSTILE)))
+        source="uav/2", stamp=full.events[-1].rx + 1.0, kind="pilot-mode", level=Level.WARNING, text=HOSTILE)))
     live = MissionRecord(**{k: getattr(full, k) for k in HEADER})
     rec = Recorder(live, tmp_path / "record.jsonl")
     for kind in ITEM_MODELS:
@@ -61,7 +61,7 @@ def test_skynet_report_keeps_hostile_event_text_in_its_row_and_counts_a_nested_l
     assert "\x1b" not in md and "\r" not in md and "<img" not in md and "onerror=" in md
     rows = _events_table(md)
     assert len(rows) == len(full.events) and all(len(r) == 5 for r in rows), rows  # each event one row of 5 cells
-    hostile = [r for r in rows if r[3] == "note"]
+    hostile = [r for r in rows if r[3] == "pilot-mode"]
     assert len(hostile) == 1 and hostile[0][1] == "uav/2"
     text = hostile[0][4]
     assert "<img src=x onerror=alert(1)> | `code` *bold* [link](http://x) & ]]>" in text  # the text, as data

@@ -33,28 +33,28 @@ def test_the_formation_heading_is_held_when_the_fleet_hovers_and_the_ground_has_
     (or any mode but MISSION and HOLD) there is no formation error to show."""
     import math
 
-    import numpy as np
-
     from edge.formation import formation_error
     from services.gcs.progress import HeadingHold, formation_rms
 
     offsets = {1: (0.0, 0.0, 2.0), 2: (3.0, 0.0, -1.0), 3: (-3.0, 0.0, -1.0)}
-    c = math.cos(math.pi / 2), math.sin(math.pi / 2)
 
-    def at(vel):  # each UAV in its slot for heading +y (R_z(90°) of its offset)
-        return {u: VehicleState(uav=u, seq=1, t=1.0, stamp=1.0, pos=(c[0] * o[0] - c[1] * o[1],
-                                                                      c[1] * o[0] + c[0] * o[1], 20 + o[2]),
-                                vel=vel, att=(0.0, 0.0, 0.0), rates=(0.0, 0.0, 0.0), mode=Mode.MISSION, armed=True)
+    def at(t, y):  # each UAV in its slot for heading +y (R_z(90°) of its offset), the centroid at (0, y)
+        return {u: VehicleState(uav=u, seq=1, t=t, stamp=1.0, pos=(-o[1], y + o[0], 20 + o[2]), vel=(0.0, 0.0, 0.0),
+                                att=(0.0, 0.0, 0.0), rates=(0.0, 0.0, 0.0), mode=Mode.MISSION, armed=True)
                 for u, o in offsets.items()}
 
     heading = HeadingHold()
-    assert formation_rms(at((0.0, 2.0, 0.0)), offsets, heading) < 1e-9 and heading.yaw == math.pi / 2
-    assert formation_rms(at((0.0, 0.0, 0.0)), offsets, heading) < 1e-9  # landed: the heading is held
-    unheld = formation_rms(at((0.0, 0.0, 0.0)), offsets)  # a fresh hold: heading 0
-    assert unheld > 1.0
-    assert unheld == formation_error({u: s.pos for u, s in at((0, 0, 0)).items()}, None, 0.0, offsets)
-    assert np.isfinite(unheld)
-    landed = {u: s.model_copy(update={"mode": Mode.LANDED, "vel": (0.0, 0.0, 0.0)}) for u, s in at((0, 2, 0)).items()}
+    assert formation_rms(at(1.0, 0.0), offsets, heading) is None  # no motion seen yet: no heading
+    assert formation_rms(at(1.5, 1.0), offsets, heading) < 1e-9 and heading.meter.yaw == math.pi / 2
+    assert formation_rms(at(1.5, 1.0), offsets, heading) < 1e-9  # no newer state: the same answer
+    for k in range(1, 40):  # hovering: the heading is held
+        assert formation_rms(at(1.5 + 0.1 * k, 1.0), offsets, heading) < 1e-9
+    fresh = HeadingHold()
+    formation_rms(at(0.0, 1.0), offsets, fresh)
+    unheld = formation_rms(at(1.0, 1.0), offsets, fresh)  # never moved: no heading
+    assert unheld is None
+    assert formation_error({u: s.pos for u, s in at(0, 1).items()}, None, 0.0, offsets) > 1.0
+    landed = {u: s.model_copy(update={"mode": Mode.LANDED}) for u, s in at(9.0, 1.0).items()}
     assert formation_rms(landed, offsets, heading) is None
     assert "formation RMS error -" in render("landing", landed, (1, 2, 3), [], 26, 26, offsets, 99.0)[-1]
 

@@ -37,3 +37,28 @@ def test_the_readiness_travels_in_the_state_and_hostile_values_are_refused():
         AutopilotReadiness(ready=True, heartbeat=True, status="s" * 33)
     with pytest.raises(pydantic.ValidationError):
         AutopilotReadiness.model_validate({"ready": True, "heartbeat": True, "extra": 1})
+
+
+HOSTILE = "\x1b[2J\x1b]0;pwned\x07\r\n12:00:00 gcs INFO mission succeeded <img src=x onerror=alert(1)> | `x` \u202e"
+
+
+def test_a_hostile_refusal_reason_is_escaped_in_the_log_line_and_in_report_md():
+    """An autopilot's reason is another node's text: its control characters and HTML stay inert."""
+    import logging
+
+    from protocol.textsafe import SafeFormatter
+    from services.gcs.markdown import markdown
+    from services.gcs.record import MissionRecord
+    from services.gcs.report import summarise
+
+    waiting = not_ready({1: state(1, AutopilotReadiness(ready=False, heartbeat=True, reason=HOSTILE))}, [1])
+    line = refusal(waiting, 120.0)
+    assert line.isprintable() and "\\x1b[2J" in line and "\\u202e" in line and "\n" not in line
+    rec = logging.LogRecord("skynet.gcs", logging.ERROR, __file__, 1, "mission failed: %s", (line,), None)
+    logged = SafeFormatter("%(levelname)s %(message)s").format(rec)
+    assert logged.isprintable() and logged.startswith("ERROR mission failed: refused before takeoff")
+    record = MissionRecord(fleet="f", speed=1.0, started=0.0, failures=[line])
+    md = markdown(record, summarise(record))  # report.md's text (services.gcs.report.write_report)
+    outcome = next(ln for ln in md.splitlines() if ln.startswith("Outcome:"))
+    assert "refused before takeoff" in outcome and "\x1b" not in md and "\u202e" not in md and "\x07" not in md
+    assert "<img" not in md and "&lt;img src=x onerror=alert(1)&gt;" in outcome and "\\|" in outcome

@@ -35,7 +35,7 @@ def _state(i: int) -> StateRx:
 
 
 def _event(i: int) -> EventRx:
-    return EventRx(rx=time.time(), msg=Event(source="uav1", stamp=time.time(), kind="flood", text="x" * 4000))
+    return EventRx(rx=time.time(), msg=Event(source="uav1", stamp=time.time(), kind="trust-refused", text="x" * 4000))
 
 
 def test_journal_streams_every_item_and_the_record_is_rebuilt_from_it(tmp_path):
@@ -122,7 +122,7 @@ def test_a_full_disk_keeps_the_record_up_to_the_failure_and_says_where_the_rest_
         assert str(mnt / "record.jsonl") in rec.recording_errors[0] and "in memory" in rec.recording_errors[0]
         back = load_journal(mnt / "record.jsonl")
         assert 0 < len(back.events) < 300  # the record up to the failure is kept
-        assert [e.msg.kind for e in back.events] == ["flood"] * len(back.events)
+        assert [e.msg.kind for e in back.events] == ["trust-refused"] * len(back.events)
         # the report is then computed from the in-memory record, and says so (services.gcs.journal)
         assert report_record(r, rec) is rec and "in-memory record" in rec.report_input
 

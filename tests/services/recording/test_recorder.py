@@ -34,7 +34,7 @@ def test_a_flood_of_one_key_is_cut_to_its_budget_and_the_other_sources_are_all_l
         state = uav.publisher(keys.state(FLEET, 2), COMMAND)  # reliable here: the test counts every one
         t0 = time.monotonic()
         for k in range(FLOOD):
-            flood.put(Event(source="uav1", stamp=time.time(), kind="flood", text="x" * 500))
+            flood.put(Event(source="uav1", stamp=time.time(), kind="trust-refused", text="x" * 500))
             if k % 100 == 0:
                 state.put(VehicleState(uav=2, seq=k // 100, t=k * 0.01, stamp=time.time(), pos=(0, 0, 10),
                                        vel=(0, 0, 0), att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.MISSION))

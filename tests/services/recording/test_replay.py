@@ -78,7 +78,7 @@ def test_record_then_replay_at_10x_keeps_order_per_key(group, gateway, tmp_path:
             for u in (1, 2, 3):
                 pubs[u].put(_state(u, k))
             if k % 10 == 0:
-                ev.put(Event(source="uav2", stamp=time.time(), kind="tick", data={"k": k}))
+                ev.put(Event(source="uav2", stamp=time.time(), kind="neighbour-up", data={"k": k}))
                 img.put_bytes(_frame(sender, 1))
             time.sleep(0.015)  # 67 Hz per UAV: inside the state budget the recorder holds each source to
         # telemetry is best-effort (a busy machine may drop a few); events are reliable

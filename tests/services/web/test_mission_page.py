@@ -23,6 +23,7 @@ from pathlib import Path
 
 import pytest
 
+from protocol import keys
 from services.orchestration.process import free_port
 from tests.conftest import wait_until
 
@@ -102,7 +103,7 @@ def test_mission_page_timeline_defect_count_and_its_replay(group, gateway, tmp_p
     assert last["detections"] > counted[-1]["defects"] > 0
 
     # the recording replayed and watched: labelled a replay, not live
-    fleet, wport = "watch", free_port()
+    fleet, wport = keys.replay_fleet("watch"), free_port()  # the replay mark counts on a replay fleet only
     web = group.start("web", ["web", "--fleet", fleet, "--multilink", "--listen-web", f"127.0.0.1:{wport}",
                               *[a for e in gateway for a in ("--connect", e)]])
     assert web.wait_for("web up", 30), "\n".join(web.lines)

@@ -49,8 +49,7 @@ def feed(bus: Bus, stop: threading.Event) -> None:
     states = {u: bus.publisher(keys.state(FLEET, u), TELEMETRY) for u in (1, 2, 3)}
     previews = {u: bus.publisher(keys.preview(FLEET, u), IMAGERY) for u in (1, 2, 3)}
     senders = {u: RtpSender(ssrc_for(u, 1)) for u in (1, 2, 3)}
-    bus.publisher(keys.gcs_event(FLEET), COMMAND).put(Event(source="gcs", stamp=time.time(), kind="phase",
-                                                           text="mission"))
+    gcs_events = bus.publisher(keys.gcs_event(FLEET), COMMAND)
     hostile = [(bus.publisher(key, COMMAND), source) for key, source in HOSTILE_KEYS]
     img = np.zeros((240, 320, 3), np.uint8)
     img[60:180, 80:240] = (30, 160, 220)
@@ -68,9 +67,10 @@ def feed(bus: Bus, stop: threading.Event) -> None:
                                  intrinsics=Intrinsics(width=320, height=240, fx=300.0, fy=300.0, cx=160.0, cy=120.0))
                 previews[u].put_bytes(pack_image(senders[u], meta, jpeg, now))
         if k % 10 == 0:  # again and again: whenever the page looks, they are in its timeline
+            gcs_events.put(Event(source="gcs", stamp=now, kind="plan-refused", text="mission"))
             for pub, source in hostile:
                 for text in HOSTILE:
-                    pub.put(Event(source=source, stamp=now, kind="note", text=text))
+                    pub.put(Event(source=source, stamp=now, kind="pilot-mode", text=text))
         if k % 20 == 0:
             d = Defect(area_px=40, bbox=(1, 1, 5, 5), centroid_px=(3.0, 3.0), contrast=9.0, pos=(60.0, 50.0 + k % 30, 28.0))
             bus.publisher(keys.defects(FLEET), COMMAND).put(
@@ -131,7 +131,7 @@ def test_page_shows_moving_uavs_a_preview_the_defects_and_hostile_text_as_text(g
             wait.until(lambda d: "mission" in d.find_element(By.ID, "events").text)
             # hostile text from each of the three keys is shown as text, and no element or script came of it
             for _, source in HOSTILE_KEYS:
-                wait.until(lambda d: all(f"{source} note {t}" in d.find_element(By.ID, "events").text for t in HOSTILE))
+                wait.until(lambda d: all(f"{source} pilot-mode {t}" in d.find_element(By.ID, "events").text for t in HOSTILE))
             assert driver.execute_script("return document.querySelectorAll('#events img, #events svg, "
                                          "#events script').length") == 0
             assert driver.execute_script("return window.__xss === undefined")

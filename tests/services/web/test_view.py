@@ -38,7 +38,8 @@ def test_snapshot_positions_health_age_and_formation_error() -> None:
     assert u1["age_s"] == 0.5 and u2["age_s"] == 2.5
     assert 14 <= u1["rate_hz"] <= 16 and u2["rate_hz"] == 0.0  # 30 of the 40 states inside the last 2 s
     assert u1["health"] == round(u1["rate_hz"] / 20, 2)
-    assert s["formation_error_m"] == round(math.sqrt((1 + 9) / 2), 3)
+    assert s["tracking_error_m"] == round(math.sqrt((1 + 9) / 2), 3)  # each UAV against its own slot
+    assert s["formation_error_m"] is None  # one sample of the two UAVs' shape: no heading yet
     # the flown path is decimated (one point per 0.5 m): 3.9 m flown -> 8 points, not 40
     assert 7 <= len(u1["trail"]) <= 9
 
@@ -51,7 +52,7 @@ def test_static_scenario_defects_events_and_bounds(monkeypatch) -> None:
     v.on_defects(DefectReport(uav=2, capture_id=3, stamp_capture=1.0, stamp_report=2.0, method="it+",
                               defects=[d, d.model_copy(update={"pos": None})]))
     for k in range(view_mod.EVENTS + 20):
-        v.on_event(Event(source="gcs", stamp=float(k), kind="phase", text=f"p{k}"))
+        v.on_event(Event(source="gcs", stamp=float(k), kind="neighbour-up", text=f"p{k}"))
     s = v.snapshot()
     assert s["detections"] == 1 and s["reports"] == 1 and s["defects"][0]["pos"] == [60.0, 50.0, 28.0]
     assert s["defect_count"] is None  # the deduplicated count is the report's (set_inspection), not the detections
@@ -99,7 +100,7 @@ def test_source_live_replay_or_both() -> None:
     assert v.snapshot()["source"] is None  # nothing heard
     v.on_state(state(1, 0, (0.0, 0.0, 0.0)))
     assert v.snapshot()["source"] == "live"
-    v.on_event(Event(source="uav/1", stamp=1.0, kind="k", text="t"), replayed=True)
+    v.on_event(Event(source="uav/1", stamp=1.0, kind="neighbour-up", text="t"), replayed=True)
     assert v.snapshot()["source"] == "live+replay"
     clock.t += view_mod.SOURCE_WINDOW_S + 1
     v.on_state(state(1, 1, (0.0, 0.0, 0.0)), replayed=True)
@@ -140,3 +141,12 @@ def test_follow_runner_puts_the_ground_stations_phases_failures_incidents_and_fa
                       ("uav/2", "uav-lost", "UAV 2 unheard for 3.0 s", "warning"), ("faults", "kill", "uav2", "warning"),
                       ("gcs", "phase", "done", "info")]
     assert ev[5] == ("gcs", "failure", "UAV 2 did not land", "warning")  # the time it was seen (now)
+
+
+def test_the_formation_error_uses_the_missions_offsets_one_per_uav() -> None:
+    from services.gcs.mission import with_formation_size
+
+    v = FleetView(load_scenario(), fleet="f")
+    assert sorted(v.offsets()) == [1, 2, 3]
+    v.set_scenario(with_formation_size(load_scenario(), 5))  # follow_runner: the runner's scenario with the plan
+    assert sorted(v.offsets()) == [1, 2, 3, 4, 5]
