@@ -77,6 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     path = Path(args.record)
+    if path.suffix == ".jsonl":  # a former journal: its folder's log is the record
+        print(f"skynet report: {path.name} is no longer read; reporting from {LOG_NAME} beside it")
+        path = path.parent
     if path.is_dir():
         path = path / LOG_NAME
     if not path.is_file():

@@ -162,7 +162,8 @@ class McapLog:
         ch = self._channel(f"{key}/jpeg", "json", "foxglove.CompressedImage", COMPRESSED_IMAGE_SCHEMA)
         self._add(ch, rx_s, json.dumps(doc).encode(), meta.stamp)
 
-    def write_json(self, topic: str, schema_name: str, schema: dict, doc: str, t_s: float) -> None:
+    def write_json(self, topic: str, schema_name: str, schema, doc: str, t_s: float) -> None:
+        """One JSON document on ``topic``; ``schema`` a JSON Schema dict or a callable making one (called once)."""
         self._add(self._channel(topic, "json", schema_name, schema), t_s, doc.encode())
 
     def metadata(self, name: str, data: dict[str, str]) -> None:

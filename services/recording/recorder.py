@@ -118,14 +118,15 @@ class MissionLogWriter:
     def begin(self, record: MissionRecord) -> None:
         """The record's header (fleet, scenario, speed, start), written at once."""
         doc = record.model_dump_json(include=HEADER_FIELDS)
-        self._write(("json", HEADER_TOPIC, "skynet.record.Header", doc, record.started))
+        self._write(("json", HEADER_TOPIC, "skynet.record.Header", MissionRecord.model_json_schema, doc, record.started))
 
     def add(self, kind: str, item: BaseModel, t: float | None = None) -> None:
         """Log one entry of the ground station's own (``kind``: a key of :data:`GROUND_TOPICS`)."""
         if self._closed.is_set():
             return
-        name = f"skynet.record.{type(item).__name__}"
-        self._ring.push(("json", GROUND_TOPICS[kind], name, item.model_dump_json(), time.time() if t is None else t))
+        cls = type(item)
+        self._ring.push(("json", GROUND_TOPICS[kind], f"skynet.record.{cls.__name__}", cls.model_json_schema,
+                         item.model_dump_json(), time.time() if t is None else t))
 
     def _write(self, item: tuple) -> None:
         t0 = time.thread_time()
@@ -140,8 +141,8 @@ class MissionLogWriter:
                     self.mlog.write_message(key, answer, t_answer, kind="reply")
                     self.counts["requests"] += 1
                 elif item[0] == "json":
-                    _, topic, name, doc, t = item
-                    self.mlog.write_json(topic, name, {"title": name, "type": "object"}, doc, t)
+                    _, topic, name, schema, doc, t = item
+                    self.mlog.write_json(topic, name, schema, doc, t)
                     self.counts["ground"] += 1
                 else:
                     self.counts[self.mlog.write_sample(*item[1:])] += 1
@@ -170,7 +171,7 @@ class MissionLogWriter:
             record.recording_errors.append(f"{self.dropped} samples did not reach the mission log {self.path} "
                                            "(its queue was full)")
         footer = record.model_dump_json(exclude=set(ITEM_MODELS) | HEADER_FIELDS)
-        self._write(("json", FOOTER_TOPIC, "skynet.record.Footer", footer, time.time()))
+        self._write(("json", FOOTER_TOPIC, "skynet.record.Footer", MissionRecord.model_json_schema, footer, time.time()))
         self.close()
         if self.log:
             self.log.info("mission recorded to %s: %d messages, %d dropped", self.path, self.mlog.messages,

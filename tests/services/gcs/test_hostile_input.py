@@ -30,7 +30,7 @@ def _logged(tmp_path: Path) -> tuple[Path, MissionRecord]:
 
     def begin(self, record):  # the nested entry right after the header
         push(self, record)
-        self._ring.push(("json", GROUND_TOPICS["events"], "skynet.record.EventRx", nested, record.started))
+        self._ring.push(("json", GROUND_TOPICS["events"], "skynet.record.EventRx", {}, nested, record.started))
 
     MissionLogWriter.begin = begin
     try:

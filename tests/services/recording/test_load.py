@@ -123,8 +123,8 @@ def test_a_damaged_entry_is_counted_and_skipped_and_a_log_without_footer_still_r
         writer.sample(keys.state(full.fleet, item.msg.uav), codec.encode(item.msg), item.rx)
     writer.sample(keys.state(full.fleet, 2), codec.encode(full.states[0].msg), full.states[0].rx)  # uav 1's body
     writer.sample(keys.state(full.fleet, 1), b"\x93 not a message", full.started + 1)  # logged raw: not a state
-    writer._ring.push(("json", "/skynet/record/commands", "skynet.record.CommandRecord", '{"uav": "x"}', 1.0))
-    writer._ring.push(("json", FOOTER_TOPIC, "skynet.record.Footer", "[1, 2", 2.0))
+    writer._ring.push(("json", "/skynet/record/commands", "skynet.record.CommandRecord", {}, '{"uav": "x"}', 1.0))
+    writer._ring.push(("json", FOOTER_TOPIC, "skynet.record.Footer", {}, "[1, 2", 2.0))
     writer.close()  # interrupted: no footer that reads
     back, found = load_record(path)
     assert found.damaged == 2 and not found.footer
