@@ -262,8 +262,9 @@ def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tup
 
 def frames_from_log(path: str | Path) -> list[PosedFrame]:
     """The capture frames a mission log holds (:func:`services.recording.mcap_log.captures`: what reached the
-    ground station over the bus), decoded to grey; a frame that does not decode or whose size is not its
-    intrinsics' is skipped."""
+    ground station over the bus), decoded to grey, in the order of :func:`save_frame`'s file names (as
+    :func:`load_folder` reads them: the mosaic does not depend on the order frames arrived in); a frame that does
+    not decode or whose size is not its intrinsics' is skipped."""
     from services.recording.mcap_log import captures
 
     frames = []
@@ -272,7 +273,7 @@ def frames_from_log(path: str | Path) -> list[PosedFrame]:
         k = meta.intrinsics
         if g is not None and (k.width, k.height) == (g.shape[1], g.shape[0]):
             frames.append(PosedFrame(meta, g))
-    return frames
+    return sorted(frames, key=lambda f: f"uav{f.meta.uav}-{f.meta.capture_id:05d}")
 
 
 def save_frame(folder: str | Path, meta: ImageMeta, image: bytes) -> Path:
