@@ -24,6 +24,16 @@ from tests.conftest import wait_until
 FLEET = "test"
 
 
+def send_captures(uav: Bus, caps) -> None:
+    """UAV 1's camera sends ``caps`` (reliably: these tests are about keeping frames, not UDP loss)."""
+    pub = uav.publisher(keys.camera(FLEET, 1), IMAGERY_RELIABLE)
+    sender = RtpSender(ssrc_for(1))
+    for c in caps:
+        meta = c.meta.model_copy(update={"uav": 1, "stamp": time.time()})
+        pub.put_bytes(pack_image(sender, meta, c.jpeg, time.time()))
+        time.sleep(0.05)
+
+
 def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, gateway, tmp_path):
     sc = load_scenario()
     surf = synthetic_surface(sc, seed=7)
@@ -37,12 +47,7 @@ def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, ga
         uav.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
         assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
         time.sleep(0.5)
-        pub = uav.publisher(keys.camera(FLEET, 1), IMAGERY_RELIABLE)  # this test is about keeping frames, not UDP loss
-        sender = RtpSender(ssrc_for(1))
-        for c in caps:
-            meta = c.meta.model_copy(update={"uav": 1, "stamp": time.time()})
-            pub.put_bytes(pack_image(sender, meta, c.jpeg, time.time()))
-            time.sleep(0.05)
+        send_captures(uav, caps)
         assert wait_until(lambda: len(reports) >= len(caps), 60), (len(reports), "\n".join(svc.lines[-20:]))
     kept, _, _ = load_folder(frames)
     assert len(kept) == len(caps)
@@ -88,12 +93,7 @@ def test_the_deliverable_comes_from_the_frames_the_ground_station_logged_not_fro
         gcs.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
         assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
         time.sleep(0.5)
-        pub = uav.publisher(keys.camera(FLEET, 1), IMAGERY_RELIABLE)
-        sender = RtpSender(ssrc_for(1))
-        for c in caps:
-            meta = c.meta.model_copy(update={"uav": 1, "stamp": time.time()})
-            pub.put_bytes(pack_image(sender, meta, c.jpeg, time.time()))
-            time.sleep(0.05)
+        send_captures(uav, caps)
         assert wait_until(lambda: len(reports) >= len(caps), 60), (len(reports), "\n".join(svc.lines[-20:]))
         writer.close()
     assert list(elsewhere.iterdir()) == []  # the detector kept nothing
