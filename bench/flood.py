@@ -211,8 +211,8 @@ def run_case(case: str, seconds: float, speed: float, onset: float, extra: list[
                        "p95": float(np.percentile(ages, 95)) if ages else None,
                        "max": float(max(ages)) if ages else None},
                refused=sum(rec.get("rejected", {}).values()), record_mb=rec_path.stat().st_size / 1e6,
-               journal_mb=(out / "report" / "record.jsonl").stat().st_size / 1e6
-               if (out / "report" / "record.jsonl").exists() else None,
+               log_mb=(out / "report" / "mission.mcap").stat().st_size / 1e6
+               if (out / "report" / "mission.mcap").exists() else None,
                report_md_kb=(out / "report" / "report.md").stat().st_size / 1e3, folder=str(out))
     return res
 
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{case:>8}: success {r['success']}, flood sent {r['sent']}, refused {r['refused']}, telemetry age "
               f"p50 {a['p50']:.1f} / p95 {a['p95']:.1f} ({'<=' if r['within_bound'] else '>'} {args.bound_ms:.0f}: "
               f"{'pass' if r['within_bound'] else 'FAIL'}) / max {a['max']:.1f} ms over {r['states_in_window']} states, "
-              f"record.json {r['record_mb']:.2f} MB, journal {r['journal_mb']:.2f} MB, report.md "
+              f"record.json {r['record_mb']:.2f} MB, mission log {r['log_mb'] or 0:.2f} MB, report.md "
               f"{r['report_md_kb']:.0f} kB", flush=True)
         print(f"{'':>10}states lost (seq gaps) whole mission {r['states_lost']}, in the window "
               f"{r['states_lost_in_window']}; CPU in the window (% of a core): "

@@ -30,7 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "experiment": ("services.experiment.cli", "the mission over a grid of link loss/delay/jitter, with a table and plots"),
     "video": ("services.video.service", "every UAV's camera as standard RTP/UDP (H.264 or JPEG) with SDP files"),
     "web": ("services.web.service", "the live web page of the fleet (aiohttp, WebSocket)"),
-    "report": ("services.gcs.journal", "the mission report again, from its journal (record.jsonl) alone"),
+    "report": ("services.gcs.journal", "the mission report again, from its log (mission.mcap) alone"),
     "replay": ("services.recording.replay", "play a recorded mission (MCAP) back onto the bus"),
     "demo": ("services.demo", "gateway + a demo publisher/subscriber pair, printing what flows"),
     "schema": ("protocol.contract", "print the wire contract: key space, link classes, envelope, JSON Schemas"),

@@ -111,8 +111,8 @@ def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", max
 
     With ``max_pixels``, a larger frame is decoded at 1/2, 1/4 or 1/8 of its size
     (:func:`detection_scale`) and its defects reported in full-frame pixels (:func:`scaled`): the
-    real-time report of a 12 MP capture. The kept frame (``--save-frames``, the inspection
-    deliverable) is the full one; a crack thinner than the reduction's pixel may go unreported.
+    real-time report of a 12 MP capture. The frame the inspection deliverable measures (the capture
+    as logged by the ground station) is the full one; a crack thinner than the reduction's pixel may go unreported.
     """
     f = detection_scale(meta.intrinsics.width, meta.intrinsics.height, max_pixels)
     try:

@@ -106,7 +106,7 @@ class DetectorService:
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")
         self.bus, self.method, self.log = bus, method, log
-        self.save_frames = save_frames  # folder for the analysed captures (the inspection deliverable's input)
+        self.save_frames = save_frames  # folder for copies of the analysed captures (posed photos)
         self.counts: Counter[str] = Counter()
         self.latency_ms: list[float] = []
         self.analysed: Counter[int] = Counter()  # SSRC -> frames analysed (reports published)
@@ -304,7 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="detect on a 1/2, 1/4 or 1/8 decode of frames above MP megapixels (a 12 MP capture "
                              "at 0.75 MP by default; the kept frame stays full size); 0: always full size")
     parser.add_argument("--save-frames", default=None, metavar="DIR",
-                        help="keep every analysed capture with its pose in DIR (input of the inspection deliverable)")
+                        help="keep a copy of every analysed capture with its pose in DIR (a folder of posed photos; "
+                             "the mission's deliverable takes its captures from the ground station's log)")
     return parser
 
 

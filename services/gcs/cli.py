@@ -40,8 +40,9 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
                 plan_verifier=None) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
 
-    With ``out`` and ``record``, everything on the fleet's keys is also logged to ``out/mission.mcap``
-    (:mod:`services.recording`), from which the same report can be rebuilt.
+    With ``out`` and ``record``, the mission is logged to ``out/mission.mcap`` (:mod:`services.recording`:
+    everything on the fleet's keys and the ground station's own entries), and the report is computed from that
+    log read back, as ``skynet report`` does (the inspection section from its capture frames).
 
     ``on_runner(runner)`` is called once, after the :class:`MissionRunner` is made and before it runs
     (the launcher's fault injector hooks in there: ``runner.note_fault``, ``runner.record.phases``).
@@ -62,22 +63,21 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         display.update(render(snap.phase, snap.states, options.uavs, snap.ages_ms, snap.reports,
                               len(runner.planned_captures()), offsets, now - t_start, notes, heading), force=force)
 
-    journal = None
     if out:
         from .record import check_output_folder
 
-        journal = check_output_folder(out) / "record.jsonl"  # RecordingError before anything flies
-    recorder = None
+        check_output_folder(out)  # RecordingError before anything flies
+    writer = None
     if out and record:  # before the runner subscribes, so the log holds every sample the runner gets
-        from services.recording.recorder import Recorder, RecordingBus
+        from services.recording.recorder import MissionLogWriter, RecordingBus
 
-        recorder = Recorder(bus, Path(out) / "mission.mcap", log)
-    runner = MissionRunner(bus if recorder is None else RecordingBus(bus, recorder), scenario, options,
-                           on_progress=progress, log=log, abort=abort, journal=journal, signer=signer,
+        writer = MissionLogWriter(bus, Path(out) / "mission.mcap", log)
+    runner = MissionRunner(bus if writer is None else RecordingBus(bus, writer), scenario, options,
+                           on_progress=progress, log=log, abort=abort, sink=writer, signer=signer,
                            plan_verifier=plan_verifier)
     if on_runner is not None:
         on_runner(runner)
-    if ground_truth:  # before the flight, so that the journal's footer carries it (skynet report)
+    if ground_truth:  # before the flight, so that the log's footer carries it (skynet report)
         from services.gcs.ground_truth import attach_ground_truth
 
         attach_ground_truth(runner.record)
@@ -91,33 +91,32 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         record = runner.run()
         progress(runner, force=True)
     except BaseException:
-        if recorder is not None:
-            recorder.close()
+        if writer is not None:
+            writer.close()
         raise
     finally:
         root.handlers = saved
-    if out:  # the report's input is the journal, read back (or the in-memory record if it failed: journal.py)
+    if writer is not None:
+        writer.finish(record)  # the footer: plan, phases, verdict, counters
+    if out:  # the report's input is the log, read back (or the in-memory record if it failed: journal.py)
         from .journal import report_record
-
-        record = report_record(runner.recorder, record, log)
-    if recorder is not None:  # the MCAP log's summary: the report's record (services.recording.rebuild), so
-        # that the log rebuilds the report even when a state came in after the journal was closed
-        record = recorder.finish(record, runner._lock)
         from .report import write_report
 
+        record = report_record(writer, record, log)
         folder = Path(out)
+        frames = writer.path if writer is not None else None  # the capture frames the log holds
         try:
-            write_report(record, folder)
+            write_report(record, folder, frames)
         except OSError as exc:  # a full or broken disk: the report goes elsewhere, and we say where
             import tempfile
 
             fallback = Path(tempfile.mkdtemp(prefix="skynet-report-"))
-            log.error("could not write the report to %s (%s); writing it to %s instead (the journal %s keeps "
-                      "the record up to the failure)", folder, exc.strerror or exc, fallback, journal)
+            log.error("could not write the report to %s (%s); writing it to %s instead (the log %s keeps "
+                      "the record up to the failure)", folder, exc.strerror or exc, fallback, frames)
             record.recording_errors.append(f"report not written to {folder} ({exc.strerror or exc}): it is in "
                                            f"{fallback}")
             folder = fallback
-            write_report(record, folder)
+            write_report(record, folder, frames)
         log.info("report written to %s", folder / "report.md")
         for err in record.recording_errors:
             log.error("recording: %s", err)
@@ -145,7 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--appear-timeout", type=float, default=30.0)
     m.add_argument("--ready-timeout", type=float, default=120.0, metavar="S",
                    help="wait this long for every UAV's autopilot to be ready before takeoff, then refuse")
-    m.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap")
+    m.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap (the "
+                   "report is then computed from the in-memory record, without the inspection section)")
     m.add_argument("--web", default=None, metavar="[HOST]:PORT",
                    help="serve the live web page of the fleet there (e.g. :8080; loopback unless a host is given)")
     m.add_argument("--no-ground-truth", action="store_true",
@@ -173,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.web:  # services.web: the live page, fed by this session
             from services.web.service import follow_runner, start_web
 
-            # the report's inspection section reads OUT/frames (the detector's --save-frames): the page counts those
+            # a detector started with --save-frames OUT/frames: the page counts those
             frames = str(Path(args.out) / "frames") if args.out else None
             view, server = start_web(bus, args.web, scenario, log=log, frames=frames)
             hooks["on_runner"] = lambda runner: follow_runner(view, runner, tally=server.tally)

@@ -125,7 +125,7 @@ def integrity_markdown(record) -> list[str]:
         md += ["Refused by the ground station (key|reason: samples): "
                + ", ".join(f"{md_text(k)}: {v}" for k, v in top) + ".", ""]
     if record.not_kept:
-        md += ["Not kept in memory (over the caps; in record.jsonl): "
+        md += ["Not kept in memory (over the caps; in mission.mcap): "
                + ", ".join(f"{k}: {v}" for k, v in record.not_kept.items()) + ".", ""]
     for err in record.recording_errors:
         md += [f"**Recording:** {md_text(err)}", ""]

@@ -1,18 +1,15 @@
-"""The mission report computed from the ground station's journal (``record.jsonl``), live or afterwards.
+"""The mission report computed from the mission's log (``mission.mcap``), live or afterwards.
 
-At the end of a mission the ground station reads its journal back (:func:`services.gcs.record.read_journal`:
-line by line, into a record bounded like the live one) and computes the report from that, so the report's
-input is the file on disk and ``skynet report record.jsonl`` makes the same report from the file alone.
-When the journal could not be written (a write error, a full disk: :class:`~services.gcs.record.Recorder`
-kept the mission flying and said where the data went), or cannot be read back whole, the report is
+At the end of a mission the ground station reads its log back (:func:`services.recording.load.load_record`,
+the one loader: into a record bounded like the live one) and computes the report from that, so the report's
+input is the file on disk and ``skynet report`` makes the same report from the file alone, the inspection
+section included (its captures are the log's capture frames). When the log could not be written (a write
+error, a full disk: the writer kept the mission flying and said so), or cannot be read back whole, the report is
 computed from the in-memory record instead (bounded by :data:`~services.gcs.record.CAPS`), and says so
 (``report_input``, ``recording_errors``).
 
-    skynet report reports/mission-<time>/record.jsonl [--out FOLDER]
+    skynet report reports/mission-<time>/ [--out FOLDER]
     skynet report reports/mission-<time>/mission.mcap [--out FOLDER]
-
-The inspection section (mosaic, defect table) is rebuilt from the captures the detector kept, ``frames/``
-beside the journal (``--frames DIR``), as the mission's own report was.
 """
 
 from __future__ import annotations
@@ -21,31 +18,37 @@ import argparse
 import logging
 from pathlib import Path
 
-from .record import MissionRecord, Recorder, read_journal
+from .record import MissionRecord
 
 log = logging.getLogger("skynet.gcs.journal")
 
+#: the mission's log in a report folder
+LOG_NAME = "mission.mcap"
+
 
 def _read_back(path: Path, found) -> str:
-    """What the report's input was: the journal, with its lines and the damaged ones skipped."""
+    """What the report's input was: the log, with its messages and the damaged ones skipped."""
     damaged = f", {found.damaged} damaged and skipped" if found.damaged else ""
-    return f"{path} read back ({found.lines} lines{damaged})"
+    return f"{path} read back ({found.messages} messages{damaged})"
 
 
-def report_record(recorder: Recorder, live: MissionRecord, logger: logging.Logger | None = None) -> MissionRecord:
-    """The record the report is computed from: ``recorder``'s journal read back, or ``live`` (the in-memory
-    record) when there is no journal, writing it failed, or it cannot be read back with its footer.
+def report_record(writer, live: MissionRecord, logger: logging.Logger | None = None) -> MissionRecord:
+    """The record the report is computed from: ``writer``'s log read back (a finished
+    :class:`~services.recording.recorder.MissionLogWriter`), or ``live`` (the in-memory record) when there is no
+    log, writing it failed, or it cannot be read back with its footer.
 
-    Call after ``recorder.close()``. Either way ``report_input`` says which, and why for the fallback."""
+    Either way ``report_input`` says which, and why for the fallback."""
     logger = logger or log
-    path = recorder.path
-    if path is None:
-        live.report_input = "the in-memory record (no journal was asked for)"
+    if writer is None:
+        live.report_input = "the in-memory record (no mission log was asked for)"
         return live
-    why = recorder.failed
+    from services.recording.load import load_record
+
+    path = writer.path
+    why = writer.failed
     if why is None:
         try:
-            back, found = read_journal(path)
+            back, found = load_record(path)
         except (OSError, ValueError) as exc:
             why = f"reading {path} back failed ({exc})"
         else:
@@ -54,7 +57,7 @@ def report_record(recorder: Recorder, live: MissionRecord, logger: logging.Logge
                 return back
             why = f"{path} has no footer"
     note = (f"the report is computed from the in-memory record (bounded: {dict(live.not_kept) or 'nothing'} "
-            f"not kept), not from the journal: {why}")
+            f"not kept), not from the mission log: {why}")
     logger.error("%s", note)
     live.report_input = note
     if note not in live.recording_errors:
@@ -63,46 +66,37 @@ def report_record(recorder: Recorder, live: MissionRecord, logger: logging.Logge
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="skynet report", description="the mission report from its journal alone")
-    p.add_argument("journal", help="record.jsonl of a mission (skynet mission / skynet gcs mission --out), or its "
-                                   "MCAP log (mission.mcap)")
-    p.add_argument("--out", default=None, help="report folder (default: the journal's folder)")
+    p = argparse.ArgumentParser(prog="skynet report", description="the mission report from its log alone")
+    p.add_argument("record", help=f"a mission's report folder (skynet mission --out) or its log ({LOG_NAME})")
+    p.add_argument("--out", default=None, help="report folder (default: the log's folder)")
     p.add_argument("--frames", default=None, metavar="DIR",
-                   help="the captures the detector kept, for the inspection section (default: frames/ beside "
-                        "the journal)")
+                   help="posed photos for the inspection section (default: the capture frames of the log)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    path = Path(args.journal)
+    path = Path(args.record)
+    if path.suffix == ".jsonl":  # a former journal: its folder's log is the record
+        print(f"skynet report: {path.name} is no longer read; reporting from {LOG_NAME} beside it")
+        path = path.parent
+    if path.is_dir():
+        path = path / LOG_NAME
+    if not path.is_file():
+        raise OSError(f"no mission log {path}")
+    from services.recording.load import load_record
+
     from .report import write_report
 
     out = Path(args.out) if args.out else path.parent
-    frames = Path(args.frames) if args.frames else path.parent / "frames"
-    if path.suffix == ".mcap":  # the MCAP log's mission record (services.recording.rebuild)
-        from services.recording.rebuild import rebuild
-
-        from mcap.exceptions import McapError
-
-        try:
-            record = rebuild(path)  # NotAMissionLog (a ValueError): a one-line error (services.cli)
-        except (McapError, EOFError) as exc:
-            raise ValueError(f"{path}: not an MCAP mission log ({exc})") from None
-        record.report_input = f"{path} rebuilt"
-        summary = write_report(record, out, frames)
-        cap = summary.captures
-        print(f"report written to {out / 'report.md'}: success {summary.success}, {cap.imaged}/{cap.planned} "
-              f"capture points imaged, rebuilt from {path}")
-        return 0
-    record, found = read_journal(path)  # ValueError / OSError: a one-line error (services.cli)
+    record, found = load_record(path)  # ValueError / OSError: a one-line error (services.cli)
     record.report_input = _read_back(path, found)
-    summary = write_report(record, out, frames)
+    summary = write_report(record, out, Path(args.frames) if args.frames else path)
     for note in found.notes(path):
         print(f"skynet report: {note}")
     cap = summary.captures
     print(f"report written to {out / 'report.md'}: success {summary.success}, {cap.imaged}/{cap.planned} "
-          f"capture points imaged, {found.lines} journal lines ({found.damaged} damaged)")
+          f"capture points imaged, {found.messages} messages ({found.damaged} damaged)")
     return 0 if found.footer else 1
 
 

@@ -128,7 +128,7 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
     else:
         md += ["No events.", ""]
     if len(record.events) > len(s.events):
-        md += [f"{len(record.events) - len(s.events)} more events are in record.json / record.jsonl.", ""]
+        md += [f"{len(record.events) - len(s.events)} more events are in record.json / mission.mcap.", ""]
     if len(s.gateways) > 1:  # one gateway per site: each one's sessions and traffic
         md += ["## Gateways", "", _table(
             ["gateway", "sessions", "samples", "MB", "rejected"],

@@ -63,8 +63,8 @@ from .record import (
     EventRx,
     FaultRecord,
     Incident,
+    LiveRecord,
     MissionRecord,
-    Recorder,
     StateRx,
     StatsRx,
 )
@@ -135,7 +135,7 @@ class Snapshot:
 class MissionRunner:
     def __init__(self, bus: Bus, scenario: Scenario, options: MissionOptions,
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
-                 abort: threading.Event | None = None, journal=None, signer=None, plan_verifier=None):
+                 abort: threading.Event | None = None, sink=None, signer=None, plan_verifier=None):
         self.bus, self.opt, self.log = bus, options, log
         self.signer = signer  # protocol.signing.Signer: commands and heartbeats signed end to end
         #: protocol.signing.Verifier of the planner's key (protocol.planauth.plan_verifier); None: unsigned plans
@@ -145,8 +145,9 @@ class MissionRunner:
         scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
         self.record = MissionRecord(fleet=bus.fleet, scenario=scenario, speed=options.speed, started=time.time())
-        #: every item goes through it: bounded in memory, streamed to ``journal`` (record.Recorder)
-        self.recorder = Recorder(self.record, journal, log)
+        #: every item goes through it: bounded in memory; the ground station's own entries also to ``sink``, the
+        #: mission log's writer (services.recording.recorder), which logs the bus's samples itself
+        self.recorder = LiveRecord(self.record, sink)
         self.reports: dict[tuple[int, int], DefectReport] = {}
         self._lock = threading.Lock()
         self._cmd_ids = CommandIds()
@@ -366,7 +367,7 @@ class MissionRunner:
         """Record the ground station's own warning about a plan answer (the report's events)."""
         ev = Event(source="gcs", stamp=time.time(), kind=kind, level=Level.WARNING, text=text[:2000])
         with self._lock:
-            self.recorder.add("events", EventRx(rx=time.time(), msg=ev))
+            self.recorder.add("events", EventRx(rx=time.time(), msg=ev), own=True)  # not on the bus
         if self.log:
             self.log.warning("%s: %s", kind, text)
 
@@ -497,7 +498,6 @@ class MissionRunner:
             self.record.rejected = self.bus.counters.snapshot()["rejected"]
             self.phase("done")
         self.judge()
-        self.recorder.close()  # the journal's footer: plan, verdict, counters
         return self.record
 
     def snapshot(self, recent: int = 60) -> Snapshot:

@@ -51,7 +51,7 @@ from .measure import measure_mask
 from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, plane_from_frames
 
 __all__ = ["InspectionDefect", "Deliverable", "inspect_frames", "load_folder", "write_deliverable",
-           "markdown_table", "geojson", "kml", "FRAME_SUFFIXES"]
+           "markdown_table", "geojson", "kml", "FRAME_SUFFIXES", "frames_from_log"]
 
 FRAME_SUFFIXES = (".jpg", ".jpeg", ".png")
 CROP_MARGIN_PX = 12
@@ -258,6 +258,22 @@ def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tup
         except (json.JSONDecodeError, ValueError, TypeError) as exc:
             raise ValueError(f"surface.json: {exc}") from None
     return frames, plane, origin
+
+
+def frames_from_log(path: str | Path) -> list[PosedFrame]:
+    """The capture frames a mission log holds (:func:`services.recording.mcap_log.captures`: what reached the
+    ground station over the bus), decoded to grey, in the order of :func:`save_frame`'s file names (as
+    :func:`load_folder` reads them: the mosaic does not depend on the order frames arrived in); a frame that does
+    not decode or whose size is not its intrinsics' is skipped."""
+    from services.recording.mcap_log import captures
+
+    frames = []
+    for meta, image in captures(path):
+        g = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_GRAYSCALE)
+        k = meta.intrinsics
+        if g is not None and (k.width, k.height) == (g.shape[1], g.shape[0]):
+            frames.append(PosedFrame(meta, g))
+    return sorted(frames, key=lambda f: f"uav{f.meta.uav}-{f.meta.capture_id:05d}")
 
 
 def save_frame(folder: str | Path, meta: ImageMeta, image: bytes) -> Path:

@@ -1,8 +1,8 @@
 """The inspection deliverable of a mission: built from the captures the detector kept.
 
-With ``skynet mission`` the detector keeps every capture it analysed, with its pose, in
-``<report>/frames`` (``--save-frames``; the folder format of :mod:`services.inspection.deliverable`).
-:func:`append_deliverable` turns them into ``<report>/inspection/`` (mosaic, defect table, crops,
+The captures come from the mission's log (``mission.mcap``: every capture frame, with its pose, as it
+reached the ground station over the bus, wherever the detector runs) or from a folder of posed photos (the
+format of :mod:`services.inspection.deliverable`). :func:`append_deliverable` turns them into ``<report>/inspection/`` (mosaic, defect table, crops,
 GeoJSON, KML) on the scenario's surface and geodetic origin, and adds a section to ``report.md``.
 A mission without saved captures gets no section; a deliverable that cannot be built says why in it.
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 from protocol.textsafe import md_text
 from services.gcs.record import MissionRecord
 
-from .deliverable import inspect_frames, load_folder, markdown_table, write_deliverable
+from .deliverable import frames_from_log, inspect_frames, load_folder, markdown_table, write_deliverable
 from .mosaic import Plane
 
 __all__ = ["append_deliverable", "FOLDER"]
@@ -34,17 +34,18 @@ def _origin(record: MissionRecord) -> tuple[float, float, float] | None:
 
 def append_deliverable(record: MissionRecord, folder: str | Path, files: list[str] | None = None,
                        frames: str | Path | None = None) -> list[str]:
-    """Build the deliverable from ``frames`` (default ``folder/frames``; if any) and append its section to
-    ``folder/report.md``; the files written (relative to ``folder``) are added to ``files``."""
+    """Build the deliverable from ``frames`` (a mission log, or a folder of posed photos; default
+    ``folder/frames``; if any) and append its section to ``folder/report.md``; the files written (relative to
+    ``folder``) are added to ``files``."""
     out = Path(folder)
-    frames_dir = Path(frames) if frames is not None else out / "frames"
-    if not frames_dir.is_dir():
+    source = Path(frames) if frames is not None else out / "frames"
+    if not (source.is_dir() or source.is_file()):
         return []
     lines = ["", "## Inspection deliverable", ""]
     try:
-        frames, _, _ = load_folder(frames_dir)
+        frames = frames_from_log(source) if source.is_file() else load_folder(source)[0]
         if not frames:
-            raise ValueError("the detector kept no captures")
+            raise ValueError(f"no captures in {source.name}")
         plane = Plane.from_corners(record.surface_corners) if len(record.surface_corners) == 4 else None
         res = inspect_frames(frames, plane, _origin(record))
         written = [f"{FOLDER}/{f}" for f in write_deliverable(res, out / FOLDER)]

@@ -630,7 +630,9 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     # not writable or too little room: refused (RecordingError) before any service starts
     out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     log_file = open(out / "services.log", "w")
-    args.save_frames = str((out / "frames").resolve())  # the captures, for the inspection deliverable
+    # the deliverable's captures come through the bus into the mission log; the detector keeps its own copies only
+    # for the live page's deduplicated defect count (services.web.tally)
+    args.save_frames = str((out / "frames").resolve()) if args.web else None
     net = Network(args, echo=log_file, ground_station=True, plan=plan)
     scenario = load_scenario(args.scenario)
     try:

@@ -20,8 +20,11 @@ requests and replies    ``json``             the command / plan request model, a
                                              channel metadata ``skynet.kind`` =
                                              ``query`` / ``reply``, topic = the key
 undecodable samples     ``x-skynet-raw``     none                                        none
-the mission record      ``json``             ``skynet.MissionRecordSummary`` (topic      Raw Messages
-                                             ``/skynet/mission-record``, written last)
+the ground station's    ``json``             ``skynet.record.<Model>`` (topics           Raw Messages
+entries (header,                             ``/skynet/record/...``:
+commands, faults,                            :mod:`services.recording.recorder`)
+incidents, its events,
+footer)
 ======================  ===================  ==========================================  ================
 
 Typed messages are stored as their JSON, so viewers can read them; a replay validates the JSON
@@ -58,7 +61,6 @@ from protocol.messages import MESSAGE_TYPES, Message
 
 FRAME_ENCODING = "x-skynet-frame"
 RAW_ENCODING = "x-skynet-raw"
-RECORD_TOPIC = "/skynet/mission-record"
 PROFILE = ""  # no well-known profile: our own (MCAP spec, "Profiles")
 IMAGERY_TOPICS = ("camera", "preview")
 
@@ -160,7 +162,8 @@ class McapLog:
         ch = self._channel(f"{key}/jpeg", "json", "foxglove.CompressedImage", COMPRESSED_IMAGE_SCHEMA)
         self._add(ch, rx_s, json.dumps(doc).encode(), meta.stamp)
 
-    def write_json(self, topic: str, schema_name: str, schema: dict, doc: str, t_s: float) -> None:
+    def write_json(self, topic: str, schema_name: str, schema, doc: str, t_s: float) -> None:
+        """One JSON document on ``topic``; ``schema`` a JSON Schema dict or a callable making one (called once)."""
         self._add(self._channel(topic, "json", schema_name, schema), t_s, doc.encode())
 
     def metadata(self, name: str, data: dict[str, str]) -> None:
@@ -169,8 +172,10 @@ class McapLog:
     def close(self) -> None:
         if not self.closed:
             self.closed = True
-            self._w.finish()
-            self._file.close()
+            try:
+                self._w.finish()
+            finally:
+                self._file.close()
 
 
 #: message classes by the schema name the log gives them (``skynet.<ClassName>``)
@@ -358,10 +363,34 @@ def read(path: str | Path, topics: list[str] | None = None,
 
 def bus_bytes(item: Logged) -> bytes | None:
     """What to put back on the bus for a logged message; None for what is not a bus sample (viewer
-    channels, the mission record, and queries and replies: a replay never commands a UAV)."""
+    channels, the ground station's entries, and queries and replies: a replay never commands a UAV)."""
     if not item.topic.startswith(f"{keys.ROOT}/") or item.topic.endswith("/jpeg") or item.kind != "sample":
         return None
     if item.encoding in (FRAME_ENCODING, RAW_ENCODING):
         return item.data
     msg = item.message()
     return None if msg is None else codec.encode(msg)
+
+
+def captures(path: str | Path) -> Iterator[tuple[Any, bytes]]:
+    """``(ImageMeta, image bytes)`` of every capture frame the log holds (the ``camera`` key of each UAV), once
+    per UAV and capture (a frame recovered from a camera's cache after an outage comes again), in receive order.
+    A frame whose metadata does not decode, or names another UAV than its key's, is skipped: the deliverable's
+    input, through the bus whatever host the detector runs on."""
+    from protocol.imagery import unpack_image
+
+    seen: set[tuple[int, int]] = set()
+    for item in read(path):
+        if item.encoding != FRAME_ENCODING:
+            continue
+        try:
+            info = keys.parse(item.topic)
+            if info.topic != "camera":
+                continue
+            _, meta, image = unpack_image(item.data)
+        except ValueError:
+            continue
+        if meta.uav != info.uav or (meta.uav, meta.capture_id) in seen or not len(image):
+            continue
+        seen.add((meta.uav, meta.capture_id))
+        yield meta, bytes(image)

@@ -1,24 +1,27 @@
-"""The ground station's recorder: everything on the fleet's keys to an MCAP file, as it arrives.
+"""The mission log's writer: the one record of a mission, an MCAP file streamed as the mission goes.
 
-One subscription on ``skynet/<fleet>/**`` (states, events, defect reports, statistics, the
-heartbeat, capture and preview frames; ``@adv`` recovery traffic and liveliness tokens are not
-samples of the key space and are not logged) hands each sample with its receive time to a
-bounded drop-oldest ring (one for imagery frames, one for the rest); the rings' threads write it (:class:`~services.recording.mcap_log.McapLog`),
-so the Zenoh callback never waits for the disk and memory stays bounded (ring + one chunk). What
-the ring had to drop is counted and written in the file's ``skynet.recorder`` metadata. Before the
-ring, each source is held to its topic's budget (:mod:`protocol.budget`, the subscribers' own limits,
-charged by the key a sample came on): a flood of one key costs the recorder a look-up per sample,
-not a log write, a decode and a compression on the ground station's GIL, and cannot evict the other
-sources' samples from the ring. Samples on keys outside the key space (:func:`protocol.keys.parse`)
-are not logged. Both are counted (``over-budget``, ``unknown-key``).
+Two kinds of entries go through one :class:`MissionLogWriter` and its own lock:
 
-:class:`RecordingBus` adds the ground station's requests: Zenoh queries are seen by no
-subscriber, so each command, acknowledgement, plan request and plan is logged where it is sent.
+- **the bus**: one subscription on ``skynet/<fleet>/**`` (states, events, defect reports, statistics, the
+  heartbeat, capture and preview frames; ``@adv`` recovery traffic and liveliness tokens are not samples of
+  the key space and are not logged) hands each sample with its receive time to a bounded drop-oldest ring (one
+  for imagery frames, one for the rest), whose threads write it (:class:`~services.recording.mcap_log.McapLog`),
+  so the Zenoh callback never waits for the disk and memory stays bounded (ring + one chunk). Before the ring,
+  each source is held to its topic's budget (:mod:`protocol.budget`, charged by the key a sample came on); samples
+  on keys outside the key space (:func:`protocol.keys.parse`) are not logged. Both are counted (``over-budget``,
+  ``unknown-key``), as is what a ring had to drop, in the file's ``skynet.recorder`` metadata. The capture frames
+  logged here are the inspection deliverable's input (:func:`services.recording.mcap_log.captures`): the detector
+  may run on any host.
+- **the ground station's own entries** (:data:`GROUND_TOPICS`): the record's header (fleet, scenario, speed,
+  start) when the mission starts, each command with its acknowledgement, fault, incident and event of the
+  ground station's own as it happens (:meth:`MissionLogWriter.add`), and at the end the footer (plan, phases,
+  verdict, counters: :meth:`MissionLogWriter.finish`). :class:`RecordingBus` logs each request the ground station
+  sends (commands, the plan request) with its answer, as Zenoh queries are seen by no subscriber.
 
-At the end, :meth:`Recorder.finish` freezes the ground station's record, writes what is not on
-the bus (scenario, plan, commands and their acknowledgements, faults, phases, verdict) as the
-last message with, for each received list, its first item and length, so that
-:func:`services.recording.rebuild.rebuild` can make the same record from the file alone.
+:func:`services.recording.load.load_record` reads the file back into the mission's record; every consumer
+(the mission's own report, ``skynet report``) reads it there. A write error never stops the mission: the
+writer stops writing, says once what went wrong (:attr:`MissionLogWriter.failed`), and the report is made from
+the in-memory record (:func:`services.gcs.journal.report_record`).
 """
 
 from __future__ import annotations
@@ -27,54 +30,50 @@ import threading
 import time
 from collections import Counter
 from pathlib import Path
-from typing import Any
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel
 
 from protocol import keys
 from protocol.budget import LIMITS, Budget
 from protocol.bus import Bus, Reply, Ring
 from protocol.links import COMMAND, LinkClass
 from protocol.messages import ErrorReply, Message
-from services.gcs.record import MissionRecord
+from services.gcs.record import ITEM_MODELS, MissionRecord
 
-from .mcap_log import RECORD_TOPIC, McapLog, is_imagery
+from .mcap_log import McapLog, is_imagery
 
 QUEUE_SAMPLES = 20_000  # small messages waiting for the disk (~20 s of a 12-UAV fleet's, a few MB)
 QUEUE_FRAMES = 256  # imagery frames waiting for the disk (640x480 JPEGs: ~15 MB); beyond either, the oldest drop
 FINISH_GRACE_S = 0.5
-RECEIVED_LISTS = ("states", "defects", "events", "gateway_stats", "detector_stats")
+#: the ground station's own entries: record list -> channel (the header and footer have their own)
+GROUND_TOPICS = {"commands": "/skynet/record/commands", "faults": "/skynet/record/faults",
+                 "incidents": "/skynet/record/incidents", "events": "/skynet/record/events"}
+HEADER_TOPIC = "/skynet/record/header"
+FOOTER_TOPIC = "/skynet/record/footer"
+#: the record's fields in the header; the footer has every field that is not a list of items
+HEADER_FIELDS = {"fleet", "scenario", "speed", "started"}
 
 
-class Window(BaseModel):
-    """Where a received list of the record starts in the log, and how long it is."""
+class MissionLogWriter:
+    """Writes one mission's log to ``path``: the bus's samples (with ``bus``) and the ground station's entries.
 
-    model_config = ConfigDict(extra="forbid")
-    first: dict[str, Any] | None = None
-    n: int = 0
+    Thread-safe: every write goes through the writer's own lock; :meth:`add` never blocks on the disk."""
 
-
-class MissionRecordSummary(BaseModel):
-    """The record without its received lists (those are the log's messages), plus their windows."""
-
-    model_config = ConfigDict(extra="forbid")
-    record: MissionRecord
-    windows: dict[str, Window]
-
-
-class Recorder:
-    def __init__(self, bus: Bus, path: str | Path, log=None, queue: int = QUEUE_SAMPLES, frames: int = QUEUE_FRAMES):
+    def __init__(self, bus: Bus | None, path: str | Path, log=None, queue: int = QUEUE_SAMPLES,
+                 frames: int = QUEUE_FRAMES):
         self.log = log
         self.mlog = McapLog(path)
         self.counts: Counter[str] = Counter()
         self.cpu_s = 0.0  # thread CPU time spent writing (the recording overhead)
+        self.failed: str | None = None  # what went wrong writing, once it did
         self._lock = threading.Lock()  # one writer at a time; readers sort by log time (MCAP's index)
         self._ring = Ring(queue, self._write, name="recorder")
         self._frames = Ring(frames, self._write, name="recorder-frames")
         self._closed = threading.Event()
         self._budgets = {topic: Budget(limit) for topic, limit in LIMITS.items()}
         self._budget_lock = threading.Lock()  # Zenoh may call back from several threads
-        bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
+        if bus is not None:
+            bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
 
     @property
     def path(self) -> Path:
@@ -84,6 +83,7 @@ class Recorder:
     def dropped(self) -> int:
         return self._ring.dropped + self._frames.dropped
 
+    # -- the bus
     def _on_sample(self, sample) -> None:
         if self._closed.is_set():
             return
@@ -99,20 +99,12 @@ class Recorder:
                 if budget.admit(key, len(sample.payload), now) is not None:
                     self.counts["over-budget"] += 1
                     return
-        frame = is_imagery(key)
-        (self._frames if frame else self._ring).push((key, sample.payload.to_bytes(), now, frame))
+        self.sample(key, sample.payload.to_bytes(), now)
 
-    def _write(self, item: tuple) -> None:
-        t0 = time.thread_time()
-        with self._lock:
-            if item[0] == "request":
-                _, key, msg, t_sent, answer, t_answer = item
-                self.mlog.write_message(key, msg, t_sent, kind="query")
-                self.mlog.write_message(key, answer, t_answer, kind="reply")
-                self.counts["requests"] += 1
-            else:
-                self.counts[self.mlog.write_sample(*item)] += 1
-            self.cpu_s += time.thread_time() - t0
+    def sample(self, key: str, data: bytes, rx: float) -> None:
+        """Log one bus sample (its bytes as they came, its receive time), through the rings."""
+        frame = is_imagery(key)
+        (self._frames if frame else self._ring).push(("sample", key, data, rx, frame))
 
     def log_request(self, key: str, msg: Message, t_sent: float, reply: Reply, t_answer: float) -> None:
         """Log a request the ground station sent (a command, a plan request) and its answer or failure."""
@@ -122,51 +114,92 @@ class Recorder:
             ErrorReply(code="no-ack" if not reply.ok else "empty", reason=(reply.error or "no answer")[:500])
         self._ring.push(("request", key, msg, t_sent, answer, t_answer))
 
-    def finish(self, record: MissionRecord, lock: threading.Lock | None = None) -> MissionRecord:
-        """Freeze ``record`` (its lists as they are now, under ``lock``), log the summary, close the file.
+    # -- the ground station's entries
+    def begin(self, record: MissionRecord) -> None:
+        """The record's header (fleet, scenario, speed, start), written at once."""
+        doc = record.model_dump_json(include=HEADER_FIELDS)
+        self._write(("json", HEADER_TOPIC, "skynet.record.Header", MissionRecord.model_json_schema, doc, record.started))
 
-        Returns the frozen record: the report written from it is the one the file rebuilds.
-        """
-        lock = lock or threading.Lock()
-        with lock:
-            frozen = record.model_copy(update={name: list(getattr(record, name)) for name in RECEIVED_LISTS})
+    def add(self, kind: str, item: BaseModel, t: float | None = None) -> None:
+        """Log one entry of the ground station's own (``kind``: a key of :data:`GROUND_TOPICS`)."""
+        if self._closed.is_set():
+            return
+        cls = type(item)
+        self._ring.push(("json", GROUND_TOPICS[kind], f"skynet.record.{cls.__name__}", cls.model_json_schema,
+                         item.model_dump_json(), time.time() if t is None else t))
+
+    def _write(self, item: tuple) -> None:
+        t0 = time.thread_time()
+        with self._lock:
+            if self.failed is not None or self.mlog.closed:
+                self.counts["not-written"] += 1
+                return
+            try:
+                if item[0] == "request":
+                    _, key, msg, t_sent, answer, t_answer = item
+                    self.mlog.write_message(key, msg, t_sent, kind="query")
+                    self.mlog.write_message(key, answer, t_answer, kind="reply")
+                    self.counts["requests"] += 1
+                elif item[0] == "json":
+                    _, topic, name, schema, doc, t = item
+                    self.mlog.write_json(topic, name, schema, doc, t)
+                    self.counts["ground"] += 1
+                else:
+                    self.counts[self.mlog.write_sample(*item[1:])] += 1
+            except (OSError, ValueError) as exc:
+                self._fail(exc)
+            self.cpu_s += time.thread_time() - t0
+
+    def _fail(self, exc: Exception) -> None:
+        """The first write error (caller holds the lock): said once; nothing more is written."""
+        self.failed = (f"writing the mission log {self.path} failed ({exc}); it keeps what was written before; "
+                       "the rest is kept in memory only (bounded) and goes into the report")
+        if self.log:
+            self.log.error("%s. The mission goes on.", self.failed)
+
+    # -- the end
+    def finish(self, record: MissionRecord) -> None:
+        """Write the footer (``record``'s fields that are not lists of items: plan, phases, verdict, counters),
+        the writer's counts, and close the file. Lists are not touched, so no lock of the caller's is needed."""
         # a sample the ground station's callback has just taken may not have reached ours yet (Zenoh
         # calls the two subscribers one after the other): give it a moment before closing the log
         time.sleep(FINISH_GRACE_S)
         self._closed.set()
         self._ring.close(timeout=60.0)
         self._frames.close(timeout=60.0)
-        windows = {}
-        for name in RECEIVED_LISTS:
-            items = getattr(frozen, name)
-            windows[name] = Window(first=items[0].msg.model_dump(mode="json") if items else None, n=len(items))
-        summary = MissionRecordSummary(record=frozen.model_copy(update={n: [] for n in RECEIVED_LISTS}),
-                                       windows=windows)
-        self.mlog.write_json(RECORD_TOPIC, "skynet.MissionRecordSummary", MissionRecordSummary.model_json_schema(),
-                             summary.model_dump_json(), time.time())
-        self.mlog.metadata("skynet.recorder", {"fleet": frozen.fleet, "dropped": self.dropped,
-                                               "cpu_s": round(self.cpu_s, 3), **self.counts})
-        self.mlog.close()
+        if self.dropped and self.failed is None:
+            record.recording_errors.append(f"{self.dropped} samples did not reach the mission log {self.path} "
+                                           "(its queue was full)")
+        footer = record.model_dump_json(exclude=set(ITEM_MODELS) | HEADER_FIELDS)
+        self._write(("json", FOOTER_TOPIC, "skynet.record.Footer", MissionRecord.model_json_schema, footer, time.time()))
+        self.close()
         if self.log:
             self.log.info("mission recorded to %s: %d messages, %d dropped", self.path, self.mlog.messages,
                           self.dropped)
-        return frozen
 
     def close(self) -> None:
-        """Close without a mission record (an interrupted run)."""
+        """Close the file (without a footer: an interrupted run, read back with what it has)."""
         self._closed.set()
         self._ring.close(timeout=60.0)
         self._frames.close(timeout=60.0)
-        self.mlog.close()
+        with self._lock:
+            try:
+                if not self.mlog.closed:
+                    self.mlog.metadata("skynet.recorder", {"dropped": self.dropped, "cpu_s": round(self.cpu_s, 3),
+                                                           **self.counts})
+                self.mlog.close()
+            except (OSError, ValueError) as exc:
+                if self.failed is None:
+                    self._fail(exc)
 
 
 class RecordingBus:
     """The ground station's bus with its requests logged: every :meth:`request` (the commands and
-    their acknowledgements, the plan request and the plan) goes to the recorder as a query and a
+    their acknowledgements, the plan request and the plan) goes to the writer as a query and a
     reply on the request's key. Everything else is the wrapped :class:`~protocol.bus.Bus`."""
 
-    def __init__(self, bus: Bus, recorder: Recorder):
-        self._bus, self._recorder = bus, recorder
+    def __init__(self, bus: Bus, writer: MissionLogWriter):
+        self._bus, self._writer = bus, writer
 
     def __getattr__(self, name: str):
         return getattr(self._bus, name)
@@ -177,11 +210,11 @@ class RecordingBus:
         t_sent = time.time()
         replies = self._bus.request_all(key, msg, expect=expect, timeout=timeout, settle_s=settle_s, link=link, **kw)
         for reply in replies or [Reply(False, None, "no answer")]:
-            self._recorder.log_request(key, msg, t_sent, reply, t_sent + reply.elapsed_s)
+            self._writer.log_request(key, msg, t_sent, reply, t_sent + reply.elapsed_s)
         return replies
 
     def request(self, key: str, msg: Message, expect=None, timeout: float = 2.0, link: LinkClass = COMMAND) -> Reply:
         t_sent = time.time()
         reply = self._bus.request(key, msg, expect=expect, timeout=timeout, link=link)
-        self._recorder.log_request(key, msg, t_sent, reply, time.time())
+        self._writer.log_request(key, msg, t_sent, reply, time.time())
         return reply

@@ -1,6 +1,6 @@
 """Deep nesting in TOML, JSON and msgpack input is a one-line error or a counted rejection, never a
 RecursionError traceback: the scenario through ``skynet plan mission`` and ``skynet mission`` in their own
-processes, the wire codec, and JSON read from files (the journal's case is in
+processes, the wire codec, and JSON read from files (the mission log's case is in
 tests/services/gcs/test_hostile_input.py)."""
 
 from __future__ import annotations

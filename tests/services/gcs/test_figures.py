@@ -120,11 +120,11 @@ def test_imagery_metrics_merge_the_latest_of_every_detector_instance():
 def test_detector_instance_statistics_go_to_the_detector_list():
     from protocol import keys
     from protocol.messages import LinkStats
-    from services.recording.rebuild import _list_of
+    from services.recording.load import list_of
 
     msg = LinkStats(source="detector-1", stamp=1.0)
-    assert _list_of(keys.rcu_stats("f", "detector-1"), msg) == "detector_stats"
-    assert _list_of(keys.rcu_stats("f", "planner"), msg) is None
+    assert list_of(keys.rcu_stats("f", "detector-1"), msg) == "detector_stats"
+    assert list_of(keys.rcu_stats("f", "planner"), msg) is None
 
 
 def test_every_gateway_has_its_latest_statistics_in_the_report():

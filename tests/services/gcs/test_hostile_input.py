@@ -1,4 +1,4 @@
-"""Hostile input at the ground station's outputs: an event's text in report.md, and a journal line nested
+"""Hostile input at the ground station's outputs: an event's text in report.md, and a log entry nested
 deeper than any parser's stack, through ``skynet report`` in its own process."""
 
 from __future__ import annotations
@@ -12,28 +12,32 @@ from lxml import etree
 from markdown_it import MarkdownIt
 
 from protocol.messages import Event, Level
-from services.gcs.record import ITEM_MODELS, EventRx, MissionRecord, Recorder
+from services.gcs.record import EventRx, MissionRecord
 from tests.protocol.test_textsafe import HOSTILE
 from tests.services.gcs.test_report import build_record
 
-HEADER = {"fleet", "scenario", "speed", "started"}
+def _logged(tmp_path: Path) -> tuple[Path, MissionRecord]:
+    """test_report's synthetic mission logged the ground station's way (test_load), with an event of hostile
+    text and an entry nested deeper than any parser's stack."""
+    from services.recording.recorder import GROUND_TOPICS, MissionLogWriter
+    from tests.services.recording.test_load import logged
 
-
-def _journal(tmp_path: Path) -> tuple[Path, MissionRecord]:
-    """test_report's synthetic mission journalled the ground station's way, with an event of hostile text."""
     full = build_record()
     full.events.append(EventRx(rx=full.events[-1].rx + 1.0, msg=Event(
         source="uav/2", stamp=full.events[-1].rx + 1.0, kind="pilot-mode", level=Level.WARNING, text=HOSTILE)))
-    live = MissionRecord(**{k: getattr(full, k) for k in HEADER})
-    rec = Recorder(live, tmp_path / "record.jsonl")
-    for kind in ITEM_MODELS:
-        for item in getattr(full, kind):
-            rec.add(kind, item)
-    for k, v in full:
-        if k not in HEADER and k not in ITEM_MODELS:
-            setattr(live, k, v)
-    rec.close()
-    return tmp_path / "record.jsonl", full
+    nested = '{"rx": 1.0, "msg": ' + "[" * 100_000 + "]" * 100_000 + "}"
+    push = MissionLogWriter.begin
+
+    def begin(self, record):  # the nested entry right after the header
+        push(self, record)
+        self._ring.push(("json", GROUND_TOPICS["events"], "skynet.record.EventRx", {}, nested, record.started))
+
+    MissionLogWriter.begin = begin
+    try:
+        logged(tmp_path, full=full)
+    finally:
+        MissionLogWriter.begin = push
+    return tmp_path / "mission.mcap", full
 
 
 def _events_table(md: str) -> list[list[str]]:
@@ -48,20 +52,17 @@ def _events_table(md: str) -> list[list[str]]:
 
 
 def test_skynet_report_keeps_hostile_event_text_in_its_row_and_counts_a_nested_line(tmp_path):
-    path, full = _journal(tmp_path)
-    lines = path.read_text().splitlines(keepends=True)
-    nested = '{"k": "events", "v": ' + "[" * 100_000 + "]" * 100_000 + "}\n"  # deeper than any parser's stack
-    path.write_text("".join([*lines[:3], nested, *lines[3:]]))
+    path, full = _logged(tmp_path)
     proc = subprocess.run([sys.executable, "-m", "services.cli", "report", str(path), "--out", str(tmp_path / "rep")],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "Traceback" not in proc.stderr and "RecursionError" not in proc.stderr, proc.stderr[-2000:]
-    assert "(1 damaged)" in proc.stdout and "line 4" in proc.stdout, proc.stdout
+    assert "(1 damaged)" in proc.stdout, proc.stdout
     md = (tmp_path / "rep" / "report.md").read_text()
     assert "\x1b" not in md and "\r" not in md and "<img" not in md and "onerror=" in md
     rows = _events_table(md)
     assert len(rows) == len(full.events) and all(len(r) == 5 for r in rows), rows  # each event one row of 5 cells
-    hostile = [r for r in rows if r[3] == "pilot-mode"]
+    hostile = [r for r in rows if r[3] == "note"]
     assert len(hostile) == 1 and hostile[0][1] == "uav/2"
     text = hostile[0][4]
     assert "<img src=x onerror=alert(1)> | `code` *bold* [link](http://x) & ]]>" in text  # the text, as data

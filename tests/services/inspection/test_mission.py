@@ -1,5 +1,6 @@
-"""The mission's deliverable: the detector keeps its captures (--save-frames, over the real bus) and
-the report builds the mosaic, defect table, GeoJSON and KML from them (services.inspection.mission)."""
+"""The mission's deliverable (services.inspection.mission): the mosaic, defect table, GeoJSON and KML built
+from the captures the ground station's mission log received over the real bus (the detector in another folder,
+keeping nothing), or from a folder of posed photos (the detector's --save-frames, for its own use)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,16 @@ from tests.conftest import wait_until
 FLEET = "test"
 
 
+def send_captures(uav: Bus, caps) -> None:
+    """UAV 1's camera sends ``caps`` (reliably: these tests are about keeping frames, not UDP loss)."""
+    pub = uav.publisher(keys.camera(FLEET, 1), IMAGERY_RELIABLE)
+    sender = RtpSender(ssrc_for(1))
+    for c in caps:
+        meta = c.meta.model_copy(update={"uav": 1, "stamp": time.time()})
+        pub.put_bytes(pack_image(sender, meta, c.jpeg, time.time()))
+        time.sleep(0.05)
+
+
 def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, gateway, tmp_path):
     sc = load_scenario()
     surf = synthetic_surface(sc, seed=7)
@@ -36,12 +47,7 @@ def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, ga
         uav.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
         assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
         time.sleep(0.5)
-        pub = uav.publisher(keys.camera(FLEET, 1), IMAGERY_RELIABLE)  # this test is about keeping frames, not UDP loss
-        sender = RtpSender(ssrc_for(1))
-        for c in caps:
-            meta = c.meta.model_copy(update={"uav": 1, "stamp": time.time()})
-            pub.put_bytes(pack_image(sender, meta, c.jpeg, time.time()))
-            time.sleep(0.05)
+        send_captures(uav, caps)
         assert wait_until(lambda: len(reports) >= len(caps), 60), (len(reports), "\n".join(svc.lines[-20:]))
     kept, _, _ = load_folder(frames)
     assert len(kept) == len(caps)
@@ -63,6 +69,44 @@ def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, ga
     assert all(d["lla"] is not None for d in doc["defects"])
 
 
+def test_the_deliverable_comes_from_the_frames_the_ground_station_logged_not_from_the_detector(group, gateway,
+                                                                                              tmp_path):
+    """The detector runs in a folder of its own without --save-frames (as on another host); the ground station's
+    log writer receives the captures over the bus, and the report's inspection section is built from its log."""
+    from services.recording.recorder import MissionLogWriter
+
+    sc = load_scenario()
+    surf = synthetic_surface(sc, seed=7)
+    caps = synthetic_captures(sc, surf)[:8]
+    elsewhere = tmp_path / "detector-host"
+    elsewhere.mkdir()
+    svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
+                                   *[a for e in gateway for a in ("--connect", e)]],
+                      prefix=["env", f"--chdir={elsewhere}"])
+    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    report = tmp_path / "report"
+    report.mkdir()
+    reports: list[DefectReport] = []
+    cfg = BusConfig(mode="client", connect=gateway, multilink=True)
+    with Bus(cfg, FLEET, "uav") as uav, Bus(cfg, FLEET, "gcs") as gcs:
+        writer = MissionLogWriter(gcs, report / "mission.mcap")
+        gcs.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
+        assert wait_until(lambda: uav.alive(keys.rcu_alive(FLEET, "detector")), 10)
+        time.sleep(0.5)
+        send_captures(uav, caps)
+        assert wait_until(lambda: len(reports) >= len(caps), 60), (len(reports), "\n".join(svc.lines[-20:]))
+        writer.close()
+    assert list(elsewhere.iterdir()) == []  # the detector kept nothing
+    (report / "report.md").write_text("# report\n")
+    record = MissionRecord(fleet=FLEET, scenario=sc, speed=1.0, started=0.0,
+                           surface_corners=[tuple(map(float, p)) for p in surf.corners])
+    written = append_deliverable(record, report, [], report / "mission.mcap")
+    assert "inspection/defects.geojson" in written
+    assert "## Inspection deliverable" in (report / "report.md").read_text()
+    doc = json.loads((report / "inspection" / "defects.json").read_text())
+    assert doc["frames"] == len(caps) and doc["defects"]
+
+
 def test_no_saved_captures_no_section(tmp_path):
     (tmp_path / "report.md").write_text("# report\n")
     record = MissionRecord(fleet=FLEET, speed=1.0, started=0.0)
@@ -70,4 +114,4 @@ def test_no_saved_captures_no_section(tmp_path):
     assert (tmp_path / "report.md").read_text() == "# report\n"
     (tmp_path / "frames").mkdir()
     assert append_deliverable(record, tmp_path) == []
-    assert "Not built: the detector kept no captures" in (tmp_path / "report.md").read_text()
+    assert "Not built: no captures in frames" in (tmp_path / "report.md").read_text()

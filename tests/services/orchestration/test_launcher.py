@@ -41,13 +41,20 @@ def test_mission_through_the_launcher(nominal_mission, tmp_path):
     assert "ACL by certificate common name" in services and "INSECURE" not in services, services[-3000:]
     assert all(f"mutual TLS as uav{i}" in services for i in (1, 2, 3))
     assert not any(e["kind"] == "trust-refused" for e in report.get("events", []) if isinstance(e, dict))
-    # the report is computed from the journal, and `skynet report` makes the same figures from it alone
-    assert "record.jsonl read back" in md
-    again = subprocess.run([sys.executable, "-m", "services.cli", "report", str(out / "record.jsonl"), "--out",
+    # one record: the report is computed from the mission log read back, and `skynet report` makes the same
+    # figures from it alone
+    assert "mission.mcap read back" in md and not (out / "record.jsonl").exists()
+    again = subprocess.run([sys.executable, "-m", "services.cli", "report", str(out), "--out",
                             str(tmp_path / "again")], capture_output=True, text=True, timeout=120)
     assert again.returncode == 0, again.stdout + again.stderr
     rebuilt = json.loads((tmp_path / "again" / "report.json").read_text())
     assert {k: v for k, v in rebuilt.items() if k != "files"} == {k: v for k, v in report.items() if k != "files"}
+    # the deliverable's captures came through the bus: the detector was given no folder (no --save-frames, no
+    # frames/ in the report folder), and the inspection section has every capture point's frame
+    assert not (out / "frames").exists()
+    table = json.loads((out / "inspection" / "defects.json").read_text())
+    assert table["frames"] == report["captures"]["planned"] and len(table["defects"]) > 0
+    assert "## Inspection deliverable" in md and "inspection/mosaic.png" in md
 
 
 def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():

@@ -1,6 +1,6 @@
 """A crafted MCAP file (one zstd chunk of 33 KB declaring 1 GiB uncompressed) is refused by every reader of
 services.recording before it is decompressed: ``skynet replay`` in its own process ends with a one-line
-error and a small peak memory, ``read`` and the rebuild raise a ValueError naming the chunk."""
+error and a small peak memory, ``read`` and the loader raise a ValueError naming the chunk."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from mcap.records import Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Me
 from mcap.writer import MCAP0_MAGIC
 
 from services.recording.mcap_log import MAX_CHUNK_BYTES, McapLog, McapReadError, read
-from services.recording.rebuild import rebuild, summary_of
+from services.recording.load import load_record
 from tests.conftest import ROOT
 
 GIB = 1 << 30
@@ -69,7 +69,7 @@ def test_every_reader_refuses_a_chunk_declaring_1_gib(tmp_path, bomb, indexed):
     assert path.stat().st_size < 64_000
     with pytest.raises(McapReadError, match=r"declares 1073741824 bytes uncompressed, more than the \d+ bytes"):
         list(read(path))
-    for reader in (rebuild, summary_of):  # the report's rebuild from the log
+    for reader in (load_record,):  # the one loader of the mission's record
         with pytest.raises(ValueError, match="1073741824"):
             reader(path)
 

@@ -17,7 +17,7 @@ from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import Event, Mode, VehicleState
 from services.gcs.record import MissionRecord
 from services.recording.mcap_log import read
-from services.recording.recorder import Recorder
+from services.recording.recorder import MissionLogWriter
 from tests.conftest import wait_until
 
 FLEET = "rec"
@@ -28,7 +28,7 @@ def test_a_flood_of_one_key_is_cut_to_its_budget_and_the_other_sources_are_all_l
     path = tmp_path / "mission.mcap"
     cfg = BusConfig(mode="client", connect=gateway, multilink=True)
     with Bus(cfg, FLEET, "gcs") as gcs, Bus(cfg, FLEET, "uav") as uav:
-        rec = Recorder(gcs, path)
+        rec = MissionLogWriter(gcs, path)
         time.sleep(0.5)
         flood = uav.publisher(keys.event(FLEET, 1), COMMAND)
         state = uav.publisher(keys.state(FLEET, 2), COMMAND)  # reliable here: the test counts every one
