@@ -62,7 +62,7 @@ def test_skynet_report_keeps_hostile_event_text_in_its_row_and_counts_a_nested_l
     assert "\x1b" not in md and "\r" not in md and "<img" not in md and "onerror=" in md
     rows = _events_table(md)
     assert len(rows) == len(full.events) and all(len(r) == 5 for r in rows), rows  # each event one row of 5 cells
-    hostile = [r for r in rows if r[3] == "note"]
+    hostile = [r for r in rows if r[3] == "pilot-mode" and r[1] == "uav/2"]
     assert len(hostile) == 1 and hostile[0][1] == "uav/2"
     text = hostile[0][4]
     assert "<img src=x onerror=alert(1)> | `code` *bold* [link](http://x) & ]]>" in text  # the text, as data
