@@ -87,7 +87,7 @@ def test_auto_flies_the_trajectory_in_time_with_every_capture(auto_link):
     drv.upload(traj)
     ref = Follower(traj)
     drv.start(veh.clock.now() + 1.0)
-    assert len(veh.missions.mission()) == len(drv._auto_plan.items)  # uploaded by the mission protocol
+    assert len(veh.missions.mission()) == len(drv.auto.plan.items)  # uploaded by the mission protocol
     modes, errors = set(), []
 
     def watch(s):
@@ -107,7 +107,7 @@ def test_auto_flies_the_trajectory_in_time_with_every_capture(auto_link):
         time.sleep(0.01)
     assert veh.custom_mode == CopterMode.GUIDED and drv.state().mode == Mode.HOLD
     # GUIDED only once the autopilot reached its last waypoint: its own DO_DIGICAM_CONTROL items all ran
-    assert sorted(set(veh.shots)) == [11, 12, 13] and veh.reached[-1] == max(drv._auto_plan.waypoint_seq)
+    assert sorted(set(veh.shots)) == [11, 12, 13] and veh.reached[-1] == max(drv.auto.plan.waypoint_seq)
 
 
 def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_auto(auto_link):

@@ -412,7 +412,7 @@ def test_signed_link_survives_a_forged_future_timestamp_and_ignores_unsigned_com
             for _ in range(3):
                 s.sendto(forged, ("127.0.0.1", port))
         drv.takeoff(4.0)  # needs the autopilot's genuine COMMAND_ACKs after the forgery
-        assert veh.armed and drv._conn.mav.signing.badsig_count >= 3
+        assert veh.armed and drv.link.conn.mav.signing.badsig_count >= 3
         # an unsigned ground station is not obeyed: a LAND sent straight to the vehicle's socket
         n = len(veh.commands)
         sig = veh._conn.mav.signing
@@ -422,7 +422,7 @@ def test_signed_link_survives_a_forged_future_timestamp_and_ignores_unsigned_com
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.sendto(land, veh._conn.port.getsockname())
         # one more signed round trip (a command after the datagram): the vehicle has read it by then
-        drv._command(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), "request HOME_POSITION")
+        drv.command(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), "request HOME_POSITION")
         assert all(c != M.MAV_CMD_NAV_LAND for c, _ in veh.commands[n:]) and veh.custom_mode == CopterMode.GUIDED
         assert sig.reject_count + sig.unsigned_count > refused
     finally:
