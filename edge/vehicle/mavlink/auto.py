@@ -33,7 +33,7 @@ from edge.vehicle.apm import items as AI
 from edge.vehicle.auto_flight import AutoMissionPlan, autopilot_mission, resume_item, speed_correction
 from protocol.messages import Trajectory
 
-from .commands import CommandRefused, VehicleLinkError
+from .commands import CommandRefused, VehicleLinkError, await_reply
 from .guided import Target
 from .phase import Phase
 
@@ -84,19 +84,13 @@ class AutoFlight:
 
     def _wait_home(self, timeout_s: float = 5.0) -> tuple[float, float, float]:
         """The autopilot's HOME_POSITION (asked for with MAV_CMD_REQUEST_MESSAGE until it comes)."""
-        tel, deadline, asked = self.drv.tel, time.monotonic() + timeout_s, -math.inf
-        with tel.cv:
-            while tel.home_lla is None:
-                now = time.monotonic()
-                if now >= deadline:
-                    raise VehicleLinkError(f"no HOME_POSITION from the autopilot in {timeout_s:g} s")
-                if now - asked >= 1.0:
-                    asked = now
-                    self.drv.link.send(M.MAVLink_command_long_message(
-                        tel.sysid, tel.compid, M.MAV_CMD_REQUEST_MESSAGE, 0, M.MAVLINK_MSG_ID_HOME_POSITION,
-                        0, 0, 0, 0, 0, 0))
-                tel.cv.wait(0.1)
-            return tel.home_lla
+        tel = self.drv.tel
+        ask = M.MAVLink_command_long_message(tel.sysid, tel.compid, M.MAV_CMD_REQUEST_MESSAGE, 0,
+                                             M.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0)
+        home = await_reply(tel.cv, lambda _: self.drv.link.send(ask), lambda: tel.home_lla, 1.0, int(timeout_s) - 1)
+        if home is None:
+            raise VehicleLinkError(f"no HOME_POSITION from the autopilot in {timeout_s:g} s")
+        return home
 
     def _upload(self, items: tuple, timeout_s: float = 1.0, retries: int = 5) -> None:
         """The MAVLink mission protocol's upload (https://mavlink.io/en/services/mission.html):

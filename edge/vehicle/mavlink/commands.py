@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from typing import Any, Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from .handlers import Telemetry
 
-__all__ = ["VehicleLinkError", "CommandRefused", "CommandAwaiter", "result_name", "command_name"]
+__all__ = ["VehicleLinkError", "CommandRefused", "CommandAwaiter", "await_reply", "result_name", "command_name"]
 
 #: sends one attempt: (command, confirmation, param1..7, frame or None for COMMAND_LONG)
 Sender = Callable[[int, int, tuple[float, ...], "int | None"], None]
@@ -50,6 +50,31 @@ class CommandRefused(VehicleLinkError):
         super().__init__(f"{what} refused by the autopilot: {result_name(result)} to {command_name(command)}{why}")
 
 
+#: a ``reply`` answer that restarts the attempt's timeout (MAV_RESULT_IN_PROGRESS)
+MORE = object()
+
+
+def await_reply(cv: threading.Condition, send: Callable[[int], None], reply: Callable[[], Any],
+                timeout_s: float, retries: int) -> Any:
+    """``send(attempt)`` until ``reply()`` (asked under ``cv`` at every wake-up) returns something but None,
+    ``timeout_s`` per attempt and ``retries`` resends; None when every attempt timed out."""
+    for attempt in range(retries + 1):
+        send(attempt)
+        deadline = time.monotonic() + timeout_s
+        with cv:
+            while True:
+                got = reply()
+                if got is MORE:
+                    deadline = time.monotonic() + timeout_s
+                elif got is not None:
+                    return got
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    break
+                cv.wait(left)
+    return None
+
+
 class CommandAwaiter:
     """Sends commands through ``send`` and matches the COMMAND_ACKs the handlers store in ``tel.acks``.
 
@@ -64,28 +89,19 @@ class CommandAwaiter:
     def call(self, command: int, params: tuple[float, ...], what: str, frame: int | None = None) -> int:
         """Send ``command`` (param1..7, missing ones 0) until its COMMAND_ACK; the ack's receive index."""
         tel, p = self.tel, tuple(float(x) for x in params) + (0.0,) * (7 - len(params))
-        got: tuple[int, int] | None = None
+
+        def send(attempt: int) -> None:
+            with tel.cv:
+                tel.acks.pop(command, None)
+            self._send(command, attempt, p, frame)
+
+        def reply() -> Any:
+            a = tel.acks.pop(command, None)
+            return MORE if a is not None and a[0] == M.MAV_RESULT_IN_PROGRESS else a
+
         with self.lock:
             sent_mono = time.monotonic()
-            for attempt in range(self.retries + 1):
-                with tel.cv:
-                    tel.acks.pop(command, None)
-                self._send(command, attempt, p, frame)
-                deadline = time.monotonic() + self.timeout_s
-                with tel.cv:
-                    while got is None:
-                        a = tel.acks.pop(command, None)
-                        if a is not None:
-                            if a[0] != M.MAV_RESULT_IN_PROGRESS:
-                                got = a
-                                break
-                            deadline = time.monotonic() + self.timeout_s
-                        left = deadline - time.monotonic()
-                        if left <= 0:
-                            break
-                        tel.cv.wait(left)
-                if got is not None:
-                    break
+            got = await_reply(tel.cv, send, reply, self.timeout_s, self.retries)
         if got is None:
             raise VehicleLinkError(f"{what}: no COMMAND_ACK to {command_name(command)} within "
                                    f"{self.timeout_s:g} s x {self.retries + 1} attempts")

@@ -231,29 +231,6 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         """Undecodable datagrams, malformed values and send errors on the link."""
         return self.link.errors + self.tel.errors
 
-    @property
-    def targets_sent(self) -> int:
-        return self.targets.sent
-
-    @property
-    def last_target(self) -> tuple[float, float, float, float] | None:
-        return self.targets.last
-
-    @property
-    def speed_commands(self) -> int:
-        """DO_CHANGE_SPEED corrections sent in AUTO."""
-        return self.auto.speed_commands if self.auto is not None else 0
-
-    @property
-    def auto_errors(self) -> list[str]:
-        """Mode switches to AUTO that failed (with why)."""
-        return self.auto.errors if self.auto is not None else []
-
-    @property
-    def autopilot(self) -> int | None:
-        """The autopilot's MAV_AUTOPILOT (from its HEARTBEAT; None until heard)."""
-        return self.tel.autopilot
-
     def readiness(self) -> AutopilotReadiness:
         """The autopilot's readiness to fly: HEARTBEAT heard, its system_status past BOOT, home known
         (HOME_POSITION), an absolute position estimate (EKF_STATUS_REPORT flags, the dialect's
@@ -302,18 +279,6 @@ class MavlinkDriver(ParamClient, VehicleDriver):
     def target_system(self) -> int | None:
         """The autopilot's system id (None until heard)."""
         return self.tel.sysid
-
-    @property
-    def autopilot_mode(self) -> int | None:
-        """The autopilot's custom mode from its last HEARTBEAT."""
-        hb = self.tel.hb
-        return None if hb is None else hb.custom_mode
-
-    @property
-    def status_texts(self) -> list[str]:
-        """The autopilot's recent STATUSTEXT messages, oldest first."""
-        with self._lock:
-            return [t for _, _, t in self.tel.texts]
 
     def _link_error(self) -> VehicleLinkError | None:
         age = self.heartbeat_age()

@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from .commands import CommandAwaiter, VehicleLinkError
+from .commands import CommandAwaiter, VehicleLinkError, await_reply
 from .dialect import Dialect
 from .handlers import Telemetry
 from .link import Link
@@ -50,24 +49,23 @@ class ParamClient:
         err = self._link_error()
         if err is not None:
             raise err
-        tel = self.tel
+        tel, rx0 = self.tel, [0]
+
+        def ask(_: int) -> None:
+            with tel.cv:
+                rx0[0] = tel.rx
+            self.link.send(send)
+
+        def reply() -> tuple[float | None] | None:
+            got = tel.param_rx.get(name)
+            if got is not None and got[1] > rx0[0]:
+                return (got[0],)
+            return (None,) if tel.param_err.get(name, -1) > rx0[0] else None
+
         with self.commands.lock:
-            for _ in range(retries + 1):
-                with tel.cv:
-                    rx0 = tel.rx
-                self.link.send(send)
-                deadline = time.monotonic() + timeout_s
-                with tel.cv:
-                    while True:
-                        got = tel.param_rx.get(name)
-                        if got is not None and got[1] > rx0:
-                            return got[0]
-                        if tel.param_err.get(name, -1) > rx0:
-                            return None
-                        left = deadline - time.monotonic()
-                        if left <= 0:
-                            break
-                        tel.cv.wait(left)
+            answer = await_reply(tel.cv, ask, reply, timeout_s, retries)
+        if answer is not None:
+            return answer[0]
         raise VehicleLinkError(f"no answer from the autopilot for parameter {name} "
                                f"({timeout_s:g} s x {retries + 1} attempts)")
 
