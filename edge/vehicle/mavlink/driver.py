@@ -8,7 +8,6 @@ import time
 from dataclasses import dataclass
 from typing import Any, Literal
 
-import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3

@@ -314,7 +314,7 @@ def test_mavsim_runs_as_a_process():
         proc.terminate()
         out, _ = proc.communicate(timeout=10)
     assert proc.returncode == 0, out
-    assert "mavsim up: uav 7" in out and "mavsim stopped" in out
+    assert "sim-autopilot: uav 7 (system id 7)" in out and "sim-autopilot stopped" in out
 
 
 def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
