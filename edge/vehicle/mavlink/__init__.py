@@ -6,21 +6,13 @@ onto MAVLink 2 (pymavlink, dialect ``ardupilotmega``). In the paper the Pixhawk 
 low-level control (PAPER.md Section 5: the built-in PID position loop) and the companion computer
 the high-level control; this driver is the companion side: it streams the trajectory reference
 of (P9) (plus the formation correction of (P8)) as position targets, or flies it as an AUTO
-mission, and fires the capture points. As Skybrush's MAVLink extension, link, handlers, commands
-and the autopilot's dialect live apart:
-
-- :mod:`.link`      the connection (MAVLink 2, signing), its reader thread, our HEARTBEAT at 1 Hz
-  as a GCS (system 255 by default, so that ArduPilot's GCS failsafe watches this link);
-- :mod:`.handlers`  a table from message type to handler filling :class:`.handlers.Telemetry`,
-  and the telemetry requests (ArduPilot sends only HEARTBEAT until asked);
-- :mod:`.commands`  one "send COMMAND_LONG / COMMAND_INT and await the matching COMMAND_ACK" with
-  retries; a refusal raises :class:`CommandRefused` carrying the MAV_RESULT;
-- :mod:`.phase`     the driver's :class:`Phase` and how a newer HEARTBEAT overrules it;
-- :mod:`.dialect`   the autopilot family behind a :class:`~.dialect.Dialect` interface (ArduCopter's
-  modes and 4.6 / 4.7 parameter schemes); :mod:`.params` the parameter protocol;
-- :mod:`.guided` / :mod:`.auto`  the two flight strategies: position targets in GUIDED, or the
-  trajectory uploaded as a waypoint mission flown in AUTO (upload and mode switches on one worker);
-- :mod:`.frames`    NED/FRD <-> ENU/FLU; :mod:`.driver` the driver that binds them.
+mission, and fires the capture points. As Skybrush's MAVLink extension, the concerns live apart:
+:mod:`.link` (connection, signing, reader thread, our 1 Hz HEARTBEAT as a GCS, system 255 by default
+so that ArduPilot's GCS failsafe watches this link), :mod:`.handlers` (a table from message type to
+handler; frames), :mod:`.commands` (send a command and await the matching COMMAND_ACK;
+:class:`CommandRefused` carries the MAV_RESULT), :mod:`.phase` (:class:`Phase`), :mod:`.dialect`
+(the autopilot family behind an interface), :mod:`.params` (the parameter protocol), the flight
+strategies :mod:`.guided` and :mod:`.auto` (one worker), and :mod:`.driver` binding them.
 
 ==================  ===============================================================
 driver call         MAVLink
@@ -48,7 +40,7 @@ from edge.vehicle.apm.modes import CopterMode
 from .commands import CommandRefused, VehicleLinkError, command_name, result_name
 from .dialect import ARDUCOPTER, Dialect, copter_mode, copter_mode_name
 from .driver import MavlinkDriver, MavlinkParams
-from .frames import attitude_ned_to_enu, enu_to_ned, ned_to_enu, rates_frd_to_flu, yaw_enu_to_ned, yaw_ned_to_enu
+from .handlers import attitude_ned_to_enu, enu_to_ned, ned_to_enu, rates_frd_to_flu, yaw_enu_to_ned, yaw_ned_to_enu
 from .guided import TYPE_MASK_POS_VEL_ACC_YAW, TYPE_MASK_POS_VEL_YAW, TYPE_MASK_POS_YAW
 from .link import open_connection
 from .phase import Phase

@@ -1,15 +1,12 @@
-"""The autopilot family behind the driver: its modes and parameter names, as a small interface.
+"""The autopilot family behind the driver, as a small interface.
 
 :class:`Dialect` is what the driver asks of an autopilot family; :data:`ARDUCOPTER` answers for
 ArduCopter (custom modes :class:`.apm.modes.CopterMode`, the 4.6 and 4.7 parameter naming schemes
 of :mod:`.apm.params`, EKF readiness as :func:`.apm.boot.position_ok`). A PX4 dialect (custom
 mode ``(sub_mode << 24) | (main_mode << 16)``, OFFBOARD as its guided mode, one parameter scheme)
-would be another implementation.
-
-ArduCopter reports only its custom mode (0 STABILIZE, 3 AUTO, 4 GUIDED, 5 LOITER, 6 RTL, 9 LAND,
-17 BRAKE, ...). A mode the driver did not command reads (:meth:`Dialect.board_mode`): AUTO ->
-MISSION; GUIDED, LOITER, BRAKE -> HOLD; RTL, SMART_RTL -> RTL; LAND -> LAND; any other
-(pilot-flown) mode -> FAILSAFE.
+would be another implementation. A mode the driver did not command reads, for ArduCopter
+(:func:`copter_mode`): AUTO -> MISSION; GUIDED, LOITER, BRAKE -> HOLD; RTL, SMART_RTL -> RTL;
+LAND -> LAND; any other (pilot-flown: STABILIZE, ALT_HOLD, POSHOLD, ...) -> FAILSAFE.
 """
 
 from __future__ import annotations
@@ -33,31 +30,19 @@ class Dialect(Protocol):
     """What the driver needs to know of an autopilot family."""
 
     name: str
-    autopilot: int  #: the HEARTBEAT ``autopilot`` (MAV_AUTOPILOT) of this family
-    guided: int  #: the custom mode that follows the companion's position targets
-    auto: int  #: the custom mode that flies the uploaded mission
-    schemes: tuple[str, ...]  #: parameter naming schemes, oldest first
+    autopilot: int  # the HEARTBEAT's MAV_AUTOPILOT of this family
+    guided: int  # the custom mode that follows the companion's position targets
+    auto: int  # the custom mode that flies the uploaded mission
+    schemes: tuple[str, ...]  # parameter naming schemes, oldest first
 
-    def phase_mode(self, phase: Phase) -> int | None:
-        """The custom mode the autopilot shows in a driver phase (None: any)."""
-
-    def board_mode(self, custom_mode: int) -> Mode:
-        """The board's mode of a custom mode someone else chose (pilot, failsafe)."""
-
+    def phase_mode(self, phase: Phase) -> int | None: ...  # the custom mode of a driver phase (None: any)
+    def board_mode(self, custom_mode: int) -> Mode: ...  # a mode someone else chose, as the board's
     def mode_name(self, custom_mode: int) -> str: ...
-
-    def set_mode_params(self, custom_mode: int) -> tuple[float, ...]:
-        """MAV_CMD_DO_SET_MODE's parameters for a custom mode."""
-
-    def position_ok(self, ekf_flags: int) -> bool:
-        """EKF_STATUS_REPORT flags that allow the position modes."""
-
+    def set_mode_params(self, custom_mode: int) -> tuple[float, ...]: ...  # MAV_CMD_DO_SET_MODE's params
+    def position_ok(self, ekf_flags: int) -> bool: ...  # EKF_STATUS_REPORT flags allow the position modes
     def param_name(self, key: str, scheme: str) -> str: ...
-
     def param_type(self, key: str, scheme: str) -> int: ...
-
     def to_raw(self, key: str, si: float, scheme: str) -> float: ...
-
     def from_raw(self, key: str, raw: float, scheme: str) -> float: ...
 
 
@@ -81,18 +66,12 @@ def copter_mode_name(custom_mode: int) -> str:
 class ArduCopter:
     """ArduCopter's dialect (see the module docstring)."""
 
-    name = "ArduCopter"
-    autopilot = M.MAV_AUTOPILOT_ARDUPILOTMEGA
-    guided = CopterMode.GUIDED
-    auto = CopterMode.AUTO
-    schemes = P.SCHEMES
-    board_mode = staticmethod(copter_mode)
-    mode_name = staticmethod(copter_mode_name)
+    name, autopilot, schemes = "ArduCopter", M.MAV_AUTOPILOT_ARDUPILOTMEGA, P.SCHEMES
+    guided, auto = CopterMode.GUIDED, CopterMode.AUTO
+    board_mode, mode_name = staticmethod(copter_mode), staticmethod(copter_mode_name)
     position_ok = staticmethod(position_ok)
-    param_name = staticmethod(P.param_name)
-    param_type = staticmethod(P.param_type)
-    to_raw = staticmethod(P.to_raw)
-    from_raw = staticmethod(P.from_raw)
+    param_name, param_type = staticmethod(P.param_name), staticmethod(P.param_type)
+    to_raw, from_raw = staticmethod(P.to_raw), staticmethod(P.from_raw)
 
     def phase_mode(self, phase: Phase) -> int | None:
         return _PHASE_COPTER.get(phase)

@@ -27,7 +27,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from .frames import yaw_enu_to_ned
+from .handlers import yaw_enu_to_ned
 
 __all__ = ["TargetStream", "Target", "TYPE_MASK_POS_VEL_YAW", "TYPE_MASK_POS_VEL_ACC_YAW", "TYPE_MASK_POS_YAW"]
 

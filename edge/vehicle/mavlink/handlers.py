@@ -3,7 +3,7 @@
 Each handler updates :class:`Telemetry` (under its lock, waking the waiters of its condition):
 HEARTBEAT (the first autopilot heard becomes the target unless ``sysid`` names one; armed flag,
 custom mode, system status), LOCAL_POSITION_NED and ATTITUDE (converted to ENU/FLU,
-:mod:`.frames`), SYS_STATUS (``battery_remaining``, the pre-arm bit), EKF_STATUS_REPORT,
+below), SYS_STATUS (``battery_remaining``, the pre-arm bit), EKF_STATUS_REPORT,
 HOME_POSITION, STATUSTEXT (the latest "PreArm:", "Arm:" or mode-refusal text is the reason the
 autopilot is not ready), MISSION_ITEM_REACHED, the parameter protocol's PARAM_VALUE / PARAM_ERROR,
 the mission protocol's MISSION_REQUEST(_INT) / MISSION_ACK, and COMMAND_ACK (matched by
@@ -15,6 +15,17 @@ driver uses (:data:`STREAMS`: 20 Hz position and attitude, 2 Hz SYS_STATUS, 1 Hz
 EKF_STATUS_REPORT, 0.5 Hz HOME_POSITION) with MAV_CMD_SET_MESSAGE_INTERVAL, again while one is
 missing; an autopilot that answers it UNSUPPORTED or FAILED gets the legacy REQUEST_DATA_STREAM
 for the groups holding them instead (:data:`LEGACY_STREAMS`).
+
+Frames. MAVLink's local frame is NED (x north, y east, z down) about the EKF origin, and its body frame
+FRD; ours is ENU about the mission origin with a FLU body. With the launch point ``home`` (ENU
+m, where the autopilot's EKF origin is)::
+
+    x_enu = y_ned + home_x,   y_enu = x_ned + home_y,   z_enu = −z_ned + home_z
+    φ_enu = φ_ned,   θ_enu = −θ_ned,   ψ_enu = π/2 − ψ_ned  (wrapped to (−π, π])
+    (p, q, r)_flu = (p, −q, −r)_frd
+
+(the world change is the reflection that swaps x and y and flips z, the body change a half
+turn about x; e.g. the ROS REP 103 / MAVROS ``ftf`` conversions). Each formula is its own inverse.
 """
 
 from __future__ import annotations
@@ -26,11 +37,14 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable
 
+import numpy as np
+
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from .frames import attitude_ned_to_enu, ned_to_enu, rates_frd_to_flu
+from edge.vehicle.angles import wrap_angle
 
-__all__ = ["Heartbeat", "Telemetry", "HANDLERS", "dispatch", "stream_requests", "STREAMS", "LEGACY_STREAMS"]
+__all__ = ["Heartbeat", "Telemetry", "HANDLERS", "dispatch", "stream_requests", "STREAMS", "LEGACY_STREAMS", "ned_to_enu",
+           "enu_to_ned", "yaw_ned_to_enu", "yaw_enu_to_ned", "attitude_ned_to_enu", "rates_frd_to_flu"]
 
 log = logging.getLogger("skynet.mavlink")
 Vec3 = tuple[float, float, float]
@@ -47,6 +61,57 @@ LEGACY_STREAMS = {"LOCAL_POSITION_NED": (M.MAV_DATA_STREAM_POSITION, 20), "ATTIT
 NOT_READY_TEXTS = ("PreArm:", "Arm:", "requires position", "Need Position")
 
 
+# ---------------------------------------------------------------------------------- frames
+def ned_to_enu(v: Any) -> np.ndarray:
+    """NED vector(s) -> ENU: ``(x, y, z)_enu = (y, x, −z)_ned``; shape (..., 3), vectorised.
+
+    Positions get the home offset added by the caller (the NED origin is the launch point).
+
+    Examples
+    --------
+    >>> ned_to_enu([1.0, 2.0, -3.0]).tolist()
+    [2.0, 1.0, 3.0]
+    """
+    a = np.asarray(v, dtype=float)
+    if a.ndim == 0 or a.shape[-1] != 3:
+        raise ValueError("vector must have 3 components in its last axis")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("vector must be finite")
+    out = a[..., [1, 0, 2]].copy()
+    out[..., 2] *= -1.0
+    return out
+
+
+def enu_to_ned(v: Any) -> np.ndarray:
+    """ENU vector(s) -> NED (the same swap-and-flip as :func:`ned_to_enu`, its own inverse)."""
+    return ned_to_enu(v)
+
+
+def yaw_ned_to_enu(yaw: float) -> float:
+    """Heading from north, clockwise (NED) -> from east, counter-clockwise (ENU): ``π/2 − ψ``, wrapped."""
+    if not math.isfinite(yaw):
+        raise ValueError("yaw must be finite")
+    return wrap_angle(math.pi / 2.0 - yaw)
+
+
+def yaw_enu_to_ned(yaw: float) -> float:
+    """ENU yaw -> NED yaw (the same map: ``π/2 − ψ`` is an involution)."""
+    return yaw_ned_to_enu(yaw)
+
+
+def attitude_ned_to_enu(roll: float, pitch: float, yaw: float) -> Vec3:
+    """ZYX Euler angles of an FRD body in NED -> of the FLU body in ENU: ``(φ, −θ, π/2 − ψ)``."""
+    if not (math.isfinite(roll) and math.isfinite(pitch)):
+        raise ValueError("roll and pitch must be finite")
+    return (float(roll), -float(pitch), yaw_ned_to_enu(yaw))
+
+
+def rates_frd_to_flu(p: float, q: float, r: float) -> Vec3:
+    """Body rates about FRD axes -> about FLU axes: ``(p, −q, −r)`` (also the inverse)."""
+    return (float(p), -float(q), -float(r))
+
+
+# ---------------------------------------------------------------------------------- telemetry
 @dataclass(frozen=True)
 class Heartbeat:
     armed: bool
@@ -181,18 +246,11 @@ def _command_ack(t: Telemetry, msg: Any, now: float) -> None:
     t.acks[int(msg.command)] = (int(msg.result), t.next_rx())
 
 
-def _reached(t: Telemetry, msg: Any, now: float) -> None:
-    t.reached_seq = max(t.reached_seq, int(msg.seq))
-
-
-def _ekf_status(t: Telemetry, msg: Any, now: float) -> None:
-    t.ekf_flags = int(msg.flags)
-
-
 HANDLERS: dict[str, Callable[[Telemetry, Any, float], None]] = {
     "HEARTBEAT": _heartbeat, "LOCAL_POSITION_NED": _local_position, "ATTITUDE": _attitude,
     "SYS_STATUS": _sys_status, "STATUSTEXT": _statustext, "HOME_POSITION": _home_position,
-    "EKF_STATUS_REPORT": _ekf_status, "MISSION_ITEM_REACHED": _reached, "PARAM_VALUE": _param_value,
+    "EKF_STATUS_REPORT": lambda t, m, now: setattr(t, "ekf_flags", int(m.flags)),
+    "MISSION_ITEM_REACHED": lambda t, m, now: setattr(t, "reached_seq", max(t.reached_seq, int(m.seq))), "PARAM_VALUE": _param_value,
     "PARAM_ERROR": _param_error, "MISSION_REQUEST_INT": _mission, "MISSION_REQUEST": _mission,
     "MISSION_ACK": _mission, "COMMAND_ACK": _command_ack,
 }

@@ -30,13 +30,9 @@ _SENSORS = (M.MAV_SYS_STATUS_SENSOR_3D_GYRO | M.MAV_SYS_STATUS_SENSOR_3D_ACCEL |
             | M.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | M.MAV_SYS_STATUS_SENSOR_BATTERY)
 _ON_GROUND = (Mode.IDLE, Mode.LANDED)
 #: the telemetry set (message name -> id) of :mod:`edge.vehicle.apm.streams`
-STREAM_IDS = {"HEARTBEAT": M.MAVLINK_MSG_ID_HEARTBEAT, "SYS_STATUS": M.MAVLINK_MSG_ID_SYS_STATUS,
-              "GPS_RAW_INT": M.MAVLINK_MSG_ID_GPS_RAW_INT, "GLOBAL_POSITION_INT": M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
-              "LOCAL_POSITION_NED": M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, "ATTITUDE": M.MAVLINK_MSG_ID_ATTITUDE,
-              "VFR_HUD": M.MAVLINK_MSG_ID_VFR_HUD, "BATTERY_STATUS": M.MAVLINK_MSG_ID_BATTERY_STATUS,
-              "EXTENDED_SYS_STATE": M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, "HOME_POSITION": M.MAVLINK_MSG_ID_HOME_POSITION,
-              "MISSION_CURRENT": M.MAVLINK_MSG_ID_MISSION_CURRENT,
-              "EKF_STATUS_REPORT": M.MAVLINK_MSG_ID_EKF_STATUS_REPORT}
+STREAM_IDS = {n: getattr(M, f"MAVLINK_MSG_ID_{n}") for n in (
+    "HEARTBEAT", "SYS_STATUS", "GPS_RAW_INT", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE", "VFR_HUD",
+    "BATTERY_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION", "MISSION_CURRENT", "EKF_STATUS_REPORT")}
 #: the messages the pure cores answer with (:mod:`edge.vehicle.apm.params`, :mod:`edge.vehicle.apm.missions`)
 _CORE_MESSAGES = {"param_value": M.MAVLink_param_value_message, "param_error": M.MAVLink_param_error_message,
                   "mission_ack": M.MAVLink_mission_ack_message, "mission_count": M.MAVLink_mission_count_message,

@@ -9,6 +9,7 @@ reported and not fought, and resume goes back to AUTO from the right item.
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import pymap3d
@@ -115,6 +116,10 @@ def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_a
     drv.takeoff(5.0)
     fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
     drv.upload(trajectory(HOME[2] + 5.0))
+    ran_on = []  # the thread of the upload and of every mode switch
+    for name in ("_upload_plan", "_switch"):
+        job = getattr(drv.auto, name)
+        setattr(drv.auto, name, lambda *a, job=job: (ran_on.append(threading.current_thread()), job(*a))[1])
     drv.start()
     events = fly(drv, veh, lambda s: veh.custom_mode == CopterMode.AUTO and s.progress > 0.3, 20.0)
     veh.pilot_mode(CopterMode.LOITER)
@@ -132,6 +137,12 @@ def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_a
     events += fly(drv, veh, lambda s: s.mode == Mode.HOLD and s.progress == 1.0, 30.0)
     assert [e.capture_id for e in events] == [11, 12, 13]
     assert veh.reached and drv.external_modes == ["LOITER"] and not drv.auto.errors
+    end = time.monotonic() + 10.0
+    while veh.custom_mode != CopterMode.GUIDED and time.monotonic() < end:  # the switch back to GUIDED
+        drv.step(veh.clock.now())
+        time.sleep(0.01)
+    assert len(ran_on) >= 4 and len(set(ran_on)) == 1  # upload, AUTO, AUTO again, GUIDED: one worker
+    assert ran_on[0] is not threading.current_thread()
 
 
 # ---------------------------------------------------------------------------------- dense trajectories
