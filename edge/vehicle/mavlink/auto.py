@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import CancelledError, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as M
@@ -69,7 +69,10 @@ class AutoFlight:
             raise ValueError("no trajectory uploaded")
         if self._traj is traj and self.plan is not None:
             return
-        self._worker.submit(self._upload_plan, traj).result()
+        try:
+            self._worker.submit(self._upload_plan, traj).result()
+        except (CancelledError, RuntimeError) as exc:  # the driver was closed meanwhile
+            raise ValueError("driver is closed") from exc
 
     def _upload_plan(self, traj: Trajectory) -> None:
         drv = self.drv
@@ -177,7 +180,10 @@ class AutoFlight:
             return
         self.switching = True
         self.pending = {int(self.drv.dialect.auto), int(self.drv.dialect.guided)}
-        self._worker.submit(self._switch, mode, seq, expect)
+        try:
+            self._worker.submit(self._switch, mode, seq, expect)
+        except RuntimeError:  # closed meanwhile
+            self.switching, self.pending = False, set()
 
     def _switch(self, mode: int, seq: int | None, expect: Phase) -> None:
         drv = self.drv

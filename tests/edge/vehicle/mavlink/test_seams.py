@@ -232,3 +232,13 @@ def test_a_refused_auto_switch_is_recorded_and_the_flight_goes_on_guided():
                                "MAV_CMD_DO_SET_MODE"]
     finally:
         auto.close()
+
+
+def test_a_closed_auto_flight_refuses_work_with_a_clear_error():
+    drv = FakeDriver()
+    auto = AutoFlight(drv)
+    auto.close()
+    with pytest.raises(ValueError, match="driver is closed"):
+        auto.prepare(object())
+    auto.switch(CopterMode.AUTO, None, Phase.MISSION)  # nothing to run it on: no switch in flight
+    assert not auto.switching and drv.threads == []
