@@ -78,7 +78,7 @@ def ack_latency(drv, n: int = 30) -> list[float]:
     out = []
     for _ in range(n):
         t0 = time.perf_counter()
-        drv._command(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), "request HOME_POSITION")
+        drv.command(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), "request HOME_POSITION")
         out.append((time.perf_counter() - t0) * 1e3)
     return out
 

@@ -8,5 +8,5 @@
 - :mod:`.signing`  MAVLink 2 signing with the signature checked before the stream timestamp.
 
 None of them opens a socket: each takes decoded values and returns ``(message, fields)``
-pairs for the shell to send with pymavlink (``getattr(mav, message + "_send")(**fields)``).
+pairs that the shell builds into pymavlink messages (:data:`edge.vehicle.mavsim.telemetry._CORE_MESSAGES`).
 """

@@ -9,6 +9,7 @@ reported and not fought, and resume goes back to AUTO from the right item.
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 import pymap3d
@@ -87,7 +88,7 @@ def test_auto_flies_the_trajectory_in_time_with_every_capture(auto_link):
     drv.upload(traj)
     ref = Follower(traj)
     drv.start(veh.clock.now() + 1.0)
-    assert len(veh.missions.mission()) == len(drv._auto_plan.items)  # uploaded by the mission protocol
+    assert len(veh.missions.mission()) == len(drv.auto.plan.items)  # uploaded by the mission protocol
     modes, errors = set(), []
 
     def watch(s):
@@ -100,14 +101,14 @@ def test_auto_flies_the_trajectory_in_time_with_every_capture(auto_link):
     assert CopterMode.AUTO in modes and veh.reached  # flown by the autopilot's mission (MISSION_ITEM_REACHED)
     assert [e.capture_id for e in events] == [11, 12, 13]
     assert len(errors) > 10 and max(errors) < 1.0  # in time: the plan's speeds plus the corrections
-    assert drv.speed_commands > 0 and not drv.auto_errors and not drv.external_modes
+    assert drv.auto.speed_commands > 0 and not drv.auto.errors and not drv.external_modes
     end = time.monotonic() + 5.0
     while veh.custom_mode != CopterMode.GUIDED and time.monotonic() < end:  # holds at the end in GUIDED
         drv.step(veh.clock.now())
         time.sleep(0.01)
     assert veh.custom_mode == CopterMode.GUIDED and drv.state().mode == Mode.HOLD
     # GUIDED only once the autopilot reached its last waypoint: its own DO_DIGICAM_CONTROL items all ran
-    assert sorted(set(veh.shots)) == [11, 12, 13] and veh.reached[-1] == max(drv._auto_plan.waypoint_seq)
+    assert sorted(set(veh.shots)) == [11, 12, 13] and veh.reached[-1] == max(drv.auto.plan.waypoint_seq)
 
 
 def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_auto(auto_link):
@@ -115,23 +116,33 @@ def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_a
     drv.takeoff(5.0)
     fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
     drv.upload(trajectory(HOME[2] + 5.0))
+    ran_on = []  # the thread of the upload and of every mode switch
+    for name in ("_upload_plan", "_switch"):
+        job = getattr(drv.auto, name)
+        setattr(drv.auto, name, lambda *a, job=job: (ran_on.append(threading.current_thread()), job(*a))[1])
     drv.start()
     events = fly(drv, veh, lambda s: veh.custom_mode == CopterMode.AUTO and s.progress > 0.3, 20.0)
     veh.pilot_mode(CopterMode.LOITER)
     events += fly(drv, veh, lambda s: drv.external_modes == ["LOITER"], 5.0)
     st = drv.state()
     assert st.mode == Mode.HOLD and st.progress < 1.0  # paused where the pilot took it
-    sent, targets = drv.speed_commands, drv.targets_sent
+    sent, targets = drv.auto.speed_commands, drv.targets.sent
     clock_end = veh.clock.now() + 2.0
     while veh.clock.now() < clock_end:
         events += drv.step(veh.clock.now())
         time.sleep(0.01)
-    assert drv.speed_commands == sent and drv.targets_sent == targets  # not fighting the pilot
+    assert drv.auto.speed_commands == sent and drv.targets.sent == targets  # not fighting the pilot
     assert veh.custom_mode == CopterMode.LOITER and drv.state().progress == st.progress
     drv.resume()  # back to GUIDED, to the paused point, then AUTO from the next item
     events += fly(drv, veh, lambda s: s.mode == Mode.HOLD and s.progress == 1.0, 30.0)
     assert [e.capture_id for e in events] == [11, 12, 13]
-    assert veh.reached and drv.external_modes == ["LOITER"] and not drv.auto_errors
+    assert veh.reached and drv.external_modes == ["LOITER"] and not drv.auto.errors
+    end = time.monotonic() + 10.0
+    while veh.custom_mode != CopterMode.GUIDED and time.monotonic() < end:  # the switch back to GUIDED
+        drv.step(veh.clock.now())
+        time.sleep(0.01)
+    assert len(ran_on) >= 4 and len(set(ran_on)) == 1  # upload, AUTO, AUTO again, GUIDED: one worker
+    assert ran_on[0] is not threading.current_thread()
 
 
 # ---------------------------------------------------------------------------------- dense trajectories
@@ -221,4 +232,4 @@ def test_auto_flies_a_dense_trajectory_in_time(auto_link):
     events = fly(drv, veh, lambda s: s.mode == Mode.HOLD and s.progress == 1.0, 40.0, watch)
     assert [e.capture_id for e in events] == [21, 22]
     assert len(errors) > 10 and max(errors) < 1.5, max(errors, default=None)  # at plan speed, not ~0.5 m/s
-    assert not drv.auto_errors
+    assert not drv.auto.errors

@@ -18,7 +18,7 @@ pytest.importorskip("pymavlink", reason="needs the 'mavlink' extra")
 from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 
 from edge.vehicle.apm.modes import CopterMode  # noqa: E402
-from edge.vehicle.mavlink import MavlinkDriver, open_connection  # noqa: E402
+from edge.vehicle.mavlink import MavlinkDriver, Phase, open_connection  # noqa: E402
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
 from protocol.messages import Mode  # noqa: E402
 from services.orchestration.process import free_port  # noqa: E402
@@ -63,8 +63,8 @@ def test_ground_station_watches_takes_over_and_keeps_the_gcs_failsafe_meaningful
         ack = wait_for(gcs, "COMMAND_ACK", lambda a: a.command == M.MAV_CMD_DO_SET_MODE)
         assert ack.result == M.MAV_RESULT_ACCEPTED and ack.target_system == 255
         end = time.monotonic() + 20
-        while drv.state().mode != Mode.HOLD or drv._phase != "external":
-            assert time.monotonic() < end, drv._phase
+        while drv.state().mode != Mode.HOLD or drv.phase is not Phase.EXTERNAL:
+            assert time.monotonic() < end, drv.phase
             drv.step(veh.clock.now())
             time.sleep(0.05)
         with pytest.raises(ValueError):

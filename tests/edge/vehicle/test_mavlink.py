@@ -163,7 +163,7 @@ def test_no_heartbeat_is_a_clear_error():
             drv.wait_heartbeat(0.3)
         with pytest.raises(ValueError, match="no HEARTBEAT from an autopilot"):
             drv.takeoff(5.0)
-        assert drv.step(1.0) == [] and drv.targets_sent == 0
+        assert drv.step(1.0) == [] and drv.targets.sent == 0
         drv.upload(Trajectory(uav=1, waypoints=[Waypoint(t=0, pos=(10, -5, 6)), Waypoint(t=1, pos=(10, -4, 6))]))
         with pytest.raises(ValueError, match="until_t"):
             drv.step(math.nan)
@@ -273,12 +273,12 @@ def test_pilot_takeover_is_reported_and_not_fought(link):
     drv, veh = link
     drv.takeoff(3.0)
     fly(drv, veh, lambda s: s.mode == Mode.HOLD, 10.0)
-    fly(drv, veh, lambda s: drv.targets_sent >= 3, 5.0)  # hold targets streaming
+    fly(drv, veh, lambda s: drv.targets.sent >= 3, 5.0)  # hold targets streaming
     veh.pilot_mode(CopterMode.LAND)  # the pilot's mode switch
     fly(drv, veh, lambda s: s.mode == Mode.LAND, 5.0)
-    sent = drv.targets_sent
+    sent = drv.targets.sent
     fly(drv, veh, lambda s: s.mode == Mode.LANDED, 20.0)
-    assert drv.targets_sent == sent  # no position target while the pilot flies
+    assert drv.targets.sent == sent  # no position target while the pilot flies
     assert not drv.state().armed
 
 
@@ -314,7 +314,7 @@ def test_mavsim_runs_as_a_process():
         proc.terminate()
         out, _ = proc.communicate(timeout=10)
     assert proc.returncode == 0, out
-    assert "mavsim up: uav 7" in out and "mavsim stopped" in out
+    assert "sim-autopilot: uav 7 (system id 7)" in out and "sim-autopilot stopped" in out
 
 
 def test_edge_board_flies_a_mavlink_vehicle(group, gateway):

@@ -412,7 +412,7 @@ def test_signed_link_survives_a_forged_future_timestamp_and_ignores_unsigned_com
             for _ in range(3):
                 s.sendto(forged, ("127.0.0.1", port))
         drv.takeoff(4.0)  # needs the autopilot's genuine COMMAND_ACKs after the forgery
-        assert veh.armed and drv._conn.mav.signing.badsig_count >= 3
+        assert veh.armed and drv.link.conn.mav.signing.badsig_count >= 3
         # an unsigned ground station is not obeyed: a LAND sent straight to the vehicle's socket
         n = len(veh.commands)
         sig = veh._conn.mav.signing
@@ -422,7 +422,7 @@ def test_signed_link_survives_a_forged_future_timestamp_and_ignores_unsigned_com
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             s.sendto(land, veh._conn.port.getsockname())
         # one more signed round trip (a command after the datagram): the vehicle has read it by then
-        drv._command(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), "request HOME_POSITION")
+        drv.command(M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), "request HOME_POSITION")
         assert all(c != M.MAV_CMD_NAV_LAND for c, _ in veh.commands[n:]) and veh.custom_mode == CopterMode.GUIDED
         assert sig.reject_count + sig.unsigned_count > refused
     finally:
@@ -463,3 +463,26 @@ def test_skynet_sim_autopilot_runs_several_instances_with_distinct_system_ids():
     bad = subprocess.run([sys.executable, "-m", "services.cli", "sim-autopilot", "--uav", "1", "--uav", "1"],
                          cwd=root, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "distinct" in bad.stderr
+
+
+def test_one_command_line_for_the_sim_autopilot():
+    """``skynet sim-autopilot`` and ``python -m edge.vehicle.mavsim`` parse the same arguments with the same
+    defaults (one parser): their help texts differ only in the program's name."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from edge.vehicle import sim_autopilot
+    from edge.vehicle.mavsim import cli
+
+    assert sim_autopilot.main is cli.main and sim_autopilot.build_parser is cli.build_parser
+    defaults = vars(cli.build_parser().parse_args(["--uav", "1"]))
+    assert defaults["wind"] == "calm" and defaults["boot_scale"] == 1.0 and defaults["firmware_version"] == "4.6"
+    root = Path(__file__).resolve().parents[3]
+    texts = [subprocess.run([sys.executable, "-m", *entry, "--help"], cwd=root, capture_output=True, text=True,
+                            timeout=60, env={"COLUMNS": "100", "PATH": "/usr/bin:/bin"}).stdout
+             for entry in (["services.cli", "sim-autopilot"], ["edge.vehicle.mavsim"])]
+    assert "--wind" in texts[0] and "--refuse-arming" in texts[0] and "--port-base" in texts[0]
+    same = [t.replace("skynet sim-autopilot", "PROG").replace("python -m edge.vehicle.mavsim", "PROG").split()
+            for t in texts]
+    assert same[0] == same[1]

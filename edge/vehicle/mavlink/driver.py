@@ -1,0 +1,572 @@
+"""The MAVLink driver: an autopilot behind :class:`VehicleDriver` (see the package docstring)."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from pymavlink.dialects.v20 import ardupilotmega as M
+
+from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
+from edge.vehicle.apm.items import capture_params
+from edge.vehicle.sequencer import MissionSequencer
+from protocol.messages import AutopilotReadiness, Mode, Trajectory
+
+from .auto import AutoFlight
+from .commands import CommandAwaiter, VehicleLinkError
+from .dialect import ARDUCOPTER, Dialect
+from .guided import Target, TargetStream
+from .handlers import Telemetry, dispatch, stream_requests
+from .link import Link
+from .params import ParamClient
+from .phase import GROUNDED, Phase, overrule
+
+__all__ = ["MavlinkParams", "MavlinkDriver"]
+
+log = logging.getLogger("skynet.mavlink")
+Vec3 = tuple[float, float, float]
+
+_GROUNDED = (Mode.IDLE, Mode.LANDED)
+_AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL, Mode.FAILSAFE)
+
+
+@dataclass(frozen=True)
+class MavlinkParams:
+    """Tuning of :class:`MavlinkDriver` (defaults as :class:`edge.vehicle.sim.SimParams` where shared).
+
+    Attributes
+    ----------
+    transit_speed : speed of the reference flying to the first waypoint / back to a paused point, m/s.
+    start_radius : ``start`` flies to the first waypoint first when farther than this, m.
+    arrive_radius : a transit counts as arrived when the vehicle is this close to its end, m.
+    max_offset : bound on the formation offset's norm, m.
+    offset_rate : the applied offset moves toward the commanded one at most this fast, m/s.
+    takeoff_tolerance : takeoff is complete within this height of the target, m.
+    heartbeat_timeout_s : link lost after this long without an autopilot HEARTBEAT, s.
+    retries : COMMAND_LONG resends when no COMMAND_ACK arrives.
+    trigger_camera : send MAV_CMD_DO_DIGICAM_CONTROL at each capture (not waiting for the ack).
+    interpolation : trajectory interpolation, "cubic" or "linear".
+    accel_feedforward : also send the trajectory's acceleration (ArduCopter >= 4.1 uses it);
+        False sends position, velocity and yaw only (older firmware).
+    appear_timeout_s : a command given before the autopilot's first HEARTBEAT waits this long for
+        it to appear (an autopilot still booting, a link still coming up) before failing; 0 fails
+        at once. A trajectory upload before then is stored without waiting.
+    flight : "guided" streams the reference as position targets (:mod:`.guided`); "auto" uploads the
+        trajectory as a waypoint mission and flies it in AUTO, kept in time by DO_CHANGE_SPEED (:mod:`.auto`).
+    auto_speed_gain : along-track error to ground-speed gain in AUTO, 1/s.
+    auto_speed_period_s : at most one DO_CHANGE_SPEED per this many wall seconds (unless the
+        speed changes by more than 0.5 m/s).
+    auto_end_wait_s : when the trajectory's clock runs out in AUTO, the switch to GUIDED waits for
+        the autopilot to reach the mission's last waypoint (MISSION_ITEM_REACHED) at most this
+        long, wall s, so that its last capture items run.
+    """
+
+    transit_speed: float = 4.0
+    start_radius: float = 1.0
+    arrive_radius: float = 0.5
+    max_offset: float = 3.0
+    offset_rate: float = 1.0
+    takeoff_tolerance: float = 0.3
+    heartbeat_timeout_s: float = 3.0
+    retries: int = 1
+    trigger_camera: bool = False
+    interpolation: Literal["cubic", "linear"] = "cubic"
+    accel_feedforward: bool = True
+    appear_timeout_s: float = 10.0
+    flight: Literal["guided", "auto"] = "guided"
+    auto_speed_gain: float = 0.6
+    auto_speed_period_s: float = 0.1
+    auto_end_wait_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        for k in ("transit_speed", "start_radius", "arrive_radius", "offset_rate", "takeoff_tolerance",
+                  "heartbeat_timeout_s"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{k} must be finite and > 0")
+        if not (math.isfinite(self.max_offset) and self.max_offset >= 0):
+            raise ValueError("max_offset must be finite and >= 0")
+        if not (isinstance(self.appear_timeout_s, (int, float)) and 0 <= self.appear_timeout_s <= 600):
+            raise ValueError("appear_timeout_s must be in [0, 600] s")
+        if not (isinstance(self.retries, int) and 0 <= self.retries <= 10):
+            raise ValueError("retries must be an int in 0..10")
+        if self.interpolation not in ("cubic", "linear"):
+            raise ValueError("interpolation must be 'cubic' or 'linear'")
+        if self.flight not in ("guided", "auto"):
+            raise ValueError("flight must be 'guided' or 'auto'")
+        for k in ("auto_speed_gain", "auto_speed_period_s", "auto_end_wait_s"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and 0 < v <= 10):
+                raise ValueError(f"{k} must be in (0, 10]")
+
+
+class MavlinkDriver(ParamClient, VehicleDriver):
+    """An autopilot (ArduCopter's dialect) over MAVLink 2 behind the driver interface.
+
+    Parameters
+    ----------
+    uav : int
+        UAV id (trajectories for another id are refused).
+    connection : str
+        pymavlink connection string, e.g. ``"udpin:0.0.0.0:14550"`` (listen for the autopilot).
+    home : (x, y, z)
+        Launch point in the mission's ENU frame, m: where the autopilot's local NED origin is.
+    rate_hz : float
+        Position-target stream rate (at most this many per wall second), Hz.
+    timeout_s : float
+        How long a command waits for its COMMAND_ACK per attempt, s.
+    params : MavlinkParams
+    sysid : int or None
+        The autopilot's MAVLink system id; None takes the first autopilot heard.
+    source_system, source_component : int
+        Our own MAVLink address (255 / MAV_COMP_ID_ONBOARD_COMPUTER by default: a GCS-side id).
+    signing_key : str or None
+        MAVLink 2 signing key (64 hex digits or a passphrase, :mod:`edge.vehicle.apm.signing`):
+        every packet out is signed and only correctly signed packets are accepted, the signature
+        checked before the stream's timestamp is recorded. None: unsigned.
+    gcs_endpoint : str or None
+        A MAVLink endpoint for the operator's ground station (:mod:`edge.vehicle.gcs_bridge`): the
+        autopilot's traffic is forwarded there and the GCS's to the autopilot. With it the driver
+        speaks as the companion computer (system id ``uav`` unless ``source_system`` is given,
+        HEARTBEAT type MAV_TYPE_ONBOARD_CONTROLLER), so the autopilot's GCS failsafe watches the
+        operator's ground station, not the edge.
+    dialect : Dialect
+        The autopilot family (:mod:`.dialect`).
+    """
+
+    def __init__(
+        self,
+        uav: int,
+        connection: str,
+        home: Vec3 = (0.0, 0.0, 0.0),
+        rate_hz: float = 20.0,
+        timeout_s: float = 1.5,
+        *,
+        params: MavlinkParams = MavlinkParams(),
+        sysid: int | None = None,
+        source_system: int = 255,
+        source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
+        signing_key: str | None = None,
+        gcs_endpoint: str | None = None,
+        gcs_video: Any = None,
+        dialect: Dialect = ARDUCOPTER,
+    ):
+        if not (isinstance(uav, int) and 1 <= uav <= 255):
+            raise ValueError("uav must be an int in 1..255")
+        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 100):
+            raise ValueError("rate_hz must be in (0, 100]")
+        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and 0 < timeout_s <= 60):
+            raise ValueError("timeout_s must be in (0, 60]")
+        if sysid is not None and not (isinstance(sysid, int) and 1 <= sysid <= 255):
+            raise ValueError("sysid must be None or an int in 1..255")
+        if not isinstance(params, MavlinkParams):
+            raise ValueError("params must be a MavlinkParams")
+        self.uav, self.connection, self.params, self.dialect = uav, connection, params, dialect
+        self.home = check_vec3(home, "home")
+        self.rate_hz, self.timeout_s = float(rate_hz), float(timeout_s)
+        hb_type = M.MAV_TYPE_GCS
+        if gcs_endpoint is not None:
+            hb_type = M.MAV_TYPE_ONBOARD_CONTROLLER
+            if source_system == 255:
+                source_system = uav
+        self._mono0 = time.monotonic()
+        self._closed = False
+        self.tel = Telemetry(uav, self.home, source_system, sysid)
+        self._lock = self.tel.lock  # telemetry, phase, acks
+        self.commands = CommandAwaiter(self.tel, self._send_command, self.timeout_s, params.retries)
+        self._cmd_rx = 0  # receive index of the last accepted command's ack
+        #: autopilot modes the driver did not command and noticed (the dialect's names, in order)
+        self.external_modes: list[str] = []
+        self.phase = Phase.IDLE
+        self._t = 0.0
+        self._takeoff_z = self.home[2]
+        self._takeoff_yaw = 0.0
+        self._hold: tuple[Vec3, float] = (self.home, 0.0)  # position, ENU yaw
+        self._traj: Trajectory | None = None
+        #: the trajectory, its start/pause/resume, the formation offset and the captures (under _lock)
+        self.mission = MissionSequencer(
+            uav, self.home[2], transit_speed=params.transit_speed, start_radius=params.start_radius,
+            arrive_radius=params.arrive_radius, max_offset=params.max_offset, offset_rate=params.offset_rate,
+            interpolation=params.interpolation)
+        self.targets = TargetStream(self.rate_hz, self.home)
+        #: the AUTO flight strategy (None when flying GUIDED)
+        self.auto = AutoFlight(self) if params.flight == "auto" else None
+        self.bridge = None
+        self._last_req = -math.inf
+        self.link = Link(connection, source_system, source_component, name=f"mavlink-uav{uav}", hb_type=hb_type,
+                         on_message=self._on_message, on_tick=self._on_tick, signing_key=signing_key)
+        if gcs_endpoint is not None:
+            from edge.vehicle.gcs_bridge import GcsBridge
+
+            self.bridge = GcsBridge(gcs_endpoint, self.link.write, video=gcs_video)
+        self.link.start()
+
+    # ------------------------------------------------------------------ link
+    def _on_message(self, msg: Any, now: float) -> None:
+        bridge = self.bridge
+        if bridge is not None:
+            bridge.to_gcs(msg)
+        dispatch(self.tel, msg, now)
+
+    def _on_tick(self, now: float) -> None:
+        if self.tel.hb is not None and now - self._last_req >= 2.0:
+            self._last_req = now
+            for msg in stream_requests(self.tel, now):
+                self.link.send(msg)
+
+    def _send_command(self, command: int, confirmation: int, p: tuple[float, ...], frame: int | None) -> None:
+        sysid, compid = self.tel.sysid or 0, self.tel.compid
+        if frame is None:
+            self.link.send(M.MAVLink_command_long_message(sysid, compid, command, confirmation, *p))
+        else:
+            self.link.send(M.MAVLink_command_int_message(sysid, compid, frame, command, 0, 0, *p[:4], int(p[4]),
+                                                         int(p[5]), p[6]))
+
+    @property
+    def link_errors(self) -> int:
+        """Undecodable datagrams, malformed values and send errors on the link."""
+        return self.link.errors + self.tel.errors
+
+    def readiness(self) -> AutopilotReadiness:
+        """The autopilot's readiness to fly: HEARTBEAT heard, its system_status past BOOT, home known
+        (HOME_POSITION), an absolute position estimate (EKF_STATUS_REPORT flags, the dialect's
+        ``position_ok``), the pre-arm checks passing (SYS_STATUS pre-arm bit healthy), and the
+        autopilot's latest "PreArm:", "Arm:" or mode-refusal STATUSTEXT as the reason while not ready."""
+        tel = self.tel
+        with tel.lock:
+            hb, home, flags, prearm, text = tel.hb, tel.home_lla, tel.ekf_flags, tel.prearm_ok, tel.not_ready_text
+            local = "LOCAL_POSITION_NED" in tel.last_mono
+        heard = self.link_ok
+        e = M.enums["MAV_STATE"].get(hb.status) if hb is not None else None
+        status = e.name.removeprefix("MAV_STATE_").lower() if e is not None else ""
+        booting = hb is None or hb.status in (M.MAV_STATE_UNINIT, M.MAV_STATE_BOOT, M.MAV_STATE_CALIBRATING)
+        position = self.dialect.position_ok(flags) if flags is not None else (home is not None and local)
+        armable = prearm is not False
+        ready = heard and not booting and home is not None and position and armable
+        why = ""
+        if not ready:
+            if not heard:
+                why = str(self._link_error() or "no HEARTBEAT")
+            elif booting:
+                why = f"the autopilot is starting (system status {status or 'unknown'})"
+            elif home is None:
+                why = "no home position yet"
+            elif not position:
+                why = "no absolute position estimate yet (EKF not using GPS)"
+            else:
+                why = "its pre-arm checks fail"
+            if text and heard:
+                why += f"; the autopilot says: {text}"
+        return AutopilotReadiness(ready=ready, heartbeat=heard, status=status, home=home is not None,
+                                  position=position, armable=armable, reason=why[:256])
+
+    def heartbeat_age(self) -> float | None:
+        """Seconds since the last autopilot HEARTBEAT (None: none yet)."""
+        hb = self.tel.hb
+        return None if hb is None else time.monotonic() - hb.mono
+
+    @property
+    def link_ok(self) -> bool:
+        """An autopilot HEARTBEAT arrived within ``heartbeat_timeout_s``."""
+        age = self.heartbeat_age()
+        return age is not None and age <= self.params.heartbeat_timeout_s
+
+    @property
+    def target_system(self) -> int | None:
+        """The autopilot's system id (None until heard)."""
+        return self.tel.sysid
+
+    def _link_error(self) -> VehicleLinkError | None:
+        age = self.heartbeat_age()
+        if age is None:
+            waited = time.monotonic() - self._mono0
+            return VehicleLinkError(f"no HEARTBEAT from an autopilot on {self.connection} in {waited:.1f} s: "
+                                    "is the vehicle connected and sending to this endpoint?")
+        if age > self.params.heartbeat_timeout_s:
+            return VehicleLinkError(f"autopilot link lost: last HEARTBEAT {age:.1f} s ago on {self.connection}")
+        if self.tel.autopilot != self.dialect.autopilot:
+            e = M.enums["MAV_AUTOPILOT"].get(self.tel.autopilot)
+            return VehicleLinkError(f"the autopilot is {e.name if e else self.tel.autopilot}: this driver speaks "
+                                    f"{self.dialect.name}'s modes only")
+        return None
+
+    def wait_heartbeat(self, timeout_s: float = 5.0) -> None:
+        """Block until an autopilot HEARTBEAT is heard; :class:`VehicleLinkError` after ``timeout_s``."""
+        if not (math.isfinite(timeout_s) and timeout_s >= 0):
+            raise ValueError("timeout_s must be finite and >= 0")
+        deadline = time.monotonic() + timeout_s
+        with self.tel.cv:
+            while not self.link_ok:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    err = self._link_error()
+                    assert err is not None
+                    raise err
+                self.tel.cv.wait(min(left, 0.1))
+
+    def command(self, command: int, params: tuple[float, ...], what: str) -> None:
+        """Send a COMMAND_LONG and wait for its COMMAND_ACK (:class:`.commands.CommandRefused` unless accepted)."""
+        err = self._link_error()
+        if err is not None:
+            raise err
+        rx = self.commands.call(command, params, what)
+        with self._lock:
+            self._cmd_rx = max(self._cmd_rx, rx)
+
+    def set_mode(self, mode: int) -> None:
+        self.command(M.MAV_CMD_DO_SET_MODE, self.dialect.set_mode_params(mode),
+                     f"set mode {self.dialect.mode_name(mode)}")
+
+    def _ensure_guided(self) -> None:
+        """Switch to the guided mode unless the driver already flies in it (and no newer HEARTBEAT disagrees)."""
+        guided = self.dialect.guided
+        with self._lock:
+            hb = self.tel.hb
+            fresh = hb is not None and hb.rx > self._cmd_rx
+            if self.phase in (Phase.HOLD, Phase.MISSION, Phase.TAKEOFF) and not (fresh and hb.custom_mode != guided):
+                return
+        self.set_mode(guided)
+
+    # ------------------------------------------------------------------ mode machine (phase.py)
+    def _update_phase(self) -> None:
+        """Let a HEARTBEAT newer than the last accepted command overrule the driver's phase."""
+        hb = self.tel.hb
+        if hb is None or hb.rx <= self._cmd_rx:
+            return
+        pending = self.auto.pending if self.auto is not None else ()
+        o = overrule(self.phase, armed=hb.armed, guided=hb.custom_mode == self.dialect.guided,
+                     expected=hb.custom_mode == self.dialect.phase_mode(self.phase) or hb.custom_mode in pending)
+        if o.noticed:
+            name = self.dialect.mode_name(hb.custom_mode)
+            self.external_modes.append(name)
+            log.warning("UAV %d: the autopilot is in %s, a mode the edge did not command (pilot or failsafe): "
+                        "the mission is paused and the edge stops commanding until resumed", self.uav, name)
+        if o.pause:
+            self.mission.pause(self._t)
+        if o.phase is Phase.HOLD and self.phase is not Phase.HOLD:
+            self._hold_here()
+        self.phase = o.phase
+
+    def _mode(self) -> Mode:
+        if not self.link_ok:
+            return Mode.FAILSAFE
+        mode = self.phase.mode
+        if mode is None:
+            hb = self.tel.hb
+            return self.dialect.board_mode(hb.custom_mode) if hb is not None else Mode.FAILSAFE
+        return mode
+
+    def _require(self, allowed: tuple[Mode, ...], what: str) -> Mode:
+        if self._closed:
+            raise ValueError("driver is closed")
+        if self.heartbeat_age() is None and self.params.appear_timeout_s > 0:
+            try:  # not heard yet: give the autopilot time to appear instead of a fixed window
+                self.wait_heartbeat(self.params.appear_timeout_s)
+            except VehicleLinkError:
+                pass  # reported below
+        err = self._link_error()
+        if err is not None:
+            raise err
+        with self._lock:
+            self._update_phase()
+            mode = self._mode()
+        if mode not in allowed:
+            names = ", ".join(m.value for m in allowed)
+            raise ValueError(f"cannot {what} in mode {mode.value} (allowed in: {names})")
+        return mode
+
+    def _armed(self) -> bool:
+        """Armed per the last HEARTBEAT, or per the phase when no HEARTBEAT followed the last command."""
+        hb = self.tel.hb
+        if hb is not None and hb.rx > self._cmd_rx:
+            return hb.armed
+        return self.phase not in GROUNDED
+
+    # ------------------------------------------------------------------ state
+    def state(self) -> DriverState:
+        tel = self.tel
+        with self._lock:
+            self._update_phase()
+            wp, prog = self.mission.progress(self._t)
+            return DriverState(
+                t=self._t, pos=tel.pos, vel=tel.vel, att=tel.att, rates=tel.rates,
+                mode=self._mode(), armed=self._armed(), battery=tel.battery,
+                wp_index=wp, progress=prog, captures=self.mission.captures,
+            )
+
+    # ------------------------------------------------------------------ commands
+    def upload(self, traj: Trajectory) -> None:
+        if not (self.heartbeat_age() is None and self.phase is Phase.IDLE and not self._closed):
+            self._require((Mode.IDLE, Mode.LANDED, Mode.TAKEOFF, Mode.HOLD), "upload a trajectory")
+        with self._lock:  # before the autopilot appears: stored here, flown once it is there
+            self.mission.load(traj)
+            self._traj = traj
+
+    def takeoff(self, altitude: float) -> None:
+        self._require(_GROUNDED, "take off")
+        altitude = float(altitude)
+        if not (math.isfinite(altitude) and 0.5 <= altitude <= 500.0):
+            raise ValueError("takeoff altitude must be in [0.5, 500] m")
+        self.set_mode(self.dialect.guided)
+        self.command(M.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "arm")
+        try:
+            self.command(M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, 0, 0, altitude), f"take off to {altitude:g} m")
+        except ValueError:
+            try:  # do not leave the motors armed on the ground
+                self.command(M.MAV_CMD_COMPONENT_ARM_DISARM, (0.0,), "disarm")
+            except ValueError:
+                pass
+            raise
+        with self._lock:
+            self.phase = Phase.TAKEOFF
+            self._takeoff_z = self.home[2] + altitude
+            self._takeoff_yaw = self.tel.att[2]
+
+    def start(self, t0: float | None = None) -> None:
+        self._require((Mode.HOLD,), "start a mission")
+        self.mission.check_start(t0)
+        if self.auto is not None:
+            self.auto.prepare(self._traj)
+        self._ensure_guided()
+        with self._lock:
+            self.mission.start(self._t, self.tel.pos, t0)
+            self.phase = Phase.MISSION
+            self.targets.restart()
+
+    def hold(self) -> None:
+        self._require(_AIRBORNE, "hold")
+        if self.phase is Phase.HOLD:
+            return
+        if not self._armed():
+            raise ValueError("cannot hold: the vehicle is not armed")
+        self._ensure_guided()
+        with self._lock:
+            self.mission.pause(self._t)
+            self._hold_here()
+
+    def resume(self) -> None:
+        self._require((Mode.HOLD,), "resume")
+        self.mission.check_resume()
+        self._ensure_guided()
+        with self._lock:
+            self.mission.resume(self._t, self.tel.pos, self.tel.att[2])  # flies back keeping its heading
+            self.phase = Phase.MISSION
+            self.targets.restart()
+
+    def land(self) -> None:
+        self._fly_home(Phase.LAND, M.MAV_CMD_NAV_LAND, (0, 0, 0, math.nan, 0, 0, 0), "land")
+
+    def return_to_launch(self) -> None:
+        self._fly_home(Phase.RTL, M.MAV_CMD_NAV_RETURN_TO_LAUNCH, (), "return to launch")
+
+    def _fly_home(self, phase: Phase, command: int, params: tuple[float, ...], what: str) -> None:
+        """NAV_LAND (the autopilot lands and disarms on the ground) or NAV_RETURN_TO_LAUNCH."""
+        self._require(_AIRBORNE, what)
+        if self.phase is phase:
+            return
+        self.command(command, params, what)
+        with self._lock:
+            self.mission.cancel()
+            self.phase = phase
+
+    def set_reference_offset(self, offset: Vec3) -> None:
+        if self._closed:
+            raise ValueError("driver is closed")
+        with self._lock:
+            self.mission.set_offset(offset)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self.auto is not None:
+            self.auto.close()
+        self.link.close()
+        if self.bridge is not None:
+            self.bridge.close()
+
+    def __enter__(self) -> "MavlinkDriver":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ mission bookkeeping (under _lock)
+    def _hold_here(self) -> None:
+        self.phase = Phase.HOLD
+        self._hold = (self.tel.pos, self.tel.att[2])
+        self.targets.restart()
+
+    def _mission_reference(self, t: float, dt: float, events: list[CaptureEvent]) -> Target:
+        """The mission's target at time t (the sequencer's reference, as this driver streams it).
+
+        Waiting at the first waypoint and holding at the end: position and yaw; transit:
+        position, velocity and yaw; tracking: also the acceleration (``accel_feedforward``).
+        """
+        m, tel = self.mission, self.tel
+        p, v, a, yaw = m.reference(t, tel.pos, dt)
+        events.extend(CaptureEvent(w.capture_id, t, tel.pos, tel.att) for w in m.due(t))
+        if m.done:
+            self.phase = Phase.HOLD
+            self._hold = (p, yaw)
+            return p, None, None, yaw
+        if m.phase == "track":
+            return p, v, (a if self.params.accel_feedforward else None), yaw
+        return p, (None if m.phase == "wait" else v), None, yaw
+
+    # ------------------------------------------------------------------ streaming
+    def step(self, until_t: float) -> list[CaptureEvent]:
+        """Advance to mission time ``until_t`` (the board's clock, :mod:`edge.clock`): the reference of the
+        shared :class:`MissionSequencer`, position targets (GUIDED) or speed corrections (AUTO), and the
+        captures due; never waits for the link."""
+        if self._closed:
+            raise ValueError("driver is closed")
+        until_t = float(until_t)
+        if not math.isfinite(until_t):
+            raise ValueError("until_t must be finite")
+        events: list[CaptureEvent] = []
+        target: Target | None = None
+        speed: Any = None
+        auto, tel = self.auto, self.tel
+        with self._lock:
+            dt = until_t - self._t
+            self._t = until_t
+            self._update_phase()
+            if not self.link_ok:
+                return events
+            phase = self.phase
+            if (phase is Phase.TAKEOFF and tel.pos[2] >= self._takeoff_z - self.params.takeoff_tolerance
+                    and abs(tel.vel[2]) < 0.3):
+                self.phase = phase = Phase.HOLD
+                self._hold = ((tel.pos[0], tel.pos[1], self._takeoff_z), self._takeoff_yaw)
+                self.targets.restart()
+            if phase is Phase.MISSION:
+                target = self._mission_reference(until_t, dt, events)
+                if auto is not None and self.mission.phase == "track":
+                    auto.enter(until_t)
+            elif phase is Phase.AUTO and auto is not None:
+                ref = self._mission_reference(until_t, dt, events)
+                if self.phase is Phase.HOLD:  # the trajectory's end: hold there in GUIDED once AUTO finished
+                    auto.ended()
+                    phase = Phase.HOLD
+                else:
+                    speed = auto.speed_message(ref)
+            if phase is Phase.HOLD:
+                if auto is not None:
+                    auto.hold_tick()
+                target = (self._hold[0], None, None, self._hold[1])
+            if target is not None and not self.targets.due(time.monotonic()):
+                target = None  # streamed recently enough
+        if target is not None:
+            self.link.send(self.targets.message(target, tel.sysid or 0, tel.compid))
+        if speed is not None:
+            self.link.send(speed)
+        if self.params.trigger_camera:
+            for ev in events:
+                self.link.send(M.MAVLink_command_long_message(tel.sysid or 0, tel.compid,
+                                                              M.MAV_CMD_DO_DIGICAM_CONTROL, 0,
+                                                              *capture_params(ev.capture_id)))
+        return events
