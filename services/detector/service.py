@@ -18,7 +18,7 @@ Several instances share the fleet's cameras with ``--partition K/N`` (:mod:`serv
 instance K subscribes only to the camera keys of the UAVs with ``id % N == K`` and is named
 ``detector-K`` (its liveliness token and statistics key; its reports go to the common defects key).
 
-Each camera opens its stream with an empty "announce" frame (:meth:`edge.runtime.CameraLink.announce`)
+Each camera opens its stream with an empty "announce" frame (:meth:`edge.camera_service.CameraLink.announce`)
 so that Zenoh's recovery sees a lost first capture as a gap like any other. The detector drops it
 on arrival (``count.announce``): it is not a capture, and it often arrives seconds after it was
 sent (fetched from the cache when the detector starts), which would spoil the jitter figure.
@@ -76,7 +76,7 @@ from .recovery import RecoveryTracker
 #: callback never waits for it either way.
 QUEUE_FRAMES = 128
 #: cameras per UAV the detector keeps a jitter buffer for (SSRC ``0x534BUUCC`` with CC below this):
-#: the capture camera is 0, the preview camera 1 (edge.runtime); any other SSRC is rejected, so a
+#: the capture camera is 0, the preview camera 1 (edge.camera_service); any other SSRC is rejected, so a
 #: sender cannot make the detector keep an unbounded number of buffers.
 MAX_CAMERAS = 4
 
@@ -157,7 +157,7 @@ class DetectorService:
                 self.log.warning("%s: frames over the camera budget (%s); further ones are only counted",
                                  sample.key_expr, over)
             return
-        if len(payload) == 0:  # a camera's announce frame (edge.runtime.CameraLink.announce)
+        if len(payload) == 0:  # a camera's announce frame (edge.camera_service.CameraLink.announce)
             self.counts["announce"] += 1
             return
         self.counts["frames"] += 1

@@ -102,8 +102,8 @@ from .topology import (
 )
 
 from edge.neighbourhood import FORMATION_SIZE
-from edge.board import niceness
-from edge.runtime import CAPTURE_LINKS, frame_size
+from edge.config import niceness
+from edge.config import CAPTURE_LINKS, frame_size
 from protocol.checks import rate_arg
 from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET, fleet_load
 from ..gateway.ingress import STATE_INGRESS_HZ
