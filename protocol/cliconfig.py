@@ -23,7 +23,7 @@ import typing
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, PydanticUserError, TypeAdapter, ValidationError
 from pydantic.fields import FieldInfo
 
 M = TypeVar("M", bound=BaseModel)
@@ -93,7 +93,10 @@ def _value_type(info: FieldInfo, item: bool) -> Any:
 def arg_type(tp: Any, name: str = "value"):
     """An argparse ``type`` validating text as the (annotated) type ``tp``: a bad value is argparse's
     one-line error naming the constraint. For a command line not (yet) built from a model."""
-    adapter = TypeAdapter(tp, config=ConfigDict(allow_inf_nan=False))
+    try:
+        adapter = TypeAdapter(tp, config=ConfigDict(allow_inf_nan=False))
+    except PydanticUserError:  # a model or dataclass: its own config rules
+        adapter = TypeAdapter(tp)
 
     def parse(text: str) -> Any:
         try:
@@ -113,12 +116,6 @@ class CliModel(BaseModel):
     """Base of the command-line configs: unknown fields refused, no NaN or infinity in a number."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-
-def _render_default(value: Any) -> str:
-    if isinstance(value, enum.Enum):
-        return str(value.value)
-    return str(value)
 
 
 def _group(parser: argparse.ArgumentParser, title: str | None):
@@ -161,13 +158,13 @@ def add_options(parser: argparse.ArgumentParser, model: type[BaseModel], default
             if choices is not None:
                 kw["choices"] = choices
                 kw["type"] = _parser_type(name, info, is_list) if not all(isinstance(c, str) for c in choices) else str
-            if is_list:
-                kw.update(action="append", default=None)  # None: not given (the model's default then)
+            if is_list:  # appended to a copy of an empty default; a non-empty one is the model's when none given
+                kw.update(action="append", default=[] if not default else None)
             if required:
                 kw["required"] = True
             elif default not in (None, [], ()):
-                shown = ",".join(map(str, default)) if isinstance(default, tuple) else _render_default(default)
-                kw["help"] = f"{kw['help']} (default: {shown})".strip()
+                shown = ", ".join(_text(info, v, True) for v in default) if is_list else _text(info, default, False)
+                kw["help"] = f"{kw['help']} (default: {shown.replace('%', '%%')})".strip()
         _group(parser, cli.group).add_argument(*flags, **kw)
     return parser
 

@@ -24,9 +24,13 @@ import os
 import socket
 import time
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import Field
 
 from protocol import keys
+from protocol.bus import BusMode, BusOptions
+from protocol.cliconfig import Cli
 
 log = logging.getLogger("skynet.attach")
 
@@ -224,3 +228,13 @@ def open_bus(args: argparse.Namespace, role: str, argv: list[str] | None, name: 
         if type(exc).__name__ != "ZError":
             raise
         raise AttachError(explain_open_error(exc, args, desc, role)) from None
+
+
+
+class AttachOptions(BusOptions):
+    """The session options of a tool that attaches to a running network (:func:`open_bus`): video, web."""
+
+    mode: BusMode = "client"
+    network: Annotated[str | None, Cli(metavar="FILE")] = Field(
+        default=None, description=f"the running network's description, used when no -e/--config is given "
+                                  f"(default: ${NETWORK_ENV} or {NETWORK_FILE}, written by skynet up/mission)")
