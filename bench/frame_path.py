@@ -56,7 +56,7 @@ FRAME = "4000x3000"
 def steps(repeat: int) -> dict[str, float]:
     from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
     from edge.geometry.camera import camera_model, camera_rotation
-from edge.world.wall import synthetic_surface
+    from edge.world.wall import synthetic_surface
     from protocol.messages import ImageMeta, Intrinsics
     from protocol.scenario import load_scenario
     from services.detector.pipeline import analyse

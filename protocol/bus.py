@@ -5,9 +5,10 @@ What it adds to zenoh-python, and nothing more:
 
 * :class:`BusConfig` — mode, endpoints, scouting, lease, shared memory and the multilink
   setup that puts reliable traffic on a TCP link and best-effort traffic on a UDP link
-  (ZENOH.md, "One link per reliability class"); :func:`add_bus_args` gives every service the
-  command-line options of zenoh-python's examples (``--mode``, ``--connect``, ``--listen``,
-  ``--config``).
+  (ZENOH.md, "One link per reliability class"); :class:`BusOptions`, the base of every service's
+  typed config (:mod:`protocol.cliconfig`), holds the command-line options of zenoh-python's examples
+  (``--mode``, ``--connect``, ``--listen``, ``--config``, ``--cfg``) and ours, and
+  :func:`config_from_args` makes the session config of them.
 * :class:`Bus` — ``publisher(key, link)`` with the link class's QoS, ``subscribe(key, cb,
   expect=...)`` that decodes on Zenoh's callback thread and *counts* decoding failures per key
   and kind (logged once per kind, never raised into Zenoh), an optional bounded drop-oldest ring
@@ -21,7 +22,6 @@ import argparse
 import collections
 import json
 import logging
-import os
 import queue
 import threading
 import time

@@ -154,9 +154,9 @@ def attach(args: argparse.Namespace, role: str, argv: list[str] | None = None) -
     must then be the network's fleet or its replay fleet) and the key set (unless ``--keys`` was given: it
     must have the same CA). Returns the description; AttachError when the tool cannot attach.
     """
-    if args.connect or args.config or getattr(args, "scouting", False):
+    if args.connect or args.config or args.scouting:
         return None
-    path = network_path(getattr(args, "network", None))
+    path = network_path(args.network)
     desc = read(path)
     fleet = desc["fleet"]
     if explicit_fleet(argv):
@@ -206,7 +206,7 @@ def explain_open_error(exc: BaseException, args: argparse.Namespace, desc: dict[
                 "by .skynet/network.json), or give -e ENDPOINT")
     if "Timeout" in text or "Unable to connect" in text:
         if desc is not None:
-            return (f"the network's gateway at {where} did not answer (is the network in {network_path(getattr(args, 'network', None))} "
+            return (f"the network's gateway at {where} did not answer (is the network in {network_path(args.network)} "
                     f"still running? {role} used the key set {args.keys or '(none)'})")
         tls = any(e.startswith("tls/") for e in args.connect)
         hint = (f" with {role}'s identity in {args.keys}: is it this network's key set?" if tls and args.keys

@@ -25,6 +25,8 @@ def _services():
     from services.gateway import service as gateway
     from services.gateway.config import GatewayConfig
     from services.gcs import cli as gcs
+    from services.experiment import cli as experiment
+    from services.experiment.config import ExperimentConfig
     from services.gcs.config import GcsMissionConfig
     from services.planner import service as planner
     from services.planner.config import PlannerConfig
@@ -55,10 +57,13 @@ def _services():
         (gcs.build_parser, ["mission"], GcsMissionConfig(scenario="s.toml", uavs=6, seed=2, speed=8.0, out="r",
                                                          quiet=True, no_record=True, web=":8080",
                                                          no_ground_truth=True, **bus)),
+        (experiment.build_parser, [], ExperimentConfig(loss=(1.0, 2.5), delay=(10.0,), jitter=(0.0, 5.0),
+                                                       recovery=(True, False), repeat=2, links="uav2/udp", speed=4.0,
+                                                       uavs=2, seed=5, out="o", timeout=60.0, dry_run=True)),
     ]
 
 
-@pytest.mark.parametrize("case", range(7))
+@pytest.mark.parametrize("case", range(8))
 def test_every_service_config_goes_through_its_own_command_line_unchanged(case):
     build, prefix, config = _services()[case]
     argv = to_argv(config)
@@ -117,7 +122,8 @@ def test_a_switch_must_default_to_off():
 
 def test_a_bad_service_option_is_one_line_and_exit_2():
     for argv in (["edge", "--uav", "1", "--battery-low", "0.05"], ["edge", "--uav", "1", "--frame-size", "1x1"],
-                 ["gateway", "--fleet", "a/b"], ["detector", "--partition", "3/2"], ["planner", "--lease", "-1"]):
+                 ["gateway", "--fleet", "a/b"], ["detector", "--partition", "3/2"], ["planner", "--lease", "-1"],
+                 ["experiment", "--links", "uav9"], ["web", "--listen-web", "nowhere"]):
         p = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
         lines = p.stderr.strip().splitlines()
         assert p.returncode == 2 and "error:" in lines[-1] and "Traceback" not in p.stderr, (argv, p.stderr)
