@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import enum
+import types
 import typing
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, TypeVar
@@ -50,7 +51,7 @@ def flag_of(name: str, info: FieldInfo) -> str:
 
 
 def _unwrap_optional(tp: Any) -> Any:
-    if typing.get_origin(tp) in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         if len(args) == 1:
             return args[0]
@@ -127,18 +128,17 @@ def _group(parser: argparse.ArgumentParser, title: str | None):
     return parser.add_argument_group(title)
 
 
-def add_options(parser: argparse.ArgumentParser, model: type[BaseModel], defaults: dict[str, Any] | None = None,
-                only: typing.Iterable[str] | None = None) -> argparse.ArgumentParser:
-    """Add an option per field of ``model`` (``only``: those fields) to ``parser``.
+def add_options(parser: argparse.ArgumentParser, model: type[BaseModel],
+                defaults: dict[str, Any] | None = None) -> argparse.ArgumentParser:
+    """Add an option per field of ``model`` to ``parser``.
 
     ``defaults`` replace the model's for this command line (e.g. a client's ``--mode``). The
     namespace holds typed values: the defaults, or what the field's type made of the text.
     """
     defaults = defaults or {}
-    wanted = None if only is None else set(only)
     for name, info in model.model_fields.items():
         cli = _cli(info)
-        if cli.hidden or (wanted is not None and name not in wanted):
+        if cli.hidden:
             continue
         flags = [flag_of(name, info), *([cli.short] if cli.short else [])]
         required = info.is_required() and name not in defaults
@@ -157,7 +157,8 @@ def add_options(parser: argparse.ArgumentParser, model: type[BaseModel], default
             choices = _choices(typing.get_args(tp)[0] if is_list else tp)
             if choices is not None:
                 kw["choices"] = choices
-                kw["type"] = _parser_type(name, info, is_list) if not all(isinstance(c, str) for c in choices) else str
+                if all(isinstance(c, str) for c in choices):
+                    kw["type"] = str  # argparse checks the choice (and lists them in its error)
             if is_list:  # appended to a copy of an empty default; a non-empty one is the model's when none given
                 kw.update(action="append", default=[] if not default else None)
             if required:
