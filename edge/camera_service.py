@@ -21,7 +21,6 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
-import math
 import threading
 import time
 
@@ -67,7 +66,8 @@ class CameraLink:
     Parameters
     ----------
     cache : int
-        Capture frames kept for recovery (>= 0; 0 = plain best-effort publisher, no recovery).
+        Capture frames kept for recovery (>= 0, checked by :class:`edge.config.EdgeConfig`; 0 = plain
+        best-effort publisher, no recovery).
     preview : PreviewStream or None
         The live preview stream, fed by :meth:`preview`.
     """
@@ -75,8 +75,6 @@ class CameraLink:
     def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
                  quality: int = 85, cache: int = IMAGERY_CACHE_FRAMES, preview: PreviewStream | None = None,
                  link: LinkClass = IMAGERY):
-        if isinstance(cache, bool) or not isinstance(cache, int) or cache < 0:
-            raise ValueError(f"imagery cache must be an int >= 0 (frames), got {cache!r}")
         self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
         self.sender = RtpSender(ssrc_for(uav, 0))
         self.cache = cache
@@ -175,10 +173,6 @@ class PreviewStream:
 
     def __init__(self, bus: Bus, uav: int, source, model, rate_hz: float = PREVIEW_HZ,
                  quality: int = PREVIEW_QUALITY, log: logging.Logger | None = None):
-        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
-            raise ValueError(f"preview rate must be a finite number of Hz > 0, got {rate_hz!r}")
-        if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= 100:
-            raise ValueError(f"preview JPEG quality must be an int in 1..100, got {quality!r}")
         self.bus, self.uav, self.source, self.model, self.log = bus, uav, source, model, log
         self.period_s, self.quality = 1.0 / float(rate_hz), quality
         self.sender = RtpSender(ssrc_for(uav, PREVIEW_CAMERA))
