@@ -24,7 +24,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edge.camera import CameraPose, SyntheticSource, encode_jpeg
-from edge.runtime import camera_model, synthetic_surface
+from edge.geometry.camera import camera_model
+from edge.world.wall import synthetic_surface
 from protocol.scenario import load_scenario
 
 

@@ -3,7 +3,7 @@
 Two parts, one run:
 
 1. **Steps** (in this process, median of ``--repeat``): the mission's own 12 MP frame of the wall
-   (the default scenario's camera at its 4.78 m stand-off, :func:`edge.runtime.synthetic_surface`)
+   (the default scenario's camera at its 4.78 m stand-off, :func:`edge.world.wall.synthetic_surface`)
    rendered as before (one warp at the frame size, with the ground-truth mask) and as the edge does
    now (``SyntheticSource(mask=False, upsample=True)``); its JPEG encode (q85, as the edge);
    the detector's decode and the whole analysis (decode, IT+r, report) at 1/2 (the old budget,
@@ -55,7 +55,8 @@ FRAME = "4000x3000"
 
 def steps(repeat: int) -> dict[str, float]:
     from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
-    from edge.runtime import camera_model, camera_rotation, synthetic_surface
+    from edge.geometry.camera import camera_model, camera_rotation
+    from edge.world.wall import synthetic_surface
     from protocol.messages import ImageMeta, Intrinsics
     from protocol.scenario import load_scenario
     from services.detector.pipeline import analyse

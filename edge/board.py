@@ -31,17 +31,17 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
-import math
 import os
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 
 from protocol import keys
 from protocol.budget import for_topic
-from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
-from protocol.links import COMMAND, LINK_LEASE_S, TELEMETRY
+from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
+from protocol.links import COMMAND, TELEMETRY
 from protocol.readiness import notify_ready
 from protocol.messages import (
     Box, CommandAck, Event, EventKind, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
@@ -50,14 +50,14 @@ from protocol.messages import (
 from protocol.signing import TrustError
 
 from . import formation
-from .failsafe import ACTIONS, ESCALATIONS, FailsafeOptions, FailsafePolicy
+from .failsafe import FailsafeOptions, FailsafePolicy
 from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
-from protocol.checks import rate_arg
-
-from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size
 from .trust import Gate, command_id
 from .validate import narrowed_fence, validate_command
 from .vehicle.follower import Follower
+
+if TYPE_CHECKING:
+    from .config import EdgeConfig
 
 
 logger = logging.getLogger("skynet.edge.board")
@@ -86,8 +86,6 @@ class BoardOptions:
         default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
 
-#: the options' defaults, which the command line's defaults are (one place for each value)
-_DEFAULT = BoardOptions(uav=1)
 
 
 class Board:
@@ -324,33 +322,6 @@ class Board:
         self.event(decision.kind, decision.text, Level.WARNING, **data, ok=True)
 
 
-def parse_box(text: str | None) -> Box | None:
-    if not text:
-        return None
-    v = [float(x) for x in text.split(",")]
-    if len(v) != 6:
-        raise argparse.ArgumentTypeError("geofence is x0,y0,z0,x1,y1,z1")
-    return Box(lo=tuple(v[:3]), hi=tuple(v[3:]))
-
-
-def parse_vec(text: str) -> tuple[float, float, float]:
-    v = tuple(float(x) for x in text.split(","))
-    if len(v) != 3 or not all(map(math.isfinite, v)):
-        raise argparse.ArgumentTypeError("expected x,y,z")
-    return v  # type: ignore[return-value]
-
-
-def niceness(text: str) -> int:
-    """argparse type of ``--nice``: an int in 0..19 (``nice(2)``: 19 is the lowest priority)."""
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an int in 0..19, got {text!r}") from None
-    if not 0 <= n <= 19:
-        raise argparse.ArgumentTypeError(f"expected an int in 0..19, got {text!r}")
-    return n
-
-
 def yield_cpu(n: int) -> tuple[int, int | None]:
     """Lower this process's CPU priority by ``n``: its nice value (``nice(2)``) and, where the kernel groups
     the processes of a session for scheduling (``CONFIG_SCHED_AUTOGROUP``, ``sched(7)`` "The autogroup
@@ -374,102 +345,49 @@ def yield_cpu(n: int) -> tuple[int, int | None]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="skynet edge", description=__doc__.split("\n\n")[0])
-    add_bus_args(parser, mode="peer")
-    parser.add_argument("--uav", type=int, required=True)
-    parser.add_argument("--vehicle", default="sim", choices=["sim", "mavlink"], help="vehicle driver")
-    parser.add_argument("--mavlink", default="udpin:0.0.0.0:14550", help="MAVLink connection (--vehicle mavlink)")
-    parser.add_argument("--mavlink-key", default=None,
-                        help="MAVLink 2 signing key for the autopilot link: 64 hex digits or a passphrase")
-    parser.add_argument("--mavlink-gcs", default=None, metavar="ENDPOINT",
-                        help="MAVLink endpoint for the operator's ground station (autopilot traffic forwarded), "
-                             "e.g. udpout:127.0.0.1:14560")
-    parser.add_argument("--flight", choices=["guided", "auto"], default="guided",
-                        help="--vehicle mavlink: guided streams position targets; auto uploads the trajectory as a "
-                             "waypoint mission and flies it in AUTO, kept in formation by speed corrections")
-    parser.add_argument("--mavlink-video", type=int, default=None, metavar="BASE_PORT",
-                        help="with --mavlink-gcs: announce the preview stream of skynet video --port BASE_PORT "
-                             "(this UAV's port BASE_PORT+2(uav-1)) as MAVLink VIDEO_STREAM_INFORMATION")
-    parser.add_argument("--home", type=parse_vec, default=(0.0, 0.0, 0.0), help="launch point x,y,z (ENU m)")
-    parser.add_argument("--rate", type=float, default=_DEFAULT.rate_hz, help="state publication rate, Hz")
-    parser.add_argument("--stale", type=float, default=_DEFAULT.stale_s,
-                        help="neighbour state considered stale after, s")
-    parser.add_argument("--formation-gain", type=float, default=_DEFAULT.formation_gain,
-                        help="share of the neighbours' mean position error corrected on board, 0..1")
-    parser.add_argument("--formation-size", type=int, default=_DEFAULT.formation_size,
-                        help="UAVs per formation: the board shares state with its formation only (SkyNet)")
-    parser.add_argument("--failsafe-timeout", type=float, default=_DEFAULT.failsafe.timeout_s)
-    parser.add_argument("--failsafe-action", choices=ACTIONS, default=_DEFAULT.failsafe.action)
-    parser.add_argument("--failsafe-escalate", choices=ESCALATIONS, default=_DEFAULT.failsafe.escalate_action,
-                        help="after a failsafe hold of --failsafe-escalate-after s: rtl, land or none")
-    parser.add_argument("--failsafe-escalate-after", type=float, default=_DEFAULT.failsafe.escalate_after_s,
-                        metavar="S")
-    parser.add_argument("--battery-low", type=float, default=_DEFAULT.failsafe.battery_low,
-                        help="battery failsafe: return to launch below")
-    parser.add_argument("--battery-critical", type=float, default=_DEFAULT.failsafe.battery_critical,
-                        help="battery failsafe: land below")
-    parser.add_argument("--endurance", type=float, default=None, metavar="S",
-                        help="simulated vehicle: hover time on a full battery, s (default 1200)")
-    parser.add_argument("--geofence", type=parse_box, default=None, help="x0,y0,z0,x1,y1,z1 (else from upload)")
-    parser.add_argument("--speed", type=float, default=1.0, help="simulation speed factor")
-    parser.add_argument("--epoch", type=float, default=None, help="shared wall-clock epoch of the sim clock")
-    parser.add_argument("--seed", type=int, default=None)
-    parser.add_argument("--wind", choices=["calm", "moderate"], default="moderate",
-                        help="disturbance model of the simulated vehicle (seeded gusts and torques)")
-    parser.add_argument("--camera", default="synthetic", help="synthetic | image folder | video:<url or index> | none")
-    parser.add_argument("--scenario", default=None, help="scenario file (surface and camera of the synthetic source)")
-    parser.add_argument("--frame-size", type=frame_size, default="640x480", help="delivered frame size WxH")
-    parser.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
-                        help="link of capture frames: best-effort (UDP), reliable (TCP), or auto: reliable above 1 MP")
-    parser.add_argument("--preview-hz", type=rate_arg, default=PREVIEW_HZ, metavar="HZ",
-                        help="live preview frames per second (320x240, best-effort, never recovered; 0 = off)")
-    parser.add_argument("--nice", type=niceness, default=0, metavar="N",
-                        help="lower this board's CPU priority by N (0..19): a simulated fleet sharing one machine "
-                             "with the services (services.orchestration.fleet_load)")
-    parser.add_argument("--imagery-cache", type=cache_frames, default=IMAGERY_CACHE_FRAMES, metavar="N",
-                        help="capture frames kept for retransmission to a detector that lost them "
-                             "(0: no recovery, capture frames are best-effort like previews)")
-    sec = parser.add_argument_group("trust (see edge.trust)")
-    sec.add_argument("--trust-window", type=float, default=10.0, metavar="S",
-                     help="signed commands and heartbeats stamped further than this from now are stale")
-    sec.add_argument("--mesh-uavs", type=int, default=None, metavar="N",
-                     help="UAVs 1..N may link to this edge (ACL by certificate; default: those of --keys)")
-    sec.add_argument("--replay-state", default=None, metavar="FILE",
-                     help="where the replay window is kept (default: <keys>/uavN/replay.json; a read-only key set needs one)")
-    sec.add_argument("--insecure", action="store_true",
-                     help="accept unsigned commands and heartbeats, no TLS, no ACL (development only)")
-    return parser
+    """``skynet edge``'s command line: the options of :class:`edge.config.EdgeConfig`."""
+    from protocol.cliconfig import add_options
+
+    from .config import EdgeConfig
+
+    return add_options(argparse.ArgumentParser(prog="skynet edge", description=__doc__.split("\n\n")[0]), EdgeConfig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``skynet edge``: parse the command line, then :func:`run` the board."""
+    from protocol.cliconfig import from_namespace
+
+    from .config import EdgeConfig
+
     parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.lease is None:
-        args.lease = LINK_LEASE_S
-    log = setup_logging(f"uav{args.uav}")
-    if args.nice:
-        yield_cpu(args.nice)
+    return run(from_namespace(EdgeConfig, parser.parse_args(argv), parser))
+
+
+def run(config: EdgeConfig) -> int:
+    """One UAV's board from its configuration, until SIGINT/SIGTERM."""
+    log = setup_logging(f"uav{config.uav}")
+    if config.nice:
+        yield_cpu(config.nice)
+    from .camera_service import make_camera
     from .clock import SimClock
-    from .runtime import make_camera, make_driver
-
-    clock = SimClock(epoch=args.epoch if args.epoch is not None else time.time(), speed=args.speed)
-    driver = make_driver(args, t0=clock.now())
-    stop = stop_event_on_signals()
-    failsafe = FailsafeOptions(timeout_s=args.failsafe_timeout, action=args.failsafe_action,
-                               escalate_after_s=args.failsafe_escalate_after, escalate_action=args.failsafe_escalate,
-                               battery_low=args.battery_low, battery_critical=args.battery_critical)
-    opts = BoardOptions(uav=args.uav, rate_hz=args.rate, stale_s=args.stale, failsafe=failsafe, geofence=args.geofence,
-                        formation_gain=args.formation_gain, formation_size=args.formation_size)
     from .trust import secure_setup
+    from .vehicle.factory import make_driver
 
-    gate, acl = secure_setup(args, log)
-    with Bus(config_from_args(args, role=f"uav{args.uav}", access_control=acl), fleet=args.fleet,
-             name=f"uav{args.uav}") as bus:
-        camera = make_camera(args, bus, log)
+    clock = SimClock(epoch=config.epoch if config.epoch is not None else time.time(), speed=config.speed)
+    driver = make_driver(config, t0=clock.now())
+    stop = stop_event_on_signals()
+    opts = BoardOptions(uav=config.uav, rate_hz=config.rate, stale_s=config.stale, failsafe=config.failsafe(),
+                        geofence=config.geofence, formation_gain=config.formation_gain,
+                        formation_size=config.formation_size)
+    gate, acl = secure_setup(config, log)
+    with Bus(config_from_args(config, role=f"uav{config.uav}", access_control=acl), fleet=config.fleet,
+             name=f"uav{config.uav}") as bus:
+        camera = make_camera(config, bus, log)
         board = Board(bus, driver, clock, opts, camera=camera, log=log, gate=gate)
-        log.info("board up: uav %d, %s driver, camera %s, speed x%g", args.uav, args.vehicle, args.camera, args.speed)
-        notify_ready("edge", f"uav{args.uav}")
-        period = 1.0 / args.rate
+        log.info("board up: uav %d, %s driver, camera %s, speed x%g", config.uav, config.vehicle, config.camera,
+                 config.speed)
+        notify_ready("edge", f"uav{config.uav}")
+        period = 1.0 / config.rate
         next_t = time.monotonic()
         tick_errors = 0
         while not stop.is_set():

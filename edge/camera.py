@@ -5,7 +5,7 @@ Sources (:class:`FrameSource`): :class:`SyntheticSource` renders the view of a
 :class:`FolderSource` replays a folder of images; :class:`VideoCaptureSource` reads a real camera
 or a stream through OpenCV. :func:`make_source` picks one from a spec string. :class:`FrameEncoder`
 JPEG-encodes frames on its own thread, so that the control loop that fires the camera at each
-capture point never waits for the encoder (the bus publishing is in :mod:`edge.runtime`).
+capture point never waits for the encoder (the bus publishing is in :mod:`edge.camera_service`).
 
 The camera model and poses (:class:`CameraModel`, :class:`CameraPose`) live in
 :mod:`edge.optics` and are imported here for the sources.

@@ -23,11 +23,14 @@ from __future__ import annotations
 import collections
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from protocol import keys
 from protocol.messages import COMMAND_TYPES, Heartbeat, Message, Signed
 from protocol.signing import Refusal, TrustError, Verifier, unverified_inner
+
+if TYPE_CHECKING:
+    from .config import EdgeConfig
 
 #: at most one event per refusal reason per this many seconds
 EVENT_PERIOD_S = 1.0
@@ -116,33 +119,33 @@ def command_id(msg: Message) -> int:
     return 0
 
 
-def secure_setup(args, log=None) -> tuple[Gate, dict | None]:
+def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
     """The edge's gate and access control from its options: ``--keys DIR`` (verifier with the persisted
     replay window of ``DIR/uavN/replay.json``, ACL by certificate common name), or ``--insecure``.
 
     Without either the board runs insecure and says so loudly (``skynet up``/``mission`` always
     give one or the other).
     """
-    if not getattr(args, "keys", None) or getattr(args, "insecure", False):
+    if not config.keys or config.insecure:
         if log:
             log.warning("INSECURE: uav%d obeys unsigned commands and heartbeats from anyone on the bus%s",
-                        args.uav, "" if getattr(args, "insecure", False) else " (no --keys given)")
-        return Gate(args.fleet, args.uav, None), None
+                        config.uav, "" if config.insecure else " (no --keys given)")
+        return Gate(config.fleet, config.uav, None), None
     from protocol.keyset import KeySet, role_of_cn
     from protocol.acl import cert_access_control
 
-    ks = KeySet(args.keys, f"uav{args.uav}")
-    verifier = ks.verifier(stale_s=args.trust_window, replay_file=getattr(args, "replay_state", None))
-    n = args.mesh_uavs or max([args.uav, *ks.uavs()])
+    ks = KeySet(config.keys, f"uav{config.uav}")
+    verifier = ks.verifier(stale_s=config.trust_window, replay_file=config.replay_state)
+    n = config.mesh_uavs or max([config.uav, *ks.uavs()])
     mesh = {"gateway", *(f"uav{i}" for i in range(1, n + 1))}
     # certs.txt names the current certificates; a key set without it (older, or a vehicle's) admits the roles
     names = ks.admitted() if (ks.root / "certs.txt").exists() else sorted(mesh - ks.revoked_certs())
     peers = [cn for cn in names if role_of_cn(cn) in mesh]
-    endpoints = [*args.listen, *args.connect]
+    endpoints = [*config.listen, *config.connect]
     plain = [e for e in endpoints if not e.startswith("tls/")]
     if log:
         log.info("trust: commands signed by %s, replay window %s; mutual TLS as uav%d, ACL by certificate for %s",
-                 ", ".join(ks.trusted()) or "nobody", verifier.replay.path, args.uav, ", ".join(peers))
+                 ", ".join(ks.trusted()) or "nobody", verifier.replay.path, config.uav, ", ".join(peers))
         if plain:
             log.warning("links without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
-    return Gate(args.fleet, args.uav, verifier), cert_access_control(args.fleet, peers)
+    return Gate(config.fleet, config.uav, verifier), cert_access_control(config.fleet, peers)

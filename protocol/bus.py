@@ -5,9 +5,10 @@ What it adds to zenoh-python, and nothing more:
 
 * :class:`BusConfig` — mode, endpoints, scouting, lease, shared memory and the multilink
   setup that puts reliable traffic on a TCP link and best-effort traffic on a UDP link
-  (ZENOH.md, "One link per reliability class"); :func:`add_bus_args` gives every service the
-  command-line options of zenoh-python's examples (``--mode``, ``--connect``, ``--listen``,
-  ``--config``).
+  (ZENOH.md, "One link per reliability class"); :class:`BusOptions`, the base of every service's
+  typed config (:mod:`protocol.cliconfig`), holds the command-line options of zenoh-python's examples
+  (``--mode``, ``--connect``, ``--listen``, ``--config``, ``--cfg``) and ours, and
+  :func:`config_from_args` makes the session config of them.
 * :class:`Bus` — ``publisher(key, link)`` with the link class's QoS, ``subscribe(key, cb,
   expect=...)`` that decodes on Zenoh's callback thread and *counts* decoding failures per key
   and kind (logged once per kind, never raised into Zenoh), an optional bounded drop-oldest ring
@@ -21,18 +22,18 @@ import argparse
 import collections
 import json
 import logging
-import os
 import queue
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Annotated, Any, Callable, Literal
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, SecretStr
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, PlainSerializer, field_validator
 
 from . import codec, keys
 from .budget import Budget
+from .cliconfig import Cli, CliModel, add_options, from_namespace
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
 from .ring import Ring  # noqa: F401  (services take their rings from the bus)
@@ -44,8 +45,6 @@ log = logging.getLogger("skynet.bus")
 RECOVERY_HEARTBEAT_S = 0.5
 
 Mode = Literal["peer", "client", "router"]
-#: environment variable read for the password when ``--user`` is given without ``--password``
-PASSWORD_ENV = "SKYNET_PASSWORD"
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -66,8 +65,6 @@ class BusConfig(BaseModel):
     reconnect_max_s: float = Field(default=1.0, ge=0.001, le=3600.0,
                                    description="connect/retry/period_max_ms: longest pause between tries to "
                                                "reach a lost connect endpoint (zenoh's default 4 s)")
-    user: str | None = Field(default=None, description="transport/auth/usrpwd/user")
-    password: SecretStr | None = Field(default=None, description="transport/auth/usrpwd/password; never shown")
     cfg: list[tuple[str, str]] = Field(default=[], description="KEY, JSON5 VALUE pairs applied last (--cfg)")
     tls_ca: str | None = Field(default=None, description="transport/link/tls/root_ca_certificate (mutual TLS on)")
     tls_cert: str | None = Field(default=None, description="this node's certificate (common name = its role)")
@@ -104,13 +101,6 @@ class BusConfig(BaseModel):
             put("transport/unicast/max_links", 2)
         if self.mode == "client":
             put("connect/timeout_ms", int(self.connect_timeout_s * 1000))
-        if self.user is not None or self.password is not None:
-            if self.user is None or self.password is None:
-                raise ValueError(f"user/password authentication needs both a user and a password "
-                                 f"(--user, and --password or {PASSWORD_ENV})")
-            # path by path, so that a dictionary_file from config_file stays
-            put("transport/auth/usrpwd/user", self.user)
-            put("transport/auth/usrpwd/password", self.password.get_secret_value())
         if self.tls_ca is not None:
             # mutual TLS on tls/ links, both as listener and as dialler: every link presents the
             # node's certificate and checks the other's against the fleet CA; ACL subjects are common names
@@ -127,11 +117,13 @@ class BusConfig(BaseModel):
         return conf
 
 
-def parse_cfg(text: str) -> tuple[str, str]:
+def parse_cfg(text: Any) -> tuple[str, str]:
     """``KEY:VALUE`` of zenoh-python's examples' ``--cfg`` (VALUE is JSON5; an empty KEY is the root)."""
+    if isinstance(text, (tuple, list)) and len(text) == 2:
+        return str(text[0]), str(text[1])
     key, sep, value = str(text).partition(":")
     if not sep or not value.strip():
-        raise argparse.ArgumentTypeError(f"--cfg wants KEY:VALUE (VALUE in JSON5), got {text!r}")
+        raise ValueError(f"--cfg wants KEY:VALUE (VALUE in JSON5), got {text!r}")
     return key.strip().strip("/"), value
 
 
@@ -145,40 +137,61 @@ def endpoint_address(endpoint: str) -> str:
     return endpoint.split("/", 1)[1].split("?", 1)[0].split("#", 1)[0]
 
 
+#: one ``--cfg`` change: (KEY, JSON5 VALUE), written ``KEY:VALUE``
+CfgChange = Annotated[tuple[str, str], BeforeValidator(parse_cfg), PlainSerializer(lambda kv: f"{kv[0]}:{kv[1]}")]
+#: ``--mode``; a service's model redeclares the field with its own default (``mode: BusMode = "client"``)
+BusMode = Annotated[Mode, Cli(short="-m", group="bus")]
+
+
+#: ``--lease``; an edge redeclares the field with its own default (a short lease: a lost UAV is noticed)
+LeaseS = Annotated[float | None, Cli(metavar="S", group="bus"),
+                   Field(gt=0.0, le=3600.0, description="link lease, seconds")]
+
+
+class BusOptions(CliModel):
+    """The session options every service takes: those of zenoh-python's examples, plus the fleet name and
+    our session switches. A service's config model extends it (:mod:`protocol.cliconfig`)."""
+
+    mode: BusMode = "peer"
+    connect: Annotated[list[str], Cli(short="-e", metavar="ENDPOINT", group="bus")] = []
+    listen: Annotated[list[str], Cli(short="-l", metavar="ENDPOINT", group="bus")] = []
+    config: Annotated[str | None, Cli(short="-c", metavar="FILE", group="bus")] = Field(
+        default=None, description="Zenoh JSON5 config applied first")
+    cfg: Annotated[list[CfgChange], Cli(metavar="KEY:VALUE", group="bus")] = Field(
+        default=[], description="a Zenoh config change applied last, VALUE in JSON5 (e.g. transport/link/tx/lease:3000)")
+    fleet: Annotated[str, Cli(group="bus")] = Field(default=keys.DEFAULT_FLEET, description="fleet name (key space prefix)")
+    lease: LeaseS = None
+    multilink: Annotated[bool, Cli(group="bus")] = Field(default=False, description="reliable on TCP, best-effort on UDP")
+    shm: Annotated[bool, Cli(group="bus")] = Field(default=False, description="enable shared-memory transport")
+    scouting: Annotated[bool, Cli(group="bus")] = Field(default=False, description="enable multicast scouting")
+    keys: Annotated[str | None, Cli(metavar="DIR", group="bus")] = Field(
+        default=None, description="fleet key set (skynet keys init): this node's TLS certificate for tls/ endpoints, "
+                                  "signing and trusted keys")
+
+    @field_validator("fleet")
+    @classmethod
+    def _fleet(cls, v: str) -> str:
+        keys.fleet_root(v)  # KeyError_ (a ValueError) for a name that is not one key chunk
+        return v
+
+
 def add_bus_args(parser: argparse.ArgumentParser, mode: Mode = "peer") -> None:
-    """The options of zenoh-python's examples, plus the fleet name and our session switches."""
-    g = parser.add_argument_group("bus")
-    g.add_argument("--mode", "-m", choices=["peer", "client", "router"], default=mode)
-    g.add_argument("--connect", "-e", action="append", default=[], metavar="ENDPOINT")
-    g.add_argument("--listen", "-l", action="append", default=[], metavar="ENDPOINT")
-    g.add_argument("--config", "-c", default=None, metavar="FILE", help="Zenoh JSON5 config applied first")
-    g.add_argument("--cfg", action="append", default=[], type=parse_cfg, metavar="KEY:VALUE",
-                   help="a Zenoh config change applied last, VALUE in JSON5 (e.g. transport/link/tx/lease:3000)")
-    g.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (key space prefix)")
-    g.add_argument("--lease", type=float, default=None, metavar="S", help="link lease, seconds")
-    g.add_argument("--multilink", action="store_true", help="reliable on TCP, best-effort on UDP")
-    g.add_argument("--shm", action="store_true", help="enable shared-memory transport")
-    g.add_argument("--scouting", action="store_true", help="enable multicast scouting")
-    g.add_argument("--user", default=None, help="user name for the gateway's user/password authentication")
-    g.add_argument("--password", default=None, help=f"its password (or set {PASSWORD_ENV})")
-    g.add_argument("--keys", default=None, metavar="DIR",
-                   help="fleet key set (skynet keys init): this node's TLS certificate for tls/ endpoints, "
-                        "signing and trusted keys")
+    """The options of :class:`BusOptions` on ``parser``, ``--mode`` defaulting to ``mode``."""
+    add_options(parser, BusOptions, defaults={"mode": mode})
 
 
-def config_from_args(args: argparse.Namespace, role: str | None = None, **overrides: Any) -> BusConfig:
-    """The session config of a service's arguments; with ``--keys`` and its ``role``, mutual TLS."""
-    user = getattr(args, "user", None)
-    if getattr(args, "keys", None) and role is not None:
+def config_from_args(args: BusOptions | argparse.Namespace, role: str | None = None, **overrides: Any) -> BusConfig:
+    """The session config of a service's options; with ``--keys`` and its ``role``, mutual TLS."""
+    opts = args if isinstance(args, BusOptions) else from_namespace(BusOptions, args)
+    if opts.keys and role is not None:
         from .keyset import KeySet
 
-        ks = KeySet(args.keys, role)
+        ks = KeySet(opts.keys, role)
         overrides = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key), **overrides}
     values = dict(
-        mode=args.mode, connect=args.connect, listen=args.listen, config_file=args.config,
-        lease_s=args.lease, multilink=args.multilink, shared_memory=args.shm,
-        multicast_scouting=args.scouting, user=user, cfg=getattr(args, "cfg", []),
-        password=getattr(args, "password", None) or (os.environ.get(PASSWORD_ENV) if user else None),
+        mode=opts.mode, connect=opts.connect, listen=opts.listen, config_file=opts.config,
+        lease_s=opts.lease, multilink=opts.multilink, shared_memory=opts.shm,
+        multicast_scouting=opts.scouting, cfg=opts.cfg,
     )
     values.update({k: v for k, v in overrides.items() if v is not None})
     return BusConfig(**values)

@@ -18,7 +18,7 @@ Several instances share the fleet's cameras with ``--partition K/N`` (:mod:`serv
 instance K subscribes only to the camera keys of the UAVs with ``id % N == K`` and is named
 ``detector-K`` (its liveliness token and statistics key; its reports go to the common defects key).
 
-Each camera opens its stream with an empty "announce" frame (:meth:`edge.runtime.CameraLink.announce`)
+Each camera opens its stream with an empty "announce" frame (:meth:`edge.camera_service.CameraLink.announce`)
 so that Zenoh's recovery sees a lost first capture as a gap like any other. The detector drops it
 on arrival (``count.announce``): it is not a capture, and it often arrives seconds after it was
 sent (fetched from the cache when the detector starts), which would spoil the jitter figure.
@@ -56,7 +56,8 @@ from collections import Counter
 
 from protocol import binding, codec, keys
 from protocol.budget import for_topic
-from protocol.bus import Bus, Ring, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.bus import Bus, Ring, config_from_args, setup_logging, stop_event_on_signals
+from protocol.cliconfig import add_options, from_namespace
 from protocol.imagery import split_payload
 from protocol.jitter import Frame, JitterBuffers
 from protocol.links import COMMAND, TELEMETRY
@@ -65,19 +66,14 @@ from protocol.readiness import notify_ready
 from protocol.rtp import RtpError, parse_ssrc, unpack_frame
 from protocol.stages import LOG_PREFIX, StageTimes
 
+from .config import QUEUE_FRAMES, DetectorConfig
 from .detect import METHODS
 from .partition import MAX_UAV, Partition
-from .pipeline import DETECT_MAX_MP
-from .pool import CONTEXTS, DetectorPool, WorkerCrashed
+from .pool import DetectorPool, WorkerCrashed
 from .recovery import RecoveryTracker
 
-#: frames waiting for a worker before the oldest is dropped. Capture frames are what coverage counts,
-#: and recovery hands them over in bursts (every camera's cache, up to 32 frames each, after an outage
-#: or a gateway restart), so the queue holds such a burst (~50 kB a frame: a few MB); the Zenoh
-#: callback never waits for it either way.
-QUEUE_FRAMES = 128
 #: cameras per UAV the detector keeps a jitter buffer for (SSRC ``0x534BUUCC`` with CC below this):
-#: the capture camera is 0, the preview camera 1 (edge.runtime); any other SSRC is rejected, so a
+#: the capture camera is 0, the preview camera 1 (edge.camera_service); any other SSRC is rejected, so a
 #: sender cannot make the detector keep an unbounded number of buffers.
 MAX_CAMERAS = 4
 
@@ -158,7 +154,7 @@ class DetectorService:
                 self.log.warning("%s: frames over the camera budget (%s); further ones are only counted",
                                  sample.key_expr, over)
             return
-        if len(payload) == 0:  # a camera's announce frame (edge.runtime.CameraLink.announce)
+        if len(payload) == 0:  # a camera's announce frame (edge.camera_service.CameraLink.announce)
             self.counts["announce"] += 1
             return
         self.counts["frames"] += 1
@@ -284,34 +280,19 @@ class DetectorService:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="skynet detector", description=__doc__.split("\n\n")[0])
-    add_bus_args(parser, mode="client")
-    parser.add_argument("--method", default="it+r", choices=sorted(METHODS), help="detection method")
-    parser.add_argument("--workers", type=int, default=2, help="detection worker processes")
-    parser.add_argument("--start-method", default="spawn", choices=CONTEXTS,
-                        help="how the worker processes start (never fork: Zenoh's threads)")
-    parser.add_argument("--partition", type=Partition.parse, default=Partition(), metavar="K/N",
-                        help="analyse only the cameras of the UAVs with id %% N == K (one of N instances, named "
-                             "detector-K); default 0/1: every camera")
-    parser.add_argument("--max-uav", type=int, default=MAX_UAV,
-                        help="highest UAV id a partition subscribes to (one camera key per owned UAV)")
-    parser.add_argument("--queue", type=int, default=QUEUE_FRAMES,
-                        help="frames waiting for a worker before the oldest drop")
-    parser.add_argument("--playout-delay", type=float, default=0.05, help="wait for a missing frame, s")
-    parser.add_argument("--no-recovery", action="store_true",
-                        help="do not ask the cameras' caches for lost capture frames (plain best-effort)")
-    parser.add_argument("--detect-max-mp", type=float, default=DETECT_MAX_MP, metavar="MP",
-                        help="detect on a 1/2, 1/4 or 1/8 decode of frames above MP megapixels (a 12 MP capture "
-                             "at 0.75 MP by default; the kept frame stays full size); 0: always full size")
-    parser.add_argument("--save-frames", default=None, metavar="DIR",
-                        help="keep a copy of every analysed capture with its pose in DIR (a folder of posed photos; "
-                             "the mission's deliverable takes its captures from the ground station's log)")
-    return parser
+    """``skynet detector``'s command line: the options of :class:`DetectorConfig`."""
+    return add_options(argparse.ArgumentParser(prog="skynet detector", description=__doc__.split("\n\n")[0]),
+                       DetectorConfig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``skynet detector``: parse the command line, then :func:`run` the service."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    return run(from_namespace(DetectorConfig, parser.parse_args(argv), parser))
+
+
+def run(args: DetectorConfig) -> int:
+    """The detector RCU from its configuration, until SIGINT/SIGTERM."""
     name = args.partition.name
     log = setup_logging(name)
     if args.method == "learned":  # a bad model file: one line naming it, before the bus and the workers start

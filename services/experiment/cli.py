@@ -33,17 +33,10 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from .grid import (
-    Cell,
-    Run,
-    check_links,
-    expand,
-    impair_spec,
-    mission_command,
-    parse_list,
-    parse_recovery,
-    plan,
-)
+from protocol.cliconfig import add_options, from_namespace
+
+from .config import ExperimentConfig
+from .grid import Cell, Run, expand, impair_spec, mission_command, plan
 from .metrics import METRICS, aggregate
 from .runner import RunResult, run_all
 
@@ -51,48 +44,24 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="skynet experiment", description=__doc__.split("\n\n")[0])
-    p.add_argument("--loss", default="0,5,20,40", help="random loss values, %% (default 0,5,20,40)")
-    p.add_argument("--delay", default="0,50,200", help="one-way delay values, ms (default 0,50,200)")
-    p.add_argument("--jitter", default="0", help="jitter values, ms (default 0)")
-    p.add_argument("--recovery", default="on", help="imagery recovery: on, off or on,off (default on)")
-    p.add_argument("--repeat", type=int, default=1, help="runs per cell (default 1)")
-    p.add_argument("--links", default="all/udp",
-                   help="impaired links, in the launcher's --impair names (default all/udp: every best-effort link)")
-    p.add_argument("--speed", type=float, default=6.0, help="simulation speed factor (default 6)")
-    p.add_argument("--uavs", type=int, default=3)
-    p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
-    p.add_argument("--seed", type=int, default=0, help="run k of every cell uses seed + k")
-    p.add_argument("--out", default=None, help="results folder (default reports/experiment-<time>)")
-    p.add_argument("--timeout", type=float, default=300.0, help="wall-clock limit of one run, s (then: hung)")
-    p.add_argument("--dry-run", action="store_true", help="print the mission commands and stop")
-    return p
+    """``skynet experiment``'s command line: the options of :class:`ExperimentConfig`."""
+    return add_options(argparse.ArgumentParser(prog="skynet experiment", description=__doc__.split("\n\n")[0]),
+                       ExperimentConfig)
 
 
-def check_options(args: argparse.Namespace) -> tuple[list[Cell], list[Run]]:
-    """The grid and runs of the options; ValueError with a one-line message."""
-    loss = parse_list(args.loss, "--loss", hi=100.0)
-    delay = parse_list(args.delay, "--delay", hi=60_000.0)
-    jitter = parse_list(args.jitter, "--jitter", hi=60_000.0)
-    recovery = parse_recovery(args.recovery)
-    if args.uavs < 1 or args.uavs > 255:
-        raise ValueError(f"--uavs must be in 1..255, got {args.uavs}")
-    if not (args.speed > 0 and args.speed < 1000):
-        raise ValueError(f"--speed must be in (0, 1000), got {args.speed}")
-    if not args.timeout > 0:
-        raise ValueError(f"--timeout must be > 0 s, got {args.timeout}")
-    args.links = check_links(args.links, args.uavs)
-    cells = expand(loss, delay, jitter, recovery)
+def grid_of(args: ExperimentConfig) -> tuple[list[Cell], list[Run]]:
+    """The grid's cells and the runs that fly them."""
+    cells = expand(args.loss, args.delay, args.jitter, args.recovery)
     return cells, plan(cells, args.repeat, args.seed)
 
 
-def command_of(args: argparse.Namespace, run: Run, folder: Path) -> list[str]:
+def command_of(args: ExperimentConfig, run: Run, folder: Path) -> list[str]:
     """The mission command of ``run`` under the options (what is flown, and what --dry-run prints)."""
     return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs,
                            scenario=args.scenario)
 
 
-def summarise(args: argparse.Namespace, cells: list[Cell], results: list[RunResult], started: float,
+def summarise(args: ExperimentConfig, cells: list[Cell], results: list[RunResult], started: float,
               interrupted: bool = False) -> dict[str, Any]:
     """results.json's content."""
     rows = []
@@ -144,7 +113,7 @@ def write_results(doc: dict[str, Any], out: Path) -> str:
     return table
 
 
-def run_experiment(args: argparse.Namespace, cells: list[Cell], runs: list[Run], out: Path,
+def run_experiment(args: ExperimentConfig, cells: list[Cell], runs: list[Run], out: Path,
                    echo=None) -> tuple[dict[str, Any], int]:
     """Fly every run, write the results; (results.json content, exit status). ``echo``: default stdout."""
     echo = echo or sys.stdout
@@ -175,17 +144,18 @@ def run_experiment(args: argparse.Namespace, cells: list[Cell], runs: list[Run],
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``skynet experiment``: parse the command line, then :func:`run` the grid."""
     parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        cells, runs = check_options(args)
-    except ValueError as e:
-        print(f"skynet experiment: error: {e}", file=sys.stderr)
-        return 2
+    return run(from_namespace(ExperimentConfig, parser.parse_args(argv), parser))
+
+
+def run(args: ExperimentConfig) -> int:
+    """The experiment of a configuration (``--dry-run``: its commands printed); the exit status."""
+    cells, runs = grid_of(args)
     out = Path(args.out or f"reports/experiment-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.dry_run:
-        for run in runs:
-            print(shlex.join(command_of(args, run, out / "runs" / run.name)))
+        for r in runs:
+            print(shlex.join(command_of(args, r, out / "runs" / r.name)))
         return 0
     print(f"{len(runs)} runs ({len(cells)} cells x {args.repeat}) into {out}", flush=True)
     return run_experiment(args, cells, runs, out)[1]

@@ -8,11 +8,8 @@ connected sessions by kind and samples/bytes per link class seen on the fleet's 
     skynet gateway --listen tcp/0.0.0.0:7447?rel=1 --listen udp/0.0.0.0:7448?rel=0
     skynet gateway --port 7447           # the same, TCP on 7447 and UDP on 7448
 
-Authentication and access control (off by default): ``--users FILE`` (lines ``user:password``)
-makes every node that connects present one of those users (``--user``, and ``--password`` or
-``SKYNET_PASSWORD``); ``--acl`` adds the role rules of :mod:`protocol.acl` (default deny),
-roles from ``--roles FILE`` (lines ``user:role``) or from the user names (``uav1``..``uav255``,
-``gcs``, ``planner``, ``detector``, ``gateway``).
+With ``--keys DIR`` every listener is mutual TLS and access control goes by certificate common
+name (:func:`protocol.acl.cert_access_control`, default deny).
 """
 
 from __future__ import annotations
@@ -26,24 +23,22 @@ from typing import Any
 import zenoh
 
 from protocol import keys
-from protocol.bus import (Bus, BusConfig, add_bus_args, config_from_args, endpoint_address, multilink_endpoints,
-                          setup_logging, stop_event_on_signals)
+from protocol.bus import (Bus, BusConfig, config_from_args, endpoint_address, multilink_endpoints, setup_logging,
+                          stop_event_on_signals)
+from protocol.cliconfig import add_options, from_namespace
 from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
 from protocol.readiness import notify_ready
 from protocol.messages import ClassCounters, LinkStats
 
 from protocol import acl
 
-from protocol.checks import rate_arg
-
 from . import ingress
+from .config import GatewayConfig
 
 
-class GatewayConfig(BusConfig):
-    """The router's session config: a :class:`BusConfig` plus the users dictionary and the ACL."""
+class RouterConfig(BusConfig):
+    """The router's session config: a :class:`BusConfig` plus ingress downsampling."""
 
-    dictionary_file: str | None = None
-    access_control: dict[str, Any] | None = None
     #: downsampling items added to those of the config file and ``--cfg`` (:mod:`services.gateway.ingress`)
     downsampling: list[dict[str, Any]] = []
 
@@ -52,10 +47,6 @@ class GatewayConfig(BusConfig):
         if self.downsampling:
             current = json.loads(conf.get_json("downsampling") or "[]")
             conf.insert_json5("downsampling", json.dumps(current + self.downsampling))
-        if self.dictionary_file:
-            conf.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(self.dictionary_file))
-        if self.access_control is not None:
-            conf.insert_json5("access_control", json.dumps(self.access_control))
         return conf
 
 
@@ -89,55 +80,9 @@ def session_counts(bus: Bus) -> dict[str, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="skynet gateway", description=__doc__.split("\n\n")[0])
-    add_bus_args(parser, mode="router")
-    parser.add_argument("--id", default="1", help="gateway id (key space)")
-    parser.add_argument("--host", default="127.0.0.1", help="listen host when --port is used")
-    parser.add_argument("--port", type=int, default=None, help="TCP port; UDP uses port+1 (multilink)")
-    parser.add_argument("--period", type=float, default=1.0, help="statistics period, s")
-    parser.add_argument("--state-ingress-hz", type=rate_arg, default=ingress.STATE_INGRESS_HZ, metavar="HZ",
-                        help="states a connected session may send per UAV key through the gateway, at most one "
-                             "per 1/HZ (Zenoh ingress downsampling per face; services/gateway/ingress.py); 0: off")
-    parser.add_argument("--accept-guard", action="store_true",
-                        help="accept tls/ connections in a guard that passes on only those starting a TLS handshake "
-                             "(services/gateway/guard.py): connect-and-close or silent floods never reach zenoh")
-    sec = parser.add_argument_group("authentication and access control")
-    sec.add_argument("--users", default=None, metavar="FILE",
-                     help="user/password authentication: every node must present a user of FILE (lines user:password)")
-    sec.add_argument("--acl", action="store_true", help="enforce the role rules (needs --users); default deny")
-    sec.add_argument("--roles", default=None, metavar="FILE",
-                     help="lines user:role (uavN, gcs, planner, detector, gateway); else the role comes from the name")
-    return parser
-
-
-def security_options(args: argparse.Namespace, log=None) -> dict[str, Any]:
-    """``dictionary_file`` and ``access_control`` for :class:`GatewayConfig` from the options.
-
-    Raises ValueError for a malformed users or roles file, or ``--acl``/``--roles`` without
-    ``--users`` (the rules name users).
-    """
-    if not args.users:
-        if args.acl or args.roles:
-            raise ValueError("--acl and --roles need --users (the rules name authenticated users)")
-        return {}
-    users = acl.read_users(args.users)
-    out: dict[str, Any] = {"dictionary_file": str(args.users)}
-    if log:
-        log.info("authentication on: %d users", len(users))
-    if args.roles and not args.acl:
-        raise ValueError("--roles needs --acl")
-    if args.acl:
-        roles = acl.read_roles(args.roles) if args.roles else {}
-        unknown = sorted(set(roles) - set(users))
-        if unknown:
-            raise ValueError(f"roles file names users that are not in the users file: {', '.join(unknown)}")
-        principals, unassigned = acl.assign_roles(users, roles)
-        out["access_control"] = acl.access_control(args.fleet, principals)
-        if log:
-            log.info("access control on (default deny): %s", ", ".join(f"{p.user}={p.subject}" for p in principals))
-            if unassigned:
-                log.warning("users without a role (denied everything): %s", ", ".join(unassigned))
-    return out
+    """``skynet gateway``'s command line: the options of :class:`GatewayConfig`."""
+    return add_options(argparse.ArgumentParser(prog="skynet gateway", description=__doc__.split("\n\n")[0]),
+                       GatewayConfig)
 
 
 def guarded(listen: list[str], log=None) -> tuple[list[str], list[Any]]:
@@ -163,8 +108,13 @@ def guarded(listen: list[str], log=None) -> tuple[list[str], list[Any]]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``skynet gateway``: parse the command line, then :func:`run` the router."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    return run(from_namespace(GatewayConfig, parser.parse_args(argv), parser))
+
+
+def run(args: GatewayConfig) -> int:
+    """The gateway router relay from its configuration, until SIGINT/SIGTERM."""
     log = setup_logging(f"gateway-{args.id}")
     listen = list(args.listen)
     multilink = args.multilink
@@ -179,8 +129,8 @@ def main(argv: list[str] | None = None) -> int:
         listen, guards = guarded(listen, log)
     base = config_from_args(args, role="gateway", listen=listen, multilink=multilink)
     thin = ingress.state_ingress(args.fleet, args.state_ingress_hz) if args.state_ingress_hz else []
-    config = GatewayConfig(**{**dict(base), **security_options(args, log)}, downsampling=thin)
-    if args.keys and config.access_control is None:
+    config = RouterConfig(**dict(base), downsampling=thin)
+    if args.keys:
         # mutual TLS: ACL by certificate common name on every listener; a tcp/ or udp/ listener admits no
         # certificate, so what arrives there matches no subject and is denied everything (default deny)
         from protocol.keyset import KeySet

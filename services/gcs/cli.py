@@ -13,15 +13,11 @@ import time
 from pathlib import Path
 
 from edge import formation
-from protocol.bus import (
-    Bus,
-    add_bus_args,
-    config_from_args,
-    setup_logging,
-    stop_event_on_signals,
-)
+from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
+from protocol.cliconfig import add_options, from_namespace
 from protocol.scenario import Scenario, load_scenario
 
+from .config import GcsMissionConfig
 from .mission import MissionOptions, MissionRunner
 from .progress import HeadingHold, LiveDisplay, render
 from .supervision import FRESH_STATE_S
@@ -130,31 +126,21 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """``skynet gcs``'s command line: ``mission`` takes the options of :class:`GcsMissionConfig`."""
     parser = argparse.ArgumentParser(prog="skynet gcs", description="ground control station")
     sub = parser.add_subparsers(dest="action", required=True)
-    m = sub.add_parser("mission", help="run a mission over the bus")
-    add_bus_args(m, mode="client")
-    m.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
-    m.add_argument("--uavs", type=int, default=3, help="number of UAVs (ids 1..N)")
-    m.add_argument("--algorithm", default="theta-pso")
-    m.add_argument("--seed", type=int, default=0)
-    m.add_argument("--speed", type=float, default=1.0, help="the edges' simulation speed factor")
-    m.add_argument("--out", default=None, help="report folder")
-    m.add_argument("--quiet", action="store_true")
-    m.add_argument("--appear-timeout", type=float, default=30.0)
-    m.add_argument("--ready-timeout", type=float, default=120.0, metavar="S",
-                   help="wait this long for every UAV's autopilot to be ready before takeoff, then refuse")
-    m.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap (the "
-                   "report is then computed from the in-memory record, without the inspection section)")
-    m.add_argument("--web", default=None, metavar="[HOST]:PORT",
-                   help="serve the live web page of the fleet there (e.g. :8080; loopback unless a host is given)")
-    m.add_argument("--no-ground-truth", action="store_true",
-                   help="the edges do not image the synthetic wall (real cameras, image folders): no defect scoring")
+    add_options(sub.add_parser("mission", help="run a mission over the bus"), GcsMissionConfig)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """``skynet gcs mission``: parse the command line, then :func:`run` the mission."""
+    parser = build_parser()
+    return run(from_namespace(GcsMissionConfig, parser.parse_args(argv), parser))
+
+
+def run(args: GcsMissionConfig) -> int:
+    """A mission over the bus from its configuration; the exit status of :func:`run_mission`."""
     log = setup_logging("gcs")
     scenario = load_scenario(args.scenario)
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,

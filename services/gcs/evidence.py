@@ -25,7 +25,7 @@ from protocol.messages import DefectReport, LinkStats, VehicleState
 from protocol.rtp import ssrc_for
 from protocol.textsafe import md_text
 
-#: the camera whose frames are captures (edge.runtime: previews use camera 1)
+#: the camera whose frames are captures (edge.camera_service: previews use camera 1)
 CAPTURE_CAMERA = 0
 
 

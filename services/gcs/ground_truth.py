@@ -1,13 +1,13 @@
 """The ground truth of a simulated mission: the cracks really on the synthetic wall.
 
-The edges render their camera frames from :func:`edge.runtime.synthetic_surface` (same scenario,
+The edges render their camera frames from :func:`edge.world.wall.synthetic_surface` (same scenario,
 same seed), so the ground station can rebuild the identical wall and list its cracks, which
 the report scores the system's defect reports against (recall and precision, object level).
 """
 
 from __future__ import annotations
 
-from edge.runtime import synthetic_surface
+from edge.world.wall import synthetic_surface
 
 from .record import GroundTruthDefect, MissionRecord
 

@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
-from edge.runtime import camera_model, camera_rotation, synthetic_surface
+from edge.geometry.camera import camera_model, camera_rotation
+from edge.world.wall import synthetic_surface
 from edge.surface import SyntheticSurface, textured_background
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import Scenario
@@ -36,7 +37,7 @@ class Capture:
 
 def capture_meta(uav: int, capture_id: int, pos: np.ndarray, rot: np.ndarray, size: tuple[int, int],
                  fx: float, fy: float, cx: float, cy: float, range_m: float | None) -> ImageMeta:
-    """The :class:`ImageMeta` of a frame (what :class:`edge.runtime.CameraLink` sends)."""
+    """The :class:`ImageMeta` of a frame (what :class:`edge.camera_service.CameraLink` sends)."""
     return ImageMeta(uav=uav, capture_id=capture_id, t=0.0, stamp=0.0, cam_pos=tuple(map(float, pos)),
                      cam_rot=tuple(map(float, np.asarray(rot).ravel())),
                      intrinsics=Intrinsics(width=size[0], height=size[1], fx=fx, fy=fy, cx=cx, cy=cy),

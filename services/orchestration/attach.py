@@ -24,9 +24,13 @@ import os
 import socket
 import time
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import Field
 
 from protocol import keys
+from protocol.bus import BusMode, BusOptions
+from protocol.cliconfig import Cli
 
 log = logging.getLogger("skynet.attach")
 
@@ -150,9 +154,9 @@ def attach(args: argparse.Namespace, role: str, argv: list[str] | None = None) -
     must then be the network's fleet or its replay fleet) and the key set (unless ``--keys`` was given: it
     must have the same CA). Returns the description; AttachError when the tool cannot attach.
     """
-    if args.connect or args.config or getattr(args, "scouting", False):
+    if args.connect or args.config or args.scouting:
         return None
-    path = network_path(getattr(args, "network", None))
+    path = network_path(args.network)
     desc = read(path)
     fleet = desc["fleet"]
     if explicit_fleet(argv):
@@ -202,7 +206,7 @@ def explain_open_error(exc: BaseException, args: argparse.Namespace, desc: dict[
                 "by .skynet/network.json), or give -e ENDPOINT")
     if "Timeout" in text or "Unable to connect" in text:
         if desc is not None:
-            return (f"the network's gateway at {where} did not answer (is the network in {network_path(getattr(args, 'network', None))} "
+            return (f"the network's gateway at {where} did not answer (is the network in {network_path(args.network)} "
                     f"still running? {role} used the key set {args.keys or '(none)'})")
         tls = any(e.startswith("tls/") for e in args.connect)
         hint = (f" with {role}'s identity in {args.keys}: is it this network's key set?" if tls and args.keys
@@ -224,3 +228,13 @@ def open_bus(args: argparse.Namespace, role: str, argv: list[str] | None, name: 
         if type(exc).__name__ != "ZError":
             raise
         raise AttachError(explain_open_error(exc, args, desc, role)) from None
+
+
+
+class AttachOptions(BusOptions):
+    """The session options of a tool that attaches to a running network (:func:`open_bus`): video, web."""
+
+    mode: BusMode = "client"
+    network: Annotated[str | None, Cli(metavar="FILE")] = Field(
+        default=None, description=f"the running network's description, used when no -e/--config is given "
+                                  f"(default: ${NETWORK_ENV} or {NETWORK_FILE}, written by skynet up/mission)")

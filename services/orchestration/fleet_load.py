@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from edge.board import BoardOptions
-from edge.runtime import PREVIEW_HZ
+from edge.config import PREVIEW_HZ
 from protocol.checks import rate
 
 GCS_STATE_BUDGET = 240.0  # states per second the ground station takes from the whole fleet

@@ -75,8 +75,7 @@ from protocol.checks import rate_arg
 from protocol.links import LINK_LEASE_S
 from protocol.readiness import notify_ready
 
-from edge.board import niceness
-from edge.runtime import CAPTURE_LINKS, frame_size
+from edge.config import CAPTURE_LINKS, frame_size, niceness
 
 from . import attach, trustmode
 from .faults import FaultInjector

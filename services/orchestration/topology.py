@@ -199,7 +199,7 @@ def edge_mesh_config(mesh: MeshMode, base: dict | None = None, open_timeout: int
     uplink it must not find the gateway's real address by gossip), and to other peers only with
     the ``direct`` mesh. ``scouting/gossip/autoconnect`` lists the kinds of node a peer dials
     (zenoh's DEFAULT_CONFIG.json5: ``{ router: [], peer: ["router", "peer"] }``). ``base`` (e.g.
-    the secured edges' config, :func:`services.gateway.credentials.mesh_config_doc`) is merged in.
+    a config file of the user's) is merged in.
     The open timeout is shortened (:data:`OPEN_TIMEOUT_MS`, more on slow links: :func:`open_timeout_ms`).
     """
     doc = copy.deepcopy(base or {})

@@ -17,10 +17,12 @@ import argparse
 import time
 
 from protocol import keys, planauth
-from protocol.bus import Bus, Rejected, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.bus import Bus, Rejected, config_from_args, setup_logging, stop_event_on_signals
+from protocol.cliconfig import add_options, from_namespace
 from protocol.messages import Message, MissionPlan, PlanRequest
 from protocol.readiness import notify_ready
 
+from .config import PlannerConfig
 from .limits import TIME_BUDGET_S, TimeBudgetExceeded, TooLarge
 from .mission import plan_mission
 
@@ -46,22 +48,23 @@ def answer(request: PlanRequest, time_budget_s: float | None = TIME_BUDGET_S, an
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="skynet planner", description=__doc__.split("\n\n")[0])
-    add_bus_args(parser, mode="client")
-    parser.add_argument("--time-budget", type=float, default=TIME_BUDGET_S, metavar="S",
-                        help="longest a plan request may take, s; then it is answered 'timeout' (services.planner.limits)")
-    parser.add_argument("--anytime", action="store_true",
-                        help="when the time budget runs out, answer with the best collision-free path found so far")
-    return parser
+    """``skynet planner``'s command line: the options of :class:`PlannerConfig`."""
+    return add_options(argparse.ArgumentParser(prog="skynet planner", description=__doc__.split("\n\n")[0]),
+                       PlannerConfig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``skynet planner``: parse the command line, then :func:`run` the service."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    return run(from_namespace(PlannerConfig, parser.parse_args(argv), parser))
+
+
+def run(args: PlannerConfig) -> int:
+    """The planner RCU from its configuration, until SIGINT/SIGTERM."""
     log = setup_logging("planner")
     stop = stop_event_on_signals()
     signer = None
-    if getattr(args, "keys", None):  # the ground station takes only plans signed with this key
+    if args.keys:  # the ground station takes only plans signed with this key
         from protocol.keyset import KeySet
 
         signer = KeySet(args.keys, "planner").signer()

@@ -24,12 +24,13 @@ from collections import Counter
 from pathlib import Path
 
 from protocol import binding, keys
-from protocol.bus import Bus, Ring, add_bus_args, setup_logging, stop_event_on_signals
+from protocol.bus import Bus, Ring, setup_logging, stop_event_on_signals
+from protocol.cliconfig import add_options, from_namespace
 from protocol.imagery import unpack_image
 from protocol.rtp import ssrc_for
 from protocol.readiness import notify_ready
 
-from services.orchestration.attach import add_network_arg
+from .config import VideoConfig
 
 from .sdp import sdp
 from .stream import VideoStream
@@ -113,35 +114,22 @@ class VideoService:
             vs.close()
 
 
-class _ShowDefaults(argparse.ArgumentDefaultsHelpFormatter):
-    """Help with each option's default, except where there is none to tell (None, off, an empty list)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str | None:
-        if action.default is None or action.default is False or action.default == []:
-            return action.help
-        return super()._get_help_string(action)
-
-
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="skynet video", description=__doc__.split("\n\n")[0],
-                                     formatter_class=_ShowDefaults)
-    add_bus_args(parser, mode="client")
-    add_network_arg(parser)
-    parser.add_argument("--codec", choices=["h264", "mjpeg"], default="h264",
-                        help="h264: RFC 6184 (libx264 via PyAV); mjpeg: RFC 2435")
-    parser.add_argument("--host", default="127.0.0.1", help="where the RTP goes (IPv4; loopback by default)")
-    parser.add_argument("--port", type=int, default=5600, help="UAV 1's preview port; UAV n's is PORT + 2(n-1)")
-    parser.add_argument("--capture", action="store_true", help="also stream the capture frames")
-    parser.add_argument("--capture-port", type=int, default=5700, help="UAV 1's capture port (with --capture)")
-    parser.add_argument("--uavs", type=int, default=0, help="write the SDP files of UAVs 1..N at start")
-    parser.add_argument("--sdp-dir", default="sdp", help="folder of the SDP files")
-    return parser
+    """``skynet video``'s command line: the options of :class:`VideoConfig`."""
+    return add_options(argparse.ArgumentParser(prog="skynet video", description=__doc__.split("\n\n")[0]),
+                       VideoConfig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``skynet video``: parse the command line, then :func:`run` the service."""
+    parser = build_parser()
+    return run(from_namespace(VideoConfig, parser.parse_args(argv), parser), argv)
+
+
+def run(args: VideoConfig, argv: list[str] | None = None) -> int:
+    """The video service from its configuration (``argv``: whether ``--fleet`` was given), until SIGINT/SIGTERM."""
     from services.orchestration.attach import open_bus
 
-    args = build_parser().parse_args(argv)
     log = setup_logging("video")
     stop = stop_event_on_signals()
     with open_bus(args, "video", argv) as bus:

@@ -21,7 +21,8 @@ import os
 import threading
 
 from protocol import binding, keys
-from protocol.bus import Bus, add_bus_args, setup_logging, stop_event_on_signals
+from protocol.bus import Bus, setup_logging, stop_event_on_signals
+from protocol.cliconfig import add_options, from_namespace
 from protocol.imagery import unpack_image
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, Event, VehicleState
@@ -30,6 +31,7 @@ from protocol.readiness import notify_ready
 
 from services.recording.replay import REPLAY_MARK
 
+from .config import WebConfig
 from .server import TOKEN_ENV, WebServer, parse_listen
 from .tally import DefectTally
 from .view import FleetView
@@ -160,35 +162,22 @@ def start_web(bus: Bus, spec: str, scenario: Scenario | None, rate_hz: float = 1
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="skynet web", description=__doc__.split("\n\n")[0])
-    add_bus_args(parser, mode="client")
-    from services.orchestration.attach import add_network_arg
-
-    add_network_arg(parser)
-    parser.add_argument("--listen-web", default=":8080", help="[HOST]:PORT of the page (loopback by default)")
-    parser.add_argument("--rate", type=float, default=10.0, help="snapshots per second on the WebSocket")
-    parser.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
-    parser.add_argument("--token", default=None,
-                        help=f"the page's access token (default: ${TOKEN_ENV}, else random per start; at least 16 "
-                             "characters)")
-    parser.add_argument("--allow-host", action="append", default=[], metavar="NAME",
-                        help="a host name the page also answers to besides its address and localhost (repeatable)")
-    parser.add_argument("--frames", default=None, metavar="DIR",
-                        help="the detector's saved captures (a report's frames/): the defect count as the report "
-                             "counts it")
-    return parser
+    """``skynet web``'s command line: the options of :class:`WebConfig`."""
+    return add_options(argparse.ArgumentParser(prog="skynet web", description=__doc__.split("\n\n")[0]), WebConfig)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``skynet web``: parse the command line, then :func:`run` the page."""
     parser = build_parser()
-    args = parser.parse_args(argv)
-    token = args.token or os.environ.get(TOKEN_ENV)
-    if token is not None and len(token) < 16:
-        parser.error("--token: at least 16 characters")
-    try:
-        parse_listen(args.listen_web)
-    except ValueError as exc:
-        parser.error(str(exc))
+    args = from_namespace(WebConfig, parser.parse_args(argv), parser)
+    token = os.environ.get(TOKEN_ENV)
+    if args.token is None and token is not None and len(token) < 16:
+        parser.error(f"${TOKEN_ENV}: at least 16 characters")
+    return run(args, argv)
+
+
+def run(args: WebConfig, argv: list[str] | None = None) -> int:
+    """The web page from its configuration (``argv``: whether ``--fleet`` was given), until SIGINT/SIGTERM."""
     log = setup_logging("web")
     stop = stop_event_on_signals()
     from protocol.scenario import load_scenario

@@ -46,7 +46,7 @@ SENT_EVENTS = 100  # newest timeline entries per snapshot
 REPLAY_FLEET_SUFFIX = REPLAY_SUFFIX  # the fleet name ``skynet replay`` plays a recording under, beside the live one
 SOURCE_WINDOW_S = 5.0  # data heard within this long decides the page's "live" / "replay" label
 RATE_WINDOW_S = 2.0
-STATE_HZ = 20.0  # the edges' telemetry rate (edge.runtime)
+STATE_HZ = 20.0  # the edges' telemetry rate (edge.config)
 
 
 def _round(x: float | None, nd: int = 3) -> float | None:

@@ -109,7 +109,7 @@ def test_board_state_sharing_commands_failsafe_and_liveliness(fleet, gateway):
 
 def test_imagery_cache_option_defaults_to_the_runtime_cache_and_refuses_negatives(capsys):
     from edge.board import build_parser
-    from edge.runtime import IMAGERY_CACHE_FRAMES
+    from edge.config import IMAGERY_CACHE_FRAMES
 
     parser = build_parser()
     assert parser.parse_args(["--uav", "1"]).imagery_cache == IMAGERY_CACHE_FRAMES
@@ -188,7 +188,8 @@ def test_an_edge_hears_only_its_formation(group, gateway):
 def test_nice_option_takes_a_niceness_and_refuses_the_rest():
     import argparse
 
-    from edge.board import build_parser, niceness
+    from edge.board import build_parser
+    from edge.config import niceness
 
     assert niceness("0") == 0 and niceness("19") == 19
     for bad in ("-1", "20", "x", "1.5"):

@@ -25,7 +25,7 @@ from edge.camera import (
     make_source,
     upsample_factor,
 )
-from edge.runtime import camera_rotation
+from edge.geometry.camera import camera_rotation
 from edge.surface import SyntheticSurface, crack_image
 
 # the default scenario's wall (50 m x 6 m at x = 60, facing west) and camera

@@ -236,9 +236,10 @@ def test_camera_recovery_needs_the_detectors_query_and_reply_grants(tmp_path, dr
         with UdpProxy(("127.0.0.1", 0), endpoint_address(udp), "after 1s loss 20%", seed=7) as lossy:
             via = [tcp, f"udp/127.0.0.1:{lossy.port}?rel=0"]
 
-            def client(user, connect):
-                return Bus(BusConfig(mode="client", connect=connect, multilink=True, user=user,
-                                     password=passwords[user]), F, user)
+            def client(user, connect):  # zenoh's user/password names the principal of the rules under test
+                auth = [("transport/auth/usrpwd/user", json.dumps(user)),
+                        ("transport/auth/usrpwd/password", json.dumps(passwords[user]))]
+                return Bus(BusConfig(mode="client", connect=connect, multilink=True, cfg=auth), F, user)
 
             with client("detector", [tcp, udp]) as det, client("uav3", via) as cam:
                 det.subscribe_raw(keys.camera(F, "*"), lambda s: got.append(s.payload.to_bytes()[0]), recover=True)

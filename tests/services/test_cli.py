@@ -22,7 +22,7 @@ def test_help_lists_every_command():
 
 @pytest.mark.parametrize("args,needle", [
     (["teleport"], "unknown command"),
-    (["edge", "--uav", "300", "--camera", "none"], "uav must be an int in 1..255"),
+    (["edge", "--uav", "300", "--camera", "none"], "argument --uav: Input should be less than or equal to 255"),
     (["gateway", "--listen", "garbage"], "Endpoints must be of the form"),
     (["mission", "--impair", "foo"], "NAME=SPEC"),
     (["detector"], "No peer specified"),

@@ -318,7 +318,7 @@ def test_mavsim_runs_as_a_process():
 
 
 def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
-    """``skynet edge --vehicle mavlink`` (runtime.make_driver) commanding a mavsim vehicle over the bus."""
+    """``skynet edge --vehicle mavlink`` (edge.vehicle.factory.make_driver) commanding a mavsim vehicle over the bus."""
     from protocol import keys
     from protocol.bus import Bus, BusConfig
     from protocol.links import TELEMETRY

@@ -158,7 +158,7 @@ def test_ar1_is_scipys_first_order_filter_without_scipy_in_the_edge():
         ref, ref_zf = lfilter([1.0], [1.0, -a], w, zi=[zi])
         np.testing.assert_allclose(y, ref, rtol=1e-12, atol=1e-12)
         assert zf == pytest.approx(float(ref_zf[0]), rel=1e-12, abs=1e-12)
-    code = ("import sys, edge.board, edge.runtime, edge.vehicle.sim, edge.camera; "
+    code = ("import sys, edge.board, edge.camera_service, edge.vehicle.factory, edge.vehicle.sim, edge.camera; "
             "print(sorted(m for m in sys.modules if m.startswith('scipy.signal')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr

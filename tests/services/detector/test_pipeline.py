@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
-from edge.runtime import camera_model, camera_rotation, synthetic_surface
+from edge.geometry.camera import camera_model, camera_rotation
+from edge.world.wall import synthetic_surface
 from edge.surface import crack_image, textured_background
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import load_scenario

@@ -104,7 +104,7 @@ def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery)
     detector's lossy UDP link still arrives and is counted ``recovered``; with it off (``--imagery-cache 0``,
     ``--no-recovery``) frames are lost for good. Real processes, a real lossy UDP proxy (seeded)."""
     from edge.camera import CameraModel
-    from edge.runtime import CameraLink
+    from edge.camera_service import CameraLink
     from edge.vehicle.driver import CaptureEvent
     from protocol.bus import endpoint_address
     from services.netem.proxy import UdpProxy

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from edge.runtime import SURFACE_SEED, synthetic_surface
+from edge.world.wall import SURFACE_SEED, synthetic_surface
 from services.detector.pipeline import analyse
 from services.gcs.record import GroundTruthDefect
 from services.gcs.scoring import score_defects

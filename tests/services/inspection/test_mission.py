@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import time
 
-from edge.runtime import synthetic_surface
+from edge.world.wall import synthetic_surface
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.imagery import pack_image

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import time
 
-from edge.runtime import synthetic_surface
+from edge.world.wall import synthetic_surface
 from protocol.scenario import load_scenario
 from services.gcs.record import MissionRecord
 from services.inspection.captures import decode, synthetic_captures

@@ -3,7 +3,6 @@ live preview stream (small, low-rate, plain best-effort, on its own key) -- over
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
 import time
@@ -12,19 +11,12 @@ import numpy as np
 import pytest
 
 from edge.camera import decode_jpeg
-from edge.runtime import (
-    IMAGERY_CACHE_FRAMES,
-    PREVIEW_CAMERA,
-    PREVIEW_SIZE,
-    cache_frames,
-    capture_link,
-    frame_size,
-    make_camera,
-)
+from edge.camera_service import PREVIEW_CAMERA, capture_link, make_camera
+from edge.config import IMAGERY_CACHE_FRAMES, PREVIEW_SIZE, EdgeConfig
 from edge.vehicle.driver import CaptureEvent
 from protocol import keys
 from protocol.bus import Bus, BusConfig
-from protocol.checks import rate_arg
+from protocol.cliconfig import parse
 from protocol.imagery import split_payload
 from protocol.links import IMAGERY, IMAGERY_RELIABLE
 from protocol.rtp import parse_ssrc, unpack_frame
@@ -34,9 +26,8 @@ FLEET = "test"
 log = logging.getLogger("test-runtime")
 
 
-def _args(**kw) -> argparse.Namespace:
-    base = {"camera": "synthetic", "frame_size": "640x480", "scenario": None, "uav": 3}
-    return argparse.Namespace(**{**base, **kw})
+def _args(**kw) -> EdgeConfig:
+    return EdgeConfig(uav=3, **kw)
 
 
 def _facing_the_wall(cam) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
@@ -124,19 +115,26 @@ def test_imagery_cache_zero_is_a_plain_publisher_and_preview_can_be_off(gateway)
             assert cam.preview_stream is None and not cam.preview((0, 0, 0), (0, 0, 0), 0.0, time.time())
         finally:
             cam.close()
-        with pytest.raises(ValueError, match="imagery cache"):
-            make_camera(_args(imagery_cache=-1), edge, log)
+    with pytest.raises(ValueError, match="imagery_cache"):
+        _args(imagery_cache=-1)
 
 
-def test_option_types_reject_bad_values():
-    assert cache_frames("0") == 0 and cache_frames("64") == 64
-    assert rate_arg("0") == 0.0 and rate_arg("2.5") == 2.5
-    for bad in ("-1", "x", "1.5"):
-        with pytest.raises(argparse.ArgumentTypeError):
-            cache_frames(bad)
-    for bad in ("-1", "nan", "inf", "fast"):
-        with pytest.raises(argparse.ArgumentTypeError):
-            rate_arg(bad)
+def test_camera_options_are_typed_and_bad_values_are_refused(capsys):
+    def edge(*argv: str) -> EdgeConfig:
+        return parse(EdgeConfig, ["--uav", "3", *argv])
+
+    assert edge("--imagery-cache", "0").imagery_cache == 0 and edge("--imagery-cache", "64").imagery_cache == 64
+    assert edge("--preview-hz", "0").preview_hz == 0.0 and edge("--preview-hz", "2.5").preview_hz == 2.5
+    assert edge("--frame-size", "4000x3000").frame_size == (4000, 3000)  # a pair of ints from the start
+    assert edge().frame_size == (640, 480)
+    bad = [("--imagery-cache", v) for v in ("-1", "x", "1.5")] + [("--preview-hz", v) for v in ("-1", "nan", "inf", "fast")]
+    bad += [("--frame-size", v) for v in ("640", "0x480", "axb", "640x480x3", "99999x10")]
+    for flag, value in bad:
+        with pytest.raises(SystemExit) as exc:
+            edge(f"{flag}={value}")
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert f"error: argument {flag}" in err[-1], err  # argparse's one line, no traceback
 
 
 def test_capture_link_goes_reliable_for_frames_that_span_several_datagrams():
@@ -147,10 +145,6 @@ def test_capture_link_goes_reliable_for_frames_that_span_several_datagrams():
     assert IMAGERY_RELIABLE.name == IMAGERY.name and IMAGERY_RELIABLE.reliable
     with pytest.raises(ValueError):
         capture_link("tcp", (640, 480))
-    assert frame_size("4000x3000") == "4000x3000"
-    for bad in ("640", "0x480", "axb", "640x480x3", "99999x10"):
-        with pytest.raises(argparse.ArgumentTypeError):
-            frame_size(bad)
 
 
 def test_a_burst_of_12_mp_sized_frames_on_the_reliable_imagery_link_loses_none(gateway):

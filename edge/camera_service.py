@@ -1,4 +1,4 @@
-"""Wiring of the edge process: which driver, which camera, and the camera's bus binding.
+"""The camera's bus binding on the edge: capture frames and the live preview, from the edge's config.
 
 The camera sends two imagery streams:
 
@@ -13,18 +13,14 @@ The camera sends two imagery streams:
   (:data:`PREVIEW_CAMERA`). Only the synthetic camera previews: a folder or video source is
   read by the captures alone, so that previews never take frames away from them.
 
-Kept out of :mod:`edge.board` so that the board's logic stays a thin shell over the driver,
-and so that the ground station can rebuild the very same synthetic surface (and so its ground
-truth) from the scenario with :func:`synthetic_surface`.
+Kept out of :mod:`edge.board` so that the board's logic stays a thin shell over the driver.
 """
 
 from __future__ import annotations
 
-import argparse
 import ctypes
 import json
 import logging
-import math
 import threading
 import time
 
@@ -36,39 +32,21 @@ from protocol.imagery import pack_image
 from protocol.links import IMAGERY, IMAGERY_RELIABLE, LinkClass
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import RtpSender, ssrc_for
-from protocol.scenario import Scenario, load_scenario
+from protocol.scenario import load_scenario
 from protocol.stages import LOG_PREFIX, StageTimes
 
-from .camera import CameraModel, CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
-from .surface import DEFAULT_PX_PER_M, SyntheticSurface
-from .vehicle.quadrotor import DisturbanceParams
-from .vehicle.driver import CaptureEvent, VehicleDriver
-from .vehicle.sim import SimDriver, SimParams
+from .camera import CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
+from .config import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, PREVIEW_SIZE, EdgeConfig
+from .geometry.camera import camera_model, camera_rotation
+from .vehicle.driver import CaptureEvent
+from .world.wall import synthetic_surface
 
-#: frames each camera keeps for retransmission of frames lost on the way
-IMAGERY_CACHE_FRAMES = 32
-#: live preview defaults: rate (wall clock, Hz), frame size and JPEG quality
-PREVIEW_HZ = 2.0
-PREVIEW_SIZE = (320, 240)
+#: live preview JPEG quality
 PREVIEW_QUALITY = 60
 #: RTP camera index of the preview stream (the capture stream is camera 0)
 PREVIEW_CAMERA = 1
-#: seed of the synthetic surface: one wall for the whole fleet, whatever the UAV
-SURFACE_SEED = 2024
 #: ``--capture-link auto``: capture frames larger than this (pixels) go on the reliable link
 RELIABLE_CAPTURE_ABOVE_PX = 1_000_000
-CAPTURE_LINKS = ("auto", "best-effort", "reliable")
-
-
-def frame_size(text: str) -> str:
-    """argparse type of ``--frame-size``: ``WxH``, each side 16..20000 pixels (returned as given)."""
-    try:
-        w, h = (int(v) for v in str(text).lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 640x480), got {text!r}") from None
-    if not (16 <= w <= 20000 and 16 <= h <= 20000):
-        raise argparse.ArgumentTypeError(f"frame size {text!r}: each side must be 16..20000 pixels")
-    return text
 
 
 def capture_link(choice: str, frame_size: tuple[int, int]) -> LinkClass:
@@ -82,71 +60,14 @@ def capture_link(choice: str, frame_size: tuple[int, int]) -> LinkClass:
     return IMAGERY_RELIABLE if choice == "reliable" else IMAGERY
 
 
-def cache_frames(text: str) -> int:
-    """argparse type of ``--imagery-cache``: an int >= 0 (0 = no cache, capture frames not recoverable)."""
-    try:
-        n = int(text)
-    except (TypeError, ValueError):
-        raise argparse.ArgumentTypeError(f"expected a number of frames >= 0, got {text!r}") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"expected a number of frames >= 0, got {text!r}")
-    return n
-
-
-def make_driver(args: argparse.Namespace, t0: float) -> VehicleDriver:
-    if args.vehicle == "sim":
-        wind = DisturbanceParams.moderate() if args.wind == "moderate" else DisturbanceParams()
-        endurance = {} if getattr(args, "endurance", None) is None else {"endurance_s": args.endurance}
-        return SimDriver(args.uav, params=SimParams(disturbance=wind, **endurance), home=args.home, t0=t0,
-                         seed=args.seed if args.seed is not None else args.uav)
-    from .vehicle.mavlink import MavlinkDriver  # needs the "mavlink" extra
-
-    video = None
-    if getattr(args, "mavlink_video", None) is not None:  # the preview as skynet video sends it (UAV 1: base)
-        from .vehicle.mav_camera import VideoStreamSpec, stream_port
-
-        video = VideoStreamSpec(stream_port(args.mavlink_video, args.uav), *PREVIEW_SIZE,
-                                framerate=float(getattr(args, "preview_hz", PREVIEW_HZ)))
-    from .vehicle.mavlink import MavlinkParams
-
-    return MavlinkDriver(args.uav, args.mavlink, home=args.home, signing_key=getattr(args, "mavlink_key", None),
-                         gcs_endpoint=getattr(args, "mavlink_gcs", None), gcs_video=video,
-                         params=MavlinkParams(flight=getattr(args, "flight", "guided")))
-
-
-def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: int = SURFACE_SEED):
-    """The inspected wall of the scenario as a textured, cracked :class:`SyntheticSurface`."""
-    if scenario.surface is None:
-        raise ValueError(f"scenario {scenario.name!r} has no [surface] to image")
-    corners = np.asarray(scenario.surface.corners, dtype=float)
-    return SyntheticSurface.from_corners(corners, px_per_m=px_per_m or DEFAULT_PX_PER_M, seed=seed)
-
-
-def camera_model(scenario: Scenario, frame_size: tuple[int, int]):
-    """The scenario's camera delivering ``frame_size`` frames (the same field of view, fewer pixels)."""
-    cam = scenario.camera
-    return CameraModel(resolution=frame_size, sensor_mm=cam.sensor_mm, focal_mm=cam.focal_mm)
-
-
-def camera_rotation(yaw: float) -> np.ndarray:
-    """World-from-camera rotation of a gimbal-stabilised camera looking horizontally along ``yaw``.
-
-    OpenCV camera axes: z forward (the optical axis), x right, y down.
-    """
-    c, s = math.cos(yaw), math.sin(yaw)
-    z = np.array([c, s, 0.0])
-    x = np.array([s, -c, 0.0])
-    y = np.array([0.0, 0.0, -1.0])
-    return np.column_stack([x, y, z])
-
-
 class CameraLink:
     """Capture -> frame -> JPEG (off the control loop) -> imagery sample on the bus.
 
     Parameters
     ----------
     cache : int
-        Capture frames kept for recovery (>= 0; 0 = plain best-effort publisher, no recovery).
+        Capture frames kept for recovery (>= 0, checked by :class:`edge.config.EdgeConfig`; 0 = plain
+        best-effort publisher, no recovery).
     preview : PreviewStream or None
         The live preview stream, fed by :meth:`preview`.
     """
@@ -154,8 +75,6 @@ class CameraLink:
     def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
                  quality: int = 85, cache: int = IMAGERY_CACHE_FRAMES, preview: PreviewStream | None = None,
                  link: LinkClass = IMAGERY):
-        if isinstance(cache, bool) or not isinstance(cache, int) or cache < 0:
-            raise ValueError(f"imagery cache must be an int >= 0 (frames), got {cache!r}")
         self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
         self.sender = RtpSender(ssrc_for(uav, 0))
         self.cache = cache
@@ -254,10 +173,6 @@ class PreviewStream:
 
     def __init__(self, bus: Bus, uav: int, source, model, rate_hz: float = PREVIEW_HZ,
                  quality: int = PREVIEW_QUALITY, log: logging.Logger | None = None):
-        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
-            raise ValueError(f"preview rate must be a finite number of Hz > 0, got {rate_hz!r}")
-        if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= 100:
-            raise ValueError(f"preview JPEG quality must be an int in 1..100, got {quality!r}")
         self.bus, self.uav, self.source, self.model, self.log = bus, uav, source, model, log
         self.period_s, self.quality = 1.0 / float(rate_hz), quality
         self.sender = RtpSender(ssrc_for(uav, PREVIEW_CAMERA))
@@ -330,26 +245,25 @@ def release_freed_memory() -> None:
         pass
 
 
-def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> CameraLink | None:
-    if args.camera in ("", "none"):
+def make_camera(config: EdgeConfig, bus: Bus, log: logging.Logger) -> CameraLink | None:
+    """The camera of ``--camera`` (none for ``""``/``none``) bound to the bus, with its live preview."""
+    if config.camera in ("", "none"):
         return None
-    w, h = (int(v) for v in args.frame_size.lower().split("x"))
-    scenario = load_scenario(args.scenario)
-    model = camera_model(scenario, (w, h))
-    surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
+    scenario = load_scenario(config.scenario)
+    model = camera_model(scenario, config.frame_size)
+    surface = synthetic_surface(scenario) if config.camera == "synthetic" else None
     # the synthetic capture: no ground-truth mask (never sent) and a magnified view warped at the size the
     # texture fills, then resized (edge.camera.SyntheticSource, upsample: a 12 MP frame in ~8 ms, not 22-60)
-    source = make_source(args.camera, surface=surface, camera=model, mask=False, upsample=True)
-    cache = getattr(args, "imagery_cache", IMAGERY_CACHE_FRAMES)
-    preview_hz = float(getattr(args, "preview_hz", PREVIEW_HZ) or 0.0)
+    source = make_source(config.camera, surface=surface, camera=model, mask=False, upsample=True)
     preview = None
-    if preview_hz > 0 and surface is not None:
+    if config.preview_hz > 0 and surface is not None:
         small = camera_model(scenario, PREVIEW_SIZE)
-        preview = PreviewStream(bus, args.uav, SyntheticSource(surface, small, mask=False), small, rate_hz=preview_hz,
-                                log=log)
-    elif preview_hz > 0:
+        preview = PreviewStream(bus, config.uav, SyntheticSource(surface, small, mask=False), small,
+                                rate_hz=config.preview_hz, log=log)
+    elif config.preview_hz > 0:
         log.info("live preview off: only the synthetic camera previews (%s is read by the captures alone)",
-                 args.camera)
-    link = capture_link(getattr(args, "capture_link", "auto"), (w, h))
+                 config.camera)
+    link = capture_link(config.capture_link, config.frame_size)
     release_freed_memory()
-    return CameraLink(bus, args.uav, source, model, surface=surface, log=log, cache=cache, preview=preview, link=link)
+    return CameraLink(bus, config.uav, source, model, surface=surface, log=log, cache=config.imagery_cache,
+                      preview=preview, link=link)

@@ -1,0 +1,236 @@
+"""Command lines from typed configs: one pydantic model per service, its command line derived from it.
+
+A service declares its options once, as the fields of a pydantic model (type, default, constraints,
+description); this module builds the argparse options from those fields, builds the model back from
+the parsed namespace, and renders a model as argv (what a launcher starts a child with):
+
+* the flag is ``--field-name`` (or :attr:`Cli.flag`), the help is the field's description with its
+  default shown, ``Literal``/``Enum`` fields give ``choices``, ``list`` fields are repeatable
+  (``append``), ``bool`` fields are switches (``store_true``);
+* each value is validated as it is parsed, by the field's own type and constraints (a frame size is
+  a pair of ints in the namespace already), and the whole model again at the end (cross-field rules):
+  a bad value is argparse's one-line ``error:`` and exit status 2;
+* :func:`to_argv` writes only what differs from the defaults, so that ``parse(Model, to_argv(m)) == m``.
+
+No bus code here: the launcher imports the configs without Zenoh's or OpenCV's cost.
+"""
+
+from __future__ import annotations
+
+import argparse
+import enum
+import types
+import typing
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal, TypeVar
+
+from pydantic import BaseModel, ConfigDict, PydanticUserError, TypeAdapter, ValidationError
+from pydantic.fields import FieldInfo
+
+M = TypeVar("M", bound=BaseModel)
+_REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class Cli:
+    """Command-line details of a field, given as ``Annotated[type, Cli(...)]`` metadata."""
+
+    flag: str | None = None  # default: --field-name
+    short: str | None = None  # e.g. "-e"
+    metavar: str | None = None
+    group: str | None = None  # an argparse argument group's title
+    hidden: bool = False  # not on the command line (set by the program, not the user)
+
+
+def _cli(info: FieldInfo) -> Cli:
+    return next((m for m in info.metadata if isinstance(m, Cli)), Cli())
+
+
+def flag_of(name: str, info: FieldInfo) -> str:
+    return _cli(info).flag or "--" + name.replace("_", "-")
+
+
+def _unwrap_optional(tp: Any) -> Any:
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1:
+            return args[0]
+    return tp
+
+
+def _is_list(tp: Any) -> bool:
+    return typing.get_origin(_unwrap_optional(tp)) is list
+
+
+def _choices(tp: Any) -> list[Any] | None:
+    tp = _unwrap_optional(tp)
+    if typing.get_origin(tp) is Literal:
+        return list(typing.get_args(tp))
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        return [m.value for m in tp]
+    return None
+
+
+def one_line(exc: ValidationError) -> str:
+    """A validation error as one line: ``field: message; ...`` (no input echo, no URL)."""
+    parts = []
+    for e in exc.errors(include_url=False, include_input=False):
+        where = ".".join(str(p) for p in e["loc"] if not isinstance(p, int))
+        e["msg"] = e["msg"].removeprefix("Value error, ")
+        parts.append(f"{where}: {e['msg']}" if where else e["msg"])
+    return "; ".join(parts)
+
+
+def _value_type(info: FieldInfo, item: bool) -> Any:
+    """The annotated type of a field's value (``item``: of one element of a list field)."""
+    tp = info.annotation
+    meta = [m for m in info.metadata if not isinstance(m, Cli)]
+    if item:
+        tp = typing.get_args(_unwrap_optional(tp))[0]
+        meta = []  # a list's own constraints (length) are checked on the whole model
+    return Annotated[(tp, *meta)] if meta else tp  # type: ignore[return-value]
+
+
+def arg_type(tp: Any, name: str = "value"):
+    """An argparse ``type`` validating text as the (annotated) type ``tp``: a bad value is argparse's
+    one-line error naming the constraint. For a command line not (yet) built from a model."""
+    try:
+        adapter = TypeAdapter(tp, config=ConfigDict(allow_inf_nan=False))
+    except PydanticUserError:  # a model or dataclass: its own config rules
+        adapter = TypeAdapter(tp)
+
+    def parse(text: str) -> Any:
+        try:
+            return adapter.validate_python(text)
+        except ValidationError as exc:
+            raise argparse.ArgumentTypeError(one_line(exc)) from None
+
+    parse.__name__ = name  # argparse names the type in its "invalid <type> value" message
+    return parse
+
+
+def _parser_type(name: str, info: FieldInfo, item: bool):
+    return arg_type(_value_type(info, item), name)
+
+
+class CliModel(BaseModel):
+    """Base of the command-line configs: unknown fields refused, no NaN or infinity in a number."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+def _group(parser: argparse.ArgumentParser, title: str | None):
+    if title is None:
+        return parser
+    for g in parser._action_groups:  # one group per title, however many models add to it
+        if g.title == title:
+            return g
+    return parser.add_argument_group(title)
+
+
+def add_options(parser: argparse.ArgumentParser, model: type[BaseModel],
+                defaults: dict[str, Any] | None = None) -> argparse.ArgumentParser:
+    """Add an option per field of ``model`` to ``parser``.
+
+    ``defaults`` replace the model's for this command line (e.g. a client's ``--mode``). The
+    namespace holds typed values: the defaults, or what the field's type made of the text.
+    """
+    defaults = defaults or {}
+    for name, info in model.model_fields.items():
+        cli = _cli(info)
+        if cli.hidden:
+            continue
+        flags = [flag_of(name, info), *([cli.short] if cli.short else [])]
+        required = info.is_required() and name not in defaults
+        default = defaults.get(name, None if required else info.get_default(call_default_factory=True))
+        kw: dict[str, Any] = {"dest": name, "help": info.description or ""}
+        tp = _unwrap_optional(info.annotation)
+        if tp is bool:
+            if default:
+                raise TypeError(f"{model.__name__}.{name}: a switch defaults to off (store_true)")
+            kw.update(action="store_true", default=bool(default))
+        else:
+            is_list = _is_list(info.annotation)
+            kw.update(type=_parser_type(name, info, is_list), default=default)
+            if cli.metavar:
+                kw["metavar"] = cli.metavar
+            choices = _choices(typing.get_args(tp)[0] if is_list else tp)
+            if choices is not None:
+                kw["choices"] = choices
+                if all(isinstance(c, str) for c in choices):
+                    kw["type"] = str  # argparse checks the choice (and lists them in its error)
+            if is_list:  # appended to a copy of an empty default; a non-empty one is the model's when none given
+                kw.update(action="append", default=[] if not default else None)
+            if required:
+                kw["required"] = True
+            elif default not in (None, [], ()):
+                shown = ", ".join(_text(info, v, True) for v in default) if is_list else _text(info, default, False)
+                kw["help"] = f"{kw['help']} (default: {shown.replace('%', '%%')})".strip()
+        _group(parser, cli.group).add_argument(*flags, **kw)
+    return parser
+
+
+def from_namespace(model: type[M], ns: argparse.Namespace | BaseModel, parser: argparse.ArgumentParser | None = None,
+                   **overrides: Any) -> M:
+    """The model of a parsed namespace (or of another model carrying the same fields); a validation
+    error is the parser's one-line ``error:`` (exit 2) when a parser is given, else a ValueError."""
+    values = {}
+    for name, info in model.model_fields.items():
+        if hasattr(ns, name):
+            v = getattr(ns, name)
+            if v is None and _is_list(info.annotation):
+                continue  # an append option not given
+            values[name] = v
+    values.update(overrides)
+    try:
+        return model.model_validate(values)
+    except ValidationError as exc:
+        if parser is not None:
+            parser.error(one_line(exc))
+        raise ValueError(one_line(exc)) from None
+
+
+def parse(model: type[M], argv: list[str] | None = None, parser: argparse.ArgumentParser | None = None,
+          **parser_kw: Any) -> M:
+    """Parse ``argv`` into ``model``: its parser (built when not given), then the model."""
+    parser = parser or add_options(argparse.ArgumentParser(**parser_kw), model)
+    return from_namespace(model, parser.parse_args(argv), parser)
+
+
+def _text(info: FieldInfo, value: Any, item: bool) -> str:
+    dumped = TypeAdapter(_value_type(info, item)).dump_python(value, mode="json")
+    if isinstance(dumped, (list, tuple)):
+        return ",".join(map(str, dumped))
+    return str(dumped)
+
+
+def to_argv(config: BaseModel, defaults: dict[str, Any] | None = None) -> list[str]:
+    """The command line that :func:`parse` turns back into ``config``: every option whose value is not
+    the default (``defaults``: those of the command line, as given to :func:`add_options`)."""
+    defaults = defaults or {}
+    argv: list[str] = []
+    for name, info in type(config).model_fields.items():
+        if _cli(info).hidden:
+            continue
+        value = getattr(config, name)
+        if name in defaults:
+            default = defaults[name]
+        elif info.is_required():
+            default = _REQUIRED
+        else:
+            default = info.get_default(call_default_factory=True)
+        if value == default:
+            continue
+        flag = flag_of(name, info)
+        if _unwrap_optional(info.annotation) is bool:
+            if value:
+                argv.append(flag)
+            continue
+        if _is_list(info.annotation):
+            for v in value or []:
+                argv.append(f"{flag}={_text(info, v, True)}")
+            continue
+        if value is None:
+            continue
+        argv.append(f"{flag}={_text(info, value, False)}")
+    return argv
