@@ -130,7 +130,7 @@ def test_impair_puts_proxies_on_the_named_link_only():
         argv = plan.get(name).argv
         assert arg(argv, "--lease") == str(LINK_LEASE_S) and arg(argv, "--cfg").startswith("transport/unicast/open_timeout:")
     assert "--lease" not in plan.get("uav1").argv  # the edges' own default is that constant
-    assert edge_parser().get_default("lease") is None  # (set in its main from LINK_LEASE_S)
+    assert edge_parser().get_default("lease") == LINK_LEASE_S  # (the edge config's default is that constant)
     ports = [*px.ports, *(e for p in plan.processes for e in p.listens)]
     assert len(set(ports)) == len(ports)
     # a SkyNet link: the proxied mesh, every formation link through a proxy pair
