@@ -1,14 +1,14 @@
 """The UAV's camera: frame sources behind one interface, and JPEG encoding off the control loop.
 
 Sources (:class:`FrameSource`): :class:`SyntheticSource` renders the view of a
-:class:`~edge.surface.SyntheticSurface` from the camera pose, with the view's ground-truth mask;
+:class:`~edge.world.surface.SyntheticSurface` from the camera pose, with the view's ground-truth mask;
 :class:`FolderSource` replays a folder of images; :class:`VideoCaptureSource` reads a real camera
 or a stream through OpenCV. :func:`make_source` picks one from a spec string. :class:`FrameEncoder`
 JPEG-encodes frames on its own thread, so that the control loop that fires the camera at each
 capture point never waits for the encoder (the bus publishing is in :mod:`edge.camera_service`).
 
 The camera model and poses (:class:`CameraModel`, :class:`CameraPose`) live in
-:mod:`edge.optics` and are imported here for the sources.
+:mod:`edge.geometry.optics` and are imported here for the sources.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from protocol.ring import Ring
 
-from .optics import CameraModel, CameraPose
-from .surface import SyntheticSurface
+from .geometry.optics import CameraModel, CameraPose
+from .world.surface import SyntheticSurface
 
 __all__ = [
     "IMAGE_EXTENSIONS",
@@ -41,7 +41,7 @@ __all__ = [
     "SyntheticSource",
     "VideoCaptureSource",
     "decode_image",
-    "decode_jpeg",
+    "decode_image",
     "encode_jpeg",
     "make_source",
     "upsample_factor",
@@ -116,7 +116,7 @@ def upsample_factor(texels_per_px: float, frame_size: tuple[int, int], limit: fl
 
 
 class SyntheticSource:
-    """The view of a :class:`~edge.surface.SyntheticSurface` from the camera pose.
+    """The view of a :class:`~edge.world.surface.SyntheticSurface` from the camera pose.
 
     The surface plane maps to the image by the homography ``H = K R^T (A - C e3^T)`` (``A`` maps
     texture pixels to the world, :meth:`SyntheticSurface.pixel_to_world_matrix`), applied with
@@ -533,7 +533,7 @@ def decode_image(data: bytes | bytearray | memoryview, grey: bool = False, reduc
     return img
 
 
-decode_jpeg = decode_image  # the name the camera's callers know
+decode_image = decode_image  # the name the camera's callers know
 
 
 # ============================================================================ off-loop encoding

@@ -162,7 +162,7 @@ class PreviewStream:
     :meth:`offer` runs on the control loop: it only compares the wall clock with the next due
     time and, when due, leaves the pose in a one-slot mailbox (a newer pose replaces one not yet
     rendered, counted in :attr:`skipped`). The worker renders the frame with its own source (a
-    :class:`~edge.camera.SyntheticSource` at the preview size), encodes it and publishes it on
+    :class:`~edge.world.camera.SyntheticSource` at the preview size), encodes it and publishes it on
     ``uav/<id>/preview`` without cache or recovery.
 
     A frame is rendered only while somebody watches: when Zenoh's matching status says no
@@ -253,7 +253,7 @@ def make_camera(config: EdgeConfig, bus: Bus, log: logging.Logger) -> CameraLink
     model = camera_model(scenario, config.frame_size)
     surface = synthetic_surface(scenario) if config.camera == "synthetic" else None
     # the synthetic capture: no ground-truth mask (never sent) and a magnified view warped at the size the
-    # texture fills, then resized (edge.camera.SyntheticSource, upsample: a 12 MP frame in ~8 ms, not 22-60)
+    # texture fills, then resized (edge.world.camera.SyntheticSource, upsample: a 12 MP frame in ~8 ms, not 22-60)
     source = make_source(config.camera, surface=surface, camera=model, mask=False, upsample=True)
     preview = None
     if config.preview_hz > 0 and surface is not None:

@@ -644,7 +644,7 @@ class SyntheticSurface:
         """The (3, 3) ``A`` with ``X = A [column, row, 1]^T``: texture pixel -> ENU point.
 
         The camera's plane-to-image homography is ``K R^T (A - C e3^T)`` (see
-        :class:`edge.camera.SyntheticSource`).
+        :class:`edge.world.camera.SyntheticSource`).
         """
         s = 1.0 / self.px_per_m
         return np.column_stack([self.u_axis * s, -self.v_axis * s,

@@ -9,7 +9,7 @@ import numpy as np
 
 from protocol.scenario import Scenario
 
-from ..optics import CameraModel
+from .optics import CameraModel
 
 
 def camera_model(scenario: Scenario, frame_size: tuple[int, int]) -> CameraModel:

@@ -10,7 +10,7 @@ import numpy as np
 
 from protocol.scenario import Scenario
 
-from ..surface import DEFAULT_PX_PER_M, SyntheticSurface
+from .surface import DEFAULT_PX_PER_M, SyntheticSurface
 
 #: seed of the synthetic surface: one wall for the whole fleet, whatever the UAV
 SURFACE_SEED = 2024

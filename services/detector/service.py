@@ -220,7 +220,7 @@ class DetectorService:
         with self._lock:
             self.analysed[frame.ssrc] += 1
         if self.save_frames and report.ok:
-            from services.inspection.deliverable import save_frame
+            from services.detector.frames import save_frame
 
             save_frame(self.save_frames, meta, image)
         if not report.ok:

@@ -12,7 +12,7 @@ import logging
 import time
 from pathlib import Path
 
-from edge import formation
+from edge.geometry import formation
 from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
 from protocol.cliconfig import add_options, from_namespace
 from protocol.scenario import Scenario, load_scenario
@@ -60,7 +60,7 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
                               len(runner.planned_captures()), offsets, now - t_start, notes, heading), force=force)
 
     if out:
-        from .record import check_output_folder
+        from services.recording.record import check_output_folder
 
         check_output_folder(out)  # RecordingError before anything flies
     writer = None
@@ -74,7 +74,7 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
     if on_runner is not None:
         on_runner(runner)
     if ground_truth:  # before the flight, so that the log's footer carries it (skynet report)
-        from services.gcs.ground_truth import attach_ground_truth
+        from services.inspection.ground_truth import attach_ground_truth
 
         attach_ground_truth(runner.record)
     root = logging.getLogger()

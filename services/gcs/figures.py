@@ -1,7 +1,7 @@
 """The mission report's figures: a recorded mission in, typed figures out (record -> figures).
 
 Pure code (numpy), no bus code, no plotting: :func:`analyse` turns a
-:class:`services.gcs.record.MissionRecord` into :class:`ReportFigures`, which holds the
+:class:`services.recording.record.MissionRecord` into :class:`ReportFigures`, which holds the
 :class:`ReportSummary` (every figure, written as ``report.json``) and the typed series the plots
 draw (:mod:`services.gcs.plots`); the Markdown page (:mod:`services.gcs.markdown`) reads the
 summary only. :mod:`services.gcs.report` writes them all.
@@ -23,10 +23,10 @@ tracking state's ``t − progress · duration`` (the first MISSION state's ``t``
 not reported). A pause (hold, resume) therefore shows as a growing time-aligned error.
 
 *Formation error.* The UAVs' positions are linearly interpolated to common times (the union of
-their state times inside the window where every UAV tracks) and :class:`edge.formation.ShapeErrorMeter`
+their state times inside the window where every UAV tracks) and :class:`edge.geometry.formation.ShapeErrorMeter`
 gives the RMS shape error (P6)-(P9) at each time (the heading ψ: the flown centroid's horizontal velocity over
 the last 1 s, held while it moves slower than 0.3 m/s; the terminal line and the web page use the same rule), with the scenario's offsets (``scenario.formation.offsets``, row n−1 for UAV n) or
-:data:`edge.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
+:data:`edge.geometry.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
 planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
 heading of the centroid's motion is not always the one the planner placed the slots with.
 
@@ -58,10 +58,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge.formation import DEFAULT_OFFSETS, ShapeErrorMeter
+from edge.geometry.formation import DEFAULT_OFFSETS, ShapeErrorMeter
 from protocol.messages import Mode, Trajectory
 from services.gcs.clock_align import sim_time_shifts
-from services.gcs.record import GOAL_RADIUS_M, MissionRecord
+from services.recording.record import GOAL_RADIUS_M, MissionRecord
 from services.gcs.resilience import fault_figures
 from services.gcs.scoring import DefectScore, score_defects
 from services.gcs.verdict import GoalCheck, goal_check, imaged_captures, planned_captures
@@ -551,7 +551,7 @@ def _uav_figures(uav: int, track: Track | None, traj: Trajectory | None, imaged:
 
 def shape_errors(t: ArrayLike, positions: Mapping[int, ArrayLike], offsets: Mapping[int, ArrayLike]
                  ) -> NDArray[np.float64]:
-    """The formation error at each time (:meth:`edge.formation.ShapeErrorMeter.series`: the one definition the
+    """The formation error at each time (:meth:`edge.geometry.formation.ShapeErrorMeter.series`: the one definition the
     terminal line and the web page use too)."""
     return ShapeErrorMeter.series(t, positions, offsets)
 

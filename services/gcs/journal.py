@@ -5,7 +5,7 @@ the one loader: into a record bounded like the live one) and computes the report
 input is the file on disk and ``skynet report`` makes the same report from the file alone, the inspection
 section included (its captures are the log's capture frames). When the log could not be written (a write
 error, a full disk: the writer kept the mission flying and said so), or cannot be read back whole, the report is
-computed from the in-memory record instead (bounded by :data:`~services.gcs.record.CAPS`), and says so
+computed from the in-memory record instead (bounded by :data:`~services.recording.record.CAPS`), and says so
 (``report_input``, ``recording_errors``).
 
     skynet report reports/mission-<time>/ [--out FOLDER]
@@ -18,7 +18,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from .record import MissionRecord
+from services.recording.record import MissionRecord
 
 log = logging.getLogger("skynet.gcs.journal")
 

@@ -1,7 +1,7 @@
 """The ground control station's mission: plan, upload, take off, fly, image, land — over the bus.
 
 :class:`MissionRunner` is a Zenoh client of the gateway. It records everything into a
-:class:`~services.gcs.record.MissionRecord` (the input of the report) and returns it with
+:class:`~services.recording.record.MissionRecord` (the input of the report) and returns it with
 ``success`` set only when every UAV reached the goal and every capture point was imaged; any
 step that cannot complete (a UAV that never appears, refuses its upload, a planner that does
 not answer, a timeout) ends the mission with a failure that says why, never a hang.
@@ -57,7 +57,7 @@ from protocol.messages import (
 
 from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
 from .evidence import corroboration_failures, has_evidence, ledger
-from .record import (
+from services.recording.record import (
     CommandRecord,
     DefectRx,
     EventRx,
@@ -76,11 +76,11 @@ def with_formation_size(scenario: Scenario, n: int, log=None) -> Scenario:
     """The scenario with one formation offset per UAV of the mission (P9).
 
     A scenario written for three UAVs flown with two or five gets the offsets of
-    :func:`edge.formation.offsets_for`, so the planner plans a trajectory for every UAV present.
+    :func:`edge.geometry.formation.offsets_for`, so the planner plans a trajectory for every UAV present.
     """
     if len(scenario.formation.offsets) == n:
         return scenario
-    from edge.formation import offsets_for
+    from edge.geometry.formation import offsets_for
 
     new = [tuple(map(float, o)) for o in offsets_for(n)]
     if log:

@@ -14,7 +14,7 @@ import threading
 import time
 from typing import IO
 
-from edge import formation
+from edge.geometry import formation
 from protocol.messages import Mode, VehicleState
 from protocol.textsafe import printable
 
@@ -26,7 +26,7 @@ def bar(fraction: float, width: int = 24) -> str:
 
 
 class HeadingHold:
-    """The formation error's memory from one redraw to the next: a :class:`edge.formation.ShapeErrorMeter`
+    """The formation error's memory from one redraw to the next: a :class:`edge.geometry.formation.ShapeErrorMeter`
     (the rule of the report and the web page), made for the offsets of the first call."""
 
     def __init__(self) -> None:
@@ -52,7 +52,7 @@ def flying_formation(states: dict[int, VehicleState], offsets: dict) -> list[int
 
 def formation_rms(states: dict[int, VehicleState], offsets: dict[int, tuple[float, float, float]],
                   heading: HeadingHold | None = None) -> float | None:
-    """The formation error (:class:`edge.formation.ShapeErrorMeter`) of the latest states of the UAVs flying
+    """The formation error (:class:`edge.geometry.formation.ShapeErrorMeter`) of the latest states of the UAVs flying
     the formation, at the newest state's time; ``heading`` keeps the heading across redraws (one per
     display); None with fewer than two flying or before the fleet has moved."""
     ids = flying_formation(states, offsets)

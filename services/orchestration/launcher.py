@@ -35,7 +35,7 @@ restarted again, its reason (its last error line) is logged, and ``skynet missio
 services it asked for (planner, detector, video) before the flight, fails with that reason in the report's
 outcome. The network is never stopped because one service ended.
 
-Attaching (:mod:`services.orchestration.attach`): while it runs, the network is described in
+Attaching (:mod:`services.attach`): while it runs, the network is described in
 ``.skynet/network.json`` (``--network FILE``), where ``skynet web``, ``skynet video`` and ``skynet replay`` find
 it when given no endpoint.
 
@@ -624,7 +624,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     from services.gcs.mission import MissionOptions
     from protocol.scenario import load_scenario
 
-    from services.gcs.record import check_output_folder
+    from services.recording.record import check_output_folder
 
     # not writable or too little room: refused (RecordingError) before any service starts
     out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")

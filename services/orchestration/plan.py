@@ -328,10 +328,10 @@ class NetworkPlan:
 
 def fleet_offsets(scenario: Scenario, n: int) -> list[tuple[float, float, float]]:
     """The formation offsets ΔT_n of an ``n``-UAV fleet (P9): the scenario's own when it has one per UAV, else
-    :func:`edge.formation.offsets_for` (as the ground station plans with, ``services.gcs.mission``)."""
+    :func:`edge.geometry.formation.offsets_for` (as the ground station plans with, ``services.gcs.mission``)."""
     if len(scenario.formation.offsets) == n:
         return [tuple(map(float, o)) for o in scenario.formation.offsets]
-    from edge.formation import offsets_for
+    from edge.geometry.formation import offsets_for
 
     return [tuple(map(float, o)) for o in offsets_for(n)]
 
@@ -339,8 +339,8 @@ def fleet_offsets(scenario: Scenario, n: int) -> list[tuple[float, float, float]
 def homes(scenario: Scenario, n: int) -> list[tuple[float, float, float]]:
     """Launch points: the formation slots of the scenario's offsets around its start, rotated to the start→goal
     heading, on the box's floor (P9); a UAV stacked above another launches beside it
-    (:func:`edge.formation.home_offsets`)."""
-    from edge.formation import home_offsets, rotation_of
+    (:func:`edge.geometry.formation.home_offsets`)."""
+    from edge.geometry.formation import home_offsets, rotation_of
 
     start, goal = scenario.start, scenario.goal
     yaw = math.atan2(goal[1] - start[1], goal[0] - start[0])
@@ -355,7 +355,7 @@ def homes(scenario: Scenario, n: int) -> list[tuple[float, float, float]]:
 
 def fence_arg(scenario: Scenario) -> str:
     """The scenario's operation box as the edge's ``--geofence x0,y0,z0,x1,y1,z1``: the ceiling a signed
-    upload may only narrow (:func:`edge.validate.narrowed_fence`)."""
+    upload may only narrow (:func:`edge.geometry.validate.narrowed_fence`)."""
     return ",".join(f"{v:g}" for v in (*scenario.box.lo, *scenario.box.hi))
 
 
@@ -546,7 +546,7 @@ def network_plan(o: LaunchOptions, scenario: Scenario, trust: Trust, ports: Port
     fence = fence_arg(scenario)
     edge_endpoints = {i: pair() for i in range(1, o.uavs + 1)}
     formations = o.uavs > sitemap.FORMATION_SIZE  # several formations: no gossip autoconnect
-    from edge.neighbourhood import members
+    from edge.geometry.neighbourhood import members
 
     for i, home in enumerate(launch, start=1):
         name = f"uav{i}"

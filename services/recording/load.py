@@ -1,7 +1,7 @@
 """The mission's record from its log alone: the one loader every consumer uses.
 
 :func:`load_record` reads a mission log (:class:`services.recording.recorder.MissionLogWriter` wrote it) in
-log-time order into a :class:`~services.gcs.record.MissionRecord`:
+log-time order into a :class:`~services.recording.record.MissionRecord`:
 
 - the header and the footer (:data:`~services.recording.recorder.HEADER_TOPIC`, ``FOOTER_TOPIC``) give the
   fields that are not lists (scenario, plan, phases, verdict, counters);
@@ -9,7 +9,7 @@ log-time order into a :class:`~services.gcs.record.MissionRecord`:
 - the received lists (states, events, defect reports, gateway and detector statistics) are the bus samples of
   the log, held to the rules the ground station's subscribers apply (:mod:`protocol.binding`: a body that speaks
   for another node than its key's is not taken), in receive order;
-- every list is bounded like the live record (:func:`services.gcs.record.keep`, :data:`~services.gcs.record.CAPS`).
+- every list is bounded like the live record (:func:`services.recording.record.keep`, :data:`~services.recording.record.CAPS`).
 
 A message that does not validate is counted and skipped; a log without a footer (the run did not finish
 writing it) gives what it holds and says so in ``recording_errors``. ``ground=`` takes the header, footer and
@@ -27,7 +27,7 @@ from pydantic import BaseModel
 
 from protocol import binding, codec, keys
 from protocol.messages import DefectReport, Event, LinkStats, VehicleState
-from services.gcs.record import CAPS, DefectRx, EventRx, ITEM_MODELS, MissionRecord, StateRx, StatsRx, keep
+from services.recording.record import CAPS, DefectRx, EventRx, ITEM_MODELS, MissionRecord, StateRx, StatsRx, keep
 
 from .mcap_log import read
 from .recorder import FOOTER_TOPIC, GROUND_TOPICS, HEADER_FIELDS, HEADER_TOPIC
@@ -90,7 +90,7 @@ LEGACY_TOPIC = "/skynet/mission-record"
 def load_record(path: str | Path, caps: dict[str, int] | None = None,
                 ground: str | Path | None = None) -> tuple[MissionRecord, LogReadout]:
     """The mission record of the log ``path`` and what was found (module docstring); ``caps`` default
-    :data:`~services.gcs.record.CAPS`. Raises :class:`NotAMissionLog` (a ValueError) for a log without a
+    :data:`~services.recording.record.CAPS`. Raises :class:`NotAMissionLog` (a ValueError) for a log without a
     header, :class:`~services.recording.mcap_log.McapReadError` (a ValueError) for a damaged file."""
     caps = CAPS if caps is None else caps
     out = LogReadout()

@@ -38,7 +38,7 @@ from protocol.budget import LIMITS, Budget
 from protocol.bus import Bus, Reply, Ring
 from protocol.links import COMMAND, LinkClass
 from protocol.messages import ErrorReply, Message
-from services.gcs.record import ITEM_MODELS, MissionRecord
+from services.recording.record import ITEM_MODELS, MissionRecord
 
 from .mcap_log import McapLog, is_imagery
 

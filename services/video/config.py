@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field
 
-from services.orchestration.attach import AttachOptions
+from services.attach import AttachOptions
 
 
 class VideoConfig(AttachOptions):

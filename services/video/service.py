@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(args: VideoConfig, argv: list[str] | None = None) -> int:
     """The video service from its configuration (``argv``: whether ``--fleet`` was given), until SIGINT/SIGTERM."""
-    from services.orchestration.attach import open_bus
+    from services.attach import open_bus
 
     log = setup_logging("video")
     stop = stop_event_on_signals()

@@ -7,7 +7,7 @@ from typing import Annotated
 from pydantic import Field, field_validator
 
 from protocol.cliconfig import Cli
-from services.orchestration.attach import AttachOptions
+from services.attach import AttachOptions
 
 from .server import TOKEN_ENV, parse_listen
 

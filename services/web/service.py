@@ -182,7 +182,7 @@ def run(args: WebConfig, argv: list[str] | None = None) -> int:
     stop = stop_event_on_signals()
     from protocol.scenario import load_scenario
 
-    from services.orchestration.attach import open_bus
+    from services.attach import open_bus
 
     with open_bus(args, "web", argv) as bus:
         _, server = start_web(bus, args.listen_web, load_scenario(args.scenario), args.rate, log, token=args.token,

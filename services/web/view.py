@@ -8,9 +8,9 @@ preview JPEGs, the plan) and answers two JSON-ready documents:
 - :meth:`FleetView.snapshot` — pushed at 5–10 Hz: per UAV the position, mode, battery, telemetry
   rate (link health, Hz against the edges' 20 Hz) and last-heard age, captures, its flown path
   (decimated to one point per :data:`TRAIL_STEP_M`), the preview frame's number; the formation
-  error (the shape error of the report and the terminal line, :class:`edge.formation.ShapeErrorMeter`, over
+  error (the shape error of the report and the terminal line, :class:`edge.geometry.formation.ShapeErrorMeter`, over
   the UAVs flying the formation) and, apart, the tracking error (RMS of each UAV's distance to its own
-  planned slot, P9, over the UAVs in MISSION: :func:`edge.formation.tracking_error`); the
+  planned slot, P9, over the UAVs in MISSION: :func:`edge.geometry.formation.tracking_error`); the
   detections (every defect of every frame's report, placed on the wall map), the defects
   (``defect_count``: the mission report's own count, a crack seen by overlapping frames counted once,
   set by :meth:`FleetView.set_inspection`; None until known); the timeline (the mission's phases:
@@ -31,7 +31,7 @@ import time
 from collections import deque
 from typing import Any
 
-from edge.formation import DEFAULT_OFFSETS, ShapeErrorMeter, tracking_error
+from edge.geometry.formation import DEFAULT_OFFSETS, ShapeErrorMeter, tracking_error
 from protocol.keys import DEFAULT_FLEET, REPLAY_SUFFIX
 from protocol.messages import DefectReport, Event, MissionPlan, VehicleState
 from protocol.scenario import Scenario

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from edge.camera import decode_jpeg
+from protocol.imagecodec import decode_image
 from edge.camera_service import PREVIEW_CAMERA, capture_link, make_camera
 from edge.config import IMAGERY_CACHE_FRAMES, PREVIEW_SIZE, EdgeConfig
 from edge.vehicle.driver import CaptureEvent
@@ -42,7 +42,7 @@ def _decode(sample) -> tuple[int, int, object, np.ndarray]:
     header, payload = unpack_frame(sample.payload.to_bytes())
     meta, jpeg = split_payload(payload)
     uav, camera = parse_ssrc(header.ssrc)
-    return uav, camera, meta, decode_jpeg(jpeg, grey=True)
+    return uav, camera, meta, decode_image(jpeg, grey=True)
 
 
 def test_preview_is_small_rate_limited_best_effort_and_apart_from_captures(gateway):

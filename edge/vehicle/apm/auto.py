@@ -39,7 +39,7 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
-from edge.vehicle.apm import items as I
+from edge.geometry import ardupilot_items as I
 from edge.vehicle.apm.missions import PlanItem
 
 __all__ = ["AutoMission", "Flight", "MAV_CMD_CONDITION_YAW", "MIN_LEG_S"]

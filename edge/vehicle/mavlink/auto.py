@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from edge.vehicle.apm import items as AI
+from edge.geometry import ardupilot_items as AI
 from edge.vehicle.auto_flight import AutoMissionPlan, autopilot_mission, resume_item, speed_correction
 from protocol.messages import Trajectory
 

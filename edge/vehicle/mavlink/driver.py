@@ -11,7 +11,7 @@ from typing import Any, Literal
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
-from edge.vehicle.apm.items import capture_params
+from edge.geometry.ardupilot_items import capture_params
 from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import AutopilotReadiness, Mode, Trajectory
 

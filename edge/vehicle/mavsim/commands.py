@@ -11,7 +11,7 @@ from typing import Any, Callable
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.vehicle.angles import wrap_angle
-from edge.vehicle.apm import items as I
+from edge.geometry import ardupilot_items as I
 from edge.vehicle.apm.auto import AutoMission
 from edge.vehicle.apm.missions import PlanItem
 from edge.vehicle.apm.modes import ARMABLE, CopterMode, check_mode_change

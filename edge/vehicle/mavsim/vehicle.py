@@ -13,7 +13,7 @@ import pymap3d
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.clock import SimClock
-from edge.vehicle.apm import items as I
+from edge.geometry import ardupilot_items as I
 from edge.vehicle.apm.auto import AutoMission, Flight
 from edge.vehicle.apm.boot import BootTimeline
 from edge.vehicle.apm.missions import FENCE, MISSION, MissionServer, PlanItem, item_from_message

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.surface import crack_image
+from edge.world.surface import crack_image
 from protocol import keys
 from protocol.imagery import pack_image
 from protocol.links import IMAGERY

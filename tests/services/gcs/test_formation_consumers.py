@@ -1,6 +1,6 @@
 """One formation error: the mission report (services.gcs.figures), the terminal line (services.gcs.progress) and
-the web page (services.web.view) give the same number for the same states (edge.formation.ShapeErrorMeter);
-the page's tracking error is another figure under its own name (edge.formation.tracking_error)."""
+the web page (services.web.view) give the same number for the same states (edge.geometry.formation.ShapeErrorMeter);
+the page's tracking error is another figure under its own name (edge.geometry.formation.tracking_error)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from edge.formation import DEFAULT_OFFSETS, ShapeErrorMeter, rotation_of, tracking_error
+from edge.geometry.formation import DEFAULT_OFFSETS, ShapeErrorMeter, rotation_of, tracking_error
 from protocol.messages import Mode, VehicleState
 from protocol.scenario import load_scenario
 from services.gcs.figures import shape_errors

@@ -12,7 +12,7 @@ from lxml import etree
 from markdown_it import MarkdownIt
 
 from protocol.messages import Event, Level
-from services.gcs.record import EventRx, MissionRecord
+from services.recording.record import EventRx, MissionRecord
 from tests.protocol.test_textsafe import HOSTILE
 from tests.services.gcs.test_report import build_record
 

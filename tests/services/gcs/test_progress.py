@@ -33,7 +33,7 @@ def test_the_formation_heading_is_held_when_the_fleet_hovers_and_the_ground_has_
     (or any mode but MISSION and HOLD) there is no formation error to show."""
     import math
 
-    from edge.formation import formation_error
+    from edge.geometry.formation import formation_error
     from services.gcs.progress import HeadingHold, formation_rms
 
     offsets = {1: (0.0, 0.0, 2.0), 2: (3.0, 0.0, -1.0), 3: (-3.0, 0.0, -1.0)}

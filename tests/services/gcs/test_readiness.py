@@ -48,7 +48,7 @@ def test_a_hostile_refusal_reason_is_escaped_in_the_log_line_and_in_report_md():
 
     from protocol.textsafe import SafeFormatter
     from services.gcs.markdown import markdown
-    from services.gcs.record import MissionRecord
+    from services.recording.record import MissionRecord
     from services.gcs.report import summarise
 
     waiting = not_ready({1: state(1, AutopilotReadiness(ready=False, heartbeat=True, reason=HOSTILE))}, [1])

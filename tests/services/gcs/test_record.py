@@ -1,4 +1,4 @@
-"""services.gcs.record: the bounded live record, the output-folder check, a full disk under the mission log."""
+"""services.recording.record: the bounded live record, the output-folder check, a full disk under the mission log."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 
 from protocol.messages import Event, Mode, VehicleState
 from services.gcs.journal import report_record
-from services.gcs.record import (
+from services.recording.record import (
     EventRx,
     LiveRecord,
     MissionRecord,

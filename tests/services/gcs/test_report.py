@@ -16,11 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from edge.formation import DEFAULT_OFFSETS
+from edge.geometry.formation import DEFAULT_OFFSETS
 from protocol.messages import (Box, Defect, DefectReport, Event, Level, LinkStats, MissionPlan, Mode, Trajectory,
                                VehicleState, Waypoint)
 from protocol.scenario import Scenario
-from services.gcs.record import (CommandRecord, DefectRx, EventRx, GroundTruthDefect, MissionRecord, StateRx,
+from services.recording.record import (CommandRecord, DefectRx, EventRx, GroundTruthDefect, MissionRecord, StateRx,
                                  StatsRx)
 from services.gcs.report import (PLOTS, Latency, convergence_iteration, latency_figures, planned_positions,
                                  polyline_distance, shape_errors, summarise, write_report)
