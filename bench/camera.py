@@ -23,7 +23,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edge.camera import CameraPose, SyntheticSource, encode_jpeg
+from edge.geometry.optics import CameraPose
+from edge.world.camera import SyntheticSource
+from protocol.imagery import encode_jpeg
 from edge.runtime import camera_model, synthetic_surface
 from protocol.scenario import load_scenario
 

@@ -275,7 +275,7 @@ def _frame(data: Path, size: tuple[int, int]) -> np.ndarray:
     src = data / "crackforest" / "images" / "001.jpg"
     img = cv2.imread(str(src), cv2.IMREAD_COLOR) if src.exists() else None
     if img is None:  # no data: a synthetic cracked surface
-        from edge.surface import crack_image
+        from edge.world.surface import crack_image
 
         g, _ = crack_image((320, 480), np.random.default_rng(0))
         img = cv2.cvtColor(g, cv2.COLOR_GRAY2BGR)
@@ -366,7 +366,7 @@ def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
     DeepCrack-train image; never trained on nor used for model selection), and ms per frame (grey in, mask
     out, OpenCV limited to ``threads``) at 640x480 and on a 12 MP capture's 1/4 decode (1000x750, the
     detector's real-time input, services.detector.pipeline)."""
-    from edge.camera import decode_image
+    from protocol.imagery import decode_image
     from services.detector.learned import splits
 
     cv2.setNumThreads(threads)

@@ -36,7 +36,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edge.surface import crack_image  # noqa: E402
+from edge.world.surface import crack_image  # noqa: E402
 from protocol import keys  # noqa: E402
 from protocol.bus import Bus, BusConfig, multilink_endpoints  # noqa: E402
 from protocol.imagery import pack_image  # noqa: E402

@@ -74,8 +74,8 @@ def _messages() -> list[m.Message]:
 
 
 def _command(data: bytes) -> object:
-    """The board's command entry point: decode as a command, then validate (edge.validate)."""
-    from edge.validate import validate_command
+    """The board's command entry point: decode as a command, then validate (edge.geometry.validate)."""
+    from edge.geometry.validate import validate_command
 
     cmd = codec.decode(data, m.COMMAND_TYPES)
     return validate_command(cmd, 1, m.Box(lo=(0, 0, 0), hi=(141, 101, 40)), 12.0)

@@ -13,7 +13,7 @@ reached the detector only through recovery (lost on a clean link) or not at all.
     .venv/bin/python bench/scale.py [--uavs 3 12 24 48] [--speed 1] [--frames] [--sites 1 2]
                                     [--idle 3 12 24 48 99] [--out bench/results/scale.json]
 
-Fleets above 10 UAVs fly stacked in rows (:func:`edge.formation.offsets_for`), which the monorail
+Fleets above 10 UAVs fly stacked in rows (:func:`edge.geometry.formation.offsets_for`), which the monorail
 box holds up to 50 UAVs; ``--idle`` measures any fleet as ``skynet up``: every edge on the
 ground, sharing state with its formation at 20 Hz.
 

@@ -1,11 +1,11 @@
 """The UAV's IoT board: one process per UAV, a Zenoh peer of SkyNet connected to the gateway.
 
-It binds a vehicle driver (``sim`` built in), the formation keeping of :mod:`edge.formation`
+It binds a vehicle driver (``sim`` built in), the formation keeping of :mod:`edge.geometry.formation`
 and a camera (:mod:`edge.camera`) to the bus:
 
 * publishes :class:`VehicleState` as telemetry at ``--rate`` Hz and holds a liveliness token;
   its link lease is short (``--lease``, 2 s) so the others notice a lost UAV;
-* subscribes to its formation neighbours' states only (SkyNet, :mod:`edge.neighbourhood`:
+* subscribes to its formation neighbours' states only (SkyNet, :mod:`edge.geometry.neighbourhood`:
   formations of ``--formation-size`` UAVs, 3 by default) and corrects its own reference from them
   (P8)-(P9), ignoring neighbours older than ``--stale`` s: when SkyNet is partitioned the
   correction goes back to zero (at the sequencer's offset rate) and the UAV flies its planned
@@ -47,14 +47,14 @@ from protocol.messages import (
 )
 from protocol.signing import TrustError
 
-from . import formation
+from .geometry import formation
 from .failsafe import ACTIONS, ESCALATIONS, FailsafeOptions, FailsafePolicy
-from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
+from .geometry.neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
 from protocol.checks import rate_arg
 
 from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size
 from .trust import Gate, command_id
-from .validate import narrowed_fence, validate_command
+from .geometry.validate import narrowed_fence, validate_command
 from .vehicle.follower import Follower
 
 
@@ -274,7 +274,7 @@ class Board:
 
     def _keep_formation(self, st, now_wall: float) -> dict:
         """Correct the own reference from the errors the neighbours share (P8, see
-        :func:`edge.formation.neighbour_correction`); returns the own plan to share."""
+        :func:`edge.geometry.formation.neighbour_correction`); returns the own plan to share."""
         if st.wp_index < 0:  # still flying to the first waypoint or waiting there: nothing to keep
             self.driver.set_reference_offset((0.0, 0.0, 0.0))
             return {}

@@ -39,8 +39,12 @@ from protocol.rtp import RtpSender, ssrc_for
 from protocol.scenario import Scenario, load_scenario
 from protocol.stages import LOG_PREFIX, StageTimes
 
-from .camera import CameraModel, CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
-from .surface import DEFAULT_PX_PER_M, SyntheticSurface
+from protocol.imagery import encode_jpeg
+
+from .camera import FrameEncoder, make_source
+from .geometry.optics import CameraModel, CameraPose
+from .world.camera import SyntheticSource
+from .world.surface import DEFAULT_PX_PER_M, SyntheticSurface
 from .vehicle.quadrotor import DisturbanceParams
 from .vehicle.driver import CaptureEvent, VehicleDriver
 from .vehicle.sim import SimDriver, SimParams
@@ -243,7 +247,7 @@ class PreviewStream:
     :meth:`offer` runs on the control loop: it only compares the wall clock with the next due
     time and, when due, leaves the pose in a one-slot mailbox (a newer pose replaces one not yet
     rendered, counted in :attr:`skipped`). The worker renders the frame with its own source (a
-    :class:`~edge.camera.SyntheticSource` at the preview size), encodes it and publishes it on
+    :class:`~edge.world.camera.SyntheticSource` at the preview size), encodes it and publishes it on
     ``uav/<id>/preview`` without cache or recovery.
 
     A frame is rendered only while somebody watches: when Zenoh's matching status says no
@@ -338,7 +342,7 @@ def make_camera(args: argparse.Namespace, bus: Bus, log: logging.Logger) -> Came
     model = camera_model(scenario, (w, h))
     surface = synthetic_surface(scenario) if args.camera == "synthetic" else None
     # the synthetic capture: no ground-truth mask (never sent) and a magnified view warped at the size the
-    # texture fills, then resized (edge.camera.SyntheticSource, upsample: a 12 MP frame in ~8 ms, not 22-60)
+    # texture fills, then resized (edge.world.camera.SyntheticSource, upsample: a 12 MP frame in ~8 ms, not 22-60)
     source = make_source(args.camera, surface=surface, camera=model, mask=False, upsample=True)
     cache = getattr(args, "imagery_cache", IMAGERY_CACHE_FRAMES)
     preview_hz = float(getattr(args, "preview_hz", PREVIEW_HZ) or 0.0)

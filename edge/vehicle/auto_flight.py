@@ -37,9 +37,9 @@ from dataclasses import dataclass
 
 import pymap3d
 
-from edge.vehicle.apm import items as AI
+from edge.geometry import ardupilot_items as AI
 from edge.vehicle.apm.missions import PlanItem
-from edge.vehicle.waypoint_mission import mission_items
+from edge.geometry.waypoint_mission import mission_items
 from protocol.messages import Trajectory
 
 __all__ = ["AutoMissionPlan", "autopilot_mission", "decimate", "resume_item", "speed_correction"]

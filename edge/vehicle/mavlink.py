@@ -60,7 +60,7 @@ hold()              DO_SET_MODE GUIDED if not in it; position target at the curr
 resume()            as start, from the paused trajectory time
 land()              NAV_LAND (ArduCopter switches to LAND and disarms on the ground)
 return_to_launch()  NAV_RETURN_TO_LAUNCH (RTL mode)
-capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = the capture id, apm.items)
+capture             optionally DO_DIGICAM_CONTROL(param5 = 1 shoot, param6 = the capture id, edge.geometry.ardupilot_items)
 ==================  ===============================================================
 
 Parameters (:mod:`.apm.params`): :meth:`MavlinkDriver.read_param` / :meth:`~MavlinkDriver.set_param`
@@ -147,9 +147,9 @@ from typing import Any, Literal
 import numpy as np
 
 from edge.vehicle.angles import wrap_angle
-from edge.vehicle.apm import items as AI
+from edge.geometry import ardupilot_items as AI
 from edge.vehicle.apm.boot import position_ok
-from edge.vehicle.apm.items import capture_params
+from edge.geometry.ardupilot_items import capture_params
 from edge.vehicle.apm.modes import CopterMode
 from edge.vehicle.apm.params import SCHEMES, from_raw, param_name, param_type, to_raw
 from edge.vehicle.apm.signing import SafeSigningMAVLink, enable_signing, parse_key

@@ -45,7 +45,7 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
   DO_REPOSITION (192)        COMMAND_INT, GUIDED (or CHANGE_MODE flag set): flies to x/y/z at param1
                              m/s (WPNAV_SPEED when < 0), yaw param4 degrees (NaN: keep)
   DO_CHANGE_SPEED (178)      param2 m/s for the current leg (AUTO or a reposition)
-  DO_DIGICAM_CONTROL         param5 = 1: a shot, CAMERA_FEEDBACK (capture id in param6, :mod:`.apm.items`)
+  DO_DIGICAM_CONTROL         param5 = 1: a shot, CAMERA_FEEDBACK (capture id in param6, :mod:`edge.geometry.ardupilot_items`)
   the requests above         as described
   anything else              MAV_RESULT_UNSUPPORTED
   =========================  ==============================================================
@@ -94,7 +94,7 @@ from typing import Any
 import pymap3d
 
 from edge.clock import SimClock
-from edge.vehicle.apm import items as I
+from edge.geometry import ardupilot_items as I
 from edge.vehicle.apm.auto import AutoMission, Flight
 from edge.vehicle.apm.missions import FENCE, MISSION, MissionServer, PlanItem, item_from_message
 from edge.vehicle.apm.boot import BootTimeline

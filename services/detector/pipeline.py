@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from edge.camera import decode_image
+from protocol.imagery import decode_image
 from protocol.messages import Defect, DefectReport, ImageMeta
 from services.inspection.measure import frame_scale, measure_mask
 

@@ -12,7 +12,7 @@ import logging
 import time
 from pathlib import Path
 
-from edge import formation
+from edge.geometry import formation
 from protocol.bus import (
     Bus,
     add_bus_args,

@@ -25,9 +25,9 @@ not reported). A pause (hold, resume) therefore shows as a growing time-aligned 
 *Formation error.* The UAVs' positions are linearly interpolated to common times (the union of
 their state times inside the window where every UAV tracks), the heading ψ is that of the flown
 centroid's horizontal velocity averaged over 1 s (held at its last value while the centroid moves
-slower than 0.3 m/s; before the first such time, the first heading found) and :func:`edge.formation.formation_error` gives the RMS shape error (P6)-(P9) at each
+slower than 0.3 m/s; before the first such time, the first heading found) and :func:`edge.geometry.formation.formation_error` gives the RMS shape error (P6)-(P9) at each
 time, with the scenario's offsets (``scenario.formation.offsets``, row n−1 for UAV n) or
-:data:`edge.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
+:data:`edge.geometry.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
 planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
 heading of the centroid's motion is not always the one the planner placed the slots with.
 
@@ -59,7 +59,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge.formation import DEFAULT_OFFSETS, formation_error
+from edge.geometry.formation import DEFAULT_OFFSETS, formation_error
 from protocol.messages import Mode, Trajectory
 from services.gcs.clock_align import sim_time_shifts
 from services.gcs.record import GOAL_RADIUS_M, MissionRecord
@@ -570,7 +570,7 @@ def shape_errors(t: ArrayLike, positions: Mapping[int, ArrayLike], offsets: Mapp
     Returns
     -------
     ndarray, shape (N,)
-        :func:`edge.formation.formation_error` (P6)-(P9) at each time, with the heading ψ of the
+        :func:`edge.geometry.formation.formation_error` (P6)-(P9) at each time, with the heading ψ of the
         centroid's horizontal velocity averaged over 1 s (one-sided at the ends), held at its
         last value while that speed is below 0.3 m/s (before the first faster time: the first
         heading found; never faster: ψ = 0).

@@ -75,11 +75,11 @@ def with_formation_size(scenario: Scenario, n: int, log=None) -> Scenario:
     """The scenario with one formation offset per UAV of the mission (P9).
 
     A scenario written for three UAVs flown with two or five gets the offsets of
-    :func:`edge.formation.offsets_for`, so the planner plans a trajectory for every UAV present.
+    :func:`edge.geometry.formation.offsets_for`, so the planner plans a trajectory for every UAV present.
     """
     if len(scenario.formation.offsets) == n:
         return scenario
-    from edge.formation import offsets_for
+    from edge.geometry.formation import offsets_for
 
     new = [tuple(map(float, o)) for o in offsets_for(n)]
     if log:

@@ -5,7 +5,7 @@ a plan against the scenario the ground station sent (its box, its obstacles, its
 its surface for the capture points) and never against anything the plan says about itself (its
 own ``geofence`` is not trusted: a planner identity in the wrong hands could answer with any fence).
 
-The boards refuse a trajectory that leaves the geofence (:func:`edge.validate.trajectory_problem`),
+The boards refuse a trajectory that leaves the geofence (:func:`edge.geometry.validate.trajectory_problem`),
 but one by one during the upload: with a fleet too long for the box (24 UAVs in one
 formation span ±18 m along the track, the monorail start is 8 m from the box's edge) UAV 23's
 upload was refused after 22 UAVs had theirs. This check runs the boards' own geofence test on
@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from edge.validate import trajectory_problem
+from edge.geometry.validate import trajectory_problem
 from protocol.messages import Box, MissionPlan
 from protocol.scenario import Scenario
 
@@ -172,7 +172,7 @@ def transit_margin_s(positions: dict[int, Sequence[float]], plan: MissionPlan, s
     """Wall seconds the farthest UAV needs from where it holds to its trajectory's first waypoint.
 
     The common start time must leave it that long: a UAV stacked above another
-    launches beside it (:func:`edge.formation.home_offsets`) and flies level to its slot once
+    launches beside it (:func:`edge.geometry.formation.home_offsets`) and flies level to its slot once
     started; arriving after the start time it would begin its trajectory late, and formation
     keeping would pull its formation back while the formations around it fly on. ``speed`` is
     the mission clock's speed factor (simulated seconds per wall second).

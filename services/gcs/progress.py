@@ -16,7 +16,7 @@ from typing import IO
 
 import numpy as np
 
-from edge import formation
+from edge.geometry import formation
 from protocol.messages import Mode, VehicleState
 from protocol.textsafe import printable
 from services.gcs.figures import HEADING_MIN_SPEED

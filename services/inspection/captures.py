@@ -1,7 +1,7 @@
 """Capture frames of a synthetic wall at the planned shots, without the bus (pure).
 
-The mission's edges render each capture from :class:`edge.surface.SyntheticSurface` through
-:class:`edge.camera.SyntheticSource` at the camera pose of the capture point and send it as a
+The mission's edges render each capture from :class:`edge.world.surface.SyntheticSurface` through
+:class:`edge.world.camera.SyntheticSource` at the camera pose of the capture point and send it as a
 JPEG with its :class:`protocol.messages.ImageMeta` (pose, intrinsics, range). This module does the
 same off-line for the shots of the scenario's formation pass (:func:`services.planner.task.formation_pass`,
 (P1)-(P3)), so the detector's precision, the crack measurements and the mosaic can be checked in a
@@ -15,9 +15,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
+from edge.geometry.optics import CameraPose
+from edge.world.camera import SyntheticSource
 from edge.runtime import camera_model, camera_rotation, synthetic_surface
-from edge.surface import SyntheticSurface, textured_background
+from edge.world.surface import SyntheticSurface, textured_background
+from protocol.imagery import decode_image, encode_jpeg
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import Scenario
 from services.planner.task import formation_pass
@@ -73,7 +75,7 @@ def synthetic_captures(scenario: Scenario, surface: SyntheticSurface, frame_size
 
 
 def decode(c: Capture) -> np.ndarray:
-    """The grey frame of a capture (as the detector decodes it: :func:`edge.camera.decode_image`)."""
+    """The grey frame of a capture (as the detector decodes it: :func:`protocol.imagery.decode_image`)."""
     return decode_image(c.jpeg, grey=True)
 
 

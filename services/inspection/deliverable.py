@@ -9,7 +9,7 @@ mission (the detector's saved captures) or from a folder of photos with poses
 2. frames and masks are warped onto the surface plane (:func:`services.inspection.mosaic.build_mosaic`);
 3. each 8-connected component of the mosaic's defect mask is one defect (a crack seen by two
    overlapping frames is one defect): its position (centroid) on the surface, in ENU and, with the
-   geodetic origin, in WGS-84 (:func:`edge.vehicle.waypoint_mission.enu_to_geodetic`); its length, maximum
+   geodetic origin, in WGS-84 (:func:`edge.geometry.waypoint_mission.enu_to_geodetic`); its length, maximum
    and mean width and severity class (:mod:`services.inspection.measure`, at the mosaic's scale);
    and a crop of the mosaic around it;
 4. files: ``mosaic.png`` (defects outlined and numbered), ``defects.json``, ``defects.md``,
@@ -40,7 +40,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from edge.vehicle.waypoint_mission import enu_to_geodetic
+from edge.geometry.waypoint_mission import enu_to_geodetic
 from protocol import codec
 from protocol.messages import ImageMeta
 from protocol.textsafe import md_text, xml_text

@@ -4,7 +4,7 @@ Pure numpy / OpenCV, no bus code. The frames' poses are known (the UAV's state a
 :class:`protocol.messages.ImageMeta`), and the surface is a plane, so no feature matching is needed:
 a frame maps to the plane by a homography. With the canvas pixel ``(c, r)`` at surface coordinates
 ``u = (c + 1/2) s``, ``v = H_m − (r + 1/2) s`` (``s`` metres per canvas pixel, row 0 at the top edge,
-the convention of :class:`edge.surface.SyntheticSurface`), the world point of a canvas pixel is
+the convention of :class:`edge.world.surface.SyntheticSurface`), the world point of a canvas pixel is
 ``X = A [c, r, 1]^T`` and the frame pixel that sees it is ``K R^T (X − C)`` (pinhole camera: ``K``
 the intrinsics, ``R`` world-from-camera, ``C`` the camera centre), so the canvas-to-frame
 homography is ``K R^T (A − C e3^T)`` (Hartley & Zisserman, *Multiple View Geometry*, 2nd ed.,

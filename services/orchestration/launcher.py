@@ -101,7 +101,7 @@ from .topology import (
     skynet_link,
 )
 
-from edge.neighbourhood import FORMATION_SIZE
+from edge.geometry.neighbourhood import FORMATION_SIZE
 from edge.board import niceness
 from edge.runtime import CAPTURE_LINKS, frame_size
 from protocol.checks import rate_arg
@@ -352,7 +352,7 @@ class Network:
         proxied mesh, else straight to j's endpoints. Dialled endpoints are retried until they
         answer, while a peer learned by gossip is dialled when the gossip arrives: an edge that
         was not listening yet then stayed out of the mesh for good (seen under load in CI)."""
-        from edge.neighbourhood import members
+        from edge.geometry.neighbourhood import members
 
         out = []
         for j in (j for j in members(i, fleet=self.args.uavs) if j > i):  # its formation only
@@ -439,8 +439,8 @@ class Network:
 
     def homes(self, n: int) -> list[tuple[float, float, float]]:
         """Launch points: the formation slots around the start, on the ground (P9); a UAV stacked
-        above another launches beside it (:func:`edge.formation.home_offsets`)."""
-        from edge.formation import home_offsets, offsets_for, rotation_of
+        above another launches beside it (:func:`edge.geometry.formation.home_offsets`)."""
+        from edge.geometry.formation import home_offsets, offsets_for, rotation_of
         from protocol.scenario import load_scenario
 
         sc = load_scenario(self.args.scenario)

@@ -5,7 +5,7 @@ spread over places (or over more UAVs than one 4G cell carries) has one gateway 
 gateway is a Zenoh router, the gateways connect to each other (a full mesh of router links:
 gateway k dials every gateway j < k), and Zenoh's router-to-router routing carries every sample
 and query between them. A UAV attaches to the gateway of its formation's site (formation g of
-:mod:`edge.neighbourhood` flies from site ``g % S``, so a formation's SkyNet neighbourhood never
+:mod:`edge.geometry.neighbourhood` flies from site ``g % S``, so a formation's SkyNet neighbourhood never
 spans sites); the RCUs (planner, detector instances) and the ground station attach to any site.
 
 :func:`mesh` names the sites and the router links; :func:`veth_addresses` gives the addresses of
@@ -18,7 +18,7 @@ from __future__ import annotations
 import ipaddress
 from dataclasses import dataclass, field
 
-from edge.neighbourhood import FORMATION_SIZE, formation_index, formations
+from edge.geometry.neighbourhood import FORMATION_SIZE, formation_index, formations
 
 #: the private range the namespace links take their addresses from
 VETH_NET = ipaddress.ip_network("10.18.0.0/16")

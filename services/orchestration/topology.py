@@ -73,8 +73,8 @@ class Links:
 
     @property
     def skynet(self) -> list[str]:
-        """The SkyNet links: between the UAVs of each formation (:mod:`edge.neighbourhood`), not across."""
-        from edge.neighbourhood import formations
+        """The SkyNet links: between the UAVs of each formation (:mod:`edge.geometry.neighbourhood`), not across."""
+        from edge.geometry.neighbourhood import formations
 
         return [skynet_link(i, j) for f in formations(self.uavs) for i in f for j in f if j > i]
 

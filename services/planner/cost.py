@@ -77,7 +77,7 @@ def point_segment_distance(p: ArrayLike, a: ArrayLike, b: ArrayLike) -> NDArray[
 
 def cost_offsets(offsets: ArrayLike, wall_height: float | None = None) -> NDArray[np.float64]:
     """The UAVs the cost needs to look at: for a fleet stacked in columns
-    (:func:`edge.formation.offsets_for`) the top and bottom UAV of each column and, between them,
+    (:func:`edge.geometry.formation.offsets_for`) the top and bottom UAV of each column and, between them,
     as few as keep consecutive ones at most ``wall_height`` apart; every UAV of a fleet without
     stacked UAVs (the paper's three: unchanged).
 

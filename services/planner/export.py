@@ -19,7 +19,7 @@ LAT/X LON/Y ALT/Z AUTOCONTINUE``) or inside a QGroundControl ``.plan`` file:
   the plan's timing, so the formation holds;
 - after each capture waypoint: ``MAV_CMD_DO_DIGICAM_CONTROL`` (203), P5 = 1 (shoot) and
   **P6 = the capture id** (MAVLink's "Command Identity"; P7 is the test-shot flag and stays 0).
-  This is the one capture-id convention of the project (:mod:`edge.vehicle.apm.items`), shared
+  This is the one capture-id convention of the project (:mod:`edge.geometry.ardupilot_items`), shared
   with the MAVLink driver and the sim autopilot;
 - last item: ``MAV_CMD_NAV_RETURN_TO_LAUNCH`` (20).
 
@@ -47,8 +47,8 @@ import numpy as np
 import pymap3d
 from numpy.typing import ArrayLike, NDArray
 
-from edge.vehicle.apm import items as AI
-from edge.vehicle.waypoint_mission import (  # noqa: F401  (their home; exported here too)
+from edge.geometry import ardupilot_items as AI
+from edge.geometry.waypoint_mission import (  # noqa: F401  (their home; exported here too)
     MAV_CMD_CONDITION_YAW, MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_DIGICAM_CONTROL, MAV_CMD_NAV_RETURN_TO_LAUNCH,
     MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_FRAME_MISSION,
     MissionItem, _compass_deg, _origin, enu_to_geodetic, geodetic_to_enu, mission_items,

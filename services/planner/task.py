@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge.optics import CameraModel, overlap_spacing
+from edge.geometry.optics import CameraModel, overlap_spacing
 from protocol.checks import positive as _positive
 
 from .scenario import Camera, Scenario, Surface
@@ -194,7 +194,7 @@ def imaging_rows(z_offsets: ArrayLike, wall_height: float, a_h: float) -> NDArra
 
     The fewest top rows whose band (top - bottom + one footprint ``a_h``) covers the wall's
     height, or every row if none does (:func:`formation_pass` then refuses the wall). Rows
-    below them (a fleet stacked in height, :func:`edge.formation.offsets_for`) fly the same pass
+    below them (a fleet stacked in height, :func:`edge.geometry.formation.offsets_for`) fly the same pass
     under the wall and take no shots; a formation of two rows images with both, as before.
     """
     heights = np.unique(np.round(np.asarray(z_offsets, float), 2))

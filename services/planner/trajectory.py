@@ -9,9 +9,9 @@ Steps, all vectorised over the samples:
    corners for a quadcopter; the blend fades out at the start and goal (they stay put) and the
    straight inspection pass is kept exact (its interior is further than 3σ from any corner).
 3. **Formation slots** (P9): the formation heading ψ (P7, yaw only; x along travel) comes from
-   :func:`edge.formation.headings`, unwrapped and smoothed with the same kernel so that the
+   :func:`edge.geometry.formation.headings`, unwrapped and smoothed with the same kernel so that the
    UAVs ±3 m along the track swing smoothly at turns, and ``P_n = P_F + R_OF(ψ) ΔT_n`` from
-   :func:`edge.formation.uav_positions`; their mean is the centroid (P6).
+   :func:`edge.geometry.formation.uav_positions`; their mean is the centroid (P6).
 4. **Speed profile**: the inspection speed on the pass, the cruise speed elsewhere, at most
    ``sqrt(a_lat / κ)`` on curves, accelerating and braking at most ``accel`` (forward/backward
    passes), from rest and to rest; the time step between samples is stretched wherever a UAV
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from edge.formation import headings, uav_positions
+from edge.geometry.formation import headings, uav_positions
 from protocol.messages import CapturePoint, Trajectory, Waypoint
 
 from .cost import clearance, crosses_wall_free

@@ -1,5 +1,5 @@
-"""Tests for edge.camera: camera model (P1)-(P3), poses, rendering of the synthetic surface,
-folder and video sources, JPEG, and the off-loop encoder."""
+"""Tests for the camera: camera model (P1)-(P3) and poses (edge.geometry.optics), rendering of the synthetic
+surface (edge.world.camera), folder and video sources and the off-loop encoder (edge.camera), JPEG (protocol.imagery)."""
 
 from __future__ import annotations
 
@@ -11,22 +11,12 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.camera import (
-    CameraModel,
-    CameraPose,
-    FolderSource,
-    Frame,
-    FrameEncoder,
-    FrameSource,
-    SyntheticSource,
-    VideoCaptureSource,
-    decode_jpeg,
-    encode_jpeg,
-    make_source,
-    upsample_factor,
-)
+from edge.camera import FolderSource, FrameEncoder, VideoCaptureSource, make_source
+from edge.geometry.optics import CameraModel, CameraPose
+from edge.world.camera import Frame, FrameSource, SyntheticSource, upsample_factor
+from protocol.imagery import decode_image, encode_jpeg
 from edge.runtime import camera_rotation
-from edge.surface import SyntheticSurface, crack_image
+from edge.world.surface import SyntheticSurface, crack_image
 
 # the default scenario's wall (50 m x 6 m at x = 60, facing west) and camera
 CORNERS = [[60, 85, 25.5], [60, 35, 25.5], [60, 35, 31.5], [60, 85, 31.5]]
@@ -361,13 +351,13 @@ def test_video_capture_source(tmp_path) -> None:
 # ---------------------------------------------------------------- JPEG
 def test_jpeg_round_trip_grey_and_colour() -> None:
     grey, _ = crack_image((48, 64), 0)
-    back = decode_jpeg(encode_jpeg(grey, 95))
+    back = decode_image(encode_jpeg(grey, 95))
     assert back.shape == grey.shape and back.dtype == np.uint8
     assert np.abs(back.astype(int) - grey).mean() < 4
     bgr = np.dstack([grey, grey // 2, 255 - grey])
-    back3 = decode_jpeg(encode_jpeg(bgr, 90))
+    back3 = decode_image(encode_jpeg(bgr, 90))
     assert back3.shape == bgr.shape and np.abs(back3.astype(int) - bgr).mean() < 8
-    assert decode_jpeg(encode_jpeg(bgr), grey=True).shape == grey.shape
+    assert decode_image(encode_jpeg(bgr), grey=True).shape == grey.shape
     assert len(encode_jpeg(grey, 30)) < len(encode_jpeg(grey, 95))
 
 
@@ -376,9 +366,9 @@ def test_jpeg_corrupt_bytes_raise_value_error() -> None:
     for bad in (b"", b"\xff\xd8garbage", bytes(100), good[: len(good) // 2], b"\x89PNG" + good[4:],
                 good[:200] + bytes(64) + good[-2:]):
         with pytest.raises(ValueError):
-            decode_jpeg(bad)
+            decode_image(bad)
     with pytest.raises(ValueError):
-        decode_jpeg("text")  # type: ignore[arg-type]
+        decode_image("text")  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(
@@ -400,7 +390,7 @@ def test_encode_bad_input(image, quality) -> None:
 # ---------------------------------------------------------------- off-loop encoder
 def test_frame_encoder_in_order_and_on_its_own_thread() -> None:
     got: list[tuple[int, int, str]] = []
-    enc = FrameEncoder(lambda f, jpeg: got.append((f.seq, decode_jpeg(jpeg)[0, 0], threading.current_thread().name)),
+    enc = FrameEncoder(lambda f, jpeg: got.append((f.seq, decode_image(jpeg)[0, 0], threading.current_thread().name)),
                        capacity=64)
     for i in range(20):
         assert enc.submit(Frame(np.full((16, 16), 10 * i, np.uint8), float(i), seq=i))

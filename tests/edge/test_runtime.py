@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from edge.camera import decode_jpeg
+from protocol.imagery import decode_image
 from edge.runtime import (
     IMAGERY_CACHE_FRAMES,
     PREVIEW_CAMERA,
@@ -51,7 +51,7 @@ def _decode(sample) -> tuple[int, int, object, np.ndarray]:
     header, payload = unpack_frame(sample.payload.to_bytes())
     meta, jpeg = split_payload(payload)
     uav, camera = parse_ssrc(header.ssrc)
-    return uav, camera, meta, decode_jpeg(jpeg, grey=True)
+    return uav, camera, meta, decode_image(jpeg, grey=True)
 
 
 def test_preview_is_small_rate_limited_best_effort_and_apart_from_captures(gateway):

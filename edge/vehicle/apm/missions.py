@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from edge.vehicle.apm import items as I
+from edge.geometry import ardupilot_items as I
 
 __all__ = ["PlanItem", "MissionServer", "MISSION", "FENCE", "RALLY", "SUPPORTED"]
 

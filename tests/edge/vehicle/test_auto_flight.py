@@ -16,7 +16,7 @@ import pytest
 
 pytest.importorskip("pymavlink", reason="needs the 'mavlink' extra")
 
-from edge.vehicle.apm import items as AI  # noqa: E402
+from edge.geometry import ardupilot_items as AI  # noqa: E402
 from edge.vehicle.apm.auto import AutoMission  # noqa: E402
 from edge.vehicle.auto_flight import autopilot_mission, decimate, resume_item, speed_correction  # noqa: E402
 from edge.vehicle.follower import Follower  # noqa: E402
@@ -190,7 +190,7 @@ def test_a_dense_mission_is_flown_slowly_as_by_arducopter_and_the_decimated_one_
 def _dense_items(traj: Trajectory):
     """The mission without decimation (every waypoint a NAV_WAYPOINT), as MISSION_ITEM_INT fields."""
     from edge.vehicle.apm.missions import PlanItem
-    from edge.vehicle.waypoint_mission import mission_items
+    from edge.geometry.waypoint_mission import mission_items
 
     origin = pymap3d.enu2geodetic(-HOME[0], -HOME[1], -HOME[2], *HOME_LLA)
     out = []

@@ -26,7 +26,7 @@ import pytest
 
 pytest.importorskip("pymavlink", reason="the sim autopilot needs the 'mavlink' extra")
 
-from edge.vehicle.apm import items as I  # noqa: E402
+from edge.geometry import ardupilot_items as I  # noqa: E402
 from edge.vehicle.apm.modes import CopterMode  # noqa: E402
 from edge.vehicle.mavsim import DEFAULT_ORIGIN, MavlinkSimVehicle  # noqa: E402
 from protocol.messages import Mode  # noqa: E402

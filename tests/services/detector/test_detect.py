@@ -135,7 +135,7 @@ def test_area_guard():
 
 
 def test_it_plus_beats_it_on_synthetic_cracks():
-    surface = pytest.importorskip("edge.surface", reason="edge/surface.py (crack generator) not present")
+    surface = pytest.importorskip("edge.world.surface", reason="edge/world/surface.py (crack generator) not present")
     f_it, f_plus = [], []
     for seed in range(6):
         grey, gt = surface.crack_image((240, 320), np.random.default_rng(100 + seed))

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.surface import crack_image, textured_background
+from edge.world.surface import crack_image, textured_background
 from services.detector.improved import (
     GUARD_CONTRAST_DEFAULT,
     component_contrast,

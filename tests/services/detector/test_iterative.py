@@ -178,7 +178,7 @@ def test_properties_on_random_histograms(counts, c_s, background, min_region):
 
 
 def test_it_beats_otsu_on_synthetic_cracks():
-    surface = pytest.importorskip("edge.surface", reason="edge/surface.py (crack generator) not present")
+    surface = pytest.importorskip("edge.world.surface", reason="edge/world/surface.py (crack generator) not present")
     f_it, f_otsu = [], []
     for seed in range(6):
         grey, gt = surface.crack_image((240, 320), np.random.default_rng(seed))

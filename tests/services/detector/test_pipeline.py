@@ -11,9 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
+from edge.geometry.optics import CameraPose
+from edge.world.camera import SyntheticSource
+from protocol.imagery import decode_image, encode_jpeg
 from edge.runtime import camera_model, camera_rotation, synthetic_surface
-from edge.surface import crack_image, textured_background
+from edge.world.surface import crack_image, textured_background
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import load_scenario
 from services.detector.pipeline import DETECT_MAX_MP, analyse, detection_scale

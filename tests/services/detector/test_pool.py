@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.surface import crack_image
+from edge.world.surface import crack_image
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import ssrc_for
 from services.detector.pipeline import analyse

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.surface import textured_background
+from edge.world.surface import textured_background
 from services.detector.detect import METHODS, detect
 from services.detector.evaluate import load_dataset
 from services.detector.improved import it_plus_mask

@@ -12,7 +12,7 @@ from protocol.imagery import pack_image
 from protocol.links import IMAGERY, IMAGERY_RELIABLE
 from protocol.messages import DefectReport, ImageMeta, Intrinsics, LinkStats
 from protocol.rtp import RtpSender, ssrc_for
-from edge.surface import crack_image
+from edge.world.surface import crack_image
 from tests.conftest import wait_until
 
 FLEET = "test"
@@ -79,13 +79,13 @@ def test_detector_service_frames_in_reports_out(group, gateway):
 
 
 class CrackCamera:
-    """A frame source (edge.camera.FrameSource) of synthetic cracked walls, one new image per grab."""
+    """A frame source (edge.world.camera.FrameSource) of synthetic cracked walls, one new image per grab."""
 
     def __init__(self, seed: int, size=(240, 320)):
         self.rng, self.size = np.random.default_rng(seed), size
 
     def grab(self, pose, t):
-        from edge.camera import Frame
+        from edge.world.camera import Frame
 
         grey, mask = crack_image(self.size, self.rng, n_cracks=2)
         return Frame(grey, t, pose, mask)
@@ -103,7 +103,7 @@ def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery)
     """with recovery on (camera cache + recovering subscriber) every capture frame lost on the
     detector's lossy UDP link still arrives and is counted ``recovered``; with it off (``--imagery-cache 0``,
     ``--no-recovery``) frames are lost for good. Real processes, a real lossy UDP proxy (seeded)."""
-    from edge.camera import CameraModel
+    from edge.geometry.optics import CameraModel
     from edge.runtime import CameraLink
     from edge.vehicle.driver import CaptureEvent
     from protocol.bus import endpoint_address

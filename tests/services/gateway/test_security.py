@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from edge.surface import crack_image
+from edge.world.surface import crack_image
 from protocol import keys
 from protocol.bus import PASSWORD_ENV, Bus, BusConfig, endpoint_address, multilink_endpoints
 from protocol.imagery import pack_image

@@ -35,7 +35,7 @@ def test_the_formation_heading_is_held_when_the_fleet_hovers_and_the_ground_has_
 
     import numpy as np
 
-    from edge.formation import formation_error
+    from edge.geometry.formation import formation_error
     from services.gcs.progress import HeadingHold, formation_rms
 
     offsets = {1: (0.0, 0.0, 2.0), 2: (3.0, 0.0, -1.0), 3: (-3.0, 0.0, -1.0)}

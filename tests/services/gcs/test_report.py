@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from edge.formation import DEFAULT_OFFSETS
+from edge.geometry.formation import DEFAULT_OFFSETS
 from protocol.messages import (Box, Defect, DefectReport, Event, Level, LinkStats, MissionPlan, Mode, Trajectory,
                                VehicleState, Waypoint)
 from protocol.scenario import Scenario

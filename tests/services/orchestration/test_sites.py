@@ -2,7 +2,7 @@
 
 import pytest
 
-from edge.neighbourhood import formation_index
+from edge.geometry.neighbourhood import formation_index
 from services.orchestration.sites import (check_sites, gateway_process, mesh, parse_rcu_sites, router_endpoint,
                                           site_of_uav, veth_addresses)
 

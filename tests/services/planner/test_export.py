@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from edge.vehicle.apm import items as AI
+from edge.geometry import ardupilot_items as AI
 from services.planner.export import (
     MAV_CMD_CONDITION_YAW,
     MAV_CMD_DO_CHANGE_SPEED,

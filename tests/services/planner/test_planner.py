@@ -412,7 +412,7 @@ def test_a_fleet_of_24_in_stacked_rows_is_planned_inside_the_box_and_images_the_
     """24 UAVs (eight formations of three) planned as one stacked fleet: every trajectory
     inside the box, the top two rows take every shot at the stand-off, the rows below take none,
     no two UAVs closer than the lattice pitch, every UAV above the altitude band's floor."""
-    from edge.formation import ROW_PITCH_M, offsets_for
+    from edge.geometry.formation import ROW_PITCH_M, offsets_for
     from services.gcs.preflight import plan_problem
     from services.planner.task import imaging_rows
 
@@ -444,7 +444,7 @@ def test_cost_of_a_stacked_fleet_looks_at_fewer_uavs_with_the_same_zero_set(monk
     """services.planner.cost.cost_offsets: 48 UAVs cost as 28, the paper's three are unchanged, and
     on a real swarm the reduced cost is clear of obstacles exactly where the full one is."""
     import services.planner.cost as cost_mod
-    from edge.formation import offsets_for
+    from edge.geometry.formation import offsets_for
     from services.planner.cost import cost_offsets
 
     np.testing.assert_array_equal(cost_offsets(offsets_for(3), 6.0), offsets_for(3))

@@ -14,7 +14,7 @@ Three plain generators work on image-sized arrays:
 - :func:`crack_image` -- the two combined: background darkened under the mask.
 
 :class:`SyntheticSurface` places such a texture on a planar rectangle in the world (local ENU
-metres), so that :mod:`edge.camera` can render the view of it from any camera pose, and lists
+metres), so that :mod:`edge.world.camera` can render the view of it from any camera pose, and lists
 its ground-truth defects (:meth:`SyntheticSurface.defects`) in surface and world coordinates.
 
 All randomness comes from a ``numpy.random.Generator`` (or an integer seed), so the same seed
@@ -644,7 +644,7 @@ class SyntheticSurface:
         """The (3, 3) ``A`` with ``X = A [column, row, 1]^T``: texture pixel -> ENU point.
 
         The camera's plane-to-image homography is ``K R^T (A - C e3^T)`` (see
-        :class:`edge.camera.SyntheticSource`).
+        :class:`edge.world.camera.SyntheticSource`).
         """
         s = 1.0 / self.px_per_m
         return np.column_stack([self.u_axis * s, -self.v_axis * s,

@@ -2,7 +2,7 @@
 
 import pytest
 
-from edge.neighbourhood import FORMATION_SIZE, formation_index, formations, members, neighbours
+from edge.geometry.neighbourhood import FORMATION_SIZE, formation_index, formations, members, neighbours
 
 
 def test_the_papers_three_uavs_are_one_formation():

@@ -1,4 +1,4 @@
-"""Tests of edge.formation: (P6)-(P9) geometry and on-board formation keeping."""
+"""Tests of edge.geometry.formation: (P6)-(P9) geometry and on-board formation keeping."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edge.formation import (
+from edge.geometry.formation import (
     neighbour_correction,
     DEFAULT_OFFSETS,
     centroid_of,
@@ -211,7 +211,7 @@ def test_formation_keeping_reduces_shape_error_when_one_uav_lags():
 
 
 def test_offsets_for_any_fleet_size_keep_three_metres_apart():
-    from edge.formation import offsets_for
+    from edge.geometry.formation import offsets_for
 
     np.testing.assert_array_equal(offsets_for(3), DEFAULT_OFFSETS)
     np.testing.assert_array_equal(offsets_for(2), DEFAULT_OFFSETS[:2])
@@ -225,7 +225,7 @@ def test_offsets_for_any_fleet_size_keep_three_metres_apart():
 
 
 def test_large_fleets_stack_rows_below_instead_of_lengthening_the_line():
-    from edge.formation import MAX_ALONG_M, ROW_PITCH_M, home_offsets, offsets_for
+    from edge.geometry.formation import MAX_ALONG_M, ROW_PITCH_M, home_offsets, offsets_for
 
     for n in (11, 24, 48, 100):
         o = offsets_for(n)

@@ -1,4 +1,4 @@
-"""Tests for edge.surface: crack-image generators and the synthetic inspected surface."""
+"""Tests for edge.world.surface: crack-image generators and the synthetic inspected surface."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.surface import SyntheticSurface, crack_image, draw_cracks, textured_background
+from edge.world.surface import SyntheticSurface, crack_image, draw_cracks, textured_background
 
 
 # ---------------------------------------------------------------- generators

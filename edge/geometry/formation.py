@@ -75,7 +75,7 @@ def offsets_for(n: int) -> NDArray[np.float64]:
     0, +3, -3, +6, -6. So the fleet's length along the track stays 12 m whatever N (a line of 24
     was ±18 m and did not fit the monorail box at the start), the top two rows image the wall
     (:func:`services.planner.task.imaging_rows`) and the rows below fly the same pass under them.
-    Formations of three (:mod:`edge.neighbourhood`) are consecutive ids.
+    Formations of three (:mod:`edge.geometry.neighbourhood`) are consecutive ids.
     """
     if not isinstance(n, (int, np.integer)) or not 1 <= n <= 255:
         raise ValueError(f"formation size must be an int in 1..255, got {n!r}")

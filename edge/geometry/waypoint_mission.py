@@ -5,7 +5,7 @@
 Items (MAVLink common.xml): item 0 home (MAV_FRAME_GLOBAL), a NAV_TAKEOFF to the first waypoint's
 altitude, then per waypoint a NAV_WAYPOINT (relative altitude; param1 the hold time of a zero-length
 leg, param4 the compass heading), a CONDITION_YAW when the heading changes, DO_DIGICAM_CONTROL at a
-capture point (the capture id in param 6: :func:`edge.vehicle.apm.items.capture_params`), a
+capture point (the capture id in param 6: :func:`edge.geometry.ardupilot_items.capture_params`), a
 DO_CHANGE_SPEED whenever the leg's planned speed changes (so AUTO keeps the plan's timing), and a
 final NAV_RETURN_TO_LAUNCH.
 """
@@ -19,7 +19,7 @@ import numpy as np
 import pymap3d
 from numpy.typing import ArrayLike, NDArray
 
-from edge.vehicle.apm import items as AI
+from edge.geometry import ardupilot_items as AI
 from protocol.messages import Trajectory
 
 __all__ = ["MissionItem", "enu_to_geodetic", "geodetic_to_enu", "mission_items"]

@@ -1,10 +1,10 @@
-"""The board's geofence only narrows: configured or signed, a later upload cannot widen it (edge.validate)."""
+"""The board's geofence only narrows: configured or signed, a later upload cannot widen it (edge.geometry.validate)."""
 
 from __future__ import annotations
 
 import pytest
 
-from edge.validate import narrowed_fence, validate_command
+from edge.geometry.validate import narrowed_fence, validate_command
 from protocol.messages import Box, Trajectory, UploadTrajectory, Waypoint
 
 BOX = Box(lo=(0, 0, 0), hi=(101, 141, 40))

@@ -201,7 +201,7 @@ class CameraPose:
 
         The image's y axis points as nearly as possible along ``-up`` (world up is image up); when
         the optical axis is parallel to ``up`` (looking straight down or up), north is image up.
-        For a :class:`~edge.surface.SyntheticSurface` ``s``, ``facing(point, s.normal, d)`` is the
+        For a :class:`~edge.world.surface.SyntheticSurface` ``s``, ``facing(point, s.normal, d)`` is the
         square-on shot the task assessment (P1)-(P3) assumes.
         """
         t = np.asarray(target, dtype=float)
