@@ -68,7 +68,7 @@ def _init_worker() -> None:
 def _warm(method: str = "it+r") -> int:
     """Import the detection stack in a fresh worker (spawn imports lazily) and analyse one small frame of a
     crack with ``method``, so the first capture is not slow: the crack's skeleton imports scikit-image's
-    morphology on first use (services.inspection.measure), 0.5-1 s that the first frame of each worker paid
+    morphology on first use (services.detector.measure), 0.5-1 s that the first frame of each worker paid
     (the p95 of a 26-frame mission with two workers was those two frames); the learned method reads its
     model here, once per worker (a bad model file raises its one-line error to :meth:`DetectorPool.warm`)."""
     import cv2

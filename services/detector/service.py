@@ -65,6 +65,7 @@ from protocol.rtp import RtpError, parse_ssrc, unpack_frame
 from protocol.stages import LOG_PREFIX, StageTimes
 
 from .detect import METHODS
+from .frames import save_frame
 from .partition import MAX_UAV, Partition
 from .pipeline import DETECT_MAX_MP
 from .pool import CONTEXTS, DetectorPool, WorkerCrashed
@@ -223,8 +224,6 @@ class DetectorService:
         with self._lock:
             self.analysed[frame.ssrc] += 1
         if self.save_frames and report.ok:
-            from services.inspection.deliverable import save_frame
-
             save_frame(self.save_frames, meta, image)
         if not report.ok:
             self.counts["bad-image"] += 1

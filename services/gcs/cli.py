@@ -64,7 +64,7 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
 
     journal = None
     if out:
-        from .record import check_output_folder
+        from services.recording.record import check_output_folder
 
         journal = check_output_folder(out) / "record.jsonl"  # RecordingError before anything flies
     recorder = None

@@ -5,7 +5,7 @@ class: reliable). :func:`send` tries up to ``attempts`` times, each with ``timeo
 ``backoff_s`` after the first failed try and twice as long after each next one (0.25, 0.5, 1, 2 s
 by default). An answer ends the tries whether the UAV accepted the command or refused it: a
 refusal is final, not retried. Every command ends as one
-:class:`~services.gcs.record.CommandRecord`, acknowledged or failed with the reason (also one that
+:class:`~services.recording.record.CommandRecord`, acknowledged or failed with the reason (also one that
 was not sent at all, :func:`not_sent`), so no command disappears without a trace.
 
 :func:`start_margin` is the policy for how far ahead the common start time is set, from the
@@ -24,7 +24,7 @@ from protocol import keys
 from protocol.bus import Bus
 from protocol.messages import CommandAck
 
-from .record import CommandRecord
+from services.recording.record import CommandRecord
 
 __all__ = ["RetryPolicy", "CommandIds", "send", "not_sent", "start_margin"]
 

@@ -110,7 +110,7 @@ def corroboration_failures(book: dict[int, dict[str, int | None]]) -> list[str]:
 
 def integrity_markdown(record) -> list[str]:
     """The report's "Evidence and integrity" section: the imagery ledger per UAV, what the ground station
-    refused (undecodable or over budget, protocol.budget) and any recording error (services.gcs.record)."""
+    refused (undecodable or over budget, protocol.budget) and any recording error (services.recording.record)."""
     md = ["## Evidence and integrity", ""]
     if record.imagery:
         md += ["Frames per UAV: sent by its camera, received and analysed by the detector (its statistics), "

@@ -1,7 +1,7 @@
 """The mission report's figures: a recorded mission in, typed figures out (record -> figures).
 
 Pure code (numpy), no bus code, no plotting: :func:`analyse` turns a
-:class:`services.gcs.record.MissionRecord` into :class:`ReportFigures`, which holds the
+:class:`services.recording.record.MissionRecord` into :class:`ReportFigures`, which holds the
 :class:`ReportSummary` (every figure, written as ``report.json``) and the typed series the plots
 draw (:mod:`services.gcs.plots`); the Markdown page (:mod:`services.gcs.markdown`) reads the
 summary only. :mod:`services.gcs.report` writes them all.
@@ -62,7 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 from edge.geometry.formation import DEFAULT_OFFSETS, formation_error
 from protocol.messages import Mode, Trajectory
 from services.gcs.clock_align import sim_time_shifts
-from services.gcs.record import GOAL_RADIUS_M, MissionRecord
+from services.recording.record import GOAL_RADIUS_M, MissionRecord
 from services.gcs.resilience import fault_figures
 from services.gcs.scoring import DefectScore, score_defects
 from services.gcs.verdict import GoalCheck, goal_check, imaged_captures, planned_captures

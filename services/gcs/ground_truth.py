@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from edge.runtime import synthetic_surface
 
-from .record import GroundTruthDefect, MissionRecord
+from services.recording.record import GroundTruthDefect, MissionRecord
 
 
 def attach_ground_truth(record: MissionRecord) -> None:

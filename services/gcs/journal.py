@@ -1,11 +1,11 @@
 """The mission report computed from the ground station's journal (``record.jsonl``), live or afterwards.
 
-At the end of a mission the ground station reads its journal back (:func:`services.gcs.record.read_journal`:
+At the end of a mission the ground station reads its journal back (:func:`services.recording.record.read_journal`:
 line by line, into a record bounded like the live one) and computes the report from that, so the report's
 input is the file on disk and ``skynet report record.jsonl`` makes the same report from the file alone.
-When the journal could not be written (a write error, a full disk: :class:`~services.gcs.record.Recorder`
+When the journal could not be written (a write error, a full disk: :class:`~services.recording.record.Recorder`
 kept the mission flying and said where the data went), or cannot be read back whole, the report is
-computed from the in-memory record instead (bounded by :data:`~services.gcs.record.CAPS`), and says so
+computed from the in-memory record instead (bounded by :data:`~services.recording.record.CAPS`), and says so
 (``report_input``, ``recording_errors``).
 
     skynet report reports/mission-<time>/record.jsonl [--out FOLDER]
@@ -21,7 +21,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from .record import MissionRecord, Recorder, read_journal
+from services.recording.record import MissionRecord, Recorder, read_journal
 
 log = logging.getLogger("skynet.gcs.journal")
 

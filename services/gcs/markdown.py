@@ -15,7 +15,7 @@ from typing import Any
 from protocol.textsafe import md_text
 from services.gcs.evidence import integrity_markdown
 from services.gcs.figures import ReportSummary
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 
 __all__ = ["markdown"]
 

@@ -1,7 +1,7 @@
 """The ground control station's mission: plan, upload, take off, fly, image, land — over the bus.
 
 :class:`MissionRunner` is a Zenoh client of the gateway. It records everything into a
-:class:`~services.gcs.record.MissionRecord` (the input of the report) and returns it with
+:class:`~services.recording.record.MissionRecord` (the input of the report) and returns it with
 ``success`` set only when every UAV reached the goal and every capture point was imaged; any
 step that cannot complete (a UAV that never appears, refuses its upload, a planner that does
 not answer, a timeout) ends the mission with a failure that says why, never a hang.
@@ -56,7 +56,7 @@ from protocol.messages import (
 
 from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
 from .evidence import corroboration_failures, has_evidence, ledger
-from .record import (
+from services.recording.record import (
     CommandRecord,
     DefectRx,
     EventRx,

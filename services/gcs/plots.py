@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.gcs.figures import ReportFigures, ReportSummary
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 from services.gcs.scoring import surface_uv
 
 __all__ = ["PLOTS", "write_plots"]

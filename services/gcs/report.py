@@ -2,7 +2,7 @@
 
 Pure code (numpy, matplotlib through its object API and the Agg canvas, so it never touches the
 global pyplot state or the caller's backend), no bus code. Input: a
-:class:`services.gcs.record.MissionRecord`; output (:func:`write_report`) in one folder:
+:class:`services.recording.record.MissionRecord`; output (:func:`write_report`) in one folder:
 
 - ``record.json`` -- the record itself, so the report can be re-made;
 - ``report.json`` -- every figure computed (:class:`ReportSummary`, ``null`` where undefined);
@@ -50,7 +50,7 @@ from services.gcs.figures import (
 )
 from services.gcs.markdown import markdown
 from services.gcs.plots import PLOTS, write_plots
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 from services.inspection.mission import append_deliverable
 
 __all__ = [

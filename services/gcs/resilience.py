@@ -1,6 +1,6 @@
 """What the faults of a run did, read from its record: the report's "Faults and recovery".
 
-Pure code over a :class:`~services.gcs.record.MissionRecord`, no bus. Times are seconds since the
+Pure code over a :class:`~services.recording.record.MissionRecord`, no bus. Times are seconds since the
 start of the mission phase (the ground station's ``phase("mission")``, the origin the fault
 injector counts from; the record's start when there was no mission phase).
 
@@ -33,7 +33,7 @@ from collections import defaultdict
 from itertools import pairwise
 from typing import Any
 
-from .record import MissionRecord
+from services.recording.record import MissionRecord
 
 __all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "SUPERVISION_ACTIONS", "fault_figures", "reception_gaps"]
 

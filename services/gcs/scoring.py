@@ -3,7 +3,7 @@
 Pure numpy, no bus code. The detector (PAPER.md Section 6, (P18)-(P19)) reports each defect it
 segments with the ENU position where the shot's optical ray meets the surface
 (:class:`protocol.messages.Defect` ``pos``). The synthetic surface knows where its cracks really
-are (:class:`services.gcs.record.GroundTruthDefect`, bounding boxes in surface coordinates). This
+are (:class:`services.recording.record.GroundTruthDefect`, bounding boxes in surface coordinates). This
 module puts both in the surface frame and counts, object by object:
 
 - **recall** -- the share of ground-truth cracks that have at least one reported defect position
@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from protocol.messages import DefectReport
 from protocol.scenario import surface_frame
-from services.gcs.record import GroundTruthDefect
+from services.recording.record import GroundTruthDefect
 
 __all__ = ["DefectMatch", "DefectScore", "surface_frame", "surface_uv", "bbox_distance", "score_defects"]
 

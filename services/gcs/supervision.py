@@ -3,7 +3,7 @@
 Pure code, no bus and no clock of its own: :class:`Supervisor` is fed what the ground station
 observes, each with the wall time it was observed (a UAV's state, its liveliness token going
 away or coming back, the ground station's own link, the Start and Resume commands' outcomes),
-and answers with the :class:`~services.gcs.record.Incident` s to record and the UAVs to resume.
+and answers with the :class:`~services.recording.record.Incident` s to record and the UAVs to resume.
 :class:`services.gcs.mission.MissionRunner` binds it to the bus and calls :meth:`Supervisor.tick`
 every :data:`SUPERVISE_PERIOD_S`. Not thread-safe: the runner holds its lock around each call.
 
@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 from protocol.messages import Mode, VehicleState
 
-from .record import CommandRecord, Incident
+from services.recording.record import CommandRecord, Incident
 
 __all__ = [
     "SUPERVISE_PERIOD_S",

@@ -11,7 +11,7 @@ trajectories as the planner sent them). *Imaged*: a planned capture with an ``ok
 
 *Reached goal*: the last position with the trajectory complete (progress 1, in MISSION or HOLD,
 i.e. before the ground station lands the formation; states in simulation-time order) is within
-:data:`services.gcs.record.GOAL_RADIUS_M` (2 m) of the last planned waypoint. When the
+:data:`services.recording.record.GOAL_RADIUS_M` (2 m) of the last planned waypoint. When the
 trajectory never completed, the distance is measured from the last recorded position (the
 report shows it) and the mission's verdict fails the UAV whatever the distance.
 """
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocol.messages import DefectReport, Mode, Trajectory, VehicleState
-from services.gcs.record import GOAL_RADIUS_M
+from services.recording.record import GOAL_RADIUS_M
 
 __all__ = ["GOAL_RADIUS_M", "GoalCheck", "goal_check", "planned_captures", "imaged_captures"]
 

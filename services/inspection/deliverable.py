@@ -10,7 +10,7 @@ mission (the detector's saved captures) or from a folder of photos with poses
 3. each 8-connected component of the mosaic's defect mask is one defect (a crack seen by two
    overlapping frames is one defect): its position (centroid) on the surface, in ENU and, with the
    geodetic origin, in WGS-84 (:func:`edge.geometry.waypoint_mission.enu_to_geodetic`); its length, maximum
-   and mean width and severity class (:mod:`services.inspection.measure`, at the mosaic's scale);
+   and mean width and severity class (:mod:`services.detector.measure`, at the mosaic's scale);
    and a crop of the mosaic around it;
 4. files: ``mosaic.png`` (defects outlined and numbered), ``defects.json``, ``defects.md``,
    ``defects.geojson`` (RFC 7946: a Point per defect, the skeleton-free centroid, with its sizes as
@@ -47,7 +47,7 @@ from protocol.textsafe import md_text, xml_text
 from services.detector.detect import detect
 from services.detector.pipeline import MIN_REPORT_AREA_PX
 
-from .measure import measure_mask
+from services.detector.measure import measure_mask
 from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, plane_from_frames
 
 __all__ = ["InspectionDefect", "Deliverable", "inspect_frames", "load_folder", "write_deliverable",
@@ -258,17 +258,6 @@ def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tup
         except (json.JSONDecodeError, ValueError, TypeError) as exc:
             raise ValueError(f"surface.json: {exc}") from None
     return frames, plane, origin
-
-
-def save_frame(folder: str | Path, meta: ImageMeta, image: bytes) -> Path:
-    """Write one capture as ``uav<N>-<capture>.jpg|png`` with its pose file (the folder format above)."""
-    d = Path(folder)
-    d.mkdir(parents=True, exist_ok=True)
-    stem = f"uav{meta.uav}-{meta.capture_id:05d}"
-    ext = ".png" if meta.encoding == "png" else ".jpg"
-    (d / f"{stem}{ext}").write_bytes(bytes(image))
-    (d / f"{stem}.json").write_text(meta.model_dump_json())
-    return d / f"{stem}{ext}"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from protocol.textsafe import md_text
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 
 from .deliverable import inspect_frames, load_folder, markdown_table, write_deliverable
 from .mosaic import Plane

@@ -34,7 +34,7 @@ restarted again, its reason (its last error line) is logged, and ``skynet missio
 services it asked for (planner, detector, video) before the flight, fails with that reason in the report's
 outcome. The network is never stopped because one service ended.
 
-Attaching (:mod:`services.orchestration.attach`): while it runs, the network is described in
+Attaching (:mod:`services.attach`): while it runs, the network is described in
 ``.skynet/network.json`` (``--network FILE``), where ``skynet web``, ``skynet video`` and ``skynet replay`` find
 it when given no endpoint.
 
@@ -79,7 +79,7 @@ from protocol.bus import (
 
 from .faults import FaultInjector, Resolved, cut_links, plan_faults
 from . import sites as sitemap
-from . import attach, trustmode
+from . import trustmode
 from .process import ProcessGroup, free_port, free_port_pair
 from .restart import RestartTracker
 
@@ -105,6 +105,7 @@ from edge.geometry.neighbourhood import FORMATION_SIZE
 from edge.board import niceness
 from edge.runtime import CAPTURE_LINKS, frame_size
 from protocol.checks import rate_arg
+from services import attach
 from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET, fleet_load
 from ..gateway.ingress import STATE_INGRESS_HZ
 
@@ -858,7 +859,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     from services.gcs.mission import MissionOptions
     from protocol.scenario import load_scenario
 
-    from services.gcs.record import check_output_folder
+    from services.recording.record import check_output_folder
 
     # not writable or too little room: refused (RecordingError) before any service starts
     out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from protocol import keys
 from protocol.messages import DefectReport, Event, LinkStats, VehicleState
-from services.gcs.record import DefectRx, EventRx, MissionRecord, StateRx, StatsRx
+from services.recording.record import DefectRx, EventRx, MissionRecord, StateRx, StatsRx
 
 from .mcap_log import RECORD_TOPIC, read
 from .recorder import MissionRecordSummary, Window

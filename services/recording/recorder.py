@@ -36,7 +36,7 @@ from protocol.budget import LIMITS, Budget
 from protocol.bus import Bus, Reply, Ring
 from protocol.links import COMMAND, LinkClass
 from protocol.messages import ErrorReply, Message
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 
 from .mcap_log import RECORD_TOPIC, McapLog, is_imagery
 

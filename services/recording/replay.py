@@ -7,7 +7,7 @@ has one publisher. The samples go under the replay fleet ``FLEET-replay`` (:func
 ``--as-fleet NAME`` another name: the key's second chunk is swapped), so a past mission is watched beside a
 live one (``skynet web --fleet FLEET-replay``) and never lands on the live fleet's keys (the ``replay`` role of
 :mod:`protocol.acl` may put nothing else). Without ``-e`` it attaches to the network running here
-(:mod:`services.orchestration.attach`).
+(:mod:`services.attach`).
 ``--reliable`` sends everything reliably (best-effort telemetry
 replayed at 10x on a busy machine loses some states, as it would live). Messages keep their own stamps (a viewer's "last heard" is the receive time, not the stamp).
 Every replayed sample carries the attachment :data:`REPLAY_MARK`, so a viewer tells a replay from live data
@@ -23,7 +23,7 @@ from pathlib import Path
 
 from protocol import keys
 from protocol.bus import Bus, Publisher, add_bus_args, setup_logging, stop_event_on_signals
-from services.orchestration.attach import add_network_arg, open_bus
+from services.attach import add_network_arg, open_bus
 from protocol.links import COMMAND, class_of_topic
 
 from .mcap_log import bus_bytes, read

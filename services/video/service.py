@@ -28,7 +28,7 @@ from protocol.bus import Bus, Ring, add_bus_args, setup_logging, stop_event_on_s
 from protocol.imagery import unpack_image
 from protocol.rtp import ssrc_for
 
-from services.orchestration.attach import add_network_arg
+from services.attach import add_network_arg
 
 from .sdp import sdp
 from .stream import VideoStream
@@ -138,7 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from services.orchestration.attach import open_bus
+    from services.attach import open_bus
 
     args = build_parser().parse_args(argv)
     log = setup_logging("video")

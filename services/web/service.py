@@ -141,7 +141,7 @@ def start_web(bus: Bus, spec: str, scenario: Scenario | None, rate_hz: float = 1
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="skynet web", description=__doc__.split("\n\n")[0])
     add_bus_args(parser, mode="client")
-    from services.orchestration.attach import add_network_arg
+    from services.attach import add_network_arg
 
     add_network_arg(parser)
     parser.add_argument("--listen-web", default=":8080", help="[HOST]:PORT of the page (loopback by default)")
@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     stop = stop_event_on_signals()
     from protocol.scenario import load_scenario
 
-    from services.orchestration.attach import open_bus
+    from services.attach import open_bus
 
     with open_bus(args, "web", argv) as bus:
         _, server = start_web(bus, args.listen_web, load_scenario(args.scenario), args.rate, log, token=args.token,

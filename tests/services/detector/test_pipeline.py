@@ -1,5 +1,5 @@
 """services.detector.pipeline: a crack's length in a per-frame report comes from its skeleton, the same
-measurement as the inspection deliverable's (services.inspection.measure), not its bounding box;
+measurement as the inspection deliverable's (services.detector.measure), not its bounding box;
 a large frame's real-time report comes from a reduced decode, in full-frame pixels."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import load_scenario
 from services.detector.pipeline import DETECT_MAX_MP, analyse, detection_scale
 from services.inspection.captures import capture_meta
-from services.inspection.measure import frame_scale, measure_mask
+from services.detector.measure import frame_scale, measure_mask
 
 
 F, RANGE = 800.0, 4.0  # focal length (px), range (m): 5 mm per pixel

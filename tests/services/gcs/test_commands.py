@@ -16,7 +16,7 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig, Rejected
 from protocol.messages import CommandAck, Hold, Land
 from services.gcs.commands import CommandIds, RetryPolicy, not_sent, send, start_margin
-from services.gcs.record import CommandRecord
+from services.recording.record import CommandRecord
 
 FLEET = "cmdtest"
 

@@ -16,7 +16,7 @@ import pytest
 
 import services.gcs.figures
 from services.gcs.figures import LinkSamples, ReportFigures, analyse, latency_figures, summarise
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 from tests.services.gcs.test_report import LAG, SIDE, T_SIM0, V, build_record, timed_error
 
 
@@ -105,7 +105,7 @@ def test_imagery_metrics_merge_the_latest_of_every_detector_instance():
     latest statistics of each, not only of whichever instance spoke last."""
     from protocol.messages import LinkStats
     from services.gcs.figures import _imagery_metrics
-    from services.gcs.record import StatsRx
+    from services.recording.record import StatsRx
 
     def st(src, stamp, **m):
         return StatsRx(rx=stamp, msg=LinkStats(source=src, stamp=stamp, metrics={k.replace("_", "."): v
@@ -132,7 +132,7 @@ def test_every_gateway_has_its_latest_statistics_in_the_report():
     stays the latest of any) and the Markdown page has a row per gateway and each one's rejections."""
     from protocol.messages import ClassCounters, LinkStats
     from services.gcs.markdown import markdown
-    from services.gcs.record import StatsRx
+    from services.recording.record import StatsRx
 
     def st(src, stamp, samples, rejected=None):
         return StatsRx(rx=stamp, msg=LinkStats(source=src, stamp=stamp, uptime_s=stamp, sessions={"peer": 3},

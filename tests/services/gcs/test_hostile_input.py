@@ -12,7 +12,7 @@ from lxml import etree
 from markdown_it import MarkdownIt
 
 from protocol.messages import Event, Level
-from services.gcs.record import ITEM_MODELS, EventRx, MissionRecord, Recorder
+from services.recording.record import ITEM_MODELS, EventRx, MissionRecord, Recorder
 from tests.protocol.test_textsafe import HOSTILE
 from tests.services.gcs.test_report import build_record
 

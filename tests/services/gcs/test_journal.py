@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from services.gcs.journal import report_record
-from services.gcs.record import ITEM_MODELS, MissionRecord, Recorder, read_journal
+from services.recording.record import ITEM_MODELS, MissionRecord, Recorder, read_journal
 from services.gcs.report import summarise, write_report
 from tests.services.gcs.test_report import build_record
 

@@ -73,7 +73,7 @@ def test_scenario_formation_follows_the_number_of_uavs():
 def test_the_common_start_leaves_time_for_every_start_command():
     """t0 must lie beyond the Start commands' round trip, or a UAV begins behind the others (seen
     with 200 ms on every link: 2.7 m short of the goal)."""
-    from services.gcs.record import CommandRecord
+    from services.recording.record import CommandRecord
 
     with Bus(BusConfig(mode="peer"), FLEET, "gcs") as bus:
         runner = MissionRunner(bus, load_scenario(), MissionOptions(uavs=(1, 2, 3)))

@@ -20,7 +20,7 @@ from edge.geometry.formation import DEFAULT_OFFSETS
 from protocol.messages import (Box, Defect, DefectReport, Event, Level, LinkStats, MissionPlan, Mode, Trajectory,
                                VehicleState, Waypoint)
 from protocol.scenario import Scenario
-from services.gcs.record import (CommandRecord, DefectRx, EventRx, GroundTruthDefect, MissionRecord, StateRx,
+from services.recording.record import (CommandRecord, DefectRx, EventRx, GroundTruthDefect, MissionRecord, StateRx,
                                  StatsRx)
 from services.gcs.report import (PLOTS, Latency, convergence_iteration, latency_figures, planned_positions,
                                  polyline_distance, shape_errors, summarise, write_report)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import pytest
 
 from protocol.messages import Event, Level, Mode, VehicleState
-from services.gcs.record import (
+from services.recording.record import (
     CommandRecord,
     EventRx,
     FaultRecord,

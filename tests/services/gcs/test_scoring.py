@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from protocol.messages import Defect, DefectReport
-from services.gcs.record import GroundTruthDefect
+from services.recording.record import GroundTruthDefect
 from services.gcs.scoring import bbox_distance, score_defects, surface_frame, surface_uv
 
 # The scenario's girder face: x = 60, bottom edge running south (u = -y), v up.

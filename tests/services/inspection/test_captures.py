@@ -8,7 +8,7 @@ import pytest
 
 from edge.runtime import SURFACE_SEED, synthetic_surface
 from services.detector.pipeline import analyse
-from services.gcs.record import GroundTruthDefect
+from services.recording.record import GroundTruthDefect
 from services.gcs.scoring import score_defects
 from services.inspection.captures import decode, synthetic_captures
 from protocol.scenario import load_scenario

@@ -13,7 +13,7 @@ from protocol.imagery import pack_image
 from protocol.links import IMAGERY_RELIABLE
 from protocol.messages import DefectReport
 from protocol.rtp import RtpSender, ssrc_for
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 from services.inspection.captures import synthetic_captures
 from services.inspection.deliverable import load_folder
 from services.inspection.mission import append_deliverable

@@ -26,7 +26,7 @@ import pytest
 
 from protocol import codec, keys
 from protocol.messages import Mode, VehicleState
-from services.orchestration.attach import NETWORK_FILE
+from services.attach import NETWORK_FILE
 from services.orchestration.process import free_port
 from services.recording.mcap_log import McapLog
 from tests.conftest import ROOT, wait_until

@@ -12,7 +12,7 @@ import pytest
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.messages import CommandAck, DefectReport, MissionPlan, VehicleState
-from services.gcs.record import DefectRx, StateRx
+from services.recording.record import DefectRx, StateRx
 from services.gcs.report import summarise
 from services.recording.mcap_log import bus_bytes, read
 from protocol.signing import unverified_inner

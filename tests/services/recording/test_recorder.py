@@ -15,7 +15,7 @@ from protocol.budget import LIMITS
 from protocol.bus import Bus, BusConfig
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import Event, Mode, VehicleState
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 from services.recording.mcap_log import read
 from services.recording.recorder import Recorder
 from tests.conftest import wait_until

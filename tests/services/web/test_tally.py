@@ -9,9 +9,9 @@ import time
 
 from edge.runtime import synthetic_surface
 from protocol.scenario import load_scenario
-from services.gcs.record import MissionRecord
+from services.recording.record import MissionRecord
 from services.inspection.captures import decode, synthetic_captures
-from services.inspection.deliverable import save_frame
+from services.detector.frames import save_frame
 from services.inspection.mission import append_deliverable
 from services.detector.detect import detect
 from services.detector.pipeline import MIN_REPORT_AREA_PX

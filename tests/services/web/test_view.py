@@ -116,7 +116,7 @@ def test_follow_runner_puts_the_ground_stations_phases_failures_incidents_and_fa
     import threading
     import types
 
-    from services.gcs.record import FaultRecord, Incident, MissionRecord
+    from services.recording.record import FaultRecord, Incident, MissionRecord
     from services.web.service import follow_runner
 
     rec = MissionRecord(fleet="f", speed=1.0, started=1000.0)

@@ -1,4 +1,4 @@
-"""The running network's description (services.orchestration.attach): written and removed by its launcher,
+"""The running network's description (services.attach): written and removed by its launcher,
 read by the tools, every way it cannot be used said in one sentence. Real files, no bus (the processes are
 in test_compose.py)."""
 
@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from protocol.bus import add_bus_args
+from services import attach
 from services import keys as pki
-from services.orchestration import attach
 
 EPS = ["tls/127.0.0.1:30001?rel=1", "tls/127.0.0.1:30002?rel=0"]
 

@@ -1,4 +1,4 @@
-"""services.gcs.record: the streamed, bounded mission record and the output-folder check."""
+"""services.recording.record: the streamed, bounded mission record and the output-folder check."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 
 from protocol.messages import Event, Mode, VehicleState
 from services.gcs.journal import report_record
-from services.gcs.record import (
+from services.recording.record import (
     EventRx,
     MissionRecord,
     Recorder,

@@ -1,4 +1,4 @@
-"""Crack measurements: skeleton length, widths, severity (services.inspection.measure)."""
+"""Crack measurements: skeleton length, widths, severity (services.detector.measure)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from services.inspection.measure import (
+from services.detector.measure import (
     frame_scale,
     half_depth_mask,
     measure_component,
