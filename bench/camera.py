@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edge.geometry.optics import CameraPose
 from edge.world.camera import SyntheticSource
-from protocol.imagery import encode_jpeg
+from protocol.imagecodec import encode_jpeg
 from edge.runtime import camera_model, synthetic_surface
 from protocol.scenario import load_scenario
 

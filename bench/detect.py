@@ -366,7 +366,7 @@ def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
     DeepCrack-train image; never trained on nor used for model selection), and ms per frame (grey in, mask
     out, OpenCV limited to ``threads``) at 640x480 and on a 12 MP capture's 1/4 decode (1000x750, the
     detector's real-time input, services.detector.pipeline)."""
-    from protocol.imagery import decode_image
+    from protocol.imagecodec import decode_image
     from services.detector.learned import splits
 
     cv2.setNumThreads(threads)

@@ -56,7 +56,7 @@ FRAME = "4000x3000"
 def steps(repeat: int) -> dict[str, float]:
     from edge.geometry.optics import CameraPose
     from edge.world.camera import SyntheticSource
-    from protocol.imagery import decode_image, encode_jpeg
+    from protocol.imagecodec import decode_image, encode_jpeg
     from edge.runtime import camera_model, camera_rotation, synthetic_surface
     from protocol.messages import ImageMeta, Intrinsics
     from protocol.scenario import load_scenario

@@ -4,7 +4,7 @@ Sources (:class:`~edge.world.camera.FrameSource`): the simulated world's
 :class:`~edge.world.camera.SyntheticSource` renders the view of the synthetic wall;
 :class:`FolderSource` replays a folder of images; :class:`VideoCaptureSource` reads a real camera
 or a stream through OpenCV. :func:`make_source` picks one from a spec string. :class:`FrameEncoder`
-JPEG-encodes frames (:func:`protocol.imagery.encode_jpeg`) on its own thread, so that the control
+JPEG-encodes frames (:func:`protocol.imagecodec.encode_jpeg`) on its own thread, so that the control
 loop that fires the camera at each capture point never waits for the encoder (the bus publishing
 is in :mod:`edge.runtime`).
 """
@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.imagery import encode_jpeg
+from protocol.imagecodec import encode_jpeg
 from protocol.ring import Ring
 
 from .geometry.optics import CameraModel, CameraPose

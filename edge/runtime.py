@@ -32,14 +32,13 @@ import numpy as np
 
 from protocol import keys
 from protocol.bus import Bus
+from protocol.imagecodec import encode_jpeg
 from protocol.imagery import pack_image
 from protocol.links import IMAGERY, IMAGERY_RELIABLE, LinkClass
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import RtpSender, ssrc_for
 from protocol.scenario import Scenario, load_scenario
 from protocol.stages import LOG_PREFIX, StageTimes
-
-from protocol.imagery import encode_jpeg
 
 from .camera import FrameEncoder, make_source
 from .geometry.optics import CameraModel, CameraPose

@@ -73,6 +73,7 @@ def test_lint_imports_keeps_every_contract() -> None:
     ("edge.geometry.optics", "cv2", "the shared geometry loads"),
     ("edge.world.camera", "zenoh", "the simulated world does not"),
     ("protocol.messages", "zenoh", "the wire contract loads Zenoh"),
+    ("protocol.imagery", "cv2", "the wire contract loads OpenCV"),
     ("services.gcs.scoring", "cv2", "the report's record"),
     ("services.recording.record", "zenoh", "the report's record"),
     ("services.recording.record", "services.gcs.report", "service packages"),
@@ -125,4 +126,4 @@ def test_the_simulated_world_does_not_load_the_bus() -> None:
                                        "bus shells; it loads no bus once the wall has its home in edge.world")
 def test_the_ground_truth_does_not_load_the_bus() -> None:
     """The ground truth is the wall's crack mask, drawn by OpenCV: loading cv2 is its nature, not the bus."""
-    assert "zenoh" not in _loaded("services.gcs.ground_truth")
+    assert "zenoh" not in _loaded("services.inspection.ground_truth")

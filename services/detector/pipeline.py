@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from protocol.imagery import decode_image
+from protocol.imagecodec import decode_image
 from protocol.messages import Defect, DefectReport, ImageMeta
 from services.detector.measure import frame_scale, measure_mask
 

@@ -78,7 +78,7 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
     if on_runner is not None:
         on_runner(runner)
     if ground_truth:  # before the flight, so that the journal's footer carries it (skynet report)
-        from services.gcs.ground_truth import attach_ground_truth
+        from services.inspection.ground_truth import attach_ground_truth
 
         attach_ground_truth(runner.record)
     root = logging.getLogger()

@@ -19,7 +19,7 @@ from edge.geometry.optics import CameraPose
 from edge.world.camera import SyntheticSource
 from edge.runtime import camera_model, camera_rotation, synthetic_surface
 from edge.world.surface import SyntheticSurface, textured_background
-from protocol.imagery import decode_image, encode_jpeg
+from protocol.imagecodec import decode_image, encode_jpeg
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import Scenario
 from services.planner.task import formation_pass
@@ -75,7 +75,7 @@ def synthetic_captures(scenario: Scenario, surface: SyntheticSurface, frame_size
 
 
 def decode(c: Capture) -> np.ndarray:
-    """The grey frame of a capture (as the detector decodes it: :func:`protocol.imagery.decode_image`)."""
+    """The grey frame of a capture (as the detector decodes it: :func:`protocol.imagecodec.decode_image`)."""
     return decode_image(c.jpeg, grey=True)
 
 

@@ -14,7 +14,7 @@ import pytest
 from edge.camera import FolderSource, FrameEncoder, VideoCaptureSource, make_source
 from edge.geometry.optics import CameraModel, CameraPose
 from edge.world.camera import Frame, FrameSource, SyntheticSource, upsample_factor
-from protocol.imagery import decode_image, encode_jpeg
+from protocol.imagecodec import decode_image, encode_jpeg
 from edge.runtime import camera_rotation
 from edge.world.surface import SyntheticSurface, crack_image
 

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from protocol.imagery import decode_image
+from protocol.imagecodec import decode_image
 from edge.runtime import (
     IMAGERY_CACHE_FRAMES,
     PREVIEW_CAMERA,

@@ -13,7 +13,7 @@ import pytest
 
 from edge.geometry.optics import CameraPose
 from edge.world.camera import SyntheticSource
-from protocol.imagery import decode_image, encode_jpeg
+from protocol.imagecodec import decode_image, encode_jpeg
 from edge.runtime import camera_model, camera_rotation, synthetic_surface
 from edge.world.surface import crack_image, textured_background
 from protocol.messages import ImageMeta, Intrinsics
