@@ -28,6 +28,7 @@ import numpy as np
 
 from protocol import keys
 from protocol.bus import Bus
+from protocol.imagecodec import encode_jpeg
 from protocol.imagery import pack_image
 from protocol.links import IMAGERY, IMAGERY_RELIABLE, LinkClass
 from protocol.messages import ImageMeta, Intrinsics
@@ -35,10 +36,14 @@ from protocol.rtp import RtpSender, ssrc_for
 from protocol.scenario import load_scenario
 from protocol.stages import LOG_PREFIX, StageTimes
 
-from .camera import CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
+from protocol.imagecodec import encode_jpeg
+
+from .camera import FrameEncoder, make_source
 from .config import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, PREVIEW_SIZE, EdgeConfig
 from .geometry.camera import camera_model, camera_rotation
+from .geometry.optics import CameraPose
 from .vehicle.driver import CaptureEvent
+from .world.camera import SyntheticSource
 from .world.wall import synthetic_surface
 
 #: live preview JPEG quality

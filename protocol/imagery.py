@@ -15,6 +15,7 @@ This is not the RFC 2435 JPEG payload (no JPEG payload header, a whole JFIF file
 front), so the frames carry the dynamic payload type 96 with the encoding name
 ``x-skynet-frame/90000`` (:data:`protocol.rtp.SKYNET_PAYLOAD_TYPE`), never the static JPEG type 26.
 ``skynet video`` (:mod:`services.video`) turns them into standard RTP (RFC 2435, RFC 6184).
+The image itself is encoded and decoded by :mod:`protocol.imagecodec`.
 """
 
 from __future__ import annotations

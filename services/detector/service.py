@@ -68,6 +68,7 @@ from protocol.stages import LOG_PREFIX, StageTimes
 
 from .config import QUEUE_FRAMES, DetectorConfig
 from .detect import METHODS
+from .frames import save_frame
 from .partition import MAX_UAV, Partition
 from .pool import DetectorPool, WorkerCrashed
 from .recovery import RecoveryTracker
@@ -220,8 +221,6 @@ class DetectorService:
         with self._lock:
             self.analysed[frame.ssrc] += 1
         if self.save_frames and report.ok:
-            from services.detector.frames import save_frame
-
             save_frame(self.save_frames, meta, image)
         if not report.ok:
             self.counts["bad-image"] += 1

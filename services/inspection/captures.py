@@ -15,7 +15,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge.camera import CameraPose, SyntheticSource, decode_image, encode_jpeg
+from edge.geometry.optics import CameraPose
+from edge.world.camera import SyntheticSource
+from protocol.imagecodec import decode_image, encode_jpeg
 from edge.geometry.camera import camera_model, camera_rotation
 from edge.world.wall import synthetic_surface
 from edge.world.surface import SyntheticSurface, textured_background

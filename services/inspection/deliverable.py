@@ -262,7 +262,7 @@ def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tup
 
 def frames_from_log(path: str | Path) -> list[PosedFrame]:
     """The capture frames a mission log holds (:func:`services.recording.mcap_log.captures`: what reached the
-    ground station over the bus), decoded to grey, in the order of :func:`save_frame`'s file names (as
+    ground station over the bus), decoded to grey, in the order of :func:`services.detector.frames.save_frame`'s file names (as
     :func:`load_folder` reads them: the mosaic does not depend on the order frames arrived in); a frame that does
     not decode or whose size is not its intrinsics' is skipped."""
     from services.recording.mcap_log import captures
@@ -274,17 +274,6 @@ def frames_from_log(path: str | Path) -> list[PosedFrame]:
         if g is not None and (k.width, k.height) == (g.shape[1], g.shape[0]):
             frames.append(PosedFrame(meta, g))
     return sorted(frames, key=lambda f: f"uav{f.meta.uav}-{f.meta.capture_id:05d}")
-
-
-def save_frame(folder: str | Path, meta: ImageMeta, image: bytes) -> Path:
-    """Write one capture as ``uav<N>-<capture>.jpg|png`` with its pose file (the folder format above)."""
-    d = Path(folder)
-    d.mkdir(parents=True, exist_ok=True)
-    stem = f"uav{meta.uav}-{meta.capture_id:05d}"
-    ext = ".png" if meta.encoding == "png" else ".jpg"
-    (d / f"{stem}{ext}").write_bytes(bytes(image))
-    (d / f"{stem}.json").write_text(meta.model_dump_json())
-    return d / f"{stem}{ext}"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -77,7 +77,9 @@ from protocol.readiness import notify_ready
 
 from edge.config import CAPTURE_LINKS, frame_size, niceness
 
-from . import attach, trustmode
+from services import attach
+
+from . import trustmode
 from .faults import FaultInjector
 from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET
 from .plan import (HOST, CountingPorts, LaunchOptions, NetworkPlan, Plan, ProcessSpec, Trust, free_ports, gateway_thinning,

@@ -1,5 +1,5 @@
-"""Tests for edge.camera: camera model (P1)-(P3), poses, rendering of the synthetic surface,
-folder and video sources, JPEG, and the off-loop encoder."""
+"""Tests for the camera: camera model (P1)-(P3) and poses (edge.geometry.optics), rendering of the synthetic
+surface (edge.world.camera), folder and video sources and the off-loop encoder (edge.camera), JPEG (protocol.imagery)."""
 
 from __future__ import annotations
 
@@ -11,20 +11,10 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.camera import (
-    CameraModel,
-    CameraPose,
-    FolderSource,
-    Frame,
-    FrameEncoder,
-    FrameSource,
-    SyntheticSource,
-    VideoCaptureSource,
-    decode_image,
-    encode_jpeg,
-    make_source,
-    upsample_factor,
-)
+from edge.camera import FolderSource, FrameEncoder, VideoCaptureSource, make_source
+from edge.geometry.optics import CameraModel, CameraPose
+from edge.world.camera import Frame, FrameSource, SyntheticSource, upsample_factor
+from protocol.imagecodec import decode_image, encode_jpeg
 from edge.geometry.camera import camera_rotation
 from edge.world.surface import SyntheticSurface, crack_image
 

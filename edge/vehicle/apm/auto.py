@@ -20,7 +20,7 @@ NAV_LAND (21)               ``("land",)``; the mission ends when the vehicle is 
 NAV_RETURN_TO_LAUNCH (20)   ``("rtl",)``
 DO_CHANGE_SPEED (178)       param2 > 0: the new ground speed, m/s (applies from the next leg on, and
                             to the current one at once, as ArduCopter does)
-DO_DIGICAM_CONTROL (203)    param5 = 1: a shot, event ``("shot", capture id)`` (:mod:`.items`)
+DO_DIGICAM_CONTROL (203)    param5 = 1: a shot, event ``("shot", capture id)`` (:mod:`edge.geometry.ardupilot_items`)
 DO_SET_CAM_TRIGG_DIST (206) param1 m: a shot every param1 m flown (0 stops); param3 = 1 also one now
 CONDITION_YAW (115)         param1 heading, degrees (compass); param4 = 1 relative
 ==========================  =====================================================================

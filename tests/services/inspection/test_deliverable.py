@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from services.inspection.captures import decode, known_crack_wall, synthetic_captures
-from services.inspection.deliverable import inspect_frames, load_folder, save_frame, write_deliverable
+from services.detector.frames import save_frame
+from services.inspection.deliverable import inspect_frames, load_folder, write_deliverable
 from services.inspection.mosaic import Plane, PosedFrame, plane_from_frames
 from protocol.scenario import load_scenario
 

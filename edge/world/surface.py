@@ -14,7 +14,7 @@ Three plain generators work on image-sized arrays:
 - :func:`crack_image` -- the two combined: background darkened under the mask.
 
 :class:`SyntheticSurface` places such a texture on a planar rectangle in the world (local ENU
-metres), so that :mod:`edge.camera` can render the view of it from any camera pose, and lists
+metres), so that :mod:`edge.world.camera` can render the view of it from any camera pose, and lists
 its ground-truth defects (:meth:`SyntheticSurface.defects`) in surface and world coordinates.
 
 All randomness comes from a ``numpy.random.Generator`` (or an integer seed), so the same seed

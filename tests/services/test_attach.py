@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from protocol.bus import add_bus_args
+from services import attach
 from services import keys as pki
 from services import attach
 
