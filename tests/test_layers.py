@@ -66,8 +66,8 @@ def test_lint_imports_keeps_every_contract() -> None:
     ("protocol.messages", "edge.geometry.formation", "the ground (services) over the UAV"),
     ("edge.geometry.formation", "edge.board", "edge: the UAV's process"),
     ("edge.geometry.optics", "edge.world.surface", "edge: the UAV's process"),
-    ("edge.world.surface", "edge.runtime", "edge: the UAV's process"),
-    ("services.planner.task", "edge.runtime", "the ground imports of edge"),
+    ("edge.world.surface", "edge.camera_service", "edge: the UAV's process"),
+    ("services.planner.task", "edge.config", "the ground imports of edge"),
     ("services.web.view", "edge.vehicle.mavlink", "the ground imports of edge"),
     ("edge.geometry.formation", "protocol.bus", "the shared geometry loads"),
     ("edge.geometry.optics", "cv2", "the shared geometry loads"),
@@ -122,8 +122,6 @@ def test_the_simulated_world_does_not_load_the_bus() -> None:
     assert _loaded("edge.world.surface", "edge.world.camera") == {"cv2"}
 
 
-@pytest.mark.xfail(strict=True, reason="the scenario's synthetic wall is built in edge.runtime, beside the camera's "
-                                       "bus shells; it loads no bus once the wall has its home in edge.world")
 def test_the_ground_truth_does_not_load_the_bus() -> None:
     """The ground truth is the wall's crack mask, drawn by OpenCV: loading cv2 is its nature, not the bus."""
     assert "zenoh" not in _loaded("services.inspection.ground_truth")
