@@ -40,7 +40,7 @@ from protocol.scenario import Scenario, load_scenario
 from protocol.stages import LOG_PREFIX, StageTimes
 
 from .camera import CameraModel, CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
-from .surface import DEFAULT_PX_PER_M, SyntheticSurface
+from .surface import DEFAULT_PX_PER_M, SyntheticSurface, surface_options
 from .vehicle.quadrotor import DisturbanceParams
 from .vehicle.driver import CaptureEvent, VehicleDriver
 from .vehicle.sim import SimDriver, SimParams
@@ -119,7 +119,9 @@ def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: i
     if scenario.surface is None:
         raise ValueError(f"scenario {scenario.name!r} has no [surface] to image")
     corners = np.asarray(scenario.surface.corners, dtype=float)
-    return SyntheticSurface.from_corners(corners, px_per_m=px_per_m or DEFAULT_PX_PER_M, seed=seed)
+    opts = surface_options(scenario.surface)  # the scenario's texture pixel and real-size cracks, if any
+    own = opts.pop("px_per_m", DEFAULT_PX_PER_M)
+    return SyntheticSurface.from_corners(corners, px_per_m=px_per_m or own, seed=seed, **opts)
 
 
 def camera_model(scenario: Scenario, frame_size: tuple[int, int]):

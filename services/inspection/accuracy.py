@@ -123,10 +123,11 @@ def _samples(line: Sequence[Sequence[float]], step: float) -> np.ndarray:
 
 
 def compare(defects: Sequence[Any], truth: Sequence[TruthCrack], labels: np.ndarray, m_per_px: float,
-            search_px: int = 3) -> Accuracy:
+            search_px: int = 3, gsd_m: float | None = None) -> Accuracy:
     """Match the deliverable's ``defects`` (:class:`services.inspection.deliverable.InspectionDefect`:
     ``id``, ``centre_line_uv``, ``u_m``, ``v_m``, sizes) to ``truth`` on the truth's ``labels`` (see the module
-    docstring)."""
+    docstring). With the flown ground sampling distance ``gsd_m``, the summary counts the true cracks
+    narrower than one of its pixels (``below_pixel``, ``below_pixel_found``): those the report cannot size."""
     H, W = labels.shape
     by_label = {t.label: t for t in truth}
     k = 2 * search_px + 1
@@ -158,7 +159,11 @@ def compare(defects: Sequence[Any], truth: Sequence[TruthCrack], labels: np.ndar
         worst = max(ds, key=lambda d: d.width_max_mm)
         rows.append(Comparison(truth=t, defects=tuple(d.id for d in ds), length_m=length, width_max_mm=wmax,
                                width_mean_mm=wmean, severity=worst.severity, resolved=all(d.resolved for d in ds)))
-    return Accuracy(rows=rows, unmatched=unmatched, summary=summarise(rows, unmatched))
+    summary = summarise(rows, unmatched)
+    if gsd_m is not None:
+        below = [r for r in rows if r.truth.width_max_mm < 1e3 * gsd_m]
+        summary.update(gsd_mm=1e3 * gsd_m, below_pixel=len(below), below_pixel_found=sum(bool(r.defects) for r in below))
+    return Accuracy(rows=rows, unmatched=unmatched, summary=summary)
 
 
 def summarise(rows: Sequence[Comparison], unmatched: Sequence[int] = ()) -> dict[str, Any]:
@@ -197,17 +202,21 @@ def markdown_accuracy(acc: Accuracy) -> str:
         f"width error median {_f(s['width_mean_error_mm_median'], '.2f')} mm, worst "
         f"{_f(s['width_mean_error_mm_worst'], '.2f')} mm; in their true class: "
         f"{_f(s['class_agreement'] and 100 * s['class_agreement'], '.0f')} % (widths and classes over the "
-        f"{s['resolved']} cracks wider than one pixel).",
+        f"{s['resolved']} cracks wider than one pixel)."
+        + (f" {s['below_pixel']} true cracks are narrower than one pixel at the flown {s['gsd_mm']:.2f} mm/px "
+           f"({s['below_pixel_found']} of them detected): their widths cannot be measured." if s.get("below_pixel") else ""),
         "",
         "| truth | length (m) truth / measured | width max (mm) truth / measured | width mean (mm) truth / measured "
         "| class truth / measured | defects |",
         "|---|---|---|---|---|---|",
     ]
+    gsd_mm = s.get("gsd_mm")
     for r in acc.rows:
         t = r.truth
         lines.append(
             f"| {t.id} | {t.length_m:.2f} / {_f(r.length_m, '.2f')} | {t.width_max_mm:.2f} / {_f(r.width_max_mm, '.2f')}"
             f" | {t.width_mean_mm:.2f} / {_f(r.width_mean_mm, '.2f')} | {t.severity} / "
-            f"{(r.severity or 'missed') + ('' if r.resolved else ' (below 1 px)')} | "
+            f"{(r.severity or 'missed') + ('' if r.resolved else ' (below 1 px)')}"
+            f"{' (narrower than one pixel)' if gsd_mm and t.width_max_mm < gsd_mm else ''} | "
             f"{', '.join(str(i) for i in r.defects) or '–'} |")
     return "\n".join(lines)

@@ -56,6 +56,8 @@ __all__ = ["InspectionDefect", "Deliverable", "inspect_frames", "load_folder", "
 
 FRAME_SUFFIXES = (".jpg", ".jpeg", ".png")
 CROP_MARGIN_PX = 12
+#: the frame size the detector's smallest reported component is set for (640 x 480)
+REFERENCE_FRAME_PX = 640 * 480
 
 
 #: order of the severity classes in the table, worst first (:mod:`services.inspection.measure`)
@@ -137,12 +139,21 @@ def severity_rank(severity: str) -> int:
 
 
 def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, origin: Sequence[float] | None = None,
-                   method: str = "it+", m_per_px: float | None = None, min_area_px: int = MIN_REPORT_AREA_PX
+                   method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None
                    ) -> Deliverable:
     """Segment, mosaic and measure (steps 1-3 of the module docstring); the defects come sorted by
-    :data:`SORT_KEY` and numbered in that order (defect 1 is the worst)."""
+    :data:`SORT_KEY` and numbered in that order (defect 1 is the worst).
+
+    ``min_area_px`` defaults to the detector's smallest reported component
+    (:data:`services.detector.pipeline.MIN_REPORT_AREA_PX`, set for 640 x 480 frames) scaled by the
+    frames' pixel count over that reference: the same share of a frame's footprint, so a 12 MP
+    capture does not report texture specks a 640 x 480 one cannot see.
+    """
     if not frames:
         raise ValueError("no frames")
+    if min_area_px is None:
+        px = float(np.median([f.grey.shape[0] * f.grey.shape[1] for f in frames]))
+        min_area_px = int(round(MIN_REPORT_AREA_PX * max(1.0, px / REFERENCE_FRAME_PX)))
     t0 = time.perf_counter()
     seg = segment(frames, method) if any(f.mask is None for f in frames) else list(frames)
     t1 = time.perf_counter()

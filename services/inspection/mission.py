@@ -58,7 +58,7 @@ def class_ranges() -> dict[str, str]:
     return out
 
 
-def _accuracy(record: MissionRecord, defects: list[InspectionDefect]):
+def _accuracy(record: MissionRecord, defects: list[InspectionDefect], gsd_m: float | None = None):
     from services.gcs.ground_truth import truth_surface
 
     from .accuracy import compare, truth_cracks
@@ -68,7 +68,7 @@ def _accuracy(record: MissionRecord, defects: list[InspectionDefect]):
         return None
     s = 1.0 / surf.px_per_m
     truth, labels = truth_cracks(surf.mask, s)
-    return compare(defects, truth, labels, s)
+    return compare(defects, truth, labels, s, gsd_m=gsd_m)
 
 
 def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, frames: str = "frames") -> list[str]:
@@ -162,7 +162,7 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
         return []
     acc = None
     try:
-        acc = _accuracy(record, res.defects)
+        acc = _accuracy(record, res.defects, res.mosaic.m_per_px)
     except ValueError as exc:  # a scenario without a simulated wall
         log.warning("no ground truth to measure against: %s", exc)
     if acc is not None:
