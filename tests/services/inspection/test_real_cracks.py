@@ -57,7 +57,12 @@ def test_real_sizes_against_truth_within_tolerance(real):
     assert wide_enough and all(r.defects for r in wide_enough)  # every crack wider than a pixel is found
     for k, tol in REAL_TOLERANCE.items():
         assert s[k] is not None and s[k] <= tol, (k, s[k], tol)
-    assert s["class_agreement"] == 1.0
+    # the class is right for every crack more than one pixel away from a class limit (0.3, 1.3 mm);
+    # nearer, a measurement within tolerance may fall on either side
+    px_mm = 1e3 * res.mosaic.m_per_px
+    clear = [r for r in wide_enough if min(abs(r.truth.width_max_mm - lim) for lim in (0.3, 1.3)) > px_mm]
+    assert clear and all(r.class_agrees for r in clear)
+    assert s["class_agreement"] >= 0.75
     assert s["below_pixel"] >= 1  # the hairline cracks are there and are counted as not sizeable
     assert "narrower than one pixel" in markdown_accuracy(acc)
 
