@@ -71,7 +71,11 @@ def main() -> int:
     a = ap.parse_args()
     results = [run(n, s) for n, s in SCENARIOS.items() if a.only in (None, n)]
     for folder in a.mission:
-        doc = json.loads((folder / "inspection" / "accuracy.json").read_text())
+        path = folder / "inspection" / "accuracy.json"
+        if not path.is_file():
+            print(f"{folder}: no {path.relative_to(folder)} (a mission without a simulated wall or an older report)")
+            continue
+        doc = json.loads(path.read_text())
         rec = json.loads((folder / "record.json").read_text())
         name = (rec.get("scenario") or {}).get("name", "?")
         results.append({"scenario": f"{name} (mission {folder.name})", **doc["summary"], "rows": doc["rows"]})
