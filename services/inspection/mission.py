@@ -80,9 +80,8 @@ def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, f
     ranges = class_ranges()
     note = resolution_note(m.m_per_px)
     lines = [HEADING, "",
-             f"**{len(res.defects)} defects** found on the inspected surface: "
-             + ", ".join(f"{len(by_class[c])} {c}" for c in SEVERITY_ORDER)
-             + f". Coverage of the surface: {m.coverage:.0%} (by {m.frames_used} of {res.frames} captures, "
+             f"**{len(res.defects)} defects (" + ", ".join(f"{len(by_class[c])} {c}" for c in SEVERITY_ORDER)
+             + f")** found on the inspected surface. Coverage of the surface: {m.coverage:.0%} (by {m.frames_used} of {res.frames} captures, "
              f"mosaic {m.image.shape[1]} x {m.image.shape[0]} px at {m.m_per_px * 1e3:.2f} mm/px). "
              f"At this ground sampling distance a crack narrower than {note['smallest_width_mm']:.2f} mm (one pixel) "
              "is flagged, not measured; the classes told apart by width: "
