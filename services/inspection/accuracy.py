@@ -159,16 +159,18 @@ def compare(defects: Sequence[Any], truth: Sequence[TruthCrack], labels: np.ndar
         worst = max(ds, key=lambda d: d.width_max_mm)
         rows.append(Comparison(truth=t, defects=tuple(d.id for d in ds), length_m=length, width_max_mm=wmax,
                                width_mean_mm=wmean, severity=worst.severity, resolved=all(d.resolved for d in ds)))
-    summary = summarise(rows, unmatched)
+    summary = summarise(rows, unmatched, gsd_m)
     if gsd_m is not None:
         below = [r for r in rows if r.truth.width_max_mm < 1e3 * gsd_m]
         summary.update(gsd_mm=1e3 * gsd_m, below_pixel=len(below), below_pixel_found=sum(bool(r.defects) for r in below))
     return Accuracy(rows=rows, unmatched=unmatched, summary=summary)
 
 
-def summarise(rows: Sequence[Comparison], unmatched: Sequence[int] = ()) -> dict[str, Any]:
-    """Median and worst absolute errors over the matched cracks (widths: resolved ones only)."""
-    m = [r for r in rows if r.defects]
+def summarise(rows: Sequence[Comparison], unmatched: Sequence[int] = (), gsd_m: float | None = None) -> dict[str, Any]:
+    """Median and worst absolute errors over the matched cracks (widths and classes: those measured wider than
+    one pixel). With the flown ground sampling distance ``gsd_m`` a true crack narrower than one pixel is
+    left out of every error: it cannot be sized, only flagged (what the defects over it measure is texture)."""
+    m = [r for r in rows if r.defects and (gsd_m is None or r.truth.width_max_mm >= 1e3 * gsd_m)]
     res = [r for r in m if r.resolved]
 
     def stats(xs: list[float]) -> tuple[float | None, float | None]:
@@ -179,7 +181,8 @@ def summarise(rows: Sequence[Comparison], unmatched: Sequence[int] = ()) -> dict
     xm, xw = stats([r.width_max_error_mm for r in res])
     mm, mw = stats([r.width_mean_error_mm for r in res])
     cls = [r.class_agrees for r in res]
-    return {"truth": len(rows), "matched": len(m), "unmatched_defects": len(unmatched),
+    return {"truth": len(rows), "matched": sum(bool(r.defects) for r in rows), "sized": len(m),
+            "unmatched_defects": len(unmatched),
             "resolved": len(res), "length_error_median": lm, "length_error_worst": lw,
             "width_max_error_mm_median": xm, "width_max_error_mm_worst": xw,
             "width_mean_error_mm_median": mm, "width_mean_error_mm_worst": mw,

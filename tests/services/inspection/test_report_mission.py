@@ -51,11 +51,14 @@ def test_nominal_mission_report_for_the_inspector(nominal_mission):
 
 
 def test_real_size_cracks_through_the_launcher(tmp_path):
-    run = fly_mission(tmp_path / "report", "--scenario", "real-cracks", "--frame-size", "4000x3000", "--speed", "8",
-                      timeout=500)
+    # at the default speed: the 0.8 m panel sits in one footprint with 10 cm to spare, the tracking error at
+    # under a metre's stand-off decides how much of it the one capture covers
+    run = fly_mission(tmp_path / "report", "--scenario", "real-cracks", "--frame-size", "4000x3000", timeout=500)
     acc = check_report(run, REAL_TOLERANCE)
-    # every crack wider than one pixel found; the hairline ones counted as below the flown GSD
-    assert acc["matched"] + acc["below_pixel"] - acc["below_pixel_found"] >= acc["truth"] - 1
+    doc = json.loads((run.out / "inspection" / "defects.json").read_text())
+    sizeable = acc["truth"] - acc["below_pixel"]
+    # the cracks wider than one pixel on the covered part are found and sized within tolerance
+    assert acc["sized"] >= 1 and acc["sized"] >= round(sizeable * doc["coverage"]) - 1, (acc, doc["coverage"])
     assert acc["below_pixel"] >= 1 and acc["gsd_mm"] < 0.3
     md = (run.out / "report.md").read_text()
     assert "narrower than one pixel at the flown" in md

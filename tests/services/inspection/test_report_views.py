@@ -159,9 +159,10 @@ def test_kml_read_back_by_lxml(built):
 
 # the nominal wall's cracks are 3.5-8 cm wide at 1 cm texture pixels, imaged at 7.8 mm/px: the
 # stated tolerances of the measurement against truth
+# (widths: within 3 mosaic pixels at worst)
 NOMINAL_TOLERANCE = {"length_error_median": 0.03, "length_error_worst": 0.10, "width_mean_error_mm_median": 2.5,
                      "width_mean_error_mm_worst": 6.0, "width_max_error_mm_median": 6.0,
-                     "width_max_error_mm_worst": 20.0}
+                     "width_max_error_mm_worst": 24.0}
 
 
 def test_measurements_against_the_truth_of_the_nominal_wall(built):
