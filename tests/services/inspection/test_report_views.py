@@ -218,6 +218,9 @@ def test_findings_first_in_report_md_and_html_in_chromium(built, tmp_path):
         body = driver.find_element("tag name", "body").text
         assert f"{len(res.defects)} defects" in body and "Measurements against the ground truth" in body
         assert body.index("Findings") < body.index("The wall") < body.index("Defects (sorted by")
+        top = tmp_path / "report-html-top.png"
+        driver.save_screenshot(str(top))  # the findings, as the page opens
+        print(f"screenshot of report.html (top): {top}")
         # every image of the page loads from the folder (offline, no network)
         WebDriverWait(driver, 30).until(lambda d: d.execute_script(
             "return [...document.images].every(i => i.complete)"))
