@@ -30,7 +30,7 @@ body{font-family:system-ui,sans-serif;max-width:1200px;margin:1em auto;padding:0
 h1{font-size:1.5em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em}
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding:.2em .5em;font-size:.9em;text-align:left}
 th{background:#eee}.crop{image-rendering:pixelated;max-width:100%;height:auto;border:1px solid #999}
-.worst{display:flex;gap:1em;align-items:flex-start;margin:.6em 0}.worst img{width:420px}
+.worst{display:flex;gap:1em;align-items:flex-start;margin:.6em 0}.worst img{max-width:420px;max-height:260px;width:auto}
 .wide{color:#b00;font-weight:bold}.moderate{color:#b60}.insignificant{color:#060}
 #zoom{position:relative;overflow:hidden;height:460px;background:#333;cursor:grab;touch-action:none;user-select:none}
 #zoom img{position:absolute;max-width:none;image-rendering:auto}
