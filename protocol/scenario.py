@@ -158,6 +158,12 @@ class Surface(_Model):
     """
 
     corners: tuple[Vec3, Vec3, Vec3, Vec3]
+    # the simulated wall (edge.world.surface.SyntheticSurface): texture pixel (mm) and real-size cracks, each
+    # main crack's width range (mm) taken in turn from ``crack_widths_mm``; None keeps the defaults
+    texture_mm: Annotated[float, Field(ge=0.05, le=100.0, allow_inf_nan=False)] | None = None
+    crack_widths_mm: list[tuple[Positive, Positive]] | None = Field(default=None, min_length=1, max_length=64)
+    crack_length_m: tuple[Positive, Positive] | None = None
+    cracks: Annotated[int, Field(ge=1, le=1000)] | None = None
 
     @model_validator(mode="after")
     def _rectangle(self) -> "Surface":
@@ -174,6 +180,14 @@ class Surface(_Model):
             raise ValueError(
                 "surface.corners: only vertical walls are supported (p0-p1 horizontal, p3 above p0)"
             )
+        for lo, hi in self.crack_widths_mm or ():
+            if lo > hi:
+                raise ValueError(f"surface.crack_widths_mm: ({lo}, {hi}) is not a (min, max) pair")
+        if self.crack_length_m is not None and self.crack_length_m[0] > self.crack_length_m[1]:
+            raise ValueError("surface.crack_length_m must be a (min, max) pair")
+        if self.texture_mm is not None and lu * lv * (1e3 / self.texture_mm) ** 2 > 100e6:
+            raise ValueError(f"surface.texture_mm: {lu:.2f} m x {lv:.2f} m at {self.texture_mm} mm per pixel "
+                             "exceeds 100 MP")
         return self
 
     @property
@@ -361,7 +375,8 @@ def default_scenario_path() -> Path:
 
 
 def load_scenario(path: str | Path | None = None) -> Scenario:
-    """Read and validate a scenario TOML file; ``None`` loads the default monorail scenario.
+    """Read and validate a scenario TOML file; ``None`` loads the default monorail scenario, and the name
+    of a packaged scenario (``protocol/scenarios/<name>.toml``, e.g. ``real-cracks``) loads that one.
 
     Raises
     ------
@@ -370,6 +385,9 @@ def load_scenario(path: str | Path | None = None) -> Scenario:
         the file and the field).
     """
     p = default_scenario_path() if path is None else Path(path)
+    packaged = default_scenario_path().parent / f"{p.name}.toml"
+    if path is not None and not p.exists() and p.name == str(path) and packaged.is_file():
+        p = packaged  # a packaged scenario by name: ``--scenario real-cracks``
     try:
         with open(p, "rb") as fh:
             doc = tomllib.load(fh)

@@ -41,6 +41,8 @@ __all__ = [
     "SyntheticSurface",
     "crack_image",
     "draw_cracks",
+    "graded_crack_image",
+    "surface_options",
     "textured_background",
 ]
 
@@ -379,7 +381,62 @@ def crack_image(
     return np.clip(np.rint(img), 0, 255).astype(np.uint8), mask
 
 
-# ============================================================================ the wall in the world
+def graded_crack_image(
+    shape: tuple[int, int],
+    rng: RngLike = None,
+    widths_px: Any = ((1.0, 5.0),),
+    n_cracks: int | None = None,
+    *,
+    contrast: tuple[float, float] = (0.35, 0.6),
+    noise_sigma: float = 3.0,
+    length_px: tuple[float, float] | None = None,
+    background: dict[str, float] | None = None,
+) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+    """Like :func:`crack_image`, but main crack ``k`` takes its width range from ``widths_px[k % len]``.
+
+    Real concrete cracks of a wall span classes (AASHTO MBEI: < 0.3 mm, 0.3-1.3 mm, > 1.3 mm); a
+    width range per crack puts every class on one wall at known sizes. ``n_cracks`` defaults to one
+    crack per range. Darkening, feather and noise are those of :func:`crack_image`.
+    """
+    h, w = _shape(shape)
+    ranges = [_range("widths_px", r, lo=1.0, hi=255.0) for r in widths_px]
+    if not ranges:
+        raise ValueError("widths_px must hold at least one (min, max) range")
+    n = len(ranges) if n_cracks is None else int(n_cracks)
+    g = _rng(rng)
+    img, mask = crack_image((h, w), g, 0, contrast=contrast, noise_sigma=0.0, background=background)
+    for k in range(n):
+        one = draw_cracks((h, w), g, 1, length_px=length_px, width_px=ranges[k % len(ranges)], branch_prob=0.005)
+        mask |= one
+    out = img.astype(np.float32)
+    if mask.any():
+        dmin, dmax = _range("contrast", contrast, lo=0.0, hi=1.0)
+        depth = dmin + (dmax - dmin) * np.clip(0.5 + 0.35 * _value_noise(h, w, 40.0, g), 0.0, 1.0)
+        core = mask.astype(np.float32) / 255.0
+        out *= 1.0 - depth * np.maximum(core, 0.5 * cv2.GaussianBlur(core, (3, 3), 0.8))
+    if noise_sigma > 0:
+        out += g.standard_normal((h, w), dtype=np.float32) * noise_sigma
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8), mask
+
+
+def surface_options(spec: Any) -> dict[str, Any]:
+    """:class:`SyntheticSurface` keyword arguments from a scenario's ``[surface]`` table
+    (:class:`protocol.scenario.Surface`: ``texture_mm``, ``crack_widths_mm``, ``crack_length_m``,
+    ``cracks``); an empty dict keeps the defaults."""
+    out: dict[str, Any] = {}
+    tex = getattr(spec, "texture_mm", None)
+    px_per_m = 1e3 / tex if tex else DEFAULT_PX_PER_M
+    if tex:
+        out["px_per_m"] = px_per_m
+    widths = getattr(spec, "crack_widths_mm", None)
+    if widths:
+        out["crack_width_ranges_px"] = [(max(1.0, lo * 1e-3 * px_per_m), max(1.0, hi * 1e-3 * px_per_m))
+                                        for lo, hi in widths]
+    if getattr(spec, "crack_length_m", None) is not None:
+        out["crack_length_m"] = tuple(spec.crack_length_m)
+    if getattr(spec, "cracks", None) is not None:
+        out["n_cracks"] = int(spec.cracks)
+    return out
 
 
 # ============================================================================ the wall in the world
@@ -461,6 +518,9 @@ class SyntheticSurface:
         Relative darkening of crack pixels, see :func:`crack_image`. Default 0.35..0.6.
     n_cracks : int, optional
         Number of main cracks, overriding ``cracks_per_m2``.
+    crack_width_ranges_px : sequence of (float, float), optional
+        A width range (texture pixels) per main crack, taken in turn (:func:`graded_crack_image`):
+        real-size cracks of every class on one wall (the scenario's ``surface.crack_widths_mm``).
     texture, mask : numpy.ndarray, optional
         A ready texture and mask (uint8, ``(round(height_m px_per_m), round(width_m px_per_m))``)
         instead of generated ones, e.g. a photograph of a real wall with a hand-made mask.
@@ -485,6 +545,7 @@ class SyntheticSurface:
         crack_width_px: tuple[float, float] = (2.0, 5.0),
         contrast: tuple[float, float] = (0.35, 0.6),
         n_cracks: int | None = None,
+        crack_width_ranges_px: Any = None,
     ) -> None:
         o = _vec3("origin", origin)
         u = _vec3("u_axis", u_axis)
@@ -514,11 +575,20 @@ class SyntheticSurface:
             lo, hi = _range("crack_length_m", crack_length_m, lo=0.0)
             if n_cracks is None:
                 n_cracks = max(1, int(round(width_m * height_m * cracks_per_m2)))
-            texture, mask = crack_image(
-                (h_px, w_px), np.random.default_rng(self.seed), n_cracks,
-                length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)),
-                width_px=crack_width_px, contrast=contrast,
-            )
+            if crack_width_ranges_px:  # real-size cracks: a width range per crack (graded_crack_image)
+                texture, mask = graded_crack_image(
+                    (h_px, w_px), np.random.default_rng(self.seed), crack_width_ranges_px,
+                    n_cracks if n_cracks is not None else None,
+                    length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)), contrast=contrast,
+                    # stains per square metre as on the default wall, not per texture pixel
+                    background={"blotches": min(1.0, (DEFAULT_PX_PER_M / px_per_m) ** 2)},
+                )
+            else:
+                texture, mask = crack_image(
+                    (h_px, w_px), np.random.default_rng(self.seed), n_cracks,
+                    length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)),
+                    width_px=crack_width_px, contrast=contrast,
+                )
         elif texture is None or mask is None:
             raise ValueError("give both texture and mask, or neither")
         for name, img in (("texture", texture), ("mask", mask)):

@@ -10,7 +10,7 @@ import numpy as np
 
 from protocol.scenario import Scenario
 
-from .surface import DEFAULT_PX_PER_M, SyntheticSurface
+from .surface import DEFAULT_PX_PER_M, SyntheticSurface, surface_options
 
 #: seed of the synthetic surface: one wall for the whole fleet, whatever the UAV
 SURFACE_SEED = 2024
@@ -21,4 +21,6 @@ def synthetic_surface(scenario: Scenario, px_per_m: float | None = None, seed: i
     if scenario.surface is None:
         raise ValueError(f"scenario {scenario.name!r} has no [surface] to image")
     corners = np.asarray(scenario.surface.corners, dtype=float)
-    return SyntheticSurface.from_corners(corners, px_per_m=px_per_m or DEFAULT_PX_PER_M, seed=seed)
+    opts = surface_options(scenario.surface)  # the scenario's texture pixel and real-size cracks, if any
+    own = opts.pop("px_per_m", DEFAULT_PX_PER_M)
+    return SyntheticSurface.from_corners(corners, px_per_m=px_per_m or own, seed=seed, **opts)

@@ -37,7 +37,7 @@ import numpy as np
 
 __all__ = [
     "SEVERITY_LIMITS_M", "CrackMeasure", "measure_component", "measure_mask", "severity", "skeleton_length",
-    "frame_scale",
+    "frame_scale", "centre_line", "outline",
 ]
 
 #: upper width limits of the severity classes, metres (AASHTO MBEI, reinforced concrete cracking)
@@ -250,3 +250,121 @@ def frame_scale(range_m: float, fx: float, fy: float) -> float:
     if not (math.isfinite(range_m) and range_m > 0 and fx > 0 and fy > 0):
         raise ValueError("range and focal lengths must be finite and > 0")
     return range_m / (0.5 * (fx + fy))
+
+
+# ------------------------------------------------------------------------------------ geometry
+def centre_line(mask: np.ndarray, simplify_px: float = 0.7) -> np.ndarray:
+    """The crack's centre line: the longest path through its skeleton, ``(N, 2)`` pixel ``(x, y)``.
+
+    The skeleton (as :func:`measure_component` thins it) is a graph of 8-connected pixels; its
+    diameter is found by two breadth-first searches (the farthest pixel from any pixel is one end
+    of a longest path in a tree), then simplified with the Ramer-Douglas-Peucker algorithm
+    (``cv2.approxPolyDP``, ``simplify_px`` tolerance). Side branches are left out: a GIS line has
+    one path. A blob too small to thin is its centre pixel, returned twice (a zero-length line).
+    """
+    m = np.asarray(mask) != 0
+    if m.ndim != 2 or not m.any():
+        raise ValueError("mask must be 2-D with at least one defect pixel")
+    skel = _skeletonize(m)
+    if not skel.any():
+        r, c = np.argwhere(m).mean(0)
+        return np.array([[c, r], [c, r]], float)
+    pts = np.argwhere(skel)
+    index = {(int(r), int(c)): i for i, (r, c) in enumerate(pts)}
+    nbrs = [[index[(r + dr, c + dc)] for dr in (-1, 0, 1) for dc in (-1, 0, 1)
+             if (dr or dc) and (r + dr, c + dc) in index] for r, c in ((int(a), int(b)) for a, b in pts)]
+
+    def far(start: int) -> tuple[int, list[int]]:
+        prev = {start: -1}
+        queue, k = [start], 0
+        while k < len(queue):
+            for j in nbrs[queue[k]]:
+                if j not in prev:
+                    prev[j] = queue[k]
+                    queue.append(j)
+            k += 1
+        end, path = queue[-1], []
+        while end != -1:
+            path.append(end)
+            end = prev[end]
+        return queue[-1], path
+
+    a, _ = far(0)
+    _, path = far(a)
+    xy = pts[path][:, ::-1].astype(np.float32)
+    if len(xy) < 2:
+        return np.vstack([xy, xy]).astype(float)
+    simple = cv2.approxPolyDP(xy.reshape(-1, 1, 2), simplify_px, False).reshape(-1, 2)
+    return simple.astype(float) if len(simple) >= 2 else xy[[0, -1]].astype(float)
+
+
+def _crossing(ring: np.ndarray) -> bool:
+    """Whether a closed ring (first point not repeated) has two non-adjacent edges that meet."""
+    a = ring
+    b = np.roll(ring, -1, axis=0)
+    n = len(a)
+    if n < 4:
+        return False
+
+    def orient(p: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.ndarray:
+        return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))
+
+    for i in range(n - 2):
+        j = np.arange(i + 2, n if i else n - 1)
+        if j.size == 0:
+            continue
+        p, q, r, t = a[i], b[i], a[j], b[j]
+        o1, o2 = orient(p, q, r), orient(p, q, t)
+        o3, o4 = orient(r, t, p[None]), orient(r, t, q[None])
+        if np.any((o1 * o2 <= 0) & (o3 * o4 <= 0) & ~((o1 == 0) & (o2 == 0))):
+            return True
+        col = (o1 == 0) & (o2 == 0)  # collinear: overlapping extents
+        if col.any():
+            lo = np.minimum(r[col], t[col]) - 1e-9
+            hi = np.maximum(r[col], t[col]) + 1e-9
+            if np.any(np.all((np.minimum(p, q) <= hi) & (np.maximum(p, q) >= lo), axis=1)):
+                return True
+    return False
+
+
+def outline(mask: np.ndarray, simplify_px: float = 0.5) -> np.ndarray:
+    """The crack's outline: a simple closed ring around its pixels, ``(N, 2)`` pixel ``(x, y)``, first
+    point repeated last, counter-clockwise once the rows point up (seen from the front of a wall, the
+    (u, v) frame of :class:`services.inspection.mosaic.Plane`; RFC 7946 Sec. 3.1.6 orders exterior rings so).
+
+    The mask is doubled (each pixel a 2 x 2 block) and closed with a 3 x 3 square, so pixels that
+    touch only at a corner (8-connected) join by an edge and a one-pixel crack encloses an area; where
+    the traced border (``cv2.findContours``, Suzuki-Abe border following) still passes a pixel twice
+    (a one-pixel neck) the doubled mask grows by a pixel (a quarter of a mask pixel) until it does
+    not. The border is then simplified (``cv2.approxPolyDP``) unless that makes two edges cross, and
+    mapped back to the mask's pixel coordinates. Holes are not kept.
+    """
+    m = np.asarray(mask) != 0
+    if m.ndim != 2 or not m.any():
+        raise ValueError("mask must be 2-D with at least one defect pixel")
+    pad = 6
+    big = np.kron(m.astype(np.uint8), np.ones((2, 2), np.uint8)) * 255
+    big = cv2.copyMakeBorder(big, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
+    k3 = np.ones((3, 3), np.uint8)
+    ring = np.zeros((0, 2), np.int32)
+    for grow in range(pad - 1):
+        g = cv2.dilate(big, k3, iterations=grow) if grow else big
+        g = cv2.morphologyEx(g, cv2.MORPH_CLOSE, k3)
+        contours, _ = cv2.findContours(g, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        ring = max(contours, key=cv2.contourArea).reshape(-1, 2)
+        if len(np.unique(ring, axis=0)) == len(ring):
+            break
+    simple = cv2.approxPolyDP(ring.reshape(-1, 1, 2), 2.0 * simplify_px, True).reshape(-1, 2)
+    if len(simple) >= 3 and not _crossing(simple.astype(float)):
+        ring = simple
+    else:
+        ring = cv2.approxPolyDP(ring.reshape(-1, 1, 2), 0.1, True).reshape(-1, 2)  # collinear runs only
+    xy = (ring.astype(float) - pad) / 2.0 - 0.25  # doubled pixel centres back to the mask's pixel coordinates
+    if len(xy) < 3:  # cannot happen for a closed doubled pixel, kept for safety
+        c = xy.mean(0)
+        xy = c + np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    # rows grow downwards: a positive shoelace area in (column, row) is clockwise once rows point up
+    area = 0.5 * float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1]))
+    if area > 0:
+        xy = xy[::-1]
+    return np.vstack([xy, xy[:1]])

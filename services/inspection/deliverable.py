@@ -9,12 +9,16 @@ mission (the detector's saved captures) or from a folder of photos with poses
 2. frames and masks are warped onto the surface plane (:func:`services.inspection.mosaic.build_mosaic`);
 3. each 8-connected component of the mosaic's defect mask is one defect (a crack seen by two
    overlapping frames is one defect): its position (centroid) on the surface, in ENU and, with the
-   geodetic origin, in WGS-84 (:func:`edge.geometry.waypoint_mission.enu_to_geodetic`); its length, maximum
-   and mean width and severity class (:mod:`services.detector.measure`, at the mosaic's scale);
-   and a crop of the mosaic around it;
-4. files: ``mosaic.png`` (defects outlined and numbered), ``defects.json``, ``defects.md``,
-   ``defects.geojson`` (RFC 7946: a Point per defect, the skeleton-free centroid, with its sizes as
-   properties), ``defects.kml`` (OGC KML 2.2 placemarks) and ``crops/defect-<id>.png``.
+   geodetic origin, in WGS-84 (:func:`edge.geometry.waypoint_mission.enu_to_geodetic`, the origin's
+   altitude included); its length, maximum and mean width and severity class
+   (:mod:`services.detector.measure`, at the mosaic's scale); its centre line (the skeleton's longest
+   path) and outline; the captures behind it (the frame giving most of its mosaic pixels: UAV, capture,
+   time); the table is sorted by :data:`SORT_KEY`;
+4. files: ``mosaic.png`` (full resolution, defects outlined and numbered), ``overview.png`` (gridded,
+   scale bar, u/v axes, the wall's bearings: :mod:`services.inspection.views`), ``tiles/`` (its zoomable
+   pyramid), ``defects.json``, ``defects.md``, ``defects.geojson`` (RFC 7946: each defect's centre line
+   as a LineString and outline as a Polygon, lon, lat, altitude, with its sizes, class, capture and crop as
+   properties), ``defects.kml`` (OGC KML 2.2 placemarks, absolute altitudes) and ``crops/defect-<id>.png``.
 
 Folder of photos with poses: ``<name>.jpg|png`` each with ``<name>.json`` holding the fields of
 :class:`protocol.messages.ImageMeta` (``cam_pos`` ENU m, ``cam_rot`` world-from-camera row-major
@@ -35,6 +39,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -47,7 +52,7 @@ from protocol.textsafe import md_text, xml_text
 from services.detector.detect import detect
 from services.detector.pipeline import MIN_REPORT_AREA_PX
 
-from services.detector.measure import measure_mask
+from services.detector.measure import SEVERITY_LIMITS_M, centre_line, measure_mask, outline
 from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, plane_from_frames
 
 __all__ = ["InspectionDefect", "Deliverable", "inspect_frames", "load_folder", "write_deliverable",
@@ -55,10 +60,25 @@ __all__ = ["InspectionDefect", "Deliverable", "inspect_frames", "load_folder", "
 
 FRAME_SUFFIXES = (".jpg", ".jpeg", ".png")
 CROP_MARGIN_PX = 12
+#: the frame size the detector's smallest reported component is set for (640 x 480)
+REFERENCE_FRAME_PX = 640 * 480
+
+
+#: order of the severity classes in the table, worst first (:mod:`services.detector.measure`)
+SEVERITY_ORDER = ("wide", "moderate", "insignificant")
+#: the table's sort key, as the report states it
+SORT_KEY = "severity class (worst first), then length (longest first)"
 
 
 class InspectionDefect(BaseModel):
-    """One row of the defect table."""
+    """One row of the defect table: where, how big, which class, and the capture behind it.
+
+    ``uav``, ``capture_id``, ``t`` (mission time) and ``stamp`` (UTC seconds) are those of the frame
+    that shows the defect's largest part on the mosaic; ``seen_by`` names the frames behind it: those
+    that give its pixels on the mosaic (largest share first), then any other whose view holds its centroid (``uav<N>-<capture>``, the files kept in ``frames/``). ``centre_line_uv``
+    and ``outline_uv`` are its skeleton's longest path and its outline on the surface (u, v metres),
+    ``centre_line_lla`` / ``outline_lla`` the same in WGS-84 (lat, lon deg, alt m) with an origin.
+    """
 
     model_config = ConfigDict(extra="forbid")
     id: int
@@ -74,6 +94,15 @@ class InspectionDefect(BaseModel):
     resolved: bool
     bbox_px: tuple[int, int, int, int]
     crop: str = ""
+    uav: int | None = None
+    capture_id: int | None = None
+    t: float | None = None
+    stamp: float | None = None
+    seen_by: list[str] = []
+    centre_line_uv: list[tuple[float, float]] = []
+    outline_uv: list[tuple[float, float]] = []
+    centre_line_lla: list[tuple[float, float, float]] = []
+    outline_lla: list[tuple[float, float, float]] = []
 
 
 @dataclass
@@ -83,6 +112,7 @@ class Deliverable:
     frames: int
     seconds: dict[str, float] = field(default_factory=dict)
     files: list[str] = field(default_factory=list)
+    origin: tuple[float, float, float] | None = None  # the geodetic origin of the ENU frame
 
 
 def segment(frames: Sequence[PosedFrame], method: str = "it+") -> list[PosedFrame]:
@@ -90,34 +120,95 @@ def segment(frames: Sequence[PosedFrame], method: str = "it+") -> list[PosedFram
     return [PosedFrame(f.meta, f.grey, detect(f.grey, method, with_defects=False).mask) for f in frames]
 
 
+def frame_name(meta: ImageMeta) -> str:
+    """A capture's name in ``frames/`` (:func:`save_frame`): ``uav<N>-<capture>``."""
+    return f"uav{meta.uav}-{meta.capture_id:05d}"
+
+
+def sees(meta: ImageMeta, point: Sequence[float]) -> bool:
+    """Whether the frame of ``meta`` images the world ``point`` (pinhole ``K R^T (X - C)``, in front
+    of the camera and inside the image)."""
+    k = meta.intrinsics
+    R = np.asarray(meta.cam_rot, float).reshape(3, 3)
+    x = R.T @ (np.asarray(point, float) - np.asarray(meta.cam_pos, float))
+    if x[2] <= 1e-9:
+        return False
+    c, r = k.fx * x[0] / x[2] + k.cx, k.fy * x[1] / x[2] + k.cy
+    return bool(-0.5 <= c <= k.width - 0.5 and -0.5 <= r <= k.height - 0.5)
+
+
+def severity_rank(severity: str) -> int:
+    """Position of a class in :data:`SEVERITY_ORDER` (unknown classes last)."""
+    return SEVERITY_ORDER.index(severity) if severity in SEVERITY_ORDER else len(SEVERITY_ORDER)
+
+
 def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, origin: Sequence[float] | None = None,
-                   method: str = "it+", m_per_px: float | None = None, min_area_px: int = MIN_REPORT_AREA_PX
+                   method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None
                    ) -> Deliverable:
-    """Segment, mosaic and measure (steps 1-3 of the module docstring)."""
+    """Segment, mosaic and measure (steps 1-3 of the module docstring); the defects come sorted by
+    :data:`SORT_KEY` and numbered in that order (defect 1 is the worst).
+
+    ``min_area_px`` defaults to the detector's smallest reported component
+    (:data:`services.detector.pipeline.MIN_REPORT_AREA_PX`, set for 640 x 480 frames) scaled by the
+    frames' pixel count over that reference: the same share of a frame's footprint, so a 12 MP
+    capture does not report texture specks a 640 x 480 one cannot see.
+    """
     if not frames:
         raise ValueError("no frames")
+    if min_area_px is None:
+        px = float(np.median([f.grey.shape[0] * f.grey.shape[1] for f in frames]))
+        min_area_px = int(round(MIN_REPORT_AREA_PX * max(1.0, px / REFERENCE_FRAME_PX)))
     t0 = time.perf_counter()
     seg = segment(frames, method) if any(f.mask is None for f in frames) else list(frames)
     t1 = time.perf_counter()
     pl = plane if plane is not None else plane_from_frames([f.meta for f in frames])
     mos = build_mosaic(seg, pl, m_per_px)
     t2 = time.perf_counter()
+    _, labels, stats, _ = cv2.connectedComponentsWithStats((mos.mask > 0).astype(np.uint8), connectivity=8,
+                                                          ltype=cv2.CV_32S)
+    label_of = {tuple(int(v) for v in st[:4]): i for i, st in enumerate(stats) if i > 0}
     rows = []
-    for k, (bbox, ctr, m) in enumerate(measure_mask(mos.mask, mos.m_per_px, min_area_px, mos.image), start=1):
+    for bbox, ctr, m in measure_mask(mos.mask, mos.m_per_px, min_area_px, mos.image):
         uv = mos.pixel_to_uv(np.array(ctr))
         enu = pl.to_world(uv)
         lla = None
         if origin is not None:
             lla = tuple(float(x) for x in enu_to_geodetic(enu, origin))
         d = m.as_dict()
+        x, y, w, h = bbox
+        sub = labels[y:y + h, x:x + w] == label_of.get(bbox, -1)
+        geo: dict = {}
+        behind: list[int] = []
+        if sub.any():
+            line = mos.pixel_to_uv(centre_line(sub) + (x, y))
+            ring = mos.pixel_to_uv(outline(sub) + (x, y))
+            geo["centre_line_uv"] = [(round(float(a), 4), round(float(b), 4)) for a, b in line]
+            geo["outline_uv"] = [(round(float(a), 4), round(float(b), 4)) for a, b in ring]
+            if origin is not None:
+                for key, pts in (("centre_line_lla", line), ("outline_lla", ring)):
+                    geo[key] = [(round(float(a), 9), round(float(b), 9), round(float(c), 3))
+                                for a, b, c in enu_to_geodetic(pl.to_world(pts), origin)]
+            own = mos.owner[y:y + h, x:x + w][sub]
+            own = own[own >= 0]
+            if own.size:
+                share = np.bincount(own)
+                meta = frames[int(share.argmax())].meta
+                geo.update(uav=meta.uav, capture_id=meta.capture_id, t=meta.t, stamp=meta.stamp)
+                behind = [int(i) for i in np.argsort(-share, kind="stable") if share[i] > 0]
+        seers = [i for i, f in enumerate(frames) if sees(f.meta, enu)]
+        geo["seen_by"] = [frame_name(frames[i].meta) for i in dict.fromkeys([*behind, *seers])]
         rows.append(InspectionDefect(
-            id=k, u_m=float(uv[0]), v_m=float(uv[1]), enu=tuple(float(x) for x in enu), lla=lla,
+            id=0, u_m=float(uv[0]), v_m=float(uv[1]), enu=tuple(float(x) for x in enu), lla=lla,
             length_m=float(d["length_m"]), width_max_mm=float(d["width_max_mm"]),
             width_mean_mm=float(d["width_mean_mm"]), area_m2=float(d["area_m2"]), severity=str(d["severity"]),
-            resolved=bool(d["resolved"]), bbox_px=bbox,
+            resolved=bool(d["resolved"]), bbox_px=bbox, **geo,
         ))
+    rows.sort(key=lambda r: (severity_rank(r.severity), -r.length_m))
+    for k, r in enumerate(rows, start=1):
+        r.id = k
     t3 = time.perf_counter()
     return Deliverable(mosaic=mos, defects=rows, frames=len(frames),
+                       origin=None if origin is None else (float(origin[0]), float(origin[1]), float(origin[2])),
                        seconds={"segment": t1 - t0, "mosaic": t2 - t1, "measure": t3 - t2, "total": t3 - t0})
 
 
@@ -150,61 +241,140 @@ def crop(mos: Mosaic, d: InspectionDefect, margin: int = CROP_MARGIN_PX) -> np.n
     return np.hstack([cv2.cvtColor(g, cv2.COLOR_GRAY2BGR), bgr])
 
 
+def _when(d: InspectionDefect) -> str:
+    if d.uav is None:
+        return "-"
+    t = f", t {d.t:.1f} s" if d.t is not None else ""
+    utc = (", " + time.strftime("%H:%M:%S", time.gmtime(d.stamp)) + " UTC") if d.stamp else ""
+    return f"UAV {d.uav}, capture {d.capture_id}{t}{utc}"
+
+
+def width_text(d: InspectionDefect) -> str:
+    """The widths as the table shows them: a crack narrower than one pixel is flagged, not measured."""
+    if not d.resolved:
+        return f"below 1 px (< {d.width_max_mm:.1f})"
+    nd = 0 if d.width_max_mm >= 10 else 1 if d.width_max_mm >= 1 else 2
+    return f"{d.width_max_mm:.{nd}f} / {d.width_mean_mm:.{nd}f}"
+
+
 def markdown_table(defects: Sequence[InspectionDefect], crops: bool = True, limit: int | None = None) -> str:
-    head = "| id | u, v (m) | lat, lon | length (m) | width max / mean (mm) | class | crop |\n|---|---|---|---|---|---|---|"
+    """The defect table, in the order given (:data:`SORT_KEY` from :func:`inspect_frames`)."""
+    head = ("| id | class | length (m) | width max / mean (mm) | u, v (m) | lat, lon (deg), alt (m) | seen in | crop |\n"
+            "|---|---|---|---|---|---|---|---|")
     lines = [head]
     for d in defects[:limit]:
-        ll = f"{d.lla[0]:.7f}, {d.lla[1]:.7f}" if d.lla else "-"
+        ll = f"{d.lla[0]:.7f}, {d.lla[1]:.7f}, {d.lla[2]:.2f}" if d.lla else "-"
         c = f"![{d.id}]({d.crop})" if crops and d.crop else "-"
         cls = md_text(d.severity if d.resolved else f"{d.severity} (below 1 px)")
-        lines.append(f"| {d.id} | {d.u_m:.2f}, {d.v_m:.2f} | {ll} | {d.length_m:.2f} | "
-                     f"{d.width_max_mm:.0f} / {d.width_mean_mm:.0f} | {cls} | {c} |")
+        lines.append(f"| {d.id} | {cls} | {d.length_m:.2f} | {width_text(d)} | {d.u_m:.2f}, {d.v_m:.2f} | {ll} | "
+                     f"{md_text(_when(d))} | {c} |")
     return "\n".join(lines)
 
 
+_GEO_EXCLUDE = {"lla", "bbox_px", "centre_line_uv", "outline_uv", "centre_line_lla", "outline_lla"}
+
+
+def _lonlatalt(pts: Sequence[Sequence[float]]) -> list[list[float]]:
+    return [[p[1], p[0], p[2]] for p in pts]
+
+
 def geojson(defects: Sequence[InspectionDefect]) -> dict:
-    """RFC 7946 FeatureCollection: one Point (lon, lat, alt) per defect with a position."""
+    """RFC 7946 FeatureCollection: per defect with a position, its centre line (LineString) and its
+    outline (Polygon, exterior ring counter-clockwise seen from the front of the surface) as two
+    Features with the same properties (``geometry`` says which), coordinates (lon, lat, alt) with the
+    altitude above the WGS-84 ellipsoid as the scenario's origin gives it. A defect without a traced
+    shape is a Point at its centroid."""
     feats = []
     for d in defects:
         if d.lla is None:
             continue
-        props = d.model_dump(exclude={"lla", "bbox_px"})
-        feats.append({"type": "Feature", "id": d.id,
-                      "geometry": {"type": "Point", "coordinates": [d.lla[1], d.lla[0], d.lla[2]]},
-                      "properties": props})
+        props = d.model_dump(exclude=_GEO_EXCLUDE)
+        geoms = []
+        if len(d.centre_line_lla) >= 2:
+            geoms.append(("centre line", {"type": "LineString", "coordinates": _lonlatalt(d.centre_line_lla)}))
+        if len(d.outline_lla) >= 4:
+            geoms.append(("outline", {"type": "Polygon", "coordinates": [_lonlatalt(d.outline_lla)]}))
+        if not geoms:
+            geoms.append(("centroid", {"type": "Point", "coordinates": [d.lla[1], d.lla[0], d.lla[2]]}))
+        for role, g in geoms:
+            feats.append({"type": "Feature", "id": f"{d.id}-{role.replace(' ', '-')}", "geometry": g,
+                          "properties": {**props, "geometry": role}})
     return {"type": "FeatureCollection", "features": feats}
 
 
+def _kml_coords(pts: Sequence[Sequence[float]]) -> str:
+    return " ".join(f"{p[1]:.9f},{p[0]:.9f},{p[2]:.3f}" for p in pts)
+
+
 def kml(defects: Sequence[InspectionDefect], name: str = "SkyNet Inspect defects") -> str:
-    """OGC KML 2.2 document: one Placemark per defect with a position (absolute altitude)."""
+    """OGC KML 2.2 document: one Placemark per defect with a position, a MultiGeometry of its centroid
+    (Point), centre line (LineString) and outline (Polygon), absolute altitudes; its sizes, class and
+    capture in the description and as ExtendedData."""
     marks = []
     for d in defects:
         if d.lla is None:
             continue
-        desc = (f"length {d.length_m:.2f} m, width max {d.width_max_mm:.0f} mm, mean {d.width_mean_mm:.0f} mm, "
-                f"class {d.severity}")
+        desc = (f"length {d.length_m:.2f} m, width max {d.width_max_mm:.1f} mm, mean {d.width_mean_mm:.1f} mm, "
+                f"class {d.severity}" + ("" if d.resolved else " (below 1 px)")
+                + (f"; {_when(d)}" if d.uav is not None else ""))
+        geo = [f"<Point><altitudeMode>absolute</altitudeMode><coordinates>{_kml_coords([d.lla])}</coordinates></Point>"]
+        if len(d.centre_line_lla) >= 2:
+            geo.append(f"<LineString><altitudeMode>absolute</altitudeMode><coordinates>"
+                       f"{_kml_coords(d.centre_line_lla)}</coordinates></LineString>")
+        if len(d.outline_lla) >= 4:
+            geo.append("<Polygon><altitudeMode>absolute</altitudeMode><outerBoundaryIs><LinearRing><coordinates>"
+                       f"{_kml_coords(d.outline_lla)}</coordinates></LinearRing></outerBoundaryIs></Polygon>")
+        data = {"length_m": f"{d.length_m:.3f}", "width_max_mm": f"{d.width_max_mm:.2f}",
+                "width_mean_mm": f"{d.width_mean_mm:.2f}", "severity": d.severity, "resolved": str(d.resolved).lower(),
+                "uav": "" if d.uav is None else str(d.uav), "capture_id": "" if d.capture_id is None else str(d.capture_id),
+                "t": "" if d.t is None else f"{d.t:.2f}", "crop": d.crop}
+        ext = "".join(f'<Data name="{k}"><value>{xml_text(v)}</value></Data>' for k, v in data.items())
         marks.append(f"<Placemark><name>defect {d.id}</name><description>{xml_text(desc)}</description>"
-                     f"<Point><altitudeMode>absolute</altitudeMode><coordinates>{d.lla[1]:.9f},{d.lla[0]:.9f},"
-                     f"{d.lla[2]:.3f}</coordinates></Point></Placemark>")
+                     f"<ExtendedData>{ext}</ExtendedData><MultiGeometry>{''.join(geo)}</MultiGeometry></Placemark>")
     return ('<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2"><Document>'
             f"<name>{xml_text(name)}</name>" + "".join(marks) + "</Document></kml>\n")
 
 
-def write_deliverable(res: Deliverable, out: str | Path) -> list[str]:
-    """Write the files of step 4 into ``out``; returns their names (relative to ``out``)."""
+def resolution_note(m_per_px: float) -> dict[str, Any]:
+    """What the mosaic's scale can size: a width below one pixel's footprint is flagged, not measured;
+    the AASHTO classes (:data:`services.detector.measure.SEVERITY_LIMITS_M`) it can tell apart."""
+    px_mm = 1e3 * m_per_px
+    limits = [(name, hi * 1e3) for name, hi in SEVERITY_LIMITS_M]
+    told = [name for name, hi in limits if hi > px_mm] + ["wide"]
+    return {"pixel_mm": px_mm, "smallest_width_mm": px_mm, "classes_resolved": told,
+            "classes_unresolved": [name for name, hi in limits if hi <= px_mm]}
+
+
+def write_deliverable(res: Deliverable, out: str | Path, title: str = "", origin: Sequence[float] | None = None
+                      ) -> list[str]:
+    """Write the files of step 4 into ``out``; returns their names (relative to ``out``).
+
+    Besides the table, GeoJSON and KML: ``mosaic.png`` (full resolution, defects outlined and
+    numbered), ``overview.png`` (gridded panels, scale bar, axes: :func:`views.overview_figure`) and
+    ``tiles/`` (the zoomable pyramid, :func:`views.write_tiles`).
+    """
+    from .views import orientation, orientation_text, overview_figure, write_tiles
+
     o = Path(out)
     (o / "crops").mkdir(parents=True, exist_ok=True)
-    files = ["mosaic.png", "defects.json", "defects.md", "defects.geojson", "defects.kml"]
+    files = ["mosaic.png", "overview.png", "defects.json", "defects.md", "defects.geojson", "defects.kml"]
     for d in res.defects:
         d.crop = f"crops/defect-{d.id}.png"
         cv2.imwrite(str(o / d.crop), crop(res.mosaic, d))
-    cv2.imwrite(str(o / "mosaic.png"), annotated(res.mosaic, res.defects))
+        files.append(d.crop)
+    ann = annotated(res.mosaic, res.defects)
+    cv2.imwrite(str(o / "mosaic.png"), ann)
+    orient = orientation(res.mosaic.plane, origin if origin is not None else res.origin)
+    overview_figure(ann, res.mosaic, [(d.id, d.u_m, d.v_m) for d in res.defects], o / "overview.png",
+                    title=title or orientation_text(orient))
+    tiles = write_tiles(ann, o / "tiles")
     summary = {"frames": res.frames, "frames_used": res.mosaic.frames_used, "m_per_px": res.mosaic.m_per_px,
                "mosaic_px": list(res.mosaic.image.shape[::-1]), "coverage": res.mosaic.coverage,
-               "seconds": res.seconds, "skipped": res.mosaic.skipped,
+               "seconds": res.seconds, "skipped": res.mosaic.skipped, "sort_key": SORT_KEY,
+               "orientation": orient, "resolution": resolution_note(res.mosaic.m_per_px), "tiles": tiles,
                "defects": [d.model_dump() for d in res.defects]}
     (o / "defects.json").write_text(json.dumps(summary, indent=1))
-    (o / "defects.md").write_text(markdown_table(res.defects) + "\n")
+    (o / "defects.md").write_text(f"Sorted by {SORT_KEY}.\n\n" + markdown_table(res.defects) + "\n")
     (o / "defects.geojson").write_text(json.dumps(geojson(res.defects), indent=1))
     (o / "defects.kml").write_text(kml(res.defects))
     res.files = files
@@ -291,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}")
         return 2
-    write_deliverable(res, a.out)
+    write_deliverable(res, a.out, origin=origin)
     print(f"{len(res.defects)} defects on a {res.mosaic.image.shape[1]}x{res.mosaic.image.shape[0]} px mosaic "
           f"({res.mosaic.m_per_px * 1e3:.1f} mm/px, coverage {res.mosaic.coverage:.0%}) in {res.seconds['total']:.2f} s: {a.out}")
     return 0

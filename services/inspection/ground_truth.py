@@ -20,3 +20,10 @@ def attach_ground_truth(record: MissionRecord) -> None:
         GroundTruthDefect(id=d.id, pos=d.centroid_world, uv=d.centroid_uv, bbox_uv=d.bbox_uv, area_m2=d.area_m2)
         for d in surface.defects()
     ]
+
+
+def truth_surface(record: MissionRecord):
+    """The simulated wall the edges rendered (its texture and crack mask), or None without a simulated one."""
+    if record.scenario is None or record.scenario.surface is None or not record.ground_truth:
+        return None
+    return synthetic_surface(record.scenario)

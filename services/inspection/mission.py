@@ -1,28 +1,44 @@
-"""The inspection deliverable of a mission: built from the captures the detector kept.
+"""The inspection deliverable of a mission: built from the captures the detector kept, told first.
 
 The captures come from the mission's log (``mission.mcap``: every capture frame, with its pose, as it
 reached the ground station over the bus, wherever the detector runs) or from a folder of posed photos (the
-format of :mod:`services.inspection.deliverable`). :func:`append_deliverable` turns them into ``<report>/inspection/`` (mosaic, defect table, crops,
-GeoJSON, KML) on the scenario's surface and geodetic origin, and adds a section to ``report.md``.
-A mission without saved captures gets no section; a deliverable that cannot be built says why in it.
+format of :mod:`services.inspection.deliverable`). :func:`append_deliverable` turns them into
+``<report>/inspection/`` (mosaic, overview, zoomable tiles, defect table, crops, GeoJSON, KML) on the
+scenario's surface and geodetic origin, puts the findings at the top of ``report.md`` (right after the
+outcome: defects by severity class, the worst cracks with their crops and the captures behind them,
+coverage, what the flown ground sampling distance can size, the measurements against the ground truth when
+the wall is simulated, then the table; the mission's own figures follow) and writes ``report.html``
+(:mod:`services.inspection.html`), the page an inspector sends on. A mission without saved captures gets
+no section; a deliverable that cannot be built says why in it.
 """
 
 from __future__ import annotations
 
+import json
+import logging
 from pathlib import Path
+from typing import Any
 
 from protocol.textsafe import md_text
 from services.recording.record import MissionRecord
 
-from .deliverable import frames_from_log, inspect_frames, load_folder, markdown_table, write_deliverable
+from .deliverable import (SEVERITY_ORDER, SORT_KEY, Deliverable, InspectionDefect, frames_from_log, inspect_frames,
+                          load_folder, markdown_table, resolution_note, width_text, write_deliverable)
+from services.detector.measure import SEVERITY_LIMITS_M
 from .mosaic import Plane
 
-__all__ = ["append_deliverable", "FOLDER"]
+__all__ = ["append_deliverable", "FOLDER", "HEADING", "findings_markdown", "class_ranges", "deliverable_line"]
+
+log = logging.getLogger(__name__)
 
 #: sub-folder of the report with the deliverable
 FOLDER = "inspection"
+#: the section's heading in report.md
+HEADING = "## Inspection deliverable: findings"
 #: rows of the defect table shown in report.md (all of them are in inspection/defects.md)
 TABLE_ROWS = 60
+#: worst cracks shown with their crops at the top
+WORST = 5
 
 
 def _origin(record: MissionRecord) -> tuple[float, float, float] | None:
@@ -32,52 +48,150 @@ def _origin(record: MissionRecord) -> tuple[float, float, float] | None:
     return o.lat, o.lon, o.alt
 
 
+def class_ranges() -> dict[str, str]:
+    """The width range of each severity class, as text (AASHTO MBEI, reinforced concrete)."""
+    out, lo = {}, 0.0
+    for name, hi in SEVERITY_LIMITS_M:
+        out[name] = f"{lo * 1e3:g}–{hi * 1e3:g} mm" if lo else f"< {hi * 1e3:g} mm"
+        lo = hi
+    out["wide"] = f"> {lo * 1e3:g} mm"
+    return out
+
+
+def _accuracy(record: MissionRecord, defects: list[InspectionDefect], gsd_m: float | None = None):
+    from services.inspection.ground_truth import truth_surface
+
+    from .accuracy import compare, truth_cracks
+
+    surf = truth_surface(record)
+    if surf is None:
+        return None
+    s = 1.0 / surf.px_per_m
+    truth, labels = truth_cracks(surf.mask, s)
+    return compare(defects, truth, labels, s, gsd_m=gsd_m)
+
+
+def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, frames: str = "frames") -> list[str]:
+    """The findings section's lines (see the module docstring); file links relative to the report."""
+    from .accuracy import markdown_accuracy
+
+    m = res.mosaic
+    by_class = {c: [d for d in res.defects if d.severity == c] for c in SEVERITY_ORDER}
+    ranges = class_ranges()
+    note = resolution_note(m.m_per_px)
+    lines = [HEADING, "",
+             f"**{len(res.defects)} defects (" + ", ".join(f"{len(by_class[c])} {c}" for c in SEVERITY_ORDER)
+             + f")** found on the inspected surface. Coverage of the surface: {m.coverage:.0%} (by {m.frames_used} of {res.frames} captures, "
+             f"mosaic {m.image.shape[1]} x {m.image.shape[0]} px at {m.m_per_px * 1e3:.2f} mm/px). "
+             f"At this ground sampling distance a crack narrower than {note['smallest_width_mm']:.2f} mm (one pixel) "
+             "is flagged, not measured; the classes told apart by width: "
+             + ", ".join(note["classes_resolved"])
+             + (f" (not: {', '.join(note['classes_unresolved'])}, narrower than one pixel)"
+                if note["classes_unresolved"] else "") + ".", "",
+             md_text(orientation_text_of(res)), "",
+             "| class (AASHTO, max width) | defects | longest (m) | widest (mm) |", "|---|---|---|---|"]
+    for c in SEVERITY_ORDER:
+        ds = by_class[c]
+        lines.append(f"| {c} ({ranges[c]}) | {len(ds)} | {max((d.length_m for d in ds), default=0):.2f} | "
+                     f"{max((d.width_max_mm for d in ds), default=0):.1f} |")
+    lines.append("")
+    worst = res.defects[:WORST]
+    if worst:
+        lines += [f"### The worst {len(worst)} cracks", ""]
+        for d in worst:
+            seen = ", ".join(f"[{n}]({frames}/{n}.jpg)" for n in d.seen_by) or "–"
+            lines += [f"**{d.id}.** {md_text(d.severity)}, {d.length_m:.2f} m long, width max / mean "
+                      f"{width_text(d)} mm, at u = {d.u_m:.2f} m, v = {d.v_m:.2f} m"
+                      + (f" ({d.lla[0]:.7f}, {d.lla[1]:.7f}, {d.lla[2]:.1f} m)" if d.lla else "")
+                      + f"; captures: {seen}.", "", f"![defect {d.id}]({prefix}/{d.crop})", ""]
+    if acc is not None:
+        lines += ["### Measurements against the ground truth", "", markdown_accuracy(acc), ""]
+    lines += ["### The wall", "",
+              f"![overview of the wall: 1 m grid, scale bar, u/v axes, defects numbered]({prefix}/overview.png)", "",
+              f"Full resolution: `{prefix}/mosaic.png`; zoomable in `report.html`.",
+              "", f"### Defect table (sorted by {SORT_KEY})", ""]
+    rows = [d.model_copy(update={"crop": f"{prefix}/{d.crop}" if d.crop else ""}) for d in res.defects[:TABLE_ROWS]]
+    lines.append(markdown_table(rows))
+    if len(res.defects) > TABLE_ROWS:
+        lines.append(f"\n({len(res.defects) - TABLE_ROWS} more in `{prefix}/defects.md`.)")
+    lines += ["", f"Geometry for a GIS: `{prefix}/defects.geojson` (RFC 7946: each crack's centre line and outline, "
+              f"lon, lat, altitude), `{prefix}/defects.kml` (Google Earth, absolute altitudes), `{prefix}/defects.json`. "
+              f"Segmentation {res.seconds.get('segment', 0):.2f} s, mosaic {res.seconds.get('mosaic', 0):.2f} s, "
+              f"measurement {res.seconds.get('measure', 0):.2f} s; a crack seen by overlapping frames is one defect "
+              "here. The mission's own figures follow.", ""]
+    return lines
+
+
+def orientation_text_of(res: Deliverable) -> str:
+    from .views import orientation, orientation_text
+
+    return orientation_text(orientation(res.mosaic.plane, res.origin))
+
+
+def _insert_first(report_md: Path, lines: list[str]) -> None:
+    """Put ``lines`` right after the report's outcome (before its first ``## `` section)."""
+    text = report_md.read_text() if report_md.exists() else ""
+    block = "\n".join(lines) + "\n"
+    at = text.find("\n## ")
+    if at < 0:
+        report_md.write_text(text + ("\n" if text and not text.endswith("\n") else "") + "\n" + block)
+    else:
+        report_md.write_text(text[:at + 1] + block + "\n" + text[at + 1:])
+
+
 def append_deliverable(record: MissionRecord, folder: str | Path, files: list[str] | None = None,
                        frames: str | Path | None = None) -> list[str]:
     """Build the deliverable from ``frames`` (a mission log, or a folder of posed photos; default
-    ``folder/frames``; if any) and append its section to ``folder/report.md``; the files written (relative to
-    ``folder``) are added to ``files``."""
+    ``folder/frames``; if any), put its findings first in ``folder/report.md`` and write
+    ``folder/report.html``; the files written (relative to ``folder``) are added to ``files``."""
     out = Path(folder)
     source = Path(frames) if frames is not None else out / "frames"
     if not (source.is_dir() or source.is_file()):
         return []
-    lines = ["", "## Inspection deliverable", ""]
     try:
-        frames = frames_from_log(source) if source.is_file() else load_folder(source)[0]
-        if not frames:
+        posed = frames_from_log(source) if source.is_file() else load_folder(source)[0]
+        if not posed:
             raise ValueError(f"no captures in {source.name}")
         plane = Plane.from_corners(record.surface_corners) if len(record.surface_corners) == 4 else None
-        res = inspect_frames(frames, plane, _origin(record))
-        written = [f"{FOLDER}/{f}" for f in write_deliverable(res, out / FOLDER)]
+        origin = _origin(record)
+        res = inspect_frames(posed, plane, origin)
+        written = [f"{FOLDER}/{f}" for f in write_deliverable(res, out / FOLDER, origin=origin)]
     except ValueError as exc:
-        lines.append(f"Not built: {md_text(exc)}.")
-        with open(out / "report.md", "a") as fh:
-            fh.write("\n".join(lines) + "\n")
+        _insert_first(out / "report.md", [HEADING, "", f"Not built: {md_text(exc)}.", ""])
         return []
-    m = res.mosaic
-    by_class: dict[str, int] = {}
-    for d in res.defects:
-        by_class[d.severity] = by_class.get(d.severity, 0) + 1
-    lines += [
-        f"{res.frames} captures mosaicked on the surface plane from their poses ({m.frames_used} used, "
-        f"{m.image.shape[1]} x {m.image.shape[0]} px at {m.m_per_px * 1e3:.1f} mm/px, coverage {m.coverage:.0%}) "
-        f"in {res.seconds['mosaic']:.2f} s; segmentation {res.seconds['segment']:.2f} s, measurement "
-        f"{res.seconds['measure']:.2f} s. {len(res.defects)} defects ("
-        + ", ".join(f"{n} {c}" for c, n in sorted(by_class.items())) + "); a crack seen by overlapping "
-        "frames is one defect here. Widths below one pixel's footprint cannot be told apart. Files: "
-        f"`{FOLDER}/defects.geojson`, `{FOLDER}/defects.kml`, `{FOLDER}/defects.json`.",
-        "",
-        f"![mosaic]({FOLDER}/mosaic.png)",
-        "",
-    ]
-    rows = res.defects[:TABLE_ROWS]
-    for d in rows:
-        d.crop = f"{FOLDER}/{d.crop}" if d.crop else ""
-    lines.append(markdown_table(rows))
-    if len(res.defects) > TABLE_ROWS:
-        lines.append(f"\n({len(res.defects) - TABLE_ROWS} more in `{FOLDER}/defects.md`.)")
-    with open(out / "report.md", "a") as fh:
-        fh.write("\n".join(lines) + "\n")
+    acc = None
+    try:
+        acc = _accuracy(record, res.defects, res.mosaic.m_per_px)
+    except ValueError as exc:  # a scenario without a simulated wall
+        log.warning("no ground truth to measure against: %s", exc)
+    if acc is not None:
+        (out / FOLDER / "accuracy.json").write_text(json.dumps(acc.to_dict(), indent=1))
+        written.append(f"{FOLDER}/accuracy.json")
+    rel_frames = source.name if source.parent.resolve() == out.resolve() else str(source)
+    _insert_first(out / "report.md", findings_markdown(res, acc, FOLDER, rel_frames))
+    from .html import write_html
+
+    figures = [f for f in (files or []) if f.endswith(".png") and "/" not in f]
+    write_html(out / "report.html", res, acc, FOLDER, rel_frames, figures, record)
+    written.append("report.html")
     if files is not None:
         files.extend(written)
     return written
+
+
+def deliverable_line(folder: str | Path) -> str | None:
+    """The terminal's last line after a mission: the defect count and the deliverable's path (None
+    when the report has no deliverable)."""
+    out = Path(folder)
+    doc_path = out / FOLDER / "defects.json"
+    if not doc_path.is_file():
+        return None
+    try:
+        doc = json.loads(doc_path.read_text())
+        ds = doc["defects"]
+        counts = {c: sum(1 for d in ds if d.get("severity") == c) for c in SEVERITY_ORDER}
+    except (ValueError, KeyError, TypeError):
+        return None
+    page = out / "report.html"
+    return (f"{len(ds)} defects (" + ", ".join(f"{n} {c}" for c, n in counts.items()) + "): "
+            f"{page if page.is_file() else out / 'report.md'}")

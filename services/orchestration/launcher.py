@@ -695,4 +695,9 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
         net.stop()
         log_file.close()
     log.info("services' logs: %s", out / "services.log")
+    from services.inspection.mission import deliverable_line
+
+    line = deliverable_line(out)  # the last line: what was found, and where the inspector's report is
+    if line:
+        log.info("inspection: %s", line)
     return code

@@ -52,8 +52,10 @@ def test_sizes_against_the_synthetic_truth(wall, tmp_path):
     for f in files:
         assert (tmp_path / f).exists()
     gj = json.loads((tmp_path / "defects.geojson").read_text())
-    assert gj["type"] == "FeatureCollection" and len(gj["features"]) == len(res.defects)
-    lon, lat, _ = gj["features"][0]["geometry"]["coordinates"]
+    # a centre line and an outline per defect
+    assert gj["type"] == "FeatureCollection" and len(gj["features"]) == 2 * len(res.defects)
+    assert {f["geometry"]["type"] for f in gj["features"]} == {"LineString", "Polygon"}
+    lon, lat, _ = gj["features"][0]["geometry"]["coordinates"][0]
     assert abs(lat - o.lat) < 0.01 and abs(lon - o.lon) < 0.01
     kml = ET.fromstring((tmp_path / "defects.kml").read_text())
     assert len(kml.findall(".//{http://www.opengis.net/kml/2.2}Placemark")) == len(res.defects)
