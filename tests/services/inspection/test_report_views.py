@@ -21,7 +21,8 @@ from protocol.scenario import load_scenario
 from services.recording.record import GroundTruthDefect, MissionRecord
 from services.inspection.accuracy import compare, truth_cracks
 from services.inspection.captures import decode, synthetic_captures
-from services.inspection.deliverable import SEVERITY_ORDER, inspect_frames, save_frame, write_deliverable
+from services.detector.frames import save_frame
+from services.inspection.deliverable import SEVERITY_ORDER, inspect_frames, write_deliverable
 from services.detector.measure import centre_line, outline
 from services.inspection.mission import HEADING, append_deliverable, deliverable_line
 from services.inspection.mosaic import Plane, PosedFrame

@@ -97,7 +97,7 @@ def test_skynet_report_rebuilds_the_same_report_from_the_file_or_its_folder(tmp_
 def test_memory_is_bounded_and_the_log_has_everything(tmp_path):
     """A 10,000-event flood (4 KB each) keeps at most the cap in memory; states are decimated, not cut; the
     log has everything, and read back with the same caps it gives the same bounded record."""
-    from tests.services.gcs.test_record import _event, _record, _state
+    from tests.services.recording.test_record import _event, _record, _state
 
     caps = {"events": 100, "states": 64}
     full = _record()
