@@ -93,9 +93,17 @@ class MissionRun:
 
 def fly_mission(out: Path, *argv: str, timeout: float = 400) -> MissionRun:
     """``skynet mission --quiet --out OUT ARGV...`` in a subprocess (the whole network on loopback)."""
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--quiet", "--out", str(out), *argv],
-                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--quiet", "--out", str(out), *argv],
+                              cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired as exc:  # below pytest's own timeout (pyproject.toml): say what it printed
+        pytest.fail(f"skynet mission {' '.join(argv)} still running after {timeout:.0f} s; it printed:\n"
+                    f"{_text(exc.stdout)[-3000:]}{_text(exc.stderr)[-3000:]}", pytrace=False)
     return MissionRun(proc, out)
+
+
+def _text(data: bytes | str | None) -> str:
+    return data.decode(errors="replace") if isinstance(data, bytes) else (data or "")
 
 
 @pytest.fixture(scope="session")

@@ -322,6 +322,7 @@ def test_folder_source_brings_masks_of_a_data_set(tmp_path) -> None:
     assert f1.mask is None  # no mask for 001
 
 
+@pytest.mark.data
 def test_folder_source_on_crackforest() -> None:
     from pathlib import Path
 

@@ -106,6 +106,7 @@ def tiny_tmpfs(size: str):
         mnt.rmdir()
 
 
+@pytest.mark.root
 def test_a_full_disk_keeps_the_record_up_to_the_failure_and_says_where_the_rest_is():
     """on a full 64 KB tmpfs the mission record used to be lost whole (0-byte files at the end).
     Now the journal holds everything up to the failure, recording goes on in memory, and the error says so."""
@@ -136,6 +137,7 @@ def test_output_folder_check_refuses_a_full_or_read_only_folder(tmp_path):
         check_output_folder(tmp_path / "file" / "sub")
 
 
+@pytest.mark.root
 def test_mission_on_a_full_disk_is_refused_before_anything_starts():
     """``skynet mission --out`` on a 64 KB disk: a one-line error within seconds, no service started."""
     with tiny_tmpfs("64k") as mnt:

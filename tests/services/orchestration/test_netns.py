@@ -29,7 +29,7 @@ from tests.conftest import wait_until
 
 FLEET = "sites"
 OK, WHY = available()
-pytestmark = pytest.mark.skipif(not OK, reason=f"no network namespaces here: {WHY}")
+pytestmark = [pytest.mark.root, pytest.mark.skipif(not OK, reason=f"no network namespaces here: {WHY}")]
 PROXY_PORT = GATEWAY_PORT + 10  # in site 1's namespace: its own port space
 DELAY_MS = 50
 
