@@ -36,27 +36,41 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-
 from protocol import keys
 from protocol.budget import for_topic
 from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
+from protocol.checks import rate_arg
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
-    Box, CommandAck, Event, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
-    Signed, Start, Takeoff, UploadTrajectory, VehicleState, COMMAND_TYPES,
+    COMMAND_TYPES,
+    Box,
+    CommandAck,
+    Event,
+    Heartbeat,
+    Hold,
+    Land,
+    Level,
+    Message,
+    Mode,
+    Resume,
+    ReturnToLaunch,
+    SetFormation,
+    Signed,
+    Start,
+    Takeoff,
+    UploadTrajectory,
+    VehicleState,
 )
 from protocol.signing import TrustError
 
 from . import formation
 from .failsafe import ACTIONS, ESCALATIONS, FailsafeOptions, FailsafePolicy
-from .neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
-from protocol.checks import rate_arg
-
+from .neighbourhood import FORMATION_SIZE
+from .neighbourhood import neighbours as neighbourhood_of
 from .runtime import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, cache_frames, frame_size
 from .trust import Gate, command_id
 from .validate import narrowed_fence, validate_command
 from .vehicle.follower import Follower
-
 
 
 @dataclass

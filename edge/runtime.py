@@ -41,8 +41,8 @@ from protocol.stages import LOG_PREFIX, StageTimes
 
 from .camera import CameraModel, CameraPose, FrameEncoder, SyntheticSource, encode_jpeg, make_source
 from .surface import DEFAULT_PX_PER_M, SyntheticSurface
-from .vehicle.quadrotor import DisturbanceParams
 from .vehicle.driver import CaptureEvent, VehicleDriver
+from .vehicle.quadrotor import DisturbanceParams
 from .vehicle.sim import SimDriver, SimParams
 
 #: frames each camera keeps for retransmission of frames lost on the way

@@ -128,8 +128,8 @@ def secure_setup(args, log=None) -> tuple[Gate, dict | None]:
             log.warning("INSECURE: uav%d obeys unsigned commands and heartbeats from anyone on the bus%s",
                         args.uav, "" if getattr(args, "insecure", False) else " (no --keys given)")
         return Gate(args.fleet, args.uav, None), None
-    from protocol.keyset import KeySet, role_of_cn
     from protocol.acl import cert_access_control
+    from protocol.keyset import KeySet, role_of_cn
 
     ks = KeySet(args.keys, f"uav{args.uav}")
     verifier = ks.verifier(stale_s=args.trust_window, replay_file=getattr(args, "replay_state", None))

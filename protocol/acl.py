@@ -54,8 +54,9 @@ Zenoh matches a message against a rule when the rule's key expression *includes*
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, Iterable, Mapping, NamedTuple
+from typing import Any, NamedTuple
 
 from protocol import keys
 

@@ -25,8 +25,9 @@ import os
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field, SecretStr
@@ -197,7 +198,7 @@ class Counters:
     received: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(lambda: [0, 0]))
     rejected: dict[tuple[str, str], int] = field(default_factory=lambda: collections.defaultdict(int))
     dropped: dict[str, int] = field(default_factory=lambda: collections.defaultdict(int))
-    publishers: list["Publisher"] = field(default_factory=list)
+    publishers: list[Publisher] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def add(self, table: dict, key: str, nbytes: int) -> None:
@@ -261,7 +262,7 @@ class Publisher:
     per-message cost of the bus layer to a couple of attribute updates.
     """
 
-    def __init__(self, bus: "Bus", key: str, link: LinkClass, cache: int | None = None):
+    def __init__(self, bus: Bus, key: str, link: LinkClass, cache: int | None = None):
         self.key = key
         self.link = link
         self.samples = 0
@@ -330,7 +331,7 @@ class Bus:
         self._close_lock = threading.Lock()
 
     # -- context management
-    def __enter__(self) -> "Bus":
+    def __enter__(self) -> Bus:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -40,10 +40,10 @@ import math
 import os
 import threading
 import time
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import msgpack
 from cryptography.exceptions import InvalidSignature
@@ -131,7 +131,7 @@ class Signer:
         self._lock = threading.Lock()
 
     @classmethod
-    def from_file(cls, name: str, path: str | Path) -> "Signer":
+    def from_file(cls, name: str, path: str | Path) -> Signer:
         return cls(name, load_private(path))
 
     def next_seq(self) -> int:

@@ -1084,7 +1084,7 @@ class MavlinkDriver(VehicleDriver):
         except OSError:
             pass
 
-    def __enter__(self) -> "MavlinkDriver":
+    def __enter__(self) -> MavlinkDriver:
         return self
 
     def __exit__(self, *exc: object) -> None:

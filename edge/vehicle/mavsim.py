@@ -92,26 +92,25 @@ from dataclasses import dataclass
 from typing import Any
 
 import pymap3d
+from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.clock import SimClock
+from edge.vehicle.angles import wrap_angle
 from edge.vehicle.apm import items as I
 from edge.vehicle.apm.auto import AutoMission, Flight
-from edge.vehicle.apm.missions import FENCE, MISSION, MissionServer, PlanItem, item_from_message
 from edge.vehicle.apm.boot import BootTimeline
+from edge.vehicle.apm.missions import FENCE, MISSION, MissionServer, PlanItem, item_from_message
 from edge.vehicle.apm.modes import ARMABLE, FENCE_ACTIONS, FS_GCS_ACTIONS, CopterMode, base_mode, check_mode_change
 from edge.vehicle.apm.params import DEFAULT_SCHEME, SCHEMES, ParamTable, flight_sw_version, param_name
 from edge.vehicle.apm.signing import enable_signing, parse_key
 from edge.vehicle.apm.streams import ARDUCOPTER_RATES, DEFAULT_RATES, StreamScheduler
 from edge.vehicle.driver import check_vec3
 from edge.vehicle.follower import Reference
-from edge.vehicle.angles import wrap_angle
 from edge.vehicle.mavlink import open_connection
 from edge.vehicle.quadrotor import DisturbanceParams
 from edge.vehicle.sim import SimDriver, SimParams
 from protocol.messages import Mode
 from protocol.signals import stop_event_on_signals
-
-from pymavlink.dialects.v20 import ardupilotmega as M
 
 __all__ = ["GuidedTarget", "MavlinkSimVehicle", "GUIDED_TIMEOUT_S", "DEFAULT_ORIGIN", "main"]
 
@@ -312,7 +311,7 @@ class MavlinkSimVehicle:
                         round(lat * 1e7), round(lon * 1e7), h)
 
     # ------------------------------------------------------------------ running
-    def start(self) -> "MavlinkSimVehicle":
+    def start(self) -> MavlinkSimVehicle:
         """Run in a daemon thread (stop with :meth:`close`)."""
         if self._thread is None:
             self._thread = threading.Thread(target=self.run, name=f"mavsim-uav{self.uav}", daemon=True)
@@ -337,7 +336,7 @@ class MavlinkSimVehicle:
         except OSError:
             pass
 
-    def __enter__(self) -> "MavlinkSimVehicle":
+    def __enter__(self) -> MavlinkSimVehicle:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -857,7 +856,7 @@ class MavlinkSimVehicle:
             self._text(M.MAV_SEVERITY_CRITICAL, f"Arm: {why}")
             return M.MAV_RESULT_FAILED
         if self.custom_mode not in ARMABLE:
-            self._text(M.MAV_SEVERITY_CRITICAL, f"Arm: Mode not armable")
+            self._text(M.MAV_SEVERITY_CRITICAL, "Arm: Mode not armable")
             return M.MAV_RESULT_FAILED
         self.armed = True
         self._armed_at = self.sim.t

@@ -33,17 +33,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from .grid import (
-    Cell,
-    Run,
-    check_links,
-    expand,
-    impair_spec,
-    mission_command,
-    parse_list,
-    parse_recovery,
-    plan,
-)
+from .grid import Cell, Run, check_links, expand, impair_spec, mission_command, parse_list, parse_recovery, plan
 from .metrics import METRICS, aggregate
 from .runner import RunResult, run_all
 

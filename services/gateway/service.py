@@ -25,15 +25,20 @@ from typing import Any
 
 import zenoh
 
-from protocol import keys
-from protocol.bus import (Bus, BusConfig, add_bus_args, config_from_args, endpoint_address, multilink_endpoints,
-                          setup_logging, stop_event_on_signals)
+from protocol import acl, keys
+from protocol.bus import (
+    Bus,
+    BusConfig,
+    add_bus_args,
+    config_from_args,
+    endpoint_address,
+    multilink_endpoints,
+    setup_logging,
+    stop_event_on_signals,
+)
+from protocol.checks import rate_arg
 from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
 from protocol.messages import ClassCounters, LinkStats
-
-from protocol import acl
-
-from protocol.checks import rate_arg
 
 from . import ingress
 
@@ -142,8 +147,9 @@ def security_options(args: argparse.Namespace, log=None) -> dict[str, Any]:
 def guarded(listen: list[str], log=None) -> tuple[list[str], list[Any]]:
     """Each ``tls/HOST:PORT`` listener moved to a loopback port behind an accept guard on HOST:PORT
     (:mod:`services.gateway.guard`); the listeners zenoh opens instead, and the started guards."""
-    from services.orchestration.process import free_port
     import socket
+
+    from services.orchestration.process import free_port
 
     from .guard import Guard
 

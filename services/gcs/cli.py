@@ -13,13 +13,7 @@ import time
 from pathlib import Path
 
 from edge import formation
-from protocol.bus import (
-    Bus,
-    add_bus_args,
-    config_from_args,
-    setup_logging,
-    stop_event_on_signals,
-)
+from protocol.bus import Bus, add_bus_args, config_from_args, setup_logging, stop_event_on_signals
 from protocol.scenario import Scenario, load_scenario
 
 from .mission import MissionOptions, MissionRunner

@@ -81,9 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out) if args.out else path.parent
     frames = Path(args.frames) if args.frames else path.parent / "frames"
     if path.suffix == ".mcap":  # the MCAP log's mission record (services.recording.rebuild)
-        from services.recording.rebuild import rebuild
-
         from mcap.exceptions import McapError
+
+        from services.recording.rebuild import rebuild
 
         try:
             record = rebuild(path)  # NotAMissionLog (a ValueError): a one-line error (services.cli)

@@ -68,18 +68,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from protocol import keys
-from protocol.bus import (
-    Bus,
-    BusConfig,
-    endpoint_address,
-    multilink_endpoints,
-    setup_logging,
-    stop_event_on_signals,
-)
+from protocol.bus import Bus, BusConfig, endpoint_address, multilink_endpoints, setup_logging, stop_event_on_signals
 
-from .faults import FaultInjector, Resolved, cut_links, plan_faults
-from . import sites as sitemap
 from . import attach, trustmode
+from . import sites as sitemap
+from .faults import FaultInjector, Resolved, cut_links, plan_faults
 from .process import ProcessGroup, free_port, free_port_pair
 from .restart import RestartTracker
 
@@ -87,26 +80,25 @@ from .restart import RestartTracker
 #: start (``FaultRecord.action``; reported apart from injected faults, services.gcs.resilience)
 SUPERVISOR_RESTART = "supervisor-restart"
 START_FAILED = "start-failed"
+from edge.board import niceness
+from edge.neighbourhood import FORMATION_SIZE
+from edge.runtime import CAPTURE_LINKS, frame_size
+from protocol.checks import rate_arg
+
+from ..gateway.ingress import STATE_INGRESS_HZ
+from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET, fleet_load
 from .topology import (
     CLASSES,
-    OPEN_TIMEOUT_MS,
-    open_timeout_ms,
     Impairments,
     Links,
     MeshMode,
     edge_mesh_config,
     link_ends,
     link_seed,
+    open_timeout_ms,
     parse_impair,
     skynet_link,
 )
-
-from edge.neighbourhood import FORMATION_SIZE
-from edge.board import niceness
-from edge.runtime import CAPTURE_LINKS, frame_size
-from protocol.checks import rate_arg
-from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET, fleet_load
-from ..gateway.ingress import STATE_INGRESS_HZ
 
 HOST = "127.0.0.1"
 #: the line each service prints when it is up (waited for after a restart)
@@ -854,10 +846,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan | None = None) -> int:
+    from protocol.scenario import load_scenario
     from services.gcs.cli import run_mission as gcs_mission
     from services.gcs.mission import MissionOptions
-    from protocol.scenario import load_scenario
-
     from services.gcs.record import check_output_folder
 
     # not writable or too little room: refused (RecordingError) before any service starts

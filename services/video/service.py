@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import threading
-import time
 from collections import Counter
 from pathlib import Path
 
@@ -27,7 +26,6 @@ from protocol import binding, keys
 from protocol.bus import Bus, Ring, add_bus_args, setup_logging, stop_event_on_signals
 from protocol.imagery import unpack_image
 from protocol.rtp import ssrc_for
-
 from services.orchestration.attach import add_network_arg
 
 from .sdp import sdp

@@ -26,7 +26,6 @@ from protocol.imagery import unpack_image
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, Event, VehicleState
 from protocol.scenario import Scenario
-
 from services.recording.replay import REPLAY_MARK
 
 from .server import TOKEN_ENV, WebServer, parse_listen
@@ -171,7 +170,6 @@ def main(argv: list[str] | None = None) -> int:
     log = setup_logging("web")
     stop = stop_event_on_signals()
     from protocol.scenario import load_scenario
-
     from services.orchestration.attach import open_bus
 
     with open_bus(args, "web", argv) as bus:

@@ -10,13 +10,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edge.formation import (
-    neighbour_correction,
     DEFAULT_OFFSETS,
     centroid_of,
     errors_in_formation,
     errors_to_inertial,
     formation_error,
     headings,
+    neighbour_correction,
     rotation_of,
     uav_positions,
 )

@@ -2,9 +2,11 @@ import math
 
 import msgpack
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from protocol import codec, messages as m
+from protocol import codec
+from protocol import messages as m
 
 
 def _state(**kw):

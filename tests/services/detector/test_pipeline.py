@@ -20,7 +20,6 @@ from services.detector.pipeline import DETECT_MAX_MP, analyse, detection_scale
 from services.inspection.captures import capture_meta
 from services.inspection.measure import frame_scale, measure_mask
 
-
 F, RANGE = 800.0, 4.0  # focal length (px), range (m): 5 mm per pixel
 
 

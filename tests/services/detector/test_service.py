@@ -6,13 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
+from edge.surface import crack_image
 from protocol import binding, keys
 from protocol.bus import Bus, BusConfig
 from protocol.imagery import pack_image
 from protocol.links import IMAGERY, IMAGERY_RELIABLE
 from protocol.messages import DefectReport, ImageMeta, Intrinsics, LinkStats
 from protocol.rtp import RtpSender, ssrc_for
-from edge.surface import crack_image
 from tests.conftest import wait_until
 
 FLEET = "test"

@@ -9,8 +9,8 @@ import stat
 import pytest
 import zenoh
 
-from protocol.bus import PASSWORD_ENV, BusConfig, add_bus_args, config_from_args
 from protocol import acl
+from protocol.bus import PASSWORD_ENV, BusConfig, add_bus_args, config_from_args
 from services.gateway.credentials import generate
 from services.gateway.service import GatewayConfig, build_parser, security_options
 

@@ -10,9 +10,9 @@ import pytest
 
 from protocol import codec, keys
 from protocol.bus import Bus, BusConfig
-from protocol.links import COMMAND, TELEMETRY
-from protocol.messages import Mode, VehicleState
 from protocol.checks import rate_arg
+from protocol.links import COMMAND
+from protocol.messages import Mode, VehicleState
 from services.gateway.ingress import STATE_INGRESS_HZ, UAV_IDS, state_ingress
 from services.orchestration.process import free_port
 from tests.conftest import wait_until

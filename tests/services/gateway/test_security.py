@@ -18,8 +18,19 @@ from protocol import keys
 from protocol.bus import PASSWORD_ENV, Bus, BusConfig, endpoint_address, multilink_endpoints
 from protocol.imagery import pack_image
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
-from protocol.messages import (CommandAck, DefectReport, Heartbeat, Hold, ImageMeta, Intrinsics, LinkStats,
-                               MissionPlan, Mode, PlanRequest, VehicleState)
+from protocol.messages import (
+    CommandAck,
+    DefectReport,
+    Heartbeat,
+    Hold,
+    ImageMeta,
+    Intrinsics,
+    LinkStats,
+    MissionPlan,
+    Mode,
+    PlanRequest,
+    VehicleState,
+)
 from protocol.rtp import RtpSender, ssrc_for
 from services.gateway.credentials import generate
 from services.orchestration.process import ProcessGroup, free_port_pair

@@ -12,14 +12,7 @@ from __future__ import annotations
 import pytest
 
 from protocol.messages import Event, Level, Mode, VehicleState
-from services.gcs.record import (
-    CommandRecord,
-    EventRx,
-    FaultRecord,
-    Incident,
-    MissionRecord,
-    StateRx,
-)
+from services.gcs.record import CommandRecord, EventRx, FaultRecord, Incident, MissionRecord, StateRx
 from services.gcs.report import summarise, write_report
 from services.gcs.resilience import fault_figures, reception_gaps
 

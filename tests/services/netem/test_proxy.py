@@ -14,13 +14,7 @@ import pytest
 
 from services.netem.model import Impairer
 from services.netem.proxy import TcpProxy, UdpProxy, parse_address
-from tests.services.netem.sockets import (
-    eventually,
-    netem_threads,
-    rtt_ms,
-    send_paced,
-    udp_client,
-)
+from tests.services.netem.sockets import eventually, netem_threads, rtt_ms, send_paced, udp_client
 
 
 # ------------------------------------------------------------------------------ construction

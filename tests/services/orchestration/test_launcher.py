@@ -82,8 +82,8 @@ def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
 
 def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
     from protocol import keys
-    from protocol.keyset import KeySet
     from protocol.bus import Bus, BusConfig
+    from protocol.keyset import KeySet
     from protocol.links import TELEMETRY
     from protocol.messages import VehicleState
 

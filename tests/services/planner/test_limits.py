@@ -1,18 +1,9 @@
 """services.planner.limits: work checked before planning, a time budget while planning."""
 
-import time
 
 import pytest
 
-from services.planner.limits import (
-    MAX_CELLS,
-    MAX_WORK,
-    Deadline,
-    TimeBudgetExceeded,
-    TooLarge,
-    check_budget,
-    work_of,
-)
+from services.planner.limits import MAX_CELLS, MAX_WORK, Deadline, TimeBudgetExceeded, TooLarge, check_budget, work_of
 from services.planner.mission import plan_mission
 from services.planner.scenario import load_scenario
 

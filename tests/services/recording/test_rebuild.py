@@ -12,10 +12,10 @@ import pytest
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.messages import CommandAck, DefectReport, MissionPlan, VehicleState
+from protocol.signing import unverified_inner
 from services.gcs.record import DefectRx, StateRx
 from services.gcs.report import summarise
 from services.recording.mcap_log import bus_bytes, read
-from protocol.signing import unverified_inner
 from services.recording.rebuild import rebuild, summary_of, with_lists
 from tests.conftest import wait_until
 

@@ -9,12 +9,12 @@ import time
 
 from edge.runtime import synthetic_surface
 from protocol.scenario import load_scenario
+from services.detector.detect import detect
+from services.detector.pipeline import MIN_REPORT_AREA_PX
 from services.gcs.record import MissionRecord
 from services.inspection.captures import decode, synthetic_captures
 from services.inspection.deliverable import save_frame
 from services.inspection.mission import append_deliverable
-from services.detector.detect import detect
-from services.detector.pipeline import MIN_REPORT_AREA_PX
 from services.web.tally import DefectTally, captures_in, count_defects
 from services.web.view import FleetView
 from tests.conftest import wait_until
