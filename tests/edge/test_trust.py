@@ -176,8 +176,7 @@ def test_every_attack_of_the_issue_fails(secure_fleet, keyset, tmp_path, group):
     restarted = group.start("uav1-again", [*edge.args, "--trust-window", "600"])
     assert restarted.wait_for("board up", 30), "\n".join(restarted.lines)
     with Bus(tls(gcs_ks, "client", gw), FLEET, "gcs2") as gcs:
-        r = None
-        assert wait_until(lambda: (r := gcs.request(cmd1, good, expect=CommandAck, timeout=1.0)).ok, 30)
+        assert wait_until(lambda: (gcs.request(cmd1, good, expect=CommandAck, timeout=1.0)).ok, 30)
         r = gcs.request(cmd1, good, expect=CommandAck)
         assert r.ok and not r.message.accepted and "replayed" in r.message.reason, r
 

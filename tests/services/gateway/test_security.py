@@ -34,10 +34,10 @@ from protocol.messages import (
 from protocol.rtp import RtpSender, ssrc_for
 from services.gateway.credentials import generate
 from services.orchestration.process import ProcessGroup, free_port_pair
+from tests.conftest import wait_until as _wait
 
 FLEET = "sec"
 USERS = ["uav1", "uav2", "uav3", "gcs", "planner", "detector", "visitor"]
-from tests.conftest import wait_until as _wait
 
 
 @pytest.fixture(scope="module")

@@ -323,16 +323,6 @@ def test_latency_and_convergence_helpers():
         convergence_iteration([1.0, math.nan])
 
 
-def test_docstring_examples():
-    import doctest
-
-    import services.gcs.figures
-    import services.gcs.report
-
-    results = [doctest.testmod(m) for m in (services.gcs.report, services.gcs.figures)]  # the examples moved there
-    assert sum(r.attempted for r in results) > 0 and not any(r.failed for r in results)
-
-
 def test_edges_with_their_own_epochs_give_the_same_figures():
     """under docker compose each edge's sim clock starts at its own container start. The
     same flight with UAV 2's clock 1.25 s and UAV 3's 0.6 s of sim time ahead (same wall stamps) must
