@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import textwrap
@@ -21,14 +22,35 @@ SHARED = ROOT.parent / "shared"
 DEV_KEYS_UAVS = 6
 
 
+#: fixtures that start processes or Zenoh sessions: a test using one is in the integration layer (``network``)
+NETWORK_FIXTURES = frozenset({"group", "gateway", "nominal_mission"})
+#: what a test module's source says when it starts processes or opens Zenoh sessions
+NETWORK_WORDS = re.compile(r"\b(subprocess|Popen|ProcessGroup|run_node|spawn_node|fly_mission|zenoh\.open|Bus\()")
+
+
+def _starts_processes(path: Path, cache: dict[Path, bool]) -> bool:
+    if path not in cache:
+        cache[path] = path.suffix == ".py" and path.name.startswith("test_") and bool(
+            NETWORK_WORDS.search(path.read_text(errors="replace")))
+    return cache[path]
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
 def pytest_collection_modifyitems(config, items):
     """Whole missions (marker ``mission``) share one pytest-xdist group: under ``--dist loadgroup`` they run
     one after another on one worker while the other worker takes the rest of the suite, so no two missions
-    compete for the two cores (scripts/test.sh). Without xdist the marker changes nothing."""
+    compete for the two cores (scripts/test.sh). Without xdist the marker changes nothing.
+
+    A test that starts processes or Zenoh sessions (a fixture of :data:`NETWORK_FIXTURES`, or a module whose
+    source matches :data:`NETWORK_WORDS`) gets the ``network`` marker, and a mission gets it too: the fast
+    loop (scripts/test-fast.sh) leaves them out."""
+    seen: dict[Path, bool] = {}
     for item in items:
         if item.get_closest_marker("mission"):
             item.add_marker(pytest.mark.xdist_group("mission"))
+            item.add_marker(pytest.mark.network)
+        elif NETWORK_FIXTURES & set(getattr(item, "fixturenames", ())) or _starts_processes(item.path, seen):
+            item.add_marker(pytest.mark.network)
 
 
 
