@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -59,8 +60,6 @@ def dev_keys(tmp_path_factory):
     """The launcher's default development key set for this test session: a folder of its own (``$SKYNET_KEYS``,
     inherited by every process the tests start), never the user's ``.keys/dev``; made once for the largest fleet
     a test flies, so no mission rotates it while another test's network reads it."""
-    import os
-
     from services.orchestration import trustmode
 
     folder = tmp_path_factory.mktemp("dev-keys") / "dev"
@@ -113,11 +112,36 @@ class MissionRun:
         return self.proc.stdout[-3000:] + self.proc.stderr[-3000:]
 
 
-def fly_mission(out: Path, *argv: str, timeout: float = 400) -> MissionRun:
+#: the optional extras' packages (pyproject.toml): the main job (scripts/run.sh) installs none of them
+EXTRA_PACKAGES = frozenset({"pymavlink", "mavsdk", "selenium"})
+
+_BLOCK = """
+import importlib.abc, sys
+
+class _Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] in {blocked!r}:
+            raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
+        return None
+
+sys.meta_path.insert(0, _Block())
+"""
+
+
+def env_without(folder: Path, blocked: frozenset[str] | set[str] = EXTRA_PACKAGES) -> dict[str, str]:
+    """An environment whose Pythons cannot import the ``blocked`` packages (a ``sitecustomize`` in ``folder``
+    that refuses them: the same failure as a venv without the extra), inherited by every process they start."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "sitecustomize.py").write_text(_BLOCK.format(blocked=set(blocked)))
+    path = os.pathsep.join(p for p in (str(folder), str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    return {**os.environ, "PYTHONPATH": path}
+
+
+def fly_mission(out: Path, *argv: str, timeout: float = 400, env: dict[str, str] | None = None) -> MissionRun:
     """``skynet mission --quiet --out OUT ARGV...`` in a subprocess (the whole network on loopback)."""
     try:
         proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--quiet", "--out", str(out), *argv],
-                              cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+                              cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired as exc:  # below pytest's own timeout (pyproject.toml): say what it printed
         pytest.fail(f"skynet mission {' '.join(argv)} still running after {timeout:.0f} s; it printed:\n"
                     f"{_text(exc.stdout)[-3000:]}{_text(exc.stderr)[-3000:]}", pytrace=False)
@@ -130,10 +154,23 @@ def _text(data: bytes | str | None) -> str:
 
 @pytest.fixture(scope="session")
 def nominal_mission(tmp_path_factory) -> MissionRun:
-    """The paper's mission as README's first command flies it (three UAVs, secure, recorded), at 8x, flown
-    once per session: the tests that check different things of the same nominal mission (its report, its
-    MCAP rebuild and replay) read this one run instead of each flying their own (CI time)."""
-    return fly_mission(tmp_path_factory.mktemp("nominal") / "report", "--speed", "8", timeout=300)
+    """The paper's mission as README's first command flies it (three UAVs, secure, recorded, none of the optional
+    extras importable: scripts/run.sh installs none), at 8x, flown once per session: the tests that check
+    different things of the same nominal mission (its report, its MCAP rebuild and replay) read this one run
+    instead of each flying their own (CI time)."""
+    root = tmp_path_factory.mktemp("nominal")
+    return fly_mission(root / "report", "--speed", "8", timeout=300, env=env_without(root / "no-extras"))
+
+
+@pytest.fixture(scope="session")
+def impaired_secure_mission(tmp_path_factory) -> MissionRun:
+    """The mission with 200 ms each way on every link (reliable ones too, from 4 s on, once the sessions are
+    open), the accept guard in front of the gateway and a key set of its own, at 8x, flown once per session:
+    the test of the plan under delay (tests/services/orchestration/test_launcher.py) and the test of the
+    proxied links' TLS and ACL (tests/services/gateway/test_trust_seams.py) read this one run (CI time)."""
+    root = tmp_path_factory.mktemp("impaired")
+    return fly_mission(root / "report", "--speed", "8", "--keys", str(root / "keys"),
+                       "--impair", "all=after 4s delay 200ms", "--accept-guard", timeout=300)
 
 
 def wait_until(pred, timeout: float = 20.0, poll: float = 0.02) -> bool:

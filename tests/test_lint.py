@@ -4,17 +4,15 @@ of README.md and docs/ resolving, and a missing optional extra named in one line
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import ROOT
+from tests.conftest import ROOT, MissionRun, env_without
 
 BIN = Path(sys.executable).parent
 
@@ -106,26 +104,10 @@ def test_the_link_check_finds_a_broken_link(tmp_path):
     assert found == ["docs/nothing.md"]
 
 
-BLOCK = textwrap.dedent("""
-    import importlib.abc, sys
-
-    class _Block(importlib.abc.MetaPathFinder):
-        def find_spec(self, name, path=None, target=None):
-            if name.partition(".")[0] in {blocked!r}:
-                raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
-            return None
-
-    sys.meta_path.insert(0, _Block())
-""")
-
-
 def _without(tmp_path: Path, blocked: set[str], *argv: str) -> subprocess.CompletedProcess:
-    """``skynet ARGV`` in a Python where the ``blocked`` packages cannot be imported (a sitecustomize that
-    refuses them: the same failure as a venv without the extra)."""
-    (tmp_path / "sitecustomize.py").write_text(BLOCK.format(blocked=blocked))
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(ROOT)])}
-    return subprocess.run([sys.executable, "-m", "services.cli", *argv], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=120)
+    """``skynet ARGV`` in a Python where the ``blocked`` packages cannot be imported."""
+    return subprocess.run([sys.executable, "-m", "services.cli", *argv], cwd=ROOT, env=env_without(tmp_path, blocked),
+                          capture_output=True, text=True, timeout=120)
 
 
 @pytest.mark.parametrize("argv", [("sim-autopilot", "--help"), ("sim-autopilot", "--uav", "1")])
@@ -140,3 +122,12 @@ def test_the_main_commands_need_no_extra(tmp_path):
     """The main job installs no extra (scripts/run.sh): ``skynet mission --help`` works without them."""
     proc = _without(tmp_path, {"pymavlink", "mavsdk", "selenium"}, "mission", "--help")
     assert proc.returncode == 0 and "--uavs" in proc.stdout, proc.stdout[-2000:] + proc.stderr[-2000:]
+
+
+@pytest.mark.mission
+def test_the_main_job_flies_without_any_extra(nominal_mission: MissionRun):
+    """The nominal mission (tests/conftest.py) is flown with none of the extras importable, as scripts/run.sh
+    installs it: it succeeds, and no process of it missed a module."""
+    assert nominal_mission.proc.returncode == 0, nominal_mission.failure()
+    services = (nominal_mission.out / "services.log").read_text()
+    assert "ModuleNotFoundError" not in services and "needs the optional" not in services, services[-3000:]
