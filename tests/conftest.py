@@ -25,8 +25,9 @@ DEV_KEYS_UAVS = 6
 
 #: fixtures that start processes or Zenoh sessions: a test using one is in the integration layer (``network``)
 NETWORK_FIXTURES = frozenset({"group", "gateway", "nominal_mission"})
-#: what a test module's source says when it starts processes or opens Zenoh sessions
-NETWORK_WORDS = re.compile(r"\b(subprocess|Popen|ProcessGroup|run_node|spawn_node|fly_mission|zenoh\.open|Bus\()")
+#: what a test module's source says when it starts processes, opens Zenoh sessions or real sockets
+NETWORK_WORDS = re.compile(r"\b(subprocess|Popen|ProcessGroup|run_node|spawn_node|fly_mission|zenoh\.open|Bus\(|"
+                           r"socket\.socket|mavlink_connection|MavlinkSimVehicle|udpin:|udpout:)")
 
 
 def _starts_processes(path: Path, cache: dict[Path, bool]) -> bool:

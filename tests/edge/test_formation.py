@@ -202,6 +202,7 @@ def _fly_formation(keep: bool) -> float:
     return float(np.sqrt(np.mean(np.square(errs))))
 
 
+@pytest.mark.slow
 def test_formation_keeping_reduces_shape_error_when_one_uav_lags():
     free = _fly_formation(keep=False)
     kept = _fly_formation(keep=True)

@@ -85,6 +85,7 @@ def test_decode_reduced_sizes_and_bad_factor():
         decode_image(jpeg, reduce=3)
 
 
+@pytest.mark.slow
 def test_a_reduced_report_finds_the_same_cracks_in_full_frame_pixels_and_on_the_wall():
     meta, jpeg, truth = _large()
     full = analyse(meta, jpeg, max_pixels=None)
@@ -105,6 +106,7 @@ def test_a_reduced_report_finds_the_same_cracks_in_full_frame_pixels_and_on_the_
     assert b.length_m == pytest.approx(planted[2].length_m, rel=0.10)
 
 
+@pytest.mark.slow
 def test_a_12_mp_mission_frame_at_the_default_budget_is_measured_on_its_quarter_decode():
     """The paper's 12 MP capture of the mission's wall at its 4.78 m stand-off, as the edge renders it: the
     default real-time budget detects it on the 1/4 decode (1000 x 750), and the report's cracks are the

@@ -228,6 +228,7 @@ def test_planner_and_mission_figures(summary):
     assert not summary.success and summary.failures == ["uav 3 did not reach its goal"]
 
 
+@pytest.mark.slow
 def test_write_report_writes_every_file(record, summary, tmp_path):
     out = write_report(record, tmp_path / "rep")
     names = {p.name for p in (tmp_path / "rep").iterdir()}
@@ -249,6 +250,7 @@ def test_write_report_writes_every_file(record, summary, tmp_path):
     assert "| theta-pso | 10.00 | 5.00 | 3 |" in md and "failsafe" in md
 
 
+@pytest.mark.slow
 def test_an_empty_record_still_gives_a_report(tmp_path):
     rec = MissionRecord(fleet="empty", speed=1.0, started=10.0)
     s = write_report(rec, tmp_path)

@@ -14,6 +14,7 @@ from services.gcs.scoring import score_defects
 from services.inspection.captures import decode, synthetic_captures
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [7, 11])
 def test_it_plus_is_precise_at_full_recall(seed):
     assert seed != SURFACE_SEED

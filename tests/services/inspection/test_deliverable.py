@@ -26,6 +26,7 @@ def wall():
     return sc, surf, caps, truth
 
 
+@pytest.mark.slow
 def test_sizes_against_the_synthetic_truth(wall, tmp_path):
     sc, surf, caps, truth = wall
     o = sc.origin

@@ -33,6 +33,7 @@ def test_deadline_ends_the_optimiser():
         Deadline(lambda x: x, 0)
 
 
+@pytest.mark.slow
 def test_anytime_answers_with_the_best_collision_free_path_when_the_budget_runs_out():
     """a fleet's edges starve the planner; with ``anytime`` it plans the best path it had."""
     sc = load_scenario()
