@@ -80,7 +80,7 @@ class Attacker:
             elif delay < -1.0:  # fell behind by a second: do not burst to catch up
                 next_t = time.perf_counter()
 
-    def __enter__(self) -> "Attacker":
+    def __enter__(self) -> Attacker:
         if self.kind != "none":
             self.thread.start()
         return self

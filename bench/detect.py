@@ -36,12 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from services.detector.detect import METHODS, detect  # noqa: E402
 from services.detector.evaluate import evaluate, load_dataset, markdown_table  # noqa: E402
 from services.detector.improved import it_plus_bh_mask, it_plus_mask, shape_filter, threshold_it_plus  # noqa: E402
-from services.detector.iterative import (  # noqa: E402
-    C_S_DEFAULT,
-    C_S_UNGUARDED,
-    MIN_REGION_DEFAULT,
-    iterative_threshold,
-)
+from services.detector.iterative import C_S_DEFAULT, C_S_UNGUARDED, MIN_REGION_DEFAULT, iterative_threshold  # noqa: E402
 from services.detector.metrics import f_measure  # noqa: E402
 from services.detector.ridge import RIDGE_DEFAULTS, it_plus_ridge_mask  # noqa: E402
 from services.detector.thresholds import histogram  # noqa: E402

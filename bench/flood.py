@@ -129,7 +129,7 @@ def flood(case: str, endpoints: list[str], seconds: float, stop: threading.Event
         tls = {"tls_ca": str(ks.ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
     with Bus(BusConfig(mode="client", connect=endpoints, multilink=True, **tls), FLEET, "flooder") as bus:
         if case == "state":
-            pub, link = bus.publisher(keys.state(FLEET, 1), TELEMETRY), None
+            pub = bus.publisher(keys.state(FLEET, 1), TELEMETRY)
             make = lambda i: b"\x01" + rng.integers(0, 256, 300, dtype=np.uint8).tobytes()  # noqa: E731
         elif case == "event":
             pub = bus.publisher(keys.event(FLEET, 1), COMMAND)

@@ -138,8 +138,8 @@ def _budget(data: bytes) -> object:
 
 
 def targets() -> list[Target]:
-    from services.orchestration.faults import MAX_FAULT_S  # noqa: F401  (import errors surface here, not per input)
     from services.netem.schedule import ScheduleError
+    from services.orchestration.faults import MAX_FAULT_S  # noqa: F401  (import errors surface here, not per input)
     from services.planner.scenario import ScenarioError, default_scenario_path
 
     msgs = [codec.encode(x) for x in _messages()]

@@ -19,10 +19,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from protocol.scenario import load_scenario  # noqa: E402
 from services.inspection.captures import decode, known_crack_wall, synthetic_captures  # noqa: E402
 from services.inspection.deliverable import inspect_frames  # noqa: E402
 from services.inspection.mosaic import Plane, PosedFrame  # noqa: E402
-from protocol.scenario import load_scenario  # noqa: E402
 
 
 def main() -> int:

@@ -28,6 +28,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
+
 from edge.clock import SimClock  # noqa: E402
 from edge.vehicle.mavlink import MavlinkDriver, open_connection  # noqa: E402
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
@@ -36,8 +38,6 @@ from protocol.messages import Mode  # noqa: E402
 from services.planner.export import mission_items  # noqa: E402
 from services.planner.mission import plan_details  # noqa: E402
 from services.planner.scenario import load_scenario  # noqa: E402
-
-from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 
 
 def free_port() -> int:

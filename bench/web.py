@@ -29,11 +29,11 @@ sys.path.insert(0, str(ROOT))
 from protocol import keys  # noqa: E402
 from protocol.bus import Bus, BusConfig, multilink_endpoints  # noqa: E402
 from protocol.imagery import pack_image  # noqa: E402
-from services.web.server import TOKEN_ENV, new_token  # noqa: E402
 from protocol.links import COMMAND, IMAGERY, TELEMETRY  # noqa: E402
 from protocol.messages import Defect, DefectReport, ImageMeta, Intrinsics, Mode, VehicleState  # noqa: E402
 from protocol.rtp import RtpSender, ssrc_for  # noqa: E402
 from services.orchestration.process import ProcessGroup, free_port, free_port_pair  # noqa: E402
+from services.web.server import TOKEN_ENV, new_token  # noqa: E402
 
 
 def cpu_s(pid: int) -> float:

@@ -37,7 +37,6 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-
 from protocol import keys
 from protocol.budget import for_topic
 from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
@@ -61,7 +60,6 @@ if TYPE_CHECKING:
 
 
 logger = logging.getLogger("skynet.edge.board")
-
 
 @dataclass
 class Neighbour:

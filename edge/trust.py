@@ -133,6 +133,7 @@ def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
         return Gate(config.fleet, config.uav, None), None
     from protocol.keyset import KeySet, role_of_cn
     from protocol.acl import cert_access_control
+    from protocol.keyset import KeySet, role_of_cn
 
     ks = KeySet(config.keys, f"uav{config.uav}")
     verifier = ks.verifier(stale_s=config.trust_window, replay_file=config.replay_state)

@@ -54,8 +54,9 @@ Zenoh matches a message against a rule when the rule's key expression *includes*
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, Iterable, Mapping, NamedTuple
+from typing import Any, NamedTuple
 
 from protocol import keys
 
@@ -282,7 +283,7 @@ def attached_grants(fleet: str, role: str) -> list[Grant]:
         return [Grant("ingress", ("put",), (keys.fleet_all(replay),)),
                 Grant("egress", _INTEREST, (keys.fleet_all(replay),))]
     if role == "web":
-        seen = (keys.fleet_all(fleet), keys.fleet_all(replay))
+        seen: tuple[str, ...] = (keys.fleet_all(fleet), keys.fleet_all(replay))
     elif role == "video":
         seen = tuple(k for f in (fleet, replay) for k in (keys.preview(f, "*"), keys.camera(f, "*")))
     else:

@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
+from typing import Any
 
 #: sources with a bucket of their own per budget; the rest share the ``(other)`` bucket
 MAX_SOURCES = 512
@@ -107,7 +108,7 @@ class Budget:
     max_sources: int = MAX_SOURCES
     _buckets: dict[str, TokenBucket] = field(default_factory=dict)
     _garbage: dict[str, TokenBucket] = field(default_factory=dict)  # per source: undecodable samples
-    dropped: Counter = field(default_factory=Counter)  # (source, reason) -> samples
+    dropped: Counter[tuple[str, str]] = field(default_factory=Counter)  # (source, reason) -> samples
 
     def admit(self, source: str, nbytes: int, now: float) -> str | None:
         """None when the sample may go on; else why not: ``budget-size`` or ``budget-rate``."""
@@ -132,7 +133,7 @@ class Budget:
             return "budget-size"
         return None
 
-    def _source(self, table: dict, source: str) -> str:
+    def _source(self, table: dict[str, Any], source: str) -> str:
         return source if source in table or len(table) < self.max_sources else OTHER
 
     def admit_undecoded(self, source: str, nbytes: int, now: float) -> str | None:

@@ -25,6 +25,7 @@ import logging
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated, Any, Callable, Literal
 
@@ -210,10 +211,10 @@ class Counters:
     received: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(lambda: [0, 0]))
     rejected: dict[tuple[str, str], int] = field(default_factory=lambda: collections.defaultdict(int))
     dropped: dict[str, int] = field(default_factory=lambda: collections.defaultdict(int))
-    publishers: list["Publisher"] = field(default_factory=list)
+    publishers: list[Publisher] = field(default_factory=list)
     lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def add(self, table: dict, key: str, nbytes: int) -> None:
+    def add(self, table: dict[str, list[int]], key: str, nbytes: int) -> None:
         with self.lock:
             row = table[key]
             row[0] += 1
@@ -274,7 +275,7 @@ class Publisher:
     per-message cost of the bus layer to a couple of attribute updates.
     """
 
-    def __init__(self, bus: "Bus", key: str, link: LinkClass, cache: int | None = None):
+    def __init__(self, bus: Bus, key: str, link: LinkClass, cache: int | None = None):
         self.key = key
         self.link = link
         self.samples = 0
@@ -284,7 +285,7 @@ class Publisher:
             # subscribers that declare recovery, and a heartbeat lets them notice a lost last sample
             from zenoh import ext
 
-            self._pub = ext.declare_advanced_publisher(
+            self._pub: Any = ext.declare_advanced_publisher(
                 bus.session, key, **link.publisher_qos(), cache=ext.CacheConfig(cache),
                 sample_miss_detection=ext.MissDetectionConfig(heartbeat=RECOVERY_HEARTBEAT_S, sporadic_heartbeat=None))
         else:
@@ -343,7 +344,7 @@ class Bus:
         self._close_lock = threading.Lock()
 
     # -- context management
-    def __enter__(self) -> "Bus":
+    def __enter__(self) -> Bus:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -373,7 +374,8 @@ class Bus:
     # -- subscribe
     def _decode_or_count(self, key: str, data: bytes, expect: Any) -> Message | None:
         try:
-            return codec.decode(data, expect)
+            msg: Message = codec.decode(data, expect)
+            return msg
         except codec.CodecError as exc:
             if self.counters.reject(key, exc.kind):
                 log.warning("%s: rejected sample on %s (%s); further ones of this kind are only counted",
@@ -442,7 +444,7 @@ class Bus:
         later ones back until it is recovered. What cannot be recovered is counted as
         ``missed`` in :attr:`counters`.
         """
-        target = callback
+        target: Callable[[zenoh.Sample], object] = callback
         if ring is not None:
             r = Ring(ring, callback, name=f"ring:{key}")
             self._rings.append(r)
@@ -460,7 +462,7 @@ class Bus:
         if recover:
             from zenoh import ext
 
-            sub = ext.declare_advanced_subscriber(self.session, key, guarded,
+            sub: Any = ext.declare_advanced_subscriber(self.session, key, guarded,
                                                   recovery=ext.RecoveryConfig(heartbeat=True, periodic_queries=None))
 
             def on_miss(miss: Any) -> None:
@@ -525,7 +527,7 @@ class Bus:
         t0 = time.perf_counter()
         payload = codec.encode(msg)
         self.counters.add(self.counters.sent, link.name, len(payload))
-        inbox: queue.Queue = queue.Queue(maxsize=max_replies + 1)
+        inbox: queue.Queue[Any] = queue.Queue(maxsize=max_replies + 1)
         done = object()
 
         def on_reply(reply: zenoh.Reply) -> None:
@@ -559,11 +561,13 @@ class Bus:
             if reply is done:
                 break
             out.append(self._one_reply(key, reply, expect, t0))
-            if out[-1].ok and (settles is None or settles(out[-1].message)):
+            answer = out[-1].message
+            if out[-1].ok and (settles is None or (answer is not None and settles(answer))):
                 deadline = min(deadline, time.monotonic() + settle_s)
         return out
 
-    def _one_reply(self, key: str, reply: zenoh.Reply, expect, t0: float) -> Reply:
+    def _one_reply(self, key: str, reply: zenoh.Reply, expect: type[Message] | tuple[type[Message], ...] | None,
+                   t0: float) -> Reply:
         """One Zenoh reply as a :class:`Reply` (decoded as ``expect``, or the error it carries)."""
         if reply.ok is not None:
             try:

@@ -66,7 +66,8 @@ def encode(msg: Message) -> bytes:
     if not isinstance(msg, Message) or not msg.TYPE:
         raise TypeError(f"not a wire message: {type(msg).__name__}")
     body = msg.model_dump(mode="json", exclude_defaults=False)
-    return msgpack.packb([SCHEMA_VERSION, msg.TYPE, body], **_packer_opts)
+    out: bytes = msgpack.packb([SCHEMA_VERSION, msg.TYPE, body], **_packer_opts)
+    return out
 
 
 def peek_type(data: bytes | bytearray | memoryview) -> str:

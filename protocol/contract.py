@@ -21,8 +21,19 @@ from typing import Any
 from . import codec, keys
 from .links import LINK_CLASSES, LinkClass, class_of_topic
 from .messages import (
-    COMMAND_TYPES, MESSAGE_TYPES, CommandAck, DefectReport, ErrorReply, Event, Heartbeat, LinkStats, Message,
-    MissionPlan, PlanRequest, Signed, VehicleState,
+    COMMAND_TYPES,
+    MESSAGE_TYPES,
+    CommandAck,
+    DefectReport,
+    ErrorReply,
+    Event,
+    Heartbeat,
+    LinkStats,
+    Message,
+    MissionPlan,
+    PlanRequest,
+    Signed,
+    VehicleState,
 )
 
 _FLEET = "FLEET"

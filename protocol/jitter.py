@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -157,7 +158,7 @@ class JitterStats:
     jitter_ts: float
     jitter_s: float
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         """Plain dict (for messages and JSON)."""
         return asdict(self)
 
@@ -231,7 +232,8 @@ class JitterBuffer:
         self._played = np.full(cap, -1, dtype=np.int64)  # extended seq last played per slot
         self._buffered = 0
         self._ssrc: int | None = None
-        self._next: int | None = None  # extended sequence number to play next
+        self._started = False  # a first frame was stored
+        self._next = 0  # extended sequence number to play next (once started)
         self._max: int = -1  # extended highest sequence number stored
         self._base: int = 0  # first extended sequence number of the epoch
         self._expected_prior = 0  # expected count of finished epochs
@@ -277,7 +279,7 @@ class JitterBuffer:
             )
         self.received += 1
         out: list[Frame] = []
-        if self._next is None:
+        if not self._started:
             self._start_epoch(header.sequence)
             self._jitter_reference(header.timestamp, now)
             self._store(header, payload, now, header.sequence)
@@ -317,7 +319,7 @@ class JitterBuffer:
 
     def stats(self) -> JitterStats:
         """Current statistics (a snapshot)."""
-        started = self._next is not None
+        started = self._started
         expected = self._expected_prior + (self._max - self._base + 1 if started else 0)
         return JitterStats(
             ssrc=self._ssrc,
@@ -347,6 +349,7 @@ class JitterBuffer:
     def _start_epoch(self, ext: int) -> None:
         self._base = self._next = ext
         self._max = ext - 1
+        self._started = True
         self._played.fill(-1)
 
     def _jitter_reference(self, ts: int, now: float) -> None:
@@ -360,7 +363,7 @@ class JitterBuffer:
             self._jitter += (abs(d) - self._jitter) / 16.0
         self._jitter_reference(ts, now)
 
-    def _accept(self, header: RtpHeader, payload, now: float, out: list[Frame]) -> None:
+    def _accept(self, header: RtpHeader, payload: bytes | memoryview, now: float, out: list[Frame]) -> None:
         cap, nxt = self.capacity, self._next
         ext = self._extend(header.sequence)
         if nxt - cap <= ext < nxt + cap or (ext >= nxt + cap and ext - self._max <= cap):
@@ -401,7 +404,7 @@ class JitterBuffer:
             self.late += 1
         self._probe = (header, payload, now)
 
-    def _store(self, header: RtpHeader, payload, now: float, ext: int) -> None:
+    def _store(self, header: RtpHeader, payload: bytes | memoryview, now: float, ext: int) -> None:
         i = ext % self.capacity
         self._slots[i] = Frame(header, payload, now, ext)
         self._arrivals[i] = now

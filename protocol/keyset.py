@@ -30,6 +30,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
@@ -170,6 +171,6 @@ class KeySet:
                  replay_file: str | Path | None = None) -> Verifier:
         """A verifier of the trusted signers, with this node's persisted replay window (in
         ``replay_file`` when given: a key set mounted read-only, e.g. docker compose's)."""
-        kw = {} if stale_s is None else {"stale_s": stale_s}
+        kw: dict[str, Any] = {} if stale_s is None else {"stale_s": stale_s}
         path = (replay_file or self.replay_file) if persist else None
         return Verifier(self.trusted(), self.revoked(), ReplayStore(path), **kw)

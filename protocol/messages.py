@@ -135,7 +135,7 @@ class Box(Message):
     hi: Vec3
 
     @model_validator(mode="after")
-    def _ordered(self) -> "Box":
+    def _ordered(self) -> Box:
         if any(h <= l for l, h in zip(self.lo, self.hi)):
             raise ValueError("box hi must exceed lo on every axis")
         return self
@@ -200,7 +200,7 @@ class SetFormation(_Cmd):
 
 
 Command = Annotated[
-    Union[UploadTrajectory, Takeoff, Start, Land, Hold, Resume, ReturnToLaunch, SetFormation],
+    UploadTrajectory | Takeoff | Start | Land | Hold | Resume | ReturnToLaunch | SetFormation,
     Field(discriminator="kind"),
 ]
 COMMAND_TYPES = (UploadTrajectory, Takeoff, Start, Land, Hold, Resume, ReturnToLaunch, SetFormation)
@@ -411,7 +411,7 @@ class Event(Message):
     kind: EventKind
     level: Level = Level.INFO
     text: Text = ""
-    data: dict[Short, Union[bool, int, Finite, Short]] = {}
+    data: dict[Short, bool | int | Finite | Short] = {}
 
 
 #: every message type, by wire tag

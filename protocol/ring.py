@@ -28,7 +28,7 @@ class Ring:
     def __init__(self, capacity: int, worker: Callable[[Any], None], name: str = "ring", workers: int = 1):
         if capacity < 1 or workers < 1:
             raise ValueError("ring capacity and workers must be >= 1")
-        self._items: collections.deque = collections.deque()
+        self._items: collections.deque[Any] = collections.deque()
         self._capacity = capacity
         self._cond = threading.Condition()
         self._worker = worker

@@ -57,6 +57,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -335,7 +336,7 @@ _FIELD_SETTERS = tuple(
 )
 
 
-def _new_header(b0: int, b1: int, seq: int, ts: int, ssrc: int, _set=_FIELD_SETTERS) -> RtpHeader:
+def _new_header(b0: int, b1: int, seq: int, ts: int, ssrc: int, _set: tuple[Any, ...] = _FIELD_SETTERS) -> RtpHeader:
     # The fields come straight from bit fields of the wire, so they are in range by
     # construction: fill the slots directly and skip __post_init__ (about 3x cheaper).
     h = object.__new__(RtpHeader)

@@ -96,7 +96,7 @@ class Bounds(_Model):
     hi: Vec3
 
     @model_validator(mode="after")
-    def _ordered(self) -> "Bounds":
+    def _ordered(self) -> Bounds:
         if any(h <= l for l, h in zip(self.lo, self.hi)):
             raise ValueError("box.hi must exceed box.lo on every axis")
         return self
@@ -166,7 +166,7 @@ class Surface(_Model):
     cracks: Annotated[int, Field(ge=1, le=1000)] | None = None
 
     @model_validator(mode="after")
-    def _rectangle(self) -> "Surface":
+    def _rectangle(self) -> Surface:
         p = np.asarray(self.corners, float)
         u, v = p[1] - p[0], p[3] - p[0]
         lu, lv = float(np.linalg.norm(u)), float(np.linalg.norm(v))
@@ -243,7 +243,7 @@ class CostSpec(_Model):
     max_turn_deg: Annotated[float, Field(gt=0.0, le=180.0, allow_inf_nan=False)] = 60.0
 
     @model_validator(mode="after")
-    def _band(self) -> "CostSpec":
+    def _band(self) -> CostSpec:
         if self.altitude[1] <= self.altitude[0]:
             raise ValueError("cost.altitude: upper bound must exceed the lower bound")
         return self
@@ -259,7 +259,7 @@ class Speeds(_Model):
     lateral_accel: Annotated[float, Field(gt=0.0, le=20.0, allow_inf_nan=False)] = 1.0
 
     @model_validator(mode="after")
-    def _max(self) -> "Speeds":
+    def _max(self) -> Speeds:
         if self.cruise > self.max or self.inspect > self.max:
             raise ValueError("speeds.max must be at least speeds.cruise and speeds.inspect")
         return self
@@ -294,7 +294,7 @@ class Scenario(_Model):
     planner: PlannerSpec = PlannerSpec()
 
     @model_validator(mode="after")
-    def _consistent(self) -> "Scenario":
+    def _consistent(self) -> Scenario:
         for name in ("start", "goal"):
             p = getattr(self, name)
             if not self.box.contains(p):

@@ -40,10 +40,10 @@ import math
 import os
 import threading
 import time
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import msgpack
 from cryptography.exceptions import InvalidSignature
@@ -104,7 +104,8 @@ def load_public(path: str | Path) -> Ed25519PublicKey:
 
 def signed_bytes(signer: str, kid: str, seq: int, stamp: float, to: str, type_: str, body: bytes) -> bytes:
     """The canonical bytes a signature covers."""
-    return msgpack.packb([DOMAIN, signer, kid, seq, float(stamp), to, type_, body], use_bin_type=True)
+    out: bytes = msgpack.packb([DOMAIN, signer, kid, seq, float(stamp), to, type_, body], use_bin_type=True)
+    return out
 
 
 def _b64(data: bytes) -> str:
@@ -122,7 +123,7 @@ def _unb64(text: str, what: str) -> bytes:
 class Signer:
     """Signs messages as ``name`` with one Ed25519 private key; thread-safe."""
 
-    def __init__(self, name: str, private: Ed25519PrivateKey, clock=time.time):
+    def __init__(self, name: str, private: Ed25519PrivateKey, clock: Callable[[], float] = time.time):
         self.name = name
         self._key = private
         self.kid = key_id(private.public_key())
@@ -131,7 +132,7 @@ class Signer:
         self._lock = threading.Lock()
 
     @classmethod
-    def from_file(cls, name: str, path: str | Path) -> "Signer":
+    def from_file(cls, name: str, path: str | Path) -> Signer:
         return cls(name, load_private(path))
 
     def next_seq(self) -> int:
@@ -225,7 +226,8 @@ class Verifier:
     """
 
     def __init__(self, trusted: Mapping[str, Iterable[Ed25519PublicKey]], revoked: Iterable[str] = (),
-                 replay: ReplayStore | None = None, stale_s: float = DEFAULT_STALE_S, clock=time.time):
+                 replay: ReplayStore | None = None, stale_s: float = DEFAULT_STALE_S,
+                 clock: Callable[[], float] = time.time):
         if not (stale_s > 0 and math.isfinite(stale_s)):
             raise ValueError("stale_s must be a positive number of seconds")
         self._keys: dict[tuple[str, str], Ed25519PublicKey] = {}

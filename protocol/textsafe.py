@@ -86,7 +86,7 @@ class SafeFormatter(logging.Formatter):
         finally:
             record.message = saved
 
-    def formatException(self, ei) -> str:  # noqa: N802
+    def formatException(self, ei: logging._SysExcInfoType) -> str:  # noqa: N802
         return printable(super().formatException(ei), keep="\n")
 
     def formatStack(self, stack_info: str) -> str:  # noqa: N802

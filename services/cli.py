@@ -45,6 +45,26 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+#: optional top-level import -> the extra of pyproject.toml that installs it
+EXTRAS: dict[str, str] = {"pymavlink": "mavlink", "mavsdk": "mavsdk", "selenium": "browser",
+                          "jax": "train", "optax": "train", "onnx": "train", "pyswarms": "bench"}
+
+
+def missing_extra(exc: ModuleNotFoundError) -> str | None:
+    """The one-line message for an optional dependency that is not installed, None for any other import error.
+
+    >>> missing_extra(ModuleNotFoundError("No module named 'pymavlink'", name="pymavlink.dialects"))
+    "needs the optional 'mavlink' extra (pymavlink is not installed): pip install -e '.[mavlink]'"
+    >>> missing_extra(ModuleNotFoundError("No module named 'numpy'", name="numpy")) is None
+    True
+    """
+    top = (exc.name or "").partition(".")[0]
+    extra = EXTRAS.get(top)
+    if extra is None:
+        return None
+    return f"needs the optional {extra!r} extra ({top} is not installed): pip install -e '.[{extra}]'"
+
+
 def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in {"-h", "--help", "help"}:
@@ -54,11 +74,17 @@ def main(argv: list[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"skynet: unknown command {name!r}\n\n{usage()}", file=sys.stderr)
         return 2
-    module = importlib.import_module(COMMANDS[name][0])
     try:
+        module = importlib.import_module(COMMANDS[name][0])
         if name in {"up", "mission"}:
             return int(module.main([name, *rest]) or 0)
         return int(module.main(rest) or 0)
+    except ModuleNotFoundError as exc:  # an optional extra this command needs: name it, no traceback
+        message = missing_extra(exc)
+        if message is None:
+            raise
+        print(f"skynet {name}: error: {message}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         return 130
     except RecursionError:  # a parser given input nested deeper than Python's stack (a crafted file)

@@ -190,7 +190,7 @@ def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VAL
             shutil.rmtree(folder / sub, ignore_errors=True)
     folder.mkdir(parents=True, exist_ok=True)
     os.chmod(folder, 0o700)
-    now = dt.datetime.now(dt.timezone.utc)
+    now = dt.datetime.now(dt.UTC)
     ca_key, ca_cert = make_ca(now, max(days, CA_DAYS))
     # gateways get their certificates from a CA of their own, the only one the clients trust for their dial: a
     # node certificate cannot stand in for the gateway (protocol.keyset, "tls_ca")
@@ -245,7 +245,7 @@ def enlarge(folder: str | Path, uavs: int, days: int = VALID_DAYS) -> list[str]:
         raise ValueError(f"{folder} lacks {', '.join(lacking)} and has no CA key to issue them")
     ca_key = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
     ca_cert = x509.load_pem_x509_certificate(ca_path.read_bytes())
-    now = dt.datetime.now(dt.timezone.utc)
+    now = dt.datetime.now(dt.UTC)
     added = []
     for role in lacking:
         tmp = Path(tempfile.mkdtemp(prefix=f".{role}-", dir=folder))
@@ -268,7 +268,7 @@ def enlarge(folder: str | Path, uavs: int, days: int = VALID_DAYS) -> list[str]:
 
 def expiring(folder: str | Path, within_days: float = RENEW_DAYS) -> bool:
     """Whether the CA or a node certificate of ``folder`` expires within ``within_days`` (or is unreadable)."""
-    limit = dt.datetime.now(dt.timezone.utc) + dt.timedelta(days=within_days)
+    limit = dt.datetime.now(dt.UTC) + dt.timedelta(days=within_days)
     folder = Path(folder)
     try:
         for pem in (folder / "ca.pem", *sorted(folder.glob("*/tls.pem"))):
@@ -340,7 +340,7 @@ def reissue(folder: str | Path, role: str, days: int = NODE_DAYS) -> str:
         hosts = tuple(str(n.value) for n in old_sans)
     except x509.ExtensionNotFound:
         hosts = ()
-    now = dt.datetime.now(dt.timezone.utc)
+    now = dt.datetime.now(dt.UTC)
     key, cert = make_node_cert(role, ca_key, ca_cert, now, days, hosts, cn=new_cn)
     old_kid = key_id(load_public(node / "sign.pub"))
     _write(node / "tls.key", _pem_private(key), private=True)

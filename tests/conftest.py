@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -21,14 +23,36 @@ SHARED = ROOT.parent / "shared"
 DEV_KEYS_UAVS = 6
 
 
+#: fixtures that start processes or Zenoh sessions: a test using one is in the integration layer (``network``)
+NETWORK_FIXTURES = frozenset({"group", "gateway", "nominal_mission"})
+#: what a test module's source says when it starts processes, opens Zenoh sessions or real sockets
+NETWORK_WORDS = re.compile(r"\b(subprocess|Popen|ProcessGroup|run_node|spawn_node|fly_mission|zenoh\.open|Bus\(|"
+                           r"socket\.socket|mavlink_connection|MavlinkSimVehicle|udpin:|udpout:)")
+
+
+def _starts_processes(path: Path, cache: dict[Path, bool]) -> bool:
+    if path not in cache:
+        cache[path] = path.suffix == ".py" and path.name.startswith("test_") and bool(
+            NETWORK_WORDS.search(path.read_text(errors="replace")))
+    return cache[path]
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
 def pytest_collection_modifyitems(config, items):
     """Whole missions (marker ``mission``) share one pytest-xdist group: under ``--dist loadgroup`` they run
     one after another on one worker while the other worker takes the rest of the suite, so no two missions
-    compete for the two cores (scripts/test.sh). Without xdist the marker changes nothing."""
+    compete for the two cores (scripts/test.sh). Without xdist the marker changes nothing.
+
+    A test that starts processes or Zenoh sessions (a fixture of :data:`NETWORK_FIXTURES`, or a module whose
+    source matches :data:`NETWORK_WORDS`) gets the ``network`` marker, and a mission gets it too: the fast
+    loop (scripts/test-fast.sh) leaves them out."""
+    seen: dict[Path, bool] = {}
     for item in items:
         if item.get_closest_marker("mission"):
             item.add_marker(pytest.mark.xdist_group("mission"))
+            item.add_marker(pytest.mark.network)
+        elif NETWORK_FIXTURES & set(getattr(item, "fixturenames", ())) or _starts_processes(item.path, seen):
+            item.add_marker(pytest.mark.network)
 
 
 
@@ -37,8 +61,6 @@ def dev_keys(tmp_path_factory):
     """The launcher's default development key set for this test session: a folder of its own (``$SKYNET_KEYS``,
     inherited by every process the tests start), never the user's ``.keys/dev``; made once for the largest fleet
     a test flies, so no mission rotates it while another test's network reads it."""
-    import os
-
     from services.orchestration import trustmode
 
     folder = tmp_path_factory.mktemp("dev-keys") / "dev"
@@ -91,19 +113,65 @@ class MissionRun:
         return self.proc.stdout[-3000:] + self.proc.stderr[-3000:]
 
 
-def fly_mission(out: Path, *argv: str, timeout: float = 400) -> MissionRun:
+#: the optional extras' packages (pyproject.toml): the main job (scripts/run.sh) installs none of them
+EXTRA_PACKAGES = frozenset({"pymavlink", "mavsdk", "selenium"})
+
+_BLOCK = """
+import importlib.abc, sys
+
+class _Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] in {blocked!r}:
+            raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
+        return None
+
+sys.meta_path.insert(0, _Block())
+"""
+
+
+def env_without(folder: Path, blocked: frozenset[str] | set[str] = EXTRA_PACKAGES) -> dict[str, str]:
+    """An environment whose Pythons cannot import the ``blocked`` packages (a ``sitecustomize`` in ``folder``
+    that refuses them: the same failure as a venv without the extra), inherited by every process they start."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "sitecustomize.py").write_text(_BLOCK.format(blocked=set(blocked)))
+    path = os.pathsep.join(p for p in (str(folder), str(ROOT), os.environ.get("PYTHONPATH", "")) if p)
+    return {**os.environ, "PYTHONPATH": path}
+
+
+def fly_mission(out: Path, *argv: str, timeout: float = 400, env: dict[str, str] | None = None) -> MissionRun:
     """``skynet mission --quiet --out OUT ARGV...`` in a subprocess (the whole network on loopback)."""
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--quiet", "--out", str(out), *argv],
-                          cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--quiet", "--out", str(out), *argv],
+                              cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired as exc:  # below pytest's own timeout (pyproject.toml): say what it printed
+        pytest.fail(f"skynet mission {' '.join(argv)} still running after {timeout:.0f} s; it printed:\n"
+                    f"{_text(exc.stdout)[-3000:]}{_text(exc.stderr)[-3000:]}", pytrace=False)
     return MissionRun(proc, out)
+
+
+def _text(data: bytes | str | None) -> str:
+    return data.decode(errors="replace") if isinstance(data, bytes) else (data or "")
 
 
 @pytest.fixture(scope="session")
 def nominal_mission(tmp_path_factory) -> MissionRun:
-    """The paper's mission as README's first command flies it (three UAVs, secure, recorded), at 8x, flown
-    once per session: the tests that check different things of the same nominal mission (its report, its
-    MCAP rebuild and replay) read this one run instead of each flying their own (CI time)."""
-    return fly_mission(tmp_path_factory.mktemp("nominal") / "report", "--speed", "8", timeout=300)
+    """The paper's mission as README's first command flies it (three UAVs, secure, recorded, none of the optional
+    extras importable: scripts/run.sh installs none), at 8x, flown once per session: the tests that check
+    different things of the same nominal mission (its report, its MCAP rebuild and replay) read this one run
+    instead of each flying their own (CI time)."""
+    root = tmp_path_factory.mktemp("nominal")
+    return fly_mission(root / "report", "--speed", "8", timeout=300, env=env_without(root / "no-extras"))
+
+
+@pytest.fixture(scope="session")
+def impaired_secure_mission(tmp_path_factory) -> MissionRun:
+    """The mission with 200 ms each way on every link (reliable ones too, from 4 s on, once the sessions are
+    open), the accept guard in front of the gateway and a key set of its own, at 8x, flown once per session:
+    the test of the plan under delay (tests/services/orchestration/test_launcher.py) and the test of the
+    proxied links' TLS and ACL (tests/services/gateway/test_trust_seams.py) read this one run (CI time)."""
+    root = tmp_path_factory.mktemp("impaired")
+    return fly_mission(root / "report", "--speed", "8", "--keys", str(root / "keys"),
+                       "--impair", "all=after 4s delay 200ms", "--accept-guard", timeout=300)
 
 
 def wait_until(pred, timeout: float = 20.0, poll: float = 0.02) -> bool:

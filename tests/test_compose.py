@@ -74,6 +74,7 @@ def _env(extra: dict[str, str]) -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if not k.startswith(("SKYNET_", "NETEM", "COMPOSE_"))} | extra
 
 
+@pytest.mark.docker
 @needs_compose
 def test_every_compose_variant_validates():
     """`docker-compose config` of every variant, run side by side (each takes a second or two)."""
@@ -85,6 +86,7 @@ def test_every_compose_variant_validates():
         assert proc.returncode == 0, f"docker-compose {' '.join(args)} config: {err}"
 
 
+@pytest.mark.docker
 @needs_compose
 def test_a_split_edge_without_its_endpoints_is_refused():
     out = subprocess.run(["docker-compose", "-f", "compose/edge.yml", "config", "-q"], capture_output=True,

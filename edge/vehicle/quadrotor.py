@@ -141,7 +141,7 @@ class DisturbanceParams:
         return any(self.torque_amp) or any(self.gust_std) or any(self.wind_mean)
 
     @classmethod
-    def moderate(cls) -> "DisturbanceParams":
+    def moderate(cls) -> DisturbanceParams:
         """A breezy day: torques up to 0.03/0.03/0.01 N·m, 1 m/s gusts (0.3 vertical)."""
         return cls(torque_amp=(0.03, 0.03, 0.01), gust_std=(1.0, 1.0, 0.3), wind_mean=(1.0, 0.5, 0.0))
 

@@ -37,7 +37,7 @@ from edge.vehicle.atsm import ATSM, ATSMGains, TwistingController
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.follower import Reference
 from edge.vehicle.pid import PIDGains, PositionPID
-from edge.vehicle.quadrotor import DisturbanceParams, Quadrotor, QuadParams, euler_rates_from_body_rates
+from edge.vehicle.quadrotor import DisturbanceParams, QuadParams, Quadrotor, euler_rates_from_body_rates
 from edge.vehicle.sequencer import ZERO, MissionSequencer, Mover
 from protocol.messages import Mode, Trajectory
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge.vehicle.atsm import ATSM, ATSMGains, TwistingController
-from edge.vehicle.quadrotor import DisturbanceParams, Quadrotor, QuadParams, euler_rates_from_body_rates
+from edge.vehicle.quadrotor import DisturbanceParams, QuadParams, Quadrotor, euler_rates_from_body_rates
 
 __all__ = ["STEPS", "StepResult", "run_step_test"]
 

@@ -34,7 +34,7 @@ class Partition:
             raise ValueError(f"partition index must be in 0..{self.count - 1}, got {self.index!r}")
 
     @classmethod
-    def parse(cls, text: str) -> "Partition":
+    def parse(cls, text: str) -> Partition:
         """``"K/N"``, e.g. ``"1/2"``; raises ValueError saying what is wrong."""
         k, sep, n = str(text).strip().partition("/")
         if not sep or not k.strip().isdigit() or not n.strip().isdigit():

@@ -23,7 +23,8 @@ from protocol.imagecodec import decode_image
 from protocol.messages import Defect, DefectReport, ImageMeta
 from services.detector.measure import frame_scale, measure_mask
 
-from .detect import Defect as PixelDefect, Detection, detect
+from .detect import Defect as PixelDefect
+from .detect import Detection, detect
 
 #: components smaller than this are not reported (the mask is unchanged)
 MIN_REPORT_AREA_PX = 12

@@ -19,7 +19,7 @@ import selectors
 import socket
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 log = logging.getLogger("skynet.gateway.guard")
 
@@ -83,7 +83,7 @@ class Guard:
         self._sock.setblocking(False)
         self._thread = threading.Thread(target=self._run, name="accept-guard", daemon=True)
 
-    def start(self) -> "Guard":
+    def start(self) -> Guard:
         self._thread.start()
         return self
 

@@ -88,8 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
 def guarded(listen: list[str], log=None) -> tuple[list[str], list[Any]]:
     """Each ``tls/HOST:PORT`` listener moved to a loopback port behind an accept guard on HOST:PORT
     (:mod:`services.gateway.guard`); the listeners zenoh opens instead, and the started guards."""
-    from services.orchestration.process import free_port
     import socket
+
+    from services.orchestration.process import free_port
 
     from .guard import Guard
 

@@ -33,7 +33,6 @@ from protocol import binding, keys, planauth
 from protocol.budget import for_topic
 from protocol.bus import Bus
 from protocol.links import COMMAND, TELEMETRY
-from protocol.scenario import FormationSpec, Scenario
 from protocol.messages import (
     Box,
     DefectReport,
@@ -54,6 +53,7 @@ from protocol.messages import (
     UploadTrajectory,
     VehicleState,
 )
+from protocol.scenario import FormationSpec, Scenario
 
 from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
 from .evidence import corroboration_failures, has_evidence, ledger
@@ -349,7 +349,11 @@ class MissionRunner:
         missing = set(self.opt.uavs) - {t.uav for t in plan.trajectories}
         if missing:
             raise MissionFailed(f"the plan has no trajectory for UAV(s) {sorted(missing)}")
-        from .preflight import plan_problem, scenario_box, scenario_problem  # before any upload: all fit, or nobody flies
+        from .preflight import (  # before any upload: all fit, or nobody flies
+            plan_problem,
+            scenario_box,
+            scenario_problem,
+        )
 
         problem = scenario_problem(plan, scenario, self.opt.uavs)
         if problem:

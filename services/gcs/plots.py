@@ -222,7 +222,7 @@ def _plot_defects(record: MissionRecord, figs: ReportFigures, path: Path) -> Non
         ax.set_xlim(min(0.0, L[:, 0].min()) - 1, L[:, 0].max() + 1)
         ax.set_ylim(min(0.0, L[:, 1].min()) - 1, L[:, 1].max() + 1)
     found = set(score.found_ids) if score else set()
-    for i, g in enumerate(record.ground_truth):
+    for g in record.ground_truth:
         u0, v0, u1, v1 = g.bbox_uv
         hit = g.id in found
         ax.add_patch(Rectangle((min(u0, u1), min(v0, v1)), abs(u1 - u0), abs(v1 - v0), fill=hit, alpha=0.5 if hit else 1,

@@ -21,8 +21,8 @@ image: a crack seen by two frames is one component in the mosaic.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np

@@ -20,14 +20,7 @@ proxies let the experiments reproduce such a link on one machine.
 """
 
 from services.netem.model import GilbertElliott, Impairer, Impairment
-from services.netem.schedule import (
-           Command,
-           ScheduleError,
-           Step,
-           load_schedule,
-           parse_command,
-           parse_schedule,
-)
+from services.netem.schedule import Command, ScheduleError, Step, load_schedule, parse_command, parse_schedule
 
 __all__ = ["GilbertElliott", "Impairer", "Impairment", "Command", "ScheduleError", "Step", "load_schedule",
            "parse_command", "parse_schedule"]

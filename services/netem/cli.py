@@ -55,6 +55,7 @@ from protocol.bus import stopping_on_signals
 from protocol.readiness import notify_ready
 from services.netem.model import Impairment
 from services.netem.control import ControlServer, send_control
+from services.netem.model import Impairment
 from services.netem.proxy import DIRECTIONS, TcpProxy, UdpProxy, format_address, parse_address
 from services.netem.schedule import ScheduleError, Step, load_schedule
 

@@ -622,6 +622,7 @@ def dry_run(args: argparse.Namespace, plan: Plan, ground_station: bool, out=None
 
 
 def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan | None = None) -> int:
+    from protocol.scenario import load_scenario
     from services.gcs.cli import run_mission as gcs_mission
     from services.gcs.mission import MissionOptions
     from protocol.scenario import load_scenario

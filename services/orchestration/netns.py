@@ -67,7 +67,7 @@ class Namespaces:
         if r.returncode != 0:
             raise RuntimeError(f"{what}: {r.stderr.strip() or r.stdout.strip()}")
 
-    def open(self) -> "Namespaces":
+    def open(self) -> Namespaces:
         try:
             for name in self.names:
                 self._check(_ip("netns", "add", name), f"ip netns add {name}")
@@ -92,7 +92,7 @@ class Namespaces:
             _ip("netns", "del", name)
         self._made.clear()
 
-    def __enter__(self) -> "Namespaces":
+    def __enter__(self) -> Namespaces:
         return self.open()
 
     def __exit__(self, *exc: object) -> None:

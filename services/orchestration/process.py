@@ -38,7 +38,6 @@ from typing import IO
 from protocol.readiness import MAX_LINE, READY_FD_ENV, parse_ready
 from protocol.textsafe import printable
 
-
 #: the lowest port :func:`free_port` hands out (above the registered ports services commonly use on a
 #: development machine: Zenoh's 7447/7448, MAVLink's 14550, video's 5600)
 LOWEST_LISTEN_PORT = 20000

@@ -119,7 +119,7 @@ class PathProblem:
     hi: NDArray[np.float64] = field(repr=False)
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario, waypoints: int) -> "PathProblem":
+    def from_scenario(cls, scenario: Scenario, waypoints: int) -> PathProblem:
         """Problem with ``waypoints`` free centroid waypoints, half before the pass, half after."""
         if int(waypoints) != waypoints or waypoints < 1:
             raise ValueError(f"waypoints must be a positive integer, got {waypoints!r}")

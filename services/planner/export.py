@@ -39,12 +39,10 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pymap3d
 from numpy.typing import ArrayLike, NDArray
 
 from edge.geometry import ardupilot_items as AI

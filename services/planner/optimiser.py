@@ -64,7 +64,7 @@ class Start:
     I: int
     lo: NDArray[np.float64]
     hi: NDArray[np.float64]
-    tracker: "Tracker"
+    tracker: Tracker
     f: NDArray[np.float64]
 
 

@@ -5,6 +5,19 @@ defined here.
 """
 
 from protocol.scenario import (  # noqa: F401
-    Bounds, Camera, CostSpec, Cylinder, FormationSpec, Inspection, Origin, PlannerSpec, Scenario, ScenarioError,
-    Speeds, Surface, default_scenario_path, load_scenario, validate_scenario,
+    Bounds,
+    Camera,
+    CostSpec,
+    Cylinder,
+    FormationSpec,
+    Inspection,
+    Origin,
+    PlannerSpec,
+    Scenario,
+    ScenarioError,
+    Speeds,
+    Surface,
+    default_scenario_path,
+    load_scenario,
+    validate_scenario,
 )

@@ -38,21 +38,20 @@ one chunk plus the index (one entry per chunk and channel), whatever the mission
 from __future__ import annotations
 
 import base64
+import heapq
+import io
 import json
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
-
-import heapq
-import io
-import struct
-from typing import Any
+from typing import IO, Any
 
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError as _LibError
-from mcap.records import Channel, Chunk, ChunkIndex, Footer, Message as McapMessage, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, Footer, Schema
+from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 

@@ -241,7 +241,7 @@ class WebServer:
         return ws
 
     # -- thread
-    def start(self) -> "WebServer":
+    def start(self) -> WebServer:
         self._thread = threading.Thread(target=self._run, name="web", daemon=True)
         self._thread.start()
         self._ready.wait(15)

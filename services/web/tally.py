@@ -78,7 +78,7 @@ class DefectTally:
         self._pool: ProcessPoolExecutor | None = None
         self._thread: threading.Thread | None = None
 
-    def start(self) -> "DefectTally":
+    def start(self) -> DefectTally:
         self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
                                          initializer=_worker_init, initargs=(os.getpid(),))
         self._thread = threading.Thread(target=self._run, name="web-tally", daemon=True)

@@ -8,9 +8,20 @@ import pytest
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import TELEMETRY
-from protocol.messages import (CommandAck, Event, Hold, Mode, Resume, Takeoff, Trajectory, UploadTrajectory,
-                               VehicleState, Waypoint)
-from tests.conftest import spawn_node, wait_until as _wait
+from protocol.messages import (
+    CommandAck,
+    Event,
+    Hold,
+    Mode,
+    Resume,
+    Takeoff,
+    Trajectory,
+    UploadTrajectory,
+    VehicleState,
+    Waypoint,
+)
+from tests.conftest import spawn_node
+from tests.conftest import wait_until as _wait
 
 FLEET = "test"
 HOMES = {1: "10,10,0", 2: "14,10,0", 3: "6,10,0"}

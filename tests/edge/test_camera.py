@@ -185,6 +185,7 @@ def test_upsample_factor_keeps_two_frame_pixels_per_texel() -> None:
         upsample_factor(0.1, (640, 480), limit=0.0)
 
 
+@pytest.mark.slow
 def test_upsampled_12_mp_view_matches_the_direct_warp(wall: SyntheticSurface) -> None:
     stills = GOPRO.scaled(4000, 3000)
     d = max(wall.defects(), key=lambda d: d.area_px)
@@ -312,6 +313,7 @@ def test_folder_source_brings_masks_of_a_data_set(tmp_path) -> None:
     assert f1.mask is None  # no mask for 001
 
 
+@pytest.mark.data
 def test_folder_source_on_crackforest() -> None:
     from pathlib import Path
 

@@ -144,8 +144,8 @@ def test_every_attack_of_the_issue_fails(secure_fleet, keyset, tmp_path, group):
 
             # nor impersonate: a state saying uav=1 on uav2's key (its own, allowed by the ACL) is refused,
             # at the edges and at the ground station
-            from services.gcs.mission import MissionOptions, MissionRunner
             from protocol.scenario import load_scenario
+            from services.gcs.mission import MissionOptions, MissionRunner
             runner = MissionRunner(gcs, load_scenario(), MissionOptions(uavs=(1, 2)))
             for f in forgers:
                 pub = f.publisher(keys.state(FLEET, 2), TELEMETRY)
@@ -176,8 +176,7 @@ def test_every_attack_of_the_issue_fails(secure_fleet, keyset, tmp_path, group):
     restarted = group.start("uav1-again", [*edge.args, "--trust-window", "600"])
     assert restarted.wait_for("board up", 30), "\n".join(restarted.lines)
     with Bus(tls(gcs_ks, "client", gw), FLEET, "gcs2") as gcs:
-        r = None
-        assert wait_until(lambda: (r := gcs.request(cmd1, good, expect=CommandAck, timeout=1.0)).ok, 30)
+        assert wait_until(lambda: (gcs.request(cmd1, good, expect=CommandAck, timeout=1.0)).ok, 30)
         r = gcs.request(cmd1, good, expect=CommandAck)
         assert r.ok and not r.message.accepted and "replayed" in r.message.reason, r
 
@@ -252,7 +251,6 @@ def test_the_cmd_id_of_a_refused_envelope_is_read_without_trusting_it(body):
     import base64
 
     from edge.trust import command_id
-    from protocol import codec
     from protocol.messages import Heartbeat, Land, Signed
 
     text = base64.b64encode(codec.encode(Heartbeat(seq=1, stamp=1.0))).decode() if body is None else body

@@ -9,8 +9,7 @@ import time
 import pytest
 import zenoh
 
-from protocol import keys
-from protocol import acl
+from protocol import acl, keys
 
 F = "f"
 USERS = ["uav1", "uav2", "uav3", "gcs", "gcs-backup", "planner", "detector", "gateway2", "visitor"]

@@ -1,7 +1,8 @@
 """protocol.budget: per-source token buckets and size caps."""
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from protocol.budget import LIMITS, MAX_SOURCES, OTHER, Budget, Limit, TokenBucket, for_topic
 

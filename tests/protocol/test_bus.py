@@ -11,7 +11,8 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig, endpoint_address
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
 from protocol.messages import CommandAck, Hold, Land, Mode, VehicleState
-from tests.conftest import spawn_node, wait_until as _wait
+from tests.conftest import spawn_node
+from tests.conftest import wait_until as _wait
 
 FLEET = "test"
 

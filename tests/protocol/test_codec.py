@@ -2,9 +2,11 @@ import math
 
 import msgpack
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from protocol import codec, messages as m
+from protocol import codec
+from protocol import messages as m
 
 
 def _state(**kw):
@@ -131,6 +133,7 @@ json_values = st.recursive(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(st.sampled_from(sorted(m.MESSAGE_TYPES)), st.dictionaries(st.text(max_size=10), json_values, max_size=8))
 def test_random_bodies_give_codec_error_or_message(tag, body):
@@ -142,6 +145,7 @@ def test_random_bodies_give_codec_error_or_message(tag, body):
         assert msg.TYPE == tag
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.sampled_from(SAMPLES), st.data())
 def test_mutated_valid_messages_never_raise_anything_else(msg, data):

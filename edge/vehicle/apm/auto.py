@@ -36,8 +36,8 @@ seq)`` when a NAV item completes (MISSION_ITEM_REACHED), ``("shot", id)``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from edge.geometry import ardupilot_items as I
 from edge.vehicle.apm.missions import PlanItem

@@ -137,7 +137,7 @@ class MissionServer:
     ``home`` is a callable returning the home item (seq 0 of the mission on download).
     """
 
-    def __init__(self, home: "callable[[], PlanItem] | None" = None, item_timeout_s: float = 1.0, retries: int = 5):
+    def __init__(self, home: callable[[], PlanItem] | None = None, item_timeout_s: float = 1.0, retries: int = 5):
         self.stores: dict[int, list[PlanItem]] = {MISSION: [], FENCE: [], RALLY: []}
         self.home = home
         self.item_timeout_s = float(item_timeout_s)

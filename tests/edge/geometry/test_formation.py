@@ -17,6 +17,7 @@ from edge.geometry.formation import (
     errors_to_inertial,
     formation_error,
     headings,
+    neighbour_correction,
     rotation_of,
     uav_positions,
 )
@@ -202,6 +203,7 @@ def _fly_formation(keep: bool) -> float:
     return float(np.sqrt(np.mean(np.square(errs))))
 
 
+@pytest.mark.slow
 def test_formation_keeping_reduces_shape_error_when_one_uav_lags():
     free = _fly_formation(keep=False)
     kept = _fly_formation(keep=True)

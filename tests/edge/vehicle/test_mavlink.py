@@ -22,13 +22,27 @@ from edge.vehicle.follower import Follower
 pytest.importorskip("pymavlink",
                     reason="the MAVLink driver needs the 'mavlink' extra (pip install -e '.[mavlink]')")
 
+from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
+
 from edge.vehicle.mavlink import (  # noqa: E402
-    TYPE_MASK_POS_VEL_ACC_YAW, TYPE_MASK_POS_VEL_YAW, TYPE_MASK_POS_YAW, CopterMode, MavlinkDriver, MavlinkParams, VehicleLinkError,
-    attitude_ned_to_enu, copter_mode, enu_to_ned, ned_to_enu, open_connection, rates_frd_to_flu, result_name, yaw_enu_to_ned,
+    TYPE_MASK_POS_VEL_ACC_YAW,
+    TYPE_MASK_POS_VEL_YAW,
+    TYPE_MASK_POS_YAW,
+    CopterMode,
+    MavlinkDriver,
+    MavlinkParams,
+    VehicleLinkError,
+    attitude_ned_to_enu,
+    copter_mode,
+    enu_to_ned,
+    ned_to_enu,
+    open_connection,
+    rates_frd_to_flu,
+    result_name,
+    yaw_enu_to_ned,
     yaw_ned_to_enu,
 )
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
-from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 from protocol.messages import Mode, Trajectory, Waypoint  # noqa: E402
 from services.orchestration.process import free_port  # noqa: E402
 

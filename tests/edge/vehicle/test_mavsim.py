@@ -449,7 +449,7 @@ def test_skynet_sim_autopilot_runs_several_instances_with_distinct_system_ids():
                             stderr=subprocess.STDOUT, text=True)
     try:
         ids = []
-        for k, m in enumerate(listeners):
+        for m in listeners:
             hb = m.wait_heartbeat(timeout=30)
             assert hb is not None and hb.autopilot == M.MAV_AUTOPILOT_ARDUPILOTMEGA
             ids.append(hb.get_srcSystem())

@@ -16,10 +16,11 @@ import pytest
 
 pytest.importorskip("pymavlink", reason="the sim autopilot needs the 'mavlink' extra")
 
+from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
+
 from edge.vehicle.apm.boot import EKF_HEALTHY, GPS_TEXT, ORIGIN_TEXT, BootTimeline, position_ok  # noqa: E402
 from edge.vehicle.mavlink import MavlinkDriver, MavlinkParams, open_connection  # noqa: E402
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
-from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 from services.orchestration.process import free_port  # noqa: E402
 
 QUIET = {"HEARTBEAT", "STATUSTEXT"}

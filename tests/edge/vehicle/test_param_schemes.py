@@ -14,8 +14,16 @@ from pathlib import Path
 import pytest
 
 from edge.vehicle.apm.params import (
-    COPTER_PARAMS, DEFAULT_SCHEME, RENAMED, ParamTable, copter_params, flight_sw_version, from_raw, param_name,
-    scheme_of_version, to_raw,
+    COPTER_PARAMS,
+    DEFAULT_SCHEME,
+    RENAMED,
+    ParamTable,
+    copter_params,
+    flight_sw_version,
+    from_raw,
+    param_name,
+    scheme_of_version,
+    to_raw,
 )
 from services.orchestration.process import free_port
 

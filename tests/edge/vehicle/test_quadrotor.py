@@ -10,8 +10,8 @@ import pytest
 from edge.vehicle.quadrotor import (
     Disturbance,
     DisturbanceParams,
-    Quadrotor,
     QuadParams,
+    Quadrotor,
     body_rates_from_euler_rates,
     euler_rates_from_body_rates,
 )

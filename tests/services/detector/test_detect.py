@@ -7,15 +7,10 @@ import numpy as np
 import pytest
 
 from services.detector.detect import METHODS, defects_of, detect, mask_at
-from services.detector.improved import (
-    it_plus_mask,
-    reduction_factor,
-    shape_filter,
-    threshold_it_plus,
-)
+from services.detector.improved import it_plus_mask, reduction_factor, shape_filter, threshold_it_plus
 from services.detector.iterative import C_S_UNGUARDED, iterative_threshold
-from services.detector.thresholds import histogram
 from services.detector.metrics import f_measure
+from services.detector.thresholds import histogram
 
 
 def bar_image() -> np.ndarray:

@@ -78,6 +78,7 @@ def test_cli_single_image(tmp_path, capsys):
     assert main(["image", str(tmp_path / "missing.png")]) == 2
 
 
+@pytest.mark.data
 @pytest.mark.skipif(not REAL.is_dir(), reason="DeepCrack training split not at /work/shared/data")
 def test_real_images_it_and_it_plus_beat_otsu():
     samples = load_dataset(REAL, limit=12)

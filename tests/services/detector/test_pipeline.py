@@ -23,7 +23,6 @@ from services.detector.pipeline import DETECT_MAX_MP, analyse, detection_scale
 from services.inspection.captures import capture_meta
 from services.detector.measure import frame_scale, measure_mask
 
-
 F, RANGE = 800.0, 4.0  # focal length (px), range (m): 5 mm per pixel
 
 
@@ -89,6 +88,7 @@ def test_decode_reduced_sizes_and_bad_factor():
         decode_image(jpeg, reduce=3)
 
 
+@pytest.mark.slow
 def test_a_reduced_report_finds_the_same_cracks_in_full_frame_pixels_and_on_the_wall():
     meta, jpeg, truth = _large()
     full = analyse(meta, jpeg, max_pixels=None)
@@ -109,6 +109,7 @@ def test_a_reduced_report_finds_the_same_cracks_in_full_frame_pixels_and_on_the_
     assert b.length_m == pytest.approx(planted[2].length_m, rel=0.10)
 
 
+@pytest.mark.slow
 def test_a_12_mp_mission_frame_at_the_default_budget_is_measured_on_its_quarter_decode():
     """The paper's 12 MP capture of the mission's wall at its 4.78 m stand-off, as the edge renders it: the
     default real-time budget detects it on the 1/4 decode (1000 x 750), and the report's cracks are the

@@ -88,6 +88,7 @@ def test_hysteresis_keeps_only_seeded_regions_and_rejects_bad_input():
         detect(np.full((4, 4), np.nan), "it+r")
 
 
+@pytest.mark.data
 @pytest.mark.skipif(not (DATA / "crackforest").is_dir(), reason="CrackForest not in ../shared/data")
 def test_better_than_it_plus_on_crackforest_sample():
     samples = load_dataset(DATA / "crackforest", limit=16)

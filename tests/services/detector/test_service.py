@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from edge.surface import crack_image
 from protocol import binding, keys
 from protocol.bus import Bus, BusConfig
 from protocol.imagery import pack_image
@@ -61,7 +62,7 @@ def test_detector_service_frames_in_reports_out(group, gateway):
             time.sleep(0.1)
     good = {r.capture_id: r for r in reports if r.ok}
     assert set(good) == {0, 1, 2, 3}
-    for cid, r in good.items():
+    for r in good.values():
         assert r.uav == 2 and r.defects, r
         d = r.defects[0]
         assert d.pos is not None and abs(d.pos[1] - 5.0) < 1e-6  # on the wall 5 m ahead

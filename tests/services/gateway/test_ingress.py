@@ -3,6 +3,7 @@ enters, while another session's states on the same key all pass (real gateway pr
 
 from __future__ import annotations
 
+import argparse
 import threading
 import time
 
@@ -10,9 +11,9 @@ import pytest
 
 from protocol import codec, keys
 from protocol.bus import Bus, BusConfig
-from protocol.links import COMMAND, TELEMETRY
-from protocol.messages import Mode, VehicleState
 from protocol.checks import rate_arg
+from protocol.links import COMMAND
+from protocol.messages import Mode, VehicleState
 from services.gateway.ingress import STATE_INGRESS_HZ, UAV_IDS, state_ingress
 from services.orchestration.process import free_port
 from tests.conftest import wait_until
@@ -31,7 +32,7 @@ def test_config_items_and_bad_rates():
             state_ingress(FLEET, bad)
     assert rate_arg("0") == 0.0 and rate_arg("250") == 250.0
     for bad in ("-1", "nan", "inf", "x"):
-        with pytest.raises(Exception):
+        with pytest.raises(argparse.ArgumentTypeError):
             rate_arg(bad)
 
 

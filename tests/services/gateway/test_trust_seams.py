@@ -249,13 +249,11 @@ def test_a_router_presenting_a_node_certificate_is_refused_by_a_client(tmp_path,
 
 
 @pytest.mark.mission
-def test_an_impaired_mission_behind_the_accept_guard_succeeds_with_tls_and_the_acl(tmp_path):
-    """``skynet mission --impair uav2="delay 1ms" --accept-guard``, default secure mode, a key set of its own: the
-    proxied links keep mutual TLS and the ACL on the gateway and on every edge, and the mission succeeds."""
-    from tests.conftest import fly_mission
-
-    run = fly_mission(tmp_path / "report", "--speed", "4", "--keys", str(tmp_path / "keys"),
-                      "--impair", "uav2=delay 1ms", "--accept-guard")
+def test_an_impaired_mission_behind_the_accept_guard_succeeds_with_tls_and_the_acl(impaired_secure_mission):
+    """``skynet mission --impair all="after 4s delay 200ms" --accept-guard``, default secure mode, a key set of its
+    own (tests/conftest.py, shared with the launcher's test of the plan under delay): the proxied links keep
+    mutual TLS and the ACL on the gateway and on every edge, and the mission succeeds."""
+    run = impaired_secure_mission
     assert run.proc.returncode == 0, run.failure()
     assert "plaintext" not in run.proc.stderr and "INSECURE" not in run.proc.stderr, run.failure()
     services = (run.out / "services.log").read_text()

@@ -8,13 +8,11 @@ figures are computed in.
 
 from __future__ import annotations
 
-import doctest
 import math
 
 import numpy as np
 import pytest
 
-import services.gcs.figures
 from services.gcs.figures import LinkSamples, ReportFigures, analyse, latency_figures, summarise
 from services.recording.record import MissionRecord
 from tests.services.gcs.test_report import LAG, SIDE, T_SIM0, V, build_record, timed_error
@@ -93,11 +91,6 @@ def test_summarise_is_the_summary_of_analyse(record, figs):
     assert summarise(record) == figs.summary
     assert summarise(record.model_dump(mode="json")).to_dict() == figs.summary.to_dict()
     assert figs.summary.uavs[1].goal_distance_m == pytest.approx(math.hypot(SIDE, V * LAG))
-
-
-def test_docstring_examples():
-    result = doctest.testmod(services.gcs.figures)
-    assert result.attempted > 0 and result.failed == 0
 
 
 def test_imagery_metrics_merge_the_latest_of_every_detector_instance():

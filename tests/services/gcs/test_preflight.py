@@ -3,10 +3,10 @@
 import pytest
 
 from protocol.messages import Box
+from protocol.scenario import load_scenario
 from services.gcs.mission import with_formation_size
 from services.gcs.preflight import along_track_span, margin_to_box, plan_problem, transit_margin_s
 from services.planner.mission import plan_mission
-from protocol.scenario import load_scenario
 
 
 def _plan(n: int):

@@ -209,6 +209,7 @@ def test_planner_and_mission_figures(summary):
     assert not summary.success and summary.failures == ["uav 3 did not reach its goal"]
 
 
+@pytest.mark.slow
 def test_write_report_writes_every_file(record, summary, tmp_path):
     out = write_report(record, tmp_path / "rep")
     names = {p.name for p in (tmp_path / "rep").iterdir()}
@@ -230,6 +231,7 @@ def test_write_report_writes_every_file(record, summary, tmp_path):
     assert "| theta-pso | 10.00 | 5.00 | 3 |" in md and "failsafe" in md
 
 
+@pytest.mark.slow
 def test_an_empty_record_still_gives_a_report(tmp_path):
     rec = MissionRecord(fleet="empty", speed=1.0, started=10.0)
     s = write_report(rec, tmp_path)
@@ -302,16 +304,6 @@ def test_latency_and_convergence_helpers():
     assert convergence_iteration([]) is None
     with pytest.raises(ValueError):
         convergence_iteration([1.0, math.nan])
-
-
-def test_docstring_examples():
-    import doctest
-
-    import services.gcs.figures
-    import services.gcs.report
-
-    results = [doctest.testmod(m) for m in (services.gcs.report, services.gcs.figures)]  # the examples moved there
-    assert sum(r.attempted for r in results) > 0 and not any(r.failed for r in results)
 
 
 def test_edges_with_their_own_epochs_give_the_same_figures():

@@ -87,6 +87,7 @@ def test_fault_figures_by_hand(record):
     assert [c["cmd_id"] for c in f["commands"]["failed"]] == [3]
 
 
+@pytest.mark.slow
 def test_report_has_the_faults_section(record, tmp_path):
     s = write_report(record, tmp_path)
     assert s.faults["still_lost"] == [2]

@@ -15,9 +15,9 @@ answers 5 s after receiving the request with the attack's plan (a 6 km geofence,
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
-import os
 import sys
 import time
 from pathlib import Path

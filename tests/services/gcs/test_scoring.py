@@ -118,12 +118,3 @@ def test_wrong_item_types_are_refused():
         score_defects([{"uav": 1}], TRUTH, CORNERS)
     with pytest.raises(ValueError, match="GroundTruthDefect"):
         score_defects([], [(0, 0, 1, 1)], CORNERS)
-
-
-def test_docstring_examples():
-    import doctest
-
-    import services.gcs.scoring
-
-    result = doctest.testmod(services.gcs.scoring)
-    assert result.attempted > 0 and result.failed == 0

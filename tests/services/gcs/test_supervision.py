@@ -6,8 +6,6 @@ the ground station observed and when, and what the supervisor decided.
 
 from __future__ import annotations
 
-import doctest
-
 import pytest
 
 import services.gcs.supervision
@@ -161,8 +159,3 @@ def test_incident_times_are_told_on_the_mission_clock():
     sup.on_token(1, False, 112.0)
     (inc,) = sup.tick(113.5, 0.2, link_up=True, resume=False).incidents
     assert "since mission t=12.0 s" in inc.text
-
-
-def test_docstring_examples():
-    result = doctest.testmod(services.gcs.supervision)
-    assert result.attempted > 0 and result.failed == 0

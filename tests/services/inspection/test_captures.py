@@ -11,9 +11,9 @@ from services.detector.pipeline import analyse
 from services.recording.record import GroundTruthDefect
 from services.gcs.scoring import score_defects
 from services.inspection.captures import decode, synthetic_captures
-from protocol.scenario import load_scenario
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [7, 11])
 def test_it_plus_is_precise_at_full_recall(seed):
     assert seed != SURFACE_SEED

@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
+from protocol.scenario import load_scenario
 from services.inspection.captures import decode, known_crack_wall, synthetic_captures
 from services.detector.frames import save_frame
 from services.inspection.deliverable import inspect_frames, load_folder, write_deliverable
 from services.inspection.mosaic import Plane, PosedFrame, plane_from_frames
-from protocol.scenario import load_scenario
 
 
 @pytest.fixture(scope="module")
@@ -27,6 +27,7 @@ def wall():
     return sc, surf, caps, truth
 
 
+@pytest.mark.slow
 def test_sizes_against_the_synthetic_truth(wall, tmp_path):
     sc, surf, caps, truth = wall
     o = sc.origin
@@ -94,7 +95,8 @@ def test_kml_and_geojson_of_defects_carry_hostile_text_as_data():
     from lxml import etree
 
     from protocol.textsafe import printable
-    from services.inspection.deliverable import InspectionDefect, geojson as to_geojson, kml
+    from services.inspection.deliverable import InspectionDefect, kml
+    from services.inspection.deliverable import geojson as to_geojson
     from tests.protocol.test_textsafe import HOSTILE
 
     d = InspectionDefect(id=1, u_m=1.0, v_m=2.0, enu=(1.0, 2.0, 3.0), lla=(-33.8, 151.2, 10.0), length_m=0.5,

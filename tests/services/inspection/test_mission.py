@@ -18,7 +18,6 @@ from services.recording.record import MissionRecord
 from services.inspection.captures import synthetic_captures
 from services.inspection.deliverable import load_folder
 from services.inspection.mission import append_deliverable
-from protocol.scenario import load_scenario
 from tests.conftest import wait_until
 
 FLEET = "test"

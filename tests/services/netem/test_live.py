@@ -12,16 +12,11 @@ import time
 
 import pytest
 
-from services.netem.model import Impairment
 from services.netem.control import ControlServer, send_control
+from services.netem.model import Impairment
 from services.netem.proxy import TcpProxy, UdpProxy
 from services.netem.schedule import parse_schedule
-from tests.services.netem.sockets import (
-    eventually,
-    netem_threads,
-    send_paced,
-    udp_client,
-)
+from tests.services.netem.sockets import eventually, netem_threads, send_paced, udp_client
 
 
 def stamped(i: int) -> bytes:

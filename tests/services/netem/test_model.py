@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import doctest
 import math
 
 import numpy as np
@@ -10,13 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import services.netem.model
 from services.netem.model import GilbertElliott, Impairer, Impairment
-
-
-def test_docstring_examples():
-    result = doctest.testmod(services.netem.model)
-    assert result.attempted >= 2 and result.failed == 0
 
 
 # ------------------------------------------------------------------------------ parsing

@@ -14,13 +14,7 @@ import pytest
 
 from services.netem.model import Impairer
 from services.netem.proxy import TcpProxy, UdpProxy, parse_address
-from tests.services.netem.sockets import (
-    eventually,
-    netem_threads,
-    rtt_ms,
-    send_paced,
-    udp_client,
-)
+from tests.services.netem.sockets import eventually, netem_threads, rtt_ms, send_paced, udp_client
 
 
 # ------------------------------------------------------------------------------ construction
@@ -37,7 +31,7 @@ def test_bad_arguments_are_value_errors():
         TcpProxy(target=("127.0.0.1", 9), max_pending_bytes=0)
     assert parse_address("[::1]:7447") == ("::1", 7447)
     with pytest.raises(RuntimeError):
-        UdpProxy(target=("127.0.0.1", 9)).address  # not started
+        _ = UdpProxy(target=("127.0.0.1", 9)).address  # not started
 
 
 # ------------------------------------------------------------------------------ UDP
@@ -162,7 +156,7 @@ def test_udp_rate_limit_spreads_a_burst(sink):
     # 20 datagrams of 1000 B at 800 kbit/s: 10 ms of link time each, 190 ms from first to last
     with UdpProxy(target=sink.address, impairment="rate 800kbit", seed=0) as proxy:
         c = udp_client()
-        for i in range(20):
+        for _ in range(20):
             c.sendto(bytes(1000), proxy.address)
         sink.wait_count(20)
         c.close()

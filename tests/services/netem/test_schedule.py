@@ -5,14 +5,7 @@ from __future__ import annotations
 import pytest
 
 from services.netem.model import Impairment
-from services.netem.schedule import (
-    Command,
-    ScheduleError,
-    Step,
-    load_schedule,
-    parse_command,
-    parse_schedule,
-)
+from services.netem.schedule import Command, ScheduleError, Step, load_schedule, parse_command, parse_schedule
 
 EXAMPLE = """\
 # the link gets worse, drops out, and recovers

@@ -109,7 +109,7 @@ def _closed_by_peer(c: socket.socket, timeout: float) -> bool:
     c.settimeout(timeout)
     try:
         return c.recv(10) == b""
-    except (socket.timeout, OSError):
+    except (TimeoutError, OSError):
         return False
 
 

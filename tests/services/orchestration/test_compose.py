@@ -212,8 +212,9 @@ def test_up_serves_the_page_with_live_data(network) -> None:
     with urllib.request.urlopen(f"http://127.0.0.1:{network.web_port}/?token={TOKEN}", timeout=10) as r:
         assert b"SkyNet" in r.read()
     # the WebSocket the page reads: a static document, then snapshots
-    import aiohttp
     import asyncio
+
+    import aiohttp
 
     async def ws() -> list[dict]:
         async with aiohttp.ClientSession() as s, s.ws_connect(f"http://127.0.0.1:{network.web_port}/ws?token={TOKEN}") as w:

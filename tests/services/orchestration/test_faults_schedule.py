@@ -8,14 +8,7 @@ import time
 
 import pytest
 
-from services.orchestration.faults import (
-    FaultInjector,
-    parse_duration,
-    parse_fault,
-    plan_faults,
-    resolve,
-    schedule,
-)
+from services.orchestration.faults import FaultInjector, parse_duration, parse_fault, plan_faults, resolve, schedule
 from services.orchestration.launcher import build_parser, make_plan
 from services.orchestration.topology import Links, edge_mesh_config, link_seed, parse_impair
 from tests.conftest import wait_until

@@ -4,13 +4,7 @@ import json
 
 import pytest
 
-from services.orchestration.fleet_load import (
-    EDGE_NICE,
-    GCS_STATE_BUDGET,
-    NICE_ABOVE,
-    PREVIEW_BUDGET,
-    fleet_load,
-)
+from services.orchestration.fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET, fleet_load
 
 
 def test_the_papers_fleet_keeps_every_state_full_previews_and_equal_priority():

@@ -88,8 +88,8 @@ def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
 
 def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
     from protocol import keys
-    from protocol.keyset import KeySet
     from protocol.bus import Bus, BusConfig
+    from protocol.keyset import KeySet
     from protocol.links import TELEMETRY
     from protocol.messages import VehicleState
 
@@ -123,16 +123,16 @@ def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
 
 
 @pytest.mark.mission
-def test_mission_with_200ms_on_every_link_keeps_its_plan(tmp_path):
+def test_mission_with_200ms_on_every_link_keeps_its_plan(impaired_secure_mission):
     """Every link, reliable ones too, 200 ms each way (the impairment goals' delay): the formation must not
     read late states as lagging neighbours, and the common start must wait for the last UAV's
     Start; either fault left the fleet 2.7 m behind its plan and the mission failed. The delay
     starts once the sessions are open (``after 4s``, before the upload): opened through 200 ms
     links, a zenoh 1.10 multilink session sometimes stays broken ("Route data with unknown
-    scope" at the gateway for that UAV, which then never appears), see README."""
-    out = tmp_path / "report"
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--speed", "8", "--quiet", "--out", str(out),
-                           "--impair", "all=after 4s delay 200ms"], capture_output=True, text=True, timeout=300)
+    scope" at the gateway for that UAV, which then never appears). The run is shared with the trust test
+    of the proxied links (tests/conftest.py, ``impaired_secure_mission``)."""
+    out, proc = impaired_secure_mission.out, impaired_secure_mission.proc
+    assert (out / "report.json").exists(), impaired_secure_mission.failure()
     report = json.loads((out / "report.json").read_text())
     logs = (out / "services.log").read_text()[-4000:] if (out / "services.log").exists() else ""
     assert proc.returncode == 0 and report["success"], f"{report['failures']}\n{proc.stderr[-2000:]}\n{logs}"

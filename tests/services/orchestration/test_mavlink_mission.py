@@ -6,8 +6,8 @@ kept in formation by speed corrections). Same bounds as the built-in vehicle's m
 """
 
 import json
-import sys
 import subprocess
+import sys
 
 import pytest
 

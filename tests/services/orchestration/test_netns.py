@@ -30,7 +30,7 @@ from tests.readiness import wait_ready
 
 FLEET = "sites"
 OK, WHY = available()
-pytestmark = pytest.mark.skipif(not OK, reason=f"no network namespaces here: {WHY}")
+pytestmark = [pytest.mark.root, pytest.mark.skipif(not OK, reason=f"no network namespaces here: {WHY}")]
 PROXY_PORT = GATEWAY_PORT + 10  # in site 1's namespace: its own port space
 DELAY_MS = 50
 

@@ -4,8 +4,7 @@ ports are drawn where no outgoing connection takes them."""
 import contextlib
 import socket
 
-from services.orchestration.process import (LOWEST_LISTEN_PORT, ProcessGroup, ephemeral_range, free_port,
-                                            listen_ports)
+from services.orchestration.process import LOWEST_LISTEN_PORT, ProcessGroup, ephemeral_range, free_port, listen_ports
 
 
 def test_log_pump_survives_a_full_disk_and_keeps_reading(capfd):

@@ -1,18 +1,9 @@
 """services.planner.limits: work checked before planning, a time budget while planning."""
 
-import time
 
 import pytest
 
-from services.planner.limits import (
-    MAX_CELLS,
-    MAX_WORK,
-    Deadline,
-    TimeBudgetExceeded,
-    TooLarge,
-    check_budget,
-    work_of,
-)
+from services.planner.limits import MAX_CELLS, MAX_WORK, Deadline, TimeBudgetExceeded, TooLarge, check_budget, work_of
 from services.planner.mission import plan_mission
 from services.planner.scenario import load_scenario
 
@@ -42,6 +33,7 @@ def test_deadline_ends_the_optimiser():
         Deadline(lambda x: x, 0)
 
 
+@pytest.mark.slow
 def test_anytime_answers_with_the_best_collision_free_path_when_the_budget_runs_out():
     """a fleet's edges starve the planner; with ``anytime`` it plans the best path it had."""
     sc = load_scenario()

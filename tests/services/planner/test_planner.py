@@ -13,14 +13,14 @@ from services.planner.cli import main as cli_main
 from services.planner.compare import compare, convergence_plot
 from services.planner.cost import Cost, PathProblem, clearance, path_collision_free, point_segment_distance
 from services.planner.export import (
+    MAV_CMD_DO_DIGICAM_CONTROL,
+    MAV_CMD_NAV_RETURN_TO_LAUNCH,
+    MAV_CMD_NAV_TAKEOFF,
     mission_geojson,
     parse_geojson,
     parse_qgc_wpl,
     qgc_wpl,
     waypoints_enu,
-    MAV_CMD_DO_DIGICAM_CONTROL,
-    MAV_CMD_NAV_RETURN_TO_LAUNCH,
-    MAV_CMD_NAV_TAKEOFF,
 )
 from services.planner.mission import optimise, plan_details, plan_mission
 from services.planner.scenario import Camera, Scenario, ScenarioError, load_scenario, validate_scenario

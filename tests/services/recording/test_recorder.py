@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from protocol import keys
 from protocol.budget import LIMITS
 from protocol.bus import Bus, BusConfig
-from protocol.links import COMMAND, TELEMETRY
+from protocol.links import COMMAND
 from protocol.messages import Event, Mode, VehicleState
 from services.recording.record import MissionRecord
 from services.recording.mcap_log import read

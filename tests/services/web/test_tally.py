@@ -13,8 +13,6 @@ from services.recording.record import MissionRecord
 from services.inspection.captures import decode, synthetic_captures
 from services.detector.frames import save_frame
 from services.inspection.mission import append_deliverable
-from services.detector.detect import detect
-from services.detector.pipeline import MIN_REPORT_AREA_PX
 from services.web.tally import DefectTally, captures_in, count_defects
 from services.web.view import FleetView
 from tests.conftest import wait_until

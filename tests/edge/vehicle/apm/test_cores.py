@@ -9,7 +9,7 @@ import pytest
 
 from edge.geometry import ardupilot_items as I
 from edge.vehicle.apm.auto import AutoMission
-from edge.vehicle.apm.missions import (FENCE, MISSION, RALLY, MissionServer, PlanItem, item_from_message)
+from edge.vehicle.apm.missions import FENCE, MISSION, RALLY, MissionServer, PlanItem, item_from_message
 from edge.vehicle.apm.modes import CopterMode, check_mode_change
 from edge.vehicle.apm.params import ParamTable
 from edge.vehicle.apm.streams import StreamScheduler
