@@ -23,11 +23,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from edge.geometry.camera import camera_model
 from edge.geometry.optics import CameraPose
 from edge.world.camera import SyntheticSource
-from protocol.imagecodec import encode_jpeg
-from edge.geometry.camera import camera_model
 from edge.world.wall import synthetic_surface
+from protocol.imagecodec import encode_jpeg
 from protocol.scenario import load_scenario
 
 

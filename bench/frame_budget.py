@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from protocol.imagecodec import decode_image, encode_jpeg  # noqa: E402
 from edge.world.surface import crack_image  # noqa: E402
+from protocol.imagecodec import decode_image, encode_jpeg  # noqa: E402
 from protocol.messages import ImageMeta, Intrinsics  # noqa: E402
 from services.detector.detect import detect  # noqa: E402
 from services.detector.pipeline import MIN_REPORT_AREA_PX, scaled, to_report  # noqa: E402

@@ -54,11 +54,11 @@ FRAME = "4000x3000"
 
 
 def steps(repeat: int) -> dict[str, float]:
+    from edge.geometry.camera import camera_model, camera_rotation
     from edge.geometry.optics import CameraPose
     from edge.world.camera import SyntheticSource
-    from protocol.imagecodec import decode_image, encode_jpeg
-    from edge.geometry.camera import camera_model, camera_rotation
     from edge.world.wall import synthetic_surface
+    from protocol.imagecodec import decode_image, encode_jpeg
     from protocol.messages import ImageMeta, Intrinsics
     from protocol.scenario import load_scenario
     from services.detector.pipeline import analyse

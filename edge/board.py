@@ -41,18 +41,36 @@ from protocol import keys
 from protocol.budget import for_topic
 from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
 from protocol.links import COMMAND, TELEMETRY
-from protocol.readiness import notify_ready
 from protocol.messages import (
-    Box, CommandAck, Event, EventKind, Heartbeat, Hold, Land, Level, Message, Mode, Resume, ReturnToLaunch, SetFormation,
-    Signed, Start, Takeoff, UploadTrajectory, VehicleState, COMMAND_TYPES,
+    COMMAND_TYPES,
+    Box,
+    CommandAck,
+    Event,
+    EventKind,
+    Heartbeat,
+    Hold,
+    Land,
+    Level,
+    Message,
+    Mode,
+    Resume,
+    ReturnToLaunch,
+    SetFormation,
+    Signed,
+    Start,
+    Takeoff,
+    UploadTrajectory,
+    VehicleState,
 )
+from protocol.readiness import notify_ready
 from protocol.signing import TrustError
 
-from .geometry import formation
 from .failsafe import FailsafeOptions, FailsafePolicy
-from .geometry.neighbourhood import FORMATION_SIZE, neighbours as neighbourhood_of
-from .trust import Gate, command_id
+from .geometry import formation
+from .geometry.neighbourhood import FORMATION_SIZE
+from .geometry.neighbourhood import neighbours as neighbourhood_of
 from .geometry.validate import narrowed_fence, validate_command
+from .trust import Gate, command_id
 from .vehicle.follower import Follower
 
 if TYPE_CHECKING:

@@ -36,8 +36,6 @@ from protocol.rtp import RtpSender, ssrc_for
 from protocol.scenario import load_scenario
 from protocol.stages import LOG_PREFIX, StageTimes
 
-from protocol.imagecodec import encode_jpeg
-
 from .camera import FrameEncoder, make_source
 from .config import CAPTURE_LINKS, IMAGERY_CACHE_FRAMES, PREVIEW_HZ, PREVIEW_SIZE, EdgeConfig
 from .geometry.camera import camera_model, camera_rotation

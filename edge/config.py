@@ -170,7 +170,7 @@ class EdgeConfig(BusOptions):
         default=False, description="accept unsigned commands and heartbeats, no TLS, no ACL (development only)")
 
     @model_validator(mode="after")
-    def _consistent(self) -> "EdgeConfig":
+    def _consistent(self) -> EdgeConfig:
         if self.battery_critical > self.battery_low:
             raise ValueError(f"--battery-critical {self.battery_critical} is above --battery-low {self.battery_low}")
         return self

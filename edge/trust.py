@@ -131,7 +131,6 @@ def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
             log.warning("INSECURE: uav%d obeys unsigned commands and heartbeats from anyone on the bus%s",
                         config.uav, "" if config.insecure else " (no --keys given)")
         return Gate(config.fleet, config.uav, None), None
-    from protocol.keyset import KeySet, role_of_cn
     from protocol.acl import cert_access_control
     from protocol.keyset import KeySet, role_of_cn
 

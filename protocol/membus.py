@@ -99,7 +99,7 @@ def intersects(a: str, b: str) -> bool:
 class _Entity:
     """A declared subscriber, queryable, token or liveliness subscriber; ``undeclare`` removes it."""
 
-    def __init__(self, table: list, session: "MemSession", key: str, target: Any = None) -> None:
+    def __init__(self, table: list, session: MemSession, key: str, target: Any = None) -> None:
         self.table, self.session, self.key, self.target = table, session, key, target
 
     def undeclare(self) -> None:
@@ -107,7 +107,7 @@ class _Entity:
 
 
 class _MemPublisher:
-    def __init__(self, session: "MemSession", key: str) -> None:
+    def __init__(self, session: MemSession, key: str) -> None:
         self.session, self.key = session, key
 
     def put(self, data: bytes, encoding: Any = None, attachment: bytes | None = None) -> None:
@@ -127,7 +127,7 @@ class _Matching:
 
 
 class _Liveliness:
-    def __init__(self, session: "MemSession") -> None:
+    def __init__(self, session: MemSession) -> None:
         self.session = session
 
     def declare_token(self, key: str) -> _Entity:
@@ -141,7 +141,7 @@ class _Liveliness:
 
 
 class _Info:
-    def __init__(self, session: "MemSession") -> None:
+    def __init__(self, session: MemSession) -> None:
         self.session = session
 
     def links(self) -> list[Any]:
@@ -157,7 +157,7 @@ class _Info:
 class MemSession:
     """The part of :class:`zenoh.Session` that :class:`~protocol.bus.Bus` uses, on a :class:`MemNetwork`."""
 
-    def __init__(self, net: "MemNetwork", name: str) -> None:
+    def __init__(self, net: MemNetwork, name: str) -> None:
         self.net, self.name = net, name
         self.info = _Info(self)
         self.closed = False

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from enum import Enum, StrEnum
-from typing import Annotated, Any, ClassVar, Literal, Union
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 

@@ -38,8 +38,8 @@ from dataclasses import dataclass
 import pymap3d
 
 from edge.geometry import ardupilot_items as AI
-from edge.vehicle.apm.missions import PlanItem
 from edge.geometry.waypoint_mission import mission_items
+from edge.vehicle.apm.missions import PlanItem
 from protocol.messages import Trajectory
 
 __all__ = ["AutoMissionPlan", "autopilot_mission", "decimate", "resume_item", "speed_correction"]

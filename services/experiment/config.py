@@ -53,6 +53,6 @@ class ExperimentConfig(CliModel):
     dry_run: bool = Field(default=False, description="print the mission commands and stop")
 
     @model_validator(mode="after")
-    def _links(self) -> "ExperimentConfig":
+    def _links(self) -> ExperimentConfig:
         self.links = check_links(self.links, self.uavs)  # the launcher's own grammar, for this fleet
         return self

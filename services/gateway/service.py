@@ -22,15 +22,20 @@ from typing import Any
 
 import zenoh
 
-from protocol import keys
-from protocol.bus import (Bus, BusConfig, config_from_args, endpoint_address, multilink_endpoints, setup_logging,
-                          stop_event_on_signals)
+from protocol import acl, keys
+from protocol.bus import (
+    Bus,
+    BusConfig,
+    config_from_args,
+    endpoint_address,
+    multilink_endpoints,
+    setup_logging,
+    stop_event_on_signals,
+)
 from protocol.cliconfig import add_options, from_namespace
 from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
-from protocol.readiness import notify_ready
 from protocol.messages import ClassCounters, LinkStats
-
-from protocol import acl
+from protocol.readiness import notify_ready
 
 from . import ingress
 from .config import GatewayConfig

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from protocol import keys
 from protocol.bus import Bus
 from protocol.messages import CommandAck
-
 from services.recording.record import CommandRecord
 
 __all__ = ["RetryPolicy", "CommandIds", "send", "not_sent", "start_margin"]

@@ -61,10 +61,10 @@ from numpy.typing import ArrayLike, NDArray
 from edge.geometry.formation import DEFAULT_OFFSETS, ShapeErrorMeter
 from protocol.messages import Mode, Trajectory
 from services.gcs.clock_align import sim_time_shifts
-from services.recording.record import GOAL_RADIUS_M, MissionRecord
 from services.gcs.resilience import fault_figures
 from services.gcs.scoring import DefectScore, score_defects
 from services.gcs.verdict import GoalCheck, goal_check, imaged_captures, planned_captures
+from services.recording.record import GOAL_RADIUS_M, MissionRecord
 
 __all__ = [
     "GOAL_RADIUS_M",

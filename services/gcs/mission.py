@@ -54,9 +54,6 @@ from protocol.messages import (
     VehicleState,
 )
 from protocol.scenario import FormationSpec, Scenario
-
-from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
-from .evidence import corroboration_failures, has_evidence, ledger
 from services.recording.record import (
     CommandRecord,
     DefectRx,
@@ -68,6 +65,9 @@ from services.recording.record import (
     StateRx,
     StatsRx,
 )
+
+from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
+from .evidence import corroboration_failures, has_evidence, ledger
 from .supervision import SUPERVISE_PERIOD_S, Supervisor, mission_time
 from .verdict import goal_check, planned_captures
 

@@ -21,8 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from services.gcs.figures import ReportFigures, ReportSummary
-from services.recording.record import MissionRecord
 from services.gcs.scoring import surface_uv
+from services.recording.record import MissionRecord
 
 __all__ = ["PLOTS", "write_plots"]
 

@@ -50,8 +50,8 @@ from services.gcs.figures import (
 )
 from services.gcs.markdown import markdown
 from services.gcs.plots import PLOTS, write_plots
-from services.recording.record import MissionRecord
 from services.inspection.mission import append_deliverable
+from services.recording.record import MissionRecord
 
 __all__ = [
     "GOAL_RADIUS_M",

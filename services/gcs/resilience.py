@@ -34,7 +34,6 @@ from itertools import pairwise
 from typing import Any
 
 from protocol.messages import EventKind
-
 from services.recording.record import MissionRecord
 
 __all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "SUPERVISION_ACTIONS", "fault_figures", "reception_gaps"]

@@ -38,7 +38,6 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 from protocol.messages import Mode, VehicleState
-
 from services.recording.record import CommandRecord, Incident
 
 __all__ = [

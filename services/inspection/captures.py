@@ -15,12 +15,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edge.geometry.camera import camera_model, camera_rotation
 from edge.geometry.optics import CameraPose
 from edge.world.camera import SyntheticSource
-from protocol.imagecodec import decode_image, encode_jpeg
-from edge.geometry.camera import camera_model, camera_rotation
-from edge.world.wall import synthetic_surface
 from edge.world.surface import SyntheticSurface, textured_background
+from edge.world.wall import synthetic_surface
+from protocol.imagecodec import decode_image, encode_jpeg
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import Scenario
 from services.planner.task import formation_pass

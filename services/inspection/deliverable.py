@@ -50,9 +50,9 @@ from protocol import codec
 from protocol.messages import ImageMeta
 from protocol.textsafe import md_text, xml_text
 from services.detector.detect import detect
+from services.detector.measure import SEVERITY_LIMITS_M, centre_line, measure_mask, outline
 from services.detector.pipeline import MIN_REPORT_AREA_PX
 
-from services.detector.measure import SEVERITY_LIMITS_M, centre_line, measure_mask, outline
 from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, plane_from_frames
 
 __all__ = ["InspectionDefect", "Deliverable", "inspect_frames", "load_folder", "write_deliverable",

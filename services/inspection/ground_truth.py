@@ -8,7 +8,6 @@ the report scores the system's defect reports against (recall and precision, obj
 from __future__ import annotations
 
 from edge.world.wall import synthetic_surface
-
 from services.recording.record import GroundTruthDefect, MissionRecord
 
 

@@ -20,11 +20,22 @@ from pathlib import Path
 from typing import Any
 
 from protocol.textsafe import md_text
+from services.detector.measure import SEVERITY_LIMITS_M
 from services.recording.record import MissionRecord
 
-from .deliverable import (SEVERITY_ORDER, SORT_KEY, Deliverable, InspectionDefect, frames_from_log, inspect_frames,
-                          load_folder, markdown_table, resolution_note, width_text, write_deliverable)
-from services.detector.measure import SEVERITY_LIMITS_M
+from .deliverable import (
+    SEVERITY_ORDER,
+    SORT_KEY,
+    Deliverable,
+    InspectionDefect,
+    frames_from_log,
+    inspect_frames,
+    load_folder,
+    markdown_table,
+    resolution_note,
+    width_text,
+    write_deliverable,
+)
 from .mosaic import Plane
 
 __all__ = ["append_deliverable", "FOLDER", "HEADING", "findings_markdown", "class_ranges", "deliverable_line"]

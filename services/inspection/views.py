@@ -78,8 +78,8 @@ def overview_figure(bgr: np.ndarray, mos: Mosaic, labels: Sequence[tuple[int, fl
 
     ``labels`` are ``(id, u, v)`` of each defect (surface metres), drawn in boxes beside the crack.
     """
-    from matplotlib.figure import Figure
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     from matplotlib.ticker import MultipleLocator
 
     W_m, H_m = mos.plane.width_m, mos.plane.height_m

@@ -53,7 +53,6 @@ from typing import Any
 
 from protocol.bus import stopping_on_signals
 from protocol.readiness import notify_ready
-from services.netem.model import Impairment
 from services.netem.control import ControlServer, send_control
 from services.netem.model import Impairment
 from services.netem.proxy import DIRECTIONS, TcpProxy, UdpProxy, format_address, parse_address

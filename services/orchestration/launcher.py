@@ -69,25 +69,34 @@ import threading
 import time
 from pathlib import Path
 
+from edge.config import CAPTURE_LINKS, frame_size, niceness
 from protocol import keys
 from protocol.bus import Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
 from protocol.checks import rate_arg
 from protocol.links import LINK_LEASE_S
 from protocol.readiness import notify_ready
-
-from edge.config import CAPTURE_LINKS, frame_size, niceness
-
 from services import attach
 
+from ..gateway.ingress import STATE_INGRESS_HZ
 from . import trustmode
 from .faults import FaultInjector
 from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET
-from .plan import (HOST, CountingPorts, LaunchOptions, NetworkPlan, Plan, ProcessSpec, Trust, free_ports, gateway_thinning,
-                   make_plan, network_plan)
+from .plan import (
+    HOST,
+    CountingPorts,
+    LaunchOptions,
+    NetworkPlan,
+    Plan,
+    ProcessSpec,
+    Trust,
+    free_ports,
+    gateway_thinning,
+    make_plan,
+    network_plan,
+)
 from .process import ProcessGroup
 from .restart import RestartTracker
 from .topology import CLASSES, open_timeout_ms
-from ..gateway.ingress import STATE_INGRESS_HZ
 
 __all__ = ["Network", "Plan", "make_plan", "build_parser", "main", "run_mission", "SUPERVISOR_RESTART",
            "START_FAILED"]
@@ -625,8 +634,6 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
     from protocol.scenario import load_scenario
     from services.gcs.cli import run_mission as gcs_mission
     from services.gcs.mission import MissionOptions
-    from protocol.scenario import load_scenario
-
     from services.recording.record import check_output_folder
 
     # not writable or too little room: refused (RecordingError) before any service starts

@@ -47,9 +47,21 @@ from numpy.typing import ArrayLike, NDArray
 
 from edge.geometry import ardupilot_items as AI
 from edge.geometry.waypoint_mission import (  # noqa: F401  (their home; exported here too)
-    MAV_CMD_CONDITION_YAW, MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_DIGICAM_CONTROL, MAV_CMD_NAV_RETURN_TO_LAUNCH,
-    MAV_CMD_NAV_TAKEOFF, MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_FRAME_MISSION,
-    MissionItem, _compass_deg, _origin, enu_to_geodetic, geodetic_to_enu, mission_items,
+    MAV_CMD_CONDITION_YAW,
+    MAV_CMD_DO_CHANGE_SPEED,
+    MAV_CMD_DO_DIGICAM_CONTROL,
+    MAV_CMD_NAV_RETURN_TO_LAUNCH,
+    MAV_CMD_NAV_TAKEOFF,
+    MAV_CMD_NAV_WAYPOINT,
+    MAV_FRAME_GLOBAL,
+    MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    MAV_FRAME_MISSION,
+    MissionItem,
+    _compass_deg,
+    _origin,
+    enu_to_geodetic,
+    geodetic_to_enu,
+    mission_items,
 )
 from protocol import codec
 from protocol.messages import MissionPlan, Trajectory

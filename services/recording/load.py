@@ -27,7 +27,7 @@ from pydantic import BaseModel
 
 from protocol import binding, codec, keys
 from protocol.messages import DefectReport, Event, LinkStats, VehicleState
-from services.recording.record import CAPS, DefectRx, EventRx, ITEM_MODELS, MissionRecord, StateRx, StatsRx, keep
+from services.recording.record import CAPS, ITEM_MODELS, DefectRx, EventRx, MissionRecord, StateRx, StatsRx, keep
 
 from .mcap_log import read
 from .recorder import FOOTER_TOPIC, GROUND_TOPICS, HEADER_FIELDS, HEADER_TOPIC

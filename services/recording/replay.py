@@ -23,9 +23,8 @@ from pathlib import Path
 
 from protocol import keys
 from protocol.bus import Bus, Publisher, add_bus_args, setup_logging, stop_event_on_signals
-from services.attach import add_network_arg, open_bus
 from protocol.links import COMMAND, class_of_topic
-from services.orchestration.attach import add_network_arg, open_bus
+from services.attach import add_network_arg, open_bus
 
 from .mcap_log import bus_bytes, read
 

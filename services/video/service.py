@@ -26,11 +26,10 @@ from protocol import binding, keys
 from protocol.bus import Bus, Ring, setup_logging, stop_event_on_signals
 from protocol.cliconfig import add_options, from_namespace
 from protocol.imagery import unpack_image
-from protocol.rtp import ssrc_for
 from protocol.readiness import notify_ready
+from protocol.rtp import ssrc_for
 
 from .config import VideoConfig
-
 from .sdp import sdp
 from .stream import VideoStream
 

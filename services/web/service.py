@@ -26,16 +26,14 @@ from protocol.cliconfig import add_options, from_namespace
 from protocol.imagery import unpack_image
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, Event, VehicleState
-from protocol.scenario import Scenario
 from protocol.readiness import notify_ready
-
+from protocol.scenario import Scenario
 from services.recording.replay import REPLAY_MARK
 
 from .config import WebConfig
 from .server import TOKEN_ENV, WebServer, parse_listen
 from .tally import DefectTally
 from .view import FleetView
-
 
 #: the rejection counted for a replay mark on a key outside a replay fleet (the mark is then ignored)
 MISPLACED_MARK = "replay-mark"
@@ -181,7 +179,6 @@ def run(args: WebConfig, argv: list[str] | None = None) -> int:
     log = setup_logging("web")
     stop = stop_event_on_signals()
     from protocol.scenario import load_scenario
-
     from services.attach import open_bus
 
     with open_bus(args, "web", argv) as bus:

@@ -16,8 +16,19 @@ from edge.vehicle.mavlink import VehicleLinkError
 from protocol import codec, keys
 from protocol.links import COMMAND, TELEMETRY
 from protocol.membus import MemBus, MemNetwork
-from protocol.messages import (Box, CommandAck, Event, EventKind, Heartbeat, Land, Level, Mode, Resume, Takeoff,
-                               VehicleState)
+from protocol.messages import (
+    Box,
+    CommandAck,
+    Event,
+    EventKind,
+    Heartbeat,
+    Land,
+    Level,
+    Mode,
+    Resume,
+    Takeoff,
+    VehicleState,
+)
 
 FLEET = "rules"
 
@@ -189,7 +200,7 @@ def test_a_failed_rtl_becomes_a_land_and_both_failing_keep_being_retried_and_sai
     board.tick()
     assert driver.calls == ["rtl"] and events[-1].data["next_action"] == "land"
     assert "rtl failed" in events[-1].text and "trying land instead" in events[-1].text
-    for k in range(4):
+    for _ in range(4):
         wall.t += 1.0
         board.tick()
     assert driver.calls == ["rtl", "land", "land", "land", "land"]

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from edge.camera import FolderSource, FrameEncoder, VideoCaptureSource, make_source
+from edge.geometry.camera import camera_rotation
 from edge.geometry.optics import CameraModel, CameraPose
 from edge.world.camera import Frame, FrameSource, SyntheticSource, upsample_factor
-from protocol.imagecodec import decode_image, encode_jpeg
-from edge.geometry.camera import camera_rotation
 from edge.world.surface import SyntheticSurface, crack_image
+from protocol.imagecodec import decode_image, encode_jpeg
 
 # the default scenario's wall (50 m x 6 m at x = 60, facing west) and camera
 CORNERS = [[60, 85, 25.5], [60, 35, 25.5], [60, 35, 31.5], [60, 85, 31.5]]

@@ -10,13 +10,13 @@ import time
 import numpy as np
 import pytest
 
-from protocol.imagecodec import decode_image
 from edge.camera_service import PREVIEW_CAMERA, capture_link, make_camera
 from edge.config import IMAGERY_CACHE_FRAMES, PREVIEW_SIZE, EdgeConfig
 from edge.vehicle.driver import CaptureEvent
 from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.cliconfig import parse
+from protocol.imagecodec import decode_image
 from protocol.imagery import split_payload
 from protocol.links import IMAGERY, IMAGERY_RELIABLE
 from protocol.rtp import parse_ssrc, unpack_frame

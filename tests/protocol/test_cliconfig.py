@@ -22,11 +22,11 @@ def _services():
     from services.detector import service as detector
     from services.detector.config import DetectorConfig
     from services.detector.partition import Partition
+    from services.experiment import cli as experiment
+    from services.experiment.config import ExperimentConfig
     from services.gateway import service as gateway
     from services.gateway.config import GatewayConfig
     from services.gcs import cli as gcs
-    from services.experiment import cli as experiment
-    from services.experiment.config import ExperimentConfig
     from services.gcs.config import GcsMissionConfig
     from services.planner import service as planner
     from services.planner.config import PlannerConfig

@@ -16,7 +16,6 @@ import pytest
 from protocol.bus import add_bus_args
 from services import attach
 from services import keys as pki
-from services import attach
 
 EPS = ["tls/127.0.0.1:30001?rel=1", "tls/127.0.0.1:30002?rel=0"]
 

@@ -40,8 +40,8 @@ from edge.vehicle.apm.modes import CopterMode
 from .commands import CommandRefused, VehicleLinkError, command_name, result_name
 from .dialect import ARDUCOPTER, Dialect, copter_mode, copter_mode_name
 from .driver import MavlinkDriver, MavlinkParams
-from .handlers import attitude_ned_to_enu, enu_to_ned, ned_to_enu, rates_frd_to_flu, yaw_enu_to_ned, yaw_ned_to_enu
 from .guided import TYPE_MASK_POS_VEL_ACC_YAW, TYPE_MASK_POS_VEL_YAW, TYPE_MASK_POS_YAW
+from .handlers import attitude_ned_to_enu, enu_to_ned, ned_to_enu, rates_frd_to_flu, yaw_enu_to_ned, yaw_ned_to_enu
 from .link import open_connection
 from .phase import Phase
 

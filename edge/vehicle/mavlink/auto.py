@@ -48,7 +48,7 @@ log = logging.getLogger("skynet.mavlink")
 class AutoFlight:
     """The AUTO strategy of one driver (its lock guards ``switching``, ``pending`` and the end state)."""
 
-    def __init__(self, drv: "MavlinkDriver"):
+    def __init__(self, drv: MavlinkDriver):
         self.drv = drv
         self.plan: AutoMissionPlan | None = None
         self._traj: Trajectory | None = None

@@ -10,8 +10,8 @@ from typing import Any, Literal
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.geometry.ardupilot_items import capture_params
+from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import AutopilotReadiness, Mode, Trajectory
 
@@ -488,7 +488,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         if self.bridge is not None:
             self.bridge.close()
 
-    def __enter__(self) -> "MavlinkDriver":
+    def __enter__(self) -> MavlinkDriver:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -34,11 +34,11 @@ import logging
 import math
 import threading
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
-
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.vehicle.angles import wrap_angle

@@ -5,13 +5,14 @@ arming, takeoff, the current mission item, DO_REPOSITION and GUIDED position tar
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from edge.vehicle.angles import wrap_angle
 from edge.geometry import ardupilot_items as I
+from edge.vehicle.angles import wrap_angle
 from edge.vehicle.apm.auto import AutoMission
 from edge.vehicle.apm.missions import PlanItem
 from edge.vehicle.apm.modes import ARMABLE, CopterMode, check_mode_change

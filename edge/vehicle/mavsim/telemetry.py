@@ -46,7 +46,7 @@ PREARM_REPORT_S = 30.0
 class SimTelemetry:
     """The sending half of :class:`.vehicle.MavlinkSimVehicle` (a mixin: it uses the vehicle's state)."""
 
-    def _startup_texts(self: "MavlinkSimVehicle") -> None:
+    def _startup_texts(self: MavlinkSimVehicle) -> None:
         """The EKF's start-up STATUSTEXTs, and the failing pre-arm check every PREARM_REPORT_S while disarmed."""
         t = self.boot_time()
         if self.boot.booting(t):

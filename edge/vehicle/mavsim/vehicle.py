@@ -7,7 +7,8 @@ import math
 import queue
 import threading
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import pymap3d
 from pymavlink.dialects.v20 import ardupilotmega as M
@@ -171,7 +172,7 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
                         round(lat * 1e7), round(lon * 1e7), h)
 
     # ------------------------------------------------------------------ running
-    def start(self) -> "MavlinkSimVehicle":
+    def start(self) -> MavlinkSimVehicle:
         """Run in a daemon thread (stop with :meth:`close`)."""
         if self._thread is None:
             self._thread = threading.Thread(target=self.run, name=f"mavsim-uav{self.uav}", daemon=True)
@@ -196,7 +197,7 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
         except OSError:
             pass
 
-    def __enter__(self) -> "MavlinkSimVehicle":
+    def __enter__(self) -> MavlinkSimVehicle:
         return self
 
     def __exit__(self, *exc: object) -> None:

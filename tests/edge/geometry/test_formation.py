@@ -10,7 +10,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edge.geometry.formation import (
-    neighbour_correction,
     DEFAULT_OFFSETS,
     centroid_of,
     errors_in_formation,

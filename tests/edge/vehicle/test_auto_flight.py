@@ -200,8 +200,8 @@ def test_a_dense_mission_is_flown_slowly_as_by_arducopter_and_the_decimated_one_
 
 def _dense_items(traj: Trajectory):
     """The mission without decimation (every waypoint a NAV_WAYPOINT), as MISSION_ITEM_INT fields."""
-    from edge.vehicle.apm.missions import PlanItem
     from edge.geometry.waypoint_mission import mission_items
+    from edge.vehicle.apm.missions import PlanItem
 
     origin = pymap3d.enu2geodetic(-HOME[0], -HOME[1], -HOME[2], *HOME_LLA)
     out = []

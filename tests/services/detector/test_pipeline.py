@@ -11,17 +11,17 @@ import cv2
 import numpy as np
 import pytest
 
+from edge.geometry.camera import camera_model, camera_rotation
 from edge.geometry.optics import CameraPose
 from edge.world.camera import SyntheticSource
-from protocol.imagecodec import decode_image, encode_jpeg
-from edge.geometry.camera import camera_model, camera_rotation
-from edge.world.wall import synthetic_surface
 from edge.world.surface import crack_image, textured_background
+from edge.world.wall import synthetic_surface
+from protocol.imagecodec import decode_image, encode_jpeg
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.scenario import load_scenario
+from services.detector.measure import frame_scale, measure_mask
 from services.detector.pipeline import DETECT_MAX_MP, analyse, detection_scale
 from services.inspection.captures import capture_meta
-from services.detector.measure import frame_scale, measure_mask
 
 F, RANGE = 800.0, 4.0  # focal length (px), range (m): 5 mm per pixel
 

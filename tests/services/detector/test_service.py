@@ -6,14 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
-from edge.surface import crack_image
+from edge.world.surface import crack_image
 from protocol import binding, keys
 from protocol.bus import Bus, BusConfig
 from protocol.imagery import pack_image
 from protocol.links import IMAGERY, IMAGERY_RELIABLE
 from protocol.messages import DefectReport, ImageMeta, Intrinsics, LinkStats
 from protocol.rtp import RtpSender, ssrc_for
-from edge.world.surface import crack_image
 from tests.conftest import wait_until
 
 FLEET = "test"
@@ -104,8 +103,8 @@ def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery)
     """with recovery on (camera cache + recovering subscriber) every capture frame lost on the
     detector's lossy UDP link still arrives and is counted ``recovered``; with it off (``--imagery-cache 0``,
     ``--no-recovery``) frames are lost for good. Real processes, a real lossy UDP proxy (seeded)."""
-    from edge.geometry.optics import CameraModel
     from edge.camera_service import CameraLink
+    from edge.geometry.optics import CameraModel
     from edge.vehicle.driver import CaptureEvent
     from protocol.bus import endpoint_address
     from services.netem.proxy import UdpProxy

@@ -16,6 +16,7 @@ from services.recording.record import EventRx, MissionRecord
 from tests.protocol.test_textsafe import HOSTILE
 from tests.services.gcs.test_report import build_record
 
+
 def _logged(tmp_path: Path) -> tuple[Path, MissionRecord]:
     """test_report's synthetic mission logged the ground station's way (test_load), with an event of hostile
     text and an entry nested deeper than any parser's stack."""

@@ -10,8 +10,22 @@ import pytest
 from protocol import keys
 from protocol.links import TELEMETRY
 from protocol.membus import MemBus, MemNetwork
-from protocol.messages import (COMMAND_TYPES, Box, CommandAck, Heartbeat, Land, MissionPlan, Mode, SetFormation, Start,
-                               Takeoff, Trajectory, UploadTrajectory, VehicleState, Waypoint)
+from protocol.messages import (
+    COMMAND_TYPES,
+    Box,
+    CommandAck,
+    Heartbeat,
+    Land,
+    MissionPlan,
+    Mode,
+    SetFormation,
+    Start,
+    Takeoff,
+    Trajectory,
+    UploadTrajectory,
+    VehicleState,
+    Waypoint,
+)
 from protocol.scenario import load_scenario
 from services.gcs.mission import MissionFailed, MissionOptions, MissionRunner
 

@@ -17,13 +17,40 @@ import numpy as np
 import pytest
 
 from edge.geometry.formation import DEFAULT_OFFSETS
-from protocol.messages import (Box, Defect, DefectReport, Event, Level, LinkStats, MissionPlan, Mode, Trajectory,
-                               VehicleState, Waypoint)
+from protocol.messages import (
+    Box,
+    Defect,
+    DefectReport,
+    Event,
+    Level,
+    LinkStats,
+    MissionPlan,
+    Mode,
+    Trajectory,
+    VehicleState,
+    Waypoint,
+)
 from protocol.scenario import Scenario
-from services.recording.record import (CommandRecord, DefectRx, EventRx, GroundTruthDefect, MissionRecord, StateRx,
-                                 StatsRx)
-from services.gcs.report import (PLOTS, Latency, convergence_iteration, latency_figures, planned_positions,
-                                 polyline_distance, shape_errors, summarise, write_report)
+from services.gcs.report import (
+    PLOTS,
+    Latency,
+    convergence_iteration,
+    latency_figures,
+    planned_positions,
+    polyline_distance,
+    shape_errors,
+    summarise,
+    write_report,
+)
+from services.recording.record import (
+    CommandRecord,
+    DefectRx,
+    EventRx,
+    GroundTruthDefect,
+    MissionRecord,
+    StateRx,
+    StatsRx,
+)
 
 V, T, LAG, SIDE = 2.0, 20.0, 0.5, 0.5  # m/s, s, s, m
 T_SIM0, STAMP0 = 50.0, 1000.0  # sim time and wall time of trajectory time 0

@@ -12,16 +12,9 @@ from __future__ import annotations
 import pytest
 
 from protocol.messages import Event, Level, Mode, VehicleState
-from services.recording.record import (
-    CommandRecord,
-    EventRx,
-    FaultRecord,
-    Incident,
-    MissionRecord,
-    StateRx,
-)
 from services.gcs.report import summarise, write_report
 from services.gcs.resilience import fault_figures, reception_gaps
+from services.recording.record import CommandRecord, EventRx, FaultRecord, Incident, MissionRecord, StateRx
 
 M = 1000.0  # wall time of the mission phase
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from protocol.messages import Defect, DefectReport
-from services.recording.record import GroundTruthDefect
 from services.gcs.scoring import bbox_distance, score_defects, surface_frame, surface_uv
+from services.recording.record import GroundTruthDefect
 
 # The scenario's girder face: x = 60, bottom edge running south (u = -y), v up.
 CORNERS = [(60.0, 85.0, 25.5), (60.0, 35.0, 25.5), (60.0, 35.0, 31.5), (60.0, 85.0, 31.5)]

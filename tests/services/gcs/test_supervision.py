@@ -10,9 +10,8 @@ import pytest
 
 import services.gcs.supervision
 from protocol.messages import Mode, VehicleState
+from services.gcs.supervision import FRESH_STATE_S, RESUME_PAUSE_FAILED_S, RESUME_PAUSE_OK_S, START_SETTLE_S, Supervisor
 from services.recording.record import INCIDENT_KINDS, CommandRecord
-from services.gcs.supervision import (FRESH_STATE_S, RESUME_PAUSE_FAILED_S, RESUME_PAUSE_OK_S, START_SETTLE_S,
-                                      Supervisor)
 
 UAVS = (1, 2, 3)
 

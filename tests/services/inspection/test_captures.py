@@ -7,10 +7,11 @@ from __future__ import annotations
 import pytest
 
 from edge.world.wall import SURFACE_SEED, synthetic_surface
+from protocol.scenario import load_scenario
 from services.detector.pipeline import analyse
-from services.recording.record import GroundTruthDefect
 from services.gcs.scoring import score_defects
 from services.inspection.captures import decode, synthetic_captures
+from services.recording.record import GroundTruthDefect
 
 
 @pytest.mark.slow

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from protocol.scenario import load_scenario
-from services.inspection.captures import decode, known_crack_wall, synthetic_captures
 from services.detector.frames import save_frame
+from services.inspection.captures import decode, known_crack_wall, synthetic_captures
 from services.inspection.deliverable import inspect_frames, load_folder, write_deliverable
 from services.inspection.mosaic import Plane, PosedFrame, plane_from_frames
 

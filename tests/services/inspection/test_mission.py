@@ -14,10 +14,11 @@ from protocol.imagery import pack_image
 from protocol.links import IMAGERY_RELIABLE
 from protocol.messages import DefectReport
 from protocol.rtp import RtpSender, ssrc_for
-from services.recording.record import MissionRecord
+from protocol.scenario import load_scenario
 from services.inspection.captures import synthetic_captures
 from services.inspection.deliverable import load_folder
 from services.inspection.mission import append_deliverable
+from services.recording.record import MissionRecord
 from tests.conftest import wait_until
 
 FLEET = "test"

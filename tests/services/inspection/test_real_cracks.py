@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import pytest
 
-from edge.world.wall import synthetic_surface
 from edge.world.surface import graded_crack_image
+from edge.world.wall import synthetic_surface
 from protocol.scenario import ScenarioError, load_scenario, validate_scenario
 from services.inspection.accuracy import compare, markdown_accuracy, truth_cracks
 from services.inspection.captures import decode, synthetic_captures

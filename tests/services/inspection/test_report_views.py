@@ -15,17 +15,17 @@ import time
 import numpy as np
 import pytest
 
-from edge.world.wall import synthetic_surface
 from edge.geometry.waypoint_mission import geodetic_to_enu
+from edge.world.wall import synthetic_surface
 from protocol.scenario import load_scenario
-from services.recording.record import GroundTruthDefect, MissionRecord
+from services.detector.frames import save_frame
+from services.detector.measure import centre_line, outline
 from services.inspection.accuracy import compare, truth_cracks
 from services.inspection.captures import decode, synthetic_captures
-from services.detector.frames import save_frame
 from services.inspection.deliverable import SEVERITY_ORDER, inspect_frames, write_deliverable
-from services.detector.measure import centre_line, outline
 from services.inspection.mission import HEADING, append_deliverable, deliverable_line
 from services.inspection.mosaic import Plane, PosedFrame
+from services.recording.record import GroundTruthDefect, MissionRecord
 
 ORIGIN = (-33.87601, 151.191182, 120.0)
 

@@ -3,8 +3,15 @@
 import pytest
 
 from edge.geometry.neighbourhood import formation_index
-from services.orchestration.sites import (check_sites, gateway_process, mesh, parse_rcu_sites, router_endpoint,
-                                          site_of_uav, veth_addresses)
+from services.orchestration.sites import (
+    check_sites,
+    gateway_process,
+    mesh,
+    parse_rcu_sites,
+    router_endpoint,
+    site_of_uav,
+    veth_addresses,
+)
 
 
 def test_formations_are_never_split_across_sites_and_every_uav_has_one():

@@ -16,8 +16,7 @@ import pytest
 
 from protocol import keys
 from protocol.bus import Bus, BusConfig
-from protocol.links import TELEMETRY
-from protocol.links import LINK_LEASE_S
+from protocol.links import LINK_LEASE_S, TELEMETRY
 from protocol.messages import Hold, VehicleState
 from services.orchestration.launcher import Network, build_parser
 from tests.conftest import wait_until

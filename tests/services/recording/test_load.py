@@ -11,9 +11,9 @@ from pathlib import Path
 
 from protocol import codec, keys
 from services.gcs.journal import report_record
-from services.recording.record import ITEM_MODELS, LiveRecord, MissionRecord
 from services.gcs.report import summarise, write_report
 from services.recording.load import load_record
+from services.recording.record import ITEM_MODELS, LiveRecord, MissionRecord
 from services.recording.recorder import FOOTER_TOPIC, MissionLogWriter
 from tests.services.gcs.test_report import build_record
 

@@ -15,8 +15,8 @@ from mcap.data_stream import RecordBuilder
 from mcap.records import Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Message, Schema
 from mcap.writer import MCAP0_MAGIC
 
-from services.recording.mcap_log import MAX_CHUNK_BYTES, McapLog, McapReadError, read
 from services.recording.load import load_record
+from services.recording.mcap_log import MAX_CHUNK_BYTES, McapLog, McapReadError, read
 from tests.conftest import ROOT
 
 GIB = 1 << 30

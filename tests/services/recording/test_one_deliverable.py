@@ -21,6 +21,7 @@ from services.recording.mcap_log import bus_bytes, captures, read
 from services.recording.recorder import MissionLogWriter
 from tests.conftest import wait_until
 
+
 def _figures(figures: dict) -> dict:
     return {k: v for k, v in json.loads(json.dumps(figures)).items() if k != "files"}
 

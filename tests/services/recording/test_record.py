@@ -14,14 +14,7 @@ import pytest
 
 from protocol.messages import Event, Mode, VehicleState
 from services.gcs.journal import report_record
-from services.recording.record import (
-    EventRx,
-    LiveRecord,
-    MissionRecord,
-    RecordingError,
-    StateRx,
-    check_output_folder,
-)
+from services.recording.record import EventRx, LiveRecord, MissionRecord, RecordingError, StateRx, check_output_folder
 
 
 def _record() -> MissionRecord:
@@ -65,7 +58,7 @@ def test_a_full_disk_keeps_the_log_up_to_the_failure_and_says_where_the_rest_is(
         rec = _record()
         writer = MissionLogWriter(None, mnt / "mission.mcap")
         live = LiveRecord(rec, writer)
-        for i in range(300):  # ~1.2 MB of the ground station's own events that do not compress: far more than fits
+        for _ in range(300):  # ~1.2 MB of the ground station's own events that do not compress: far more than fits
             event = Event(source="gcs", stamp=time.time(), kind="trust-refused", text=os.urandom(2000).hex())
             live.add("events", EventRx(rx=time.time(), msg=event), own=True)
         writer.finish(rec)

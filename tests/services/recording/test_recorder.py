@@ -15,8 +15,8 @@ from protocol.budget import LIMITS
 from protocol.bus import Bus, BusConfig
 from protocol.links import COMMAND
 from protocol.messages import Event, Mode, VehicleState
-from services.recording.record import MissionRecord
 from services.recording.mcap_log import read
+from services.recording.record import MissionRecord
 from services.recording.recorder import MissionLogWriter
 from tests.conftest import wait_until
 

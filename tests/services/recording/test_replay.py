@@ -21,8 +21,8 @@ from protocol.imagery import pack_image
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
 from protocol.messages import Event, ImageMeta, Intrinsics, Mode, VehicleState
 from protocol.rtp import RtpSender, ssrc_for
-from services.recording.record import MissionRecord
 from services.recording.mcap_log import FRAME_ENCODING, RAW_ENCODING, McapLog, bus_bytes, read
+from services.recording.record import MissionRecord
 from services.recording.recorder import MissionLogWriter
 from tests.conftest import wait_until
 

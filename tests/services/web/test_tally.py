@@ -9,10 +9,12 @@ import time
 
 from edge.world.wall import synthetic_surface
 from protocol.scenario import load_scenario
-from services.recording.record import MissionRecord
-from services.inspection.captures import decode, synthetic_captures
+from services.detector.detect import detect
 from services.detector.frames import save_frame
+from services.detector.pipeline import MIN_REPORT_AREA_PX
+from services.inspection.captures import decode, synthetic_captures
 from services.inspection.mission import append_deliverable
+from services.recording.record import MissionRecord
 from services.web.tally import DefectTally, captures_in, count_defects
 from services.web.view import FleetView
 from tests.conftest import wait_until
