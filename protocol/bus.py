@@ -27,6 +27,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import zenoh
@@ -187,7 +188,7 @@ def config_from_args(args: BusOptions | argparse.Namespace, role: str | None = N
     if opts.keys and role is not None:
         from .keyset import KeySet
 
-        ks = KeySet(opts.keys, role)
+        ks = KeySet(Path(opts.keys), role)
         overrides = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key), **overrides}
     values = dict(
         mode=opts.mode, connect=opts.connect, listen=opts.listen, config_file=opts.config,

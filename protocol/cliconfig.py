@@ -21,6 +21,7 @@ import argparse
 import enum
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, TypeVar
 
@@ -88,10 +89,10 @@ def _value_type(info: FieldInfo, item: bool) -> Any:
     if item:
         tp = typing.get_args(_unwrap_optional(tp))[0]
         meta = []  # a list's own constraints (length) are checked on the whole model
-    return Annotated[(tp, *meta)] if meta else tp  # type: ignore[return-value]
+    return Annotated[(tp, *meta)] if meta else tp
 
 
-def arg_type(tp: Any, name: str = "value"):
+def arg_type(tp: Any, name: str = "value") -> Callable[[str], Any]:
     """An argparse ``type`` validating text as the (annotated) type ``tp``: a bad value is argparse's
     one-line error naming the constraint. For a command line not (yet) built from a model."""
     try:
@@ -109,7 +110,7 @@ def arg_type(tp: Any, name: str = "value"):
     return parse
 
 
-def _parser_type(name: str, info: FieldInfo, item: bool):
+def _parser_type(name: str, info: FieldInfo, item: bool) -> Callable[[str], Any]:
     return arg_type(_value_type(info, item), name)
 
 
@@ -119,7 +120,7 @@ class CliModel(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
-def _group(parser: argparse.ArgumentParser, title: str | None):
+def _group(parser: argparse.ArgumentParser, title: str | None) -> Any:
     if title is None:
         return parser
     for g in parser._action_groups:  # one group per title, however many models add to it

@@ -78,5 +78,5 @@ def decode_image(data: bytes | bytearray | memoryview, grey: bool = False, reduc
     img = cv2.imdecode(buf, flag)
     if img is None:
         raise ValueError(f"cannot decode a corrupt {kind}")
-    return img
+    return np.asarray(img, dtype=np.uint8)
 

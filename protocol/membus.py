@@ -99,7 +99,7 @@ def intersects(a: str, b: str) -> bool:
 class _Entity:
     """A declared subscriber, queryable, token or liveliness subscriber; ``undeclare`` removes it."""
 
-    def __init__(self, table: list, session: MemSession, key: str, target: Any = None) -> None:
+    def __init__(self, table: list[Any], session: MemSession, key: str, target: Any = None) -> None:
         self.table, self.session, self.key, self.target = table, session, key, target
 
     def undeclare(self) -> None:
@@ -133,7 +133,7 @@ class _Liveliness:
     def declare_token(self, key: str) -> _Entity:
         return self.session.net.declare_token(self.session, key)
 
-    def declare_subscriber(self, key: str, handler: Callable, history: bool = False) -> _Entity:
+    def declare_subscriber(self, key: str, handler: Callable[..., Any], history: bool = False) -> _Entity:
         return self.session.net.declare_alive_watch(self.session, key, handler, history)
 
     def get(self, key: str, timeout: float = 1.0) -> list[MemReply]:
@@ -165,10 +165,10 @@ class MemSession:
     def declare_publisher(self, key: str, **qos: Any) -> _MemPublisher:
         return _MemPublisher(self, key)
 
-    def declare_subscriber(self, key: str, handler: Callable) -> _Entity:
+    def declare_subscriber(self, key: str, handler: Callable[..., Any]) -> _Entity:
         return self.net.declare(self.net.subscribers, self, key, handler)
 
-    def declare_queryable(self, key: str, handler: Callable) -> _Entity:
+    def declare_queryable(self, key: str, handler: Callable[..., Any]) -> _Entity:
         return self.net.declare(self.net.queryables, self, key, handler)
 
     def get(self, key: str, payload: bytes | None = None, handler: Any = None, **options: Any) -> Iterator[MemReply]:
@@ -191,7 +191,7 @@ class MemSession:
         self.net.drop(self)
 
 
-def _callbacks(handler: Any) -> tuple[Callable, Callable | None]:
+def _callbacks(handler: Any) -> tuple[Callable[..., Any], Callable[..., Any] | None]:
     """The callables of a reply handler: a plain callable, or a ``zenoh.handlers.Callback`` (its callback
     and drop)."""
     if isinstance(handler, zenoh.handlers.Callback):
@@ -221,7 +221,7 @@ class MemNetwork:
             return list(self._sessions)
 
     # -- declarations
-    def declare(self, table: list, session: MemSession, key: str, target: Any = None) -> _Entity:
+    def declare(self, table: list[Any], session: MemSession, key: str, target: Any = None) -> _Entity:
         e = _Entity(table, session, str(key), target)
         with self._lock:
             table.append(e)
@@ -240,7 +240,7 @@ class MemNetwork:
         self._announce(key, zenoh.SampleKind.PUT)
         return e
 
-    def declare_alive_watch(self, session: MemSession, key: str, handler: Callable, history: bool) -> _Entity:
+    def declare_alive_watch(self, session: MemSession, key: str, handler: Callable[..., Any], history: bool) -> _Entity:
         e = self.declare(self.alive_watches, session, key, handler)
         if history:
             for k in self.tokens(key):
@@ -303,7 +303,7 @@ class MemBus(Bus):
         self.config = BusConfig()
         self.fleet, self.name = fleet, name
         self.counters = Counters()
-        self.session = self.net.session(name)
+        self.session = self.net.session(name)  # type: ignore[assignment]  # the in-memory twin of zenoh.Session
         self._entities = []
         self._rings = []
         self._closed = False
@@ -313,6 +313,6 @@ class MemBus(Bus):
         """A publisher; ``cache`` is ignored (nothing is lost in memory)."""
         return Publisher(self, key, link, None)
 
-    def subscribe_raw(self, key: str, callback: Callable, ring: int | None = None, recover: bool = False) -> Any:
+    def subscribe_raw(self, key: str, callback: Callable[..., Any], ring: int | None = None, recover: bool = False) -> Any:
         """As :meth:`Bus.subscribe_raw`; ``recover`` changes nothing (nothing is lost in memory)."""
         return super().subscribe_raw(key, callback, ring=ring, recover=False)

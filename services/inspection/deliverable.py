@@ -289,7 +289,7 @@ def geojson(defects: Sequence[InspectionDefect]) -> dict:
         if d.lla is None:
             continue
         props = d.model_dump(exclude=_GEO_EXCLUDE)
-        geoms = []
+        geoms: list[tuple[str, dict[str, Any]]] = []
         if len(d.centre_line_lla) >= 2:
             geoms.append(("centre line", {"type": "LineString", "coordinates": _lonlatalt(d.centre_line_lla)}))
         if len(d.outline_lla) >= 4:

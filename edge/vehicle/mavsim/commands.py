@@ -73,6 +73,9 @@ class GuidedTarget:
 class SimCommands:
     """The obeying half of :class:`.vehicle.MavlinkSimVehicle` (a mixin: it uses the vehicle's state)."""
 
+    auto: Any  # the AUTO mission being flown, or None
+    custom_mode: int  # ArduCopter's flight mode number
+
     def _set_current(self, seq: float) -> bool:
         items = self.missions.mission()
         if not (math.isfinite(seq) and 1 <= seq < len(items)):

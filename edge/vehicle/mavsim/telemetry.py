@@ -46,6 +46,10 @@ PREARM_REPORT_S = 30.0
 class SimTelemetry:
     """The sending half of :class:`.vehicle.MavlinkSimVehicle` (a mixin: it uses the vehicle's state)."""
 
+    custom_mode: int  # ArduCopter's flight mode number
+    _boot_seen: float  # boot time up to which the start-up STATUSTEXTs were sent
+    _prearm_sent: float  # when the failing pre-arm check was last sent
+
     def _startup_texts(self: MavlinkSimVehicle) -> None:
         """The EKF's start-up STATUSTEXTs, and the failing pre-arm check every PREARM_REPORT_S while disarmed."""
         t = self.boot_time()
