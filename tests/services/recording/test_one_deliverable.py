@@ -28,7 +28,7 @@ def _figures(figures: dict) -> dict:
 
 def _inspection(folder: Path) -> tuple[str | None, list[dict]]:
     """The inspection section's count sentence and its defect table (inspection/defects.json)."""
-    m = re.search(r"(\d+ captures mosaicked).*?(\d+ defects \([^)]*\))", (folder / "report.md").read_text())
+    m = re.search(r"\*\*(\d+ defects \([^)]*\))\*\*.*?\(by (\d+ of \d+ captures)", (folder / "report.md").read_text())
     table = json.loads((folder / "inspection" / "defects.json").read_text())
     return (m.group(1) + ", " + m.group(2) if m else None), table["defects"]
 
