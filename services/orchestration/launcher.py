@@ -69,7 +69,8 @@ import threading
 import time
 from pathlib import Path
 
-from protocol.bus import Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
+from protocol.bus import (Bus, BusConfig, BusOptions, config_from_args, multilink_endpoints, setup_logging,
+                          stop_event_on_signals)
 from protocol.cliconfig import add_options, from_namespace
 from protocol.links import LINK_LEASE_S
 from protocol.readiness import notify_ready
@@ -77,7 +78,7 @@ from protocol.readiness import notify_ready
 from services import attach
 
 from . import trustmode
-from .config import LaunchConfig, MissionLaunchConfig, config_model
+from .config import MODELS, LaunchConfig, MissionLaunchConfig
 from .faults import FaultInjector
 from .plan import HOST, CountingPorts, NetworkPlan, Plan, ProcessSpec, Trust, free_ports, make_plan, network_plan
 from .process import ProcessGroup
@@ -110,8 +111,7 @@ class Network:
     #: services that stay in the machine's own namespace with --netns (what a user reaches from here)
     MAIN_NAMESPACE = ("web", "video")
 
-    def __init__(self, config: LaunchConfig, echo=sys.stdout, log_dir: Path | None = None,
-                 ground_station: bool = False, plan: Plan | None = None):
+    def __init__(self, config: LaunchConfig, echo=sys.stdout, ground_station: bool = False, plan: Plan | None = None):
         from protocol.scenario import load_scenario
 
         self.config = config
@@ -120,7 +120,6 @@ class Network:
         #: --netns: one network namespace per site (services.orchestration.netns), opened by start()
         self.ns = None
         self.group = ProcessGroup(echo=echo)
-        self.log_dir = log_dir
         #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}, started by start()
         self.proxies: dict[str, dict] = {}
         #: TLS, certificate ACL, signed commands: secure by default, impaired or not (services.orchestration.trustmode)
@@ -201,19 +200,15 @@ class Network:
         return {link: {c: p.stats() for c, p in pair.items()} for link, pair in self.proxies.items()}
 
     def gcs_config(self) -> BusConfig:
-        """The in-process ground station's session."""
-        lease = {"lease_s": LINK_LEASE_S, "cfg": [("transport/unicast/open_timeout", json.dumps(
+        """The in-process ground station's session (mutual TLS with the key set's ``gcs`` identity)."""
+        lease = {"lease": LINK_LEASE_S, "cfg": [("transport/unicast/open_timeout", json.dumps(
             open_timeout_ms(self.plan.impair.worst_delay_ms())))]} if self.plan.proxied else {}
-        tls = {}
-        if self.trust.keys is not None and self.trust.tls:
-            from protocol.keyset import KeySet
-            ks = KeySet(self.trust.keys, "gcs")
-            tls = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
         try:
             connect = list(self.layout.get("gcs").connects)
         except KeyError:  # skynet up: no ground station in the plan; a client of site 0's gateway
             connect = [trustmode.gateway_dial(e, self.trust.keys) for e in self.gateway_endpoints]
-        return BusConfig(mode="client", connect=connect, multilink=True, **lease, **tls)
+        keys = str(self.trust.keys) if self.trust.keys is not None and self.trust.tls else None
+        return config_from_args(BusOptions(mode="client", connect=connect, multilink=True, keys=keys, **lease), "gcs")
 
     def gcs_signer(self):
         """The ground station's signer (None: --insecure, unsigned commands)."""
@@ -228,10 +223,6 @@ class Network:
             return None
         from services.gcs.cli import plan_verifier_of
         return plan_verifier_of(self.trust.keys)
-
-    def homes(self, n: int | None = None) -> list[tuple[float, float, float]]:
-        """Launch points (:func:`.plan.homes`: the scenario's formation offsets around its start)."""
-        return list(self.layout.homes[:n])
 
     # -- services
     def prefix_of(self, name: str) -> list[str]:
@@ -441,7 +432,7 @@ class Network:
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
-    """``skynet up`` or ``skynet mission``: the options of :func:`.config.config_model`."""
+    """``skynet up`` or ``skynet mission``: the options of its :data:`.config.MODELS`."""
     p = argparse.ArgumentParser(prog=f"skynet {prog}", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="Links: uavN, planner, detector" + (", gcs" if prog == "mission" else "")
@@ -451,49 +442,53 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                                 '  --impair uav2="delay 50ms jitter 10ms"   --impair uav1-uav2=loss 5%\n'
                                 '  --fault "20s kill gateway for 3s"   --fault "15s cut uplinks for 8s"\n'
                                 '  --fault "25s kill uav3"   --fault "15s partition uav1-uav2 for 10s"')
-    return add_options(p, config_model(prog))
+    return add_options(p, MODELS[prog])
 
 
 def parse(prog: str, argv: list[str]) -> LaunchConfig:
     """The options of ``skynet PROG ARGV``; a bad one is argparse's one-line error (SystemExit 2)."""
     parser = build_parser(prog)
-    return from_namespace(config_model(prog), parser.parse_args(argv), parser)
+    return from_namespace(MODELS[prog], parser.parse_args(argv), parser)
 
 
-def check(config: LaunchConfig) -> Plan:
-    """The run's plan checked before anything starts: links, faults, sites (:func:`.plan.make_plan`), the scenario,
-    and every service's own config (a dry :func:`.plan.network_plan`). ValueError with a one-line message."""
+def check(config: LaunchConfig) -> tuple[Plan, NetworkPlan]:
+    """The run checked before anything starts: links, faults, sites (:func:`.plan.make_plan`), the scenario, and
+    every service's own config, in the network the run would start (what ``--dry-run`` prints: ports numbered from
+    7447, the key set named, not made). ValueError with a one-line message."""
     from protocol.scenario import ScenarioError, load_scenario
 
-    mission = isinstance(config, MissionLaunchConfig)
-    plan = make_plan(config, ground_station=mission)
+    plan = make_plan(config, ground_station=(mission := isinstance(config, MissionLaunchConfig)))
     try:
-        load_scenario(config.scenario)
+        scenario = load_scenario(config.scenario)
     except ScenarioError as e:
         raise ValueError(f"--scenario: {e}") from None
-    dry_layout(config, plan)
-    return plan
+    keys_dir = trustmode.planned_keys(config)
+    if isinstance(config, MissionLaunchConfig):
+        config = config.model_copy(update={"save_frames": str(Path(config.out or "reports/mission-<time>") / "frames")})
+    return plan, network_plan(config, scenario, Trust.of(keys_dir, keys_dir is not None), CountingPorts(7447),
+                              ground_station=mission, epoch=0.0, workdir="<run>", web_token="<random>", checked=plan)
 
 
 def main(argv: list[str] | None = None) -> int:
     """``skynet up|mission``: parse and check the command line, then :func:`run` it."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    prog = argv.pop(0) if argv and argv[0] in ("up", "mission") else "up"
-    parser = build_parser(prog)
-    config = from_namespace(config_model(prog), parser.parse_args(argv), parser)
+    prog = argv.pop(0) if argv and argv[0] in MODELS else "up"
+    config = parse(prog, argv)
     try:
-        plan = check(config)
+        checked = check(config)
     except ValueError as e:
-        parser.error(str(e))
-    return run(config, plan)
+        build_parser(prog).error(str(e))
+    return run(config, checked)
 
 
-def run(config: LaunchConfig, plan: Plan | None = None) -> int:
-    """Print the plan (``--dry-run``), or start the network (``skynet up``) or the network and its mission."""
-    mission = isinstance(config, MissionLaunchConfig)
-    plan = plan or make_plan(config, ground_station=mission)
+def run(config: LaunchConfig, checked: tuple[Plan, NetworkPlan] | None = None) -> int:
+    """``--dry-run``: print the plan (a table, or JSON with ``--json``); else start the network (``skynet up``), or
+    the network and its mission (``skynet mission``)."""
+    plan, layout = checked or check(config)
     if config.dry_run:
-        return dry_run(config, plan)
+        print(json.dumps(layout.to_json(), indent=1) if config.as_json else layout.table())
+        return 0
+    mission = isinstance(config, MissionLaunchConfig)
     log = setup_logging("mission" if mission else "up")
     stop = stop_event_on_signals()
     if mission:
@@ -523,27 +518,6 @@ def run(config: LaunchConfig, plan: Plan | None = None) -> int:
     finally:
         codes = net.stop()
         log.info("stopped: %s", codes)
-    return 0
-
-
-def dry_layout(config: LaunchConfig, plan: Plan) -> NetworkPlan:
-    """The network a run would start, without starting it: ports numbered from 7447, the key set named, not made."""
-    from protocol.scenario import load_scenario
-
-    keys_dir = trustmode.planned_keys(config)
-    if isinstance(config, MissionLaunchConfig):
-        config = config.model_copy(update={"save_frames": str(Path(config.out or "reports/mission-<time>") / "frames")})
-    return network_plan(config, load_scenario(config.scenario),
-                        Trust.of(None if keys_dir is None else str(keys_dir), keys_dir is not None),
-                        CountingPorts(7447), ground_station=isinstance(config, MissionLaunchConfig), epoch=0.0,
-                        workdir="<run>", web_token="<random>", checked=plan)
-
-
-def dry_run(config: LaunchConfig, plan: Plan, out=None) -> int:
-    """``--dry-run``: print the plan (a table, or JSON with ``--json``) and exit 0; nothing is started, no port
-    is bound, no key set is made."""
-    layout = dry_layout(config, plan)
-    print(json.dumps(layout.to_json(), indent=1) if config.as_json else layout.table(), file=out or sys.stdout)
     return 0
 
 
