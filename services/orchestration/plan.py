@@ -29,6 +29,7 @@ from pydantic import BaseModel, ValidationError
 from protocol.bus import multilink_endpoints
 from protocol.cliconfig import one_line, to_argv
 from protocol.links import LINK_LEASE_S
+from protocol.messages import Box
 from protocol.scenario import Scenario
 
 from edge.config import EdgeConfig
@@ -157,7 +158,8 @@ class ProcessSpec:
 
     ``config`` is the service's typed configuration and ``argv`` (after ``python -m services.cli``) its command
     line, rendered from it (:func:`protocol.cliconfig.to_argv`; a process without a config model: written by hand;
-    both empty for the in-process ground station of ``skynet mission``); ``identity`` is the key set's identity it runs as (None: no bus, or no key set);
+    both empty for the in-process ground station of ``skynet mission``); ``identity`` is the key set's identity it
+    runs as (None: no bus, or no key set);
     ``namespace`` the site whose network namespace it runs in (``--netns``; None: the machine's own);
     ``ready``: it signals when it is up (:mod:`protocol.readiness`) and is supervised as a service;
     ``wait``: the launcher waits for that signal before starting the next process.
@@ -308,12 +310,6 @@ def homes(scenario: Scenario, n: int) -> list[tuple[float, float, float]]:
     return out
 
 
-def fence_arg(scenario: Scenario) -> str:
-    """The scenario's operation box as the edge's ``--geofence x0,y0,z0,x1,y1,z1``: the ceiling a signed
-    upload may only narrow (:func:`edge.geometry.validate.narrowed_fence`)."""
-    return ",".join(f"{v:g}" for v in (*scenario.box.lo, *scenario.box.hi))
-
-
 # -- one argv per role (the services' own flag names)
 
 
@@ -340,7 +336,9 @@ def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float,
 
 
 def edge_config(o: LaunchConfig, i: int, bus: dict[str, Any], listens: list[str], home: tuple[float, float, float],
-                epoch: float, fence: str, load: FleetLoad, mavlink_port: int | None) -> EdgeConfig:
+                epoch: float, fence: Box, load: FleetLoad, mavlink_port: int | None) -> EdgeConfig:
+    """The edge's config; its ``geofence`` the scenario's operation box, the ceiling a signed upload may only narrow
+    (:func:`edge.geometry.validate.narrowed_fence`)."""
     vehicle = {} if mavlink_port is None else {"vehicle": "mavlink", "mavlink": f"udpin:{HOST}:{mavlink_port}",
                                                "flight": o.flight}
     return child(f"uav{i}", EdgeConfig, uav=i, **bus, listen=listens, home=home, speed=o.speed, epoch=epoch,
@@ -452,7 +450,7 @@ def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports
     # proxied links: the edges' lease on the ground too (protocol.links.LINK_LEASE_S), and the clients' open
     # timeout the edges' (topology.OPEN_TIMEOUT_MS): a UDP handshake lost on an impaired link is retried in seconds
     lease: dict[str, Any] = {"lease": LINK_LEASE_S} if checked.proxied else {}
-    client_lease = {**lease, "cfg": [("transport/unicast/open_timeout", json.dumps(timeout))]} if checked.proxied else {}
+    client_lease = {**lease, "cfg": [("transport/unicast/open_timeout", json.dumps(timeout))]} if lease else {}
     netns = o.netns
     thin = gateway_thinning(o, load)
     ident = None if trust.keys is None else "gateway"
@@ -497,7 +495,7 @@ def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports
                                          argv=tuple(bridge_argv(f"tcp:{HOST}:{port}", f"unix:{sock}")), wait=True))
 
     launch = homes(scenario, o.uavs)
-    fence = fence_arg(scenario)
+    fence = Box(lo=scenario.box.lo, hi=scenario.box.hi)
     edge_endpoints = {i: pair() for i in range(1, o.uavs + 1)}
     formations = o.uavs > sitemap.FORMATION_SIZE  # several formations: no gossip autoconnect
     from edge.geometry.neighbourhood import members

@@ -270,9 +270,9 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
     (and --state-ingress-hz its option)."""
     from protocol.scenario import load_scenario
     from services.orchestration.launcher import Network, parse
-    from services.orchestration.plan import fence_arg
+    from edge.config import EdgeConfig
 
-    fence = fence_arg(load_scenario(None))
+    box = load_scenario(None).box
 
     def arg(argv: list[str], flag: str) -> str:  # the children's command lines are --flag=value
         return next(a.split("=", 1)[1] for a in argv if a.startswith(flag + "="))
@@ -288,7 +288,8 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
             a = svc.args
             assert arg(a, "--frame-size") == "1280x960" and arg(a, "--capture-link") == "reliable"
             assert float(arg(a, "--preview-hz")) == 0.0
-            assert arg(a, "--geofence") == fence  # the scenario's box, the ceiling of any upload's fence
+            fence = EdgeConfig.model_validate({"uav": i, "geofence": arg(a, "--geofence")}).geofence
+            assert (fence.lo, fence.hi) == (box.lo, box.hi)  # the scenario's box, the ceiling of any upload's fence
             assert wait_ready(svc).ready_as == ("edge", f"uav{i}")
         gw = net.group.get("gateway").args
         conf = {"downsampling": json.loads(arg(gw, "--cfg").split(":", 1)[1])}
