@@ -67,7 +67,8 @@ def _box(text: Any) -> Any:
 
 
 def _join(values) -> str:
-    return ",".join(f"{float(v):g}" for v in values)
+    """Comma-separated, short and exact (``0`` not ``0.0``; never rounded: the value parses back the same)."""
+    return ",".join(f"{float(v):g}" if float(f"{float(v):g}") == float(v) else repr(float(v)) for v in values)
 
 
 Side = Annotated[int, Field(ge=16, le=20000)]
@@ -82,14 +83,12 @@ Niceness = Annotated[int, Field(ge=0, le=19)]
 #: a rate in Hz, 0 meaning off
 RateHz = Annotated[float, Field(ge=0.0)]
 
-#: argparse types for command lines that pass these values on as text (the launcher's)
+#: the vehicle driver and, with MAVLink, its flight strategy
+Vehicle = Literal["sim", "mavlink"]
+Flight = Literal["guided", "auto"]
+
+#: the argparse type of a niceness given as text
 niceness = arg_type(Niceness, "niceness")
-
-
-def frame_size(text: str) -> str:
-    """argparse type of a ``--frame-size`` passed on to the edges: checked, returned as ``WxH``."""
-    w, h = arg_type(FrameSize, "frame size")(text)
-    return f"{w}x{h}"
 
 
 class EdgeConfig(BusOptions):
@@ -98,14 +97,14 @@ class EdgeConfig(BusOptions):
     mode: BusMode = "peer"
     lease: LeaseS = LINK_LEASE_S
     uav: int = Field(ge=1, le=255, description="this UAV's id")
-    vehicle: Literal["sim", "mavlink"] = Field(default="sim", description="vehicle driver")
+    vehicle: Vehicle = Field(default="sim", description="vehicle driver")
     mavlink: str = Field(default="udpin:0.0.0.0:14550", description="MAVLink connection (--vehicle mavlink)")
     mavlink_key: str | None = Field(
         default=None, description="MAVLink 2 signing key for the autopilot link: 64 hex digits or a passphrase")
     mavlink_gcs: Annotated[str | None, Cli(metavar="ENDPOINT")] = Field(
         default=None, description="MAVLink endpoint for the operator's ground station (autopilot traffic forwarded), "
                                   "e.g. udpout:127.0.0.1:14560")
-    flight: Literal["guided", "auto"] = Field(
+    flight: Flight = Field(
         default="guided", description="--vehicle mavlink: guided streams position targets; auto uploads the "
                                       "trajectory as a waypoint mission and flies it in AUTO, kept in formation by "
                                       "speed corrections")

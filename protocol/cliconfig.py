@@ -199,10 +199,12 @@ def parse(model: type[M], argv: list[str] | None = None, parser: argparse.Argume
 
 
 def _text(info: FieldInfo, value: Any, item: bool) -> str:
-    dumped = TypeAdapter(_value_type(info, item)).dump_python(value, mode="json")
-    if isinstance(dumped, (list, tuple)):
-        return ",".join(map(str, dumped))
-    return str(dumped)
+    return _flat(TypeAdapter(_value_type(info, item)).dump_python(value, mode="json"))
+
+
+def _flat(dumped: Any) -> str:
+    """A dumped value as command-line text (a sequence comma-separated)."""
+    return ",".join(map(str, dumped)) if isinstance(dumped, (list, tuple)) else str(dumped)
 
 
 def to_argv(config: BaseModel, defaults: dict[str, Any] | None = None) -> list[str]:
@@ -210,6 +212,7 @@ def to_argv(config: BaseModel, defaults: dict[str, Any] | None = None) -> list[s
     the default (``defaults``: those of the command line, as given to :func:`add_options`)."""
     defaults = defaults or {}
     argv: list[str] = []
+    dumped = config.model_dump(mode="json")  # each value as its field's type writes it (one serializer for all)
     for name, info in type(config).model_fields.items():
         if _cli(info).hidden:
             continue
@@ -228,10 +231,9 @@ def to_argv(config: BaseModel, defaults: dict[str, Any] | None = None) -> list[s
                 argv.append(flag)
             continue
         if _is_list(info.annotation):
-            for v in value or []:
-                argv.append(f"{flag}={_text(info, v, True)}")
+            argv += [f"{flag}={_flat(v)}" for v in dumped[name] or []]
             continue
         if value is None:
             continue
-        argv.append(f"{flag}={_text(info, value, False)}")
+        argv.append(f"{flag}={_flat(dumped[name])}")
     return argv

@@ -9,10 +9,19 @@ from pydantic import BeforeValidator, Field, PlainSerializer
 from protocol.bus import BusMode, BusOptions
 from protocol.cliconfig import Cli
 
-from .detect import METHODS
 from .partition import MAX_UAV, Partition
-from .pipeline import DETECT_MAX_MP
 from .pool import CONTEXTS
+
+#: the detection methods of :data:`services.detector.detect.METHODS`, named here so that the config (which the
+#: launcher builds the detector's command line from) loads no OpenCV
+Method = Literal["it", "it+", "it+bh", "it+r", "it-paper", "itth", "learned", "otsu", "sauvola", "sdd", "ve"]
+#: the real-time report's pixel budget, megapixels (``--detect-max-mp``): a 12 MP capture is
+#: detected on its 1/4 decode, 1000 x 750. That samples the wall at 4 x its ground sampling distance
+#: (5.0 mm at the paper's 4.78 m), finer than the 640 x 480 frames (7.8 mm) every inspection test passes on; the
+#: 1/2 decode (3 MP) takes 3-5 times as long and is above the defect list's pixel budget (detect.defects_of works
+#: on blocks there), so a crack whose block box is not its mask's box falls back to the bounding-box diagonal
+#: (3.7 m for a 5.9 m crack on one such frame). The kept frame (the deliverable's input) stays full size.
+DETECT_MAX_MP = 1.0
 
 #: frames waiting for a worker before the oldest is dropped. Capture frames are what coverage counts,
 #: and recovery hands them over in bursts (every camera's cache, up to 32 frames each, after an outage
@@ -33,7 +42,7 @@ class DetectorConfig(BusOptions):
     """The options of the detector RCU."""
 
     mode: BusMode = "client"
-    method: Literal[tuple(sorted(METHODS))] = Field(default="it+r", description="detection method")  # type: ignore[valid-type]
+    method: Method = Field(default="it+r", description="detection method")
     workers: int = Field(default=2, ge=1, le=64, description="detection worker processes")
     start_method: Literal[CONTEXTS] = Field(  # type: ignore[valid-type]
         default="spawn", description="how the worker processes start (never fork: Zenoh's threads)")

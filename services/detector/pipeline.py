@@ -23,19 +23,13 @@ from protocol.imagecodec import decode_image
 from protocol.messages import Defect, DefectReport, ImageMeta
 from services.detector.measure import frame_scale, measure_mask
 
+from .config import DETECT_MAX_MP  # noqa: F401  (the budget's one place: the config)
 from .detect import Defect as PixelDefect
 from .detect import Detection, detect
 
 #: components smaller than this are not reported (the mask is unchanged)
 MIN_REPORT_AREA_PX = 12
 MAX_REPORTED_DEFECTS = 500
-#: the real-time report's pixel budget, megapixels (``skynet detector --detect-max-mp``): a 12 MP capture is
-#: detected on its 1/4 decode, 1000 x 750. That samples the wall at 4 x its ground sampling distance
-#: (5.0 mm at the paper's 4.78 m), finer than the 640 x 480 frames (7.8 mm) every inspection test passes on; the
-#: 1/2 decode (3 MP) takes 3-5 times as long and is above the defect list's pixel budget (detect.defects_of works
-#: on blocks there), so a crack whose block box is not its mask's box falls back to the bounding-box diagonal
-#: (3.7 m for a 5.9 m crack on one such frame). The kept frame (the deliverable's input) stays full size.
-DETECT_MAX_MP = 1.0
 
 
 def pixels_to_world(meta: ImageMeta, px: np.ndarray) -> np.ndarray | None:

@@ -69,37 +69,30 @@ import threading
 import time
 from pathlib import Path
 
-from edge.config import CAPTURE_LINKS, frame_size, niceness
-from protocol import keys
-from protocol.bus import Bus, BusConfig, multilink_endpoints, setup_logging, stop_event_on_signals
-from protocol.checks import rate_arg
+from protocol.bus import (
+    Bus,
+    BusConfig,
+    BusOptions,
+    config_from_args,
+    multilink_endpoints,
+    setup_logging,
+    stop_event_on_signals,
+)
+from protocol.cliconfig import add_options, from_namespace
 from protocol.links import LINK_LEASE_S
 from protocol.readiness import notify_ready
 from services import attach
 
-from ..gateway.ingress import STATE_INGRESS_HZ
 from . import trustmode
+from .config import MODELS, LaunchConfig, MissionLaunchConfig
 from .faults import FaultInjector
-from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET
-from .plan import (
-    HOST,
-    CountingPorts,
-    LaunchOptions,
-    NetworkPlan,
-    Plan,
-    ProcessSpec,
-    Trust,
-    free_ports,
-    gateway_thinning,
-    make_plan,
-    network_plan,
-)
+from .plan import HOST, CountingPorts, NetworkPlan, Plan, ProcessSpec, Trust, free_ports, make_plan, network_plan
 from .process import ProcessGroup
 from .restart import RestartTracker
 from .topology import CLASSES, open_timeout_ms
 
-__all__ = ["Network", "Plan", "make_plan", "build_parser", "main", "run_mission", "SUPERVISOR_RESTART",
-           "START_FAILED"]
+__all__ = ["Network", "Plan", "make_plan", "build_parser", "parse", "check", "main", "run", "run_mission",
+           "SUPERVISOR_RESTART", "START_FAILED"]
 
 #: what the mission's record calls a restart made by the launcher's supervisor, and a service that could not
 #: start (``FaultRecord.action``; reported apart from injected faults, services.gcs.resilience)
@@ -124,31 +117,29 @@ class Network:
     #: services that stay in the machine's own namespace with --netns (what a user reaches from here)
     MAIN_NAMESPACE = ("web", "video")
 
-    def __init__(self, args: argparse.Namespace, echo=sys.stdout, log_dir: Path | None = None,
-                 ground_station: bool = False, plan: Plan | None = None):
+    def __init__(self, config: LaunchConfig, echo=sys.stdout, ground_station: bool = False, plan: Plan | None = None):
         from protocol.scenario import load_scenario
 
-        self.args = args
+        self.config = config
         self.ground_station = ground_station
-        self.plan = plan or make_plan(args, ground_station)
+        self.plan = plan or make_plan(config, ground_station)
         #: --netns: one network namespace per site (services.orchestration.netns), opened by start()
         self.ns = None
         self.group = ProcessGroup(echo=echo)
-        self.log_dir = log_dir
         #: link name -> {"tcp": TcpProxy, "udp": UdpProxy}, started by start()
         self.proxies: dict[str, dict] = {}
         #: TLS, certificate ACL, signed commands: secure by default, impaired or not (services.orchestration.trustmode)
-        self.trust = trustmode.resolve(args, proxied=bool(self.plan.proxied))
+        self.trust = trustmode.resolve(config, proxied=bool(self.plan.proxied))
         self.epoch = time.time() + 3.0
         self.tmp = Path(tempfile.mkdtemp(prefix="skynet-net-"))
         self.web_token: str | None = None
-        if getattr(args, "web", None) and not ground_station:
+        if config.web and not ground_station:
             from services.web.server import TOKEN_ENV, new_token
 
             self.web_token = os.environ.get(TOKEN_ENV) or new_token()
         #: the whole network as data (:mod:`.plan`): every process, endpoint, identity and command line
         self.layout: NetworkPlan = network_plan(
-            LaunchOptions.from_args(args), load_scenario(args.scenario),
+            config, load_scenario(config.scenario),
             Trust.of(self.trust.keys, self.trust.tls), free_ports, ground_station=ground_station, epoch=self.epoch,
             workdir=str(self.tmp), web_token=self.web_token or "", checked=self.plan)
         #: the fleet-size defaults: the ground station's state feed, previews, the edges' priority
@@ -214,24 +205,16 @@ class Network:
     def proxy_stats(self) -> dict[str, dict[str, dict]]:
         return {link: {c: p.stats() for c, p in pair.items()} for link, pair in self.proxies.items()}
 
-    def gateway_config(self) -> list[str]:
-        """The gateways' traffic options (:func:`.plan.gateway_thinning`)."""
-        return gateway_thinning(LaunchOptions.from_args(self.args), self.load)
-
     def gcs_config(self) -> BusConfig:
-        """The in-process ground station's session."""
-        lease = {"lease_s": LINK_LEASE_S, "cfg": [("transport/unicast/open_timeout", json.dumps(
+        """The in-process ground station's session (mutual TLS with the key set's ``gcs`` identity)."""
+        lease = {"lease": LINK_LEASE_S, "cfg": [("transport/unicast/open_timeout", json.dumps(
             open_timeout_ms(self.plan.impair.worst_delay_ms())))]} if self.plan.proxied else {}
-        tls = {}
-        if self.trust.keys is not None and self.trust.tls:
-            from protocol.keyset import KeySet
-            ks = KeySet(self.trust.keys, "gcs")
-            tls = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key)}
         try:
             connect = list(self.layout.get("gcs").connects)
         except KeyError:  # skynet up: no ground station in the plan; a client of site 0's gateway
             connect = [trustmode.gateway_dial(e, self.trust.keys) for e in self.gateway_endpoints]
-        return BusConfig(mode="client", connect=connect, multilink=True, **lease, **tls)
+        keys = str(self.trust.keys) if self.trust.keys is not None and self.trust.tls else None
+        return config_from_args(BusOptions(mode="client", connect=connect, multilink=True, keys=keys, **lease), "gcs")
 
     def gcs_signer(self):
         """The ground station's signer (None: --insecure, unsigned commands)."""
@@ -246,10 +229,6 @@ class Network:
             return None
         from services.gcs.cli import plan_verifier_of
         return plan_verifier_of(self.trust.keys)
-
-    def homes(self, n: int | None = None) -> list[tuple[float, float, float]]:
-        """Launch points (:func:`.plan.homes`: the scenario's formation offsets around its start)."""
-        return list(self.layout.homes[:n])
 
     # -- services
     def prefix_of(self, name: str) -> list[str]:
@@ -279,7 +258,7 @@ class Network:
             Path(path).write_text(text)
             Path(path).chmod(0o600)
         self._start_proxies()
-        if getattr(self.args, "netns", False):
+        if self.config.netns:
             from .netns import Namespaces, available
 
             ok, why = available()
@@ -296,14 +275,14 @@ class Network:
                     for line in self.topology():
                         launcher_log.info("%s", line)
                 if self.load.chosen:
-                    launcher_log.info("%d UAVs on one machine: %s", self.args.uavs, "; ".join(self.load.chosen))
+                    launcher_log.info("%d UAVs on one machine: %s", self.config.uavs, "; ".join(self.load.chosen))
             self.start_process(spec)
 
     def web_url(self) -> str | None:
         """The URL of the page ``skynet up --web`` started, with its token (None without a page)."""
         from services.web.server import page_url, parse_listen
 
-        return None if self.web_token is None else page_url(*parse_listen(self.args.web), self.web_token)
+        return None if self.web_token is None else page_url(*parse_listen(self.config.web), self.web_token)
 
     def start_faults(self, log: logging.Logger) -> FaultInjector | None:
         """The fault injector of ``--fault`` (None without faults), not started yet: ``start(origin)``
@@ -386,8 +365,8 @@ class Network:
     def describe(self) -> Path | None:
         """Leave the running network's description where the tools find it (:mod:`.attach`); removed by
         :meth:`stop`. A folder it cannot be written to is said, not fatal (None): the tools then need ``-e``."""
-        path = attach.network_path(getattr(self.args, "network", None))
-        desc = attach.describe(self.args.fleet, self.gateway_endpoints, self.trust.keys, self.trust.tls)
+        path = attach.network_path(self.config.network)
+        desc = attach.describe(self.config.fleet, self.gateway_endpoints, self.trust.keys, self.trust.tls)
         try:
             self.description = attach.write(path, desc)
         except OSError as exc:
@@ -429,11 +408,11 @@ class Network:
 
     def requested(self) -> list[str]:
         """The services a run asks for besides the edges: planner, detector(s), and video / web when asked."""
-        n = getattr(self.args, "detectors", 1)
+        n = self.config.detectors
         out = ["planner", *(["detector"] if n == 1 else [f"detector-{k}" for k in range(n)])]
-        if getattr(self.args, "video", None):
+        if self.config.video:
             out.append("video")
-        if getattr(self.args, "web", None) and not self.ground_station:
+        if self.config.web and not self.ground_station:
             out.append("web")
         return out
 
@@ -459,6 +438,7 @@ class Network:
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """``skynet up`` or ``skynet mission``: the options of its :data:`.config.MODELS`."""
     p = argparse.ArgumentParser(prog=f"skynet {prog}", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="Links: uavN, planner, detector" + (", gcs" if prog == "mission" else "")
@@ -468,191 +448,111 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                                 '  --impair uav2="delay 50ms jitter 10ms"   --impair uav1-uav2=loss 5%\n'
                                 '  --fault "20s kill gateway for 3s"   --fault "15s cut uplinks for 8s"\n'
                                 '  --fault "25s kill uav3"   --fault "15s partition uav1-uav2 for 10s"')
-    p.add_argument("--uavs", type=int, default=3, help="number of UAVs")
-    p.add_argument("--scenario", default=None, help="scenario file (default: the paper's monorail bridge)")
-    p.add_argument("--speed", type=float, default=4.0, help="simulation speed factor (1 = real time)")
-    p.add_argument("--camera", default="synthetic", help="synthetic | an image folder | video:<url>")
-    p.add_argument("--frame-size", type=frame_size, default="640x480", help="capture frame size WxH (4000x3000: the paper's 12 MP)")
-    p.add_argument("--preview-hz", type=rate_arg, default=None, metavar="HZ",
-                   help=f"live preview frames per UAV per second (default: {PREVIEW_BUDGET:g} for the fleet, at most "
-                        "the edge's 2 per UAV; 0 = off)")
-    p.add_argument("--gcs-state-hz", type=rate_arg, default=None, metavar="HZ",
-                   help=f"states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz; "
-                        f"default: all up to {GCS_STATE_BUDGET:g} for the fleet, else {GCS_STATE_BUDGET:g}/N)")
-    p.add_argument("--netns", action="store_true",
-                   help="each site in a network namespace of its own, as a stand-in for a host (root; "
-                        "services/orchestration/netns.py): router links over veth pairs through skynet netem's "
-                        "proxy, site 0 reached from here through a Unix socket bridge")
-    p.add_argument("--edge-nice", type=niceness, default=None, metavar="N",
-                   help=f"the edges' niceness (default: {EDGE_NICE} above {NICE_ABOVE} UAVs, else 0; "
-                        "services/orchestration/fleet_load.py)")
-    p.add_argument("--state-ingress-hz", type=rate_arg, default=None, metavar="HZ",
-                   help=f"states per UAV key the gateway lets in from one session per second (default "
-                        f"{STATE_INGRESS_HZ:g}; 0: no limit; services/gateway/ingress.py)")
-    p.add_argument("--detect-max-mp", type=float, default=None, metavar="MP",
-                   help="the detector detects frames above MP megapixels on a reduced decode (its default 1; 0: never)")
-    p.add_argument("--capture-link", choices=CAPTURE_LINKS, default="auto",
-                   help="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
-    p.add_argument("--vehicle", choices=["sim", "mavlink"], default="sim",
-                   help="sim: the built-in vehicle; mavlink: each edge flies a sim autopilot (skynet sim-autopilot) "
-                        "over MAVLink on loopback")
-    p.add_argument("--autopilot-boot-scale", type=float, default=1.0, metavar="F",
-                   help="--vehicle mavlink: the sim autopilots' start-up times as a fraction of ArduCopter's "
-                        "(1: GUIDED/AUTO after 42 simulated s; 0.1 ten times faster; 0 at once)")
-    p.add_argument("--autopilot-firmware", choices=["4.6", "4.7"], default="4.6",
-                   help="--vehicle mavlink: the sim autopilots' parameter names and units: 4.6 (stable 4.5/4.6: "
-                        "WPNAV_SPEED cm/s, RTL_ALT cm, ...) or 4.7 (4.7+: WP_SPD m/s, RTL_ALT_M m, ...)")
-    p.add_argument("--ready-timeout", type=float, default=120.0, metavar="S",
-                   help="the ground station waits this long for every UAV's autopilot to be ready, then refuses")
-    p.add_argument("--flight", choices=["guided", "auto"], default="guided",
-                   help="--vehicle mavlink: guided (position targets) or auto (a waypoint mission flown in AUTO)")
-    p.add_argument("--method", default="it+r", help="the detector's method")
-    p.add_argument("--detectors", type=int, default=1, metavar="N",
-                   help="detector instances sharing the cameras (detector-K analyses the UAVs with id %% N == K)")
-    p.add_argument("--sites", type=int, default=1, metavar="S",
-                   help="gateways: one per site, meshed (each dials the lower-numbered ones); formation g "
-                        "(UAVs 3g+1..3g+3) attaches to site g %% S, the ground station to site 0 (1 <= S <= formations)")
-    p.add_argument("--rcu-site", action="append", default=[], metavar="NAME=K",
-                   help="attach an RCU to site K's gateway (repeatable; default site 0): planner, detector "
-                        "(every instance) or detector-K")
-    p.add_argument("--fleet", default=keys.DEFAULT_FLEET)
-    p.add_argument("--seed", type=int, default=0, help="seeds the simulation and every proxy (per link)")
-    p.add_argument("--impair", action="append", default=[], metavar="NAME[/udp|/tcp]=SPEC",
-                   help="netem impairment on a link or group of links (repeatable, later wins), e.g. "
-                        'uav2="delay 50ms loss 2%%"; SPEC as in skynet netem')
-    p.add_argument("--mesh", choices=["direct", "proxied"], default=None,
-                   help="direct: edges dial each other straight; proxied: through a proxy pair per "
-                        "SkyNet link (default: proxied when a SkyNet link is impaired or faulted)")
-    p.add_argument("--no-recovery", action="store_true",
-                   help="capture frames not recoverable: no imagery cache on the edges, no recovery in the detector")
-    p.add_argument("--fault", action="append", default=[], metavar='"AT ACTION TARGET [for D]"',
-                   help="scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|"
-                        "detector" + ("|gcs" if prog == "mission" else "") + ", partition uavI-uavJ|uavN|skynet; "
-                        "AT from the " + ("mission phase" if prog == "mission" else "network start"))
-    p.add_argument("--keys", default=None, metavar="DIR",
-                   help=f"fleet key set (skynet keys init); default: a development set in ${trustmode.KEYS_ENV} or {trustmode.DEFAULT_KEYS}")
-    p.add_argument("--accept-guard", action="store_true",
-                   help="the gateways accept TLS connections through a guard that drops those not starting a TLS "
-                        "handshake (connect-and-close or silent floods; services/gateway/guard.py, bench/accept.py)")
-    p.add_argument("--insecure", action="store_true",
-                   help="no TLS, no access control, unsigned commands: development only")
-    p.add_argument("--video", choices=["h264", "mjpeg"], default=None,
-                   help="also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:PORT+2(n-1) (--video-port)")
-    p.add_argument("--video-sdp", default="sdp", help="folder of the video streams' SDP files (with --video)")
-    p.add_argument("--video-port", type=int, default=5600, metavar="PORT",
-                   help="UAV 1's preview port (with --video); UAV n's is PORT + 2(n-1)")
-    p.add_argument("--web", default=None, metavar="[HOST]:PORT",
-                   help="serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)")
-    p.add_argument("--network", default=None, metavar="FILE",
-                   help=f"where to describe the running network for skynet web/video/replay (default: "
-                        f"${attach.NETWORK_ENV} or {attach.NETWORK_FILE}; removed at the end)")
-    p.add_argument("--dry-run", action="store_true",
-                   help="print the network this command would start (every process, its endpoints, identity and "
-                        "command line) and exit: nothing is started, no key set made")
-    p.add_argument("--json", action="store_true", help="with --dry-run: the plan as JSON")
-    if prog == "mission":
-        p.add_argument("--out", default=None, help="report folder (default reports/mission-<time>)")
-        p.add_argument("--quiet", action="store_true", help="no live progress display")
-        p.add_argument("--algorithm", default="theta-pso")
-        p.add_argument("--no-record", action="store_true", help="do not log the mission to OUT/mission.mcap")
-    return p
+    return add_options(p, MODELS[prog])
+
+
+def parse(prog: str, argv: list[str]) -> LaunchConfig:
+    """The options of ``skynet PROG ARGV``; a bad one is argparse's one-line error (SystemExit 2)."""
+    parser = build_parser(prog)
+    return from_namespace(MODELS[prog], parser.parse_args(argv), parser)
+
+
+def check(config: LaunchConfig) -> tuple[Plan, NetworkPlan]:
+    """The run checked before anything starts: links, faults, sites (:func:`.plan.make_plan`), the scenario, and
+    every service's own config, in the network the run would start (what ``--dry-run`` prints: ports numbered from
+    7447, the key set named, not made). ValueError with a one-line message."""
+    from protocol.scenario import ScenarioError, load_scenario
+
+    plan = make_plan(config, ground_station=(mission := isinstance(config, MissionLaunchConfig)))
+    try:
+        scenario = load_scenario(config.scenario)
+    except ScenarioError as e:
+        raise ValueError(f"--scenario: {e}") from None
+    keys_dir = trustmode.planned_keys(config)
+    if isinstance(config, MissionLaunchConfig):
+        config = config.model_copy(update={"save_frames": str(Path(config.out or "reports/mission-<time>") / "frames")})
+    return plan, network_plan(config, scenario, Trust.of(keys_dir, keys_dir is not None), CountingPorts(7447),
+                              ground_station=mission, epoch=0.0, workdir="<run>", web_token="<random>", checked=plan)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``skynet up|mission``: parse and check the command line, then :func:`run` it."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    prog = argv.pop(0) if argv and argv[0] in ("up", "mission") else "up"
-    parser = build_parser(prog)
-    args = parser.parse_args(argv)
+    prog = argv.pop(0) if argv and argv[0] in MODELS else "up"
+    config = parse(prog, argv)
     try:
-        plan = make_plan(args, ground_station=prog == "mission")
-    except ValueError as e:
-        parser.error(str(e))
-    from protocol.scenario import ScenarioError, load_scenario
+        checked = check(config)
+    except ValueError as e:  # one line, as the other commands' bad input (services.cli)
+        from protocol.textsafe import printable
 
-    try:
-        load_scenario(args.scenario)
-    except ScenarioError as e:
-        parser.error(f"--scenario: {e}")
-    if args.dry_run:
-        return dry_run(args, plan, prog == "mission")
-    if args.json:
-        parser.error("--json: only with --dry-run")
-    log = setup_logging(prog)
-    stop = stop_event_on_signals()
-    if prog == "up":
-        net = Network(args, plan=plan)
-        try:
-            net.start()
-            log.info("network up: gateway at %s; Ctrl-C to stop", " ".join(net.gateway_endpoints))
-            if net.web_url():
-                log.info("web page at %s", net.web_url())
-            for link in sorted(net.proxies):
-                log.info("proxies on %s: tcp %s, udp %s", link, *(net.proxies[link][c].port for c in CLASSES))
-            injector = net.start_faults(log)
-            if injector is not None:
-                injector.start(origin=time.time())
-            net.start_supervisor(log)  # a service that ends is restarted, the network stays up
-            described = net.describe()
-            if described is not None:
-                log.info("network described in %s: `skynet web`, `skynet video`, `skynet replay FILE` attach to it "
-                         "from this folder with no options", described)
-            announced = False
-            while not stop.wait(1.0 if announced else 0.2):
-                if not announced and net.all_up():
-                    announced = True  # the launcher's own ready signal: every service it started is up
-                    log.info("all services up: %s", " ".join(net.supervised()))
-                    notify_ready("launcher", "up")
-        finally:
-            codes = net.stop()
-            log.info("stopped: %s", codes)
+        print(f"skynet {prog}: error: {printable(e)}", file=sys.stderr)
+        return 2
+    return run(config, checked)
+
+
+def run(config: LaunchConfig, checked: tuple[Plan, NetworkPlan] | None = None) -> int:
+    """``--dry-run``: print the plan (a table, or JSON with ``--json``); else start the network (``skynet up``), or
+    the network and its mission (``skynet mission``)."""
+    plan, layout = checked or check(config)
+    if config.dry_run:
+        print(json.dumps(layout.to_json(), indent=1) if config.as_json else layout.table())
         return 0
-    return run_mission(args, log, stop, plan)
-
-
-def dry_run(args: argparse.Namespace, plan: Plan, ground_station: bool, out=None) -> int:
-    """``--dry-run``: print the plan (a table, or JSON with ``--json``) and exit 0; nothing is started, no port
-    is bound (ports are numbered from 7447), no key set is made (its folder is named)."""
-    from protocol.scenario import load_scenario
-
-    out = out or sys.stdout
-    keys_dir = trustmode.planned_keys(args)
-    if ground_station:
-        args.save_frames = str(Path(args.out or "reports/mission-<time>") / "frames")
-    scenario = load_scenario(args.scenario)
-    layout = network_plan(LaunchOptions.from_args(args), scenario,
-                          Trust.of(None if keys_dir is None else str(keys_dir), keys_dir is not None),
-                          CountingPorts(7447), ground_station=ground_station, epoch=0.0, workdir="<run>",
-                          web_token="<random>", checked=plan)
-    if args.json:
-        print(json.dumps(layout.to_json(), indent=1), file=out)
-    else:
-        print(layout.table(), file=out)
+    mission = isinstance(config, MissionLaunchConfig)
+    log = setup_logging("mission" if mission else "up")
+    stop = stop_event_on_signals()
+    if mission:
+        return run_mission(config, log, stop, plan)
+    net = Network(config, plan=plan)
+    try:
+        net.start()
+        log.info("network up: gateway at %s; Ctrl-C to stop", " ".join(net.gateway_endpoints))
+        if net.web_url():
+            log.info("web page at %s", net.web_url())
+        for link in sorted(net.proxies):
+            log.info("proxies on %s: tcp %s, udp %s", link, *(net.proxies[link][c].port for c in CLASSES))
+        injector = net.start_faults(log)
+        if injector is not None:
+            injector.start(origin=time.time())
+        net.start_supervisor(log)  # a service that ends is restarted, the network stays up
+        described = net.describe()
+        if described is not None:
+            log.info("network described in %s: `skynet web`, `skynet video`, `skynet replay FILE` attach to it "
+                     "from this folder with no options", described)
+        announced = False
+        while not stop.wait(1.0 if announced else 0.2):
+            if not announced and net.all_up():
+                announced = True  # the launcher's own ready signal: every service it started is up
+                log.info("all services up: %s", " ".join(net.supervised()))
+                notify_ready("launcher", "up")
+    finally:
+        codes = net.stop()
+        log.info("stopped: %s", codes)
     return 0
 
 
-def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan | None = None) -> int:
+def run_mission(config: MissionLaunchConfig, log: logging.Logger, stop, plan: Plan | None = None) -> int:
     from protocol.scenario import load_scenario
     from services.gcs.cli import run_mission as gcs_mission
     from services.gcs.mission import MissionOptions
     from services.recording.record import check_output_folder
 
     # not writable or too little room: refused (RecordingError) before any service starts
-    out = check_output_folder(args.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
+    out = check_output_folder(config.out or f"reports/mission-{time.strftime('%Y%m%d-%H%M%S')}")
     log_file = open(out / "services.log", "w")
     # the deliverable's captures come through the bus into the mission log; the detector keeps its own copies only
     # for the live page's deduplicated defect count (services.web.tally)
-    args.save_frames = str((out / "frames").resolve()) if args.web else None
-    net = Network(args, echo=log_file, ground_station=True, plan=plan)
-    scenario = load_scenario(args.scenario)
+    config = config.model_copy(update={"save_frames": str((out / "frames").resolve()) if config.web else None})
+    net = Network(config, echo=log_file, ground_station=True, plan=plan)
+    scenario = load_scenario(config.scenario)
     try:
         net.start()
         net.describe()
         cfg = net.gcs_config()
         hooks_signer = net.gcs_signer()
         # every edge imports and starts at once on the same cores: 48 of them took over 30 s to appear
-        options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
-                                 speed=args.speed, appear_timeout_s=max(30.0, 2.5 * args.uavs),
-                                 ready_timeout_s=args.ready_timeout)
+        options = MissionOptions(uavs=tuple(range(1, config.uavs + 1)), algorithm=config.algorithm, seed=config.seed,
+                                 speed=config.speed, appear_timeout_s=max(30.0, 2.5 * config.uavs),
+                                 ready_timeout_s=config.ready_timeout)
         injector = net.start_faults(log)
 
         def on_runner(runner) -> None:
@@ -669,7 +569,7 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
                 start_failure(name, reason)
             net.on_start_failure = start_failure
             # the services asked for, before the flight; the runner listens already (the edges' first events)
-            failed = net.wait_started(net.requested(), START_TIMEOUT_S + 2.0 * args.uavs, log)
+            failed = net.wait_started(net.requested(), START_TIMEOUT_S + 2.0 * config.uavs, log)
             if failed:
                 log.error("the mission will fail: %s", "; ".join(f"{n} did not start ({r})" for n, r in failed.items()))
             if injector is not None:
@@ -678,20 +578,20 @@ def run_mission(args: argparse.Namespace, log: logging.Logger, stop, plan: Plan 
 
         hooks = {"on_runner": on_runner}
         net.start_supervisor(log)
-        with Bus(cfg, fleet=args.fleet, name="gcs") as bus:
+        with Bus(cfg, fleet=config.fleet, name="gcs") as bus:
             web_server = None
-            if args.web:  # the live page in the ground station's process, with its plan (services.web)
+            if config.web:  # the live page in the ground station's process, with its plan (services.web)
                 from services.web.service import follow_runner, start_web
 
-                view, web_server = start_web(bus, args.web, scenario, log=log, frames=args.save_frames)
+                view, web_server = start_web(bus, config.web, scenario, log=log, frames=config.save_frames)
                 before = hooks.get("on_runner")
                 hooks["on_runner"] = lambda runner: (before and before(runner),
                                                      follow_runner(view, runner, tally=web_server.tally))
             try:
-                code = gcs_mission(bus, scenario, options, str(out), args.quiet, log, abort=stop,
-                                   ground_truth=args.camera == "synthetic", signer=hooks_signer,
+                code = gcs_mission(bus, scenario, options, str(out), config.quiet, log, abort=stop,
+                                   ground_truth=config.camera == "synthetic", signer=hooks_signer,
                                    plan_verifier=net.plan_verifier(),
-                                   record=not args.no_record, **hooks)
+                                   record=not config.no_record, **hooks)
             finally:
                 if web_server is not None:
                     web_server.stop()

@@ -1,6 +1,6 @@
 """The network a launcher run asks for, as data: every process, its endpoints, identity and command line.
 
-:func:`network_plan` is a pure function of the launcher's options (:class:`LaunchOptions`: fleet size, sites,
+:func:`network_plan` is a pure function of the launcher's options (:class:`~.config.LaunchConfig`: fleet size, sites,
 impairments, faults, trust, autopilot, web/video/recording), the scenario, the trust decision and a source of
 port numbers: it starts no process, opens no socket and no bus session. Its result (:class:`NetworkPlan`)
 lists the processes in start order (:class:`ProcessSpec`: name, role, site, identity, the endpoints it listens
@@ -9,28 +9,37 @@ on and connects to, the environment it needs, its ``skynet`` argv), the impairme
 prints it (:meth:`NetworkPlan.table`, :meth:`NetworkPlan.to_json`); :class:`services.orchestration.launcher.Network`
 starts it.
 
-Each role's argv is built by one function (``*_argv``), with the services' own flag names.
+Each service's configuration is built by one function (``*_config``) as its own config model, which checks it
+(a value the service would refuse fails here, before anything starts); its argv is rendered from that model.
 """
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
 import math
 import socket
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
-from protocol import keys
+from pydantic import BaseModel, ValidationError
+
+from edge.config import EdgeConfig
 from protocol.bus import multilink_endpoints
+from protocol.cliconfig import one_line, to_argv
 from protocol.links import LINK_LEASE_S
+from protocol.messages import Box
 from protocol.scenario import Scenario
 
+from ..detector.config import DetectorConfig
+from ..gateway.config import GatewayConfig
+from ..planner.config import PlannerConfig
+from ..video.config import VideoConfig
 from . import sites as sitemap
 from . import trustmode
+from .config import LaunchConfig
 from .faults import Resolved, cut_links, plan_faults
 from .fleet_load import FleetLoad, fleet_load
 from .topology import (
@@ -50,6 +59,7 @@ HOST = "127.0.0.1"
 WEB_TOKEN_ENV = "SKYNET_WEB_TOKEN"
 #: environment variables whose values a printed plan does not show
 SECRET_ENV = (WEB_TOKEN_ENV,)
+C = TypeVar("C", bound=BaseModel)
 #: a fleet above this many UAVs gives its planner the ground station's plan time and an anytime answer
 ANYTIME_PLANNER_ABOVE = 24
 
@@ -67,22 +77,19 @@ class Plan:
     sites: sitemap.Mesh | None = None
 
 
-def make_plan(args: Any, ground_station: bool) -> Plan:
+def make_plan(o: LaunchConfig, ground_station: bool) -> Plan:
     """Check ``--impair``, ``--fault`` and ``--mesh`` against the run; ValueError with a one-line message."""
-    if args.uavs < 1:
-        raise ValueError(f"--uavs {args.uavs}: at least one UAV")
-    links = Links(args.uavs, ("planner", "detector", "gcs") if ground_station else ("planner", "detector"))
-    impair = parse_impair(getattr(args, "impair", None) or [], links)
-    faults = plan_faults(getattr(args, "fault", None) or [], links)
-    detectors = getattr(args, "detectors", 1)
-    if not 1 <= detectors <= args.uavs:
-        raise ValueError(f"--detectors {detectors}: 1 to --uavs ({args.uavs}) instances")
-    if detectors > 1 and any(r.service == "detector" for r in faults):
+    links = Links(o.uavs, ("planner", "detector", "gcs") if ground_station else ("planner", "detector"))
+    impair = parse_impair(o.impair, links)
+    faults = plan_faults(o.fault, links)
+    if not 1 <= o.detectors <= o.uavs:
+        raise ValueError(f"--detectors {o.detectors}: 1 to --uavs ({o.uavs}) instances")
+    if o.detectors > 1 and any(r.service == "detector" for r in faults):
         raise ValueError("--fault kill detector: with --detectors N the instances are detector-0..N-1, which "
                          "faults do not name (cut detector cuts every instance's uplink)")
     proxied = set(impair.links()) | cut_links(faults)
     skynet = {link for link in proxied if link_ends(link) is not None}
-    mesh = getattr(args, "mesh", None)
+    mesh = o.mesh
     if mesh is None:
         mesh = "proxied" if skynet else "direct"
     elif mesh == "direct" and skynet:
@@ -90,75 +97,20 @@ def make_plan(args: Any, ground_station: bool) -> Plan:
                          "which needs --mesh proxied")
     if mesh == "proxied":
         proxied |= set(links.skynet)
-    n_sites = sitemap.check_sites(getattr(args, "sites", 1), args.uavs)
-    rcus = ["planner", *(["detector"] if detectors == 1 else [f"detector-{k}" for k in range(detectors)])]
-    if getattr(args, "netns", False):
-        if getattr(args, "insecure", False):
+    n_sites = sitemap.check_sites(o.sites, o.uavs)
+    rcus = ["planner", *(["detector"] if o.detectors == 1 else [f"detector-{k}" for k in range(o.detectors)])]
+    if o.netns:
+        if o.insecure:
             raise ValueError("--netns needs the default TLS links (both of a pair are TCP, which the forwarders "
                              "between namespaces carry): not with --insecure")
         if proxied or faults:
             raise ValueError("--netns with --impair/--fault: the launcher's link proxies run in the machine's own "
                              "namespace, not in the sites'; impair the router links with skynet netem by hand")
-    where = sitemap.parse_rcu_sites(getattr(args, "rcu_site", None) or [], n_sites, rcus)
+    where = sitemap.parse_rcu_sites(o.rcu_site, n_sites, rcus)
     if "detector" in proxied and len({s for n, s in where.items() if n.startswith("detector")}) > 1:
         raise ValueError("--impair/--fault on the detector link: its instances attach to different sites "
                          "(one proxy pair in front of one gateway): keep them at one site")
-    return Plan(links, impair, faults, mesh, proxied, sitemap.mesh(args.uavs, n_sites, where))
-
-
-@dataclass(frozen=True)
-class LaunchOptions:
-    """The options of ``skynet up`` / ``skynet mission`` the network depends on (the launcher's flags)."""
-
-    uavs: int = 3
-    fleet: str = keys.DEFAULT_FLEET
-    scenario: str | None = None
-    speed: float = 4.0
-    camera: str = "synthetic"
-    frame_size: str = "640x480"
-    preview_hz: float | None = None
-    gcs_state_hz: float | None = None
-    edge_nice: int | None = None
-    state_ingress_hz: float | None = None
-    detect_max_mp: float | None = None
-    capture_link: str = "auto"
-    vehicle: str = "sim"
-    autopilot_boot_scale: float = 1.0
-    autopilot_firmware: str = "4.6"
-    flight: str = "guided"
-    method: str = "it+r"
-    detectors: int = 1
-    sites: int = 1
-    rcu_site: tuple[str, ...] = ()
-    seed: int = 0
-    impair: tuple[str, ...] = ()
-    mesh: str | None = None
-    no_recovery: bool = False
-    fault: tuple[str, ...] = ()
-    keys: str | None = None
-    accept_guard: bool = False
-    insecure: bool = False
-    netns: bool = False
-    video: str | None = None
-    video_sdp: str = "sdp"
-    video_port: int = 5600
-    web: str | None = None
-    #: the detector's frame folder (``skynet mission``: the report's ``frames/``)
-    save_frames: str | None = None
-
-    @classmethod
-    def from_args(cls, args: argparse.Namespace) -> LaunchOptions:
-        """The options of a parsed launcher command line (absent ones keep their defaults)."""
-        out: dict[str, Any] = {}
-        for name in cls.__dataclass_fields__:
-            if hasattr(args, name):
-                value = getattr(args, name)
-                if isinstance(value, list):
-                    value = tuple(value)
-                if name == "frame_size" and isinstance(value, tuple):
-                    value = f"{value[0]}x{value[1]}"
-                out[name] = value
-        return cls(**out)
+    return Plan(links, impair, faults, mesh, proxied, sitemap.mesh(o.uavs, n_sites, where))
 
 
 @dataclass(frozen=True)
@@ -203,8 +155,10 @@ def free_ports(kind: str = "tcp") -> int:
 class ProcessSpec:
     """One process of the network.
 
-    ``argv`` follows ``python -m services.cli`` (empty for the in-process ground station of ``skynet
-    mission``); ``identity`` is the key set's identity it runs as (None: no bus, or no key set);
+    ``config`` is the service's typed configuration and ``argv`` (after ``python -m services.cli``) its command
+    line, rendered from it (:func:`protocol.cliconfig.to_argv`; a process without a config model: written by hand;
+    both empty for the in-process ground station of ``skynet mission``); ``identity`` is the key set's identity it
+    runs as (None: no bus, or no key set);
     ``namespace`` the site whose network namespace it runs in (``--netns``; None: the machine's own);
     ``ready``: it signals when it is up (:mod:`protocol.readiness`) and is supervised as a service;
     ``wait``: the launcher waits for that signal before starting the next process.
@@ -222,6 +176,7 @@ class ProcessSpec:
     wait: bool = False
     namespace: int | None = None
     in_process: bool = False
+    config: BaseModel | None = None
 
 
 @dataclass(frozen=True)
@@ -285,7 +240,8 @@ class NetworkPlan:
     def to_json(self) -> dict[str, Any]:
         """The plan as JSON-ready data; secret environment values are shown as ``***``."""
         def proc(p: ProcessSpec) -> dict[str, Any]:
-            d = asdict(p)
+            d = asdict(replace(p, config=None))
+            d["config"] = None if p.config is None else p.config.model_dump(mode="json")
             d["env"] = {k: ("***" if k in SECRET_ENV else v) for k, v in p.env.items()}
             d["listens"], d["connects"], d["argv"] = list(p.listens), list(p.connects), list(p.argv)
             return d
@@ -353,76 +309,66 @@ def homes(scenario: Scenario, n: int) -> list[tuple[float, float, float]]:
     return out
 
 
-def fence_arg(scenario: Scenario) -> str:
-    """The scenario's operation box as the edge's ``--geofence x0,y0,z0,x1,y1,z1``: the ceiling a signed
-    upload may only narrow (:func:`edge.geometry.validate.narrowed_fence`)."""
-    return ",".join(f"{v:g}" for v in (*scenario.box.lo, *scenario.box.hi))
-
-
 # -- one argv per role (the services' own flag names)
 
 
-def bus_argv(o: LaunchOptions, trust: Trust, mode: str, connects: list[str], client_lease: list[str]) -> list[str]:
-    """The session options every node shares: mode, fleet, the multilink pair, its gateway, its key set."""
-    out = ["--mode", mode, "--fleet", o.fleet, "--multilink", *(client_lease if mode == "client" else [])]
-    for e in connects:
-        out += ["--connect", e]
-    return out + key_argv(trust)
+def child(name: str, model: type[C], **values: Any) -> C:
+    """``name``'s configuration: the values checked by the service's own model, so that a value it would refuse
+    fails in the plan (ValueError, one line) instead of in its log."""
+    try:
+        return model.model_validate(values)
+    except ValidationError as exc:
+        raise ValueError(f"{name} would refuse its options: {one_line(exc)}") from None
 
 
-def key_argv(trust: Trust) -> list[str]:
-    return [] if trust.keys is None else ["--keys", str(trust.keys)]
+def session(o: LaunchConfig, trust: Trust, connects: list[str], lease: dict[str, Any]) -> dict[str, Any]:
+    """The session options every node shares: fleet, the multilink pair, its gateway, its key set (and on proxied
+    links a client's lease and open timeout)."""
+    return {"fleet": o.fleet, "multilink": True, "connect": connects, "keys": trust.keys, **lease}
 
 
-def gateway_argv(o: LaunchOptions, trust: Trust, ident: str | None, lease: list[str], thin: list[str],
-                 connects: list[str], listens: list[str]) -> list[str]:
-    return ["gateway", *(["--id", ident] if ident else []), "--fleet", o.fleet, "--multilink", *lease, *thin,
-            *(["--accept-guard"] if o.accept_guard else []), *key_argv(trust),
-            *[x for e in connects for x in ("--connect", e)], *[x for e in listens for x in ("--listen", e)]]
-
-
-def autopilot_argv(o: LaunchOptions, i: int, port: int, home: tuple[float, float, float], epoch: float) -> list[str]:
+def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float, float], epoch: float) -> list[str]:
+    """The sim autopilot's command line (its parser is the edge's vehicle package's, not a config model)."""
     return ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1), "--home", ",".join(map(str, home)),
             "--speed", str(o.speed), "--epoch", str(epoch), "--seed", str(o.seed + i), "--wind", "moderate",
             "--boot-scale", f"{o.autopilot_boot_scale:g}", "--firmware-version", o.autopilot_firmware]
 
 
-def edge_argv(o: LaunchOptions, i: int, bus: list[str], mesh: list[str], config: list[str], listens: list[str],
-              home: tuple[float, float, float], epoch: float, fence: str, load: FleetLoad,
-              mavlink_port: int | None) -> list[str]:
-    vehicle = [] if mavlink_port is None else ["--vehicle", "mavlink", "--mavlink", f"udpin:{HOST}:{mavlink_port}",
-                                               "--flight", o.flight]
-    return ["edge", "--uav", str(i), *bus, *mesh, *config, *[x for e in listens for x in ("--listen", e)],
-            "--home", ",".join(map(str, home)), "--speed", str(o.speed), "--epoch", str(epoch),
-            "--seed", str(o.seed + i), "--camera", o.camera, "--frame-size", o.frame_size,
-            "--capture-link", o.capture_link, "--preview-hz", f"{load.preview_hz:g}",
-            *(["--nice", str(load.edge_nice)] if load.edge_nice else []),
-            *(["--scenario", o.scenario] if o.scenario else []), "--geofence", fence,
-            *(["--imagery-cache", "0"] if o.no_recovery else []), *vehicle]
+def edge_config(o: LaunchConfig, i: int, bus: dict[str, Any], listens: list[str], home: tuple[float, float, float],
+                epoch: float, fence: Box, load: FleetLoad, mavlink_port: int | None) -> EdgeConfig:
+    """The edge's config; its ``geofence`` the scenario's operation box, the ceiling a signed upload may only narrow
+    (:func:`edge.geometry.validate.narrowed_fence`)."""
+    vehicle = {} if mavlink_port is None else {"vehicle": "mavlink", "mavlink": f"udpin:{HOST}:{mavlink_port}",
+                                               "flight": o.flight}
+    return child(f"uav{i}", EdgeConfig, uav=i, **bus, listen=listens, home=home, speed=o.speed, epoch=epoch,
+                 seed=o.seed + i, camera=o.camera, frame_size=o.frame_size, capture_link=o.capture_link,
+                 preview_hz=load.preview_hz, nice=load.edge_nice, scenario=o.scenario, geofence=fence,
+                 **({"imagery_cache": 0} if o.no_recovery else {}), **vehicle)
 
 
-def planner_argv(o: LaunchOptions, bus: list[str]) -> list[str]:
+def planner_config(o: LaunchConfig, bus: dict[str, Any]) -> PlannerConfig:
     # a large fleet's plan is computed while its edges load the machine: the planner may take up to 100 s of the
     # ground station's 120 s plan timeout instead of its own 60 s default, and then answers with the best
     # collision-free path it found (48 edges left it 157 of 300 iterations)
-    budget = ["--time-budget", "100", "--anytime"] if o.uavs > ANYTIME_PLANNER_ABOVE else []
-    return ["planner", *bus, *budget]
+    budget = {"time_budget": 100.0, "anytime": True} if o.uavs > ANYTIME_PLANNER_ABOVE else {}
+    return child("planner", PlannerConfig, **bus, **budget)
 
 
-def detector_argv(o: LaunchOptions, bus: list[str], k: int, n: int) -> list[str]:
-    part = [] if n == 1 else ["--partition", f"{k}/{n}", "--max-uav", str(o.uavs)]
-    return ["detector", *bus, "--method", o.method, *part, *(["--no-recovery"] if o.no_recovery else []),
-            *(["--save-frames", o.save_frames] if o.save_frames else []),
-            *([] if o.detect_max_mp is None else ["--detect-max-mp", str(o.detect_max_mp)])]
+def detector_config(o: LaunchConfig, bus: dict[str, Any], k: int, n: int) -> DetectorConfig:
+    part = {} if n == 1 else {"partition": f"{k}/{n}", "max_uav": o.uavs}
+    return child("detector" if n == 1 else f"detector-{k}", DetectorConfig, **bus, method=o.method, **part,
+                 no_recovery=o.no_recovery, save_frames=o.save_frames,
+                 **({} if o.detect_max_mp is None else {"detect_max_mp": o.detect_max_mp}))
 
 
-def video_argv(o: LaunchOptions, bus: list[str]) -> list[str]:
-    return ["video", *bus, "--codec", str(o.video), "--uavs", str(o.uavs), "--sdp-dir", str(o.video_sdp),
-            "--port", str(o.video_port)]
+def video_config(o: LaunchConfig, bus: dict[str, Any]) -> VideoConfig:
+    return child("video", VideoConfig, **bus, codec=o.video, uavs=o.uavs, sdp_dir=o.video_sdp, port=o.video_port)
 
 
-def web_argv(o: LaunchOptions, bus: list[str]) -> list[str]:
-    return ["web", *bus, "--listen-web", str(o.web), *(["--scenario", o.scenario] if o.scenario else [])]
+def web_config(o: LaunchConfig, bus: dict[str, Any]):
+    from services.web.config import WebConfig  # the page's server (aiohttp) only when a page is asked for
+
+    return child("web", WebConfig, **bus, listen_web=o.web, scenario=o.scenario)
 
 
 def netem_link_argv(local: int, target: str) -> list[str]:
@@ -433,23 +379,28 @@ def bridge_argv(listen: str, target: str) -> list[str]:
     return ["bridge", "--listen", listen, "--target", target]
 
 
+def spec(name: str, role: str, site: int, identity: str | None, config: BaseModel, **kw: Any) -> ProcessSpec:
+    """A process that runs ``skynet ROLE`` with ``config``: its command line rendered from it."""
+    return ProcessSpec(name, role, site, identity, argv=(role, *to_argv(config)), config=config, **kw)
+
+
 # -- the plan
 
 
-def gateway_thinning(o: LaunchOptions, load: FleetLoad) -> list[str]:
-    """The gateways' traffic options: ``--state-ingress-hz`` when given (else the gateway's default per-face
-    limit, :mod:`services.gateway.ingress`), and with ``--gcs-state-hz`` a ``--cfg downsampling:[...]`` that
+def gateway_thinning(o: LaunchConfig, load: FleetLoad) -> dict[str, Any]:
+    """The gateways' traffic options: ``state_ingress_hz`` when given (else the gateway's default per-face
+    limit, :mod:`services.gateway.ingress`), and with ``--gcs-state-hz`` a ``cfg`` ``downsampling:[...]`` that
     thins the clients' view of the states (:mod:`services.gateway.downsample`)."""
-    out = [] if o.state_ingress_hz is None else ["--state-ingress-hz", str(o.state_ingress_hz)]
+    out: dict[str, Any] = {} if o.state_ingress_hz is None else {"state_ingress_hz": o.state_ingress_hz}
     if load.gcs_state_hz <= 0:
         return out
     from ..gateway.downsample import state_downsampling
 
     rules = state_downsampling(o.fleet, load.gcs_state_hz, o.uavs)
-    return out + [a for k, v in rules.items() for a in ("--cfg", f"{k}:{json.dumps(v)}")]
+    return {**out, "cfg": [(k, json.dumps(v)) for k, v in rules.items()]}
 
 
-def network_plan(o: LaunchOptions, scenario: Scenario, trust: Trust, ports: Ports, *, ground_station: bool = False,
+def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports, *, ground_station: bool = False,
                  epoch: float = 0.0, workdir: str = "run", web_token: str = "", checked: Plan | None = None
                  ) -> NetworkPlan:
     """The network of a launcher run (module docstring): no process, socket or session; ValueError (one line)
@@ -497,8 +448,8 @@ def network_plan(o: LaunchOptions, scenario: Scenario, trust: Trust, ports: Port
 
     # proxied links: the edges' lease on the ground too (protocol.links.LINK_LEASE_S), and the clients' open
     # timeout the edges' (topology.OPEN_TIMEOUT_MS): a UDP handshake lost on an impaired link is retried in seconds
-    lease = ["--lease", str(LINK_LEASE_S)] if checked.proxied else []
-    client_lease = [*lease, "--cfg", f"transport/unicast/open_timeout:{json.dumps(timeout)}"] if checked.proxied else []
+    lease: dict[str, Any] = {"lease": LINK_LEASE_S} if checked.proxied else {}
+    client_lease = {**lease, "cfg": [("transport/unicast/open_timeout", json.dumps(timeout))]} if lease else {}
     netns = o.netns
     thin = gateway_thinning(o, load)
     ident = None if trust.keys is None else "gateway"
@@ -526,10 +477,10 @@ def network_plan(o: LaunchOptions, scenario: Scenario, trust: Trust, ports: Port
         if netns:  # also on its veths, for the router links' proxies
             listen = [e.replace(f"/{HOST}:", "/0.0.0.0:") for e in listen]
         dials = [trustmode.dial_with_ca(e, trust.router_ca) for e in targets]
-        procs.append(ProcessSpec(name, "gateway", site.index, ident, tuple(listen), tuple(dials),
-                                 argv=tuple(gateway_argv(o, trust, None if len(site_endpoints) == 1 else site.gateway,
-                                                         lease, thin, dials, listen)),
-                                 wait=True, namespace=site.index if netns else None))
+        gw = child(name, GatewayConfig, **session(o, trust, dials, lease), **thin, listen=listen,
+                   accept_guard=o.accept_guard, **({} if len(site_endpoints) == 1 else {"id": site.gateway}))
+        procs.append(spec(name, "gateway", site.index, ident, gw, listens=tuple(listen), connects=tuple(dials),
+                          wait=True, namespace=site.index if netns else None))
         if netns and site.index == 0:  # site 0's gateway reached from the machine's own namespace
             for e in site_endpoints[0]:
                 port = int(e.split("?")[0].rsplit(":", 1)[1])
@@ -543,7 +494,7 @@ def network_plan(o: LaunchOptions, scenario: Scenario, trust: Trust, ports: Port
                                          argv=tuple(bridge_argv(f"tcp:{HOST}:{port}", f"unix:{sock}")), wait=True))
 
     launch = homes(scenario, o.uavs)
-    fence = fence_arg(scenario)
+    fence = Box(lo=scenario.box.lo, hi=scenario.box.hi)
     edge_endpoints = {i: pair() for i in range(1, o.uavs + 1)}
     formations = o.uavs > sitemap.FORMATION_SIZE  # several formations: no gossip autoconnect
     from edge.geometry.neighbourhood import members
@@ -559,39 +510,31 @@ def network_plan(o: LaunchOptions, scenario: Scenario, trust: Trust, ports: Port
         connects = uplink(name, mesh_sites.site_of(i))
         mesh: list[str] = []
         for j in (j for j in members(i, fleet=o.uavs) if j > i):  # its formation's later edges
-            ends = proxy(skynet_link(i, j), edge_endpoints[j]) if checked.mesh == "proxied" else edge_endpoints[j]
-            for e in ends:
-                mesh += ["--connect", e]
-        config: list[str] = []
+            mesh += proxy(skynet_link(i, j), edge_endpoints[j]) if checked.mesh == "proxied" else edge_endpoints[j]
+        bus = session(o, trust, [*connects, *mesh], {})
         if checked.mesh != "direct" or name in checked.proxied or formations:
-            path = f"{workdir}/{name}.json5"
+            bus["config"] = path = f"{workdir}/{name}.json5"
             files[path] = json.dumps(edge_mesh_config("proxied" if formations else checked.mesh, None, timeout))
-            config = ["--config", path]
-        bus = bus_argv(o, trust, "peer", connects, client_lease)
-        procs.append(ProcessSpec(name, "edge", mesh_sites.site_of(i), None if trust.keys is None else name,
-                                 tuple(edge_endpoints[i]), (*connects, *mesh[1::2]),
-                                 argv=tuple(edge_argv(o, i, bus, mesh, config, edge_endpoints[i], home, epoch, fence,
-                                                      load, mav)), namespace=ns))
+        edge = edge_config(o, i, bus, edge_endpoints[i], home, epoch, fence, load, mav)
+        procs.append(spec(name, "edge", mesh_sites.site_of(i), None if trust.keys is None else name, edge,
+                          listens=tuple(edge_endpoints[i]), connects=(*connects, *mesh), namespace=ns))
 
-    def client(name: str, role: str, link: str, argv: Callable[[list[str]], list[str]], identity: str,
-               main_namespace: bool = False, env: dict[str, str] | None = None) -> None:
+    def client(name: str, role: str, config: Callable[[dict[str, Any]], BaseModel], main_namespace: bool = False,
+               env: dict[str, str] | None = None) -> None:
         site = site_of(name)
-        connects = uplink(link, site)
-        procs.append(ProcessSpec(name, role, site, None if trust.keys is None else identity, (), tuple(connects),
-                                 env=dict(env or {}), argv=tuple(argv(bus_argv(o, trust, "client", connects,
-                                                                               client_lease))),
-                                 namespace=site if netns and not main_namespace else None))
+        connects = uplink(role, site)
+        procs.append(spec(name, role, site, None if trust.keys is None else role,
+                          config(session(o, trust, connects, client_lease)), connects=tuple(connects),
+                          env=dict(env or {}), namespace=site if netns and not main_namespace else None))
 
-    client("planner", "planner", "planner", lambda bus: planner_argv(o, bus), "planner")
+    client("planner", "planner", lambda bus: planner_config(o, bus))
     n = o.detectors  # N instances share the cameras by UAV id (services.detector.partition)
     for k in range(n):
-        client("detector" if n == 1 else f"detector-{k}", "detector", "detector",
-               lambda bus, k=k: detector_argv(o, bus, k, n), "detector")
+        client("detector" if n == 1 else f"detector-{k}", "detector", lambda bus, k=k: detector_config(o, bus, k, n))
     if o.video:  # skynet video: RTP/UDP to loopback, UAV 1 on 5600 (services.video)
-        client("video", "video", "video", lambda bus: video_argv(o, bus), "video", main_namespace=True)
+        client("video", "video", lambda bus: video_config(o, bus), main_namespace=True)
     if o.web and not ground_station:  # skynet up: the page as its own process, its token in its environment
-        client("web", "web", "web", lambda bus: web_argv(o, bus), "web", main_namespace=True,
-               env={WEB_TOKEN_ENV: web_token})
+        client("web", "web", lambda bus: web_config(o, bus), main_namespace=True, env={WEB_TOKEN_ENV: web_token})
     if ground_station:  # skynet mission: the ground station runs in the launcher's own process
         connects = uplink("gcs", 0)
         procs.append(ProcessSpec("gcs", "gcs", 0, None if trust.keys is None else "gcs", (), tuple(connects),

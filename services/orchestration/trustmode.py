@@ -21,6 +21,10 @@ import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from .config import LaunchConfig
 
 #: where a development key set is kept between runs (git-ignored)
 DEFAULT_KEYS = Path(".keys") / "dev"
@@ -115,16 +119,14 @@ def dev_keys(folder: str | Path, uavs: int) -> Path:
     return folder
 
 
-def resolve(args, proxied: bool) -> TrustPlan:
-    """The trust plan of the launcher's options."""
-    if getattr(args, "insecure", False):
+def resolve(config: LaunchConfig, proxied: bool = False) -> TrustPlan:
+    """The trust plan of the launcher's options: the same whether links are ``proxied`` or not."""
+    if config.insecure:
         return TrustPlan(None, False, [INSECURE_BANNER])
-    keys = dev_keys(getattr(args, "keys", None) or default_keys(), args.uavs)
+    keys = dev_keys(config.keys or default_keys(), config.uavs)
     return TrustPlan(keys.resolve(), True)
 
 
-def planned_keys(args) -> Path | None:
+def planned_keys(config: LaunchConfig) -> Path | None:
     """The key set's folder a run would use, without making it (a dry run): None with ``--insecure``."""
-    if getattr(args, "insecure", False):
-        return None
-    return (Path(getattr(args, "keys", None) or default_keys())).resolve()
+    return None if config.insecure else Path(config.keys or default_keys()).resolve()

@@ -8,11 +8,14 @@ from pydantic import Field
 
 from services.attach import AttachOptions
 
+#: the RTP payloads
+VideoCodec = Literal["h264", "mjpeg"]
+
 
 class VideoConfig(AttachOptions):
     """The options of the RTP video service."""
 
-    codec: Literal["h264", "mjpeg"] = Field(default="h264",
+    codec: VideoCodec = Field(default="h264",
                                             description="h264: RFC 6184 (libx264 via PyAV); mjpeg: RFC 2435")
     host: str = Field(default="127.0.0.1", description="where the RTP goes (IPv4; loopback by default)")
     port: int = Field(default=5600, ge=1, le=65535, description="UAV 1's preview port; UAV n's is PORT + 2(n-1)")

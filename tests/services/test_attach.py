@@ -121,11 +121,11 @@ def test_zenohs_refusals_become_sentences():
 
 
 def test_a_folder_the_description_cannot_go_to_is_said_not_fatal(tmp_path, caplog):
-    from services.orchestration.launcher import Network, build_parser
+    from services.orchestration.launcher import Network, parse
 
     blocker = tmp_path / "file"
     blocker.write_text("a file where the .skynet folder would go")
-    args = build_parser("up").parse_args(["--insecure", "--network", str(blocker / "network.json")])
+    args = parse("up", ["--insecure", "--network", str(blocker / "network.json")])
     net = Network(args)
     try:
         assert net.describe() is None

@@ -91,10 +91,10 @@ def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
     """``skynet up --impair uav2="delay 1ms"`` through the launcher, default secure mode: the links run through the
     netem proxies and still carry mutual TLS, so an anonymous client (plaintext, or TLS without a certificate) opens
     no session on the gateway, on an edge or on a proxy, while the ground station sees the fleet and commands it."""
-    from services.orchestration.launcher import Network, build_parser
+    from services.orchestration.launcher import Network, parse
     from tests.services.orchestration.test_topology import Probe
 
-    args = build_parser("up").parse_args(["--speed", "8", "--fleet", FLEET, "--camera", "none",
+    args = parse("up", ["--speed", "8", "--fleet", FLEET, "--camera", "none",
                                           "--keys", str(tmp_path / "keys"), "--impair", "uav2=delay 1ms"])
     net = Network(args, echo=None)
     assert net.trust.tls and net.plan.proxied

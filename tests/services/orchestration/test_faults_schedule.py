@@ -9,7 +9,7 @@ import time
 import pytest
 
 from services.orchestration.faults import FaultInjector, parse_duration, parse_fault, plan_faults, resolve, schedule
-from services.orchestration.launcher import build_parser, make_plan
+from services.orchestration.launcher import make_plan, parse
 from services.orchestration.topology import Links, edge_mesh_config, link_seed, parse_impair
 from tests.conftest import wait_until
 
@@ -55,7 +55,7 @@ def test_proxy_seeds_are_distinct_per_link_and_repeatable():
 
 def test_mesh_plan_follows_skynet_impairments_and_faults():
     def plan(*argv, prog="mission"):
-        return make_plan(build_parser(prog).parse_args(list(argv)), ground_station=prog == "mission")
+        return make_plan(parse(prog, list(argv)), ground_station=prog == "mission")
 
     assert plan().mesh == "direct" and plan().proxied == set()
     p = plan("--impair", "uav2=delay 50ms")

@@ -44,23 +44,24 @@ def test_bad_values_are_refused(kw):
 
 def test_the_launcher_applies_them_to_the_edges_and_the_gateway():
     """No process started: the edges' options and the gateway's downsampling rules of a 13-UAV network."""
-    from services.orchestration.launcher import Network, build_parser
+    from services.orchestration.launcher import Network, parse
 
-    net = Network(build_parser("up").parse_args(["--fleet", "load", "--uavs", "13"]), echo=None)
+    net = Network(parse("up", ["--fleet", "load", "--uavs", "13"]), echo=None)
     try:
         assert net.load == fleet_load(13)
-        cfg = [v for k, v in zip(net.gateway_config(), net.gateway_config()[1:]) if k == "--cfg"]
-        rules = json.loads(cfg[0].split(":", 1)[1])[0]["rules"]
+        (key, value), = net.layout.get("gateway").config.cfg
+        rules = json.loads(value)[0]["rules"]
+        assert key == "downsampling" and f"--cfg=downsampling:{value}" in net.layout.get("gateway").argv
         assert len(rules) == 13 and all(r["freq"] == pytest.approx(GCS_STATE_BUDGET / 13) for r in rules)
     finally:
         net.stop()
-    net = Network(build_parser("up").parse_args(["--fleet", "load", "--uavs", "13", "--gcs-state-hz", "0",
+    net = Network(parse("up", ["--fleet", "load", "--uavs", "13", "--gcs-state-hz", "0",
                                                  "--edge-nice", "0", "--preview-hz", "2"]), echo=None)
     try:
         assert (net.load.gcs_state_hz, net.load.edge_nice, net.load.preview_hz) == (0.0, 0, 2.0)
-        assert "--cfg" not in net.gateway_config()
+        assert net.layout.get("gateway").config.cfg == []
     finally:
         net.stop()
     for bad in ("20", "-1", "x"):
         with pytest.raises(SystemExit):
-            build_parser("up").parse_args(["--edge-nice", bad])
+            parse("up", ["--edge-nice", bad])

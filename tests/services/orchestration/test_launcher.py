@@ -164,15 +164,15 @@ def test_bad_links_and_faults_are_one_line_errors(argv, needle):
 
 
 def test_no_recovery_reaches_the_edges_and_the_detector():
-    from services.orchestration.launcher import Network, build_parser
+    from services.orchestration.launcher import Network, parse
 
-    net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "norec", "--no-recovery", "--uavs", "2"]),
+    net = Network(parse("up", ["--speed", "8", "--fleet", "norec", "--no-recovery", "--uavs", "2"]),
                   echo=None)
     try:
         net.start()
-        for name, flag in [("uav1", "--imagery-cache"), ("uav2", "--imagery-cache"), ("detector", "--no-recovery")]:
+        for name, flag in [("uav1", "--imagery-cache=0"), ("uav2", "--imagery-cache=0"), ("detector", "--no-recovery")]:
             svc = net.group.get(name)
-            assert flag in svc.args and (flag != "--imagery-cache" or svc.args[svc.args.index(flag) + 1] == "0")
+            assert flag in svc.args
             wait_ready(svc)
         assert net.check_alive() == []
     finally:
@@ -268,12 +268,16 @@ def test_two_formations_and_two_detectors_fly_the_mission(tmp_path):
 def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gateway():
     """--frame-size, --capture-link, --preview-hz reach every edge; --gcs-state-hz the gateway's config
     (and --state-ingress-hz its option)."""
+    from edge.config import EdgeConfig
     from protocol.scenario import load_scenario
-    from services.orchestration.launcher import Network, build_parser
-    from services.orchestration.plan import fence_arg
+    from services.orchestration.launcher import Network, parse
 
-    fence = fence_arg(load_scenario(None))
-    net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
+    box = load_scenario(None).box
+
+    def arg(argv: list[str], flag: str) -> str:  # the children's command lines are --flag=value
+        return next(a.split("=", 1)[1] for a in argv if a.startswith(flag + "="))
+
+    net = Network(parse("up", ["--speed", "8", "--fleet", "opts", "--uavs", "4", "--frame-size",
                                                  "1280x960", "--capture-link", "reliable", "--preview-hz", "0",
                                                  "--gcs-state-hz", "5", "--detect-max-mp", "1.5",
                                                  "--state-ingress-hz", "150"]), echo=None)
@@ -282,36 +286,34 @@ def test_frame_size_preview_and_ground_view_options_reach_the_edges_and_the_gate
         for i in range(1, 5):
             svc = net.group.get(f"uav{i}")
             a = svc.args
-            assert a[a.index("--frame-size") + 1] == "1280x960" and a[a.index("--capture-link") + 1] == "reliable"
-            assert float(a[a.index("--preview-hz") + 1]) == 0.0
-            assert a[a.index("--geofence") + 1] == fence  # the scenario's box, the ceiling of any upload's fence
+            assert arg(a, "--frame-size") == "1280x960" and arg(a, "--capture-link") == "reliable"
+            assert float(arg(a, "--preview-hz")) == 0.0
+            fence = EdgeConfig.model_validate({"uav": i, "geofence": arg(a, "--geofence")}).geofence
+            assert (fence.lo, fence.hi) == (box.lo, box.hi)  # the scenario's box, the ceiling of any upload's fence
             assert wait_ready(svc).ready_as == ("edge", f"uav{i}")
         gw = net.group.get("gateway").args
-        cfg = [gw[k + 1] for k, a in enumerate(gw) if a == "--cfg" and gw[k + 1].startswith("downsampling:")]
-        conf = {"downsampling": json.loads(cfg[0].split(":", 1)[1])}
+        conf = {"downsampling": json.loads(arg(gw, "--cfg").split(":", 1)[1])}
         assert [r["key_expr"] for r in conf["downsampling"][0]["rules"]] == [f"skynet/opts/uav/{u}/state" for u in range(1, 5)]
-        assert float(gw[gw.index("--state-ingress-hz") + 1]) == 150.0  # the gateway's ingress limit
-        det = net.group.get("detector").args
-        assert float(det[det.index("--detect-max-mp") + 1]) == 1.5
+        assert float(arg(gw, "--state-ingress-hz")) == 150.0  # the gateway's ingress limit
+        assert float(arg(net.group.get("detector").args, "--detect-max-mp")) == 1.5
         assert net.check_alive() == []
     finally:
         net.stop()
     with pytest.raises(SystemExit):
-        build_parser("up").parse_args(["--frame-size", "big"])
+        parse("up", ["--frame-size", "big"])
 
 
 def test_detectors_option_starts_partitioned_instances():
     """``--detectors 2`` starts detector-0 and detector-1, each on its partition of the UAV ids."""
-    from services.orchestration.launcher import Network, build_parser
+    from services.orchestration.launcher import Network, parse
 
-    net = Network(build_parser("up").parse_args(["--speed", "8", "--fleet", "parts", "--uavs", "4", "--detectors", "2"]),
+    net = Network(parse("up", ["--speed", "8", "--fleet", "parts", "--uavs", "4", "--detectors", "2"]),
                   echo=None)
     try:
         net.start()
         for k in (0, 1):
             svc = net.group.get(f"detector-{k}")
-            a = svc.args
-            assert a[a.index("--partition") + 1] == f"{k}/2" and a[a.index("--max-uav") + 1] == "4"
+            assert f"--partition={k}/2" in svc.args and "--max-uav=4" in svc.args
             assert wait_ready(svc, 60).ready_as == ("detector", f"detector-{k}")
         assert net.check_alive() == []
     finally:
@@ -321,10 +323,11 @@ def test_detectors_option_starts_partitioned_instances():
 def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_its_own():
     """``--sites``: each edge's uplink goes to its formation's site, the ground station and the default
     RCUs to site 0, ``--rcu-site`` elsewhere; a bad count or RCU site is refused before anything starts."""
-    from services.orchestration.launcher import Network, build_parser, make_plan
+    from services.orchestration.launcher import Network, make_plan
+    from services.orchestration.launcher import parse as parse_config
 
     def parse(*argv, prog="mission"):
-        return build_parser(prog).parse_args(["--fleet", "layout", *argv])
+        return parse_config(prog, ["--fleet", "layout", *argv])
 
     net = Network(parse("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1"), echo=None,
                   ground_station=True)
@@ -332,8 +335,7 @@ def test_sites_option_lays_out_one_gateway_per_site_and_attaches_each_node_to_it
         gw0, gw1 = net.site_endpoints
         assert len(set(gw0) | set(gw1)) == 4 and all(e.startswith("tls/127.0.0.1:") for e in gw0 + gw1)
         for i in range(1, 7):
-            args = list(net.layout.get(f"uav{i}").argv)
-            connect = [args[k + 1].split("#")[0] for k, a in enumerate(args) if a == "--connect"]  # (#router CA)
+            connect = [e.split("#")[0] for e in net.layout.get(f"uav{i}").config.connect]  # (#router CA)
             assert connect[:2] == (gw0 if i <= 3 else gw1), (i, connect)
         assert [e.split("#")[0] for e in net.gcs_config().connect] == gw0
         assert [net.site_of(n) for n in ("planner", "detector-0", "detector-1", "gcs")] == [0, 0, 1, 0]

@@ -101,9 +101,9 @@ def test_the_launcher_runs_each_site_in_a_namespace_of_its_own():
     machine's own namespace through the Unix socket bridges with the ground station's certificate: this test
     hears all six UAVs (formation 2's through the router link) and both gateways' statistics."""
     from protocol.messages import LinkStats
-    from services.orchestration.launcher import Network, build_parser
+    from services.orchestration.launcher import Network, parse
 
-    args = build_parser("up").parse_args(["--fleet", "netns", "--uavs", "6", "--sites", "2", "--netns",
+    args = parse("up", ["--fleet", "netns", "--uavs", "6", "--sites", "2", "--netns",
                                           "--rcu-site", "planner=1", "--speed", "4"])
     net = Network(args, echo=None)
     try:

@@ -12,10 +12,11 @@ from pathlib import Path
 import pytest
 
 from edge.board import build_parser as edge_parser
+from protocol.cliconfig import from_namespace
 from protocol.links import LINK_LEASE_S
 from protocol.scenario import load_scenario
-from services.orchestration.launcher import build_parser
-from services.orchestration.plan import CountingPorts, LaunchOptions, Trust, fleet_offsets, homes, network_plan
+from services.orchestration.launcher import parse
+from services.orchestration.plan import CountingPorts, Trust, fleet_offsets, homes, network_plan
 from tests.conftest import ROOT
 
 SCENARIO = load_scenario(None)
@@ -23,19 +24,21 @@ TRUST = Trust(keys="/keys", tls=True, router_ca="/keys/router-ca.pem")
 
 
 def plan_of(*argv: str, prog: str = "up", trust: Trust = TRUST, **kw):
-    args = build_parser(prog).parse_args(list(argv))
-    return network_plan(LaunchOptions.from_args(args), SCENARIO, trust, CountingPorts(7447),
+    return network_plan(parse(prog, list(argv)), SCENARIO, trust, CountingPorts(7447),
                         ground_station=prog == "mission", epoch=100.0, workdir="/run", **kw)
 
 
 def arg(argv, flag: str) -> str:
-    argv = list(argv)
-    return argv[argv.index(flag) + 1]
+    """The value of ``flag`` in a command line (``--flag=value`` or ``--flag value``)."""
+    values = args_of(argv, flag)
+    assert values, (flag, argv)
+    return values[0]
 
 
 def args_of(argv, flag: str) -> list[str]:
     argv = list(argv)
-    return [argv[k + 1] for k, a in enumerate(argv) if a == flag]
+    return [*(argv[k + 1] for k, a in enumerate(argv) if a == flag),
+            *(a.split("=", 1)[1] for a in argv if a.startswith(flag + "="))]
 
 
 def test_a_fleet_of_three_on_one_site():
@@ -47,23 +50,23 @@ def test_a_fleet_of_three_on_one_site():
     assert [p.wait for p in plan.processes] == [True] + [False] * 5  # the gateway first, up before the rest
     gw = plan.get("gateway")
     assert gw.listens == ("tls/127.0.0.1:7447?rel=1", "tls/127.0.0.1:7448?rel=0") == tuple(plan.gateway_endpoints)
-    assert args_of(gw.argv, "--listen") == list(gw.listens) and arg(gw.argv, "--keys") == "/keys"
-    assert "--lease" not in gw.argv  # no proxied link: zenoh's lease on the ground
+    assert gw.config.listen == list(gw.listens) and gw.config.keys == "/keys"
+    assert gw.config.lease is None  # no proxied link: zenoh's lease on the ground
     router = "#root_ca_certificate_file=/keys/router-ca.pem"
     for i in (1, 2, 3):
         edge = plan.get(f"uav{i}")
-        connects = args_of(edge.argv, "--connect")
+        connects = edge.config.connect
         assert connects[:2] == [e + router for e in plan.gateway_endpoints]  # dialled trusting the router CA only
         mates = [plan.get(f"uav{j}").listens for j in range(i + 1, 4)]
         assert connects[2:] == [e for ends in mates for e in ends]  # every later edge of its formation, no proxy
-        assert args_of(edge.argv, "--listen") == list(edge.listens) and arg(edge.argv, "--mode") == "peer"
-        assert arg(edge.argv, "--epoch") == "100.0" and arg(edge.argv, "--seed") == str(i)
+        assert edge.config.listen == list(edge.listens) and edge.config.mode == "peer"
+        assert edge.config.epoch == 100.0 and edge.config.seed == i
         parsed = edge_parser().parse_args(list(edge.argv[1:]))  # the edge's own parser takes the whole line
-        assert parsed.uav == i and parsed.keys == "/keys"
+        assert parsed.uav == i and parsed.keys == "/keys" and parsed.connect == connects
     for name in ("planner", "detector"):
         p = plan.get(name)
-        assert p.listens == () and arg(p.argv, "--mode") == "client"
-        assert args_of(p.argv, "--connect") == [e + router for e in plan.gateway_endpoints] == list(p.connects)
+        assert p.listens == () and p.config.mode == "client"
+        assert p.config.connect == [e + router for e in plan.gateway_endpoints] == list(p.connects)
     ports = [e for p in plan.processes for e in p.listens]
     assert len(ports) == len(set(ports)) == 8 and plan.files == {} and plan.proxies == {}
 
@@ -75,7 +78,7 @@ def test_homes_are_the_scenarios_offsets_and_the_fence_its_box():
     box = SCENARIO.box
     for i, home in enumerate(plan.homes, start=1):
         edge = plan.get(f"uav{i}")
-        assert [float(x) for x in arg(edge.argv, "--home").split(",")] == pytest.approx(list(home))
+        assert edge.config.home == pytest.approx(home)
         fence = edge_parser().parse_args(list(edge.argv[1:])).geofence
         assert tuple(fence.lo) == tuple(box.lo) and tuple(fence.hi) == tuple(box.hi)
         assert fence.contains(home)
@@ -99,17 +102,17 @@ def test_two_sites():
     assert gcs.in_process and not gcs.argv and gcs.identity == "gcs" and gcs.site == 0
     gw0, gw1 = plan.site_endpoints
     g1 = plan.get("gateway-1")
-    assert arg(g1.argv, "--id") == "gw1" and [e.split("#")[0] for e in g1.connects] == gw0  # dials site 0
-    assert args_of(g1.argv, "--listen") == gw1
+    assert g1.config.id == "gw1" and [e.split("#")[0] for e in g1.connects] == gw0  # dials site 0
+    assert g1.config.listen == gw1
     for i in range(1, 7):
         edge = plan.get(f"uav{i}")
         assert edge.site == (0 if i <= 3 else 1)
         assert [e.split("#")[0] for e in edge.connects[:2]] == (gw0 if i <= 3 else gw1)
         f = range(1, 4) if i <= 3 else range(4, 7)  # its formation's later edges only
         assert list(edge.connects[2:]) == [e for j in f if j > i for e in plan.get(f"uav{j}").listens]
-        assert "--config" in edge.argv  # several formations: no gossip autoconnect
+        assert edge.config.config == f"/run/uav{i}.json5"  # several formations: no gossip autoconnect
     assert plan.get("detector-1").site == 1 and plan.get("detector-0").site == 0
-    assert arg(plan.get("detector-1").argv, "--partition") == "1/2"
+    assert str(plan.get("detector-1").config.partition) == "1/2" and plan.get("detector-1").config.max_uav == 6
     assert set(plan.files) == {f"/run/uav{i}.json5" for i in range(1, 7)}
     assert json.loads(plan.files["/run/uav1.json5"])["scouting"]["gossip"]["autoconnect"] == {"router": [], "peer": []}
     assert plan.topology()[1].endswith("dialling gateway; attached: uav4 uav5 uav6 detector-1")
@@ -125,11 +128,11 @@ def test_impair_puts_proxies_on_the_named_link_only():
     assert [e.split("#")[0] for e in uav2.connects[:2]] == px.endpoints()  # through its proxies
     assert [e.split("#")[0] for e in plan.get("uav1").connects[:2]] == plan.gateway_endpoints
     # links are proxied: the ground's lease is the edges' (one constant), the clients' open timeout is longer
-    assert arg(plan.get("gateway").argv, "--lease") == str(LINK_LEASE_S)
+    assert plan.get("gateway").config.lease == LINK_LEASE_S
     for name in ("planner", "detector"):
-        argv = plan.get(name).argv
-        assert arg(argv, "--lease") == str(LINK_LEASE_S) and arg(argv, "--cfg").startswith("transport/unicast/open_timeout:")
-    assert "--lease" not in plan.get("uav1").argv  # the edges' own default is that constant
+        config = plan.get(name).config
+        assert config.lease == LINK_LEASE_S and config.cfg[0][0] == "transport/unicast/open_timeout"
+    assert "--lease" not in " ".join(plan.get("uav1").argv)  # the edges' own default is that constant
     assert edge_parser().get_default("lease") == LINK_LEASE_S  # (the edge config's default is that constant)
     ports = [*px.ports, *(e for p in plan.processes for e in p.listens)]
     assert len(set(ports)) == len(ports)
@@ -143,13 +146,13 @@ def test_impair_puts_proxies_on_the_named_link_only():
 def test_insecure_has_no_identity_key_set_or_tls():
     plan = plan_of("--insecure", "--web", ":8080", "--video", "h264", trust=Trust())
     assert all(p.identity is None for p in plan.processes)
-    assert all("--keys" not in p.argv for p in plan.processes)
+    assert all(p.config.keys is None for p in plan.processes)
     gw = plan.get("gateway")
     assert gw.listens[0].startswith("tcp/") and gw.listens[1].startswith("udp/")
     assert all("#" not in e for p in plan.processes for e in p.connects)
     web = plan.get("web")
-    assert set(web.env) == {"SKYNET_WEB_TOKEN"} and arg(web.argv, "--listen-web") == ":8080"
-    assert arg(plan.get("video").argv, "--codec") == "h264"
+    assert set(web.env) == {"SKYNET_WEB_TOKEN"} and web.config.listen_web == ":8080" and web.config.token is None
+    assert plan.get("video").config.codec == "h264"
     shown = json.dumps(plan.to_json())
     assert '"SKYNET_WEB_TOKEN": "***"' in shown
 
@@ -170,8 +173,8 @@ def test_autopilot_sim_runs_beside_each_edge():
         assert ap.role == "autopilot" and not ap.ready and ap.identity is None  # no bus, not supervised as one
         port = int(ap.listens[0].rsplit(":", 1)[1])
         assert arg(ap.argv, "--port-base") == str(port - i + 1) and arg(ap.argv, "--boot-scale") == "0.1"
-        assert arg(ap.argv, "--home") == arg(edge.argv, "--home")
-        assert arg(edge.argv, "--mavlink") == f"udpin:127.0.0.1:{port}" and arg(edge.argv, "--flight") == "auto"
+        assert tuple(map(float, arg(ap.argv, "--home").split(","))) == edge.config.home
+        assert edge.config.mavlink == f"udpin:127.0.0.1:{port}" and edge.config.flight == "auto"
 
 
 def test_the_plan_is_pure_and_quick(monkeypatch):
@@ -213,7 +216,7 @@ def test_dry_run_prints_the_plan_and_starts_nothing(tmp_path):
         rows[line.split()[0]] = line.split()
     assert list(rows) == ["gateway", "uav1", "uav2", "uav3", "uav4", "planner", "detector", "web"]
     assert rows["web"][:4] == ["web", "web", "0", "web"] and rows["uav4"][:4] == ["uav4", "edge", "0", "uav4"]
-    assert "  uav4: skynet edge --uav 4 " in out and "  web: skynet web " in out and "--geofence" in out
+    assert "  uav4: skynet edge --" in out and " --uav=4 " in out and "  web: skynet web " in out and "--geofence" in out
     assert "SKYNET_WEB_TOKEN" in out and "<random>" not in out
     # nothing started, nothing written: no key set, no network description
     assert list(tmp_path.iterdir()) == []
@@ -224,7 +227,9 @@ def test_dry_run_prints_the_plan_and_starts_nothing(tmp_path):
     by = {p["name"]: p for p in doc["processes"]}
     assert by["gcs"]["in_process"] and by["gcs"]["identity"] == "gcs"
     assert [x["link"] for x in doc["proxies"]] == ["uav2"]
-    assert by["detector"]["argv"][by["detector"]["argv"].index("--save-frames") + 1] == str(Path("r") / "frames")
+    assert by["detector"]["config"]["save_frames"] == str(Path("r") / "frames")
+    assert f"--save-frames={Path('r') / 'frames'}" in by["detector"]["argv"]
+    assert by["uav1"]["config"]["frame_size"] == "640x480" and by["uav1"]["config"]["uav"] == 1
     assert doc["trust"]["tls"] and doc["trust"]["keys"].endswith(str(Path(".keys") / "dev"))
     assert list(tmp_path.iterdir()) == []
     # insecure, and a bad option still a one-line error
@@ -234,3 +239,98 @@ def test_dry_run_prints_the_plan_and_starts_nothing(tmp_path):
     assert proc.returncode == 2 and "--detectors 3" in proc.stderr.strip().splitlines()[-1]
     proc = _skynet(tmp_path, "up", "--json")
     assert proc.returncode == 2 and "--json: only with --dry-run" in proc.stderr
+
+
+CHILD_PARSERS = {"gateway": "services.gateway.service", "edge": "edge.board", "planner": "services.planner.service",
+                 "detector": "services.detector.service", "video": "services.video.service",
+                 "web": "services.web.service"}
+
+
+@pytest.mark.parametrize("prog, argv", [
+    ("up", ()),
+    ("mission", ("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1", "--vehicle",
+                 "mavlink", "--flight", "auto", "--no-recovery", "--frame-size", "1280x960", "--preview-hz", "0.5",
+                 "--gcs-state-hz", "5", "--state-ingress-hz", "150", "--detect-max-mp", "1.5", "--accept-guard",
+                 "--impair", "uav4=delay 5ms", "--video", "mjpeg", "--video-port", "6000", "--seed", "7",
+                 "--speed", "2.5")),
+    ("up", ("--uavs", "30", "--insecure", "--web", "0.0.0.0:8081", "--impair", "uav1-uav2=loss 5%")),
+])
+def test_every_process_config_round_trips_through_its_own_command_line(prog, argv):
+    """Each process's typed config, rendered as its argv, parses back (by the service's own parser) to the same
+    config: what the plan shows is what the child runs with."""
+    import importlib
+
+    from protocol.cliconfig import to_argv
+
+    plan = plan_of(*argv, prog=prog, web_token="t" * 20)
+    checked = 0
+    for p in plan.processes:
+        if p.role not in CHILD_PARSERS:
+            assert p.config is None  # sim autopilots, in-process ground station: no config model
+            continue
+        parser = importlib.import_module(CHILD_PARSERS[p.role]).build_parser()
+        assert p.argv == (p.role, *to_argv(p.config))
+        assert from_namespace(type(p.config), parser.parse_args(list(p.argv[1:])), parser) == p.config, p.name
+        checked += 1
+    assert checked >= len([p for p in plan.processes if p.role in ("gateway", "edge", "planner", "detector")]) > 3
+    if prog == "mission":
+        edge = plan.get("uav4").config
+        assert (edge.frame_size, edge.preview_hz, edge.imagery_cache, edge.vehicle, edge.seed, edge.speed) == \
+            ((1280, 960), plan.load.preview_hz, 0, "mavlink", 11, 2.5)
+        assert plan.get("detector-0").config.detect_max_mp == 1.5 and plan.get("detector-1").config.no_recovery
+        gw = plan.get("gateway").config
+        assert gw.state_ingress_hz == 150.0 and gw.accept_guard and gw.cfg[0][0] == "downsampling"
+        assert plan.get("video").config.port == 6000
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (("--speed", "0"), "uav1 would refuse its options: speed"),
+    (("--detect-max-mp", "-1"), "detector would refuse its options: detect_max_mp"),
+    (("--video", "h264", "--video-port", "70000"), "video would refuse its options: port"),
+    (("--web", "no-port-here"), "web would refuse its options: listen_web"),
+    (("--fleet", "a/b"), "fleet"),
+])
+def test_a_value_a_child_would_refuse_fails_in_the_plan(argv, needle):
+    """No child is started with options it refuses: the launcher's check builds every child's config first."""
+    from services.orchestration.launcher import check
+
+    with pytest.raises(ValueError, match=needle):
+        check(parse("up", ["--dry-run", *argv]))
+
+
+def test_a_refused_value_is_a_one_line_error_of_skynet_up_dry_run(tmp_path):
+    for argv, needle in ((("--speed", "-1"), "uav1 would refuse its options: speed: Input should be greater than 0"),
+                         (("--frame-size", "0x0"), "argument --frame-size: Input should be greater than or equal"),
+                         (("--preview-hz", "-2"), "argument --preview-hz"),
+                         (("--uavs", "0"), "argument --uavs")):
+        proc = _skynet(tmp_path, "up", "--dry-run", *argv)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert needle in proc.stderr.strip().splitlines()[-1], proc.stderr
+        assert proc.stdout == "" and list(tmp_path.iterdir()) == []
+
+
+def test_the_launchers_options_are_its_config_and_load_no_opencv():
+    """``skynet up``/``mission`` list the same flags (mission: four more), with defaults from the services' configs;
+    parsing, checking and planning load no OpenCV (the detector's config names its methods itself)."""
+    from typing import get_args
+
+    from edge.config import FRAME_SIZE
+    from services.detector.config import Method
+    from services.orchestration.launcher import build_parser
+
+    up, mission = (parse(p, []) for p in ("up", "mission"))
+    assert up.frame_size == FRAME_SIZE and up.method == "it+r" and up.video_port == 5600 and up.speed == 4.0
+    assert set(type(mission).model_fields) - set(type(up).model_fields) == {"out", "quiet", "algorithm", "no_record"}
+    flags = [{a.option_strings[0] for a in build_parser(p)._actions} for p in ("up", "mission")]
+    assert flags[1] - flags[0] == {"--out", "--quiet", "--algorithm", "--no-record"} and "--json" in flags[0]
+    text = " ".join(build_parser("up").format_help().split())
+    assert "(default: 640x480)" in text and "(default: it+r)" in text and "|gcs" not in text
+    assert "|gcs" in " ".join(build_parser("mission").format_help().split())
+    code = ("import sys; from services.orchestration.launcher import check, parse; "
+            "check(parse('mission', ['--uavs', '4', '--video', 'h264'])); print(sorted(m for m in sys.modules if "
+            "m == 'cv2' or m.startswith('cv2.')))")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stderr
+    from services.detector.detect import METHODS
+
+    assert sorted(get_args(Method)) == sorted(METHODS)

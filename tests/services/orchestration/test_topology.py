@@ -18,7 +18,7 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.links import LINK_LEASE_S, TELEMETRY
 from protocol.messages import Hold, VehicleState
-from services.orchestration.launcher import Network, build_parser
+from services.orchestration.launcher import Network, parse
 from tests.conftest import wait_until
 
 #: the edges' link lease (edge.board: --lease defaults to it)
@@ -67,7 +67,7 @@ class Probe:
 
 
 def network(fleet: str, *extra: str) -> Network:
-    args = build_parser("up").parse_args(["--speed", "8", "--fleet", fleet, "--camera", "none", *extra])
+    args = parse("up", ["--speed", "8", "--fleet", fleet, "--camera", "none", *extra])
     return Network(args, echo=None)
 
 

@@ -1,0 +1,148 @@
+"""The launcher's typed configuration (``skynet up`` / ``skynet mission``): each option once, with its default.
+
+Pure (pydantic, no bus, no OpenCV): :func:`services.orchestration.plan.network_plan` takes a
+:class:`LaunchConfig`; the launcher's command line is built from it (:func:`protocol.cliconfig.add_options`).
+Options passed on to a service keep that service's default (read from its config) and are checked by its config
+when the plan builds it: a value a child would refuse fails in the plan, before anything starts.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, Field, model_validator
+
+from edge.config import CAPTURE_LINKS, FRAME_SIZE, EdgeConfig, Flight, FrameSize, Niceness, RateHz, Vehicle
+from protocol import keys
+from protocol.cliconfig import Cli, CliModel
+from services import attach
+from services.detector.config import DetectorConfig, Method
+from services.gateway.ingress import STATE_INGRESS_HZ
+from services.gcs.config import GcsMissionConfig
+from services.video.config import VideoCodec, VideoConfig
+
+from . import trustmode
+from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET
+
+#: the metavar of ``--fault``
+FAULT = '"AT ACTION TARGET [for D]"'
+
+
+def _default(model: type[BaseModel], name: str) -> Any:
+    """A service's own default for one of its options (one place for each value)."""
+    return model.model_fields[name].get_default(call_default_factory=True)
+
+
+class LaunchConfig(CliModel):
+    """The options of ``skynet up``: the fleet, its sites, impairments, faults, trust and extra services."""
+
+    uavs: int = Field(default=3, ge=1, le=255, description="number of UAVs")
+    scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
+    speed: float = Field(default=4.0, description="simulation speed factor (1 = real time)")
+    camera: str = Field(default=_default(EdgeConfig, "camera"), description="synthetic | an image folder | video:<url>")
+    frame_size: Annotated[FrameSize, Cli(metavar="WxH")] = Field(
+        default=FRAME_SIZE, description="capture frame size WxH (4000x3000: the paper's 12 MP)")
+    preview_hz: Annotated[RateHz | None, Cli(metavar="HZ")] = Field(default=None, description=(
+        f"live preview frames per UAV per second (default: {PREVIEW_BUDGET:g} for the fleet, at most the edge's 2 per "
+        "UAV; 0 = off)"))
+    gcs_state_hz: Annotated[RateHz | None, Cli(metavar="HZ")] = Field(default=None, description=(
+        f"states per UAV per second the gateway forwards to the ground station (0: all, 20 Hz; default: all up to "
+        f"{GCS_STATE_BUDGET:g} for the fleet, else {GCS_STATE_BUDGET:g}/N)"))
+    netns: bool = Field(default=False, description=(
+        "each site in a network namespace of its own, as a stand-in for a host (root; services/orchestration/netns.py):"
+        " router links over veth pairs through skynet netem's proxy, site 0 reached from here through a Unix socket "
+        "bridge"))
+    edge_nice: Annotated[Niceness | None, Cli(metavar="N")] = Field(default=None, description=(
+        f"the edges' niceness (default: {EDGE_NICE} above {NICE_ABOVE} UAVs, else 0; "
+        "services/orchestration/fleet_load.py)"))
+    state_ingress_hz: Annotated[RateHz | None, Cli(metavar="HZ")] = Field(default=None, description=(
+        f"states per UAV key the gateway lets in from one session per second (default {STATE_INGRESS_HZ:g}; 0: no "
+        "limit; services/gateway/ingress.py)"))
+    detect_max_mp: Annotated[float | None, Cli(metavar="MP")] = Field(default=None, description=(
+        f"the detector detects frames above MP megapixels on a reduced decode (its default "
+        f"{_default(DetectorConfig, 'detect_max_mp'):g}; 0: never)"))
+    capture_link: Literal[CAPTURE_LINKS] = Field(  # type: ignore[valid-type]
+        default=_default(EdgeConfig, "capture_link"),
+        description="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
+    vehicle: Vehicle = Field(default=_default(EdgeConfig, "vehicle"), description=(
+        "sim: the built-in vehicle; mavlink: each edge flies a sim autopilot (skynet sim-autopilot) over MAVLink on "
+        "loopback"))
+    autopilot_boot_scale: Annotated[float, Cli(metavar="F")] = Field(default=1.0, ge=0.0, description=(
+        "--vehicle mavlink: the sim autopilots' start-up times as a fraction of ArduCopter's (1: GUIDED/AUTO after 42 "
+        "simulated s; 0.1 ten times faster; 0 at once)"))
+    autopilot_firmware: Literal["4.6", "4.7"] = Field(default="4.6", description=(
+        "--vehicle mavlink: the sim autopilots' parameter names and units: 4.6 (stable 4.5/4.6: WPNAV_SPEED cm/s, "
+        "RTL_ALT cm, ...) or 4.7 (4.7+: WP_SPD m/s, RTL_ALT_M m, ...)"))
+    ready_timeout: Annotated[float, Cli(metavar="S")] = Field(
+        default=_default(GcsMissionConfig, "ready_timeout"), gt=0.0,
+        description="the ground station waits this long for every UAV's autopilot to be ready, then refuses")
+    flight: Flight = Field(default=_default(EdgeConfig, "flight"), description=(
+        "--vehicle mavlink: guided (position targets) or auto (a waypoint mission flown in AUTO)"))
+    method: Method = Field(default=_default(DetectorConfig, "method"), description="the detector's method")
+    detectors: Annotated[int, Cli(metavar="N")] = Field(default=1, description=(
+        "detector instances sharing the cameras (detector-K analyses the UAVs with id %% N == K)"))
+    sites: Annotated[int, Cli(metavar="S")] = Field(default=1, description=(
+        "gateways: one per site, meshed (each dials the lower-numbered ones); formation g (UAVs 3g+1..3g+3) attaches "
+        "to site g %% S, the ground station to site 0 (1 <= S <= formations)"))
+    rcu_site: Annotated[list[str], Cli(metavar="NAME=K")] = Field(default=[], description=(
+        "attach an RCU to site K's gateway (repeatable; default site 0): planner, detector (every instance) or "
+        "detector-K"))
+    fleet: str = keys.DEFAULT_FLEET
+    seed: int = Field(default=0, description="seeds the simulation and every proxy (per link)")
+    impair: Annotated[list[str], Cli(metavar="NAME[/udp|/tcp]=SPEC")] = Field(default=[], description=(
+        'netem impairment on a link or group of links (repeatable, later wins), e.g. uav2="delay 50ms loss 2%%"; '
+        "SPEC as in skynet netem"))
+    mesh: Literal["direct", "proxied"] | None = Field(default=None, description=(
+        "direct: edges dial each other straight; proxied: through a proxy pair per SkyNet link (default: proxied when "
+        "a SkyNet link is impaired or faulted)"))
+    no_recovery: bool = Field(default=False, description=(
+        "capture frames not recoverable: no imagery cache on the edges, no recovery in the detector"))
+    fault: Annotated[list[str], Cli(metavar=FAULT)] = Field(default=[], description=(
+        "scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|detector, "
+        "partition uavI-uavJ|uavN|skynet; AT from the network start"))
+    keys: Annotated[str | None, Cli(metavar="DIR")] = Field(default=None, description=(
+        f"fleet key set (skynet keys init); default: a development set in ${trustmode.KEYS_ENV} or "
+        f"{trustmode.DEFAULT_KEYS}"))
+    accept_guard: bool = Field(default=False, description=(
+        "the gateways accept TLS connections through a guard that drops those not starting a TLS handshake "
+        "(connect-and-close or silent floods; services/gateway/guard.py, bench/accept.py)"))
+    insecure: bool = Field(default=False, description="no TLS, no access control, unsigned commands: development only")
+    video: VideoCodec | None = Field(default=None, description=(
+        "also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:PORT+2(n-1) (--video-port)"))
+    video_sdp: str = Field(default=_default(VideoConfig, "sdp_dir"),
+                           description="folder of the video streams' SDP files (with --video)")
+    video_port: Annotated[int, Cli(metavar="PORT")] = Field(default=_default(VideoConfig, "port"), description=(
+        "UAV 1's preview port (with --video); UAV n's is PORT + 2(n-1)"))
+    web: Annotated[str | None, Cli(metavar="[HOST]:PORT")] = Field(default=None, description=(
+        "serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)"))
+    network: Annotated[str | None, Cli(metavar="FILE")] = Field(default=None, description=(
+        f"where to describe the running network for skynet web/video/replay (default: ${attach.NETWORK_ENV} or "
+        f"{attach.NETWORK_FILE}; removed at the end)"))
+    dry_run: bool = Field(default=False, description=(
+        "print the network this command would start (every process, its endpoints, identity and command line) and "
+        "exit: nothing is started, no key set made"))
+    as_json: Annotated[bool, Cli(flag="--json")] = Field(default=False, description="with --dry-run: the plan as JSON")
+    #: the detector's frame folder (set by ``skynet mission``: the report's ``frames/``)
+    save_frames: Annotated[str | None, Cli(hidden=True)] = None
+
+    @model_validator(mode="after")
+    def _json_with_dry_run(self) -> LaunchConfig:
+        if self.as_json and not self.dry_run:
+            raise ValueError("--json: only with --dry-run")
+        return self
+
+
+class MissionLaunchConfig(LaunchConfig):
+    """The options of ``skynet mission``: those of ``skynet up``, the ground station's mission and its report."""
+
+    fault: Annotated[list[str], Cli(metavar=FAULT)] = Field(default=[], description=(
+        "scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|detector|gcs, "
+        "partition uavI-uavJ|uavN|skynet; AT from the mission phase"))
+    out: str | None = Field(default=None, description="report folder (default reports/mission-<time>)")
+    quiet: bool = Field(default=False, description="no live progress display")
+    algorithm: str = Field(default=_default(GcsMissionConfig, "algorithm"), description="the planner's algorithm")
+    no_record: bool = Field(default=False, description="do not log the mission to OUT/mission.mcap")
+
+
+#: the options of ``skynet up`` and of ``skynet mission``
+MODELS: dict[str, type[LaunchConfig]] = {"up": LaunchConfig, "mission": MissionLaunchConfig}
