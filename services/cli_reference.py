@@ -15,7 +15,8 @@ import os
 import re
 import sys
 
-from services.cli import COMMANDS, main as skynet
+from services.cli import COMMANDS
+from services.cli import main as skynet
 
 #: the terminal width argparse formats for (it reads COLUMNS), so the page does not depend on the terminal
 WIDTH = 100
