@@ -1,55 +1,10 @@
 """Receiver-side jitter buffer and reception statistics for RTP-style imagery frames.
 
-The paper chooses RTP for images because it allows "jitter compensation and detection of
-out-of-sequence arrival" (PAPER.md, section 1). This module is that receiver: one
-:class:`JitterBuffer` per source (SSRC), or a :class:`JitterBuffers` dictionary keyed by SSRC.
-It reorders frames inside a fixed window, waits a bounded time for missing ones, drops late and
-duplicate frames, resynchronises after a sequence-number jump, and keeps the receiver statistics
-of RFC 3550 (extended highest sequence number, A.1; expected and lost, A.3; interarrival
-jitter, A.8).
-
-Playout rule (our choice; the paper does not give one)
-------------------------------------------------------
-Playout is *arrival based* and adds no delay to a healthy stream:
-
-- a frame whose predecessors have all been played (or given up) is released at once, by the
-  :meth:`JitterBuffer.push` that brings it;
-- a frame that waits behind a missing sequence number is held; a missing number is given up
-  (counted as lost) ``playout_delay_s`` after it was first known to be missing, i.e. after the
-  earliest arrival among the frames buffered behind it. :meth:`JitterBuffer.pop_due` (and every
-  :meth:`JitterBuffer.push`, whose arrival time is "now") releases what has become due;
-  :meth:`JitterBuffer.next_deadline` tells a receiver loop when to call it.
-
-Media-time playout (a fixed offset from the sender's clock) would smooth the display of a
-video, but the detector consumes stills captured at irregular capture points, so any wait that
-is not needed to restore the order is pure latency; and arrival-based deadlines do not depend on
-the sender's clock being sane.
-
-Classification of one arriving packet (``ext``: its extended sequence number, ``next``: the
-next number to play, ``max``: the highest number stored so far, ``C``: the capacity):
-
-- ``next <= ext < next + C``: stored in the ring slot ``ext % C``; "reordered" when
-  ``ext < max``; "duplicate" when the slot already holds it.
-- ``next - C <= ext < next``: behind the playout point, dropped: "duplicate" when it was
-  played, otherwise "late" (its number had already been given up).
-- ``ext >= next + C`` but ``ext - max <= C``: the window is full of frames waiting for a gap;
-  the oldest gaps are given up (lost) until the frame fits.
-- anything else, a jump of more than ``C`` past ``max`` or more than ``C`` behind ``next``:
-  held as a *probe*. The next packet confirms it when it carries the probe's sequence
-  number + 1, or the probe becomes due ``playout_delay_s`` after its arrival; then the buffer
-  *resyncs* (counted in ``resyncs``): it releases what it holds and restarts playout at the
-  probe. A packet back in the old window first discards the probe (a stray, counted "late").
-
-After a resync, a forward jump of less than ``MAX_DROPOUT`` (3000, RFC 3550 A.1) keeps the
-extended numbering and counts the skipped numbers as lost (an outage longer than the window);
-any other jump (a sender restart with a new random initial sequence number) starts a new
-numbering epoch, as ``init_seq`` does in RFC 3550 A.1, without counting loss.
-
-References
-----------
-.. [1] H. Schulzrinne et al., "RTP: A Transport Protocol for Real-Time Applications",
-   RFC 3550, 2003: 6.4.1 (report fields), A.1 (sequence number validity and extended highest
-   sequence number), A.3 (expected and lost packets), A.8 (interarrival jitter).
+One :class:`JitterBuffer` per source (SSRC), or a :class:`JitterBuffers` dictionary keyed by SSRC: it reorders
+frames inside a fixed window, waits a bounded time (``playout_delay_s``) for missing ones, drops late and
+duplicate frames, resynchronises after a sequence-number jump, and keeps the receiver statistics of RFC 3550
+(A.1, A.3, A.8). Playout is arrival based and adds no delay to a healthy stream. The playout rule and how each
+arriving packet is classified: docs/imagery.md, "The jitter buffer".
 """
 
 from __future__ import annotations

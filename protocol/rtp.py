@@ -1,55 +1,11 @@
 """RTP-style sequenced frames for the imagery link class (RFC 3550 fixed header).
 
-The paper streams photos over RTP "for jitter compensation and detection of out-of-sequence
-arrival" (PAPER.md, section 1; DESIGN.md, "The three link classes"). Each encoded camera image
-(JPEG bytes) travels as *one* RTP packet: the 12-byte fixed header of RFC 3550 section 5.1
-followed by the whole JPEG. The bus (Zenoh) fragments and reassembles large messages itself, so
-there is no RFC 2435 JPEG payload header and no per-fragment packetisation; the marker bit is
-set on every packet because every packet is the last (only) one of its frame.
-
-Wire layout (RFC 3550, section 5.1)::
-
-     0                   1                   2                   3
-     0 1 2 3 4 5 6 7 8 9 0 1 2 3 4 5 6 7 8 9 0 1 2 3 4 5 6 7 8 9 0 1
-    +-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+
-    |V=2|P|X|  CC   |M|     PT      |       sequence number         |
-    +-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+
-    |                           timestamp                           |
-    +-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+
-    |           synchronization source (SSRC) identifier            |
-    +=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+=+
-    |            contributing source (CSRC) identifiers             |
-    |                             ....                              |
-    +-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+-+
-
-Our sender emits only the fixed header (no padding, no extension, no CSRC list); the parser
-accepts all three, as any RFC 3550 receiver must, and skips them.
-
-Choices where the paper is silent
----------------------------------
-- Payload type 96, a dynamic payload type (RFC 3551 section 3, range 96..127), with the encoding
-  name ``x-skynet-frame`` at 90 kHz (``a=rtpmap:96 x-skynet-frame/90000`` in SDP, RFC 8866 section
-  6.6; an unregistered "x-" name, RFC 4855 section 3): the payload is this project's own format
-  (length-prefixed metadata + a whole JPEG file, :mod:`protocol.imagery`), *not* the RFC 2435
-  JPEG payload that the static type 26 promises (RFC 3551, table 5), so no standard receiver is
-  told it can depacketise it. Standard video leaves the bus through ``skynet video`` (RFC 2435 /
-  RFC 6184). Any 0..127 value is accepted.
-- Media clock 90 kHz, the video clock of RFC 3551 (section 5); the timestamp is the capture
-  time times the clock rate, modulo 2**32, with no random offset (RFC 3550 section 5.1 suggests
-  one against known-plaintext attacks on encrypted streams; we do not encrypt at this layer and
-  want a receiver to read the capture time back without RTCP sender reports).
-- SSRC: a stable, documented value per camera (:func:`ssrc_for`) instead of a random one, so a
-  restarted edge keeps its identity and the detector can name the UAV from the header alone.
-  Ids are unique within the fleet, so no SSRC collisions can occur (RFC 3550 section 8).
-- Initial sequence number: random (RFC 3550 section 5.1) unless given.
-
-References
-----------
-.. [1] H. Schulzrinne et al., "RTP: A Transport Protocol for Real-Time Applications",
-   RFC 3550, 2003.
-.. [2] H. Schulzrinne, S. Casner, "RTP Profile for Audio and Video Conferences with Minimal
-   Control", RFC 3551, 2003.
-.. [3] R. Elz, R. Bush, "Serial Number Arithmetic", RFC 1982, 1996.
+Each encoded camera image travels as *one* RTP packet: the 12-byte fixed header of RFC 3550 section 5.1 followed
+by the payload (:mod:`protocol.imagery`); the bus fragments large messages itself, so the marker bit is set on
+every packet. The sender emits only the fixed header; the parser accepts padding, extension and CSRC list, as
+any RFC 3550 receiver must, and skips them. Payload type 96 ``x-skynet-frame`` at 90 kHz, a stable SSRC per
+camera (:func:`ssrc_for`), a random initial sequence number. The wire layout and the choices where the paper is
+silent: docs/imagery.md, "RTP frames".
 """
 
 from __future__ import annotations

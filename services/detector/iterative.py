@@ -1,59 +1,11 @@
 """The paper's iterative thresholding (IT), (P18)-(P19), on a 256-bin histogram.
 
-One pass over the pixels builds the histogram (``cv2.calcHist``); every step after that is an
-Otsu split (P18) of a prefix of the histogram, O(256) with cumulative sums, so the whole IT
-costs one histogram plus one ``cv2.threshold`` / LUT for the mask — barely more than Otsu.
-
-Algorithm (paper Sec. 6, our numbering from 1)::
-
-    R^D_0 = all pixels
-    for k = 1, 2, ...:
-        T_k  = Otsu (P18) on the histogram of R^D_{k-1}
-        R^D_k = pixels of R^D_{k-1} with level <= T_k          (darker part)
-        R^B_k = background (see below)
-        C_k  = |μ(R^D_k) − μ(R^B_k)| / (μ(R^D_k) + μ(R^B_k))    (P19)
-        stop when C_k > C_s  ->  T_f = T_k
-
-The paper does not say which pixels form the background ``R^B_k``. Two readings are
-implemented (``background=``):
-
-``"above"`` (default)
-    every pixel brighter than ``T_k`` — the complement of the defect class, which is what the
-    final segmentation compares defects against.
-``"previous"``
-    the brighter part of the previous dark region, levels ``(T_k, T_{k-1}]``.
-
-At step 1 both are the same. With ``"previous"`` the background mean follows the dark region
-down, so ``C_k`` measures the contrast *inside* an ever darker band and stays small on a
-textured surface; it often never exceeds a useful ``C_s`` and the iteration runs into dark
-noise. ``"above"`` measures what the defect mask is finally judged by (dark class against
-everything else) and rises monotonically as ``T_k`` drops, so ``C_s`` reads as "how much darker
-than the rest must a defect be". It scores better on the DeepCrack training split
-(``bench/detect.py --only tune``, mean defect-class F): without the size guard below "above"
-peaks at 0.592 (C_s = 0.35), "previous" at 0.533 (C_s = 0.275); with the guard "above" peaks at
-0.645, "previous" at 0.633. Hence the default.
-
-Size guard (our addition; the paper only says to iterate until ``C_k > C_s``). A dark region
-holding less than ``min_region`` of the image's pixels is not split again: ``T_f`` is then the
-threshold that made it. Why: each Otsu step cuts the dark region by ~4-5x (40 % -> 10 % -> 2 %
--> 0.4 % of the image), so on a surface whose cracks are faint (contrast (P19) below ``C_s``)
-the contrast rule alone runs on to a few dark specks. Measured on the two crack sets, no value
-of ``C_s`` alone makes IT beat valley-emphasis on both: DeepCrack needs ``C_s >= 0.235`` and
-CrackForest ``C_s < 0.24``; a DeepCrack-only choice lands at 0.30-0.35 (CrackForest F 0.14-0.09,
-below valley-emphasis' 0.20). Lightly denoising the image first (Gaussian 3x3/5x5, median 3/5,
-applied to every method) makes IT worse on CrackForest, and JPEG decoding straight to grey gives
-the same pixels as BGR + ``cvtColor`` on both sets. ``C_s`` and ``min_region`` were chosen
-together on the DeepCrack training split only: the grid's best mean F is 0.645 (C_s = 0.425,
-``min_region`` = 0.03); we take, within one paired standard error of it, the smallest guard
-(closest to the paper's bare rule), ``min_region`` = 0.025 with C_s = 0.425 (F 0.644). With
-these the guard ends 80 of the 300 DeepCrack runs and the contrast rule the other 220; on
-CrackForest the guard ends every run (its cracks never reach ``C_s``), so there IT is "Otsu on
-the dark region until it holds < 2.5 % of the image". The bare rule stays available as
-``min_region=0, c_s=C_S_UNGUARDED`` (method ``"it-paper"`` in the detection registry).
-
-Guards: the iteration also stops (keeping the last valid threshold) when the dark region has
-fewer than two occupied levels or fewer than ``min_pixels`` pixels, and after ``max_iter``
-steps.
+One pass over the pixels builds the histogram; every step after that is an Otsu split (P18) of a prefix of the
+histogram, O(256) with cumulative sums, until the contrast (P19) exceeds ``C_s``. Where the paper is silent this
+module chooses: the background is every pixel above the threshold (``background="above"``, default; the other
+reading is ``"previous"``), and a size guard stops at a dark region under ``min_region`` of the image (the bare
+rule: ``min_region=0, c_s=C_S_UNGUARDED``, method ``"it-paper"``). The algorithm, the two readings, how ``C_s``
+and ``min_region`` were chosen and the guards: docs/detector.md, "Iterative thresholding".
 """
 
 from __future__ import annotations

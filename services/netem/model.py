@@ -1,77 +1,12 @@
 """What a link does to packets: the impairment description and the seeded per-packet decisions.
 
-Pure code, no sockets. :class:`Impairment` says *what* to do (delay, jitter, loss, burst loss,
-duplication, reordering, bandwidth, queue limit, outages); :class:`Impairer` applies it to one
-direction of one link: :meth:`Impairer.decide` gives the release times of the copies of one
-datagram (empty = dropped), :meth:`Impairer.decide_stream` the release time of one chunk of a
-byte stream (TCP never loses or reorders bytes; loss becomes retransmission delay).
-
-The paper (Section 1, "System and communication") runs the fleet over a 4G/LTE gateway with
-UDP for sensing data, TCP for commands and RTP for imagery, but gives no link figures; this
-module is what the experiments use to put such a link's latency and loss on loopback. The
-semantics follow Linux ``tc-netem(8)`` and its loss models, with the differences listed below.
-
-Semantics (and where we differ from netem)
-------------------------------------------
-* **Delay and jitter** — each packet waits ``delay + J`` where J is uniform on
-  ``[-jitter, +jitter]`` (netem's default) or normal with σ = jitter (``distribution normal``),
-  clamped at zero.
-* **Order** — by default the link is a FIFO: a packet never leaves before the one that arrived
-  before it (release = max(own time, previous release)), so jitter alone does not reorder,
-  as on a real queueing path. ``unordered`` gives netem's time-sorted queue instead, where
-  jitter larger than the packet spacing reorders. Only ``reorder`` reorders on a FIFO link:
-  the chosen packet is held back by an extra ``reorder_ms`` and later packets overtake it
-  (netem's ``reorder`` instead sends the chosen packet *early*; ours needs no base delay).
-* **Loss** — Bernoulli with probability ``loss``; with ``loss_correlation`` ρ a two-state
-  Markov chain, ``P(lost | previous lost) = ρ + (1-ρ) p`` and ``P(lost | previous kept) =
-  (1-ρ) p``, whose long-run loss rate stays p and whose mean burst is ``1 / ((1-ρ)(1-p))``
-  (netem's own "correlation" does not keep the mean, see Salsano et al.). ``loss gemodel p r
-  1-h 1-k`` is the Gilbert–Elliott model of netem (Salsano, Ludovici, Ordine, "Definition of a
-  general and intuitive loss model for packet networks and its implementation in the Netem
-  module", 2010): state Good→Bad with probability p, Bad→Good with r, loss with 1-h in Bad and
-  1-k in Good; stationary loss ``(p (1-h) + r (1-k)) / (p + r)``.
-* **Duplicate** — the copy takes its own delay sample and its own place in the rate queue;
-  it is not subject to loss again.
-* **Rate** — a serialising link of ``rate_kbps`` kilobits per second: each packet occupies the
-  link for ``8 size / rate`` seconds after the previous one, then the delay is added (netem's
-  ``rate``). ``limit`` caps the packets held at once (netem's default 1000); beyond it packets
-  are dropped with reason ``queue``.
-* **Outages** — windows ``(start_s, duration_s)`` relative to the impairer's origin (the proxy
-  start). A datagram that arrives during an outage is dropped (reason ``outage``); a stream
-  chunk that arrives, or would be released, inside a window waits for its end (the stream
-  stalls).
-* **Live changes** — :meth:`Impairer.update` replaces the impairment from the next decision
-  on; the random stream, the counters, the origin, the FIFO floor, the rate queue and the
-  loss chain's state carry over, so packets already decided keep their release times and a
-  FIFO link still never lets a new packet overtake an old one. Outage windows and ``after``
-  of the new impairment count from the same origin (an ``after`` already past applies at
-  once). :meth:`Impairer.cut` adds a window starting *now* (open-ended when no duration is
-  given) and :meth:`Impairer.restore` ends every cut; cuts are the link's state, not part of
-  the impairment, so an update does not end them. A datagram arriving in a cut is dropped
-  (reason ``outage``). Streams are not stalled by cuts in :meth:`Impairer.decide_stream`
-  (an open-ended cut has no end to stall to): the sender must hold bytes while
-  :meth:`Impairer.outage_end` says the link is down, as the TCP proxy's writers do.
-* **Onset** — ``after_s``: everything but the outages starts that long after the origin;
-  before it packets pass untouched (counted). Zenoh opens a UDP link with a handshake of a few
-  datagrams and gives up on the link if they are lost (the session then runs on TCP alone),
-  so loss experiments on the UDP link should let the sessions open first (``after 2s``).
-* **Streams (TCP)** — :meth:`Impairer.decide_stream` applies outage, rate, delay and jitter in
-  order; duplicate and reorder do not apply (TCP removes both). Loss is counted per
-  ``mss``-byte segment; a chunk with a lost segment is delayed by ``rto_ms`` (Linux's minimum
-  retransmission timeout, 200 ms, by default) — a model of the retransmission stall, not of
-  TCP's congestion response.
-
-String form
------------
-``Impairment.parse("delay 50ms jitter 10ms loss 2% duplicate 1% reorder 5% rate 2mbit")``;
-keywords: ``delay T [JITTER]``, ``jitter T``, ``distribution uniform|normal``,
-``loss P [CORRELATION]``, ``loss random P [CORRELATION]``, ``loss gemodel p [r [1-h [1-k]]]``,
-``duplicate P``, ``reorder P [HOLD]``, ``rate R``, ``limit N``, ``outage START DURATION``
-(repeatable), ``rto T``, ``after T``, ``unordered``. Times need a unit (``us``, ``ms``, ``s``;
-tc's bare numbers mean µs, a trap we refuse), percentages need ``%``. Rates use tc's units,
-case-insensitively: ``bit kbit mbit gbit`` (and ``kibit``...) are bits per second, while
-``bps kbps mbps gbps`` are **bytes** per second as in tc (``rate 1mbps`` = 8000 kbit/s);
-a bare number is bits per second.
+Pure code, no sockets. :class:`Impairment` says *what* to do (delay, jitter, loss, burst loss, duplication,
+reordering, bandwidth, queue limit, outages; ``Impairment.parse`` reads tc-netem's string form);
+:class:`Impairer` applies it to one direction of one link: :meth:`Impairer.decide` gives the release times of
+the copies of one datagram (empty = dropped), :meth:`Impairer.decide_stream` the release time of one chunk of a
+byte stream (TCP never loses or reorders bytes; loss becomes retransmission delay). The semantics follow Linux
+``tc-netem(8)`` and its loss models (Salsano et al., 2010); each rule, where it differs from netem and the
+string form: docs/experiments.md, "The impairment model".
 """
 
 from __future__ import annotations
