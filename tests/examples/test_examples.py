@@ -80,6 +80,47 @@ def test_fleet_states_prints_every_uavs_state(network):
     assert {m.group(2) for m in found} == {"idle"}, proc.stdout  # no mission flies yet
 
 
+def test_fleet_states_shows_neither_garbage_nor_a_state_speaking_for_another_uav(network, dev_keys):
+    """A node with a valid key (UAV 2's certificate) puts garbage and states that claim to be UAV 1 on its own key:
+    the example neither crashes nor shows them, and goes on with the real states."""
+    import time
+
+    from protocol import codec, keys
+    from protocol.bus import Bus, BusConfig
+    from protocol.keyset import KeySet
+    from protocol.links import TELEMETRY
+    from protocol.messages import Mode, VehicleState
+
+    fleet, ks = network.desc["fleet"], KeySet(dev_keys, "uav2")
+    config = BusConfig(mode="client", connect=network.desc["endpoints"], multilink=True, tls_ca=str(ks.tls_ca),
+                       tls_cert=str(ks.tls_cert), tls_key=str(ks.tls_key))
+    forged = VehicleState(uav=1, seq=0, t=0.0, stamp=time.time(), pos=(-77.7, -77.7, 7.7), vel=(0, 0, 0),
+                          att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.HOLD, armed=True)
+    watcher = subprocess.Popen([sys.executable, str(EXAMPLES / "fleet_states.py"), "--duration", "8"],
+                               cwd=network.folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        with Bus(config, fleet, "rogue") as rogue:
+            pub = rogue.publisher(keys.state(fleet, 2), TELEMETRY)
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline:
+                pub.put_bytes(b"\xc1" * 64)  # not msgpack
+                pub.put_bytes(codec.encode(forged))
+                time.sleep(0.05)
+        out, err = watcher.communicate(timeout=60)
+    finally:
+        watcher.kill()
+    assert watcher.returncode == 0 and "Traceback" not in err, err[-3000:]
+    lines = out.splitlines()
+    assert lines and all(STATE_LINE.match(line) for line in lines), out[-3000:]
+    assert "-77.70" not in out and {int(STATE_LINE.match(ln).group(1)) for ln in lines} == {1, 2, 3}, out[-3000:]
+
+
+def test_a_key_set_that_is_not_one_is_said_in_one_line(network, tmp_path):
+    proc = run_example("fleet_states.py", "--keys", str(tmp_path), "--count", "1", cwd=network.folder)
+    assert proc.returncode == 1 and proc.stdout == "", proc.stdout
+    assert proc.stderr.count("\n") == 1 and "not a key set (no ca.pem)" in proc.stderr, proc.stderr
+
+
 def test_command_uav_is_answered_by_the_vehicle_after_its_signature(network):
     """A grounded UAV refuses to hold: the refusal is the vehicle's (its mode), so the signed envelope passed the
     UAV's verification (a trust refusal reads "refused: trust: ...")."""
