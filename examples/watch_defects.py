@@ -42,10 +42,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--count", type=int, default=0, help="stop after this many reports (default: 0, never)")
     parser.add_argument("--duration", type=float, default=0.0, help="stop after this many s (default: 0, never)")
     args = parser.parse_args(argv)
-    try:
-        bus = open_bus(args, ROLE, sys.argv[1:] if argv is None else argv, name="watch-defects")
-    except (ValueError, OSError) as exc:  # AttachError included: what is missing, in one line
-        parser.exit(1, f"{parser.prog}: error: {exc}\n")
     done, lock, seen = threading.Event(), threading.Lock(), [0]
 
     def on_report(msg: DefectReport, sample: zenoh.Sample) -> None:
@@ -56,11 +52,13 @@ def main(argv: list[str] | None = None) -> int:
                 if args.count and seen[0] >= args.count:
                     done.set()
 
-    try:
-        with bus:  # malformed samples and floods are dropped and counted by the bus (expect, budget)
+    try:  # malformed samples and floods are dropped and counted by the bus (expect, budget)
+        with open_bus(args, ROLE, sys.argv[1:] if argv is None else argv, name="watch-defects") as bus:
             bus.subscribe(keys.defects(args.fleet), on_report, expect=DefectReport, link=COMMAND,
                           budget=for_topic("defects"))
             done.wait(args.duration or None)
+    except (ValueError, OSError) as exc:  # AttachError included: what is missing, in one line
+        parser.exit(1, f"{parser.prog}: error: {exc}\n")
     except KeyboardInterrupt:
         pass
     return 0
