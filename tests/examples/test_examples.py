@@ -118,6 +118,24 @@ def test_fleet_states_shows_neither_garbage_nor_a_state_speaking_for_another_uav
     assert not forged_shown and shown == {1, 2, 3}, out[-3000:]
 
 
+@pytest.mark.parametrize("name", ["fleet_states.py", "watch_defects.py"])
+def test_ctrl_c_ends_a_subscriber_cleanly(network, name):
+    import time
+
+    proc = subprocess.Popen([sys.executable, str(EXAMPLES / name)], cwd=network.folder, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        if name == "fleet_states.py":
+            assert proc.stdout.readline().startswith("uav "), proc.stderr.read()[-3000:]  # attached and printing
+        else:
+            time.sleep(5)  # no mission: nothing to print; attached by now
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0 and err == "", err[-3000:]
+
+
 def test_a_key_set_that_is_not_one_is_said_in_one_line(network, tmp_path):
     proc = run_example("fleet_states.py", "--keys", str(tmp_path), "--count", "1", cwd=network.folder)
     assert proc.returncode == 1 and proc.stdout == "", proc.stdout
