@@ -80,8 +80,9 @@ to RTL_ALT above home (or stays higher), flies home and lands, as ArduCopter's R
 As the firmware, STATUSTEXT is sent only once the link has carried a packet from a peer, and a
 mission upload while booting is answered MAV_MISSION_NO_SPACE. Still unlike it: stream rates are
 one set for every peer (the firmware keeps them per link); only the parameters the project
-uses follow 4.7's renames (:data:`.apm.params.RENAMED`);
-LOITER holds altitude (the firmware follows the RC sticks).
+uses follow 4.7's renames (:data:`.apm.params.RENAMED`).
+With no RC input LOITER (a stick mode) follows the resting sticks as the firmware does: it holds the
+position and descends at the throttle-down rate (PILOT_SPEED_DN's default, 2.5 m/s) until it lands.
 """
 
 from .cli import DEFAULT_ORIGIN, build_parser, main

@@ -125,13 +125,16 @@ def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_a
     veh.pilot_mode(CopterMode.LOITER)
     events += fly(drv, veh, lambda s: drv.external_modes == ["LOITER"], 5.0)
     st = drv.state()
-    assert st.mode == Mode.HOLD and st.progress < 1.0  # paused where the pilot took it
+    assert st.mode == Mode.PILOT and st.progress < 1.0  # paused where the pilot took it, not "hold"
+    ap = drv.readiness()
+    assert ap.mode == "LOITER" and ap.external
     sent, targets = drv.auto.speed_commands, drv.targets.sent
-    clock_end = veh.clock.now() + 2.0
+    clock_end = veh.clock.now() + 0.8  # LOITER without RC descends: resume before it lands
     while veh.clock.now() < clock_end:
         events += drv.step(veh.clock.now())
         time.sleep(0.01)
     assert drv.auto.speed_commands == sent and drv.targets.sent == targets  # not fighting the pilot
+    assert veh.sim.state().pos[2] < st.pos[2] - 0.3  # the sticks at rest: it comes down
     assert veh.custom_mode == CopterMode.LOITER and drv.state().progress == st.progress
     drv.resume()  # back to GUIDED, to the paused point, then AUTO from the next item
     events += fly(drv, veh, lambda s: s.mode == Mode.HOLD and s.progress == 1.0, 30.0)

@@ -142,10 +142,12 @@ def test_attitude_and_rates_conversion_is_the_frame_change():
 
 def test_copter_mode_mapping_and_names():
     assert copter_mode(CopterMode.AUTO) == Mode.MISSION
-    assert copter_mode(CopterMode.LOITER) == copter_mode(CopterMode.BRAKE) == Mode.HOLD
+    assert copter_mode(CopterMode.GUIDED) == copter_mode(CopterMode.BRAKE) == Mode.HOLD
     assert copter_mode(CopterMode.RTL) == copter_mode(CopterMode.SMART_RTL) == Mode.RTL
     assert copter_mode(CopterMode.LAND) == Mode.LAND
-    assert copter_mode(CopterMode.STABILIZE) == copter_mode(CopterMode.POSHOLD) == Mode.FAILSAFE
+    # the pilot's stick modes follow the RC sticks (LOITER descends without them): never "hold"
+    assert copter_mode(CopterMode.LOITER) == copter_mode(CopterMode.STABILIZE) == copter_mode(CopterMode.POSHOLD) \
+        == Mode.PILOT
     assert result_name(M.MAV_RESULT_FAILED) == "MAV_RESULT_FAILED"
     # type masks: bits set = ignored; the trajectory stream uses position, velocity and yaw
     assert TYPE_MASK_POS_VEL_ACC_YAW == 2048 and TYPE_MASK_POS_VEL_YAW == 2496 and TYPE_MASK_POS_YAW == 2552
