@@ -23,6 +23,7 @@ from .handlers import Telemetry, dispatch, stream_requests
 from .link import Link
 from .params import ParamClient
 from .phase import GROUNDED, Phase, overrule
+from .progress import MissionProgress
 
 __all__ = ["MavlinkParams", "MavlinkDriver"]
 
@@ -230,6 +231,12 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         """Undecodable datagrams, malformed values and send errors on the link."""
         return self.link.errors + self.tel.errors
 
+    def mission_progress(self) -> MissionProgress | None:
+        """The autopilot's own mission progress in AUTO (MISSION_CURRENT, MISSION_ITEM_REACHED and the
+        trajectory fractions they allow; :mod:`.progress`), None in GUIDED flight or before AUTO was entered."""
+        with self._lock:
+            return self.auto.progress() if self.auto is not None else None
+
     def readiness(self) -> AutopilotReadiness:
         """The autopilot's readiness to fly: HEARTBEAT heard, its system_status past BOOT, home known
         (HOME_POSITION), an absolute position estimate (EKF_STATUS_REPORT flags, the dialect's
@@ -396,6 +403,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         with self._lock:
             self._update_phase()
             wp, prog = self.mission.progress(self._t)
+            if self.auto is not None and self.phase in (Phase.AUTO, Phase.HOLD):  # AUTO: as the autopilot says
+                wp, prog = self.auto.follow(wp, prog)
             return DriverState(
                 t=self._t, pos=tel.pos, vel=tel.vel, att=tel.att, rates=tel.rates,
                 mode=self._mode(), armed=self._armed(), battery=tel.battery,
