@@ -77,6 +77,9 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
     firmware : str
         Parameter naming scheme (:data:`.apm.params.SCHEMES`): "4.6" (stable 4.5/4.6 names, cm and
         cm/s) or "4.7" (4.7+ names, m and m/s); AUTOPILOT_VERSION reports a matching version.
+    rc_centred : bool
+        A pilot's RC transmitter is on with its sticks centred (throttle mid): LOITER holds its position and
+        altitude. Without it (the default, no RC input) LOITER descends as the firmware does with no RC.
     legacy_mission_request : bool
         Ask for upload items with MISSION_REQUEST (as ArduCopter's firmware may) instead of MISSION_REQUEST_INT.
     """
@@ -100,6 +103,7 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
         stream_all: bool = False,
         firmware: str = DEFAULT_SCHEME,
         legacy_mission_request: bool = False,
+        rc_centred: bool = False,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -147,6 +151,7 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
         self.errors: list[str] = []
         self.auto: AutoMission | None = None
         self._leg: AutoMission | None = None  # a DO_REPOSITION in GUIDED
+        self.rc_centred = bool(rc_centred)
         self._stick_hold: tuple[float, float, float, float, float] | None = None  # x, y, z, t, yaw at entry
         self._gcs_mono: float | None = None
         self.gcs_failsafe = False
@@ -272,7 +277,7 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
     # ------------------------------------------------------------------ AUTO and reposition
     def _fly(self) -> None:
         """Let AUTO (or a GUIDED reposition, or the absent sticks) choose the simulated vehicle's reference."""
-        if self.custom_mode in STICK_MODES:
+        if self.custom_mode in STICK_MODES and not self.rc_centred:
             self._sticks()
             return
         self._stick_hold = None

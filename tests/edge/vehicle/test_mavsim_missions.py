@@ -311,3 +311,32 @@ def test_a_pilot_switch_to_loiter_is_reported_as_loiter_and_the_descent_never_as
     finally:
         drv.close()
         veh.close()
+
+
+def test_the_command_line_offers_the_legacy_mission_request():
+    from edge.vehicle.mavsim import build_parser
+
+    assert build_parser().parse_args(["--uav", "1", "--legacy-mission-request"]).legacy_mission_request
+    assert not build_parser().parse_args(["--uav", "1"]).legacy_mission_request
+
+
+def test_with_the_pilots_rc_sticks_centred_loiter_holds_its_altitude():
+    port = free_port(socket.SOCK_DGRAM)
+    gcs = Gcs(port)
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, speed=4.0, rc_centred=True).start()
+    try:
+        gcs.wait("HEARTBEAT", limit_s=10)
+        assert gcs.mode(4) == M.MAV_RESULT_ACCEPTED
+        assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+        assert gcs.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, 6.0) == M.MAV_RESULT_ACCEPTED
+        end = time.monotonic() + 30
+        while veh.sim.state().pos[2] < 5.7 and time.monotonic() < end:
+            time.sleep(0.05)
+        assert gcs.mode(5) == M.MAV_RESULT_ACCEPTED
+        t_end = veh.clock.now() + 4.0
+        while veh.clock.now() < t_end:
+            time.sleep(0.05)
+        assert abs(veh.sim.state().pos[2] - 6.0) < 0.5 and veh.armed
+    finally:
+        gcs.close()
+        veh.close()
