@@ -57,7 +57,10 @@ Message by message (system id = ``uav``, component 1, MAV_TYPE_QUADROTOR, MAV_AU
 - **Parameters** (:mod:`.apm.params`), SYSID_THISMAV (4.7: MAV_SYSID) = ``uav``, in the names and
   units of ``firmware`` (4.6 or 4.7); an unknown name is answered with PARAM_ERROR (DOES_NOT_EXIST).
   **Missions, fences, rally points**
-  (:mod:`.apm.missions`); AUTO flies the mission (:mod:`.apm.auto`) with MISSION_CURRENT and
+  (:mod:`.apm.missions`: the mission commands and frames ArduCopter's firmware accepts, the
+  firmware's download quirks, MISSION_REQUEST instead of MISSION_REQUEST_INT with
+  ``legacy_mission_request``); AUTO flies the mission (:mod:`.apm.auto`: waypoints, loiters,
+  delays, DO_JUMP; the items that drive no flight are skipped) with MISSION_CURRENT and
   MISSION_ITEM_REACHED, and CAMERA_FEEDBACK for each shot.
 - **GUIDED**, airborne, follows SET_POSITION_TARGET_LOCAL_NED (MAV_FRAME_LOCAL_NED) as ArduCopter's
   guided position/velocity/acceleration controller: the target moves on with its velocity and
