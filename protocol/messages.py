@@ -58,6 +58,7 @@ class Mode(str, Enum):
     RTL = "rtl"  # return to launch
     LANDED = "landed"
     FAILSAFE = "failsafe"
+    PILOT = "pilot"  # the autopilot flies a mode the edge did not command (a pilot's); autopilot.mode names it
 
 
 class AutopilotReadiness(Message):
@@ -72,6 +73,10 @@ class AutopilotReadiness(Message):
     position: bool = Field(default=False, description="its position estimate is absolute (EKF_STATUS_REPORT)")
     armable: bool = Field(default=False, description="its pre-arm checks pass (SYS_STATUS pre-arm bit healthy)")
     reason: Short = Field(default="", description="why it is not ready: its own latest pre-arm or refusal text")
+    mode: Annotated[str, Field(max_length=32)] = Field(
+        default="", description="the autopilot's own flight mode (its dialect's name, e.g. GUIDED, AUTO, LOITER)")
+    external: bool = Field(
+        default=False, description="that mode is not one the edge commanded (a pilot or the autopilot's failsafe)")
 
 
 class VehicleState(Message):

@@ -23,6 +23,20 @@ DO_CHANGE_SPEED (178)       param2 > 0: the new ground speed, m/s (applies from 
 DO_DIGICAM_CONTROL (203)    param5 = 1: a shot, event ``("shot", capture id)`` (:mod:`edge.geometry.ardupilot_items`)
 DO_SET_CAM_TRIGG_DIST (206) param1 m: a shot every param1 m flown (0 stops); param3 = 1 also one now
 CONDITION_YAW (115)         param1 heading, degrees (compass); param4 = 1 relative
+SPLINE_WAYPOINT (82)        flown as NAV_WAYPOINT (straight legs: the path between the points
+                            differs from ArduCopter's spline, the points and timing do not)
+LOITER_TIME (19)            to the point, then holds param1 s
+LOITER_TURNS (18)           to the point, then holds as long as param1 turns of a circle of radius
+                            param3 (CIRCLE_RADIUS 5 m when 0) take at the current speed (the circle
+                            itself is not flown)
+LOITER_UNLIM (17)           to the point, then holds until the mode or the current item changes
+NAV_DELAY (93)              holds where it is param1 s (a time of day, param1 < 0, is not kept:
+                            no delay)
+DO_JUMP (177)               back to item param1, param2 more times (-1: for ever), then on
+CONDITION_DELAY (112), CONDITION_DISTANCE (114), DO_SET_SERVO (183), DO_LAND_START (189),
+DO_SET_ROI_LOCATION (195), DO_SET_ROI (201), IMAGE_START_CAPTURE (2000)
+                            stored and skipped: they gate or drive things other than the flight
+                            (do items, servos, the gimbal, a camera), which this vehicle has not
 ==========================  =====================================================================
 
 Do items run when the sequence reaches them (right after the previous NAV item completes).
@@ -40,6 +54,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from edge.geometry import ardupilot_items as I
+from edge.vehicle.apm import missions as W
 from edge.vehicle.apm.missions import PlanItem
 
 __all__ = ["AutoMission", "Flight", "MAV_CMD_CONDITION_YAW", "MIN_LEG_S"]
@@ -48,6 +63,12 @@ Vec3 = tuple[float, float, float]
 MAV_CMD_CONDITION_YAW = 115
 #: least time ArduCopter takes for a waypoint leg, s (its S-curves: see the table above)
 MIN_LEG_S = 1.8
+#: ArduCopter's CIRCLE_RADIUS default, m (LOITER_TURNS with radius 0)
+CIRCLE_RADIUS_M = 5.0
+#: items stored but not flown (see the table above)
+_SKIPPED = frozenset({W.MAV_CMD_CONDITION_DELAY, W.MAV_CMD_CONDITION_DISTANCE, W.MAV_CMD_DO_SET_SERVO,
+                      W.MAV_CMD_DO_LAND_START, W.MAV_CMD_DO_SET_ROI_LOCATION, W.MAV_CMD_DO_SET_ROI,
+                      W.MAV_CMD_IMAGE_START_CAPTURE})
 
 
 @dataclass(frozen=True)
@@ -102,6 +123,8 @@ class AutoMission:
         self._started: set[int] = set()
         self._takeoff_xy: tuple[float, float] | None = None
         self._t_free: float | None = None  # when the last leg's carrot arrived (plus its hold)
+        self._jumps: dict[int, int] = {}  # DO_JUMP item -> jumps left
+        self.jumps = 0  # DO_JUMPs taken
 
     def set_current(self, seq: int) -> bool:
         """MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT: jump to ``seq`` (1..len-1)."""
@@ -148,6 +171,12 @@ class AutoMission:
                 self._do(it, t, pos, ev)
                 self._advance(ev)
                 continue
+            if c in _SKIPPED:
+                self._advance(ev)
+                continue
+            if c == W.MAV_CMD_DO_JUMP:
+                self._jump(it, ev)
+                continue
             flight, complete = self._nav(it, t, pos, airborne)
             if not complete:
                 return flight, ev
@@ -160,6 +189,20 @@ class AutoMission:
         self._leg, self._hold_until = None, None
         if self.current < len(self.items):
             ev.append(("current", self.current))
+
+    def _jump(self, it: PlanItem, ev: list[tuple[str, int]]) -> None:
+        """DO_JUMP: to item param1 while jumps are left (param2; -1 for ever), else on to the next item."""
+        target = int(it.param1) if math.isfinite(it.param1) else -1
+        left = self._jumps.setdefault(self.current, int(it.param2) if math.isfinite(it.param2) else 0)
+        if left == 0 or not 1 <= target < len(self.items) or target == self.current:
+            self._advance(ev)
+            return
+        if left > 0:
+            self._jumps[self.current] = left - 1
+        self.jumps += 1
+        self.current, self._leg, self._hold_until = target, None, None
+        self._started.discard(target)
+        ev.append(("current", target))
 
     def _do(self, it: PlanItem, t: float, pos: Vec3, ev: list[tuple[str, int]]) -> None:
         c = it.command
@@ -202,11 +245,17 @@ class AutoMission:
             if self._takeoff_xy is None:
                 self._takeoff_xy = (pos[0], pos[1])
             return Flight("takeoff", (*self._takeoff_xy, z), yaw=self._yaw or 0.0, alt=z - self.home[2]), False
-        if c == I.MAV_CMD_NAV_WAYPOINT:
+        if c in (I.MAV_CMD_NAV_WAYPOINT, W.MAV_CMD_NAV_SPLINE_WAYPOINT, W.MAV_CMD_NAV_LOITER_TIME,
+                 W.MAV_CMD_NAV_LOITER_TURNS, W.MAV_CMD_NAV_LOITER_UNLIM):
             p = self.to_enu(it)
             if it.x == 0 and it.y == 0:  # ArduPilot: lat/lon 0 = here
                 p = (pos[0], pos[1], p[2])
-            return self._goto(t, pos, p, hold_s=it.param1 if math.isfinite(it.param1) else 0.0)
+            flight, done = self._goto(t, pos, p, hold_s=self._hold_s(it))
+            return flight, done and c != W.MAV_CMD_NAV_LOITER_UNLIM
+        if c == W.MAV_CMD_NAV_DELAY:
+            here = self._last_target or pos
+            self._last_target = here
+            return self._goto(t, pos, here, hold_s=self._hold_s(it))
         if c == I.MAV_CMD_NAV_LAND:
             if not airborne and self.current in self._started:
                 return Flight("hold", pos), True
@@ -218,6 +267,14 @@ class AutoMission:
             self._started.add(self.current)
             return Flight("rtl"), False
         return Flight("hold", pos), True  # a command the store let through but AUTO does not fly
+
+    def _hold_s(self, it: PlanItem) -> float:
+        """How long a NAV item holds at its point once reached, s."""
+        p1 = it.param1 if math.isfinite(it.param1) else 0.0
+        if it.command == W.MAV_CMD_NAV_LOITER_TURNS:
+            r = abs(it.param3) if math.isfinite(it.param3) and it.param3 != 0 else CIRCLE_RADIUS_M
+            return max(0.0, p1) * 2 * math.pi * r / self.speed if self.speed > 0 else 0.0
+        return max(0.0, p1)
 
     def _goto(self, t: float, pos: Vec3, end: Vec3, hold_s: float) -> tuple[Flight, bool]:
         if self._leg is None or self._leg[1] != end:

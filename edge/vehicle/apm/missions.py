@@ -10,12 +10,19 @@ Three stores, one per MAV_MISSION_TYPE: MISSION (0), FENCE (1), RALLY (2), each 
   MISSION_ACK OPERATION_CANCELLED, and answers the last item with MISSION_ACK ACCEPTED, when
   the new list replaces the old one at once. MISSION_COUNT 0 clears. While one sender uploads,
   another sender's MISSION_COUNT is MISSION_ACK DENIED; the same sender restarts.
-- **items**: a command this vehicle does not execute is MISSION_ACK UNSUPPORTED (the list is
-  kept unchanged); a NaN in a position field of a NAV item or an unsupported frame is
-  INVALID / UNSUPPORTED_FRAME. The mission's item 0 is home (ArduPilot overwrites it with the
+- **items**: ArduCopter's mission commands (:data:`SUPPORTED`; AUTO flies the NAV ones and skips
+  the DO / CONDITION ones that do not change the flight, :mod:`.auto`); any other command is
+  MISSION_ACK UNSUPPORTED (the list is kept unchanged); a NaN in a position field of a NAV item
+  or an unsupported frame is INVALID / UNSUPPORTED_FRAME; a NAV_WAYPOINT with a NaN param1 (its
+  hold time) is INVALID_PARAM1, as ArduCopter refuses it. MAV_FRAME_MISSION (2) is taken as
+  MAV_FRAME_GLOBAL (altitude above sea level), as ArduPilot's AP_Mission reads it. The mission's item 0 is home (ArduPilot overwrites it with the
   current home on download).
+  With ``legacy_request`` the vehicle asks with MISSION_REQUEST whatever the sender used (as
+  ArduCopter's firmware may: the sender then answers with MISSION_ITEM_INT or MISSION_ITEM).
 - **download**: MISSION_REQUEST_LIST -> MISSION_COUNT, then MISSION_REQUEST_INT / MISSION_REQUEST
   -> MISSION_ITEM_INT / MISSION_ITEM; a sequence outside the list is MISSION_ACK INVALID_SEQUENCE.
+  As the firmware sends them back: item 0 is the current home, a NaN param (the "keep the
+  heading" yaw) comes back as 0.0, and NAV_RETURN_TO_LAUNCH (no location) in MAV_FRAME_GLOBAL.
 - **clear**: MISSION_CLEAR_ALL -> MISSION_ACK ACCEPTED.
 """
 
@@ -35,26 +42,43 @@ MAV_MISSION_ERROR = 1
 MAV_MISSION_UNSUPPORTED_FRAME = 2
 MAV_MISSION_UNSUPPORTED = 3
 MAV_MISSION_INVALID = 5
+MAV_MISSION_INVALID_PARAM1 = 6
 MAV_MISSION_INVALID_SEQUENCE = 13
 MAV_MISSION_DENIED = 14
 MAV_MISSION_OPERATION_CANCELLED = 15
 #: frames with latitude/longitude in x/y
 GLOBAL_FRAMES = {0, 3, 5, 6, 10, 11}
+MAV_FRAME_MISSION = 2
 _INT_FRAMES = {5: 0, 6: 3, 11: 10}  # the deprecated *_INT frames -> their plain counterparts
 
-#: mission type -> the MAV_CMDs this vehicle stores and executes
+#: MAV_CMDs (common.xml) ArduCopter stores that the project's own plans do not use
+MAV_CMD_NAV_LOITER_UNLIM, MAV_CMD_NAV_LOITER_TURNS, MAV_CMD_NAV_LOITER_TIME = 17, 18, 19
+MAV_CMD_NAV_SPLINE_WAYPOINT, MAV_CMD_NAV_DELAY = 82, 93
+MAV_CMD_CONDITION_DELAY, MAV_CMD_CONDITION_DISTANCE, MAV_CMD_CONDITION_YAW = 112, 114, 115
+MAV_CMD_DO_JUMP, MAV_CMD_DO_SET_SERVO, MAV_CMD_DO_LAND_START = 177, 183, 189
+MAV_CMD_DO_SET_ROI_LOCATION, MAV_CMD_DO_SET_ROI, MAV_CMD_IMAGE_START_CAPTURE = 195, 201, 2000
+
+#: mission type -> the MAV_CMDs this vehicle stores (ArduCopter's mission command list)
 SUPPORTED: dict[int, frozenset[int]] = {
     MISSION: frozenset({I.MAV_CMD_NAV_WAYPOINT, I.MAV_CMD_NAV_TAKEOFF, I.MAV_CMD_NAV_LAND,
                         I.MAV_CMD_NAV_RETURN_TO_LAUNCH, I.MAV_CMD_DO_CHANGE_SPEED, I.MAV_CMD_DO_DIGICAM_CONTROL,
-                        I.MAV_CMD_DO_SET_CAM_TRIGG_DIST, 115}),  # 115 CONDITION_YAW
+                        I.MAV_CMD_DO_SET_CAM_TRIGG_DIST, MAV_CMD_CONDITION_YAW,
+                        MAV_CMD_NAV_LOITER_UNLIM, MAV_CMD_NAV_LOITER_TURNS, MAV_CMD_NAV_LOITER_TIME,
+                        MAV_CMD_NAV_SPLINE_WAYPOINT, MAV_CMD_NAV_DELAY, MAV_CMD_CONDITION_DELAY,
+                        MAV_CMD_CONDITION_DISTANCE, MAV_CMD_DO_JUMP, MAV_CMD_DO_SET_SERVO, MAV_CMD_DO_LAND_START,
+                        MAV_CMD_DO_SET_ROI_LOCATION, MAV_CMD_DO_SET_ROI, MAV_CMD_IMAGE_START_CAPTURE}),
     FENCE: frozenset({I.MAV_CMD_NAV_FENCE_RETURN_POINT, I.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
                       I.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, I.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
                       I.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION}),
     RALLY: frozenset({I.MAV_CMD_NAV_RALLY_POINT}),
 }
 #: commands whose x/y/z are a position
-_POSITIONED = {I.MAV_CMD_NAV_WAYPOINT, I.MAV_CMD_NAV_TAKEOFF, I.MAV_CMD_NAV_LAND,
+_POSITIONED = {I.MAV_CMD_NAV_WAYPOINT, I.MAV_CMD_NAV_TAKEOFF, I.MAV_CMD_NAV_LAND, MAV_CMD_NAV_LOITER_UNLIM,
+               MAV_CMD_NAV_LOITER_TURNS, MAV_CMD_NAV_LOITER_TIME, MAV_CMD_NAV_SPLINE_WAYPOINT,
                *SUPPORTED[FENCE], *SUPPORTED[RALLY]}
+#: NAV items whose param4 (yaw) may be NaN ("keep the current heading")
+_NAN_YAW = {I.MAV_CMD_NAV_TAKEOFF, I.MAV_CMD_NAV_LAND, I.MAV_CMD_NAV_WAYPOINT, MAV_CMD_NAV_SPLINE_WAYPOINT,
+            MAV_CMD_NAV_LOITER_UNLIM, MAV_CMD_NAV_LOITER_TIME, MAV_CMD_NAV_LOITER_TURNS}
 
 
 @dataclass(frozen=True)
@@ -78,7 +102,7 @@ class PlanItem:
     @property
     def params(self) -> tuple[float, float, float, float, float, float, float]:
         """param1..param7 as a WPL line has them (x, y in degrees for global frames)."""
-        if self.frame in GLOBAL_FRAMES:
+        if is_global(self.frame, self.command):
             return (self.param1, self.param2, self.param3, self.param4, self.x / 1e7, self.y / 1e7, self.z)
         return (self.param1, self.param2, self.param3, self.param4, float(self.x), float(self.y), self.z)
 
@@ -88,13 +112,19 @@ class PlanItem:
                     param4=self.param4, x=self.x, y=self.y, z=self.z, mission_type=self.mission_type)
 
 
+def is_global(frame: int, command: int) -> bool:
+    """x, y are latitude, longitude: a global frame, or MAV_FRAME_MISSION for a positioned command (ArduPilot
+    reads MAV_FRAME_MISSION as MAV_FRAME_GLOBAL there; elsewhere x, y are plain params 5 and 6)."""
+    return frame in GLOBAL_FRAMES or (frame == MAV_FRAME_MISSION and command in _POSITIONED)
+
+
 def item_from_message(msg: object, int_msg: bool) -> PlanItem:
     """A PlanItem from a MISSION_ITEM_INT (``int_msg``) or MISSION_ITEM (float lat/lon) message."""
     g = lambda k, d=0: getattr(msg, k, d)  # noqa: E731
     frame = int(g("frame"))
     x, y = g("x"), g("y")
     if not int_msg:
-        if frame in GLOBAL_FRAMES:
+        if is_global(frame, int(g("command"))):
             x = round(float(x) * 1e7) if math.isfinite(x) else 0
             y = round(float(y) * 1e7) if math.isfinite(y) else 0
         else:
@@ -109,11 +139,12 @@ def check_item(it: PlanItem) -> int:
     """MAV_MISSION_ACCEPTED, or the MAV_MISSION_RESULT that refuses the item."""
     if it.command not in SUPPORTED.get(it.mission_type, ()):
         return MAV_MISSION_UNSUPPORTED
-    if not all(math.isfinite(v) for v in (it.param1, it.param2, it.param3, it.param4)) and it.command not in (
-            I.MAV_CMD_NAV_TAKEOFF, I.MAV_CMD_NAV_LAND, I.MAV_CMD_NAV_WAYPOINT):
+    if it.command == I.MAV_CMD_NAV_WAYPOINT and not math.isfinite(it.param1):
+        return MAV_MISSION_INVALID_PARAM1  # the hold time: ArduCopter refuses NaN
+    if not all(math.isfinite(v) for v in (it.param1, it.param2, it.param3, it.param4)) and it.command not in _NAN_YAW:
         return MAV_MISSION_INVALID  # NAV items may carry NaN yaw ("keep the current heading")
     if it.command in _POSITIONED:
-        if it.frame not in GLOBAL_FRAMES:
+        if not is_global(it.frame, it.command):
             return MAV_MISSION_UNSUPPORTED_FRAME
         if not math.isfinite(it.z) or abs(it.x) > 900_000_000 or abs(it.y) > 1_800_000_000:
             return MAV_MISSION_INVALID
@@ -131,14 +162,23 @@ class _Upload:
     tries: int = 0
 
 
+def _as_downloaded(it: PlanItem) -> PlanItem:
+    """An item as ArduCopter sends it back: NaN params as 0.0, RTL (stored without a location) in frame 0."""
+    p = [v if math.isfinite(v) else 0.0 for v in (it.param1, it.param2, it.param3, it.param4)]
+    frame = 0 if it.command == I.MAV_CMD_NAV_RETURN_TO_LAUNCH else it.frame
+    return replace(it, frame=frame, param1=p[0], param2=p[1], param3=p[2], param4=p[3])
+
+
 class MissionServer:
     """The vehicle's plan stores and the transfer state machine (see the module docstring).
 
     ``home`` is a callable returning the home item (seq 0 of the mission on download).
     """
 
-    def __init__(self, home: callable[[], PlanItem] | None = None, item_timeout_s: float = 1.0, retries: int = 5):
+    def __init__(self, home: callable[[], PlanItem] | None = None, item_timeout_s: float = 1.0, retries: int = 5,
+                 legacy_request: bool = False):
         self.stores: dict[int, list[PlanItem]] = {MISSION: [], FENCE: [], RALLY: []}
+        self.legacy_request = bool(legacy_request)
         self.home = home
         self.item_timeout_s = float(item_timeout_s)
         self.retries = int(retries)
@@ -152,7 +192,7 @@ class MissionServer:
                                     mission_type=mission_type))
 
     def _request(self, up: _Upload) -> Out:
-        name = "mission_request_int" if up.use_int else "mission_request"
+        name = "mission_request_int" if up.use_int and not self.legacy_request else "mission_request"
         return (name, dict(target_system=up.src[0], target_component=up.src[1], seq=len(up.items),
                            mission_type=up.mission_type))
 
@@ -237,7 +277,7 @@ class MissionServer:
         items = self._listed(mission_type)
         if not 0 <= seq < len(items):
             return [self._ack(src, MAV_MISSION_INVALID_SEQUENCE, mission_type)]
-        f = items[seq].fields()
+        f = _as_downloaded(items[seq]).fields()
         f["mission_type"] = mission_type
         if not int_msg:
             p = items[seq].params

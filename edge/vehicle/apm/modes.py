@@ -61,6 +61,12 @@ def base_mode(mode: int, *, armed: bool, flying: bool) -> int:
         flags |= _GUIDED
     return flags
 
+#: modes flown by the pilot's sticks (throttle = climb rate; horizontal position held with centred sticks)
+STICK_MODES = frozenset({CopterMode.LOITER, CopterMode.ALT_HOLD, CopterMode.POSHOLD})
+#: descent with the throttle stick at its bottom, m/s: ArduCopter's PILOT_SPEED_DN, whose default 0 means
+#: PILOT_SPEED_UP (250 cm/s) (Copter::get_pilot_speed_dn); with no RC input the throttle rests there
+PILOT_DESCENT_MS = 2.5
+
 #: FS_GCS_ENABLE value -> the mode the GCS failsafe switches to (2: AUTO continues, else RTL)
 FS_GCS_ACTIONS = {1: CopterMode.RTL, 2: CopterMode.RTL, 3: CopterMode.RTL, 4: CopterMode.LAND,
                   5: CopterMode.LAND, 6: CopterMode.RTL, 7: CopterMode.BRAKE}

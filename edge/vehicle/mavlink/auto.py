@@ -9,7 +9,9 @@ it sends DO_SET_MISSION_CURRENT (the item after the last waypoint passed) and DO
 streaming GUIDED targets until AUTO is acknowledged. In AUTO it streams no targets: it keeps the
 sequencer's reference (trajectory plus the board's formation correction of (P8)) and sends
 DO_CHANGE_SPEED (at most every ``auto_speed_period_s``) so that the along-track error goes to
-zero; captures fire on the trajectory clock as in GUIDED. At the trajectory's end it switches
+zero; captures fire on the trajectory clock as in GUIDED. The progress the edge reports in AUTO
+follows the autopilot's (MISSION_CURRENT, MISSION_ITEM_REACHED; :mod:`.progress`): the trajectory
+clock kept between the last waypoint reached and the one flown to. At the trajectory's end it switches
 back to GUIDED and holds, once the autopilot reports the last waypoint reached
 (MISSION_ITEM_REACHED; at most ``auto_end_wait_s`` later). hold / land / RTL / resume work as in
 GUIDED (resume flies back to the paused point and re-enters AUTO from the right item).
@@ -36,6 +38,7 @@ from protocol.messages import Trajectory
 from .commands import CommandRefused, VehicleLinkError, await_reply
 from .guided import Target
 from .phase import Phase
+from .progress import MissionProgress, autopilot_window, bounded
 
 if TYPE_CHECKING:
     from .driver import MavlinkDriver
@@ -58,6 +61,8 @@ class AutoFlight:
         self._end_switch = False  # the AUTO mission ended: back to GUIDED to hold there
         self._end_mono = 0.0  # when the trajectory's clock ran out in AUTO
         self._speed_sent: tuple[float, float] | None = None  # (speed, monotonic) of the last DO_CHANGE_SPEED
+        self._fractions: tuple[float, ...] = ()  # per trajectory waypoint: its fraction of the duration
+        self.from_seq: int | None = None  # the item AUTO was last entered at (None: not flown since the start)
         #: DO_CHANGE_SPEED corrections sent; mode switches to AUTO that failed (with why)
         self.speed_commands = 0
         self.errors: list[str] = []
@@ -67,6 +72,7 @@ class AutoFlight:
         """Upload the trajectory as a waypoint mission unless the autopilot already has it."""
         if traj is None:
             raise ValueError("no trajectory uploaded")
+        self.from_seq = None
         if self._traj is traj and self.plan is not None:
             return
         try:
@@ -79,8 +85,11 @@ class AutoFlight:
         plan = autopilot_mission(traj, drv.home, self._wait_home())
         self._upload(plan.items)
         self._default_speed(plan.items)
+        times = [w.t for w in traj.waypoints]
+        span = times[-1] - times[0]
         with drv.tel.lock:
-            drv.tel.reached_seq = -1
+            drv.tel.reached_seq = drv.tel.current_seq = -1
+            self._fractions = tuple((t - times[0]) / span if span > 0 else 1.0 for t in times)
         self.plan, self._traj = plan, traj
         log.info("UAV %d: trajectory uploaded to the autopilot as a mission of %d items (%d waypoints, %d captures)",
                  drv.uav, len(plan.items), len(set(plan.waypoint_seq)), len(plan.capture_seq))
@@ -205,6 +214,7 @@ class AutoFlight:
                     if drv.phase is expect and mode == drv.dialect.auto:
                         drv.phase = Phase.AUTO
                         self._speed_sent = None
+                        self.from_seq = seq if seq is not None else max(0, drv.tel.current_seq)
                 log.info("UAV %d: flying %s%s", drv.uav, name,
                          f" from mission item {seq}" if seq is not None else " (the AUTO mission ended: hold)")
         except ValueError as exc:
@@ -214,6 +224,22 @@ class AutoFlight:
             with drv.tel.lock:
                 self.switching = False
                 self.pending = set()
+
+    # ------------------------------------------------------------------ progress (under the driver's lock)
+    def progress(self) -> MissionProgress | None:
+        """The autopilot's mission progress since AUTO was entered (None before, or without a plan). A
+        MISSION_CURRENT older than the entry (below its item) does not count."""
+        plan, tel = self.plan, self.drv.tel
+        if plan is None or self.from_seq is None or len(self._fractions) != len(plan.waypoint_seq):
+            return None
+        current = max(tel.current_seq, self.from_seq)
+        lo, hi = autopilot_window(plan.waypoint_seq, self._fractions, tel.reached_seq, current)
+        return MissionProgress(current, tel.reached_seq, lo, hi)
+
+    def follow(self, wp: int, progress: float) -> tuple[int, float]:
+        """The edge's ``(wp_index, progress)`` from its clock's, kept where the autopilot's progress allows."""
+        p = self.progress()
+        return (wp, progress) if p is None else bounded(progress, (p.lo, p.hi), self._fractions)
 
     # ------------------------------------------------------------------ formation keeping in AUTO
     def speed_message(self, target: Target) -> Any | None:

@@ -5,8 +5,9 @@ ArduCopter (custom modes :class:`.apm.modes.CopterMode`, the 4.6 and 4.7 paramet
 of :mod:`.apm.params`, EKF readiness as :func:`.apm.boot.position_ok`). A PX4 dialect (custom
 mode ``(sub_mode << 24) | (main_mode << 16)``, OFFBOARD as its guided mode, one parameter scheme)
 would be another implementation. A mode the driver did not command reads, for ArduCopter
-(:func:`copter_mode`): AUTO -> MISSION; GUIDED, LOITER, BRAKE -> HOLD; RTL, SMART_RTL -> RTL;
-LAND -> LAND; any other (pilot-flown: STABILIZE, ALT_HOLD, POSHOLD, ...) -> FAILSAFE.
+(:func:`copter_mode`): AUTO -> MISSION; GUIDED, BRAKE -> HOLD; RTL, SMART_RTL -> RTL; LAND -> LAND;
+any other (pilot-flown: LOITER, STABILIZE, ALT_HOLD, POSHOLD, ... which follow the RC sticks, so
+without RC input LOITER descends) -> PILOT, never HOLD; the state's ``autopilot.mode`` names it.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ class Dialect(Protocol):
     def from_raw(self, key: str, raw: float, scheme: str) -> float: ...
 
 
-_COPTER_TO_MODE = {CopterMode.AUTO: Mode.MISSION, CopterMode.GUIDED: Mode.HOLD, CopterMode.LOITER: Mode.HOLD,
+_COPTER_TO_MODE = {CopterMode.AUTO: Mode.MISSION, CopterMode.GUIDED: Mode.HOLD,
                    CopterMode.BRAKE: Mode.HOLD, CopterMode.RTL: Mode.RTL, CopterMode.SMART_RTL: Mode.RTL,
                    CopterMode.LAND: Mode.LAND}
 _PHASE_COPTER = {Phase.TAKEOFF: CopterMode.GUIDED, Phase.HOLD: CopterMode.GUIDED, Phase.MISSION: CopterMode.GUIDED,
@@ -55,7 +56,7 @@ _PHASE_COPTER = {Phase.TAKEOFF: CopterMode.GUIDED, Phase.HOLD: CopterMode.GUIDED
 
 def copter_mode(custom_mode: int) -> Mode:
     """The board's mode for an ArduCopter custom mode flown by someone else (pilot, failsafe)."""
-    return _COPTER_TO_MODE.get(custom_mode, Mode.FAILSAFE)
+    return _COPTER_TO_MODE.get(custom_mode, Mode.PILOT)
 
 
 def copter_mode_name(custom_mode: int) -> str:

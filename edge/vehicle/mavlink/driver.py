@@ -23,6 +23,7 @@ from .handlers import Telemetry, dispatch, stream_requests
 from .link import Link
 from .params import ParamClient
 from .phase import GROUNDED, Phase, overrule
+from .progress import MissionProgress
 
 __all__ = ["MavlinkParams", "MavlinkDriver"]
 
@@ -30,7 +31,7 @@ log = logging.getLogger("skynet.mavlink")
 Vec3 = tuple[float, float, float]
 
 _GROUNDED = (Mode.IDLE, Mode.LANDED)
-_AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL, Mode.FAILSAFE)
+_AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL, Mode.FAILSAFE, Mode.PILOT)
 
 
 @dataclass(frozen=True)
@@ -230,11 +231,18 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         """Undecodable datagrams, malformed values and send errors on the link."""
         return self.link.errors + self.tel.errors
 
+    def mission_progress(self) -> MissionProgress | None:
+        """The autopilot's own mission progress in AUTO (MISSION_CURRENT, MISSION_ITEM_REACHED and the
+        trajectory fractions they allow; :mod:`.progress`), None in GUIDED flight or before AUTO was entered."""
+        with self._lock:
+            return self.auto.progress() if self.auto is not None else None
+
     def readiness(self) -> AutopilotReadiness:
         """The autopilot's readiness to fly: HEARTBEAT heard, its system_status past BOOT, home known
         (HOME_POSITION), an absolute position estimate (EKF_STATUS_REPORT flags, the dialect's
         ``position_ok``), the pre-arm checks passing (SYS_STATUS pre-arm bit healthy), and the
-        autopilot's latest "PreArm:", "Arm:" or mode-refusal STATUSTEXT as the reason while not ready."""
+        autopilot's latest "PreArm:", "Arm:" or mode-refusal STATUSTEXT as the reason while not ready; and
+        the autopilot's own mode, ``external`` when the edge did not command it (a pilot took over)."""
         tel = self.tel
         with tel.lock:
             hb, home, flags, prearm, text = tel.hb, tel.home_lla, tel.ekf_flags, tel.prearm_ok, tel.not_ready_text
@@ -260,8 +268,12 @@ class MavlinkDriver(ParamClient, VehicleDriver):
                 why = "its pre-arm checks fail"
             if text and heard:
                 why += f"; the autopilot says: {text}"
+        with self._lock:
+            external = self.phase is Phase.EXTERNAL
         return AutopilotReadiness(ready=ready, heartbeat=heard, status=status, home=home is not None,
-                                  position=position, armable=armable, reason=why[:256])
+                                  position=position, armable=armable, reason=why[:256],
+                                  mode=self.dialect.mode_name(hb.custom_mode)[:32] if hb is not None else "",
+                                  external=external)
 
     def heartbeat_age(self) -> float | None:
         """Seconds since the last autopilot HEARTBEAT (None: none yet)."""
@@ -391,6 +403,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         with self._lock:
             self._update_phase()
             wp, prog = self.mission.progress(self._t)
+            if self.auto is not None and self.phase in (Phase.AUTO, Phase.HOLD):  # AUTO: as the autopilot says
+                wp, prog = self.auto.follow(wp, prog)
             return DriverState(
                 t=self._t, pos=tel.pos, vel=tel.vel, att=tel.att, rates=tel.rates,
                 mode=self._mode(), armed=self._armed(), battery=tel.battery,
@@ -448,7 +462,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             self._hold_here()
 
     def resume(self) -> None:
-        self._require((Mode.HOLD,), "resume")
+        self._require((Mode.HOLD, Mode.PILOT), "resume")
         self.mission.check_resume()
         self._ensure_guided()
         with self._lock:

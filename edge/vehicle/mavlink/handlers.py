@@ -5,7 +5,7 @@ HEARTBEAT (the first autopilot heard becomes the target unless ``sysid`` names o
 custom mode, system status), LOCAL_POSITION_NED and ATTITUDE (converted to ENU/FLU,
 below), SYS_STATUS (``battery_remaining``, the pre-arm bit), EKF_STATUS_REPORT,
 HOME_POSITION, STATUSTEXT (the latest "PreArm:", "Arm:" or mode-refusal text is the reason the
-autopilot is not ready), MISSION_ITEM_REACHED, the parameter protocol's PARAM_VALUE / PARAM_ERROR,
+autopilot is not ready), MISSION_ITEM_REACHED and MISSION_CURRENT (the mission progress), the parameter protocol's PARAM_VALUE / PARAM_ERROR,
 the mission protocol's MISSION_REQUEST(_INT) / MISSION_ACK, and COMMAND_ACK (matched by
 :mod:`.commands`). Messages from other systems are ignored; undecodable or non-finite values are
 counted in ``errors``.
@@ -53,10 +53,12 @@ Vec3 = tuple[float, float, float]
 STREAMS = {"LOCAL_POSITION_NED": (M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 20.0),
            "ATTITUDE": (M.MAVLINK_MSG_ID_ATTITUDE, 20.0), "SYS_STATUS": (M.MAVLINK_MSG_ID_SYS_STATUS, 2.0),
            "EKF_STATUS_REPORT": (M.MAVLINK_MSG_ID_EKF_STATUS_REPORT, 1.0),
-           "HOME_POSITION": (M.MAVLINK_MSG_ID_HOME_POSITION, 0.5)}
+           "HOME_POSITION": (M.MAVLINK_MSG_ID_HOME_POSITION, 0.5),
+           "MISSION_CURRENT": (M.MAVLINK_MSG_ID_MISSION_CURRENT, 1.0)}
 #: the REQUEST_DATA_STREAM groups (ArduCopter's) holding them: name -> (MAV_DATA_STREAM, rate Hz)
 LEGACY_STREAMS = {"LOCAL_POSITION_NED": (M.MAV_DATA_STREAM_POSITION, 20), "ATTITUDE": (M.MAV_DATA_STREAM_EXTRA1, 20),
-                  "SYS_STATUS": (M.MAV_DATA_STREAM_EXTENDED_STATUS, 2), "EKF_STATUS_REPORT": (M.MAV_DATA_STREAM_EXTRA3, 1)}
+                  "SYS_STATUS": (M.MAV_DATA_STREAM_EXTENDED_STATUS, 2), "EKF_STATUS_REPORT": (M.MAV_DATA_STREAM_EXTRA3, 1),
+                  "MISSION_CURRENT": (M.MAV_DATA_STREAM_EXTENDED_STATUS, 2)}
 #: STATUSTEXT prefixes and fragments that say why an autopilot will not fly yet
 NOT_READY_TEXTS = ("PreArm:", "Arm:", "requires position", "Need Position")
 
@@ -150,6 +152,7 @@ class Telemetry:
         self.home_lla: tuple[float, float, float] | None = None
         self.mission_rx: deque[Any] = deque(maxlen=64)
         self.reached_seq = -1  # the autopilot's latest MISSION_ITEM_REACHED
+        self.current_seq = -1  # the autopilot's current mission item (MISSION_CURRENT)
         self.param_rx: dict[str, tuple[float, int]] = {}  # name -> (value, rx)
         self.param_err: dict[str, int] = {}  # name -> rx of its PARAM_ERROR
         self.errors = 0  # undecodable datagrams and malformed values
@@ -251,6 +254,7 @@ HANDLERS: dict[str, Callable[[Telemetry, Any, float], None]] = {
     "SYS_STATUS": _sys_status, "STATUSTEXT": _statustext, "HOME_POSITION": _home_position,
     "EKF_STATUS_REPORT": lambda t, m, now: setattr(t, "ekf_flags", int(m.flags)),
     "MISSION_ITEM_REACHED": lambda t, m, now: setattr(t, "reached_seq", max(t.reached_seq, int(m.seq))), "PARAM_VALUE": _param_value,
+    "MISSION_CURRENT": lambda t, m, now: setattr(t, "current_seq", int(m.seq)),
     "PARAM_ERROR": _param_error, "MISSION_REQUEST_INT": _mission, "MISSION_REQUEST": _mission,
     "MISSION_ACK": _mission, "COMMAND_ACK": _command_ack,
 }

@@ -82,6 +82,12 @@ def build_parser(prog: str = "skynet sim-autopilot") -> argparse.ArgumentParser:
                    help="parameter names and units of this ArduCopter version: 4.6 (stable 4.5/4.6: SYSID_THISMAV, "
                         "WPNAV_SPEED cm/s, RTL_ALT cm, LAND_SPEED, ARMING_CHECK) or 4.7 (4.7+: MAV_SYSID, WP_SPD m/s, "
                         "RTL_ALT_M m, LAND_SPD_MS, ARMING_SKIPCHK, WP_RADIUS_M, MAV_GCS_SYSID)")
+    p.add_argument("--legacy-mission-request", action="store_true",
+                   help="ask for uploaded mission items with MISSION_REQUEST (as ArduCopter's firmware may) "
+                        "instead of MISSION_REQUEST_INT")
+    p.add_argument("--rc-centred", action="store_true",
+                   help="a pilot's RC transmitter is on with its sticks centred: LOITER holds position and altitude "
+                        "(without RC input, the default, LOITER descends at the throttle-down rate as ArduCopter does)")
     return p
 
 
@@ -104,7 +110,9 @@ def main(argv: list[str] | None = None, prog: str = "skynet sim-autopilot") -> i
                                               refuse_arming=args.refuse_arming, origin=args.origin,
                                               mavlink_key=args.mavlink_key, param_overrides=dict(args.param),
                                               boot_scale=args.boot_scale, stream_all=args.stream_all,
-                                              firmware=args.firmware_version))
+                                              firmware=args.firmware_version,
+                                              legacy_mission_request=args.legacy_mission_request,
+                                              rc_centred=args.rc_centred))
             print(f"sim-autopilot: uav {uav} (system id {uav}) on {conn}, speed x{args.speed:g}", flush=True)
     except ValueError as exc:
         for v in vehicles:

@@ -18,7 +18,7 @@ from edge.geometry import ardupilot_items as I
 from edge.vehicle.apm.auto import AutoMission, Flight
 from edge.vehicle.apm.boot import BootTimeline
 from edge.vehicle.apm.missions import FENCE, MISSION, MissionServer, PlanItem, item_from_message
-from edge.vehicle.apm.modes import FENCE_ACTIONS, FS_GCS_ACTIONS, CopterMode
+from edge.vehicle.apm.modes import FENCE_ACTIONS, FS_GCS_ACTIONS, PILOT_DESCENT_MS, STICK_MODES, CopterMode
 from edge.vehicle.apm.params import DEFAULT_SCHEME, ParamTable, flight_sw_version, param_name
 from edge.vehicle.apm.signing import enable_signing, parse_key
 from edge.vehicle.apm.streams import ARDUCOPTER_RATES, DEFAULT_RATES, StreamScheduler
@@ -77,6 +77,11 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
     firmware : str
         Parameter naming scheme (:data:`.apm.params.SCHEMES`): "4.6" (stable 4.5/4.6 names, cm and
         cm/s) or "4.7" (4.7+ names, m and m/s); AUTOPILOT_VERSION reports a matching version.
+    rc_centred : bool
+        A pilot's RC transmitter is on with its sticks centred (throttle mid): LOITER holds its position and
+        altitude. Without it (the default, no RC input) LOITER descends as the firmware does with no RC.
+    legacy_mission_request : bool
+        Ask for upload items with MISSION_REQUEST (as ArduCopter's firmware may) instead of MISSION_REQUEST_INT.
     """
 
     def __init__(
@@ -97,6 +102,8 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
         boot_scale: float = 0.0,
         stream_all: bool = False,
         firmware: str = DEFAULT_SCHEME,
+        legacy_mission_request: bool = False,
+        rc_centred: bool = False,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -120,7 +127,7 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
             for n in ("GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE"):
                 rates[n] = float(telemetry_hz)
         self.streams = StreamScheduler(STREAM_IDS, rates)
-        self.missions = MissionServer(home=self._home_item)
+        self.missions = MissionServer(home=self._home_item, legacy_request=legacy_mission_request)
         self._conn = open_connection(connection, uav, M.MAV_COMP_ID_AUTOPILOT1)
         if mavlink_key is not None:
             enable_signing(self._conn, parse_key(mavlink_key))
@@ -144,6 +151,8 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
         self.errors: list[str] = []
         self.auto: AutoMission | None = None
         self._leg: AutoMission | None = None  # a DO_REPOSITION in GUIDED
+        self.rc_centred = bool(rc_centred)
+        self._stick_hold: tuple[float, float, float, float, float] | None = None  # x, y, z, t, yaw at entry
         self._gcs_mono: float | None = None
         self.gcs_failsafe = False
         self.fence_breached = False
@@ -267,7 +276,11 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
 
     # ------------------------------------------------------------------ AUTO and reposition
     def _fly(self) -> None:
-        """Let AUTO (or a GUIDED reposition) choose the simulated vehicle's reference for this pass."""
+        """Let AUTO (or a GUIDED reposition, or the absent sticks) choose the simulated vehicle's reference."""
+        if self.custom_mode in STICK_MODES and not self.rc_centred:
+            self._sticks()
+            return
+        self._stick_hold = None
         ex = self.auto if self.custom_mode == CopterMode.AUTO else self._leg if self.custom_mode == CopterMode.GUIDED \
             else None
         if ex is None or (not self.armed and not self.airborne and ex.current in (0, 1)):
@@ -289,6 +302,25 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
             self.errors.append(f"auto: {exc}")
         if ex is self._leg and ex.done:
             self._leg = None
+
+    def _sticks(self) -> None:
+        """A stick mode with no RC input: the throttle rests at its bottom, so the vehicle descends where it
+        is at the pilot's full descent rate (:data:`.apm.modes.PILOT_DESCENT_MS`) and lands, as ArduCopter's
+        LOITER does with its throttle stick down; the centred roll and pitch sticks hold the position."""
+        sim = self.sim
+        if not self.airborne or sim.mode != Mode.HOLD:
+            self._stick_hold = None
+            return
+        st = sim.state()
+        if self._stick_hold is None:
+            self._stick_hold = (st.pos[0], st.pos[1], st.pos[2], sim.t, st.att[2])
+        x, y, z0, t0, yaw = self._stick_hold
+        z = z0 - PILOT_DESCENT_MS * (sim.t - t0)
+        if z <= self.home[2] + 0.3:  # the ground: touch down (and disarm once landed)
+            self._stick_hold = None
+            sim.land()
+            return
+        sim.set_external_reference(GuidedTarget((x, y, z), (0.0, 0.0, -PILOT_DESCENT_MS), _ZERO, yaw, sim.t))
 
     def _apply(self, fl: Flight, st: Any) -> None:
         sim = self.sim

@@ -125,13 +125,16 @@ def test_a_pilot_switch_in_auto_is_reported_not_fought_and_resume_goes_back_to_a
     veh.pilot_mode(CopterMode.LOITER)
     events += fly(drv, veh, lambda s: drv.external_modes == ["LOITER"], 5.0)
     st = drv.state()
-    assert st.mode == Mode.HOLD and st.progress < 1.0  # paused where the pilot took it
+    assert st.mode == Mode.PILOT and st.progress < 1.0  # paused where the pilot took it, not "hold"
+    ap = drv.readiness()
+    assert ap.mode == "LOITER" and ap.external
     sent, targets = drv.auto.speed_commands, drv.targets.sent
-    clock_end = veh.clock.now() + 2.0
+    clock_end = veh.clock.now() + 0.8  # LOITER without RC descends: resume before it lands
     while veh.clock.now() < clock_end:
         events += drv.step(veh.clock.now())
         time.sleep(0.01)
     assert drv.auto.speed_commands == sent and drv.targets.sent == targets  # not fighting the pilot
+    assert veh.sim.state().pos[2] < st.pos[2] - 0.3  # the sticks at rest: it comes down
     assert veh.custom_mode == CopterMode.LOITER and drv.state().progress == st.progress
     drv.resume()  # back to GUIDED, to the paused point, then AUTO from the next item
     events += fly(drv, veh, lambda s: s.mode == Mode.HOLD and s.progress == 1.0, 30.0)
@@ -233,3 +236,53 @@ def test_auto_flies_a_dense_trajectory_in_time(auto_link):
     assert [e.capture_id for e in events] == [21, 22]
     assert len(errors) > 10 and max(errors) < 1.5, max(errors, default=None)  # at plan speed, not ~0.5 m/s
     assert not drv.auto.errors
+
+
+# ---------------------------------------------------------------------------------- progress from the autopilot
+def test_the_autopilots_window_bounds_the_clock_between_the_reached_and_the_current_waypoint():
+    from edge.vehicle.mavlink.progress import autopilot_window, bounded
+
+    seqs, fr = (3, 5, 5, 8, 10), (0.0, 0.25, 0.5, 0.75, 1.0)  # waypoint 2 was dropped: it shares item 5
+    assert autopilot_window(seqs, fr, reached=-1, current=-1) == (0.0, 1.0)  # nothing known: no bound
+    assert autopilot_window(seqs, fr, reached=3, current=5) == (0.0, 0.25)
+    assert autopilot_window(seqs, fr, reached=5, current=6) == (0.25, 0.75)  # a DO item after it: next NAV
+    assert autopilot_window(seqs, fr, reached=10, current=10) == (1.0, 1.0)
+    assert autopilot_window(seqs, fr, reached=8, current=4) == (0.75, 0.75)  # never hi < lo
+    assert bounded(0.9, (0.0, 0.25), fr) == (1, 0.25)  # the clock ran ahead of a slow autopilot
+    assert bounded(0.1, (0.5, 0.75), fr) == (2, 0.5)  # and behind a fast one
+    assert bounded(0.6, (0.25, 0.75), fr) == (2, 0.6)
+
+
+def test_auto_progress_follows_a_slow_autopilot_not_the_edges_clock(monkeypatch):
+    """An autopilot flying the mission slower than planned, deaf to speed changes (as ArduCopter flies a dense
+    mission): the edge reports where the autopilot is in the trajectory, not where its own clock is."""
+    from pymavlink.dialects.v20 import ardupilotmega as M
+
+    from edge.vehicle.mavsim import commands as sim_commands
+
+    monkeypatch.setattr(AutoMission, "_leg_speed", lambda self: 0.3)
+    monkeypatch.setitem(sim_commands.COMMANDS, M.MAV_CMD_DO_CHANGE_SPEED, lambda v, c, i: M.MAV_RESULT_ACCEPTED)
+    port = free_udp_port()
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME,
+                        params=MavlinkParams(flight="auto", heartbeat_timeout_s=1.5, auto_end_wait_s=10.0))
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=4.0).start()
+    try:
+        drv.wait_heartbeat(5.0)
+        drv.takeoff(5.0)
+        fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
+        traj = trajectory(HOME[2] + 5.0)
+        drv.upload(traj)
+        t0 = veh.clock.now() + 1.0
+        drv.start(t0)
+        fly(drv, veh, lambda s: veh.custom_mode == CopterMode.AUTO, 10.0)
+        seen = []
+        fly(drv, veh, lambda s: seen.append(s) or s.t > t0 + traj.waypoints[-1].t + 2.0, 30.0)
+        st, ap = seen[-1], drv.mission_progress()
+        assert ap is not None and ap.hi <= 0.4 + 1e-9, ap  # flying to waypoint 1 (t = 4 s of 10 s) at most
+        assert st.progress <= ap.hi and st.wp_index <= 1, st  # the clock says 1.0; the autopilot does not
+        assert veh.sim.state().pos[0] - HOME[0] < 4.0  # and it is right: the vehicle is short of waypoint 1
+        assert all(b.progress >= a.progress - 1e-9 for a, b in zip(seen, seen[1:]))  # never backwards
+        assert veh.custom_mode == CopterMode.AUTO  # still flying its mission, not cut short to GUIDED
+    finally:
+        drv.close()
+        veh.close()

@@ -44,7 +44,7 @@ def test_ground_station_watches_takes_over_and_keeps_the_gcs_failsafe_meaningful
     ap_port, gcs_port = free_udp_port(), free_udp_port()
     gcs = open_connection(f"udpin:127.0.0.1:{gcs_port}", 255, M.MAV_COMP_ID_MISSIONPLANNER)
     drv = MavlinkDriver(1, f"udpin:127.0.0.1:{ap_port}", gcs_endpoint=f"udpout:127.0.0.1:{gcs_port}")
-    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{ap_port}", 1, speed=8.0,
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{ap_port}", 1, speed=8.0, rc_centred=True,  # the pilot's RC on
                             param_overrides={"FS_GCS_ENABLE": 1, "FS_GCS_TIMEOUT": 2}).start()
     try:
         drv.wait_heartbeat(10)
@@ -63,7 +63,7 @@ def test_ground_station_watches_takes_over_and_keeps_the_gcs_failsafe_meaningful
         ack = wait_for(gcs, "COMMAND_ACK", lambda a: a.command == M.MAV_CMD_DO_SET_MODE)
         assert ack.result == M.MAV_RESULT_ACCEPTED and ack.target_system == 255
         end = time.monotonic() + 20
-        while drv.state().mode != Mode.HOLD or drv.phase is not Phase.EXTERNAL:
+        while drv.state().mode != Mode.PILOT or drv.phase is not Phase.EXTERNAL:  # the pilot's mode, not "hold"
             assert time.monotonic() < end, drv.phase
             drv.step(veh.clock.now())
             time.sleep(0.05)

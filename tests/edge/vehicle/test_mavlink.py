@@ -142,10 +142,12 @@ def test_attitude_and_rates_conversion_is_the_frame_change():
 
 def test_copter_mode_mapping_and_names():
     assert copter_mode(CopterMode.AUTO) == Mode.MISSION
-    assert copter_mode(CopterMode.LOITER) == copter_mode(CopterMode.BRAKE) == Mode.HOLD
+    assert copter_mode(CopterMode.GUIDED) == copter_mode(CopterMode.BRAKE) == Mode.HOLD
     assert copter_mode(CopterMode.RTL) == copter_mode(CopterMode.SMART_RTL) == Mode.RTL
     assert copter_mode(CopterMode.LAND) == Mode.LAND
-    assert copter_mode(CopterMode.STABILIZE) == copter_mode(CopterMode.POSHOLD) == Mode.FAILSAFE
+    # the pilot's stick modes follow the RC sticks (LOITER descends without them): never "hold"
+    assert copter_mode(CopterMode.LOITER) == copter_mode(CopterMode.STABILIZE) == copter_mode(CopterMode.POSHOLD) \
+        == Mode.PILOT
     assert result_name(M.MAV_RESULT_FAILED) == "MAV_RESULT_FAILED"
     # type masks: bits set = ignored; the trajectory stream uses position, velocity and yaw
     assert TYPE_MASK_POS_VEL_ACC_YAW == 2048 and TYPE_MASK_POS_VEL_YAW == 2496 and TYPE_MASK_POS_YAW == 2552
@@ -336,7 +338,7 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
     from protocol import keys
     from protocol.bus import Bus, BusConfig
     from protocol.links import TELEMETRY
-    from protocol.messages import CommandAck, Event, Land, Start, Takeoff, UploadTrajectory, VehicleState
+    from protocol.messages import CommandAck, Event, Start, Takeoff, UploadTrajectory, VehicleState
 
     fleet, port, epoch, speed = "mav", free_udp_port(), time.time(), 4.0
     veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=speed, epoch=epoch,
@@ -377,14 +379,22 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
             assert wait(lambda s: s.mode == Mode.MISSION, 5), states[-1]
             assert wait(lambda s: s.mode == Mode.HOLD and s.captures == 3, 20), states[-1]
             assert math.dist(states[-1].pos, (HOME[0] + 8, HOME[1] + 2, HOME[2] + 5)) < 1.0
-            veh.pilot_mode(CopterMode.LOITER)  # a pilot takes over: the edge says so on the bus
+            # a pilot takes over from a second MAVLink link: the edge reports the autopilot's mode and what the
+            # vehicle does (LOITER without RC sticks descends), never "hold", and says so in an event
+            from tests.edge.vehicle.test_mavsim_missions import pilot_switch
+
+            before = len(states)
+            pilot_switch(veh, CopterMode.LOITER)
+            assert wait(lambda s: s.mode == Mode.LANDED and not s.armed, 20), states[-1]  # it came down by itself
+            after = states[before:]
+            assert any(s.mode == Mode.PILOT and s.autopilot is not None and s.autopilot.mode == "LOITER"
+                       and s.autopilot.external and s.vel[2] < -1.0 for s in after), after
+            assert not any(s.mode == Mode.HOLD for s in after if s.autopilot and s.autopilot.mode == "LOITER")
             deadline = time.monotonic() + 10
             while time.monotonic() < deadline and not any(e.kind == "pilot-mode" for e in events):
                 time.sleep(0.05)
             pilot = [e for e in events if e.kind == "pilot-mode"]
             assert pilot and pilot[0].data["mode"] == "LOITER" and pilot[0].level == "warning", events
-            assert cmd(Land(uav=1, cmd_id=5)).accepted
-            assert wait(lambda s: s.mode == Mode.LANDED and not s.armed, 20), states[-1]
     finally:
         group.stop()
         veh.close()

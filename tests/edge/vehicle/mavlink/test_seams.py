@@ -49,7 +49,7 @@ def heard() -> Telemetry:
 # ---------------------------------------------------------------------------------- handler table
 def test_the_handler_table_covers_what_the_driver_reads():
     assert {"HEARTBEAT", "LOCAL_POSITION_NED", "ATTITUDE", "SYS_STATUS", "STATUSTEXT", "HOME_POSITION",
-            "EKF_STATUS_REPORT", "MISSION_ITEM_REACHED", "PARAM_VALUE", "PARAM_ERROR", "MISSION_REQUEST_INT",
+            "EKF_STATUS_REPORT", "MISSION_ITEM_REACHED", "MISSION_CURRENT", "PARAM_VALUE", "PARAM_ERROR", "MISSION_REQUEST_INT",
             "MISSION_REQUEST", "MISSION_ACK", "COMMAND_ACK"} == set(HANDLERS)
 
 
@@ -161,7 +161,7 @@ def test_phase_modes_and_the_arducopter_dialect():
     assert [p.mode for p in Phase] == [Mode.IDLE, Mode.LANDED, Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.MISSION,
                                        Mode.LAND, Mode.RTL, None]
     assert ARDUCOPTER.phase_mode(Phase.AUTO) == CopterMode.AUTO and ARDUCOPTER.phase_mode(Phase.HOLD) == 4
-    assert ARDUCOPTER.board_mode(CopterMode.STABILIZE) == Mode.FAILSAFE and ARDUCOPTER.board_mode(6) == Mode.RTL
+    assert ARDUCOPTER.board_mode(CopterMode.STABILIZE) == Mode.PILOT and ARDUCOPTER.board_mode(6) == Mode.RTL
     assert ARDUCOPTER.set_mode_params(CopterMode.GUIDED) == (M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4)
     assert ARDUCOPTER.param_name("wp_speed", "4.7") == "WP_SPD" and ARDUCOPTER.to_raw("wp_speed", 2, "4.6") == 200
 
