@@ -213,6 +213,9 @@ class Camera(_Model):
     resolution: tuple[Annotated[int, Field(ge=1, le=100000)], Annotated[int, Field(ge=1, le=100000)]]
     sensor_mm: tuple[Positive, Positive]
     focal_mm: Positive
+    #: the edges deliver frames at ``resolution`` (cracks of real size need every pixel) unless the launcher is
+    #: given a frame size; False: the launcher's default capture size (the same field of view, fewer pixels)
+    full_frames: bool = False
 
 
 class Inspection(_Model):

@@ -40,8 +40,9 @@ class LaunchConfig(CliModel):
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
     speed: float = Field(default=4.0, description="simulation speed factor (1 = real time)")
     camera: str = Field(default=_default(EdgeConfig, "camera"), description="synthetic | an image folder | video:<url>")
-    frame_size: Annotated[FrameSize, Cli(metavar="WxH")] = Field(
-        default=FRAME_SIZE, description="capture frame size WxH (4000x3000: the paper's 12 MP)")
+    frame_size: Annotated[FrameSize | None, Cli(metavar="WxH")] = Field(
+        default=None, description=f"capture frame size WxH (default: {FRAME_SIZE[0]}x{FRAME_SIZE[1]}, or the camera's own "
+                                  "resolution when the scenario asks for full frames; 4000x3000: the paper's 12 MP)")
     preview_hz: Annotated[RateHz | None, Cli(metavar="HZ")] = Field(default=None, description=(
         f"live preview frames per UAV per second (default: {PREVIEW_BUDGET:g} for the fleet, at most the edge's 2 per "
         "UAV; 0 = off)"))

@@ -26,7 +26,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ValidationError
 
-from edge.config import EdgeConfig
+from edge.config import FRAME_SIZE, EdgeConfig
 from protocol.bus import multilink_endpoints
 from protocol.cliconfig import one_line, to_argv
 from protocol.links import LINK_LEASE_S
@@ -334,14 +334,23 @@ def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float,
             "--boot-scale", f"{o.autopilot_boot_scale:g}", "--firmware-version", o.autopilot_firmware]
 
 
+def capture_size(o: LaunchConfig, scenario: Scenario) -> tuple[int, int]:
+    """The edges' capture frame size: the user's, else the camera's own resolution when the scenario asks for full
+    frames (``camera.full_frames``: cracks of real size), else the edge's default."""
+    if o.frame_size is not None:
+        return o.frame_size
+    return scenario.camera.resolution if scenario.camera.full_frames else FRAME_SIZE
+
+
 def edge_config(o: LaunchConfig, i: int, bus: dict[str, Any], listens: list[str], home: tuple[float, float, float],
-                epoch: float, fence: Box, load: FleetLoad, mavlink_port: int | None) -> EdgeConfig:
+                epoch: float, fence: Box, load: FleetLoad, mavlink_port: int | None,
+                frame_size: tuple[int, int] = FRAME_SIZE) -> EdgeConfig:
     """The edge's config; its ``geofence`` the scenario's operation box, the ceiling a signed upload may only narrow
     (:func:`edge.geometry.validate.narrowed_fence`)."""
     vehicle = {} if mavlink_port is None else {"vehicle": "mavlink", "mavlink": f"udpin:{HOST}:{mavlink_port}",
                                                "flight": o.flight}
     return child(f"uav{i}", EdgeConfig, uav=i, **bus, listen=listens, home=home, speed=o.speed, epoch=epoch,
-                 seed=o.seed + i, camera=o.camera, frame_size=o.frame_size, capture_link=o.capture_link,
+                 seed=o.seed + i, camera=o.camera, frame_size=frame_size, capture_link=o.capture_link,
                  preview_hz=load.preview_hz, nice=load.edge_nice, scenario=o.scenario, geofence=fence,
                  **({"imagery_cache": 0} if o.no_recovery else {}), **vehicle)
 
@@ -515,7 +524,7 @@ def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports
         if checked.mesh != "direct" or name in checked.proxied or formations:
             bus["config"] = path = f"{workdir}/{name}.json5"
             files[path] = json.dumps(edge_mesh_config("proxied" if formations else checked.mesh, None, timeout))
-        edge = edge_config(o, i, bus, edge_endpoints[i], home, epoch, fence, load, mav)
+        edge = edge_config(o, i, bus, edge_endpoints[i], home, epoch, fence, load, mav, capture_size(o, scenario))
         procs.append(spec(name, "edge", mesh_sites.site_of(i), None if trust.keys is None else name, edge,
                           listens=tuple(edge_endpoints[i]), connects=(*connects, *mesh), namespace=ns))
 

@@ -53,7 +53,7 @@ def test_nominal_mission_report_for_the_inspector(nominal_mission):
 def test_real_size_cracks_through_the_launcher(tmp_path):
     # at the default speed: the 0.8 m panel sits in one footprint with 10 cm to spare, the tracking error at
     # under a metre's stand-off decides how much of it the one capture covers
-    run = fly_mission(tmp_path / "report", "--scenario", "real-cracks", "--frame-size", "4000x3000", timeout=500)
+    run = fly_mission(tmp_path / "report", "--scenario", "real-cracks", timeout=500)  # one flag: full frames
     acc = check_report(run, REAL_TOLERANCE)
     doc = json.loads((run.out / "inspection" / "defects.json").read_text())
     sizeable = acc["truth"] - acc["below_pixel"]

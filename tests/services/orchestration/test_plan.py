@@ -314,17 +314,16 @@ def test_the_launchers_options_are_its_config_and_load_no_opencv():
     parsing, checking and planning load no OpenCV (the detector's config names its methods itself)."""
     from typing import get_args
 
-    from edge.config import FRAME_SIZE
     from services.detector.config import Method
     from services.orchestration.launcher import build_parser
 
     up, mission = (parse(p, []) for p in ("up", "mission"))
-    assert up.frame_size == FRAME_SIZE and up.method == "it+r" and up.video_port == 5600 and up.speed == 4.0
+    assert up.frame_size is None and up.method == "it+r" and up.video_port == 5600 and up.speed == 4.0
     assert set(type(mission).model_fields) - set(type(up).model_fields) == {"out", "quiet", "algorithm", "no_record"}
     flags = [{a.option_strings[0] for a in build_parser(p)._actions} for p in ("up", "mission")]
     assert flags[1] - flags[0] == {"--out", "--quiet", "--algorithm", "--no-record"} and "--json" in flags[0]
     text = " ".join(build_parser("up").format_help().split())
-    assert "(default: 640x480)" in text and "(default: it+r)" in text and "|gcs" not in text
+    assert "(default: 640x480, or the camera" in text and "(default: it+r)" in text and "|gcs" not in text
     assert "|gcs" in " ".join(build_parser("mission").format_help().split())
     code = ("import sys; from services.orchestration.launcher import check, parse; "
             "check(parse('mission', ['--uavs', '4', '--video', 'h264'])); print(sorted(m for m in sys.modules if "
@@ -334,3 +333,17 @@ def test_the_launchers_options_are_its_config_and_load_no_opencv():
     from services.detector.detect import METHODS
 
     assert sorted(get_args(Method)) == sorted(METHODS)
+
+
+def test_a_scenario_of_real_size_cracks_is_flown_at_the_cameras_full_resolution_one_flag_away():
+    """``--scenario real-cracks`` alone gives the edges the camera's 4000 x 3000 frames (``camera.full_frames``);
+    a frame size given by the user wins; the default scenario keeps the default capture size."""
+    from edge.config import FRAME_SIZE
+    from protocol.scenario import load_scenario
+    from services.orchestration.launcher import parse
+    from services.orchestration.plan import capture_size
+
+    real, nominal = load_scenario("real-cracks"), load_scenario(None)
+    assert capture_size(parse("mission", ["--scenario", "real-cracks"]), real) == (4000, 3000)
+    assert capture_size(parse("mission", ["--scenario", "real-cracks", "--frame-size", "1280x960"]), real) == (1280, 960)
+    assert capture_size(parse("mission", []), nominal) == FRAME_SIZE
