@@ -158,6 +158,22 @@ def test_kml_read_back_by_lxml(built):
         assert data["severity"] == d.severity and float(data["length_m"]) == pytest.approx(d.length_m, abs=1e-3)
 
 
+def test_kml_read_back_by_a_kml_reader(built):
+    """fastkml (a KML 2.2 reader) finds one placemark per defect holding its point, centre line and outline,
+    at absolute altitudes above the scenario origin's."""
+    kml = pytest.importorskip("fastkml.kml")
+    sc, surf, caps, res, out = built
+    doc = kml.KML.from_string((out / "defects.kml").read_bytes())
+    marks = [f for d in doc.features for f in d.features]
+    assert [m.name for m in marks] == [f"defect {d.id}" for d in res.defects]
+    for m, d in zip(marks, res.defects):
+        kinds = {type(g).__name__: g for g in m.geometry.geoms}
+        assert set(kinds) == {"Point", "LineString", "Polygon"}, kinds
+        line, ring = list(kinds["LineString"].coords), list(kinds["Polygon"].exterior.coords)
+        assert len(line) == len(d.centre_line_lla) and ring[0] == ring[-1]
+        assert all(alt > ORIGIN[2] for _, _, alt in line + ring)
+
+
 # the nominal wall's cracks are 3.5-8 cm wide at 1 cm texture pixels, imaged at 7.8 mm/px: the
 # stated tolerances of the measurement against truth
 # (widths: within 3 mosaic pixels at worst)
