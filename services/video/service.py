@@ -18,6 +18,7 @@ empty announce frame of a camera's stream and frames that do not decode are skip
 from __future__ import annotations
 
 import argparse
+import os
 import threading
 from collections import Counter
 from pathlib import Path
@@ -70,7 +71,10 @@ class VideoService:
                 port = self.port_of(uav, kind)
                 vs = VideoStream(self.codec, self.host, port, ssrc_for(uav, 0 if kind == "capture" else 1))
                 ring = Ring(QUEUE_PICTURES, lambda job, vs=vs: self._send(vs, *job), name=f"video-uav{uav}-{kind}")
-                self.sdp_path(uav, kind).write_text(sdp(self.codec, self.host, port, f"SkyNet UAV {uav} {kind}"))
+                path = self.sdp_path(uav, kind)
+                part = path.with_name(path.name + ".part")  # complete or absent: a player never reads half a file
+                part.write_text(sdp(self.codec, self.host, port, f"SkyNet UAV {uav} {kind}"))
+                os.replace(part, path)
                 self.streams[(uav, kind)] = (vs, ring)
                 if self.log:
                     self.log.info("UAV %d %s: %s RTP to %s:%d, %s", uav, kind, self.codec, self.host, port,
