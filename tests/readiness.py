@@ -3,11 +3,25 @@
 ``start_ready(group, name, argv)`` starts ``python -m services.cli ARGV`` in a
 :class:`~services.orchestration.process.ProcessGroup` with a ready pipe and waits for its ``ready <role> <name>``
 line; ``wait_ready(svc)`` waits on one already started with ``ready=True``. Either fails the test with the
-service's last output lines when it does not come up.
+service's last output lines when it does not come up. ``launched(argv)`` is the same for a command a user types
+(``skynet up ...``) run on its own, and ``interrupt(proc)`` ends any of them as the user does, with Ctrl-C.
 """
 
 from __future__ import annotations
 
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from protocol.readiness import MAX_LINE, READY_FD_ENV, parse_ready
 from services.orchestration.process import ProcessGroup, Service
 
 
@@ -34,30 +48,18 @@ class ReadyPipe:
     """
 
     def __init__(self) -> None:
-        import os
-
         self._r, self._w = os.pipe()
         self.pass_fds = (self._w,)
         self.seen: tuple[str, str] | None = None
 
     def env(self, base: dict[str, str]) -> dict[str, str]:
-        from protocol.readiness import READY_FD_ENV
-
         return {**base, READY_FD_ENV: str(self._w)}
 
     def started(self) -> None:
-        import os
-
         os.close(self._w)
 
     def wait(self, proc, timeout: float = 30.0) -> tuple[str, str] | None:
         """``(role, name)`` of the process's ready line, None if it ended or ``timeout`` passed first."""
-        import os
-        import select
-        import time
-
-        from protocol.readiness import MAX_LINE, parse_ready
-
         if self.seen is not None:
             return self.seen
         deadline, buf = time.monotonic() + timeout, b""
@@ -74,3 +76,48 @@ class ReadyPipe:
                 self.seen = parse_ready(buf[:buf.index(b"\n") + 1])
                 return self.seen
         return None
+
+
+def interrupt(proc: subprocess.Popen, timeout: float = 60.0) -> int:
+    """Ctrl-C ``proc`` (SIGINT) as a user would and wait for it; killed if it outlives ``timeout``."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.wait(10)
+
+
+@dataclass
+class Launched:
+    """A command started by :func:`launched`: its process and its output lines so far (stdout and stderr)."""
+
+    proc: subprocess.Popen
+    lines: list[str] = field(default_factory=list)
+
+    def tail(self, n: int = 40) -> str:
+        return "".join(self.lines[-n:])
+
+
+@contextmanager
+def launched(argv: list[str], *, expect: tuple[str, str] | None = ("launcher", "up"), timeout: float = 120.0,
+             cwd: str | Path | None = None, stop_timeout: float = 60.0) -> Iterator[Launched]:
+    """``python -m services.cli ARGV`` with a ready pipe, its output read by a thread (never a full pipe); waits
+    for its ready line ``expect`` (None: does not wait) and fails the test with its last lines if another or none
+    comes; Ctrl-C (:func:`interrupt`) when the block ends."""
+    pipe = ReadyPipe()
+    proc = subprocess.Popen([sys.executable, "-m", "services.cli", *argv], cwd=cwd, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, errors="replace", env=pipe.env(dict(os.environ)),
+                            pass_fds=pipe.pass_fds)
+    pipe.started()
+    run = Launched(proc)
+    reader = threading.Thread(target=lambda: run.lines.extend(proc.stdout or ()), daemon=True)
+    reader.start()
+    try:
+        if expect is not None:
+            assert pipe.wait(proc, timeout) == expect, run.tail()
+        yield run
+    finally:
+        interrupt(proc, stop_timeout)
+        reader.join(10)

@@ -5,19 +5,17 @@ description (.skynet/network.json) in the working folder, as the scripts' docstr
 from __future__ import annotations
 
 import json
-import os
 import re
 import signal
 import subprocess
 import sys
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from tests.conftest import ROOT
-from tests.readiness import ReadyPipe
+from tests.readiness import interrupt, launched
 
 EXAMPLES = ROOT / "examples"
 BUS_EXAMPLES = ["fleet_states.py", "command_uav.py", "request_plan.py", "watch_defects.py"]
@@ -47,27 +45,10 @@ def network(tmp_path_factory, dev_keys):
     """``skynet up --speed 4`` in a folder of its own, secure by default with the session's development key set
     (``$SKYNET_KEYS``, tests/conftest.py), once for the module; stopped with Ctrl-C after it."""
     folder = tmp_path_factory.mktemp("examples-network")
-    pipe = ReadyPipe()
-    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--fleet", "examples"],
-                            cwd=folder, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env=pipe.env(dict(os.environ)), pass_fds=pipe.pass_fds)
-    pipe.started()
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # never a full pipe
-    reader.start()
-    try:
-        assert pipe.wait(proc, 120) == ("launcher", "up"), "".join(lines[-40:])
+    with launched(["up", "--speed", "4", "--fleet", "examples"], cwd=folder) as up:
         desc = json.loads((folder / ".skynet" / "network.json").read_text())
         assert desc["tls"] and desc["keys"] == str(Path(dev_keys).resolve()), desc
-        yield Network(folder, desc, lines)
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
-        reader.join(10)
+        yield Network(folder, desc, up.lines)
 
 
 def test_fleet_states_prints_every_uavs_state(network):
@@ -185,12 +166,7 @@ def test_watch_defects_and_a_hold_during_a_mission(network, tmp_path):
         assert hold.returncode == 0 and re.fullmatch(r"uav 2 acknowledged hold #\d+ in \d+ ms: accepted\n",
                                                      hold.stdout), hold.stdout + hold.stderr
     finally:
-        gcs.send_signal(signal.SIGINT)
-        try:
-            gcs.wait(60)
-        except subprocess.TimeoutExpired:
-            gcs.kill()
-            gcs.wait(10)
+        interrupt(gcs)
 
 
 @pytest.mark.parametrize("name", BUS_EXAMPLES)

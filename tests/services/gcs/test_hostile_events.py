@@ -4,7 +4,7 @@ escaped; the same UAV's event claiming to come from the ground station is refuse
 
 from __future__ import annotations
 
-import signal
+import json
 import subprocess
 import sys
 import threading
@@ -19,6 +19,7 @@ from protocol.links import COMMAND
 from protocol.messages import Event, Level
 from tests.conftest import ROOT
 from tests.protocol.test_textsafe import HOSTILE
+from tests.readiness import interrupt, launched
 
 FLEET = "hostile"
 
@@ -43,45 +44,31 @@ def _wait(pred, timeout: float) -> bool:
 
 
 @pytest.mark.mission
-def test_hostile_event_text_reaches_the_ground_station_stderr_escaped(dev_keys):
-    up = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--uavs", "2", "--speed", "4", "--fleet", FLEET,
-                           "--camera", "none"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                          errors="replace")
-    up_lines: list[str] = []
-    _reader(up, up_lines)
-    gcs = None
+def test_hostile_event_text_reaches_the_ground_station_stderr_escaped(dev_keys, tmp_path):
     gcs_lines: list[str] = []
-    try:
-        assert _wait(lambda: any("network up: gateway at" in ln for ln in up_lines), 90), "".join(up_lines[-30:])
-        line = next(ln for ln in up_lines if "network up: gateway at" in ln)
-        endpoints = line.split("gateway at ")[1].split(";")[0].split()
+    with launched(["up", "--uavs", "2", "--speed", "4", "--fleet", FLEET, "--camera", "none"], cwd=tmp_path):
+        endpoints = json.loads((tmp_path / ".skynet" / "network.json").read_text())["endpoints"]
         gcs = subprocess.Popen([sys.executable, "-m", "services.cli", "gcs", "mission", "--keys", str(dev_keys),
                                 "--fleet", FLEET, "--uavs", "2", "--speed", "4", "--quiet", "--no-record",
                                 "--multilink", *[a for e in endpoints for a in ("-e", e)]],
                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace")
         _reader(gcs, gcs_lines)
-        ks = KeySet(dev_keys, "uav2")
-        cfg = BusConfig(mode="client", connect=endpoints, multilink=True, tls_ca=str(ks.ca),
-                        tls_cert=str(ks.tls_cert), tls_key=str(ks.tls_key))
-        with Bus(cfg, FLEET, "rogue-uav2") as rogue:
-            pub = rogue.publisher(keys.event(FLEET, 2), COMMAND)
-            # until the ground station has subscribed and logged it (it starts after this session)
-            for _ in range(120):
-                pub.put(Event(source="gcs", stamp=time.time(), kind="plan-refused", level=Level.WARNING,
-                              text="FORGED-SOURCE"))
-                pub.put(Event(source="uav/2", stamp=time.time(), kind="pilot-mode", level=Level.WARNING, text=HOSTILE))
-                if _wait(lambda: any("event from uav/2: pilot-mode" in ln for ln in gcs_lines), 0.5):
-                    break
-    finally:
-        for p in (gcs, up):
-            if p is not None and p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in (gcs, up):
-            if p is not None:
-                try:
-                    p.wait(60)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+        try:
+            ks = KeySet(dev_keys, "uav2")
+            cfg = BusConfig(mode="client", connect=endpoints, multilink=True, tls_ca=str(ks.ca),
+                            tls_cert=str(ks.tls_cert), tls_key=str(ks.tls_key))
+            with Bus(cfg, FLEET, "rogue-uav2") as rogue:
+                pub = rogue.publisher(keys.event(FLEET, 2), COMMAND)
+                # until the ground station has subscribed and logged it (it starts after this session)
+                for _ in range(120):
+                    pub.put(Event(source="gcs", stamp=time.time(), kind="plan-refused", level=Level.WARNING,
+                                  text="FORGED-SOURCE"))
+                    pub.put(Event(source="uav/2", stamp=time.time(), kind="pilot-mode", level=Level.WARNING,
+                                  text=HOSTILE))
+                    if _wait(lambda: any("event from uav/2: pilot-mode" in ln for ln in gcs_lines), 0.5):
+                        break
+        finally:
+            interrupt(gcs)
     out = "".join(gcs_lines)
     logged = [ln for ln in gcs_lines if "event from uav/2: pilot-mode" in ln]
     assert logged, out[-3000:]

@@ -16,16 +16,15 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from services.orchestration import trustmode
 from tests.conftest import ROOT
+from tests.readiness import launched
 
 FLEET = "rogueplan"
 
@@ -62,30 +61,13 @@ with Bus(config_from_args(args, role="planner"), fleet=args.fleet, name="rogue")
 
 
 @pytest.fixture(scope="module")
-def network():
+def network(tmp_path_factory):
     """``skynet up`` (secure by default): yields the gateway's endpoints."""
-    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--uavs", "3", "--speed", "8",
-                             "--fleet", FLEET], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    lines: list[str] = []
-    endpoints = None
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and endpoints is None:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            lines.append(line)
-            if "network up: gateway at" in line:
-                endpoints = line.split("gateway at ")[1].split(";")[0].split()
-        assert endpoints and all(e.startswith("tls/") for e in endpoints), "".join(lines[-30:])
+    folder = tmp_path_factory.mktemp("rogue-planner-network")
+    with launched(["up", "--uavs", "3", "--speed", "8", "--fleet", FLEET], cwd=folder) as up:
+        endpoints = json.loads((folder / ".skynet" / "network.json").read_text())["endpoints"]
+        assert endpoints and all(e.startswith("tls/") for e in endpoints), up.tail(30)
         yield endpoints
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.communicate(timeout=60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
 
 
 def bus_args(endpoints: list[str]) -> list[str]:

@@ -5,13 +5,12 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
 
 from tests.conftest import fly_mission
-from tests.readiness import ReadyPipe, wait_ready
+from tests.readiness import interrupt, launched, wait_ready
 
 #: stated bounds of the end-to-end mission (README, "Mission")
 FORMATION_RMS_BOUND_M = 1.0
@@ -60,25 +59,12 @@ def test_mission_through_the_launcher(nominal_mission, tmp_path):
 def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
     """``skynet up`` signals it is up (its own ready pipe, as its services do to it) once every service it
     started has signalled; Ctrl-C then ends them all."""
-    pipe = ReadyPipe()
-    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4"], stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=pipe.env(dict(os.environ)),
-                            pass_fds=pipe.pass_fds)
-    pipe.started()
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)  # never a full pipe
-    reader.start()
-    try:
-        assert pipe.wait(proc, 90) == ("launcher", "up"), "".join(lines[-40:])
-        pids = [int(p) for p in subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
+    with launched(["up", "--speed", "4"], timeout=90, stop_timeout=30) as up:
+        pids = [int(p) for p in subprocess.run(["pgrep", "-P", str(up.proc.pid)], capture_output=True,
                                                text=True).stdout.split()]
         assert len(pids) == 6
-    finally:
-        proc.send_signal(signal.SIGINT)
-        proc.wait(30)
-        reader.join(10)
-    rest = "".join(lines)
-    assert proc.returncode == 0, rest[-2000:]
+    rest = "".join(up.lines)
+    assert up.proc.returncode == 0, rest[-2000:]
     for pid in pids:
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
@@ -86,24 +72,15 @@ def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
     assert "network up" in rest and "all services up: gateway uav1 uav2 uav3 planner detector" in rest, rest[-3000:]
 
 
-def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
+def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys, tmp_path):
     from protocol import keys
     from protocol.bus import Bus, BusConfig
     from protocol.keyset import KeySet
     from protocol.links import TELEMETRY
     from protocol.messages import VehicleState
 
-    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--fleet", "imp",
-                             "--impair", "uav2=delay 100ms"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
-    endpoints = None
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and endpoints is None:
-            line = proc.stdout.readline()
-            if "network up: gateway at" in line:
-                endpoints = line.split("gateway at ")[1].split(";")[0].split()
-        assert endpoints, "the launcher never reported its gateway"
+    with launched(["up", "--speed", "4", "--fleet", "imp", "--impair", "uav2=delay 100ms"], cwd=tmp_path):
+        endpoints = json.loads((tmp_path / ".skynet" / "network.json").read_text())["endpoints"]
         ages: dict[int, list[float]] = {1: [], 2: []}
         ks = KeySet(dev_keys, "gcs")  # an impaired network keeps mutual TLS: the probe is the ground station
         config = BusConfig(mode="client", connect=endpoints, multilink=True, tls_ca=str(ks.tls_ca),
@@ -117,9 +94,6 @@ def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys):
         med = {u: sorted(a)[len(a) // 2] for u, a in ages.items()}
         assert med[2] > 0.09, med  # 100 ms added on uav2 <-> gateway
         assert med[1] < 0.05, med  # uav1 is not impaired
-    finally:
-        proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=30)
 
 
 @pytest.mark.mission
@@ -212,12 +186,7 @@ def test_up_restarts_a_service_that_dies_instead_of_stopping_the_network():
         after = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
         assert len(after) == 6 and str(planner[0]) not in after
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.communicate(timeout=30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
+        interrupt(proc, 30)
     assert proc.returncode == 0
 
 

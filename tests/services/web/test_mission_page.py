@@ -26,6 +26,7 @@ import pytest
 from protocol import keys
 from services.orchestration.process import free_port
 from tests.conftest import wait_until
+from tests.readiness import launched
 
 ROOT = Path(__file__).resolve().parents[3]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -148,16 +149,10 @@ def test_up_prints_the_page_url_with_its_token_and_the_page_serves_the_fleet() -
     """``skynet up --web``: the launcher prints the page's URL with the token it handed the page's process;
     that URL serves the live fleet, nothing is served without it; in the default secure mode (the page's own
     identity in the key set)."""
-    import signal
-
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--speed", "4", "--web",
-                             f"127.0.0.1:{port}"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
-    lines: list[str] = []
-    reader = lines_of(proc, lines)
-    try:
-        assert wait_until(lambda: printed_url(lines) is not None or proc.poll() is not None, 90), lines[-20:]
+    with launched(["up", "--speed", "4", "--web", f"127.0.0.1:{port}"], cwd=ROOT, timeout=90) as up:
+        lines = up.lines
+        assert wait_until(lambda: printed_url(lines) is not None, 30), lines[-20:]
         url = printed_url(lines)
         assert url and re.fullmatch(rf"http://127\.0\.0\.1:{port}/\?token=[A-Za-z0-9_-]{{16,}}", url), lines[-20:]
         token = url.split("token=", 1)[1]
@@ -169,10 +164,3 @@ def test_up_prints_the_page_url_with_its_token_and_the_page_serves_the_fleet() -
         assert wait_until(lambda: {"1", "2", "3"} <= uavs(), 90), lines[-30:]
         assert get(f"http://127.0.0.1:{port}/snapshot.json")[0] == 403
         assert get(f"http://127.0.0.1:{port}/snapshot.json", "x" * 32)[0] == 403
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(60)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-        reader.join(10)
