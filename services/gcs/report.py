@@ -17,8 +17,8 @@ global pyplot state or the caller's backend), no bus code. Input: a
 
 How each figure is measured is told in :mod:`services.gcs.figures` (record -> typed figures);
 the plots (:mod:`services.gcs.plots`) and the Markdown page (:mod:`services.gcs.markdown`) only
-draw and tell those figures. This module is the entry point: :func:`summarise` and
-:func:`write_report`.
+draw and tell those figures. This module is the entry point, :func:`write_report` (the figures alone:
+:func:`services.gcs.figures.summarise`).
 """
 
 from __future__ import annotations
@@ -27,55 +27,13 @@ import json
 from pathlib import Path
 from typing import Any
 
-from services.gcs.figures import (
-    DEFECT_TOLERANCE_M,
-    GOAL_RADIUS_M,
-    LATENCY_NAMES,
-    CaptureFigures,
-    FormationFigures,
-    Latency,
-    LinkFigures,
-    PlannerFigures,
-    ReportFigures,
-    ReportSummary,
-    UavFigures,
-    analyse,
-    as_record,
-    convergence_iteration,
-    latency_figures,
-    planned_positions,
-    polyline_distance,
-    shape_errors,
-    summarise,
-)
+from services.gcs.figures import ReportSummary, analyse, as_record
 from services.gcs.markdown import markdown
-from services.gcs.plots import PLOTS, write_plots
+from services.gcs.plots import write_plots
 from services.inspection.mission import append_deliverable
 from services.recording.record import MissionRecord
 
-__all__ = [
-    "GOAL_RADIUS_M",
-    "DEFECT_TOLERANCE_M",
-    "PLOTS",
-    "LATENCY_NAMES",
-    "Latency",
-    "UavFigures",
-    "FormationFigures",
-    "CaptureFigures",
-    "LinkFigures",
-    "PlannerFigures",
-    "ReportSummary",
-    "ReportFigures",
-    "analyse",
-    "as_record",
-    "polyline_distance",
-    "planned_positions",
-    "latency_figures",
-    "convergence_iteration",
-    "shape_errors",
-    "summarise",
-    "write_report",
-]
+__all__ = ["write_report"]
 
 
 # ============================================================================ entry point
@@ -102,7 +60,7 @@ def write_report(record: MissionRecord | dict[str, Any], folder: str | Path,
     Raises
     ------
     ValueError
-        See :func:`summarise`; also when ``folder`` exists and is not a directory.
+        See :func:`services.gcs.figures.summarise`; also when ``folder`` exists and is not a directory.
     """
     record = as_record(record)
     figs = analyse(record)

@@ -21,7 +21,7 @@ def _edge(group, gateway, uav, *extra):
 def planner(group, gateway):
     svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink",
                                   *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("planner up", 30)
+    assert svc.wait_ready(30)
     return svc
 
 
@@ -36,7 +36,7 @@ def _run(gateway, uavs, appear_timeout=20.0):
 
 def test_a_uav_that_never_appears_fails_the_mission(group, gateway, planner):
     for uav in (1, 2):
-        assert _edge(group, gateway, uav).wait_for("board up", 30)
+        assert _edge(group, gateway, uav).wait_ready(30)
     record, elapsed = _run(gateway, (1, 2, 3), appear_timeout=4.0)
     assert not record.success
     assert any("UAV 3 never appeared" in f for f in record.failures), record.failures
@@ -49,7 +49,7 @@ def test_a_uav_that_refuses_its_upload_fails_the_mission(group, gateway, planner
     # UAV 2's own geofence is a small box: the plan's trajectory leaves it
     fenced = _edge(group, gateway, 2, "--geofence", "0,0,0,60,30,40")
     for svc in group.services[-2:]:
-        assert svc.wait_for("board up", 30)
+        assert svc.wait_ready(30)
     record, _ = _run(gateway, (1, 2))
     assert not record.success
     assert any("UAV 2 refused its trajectory upload" in f and "geofence" in f for f in record.failures), record.failures
@@ -104,7 +104,7 @@ def test_forged_reports_with_a_dead_detector_fail_the_mission_and_say_why(group,
     from protocol.rtp import ssrc_for
 
     for uav in (1, 2):
-        assert _edge(group, gateway, uav).wait_for("board up", 30)
+        assert _edge(group, gateway, uav).wait_ready(30)
     stop = threading.Event()
 
     def forge() -> None:

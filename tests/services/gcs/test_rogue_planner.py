@@ -180,7 +180,7 @@ def test_insecure_unsigned_plans_are_taken_only_inside_the_scenario_and_without_
 
     # the real planner and the rogue 5 s later: two different answers, neither taken
     planner = group.start("planner", ["planner", *plain])
-    assert planner.wait_for("planner up", 30), "\n".join(planner.lines)
+    assert planner.wait_ready(30), "\n".join(planner.lines)
     rogue = start_rogue(gateway, "unsigned", plain)
     try:
         outcome, record = _request_plan(gateway)
