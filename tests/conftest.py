@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 
 from protocol.bus import multilink_endpoints
-from services.orchestration.process import ProcessGroup, free_port_pair
+from services.orchestration.process import free_port_pair
+from tests.readiness import ServiceGroup
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
@@ -76,7 +77,7 @@ def dev_keys(tmp_path_factory):
 @pytest.fixture
 def group():
     """A process group whose children are all stopped after the test."""
-    g = ProcessGroup(echo=None)
+    g = ServiceGroup(echo=None)
     yield g
     g.stop()
 

@@ -25,6 +25,14 @@ from protocol.readiness import MAX_LINE, READY_FD_ENV, parse_ready
 from services.orchestration.process import ProcessGroup, Service
 
 
+class ServiceGroup(ProcessGroup):
+    """A :class:`ProcessGroup` whose services each get a ready pipe (``ready=True``), so a test waits for a
+    service with :meth:`Service.wait_ready` or :func:`wait_ready`, never on its log text."""
+
+    def start(self, name: str, args: list[str], *a, ready: bool = True, **kw) -> Service:  # type: ignore[override]
+        return super().start(name, args, *a, ready=ready, **kw)
+
+
 def wait_ready(svc: Service, timeout: float = 30.0) -> Service:
     """``svc`` once it signalled it is up; AssertionError with its last lines otherwise."""
     assert svc.ready, f"{svc.name} was started without a ready pipe (ready=True)"

@@ -66,7 +66,7 @@ def fleet(group, gateway):
             *[a for e in gateway for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0",
             "--home", home, "--speed", "4", "--failsafe-timeout", "2", "--geofence", "0,0,0,100,100,40"])
     for svc in edges.values():
-        assert svc.wait_for("board up", 30), "\n".join(svc.lines)
+        assert svc.wait_ready(30), "\n".join(svc.lines)
     return edges
 
 
@@ -144,7 +144,7 @@ def test_failsafe_escalates_to_rtl_refuses_a_stale_resume_and_the_battery_failsa
     e2 = group.start("uav2", ["edge", "--uav", "2", "--home", "20,10,0", "--endurance", "60",
                               "--battery-low", "0.8", *common])
     for svc in (e1, e2):
-        assert svc.wait_for("board up", 30), "\n".join(svc.lines)
+        assert svc.wait_ready(30), "\n".join(svc.lines)
     states: dict[int, VehicleState] = {}
     events: list[Event] = []
     with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
@@ -182,7 +182,7 @@ def test_an_edge_hears_only_its_formation(group, gateway):
         svc = group.start(f"uav{uav}", [
             "edge", "--uav", str(uav), "--fleet", FLEET, "--multilink", "--camera", "none",
             *[a for e in gateway for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0", "--home", home])
-        assert svc.wait_for("board up", 30), "\n".join(svc.lines)
+        assert svc.wait_ready(30), "\n".join(svc.lines)
     states: dict[int, VehicleState] = {}
     events: list[Event] = []
     with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:

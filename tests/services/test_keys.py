@@ -123,7 +123,7 @@ def test_an_extra_ip_san_verifies_for_that_address_in_a_real_tls_handshake(tmp_p
         port = free_port(socket.SOCK_STREAM)
         where = f"tls/127.0.0.2:{port}"
         gw = group.start(f"gateway-{root.name}", ["gateway", "--fleet", "test", "--keys", str(root), "--listen", where])
-        assert gw.wait_for("router up", 20), "\n".join(gw.lines)
+        assert gw.wait_ready(20), "\n".join(gw.lines)
         ks = KeySet(root, "uav1")
         config = BusConfig(mode="client", connect=[where], tls_ca=str(ks.ca), tls_cert=str(ks.tls_cert),
                            tls_key=str(ks.tls_key), connect_timeout_s=3.0)

@@ -52,10 +52,10 @@ def test_a_running_edge_keeps_its_first_signed_fence_over_mutual_tls(group, tmp_
     root = init(tmp_path / "keys", uavs=1)
     gw = f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
     g = group.start("gateway", ["gateway", "--fleet", fleet, "--keys", str(root), "--listen", gw, "--period", "0.3"])
-    assert g.wait_for("router up", 20), "\n".join(g.lines)
+    assert g.wait_ready(20), "\n".join(g.lines)
     e = group.start("uav1", ["edge", "--uav", "1", "--fleet", fleet, "--keys", str(root), "--camera", "none",
                              "--speed", "4", "--home", "10,10,0", "--connect", gw, "--listen", "tls/127.0.0.1:0"])
-    assert e.wait_for("board up", 30), "\n".join(e.lines)
+    assert e.wait_ready(30), "\n".join(e.lines)
     ks = KeySet(root, "gcs")
     cfg = BusConfig(mode="client", connect=[gw], tls_ca=str(ks.ca), tls_cert=str(ks.tls_cert), tls_key=str(ks.tls_key))
     signer, key = ks.signer(), keys.cmd(fleet, 1)

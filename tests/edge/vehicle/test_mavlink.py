@@ -358,7 +358,7 @@ def test_edge_board_flies_a_mavlink_vehicle(group, gateway):
         return bool(states) and pred(states[-1])
 
     try:
-        assert edge.wait_for("board up", 30), "\n".join(edge.lines)
+        assert edge.wait_ready(30), "\n".join(edge.lines)
         with Bus(BusConfig(mode="client", connect=gateway, multilink=True), fleet, "gcs") as gcs:
             gcs.subscribe(keys.state(fleet, 1), lambda m, s: states.append(m), expect=VehicleState, link=TELEMETRY)
             gcs.subscribe(keys.event(fleet, 1), lambda m, s: events.append(m), expect=Event)

@@ -165,7 +165,7 @@ def test_detector_service_runs_the_learned_method_end_to_end(group, gateway):
     fleet = "test"
     svc = group.start("detector", ["detector", "--fleet", fleet, "--multilink", "--method", "learned",
                                    *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("detector up", 60), "\n".join(svc.lines)
+    assert svc.wait_ready(60), "\n".join(svc.lines)
     assert any("method learned" in ln for ln in svc.lines), "\n".join(svc.lines)
     reports: list[DefectReport] = []
     with Bus(BusConfig(mode="client", connect=gateway, multilink=True), fleet, "uav") as uav:

@@ -29,7 +29,7 @@ def _meta(uav, capture_id, w, h):
 def test_detector_service_frames_in_reports_out(group, gateway):
     svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
                                    *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    assert svc.wait_ready(30), "\n".join(svc.lines)
     reports: list[DefectReport] = []
     stats: list[LinkStats] = []
     rng = np.random.default_rng(3)
@@ -116,7 +116,7 @@ def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery)
         svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
                                        *[a for e in via for a in ("--connect", e)],
                                        *([] if recovery else ["--no-recovery"])])
-        assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+        assert svc.wait_ready(30), "\n".join(svc.lines)
         assert svc.wait_for("recovery " + ("on" if recovery else "off"), 1)
         reports: dict[int, DefectReport] = {}
         stats: list[LinkStats] = []
@@ -163,7 +163,7 @@ def test_a_frame_late_for_playout_is_still_analysed(group, gateway):
     """A capture that arrives after the jitter buffer gave its number up is counted late, and still imaged."""
     svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink", "--no-recovery",
                                    *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    assert svc.wait_ready(30), "\n".join(svc.lines)
     reports: dict[int, DefectReport] = {}
     stats: list[LinkStats] = []
     rng = np.random.default_rng(4)
@@ -196,7 +196,7 @@ def test_hostile_frames_are_counted_and_the_detector_keeps_running(group, gatewa
     Now each is a counted rejection (``bad-ssrc``) and a good frame sent after them is still analysed."""
     svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
                                    *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    assert svc.wait_ready(30), "\n".join(svc.lines)
     reports: list[DefectReport] = []
     stats: list[LinkStats] = []
     rng = np.random.default_rng(12)
@@ -236,7 +236,7 @@ def test_two_partitioned_detectors_analyse_every_frame_of_four_uavs_exactly_once
     for k in (0, 1):
         svc = group.start(f"detector-{k}", ["detector", "--fleet", FLEET, "--multilink", "--partition", f"{k}/2",
                                             "--max-uav", "8", *[a for e in gateway for a in ("--connect", e)]])
-        assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+        assert svc.wait_ready(30), "\n".join(svc.lines)
     reports: list[DefectReport] = []
     stats: dict[str, LinkStats] = {}
     rng = np.random.default_rng(18)

@@ -34,12 +34,12 @@ def test_gateway_forwards_a_few_states_a_second_to_a_client_while_neighbours_get
     gw = multilink_endpoints("127.0.0.1", *free_port_pair())
     svc = group.start("gateway", ["gateway", "--fleet", FLEET, "--multilink", "--config", str(cfg),
                                   *[a for e in gw for a in ("--listen", e)]])
-    assert svc.wait_for("router up", 20), "\n".join(svc.lines)
+    assert svc.wait_ready(20), "\n".join(svc.lines)
     for uav, home in {1: "10,10,0", 2: "14,10,0"}.items():
         edge = group.start(f"uav{uav}", ["edge", "--uav", str(uav), "--fleet", FLEET, "--multilink", "--camera", "none",
                                          *[a for e in gw for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0",
                                          "--home", home])
-        assert edge.wait_for("board up", 30), "\n".join(edge.lines)
+        assert edge.wait_ready(30), "\n".join(edge.lines)
     got: list[VehicleState] = []
     other: list[VehicleState] = []
     with Bus(BusConfig(mode="client", connect=gw, multilink=True), FLEET, "gcs") as gcs:

@@ -51,7 +51,7 @@ def _flood_through_gateway(group, hz: float) -> tuple[list[int], int, int, float
     sample sent to its last one received."""
     ep = [f"tcp/127.0.0.1:{free_port()}"]
     svc = group.start("gateway", ["gateway", "--fleet", FLEET, "--state-ingress-hz", str(hz), "--listen", ep[0]])
-    assert svc.wait_for("router up", 20), "\n".join(svc.lines)
+    assert svc.wait_ready(20), "\n".join(svc.lines)
     cfg = BusConfig(mode="client", connect=ep)
     good: list[int] = []
     flood = [0, 0.0]  # flood samples received, when the last one came (monotonic)

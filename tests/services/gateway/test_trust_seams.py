@@ -18,8 +18,9 @@ from protocol.keyset import KeySet
 from protocol.links import TELEMETRY
 from protocol.messages import Hold, Mode, VehicleState
 from services.keys import init
-from services.orchestration.process import ProcessGroup, free_port
+from services.orchestration.process import free_port
 from tests.conftest import wait_until
+from tests.readiness import ServiceGroup
 
 FLEET = "seams"
 
@@ -59,7 +60,7 @@ def test_a_gateway_with_keys_applies_its_acl_to_a_plaintext_listener_too(tmp_pat
     tls_ep, tcp_ep = f"tls/127.0.0.1:{tls_port}", f"tcp/127.0.0.1:{tcp_port}"
     gw = group.start("gateway", ["gateway", "--fleet", FLEET, "--keys", str(ks_dir), "--listen", tls_ep,
                                  "--listen", tcp_ep, "--state-ingress-hz", "0"])
-    assert gw.wait_for("router up", 20), "\n".join(gw.lines)
+    assert gw.wait_ready(20), "\n".join(gw.lines)
     assert any("without TLS" in ln and tcp_ep in ln for ln in gw.lines), gw.lines[-10:]
     gcs = Bus(tls(KeySet(ks_dir, "gcs"), "client", [tls_ep]), FLEET, "gcs")
     uav1 = Bus(tls(KeySet(ks_dir, "uav1"), "client", [tls_ep]), FLEET, "uav1")
@@ -150,11 +151,11 @@ def _network(group, ks_dir, tag: str) -> tuple[list[str], list[str], object]:
     edge1 = [f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
     g = group.start(f"gateway-{tag}", ["gateway", "--fleet", FLEET, "--keys", str(ks_dir), "--listen", gw[0],
                                         "--state-ingress-hz", "0"])
-    assert g.wait_for("router up", 20), "\n".join(g.lines)
+    assert g.wait_ready(20), "\n".join(g.lines)
     e = group.start(f"uav1-{tag}", ["edge", "--uav", "1", "--home", "10,10,0", "--fleet", FLEET, "--keys",
                                     str(ks_dir), "--camera", "none", "--speed", "4", "--failsafe-timeout", "60",
                                     "--geofence", "0,0,0,100,100,40", "--connect", gw[0], "--listen", edge1[0]])
-    assert e.wait_for("board up", 30), "\n".join(e.lines)
+    assert e.wait_ready(30), "\n".join(e.lines)
     return gw, edge1, e
 
 
@@ -202,7 +203,7 @@ def test_a_revoked_node_is_refused_by_the_gateway_and_an_edge_and_a_reissued_one
     for name in ("tls.pem", "tls.key"):
         shutil.copy(ks_dir / "uav2" / name, new / name)
     shutil.copy(ks_dir / "ca.pem", new / "ca.pem")
-    again = ProcessGroup(echo=None)
+    again = ServiceGroup(echo=None)
     try:
         gw, edge1, uav1 = _network(again, ks_dir, "reissued")
         assert heard(gw, edge1, uav1, new, "new") == (True, True), uav1.lines[-10:]
@@ -221,7 +222,7 @@ def test_a_router_presenting_a_node_certificate_is_refused_by_a_client(tmp_path,
                              tls_key=str(uav2.tls_key)), FLEET, "impostor")
     real_ep = [f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"]
     gw = group.start("gateway", ["gateway", "--fleet", FLEET, "--keys", str(ks_dir), "--listen", real_ep[0]])
-    assert gw.wait_for("router up", 20), "\n".join(gw.lines)
+    assert gw.wait_ready(20), "\n".join(gw.lines)
     try:
         for role in ("gcs", "planner"):
             ks = KeySet(ks_dir, role)

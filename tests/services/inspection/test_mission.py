@@ -41,7 +41,7 @@ def test_detector_keeps_captures_and_the_report_builds_the_deliverable(group, ga
     frames = tmp_path / "frames"
     svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink", "--save-frames", str(frames),
                                    *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    assert svc.wait_ready(30), "\n".join(svc.lines)
     reports: list[DefectReport] = []
     with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "uav") as uav:
         uav.subscribe(keys.defects(FLEET), lambda m, s: reports.append(m), expect=DefectReport)
@@ -83,7 +83,7 @@ def test_the_deliverable_comes_from_the_frames_the_ground_station_logged_not_fro
     svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
                                    *[a for e in gateway for a in ("--connect", e)]],
                       prefix=["env", f"--chdir={elsewhere}"])
-    assert svc.wait_for("detector up", 30), "\n".join(svc.lines)
+    assert svc.wait_ready(30), "\n".join(svc.lines)
     report = tmp_path / "report"
     report.mkdir()
     reports: list[DefectReport] = []

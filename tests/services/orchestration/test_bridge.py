@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from services.orchestration.bridge import Address, address
-from services.orchestration.process import ProcessGroup, free_port
+from services.orchestration.process import free_port
+from tests.readiness import ServiceGroup
 
 
 def test_address_parses_tcp_and_unix_and_refuses_the_rest():
@@ -39,12 +40,12 @@ def _echo_server() -> tuple[socket.socket, int]:
 def test_two_bridges_carry_a_tcp_stream_through_a_unix_socket_both_ways(tmp_path: Path):
     srv, port = _echo_server()
     sock, front = tmp_path / "b.sock", free_port()
-    group = ProcessGroup(echo=None)
+    group = ServiceGroup(echo=None)
     try:
         inner = group.start("inner", ["bridge", "--listen", f"unix:{sock}", "--target", f"tcp:127.0.0.1:{port}"])
         outer = group.start("outer", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"unix:{sock}"])
         for b in (inner, outer):
-            assert b.wait_for("bridge up", 30), b.lines
+            assert b.wait_ready(30), b.lines
         payload = bytes(range(256)) * 4096  # 1 MiB
         with socket.create_connection(("127.0.0.1", front), timeout=10) as c:
             got = bytearray()
@@ -64,10 +65,10 @@ def test_two_bridges_carry_a_tcp_stream_through_a_unix_socket_both_ways(tmp_path
 
 def test_an_unreachable_target_closes_the_connection_and_is_counted(tmp_path: Path):
     front = free_port()
-    group = ProcessGroup(echo=None)
+    group = ServiceGroup(echo=None)
     try:
         b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"unix:{tmp_path}/none"])
-        assert b.wait_for("bridge up", 30), b.lines
+        assert b.wait_ready(30), b.lines
         with socket.create_connection(("127.0.0.1", front), timeout=10) as c:
             c.settimeout(10)
             assert c.recv(10) == b""  # closed, not hung
@@ -81,11 +82,11 @@ def test_connections_above_the_limit_are_closed_at_once_and_counted(tmp_path: Pa
     closed at once (counted), while the one within the limit keeps flowing."""
     srv, port = _echo_server()
     front = free_port()
-    group = ProcessGroup(echo=None)
+    group = ServiceGroup(echo=None)
     try:
         b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"tcp:127.0.0.1:{port}",
                               "--max-conns", "1"])
-        assert b.wait_for("bridge up", 30), b.lines
+        assert b.wait_ready(30), b.lines
         with socket.create_connection(("127.0.0.1", front), timeout=10) as first:
             first.sendall(b"ping")
             assert first.recv(4) == b"ping"
@@ -118,12 +119,12 @@ def test_64_idle_connections_are_closed_after_the_idle_timeout_and_a_real_one_fl
     The bridge closes each after --idle-timeout, and a connection that carries bytes then flows."""
     srv, port = _echo_server()
     front = free_port()
-    group = ProcessGroup(echo=None)
+    group = ServiceGroup(echo=None)
     idle: list[socket.socket] = []
     try:
         b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"tcp:127.0.0.1:{port}",
                               "--idle-timeout", "2"])
-        assert b.wait_for("bridge up", 30), b.lines
+        assert b.wait_ready(30), b.lines
         idle = _hold_idle(front, 64)
         assert all(_closed_by_peer(c, 30) for c in idle)  # each one closed by the bridge, none left hanging
         with socket.create_connection(("127.0.0.1", front), timeout=10) as real:
@@ -142,12 +143,12 @@ def test_at_the_limit_a_new_connection_takes_the_place_of_one_idle_for_long():
     connection idle the longest (idle for 10 s or more) is closed for it; a fresh flood is refused."""
     srv, port = _echo_server()
     front = free_port()
-    group = ProcessGroup(echo=None)
+    group = ServiceGroup(echo=None)
     idle: list[socket.socket] = []
     try:
         b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"tcp:127.0.0.1:{port}",
                               "--idle-timeout", "600"])
-        assert b.wait_for("bridge up", 30), b.lines
+        assert b.wait_ready(30), b.lines
         idle = _hold_idle(front, 64)
         with socket.create_connection(("127.0.0.1", front), timeout=10) as early:  # all 64 fresh: refused
             assert _closed_by_peer(early, 10)

@@ -15,7 +15,7 @@ FLEET = "test"
 def test_planner_answers_plan_requests_over_the_bus(group, gateway):
     svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink",
                                   *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("planner up", 30), "\n".join(svc.lines)
+    assert svc.wait_ready(30), "\n".join(svc.lines)
     scenario = load_scenario()
     doc = scenario.model_dump(mode="json")
     with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
@@ -49,7 +49,7 @@ def test_oversized_and_overlong_plan_requests_are_refused_and_free_the_worker(gr
     the limits that outlasts the time budget (here 1 s) is answered "timeout" and the next request is served."""
     svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink", "--time-budget", "1",
                                   *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("planner up", 30), "\n".join(svc.lines)
+    assert svc.wait_ready(30), "\n".join(svc.lines)
     doc = load_scenario().model_dump(mode="json")
     with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as gcs:
         deadline = time.monotonic() + 10

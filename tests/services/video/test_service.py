@@ -57,7 +57,7 @@ def test_video_service_streams_a_uav_preview_to_a_real_decoder(group, gateway, t
     svc = group.start("video", ["video", "--fleet", FLEET, "--multilink", "--codec", codec, "--port", str(base),
                                 "--uavs", "2", "--sdp-dir", str(sdp_dir),
                                 *[a for e in gateway for a in ("--connect", e)]])
-    assert svc.wait_for("video up", 30), "\n".join(svc.lines)
+    assert svc.wait_ready(30), "\n".join(svc.lines)
     sdp_file = sdp_dir / "uav2-preview.sdp"
     text = sdp_file.read_text()
     assert f"m=video {base + 2} RTP/AVP" in text and ("H264/90000" if codec == "h264" else "JPEG/90000") in text
