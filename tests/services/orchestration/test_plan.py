@@ -165,7 +165,7 @@ def test_web_and_video_run_as_their_own_identities():
 
 
 def test_autopilot_sim_runs_beside_each_edge():
-    plan = plan_of("--vehicle", "mavlink", "--flight", "auto", "--autopilot-boot-scale", "0.1")
+    plan = plan_of("--vehicle", "mavlink", "--flight", "auto", "--sim-boot-scale", "0.1")
     names = [p.name for p in plan.processes]
     assert names == ["gateway", "ap1", "uav1", "ap2", "uav2", "ap3", "uav3", "planner", "detector"]
     for i in (1, 2, 3):
