@@ -199,6 +199,12 @@ class ProxySpec:
         return multilink_endpoints(HOST, *self.ports)
 
 
+def own_speed_warning(speed: float) -> str:
+    """What a user flying their own autopilots at a mission speed other than real time is told."""
+    return (f"--speed {speed:g} runs the mission's clock at {speed:g}x real time: a real vehicle (or ArduPilot SITL "
+            "without --speedup) needs --speed 1; a sim autopilot started with the same --speed keeps up")
+
+
 @dataclass
 class NetworkPlan:
     """The processes (in start order), proxies, files and sites of one run."""
@@ -270,6 +276,9 @@ class NetworkPlan:
                 f"home {','.join(f'{v:g}' for v in cfg.home)}"
             out.append(f"  {p.name}: {'sim autopilot ap' + str(cfg.uav) if sim else 'its own autopilot'} at "
                        f"{cfg.mavlink}, {cfg.flight}, {home}")
+        speeds = {p.config.speed for p in self.processes if p.role == "edge" and p.config is not None}
+        if any("its own" in line for line in out) and speeds != {1.0}:
+            out.append(f"  note: {own_speed_warning(max(speeds))}")
         return ["", "autopilots (MAVLink):", *out] if out else []
 
     def table(self) -> str:

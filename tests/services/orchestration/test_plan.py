@@ -215,6 +215,9 @@ def test_an_autopilot_endpoint_replaces_that_uavs_sim_autopilot():
     assert all(every.get(f"uav{i}").config.home_from_autopilot for i in (1, 2, 3))
     assert "uav3: its own autopilot at udpin:0.0.0.0:14552, guided, its autopilot's home" in every.table()
     assert "autopilots" not in plan_of().table()  # the built-in vehicle: no such section
+    assert "note: --speed 4 runs the mission's clock at 4x real time" in every.table()  # the launcher's default
+    assert "note:" not in plan_of("--autopilot", "uav1=udpin:0.0.0.0:14550", "--speed", "1").table()
+    assert "note:" not in plan_of("--vehicle", "mavlink").table()  # sim autopilots keep the mission's speed
 
 
 @pytest.mark.parametrize("argv, needle", [
