@@ -352,13 +352,16 @@ def session(o: LaunchConfig, trust: Trust, connects: list[str], lease: dict[str,
     return {"fleet": o.fleet, "multilink": True, "connect": connects, "keys": trust.keys, **lease}
 
 
-def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float, float], epoch: float) -> list[str]:
-    """The sim autopilot's command line (its parser is the edge's vehicle package's, not a config model)."""
-    return ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1), "--home", ",".join(map(str, home)),
+def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float, float], epoch: float,
+                   origin: tuple[float, float, float] | None = None) -> list[str]:
+    """The sim autopilot's command line (its parser is the edge's vehicle package's, not a config model);
+    ``origin``: the scenario's geodetic origin, where its HOME_POSITION is reckoned from."""
+    return ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1), "--home=" + ",".join(map(str, home)),
             "--speed", str(o.speed), "--epoch", str(epoch), "--seed", str(o.seed + i), "--wind", "moderate",
             "--boot-scale", f"{o.sim_boot_scale:g}", "--firmware-version", o.sim_firmware,
             *(["--legacy-mission-request"] if o.sim_legacy_mission_request else []),
-            *(["--rc-centred"] if o.sim_rc_centred else [])]
+            *(["--rc-centred"] if o.sim_rc_centred else []),
+            *(["--origin=" + ",".join(f"{v:.9g}" for v in origin)] if origin is not None else [])]
 
 
 def capture_size(o: LaunchConfig, scenario: Scenario) -> tuple[int, int]:
@@ -540,6 +543,7 @@ def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports
     from edge.geometry.neighbourhood import members
 
     own = o.autopilots()  # --autopilot: UAVs that fly their own autopilot (no sim one started)
+    origin = (scenario.origin.lat, scenario.origin.lon, scenario.origin.alt)
     for i, home in enumerate(launch, start=1):
         name = f"uav{i}"
         ns = mesh_sites.site_of(i) if netns else None
@@ -547,7 +551,8 @@ def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports
         if o.vehicle == "mavlink" and mav is None:  # a sim autopilot per other UAV, on loopback UDP, beside its edge
             mav = ports("udp")
             procs.append(ProcessSpec(f"ap{i}", "autopilot", mesh_sites.site_of(i), None, (f"udp/{HOST}:{mav}",),
-                                     argv=tuple(autopilot_argv(o, i, mav, home, epoch)), ready=False, namespace=ns))
+                                     argv=tuple(autopilot_argv(o, i, mav, home, epoch, origin)), ready=False,
+                                     namespace=ns))
         connects = uplink(name, mesh_sites.site_of(i))
         mesh: list[str] = []
         for j in (j for j in members(i, fleet=o.uavs) if j > i):  # its formation's later edges

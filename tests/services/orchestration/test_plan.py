@@ -187,6 +187,8 @@ def test_the_sim_autopilots_options_come_from_the_launcher():
         args = sim_parser().parse_args(list(plan.get(f"ap{i}").argv[1:]))
         assert (args.uav, args.boot_scale, args.firmware_version) == ([i], 0.5, "4.7")
         assert args.legacy_mission_request and args.rc_centred
+        origin = SCENARIO.origin  # HOME_POSITION reckoned from the scenario's own origin (--home-from-autopilot)
+        assert args.origin == pytest.approx((origin.lat, origin.lon, origin.alt), abs=1e-9)
     args = sim_parser().parse_args(list(plan_of("--vehicle", "mavlink").get("ap1").argv[1:]))
     assert not args.legacy_mission_request and not args.rc_centred and args.firmware_version == "4.6"
 

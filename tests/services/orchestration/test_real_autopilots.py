@@ -41,7 +41,7 @@ def test_mission_flies_the_users_own_autopilots_from_their_homes(tmp_path):
         for i, (port, home) in enumerate(zip(ports, real), start=1):
             autopilots.append(subprocess.Popen(
                 [sys.executable, "-m", "services.cli", "sim-autopilot", "--uav", str(i), "--port-base",
-                 str(port - i + 1), "--home", ",".join(map(str, home)), "--speed", str(SPEED), "--boot-scale", "0.1",
+                 str(port - i + 1), "--home=" + ",".join(map(str, home)), "--speed", str(SPEED), "--boot-scale", "0.1",
                  "--wind", "moderate", "--seed", str(i)],
                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
         out = tmp_path / "report"
