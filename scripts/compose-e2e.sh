@@ -334,6 +334,8 @@ for run in $RUNS; do
     "$WORK/stats-$run.txt" | sort
   cp "$WORK/stats-$run.txt" "$OUT/compose-e2e-stats-$run.txt"
   if [ "$rc" != 0 ]; then
+    rm -rf "$OUT/compose-e2e-$run-report"; mkdir -p "$OUT/compose-e2e-$run-report"  # the failed run's report too
+    cp "$REPORTS/$name"/report.json "$REPORTS/$name"/report.md "$OUT/compose-e2e-$run-report/" 2>/dev/null || true
     grep -v "^\s*$" "$WORK/up-$run.log" | tail -n 60; log "FAIL: $run: the mission's exit status is $rc"; failed=1; continue
   fi
   if ! "$PY" scripts/compose_check.py "$REPORTS/$name" "${check[@]}" --json "$OUT/compose-e2e-$run.json"; then
