@@ -80,3 +80,41 @@ def test_mission_flies_the_users_own_autopilots_from_their_homes(tmp_path):
         # where it stood when it took off: its autopilot's home, not the scenario's slot 6.7 m away
         assert math.dist(before[-1].pos, home) < 0.3, (i, before[-1].pos, home)
         assert math.dist(before[-1].pos, slots[i - 1]) > 6.0
+
+
+def test_one_own_autopilot_beside_the_launchers_sim_ones_in_auto(tmp_path):
+    """``--autopilot uav2=...`` alone: UAVs 1 and 3 fly sim autopilots the launcher starts (their homes reckoned from
+    the scenario's origin), UAV 2 the one started by hand 6.7 m from its slot; every edge takes its home from its
+    autopilot, and the trajectories are flown as uploaded missions in AUTO."""
+    slots = homes(load_scenario(None), 3)
+    home2 = tuple(round(s + d, 3) for s, d in zip(slots[1], SHIFT))
+    port = free_port(socket.SOCK_DGRAM)
+    ap = subprocess.Popen([sys.executable, "-m", "services.cli", "sim-autopilot", "--uav", "2", "--port-base",
+                           str(port - 1), "--home=" + ",".join(map(str, home2)), "--speed", str(SPEED),
+                           "--boot-scale", "0.1", "--wind", "moderate", "--seed", "2"],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        out = tmp_path / "report"
+        proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--speed", str(SPEED),
+                               "--home-from-autopilot", "--autopilot", f"uav2=udpin:127.0.0.1:{port}", "--flight",
+                               "auto", "--sim-boot-scale", "0.1", "--quiet", "--out", str(out)],
+                              capture_output=True, text=True, timeout=300)
+    finally:
+        ap.terminate()
+        try:
+            ap.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            ap.kill()
+            ap.communicate()
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads((out / "report.json").read_text())
+    assert report["success"] and not report["failures"]
+    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
+    log = (out / "services.log").read_text()
+    assert [f"sim-autopilot: uav {i} (system id {i})" in log for i in (1, 2, 3)] == [True, False, True]
+    assert all(f"UAV {i}: flying AUTO from mission item" in log for i in (1, 2, 3))
+    record, _ = load_record(out / "mission.mcap", caps={})
+    for i, home in enumerate([slots[0], home2, slots[2]], start=1):
+        first_armed = next(k for k, s in enumerate(record.states) if s.msg.uav == i and s.msg.armed)
+        before = [s.msg for s in record.states[:first_armed] if s.msg.uav == i]
+        assert before and math.dist(before[-1].pos, home) < 0.3, (i, before[-1].pos if before else None, home)
