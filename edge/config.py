@@ -113,6 +113,9 @@ class EdgeConfig(BusOptions):
         description="with --mavlink-gcs: announce the preview stream of skynet video --port BASE_PORT "
                     "(this UAV's port BASE_PORT+2(uav-1)) as MAVLink VIDEO_STREAM_INFORMATION")
     home: Vec3 = Field(default=(0.0, 0.0, 0.0), description="launch point x,y,z (ENU m)")
+    home_from_autopilot: bool = Field(default=False, description=(
+        "--vehicle mavlink: the launch point is the autopilot's HOME_POSITION in the scenario's ENU frame (about "
+        "its geodetic origin), not --home"))
     rate: float = Field(default=_BOARD.rate_hz, gt=0.0, le=1000.0, description="state publication rate, Hz")
     stale: float = Field(default=_BOARD.stale_s, gt=0.0, description="neighbour state considered stale after, s")
     formation_gain: float = Field(default=_BOARD.formation_gain, ge=0.0, le=1.0,

@@ -4,6 +4,8 @@
 #   bash scripts/compose-e2e.sh            # the impaired mission (proves the plain path too), two sites, the tc check
 #   COMPOSE_E2E_RUNS="plain netem sites split tc" bash scripts/compose-e2e.sh   # split: compose/ground.yml + edge.yml;
 #                                                                       # sites: compose/sites.yml (two gateways)
+#   COMPOSE_E2E_RUNS=mavlink bash scripts/compose-e2e.sh   # compose/mavlink.yml: each edge on its own autopilot
+#                                                            (three sim autopilots on the host, homes of their own)
 #
 # 1. an engine: the one DOCKER_HOST points at, else our own dockerd (scripts/docker-lib.sh: persistent
 #    data root /var/cache/skynet-docker, so the base image and the build layers are kept between runs);
@@ -80,6 +82,7 @@ up_phases() {  # file, epoch of the up's start
 }
 EVENTS_PID=""
 STATS_PID=""
+aps=()  # the mavlink run's sim autopilots on the host
 WEB_PID=""
 cleanup() {
   rc=$?
@@ -87,6 +90,7 @@ cleanup() {
   [ -n "$STATS_PID" ] && kill "$STATS_PID" 2>/dev/null && wait "$STATS_PID" 2>/dev/null
   [ -n "$WEB_PID" ] && kill "$WEB_PID" 2>/dev/null && wait "$WEB_PID" 2>/dev/null
   [ -n "$EVENTS_PID" ] && kill "$EVENTS_PID" 2>/dev/null && wait "$EVENTS_PID" 2>/dev/null
+  for pid in "${aps[@]}"; do kill "$pid" 2>/dev/null && wait "$pid" 2>/dev/null; done
   if [ -n "${DOCKER_HOST:-}" ] || [ -S /var/run/docker.sock ]; then
     compose --env-file compose/netem.env down -v --remove-orphans --timeout 5 >/dev/null 2>&1
     compose --profile web down -v --remove-orphans --timeout 5 >/dev/null 2>&1
@@ -185,6 +189,20 @@ declare -A UP_S
 for run in $RUNS; do
   case "$run" in
     plain) env=(); check=() ;;
+    mavlink)
+      # compose/mavlink.yml as a user with three vehicles runs it: the autopilots on the host (three sim
+      # autopilots, 3 m south of the scenario's slots), each sending to its edge's published UDP port; the edges
+      # take their homes from them (SKYNET_MAVLINK_ARGS) and fly at the sim autopilots' speed
+      env=(-f docker-compose.yml -f compose/mavlink.yml); check=()
+      aps=(); homes=(--home 40,5,0 --home 40.7,7.9,0 --home 39.3,2.1,0)
+      for u in 1 2 3; do
+        export "SKYNET_UAV${u}_MAVLINK_PORT=$("$PY" -c 'import socket; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
+        port_var="SKYNET_UAV${u}_MAVLINK_PORT"
+        "$PY" -m services.cli sim-autopilot --uav "$u" --port-base $(( ${!port_var} - u + 1 )) \
+          "${homes[@]:$(( 2 * (u - 1) )):2}" --speed 4 --boot-scale 0.1 --wind moderate --seed "$u" \
+          >"$WORK/autopilot-$u.log" 2>&1 & aps+=($!)
+      done
+      export SKYNET_SPEED=4 SKYNET_MAVLINK_ARGS="--home-from-autopilot" ;;
     netem) env=(--env-file compose/netem.env); check=(--impaired uav2 --delay-ms 100) ;;  # + the web page
     sites) env=(-f docker-compose.yml -f compose/sites.yml); check=(--gateways 2) ;;  # six UAVs, two gateways
     tc)
@@ -268,7 +286,7 @@ for run in $RUNS; do
           || { log "FAIL: split: uav$i did not log mutual TLS + ACL + signed commands"; failed=1; }
       done
       continue ;;
-    *) log "unknown run '$run' (plain, netem, sites, split, tc)"; exit 1 ;;
+    *) log "unknown run '$run' (plain, netem, sites, split, tc, mavlink)"; exit 1 ;;
   esac
   name="e2e-$run-$$"
   : >"$WORK/stats-$run.txt"
@@ -295,6 +313,14 @@ for run in $RUNS; do
   rc=$?
   set -e
   [ -n "$WEB_PID" ] && { kill "$WEB_PID" 2>/dev/null; wait "$WEB_PID" 2>/dev/null || true; WEB_PID=""; }
+  if [ "$run" = mavlink ]; then
+    for pid in "${aps[@]}"; do kill "$pid" 2>/dev/null; wait "$pid" 2>/dev/null || true; done
+    unset SKYNET_SPEED SKYNET_MAVLINK_ARGS SKYNET_UAV1_MAVLINK_PORT SKYNET_UAV2_MAVLINK_PORT SKYNET_UAV3_MAVLINK_PORT
+    for u in 1 2 3; do  # each edge flew its own autopilot, from the home that autopilot reported
+      grep -Eq "uav${u}_1 +\| .*UAV ${u}: home from the autopilot" "$WORK/up-$run.log" \
+        || { log "FAIL: $run: uav$u did not take its home from its autopilot"; failed=1; }
+    done
+  fi
   UP_S[$run]=$(since "$t")
   kill "$STATS_PID" 2>/dev/null; wait "$STATS_PID" 2>/dev/null || true; STATS_PID=""
   log "$run: phases: $(up_phases "$WORK/events-$run.txt" "$t")"
@@ -308,6 +334,8 @@ for run in $RUNS; do
     "$WORK/stats-$run.txt" | sort
   cp "$WORK/stats-$run.txt" "$OUT/compose-e2e-stats-$run.txt"
   if [ "$rc" != 0 ]; then
+    rm -rf "$OUT/compose-e2e-$run-report"; mkdir -p "$OUT/compose-e2e-$run-report"  # the failed run's report too
+    cp "$REPORTS/$name"/report.json "$REPORTS/$name"/report.md "$OUT/compose-e2e-$run-report/" 2>/dev/null || true
     grep -v "^\s*$" "$WORK/up-$run.log" | tail -n 60; log "FAIL: $run: the mission's exit status is $rc"; failed=1; continue
   fi
   if ! "$PY" scripts/compose_check.py "$REPORTS/$name" "${check[@]}" --json "$OUT/compose-e2e-$run.json"; then

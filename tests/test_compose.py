@@ -37,6 +37,9 @@ VARIANTS = [
     (["--env-file", "compose/realtime.env"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/ports.yml"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/mavlink.yml"], {}),
+    (["-f", "docker-compose.yml", "-f", "compose/mavlink.yml"], {
+        "SKYNET_UAV2_MAVLINK": "tcp:host.docker.internal:5770", "SKYNET_UAV3_MAVLINK": "/dev/ttyACM0,921600",
+        "SKYNET_MAVLINK_ARGS": "--home-from-autopilot --flight auto"}),
     (["-f", "docker-compose.yml", "-f", "compose/camera.yml"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/insecure.yml"], {}),
     (["-f", "docker-compose.yml", "-f", "compose/insecure.yml", "--env-file", "compose/netem.env"], {}),
@@ -218,7 +221,37 @@ def test_overrides_change_only_what_they_say(path, changed):
     base, over = _services(), _services(ROOT / path)
     for name, svc in over.items():
         if "command" in svc:
-            assert _drop(svc["command"], changed) == _drop(base[name]["command"], changed), f"{path}: {name}"
+            argv = _skynet_argv(name, {**base[name], **svc})
+            assert _drop(argv, changed) == _drop(_skynet_argv(name, base[name]), changed), f"{path}: {name}"
+
+
+def _interpolated(text: str, env: dict[str, str]) -> str:
+    """Compose interpolation with ``env`` (``${X:-d}``: env's X, else d)."""
+    return re.sub(r"\$\{([A-Z0-9_]+):-([^}]*)\}", lambda m: env.get(m.group(1), m.group(2)), text).replace("$$", "$")
+
+
+def test_the_mavlink_override_gives_every_uav_its_own_autopilot_endpoint():
+    """compose/mavlink.yml: each edge flies the autopilot at its own ``SKYNET_UAVn_MAVLINK`` (default: listening on
+    UDP 14550 in its container, published on the host's 14550/14551/14552), with ``SKYNET_MAVLINK_ARGS`` added;
+    the edges and the ground station run in real time unless told otherwise."""
+    from edge.board import build_parser as edge_parser
+
+    over = _services(ROOT / "compose/mavlink.yml")
+    assert {"uav1", "uav2", "uav3"} <= set(over)
+    host_ports = [_defaults(over[f"uav{u}"]["ports"][0]) for u in (1, 2, 3)]
+    assert host_ports == [f"127.0.0.1:{14549 + u}:14550/udp" for u in (1, 2, 3)]
+    env = {"SKYNET_UAV1_MAVLINK": "udpin:0.0.0.0:14550", "SKYNET_UAV2_MAVLINK": "tcp:host.docker.internal:5770",
+           "SKYNET_UAV3_MAVLINK": "/dev/ttyACM0,921600", "SKYNET_MAVLINK_ARGS": "--home-from-autopilot --flight auto"}
+    for u in (1, 2, 3):
+        svc = over[f"uav{u}"]
+        assert "host.docker.internal:host-gateway" in svc["extra_hosts"]  # SITL's TCP port on the host
+        for given, mavlink, extra in (({}, "udpin:0.0.0.0:14550", False), (env, env[f"SKYNET_UAV{u}_MAVLINK"], True)):
+            script = _interpolated(svc["command"][0], given)
+            argv = shlex.split(script.removeprefix("exec skynet "))
+            a = edge_parser().parse_args(argv[1:])
+            assert (argv[0], a.uav, a.vehicle, a.mavlink, a.speed) == ("edge", u, "mavlink", mavlink, 1.0)
+            assert (a.home_from_autopilot, a.flight) == ((True, "auto") if extra else (False, "guided"))
+    assert _defaults(over["gcs"]["environment"]["SKYNET_SPEED"]) == "1"
 
 
 def test_image_builds_from_any_python_base_with_its_own_venv():
@@ -408,6 +441,8 @@ def test_every_edge_takes_the_frame_size_from_skynet_frame_size(path):
         text = " ".join(svc["command"])
         if "$${SKYNET_FRAME_SIZE}" in text:  # compose/edge.yml's shell form
             assert svc["environment"]["SKYNET_FRAME_SIZE"] == "${SKYNET_FRAME_SIZE:-640x480}", name
+        elif len(svc["command"]) == 1:  # compose/mavlink.yml's shell form, interpolated by compose
+            assert '--frame-size "${SKYNET_FRAME_SIZE:-640x480}"' in text, (path, name)
         else:
             cmd = svc["command"]
             assert cmd[cmd.index("--frame-size") + 1] == "${SKYNET_FRAME_SIZE:-640x480}", (path, name)

@@ -23,5 +23,12 @@ def make_driver(config: EdgeConfig, t0: float) -> VehicleDriver:
 
         video = VideoStreamSpec(stream_port(config.mavlink_video, config.uav), *PREVIEW_SIZE,
                                 framerate=config.preview_hz)
+    origin = None
+    if config.home_from_autopilot:  # the mission frame's geodetic origin: the scenario's
+        from protocol.scenario import load_scenario
+
+        o = load_scenario(config.scenario).origin
+        origin = (o.lat, o.lon, o.alt)
     return MavlinkDriver(config.uav, config.mavlink, home=config.home, signing_key=config.mavlink_key,
-                         gcs_endpoint=config.mavlink_gcs, gcs_video=video, params=MavlinkParams(flight=config.flight))
+                         gcs_endpoint=config.mavlink_gcs, gcs_video=video, params=MavlinkParams(flight=config.flight),
+                         home_origin=origin)

@@ -22,6 +22,7 @@ from services.gcs.config import GcsMissionConfig
 from services.video.config import VideoCodec, VideoConfig
 
 from . import trustmode
+from .autopilots import autopilot_endpoints
 from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET
 
 #: the metavar of ``--fault``
@@ -66,14 +67,27 @@ class LaunchConfig(CliModel):
         default=_default(EdgeConfig, "capture_link"),
         description="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
     vehicle: Vehicle = Field(default=_default(EdgeConfig, "vehicle"), description=(
-        "sim: the built-in vehicle; mavlink: each edge flies a sim autopilot (skynet sim-autopilot) over MAVLink on "
-        "loopback"))
-    autopilot_boot_scale: Annotated[float, Cli(metavar="F")] = Field(default=1.0, ge=0.0, description=(
+        "sim: the built-in vehicle; mavlink: each edge flies an autopilot over MAVLink: its --autopilot endpoint, "
+        "else a sim autopilot (skynet sim-autopilot) started beside it on loopback"))
+    autopilot: Annotated[list[str], Cli(metavar="uavN=ENDPOINT")] = Field(default=[], description=(
+        "fly UAV N's own autopilot instead of a sim one (repeatable; implies --vehicle mavlink): ENDPOINT as "
+        "pymavlink writes it, udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, /dev/ttyUSB0,57600 or "
+        "serial:/dev/ttyACM0:921600; docs/hardware-mavlink.md"))
+    home_from_autopilot: bool = Field(default=False, description=(
+        "--vehicle mavlink: each edge takes its launch point from its autopilot's HOME_POSITION (about the "
+        "scenario's geodetic origin) instead of the scenario's formation slot"))
+    sim_boot_scale: Annotated[float, Cli(metavar="F")] = Field(default=1.0, ge=0.0, description=(
         "--vehicle mavlink: the sim autopilots' start-up times as a fraction of ArduCopter's (1: GUIDED/AUTO after 42 "
         "simulated s; 0.1 ten times faster; 0 at once)"))
-    autopilot_firmware: Literal["4.6", "4.7"] = Field(default="4.6", description=(
+    sim_firmware: Literal["4.6", "4.7"] = Field(default="4.6", description=(
         "--vehicle mavlink: the sim autopilots' parameter names and units: 4.6 (stable 4.5/4.6: WPNAV_SPEED cm/s, "
         "RTL_ALT cm, ...) or 4.7 (4.7+: WP_SPD m/s, RTL_ALT_M m, ...)"))
+    sim_legacy_mission_request: bool = Field(default=False, description=(
+        "--vehicle mavlink: the sim autopilots ask for uploaded mission items with MISSION_REQUEST (as "
+        "ArduCopter's firmware may) instead of MISSION_REQUEST_INT"))
+    sim_rc_centred: bool = Field(default=False, description=(
+        "--vehicle mavlink: the sim autopilots have a pilot's RC on with centred sticks (LOITER holds; without "
+        "RC it descends, as ArduCopter does)"))
     ready_timeout: Annotated[float, Cli(metavar="S")] = Field(
         default=_default(GcsMissionConfig, "ready_timeout"), gt=0.0,
         description="the ground station waits this long for every UAV's autopilot to be ready, then refuses")
@@ -131,6 +145,23 @@ class LaunchConfig(CliModel):
         if self.as_json and not self.dry_run:
             raise ValueError("--json: only with --dry-run")
         return self
+
+    @model_validator(mode="after")
+    def _autopilots(self) -> LaunchConfig:
+        """``--autopilot`` checked (:func:`.autopilots.autopilot_endpoints`) and implying ``--vehicle mavlink``."""
+        if self.autopilot:
+            autopilot_endpoints(self.autopilot, self.uavs)
+            if self.netns:
+                raise ValueError("--autopilot with --netns: the edges' namespaces do not reach this machine's "
+                                 "network; run the edges in the machine's own")
+            self.vehicle = "mavlink"
+        if self.home_from_autopilot and self.vehicle != "mavlink":
+            raise ValueError("--home-from-autopilot: only with --vehicle mavlink or --autopilot")
+        return self
+
+    def autopilots(self) -> dict[int, str]:
+        """UAV -> the endpoint of its own autopilot (``--autopilot``); the others fly a sim autopilot."""
+        return autopilot_endpoints(self.autopilot, self.uavs)
 
 
 class MissionLaunchConfig(LaunchConfig):

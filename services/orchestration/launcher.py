@@ -86,7 +86,18 @@ from services import attach
 from . import trustmode
 from .config import MODELS, LaunchConfig, MissionLaunchConfig
 from .faults import FaultInjector
-from .plan import HOST, CountingPorts, NetworkPlan, Plan, ProcessSpec, Trust, free_ports, make_plan, network_plan
+from .plan import (
+    HOST,
+    CountingPorts,
+    NetworkPlan,
+    Plan,
+    ProcessSpec,
+    Trust,
+    free_ports,
+    make_plan,
+    network_plan,
+    own_speed_warning,
+)
 from .process import ProcessGroup
 from .restart import RestartTracker
 from .topology import CLASSES, open_timeout_ms
@@ -499,6 +510,8 @@ def run(config: LaunchConfig, checked: tuple[Plan, NetworkPlan] | None = None) -
         return 0
     mission = isinstance(config, MissionLaunchConfig)
     log = setup_logging("mission" if mission else "up")
+    if config.autopilot and config.speed != 1.0:
+        log.warning("%s", own_speed_warning(config.speed))
     stop = stop_event_on_signals()
     if mission:
         return run_mission(config, log, stop, plan)

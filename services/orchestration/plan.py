@@ -199,6 +199,12 @@ class ProxySpec:
         return multilink_endpoints(HOST, *self.ports)
 
 
+def own_speed_warning(speed: float) -> str:
+    """What a user flying their own autopilots at a mission speed other than real time is told."""
+    return (f"--speed {speed:g} runs the mission's clock at {speed:g}x real time: a real vehicle (or ArduPilot SITL "
+            "without --speedup) needs --speed 1; a sim autopilot started with the same --speed keeps up")
+
+
 @dataclass
 class NetworkPlan:
     """The processes (in start order), proxies, files and sites of one run."""
@@ -257,6 +263,24 @@ class NetworkPlan:
                 "files": sorted(self.files),
                 "faults": [r.fault.text for r in self.checked.faults]}
 
+    def autopilot_lines(self) -> list[str]:
+        """With MAVLink vehicles: each edge's autopilot (its own at an endpoint, or the sim one the run starts)."""
+        names = {p.name for p in self.processes}
+        out = []
+        for p in self.processes:
+            cfg = p.config
+            if p.role != "edge" or getattr(cfg, "vehicle", "sim") != "mavlink":
+                continue
+            sim = f"ap{cfg.uav}" in names
+            home = "its autopilot's home" if getattr(cfg, "home_from_autopilot", False) else \
+                f"home {','.join(f'{v:g}' for v in cfg.home)}"
+            out.append(f"  {p.name}: {'sim autopilot ap' + str(cfg.uav) if sim else 'its own autopilot'} at "
+                       f"{cfg.mavlink}, {cfg.flight}, {home}")
+        speeds = {p.config.speed for p in self.processes if p.role == "edge" and p.config is not None}
+        if any("its own" in line for line in out) and speeds != {1.0}:
+            out.append(f"  note: {own_speed_warning(max(speeds))}")
+        return ["", "autopilots (MAVLink):", *out] if out else []
+
     def table(self) -> str:
         """A readable table of the processes, then each one's command line, the proxies and the sites."""
         head = ("NAME", "ROLE", "SITE", "IDENTITY", "LISTENS", "CONNECTS", "ENV")
@@ -274,6 +298,7 @@ class NetworkPlan:
             lines += [f"  {x.link}: tcp :{x.ports[0]} -> {x.targets[0]} ({x.impairments[0] or 'clean'}), "
                       f"{x.udp_kind} :{x.ports[1]} -> {x.targets[1]} ({x.impairments[1] or 'clean'})"
                       for x in self.proxies.values()]
+        lines += self.autopilot_lines()
         lines += ["", "sites:", *(f"  {t}" for t in self.topology())]
         lines += ["", f"trust: {'mutual TLS, key set ' + str(self.trust.keys) if self.trust.tls else 'INSECURE'}"]
         return "\n".join(lines)
@@ -327,11 +352,16 @@ def session(o: LaunchConfig, trust: Trust, connects: list[str], lease: dict[str,
     return {"fleet": o.fleet, "multilink": True, "connect": connects, "keys": trust.keys, **lease}
 
 
-def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float, float], epoch: float) -> list[str]:
-    """The sim autopilot's command line (its parser is the edge's vehicle package's, not a config model)."""
-    return ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1), "--home", ",".join(map(str, home)),
+def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float, float], epoch: float,
+                   origin: tuple[float, float, float] | None = None) -> list[str]:
+    """The sim autopilot's command line (its parser is the edge's vehicle package's, not a config model);
+    ``origin``: the scenario's geodetic origin, where its HOME_POSITION is reckoned from."""
+    return ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1), "--home=" + ",".join(map(str, home)),
             "--speed", str(o.speed), "--epoch", str(epoch), "--seed", str(o.seed + i), "--wind", "moderate",
-            "--boot-scale", f"{o.autopilot_boot_scale:g}", "--firmware-version", o.autopilot_firmware]
+            "--boot-scale", f"{o.sim_boot_scale:g}", "--firmware-version", o.sim_firmware,
+            *(["--legacy-mission-request"] if o.sim_legacy_mission_request else []),
+            *(["--rc-centred"] if o.sim_rc_centred else []),
+            *(["--origin=" + ",".join(f"{v:.9g}" for v in origin)] if origin is not None else [])]
 
 
 def capture_size(o: LaunchConfig, scenario: Scenario) -> tuple[int, int]:
@@ -343,12 +373,16 @@ def capture_size(o: LaunchConfig, scenario: Scenario) -> tuple[int, int]:
 
 
 def edge_config(o: LaunchConfig, i: int, bus: dict[str, Any], listens: list[str], home: tuple[float, float, float],
-                epoch: float, fence: Box, load: FleetLoad, mavlink_port: int | None,
+                epoch: float, fence: Box, load: FleetLoad, mavlink: int | str | None,
                 frame_size: tuple[int, int] = FRAME_SIZE) -> EdgeConfig:
     """The edge's config; its ``geofence`` the scenario's operation box, the ceiling a signed upload may only narrow
-    (:func:`edge.geometry.validate.narrowed_fence`)."""
-    vehicle = {} if mavlink_port is None else {"vehicle": "mavlink", "mavlink": f"udpin:{HOST}:{mavlink_port}",
-                                               "flight": o.flight}
+    (:func:`edge.geometry.validate.narrowed_fence`). ``mavlink``: its sim autopilot's loopback port, or its own
+    autopilot's endpoint (``--autopilot``), or None (the built-in vehicle)."""
+    vehicle: dict[str, Any] = {}
+    if mavlink is not None:
+        endpoint = f"udpin:{HOST}:{mavlink}" if isinstance(mavlink, int) else mavlink
+        vehicle = {"vehicle": "mavlink", "mavlink": endpoint, "flight": o.flight,
+                   **({"home_from_autopilot": True} if o.home_from_autopilot else {})}
     return child(f"uav{i}", EdgeConfig, uav=i, **bus, listen=listens, home=home, speed=o.speed, epoch=epoch,
                  seed=o.seed + i, camera=o.camera, frame_size=frame_size, capture_link=o.capture_link,
                  preview_hz=load.preview_hz, nice=load.edge_nice, scenario=o.scenario, geofence=fence,
@@ -508,14 +542,17 @@ def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports
     formations = o.uavs > sitemap.FORMATION_SIZE  # several formations: no gossip autoconnect
     from edge.geometry.neighbourhood import members
 
+    own = o.autopilots()  # --autopilot: UAVs that fly their own autopilot (no sim one started)
+    origin = (scenario.origin.lat, scenario.origin.lon, scenario.origin.alt)
     for i, home in enumerate(launch, start=1):
         name = f"uav{i}"
         ns = mesh_sites.site_of(i) if netns else None
-        mav = None
-        if o.vehicle == "mavlink":  # a sim autopilot per UAV, on loopback UDP, beside its edge
+        mav: int | str | None = own.get(i)
+        if o.vehicle == "mavlink" and mav is None:  # a sim autopilot per other UAV, on loopback UDP, beside its edge
             mav = ports("udp")
             procs.append(ProcessSpec(f"ap{i}", "autopilot", mesh_sites.site_of(i), None, (f"udp/{HOST}:{mav}",),
-                                     argv=tuple(autopilot_argv(o, i, mav, home, epoch)), ready=False, namespace=ns))
+                                     argv=tuple(autopilot_argv(o, i, mav, home, epoch, origin)), ready=False,
+                                     namespace=ns))
         connects = uplink(name, mesh_sites.site_of(i))
         mesh: list[str] = []
         for j in (j for j in members(i, fleet=o.uavs) if j > i):  # its formation's later edges

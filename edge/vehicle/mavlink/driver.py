@@ -104,6 +104,27 @@ class MavlinkParams:
                 raise ValueError(f"{k} must be in (0, 10]")
 
 
+#: how far from the mission frame's origin an autopilot's home may be, m (farther: another site's scenario)
+MAX_HOME_DISTANCE_M = 20_000.0
+
+
+def home_in_frame(home_lla: tuple[float, float, float], origin: Vec3,
+                  max_distance_m: float = MAX_HOME_DISTANCE_M) -> Vec3:
+    """An autopilot's HOME_POSITION (degrees, degrees, m above sea level) in the mission's ENU frame about its
+    geodetic ``origin`` (WGS84, pymap3d's geodetic2enu); ValueError when it is not a geodetic point or lies
+    farther than ``max_distance_m`` from the origin."""
+    import pymap3d
+
+    lat, lon, alt = (float(v) for v in home_lla)
+    if not (abs(lat) <= 90 and abs(lon) <= 180 and math.isfinite(alt)):
+        raise ValueError(f"the autopilot's home {home_lla!r} is not a geodetic point")
+    e, n, u = pymap3d.geodetic2enu(lat, lon, alt, *origin)
+    if not math.hypot(e, n) <= max_distance_m:
+        raise ValueError(f"the autopilot's home ({lat:.6f}, {lon:.6f}) is {math.hypot(e, n) / 1000:.1f} km from the "
+                         f"scenario's origin ({origin[0]:.6f}, {origin[1]:.6f}): another site's scenario?")
+    return (round(float(e), 3), round(float(n), 3), round(float(u), 3))
+
+
 class MavlinkDriver(ParamClient, VehicleDriver):
     """An autopilot (ArduCopter's dialect) over MAVLink 2 behind the driver interface.
 
@@ -136,6 +157,10 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         operator's ground station, not the edge.
     dialect : Dialect
         The autopilot family (:mod:`.dialect`).
+    home_origin : (lat, lon, alt) or None
+        The mission frame's geodetic origin: the launch point is then the autopilot's first HOME_POSITION
+        in that frame (:func:`home_in_frame`), adopted on the ground before any flight, and the autopilot is
+        not ready until it is; None: ``home`` as given.
     """
 
     def __init__(
@@ -154,6 +179,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         gcs_endpoint: str | None = None,
         gcs_video: Any = None,
         dialect: Dialect = ARDUCOPTER,
+        home_origin: Vec3 | None = None,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
@@ -167,6 +193,10 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             raise ValueError("params must be a MavlinkParams")
         self.uav, self.connection, self.params, self.dialect = uav, connection, params, dialect
         self.home = check_vec3(home, "home")
+        self._home_origin = None if home_origin is None else check_vec3(home_origin, "home_origin")
+        #: the autopilot's home adopted as the launch point (``home_origin``), and why one was not
+        self.home_adopted: Vec3 | None = None
+        self._home_refused = ""
         self.rate_hz, self.timeout_s = float(rate_hz), float(timeout_s)
         hb_type = M.MAV_TYPE_GCS
         if gcs_endpoint is not None:
@@ -211,6 +241,31 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         if bridge is not None:
             bridge.to_gcs(msg)
         dispatch(self.tel, msg, now)
+        if self._home_origin is not None and self.home_adopted is None and self.tel.home_lla is not None:
+            self._adopt_home(self.tel.home_lla)
+
+    def _adopt_home(self, lla: tuple[float, float, float]) -> None:
+        """Take the autopilot's HOME_POSITION as the launch point (on the ground, once; later homes, such as
+        ArduCopter's reset at arming, are not followed: the local NED origin stays the one flown from)."""
+        assert self._home_origin is not None
+        try:
+            home = home_in_frame(lla, self._home_origin)
+        except ValueError as exc:
+            if self._home_refused != str(exc):
+                log.error("UAV %d: %s", self.uav, exc)
+            self._home_refused = str(exc)
+            return
+        with self._lock:
+            if self.phase is not Phase.IDLE:
+                return
+            old = self.home
+            self.home = self.tel.home = self.targets.home = home
+            self.tel.pos = tuple(p - o + h for p, o, h in zip(self.tel.pos, old, home))  # type: ignore[assignment]
+            self._hold = (home, self._hold[1])
+            self._takeoff_z = self.mission.ground_z = home[2]
+            self.home_adopted = home
+        log.info("UAV %d: home from the autopilot: %.6f, %.6f, %.1f m = (%.2f, %.2f, %.2f) in the mission frame",
+                 self.uav, *lla, *home)
 
     def _on_tick(self, now: float) -> None:
         if self.tel.hb is not None and now - self._last_req >= 2.0:
@@ -247,6 +302,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         with tel.lock:
             hb, home, flags, prearm, text = tel.hb, tel.home_lla, tel.ekf_flags, tel.prearm_ok, tel.not_ready_text
             local = "LOCAL_POSITION_NED" in tel.last_mono
+        if self._home_origin is not None and self.home_adopted is None:
+            home = None  # not ready before the launch point is the autopilot's
         heard = self.link_ok
         e = M.enums["MAV_STATE"].get(hb.status) if hb is not None else None
         status = e.name.removeprefix("MAV_STATE_").lower() if e is not None else ""
@@ -261,7 +318,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             elif booting:
                 why = f"the autopilot is starting (system status {status or 'unknown'})"
             elif home is None:
-                why = "no home position yet"
+                why = self._home_refused or "no home position yet"
             elif not position:
                 why = "no absolute position estimate yet (EKF not using GPS)"
             else:

@@ -22,7 +22,7 @@ FORMATION_RMS_BOUND_M = 1.0
 def test_mission_with_mavlink_vehicles(tmp_path, flight):
     out = tmp_path / "report"
     proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--vehicle", "mavlink", "--speed", "8",
-                           "--flight", flight, "--autopilot-boot-scale", "0.1", "--quiet", "--out", str(out)], capture_output=True, text=True,
+                           "--flight", flight, "--sim-boot-scale", "0.1", "--quiet", "--out", str(out)], capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     report = json.loads((out / "report.json").read_text())

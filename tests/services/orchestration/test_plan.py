@@ -165,7 +165,7 @@ def test_web_and_video_run_as_their_own_identities():
 
 
 def test_autopilot_sim_runs_beside_each_edge():
-    plan = plan_of("--vehicle", "mavlink", "--flight", "auto", "--autopilot-boot-scale", "0.1")
+    plan = plan_of("--vehicle", "mavlink", "--flight", "auto", "--sim-boot-scale", "0.1")
     names = [p.name for p in plan.processes]
     assert names == ["gateway", "ap1", "uav1", "ap2", "uav2", "ap3", "uav3", "planner", "detector"]
     for i in (1, 2, 3):
@@ -175,6 +175,79 @@ def test_autopilot_sim_runs_beside_each_edge():
         assert arg(ap.argv, "--port-base") == str(port - i + 1) and arg(ap.argv, "--boot-scale") == "0.1"
         assert tuple(map(float, arg(ap.argv, "--home").split(","))) == edge.config.home
         assert edge.config.mavlink == f"udpin:127.0.0.1:{port}" and edge.config.flight == "auto"
+
+
+def test_the_sim_autopilots_options_come_from_the_launcher():
+    """``--sim-*``: each sim autopilot's command line carries them, and its own parser reads them back."""
+    from edge.vehicle.mavsim.cli import build_parser as sim_parser
+
+    plan = plan_of("--vehicle", "mavlink", "--sim-boot-scale", "0.5", "--sim-firmware", "4.7",
+                   "--sim-legacy-mission-request", "--sim-rc-centred")
+    for i in (1, 2, 3):
+        args = sim_parser().parse_args(list(plan.get(f"ap{i}").argv[1:]))
+        assert (args.uav, args.boot_scale, args.firmware_version) == ([i], 0.5, "4.7")
+        assert args.legacy_mission_request and args.rc_centred
+        origin = SCENARIO.origin  # HOME_POSITION reckoned from the scenario's own origin (--home-from-autopilot)
+        assert args.origin == pytest.approx((origin.lat, origin.lon, origin.alt), abs=1e-9)
+    args = sim_parser().parse_args(list(plan_of("--vehicle", "mavlink").get("ap1").argv[1:]))
+    assert not args.legacy_mission_request and not args.rc_centred and args.firmware_version == "4.6"
+
+
+def test_an_autopilot_endpoint_replaces_that_uavs_sim_autopilot():
+    """``--autopilot uavN=ENDPOINT`` (implies --vehicle mavlink): that edge's --mavlink is the endpoint, as pymavlink
+    writes it, and no sim autopilot is started for it; the other UAVs keep theirs."""
+    plan = plan_of("--autopilot", "uav1=serial:/dev/ttyACM0:921600", "--autopilot", "uav3=tcp:10.0.0.3:5760",
+                   "--flight", "auto")
+    assert [p.name for p in plan.processes] == ["gateway", "uav1", "ap2", "uav2", "uav3", "planner", "detector"]
+    edges = {i: plan.get(f"uav{i}").config for i in (1, 2, 3)}
+    assert [e.vehicle for e in edges.values()] == ["mavlink"] * 3 and {e.flight for e in edges.values()} == {"auto"}
+    assert edges[1].mavlink == "/dev/ttyACM0,921600" and edges[3].mavlink == "tcp:10.0.0.3:5760"
+    assert edges[2].mavlink == f"udpin:127.0.0.1:{plan.get('ap2').listens[0].rsplit(':', 1)[1]}"
+    assert not any(e.home_from_autopilot for e in edges.values())
+    for i in (1, 3):  # the edge's own parser takes the whole line
+        parsed = edge_parser().parse_args(list(plan.get(f"uav{i}").argv[1:]))
+        assert parsed.mavlink == edges[i].mavlink and parsed.vehicle == "mavlink"
+    table = plan.table()
+    assert "uav1: its own autopilot at /dev/ttyACM0,921600, auto, home 40,8,0" in table
+    assert "uav2: sim autopilot ap2 at udpin:127.0.0.1:" in table
+    every = plan_of(*(x for i in (1, 2, 3) for x in ("--autopilot", f"uav{i}=udpin:0.0.0.0:{14549 + i}")),
+                    "--home-from-autopilot", prog="mission")
+    assert not [p for p in every.processes if p.role == "autopilot"]
+    assert [every.get(f"uav{i}").config.mavlink for i in (1, 2, 3)] == [f"udpin:0.0.0.0:{14549 + i}" for i in (1, 2, 3)]
+    assert all(every.get(f"uav{i}").config.home_from_autopilot for i in (1, 2, 3))
+    assert "uav3: its own autopilot at udpin:0.0.0.0:14552, guided, its autopilot's home" in every.table()
+    assert "autopilots" not in plan_of().table()  # the built-in vehicle: no such section
+    assert "note: --speed 4 runs the mission's clock at 4x real time" in every.table()  # the launcher's default
+    assert "note:" not in plan_of("--autopilot", "uav1=udpin:0.0.0.0:14550", "--speed", "1").table()
+    assert "note:" not in plan_of("--vehicle", "mavlink").table()  # sim autopilots keep the mission's speed
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (("--autopilot", "uav4=udpin:0.0.0.0:14550"), "--autopilot uav4: the fleet has UAVs 1..3 (--uavs 3)"),
+    (("--autopilot", "uav1=udpin:0.0.0.0:1", "--autopilot", "uav1=udpin:0.0.0.0:2"), "uav1: given twice"),
+    (("--autopilot", "uav2=udpin:0.0.0.0"), "--autopilot uav2: endpoint 'udpin:0.0.0.0': expected udpin:HOST:PORT"),
+    (("--autopilot", "uav1=/dev/ttyUSB0,12345"), "baud rate '12345'"),
+    (("--autopilot", "uav1=udpin:0.0.0.0:1", "--autopilot", "uav2=udpin:0.0.0.0:1"), "uav1's already"),
+    (("--home-from-autopilot",), "--home-from-autopilot: only with --vehicle mavlink or --autopilot"),
+])
+def test_a_bad_autopilot_option_is_a_one_line_error(argv, needle, capsys):
+    with pytest.raises(SystemExit) as exc:
+        parse("up", ["--dry-run", *argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and needle in err[-1] and "Traceback" not in "\n".join(err)
+
+
+def test_dry_run_shows_the_autopilot_endpoints(tmp_path):
+    proc = _skynet(tmp_path, "mission", "--dry-run", "--json", "--autopilot", "uav2=udpin:0.0.0.0:14551",
+                   "--home-from-autopilot", "--out", "r")
+    assert proc.returncode == 0, proc.stderr
+    by = {p["name"]: p for p in json.loads(proc.stdout)["processes"]}
+    assert "ap2" not in by and "ap1" in by and "ap3" in by
+    assert by["uav2"]["config"]["mavlink"] == "udpin:0.0.0.0:14551" and by["uav2"]["config"]["home_from_autopilot"]
+    proc = _skynet(tmp_path, "up", "--dry-run", "--autopilot", "uav2=udpin:0.0.0.0:99999")
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "--autopilot uav2: endpoint 'udpin:0.0.0.0:99999': port '99999' is not in 1..65535" in proc.stderr
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_the_plan_is_pure_and_quick(monkeypatch):
@@ -254,6 +327,8 @@ CHILD_PARSERS = {"gateway": "services.gateway.service", "edge": "edge.board", "p
                  "--impair", "uav4=delay 5ms", "--video", "mjpeg", "--video-port", "6000", "--seed", "7",
                  "--speed", "2.5")),
     ("up", ("--uavs", "30", "--insecure", "--web", "0.0.0.0:8081", "--impair", "uav1-uav2=loss 5%")),
+    ("mission", ("--autopilot", "uav1=/dev/ttyUSB0,57600", "--autopilot", "uav3=tcp:127.0.0.1:5770",
+                 "--home-from-autopilot", "--flight", "auto")),
 ])
 def test_every_process_config_round_trips_through_its_own_command_line(prog, argv):
     """Each process's typed config, rendered as its argv, parses back (by the service's own parser) to the same
@@ -273,7 +348,9 @@ def test_every_process_config_round_trips_through_its_own_command_line(prog, arg
         assert from_namespace(type(p.config), parser.parse_args(list(p.argv[1:])), parser) == p.config, p.name
         checked += 1
     assert checked >= len([p for p in plan.processes if p.role in ("gateway", "edge", "planner", "detector")]) > 3
-    if prog == "mission":
+    if "--autopilot" in argv:
+        assert plan.get("uav1").config.mavlink == "/dev/ttyUSB0,57600" and plan.get("uav2").config.home_from_autopilot
+    elif prog == "mission":
         edge = plan.get("uav4").config
         assert (edge.frame_size, edge.preview_hz, edge.imagery_cache, edge.vehicle, edge.seed, edge.speed) == \
             ((1280, 960), plan.load.preview_hz, 0, "mavlink", 11, 2.5)
