@@ -1,19 +1,7 @@
 """The bus layer: Zenoh sessions from a typed config, typed pub/sub by link class,
 request/reply with acknowledgement semantics, liveliness, and clean shutdown.
 
-What it adds to zenoh-python, and nothing more:
-
-* :class:`BusConfig` — mode, endpoints, scouting, lease, shared memory and the multilink
-  setup that puts reliable traffic on a TCP link and best-effort traffic on a UDP link
-  (ZENOH.md, "One link per reliability class"); :class:`BusOptions`, the base of every service's
-  typed config (:mod:`protocol.cliconfig`), holds the command-line options of zenoh-python's examples
-  (``--mode``, ``--connect``, ``--listen``, ``--config``, ``--cfg``) and ours, and
-  :func:`config_from_args` makes the session config of them.
-* :class:`Bus` — ``publisher(key, link)`` with the link class's QoS, ``subscribe(key, cb,
-  expect=...)`` that decodes on Zenoh's callback thread and *counts* decoding failures per key
-  and kind (logged once per kind, never raised into Zenoh), an optional bounded drop-oldest ring
-  per subscriber so that a slow consumer cannot stall the others, ``request`` where only an ok
-  reply counts as acknowledged, ``serve`` for queryables, liveliness tokens and watchers.
+Design notes: docs/bus.md (protocol/bus.py).
 """
 
 from __future__ import annotations

@@ -1,17 +1,6 @@
 """The paper's three link classes, one definition each (PAPER.md §1, DESIGN.md table).
 
-==========  =====  ==============  ===============  ===========  ========================
-class       paper  reliability     congestion       priority     express (no batching)
-==========  =====  ==============  ===============  ===========  ========================
-command     TCP    reliable        block            interactive  no
-telemetry   UDP    best-effort     drop             data-high    yes
-imagery     RTP    best-effort     drop             data-low     no
-==========  =====  ==============  ===============  ===========  ========================
-
-Reliability also picks the transport link when a session runs the multilink setup
-(:mod:`protocol.bus`): reliable traffic travels on the ``tcp/...?rel=1`` link, best-effort
-traffic on the ``udp/...?rel=0`` link. Imagery adds RTP-style sequencing on top
-(:mod:`protocol.rtp`, :mod:`protocol.jitter`).
+Design notes: docs/bus.md (protocol/links.py).
 """
 
 from __future__ import annotations

@@ -1,20 +1,6 @@
 """Formation geometry of the UAV triangle: frames, offsets, errors and on-board keeping.
 
-Pure numpy, no bus code. Equations from PAPER.md Section 4: centroid (P6), rotation from the
-formation frame to the inertial frame (P7), position errors in the formation frame (P8) and the
-per-UAV trajectories ``T_Fn = T_F + ΔT_n`` (P9).
-
-Frame convention
-----------------
-Inertial frame: local ENU metres (x east, y north, z up).
-Formation frame F: origin at the formation centroid, **x along the direction of travel** (the
-heading ``ψ = atan2(dy, dx)`` of the centroid path), **y to the left**, **z up**; it is the
-inertial frame rotated by the ZYX Euler angles (φ, θ, ψ) of the shape, ``p_O = R_OF p_F`` (P7).
-With φ = θ = 0 (the default) only the heading rotates the shape, so the default offsets
-:data:`DEFAULT_OFFSETS` (P9) ``ΔT_1 = (0, 0, 2)``, ``ΔT_2 = (3, 0, -1)``, ``ΔT_3 = (-3, 0, -1)`` m
-make a triangle in the vertical plane that contains the path: UAV 1 above the centroid, UAV 2
-three metres ahead and one below, UAV 3 three metres behind and one below. These offsets sum to
-zero, so the centroid of the three slots is the path point itself (P6).
+Design notes: docs/edge.md (edge/geometry/formation.py).
 """
 
 from __future__ import annotations

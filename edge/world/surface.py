@@ -1,24 +1,6 @@
 """Synthetic inspected surface: concrete-like texture with procedurally drawn cracks.
 
-The paper's detector (Section 6, (P18)-(P20)) works on grey-scale images of a surface whose
-defects are "abnormal, darker pixel groups on a repetitive background". This module makes such
-images with a *known* ground-truth mask, so that the detector can be scored (P20) and a whole
-mission can be scored against the defects that are really on the wall.
-
-Three plain generators work on image-sized arrays:
-
-- :func:`textured_background` -- concrete-like grey texture (multi-scale value noise, blotches,
-  a mild illumination gradient, grain);
-- :func:`draw_cracks` -- binary crack mask (random-walk polylines with smoothly varying
-  direction and width, occasional branches);
-- :func:`crack_image` -- the two combined: background darkened under the mask.
-
-:class:`SyntheticSurface` places such a texture on a planar rectangle in the world (local ENU
-metres), so that :mod:`edge.world.camera` can render the view of it from any camera pose, and lists
-its ground-truth defects (:meth:`SyntheticSurface.defects`) in surface and world coordinates.
-
-All randomness comes from a ``numpy.random.Generator`` (or an integer seed), so the same seed
-gives the same image, bit for bit.
+Design notes: docs/edge.md (edge/world/surface.py).
 """
 
 from __future__ import annotations

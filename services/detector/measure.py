@@ -1,30 +1,6 @@
 """Crack measurements on a binary defect mask: skeleton length, maximum and mean width, severity.
 
-Pure numpy / OpenCV / scikit-image, no bus code. Every function works in the pixels of the mask
-and a scale ``metres per pixel``: the mosaic (:mod:`services.inspection.mosaic`) is a
-fronto-parallel image of the surface plane at a known scale, so a length or width in its pixels is
-a length on the wall. For a single frame the scale is the ground sampling distance ``range / f``
-(the inverse of (P2): a camera at distance ``d`` with focal length ``f`` pixels sees ``d / f``
-metres per pixel); :func:`frame_scale` gives it from the frame's metadata.
-
-- **length**: the component's skeleton (:func:`skimage.morphology.skeletonize`, Zhang-Suen
-  thinning) measured with the Kimura-Kikuchi-Yamasaki chain-code estimator
-  ``L = 0.948 n_e + 1.343 n_o`` (n_e orthogonal, n_o diagonal links; Dorst & Smeulders 1987 give
-  its error on straight lines as a few per cent, against 8 % for the naive ``n_e + √2 n_o``), plus
-  the half width at each end, where thinning stops short of the crack's tip;
-- **sizing mask**: the crack's pixels at half its depth (:func:`half_depth_mask`), not the
-  detector's mask, whose global threshold is chosen to find cracks and takes in the darker
-  texture at their edges; short skeleton spurs from a rough edge are pruned (:func:`prune_spurs`);
-- **width**: ``2 D − 1/2`` pixels at each skeleton pixel, ``D`` its exact Euclidean distance to the
-  nearest background pixel (``cv2.distanceTransform``, ``DIST_MASK_PRECISE``): a digital line ``t``
-  pixels thick has ``D = (t + 1) / 2`` on its axis when ``t`` is odd and ``t / 2`` when it is even,
-  so the estimate is within half a pixel either way; the maximum is the 95th percentile over the
-  skeleton (a branch point or a tip reads wider than the crack); the mean width is the area over
-  the length (sub-pixel);
-- **severity** by the maximum width, in the classes of the AASHTO Manual for Bridge Element
-  Inspection for reinforced-concrete cracking (insignificant < 0.3 mm, moderate 0.3-1.3 mm,
-  wide > 1.3 mm); a width below one pixel's footprint cannot be told apart and is flagged
-  ``resolved=False``.
+Design notes: docs/detector.md (services/detector/measure.py).
 """
 
 from __future__ import annotations

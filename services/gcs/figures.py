@@ -1,51 +1,6 @@
 """The mission report's figures: a recorded mission in, typed figures out (record -> figures).
 
-Pure code (numpy), no bus code, no plotting: :func:`analyse` turns a
-:class:`services.recording.record.MissionRecord` into :class:`ReportFigures`, which holds the
-:class:`ReportSummary` (every figure, written as ``report.json``) and the typed series the plots
-draw (:mod:`services.gcs.plots`); the Markdown page (:mod:`services.gcs.markdown`) reads the
-summary only. :mod:`services.gcs.report` writes them all.
-
-How the figures are measured (our choices where the paper is silent)
---------------------------------------------------------------------
-*Tracking states.* Path and formation figures use the states where a UAV tracks its trajectory:
-mode MISSION with a trajectory position (``wp_index >= 0`` or ``progress > 0``); the transit to
-the first waypoint and the wait there report ``wp_index = -1`` and are left out. A driver that
-never fills those fields (all MISSION states at ``wp_index = -1``, ``progress = 0``) has all its
-MISSION states counted.
-
-*Path error* (paper's Fig. "Errors between the planned and flown paths"). Geometric: the
-distance from each flown position to the planned polyline (the trajectory's waypoints joined by
-segments; the planner samples them densely), which ignores a lag in time. Time-aligned: the
-distance to the planned position at the same trajectory time, the plan's time ``τ`` mapped to
-the states' simulation time ``t`` by ``t = t_a + (τ − τ_0)``; the anchor ``t_a`` is the first
-tracking state's ``t − progress · duration`` (the first MISSION state's ``t`` when progress is
-not reported). A pause (hold, resume) therefore shows as a growing time-aligned error.
-
-*Formation error.* The UAVs' positions are linearly interpolated to common times (the union of
-their state times inside the window where every UAV tracks) and :class:`edge.geometry.formation.ShapeErrorMeter`
-gives the RMS shape error (P6)-(P9) at each time (the heading ψ: the flown centroid's horizontal velocity over
-the last 1 s, held while it moves slower than 0.3 m/s; the terminal line and the web page use the same rule), with the scenario's offsets (``scenario.formation.offsets``, row n−1 for UAV n) or
-:data:`edge.geometry.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
-planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
-heading of the centroid's motion is not always the one the planner placed the slots with.
-
-*Reached goal* and *planned captures*: as :mod:`services.gcs.verdict` defines them for the
-mission's verdict too: the last position with the trajectory complete (progress 1, in MISSION or
-HOLD, i.e. before the ground station lands the formation) is within 2 m of the last planned
-waypoint (the last recorded position when the trajectory never completed).
-
-*Link classes.* Telemetry (UDP in the paper): delivered = distinct sequence numbers received,
-sent = the sequence span ``max − min + 1`` per UAV; latency = state age ``rx − stamp``.
-Imagery (RTP): delivered/sent = ``received / (received + lost)`` from the detector's latest
-jitter-buffer statistics (``uavN.camC.*`` metrics, RFC 3550 loss and interarrival jitter);
-latency = capture to report ``stamp_report − stamp_capture``. Defect reports (command class,
-reliable): latency = delivery ``rx − stamp_report``. Commands (TCP): delivered/sent = commands
-acknowledged ok / commands sent; latency = every answered try's round trip ``ack_s``. Latencies
-are reported in milliseconds as p50/p95/p99 (numpy's linear percentile), mean and max.
-
-*Planner convergence*: the first iteration whose best cost is within 0.1 % of the final cost,
-as :meth:`services.planner.optimiser.OptResult.convergence_iteration` counts it (Table I).
+Design notes: docs/report.md (services/gcs/figures.py).
 """
 
 from __future__ import annotations

@@ -1,24 +1,6 @@
 """The ground control station's mission: plan, upload, take off, fly, image, land — over the bus.
 
-:class:`MissionRunner` is a Zenoh client of the gateway. It records everything into a
-:class:`~services.recording.record.MissionRecord` (the input of the report) and returns it with
-``success`` set only when every UAV reached the goal and every capture point was imaged; any
-step that cannot complete (a UAV that never appears, refuses its upload, a planner that does
-not answer, a timeout) ends the mission with a failure that says why, never a hang.
-
-Faults. A supervisor thread binds :class:`services.gcs.supervision.Supervisor` (the
-policy, pure: lost UAVs, the own link, standing still, failsafe resumes) to the bus for the whole
-mission; commands go out through :mod:`services.gcs.commands` (retries, back-off), and a lost UAV
-is not sent commands (a failed command record says so). The waits are extended by the time the
-fleet stood still, up to ``stall_limit_s``.
-
-Heartbeats continue throughout. Every command ends in the record acknowledged or failed.
-
-The plan's authority is the operator's scenario (:meth:`MissionRunner.request_plan`): every answer
-to the plan request is gathered and judged (:mod:`protocol.planauth`: the planner's signature, the
-request's nonce and scenario digest, one plan only), the plan must stay inside the scenario
-(:func:`services.gcs.preflight.scenario_problem`), and the edges get the scenario's box as their
-geofence, never the plan's.
+Design notes: docs/ground-station.md (services/gcs/mission.py).
 """
 
 from __future__ import annotations

@@ -1,33 +1,6 @@
 """The inspection deliverable: mosaic of the wall, defect table with sizes and crops, GeoJSON and KML.
 
-Pure (no bus code). Input: posed frames (:class:`services.inspection.mosaic.PosedFrame`) from a
-mission (the detector's saved captures) or from a folder of photos with poses
-(:func:`load_folder`). Steps:
-
-1. every frame is segmented by the detector's method (:func:`services.detector.detect.detect`, IT+
-   by default: what the mission's detector reported);
-2. frames and masks are warped onto the surface plane (:func:`services.inspection.mosaic.build_mosaic`);
-3. each 8-connected component of the mosaic's defect mask is one defect (a crack seen by two
-   overlapping frames is one defect): its position (centroid) on the surface, in ENU and, with the
-   geodetic origin, in WGS-84 (:func:`edge.geometry.waypoint_mission.enu_to_geodetic`, the origin's
-   altitude included); its length, maximum and mean width and severity class
-   (:mod:`services.detector.measure`, at the mosaic's scale); its centre line (the skeleton's longest
-   path) and outline; the captures behind it (the frame giving most of its mosaic pixels: UAV, capture,
-   time); the table is sorted by :data:`SORT_KEY`;
-4. files: ``mosaic.png`` (full resolution, defects outlined and numbered), ``overview.png`` (gridded,
-   scale bar, u/v axes, the wall's bearings: :mod:`services.inspection.views`), ``tiles/`` (its zoomable
-   pyramid), ``defects.json``, ``defects.md``, ``defects.geojson`` (RFC 7946: each defect's centre line
-   as a LineString and outline as a Polygon, lon, lat, altitude, with its sizes, class, capture and crop as
-   properties), ``defects.kml`` (OGC KML 2.2 placemarks, absolute altitudes) and ``crops/defect-<id>.png``.
-
-Folder of photos with poses: ``<name>.jpg|png`` each with ``<name>.json`` holding the fields of
-:class:`protocol.messages.ImageMeta` (``cam_pos`` ENU m, ``cam_rot`` world-from-camera row-major
-with OpenCV camera axes, ``intrinsics``, ``range_m``; ``uav``, ``capture_id``, ``t`` and ``stamp``
-may be left out), and optionally ``surface.json`` with ``corners`` (4 ENU points, p0-p1 the bottom
-edge) and ``origin`` (lat, lon, alt). Without corners the plane is fitted to the frames
-(:func:`services.inspection.mosaic.plane_from_frames`).
-
-    python -m services.inspection.deliverable FOLDER --out OUT [--method it+]
+Design notes: docs/report.md (services/inspection/deliverable.py).
 """
 
 from __future__ import annotations

@@ -1,25 +1,6 @@
 """Task assessment: camera configurations that image a surface (PAPER.md Section 2, (P1)-(P3)).
 
-Shots must look perpendicular to the surface, resolve the smallest feature ``s_f`` with two
-pixels, and overlap by ``o_p``:
-
-- (P1) footprint ``a_fov = 1/2 r_c s_f`` per image axis (``r_c`` pixels along that axis);
-- (P2) stand-off distance ``d_f = a_fov f / s_s`` (``f`` focal length, ``s_s`` sensor size along
-  the same axis, same unit as ``f``);
-- (P3) spacing between neighbouring shots ``g = (1 - o_p) a_fov``.
-
-:func:`camera_grid` lays the shots of a general regular grid over a planar patch.
-:func:`formation_pass` does the same for a formation (P9) that flies once along a vertical wall:
-the rows of shots are the heights of the UAVs in the formation (the formation frame's z does not
-change with heading), the columns are spaced at most ``g`` apart, and every shot is a point that
-the UAV taking it passes through, so the capture points lie on the UAVs' trajectories.
-
-Choices where the paper is silent (documented in ``protocol/scenarios/monorail.toml``): the paper's
-34.4 mm focal length is read as a 35 mm-equivalent focal length with an equivalent 36 mm x 27 mm
-sensor for the 4:3 frame (square pixels); when the two axes give different stand-offs the
-smaller one is used, so that ``s_f`` is resolved on both axes. Columns are spread evenly from
-half a footprint inside one end of the patch to half a footprint inside the other end (the
-footprints of the end shots touch the patch's edges).
+Design notes: docs/planner.md (services/planner/task.py).
 """
 
 from __future__ import annotations

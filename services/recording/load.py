@@ -1,21 +1,6 @@
 """The mission's record from its log alone: the one loader every consumer uses.
 
-:func:`load_record` reads a mission log (:class:`services.recording.recorder.MissionLogWriter` wrote it) in
-log-time order into a :class:`~services.recording.record.MissionRecord`:
-
-- the header and the footer (:data:`~services.recording.recorder.HEADER_TOPIC`, ``FOOTER_TOPIC``) give the
-  fields that are not lists (scenario, plan, phases, verdict, counters);
-- the ground station's own entries (commands, faults, incidents, its events) come from their channels;
-- the received lists (states, events, defect reports, gateway and detector statistics) are the bus samples of
-  the log, held to the rules the ground station's subscribers apply (:mod:`protocol.binding`: a body that speaks
-  for another node than its key's is not taken), in receive order;
-- every list is bounded like the live record (:func:`services.recording.record.keep`, :data:`~services.recording.record.CAPS`).
-
-A message that does not validate is counted and skipped; a log without a footer (the run did not finish
-writing it) gives what it holds and says so in ``recording_errors``. ``ground=`` takes the header, footer and
-the ground station's entries from another log: a replay recorded on a live network holds only bus samples.
-A log written before the ground station's entries had channels of their own (one summary message at the end)
-is read too, its lists being every bus sample of the log.
+Design notes: docs/recording.md (services/recording/load.py).
 """
 
 from __future__ import annotations

@@ -1,38 +1,6 @@
 """Mission logs as MCAP files (the ``mcap`` package): what goes on which channel, and how it comes back.
 
-One MCAP channel per bus key and message type (``topic`` = the Zenoh key, e.g.
-``skynet/demo/uav/1/state``), every message with its receive time (``log_time``) and, for
-typed messages, its own stamp (``publish_time``; the receive time where it has none):
-
-======================  ===================  ==========================================  ================
-what                    message_encoding     schema                                      Foxglove/Lichtblick
-======================  ===================  ==========================================  ================
-typed messages          ``json``             ``jsonschema`` of the pydantic model,       Raw Messages, Plot,
-(states, events,                             name ``skynet.<Model>``                     Table, State
-defect reports, stats,                                                                   Transitions
-heartbeats)
-imagery frames          ``x-skynet-frame``   none (RTP + metadata + JPEG,                none (opaque)
-(camera, preview)                            :mod:`protocol.imagery`)
-previews, for viewers   ``json``             ``foxglove.CompressedImage`` (topic         Image
-                                             ``<key>/jpeg``; JPEG base64 in ``data``)
-requests and replies    ``json``             the command / plan request model, and       Raw Messages
-(commands, acks, plan)                       CommandAck / MissionPlan / ErrorReply;
-                                             channel metadata ``skynet.kind`` =
-                                             ``query`` / ``reply``, topic = the key
-undecodable samples     ``x-skynet-raw``     none                                        none
-the ground station's    ``json``             ``skynet.record.<Model>`` (topics           Raw Messages
-entries (header,                             ``/skynet/record/...``:
-commands, faults,                            :mod:`services.recording.recorder`)
-incidents, its events,
-footer)
-======================  ===================  ==========================================  ================
-
-Typed messages are stored as their JSON, so viewers can read them; a replay validates the JSON
-back into the model and encodes it for the bus again (:func:`bus_bytes`): the same message, in
-the bus's msgpack envelope. Imagery and undecodable samples go back byte for byte.
-
-The writer streams: chunks of ``chunk_size`` bytes (zstd) go to disk as they fill, so memory is
-one chunk plus the index (one entry per chunk and channel), whatever the mission's length.
+Design notes: docs/recording.md (services/recording/mcap_log.py).
 """
 
 from __future__ import annotations

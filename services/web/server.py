@@ -1,24 +1,6 @@
 """The web server of the fleet view (aiohttp): the page, the previews, a WebSocket pushing snapshots.
 
-Routes:
-
-- ``GET /`` the page (``static/index.html``, plain JavaScript, no build step), ``GET /app.js``;
-- ``GET /preview/<uav>.jpg`` the newest preview JPEG of a UAV (404 before the first);
-- ``GET /ws`` a WebSocket (RFC 6455): the server sends the static document on connect and when it
-  changes, then a snapshot every ``1 / rate`` s (5–10 Hz); the client sends nothing;
-- ``GET /snapshot.json`` one snapshot (for scripts and tests).
-
-Access (:class:`Access`): the page is readable by its operator only, not by another site open in the same
-browser. Every route wants the server's access token, as Jupyter does: the server prints its URL with
-``?token=...`` (random per start unless given); after that first load the token travels in a cookie
-(``HttpOnly``, ``SameSite=Strict``) so the page's own fetches and WebSocket carry it; scripts may send it
-as ``Authorization: token T``. A request whose ``Host`` is not the bound address, a loopback name or a
-name the operator allows (DNS rebinding: a hostile name resolved to 127.0.0.1), or whose ``Origin`` is
-not this server's (cross-site WebSocket hijacking, RFC 6455 Section 10.2), gets 403 before the token is
-even looked at. Responses carry a Content-Security-Policy that allows this server's own scripts only.
-
-:class:`WebServer` runs the aiohttp application on its own thread and event loop, so the ground
-station (a synchronous program) starts it with :meth:`start` and ends it with :meth:`stop`.
+Design notes: docs/operator-view.md (services/web/server.py).
 """
 
 from __future__ import annotations
