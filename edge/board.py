@@ -223,7 +223,7 @@ class Board:
         with self.lock:
             captures = self.driver.step(self.clock.now())
             st = self.driver.state()
-            plan = self._keep_formation(st, now_wall) if st.mode == Mode.MISSION and self.follower else {}
+            plan: dict = self._keep_formation(st, now_wall) if st.mode == Mode.MISSION and self.follower else {}
             self._check_failsafe(st, now_wall)
         for ev in captures:
             if self.camera is not None:

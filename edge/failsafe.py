@@ -144,11 +144,12 @@ class FailsafePolicy:
             self.active, self.since, self.escalated = True, now, False
             return self._order(o.action, "gcs", EventKind.FAILSAFE,
                                f"no ground-station heartbeat for {silent:.1f} s: {o.action}")
+        held = now - (now if self.since is None else self.since)
         if (not self.escalated and o.escalate_action != "none" and o.action == "hold"
-                and now - self.since >= o.escalate_after_s and silent > o.timeout_s):
+                and held >= o.escalate_after_s and silent > o.timeout_s):
             self.escalated = True
             return self._order(o.escalate_action, "gcs", EventKind.FAILSAFE_ESCALATED,
-                               f"no ground-station heartbeat for {silent:.1f} s, held {now - self.since:.1f} s: "
+                               f"no ground-station heartbeat for {silent:.1f} s, held {held:.1f} s: "
                                f"{o.escalate_action}")
         return None
 
@@ -158,7 +159,8 @@ class FailsafePolicy:
             return f"battery failsafe ({self.battery}): not resumed"
         if not self.active:
             return None
-        if last_heartbeat is None or last_heartbeat <= self.since or now - last_heartbeat > self.opt.timeout_s:
+        if (last_heartbeat is None or (self.since is not None and last_heartbeat <= self.since)
+                or now - last_heartbeat > self.opt.timeout_s):
             return "failsafe: no fresh ground-station heartbeat yet"
         return None
 

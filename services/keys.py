@@ -254,9 +254,13 @@ def expiring(folder: str | Path, within_days: float = RENEW_DAYS) -> bool:
     return False
 
 
+def _common_name(cert: x509.Certificate) -> str:
+    value = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+    return value.decode() if isinstance(value, bytes) else value
+
+
 def _cn(cert_path: Path) -> str:
-    cert = x509.load_pem_x509_certificate(cert_path.read_bytes())
-    return cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+    return _common_name(x509.load_pem_x509_certificate(cert_path.read_bytes()))
 
 
 def _set_certs(folder: Path, old: str, new: str | None) -> None:
@@ -373,7 +377,7 @@ def show(folder: str | Path) -> list[str]:
     for node in sorted(p for p in folder.iterdir() if p.is_dir() and (p / "tls.pem").exists()):
         check_role(node.name)
         cert = x509.load_pem_x509_certificate((node / "tls.pem").read_bytes())
-        cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+        cn = _common_name(cert)
         lines.append(f"{node.name:10} CN={cn:10} sign key {key_id(load_public(node / 'sign.pub'))}  "
                      f"TLS until {cert.not_valid_after_utc:%Y-%m-%d}")
     ks = KeySet(folder, "gcs")

@@ -460,7 +460,7 @@ class ShapeErrorMeter:
         self.yaw: float | None = None
         self.first_yaw: float | None = None  # the first heading found
         self.latest: float | None = None  # the newest sample's error known
-        self._t0: float | None = None  # the first sample's time
+        self._t0 = math.nan  # the first sample's time (NaN until the first sample)
         self._buf: list[tuple[float, NDArray[np.float64], dict[int, NDArray[np.float64]]]] = []
         self._next = 0  # index in _buf of the first sample not evaluated yet
 
@@ -506,7 +506,7 @@ class ShapeErrorMeter:
         if not math.isfinite(t) or (self._buf and not t > self._buf[-1][0]):
             raise ValueError("sample times must be finite and increase")
         pos = {u: finite_vec3(f"position of UAV {u}", positions[u]) for u in ids}
-        if self._t0 is None:
+        if math.isnan(self._t0):
             self._t0 = t
         self._buf.append((t, np.mean([pos[u] for u in ids], axis=0)[:2], pos))
         return self._drain(t, everything=False)

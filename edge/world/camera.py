@@ -260,7 +260,7 @@ class SyntheticSource:
             img[seen == 0] = self.sky
             if gt is not None:
                 gt[seen == 0] = 0
-        return img, gt
+        return img.astype(np.uint8, copy=False), None if gt is None else gt.astype(np.uint8, copy=False)
 
     @staticmethod
     def _jacobian(Hinv: NDArray[np.float64], p: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -84,7 +84,7 @@ def _value_noise(h: int, w: int, cell: float, rng: np.random.Generator) -> NDArr
     out = big[oy : oy + h, ox : ox + w]
     if out.shape != (h, w):  # cell < 1 px: the enlarged field may be one pixel short
         out = cv2.resize(big, (w, h), interpolation=cv2.INTER_LINEAR)
-    return out
+    return out.astype(np.float32, copy=False)
 
 
 def textured_background(

@@ -200,7 +200,7 @@ def measure_mask(mask: np.ndarray, m_per_px: float, min_area_px: int = 1, grey: 
     m = np.where(np.asarray(mask) != 0, 255, 0).astype(np.uint8)
     H, W = m.shape
     n, labels, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8, ltype=cv2.CV_32S)
-    out = []
+    out: list[tuple[tuple[int, int, int, int], tuple[float, float], CrackMeasure]] = []
     for i in np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable") + 1:
         x, y, w, h, a = (int(v) for v in stats[i])
         if a < min_area_px:

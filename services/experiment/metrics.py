@@ -99,8 +99,7 @@ def run_metrics(report: Mapping[str, Any] | None, wall_s: float | None = None, h
         out["img_lost"] = _camera_sum(imagery, "lost")
         out["img_late"] = _camera_sum(imagery, "late")
         out["img_recovered"] = _camera_sum(imagery, "recovered")
-        jit = [_num(_get(m, "jitter_ms")) for m in imagery.values()]
-        jit = [j for j in jit if j is not None]
+        jit = [j for m in imagery.values() if (j := _num(_get(m, "jitter_ms"))) is not None]
         out["img_jitter_ms"] = max(jit) if jit else None
     planned = out["captures_planned"]
     if planned is not None:

@@ -60,7 +60,8 @@ def descendants(pid: int) -> list[tuple[int, str | None]]:
         if not entry.name.isdigit() or (fields := _stat(entry.name)) is None:
             continue
         children.setdefault(int(fields[1]), []).append((int(entry.name), fields[19]))
-    out, todo = [], [pid]
+    out: list[tuple[int, str | None]] = []
+    todo = [pid]
     while todo:
         for child in children.get(todo.pop(), []):
             out.append(child)

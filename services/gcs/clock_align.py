@@ -39,8 +39,8 @@ def sim_time_shifts(tracks: Mapping[int, tuple[Iterable[float], Iterable[float]]
     epoch is known; a UAV whose epoch is not known (or every UAV, when none is) gets 0.
     """
     epochs = {u: estimate_epoch(t, s, speed) for u, (t, s) in tracks.items()}
-    known = sorted(u for u, e in epochs.items() if e is not None)
+    known = {u: e for u, e in epochs.items() if e is not None}
     if not known:
         return {u: 0.0 for u in tracks}
-    ref = epochs[known[0]]
+    ref = known[min(known)]
     return {u: 0.0 if e is None else float((e - ref) * speed) for u, e in epochs.items()}

@@ -87,7 +87,7 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
             links[-1]["up_s"] = t(inc.at)
 
     # failsafes (board events) and resumes (ground station)
-    failsafes = []
+    failsafes: list[dict[str, Any]] = []
     for e in record.events:
         if e.msg.kind == EventKind.FAILSAFE:
             failsafes.append({"uav": _uav_of(e.msg.source), "t_s": t(e.msg.stamp), "rx_s": t(e.rx),

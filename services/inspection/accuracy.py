@@ -86,7 +86,7 @@ def truth_cracks(mask: np.ndarray, m_per_px: float, min_area_px: int = 20) -> tu
     m = (np.asarray(mask) > 0).astype(np.uint8)
     n, labels, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8, ltype=cv2.CV_32S)
     H = m.shape[0]
-    out = []
+    out: list[TruthCrack] = []
     for i in range(1, n):
         x, y, w, h, a = (int(v) for v in stats[i])
         if a < min_area_px:

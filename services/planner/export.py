@@ -116,7 +116,8 @@ def waypoints_enu(items: list[MissionItem]) -> tuple[NDArray[np.float64], list[i
     if not items or items[0].command != MAV_CMD_NAV_WAYPOINT:
         raise ValueError("the first item must be the home waypoint")
     origin = items[0].params[4:7]
-    pts, caps = [], []
+    pts: list[tuple[float, float, float]] = []
+    caps: list[int | None] = []
     for it in items[1:]:
         if it.command == MAV_CMD_NAV_WAYPOINT:
             lat, lon, alt = it.params[4:7]

@@ -10,7 +10,7 @@ import heapq
 import io
 import json
 import struct
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -63,7 +63,7 @@ class McapLog:
         self._w = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._w.start(profile=PROFILE, library="skynet-inspect")
         self._schemas: dict[str, int] = {}
-        self._channels: dict[tuple[str, str, str], int] = {}
+        self._channels: dict[tuple[str, str, str, str], int] = {}
         self.previews_as_images = previews_as_images
         self.messages = 0
         self.closed = False
@@ -101,7 +101,7 @@ class McapLog:
                 self._preview_image(key, data, rx_s)
             return "frame"
         try:
-            msg = codec.decode(data)
+            msg: Message = codec.decode(data)
         except codec.CodecError:
             self._add(self._channel(key, RAW_ENCODING), rx_s, data)
             return "raw"
@@ -133,7 +133,7 @@ class McapLog:
         """One JSON document on ``topic``; ``schema`` a JSON Schema dict or a callable making one (called once)."""
         self._add(self._channel(topic, "json", schema_name, schema), t_s, doc.encode())
 
-    def metadata(self, name: str, data: dict[str, str]) -> None:
+    def metadata(self, name: str, data: Mapping[str, object]) -> None:
         self._w.add_metadata(name, {k: str(v) for k, v in data.items()})
 
     def close(self) -> None:
