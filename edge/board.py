@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 from protocol import keys
 from protocol.budget import for_topic
 from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
+from protocol.checks import xyz
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
     COMMAND_TYPES,
@@ -36,6 +37,7 @@ from protocol.messages import (
     Signed,
     Start,
     Takeoff,
+    Trajectory,
     UploadTrajectory,
     VehicleState,
 )
@@ -76,7 +78,7 @@ class BoardOptions:
     formation_gain: float = 0.8
     formation_size: int = FORMATION_SIZE  # the SkyNet neighbourhood: UAVs of the same formation
     offsets: dict[int, tuple[float, float, float]] = field(
-        default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
+        default_factory=lambda: {i + 1: xyz(o) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
 
 
@@ -97,8 +99,8 @@ class Board:
         self.last_heartbeat: float | None = None
         self._pilot_modes_seen = 0  # the driver's external_modes already reported
         self.failsafe = FailsafePolicy(options.failsafe)
-        self.trajectory = None
-        self.follower = None
+        self.trajectory: Trajectory | None = None
+        self.follower: Follower | None = None
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
@@ -188,7 +190,7 @@ class Board:
             d.upload(cmd.trajectory)
             self.trajectory, self.follower = cmd.trajectory, Follower(cmd.trajectory)
             if fence is not self.opt.geofence:
-                if self.opt.geofence is not None and fence != self.opt.geofence:
+                if fence is not None and self.opt.geofence is not None and fence != self.opt.geofence:
                     self.event(EventKind.GEOFENCE_NARROWED, f"geofence {tuple(fence.lo)}..{tuple(fence.hi)}")
                 self.opt.geofence = fence  # never an unsigned uploader's
         elif isinstance(cmd, Takeoff):
@@ -215,7 +217,7 @@ class Board:
         elif isinstance(cmd, ReturnToLaunch):
             d.return_to_launch()
         elif isinstance(cmd, SetFormation):
-            self.opt.offsets = {int(k): tuple(v) for k, v in cmd.offsets.items()}
+            self.opt.offsets = {int(k): xyz(v) for k, v in cmd.offsets.items()}
 
     # -- the control loop
     def tick(self) -> VehicleState:
@@ -274,6 +276,8 @@ class Board:
             self.driver.set_reference_offset((0.0, 0.0, 0.0))
             return {}
         fol = self.follower
+        if fol is None:
+            return {}
         tau = fol.t0 + st.progress * fol.duration
         pos, vel, _, _ = fol.reference(tau)
         members = self.opt.offsets  # the formation set by SetFormation (P9): other UAVs do not count

@@ -168,7 +168,7 @@ class PreviewStream:
         self.sender = RtpSender(ssrc_for(uav, PREVIEW_CAMERA))
         self.pub = bus.publisher(keys.preview(bus.fleet, uav), IMAGERY)  # never a cache: best-effort only
         self._next_due = 0.0
-        self._slot: tuple | None = None
+        self._slot: tuple[tuple[float, ...], tuple[float, ...], float, float] | None = None
         self._cond = threading.Condition()
         self._closed = False
         self.offered = self.sent = self.skipped = self.failed = self.unwatched = 0
@@ -200,6 +200,8 @@ class PreviewStream:
                 if self._closed:
                     return
                 job, self._slot = self._slot, None
+            if job is None:
+                continue
             try:
                 self._send(*job)
             except Exception:  # a preview never takes the edge down

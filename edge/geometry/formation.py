@@ -11,7 +11,7 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from protocol.checks import finite_array, finite_vec3
+from protocol.checks import finite_array, finite_vec3, xyz
 
 __all__ = [
     "DEFAULT_OFFSETS",
@@ -70,9 +70,9 @@ def offsets_for(n: int) -> NDArray[np.float64]:
     if not isinstance(n, (int, np.integer)) or not 1 <= n <= 255:
         raise ValueError(f"formation size must be an int in 1..255, got {n!r}")
     cols = [0.0]
-    for c in range(1, int(MAX_ALONG_M // PITCH_M) + 1):
-        cols += [PITCH_M * c, -PITCH_M * c]
-    rows = [tuple(o) for o in DEFAULT_OFFSETS]
+    for k in range(1, int(MAX_ALONG_M // PITCH_M) + 1):
+        cols += [PITCH_M * k, -PITCH_M * k]
+    rows = [xyz(o) for o in DEFAULT_OFFSETS]
     for c in cols[1:]:  # fill the two imaging rows outward: ahead/behind on the top row, then the lower
         if c > 0:
             rows += [(c, 0.0, 2.0), (-c, 0.0, 2.0)]

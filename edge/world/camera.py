@@ -195,7 +195,7 @@ class SyntheticSource:
             size = (max(1, w // f), max(1, h // f))
             t = cv2.resize(tex[: max(h, f), : max(w, f)], size, interpolation=cv2.INTER_AREA)
             m = cv2.resize(mask[: max(h, f), : max(w, f)], size, interpolation=cv2.INTER_AREA)
-            self._levels[level] = (t, np.where(m > 0, 255, 0).astype(np.uint8))
+            self._levels[level] = (np.asarray(t, np.uint8), np.where(m > 0, 255, 0).astype(np.uint8))
         return self._levels[level]
 
     # ------------------------------------------------------------------ rendering

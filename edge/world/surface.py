@@ -147,7 +147,7 @@ def textured_background(
     cells = (2.0, 6.0, 24.0, 96.0)
     amps = np.array([0.35, 0.45, 0.6, 0.55], dtype=np.float32)
     amps *= roughness / float(np.sqrt(np.sum(amps**2)))
-    img = np.zeros((h, w), np.float32)
+    img: NDArray[Any] = np.zeros((h, w), np.float32)
     for cell, amp in zip(cells, amps):
         img += amp * _value_noise(h, w, cell, g)
 
@@ -162,8 +162,8 @@ def textured_background(
             ax = (int(g.integers(2, 12)), int(g.integers(2, 12)))
             level = float(g.normal(0.0, 1.0)) * roughness * 0.9
             cv2.ellipse(canvas, c, ax, float(g.uniform(0, 180)), 0, 360, level, -1)
-        canvas = cv2.GaussianBlur(canvas, (0, 0), 2.0)
-        img += cv2.resize(canvas, (w, h), interpolation=cv2.INTER_LINEAR)
+        blurred = cv2.GaussianBlur(canvas, (0, 0), 2.0)
+        img += cv2.resize(blurred, (w, h), interpolation=cv2.INTER_LINEAR)
 
     # illumination: a linear ramp in a random direction, peak-to-peak = gradient * mean
     ang = float(g.uniform(0, 2 * np.pi))

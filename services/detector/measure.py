@@ -322,7 +322,7 @@ def outline(mask: np.ndarray, simplify_px: float = 0.5) -> np.ndarray:
     big = np.kron(m.astype(np.uint8), np.ones((2, 2), np.uint8)) * 255
     big = cv2.copyMakeBorder(big, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
     k3 = np.ones((3, 3), np.uint8)
-    ring = np.zeros((0, 2), np.int32)
+    ring: np.ndarray = np.zeros((0, 2), np.int32)
     for grow in range(pad - 1):
         g = cv2.dilate(big, k3, iterations=grow) if grow else big
         g = cv2.morphologyEx(g, cv2.MORPH_CLOSE, k3)

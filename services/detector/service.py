@@ -138,7 +138,8 @@ class DetectorService:
         if len(payload) == 0:
             return  # an announce frame: not a capture
         with self._lock:
-            self.recovery.live(header.ssrc, header.sequence, time.time())
+            if self.recovery is not None:
+                self.recovery.live(header.ssrc, header.sequence, time.time())
 
     def poll(self) -> None:
         """Release frames whose wait for a missing predecessor is over."""

@@ -10,6 +10,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import cast
 
 from protocol import keys
 from protocol.bus import Bus
@@ -77,7 +78,7 @@ def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = ti
         reply = bus.request(key, payload, expect=CommandAck, timeout=policy.timeout_s)
         if reply.ok:
             acks.append(reply.elapsed_s)
-            ack = reply.message
+            ack = cast(CommandAck, reply.message)  # expect=CommandAck: an ok reply is one
             return CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=True, accepted=ack.accepted,
                                  reason=ack.reason, attempts=attempt, elapsed_s=time.monotonic() - t0, ack_s=acks)
         reason = reply.error

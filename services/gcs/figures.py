@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from edge.geometry.formation import DEFAULT_OFFSETS, ShapeErrorMeter
+from protocol.checks import xyz
 from protocol.messages import Mode, Trajectory
 from services.gcs.clock_align import sim_time_shifts
 from services.gcs.resilience import fault_figures
@@ -445,10 +446,10 @@ def _offsets(record: MissionRecord, uavs: Iterable[int]) -> dict[int, NDArray[np
 def _corners(record: MissionRecord) -> list[tuple[float, float, float]]:
     """The inspected surface's corners: the record's, else the scenario's ``surface.corners``."""
     if record.surface_corners:
-        return [tuple(map(float, c)) for c in record.surface_corners]
+        return [xyz(c) for c in record.surface_corners]
     if record.scenario is None or record.scenario.surface is None:
         return []
-    return [tuple(map(float, p)) for p in record.scenario.surface.corners]
+    return [xyz(p) for p in record.scenario.surface.corners]
 
 
 def _obstacles(record: MissionRecord) -> list[tuple[float, float, float, float]]:
@@ -571,7 +572,7 @@ def _imagery_metrics(record: MissionRecord) -> dict[str, dict[str, float]]:
     ``detector-K`` sharing the cameras by partition: services.detector.partition)."""
     out: dict[str, dict[str, float]] = {}
     sources = sorted({s.msg.source for s in record.detector_stats})
-    latest = [_latest([s for s in record.detector_stats if s.msg.source == src]) for src in sources]
+    latest = [x for src in sources if (x := _latest([s for s in record.detector_stats if s.msg.source == src])) is not None]
     for key, value in ((k, v) for st in latest for k, v in st.metrics.items()):
         parts = key.split(".")
         if len(parts) == 3 and parts[0].startswith("uav") and parts[1].startswith("cam"):
@@ -721,7 +722,7 @@ def analyse(record: MissionRecord) -> ReportFigures:
     per_source: dict[str, list[Any]] = {}
     for x in record.gateway_stats:  # one gateway per site (--sites)
         per_source.setdefault(x.msg.source, []).append(x)
-    latest = {src: _latest(xs) for src, xs in sorted(per_source.items())}
+    latest = {src: last for src, xs in sorted(per_source.items()) if (last := _latest(xs)) is not None}
     gateways = {src: _gateway_figures(gw) for src, gw in latest.items()}
     gateway = gateways[max(latest, key=lambda src: latest[src].stamp)] if latest else {}
     events = [{"rx": e.rx, "source": e.msg.source, "stamp": e.msg.stamp, "kind": e.msg.kind,

@@ -161,7 +161,7 @@ def summarise(rows: Sequence[Comparison], unmatched: Sequence[int] = (), gsd_m: 
     m = [r for r in rows if r.defects and (gsd_m is None or r.truth.width_max_mm >= 1e3 * gsd_m)]
     res = [r for r in m if r.resolved]
 
-    def stats(xs: list[float]) -> tuple[float | None, float | None]:
+    def stats(xs: list[float | None]) -> tuple[float | None, float | None]:
         a = np.abs(np.asarray(xs, float))
         return (float(np.median(a)), float(a.max())) if a.size else (None, None)
 

@@ -44,8 +44,8 @@ class Command(BaseModel):
         return self
 
     def to_text(self) -> str:
-        """The command in the grammar above; ``parse_command(c.to_text()) == c``."""
-        if self.action == "set":
+        """The command in the control grammar (docs/experiments.md); ``parse_command(c.to_text()) == c``."""
+        if self.action == "set" and self.impairment is not None:
             head = "set" if self.direction == "both" else f"set {self.direction}"
             return f"{head} {shlex.quote(self.impairment.to_text())}"
         if self.action == "cut" and self.duration_s is not None:

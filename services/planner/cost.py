@@ -6,6 +6,7 @@ Design notes: docs/planner.md (services/planner/cost.py).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -193,7 +194,7 @@ class Cost:
         self._h_oz = (self.cyl[:, 3].reshape(1, C, 1, 1) - self._oz).copy()  # top minus UAV's z offset
         if sc.surface is not None and problem.inspection is not None:
             p0, u, n = sc.surface.frame
-            self.wall = (p0, u, n, sc.surface.length, *sc.surface.z_range)
+            self.wall: tuple[Any, ...] | None = (p0, u, n, sc.surface.length, *sc.surface.z_range)
             self.keep = 0.9 * problem.inspection.standoff
             # sample parameters along a UAV segment, centred on its midpoint: (k + 1/2) / K - 1/2
             K = self.SAMPLES

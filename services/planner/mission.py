@@ -79,7 +79,7 @@ def optimise(
     try:
         result = ALGORITHMS[algorithm](cost, x0, I, np.random.default_rng([s, 1]))
     except TimeBudgetExceeded:
-        if not anytime or getattr(cost, "best_x", None) is None:
+        if not anytime or not isinstance(cost, Deadline) or cost.best_x is None:
             raise
         result = OptResult(algorithm=algorithm, x=cost.best_x, cost=cost.best_cost, history=np.asarray(cost.history),
                            evaluations=cost.evaluations, wall_time_s=time.perf_counter() - t0)

@@ -234,7 +234,7 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
     L = surf.length
     e = float(np.max(np.abs(off[:, 0]))) + insp.lead_in
     start, goal = np.asarray(scenario.start, float), np.asarray(scenario.goal, float)
-    best = None
+    candidates = []
     for sign in (1.0, -1.0):
         t = sign * u
         left = np.cross([0.0, 0.0, 1.0], t)
@@ -244,9 +244,8 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
         s_in, s_out = (-e, L + e) if sign > 0 else (L + e, -e)
         entry, exit_ = base + s_in * u, base + s_out * u
         total = np.linalg.norm(entry - start) + np.linalg.norm(goal - exit_)
-        if best is None or total < best[0]:
-            best = (total, sign, t, entry, exit_, s_in)
-    _, sign, t, entry, exit_, s_in = best
+        candidates.append((total, sign, t, entry, exit_, s_in))
+    _, sign, t, entry, exit_, s_in = min(candidates, key=lambda c: c[0])  # the first of equals
     cols = grid_stations(L, a_w, g_w)
     uav, leg_s, pos, stations = [], [], [], []
     for h in heights:

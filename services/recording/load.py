@@ -60,7 +60,7 @@ def list_of(topic: str, msg) -> str | None:
     if info.topic == "stats" and isinstance(msg, LinkStats) and binding.source_matches(topic, msg.source):
         if info.area == "gateway":
             return "gateway_stats"
-        if info.area == "rcu" and (info.name == "detector" or info.name.startswith("detector-")):  # or an instance
+        if info.area == "rcu" and (info.name == "detector" or (info.name or "").startswith("detector-")):  # or an instance
             return "detector_stats"
     return None
 
@@ -107,10 +107,10 @@ def load_record(path: str | Path, caps: dict[str, int] | None = None,
                     keep(lists, kind, ITEM_MODELS[kind].model_validate_json(item.data), caps)
                 elif source == path and item.kind == "sample":
                     msg = item.message()
-                    kind = list_of(item.topic, msg) if msg is not None else None
-                    if kind is not None:
+                    listed = list_of(item.topic, msg) if msg is not None else None
+                    if listed is not None:
                         out.items += 1
-                        keep(lists, kind, _WRAP[kind](rx=item.rx, msg=msg), caps)
+                        keep(lists, listed, _WRAP[listed](rx=item.rx, msg=msg), caps)
             except ValueError:
                 out.damaged += 1
         if ground is not None and source == ground and head is None:

@@ -9,6 +9,7 @@ import argparse
 import os
 import threading
 from collections import Counter
+from functools import partial
 from pathlib import Path
 
 from protocol import binding, keys
@@ -58,7 +59,7 @@ class VideoService:
             if (uav, kind) not in self.streams:
                 port = self.port_of(uav, kind)
                 vs = VideoStream(self.codec, self.host, port, ssrc_for(uav, 0 if kind == "capture" else 1))
-                ring = Ring(QUEUE_PICTURES, lambda job, vs=vs: self._send(vs, *job), name=f"video-uav{uav}-{kind}")
+                ring = Ring(QUEUE_PICTURES, partial(self._send_job, vs), name=f"video-uav{uav}-{kind}")
                 path = self.sdp_path(uav, kind)
                 part = path.with_name(path.name + ".part")  # complete or absent: a player never reads half a file
                 part.write_text(sdp(self.codec, self.host, port, f"SkyNet UAV {uav} {kind}"))
@@ -88,6 +89,9 @@ class VideoService:
             return
         self.counts[f"in-{kind}"] += 1
         ring.push((bytes(jpeg), meta.stamp))
+
+    def _send_job(self, vs: VideoStream, job: tuple[bytes, float]) -> None:
+        self._send(vs, *job)
 
     def _send(self, vs: VideoStream, jpeg: bytes, stamp: float) -> None:
         try:

@@ -11,13 +11,17 @@ import json
 import logging
 import secrets
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
 from .view import FleetView
+
+if TYPE_CHECKING:
+    from .tally import DefectTally
 
 STATIC = Path(__file__).with_name("static")
 log = logging.getLogger(__name__)
@@ -92,7 +96,7 @@ class Access:
         if not given and header:
             scheme, _, value = header.partition(" ")
             given = value.strip() if scheme.lower() in ("token", "bearer") else None
-        return bool(given) and hmac.compare_digest(given.encode(), self.token.encode())
+        return given is not None and given != "" and hmac.compare_digest(given.encode(), self.token.encode())
 
     def refusal(self, host: str | None, origin: str | None, query: str | None, cookie: str | None,
                 header: str | None) -> str | None:
@@ -124,8 +128,8 @@ class WebServer:
         self.allowed_hosts = tuple(allowed_hosts)
         self.access = Access(host, self.port, self.token, self.allowed_hosts)
         self.refused = 0  # requests refused by the access checks
-        self.tally = None  # services.web.tally.DefectTally, when the page counts defects as the report does
-        self.on_stop = None  # called by stop()
+        self.tally: DefectTally | None = None  # when the page counts defects as the report does
+        self.on_stop: Callable[[], None] | None = None  # called by stop()
         self.sent = 0  # snapshots sent, all clients
         self.clients = 0
         self._loop: asyncio.AbstractEventLoop | None = None

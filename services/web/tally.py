@@ -99,6 +99,8 @@ class DefectTally:
             if n == counted or n == 0 or (not poked and time.monotonic() - last < self.interval_s):
                 continue
             last = time.monotonic()
+            if self._pool is None:
+                return
             fut: Future = self._pool.submit(count_defects, self.frames_dir, self.corners)
             try:
                 defects, frames = fut.result()

@@ -12,6 +12,7 @@ from collections import deque
 from typing import Any
 
 from edge.geometry.formation import DEFAULT_OFFSETS, ShapeErrorMeter, tracking_error
+from protocol.checks import xyz
 from protocol.keys import DEFAULT_FLEET, REPLAY_SUFFIX
 from protocol.messages import DefectReport, Event, MissionPlan, VehicleState
 from protocol.scenario import Scenario
@@ -157,7 +158,7 @@ class FleetView:
     def offsets(self) -> dict[int, tuple[float, float, float]]:
         """The formation offsets ΔT_n by UAV (the scenario's, else the default triangle's)."""
         rows = self.scenario.formation.offsets if self.scenario is not None else DEFAULT_OFFSETS
-        return {i + 1: tuple(map(float, o)) for i, o in enumerate(rows)}
+        return {i + 1: xyz(o) for i, o in enumerate(rows)}
 
     def _formation_error(self) -> float | None:
         """The formation error of the latest states (services.gcs.progress.formation_rms's rule: the UAVs in
