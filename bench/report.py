@@ -33,7 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from protocol.messages import Defect, DefectReport, LinkStats, Mode, VehicleState  # noqa: E402
 from protocol.scenario import Scenario, default_scenario_path, load_scenario  # noqa: E402
-from services.gcs.report import planned_positions, summarise, write_report  # noqa: E402
+from services.gcs.figures import planned_positions, summarise  # noqa: E402
+from services.gcs.report import write_report  # noqa: E402
 from services.planner.mission import plan_mission  # noqa: E402
 from services.recording.record import CommandRecord, DefectRx, MissionRecord, StateRx, StatsRx  # noqa: E402
 

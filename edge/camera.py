@@ -1,12 +1,6 @@
 """The UAV's camera: frame sources behind one interface, and JPEG encoding off the control loop.
 
-Sources (:class:`~edge.world.camera.FrameSource`): the simulated world's
-:class:`~edge.world.camera.SyntheticSource` renders the view of the synthetic wall;
-:class:`FolderSource` replays a folder of images; :class:`VideoCaptureSource` reads a real camera
-or a stream through OpenCV. :func:`make_source` picks one from a spec string. :class:`FrameEncoder`
-JPEG-encodes frames (:func:`protocol.imagecodec.encode_jpeg`) on its own thread, so that the control
-loop that fires the camera at each capture point never waits for the encoder (the bus publishing
-is in :mod:`edge.camera_service`).
+Design notes: docs/edge.md (edge/camera.py).
 """
 
 from __future__ import annotations

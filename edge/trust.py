@@ -33,10 +33,6 @@ class Gate:
         self._clock = clock
         self._lock = threading.Lock()
 
-    @property
-    def secure(self) -> bool:
-        return self.verifier is not None
-
     def _count(self, what: str) -> None:
         with self._lock:
             self.refused[what] += 1

@@ -1,11 +1,6 @@
 """The synthetic camera: the view of a :class:`~edge.world.surface.SyntheticSurface` from a camera pose.
 
-:class:`SyntheticSource` renders what the camera sees of the simulated wall, with the view's
-ground-truth mask; it is the :class:`FrameSource` of simulated flights and of the ground side's
-synthetic captures. :class:`Frame` and :class:`FrameSource` are the interface every source of
-the UAV's camera (:mod:`edge.camera`: folders, real cameras and streams) implements. The camera
-model and poses (:class:`~edge.geometry.optics.CameraModel`, :class:`~edge.geometry.optics.CameraPose`)
-are in :mod:`edge.geometry.optics`.
+Design notes: docs/edge.md (edge/world/camera.py).
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
 """The paper's iterative thresholding (IT), (P18)-(P19), on a 256-bin histogram.
 
-One pass over the pixels builds the histogram; every step after that is an Otsu split (P18) of a prefix of the
-histogram, O(256) with cumulative sums, until the contrast (P19) exceeds ``C_s``. Where the paper is silent this
-module chooses: the background is every pixel above the threshold (``background="above"``, default; the other
-reading is ``"previous"``), and a size guard stops at a dark region under ``min_region`` of the image (the bare
-rule: ``min_region=0, c_s=C_S_UNGUARDED``, method ``"it-paper"``). The algorithm, the two readings, how ``C_s``
-and ``min_region`` were chosen and the guards: docs/detector.md, "Iterative thresholding".
+Design notes: docs/detector.md (services/detector/iterative.py).
 """
 
 from __future__ import annotations

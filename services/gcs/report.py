@@ -9,55 +9,11 @@ import json
 from pathlib import Path
 from typing import Any
 
-from services.gcs.figures import (
-    DEFECT_TOLERANCE_M,
-    GOAL_RADIUS_M,
-    LATENCY_NAMES,
-    CaptureFigures,
-    FormationFigures,
-    Latency,
-    LinkFigures,
-    PlannerFigures,
-    ReportFigures,
-    ReportSummary,
-    UavFigures,
-    analyse,
-    as_record,
-    convergence_iteration,
-    latency_figures,
-    planned_positions,
-    polyline_distance,
-    shape_errors,
-    summarise,
-)
+from services.gcs.figures import ReportSummary, analyse, as_record
 from services.gcs.markdown import markdown
-from services.gcs.plots import PLOTS, write_plots
+from services.gcs.plots import write_plots
 from services.inspection.mission import append_deliverable
 from services.recording.record import MissionRecord
-
-__all__ = [
-    "GOAL_RADIUS_M",
-    "DEFECT_TOLERANCE_M",
-    "PLOTS",
-    "LATENCY_NAMES",
-    "Latency",
-    "UavFigures",
-    "FormationFigures",
-    "CaptureFigures",
-    "LinkFigures",
-    "PlannerFigures",
-    "ReportSummary",
-    "ReportFigures",
-    "analyse",
-    "as_record",
-    "polyline_distance",
-    "planned_positions",
-    "latency_figures",
-    "convergence_iteration",
-    "shape_errors",
-    "summarise",
-    "write_report",
-]
 
 
 # ============================================================================ entry point

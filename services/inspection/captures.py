@@ -1,11 +1,6 @@
 """Capture frames of a synthetic wall at the planned shots, without the bus (pure).
 
-The mission's edges render each capture from :class:`edge.world.surface.SyntheticSurface` through
-:class:`edge.world.camera.SyntheticSource` at the camera pose of the capture point and send it as a
-JPEG with its :class:`protocol.messages.ImageMeta` (pose, intrinsics, range). This module does the
-same off-line for the shots of the scenario's formation pass (:func:`services.planner.task.formation_pass`,
-(P1)-(P3)), so the detector's precision, the crack measurements and the mosaic can be checked in a
-few seconds on any surface seed, and tests get frames with poses and a pixel ground truth.
+Design notes: docs/report.md (services/inspection/captures.py).
 """
 
 from __future__ import annotations

@@ -1,12 +1,6 @@
 """What a link does to packets: the impairment description and the seeded per-packet decisions.
 
-Pure code, no sockets. :class:`Impairment` says *what* to do (delay, jitter, loss, burst loss, duplication,
-reordering, bandwidth, queue limit, outages; ``Impairment.parse`` reads tc-netem's string form);
-:class:`Impairer` applies it to one direction of one link: :meth:`Impairer.decide` gives the release times of
-the copies of one datagram (empty = dropped), :meth:`Impairer.decide_stream` the release time of one chunk of a
-byte stream (TCP never loses or reorders bytes; loss becomes retransmission delay). The semantics follow Linux
-``tc-netem(8)`` and its loss models (Salsano et al., 2010); each rule, where it differs from netem and the
-string form: docs/experiments.md, "The impairment model".
+Design notes: docs/experiments.md (services/netem/model.py).
 """
 
 from __future__ import annotations

@@ -47,8 +47,8 @@ def test_a_hostile_refusal_reason_is_escaped_in_the_log_line_and_in_report_md():
     import logging
 
     from protocol.textsafe import SafeFormatter
+    from services.gcs.figures import summarise
     from services.gcs.markdown import markdown
-    from services.gcs.report import summarise
     from services.recording.record import MissionRecord
 
     waiting = not_ready({1: state(1, AutopilotReadiness(ready=False, heartbeat=True, reason=HOSTILE))}, [1])

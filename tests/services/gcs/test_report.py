@@ -31,8 +31,7 @@ from protocol.messages import (
     Waypoint,
 )
 from protocol.scenario import Scenario
-from services.gcs.report import (
-    PLOTS,
+from services.gcs.figures import (
     Latency,
     convergence_iteration,
     latency_figures,
@@ -40,8 +39,9 @@ from services.gcs.report import (
     polyline_distance,
     shape_errors,
     summarise,
-    write_report,
 )
+from services.gcs.plots import PLOTS
+from services.gcs.report import write_report
 from services.recording.record import (
     CommandRecord,
     DefectRx,

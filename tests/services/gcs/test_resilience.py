@@ -12,7 +12,8 @@ from __future__ import annotations
 import pytest
 
 from protocol.messages import Event, Level, Mode, VehicleState
-from services.gcs.report import summarise, write_report
+from services.gcs.figures import summarise
+from services.gcs.report import write_report
 from services.gcs.resilience import fault_figures, reception_gaps
 from services.recording.record import CommandRecord, EventRx, FaultRecord, Incident, MissionRecord, StateRx
 

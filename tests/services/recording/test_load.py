@@ -10,8 +10,9 @@ import sys
 from pathlib import Path
 
 from protocol import codec, keys
+from services.gcs.figures import summarise
 from services.gcs.journal import report_record
-from services.gcs.report import summarise, write_report
+from services.gcs.report import write_report
 from services.recording.load import load_record
 from services.recording.record import ITEM_MODELS, LiveRecord, MissionRecord
 from services.recording.recorder import FOOTER_TOPIC, MissionLogWriter

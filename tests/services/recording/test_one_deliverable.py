@@ -15,7 +15,8 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig
 from protocol.messages import CommandAck, MissionPlan
 from protocol.signing import unverified_inner
-from services.gcs.report import summarise, write_report
+from services.gcs.figures import summarise
+from services.gcs.report import write_report
 from services.recording.load import load_record
 from services.recording.mcap_log import bus_bytes, captures, read
 from services.recording.recorder import MissionLogWriter
