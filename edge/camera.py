@@ -45,7 +45,7 @@ class FolderSource:
     loop : bool
         Start again after the last image; otherwise :meth:`grab` returns None from then on.
     grey : bool
-        Read as grey (the detector's input, PAPER.md Section 6) rather than BGR. Default True.
+        Read as grey (the detector's input, the paper's Section 6) rather than BGR. Default True.
     mask_dir : str or path, optional
         Folder of ground-truth masks with the same base names (``<stem>.png``), as the data sets
         under ``/work/shared/data`` have them; a frame whose mask is missing has ``mask=None``.

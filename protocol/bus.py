@@ -74,7 +74,7 @@ class BusConfig(BaseModel):
         if self.connect:
             endpoints: list[Any] = list(self.connect)
             if self.mode == "client" and self.multilink and len(endpoints) > 1:
-                # a client opens only its first endpoint unless they are grouped (ZENOH.md)
+                # a client opens only its first endpoint unless they are grouped
                 endpoints = [{"strategy": "allOf", "locators": endpoints}]
             put("connect/endpoints", endpoints)
             # a restarted gateway (or a healed link) is found again within about this pause; zenoh's
@@ -479,7 +479,7 @@ class Bus:
         """Send a query; acknowledged (``ok``) only by an ok reply that decodes as ``expect``.
 
         Nobody listening, a crashed queryable, a timeout or an error reply all give ``ok=False``
-        with the reason (ZENOH.md, "Liveliness, queries").
+        with the reason.
         """
         t0 = time.perf_counter()
         payload = codec.encode(msg)

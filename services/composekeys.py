@@ -76,7 +76,7 @@ def prepare(folder: Path, uavs: int, hosts: list[str], owner_of: Path | None = N
     unnamed = missing_sans(folder, hosts)
     if unnamed:
         warnings.append(f"the gateway's certificate does not name {', '.join(unnamed)}: links through those "
-                        "impairment side-cars will fail the TLS name check (README \"docker compose\")")
+                        "impairment side-cars will fail the TLS name check (docs/compose.md)")
     for role, names in sorted(sans.items()):
         unnamed = missing_sans(folder, list(names), role)
         if unnamed:

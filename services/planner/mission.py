@@ -1,4 +1,4 @@
-"""The planner's library entry point: scenario -> mission plan (PAPER.md Sections 2-4).
+"""The planner's library entry point: scenario -> mission plan (the paper's Sections 2-4).
 
 :func:`plan_mission` runs the whole pipeline: task assessment (P1)-(P3) and the inspection
 pass (:mod:`.task`), the centroid path by θ-PSO (P4) or a baseline on the cost (P5)

@@ -1,4 +1,4 @@
-"""Task assessment: camera configurations that image a surface (PAPER.md Section 2, (P1)-(P3)).
+"""Task assessment: camera configurations that image a surface (the paper's Section 2, (P1)-(P3)).
 
 Design notes: docs/planner.md (services/planner/task.py).
 """

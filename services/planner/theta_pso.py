@@ -1,4 +1,4 @@
-"""Angle-encoded particle swarm optimisation, θ-PSO (P4) (Hoang et al. 2018, PAPER.md Section 3).
+"""Angle-encoded particle swarm optimisation, θ-PSO (P4) (Hoang et al. 2018, the paper's Section 3).
 
 Design notes: docs/planner.md (services/planner/theta_pso.py).
 """
