@@ -26,8 +26,10 @@ from .budget import Budget
 from .cliconfig import Cli, CliModel, add_options, from_namespace
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
-from .ring import Ring  # noqa: F401  (services take their rings from the bus)
-from .signals import STOP_SIGNALS, stop_event_on_signals, stopping_on_signals  # noqa: F401  (the services' stop)
+from .ring import Ring as Ring  # services take their rings from the bus
+from .signals import STOP_SIGNALS as STOP_SIGNALS  # the services' stop
+from .signals import stop_event_on_signals as stop_event_on_signals
+from .signals import stopping_on_signals as stopping_on_signals
 
 log = logging.getLogger("skynet.bus")
 

@@ -10,6 +10,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 from protocol import binding, keys, planauth
 from protocol.budget import for_topic
@@ -358,7 +359,7 @@ class MissionRunner:
         if self.log:
             self.log.warning("%s: %s", kind, text)
 
-    def command(self, make: Callable[[int], object]) -> CommandRecord:
+    def command(self, make: Callable[[int], Any]) -> CommandRecord:
         """Send one command with retries and back-off (:func:`services.gcs.commands.send`); a
         refusal is final (not retried).
 

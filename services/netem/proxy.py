@@ -70,6 +70,12 @@ class _ProxyBase:
     live changes (:meth:`update`, :meth:`cut`, :meth:`restore`, :meth:`apply`, :meth:`play`)."""
 
     kind = "?"
+    # made by the subclass's start()
+    _lsock: socket.socket
+    _wake_r: socket.socket
+    _wake_w: socket.socket
+    _thread: threading.Thread
+    _sent: dict[str, dict[str, int]]
 
     def __init__(self, listen: Address | str, target: Address | str,
                  impairment: Impairment | str | dict[str, Any] | None, seed: int | None,
@@ -259,6 +265,9 @@ class _ProxyBase:
             s.close()
 
     def _release(self) -> None:
+        raise NotImplementedError
+
+    def stats(self) -> dict[str, Any]:
         raise NotImplementedError
 
     def __enter__(self) -> _ProxyBase:
