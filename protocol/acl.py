@@ -102,7 +102,7 @@ _INTEREST = ("declare_subscriber", "declare_queryable", "declare_liveliness_subs
 
 
 def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
-    """What ``role`` may say (ingress) and hear (egress) in ``fleet``; see the module table."""
+    """What ``role`` may say (ingress) and hear (egress) in ``fleet``; see the roles table of docs/security.md."""
     cam_all = keys.camera(fleet, "*")
     interest = Grant("egress", _INTEREST, (keys.fleet_all(fleet), keys.advanced(cam_all)))
     if role == "uav":
@@ -165,7 +165,7 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
 
 
 def attached_grants(fleet: str, role: str) -> list[Grant]:
-    """The grants of the tools that attach to a running network (module table): ``web`` and ``video`` read
+    """The grants of the tools that attach to a running network (the roles table of docs/security.md): ``web`` and ``video`` read
     (the live fleet and its replay fleet), ``replay`` writes the replay fleet only."""
     replay = keys.replay_fleet(fleet)
     if role == "replay":

@@ -48,7 +48,7 @@ def parse_ready(data: bytes) -> tuple[str, str] | None:
 
 
 def notify_ready(role: str, name: str | None = None) -> bool:
-    """Tell the launcher this process is up (module docstring); True when the line was written.
+    """Tell the launcher this process is up (docs/bus.md); True when the line was written.
 
     The variable is removed from the environment first, so that processes started later do not inherit a
     descriptor number that means nothing to them. A descriptor that is not an inherited pipe's write end

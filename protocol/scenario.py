@@ -248,7 +248,7 @@ class PlannerSpec(_Model):
 
 
 class Scenario(_Model):
-    """The whole planning problem (see the module docstring for the file format)."""
+    """The whole planning problem (the file format: docs/scenario.md)."""
 
     name: Annotated[str, Field(max_length=256)] = "scenario"
     origin: Origin

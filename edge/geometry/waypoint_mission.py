@@ -78,7 +78,7 @@ def _compass_deg(yaw_enu: float) -> float:
 
 
 def mission_items(trajectory: Trajectory, origin: ArrayLike) -> list[MissionItem]:
-    """The mission items of one UAV's trajectory (see the module docstring), item 0 = home."""
+    """The mission items of one UAV's trajectory (docs/hardware-mavlink.md), item 0 = home."""
     lat0, lon0, h0 = _origin(origin)
     wps = trajectory.waypoints
     pos = np.array([w.pos for w in wps], float)

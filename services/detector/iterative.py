@@ -92,10 +92,10 @@ def iterative_threshold(
     c_s : float
         Contrast threshold ``C_s`` in [0, 1): stop at the first step with ``C_k > C_s``.
     background : {"above", "previous"}
-        Which pixels form the background mean in (P19); see the module docstring.
+        Which pixels form the background mean in (P19); see docs/detector.md.
     min_region : float
         Size guard in [0, 1): a dark region with less than this share of all pixels is not
-        split again (0 = the paper's bare stop rule); see the module docstring.
+        split again (0 = the paper's bare stop rule); see docs/detector.md.
     max_iter : int
         Cap on the number of Otsu steps (>= 1).
     min_pixels : float

@@ -104,7 +104,7 @@ class DetectorPool:
         return [f.result(timeout) for f in futs]
 
     def call(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """``fn(*args)`` in a worker process (``fn`` and the arguments must pickle); see the module docstring
+        """``fn(*args)`` in a worker process (``fn`` and the arguments must pickle); see docs/detector.md
         for what a crash does. Exceptions raised by ``fn`` come back as they are."""
         for attempt in (1, 2):
             with self._lock:

@@ -11,7 +11,7 @@ __all__ = ["RecoveryTracker"]
 
 
 class RecoveryTracker:
-    """Counts frames delivered by recovery, per SSRC; see the module docstring.
+    """Counts frames delivered by recovery, per SSRC; see docs/detector.md.
 
     Parameters
     ----------

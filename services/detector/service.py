@@ -52,7 +52,7 @@ def frame_source(key: str, ssrc: int) -> tuple[int, int] | None:
 
 
 class DetectorService:
-    """Binds the pipeline to the bus; see the module docstring."""
+    """Binds the pipeline to the bus; see docs/detector.md."""
 
     def __init__(self, bus: Bus, method: str = "it+r", workers: int = 2, queue: int = QUEUE_FRAMES,
                  playout_delay_s: float = 0.05, log=None, recover: bool = True, save_frames: str | None = None,

@@ -336,7 +336,7 @@ class Track:
 class PathSeries:
     """One UAV's path error over its tracking states (paper's Fig. "Errors between the planned and
     flown paths"): simulation times, geometric error and, when the trajectory time is anchored,
-    the time-aligned error (module docstring), metres."""
+    the time-aligned error (docs/report.md), metres."""
 
     t: NDArray[np.float64]
     geometric: NDArray[np.float64]
@@ -358,7 +358,7 @@ class FormationSeries:
 @dataclass(frozen=True)
 class LinkSamples:
     """The latency samples of each link flow, seconds (the figures' :class:`Latency` and the
-    ``links.png`` box plot are both made from these; see the module docstring)."""
+    ``links.png`` box plot are both made from these; see docs/report.md)."""
 
     telemetry: NDArray[np.float64]  # state age rx - stamp
     imagery: NDArray[np.float64]  # capture to report stamp_report - stamp_capture (ok reports)
@@ -372,7 +372,7 @@ class ReportFigures:
 
     ``summary`` is written as ``report.json`` and told in ``report.md``; the rest are the series
     the plots draw. ``anchors``: UAV -> simulation time of its trajectory's first waypoint time
-    (module docstring, *Path error*), for the UAVs that tracked their trajectory.
+    (docs/report.md, *Path error*), for the UAVs that tracked their trajectory.
     """
 
     summary: ReportSummary
@@ -425,7 +425,7 @@ def _trajectories(record: MissionRecord) -> dict[int, Trajectory]:
 
 
 def _anchor(track: Track, traj: Trajectory) -> float | None:
-    """Simulation time of the trajectory's first waypoint time (see the module docstring)."""
+    """Simulation time of the trajectory's first waypoint time (docs/report.md)."""
     idx = np.flatnonzero(track.tracking)
     if idx.size == 0:
         return None
@@ -669,7 +669,7 @@ def as_record(record: MissionRecord | dict[str, Any]) -> MissionRecord:
 
 
 def analyse(record: MissionRecord) -> ReportFigures:
-    """Every figure and series of the report, in one pass over the record (see the module docstring).
+    """Every figure and series of the report, in one pass over the record (docs/report.md).
 
     Parameters
     ----------
@@ -757,7 +757,7 @@ def summarise(record: MissionRecord | dict[str, Any]) -> ReportSummary:
     Returns
     -------
     ReportSummary
-        See the module docstring for how each figure is measured.
+        See docs/report.md for how each figure is measured.
 
     Raises
     ------

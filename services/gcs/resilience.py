@@ -52,7 +52,7 @@ def reception_gaps(rx_times: list[float], min_gap_s: float = GAP_S) -> tuple[flo
 
 
 def fault_figures(record: MissionRecord) -> dict[str, Any]:
-    """The "faults" object of report.json (see the module docstring); empty lists when nothing happened."""
+    """The "faults" object of report.json (docs/report.md); empty lists when nothing happened."""
     t0 = _origin(record)
 
     def t(x: float) -> float:

@@ -44,7 +44,7 @@ class DefectScore:
     Attributes
     ----------
     recall, precision, f_measure : float
-        See the module docstring; ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``.
+        See docs/report.md; ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``.
     n_truth : int
         Ground-truth cracks.
     n_found : int

@@ -58,7 +58,7 @@ class Decisions:
 
 
 class Supervisor:
-    """The supervision policy's state (see the module docstring); every wall time is given by the caller.
+    """The supervision policy's state (docs/ground-station.md); every wall time is given by the caller.
 
     Parameters
     ----------

@@ -34,7 +34,7 @@ def imaged_captures(reports: Iterable[DefectReport]) -> set[tuple[int, int]]:
 
 @dataclass(frozen=True)
 class GoalCheck:
-    """Where one UAV's trajectory ended, measured against its goal (see the module docstring)."""
+    """Where one UAV's trajectory ended, measured against its goal (docs/report.md)."""
 
     distance_m: float  # from the end position to the trajectory's last waypoint
     completed: bool  # the end position is one with the trajectory complete (progress 1, MISSION or HOLD)

@@ -118,7 +118,7 @@ def severity_rank(severity: str) -> int:
 def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, origin: Sequence[float] | None = None,
                    method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None
                    ) -> Deliverable:
-    """Segment, mosaic and measure (steps 1-3 of the module docstring); the defects come sorted by
+    """Segment, mosaic and measure (steps 1-3 of docs/report.md); the defects come sorted by
     :data:`SORT_KEY` and numbered in that order (defect 1 is the worst).
 
     ``min_area_px`` defaults to the detector's smallest reported component
@@ -361,7 +361,7 @@ def _meta_from(doc: dict, index: int) -> ImageMeta:
 
 
 def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tuple[float, float, float] | None]:
-    """Frames with poses from ``folder`` (see the module docstring), its plane and geodetic origin.
+    """Frames with poses from ``folder`` (docs/report.md), its plane and geodetic origin.
 
     Raises ``ValueError`` naming the file when an image does not decode or a pose file is invalid;
     an image without a pose file is an error too (its pose cannot be guessed).
@@ -421,7 +421,7 @@ def frames_from_log(path: str | Path) -> list[PosedFrame]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m services.inspection.deliverable", description=__doc__.split("\n\n")[0])
-    ap.add_argument("folder", help="photos with pose files (see the module docstring)")
+    ap.add_argument("folder", help="photos with pose files (docs/report.md)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--method", default="it+")
     ap.add_argument("--resolution-mm", type=float, default=None, help="mosaic resolution (default: the frames')")

@@ -74,7 +74,7 @@ def _accuracy(record: MissionRecord, defects: list[InspectionDefect], gsd_m: flo
 
 
 def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, frames: str = "frames") -> list[str]:
-    """The findings section's lines (see the module docstring); file links relative to the report."""
+    """The findings section's lines (docs/report.md); file links relative to the report."""
     from .accuracy import markdown_accuracy
 
     m = res.mosaic

@@ -162,7 +162,7 @@ MAX_CANVAS_PX = 80_000_000
 
 
 def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | None = None) -> Mosaic:
-    """Warp every frame onto ``plane`` (see the module docstring).
+    """Warp every frame onto ``plane`` (docs/report.md).
 
     Parameters
     ----------

@@ -34,7 +34,7 @@ def compass(enu_dir: Sequence[float]) -> tuple[float, str]:
 
 
 def orientation(plane: Plane, origin: Sequence[float] | None = None) -> dict[str, Any]:
-    """The wall's ends and bearings (see the module docstring); geodetic ends only with an ``origin``."""
+    """The wall's ends and bearings (docs/report.md); geodetic ends only with an ``origin``."""
     from edge.geometry.waypoint_mission import enu_to_geodetic
 
     ub, uname = compass(plane.u_axis)
@@ -63,7 +63,7 @@ def orientation_text(o: dict[str, Any]) -> str:
 
 def overview_figure(bgr: np.ndarray, mos: Mosaic, labels: Sequence[tuple[int, float, float]], path: str | Path,
                     title: str = "", panel_m: float = PANEL_M, width_px: int = 1600) -> None:
-    """Write the gridded overview of the annotated mosaic ``bgr`` (see the module docstring).
+    """Write the gridded overview of the annotated mosaic ``bgr`` (docs/report.md).
 
     ``labels`` are ``(id, u, v)`` of each defect (surface metres), drawn in boxes beside the crack.
     """

@@ -71,7 +71,7 @@ class Impairment(BaseModel):
     """What one direction of a link does to traffic; validated, immutable.
 
     Times in milliseconds, probabilities as fractions in [0, 1], rate in kilobits per second
-    (1 kbit = 1000 bit; 0 = unlimited). See the module docstring for the exact semantics and
+    (1 kbit = 1000 bit; 0 = unlimited). See docs/experiments.md for the exact semantics and
     :meth:`parse` for the netem-like string form.
     """
 
@@ -447,7 +447,7 @@ class Impairer:
         """Apply ``impairment`` from the next decision on; returns it (validated).
 
         Keeps the random stream, counters, origin, FIFO floor, rate queue, loss-chain state and
-        the live cuts (see the module docstring, "Live changes"). Bad input raises
+        the live cuts (docs/experiments.md, "Live changes"). Bad input raises
         :class:`ValueError` and changes nothing.
         """
         imp = Impairment.coerce(impairment)

@@ -123,7 +123,7 @@ def parse_command(text: str) -> Command:
 
 
 def parse_schedule(text: str, where: str = "<schedule>") -> list[Step]:
-    """The steps of a schedule (see the module docstring), sorted by time then by line.
+    """The steps of a schedule (docs/experiments.md), sorted by time then by line.
 
     Raises :class:`ScheduleError` naming ``where`` and the line of the first error.
     """

@@ -70,7 +70,7 @@ def _fmt(x: float, digits: int) -> str:
 
 
 def qgc_wpl(trajectory: Trajectory, origin: ArrayLike) -> str:
-    """The QGC WPL 110 text of one UAV's trajectory (see the module docstring)."""
+    """The QGC WPL 110 text of one UAV's trajectory (docs/planner.md)."""
     lines = [HEADER]
     for it in mission_items(trajectory, origin):
         p = it.params

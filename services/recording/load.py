@@ -74,7 +74,7 @@ LEGACY_TOPIC = "/skynet/mission-record"
 
 def load_record(path: str | Path, caps: dict[str, int] | None = None,
                 ground: str | Path | None = None) -> tuple[MissionRecord, LogReadout]:
-    """The mission record of the log ``path`` and what was found (module docstring); ``caps`` default
+    """The mission record of the log ``path`` and what was found (docs/recording.md); ``caps`` default
     :data:`~services.recording.record.CAPS`. Raises :class:`NotAMissionLog` (a ValueError) for a log without a
     header, :class:`~services.recording.mcap_log.McapReadError` (a ValueError) for a damaged file."""
     caps = CAPS if caps is None else caps

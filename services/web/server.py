@@ -57,7 +57,7 @@ def page_url(host: str, port: int, token: str) -> str:
 
 
 class Access:
-    """Who may read the page (the module docstring): the ``Host``, ``Origin`` and token checks. Pure.
+    """Who may read the page (docs/operator-view.md): the ``Host``, ``Origin`` and token checks. Pure.
 
     ``host`` is the bound address; ``allowed_hosts`` more names the page answers to (a name the operator
     reaches it by, for instance through an SSH tunnel or on a LAN with a non-loopback ``host``).
