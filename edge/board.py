@@ -1,29 +1,6 @@
 """The UAV's IoT board: one process per UAV, a Zenoh peer of SkyNet connected to the gateway.
 
-It binds a vehicle driver (``sim`` built in), the formation keeping of :mod:`edge.geometry.formation`
-and a camera (:mod:`edge.camera`) to the bus:
-
-* publishes :class:`VehicleState` as telemetry at ``--rate`` Hz and holds a liveliness token;
-  its link lease is short (``--lease``, 2 s) so the others notice a lost UAV;
-* subscribes to its formation neighbours' states only (SkyNet, :mod:`edge.geometry.neighbourhood`:
-  formations of ``--formation-size`` UAVs, 3 by default) and corrects its own reference from them
-  (P8)-(P9), ignoring neighbours older than ``--stale`` s: when SkyNet is partitioned the
-  correction goes back to zero (at the sequencer's offset rate) and the UAV flies its planned
-  slot, and it comes back with the neighbours' states. A formation member whose state goes stale
-  gives a ``neighbour-stale`` event, and ``neighbour-fresh`` when heard again; its
-  liveliness token leaving or joining gives ``neighbour-lost`` / ``neighbour-up``;
-* serves commands on ``.../uav/<id>/cmd``: validated (schema, geofence, finite numbers, sane
-  speeds) and acknowledged accepted or rejected with a reason — nothing invalid reaches the
-  vehicle;
-* failsafe (:mod:`edge.failsafe`): no ground-station heartbeat for ``--failsafe-timeout`` s
-  (ArduPilot's FS_GCS_TIMEOUT, 5 s) while flying -> hold / land / return-to-launch and an event;
-  a hold escalates to ``--failsafe-escalate`` (rtl) after ``--failsafe-escalate-after`` s (30 s);
-  a low battery returns (``--battery-low``, 20 %), a critical one lands (10 %); ``resume`` ends a
-  GCS failsafe only after a fresh heartbeat;
-* at each capture point grabs a frame, JPEG-encodes it off the control loop and publishes it
-  on the imagery link (RTP header + metadata + JPEG, :mod:`protocol.imagery`).
-
-    skynet edge --uav 1 -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
+Design notes: docs/edge.md (edge/board.py).
 """
 
 from __future__ import annotations
@@ -40,6 +17,7 @@ from typing import TYPE_CHECKING
 from protocol import keys
 from protocol.budget import for_topic
 from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
+from protocol.checks import xyz
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
     COMMAND_TYPES,
@@ -59,6 +37,7 @@ from protocol.messages import (
     Signed,
     Start,
     Takeoff,
+    Trajectory,
     UploadTrajectory,
     VehicleState,
 )
@@ -99,7 +78,7 @@ class BoardOptions:
     formation_gain: float = 0.8
     formation_size: int = FORMATION_SIZE  # the SkyNet neighbourhood: UAVs of the same formation
     offsets: dict[int, tuple[float, float, float]] = field(
-        default_factory=lambda: {i + 1: tuple(map(float, o)) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
+        default_factory=lambda: {i + 1: xyz(o) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
 
 
@@ -120,8 +99,8 @@ class Board:
         self.last_heartbeat: float | None = None
         self._pilot_modes_seen = 0  # the driver's external_modes already reported
         self.failsafe = FailsafePolicy(options.failsafe)
-        self.trajectory = None
-        self.follower = None
+        self.trajectory: Trajectory | None = None
+        self.follower: Follower | None = None
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
@@ -211,7 +190,7 @@ class Board:
             d.upload(cmd.trajectory)
             self.trajectory, self.follower = cmd.trajectory, Follower(cmd.trajectory)
             if fence is not self.opt.geofence:
-                if self.opt.geofence is not None and fence != self.opt.geofence:
+                if fence is not None and self.opt.geofence is not None and fence != self.opt.geofence:
                     self.event(EventKind.GEOFENCE_NARROWED, f"geofence {tuple(fence.lo)}..{tuple(fence.hi)}")
                 self.opt.geofence = fence  # never an unsigned uploader's
         elif isinstance(cmd, Takeoff):
@@ -238,7 +217,7 @@ class Board:
         elif isinstance(cmd, ReturnToLaunch):
             d.return_to_launch()
         elif isinstance(cmd, SetFormation):
-            self.opt.offsets = {int(k): tuple(v) for k, v in cmd.offsets.items()}
+            self.opt.offsets = {int(k): xyz(v) for k, v in cmd.offsets.items()}
 
     # -- the control loop
     def tick(self) -> VehicleState:
@@ -246,7 +225,7 @@ class Board:
         with self.lock:
             captures = self.driver.step(self.clock.now())
             st = self.driver.state()
-            plan = self._keep_formation(st, now_wall) if st.mode == Mode.MISSION and self.follower else {}
+            plan: dict = self._keep_formation(st, now_wall) if st.mode == Mode.MISSION and self.follower else {}
             self._check_failsafe(st, now_wall)
         for ev in captures:
             if self.camera is not None:
@@ -297,6 +276,8 @@ class Board:
             self.driver.set_reference_offset((0.0, 0.0, 0.0))
             return {}
         fol = self.follower
+        if fol is None:
+            return {}
         tau = fol.t0 + st.progress * fol.duration
         pos, vel, _, _ = fol.reference(tau)
         members = self.opt.offsets  # the formation set by SetFormation (P9): other UAVs do not count

@@ -1,12 +1,6 @@
 """The UAV's camera: frame sources behind one interface, and JPEG encoding off the control loop.
 
-Sources (:class:`~edge.world.camera.FrameSource`): the simulated world's
-:class:`~edge.world.camera.SyntheticSource` renders the view of the synthetic wall;
-:class:`FolderSource` replays a folder of images; :class:`VideoCaptureSource` reads a real camera
-or a stream through OpenCV. :func:`make_source` picks one from a spec string. :class:`FrameEncoder`
-JPEG-encodes frames (:func:`protocol.imagecodec.encode_jpeg`) on its own thread, so that the control
-loop that fires the camera at each capture point never waits for the encoder (the bus publishing
-is in :mod:`edge.camera_service`).
+Design notes: docs/edge.md (edge/camera.py).
 """
 
 from __future__ import annotations
@@ -51,7 +45,7 @@ class FolderSource:
     loop : bool
         Start again after the last image; otherwise :meth:`grab` returns None from then on.
     grey : bool
-        Read as grey (the detector's input, PAPER.md Section 6) rather than BGR. Default True.
+        Read as grey (the detector's input, the paper's Section 6) rather than BGR. Default True.
     mask_dir : str or path, optional
         Folder of ground-truth masks with the same base names (``<stem>.png``), as the data sets
         under ``/work/shared/data`` have them; a frame whose mask is missing has ``mask=None``.

@@ -1,19 +1,6 @@
 """The camera's bus binding on the edge: capture frames and the live preview, from the edge's config.
 
-The camera sends two imagery streams:
-
-- **capture frames** on ``uav/<id>/camera``, one per capture point: what the detector analyses
-  and what coverage counts. With ``imagery_cache`` N > 0 (default :data:`IMAGERY_CACHE_FRAMES`)
-  the publisher keeps its last N frames and answers recovery queries (Zenoh's advanced
-  publisher: the role RTP retransmission plays), so a frame lost on a lossy link is sent again;
-  with 0 it is a plain best-effort publisher and a lost frame stays lost.
-- **live preview frames** on ``uav/<id>/preview``: small (default 320x240, JPEG quality 60) at a
-  low wall-clock rate (default 2 Hz, ``preview_hz`` 0 = off), always plain best-effort, never
-  cached or recovered (a late preview frame is worth nothing), RTP camera index 1
-  (:data:`PREVIEW_CAMERA`). Only the synthetic camera previews: a folder or video source is
-  read by the captures alone, so that previews never take frames away from them.
-
-Kept out of :mod:`edge.board` so that the board's logic stays a thin shell over the driver.
+Design notes: docs/edge.md (edge/camera_service.py).
 """
 
 from __future__ import annotations
@@ -181,7 +168,7 @@ class PreviewStream:
         self.sender = RtpSender(ssrc_for(uav, PREVIEW_CAMERA))
         self.pub = bus.publisher(keys.preview(bus.fleet, uav), IMAGERY)  # never a cache: best-effort only
         self._next_due = 0.0
-        self._slot: tuple | None = None
+        self._slot: tuple[tuple[float, ...], tuple[float, ...], float, float] | None = None
         self._cond = threading.Condition()
         self._closed = False
         self.offered = self.sent = self.skipped = self.failed = self.unwatched = 0
@@ -213,6 +200,8 @@ class PreviewStream:
                 if self._closed:
                     return
                 job, self._slot = self._slot, None
+            if job is None:
+                continue
             try:
                 self._send(*job)
             except Exception:  # a preview never takes the edge down

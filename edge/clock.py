@@ -1,16 +1,6 @@
 """Simulation clock shared by every process of a run.
 
-``sim time = (wall time − epoch) × speed``: the epoch is a wall-clock UNIX time chosen once per
-run (by the launcher, passed to every process on the command line), and the speed factor is the
-same everywhere, so all edges agree on simulated time without talking to each other (to the
-accuracy of the host clocks; on one host exactly). ``speed = 1`` is real time, ``speed = 10``
-runs ten times faster than the wall clock.
-
-Before the epoch the simulated time is negative; processes typically wait with
-``sleep_until(0.0)`` so that a run starts everywhere at the same instant.
-
-The wall-time source and the sleep function are injectable (defaults :func:`time.time` and
-:func:`time.sleep`) so a run can be driven by another time source, e.g. in tests.
+Design notes: docs/edge.md (edge/clock.py).
 """
 
 from __future__ import annotations

@@ -1,26 +1,6 @@
 """The board's failsafe policy: lost ground station, escalation, low battery, resume rules.
 
-Pure (no bus, no driver): :meth:`FailsafePolicy.step` says which action the board must take now,
-:meth:`FailsafePolicy.may_resume` whether a ``Resume`` may end the failsafe.
-
-Modelled on ArduPilot Copter's failsafes (ardupilot.org, "GCS Failsafe" and "Battery Failsafe"):
-
-* **GCS failsafe** (``FS_GCS_TIMEOUT``, 5 s): no ground-station heartbeat for ``timeout_s`` while
-  flying -> ``action`` (hold by default, ``--failsafe-action``). Where ArduPilot goes straight to
-  RTL or land, we hold first (the formation stays put and the mission can go on when the link
-  comes back) and **escalate** after ``escalate_after_s`` more seconds without a heartbeat to
-  ``escalate_action`` (``rtl`` by default, or ``land``; ``none`` holds for ever as before): a UAV
-  whose ground station is gone for good comes home instead of hovering until its battery dies.
-* **Battery failsafe** (``BATT_LOW_VOLT`` / ``BATT_CRT_VOLT`` and their actions): below
-  ``battery_low`` of its charge the UAV returns to launch, below ``battery_critical`` it lands
-  where it is; heartbeats do not clear it, and a ``Resume`` is refused.
-* **Resume** ends a GCS failsafe only once a heartbeat newer than the failsafe's start has been
-  heard within ``timeout_s``: a Resume that overtakes the first heartbeat after a gateway freeze
-  would otherwise resume a UAV that fails safe again at its next tick.
-* **A failed action is never taken for done** (:meth:`FailsafePolicy.failed`): the vehicle refusing or
-  not hearing a hold, land or RTL (a lost autopilot link) is retried at most once every ``retry_s``
-  while the UAV is airborne, escalating as ArduPilot's own failsafes do when RTL is impossible: a failed
-  RTL becomes a land, a failed land (or hold) is retried; each attempt is counted and reported.
+Design notes: docs/edge.md (edge/failsafe.py).
 """
 
 from __future__ import annotations
@@ -164,11 +144,12 @@ class FailsafePolicy:
             self.active, self.since, self.escalated = True, now, False
             return self._order(o.action, "gcs", EventKind.FAILSAFE,
                                f"no ground-station heartbeat for {silent:.1f} s: {o.action}")
+        held = now - (now if self.since is None else self.since)
         if (not self.escalated and o.escalate_action != "none" and o.action == "hold"
-                and now - self.since >= o.escalate_after_s and silent > o.timeout_s):
+                and held >= o.escalate_after_s and silent > o.timeout_s):
             self.escalated = True
             return self._order(o.escalate_action, "gcs", EventKind.FAILSAFE_ESCALATED,
-                               f"no ground-station heartbeat for {silent:.1f} s, held {now - self.since:.1f} s: "
+                               f"no ground-station heartbeat for {silent:.1f} s, held {held:.1f} s: "
                                f"{o.escalate_action}")
         return None
 
@@ -178,7 +159,8 @@ class FailsafePolicy:
             return f"battery failsafe ({self.battery}): not resumed"
         if not self.active:
             return None
-        if last_heartbeat is None or last_heartbeat <= self.since or now - last_heartbeat > self.opt.timeout_s:
+        if (last_heartbeat is None or (self.since is not None and last_heartbeat <= self.since)
+                or now - last_heartbeat > self.opt.timeout_s):
             return "failsafe: no fresh ground-station heartbeat yet"
         return None
 

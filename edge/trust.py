@@ -1,21 +1,6 @@
 """The board's gatekeeper: signed commands and heartbeats checked before anything else, bodies bound to keys.
 
-Pure (no bus code); :class:`edge.board.Board` calls it first thing in its command handler and its
-heartbeat and state callbacks:
-
-* :meth:`Gate.command` — with a verifier (secure mode) a command must be a
-  :class:`~protocol.messages.Signed` envelope from a trusted signer, addressed to this UAV's
-  ``cmd`` key, fresh and not replayed (:mod:`protocol.signing`); it returns the verified inner
-  command or raises :class:`~protocol.signing.TrustError`. Without one (``--insecure``) it
-  passes plain commands through and refuses envelopes it cannot check.
-* :meth:`Gate.heartbeat` — True only for a heartbeat that verifies: only those reset the failsafe
-  timer, so a forger sending heartbeats does not hold the failsafe off.
-* :meth:`Gate.body_matches` — a state/event/report whose ``uav`` field is not the one in its key
-  expression is refused (a node cannot speak for another).
-
-Every refusal is counted per reason (``refused``), and :meth:`Gate.report` rate-limits the events
-the board raises about them (one per reason per :data:`EVENT_PERIOD_S`, with the count since the
-last), so a flood of forgeries cannot become a flood of events.
+Design notes: docs/security.md (edge/trust.py).
 """
 
 from __future__ import annotations
@@ -47,10 +32,6 @@ class Gate:
         self._reported: dict[str, tuple[float, int]] = {}  # reason -> (last event time, count then)
         self._clock = clock
         self._lock = threading.Lock()
-
-    @property
-    def secure(self) -> bool:
-        return self.verifier is not None
 
     def _count(self, what: str) -> None:
         with self._lock:

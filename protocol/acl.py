@@ -1,61 +1,12 @@
-"""Who may say what on the bus: users, roles and the Zenoh ``access_control`` rules.
+"""Who may say what on the bus: roles and the Zenoh ``access_control`` rules, built from the key space.
 
-Part of the wire contract (every node that accepts links applies it: the gateway, and each edge on
-SkyNet with mutual TLS, :mod:`edge.trust`). Pure: builds plain dictionaries for the router's
-configuration from the key space (:mod:`protocol.keys`) and a fleet name; no Zenoh session here.
-The gateway (:mod:`services.gateway.service`) puts the result under ``access_control`` and the users file
-under ``transport/auth/usrpwd/dictionary_file`` (ZENOH.md, "Authentication and access control").
-
-Roles (DESIGN.md, "The network" and "Data flow of a mission"; ``F`` is the fleet):
-
-==========  =====================================================================================
-role        may (everything else is denied: ``default_permission: deny``)
-==========  =====================================================================================
-uav N       put its own ``state``, ``event``, ``camera`` (and the camera's recovery heartbeats), ``preview``;
-            declare and answer its own ``cmd`` queryable and the camera's recovery cache;
-            its own ``alive`` token; receive every UAV's state, the GCS heartbeat and every
-            UAV's ``alive`` token. It may not query anything. (It is *asked* recovery queries
-            naming every camera, ``uav/*/camera/@adv/...``, as the detector sends them; it can
-            answer only with its own camera's frames.)
-gcs         put the heartbeat and GCS events; query every UAV's ``cmd`` and the planner;
-            receive everything of the fleet (states, events, defects, statistics, tokens).
-planner     declare and answer the planner queryable; its token, events and statistics.
-detector    receive the cameras and query their recovery caches; put defect reports,
-            its statistics and events, its token (as ``detector`` or any instance ``detector-K``).
-gateway     another gateway (router) relaying this fleet: everything of the fleet.
-web         the live page (``skynet web``): receive everything of the fleet and of its replay fleet
-            (:func:`protocol.keys.replay_fleet`); it may not put, query or answer anything.
-video       ``skynet video``: receive the cameras' previews and capture frames of the fleet and of its
-            replay fleet; nothing else.
-replay      ``skynet replay``: put anything on the replay fleet's keys (``skynet/F-replay/**``), and
-            nothing on the live fleet: a recording replayed by mistake onto ``F`` would be taken for
-            the live UAVs (and a replay carries no command, but it must not be able to look like one).
-==========  =====================================================================================
-
-Every role may also be *told* of subscribers, queryables and liveliness interests anywhere in
-the fleet (egress declarations): a declaration carries no data, and a publisher that is not told
-of a matching subscriber would not send at all. The data itself is checked both ways.
-
-The rules are per UAV: user ``uav3`` gets a subject of its own whose rules name
-``skynet/F/uav/3/...``, so one UAV cannot publish another's state or answer its commands through
-the gateway. The gateway's own session (its statistics, its traffic meter) is inside the router
-and is not filtered. With user/password authentication, links that the UAV peers open directly to
-each other (SkyNet) do not pass through the router and are not filtered: the UAV mesh is trusted.
-With mutual TLS (:func:`cert_access_control`) the same rules have subjects by certificate
-common name and every edge enforces them too, for the gateway and the other UAVs: a UAV may put
-only its own keys on the mesh as well, and nothing else (a ground station, a planner) may link to
-an edge at all.
-
-Zenoh matches a message against a rule when the rule's key expression *includes* the message's
-(a subscriber on ``skynet/F/**/event`` needs a rule on ``skynet/F/**``), and ``**`` does not match
-``@``-chunks, hence :func:`protocol.keys.advanced` for the recovery keys.
+Design notes: docs/security.md (protocol/acl.py).
 """
 
 from __future__ import annotations
 
 import re
 from collections.abc import Iterable, Mapping
-from pathlib import Path
 from typing import Any, NamedTuple
 
 from protocol import keys
@@ -69,8 +20,6 @@ MESSAGES = ("put", "delete", "declare_subscriber", "query", "reply", "declare_qu
 _USER = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 _UAV_NAME = re.compile(r"^uav([0-9]{1,3})$")
 _ROLE_NAME = re.compile(r"^(gcs|planner|detector|gateway|web|video|replay)([0-9]*|[-_.][A-Za-z0-9_.-]*)$")
-#: characters a password may not contain (the dictionary file is ``user:password`` per line)
-_PASSWORD_BAD = re.compile(r"[\s:;=#]")
 
 
 class Principal(NamedTuple):
@@ -101,48 +50,6 @@ def check_user(user: str) -> str:
     return user
 
 
-def check_password(password: str) -> str:
-    if not isinstance(password, str) or not password or len(password) > 256 or _PASSWORD_BAD.search(password):
-        raise ValueError("password must be 1..256 characters without whitespace, ':', ';', '=' or '#'")
-    return password
-
-
-def _lines(text: str) -> Iterable[tuple[int, str]]:
-    for n, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip()
-        if line and not line.startswith("#"):
-            yield n, line
-
-
-def parse_users(text: str) -> dict[str, str]:
-    """Parse a users file into ``{user: password}``: one ``user:password`` per line; blank lines
-    and ``#`` comments skipped.
-
-    Raises ValueError naming the line for a malformed line, a bad name or password, or a
-    duplicate user (the message never contains a password).
-    """
-    out: dict[str, str] = {}
-    for n, line in _lines(text):
-        user, sep, password = line.partition(":")
-        if not sep:
-            raise ValueError(f"users file line {n}: expected user:password")
-        try:
-            check_user(user)
-            check_password(password)
-        except ValueError as exc:
-            raise ValueError(f"users file line {n}: {exc}") from None
-        if user in out:
-            raise ValueError(f"users file line {n}: user {user!r} defined twice")
-        out[user] = password
-    if not out:
-        raise ValueError("users file defines no user")
-    return out
-
-
-def read_users(path: str | Path) -> dict[str, str]:
-    return parse_users(Path(path).read_text())
-
-
 def role_of(user: str, role: str | None = None) -> Principal:
     """The principal of ``user``: from an explicit ``role`` or from the user name.
 
@@ -168,30 +75,12 @@ def role_of(user: str, role: str | None = None) -> Principal:
     if m:
         return Principal(user, m.group(1))
     raise ValueError(f"no role for user {user!r}: name it uavN, gcs, planner, detector or gateway, "
-                     "or give it a role in the roles file")
-
-
-def parse_roles(text: str) -> dict[str, Principal]:
-    """Parse a roles file: one ``user:role`` per line (role as in :func:`role_of`)."""
-    out: dict[str, Principal] = {}
-    for n, line in _lines(text):
-        user, sep, role = line.partition(":")
-        if not sep:
-            raise ValueError(f"roles file line {n}: expected user:role")
-        try:
-            out[user.strip()] = role_of(user.strip(), role)
-        except ValueError as exc:
-            raise ValueError(f"roles file line {n}: {exc}") from None
-    return out
-
-
-def read_roles(path: str | Path) -> dict[str, Principal]:
-    return parse_roles(Path(path).read_text())
+                     "or give it an explicit role")
 
 
 def assign_roles(users: Iterable[str], roles: Mapping[str, Principal] | None = None
                  ) -> tuple[list[Principal], list[str]]:
-    """Principals of ``users`` (roles file first, then the name) and the users left without a role.
+    """Principals of ``users`` (the explicit ``roles`` first, then the name) and the users left without a role.
 
     A user without a role may still connect (authentication) but is denied everything.
     """
@@ -213,7 +102,7 @@ _INTEREST = ("declare_subscriber", "declare_queryable", "declare_liveliness_subs
 
 
 def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
-    """What ``role`` may say (ingress) and hear (egress) in ``fleet``; see the module table."""
+    """What ``role`` may say (ingress) and hear (egress) in ``fleet``; see the roles table of docs/security.md."""
     cam_all = keys.camera(fleet, "*")
     interest = Grant("egress", _INTEREST, (keys.fleet_all(fleet), keys.advanced(cam_all)))
     if role == "uav":
@@ -276,7 +165,7 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
 
 
 def attached_grants(fleet: str, role: str) -> list[Grant]:
-    """The grants of the tools that attach to a running network (module table): ``web`` and ``video`` read
+    """The grants of the tools that attach to a running network (the roles table of docs/security.md): ``web`` and ``video`` read
     (the live fleet and its replay fleet), ``replay`` writes the replay fleet only."""
     replay = keys.replay_fleet(fleet)
     if role == "replay":

@@ -1,18 +1,6 @@
 """Bodies bound to keys: a message may speak only for the node whose key it travels on.
 
-With access control by certificate common name a node may put only on its own keys (protocol.acl);
-this check makes the *body* agree with the key, so that a state (event, image) put on uav2's key that
-says ``uav=1`` is refused instead of being shown as UAV 1, and an event on ``uav/2/event`` that
-claims the source ``gcs`` (or ``planner``, ``detector-0``, ``gateway/1``) is refused instead of
-being shown as theirs. Readers (edge, ground station, detector) call :func:`matches` (or
-:func:`source_matches`) and count a mismatch with ``Bus.counters.reject(key, MISMATCH)``.
-
-The source a key allows (:func:`source_of`), by the key's area (protocol.keys)::
-
-    skynet/<fleet>/uav/<N>/...        uav/<N>
-    skynet/<fleet>/gcs/...            gcs
-    skynet/<fleet>/rcu/<name>/...     <name>            (planner, detector, detector-0, ...)
-    skynet/<fleet>/gateway/<id>/...   gateway/<id>
+Design notes: docs/security.md (protocol/binding.py).
 """
 
 from __future__ import annotations

@@ -1,39 +1,6 @@
 """Per-source rate and size budgets on what a subscriber accepts.
 
-Every key a role may write (:mod:`protocol.acl`) has a :class:`Limit`: a token bucket of
-samples per second with a burst (the classic policer: RFC 2697's single-rate meter, one colour:
-conforming or dropped) and a largest sample size. A :class:`Budget` keeps one bucket per *source*,
-the concrete key a sample arrived on: ``uav/<id>/state`` can only be written by ``uav<id>`` (the
-gateway's access control), so the key names its sender. Excess samples are dropped before they are
-decoded and counted by the subscriber (:class:`protocol.bus.Counters`, kind ``budget-rate`` or
-``budget-size``): a flood from one source costs the receiver a dictionary look-up per sample and
-never delays or evicts another source's traffic.
-
-The limits (:data:`LIMITS`, per topic of :mod:`protocol.keys`) sit well above what the system
-sends (README, "Choices where the paper is silent"):
-
-==========  ==================  =========  ==========  =============================================
-topic       sent                rate /s    burst       largest sample
-==========  ==================  =========  ==========  =============================================
-state       20 Hz per UAV       60         60          16 KiB (a state is ~0.5 KB)
-event       a few per mission   20         50          16 KiB (text is capped at 4 KiB)
-heartbeat   2 Hz                20         20          4 KiB
-camera      1 per capture point 20         96          4 MiB (a 640x480 JPEG is ~50 KB; recovery
-                                                       replays a camera's 32-frame cache at once)
-preview     2 Hz                10         10          512 KiB
-defects     1 per frame         40         200         1 MiB (up to 10,000 defects)
-stats       1 Hz per service    10         20          256 KiB
-==========  ==================  =========  ==========  =============================================
-
-A source that keeps inside its budget is never dropped; one that floods is cut to the budget's
-rate. The rate is charged to well-formed samples only (garbage on a key must not use up the budget of
-the node that really writes it); garbage has a bucket of its own per source, with the same rate and
-burst (:meth:`Budget.admit_undecoded`, :meth:`Budget.charge_garbage`): a source that sent more
-undecodable samples than its budget allows has its samples dropped *before decoding* (``budget-garbage``)
-until that bucket refills, and a source whose rate is used up is dropped before decoding too: a flood,
-well-formed or not, costs the receiver a look-up per sample, not a msgpack parse and a validation
-(bench/flood.py, README "Hostile input"). At most :data:`MAX_SOURCES` sources get a bucket of their own; further ones share one
-(``(other)``), so a flood of made-up keys cannot grow the table.
+Design notes: docs/security.md (protocol/budget.py).
 """
 
 from __future__ import annotations

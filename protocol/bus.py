@@ -1,19 +1,7 @@
 """The bus layer: Zenoh sessions from a typed config, typed pub/sub by link class,
 request/reply with acknowledgement semantics, liveliness, and clean shutdown.
 
-What it adds to zenoh-python, and nothing more:
-
-* :class:`BusConfig` — mode, endpoints, scouting, lease, shared memory and the multilink
-  setup that puts reliable traffic on a TCP link and best-effort traffic on a UDP link
-  (ZENOH.md, "One link per reliability class"); :class:`BusOptions`, the base of every service's
-  typed config (:mod:`protocol.cliconfig`), holds the command-line options of zenoh-python's examples
-  (``--mode``, ``--connect``, ``--listen``, ``--config``, ``--cfg``) and ours, and
-  :func:`config_from_args` makes the session config of them.
-* :class:`Bus` — ``publisher(key, link)`` with the link class's QoS, ``subscribe(key, cb,
-  expect=...)`` that decodes on Zenoh's callback thread and *counts* decoding failures per key
-  and kind (logged once per kind, never raised into Zenoh), an optional bounded drop-oldest ring
-  per subscriber so that a slow consumer cannot stall the others, ``request`` where only an ok
-  reply counts as acknowledged, ``serve`` for queryables, liveliness tokens and watchers.
+Design notes: docs/bus.md (protocol/bus.py).
 """
 
 from __future__ import annotations
@@ -38,8 +26,10 @@ from .budget import Budget
 from .cliconfig import Cli, CliModel, add_options, from_namespace
 from .links import COMMAND, LinkClass
 from .messages import ErrorReply, Message
-from .ring import Ring  # noqa: F401  (services take their rings from the bus)
-from .signals import STOP_SIGNALS, stop_event_on_signals, stopping_on_signals  # noqa: F401  (the services' stop)
+from .ring import Ring as Ring  # services take their rings from the bus
+from .signals import STOP_SIGNALS as STOP_SIGNALS  # the services' stop
+from .signals import stop_event_on_signals as stop_event_on_signals
+from .signals import stopping_on_signals as stopping_on_signals
 
 log = logging.getLogger("skynet.bus")
 
@@ -86,7 +76,7 @@ class BusConfig(BaseModel):
         if self.connect:
             endpoints: list[Any] = list(self.connect)
             if self.mode == "client" and self.multilink and len(endpoints) > 1:
-                # a client opens only its first endpoint unless they are grouped (ZENOH.md)
+                # a client opens only its first endpoint unless they are grouped
                 endpoints = [{"strategy": "allOf", "locators": endpoints}]
             put("connect/endpoints", endpoints)
             # a restarted gateway (or a healed link) is found again within about this pause; zenoh's
@@ -491,7 +481,7 @@ class Bus:
         """Send a query; acknowledged (``ok``) only by an ok reply that decodes as ``expect``.
 
         Nobody listening, a crashed queryable, a timeout or an error reply all give ``ok=False``
-        with the reason (ZENOH.md, "Liveliness, queries").
+        with the reason.
         """
         t0 = time.perf_counter()
         payload = codec.encode(msg)

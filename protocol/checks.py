@@ -40,6 +40,17 @@ def rate_arg(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a rate in Hz >= 0, got {text!r}") from None
 
 
+def xyz(value: Any) -> tuple[float, float, float]:
+    """Three numbers as a typed triple of floats (a position, an offset, a corner); ValueError when there
+    are not three.
+
+    >>> xyz([1, 2.5, 3])
+    (1.0, 2.5, 3.0)
+    """
+    x, y, z = value
+    return float(x), float(y), float(z)
+
+
 def finite_array(name: str, value: ArrayLike) -> NDArray[np.float64]:
     """``value`` as a float array with no NaN or inf; ValueError naming ``name`` otherwise."""
     try:

@@ -1,13 +1,6 @@
 """The published wire contract: what an outside Zenoh user needs to read and command the fleet.
 
-Everything here is *derived* from the modules that define the contract — key expressions from
-:mod:`protocol.keys`, link classes from :mod:`protocol.links`, the envelope and the Zenoh encoding
-from :mod:`protocol.codec`, the JSON Schemas from the pydantic models of :mod:`protocol.messages`
-(JSON Schema draft 2020-12, as pydantic v2 writes it) — so the document cannot drift from the
-code: ``tests/protocol/test_contract.py`` checks that ``docs/wire-contract.md`` is current.
-
-``skynet schema`` prints the document; ``skynet schema --json`` the same as one JSON object;
-``skynet schema TYPE`` one message type's JSON Schema.
+Design notes: docs/bus.md (protocol/contract.py).
 """
 
 from __future__ import annotations

@@ -1,21 +1,6 @@
 """The imagery frame: an RTP packet whose payload carries the frame metadata and the image.
 
-Layout of one sample on ``skynet/<fleet>/uav/<id>/camera``::
-
-    +------------------------+---------------+-------------------------+----------------------+
-    | RTP fixed header (12 B)| meta length   | ImageMeta (codec bytes) | encoded image (JPEG) |
-    | RFC 3550, PT 96        | uint16, big   |  msgpack envelope       |                      |
-    +------------------------+---------------+-------------------------+----------------------+
-
-Any RTP parser reads the header (sequence, 90 kHz media timestamp of the capture, SSRC of the
-camera, marker set on every frame since one frame is one packet); the payload then starts
-with the length-prefixed metadata, so a receiver needs no second message to place the image.
-
-This is not the RFC 2435 JPEG payload (no JPEG payload header, a whole JFIF file, metadata in
-front), so the frames carry the dynamic payload type 96 with the encoding name
-``x-skynet-frame/90000`` (:data:`protocol.rtp.SKYNET_PAYLOAD_TYPE`), never the static JPEG type 26.
-``skynet video`` (:mod:`services.video`) turns them into standard RTP (RFC 2435, RFC 6184).
-The image itself is encoded and decoded by :mod:`protocol.imagecodec`.
+Design notes: docs/imagery.md (protocol/imagery.py).
 """
 
 from __future__ import annotations

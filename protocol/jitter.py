@@ -79,7 +79,7 @@ class JitterStats:
         Sequence numbers given up by playout (never delivered). A frame that arrives after its
         number was given up stays counted here and is also counted ``late``.
     duplicated, late, reordered, resyncs : int
-        See the classification table in the module docstring.
+        See the classification in docs/imagery.md, "The jitter buffer".
     buffered : int
         Frames held now (including a pending probe).
     highest_sequence : int or None
@@ -148,7 +148,7 @@ class JitterBuffer:
         Ring size in frames (1..16384): the reorder window, in sequence numbers, beyond the
         next frame to play.
     playout_delay_s : float
-        How long a missing frame is waited for (see the module docstring), >= 0. Zero gives
+        How long a missing frame is waited for (docs/imagery.md, "The jitter buffer"), >= 0. Zero gives
         up every gap at the next push: no reordering, minimal latency.
     clock_rate : int
         Media clock of the RTP timestamps in Hz (90 000 for video), for the jitter in seconds.
@@ -419,7 +419,7 @@ class JitterBuffer:
             self._resync(probe, out)
 
     def _resync(self, probe: tuple[RtpHeader, bytes | memoryview, float], out: list[Frame]) -> None:
-        """Restart playout at ``probe`` after a jump (module docstring, last paragraph)."""
+        """Restart playout at ``probe`` after a jump (docs/imagery.md, "The jitter buffer")."""
         header, payload, arrival = probe
         self.resyncs += 1
         self._advance_to(self._max + 1, out)  # release everything held from the old window

@@ -1,25 +1,6 @@
 """The key space: the only module that spells Zenoh key expressions.
 
-Layout (DESIGN.md, "Key space")::
-
-    skynet/<fleet>/uav/<id>/state       telemetry: VehicleState
-    skynet/<fleet>/uav/<id>/cmd         command queryable: Command -> CommandAck
-    skynet/<fleet>/uav/<id>/camera      imagery: RTP frame (ImageMeta + JPEG) of a capture point
-    skynet/<fleet>/uav/<id>/preview     imagery: low-rate live preview frames (same format), best-effort only
-    skynet/<fleet>/uav/<id>/event       events of one UAV
-    skynet/<fleet>/uav/<id>/alive       liveliness token of one UAV
-    skynet/<fleet>/gcs/heartbeat        the ground station's command-link heartbeat
-    skynet/<fleet>/gcs/event            events of the ground station
-    skynet/<fleet>/rcu/planner/plan     planner queryable: PlanRequest -> MissionPlan
-    skynet/<fleet>/rcu/detector/defects defect reports
-    skynet/<fleet>/rcu/<name>/alive     liveliness token of a remote computational unit
-    skynet/<fleet>/rcu/<name>/event     events of a remote computational unit
-    skynet/<fleet>/rcu/<name>/stats     statistics of a remote computational unit (LinkStats)
-    skynet/<fleet>/gateway/<id>/stats   the gateway's link statistics
-    <key>/@adv/**                       what zenoh.ext's advanced publisher on <key> adds (sequence-number
-                                        heartbeats, its cache queryable); see :func:`advanced`
-
-Fleet names and service names are single chunks of ``[A-Za-z0-9_-]``; UAV ids are 1..255.
+Design notes: docs/bus.md (protocol/keys.py).
 """
 
 from __future__ import annotations

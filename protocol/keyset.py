@@ -1,28 +1,6 @@
 """A fleet key set on disk: where each node finds its TLS certificate, its signing key and whom it trusts.
 
-Layout (written by ``skynet keys init DIR``, :mod:`services.keys`)::
-
-    DIR/ca.pem                  the fleet's two CA certificates: the node CA and the router CA (what the
-                                gateway and the UAVs trust: they accept links from both kinds)
-    DIR/router-ca.pem           the router CA alone, which issues only gateway certificates: what a
-                                client (gcs, planner, detector, ...) trusts at the end of its dial
-    DIR/ca/ca.key, ca/node-ca.pem, ca/router-ca.key   the CAs' private keys (stay with whoever issues
-                                certificates) and the node CA alone
-    DIR/<role>/tls.pem, tls.key the node's TLS certificate (common name = role) and its key
-    DIR/<role>/sign.key         the node's Ed25519 signing key (only the gcs key signs commands)
-    DIR/<role>/sign.pub         its public half
-    DIR/trust/<signer>.pub      public keys whose signatures the UAVs accept (the ground station's)
-    DIR/revoked.txt             revoked key ids (:func:`protocol.signing.key_id`), one per line, and revoked
-                                certificates, ``cert <common name>`` per line
-    DIR/certs.txt               the common names of the current node certificates, one per line: the
-                                only names the access control admits (:meth:`KeySet.admitted`)
-
-``role`` is ``gateway``, ``gcs``, ``planner``, ``detector``, ``video``, ``web``, ``replay`` or ``uavN``. A node
-on a real vehicle gets only ``ca.pem``, its own ``<role>/`` folder, ``trust/``, ``certs.txt`` and ``revoked.txt``.
-Rotation is a new key set in place (no code change), or one node's new certificate and key (``skynet keys
-reissue``: its common name gets a generation, ``uav2.g2``, so the ACL, which names subjects by common
-name, admits the new certificate and no longer the old one); a key listed in ``revoked.txt`` is
-refused even while still in ``trust/``, a revoked certificate's common name is admitted nowhere.
+Design notes: docs/security.md (protocol/keyset.py).
 """
 
 from __future__ import annotations

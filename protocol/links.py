@@ -1,17 +1,6 @@
-"""The paper's three link classes, one definition each (PAPER.md §1, DESIGN.md table).
+"""The paper's three link classes, one definition each (the paper's Section 1).
 
-==========  =====  ==============  ===============  ===========  ========================
-class       paper  reliability     congestion       priority     express (no batching)
-==========  =====  ==============  ===============  ===========  ========================
-command     TCP    reliable        block            interactive  no
-telemetry   UDP    best-effort     drop             data-high    yes
-imagery     RTP    best-effort     drop             data-low     no
-==========  =====  ==============  ===============  ===========  ========================
-
-Reliability also picks the transport link when a session runs the multilink setup
-(:mod:`protocol.bus`): reliable traffic travels on the ``tcp/...?rel=1`` link, best-effort
-traffic on the ``udp/...?rel=0`` link. Imagery adds RTP-style sequencing on top
-(:mod:`protocol.rtp`, :mod:`protocol.jitter`).
+Design notes: docs/bus.md (protocol/links.py).
 """
 
 from __future__ import annotations
@@ -24,8 +13,8 @@ import zenoh
 Congestion = Literal["block", "drop", "block_first"]
 
 #: the link lease of the UAVs' boards and, when links are proxied or stall, of every node on the other end of
-#: their links (``transport/link/tx/lease``), s. A UAV that drops off silently is seen gone after it (ZENOH.md
-#: "Liveliness"). Each side of a zenoh link declares it dead after the *other* side's lease without news: with
+#: their links (``transport/link/tx/lease``), s. A UAV that drops off silently is seen gone after it (its
+#: liveliness token lapses). Each side of a zenoh link declares it dead after the *other* side's lease without news: with
 #: zenoh's 10 s on the gateway, an uplink cut for 3 s left the edges on their old session while the gateway had
 #: already dropped it, and the gateway then refused their data ("Route data with unknown scope") for good;
 #: with equal leases both sides drop the session and reopen.

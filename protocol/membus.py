@@ -4,16 +4,7 @@ thread. Everything of :class:`~protocol.bus.Bus` above the session runs unchange
 rejections, budgets, rings, request/reply decoding, liveliness), so a unit test of a service's rules goes
 through the same decoding as the process tests, in milliseconds and deterministically.
 
-Several buses on one :class:`MemNetwork` see each other's samples, queryables and liveliness tokens::
-
-    net = MemNetwork()
-    with MemBus(net, fleet="t", name="uav1") as edge, MemBus(net, fleet="t", name="gcs") as gcs:
-        ...
-
-Key matching is Zenoh's own (``zenoh.KeyExpr.intersects``); what a memory cannot show is out of scope:
-loss, delay, access control, TLS, recovery caches (a publisher's ``cache`` is accepted and ignored, nothing
-is lost to recover). :meth:`MemNetwork.drop` cuts a bus off (its tokens leave, nothing reaches it or
-leaves it) as a lost link does.
+Design notes: docs/bus.md (protocol/membus.py).
 """
 
 from __future__ import annotations

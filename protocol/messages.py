@@ -1,11 +1,6 @@
 """Message schemas: pydantic v2 models for everything that crosses the bus.
 
-Conventions (DESIGN.md, "Messages"): SI units — metres, seconds, radians — stated in field docs;
-positions are local ENU metres relative to the mission's geodetic origin; attitude is
-(roll, pitch, yaw) ZYX Euler angles in radians (PAPER.md (P7), (P10)). Every model forbids
-unknown fields and rejects NaN/inf, so nothing malformed reaches a vehicle or an algorithm.
-``t`` fields are simulation/mission time in seconds; ``stamp`` fields are wall-clock UNIX seconds
-(used to measure latency across processes on one host).
+Design notes: docs/bus.md (protocol/messages.py).
 """
 
 from __future__ import annotations

@@ -1,24 +1,6 @@
 """A plan's authority: bound to its request, signed by the planner, one answer per request.
 
-The planner proposes; the operator's scenario decides (:func:`services.gcs.preflight.scenario_problem`).
-Between the two, this module makes sure the ground station knows *which* answer it holds:
-
-* **binding** — a :class:`~protocol.messages.PlanRequest` carries a fresh random ``nonce``
-  (:func:`new_nonce`, 128 bits); the planner echoes it, the request id and the SHA-256 of the
-  scenario it planned for (:func:`scenario_digest`) in the :class:`~protocol.messages.MissionPlan`
-  (:func:`bind`). A recorded plan replayed to a later request, or a plan for another scenario,
-  does not match (:func:`binding_problem`).
-* **signature** — the planner answers inside a :class:`~protocol.messages.Signed` envelope
-  (:mod:`protocol.signing`, Ed25519, RFC 8032) addressed to the planner's key expression; the
-  ground station verifies it with the planner's public key of the key set
-  (:func:`plan_verifier`), never with a key the answer brings along.
-* **one answer** — a query may be answered by every session allowed to declare the planner's
-  queryable. :func:`choose` takes every answer of one request: refused answers are reported one
-  by one with their reason, and two *different* accepted answers refuse the plan altogether
-  (:class:`Conflict`): the planner's identity then speaks with two voices and neither is
-  trusted. Never "the last one wins".
-
-Pure: no bus code.
+Design notes: docs/security.md (protocol/planauth.py).
 """
 
 from __future__ import annotations

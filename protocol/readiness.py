@@ -1,13 +1,7 @@
 """A process tells whoever started it that it is up: one line on an inherited pipe, as systemd's
 ``sd_notify(READY=1)`` does on its socket.
 
-The launcher (:mod:`services.orchestration.process`) makes a pipe per child it supervises and passes the write
-end's descriptor number in :data:`READY_FD_ENV`; the service calls :func:`notify_ready` once its session or
-service is up (where it logs its "... up" line for humans), which writes ``ready <role> <name>`` and closes the
-descriptor. Without the variable (a service started by hand, by docker compose) nothing happens. The launcher
-reads at most :data:`MAX_LINE` bytes and accepts only a well-formed line (:func:`parse_ready`).
-
-No bus import: this module is safe to load anywhere.
+Design notes: docs/bus.md (protocol/readiness.py).
 """
 
 from __future__ import annotations
@@ -54,7 +48,7 @@ def parse_ready(data: bytes) -> tuple[str, str] | None:
 
 
 def notify_ready(role: str, name: str | None = None) -> bool:
-    """Tell the launcher this process is up (module docstring); True when the line was written.
+    """Tell the launcher this process is up (docs/bus.md); True when the line was written.
 
     The variable is removed from the environment first, so that processes started later do not inherit a
     descriptor number that means nothing to them. A descriptor that is not an inherited pipe's write end

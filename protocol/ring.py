@@ -19,7 +19,7 @@ class Ring:
     """A bounded drop-oldest queue with its own consumer thread.
 
     Zenoh runs callbacks on one thread per session fed by a bounded queue; a slow callback
-    stalls every other subscriber (ZENOH.md, "Python runtime"). Subscribers that do slow work
+    stalls every other subscriber (Zenoh 1.10's Python runtime). Subscribers that do slow work
     get a Ring: the Zenoh callback only appends, the ring's thread does the work, and overflow
     drops the *oldest* item and counts it. ``workers > 1`` makes it a small pool (for work that
     releases the GIL, such as OpenCV).

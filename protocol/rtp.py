@@ -1,11 +1,6 @@
 """RTP-style sequenced frames for the imagery link class (RFC 3550 fixed header).
 
-Each encoded camera image travels as *one* RTP packet: the 12-byte fixed header of RFC 3550 section 5.1 followed
-by the payload (:mod:`protocol.imagery`); the bus fragments large messages itself, so the marker bit is set on
-every packet. The sender emits only the fixed header; the parser accepts padding, extension and CSRC list, as
-any RFC 3550 receiver must, and skips them. Payload type 96 ``x-skynet-frame`` at 90 kHz, a stable SSRC per
-camera (:func:`ssrc_for`), a random initial sequence number. The wire layout and the choices where the paper is
-silent: docs/imagery.md, "RTP frames".
+Design notes: docs/imagery.md (protocol/rtp.py).
 """
 
 from __future__ import annotations

@@ -1,37 +1,6 @@
 """The scenario: one typed model of the whole inspection problem, and its TOML file.
 
-A scenario holds everything the planner needs and every algorithm is compared on (PAPER.md
-Section 3, "load the scenario ... from an init file"): the operation box and its geodetic
-origin, the start and goal of the formation centroid, static obstacles (vertical cylinders), the
-planar surface to inspect, the camera, the task-assessment parameters ``s_f`` and ``o_p``
-(P1)-(P3), the formation offsets (P9), the cost weights β of (P5), the speed limits and the
-default optimiser budget.
-
-File format (TOML, read with :mod:`tomllib`; see ``scenarios/monorail.toml`` for a commented
-example, which is also the default scenario)::
-
-    name = "monorail"
-    start = [x, y, z]                 # centroid start, ENU m
-    goal = [x, y, z]
-    [origin]   lat, lon (deg), alt (m)   geodetic origin of the local ENU frame
-    [box]      lo = [x, y, z], hi = [x, y, z]
-    [[obstacles]]  centre = [x, y], radius, height   (vertical cylinders from z = 0)
-    [surface]  corners = [p0, p1, p2, p3]   (optional) vertical rectangle; p0-p1 bottom edge,
-               p3 above p0, normal (p1 - p0) x (p3 - p0) towards the inspection side
-    [camera]   resolution = [w, h] px, sensor_mm = [w, h], focal_mm
-    [inspection] smallest_feature (m), overlap (0..1), lead_in (m)
-    [formation]  offsets = [[x, y, z], ...] (formation frame: x along travel, y left, z up),
-                 min_separation (m)
-    [cost]     beta = [b1, b2, b3], uav_radius, danger_band, collision_penalty, altitude = [lo, hi],
-               max_turn_deg
-    [speeds]   cruise, inspect, max (m/s), accel, lateral_accel (m/s^2)
-    [planner]  particles, waypoints, iterations, init ("corridor" | "box"), corridor_width (m)
-
-Every section except ``origin``, ``box``, ``start`` and ``goal`` has defaults. The scenario is
-validated once, where it is loaded (:func:`load_scenario`) or received (it travels typed inside
-:class:`protocol.messages.PlanRequest` and the mission record), and read by attribute everywhere
-else. Bad documents raise :class:`ScenarioError` (a :class:`ValueError`) whose message names the
-file and the field, e.g. ``scenario field 'obstacles[2].radius': Input should be greater than 0``.
+Design notes: docs/scenario.md (protocol/scenario.py).
 """
 
 from __future__ import annotations
@@ -279,7 +248,7 @@ class PlannerSpec(_Model):
 
 
 class Scenario(_Model):
-    """The whole planning problem (see the module docstring for the file format)."""
+    """The whole planning problem (the file format: docs/scenario.md)."""
 
     name: Annotated[str, Field(max_length=256)] = "scenario"
     origin: Origin

@@ -1,33 +1,6 @@
 """End-to-end signed messages: Ed25519 envelopes for commands and ground-station heartbeats.
 
-Independent of the transport (TLS protects one hop; a relaying gateway or a mesh neighbour sees
-the plaintext), a :class:`~protocol.messages.Signed` envelope carries
-
-* ``signer`` — the sender's identity (a role name: ``gcs``), and ``kid`` — which of its keys
-  (the first 16 hex digits of the SHA-256 of the raw public key), so a key set can be rotated;
-* ``seq`` — a sequence number strictly increasing per signer and addressee. The signer uses
-  microseconds since the UNIX epoch, or one more than its last when the clock has not moved, so
-  a restarted sender needs no saved state (MAVLink 2 signing does the same with its 48-bit
-  timestamp in 10 µs units: "Message signing", mavlink.io/en/guide/message_signing.html);
-* ``stamp`` — wall-clock UNIX seconds at signing;
-* ``to`` — the addressee: the full key expression it is sent on (fleet included);
-* ``type`` and ``body`` — the inner message's wire tag and its codec bytes (base64);
-* ``sig`` — Ed25519 (RFC 8032 §5.1) over the canonical msgpack array
-  ``[DOMAIN, signer, kid, seq, stamp, to, type, body]``.
-
-:class:`Verifier` checks, in this order, and refuses with a typed :class:`Refusal`: an envelope
-at all (``unsigned``), a known signer key (``unknown-signer``), not revoked (``revoked``), the
-signature (``bad-signature``), the addressee (``wrong-addressee``), the freshness of the stamp
-(``stale``) and the sequence (``replayed``), and finally that the body decodes as an expected
-type (``malformed``). The sequence is checked and recorded only *after* the signature: pymavlink
-records a stream's timestamp before verifying, so one forged packet with a future timestamp
-locks the real sender out; here a forgery never moves the replay window.
-
-The last accepted sequence per (signer, addressee) is kept by a :class:`ReplayStore`, persisted
-to a JSON file (written atomically on every acceptance) so that an edge restart does not reopen
-the window.
-
-Pure: no bus code. :mod:`edge.trust` binds it to the board.
+Design notes: docs/security.md (protocol/signing.py).
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
 """Where a frame's time goes: bounded per-stage duration samples and their percentiles.
 
-Pure (no bus code). The edge's camera (:class:`edge.camera_service.CameraLink`: render, encoder queue,
-encode, publish) and the detector (:class:`services.detector.service.DetectorService`: shutter to
-arrival, queue wait, worker) each keep a :class:`StageTimes` and log its :meth:`StageTimes.summary`
-when they close; the detector also publishes it in its statistics (:meth:`StageTimes.metrics`).
-``bench/frame_path.py`` reads those lines from a mission's ``services.log``. Each stage keeps its
-last ``capacity`` samples, so memory is bounded whatever the mission's length.
+Design notes: docs/bus.md (protocol/stages.py).
 """
 
 from __future__ import annotations

@@ -1,19 +1,6 @@
 """Text from another node is data: how it is written into a terminal, a log, Markdown and XML.
 
-Pure helpers, no bus code. Every string that arrives over the bus (an event's text, a command's
-refusal reason, a planner's algorithm name) may hold terminal escapes (ECMA-48 CSI/OSC: clear the
-screen, set the window title, write the clipboard with OSC 52), line breaks that forge a log line or
-end a Markdown table row, HTML, or characters XML 1.0 cannot carry. Each output gets its own escape:
-
-- :func:`printable` for terminals and logs: every control and format character (Unicode categories
-  Cc, Cf, Zl, Zp: C0, DEL, C1, bidi overrides, line separators) becomes a visible ``\\xNN`` or
-  ``\\uNNNN``; one log record stays one line (:class:`SafeFormatter`);
-- :func:`md_text` for Markdown (CommonMark 0.31 "Backslash escapes", GFM "Tables"): the printable text
-  with its HTML characters as entities and its Markdown punctuation backslash-escaped, so a table
-  cell stays one cell of one row;
-- :func:`xml_text` for XML 1.0 element text and attributes (XML 1.0 section 2.2 "Characters": C0
-  controls other than tab, CR and LF cannot appear even as character references): the printable
-  text, with ``& < > " '`` as entities.
+Design notes: docs/security.md (protocol/textsafe.py).
 """
 
 from __future__ import annotations

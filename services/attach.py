@@ -1,17 +1,6 @@
 """Attaching a tool to a running network in one step: the network's description, written and read.
 
-``skynet up`` and ``skynet mission`` leave a small description of the network they run in the working
-folder (:data:`NETWORK_FILE`, ``.skynet/network.json``; ``--network FILE`` or ``SKYNET_NETWORK`` elsewhere),
-and remove it when they stop: the fleet, the ground station's gateway endpoints, the key set's folder and
-its CA's SHA-256 fingerprint, the launcher's host and process id. No secrets: the key set is named by its
-path, each tool reads its own identity there. ``skynet web``, ``skynet video`` and ``skynet replay`` started
-without ``-e``/``--config`` read it (:func:`attach`) and connect to that gateway with their own identity
-(``web``, ``video``, ``replay``), so nothing needs to be typed; what they cannot do is said in one line
-(:class:`AttachError`): no network running here, a key set that is not the network's or lacks the tool's
-identity, a fleet the network does not carry. :func:`explain_open_error` turns Zenoh's own refusals
-("Timeout!", "No peer specified") into such a line.
-
-Files and arguments only; :func:`open_bus` is the one place that opens the session, for the tools' ``main``.
+Design notes: docs/operator-view.md (services/attach.py).
 """
 
 from __future__ import annotations

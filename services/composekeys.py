@@ -1,27 +1,6 @@
 """The key set of a docker compose network: reused, made once, or refused.
 
-    python -m services.composekeys /keys --uavs 3 --host netem-uav2 ... [--san gateway=10.0.0.5 ...] [--owner-of /reports]
-
-docker compose's one-shot ``keys`` service runs this before every other service starts; they then
-mount the same folder **read-only**. Unlike the launcher's :func:`services.orchestration.trustmode.dev_keys`
-(which renames a new set into place), the folder here is a bind mount, so the set is written in
-place, and only into an empty folder:
-
-* a complete set (``ca.pem`` and every role's ``tls.pem``, :func:`services.keys.roles`) is reused
-  as it is: your own CA and keys included (README "docker compose", "Trust");
-* a folder without ``ca.pem`` gets a new development set (:func:`services.keys.init`) whose
-  certificates also carry the ``--host`` names as SANs: the impairment side-cars sit between a
-  dialler and its peer, and the dialler checks the peer's certificate against the name it dialled;
-  ``--san ROLE=NAME[,NAME...]`` (:func:`services.keys.parse_sans`) adds one role's own, e.g. the
-  host addresses at which the split-over-hosts files (``compose/ground.yml``, ``compose/edge.yml``)
-  reach the gateway and each edge;
-* anything else (a set lacking a role) is refused with the reason (exit 2): a partial set may be
-  someone's own, and is never overwritten.
-
-A set lacking a ``--host`` or ``--san`` SAN is used with a warning that names them (a link dialled at
-such a name fails its TLS handshake).
-With ``--owner-of PATH`` a new set is handed to the owner of PATH (the invoking user's ``./reports``),
-not left to root.
+Design notes: docs/security.md (services/composekeys.py).
 """
 
 from __future__ import annotations
@@ -97,7 +76,7 @@ def prepare(folder: Path, uavs: int, hosts: list[str], owner_of: Path | None = N
     unnamed = missing_sans(folder, hosts)
     if unnamed:
         warnings.append(f"the gateway's certificate does not name {', '.join(unnamed)}: links through those "
-                        "impairment side-cars will fail the TLS name check (README \"docker compose\")")
+                        "impairment side-cars will fail the TLS name check (docs/compose.md)")
     for role, names in sorted(sans.items()):
         unnamed = missing_sans(folder, list(names), role)
         if unnamed:

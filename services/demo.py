@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from typing import Any
 
 from protocol import keys
 from protocol.bus import Bus, BusConfig, multilink_endpoints
@@ -36,15 +37,15 @@ def main(argv: list[str] | None = None) -> int:
         with Bus(peer_cfg, args.fleet, "uav1") as uav, Bus(client_cfg, args.fleet, "gcs") as gcs:
             received: list[Message] = []
 
-            def on_state(msg: Message, sample: object) -> None:
+            def on_state(msg: Message, sample: Any) -> None:
                 received.append(msg)
                 assert isinstance(msg, VehicleState)
                 print(f"gcs <- {sample.key_expr}: seq={msg.seq} pos=({msg.pos[0]:.1f}, {msg.pos[1]:.1f}, "
                       f"{msg.pos[2]:.1f}) age={1000 * (time.time() - msg.stamp):.2f} ms")
 
             gcs.subscribe(keys.state(args.fleet, "*"), on_state, expect=VehicleState, link=TELEMETRY)
-            uav.serve(keys.cmd(args.fleet, 1), lambda m: CommandAck(uav=1, cmd_id=m.cmd_id, accepted=True,
-                                                                    reason=f"{m.kind} ok"))
+            uav.serve(keys.cmd(args.fleet, 1), lambda m: CommandAck(uav=1, cmd_id=getattr(m, "cmd_id", 0),
+                                                                    accepted=True, reason=f"{getattr(m, 'kind', '?')} ok"))
             time.sleep(0.5)
             pub = uav.publisher(keys.state(args.fleet, 1), TELEMETRY)
             for i in range(args.count):

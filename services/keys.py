@@ -1,31 +1,6 @@
 """``skynet keys``: a development fleet PKI.
 
-``skynet keys init DIR [--uavs N]`` writes two CAs (the router CA signs the gateways' certificates, the node
-CA everyone else's: a client trusts the router CA alone for its dial, :attr:`protocol.keyset.KeySet.tls_ca`),
-and per node (``gateway``, ``gcs``, ``planner``, ``detector``, the attached tools ``video``, ``web`` and
-``replay``, ``uav1``..``uavN``) a TLS certificate whose common name is the role (ECDSA P-256, SANs ``<role>``,
-``localhost`` and ``127.0.0.1``, server and client usage) and an
-Ed25519 signing key pair. A dialler checks its peer's certificate against the name or address it
-dialled (RFC 6125 section 6; an address against an ``iPAddress`` SAN, RFC 5280 section 4.2.1.6), so a node
-reached at a host's address needs that address in its certificate: ``--host NAME`` adds a SAN to every
-certificate, ``--san ROLE=NAME[,NAME...]`` to one role's (e.g. ``--san gateway=10.0.0.5,gw.example``;
-several specs may share one value, separated by spaces, and ``SKYNET_SANS`` in the environment adds
-more: what the split-over-hosts compose files pass, ``compose/ground.yml``); the ground station's public key goes to ``trust/`` (what the UAVs accept).
-Layout: :mod:`protocol.keyset`. Private keys are written mode 0600. An existing key set is kept
-unless ``--force`` (rotation: install a new set, restart the nodes).
-
-``skynet keys revoke DIR NODE|KEYID|PUBFILE`` revokes a node (its certificate's common name, refused by the ACL
-of the gateway and of every edge from their next start, and its signing key) or one signing key;
-``skynet keys reissue DIR NODE`` gives one node a new certificate (common name ``NODE.gN``, the next
-generation) and signing key with the same CA, revoking the old ones; ``skynet keys show DIR`` lists the
-nodes, their key ids and certificate expiry.
-
-Lifetimes: node certificates :data:`NODE_DAYS` (a lost vehicle's certificate that no revocation list reached
-stops working within a month, and re-issuing is one command), the CA :data:`CA_DAYS` (it stays offline
-with the operator; replacing it means re-keying every node).
-
-This is for development and tests: on real vehicles the CA key lives offline with the operator
-(README, "Trust").
+Design notes: docs/security.md (services/keys.py).
 """
 
 from __future__ import annotations
@@ -279,9 +254,13 @@ def expiring(folder: str | Path, within_days: float = RENEW_DAYS) -> bool:
     return False
 
 
+def _common_name(cert: x509.Certificate) -> str:
+    value = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+    return value.decode() if isinstance(value, bytes) else value
+
+
 def _cn(cert_path: Path) -> str:
-    cert = x509.load_pem_x509_certificate(cert_path.read_bytes())
-    return cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+    return _common_name(x509.load_pem_x509_certificate(cert_path.read_bytes()))
 
 
 def _set_certs(folder: Path, old: str, new: str | None) -> None:
@@ -398,7 +377,7 @@ def show(folder: str | Path) -> list[str]:
     for node in sorted(p for p in folder.iterdir() if p.is_dir() and (p / "tls.pem").exists()):
         check_role(node.name)
         cert = x509.load_pem_x509_certificate((node / "tls.pem").read_bytes())
-        cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value
+        cn = _common_name(cert)
         lines.append(f"{node.name:10} CN={cn:10} sign key {key_id(load_public(node / 'sign.pub'))}  "
                      f"TLS until {cert.not_valid_after_utc:%Y-%m-%d}")
     ks = KeySet(folder, "gcs")

@@ -1,13 +1,6 @@
 """Mission-item conventions shared by the exporters (.plan, WPL), the driver and the sim autopilot.
 
-MAV_CMD numbers are MAVLink common.xml's. The capture convention (one home for it):
-
-``MAV_CMD_DO_DIGICAM_CONTROL`` (203) with param5 = 1 ("Shooting Command": shoot) and
-**param6 = the capture id** (common.xml: param6 "Command Identity"). param7 stays 0: common.xml
-defines it as the "Test shot identifier" (1 = a test shot not counted in the frame count), so a
-capture id there would make every shot but id 0 a test shot. The id is carried exactly as a
-float32 integer (ids up to 2**24); ArduPilot passes param6 through to a MAVLink camera and does not
-reduce it (the MAVLink text's "incremental loop 0 to 255" is a suggestion for de-duplication).
+Design notes: docs/hardware-mavlink.md (edge/geometry/ardupilot_items.py).
 """
 
 from __future__ import annotations

@@ -1,20 +1,6 @@
 """Formation geometry of the UAV triangle: frames, offsets, errors and on-board keeping.
 
-Pure numpy, no bus code. Equations from PAPER.md Section 4: centroid (P6), rotation from the
-formation frame to the inertial frame (P7), position errors in the formation frame (P8) and the
-per-UAV trajectories ``T_Fn = T_F + ΔT_n`` (P9).
-
-Frame convention
-----------------
-Inertial frame: local ENU metres (x east, y north, z up).
-Formation frame F: origin at the formation centroid, **x along the direction of travel** (the
-heading ``ψ = atan2(dy, dx)`` of the centroid path), **y to the left**, **z up**; it is the
-inertial frame rotated by the ZYX Euler angles (φ, θ, ψ) of the shape, ``p_O = R_OF p_F`` (P7).
-With φ = θ = 0 (the default) only the heading rotates the shape, so the default offsets
-:data:`DEFAULT_OFFSETS` (P9) ``ΔT_1 = (0, 0, 2)``, ``ΔT_2 = (3, 0, -1)``, ``ΔT_3 = (-3, 0, -1)`` m
-make a triangle in the vertical plane that contains the path: UAV 1 above the centroid, UAV 2
-three metres ahead and one below, UAV 3 three metres behind and one below. These offsets sum to
-zero, so the centroid of the three slots is the path point itself (P6).
+Design notes: docs/edge.md (edge/geometry/formation.py).
 """
 
 from __future__ import annotations
@@ -25,7 +11,7 @@ from collections.abc import Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from protocol.checks import finite_array, finite_vec3
+from protocol.checks import finite_array, finite_vec3, xyz
 
 __all__ = [
     "DEFAULT_OFFSETS",
@@ -84,9 +70,9 @@ def offsets_for(n: int) -> NDArray[np.float64]:
     if not isinstance(n, (int, np.integer)) or not 1 <= n <= 255:
         raise ValueError(f"formation size must be an int in 1..255, got {n!r}")
     cols = [0.0]
-    for c in range(1, int(MAX_ALONG_M // PITCH_M) + 1):
-        cols += [PITCH_M * c, -PITCH_M * c]
-    rows = [tuple(o) for o in DEFAULT_OFFSETS]
+    for k in range(1, int(MAX_ALONG_M // PITCH_M) + 1):
+        cols += [PITCH_M * k, -PITCH_M * k]
+    rows = [xyz(o) for o in DEFAULT_OFFSETS]
     for c in cols[1:]:  # fill the two imaging rows outward: ahead/behind on the top row, then the lower
         if c > 0:
             rows += [(c, 0.0, 2.0), (-c, 0.0, 2.0)]
@@ -474,7 +460,7 @@ class ShapeErrorMeter:
         self.yaw: float | None = None
         self.first_yaw: float | None = None  # the first heading found
         self.latest: float | None = None  # the newest sample's error known
-        self._t0: float | None = None  # the first sample's time
+        self._t0 = math.nan  # the first sample's time (NaN until the first sample)
         self._buf: list[tuple[float, NDArray[np.float64], dict[int, NDArray[np.float64]]]] = []
         self._next = 0  # index in _buf of the first sample not evaluated yet
 
@@ -520,7 +506,7 @@ class ShapeErrorMeter:
         if not math.isfinite(t) or (self._buf and not t > self._buf[-1][0]):
             raise ValueError("sample times must be finite and increase")
         pos = {u: finite_vec3(f"position of UAV {u}", positions[u]) for u in ids}
-        if self._t0 is None:
+        if math.isnan(self._t0):
             self._t0 = t
         self._buf.append((t, np.mean([pos[u] for u in ids], axis=0)[:2], pos))
         return self._drain(t, everything=False)

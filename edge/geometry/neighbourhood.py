@@ -1,15 +1,6 @@
 """SkyNet neighbourhoods: which UAVs share state with which.
 
-The paper flies one formation of three UAVs, each sharing its state with the two others over
-SkyNet (Section 3). A fleet of N UAVs flies as several such formations (N = 3k): formation g
-holds UAVs ``g*K + 1 .. g*K + K`` (K = :data:`FORMATION_SIZE`, the last one may be smaller),
-and each formation is its own SkyNet neighbourhood. A board subscribes only to its
-neighbours' states (never ``state/*``, never its own), keeps formation only with them (P8)
-and dials only them, so the cost per edge does not grow with N (the full mesh of every state
-to every edge was 20·N² samples/s). The ground station's view of the whole fleet goes through
-the gateway instead.
-
-Pure: no bus code.
+Design notes: docs/edge.md (edge/geometry/neighbourhood.py).
 """
 
 from __future__ import annotations

@@ -1,18 +1,6 @@
 """The camera's optics: the pinhole model with the paper's task-assessment geometry, and poses.
 
-Camera model (:class:`CameraModel`): a pinhole with the task-assessment geometry of the paper
-(PAPER.md Section 2), the one home of (P1)-(P3) (the planner's :mod:`services.planner.task` asks
-it): at a distance ``d`` from the surface the footprint is ``d s_s / f`` on each axis, the
-inverse of (P2); (P1) is :meth:`CameraModel.feature_footprint`, (P2) :meth:`CameraModel.standoff`
-and (P3) :func:`overlap_spacing`. Intrinsics ``f_x = f W / s_w``, ``f_y = f H / s_h`` (pixels),
-principal point at the image centre ``((W - 1) / 2, (H - 1) / 2)`` -- OpenCV's convention, pixel
-centres at integer coordinates, the same one :meth:`SyntheticSurface.pixel_to_world_matrix` uses.
-
-Poses (:class:`CameraPose`) use OpenCV camera axes: x right, y down, z forward (the optical axis).
-``rotation`` is world-from-camera: its columns are the camera axes in ENU, and a world point ``X``
-is at ``R^T (X - C)`` in the camera frame.
-
-Pure numpy: the planner imports it without OpenCV.
+Design notes: docs/edge.md (edge/geometry/optics.py).
 """
 
 from __future__ import annotations

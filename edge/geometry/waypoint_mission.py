@@ -2,12 +2,7 @@
 (:mod:`services.planner.export`: WPL 110, QGC ``.plan``) and the edge's AUTO flight
 (:mod:`edge.vehicle.auto_flight`) share.
 
-Items (MAVLink common.xml): item 0 home (MAV_FRAME_GLOBAL), a NAV_TAKEOFF to the first waypoint's
-altitude, then per waypoint a NAV_WAYPOINT (relative altitude; param1 the hold time of a zero-length
-leg, param4 the compass heading), a CONDITION_YAW when the heading changes, DO_DIGICAM_CONTROL at a
-capture point (the capture id in param 6: :func:`edge.geometry.ardupilot_items.capture_params`), a
-DO_CHANGE_SPEED whenever the leg's planned speed changes (so AUTO keeps the plan's timing), and a
-final NAV_RETURN_TO_LAUNCH.
+Design notes: docs/hardware-mavlink.md (edge/geometry/waypoint_mission.py).
 """
 
 from __future__ import annotations
@@ -83,7 +78,7 @@ def _compass_deg(yaw_enu: float) -> float:
 
 
 def mission_items(trajectory: Trajectory, origin: ArrayLike) -> list[MissionItem]:
-    """The mission items of one UAV's trajectory (see the module docstring), item 0 = home."""
+    """The mission items of one UAV's trajectory (docs/hardware-mavlink.md), item 0 = home."""
     lat0, lon0, h0 = _origin(origin)
     wps = trajectory.waypoints
     pos = np.array([w.pos for w in wps], float)

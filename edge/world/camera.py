@@ -1,11 +1,6 @@
 """The synthetic camera: the view of a :class:`~edge.world.surface.SyntheticSurface` from a camera pose.
 
-:class:`SyntheticSource` renders what the camera sees of the simulated wall, with the view's
-ground-truth mask; it is the :class:`FrameSource` of simulated flights and of the ground side's
-synthetic captures. :class:`Frame` and :class:`FrameSource` are the interface every source of
-the UAV's camera (:mod:`edge.camera`: folders, real cameras and streams) implements. The camera
-model and poses (:class:`~edge.geometry.optics.CameraModel`, :class:`~edge.geometry.optics.CameraPose`)
-are in :mod:`edge.geometry.optics`.
+Design notes: docs/edge.md (edge/world/camera.py).
 """
 
 from __future__ import annotations
@@ -195,7 +190,7 @@ class SyntheticSource:
             size = (max(1, w // f), max(1, h // f))
             t = cv2.resize(tex[: max(h, f), : max(w, f)], size, interpolation=cv2.INTER_AREA)
             m = cv2.resize(mask[: max(h, f), : max(w, f)], size, interpolation=cv2.INTER_AREA)
-            self._levels[level] = (t, np.where(m > 0, 255, 0).astype(np.uint8))
+            self._levels[level] = (np.asarray(t, np.uint8), np.where(m > 0, 255, 0).astype(np.uint8))
         return self._levels[level]
 
     # ------------------------------------------------------------------ rendering
@@ -260,7 +255,7 @@ class SyntheticSource:
             img[seen == 0] = self.sky
             if gt is not None:
                 gt[seen == 0] = 0
-        return img, gt
+        return img.astype(np.uint8, copy=False), None if gt is None else gt.astype(np.uint8, copy=False)
 
     @staticmethod
     def _jacobian(Hinv: NDArray[np.float64], p: NDArray[np.float64]) -> NDArray[np.float64]:

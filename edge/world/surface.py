@@ -1,24 +1,6 @@
 """Synthetic inspected surface: concrete-like texture with procedurally drawn cracks.
 
-The paper's detector (Section 6, (P18)-(P20)) works on grey-scale images of a surface whose
-defects are "abnormal, darker pixel groups on a repetitive background". This module makes such
-images with a *known* ground-truth mask, so that the detector can be scored (P20) and a whole
-mission can be scored against the defects that are really on the wall.
-
-Three plain generators work on image-sized arrays:
-
-- :func:`textured_background` -- concrete-like grey texture (multi-scale value noise, blotches,
-  a mild illumination gradient, grain);
-- :func:`draw_cracks` -- binary crack mask (random-walk polylines with smoothly varying
-  direction and width, occasional branches);
-- :func:`crack_image` -- the two combined: background darkened under the mask.
-
-:class:`SyntheticSurface` places such a texture on a planar rectangle in the world (local ENU
-metres), so that :mod:`edge.world.camera` can render the view of it from any camera pose, and lists
-its ground-truth defects (:meth:`SyntheticSurface.defects`) in surface and world coordinates.
-
-All randomness comes from a ``numpy.random.Generator`` (or an integer seed), so the same seed
-gives the same image, bit for bit.
+Design notes: docs/edge.md (edge/world/surface.py).
 """
 
 from __future__ import annotations
@@ -102,7 +84,7 @@ def _value_noise(h: int, w: int, cell: float, rng: np.random.Generator) -> NDArr
     out = big[oy : oy + h, ox : ox + w]
     if out.shape != (h, w):  # cell < 1 px: the enlarged field may be one pixel short
         out = cv2.resize(big, (w, h), interpolation=cv2.INTER_LINEAR)
-    return out
+    return out.astype(np.float32, copy=False)
 
 
 def textured_background(
@@ -165,7 +147,7 @@ def textured_background(
     cells = (2.0, 6.0, 24.0, 96.0)
     amps = np.array([0.35, 0.45, 0.6, 0.55], dtype=np.float32)
     amps *= roughness / float(np.sqrt(np.sum(amps**2)))
-    img = np.zeros((h, w), np.float32)
+    img: NDArray[Any] = np.zeros((h, w), np.float32)
     for cell, amp in zip(cells, amps):
         img += amp * _value_noise(h, w, cell, g)
 
@@ -180,8 +162,8 @@ def textured_background(
             ax = (int(g.integers(2, 12)), int(g.integers(2, 12)))
             level = float(g.normal(0.0, 1.0)) * roughness * 0.9
             cv2.ellipse(canvas, c, ax, float(g.uniform(0, 180)), 0, 360, level, -1)
-        canvas = cv2.GaussianBlur(canvas, (0, 0), 2.0)
-        img += cv2.resize(canvas, (w, h), interpolation=cv2.INTER_LINEAR)
+        blurred = cv2.GaussianBlur(canvas, (0, 0), 2.0)
+        img += cv2.resize(blurred, (w, h), interpolation=cv2.INTER_LINEAR)
 
     # illumination: a linear ramp in a random direction, peak-to-peak = gradient * mean
     ang = float(g.uniform(0, 2 * np.pi))

@@ -1,15 +1,6 @@
 """The detection API: ``detect(grey, method) -> Detection`` and the ``METHODS`` registry.
 
-Polarity: defects are darker than the background; a global method marks the pixels ``<= T``.
-Every method in :data:`METHODS` maps a grey ``uint8`` image (plus keyword parameters) to a
-binary mask (uint8 0/255) and its global threshold (``None`` for the local Sauvola). ``"it"`` is
-the paper's IT with our size guard (the default, see :mod:`services.detector.iterative`);
-``"it-paper"`` is IT with the paper's bare stop rule and its own DeepCrack-chosen ``C_s``;
-``"learned"`` is a small U-Net run by ``cv2.dnn`` (:mod:`services.detector.learned`).
-
-Defects are the 8-connected components of the mask, each with its pixel area, bounding box,
-centroid and its interclass contrast (P19) against the local background: the non-defect pixels
-within ``ring`` pixels of the component.
+Design notes: docs/detector.md (services/detector/detect.py).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 One capture is ``uav<N>-<capture>.jpg|png`` beside ``uav<N>-<capture>.json`` holding its
 :class:`protocol.messages.ImageMeta`: the folder of posed photos that the inspection deliverable
-reads (:func:`services.inspection.deliverable.load_folder`, whose module docstring states the format).
+reads (:func:`services.inspection.deliverable.load_folder`, the format: docs/report.md).
 """
 
 from __future__ import annotations

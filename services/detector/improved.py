@@ -1,40 +1,6 @@
 """IT+: the paper's iterative thresholding with an area guard and crack-shape filtering.
 
-Beyond the paper. Measured on the two crack data sets (``bench/detect.py``), plain IT has two
-failure modes on textured surfaces:
-
-1. **Overshoot.** Each Otsu step cuts the dark region's pixel count by roughly 4-5x (40 % ->
-   10 % -> 2 % -> 0.4 % of the image), so when the contrast (P19) finally exceeds ``C_s`` the
-   dark class is often far smaller than the cracks. On faint cracks (CrackForest: the contrast
-   at the best threshold is 0.15-0.25, against 0.3-0.7 on DeepCrack) a ``C_s`` chosen on
-   DeepCrack lets IT run down to a few dark specks. IT's own size guard (``min_region``) stops
-   it once the dark region is below 2.5 % of the image, but the step it stops at can still
-   hold only a fifth of that.
-2. **Texture.** Any global threshold low enough to take the cracks also takes dark grains of
-   the surface texture, as thousands of small blobs.
-
-IT+ addresses both, at the cost of one connected-components pass on a small image:
-
-* **area guard** — the defect class never shrinks below ``min_fraction`` of the image (default
-  3 %, chosen on the DeepCrack training split with IT at its defaults): the final threshold is
-  ``max(T_IT, min(T_frac, T_1))`` where ``T_frac`` is the lowest level whose cumulative
-  histogram reaches ``min_fraction`` and ``T_1`` is the first (global Otsu) step, so the guard
-  never goes above Otsu;
-* **shape filtering** — connected components (8-connectivity) of the mask are kept only when
-  they are large enough (``min_area``) and crack-like: elongated (``(w² + h²) / area >=
-  min_elongation`` from the bounding box; a line of length L and width d gives ≈ L/d, a disc
-  ≈ 2.5) or long (``max(w, h) >= min_length``).
-
-Tried and not kept (see the report): background flattening (ratio to a large median, Gaussian
-or morphological-closing background) before IT, a Gaussian pre-blur, hysteresis from the final
-threshold into the previous IT step, and refining ``T_f`` to the exact level where the contrast
-crosses ``C_s``: none of them helped on both data sets.
-
-Real time: the threshold comes from the one 256-bin histogram, the mask from one
-``cv2.threshold``; the shape analysis runs on the mask reduced by an integer factor so that it
-has at most ``work_px`` pixels (block "any": a corner-anchored ``s × s`` dilation, then every
-``s``-th pixel), and the keep-map is upsampled
-with nearest neighbour and ANDed into the full-resolution mask.
+Design notes: docs/detector.md (services/detector/improved.py).
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
 """The paper's iterative thresholding (IT), (P18)-(P19), on a 256-bin histogram.
 
-One pass over the pixels builds the histogram; every step after that is an Otsu split (P18) of a prefix of the
-histogram, O(256) with cumulative sums, until the contrast (P19) exceeds ``C_s``. Where the paper is silent this
-module chooses: the background is every pixel above the threshold (``background="above"``, default; the other
-reading is ``"previous"``), and a size guard stops at a dark region under ``min_region`` of the image (the bare
-rule: ``min_region=0, c_s=C_S_UNGUARDED``, method ``"it-paper"``). The algorithm, the two readings, how ``C_s``
-and ``min_region`` were chosen and the guards: docs/detector.md, "Iterative thresholding".
+Design notes: docs/detector.md (services/detector/iterative.py).
 """
 
 from __future__ import annotations
@@ -97,10 +92,10 @@ def iterative_threshold(
     c_s : float
         Contrast threshold ``C_s`` in [0, 1): stop at the first step with ``C_k > C_s``.
     background : {"above", "previous"}
-        Which pixels form the background mean in (P19); see the module docstring.
+        Which pixels form the background mean in (P19); see docs/detector.md.
     min_region : float
         Size guard in [0, 1): a dark region with less than this share of all pixels is not
-        split again (0 = the paper's bare stop rule); see the module docstring.
+        split again (0 = the paper's bare stop rule); see docs/detector.md.
     max_iter : int
         Cap on the number of Otsu steps (>= 1).
     min_pixels : float

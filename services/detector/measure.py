@@ -1,30 +1,6 @@
 """Crack measurements on a binary defect mask: skeleton length, maximum and mean width, severity.
 
-Pure numpy / OpenCV / scikit-image, no bus code. Every function works in the pixels of the mask
-and a scale ``metres per pixel``: the mosaic (:mod:`services.inspection.mosaic`) is a
-fronto-parallel image of the surface plane at a known scale, so a length or width in its pixels is
-a length on the wall. For a single frame the scale is the ground sampling distance ``range / f``
-(the inverse of (P2): a camera at distance ``d`` with focal length ``f`` pixels sees ``d / f``
-metres per pixel); :func:`frame_scale` gives it from the frame's metadata.
-
-- **length**: the component's skeleton (:func:`skimage.morphology.skeletonize`, Zhang-Suen
-  thinning) measured with the Kimura-Kikuchi-Yamasaki chain-code estimator
-  ``L = 0.948 n_e + 1.343 n_o`` (n_e orthogonal, n_o diagonal links; Dorst & Smeulders 1987 give
-  its error on straight lines as a few per cent, against 8 % for the naive ``n_e + √2 n_o``), plus
-  the half width at each end, where thinning stops short of the crack's tip;
-- **sizing mask**: the crack's pixels at half its depth (:func:`half_depth_mask`), not the
-  detector's mask, whose global threshold is chosen to find cracks and takes in the darker
-  texture at their edges; short skeleton spurs from a rough edge are pruned (:func:`prune_spurs`);
-- **width**: ``2 D − 1/2`` pixels at each skeleton pixel, ``D`` its exact Euclidean distance to the
-  nearest background pixel (``cv2.distanceTransform``, ``DIST_MASK_PRECISE``): a digital line ``t``
-  pixels thick has ``D = (t + 1) / 2`` on its axis when ``t`` is odd and ``t / 2`` when it is even,
-  so the estimate is within half a pixel either way; the maximum is the 95th percentile over the
-  skeleton (a branch point or a tip reads wider than the crack); the mean width is the area over
-  the length (sub-pixel);
-- **severity** by the maximum width, in the classes of the AASHTO Manual for Bridge Element
-  Inspection for reinforced-concrete cracking (insignificant < 0.3 mm, moderate 0.3-1.3 mm,
-  wide > 1.3 mm); a width below one pixel's footprint cannot be told apart and is flagged
-  ``resolved=False``.
+Design notes: docs/detector.md (services/detector/measure.py).
 """
 
 from __future__ import annotations
@@ -224,7 +200,7 @@ def measure_mask(mask: np.ndarray, m_per_px: float, min_area_px: int = 1, grey: 
     m = np.where(np.asarray(mask) != 0, 255, 0).astype(np.uint8)
     H, W = m.shape
     n, labels, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8, ltype=cv2.CV_32S)
-    out = []
+    out: list[tuple[tuple[int, int, int, int], tuple[float, float], CrackMeasure]] = []
     for i in np.argsort(-stats[1:, cv2.CC_STAT_AREA], kind="stable") + 1:
         x, y, w, h, a = (int(v) for v in stats[i])
         if a < min_area_px:
@@ -346,7 +322,7 @@ def outline(mask: np.ndarray, simplify_px: float = 0.5) -> np.ndarray:
     big = np.kron(m.astype(np.uint8), np.ones((2, 2), np.uint8)) * 255
     big = cv2.copyMakeBorder(big, pad, pad, pad, pad, cv2.BORDER_CONSTANT, value=0)
     k3 = np.ones((3, 3), np.uint8)
-    ring = np.zeros((0, 2), np.int32)
+    ring: np.ndarray = np.zeros((0, 2), np.int32)
     for grow in range(pad - 1):
         g = cv2.dilate(big, k3, iterations=grow) if grow else big
         g = cv2.morphologyEx(g, cv2.MORPH_CLOSE, k3)

@@ -1,17 +1,6 @@
 """Pixel scores of a binary defect mask against ground truth: F-measure (P20) three ways.
 
-* defect-class F, exact pixel matching: ``F = 2pr/(p + r)``, ``p = tp/(tp + fp)``,
-  ``r = tp/(tp + fn)`` (P20), counting defect pixels (mask != 0).
-* defect-class F with a tolerance of ``tol`` pixels (default 2, Euclidean): a predicted pixel
-  is a true positive for precision when a ground-truth pixel lies within ``tol`` of it; a
-  ground-truth pixel is recalled when a predicted pixel lies within ``tol`` of it (the usual
-  crack-detection scoring, e.g. CrackForest, Shi et al. 2016). Distances come from
-  ``cv2.distanceTransform`` (exact Euclidean, ``DIST_MASK_PRECISE``).
-* two-class mean F: ``(F_defect + F_background) / 2``, exact pixels; this is how the paper's
-  Table II appears to be computed (values near 0.5 for a method that marks half the image).
-
-Empty cases: a ratio with a zero denominator is 1 when both masks are empty for that class
-(nothing to find and nothing found) and 0 otherwise.
+Design notes: docs/detector.md (services/detector/metrics.py).
 """
 
 from __future__ import annotations

@@ -1,16 +1,6 @@
 """Sharing the fleet's cameras between detector instances by key partition. Pure: no bus code.
 
-``--partition K/N`` makes an instance own the cameras of the UAVs whose id satisfies ``id % N == K``.
-Zenoh key expressions cannot say "id mod N", so an instance subscribes to each of its UAVs' camera
-keys (``skynet/<fleet>/uav/<id>/camera`` for its ids in 1..``max_uav``) instead of ``uav/*/camera``:
-the router delivers a frame only to the instance that owns it, so no frame is analysed twice, and
-since the N partitions cover 1..255 none is left out. ``0/1`` (the default) is the whole fleet on
-the one wildcard key.
-
-Each instance has its own name, ``detector-K`` (``detector`` when N = 1), for its liveliness token
-and statistics (``keys.rcu_alive`` / ``keys.rcu_stats``); the defect reports of every instance go to
-the one ``rcu/detector/defects`` key. The ground station hears every instance's statistics on
-``keys.rcu_instances(fleet, "detector", "stats")`` and sums them per UAV (:mod:`services.gcs.evidence`).
+Design notes: docs/detector.md (services/detector/partition.py).
 """
 
 from __future__ import annotations

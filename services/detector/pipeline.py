@@ -1,16 +1,6 @@
 """From one imagery payload to one defect report (pure: no bus code).
 
-``analyse(meta, image_bytes, method)`` decodes the JPEG, runs :func:`detect`, and maps every
-defect's pixel centroid to the surface in world coordinates with the pinhole model of the
-frame's metadata: the ray ``K^-1 [u, v, 1]^T`` in the camera frame (OpenCV axes: x right,
-y down, z forward), scaled to the surface range along the optical axis, rotated and translated
-by the camera pose, ``X = p_cam + R_wc (range · K^-1 [u, v, 1]^T)``. A defect's length is its
-skeleton's, measured by the deliverable's own module (:func:`services.detector.measure.measure_mask`,
-on the crack's half-depth pixels) at the ground sampling distance
-(:func:`services.detector.measure.frame_scale`, ``range / f`` metres per pixel, the inverse of
-(P2)). On frames above the defect list's pixel budget (:func:`services.detector.detect.defects_of`
-works on blocks there, so its boxes are not the mask's components) the length falls back to the
-bounding-box diagonal.
+Design notes: docs/detector.md (services/detector/pipeline.py).
 """
 
 from __future__ import annotations

@@ -1,19 +1,6 @@
 """Detection in worker processes: a process pool that survives its workers ("a detector that scales").
 
-Pure (no bus code). Detection is CPU-bound Python around OpenCV; in threads it shares one GIL, so a
-burst of simultaneous captures (every UAV of a formation reaching its capture point together) is
-served one frame at a time. :class:`DetectorPool` runs :func:`services.detector.pipeline.analyse` in
-``workers`` separate processes (:class:`concurrent.futures.ProcessPoolExecutor` with the ``spawn``
-start method by default: no fork of a process that holds Zenoh's threads; ``forkserver`` also works).
-
-The caller keeps the bounded queue (the detector's :class:`protocol.ring.Ring`, drop-oldest, counted)
-and calls :meth:`DetectorPool.analyse` from at most ``workers`` threads, so at most ``workers`` frames
-are in flight and nothing queues unboundedly inside the executor.
-
-A worker that dies (killed, out of memory, a crash in native code) breaks a ``ProcessPoolExecutor``
-for good (``BrokenProcessPool`` on every pending future). The pool then counts a crash, replaces the
-executor and runs the frames that were in flight once more; a frame that breaks a fresh worker a
-second time is given up (:class:`WorkerCrashed`), so a poison frame cannot crash the pool forever.
+Design notes: docs/detector.md (services/detector/pool.py).
 """
 
 from __future__ import annotations
@@ -117,7 +104,7 @@ class DetectorPool:
         return [f.result(timeout) for f in futs]
 
     def call(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """``fn(*args)`` in a worker process (``fn`` and the arguments must pickle); see the module docstring
+        """``fn(*args)`` in a worker process (``fn`` and the arguments must pickle); see docs/detector.md
         for what a crash does. Exceptions raised by ``fn`` come back as they are."""
         for attempt in (1, 2):
             with self._lock:

@@ -1,22 +1,6 @@
 """Which imagery frames reached the detector only through recovery (pure: no bus code).
 
-Capture frames travel best-effort; with recovery on, the detector's advanced subscriber asks the
-camera's cache for a frame the link lost (Zenoh's AdvancedPublisher/AdvancedSubscriber, the role
-RTP retransmission plays) and delivers it in order, late. Zenoh does not mark a retransmitted
-sample, so the detector also listens to the same keys with a plain subscriber -- the *live*
-path, which sees exactly what the link delivered the first time -- and this tracker compares
-the two by (SSRC, RTP sequence number):
-
-- ``live(ssrc, seq, now)``: the plain subscriber saw the frame;
-- ``delivered(ssrc, seq, now)``: the recovering subscriber handed it to the jitter buffer;
-- a delivered frame that the live path had not seen is *pending*; it counts as **recovered**
-  when the live path still has not seen it ``settle_s`` after its delivery (the two
-  subscribers of one session get a live sample within milliseconds of each other, so a
-  second is a wide margin), and as ordinary when the live copy turns up meanwhile.
-
-So ``recovered`` counts frames the link lost on their first trip and that the detector got
-anyway; frames lost for good are counted by the jitter buffer (``lost``) and by the miss
-listener (``imagery.unrecovered``).
+Design notes: docs/detector.md (services/detector/recovery.py).
 """
 
 from __future__ import annotations
@@ -27,7 +11,7 @@ __all__ = ["RecoveryTracker"]
 
 
 class RecoveryTracker:
-    """Counts frames delivered by recovery, per SSRC; see the module docstring.
+    """Counts frames delivered by recovery, per SSRC; see docs/detector.md.
 
     Parameters
     ----------

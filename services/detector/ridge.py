@@ -1,52 +1,7 @@
 """IT+r: IT+ united with the crack-like part of a Hessian ridge response ("a better detector
 for textured surfaces").
 
-Beyond the paper. On a textured surface (CrackForest's asphalt) a crack is a thin line barely darker
-than the grains around it: no global threshold separates them (the best per-image threshold chosen
-with the ground truth scores an exact F of about 0.34), while the *shape* of the grey surface does:
-across a dark line the intensity has a strong positive second derivative, along it almost none. The
-local cue here is that line measure, on the working grid of :mod:`services.detector.improved`:
-
-1. **ridge response** ``R = σ² λ₁ − γ σ |∇I_σ|``: ``λ₁`` the larger eigenvalue of the Hessian of the
-   image smoothed with a Gaussian of scale ``σ`` (positive across a dark line; Lindeberg, "Edge and
-   ridge detection with automatic scale selection", IJCV 30(2), 1998, for the ``σ²`` normalisation;
-   the eigenvalue in closed form, ``(Ixx + Iyy + √((Ixx − Iyy)² + 4 Ixy²)) / 2``). A step edge
-   (the wall against the sky) has a one-sided second derivative too, but also a strong gradient,
-   which a line's centre does not: the ``γ`` term takes edges out;
-2. **hysteresis** (Canny's, on the response's own distribution): pixels in the top ``q_low`` of
-   ``R`` are candidates, and a connected candidate region is kept when it holds a pixel in the top
-   ``q_high``;
-3. **half depth**: a candidate pixel is kept only where it is darker than its local background
-   (the ``box``-pixel mean); on a reduced grid, the full-resolution pixels of a kept block are those
-   below the block's half depth ``(min + background) / 2`` (so a thin crack stays thin);
-4. the **component rules** of IT+ (:func:`services.detector.improved.component_filter`: area,
-   elongation, length), and a **contrast (P19) floor relative to IT+'s own cracks**: a ridge
-   component is kept when its contrast reaches ``rel_contrast`` times the median contrast of the
-   components IT+ kept in the same frame (``fallback_contrast`` when IT+ kept none). A frame whose
-   cracks IT+ finds clearly (DeepCrack, the mission's wall) thus takes only ridges nearly as
-   contrasted as them, and texture lines stay out; a frame of faint cracks takes faint ridges.
-
-The mask is the union of IT+'s mask and the kept ridge pixels, made at full resolution in one pass:
-every block of the working grid gets a threshold (IT+'s global ``T`` in blocks IT+ kept, the half
-depth in blocks of kept ridges, the larger where both, none elsewhere), the threshold map is enlarged
-by pixel repetition, and one ``cv2.compare`` gives the mask. IT+'s part is exactly
-:func:`services.detector.improved.it_plus_mask`'s.
-
-Parameters were chosen on the training splits (``bench/detect.py --only ridge`` prints the grid
-one parameter at a time around the defaults): the highest exact F on the odd-numbered half of
-CrackForest (001, 003, ...; the even half is held out) with DeepCrack-train no lower than IT+bh's
-0.733 and the object precision on synthetic mission walls (seeds 7, 11, 13; never the mission's own
-2024) at least 0.95 at recall 1 (it is 1.00 on all three). Measured (exact F, means over images,
-``skynet detect eval``): CrackForest 0.541 (train half 0.528, held-out half 0.555), DeepCrack-train
-0.738, against IT+ 0.367 / 0.715 and IT+bh 0.413 / 0.733. A lower fallback floor (0.05) scores
-CrackForest 0.555 but fails the mission precision.
-
-Tried and not kept: the bare ridge union (no relative floor: CrackForest up to 0.57 but DeepCrack
-0.71-0.73); the black-hat of IT+bh on top (no gain over IT+ with the ridge: DeepCrack within 0.003);
-an absolute contrast floor 0.08 on every ridge (CrackForest 0.56 -> 0.53); a lower fallback floor
-0.05 when IT+ keeps nothing (texture lines on crack-free frames: mission precision 0.73-0.93); a
-stronger edge term ``γ`` 1 / 2 (CrackForest 0.510 / 0.437); scales 2.0 / 2.25 (CrackForest train
-0.512 / 0.521 against 0.528) and a low hysteresis share of 3 % (0.01 lower).
+Design notes: docs/detector.md (services/detector/ridge.py).
 """
 
 from __future__ import annotations

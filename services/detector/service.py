@@ -1,48 +1,6 @@
 """The detector RCU service: every UAV's imagery in, one defect report per frame out.
 
-Frames arrive on ``skynet/<fleet>/uav/*/camera`` (RTP header + metadata + JPEG,
-:mod:`protocol.imagery`). The Zenoh callback only parses the 12-byte RTP header and pushes the
-frame into the per-camera jitter buffer (:mod:`protocol.jitter`); frames released in sequence
-order go to a bounded drop-oldest queue served by a pool of worker *processes*
-(:mod:`services.detector.pool`: not bound by one GIL; a worker that dies is counted and replaced)
-that decode, detect (:mod:`services.detector.pipeline`) and publish a :class:`DefectReport` on
-``skynet/<fleet>/rcu/detector/defects``. A slow frame never stalls the bus: when the pool falls
-behind, the oldest frames are dropped and counted. A frame that fails to decode is counted and
-reported (``ok=False``), never fatal. Frames lost on the way are asked for again from the
-cameras' caches (Zenoh's advanced subscriber recovery, the role RTP's NACKs play); what cannot be
-recovered is counted (``imagery.unrecovered``). ``--no-recovery`` subscribes plainly instead: a
-frame the link loses stays lost. Live preview frames (``uav/<id>/preview``) are not analysed:
-the camera wildcard does not match them.
-
-Several instances share the fleet's cameras with ``--partition K/N`` (:mod:`services.detector.partition`):
-instance K subscribes only to the camera keys of the UAVs with ``id % N == K`` and is named
-``detector-K`` (its liveliness token and statistics key; its reports go to the common defects key).
-
-Each camera opens its stream with an empty "announce" frame (:meth:`edge.camera_service.CameraLink.announce`)
-so that Zenoh's recovery sees a lost first capture as a gap like any other. The detector drops it
-on arrival (``count.announce``): it is not a capture, and it often arrives seconds after it was
-sent (fetched from the cache when the detector starts), which would spoil the jitter figure.
-So without recovery a lost *first* capture of a camera is not counted ``lost`` (the jitter
-buffer starts at the first capture it sees); the report's coverage still misses it.
-
-Statistics go out once a second on ``skynet/<fleet>/rcu/<name>/stats`` (``detector`` or ``detector-K``); per camera
-(``uav<N>.cam<C>.<name>``): ``received``, ``delivered``, ``lost``, ``duplicated``,
-``reordered``, ``jitter_ms`` (RFC 3550 A.8 interarrival jitter), ``fraction_lost`` as the jitter
-buffer counts them (:class:`protocol.jitter.JitterStats`), and
-
-- ``late``: frames that arrived after the jitter buffer's playout had given their sequence
-  number up (it had waited ``--playout-delay`` behind the gap and counted them lost). Each is a
-  capture all the same, so it is still analysed (``count.late-analysed``), only out of order.
-  With recovery on, Zenoh hands frames over in order, so a recovered frame is normally
-  delayed rather than late;
-- ``recovered``: frames that reached the detector only through recovery, i.e. that the live
-  best-effort path never delivered (:class:`services.detector.recovery.RecoveryTracker`); 0 with
-  ``--no-recovery``.
-
-and overall ``imagery.recovery`` (1 on, 0 off), ``imagery.unrecovered`` (Zenoh's miss
-listener), queue drops and rejections, ``pool.workers`` and ``pool.crashes`` (worker processes that died).
-
-    skynet detector -m client -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
+Design notes: docs/detector.md (services/detector/service.py).
 """
 
 from __future__ import annotations
@@ -94,7 +52,7 @@ def frame_source(key: str, ssrc: int) -> tuple[int, int] | None:
 
 
 class DetectorService:
-    """Binds the pipeline to the bus; see the module docstring."""
+    """Binds the pipeline to the bus; see docs/detector.md."""
 
     def __init__(self, bus: Bus, method: str = "it+r", workers: int = 2, queue: int = QUEUE_FRAMES,
                  playout_delay_s: float = 0.05, log=None, recover: bool = True, save_frames: str | None = None,
@@ -180,7 +138,8 @@ class DetectorService:
         if len(payload) == 0:
             return  # an announce frame: not a capture
         with self._lock:
-            self.recovery.live(header.ssrc, header.sequence, time.time())
+            if self.recovery is not None:
+                self.recovery.live(header.ssrc, header.sequence, time.time())
 
     def poll(self) -> None:
         """Release frames whose wait for a missing predecessor is over."""

@@ -1,24 +1,6 @@
 """Grey-level thresholds for dark-defect detection: plain functions of an image or a histogram.
 
-Every global threshold here takes either a grey image (``image``) or a precomputed histogram
-(``hist=``), in the style of scikit-image's ``threshold_otsu(image=None, *, hist=None)``, and
-returns an integer grey level ``T``. The convention throughout is the paper's (P18): class 0 is
-the pixels ``<= T`` (the dark class, where defects are), class 1 the pixels ``> T``. This is the
-same convention as OpenCV's ``cv2.threshold(..., THRESH_OTSU)`` (``dst = src > T``) and
-scikit-image's ``threshold_otsu`` (``image > t`` is foreground).
-
-A histogram is a 1-D array of non-negative counts, ``hist[x]`` the number of pixels of level
-``x``; 8-bit images give 256 bins but any length works (handy for hand-made test histograms).
-Images are made into histograms once, with ``cv2.calcHist`` (one pass over the pixels, much
-faster than ``np.bincount`` on large frames); after that every threshold costs O(levels) with
-vectorised cumulative sums.
-
-Sauvola is the exception: it is local and returns a threshold *image*.
-
-Functions
----------
-histogram, threshold_otsu, threshold_valley_emphasis, threshold_itth, threshold_sdd,
-threshold_sauvola, as_grey_u8, between_class_variance
+Design notes: docs/detector.md (services/detector/thresholds.py).
 """
 
 from __future__ import annotations

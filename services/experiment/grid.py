@@ -1,19 +1,6 @@
 """The experiment grid: lists of link conditions -> cells -> seeded runs -> mission commands (pure).
 
-An experiment flies the same mission under every combination of random loss, delay,
-jitter and imagery recovery, ``repeat`` times each. Cells differ only in the impairment: repeat
-``k`` of every cell uses the seed ``seed + k`` (common random numbers), so a difference between
-two cells is the links' doing, not the wind's or the proxies' dice.
-
-Each run is one ``skynet mission`` process with
-
-    --impair "<links>=after 2s delay Dms jitter Jms loss L%"   [--no-recovery]
-
-``links`` names the impaired links in the launcher's terms (default ``all/udp``: every
-best-effort link, uplinks and SkyNet, the issue's "every best-effort link"). The onset
-(``after 2s``) lets Zenoh open its UDP links first: it gives up a UDP link whose handshake is
-lost and would then run on TCP alone, unimpaired. A cell with no loss, delay or jitter still
-puts (clean) proxies on the same links, so that the baseline pays the same relay costs.
+Design notes: docs/experiments.md (services/experiment/grid.py).
 """
 
 from __future__ import annotations

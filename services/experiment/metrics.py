@@ -1,35 +1,6 @@
 """What an experiment measures per run, read from the mission's ``report.json``, and per cell (pure).
 
-Every figure comes from the ground station's report (:mod:`services.gcs.report`), so an
-experiment measures exactly what a single mission reports. Per run (:data:`METRICS`):
-
-=========================  ===================================================================
-success                    1 when the mission succeeded (every UAV reached the goal, every
-                           capture point imaged), else 0; a hung run (killed at the timeout) 0
-coverage                   capture points imaged / planned (``captures.ratio``): an ``ok``
-                           defect report came back for the capture
-cmd_ack_ratio              commands acknowledged / sent (``links.command.ratio``)
-cmd_ack_p50_ms, _p95_ms    acknowledgement round trip (``links.command.latency_ms``)
-cmd_failed                 commands sent but not acknowledged (reported failed, never silent)
-telemetry_ratio            vehicle states received / sent (sequence numbers)
-telemetry_age_p50_ms, p95  state age at the ground station, receive - publish stamp
-img_delivered              capture frames the detector's jitter buffer played out
-img_missing                capture points planned whose frame never reached the detector
-                           (planned - delivered - late): every loss, including a stream's first
-                           or last frames, which no sequence gap reveals
-img_lost                   sequence numbers the jitter buffer gave up (RFC 3550 loss: gaps only)
-img_late                   frames that came after their number was given up (analysed anyway)
-img_recovered              frames that reached the detector only through recovery
-img_jitter_ms              RFC 3550 interarrival jitter, the largest over the cameras
-capture_to_report_p95_ms   capture to defect report (includes any recovery wait)
-formation_rms_m, max_m     formation shape error during the mission phase
-defects_found, _planted    ground-truth defects found (within tolerance) / planted
-defect_recall, _precision  of the defect reports against the ground truth
-wall_s                     the run's wall time (the mission process, start to exit)
-=========================  ===================================================================
-
-Per cell, :func:`aggregate` gives each metric's mean, min and max over the runs that have it,
-and counts the runs, the successes and the hung runs.
+Design notes: docs/experiments.md (services/experiment/metrics.py).
 """
 
 from __future__ import annotations
@@ -128,8 +99,7 @@ def run_metrics(report: Mapping[str, Any] | None, wall_s: float | None = None, h
         out["img_lost"] = _camera_sum(imagery, "lost")
         out["img_late"] = _camera_sum(imagery, "late")
         out["img_recovered"] = _camera_sum(imagery, "recovered")
-        jit = [_num(_get(m, "jitter_ms")) for m in imagery.values()]
-        jit = [j for j in jit if j is not None]
+        jit = [j for m in imagery.values() if (j := _num(_get(m, "jitter_ms"))) is not None]
         out["img_jitter_ms"] = max(jit) if jit else None
     planned = out["captures_planned"]
     if planned is not None:

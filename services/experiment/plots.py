@@ -1,12 +1,6 @@
 """The experiment's figures (matplotlib, Agg canvas, PNG): each a metric against loss or delay.
 
-- ``coverage.png``: capture coverage and mission success against loss, one line per delay
-  (and jitter), solid with recovery on, dashed with it off: what recovery buys under loss;
-- ``imagery.png``: capture frames recovered and never delivered against loss;
-- ``telemetry.png``: telemetry age p95 and delivery ratio against loss, per delay;
-- ``commands.png``: command acknowledgement p95 against delay, one line per loss.
-
-Points are means over the repeats, with min-max error bars when there are several.
+Design notes: docs/experiments.md (services/experiment/plots.py).
 """
 
 from __future__ import annotations

@@ -1,15 +1,6 @@
 """Run the missions of an experiment, one ``skynet mission`` process at a time, never hanging.
 
-Each run is a subprocess with a wall-clock timeout. At the timeout the mission is stopped the
-way Ctrl-C would stop it (SIGINT: the launcher stops its services and still writes what it
-can); if it has not ended ``grace_s`` later it and every process it started are killed
-(SIGKILL, by process id, collected from ``/proc`` before the stop since the launcher's services
-run in their own sessions). The run is then recorded as ``hung``. Statuses:
-
-- ``ok``: the process ended and left a ``report.json`` (the mission itself may have failed:
-  ``success`` says so; an exit status of 1 is a failed mission, not a failed run);
-- ``no-report``: the process ended without a report (it crashed or could not start);
-- ``hung``: stopped at the timeout (``success`` 0, whatever else a report it left says).
+Design notes: docs/experiments.md (services/experiment/runner.py).
 """
 
 from __future__ import annotations
@@ -69,7 +60,8 @@ def descendants(pid: int) -> list[tuple[int, str | None]]:
         if not entry.name.isdigit() or (fields := _stat(entry.name)) is None:
             continue
         children.setdefault(int(fields[1]), []).append((int(entry.name), fields[19]))
-    out, todo = [], [pid]
+    out: list[tuple[int, str | None]] = []
+    todo = [pid]
     while todo:
         for child in children.get(todo.pop(), []):
             out.append(child)

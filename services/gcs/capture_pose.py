@@ -1,15 +1,6 @@
 """Captures where they belong: where each imaged frame was taken, measured against its capture point.
 
-A capture fires on the edge's trajectory clock; if the vehicle is not where the plan has it (an
-autopilot flying a dense AUTO mission slowly, a pilot, a failsafe), the frame shows another part
-of the surface while still counting as "imaged". So the verdict measures, for every ``ok``
-defect report, the UAV's position at the frame's capture time (``stamp_capture``, the edge's
-wall clock) interpolated linearly between the UAV's two nearest published states (their
-``stamp``, the same edge's clock) and refuses a frame farther than :data:`CAPTURE_TOLERANCE_M`
-from its planned capture point (the trajectory waypoint with that capture id). Across a gap in the
-states longer than :data:`MAX_GAP_S` (a lost link) a frame is placed only at a state within
-:data:`NEAR_S` of it (a wall second is several simulated ones at an accelerated run); one that
-cannot be placed is not judged here.
+Design notes: docs/report.md (services/gcs/capture_pose.py).
 """
 
 from __future__ import annotations

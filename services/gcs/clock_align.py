@@ -1,18 +1,6 @@
 """Putting every UAV's simulation time on one clock before the report compares them.
 
-Each edge stamps its states with its own simulation time ``t = (wall − epoch_n) × speed``
-(:class:`edge.clock.SimClock`) and the wall-clock time of publication ``stamp``. The launcher gives
-every edge one ``--epoch``; processes started on their own (docker compose, several hosts) each take
-their start as the epoch, so the same instant has a different ``t`` on each UAV — at 4× speed, 0.3 s
-of container start-up apart is 1.2 s of simulation time, which the report would read as the UAVs
-flying 1.2 s of trajectory apart.
-
-The wall clock is common (one host, or hosts kept in sync by NTP), so each UAV's epoch is recovered
-from its own states, ``epoch_n = median(stamp − t / speed)`` (the median ignores a stray state), and
-each UAV's times are moved onto the reference UAV's clock (the lowest id):
-``t' = t + (epoch_n − epoch_ref) × speed``. With a shared epoch the shifts are 0 to well under a
-millisecond, so launcher runs are unchanged. States at ``t = 0`` (published before the epoch, where
-the driver clamps the time) or with no stamp carry no epoch and are left out of the estimate.
+Design notes: docs/report.md (services/gcs/clock_align.py).
 """
 
 from __future__ import annotations
@@ -51,8 +39,8 @@ def sim_time_shifts(tracks: Mapping[int, tuple[Iterable[float], Iterable[float]]
     epoch is known; a UAV whose epoch is not known (or every UAV, when none is) gets 0.
     """
     epochs = {u: estimate_epoch(t, s, speed) for u, (t, s) in tracks.items()}
-    known = sorted(u for u, e in epochs.items() if e is not None)
+    known = {u: e for u, e in epochs.items() if e is not None}
     if not known:
         return {u: 0.0 for u in tracks}
-    ref = epochs[known[0]]
+    ref = known[min(known)]
     return {u: 0.0 if e is None else float((e - ref) * speed) for u, e in epochs.items()}

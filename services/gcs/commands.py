@@ -1,15 +1,6 @@
 """Commands from the ground station to a UAV: tries with exponential back-off, every outcome recorded.
 
-A command is a query on the UAV's ``cmd`` queryable (:func:`protocol.keys.cmd`, command link
-class: reliable). :func:`send` tries up to ``attempts`` times, each with ``timeout_s``, pausing
-``backoff_s`` after the first failed try and twice as long after each next one (0.25, 0.5, 1, 2 s
-by default). An answer ends the tries whether the UAV accepted the command or refused it: a
-refusal is final, not retried. Every command ends as one
-:class:`~services.recording.record.CommandRecord`, acknowledged or failed with the reason (also one that
-was not sent at all, :func:`not_sent`), so no command disappears without a trace.
-
-:func:`start_margin` is the policy for how far ahead the common start time is set, from the
-acknowledgement times measured so far.
+Design notes: docs/ground-station.md (services/gcs/commands.py).
 """
 
 from __future__ import annotations
@@ -19,6 +10,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import cast
 
 from protocol import keys
 from protocol.bus import Bus
@@ -86,7 +78,7 @@ def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = ti
         reply = bus.request(key, payload, expect=CommandAck, timeout=policy.timeout_s)
         if reply.ok:
             acks.append(reply.elapsed_s)
-            ack = reply.message
+            ack = cast(CommandAck, reply.message)  # expect=CommandAck: an ok reply is one
             return CommandRecord(uav=cmd.uav, kind=cmd.kind, cmd_id=cmd.cmd_id, ok=True, accepted=ack.accepted,
                                  reason=ack.reason, attempts=attempt, elapsed_s=time.monotonic() - t0, ack_s=acks)
         reason = reply.error

@@ -1,20 +1,6 @@
 """Evidence for the verdict: a capture counts as imaged only on a report the detector can stand behind.
 
-Pure (no bus code). A :class:`~protocol.messages.DefectReport` counts towards coverage only when it
-names the frame it was computed from (:class:`~protocol.messages.FrameEvidence`: the SSRC of the
-UAV's capture camera, the RTP sequence number, the SHA-256 of the image bytes), see
-:func:`has_evidence`. The ground station then cross-checks the reports against the detector's own
-statistics (``uav<N>.cam0.received`` / ``.analysed`` in its :class:`~protocol.messages.LinkStats`):
-a UAV cannot have more captures reported than frames the detector analysed from its camera, and
-reports with no detector statistics at all (a detector that is not running, forged reports) are not
-corroborated (:func:`corroboration_failures`). The ledger per UAV — frames sent (the edge's capture
-count in its states), received and analysed (the detector), reported (evidenced, distinct captures)
-— goes into the record and the report.
-
-Counters restart with the detector: a statistics message whose uptime went back starts a new run,
-and the totals add the last figures of every run. Several detector instances sharing the cameras
-(``--partition K/N``, :mod:`services.detector.partition`) are told apart by their statistics' ``source``
-(``detector-K``); each has its own runs, and the totals sum over the instances.
+Design notes: docs/report.md (services/gcs/evidence.py).
 """
 
 from __future__ import annotations

@@ -1,51 +1,6 @@
 """The mission report's figures: a recorded mission in, typed figures out (record -> figures).
 
-Pure code (numpy), no bus code, no plotting: :func:`analyse` turns a
-:class:`services.recording.record.MissionRecord` into :class:`ReportFigures`, which holds the
-:class:`ReportSummary` (every figure, written as ``report.json``) and the typed series the plots
-draw (:mod:`services.gcs.plots`); the Markdown page (:mod:`services.gcs.markdown`) reads the
-summary only. :mod:`services.gcs.report` writes them all.
-
-How the figures are measured (our choices where the paper is silent)
---------------------------------------------------------------------
-*Tracking states.* Path and formation figures use the states where a UAV tracks its trajectory:
-mode MISSION with a trajectory position (``wp_index >= 0`` or ``progress > 0``); the transit to
-the first waypoint and the wait there report ``wp_index = -1`` and are left out. A driver that
-never fills those fields (all MISSION states at ``wp_index = -1``, ``progress = 0``) has all its
-MISSION states counted.
-
-*Path error* (paper's Fig. "Errors between the planned and flown paths"). Geometric: the
-distance from each flown position to the planned polyline (the trajectory's waypoints joined by
-segments; the planner samples them densely), which ignores a lag in time. Time-aligned: the
-distance to the planned position at the same trajectory time, the plan's time ``τ`` mapped to
-the states' simulation time ``t`` by ``t = t_a + (τ − τ_0)``; the anchor ``t_a`` is the first
-tracking state's ``t − progress · duration`` (the first MISSION state's ``t`` when progress is
-not reported). A pause (hold, resume) therefore shows as a growing time-aligned error.
-
-*Formation error.* The UAVs' positions are linearly interpolated to common times (the union of
-their state times inside the window where every UAV tracks) and :class:`edge.geometry.formation.ShapeErrorMeter`
-gives the RMS shape error (P6)-(P9) at each time (the heading ψ: the flown centroid's horizontal velocity over
-the last 1 s, held while it moves slower than 0.3 m/s; the terminal line and the web page use the same rule), with the scenario's offsets (``scenario.formation.offsets``, row n−1 for UAV n) or
-:data:`edge.geometry.formation.DEFAULT_OFFSETS`. The figures are the RMS over time and the maximum. The
-planned trajectories are measured the same way (``plan_rms_m``), since in turns and climbs the
-heading of the centroid's motion is not always the one the planner placed the slots with.
-
-*Reached goal* and *planned captures*: as :mod:`services.gcs.verdict` defines them for the
-mission's verdict too: the last position with the trajectory complete (progress 1, in MISSION or
-HOLD, i.e. before the ground station lands the formation) is within 2 m of the last planned
-waypoint (the last recorded position when the trajectory never completed).
-
-*Link classes.* Telemetry (UDP in the paper): delivered = distinct sequence numbers received,
-sent = the sequence span ``max − min + 1`` per UAV; latency = state age ``rx − stamp``.
-Imagery (RTP): delivered/sent = ``received / (received + lost)`` from the detector's latest
-jitter-buffer statistics (``uavN.camC.*`` metrics, RFC 3550 loss and interarrival jitter);
-latency = capture to report ``stamp_report − stamp_capture``. Defect reports (command class,
-reliable): latency = delivery ``rx − stamp_report``. Commands (TCP): delivered/sent = commands
-acknowledged ok / commands sent; latency = every answered try's round trip ``ack_s``. Latencies
-are reported in milliseconds as p50/p95/p99 (numpy's linear percentile), mean and max.
-
-*Planner convergence*: the first iteration whose best cost is within 0.1 % of the final cost,
-as :meth:`services.planner.optimiser.OptResult.convergence_iteration` counts it (Table I).
+Design notes: docs/report.md (services/gcs/figures.py).
 """
 
 from __future__ import annotations
@@ -59,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from edge.geometry.formation import DEFAULT_OFFSETS, ShapeErrorMeter
+from protocol.checks import xyz
 from protocol.messages import Mode, Trajectory
 from services.gcs.clock_align import sim_time_shifts
 from services.gcs.resilience import fault_figures
@@ -380,7 +336,7 @@ class Track:
 class PathSeries:
     """One UAV's path error over its tracking states (paper's Fig. "Errors between the planned and
     flown paths"): simulation times, geometric error and, when the trajectory time is anchored,
-    the time-aligned error (module docstring), metres."""
+    the time-aligned error (docs/report.md), metres."""
 
     t: NDArray[np.float64]
     geometric: NDArray[np.float64]
@@ -402,7 +358,7 @@ class FormationSeries:
 @dataclass(frozen=True)
 class LinkSamples:
     """The latency samples of each link flow, seconds (the figures' :class:`Latency` and the
-    ``links.png`` box plot are both made from these; see the module docstring)."""
+    ``links.png`` box plot are both made from these; see docs/report.md)."""
 
     telemetry: NDArray[np.float64]  # state age rx - stamp
     imagery: NDArray[np.float64]  # capture to report stamp_report - stamp_capture (ok reports)
@@ -416,7 +372,7 @@ class ReportFigures:
 
     ``summary`` is written as ``report.json`` and told in ``report.md``; the rest are the series
     the plots draw. ``anchors``: UAV -> simulation time of its trajectory's first waypoint time
-    (module docstring, *Path error*), for the UAVs that tracked their trajectory.
+    (docs/report.md, *Path error*), for the UAVs that tracked their trajectory.
     """
 
     summary: ReportSummary
@@ -469,7 +425,7 @@ def _trajectories(record: MissionRecord) -> dict[int, Trajectory]:
 
 
 def _anchor(track: Track, traj: Trajectory) -> float | None:
-    """Simulation time of the trajectory's first waypoint time (see the module docstring)."""
+    """Simulation time of the trajectory's first waypoint time (docs/report.md)."""
     idx = np.flatnonzero(track.tracking)
     if idx.size == 0:
         return None
@@ -490,10 +446,10 @@ def _offsets(record: MissionRecord, uavs: Iterable[int]) -> dict[int, NDArray[np
 def _corners(record: MissionRecord) -> list[tuple[float, float, float]]:
     """The inspected surface's corners: the record's, else the scenario's ``surface.corners``."""
     if record.surface_corners:
-        return [tuple(map(float, c)) for c in record.surface_corners]
+        return [xyz(c) for c in record.surface_corners]
     if record.scenario is None or record.scenario.surface is None:
         return []
-    return [tuple(map(float, p)) for p in record.scenario.surface.corners]
+    return [xyz(p) for p in record.scenario.surface.corners]
 
 
 def _obstacles(record: MissionRecord) -> list[tuple[float, float, float, float]]:
@@ -616,7 +572,7 @@ def _imagery_metrics(record: MissionRecord) -> dict[str, dict[str, float]]:
     ``detector-K`` sharing the cameras by partition: services.detector.partition)."""
     out: dict[str, dict[str, float]] = {}
     sources = sorted({s.msg.source for s in record.detector_stats})
-    latest = [_latest([s for s in record.detector_stats if s.msg.source == src]) for src in sources]
+    latest = [x for src in sources if (x := _latest([s for s in record.detector_stats if s.msg.source == src])) is not None]
     for key, value in ((k, v) for st in latest for k, v in st.metrics.items()):
         parts = key.split(".")
         if len(parts) == 3 and parts[0].startswith("uav") and parts[1].startswith("cam"):
@@ -713,7 +669,7 @@ def as_record(record: MissionRecord | dict[str, Any]) -> MissionRecord:
 
 
 def analyse(record: MissionRecord) -> ReportFigures:
-    """Every figure and series of the report, in one pass over the record (see the module docstring).
+    """Every figure and series of the report, in one pass over the record (docs/report.md).
 
     Parameters
     ----------
@@ -766,7 +722,7 @@ def analyse(record: MissionRecord) -> ReportFigures:
     per_source: dict[str, list[Any]] = {}
     for x in record.gateway_stats:  # one gateway per site (--sites)
         per_source.setdefault(x.msg.source, []).append(x)
-    latest = {src: _latest(xs) for src, xs in sorted(per_source.items())}
+    latest = {src: last for src, xs in sorted(per_source.items()) if (last := _latest(xs)) is not None}
     gateways = {src: _gateway_figures(gw) for src, gw in latest.items()}
     gateway = gateways[max(latest, key=lambda src: latest[src].stamp)] if latest else {}
     events = [{"rx": e.rx, "source": e.msg.source, "stamp": e.msg.stamp, "kind": e.msg.kind,
@@ -801,7 +757,7 @@ def summarise(record: MissionRecord | dict[str, Any]) -> ReportSummary:
     Returns
     -------
     ReportSummary
-        See the module docstring for how each figure is measured.
+        See docs/report.md for how each figure is measured.
 
     Raises
     ------

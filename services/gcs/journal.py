@@ -1,15 +1,6 @@
 """The mission report computed from the mission's log (``mission.mcap``), live or afterwards.
 
-At the end of a mission the ground station reads its log back (:func:`services.recording.load.load_record`,
-the one loader: into a record bounded like the live one) and computes the report from that, so the report's
-input is the file on disk and ``skynet report`` makes the same report from the file alone, the inspection
-section included (its captures are the log's capture frames). When the log could not be written (a write
-error, a full disk: the writer kept the mission flying and said so), or cannot be read back whole, the report is
-computed from the in-memory record instead (bounded by :data:`~services.recording.record.CAPS`), and says so
-(``report_input``, ``recording_errors``).
-
-    skynet report reports/mission-<time>/ [--out FOLDER]
-    skynet report reports/mission-<time>/mission.mcap [--out FOLDER]
+Design notes: docs/report.md (services/gcs/journal.py).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Pure code, no bus code: :func:`markdown` tells a :class:`~services.gcs.figures.ReportSummary`
 (and the scenario's name and obstacle count from the record) as ``report.md``, following
-PAPER.md Sections 3-6, with the plots of :data:`services.gcs.plots.PLOTS` embedded by relative
+the paper's Sections 3-6, with the plots of :data:`services.gcs.plots.PLOTS` embedded by relative
 path and tables for the numbers. Nothing is measured here.
 """
 

@@ -1,24 +1,6 @@
 """The ground control station's mission: plan, upload, take off, fly, image, land — over the bus.
 
-:class:`MissionRunner` is a Zenoh client of the gateway. It records everything into a
-:class:`~services.recording.record.MissionRecord` (the input of the report) and returns it with
-``success`` set only when every UAV reached the goal and every capture point was imaged; any
-step that cannot complete (a UAV that never appears, refuses its upload, a planner that does
-not answer, a timeout) ends the mission with a failure that says why, never a hang.
-
-Faults. A supervisor thread binds :class:`services.gcs.supervision.Supervisor` (the
-policy, pure: lost UAVs, the own link, standing still, failsafe resumes) to the bus for the whole
-mission; commands go out through :mod:`services.gcs.commands` (retries, back-off), and a lost UAV
-is not sent commands (a failed command record says so). The waits are extended by the time the
-fleet stood still, up to ``stall_limit_s``.
-
-Heartbeats continue throughout. Every command ends in the record acknowledged or failed.
-
-The plan's authority is the operator's scenario (:meth:`MissionRunner.request_plan`): every answer
-to the plan request is gathered and judged (:mod:`protocol.planauth`: the planner's signature, the
-request's nonce and scenario digest, one plan only), the plan must stay inside the scenario
-(:func:`services.gcs.preflight.scenario_problem`), and the edges get the scenario's box as their
-geofence, never the plan's.
+Design notes: docs/ground-station.md (services/gcs/mission.py).
 """
 
 from __future__ import annotations
@@ -28,6 +10,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import Any
 
 from protocol import binding, keys, planauth
 from protocol.budget import for_topic
@@ -144,6 +127,7 @@ class MissionRunner:
         self.abort = abort or threading.Event()
         scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
+        self.scenario = scenario
         self.record = MissionRecord(fleet=bus.fleet, scenario=scenario, speed=options.speed, started=time.time())
         #: every item goes through it: bounded in memory; the ground station's own entries also to ``sink``, the
         #: mission log's writer (services.recording.recorder), which logs the bus's samples itself
@@ -316,7 +300,7 @@ class MissionRunner:
         two different accepted answers refuse the plan, and the one plan left must stay inside the
         scenario. MissionFailed before anything is uploaded otherwise."""
         self.phase("planning")
-        scenario = self.record.scenario
+        scenario = self.scenario
         req = PlanRequest(request_id=1, nonce=planauth.new_nonce(), scenario=scenario, algorithm=self.opt.algorithm,
                           seed=self.opt.seed, particles=self.opt.particles, iterations=self.opt.iterations,
                           waypoints=self.opt.waypoints)
@@ -375,7 +359,7 @@ class MissionRunner:
         if self.log:
             self.log.warning("%s: %s", kind, text)
 
-    def command(self, make: Callable[[int], object]) -> CommandRecord:
+    def command(self, make: Callable[[int], Any]) -> CommandRecord:
         """Send one command with retries and back-off (:func:`services.gcs.commands.send`); a
         refusal is final (not retried).
 
@@ -462,7 +446,7 @@ class MissionRunner:
             fence = self.fence()  # the scenario's box: never the plan's own geofence
             self.command_all(lambda u, cid: UploadTrajectory(uav=u, cmd_id=cid, trajectory=traj[u],
                                                              geofence=fence), "its trajectory upload")
-            offsets = dict(zip(self.opt.uavs, self.record.scenario.formation.offsets))
+            offsets = dict(zip(self.opt.uavs, self.scenario.formation.offsets))
             self.command_all(lambda u, cid: SetFormation(uav=u, cmd_id=cid, offsets=offsets), "the formation")
             self.wait_ready()
             self.phase("takeoff")
@@ -543,7 +527,7 @@ class MissionRunner:
                     # a board resumes only after a heartbeat newer than its failsafe (edge.failsafe): one goes just
                     # ahead of the Resume, on the same reliable link
                     self._beat(self.record.heartbeats_sent)
-                    rec = self.command(lambda cid, uav=u: Resume(uav=uav, cmd_id=cid))
+                    rec = self.command(lambda cid: Resume(uav=u, cmd_id=cid))  # called at once, in this turn
                     with self._lock:
                         self._note(self._sup.on_resumed(u, rec, time.time()))
             except Exception:  # the supervisor must outlive a bug in one pass (and say so)
@@ -568,7 +552,7 @@ class MissionRunner:
             tried = self._land_state.get(u)  # (accepted, when)
             if tried is not None and (lost or tried[0] or now - tried[1] < 2.0):
                 continue
-            rec = self.command(lambda cid, uav=u: Land(uav=uav, cmd_id=cid))
+            rec = self.command(lambda cid: Land(uav=u, cmd_id=cid))  # called at once, in this turn
             self._land_state[u] = (rec.ok and rec.accepted, time.time())
         with self._lock:
             return all(not s.armed for u, s in self.latest.items() if u in self.opt.uavs and u not in self._sup.lost)
@@ -577,10 +561,12 @@ class MissionRunner:
         """The geofence the edges get: the operator's scenario box (:func:`.preflight.scenario_box`)."""
         from .preflight import scenario_box
 
-        return scenario_box(self.record.scenario)
+        return scenario_box(self.scenario)
 
     def takeoff_altitude(self, uav: int) -> float:
         plan = self.record.plan
+        if plan is None:
+            raise MissionFailed("no plan to take off on")
         first = next(t for t in plan.trajectories if t.uav == uav).waypoints[0].pos
         home_z = self.latest[uav].pos[2] if uav in self.latest else 0.0
         return max(2.0, min(first[2] - home_z, self.fence().hi[2] - home_z - 1.0))

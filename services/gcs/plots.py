@@ -1,15 +1,6 @@
 """The mission report's plots (figures -> plots): the paper's results figures, drawn from :class:`ReportFigures`.
 
-Pure code: matplotlib through its object API and the Agg canvas, so it never touches the global
-pyplot state or the caller's backend; no bus code, nothing computed here that the report's
-figures (:mod:`services.gcs.figures`) do not already hold. :func:`write_plots` writes
-:data:`PLOTS` into a folder: ``trajectories.png`` ("Trajectories of three UAVs tracking the
-planned paths"), ``altitudes.png`` ("Altitudes of the three UAVs in the formation test"),
-``path_error.png`` ("Errors between the planned and flown paths"), ``formation_error.png``,
-``convergence.png`` (the planner's best cost per iteration, cf. Table I), ``defects_map.png``
-(defects found on the surface vs the ground truth) and ``links.png`` (latency distributions per
-link class, DESIGN.md "The three link classes"). A plot with nothing to show says so on its
-canvas, so the set of files is always the same.
+Design notes: docs/report.md (services/gcs/plots.py).
 """
 
 from __future__ import annotations

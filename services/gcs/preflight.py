@@ -1,17 +1,6 @@
 """Pre-flight check of a mission plan: does every UAV's trajectory fit the scenario's box?
 
-The plan's authority is the operator's scenario, not the planner: :func:`scenario_problem` checks
-a plan against the scenario the ground station sent (its box, its obstacles, its geodetic origin,
-its surface for the capture points) and never against anything the plan says about itself (its
-own ``geofence`` is not trusted: a planner identity in the wrong hands could answer with any fence).
-
-The boards refuse a trajectory that leaves the geofence (:func:`edge.geometry.validate.trajectory_problem`),
-but one by one during the upload: with a fleet too long for the box (24 UAVs in one
-formation span ±18 m along the track, the monorail start is 8 m from the box's edge) UAV 23's
-upload was refused after 22 UAVs had theirs. This check runs the boards' own geofence test on
-the whole plan before anything is uploaded, and says why the fleet does not fit.
-
-Pure: no bus code.
+Design notes: docs/ground-station.md (services/gcs/preflight.py).
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
 """The fleet's readiness before takeoff: every UAV's autopilot ready to fly, or a refusal naming who and why.
 
-A real autopilot is not ready at once: ArduCopter boots (~2 s), sets its EKF origin and home
-(~20 s), passes its pre-arm checks (~24 s) and allows GUIDED and AUTO only once its EKF uses GPS
-(~42 s) (edge/vehicle/apm/boot.py). Its edge reports what the autopilot says in each state's
-``autopilot`` field (protocol.messages.AutopilotReadiness); the built-in vehicle reports none
-and is always ready. The ground station waits until every UAV is ready, up to a timeout, and
-then refuses the mission with each waiting UAV's own reason, before any takeoff command.
+Design notes: docs/ground-station.md (services/gcs/readiness.py).
 """
 
 from __future__ import annotations

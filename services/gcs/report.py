@@ -1,24 +1,6 @@
 """The mission report: figures, plots and a Markdown page from a recorded mission.
 
-Pure code (numpy, matplotlib through its object API and the Agg canvas, so it never touches the
-global pyplot state or the caller's backend), no bus code. Input: a
-:class:`services.recording.record.MissionRecord`; output (:func:`write_report`) in one folder:
-
-- ``record.json`` -- the record itself, so the report can be re-made;
-- ``report.json`` -- every figure computed (:class:`ReportSummary`, ``null`` where undefined);
-- ``report.md`` -- the paper's results section (PAPER.md Sections 3-6) re-told from this run,
-  with the plots embedded by relative path and tables for the numbers;
-- the plots of the paper's results figures: ``trajectories.png`` ("Trajectories of three UAVs
-  tracking the planned paths"), ``altitudes.png`` ("Altitudes of the three UAVs in the
-  formation test"), ``path_error.png`` ("Errors between the planned and flown paths"),
-  ``formation_error.png``, ``convergence.png`` (the planner's best cost per iteration, cf. Table
-  I), ``defects_map.png`` (defects found on the surface vs the ground truth) and ``links.png``
-  (latency distributions per link class, DESIGN.md "The three link classes").
-
-How each figure is measured is told in :mod:`services.gcs.figures` (record -> typed figures);
-the plots (:mod:`services.gcs.plots`) and the Markdown page (:mod:`services.gcs.markdown`) only
-draw and tell those figures. This module is the entry point, :func:`write_report` (the figures alone:
-:func:`services.gcs.figures.summarise`).
+Design notes: docs/report.md (services/gcs/report.py).
 """
 
 from __future__ import annotations

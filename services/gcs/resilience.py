@@ -1,30 +1,6 @@
 """What the faults of a run did, read from its record: the report's "Faults and recovery".
 
-Pure code over a :class:`~services.recording.record.MissionRecord`, no bus. Times are seconds since the
-start of the mission phase (the ground station's ``phase("mission")``, the origin the fault
-injector counts from; the record's start when there was no mission phase).
-
-What is measured (our choices where the issue is silent):
-
-* *Faults*: what the injector noted (``record.faults``: kill, restart, cut, restore, partition,
-  heal); *supervision*: what the launcher's supervisor noted in the same list (:data:`SUPERVISION_ACTIONS`),
-  listed apart.
-* *UAVs lost and back*: the ground station's incidents (``record.incidents``): when a UAV's
-  liveliness token went away, when it was counted lost, when it came back.
-* *Failsafes*: the boards' ``failsafe`` events (time = the board's stamp, when it happened, even
-  if the event reached the ground station later) and the ground station's ``hold-seen``
-  incidents; *resumes*: its ``resume`` incidents, each with the time since the UAV's last failsafe
-  before it (failsafe → resume).
-* *Fleet seen again*: for each fault end that can interrupt telemetry (``restart``, ``restore``),
-  when each UAV's state was received again: the first state after the reception gap (> GAP_S)
-  that the fault opened, else the first after the end. ``fleet_s`` is the latest of them minus the
-  end's time (negative when the fleet was back before the injector noted the end, e.g. a gateway
-  that routes before it logs "router up"); ``blackout_s`` counts from the fault's begin (kill,
-  cut). A UAV never heard again is listed apart.
-* *State-reception gaps*: per UAV, the longest pause between two states received (and when it
-  ended), and every pause longer than :data:`GAP_S`.
-* *SkyNet*: the boards' ``neighbour-lost/up/stale/fresh`` events during the mission.
-* *Commands*: every command that was not acknowledged or was refused, with its reason.
+Design notes: docs/report.md (services/gcs/resilience.py).
 """
 
 from __future__ import annotations
@@ -76,7 +52,7 @@ def reception_gaps(rx_times: list[float], min_gap_s: float = GAP_S) -> tuple[flo
 
 
 def fault_figures(record: MissionRecord) -> dict[str, Any]:
-    """The "faults" object of report.json (see the module docstring); empty lists when nothing happened."""
+    """The "faults" object of report.json (docs/report.md); empty lists when nothing happened."""
     t0 = _origin(record)
 
     def t(x: float) -> float:
@@ -111,7 +87,7 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
             links[-1]["up_s"] = t(inc.at)
 
     # failsafes (board events) and resumes (ground station)
-    failsafes = []
+    failsafes: list[dict[str, Any]] = []
     for e in record.events:
         if e.msg.kind == EventKind.FAILSAFE:
             failsafes.append({"uav": _uav_of(e.msg.source), "t_s": t(e.msg.stamp), "rx_s": t(e.rx),

@@ -1,31 +1,6 @@
 """Scoring the defects a mission found against the ground truth of the inspected surface.
 
-Pure numpy, no bus code. The detector (PAPER.md Section 6, (P18)-(P19)) reports each defect it
-segments with the ENU position where the shot's optical ray meets the surface
-(:class:`protocol.messages.Defect` ``pos``). The synthetic surface knows where its cracks really
-are (:class:`services.recording.record.GroundTruthDefect`, bounding boxes in surface coordinates). This
-module puts both in the surface frame and counts, object by object:
-
-- **recall** -- the share of ground-truth cracks that have at least one reported defect position
-  within ``tolerance_m`` of their bounding box;
-- **precision** -- the share of reported defect positions that lie within ``tolerance_m`` of some
-  ground-truth bounding box;
-- the F-measure ``F = 2pr / (p + r)`` of (P20), here over objects rather than pixels.
-
-Surface frame (as the mission report draws it): origin ``p0 = corners[0]``, ``u`` along the bottom
-edge ``corners[1] - corners[0]`` (unit), ``v`` along ``corners[3] - corners[0]`` (unit, made
-orthogonal to ``u`` by Gram-Schmidt, which changes nothing for the rectangles of
-:class:`services.planner.scenario.Surface`). Distances are measured in ``(u, v)`` only: the
-detector's positions lie on the surface plane by construction (ray-plane intersection), so the
-offset along the normal carries no information about which crack was seen.
-
-Choices where the paper is silent (it scores pixels, (P20), not a whole mission):
-
-- a report's defect without ``pos`` (the detector could not place it) is not counted at all,
-  only tallied in :attr:`DefectScore.without_pos`;
-- reports with ``ok=False`` carry no defects and are skipped;
-- with nothing to find, recall is 1 (nothing was missed); with nothing reported, precision is 1
-  (nothing false was claimed). The counts in :class:`DefectScore` tell those cases apart.
+Design notes: docs/report.md (services/gcs/scoring.py).
 """
 
 from __future__ import annotations
@@ -69,7 +44,7 @@ class DefectScore:
     Attributes
     ----------
     recall, precision, f_measure : float
-        See the module docstring; ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``.
+        See docs/report.md; ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``.
     n_truth : int
         Ground-truth cracks.
     n_found : int

@@ -1,35 +1,6 @@
 """The ground station's supervision of the fleet during a mission: events and time in, decisions out.
 
-Pure code, no bus and no clock of its own: :class:`Supervisor` is fed what the ground station
-observes, each with the wall time it was observed (a UAV's state, its liveliness token going
-away or coming back, the ground station's own link, the Start and Resume commands' outcomes),
-and answers with the :class:`~services.recording.record.Incident` s to record and the UAVs to resume.
-:class:`services.gcs.mission.MissionRunner` binds it to the bus and calls :meth:`Supervisor.tick`
-every :data:`SUPERVISE_PERIOD_S`. Not thread-safe: the runner holds its lock around each call.
-
-The policy:
-
-* the UAVs' liveliness tokens: a token that goes away is recorded at once (``token-gone``); a UAV
-  whose token stays away longer than ``lost_grace_s`` while the ground station's own link is up
-  is *lost* (``uav-lost``): the waits stop waiting for it (a lost UAV is still waited for
-  ``lost_wait_s`` after the others finish, in case it comes back, :meth:`Supervisor.fleet_done`),
-  it is not sent commands, and the mission ends with a failure naming it and the capture points it
-  did not image; the others finish and land. A lost UAV whose token comes back is noted
-  (``uav-back``) and counted again. A gateway restart takes every token away at once but also the
-  ground station's own link, so nobody is declared lost unless it stays away after the link is
-  back (the grace is counted from the later of the two);
-* the ground station's own link to the gateway (``link-down``/``link-up``; Zenoh's client
-  reconnects by itself, :class:`protocol.bus.BusConfig` ``reconnect_max_s``);
-* standing still: while the own link is down, or a UAV still counted is unheard for more than
-  :data:`FRESH_STATE_S` or holds mid-mission, the fleet stands still and the time is added up
-  (``stalled_s``): the mission's waits are extended by it (up to their ``stall_limit_s``);
-* failsafe holds: during the mission phase a UAV in HOLD before the end of its trajectory holds
-  because of its failsafe (the ground station never commands a hold): once its state is heard
-  again (fresh, the link up, received at least :data:`START_SETTLE_S` after its Start was
-  acknowledged) it is to get a ``Resume`` -- each UAV as soon as possible, not the fleet at once,
-  since the others kept flying and the board's formation keeping on trajectory time closes the
-  lag. After a resume it is not resumed again for :data:`RESUME_PAUSE_OK_S` (acknowledged and
-  accepted) or :data:`RESUME_PAUSE_FAILED_S` (not).
+Design notes: docs/ground-station.md (services/gcs/supervision.py).
 """
 
 from __future__ import annotations
@@ -87,7 +58,7 @@ class Decisions:
 
 
 class Supervisor:
-    """The supervision policy's state (see the module docstring); every wall time is given by the caller.
+    """The supervision policy's state (docs/ground-station.md); every wall time is given by the caller.
 
     Parameters
     ----------

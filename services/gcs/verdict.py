@@ -1,19 +1,6 @@
 """What a mission must achieve, in one place: its planned capture points and the reached-goal check.
 
-Pure code over protocol messages, no bus code. The ground station's verdict
-(:meth:`services.gcs.mission.MissionRunner.judge`) and the report's figures
-(:mod:`services.gcs.figures`) both read these, so "planned", "imaged" and "reached" mean the
-same in the exit status and in ``report.json``.
-
-*Planned captures*: the ``(uav, capture_id)`` of every waypoint with a capture id (P9's
-trajectories as the planner sent them). *Imaged*: a planned capture with an ``ok``
-:class:`~protocol.messages.DefectReport`.
-
-*Reached goal*: the last position with the trajectory complete (progress 1, in MISSION or HOLD,
-i.e. before the ground station lands the formation; states in simulation-time order) is within
-:data:`services.recording.record.GOAL_RADIUS_M` (2 m) of the last planned waypoint. When the
-trajectory never completed, the distance is measured from the last recorded position (the
-report shows it) and the mission's verdict fails the UAV whatever the distance.
+Design notes: docs/report.md (services/gcs/verdict.py).
 """
 
 from __future__ import annotations
@@ -47,7 +34,7 @@ def imaged_captures(reports: Iterable[DefectReport]) -> set[tuple[int, int]]:
 
 @dataclass(frozen=True)
 class GoalCheck:
-    """Where one UAV's trajectory ended, measured against its goal (see the module docstring)."""
+    """Where one UAV's trajectory ended, measured against its goal (docs/report.md)."""
 
     distance_m: float  # from the end position to the trajectory's last waypoint
     completed: bool  # the end position is one with the trajectory complete (progress 1, MISSION or HOLD)

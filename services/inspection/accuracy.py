@@ -1,19 +1,7 @@
 """The deliverable's measurements against the ground truth: each crack's length, widths and class beside
 the truth's, and the errors summarised (median and worst).
 
-Pure numpy / OpenCV, no bus code. Truth exists for a simulated wall (:class:`edge.world.surface.SyntheticSurface`:
-its crack mask at the texture's resolution) or a data set with masks. Each ground-truth crack (an
-8-connected component of the truth mask, at least ``min_area_px`` texture pixels, as
-:meth:`SyntheticSurface.defects` lists them) is measured with the same estimator the deliverable uses
-(:func:`services.detector.measure.measure_component`, on the binary truth mask: no half-depth step,
-the mask is exact) at the texture's scale.
-
-Matching: a measured defect belongs to the truth crack that most of its centre line lies on (the line
-sampled every half texture pixel, each sample looking at the truth mask within ``search_px`` texture
-pixels, which absorbs the pose error of the mosaic); a truth crack broken into several defects gets
-their summed length, the largest maximum width and the length-weighted mean width. Errors are
-measured minus truth: length relative (%), widths in millimetres; a class agrees when the measured
-severity class equals the truth's (:func:`services.detector.measure.severity`).
+Design notes: docs/report.md (services/inspection/accuracy.py).
 """
 
 from __future__ import annotations
@@ -98,7 +86,7 @@ def truth_cracks(mask: np.ndarray, m_per_px: float, min_area_px: int = 20) -> tu
     m = (np.asarray(mask) > 0).astype(np.uint8)
     n, labels, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8, ltype=cv2.CV_32S)
     H = m.shape[0]
-    out = []
+    out: list[TruthCrack] = []
     for i in range(1, n):
         x, y, w, h, a = (int(v) for v in stats[i])
         if a < min_area_px:
@@ -173,7 +161,7 @@ def summarise(rows: Sequence[Comparison], unmatched: Sequence[int] = (), gsd_m: 
     m = [r for r in rows if r.defects and (gsd_m is None or r.truth.width_max_mm >= 1e3 * gsd_m)]
     res = [r for r in m if r.resolved]
 
-    def stats(xs: list[float]) -> tuple[float | None, float | None]:
+    def stats(xs: list[float | None]) -> tuple[float | None, float | None]:
         a = np.abs(np.asarray(xs, float))
         return (float(np.median(a)), float(a.max())) if a.size else (None, None)
 

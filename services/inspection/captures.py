@@ -1,11 +1,6 @@
 """Capture frames of a synthetic wall at the planned shots, without the bus (pure).
 
-The mission's edges render each capture from :class:`edge.world.surface.SyntheticSurface` through
-:class:`edge.world.camera.SyntheticSource` at the camera pose of the capture point and send it as a
-JPEG with its :class:`protocol.messages.ImageMeta` (pose, intrinsics, range). This module does the
-same off-line for the shots of the scenario's formation pass (:func:`services.planner.task.formation_pass`,
-(P1)-(P3)), so the detector's precision, the crack measurements and the mosaic can be checked in a
-few seconds on any surface seed, and tests get frames with poses and a pixel ground truth.
+Design notes: docs/report.md (services/inspection/captures.py).
 """
 
 from __future__ import annotations
@@ -90,7 +85,7 @@ def known_crack_wall(sc: Scenario) -> tuple[SyntheticSurface, list[tuple[float, 
     ppm = ref.px_per_m
     tex = textured_background((h, w), np.random.default_rng(3)).astype(np.float32)
     mask = np.zeros((h, w), np.uint8)
-    truth = []
+    truth: list[tuple[float, float, float, float]] = []
     for i, u in enumerate(np.arange(2.0, 48.0, 3.5)):
         wpx, length = (2, 3, 4, 5, 6)[i % 5], (1.0, 1.5, 2.0, 2.5)[i % 4]
         v = 1.5 + 3.0 * ((i // 2) % 2)
@@ -98,7 +93,7 @@ def known_crack_wall(sc: Scenario) -> tuple[SyntheticSurface, list[tuple[float, 
         box = cv2.boxPoints(((u * ppm, (ref.height_m - v) * ppm), (length * ppm, wpx), -(0, 20, 35, 60, 90, 130)[i % 6]))
         cv2.fillConvexPoly(one, np.round(box * 16).astype(np.int32), 255, cv2.LINE_8, 4)
         mask |= one
-        truth.append((u, v, length, np.count_nonzero(one) / (length * ppm) / ppm))
+        truth.append((float(u), v, length, float(np.count_nonzero(one) / (length * ppm) / ppm)))
     tex[mask > 0] *= 0.55
     surf = SyntheticSurface(ref.origin, ref.u_axis, ref.v_axis, ref.width_m, ref.height_m, ppm,
                             texture=np.clip(tex, 0, 255).astype(np.uint8), mask=mask)

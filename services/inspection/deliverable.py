@@ -1,33 +1,6 @@
 """The inspection deliverable: mosaic of the wall, defect table with sizes and crops, GeoJSON and KML.
 
-Pure (no bus code). Input: posed frames (:class:`services.inspection.mosaic.PosedFrame`) from a
-mission (the detector's saved captures) or from a folder of photos with poses
-(:func:`load_folder`). Steps:
-
-1. every frame is segmented by the detector's method (:func:`services.detector.detect.detect`, IT+
-   by default: what the mission's detector reported);
-2. frames and masks are warped onto the surface plane (:func:`services.inspection.mosaic.build_mosaic`);
-3. each 8-connected component of the mosaic's defect mask is one defect (a crack seen by two
-   overlapping frames is one defect): its position (centroid) on the surface, in ENU and, with the
-   geodetic origin, in WGS-84 (:func:`edge.geometry.waypoint_mission.enu_to_geodetic`, the origin's
-   altitude included); its length, maximum and mean width and severity class
-   (:mod:`services.detector.measure`, at the mosaic's scale); its centre line (the skeleton's longest
-   path) and outline; the captures behind it (the frame giving most of its mosaic pixels: UAV, capture,
-   time); the table is sorted by :data:`SORT_KEY`;
-4. files: ``mosaic.png`` (full resolution, defects outlined and numbered), ``overview.png`` (gridded,
-   scale bar, u/v axes, the wall's bearings: :mod:`services.inspection.views`), ``tiles/`` (its zoomable
-   pyramid), ``defects.json``, ``defects.md``, ``defects.geojson`` (RFC 7946: each defect's centre line
-   as a LineString and outline as a Polygon, lon, lat, altitude, with its sizes, class, capture and crop as
-   properties), ``defects.kml`` (OGC KML 2.2 placemarks, absolute altitudes) and ``crops/defect-<id>.png``.
-
-Folder of photos with poses: ``<name>.jpg|png`` each with ``<name>.json`` holding the fields of
-:class:`protocol.messages.ImageMeta` (``cam_pos`` ENU m, ``cam_rot`` world-from-camera row-major
-with OpenCV camera axes, ``intrinsics``, ``range_m``; ``uav``, ``capture_id``, ``t`` and ``stamp``
-may be left out), and optionally ``surface.json`` with ``corners`` (4 ENU points, p0-p1 the bottom
-edge) and ``origin`` (lat, lon, alt). Without corners the plane is fitted to the frames
-(:func:`services.inspection.mosaic.plane_from_frames`).
-
-    python -m services.inspection.deliverable FOLDER --out OUT [--method it+]
+Design notes: docs/report.md (services/inspection/deliverable.py).
 """
 
 from __future__ import annotations
@@ -145,7 +118,7 @@ def severity_rank(severity: str) -> int:
 def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, origin: Sequence[float] | None = None,
                    method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None
                    ) -> Deliverable:
-    """Segment, mosaic and measure (steps 1-3 of the module docstring); the defects come sorted by
+    """Segment, mosaic and measure (steps 1-3 of docs/report.md); the defects come sorted by
     :data:`SORT_KEY` and numbered in that order (defect 1 is the worst).
 
     ``min_area_px`` defaults to the detector's smallest reported component
@@ -388,7 +361,7 @@ def _meta_from(doc: dict, index: int) -> ImageMeta:
 
 
 def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tuple[float, float, float] | None]:
-    """Frames with poses from ``folder`` (see the module docstring), its plane and geodetic origin.
+    """Frames with poses from ``folder`` (docs/report.md), its plane and geodetic origin.
 
     Raises ``ValueError`` naming the file when an image does not decode or a pose file is invalid;
     an image without a pose file is an error too (its pose cannot be guessed).
@@ -448,7 +421,7 @@ def frames_from_log(path: str | Path) -> list[PosedFrame]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m services.inspection.deliverable", description=__doc__.split("\n\n")[0])
-    ap.add_argument("folder", help="photos with pose files (see the module docstring)")
+    ap.add_argument("folder", help="photos with pose files (docs/report.md)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--method", default="it+")
     ap.add_argument("--resolution-mm", type=float, default=None, help="mosaic resolution (default: the frames')")

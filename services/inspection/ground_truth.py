@@ -8,13 +8,14 @@ the report scores the system's defect reports against (recall and precision, obj
 from __future__ import annotations
 
 from edge.world.wall import synthetic_surface
+from protocol.checks import xyz
 from services.recording.record import GroundTruthDefect, MissionRecord
 
 
 def attach_ground_truth(record: MissionRecord) -> None:
     """Fill ``record.ground_truth`` and ``record.surface_corners`` from the scenario's wall."""
     surface = synthetic_surface(record.scenario)
-    record.surface_corners = [tuple(map(float, c)) for c in surface.corners]
+    record.surface_corners = [xyz(c) for c in surface.corners]
     record.ground_truth = [
         GroundTruthDefect(id=d.id, pos=d.centroid_world, uv=d.centroid_uv, bbox_uv=d.bbox_uv, area_m2=d.area_m2)
         for d in surface.defects()

@@ -1,15 +1,6 @@
 """``report.html``: the inspection report an inspector sends on, one self-contained folder.
 
-Pure (string building), no bus code. HTML rather than PDF: the full-resolution mosaic (tens of
-megapixels) stays zoomable through its tile pyramid (:func:`services.inspection.views.write_tiles`)
-with a few lines of plain JavaScript and no CDN, so the page works offline from the report folder
-(zip it and send it); a PDF would have to shrink the mosaic to page size, where millimetre cracks
-vanish. Every image is linked by a relative path inside the folder; every text from the record is
-escaped (:func:`html.escape`).
-
-Order: findings first (defects by severity class, the worst cracks with their crops and the captures
-behind them, coverage and resolvable widths, the measurements against the ground truth), the
-zoomable wall, the full defect table, the files for a GIS, then the mission's own figures.
+Design notes: docs/report.md (services/inspection/html.py).
 """
 
 from __future__ import annotations

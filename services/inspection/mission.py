@@ -1,15 +1,6 @@
 """The inspection deliverable of a mission: built from the captures the detector kept, told first.
 
-The captures come from the mission's log (``mission.mcap``: every capture frame, with its pose, as it
-reached the ground station over the bus, wherever the detector runs) or from a folder of posed photos (the
-format of :mod:`services.inspection.deliverable`). :func:`append_deliverable` turns them into
-``<report>/inspection/`` (mosaic, overview, zoomable tiles, defect table, crops, GeoJSON, KML) on the
-scenario's surface and geodetic origin, puts the findings at the top of ``report.md`` (right after the
-outcome: defects by severity class, the worst cracks with their crops and the captures behind them,
-coverage, what the flown ground sampling distance can size, the measurements against the ground truth when
-the wall is simulated, then the table; the mission's own figures follow) and writes ``report.html``
-(:mod:`services.inspection.html`), the page an inspector sends on. A mission without saved captures gets
-no section; a deliverable that cannot be built says why in it.
+Design notes: docs/report.md (services/inspection/mission.py).
 """
 
 from __future__ import annotations
@@ -83,7 +74,7 @@ def _accuracy(record: MissionRecord, defects: list[InspectionDefect], gsd_m: flo
 
 
 def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, frames: str = "frames") -> list[str]:
-    """The findings section's lines (see the module docstring); file links relative to the report."""
+    """The findings section's lines (docs/report.md); file links relative to the report."""
     from .accuracy import markdown_accuracy
 
     m = res.mosaic

@@ -1,21 +1,6 @@
 """A mosaic of the inspected surface from posed frames: each frame warped onto the surface plane.
 
-Pure numpy / OpenCV, no bus code. The frames' poses are known (the UAV's state at the capture,
-:class:`protocol.messages.ImageMeta`), and the surface is a plane, so no feature matching is needed:
-a frame maps to the plane by a homography. With the canvas pixel ``(c, r)`` at surface coordinates
-``u = (c + 1/2) s``, ``v = H_m − (r + 1/2) s`` (``s`` metres per canvas pixel, row 0 at the top edge,
-the convention of :class:`edge.world.surface.SyntheticSurface`), the world point of a canvas pixel is
-``X = A [c, r, 1]^T`` and the frame pixel that sees it is ``K R^T (X − C)`` (pinhole camera: ``K``
-the intrinsics, ``R`` world-from-camera, ``C`` the camera centre), so the canvas-to-frame
-homography is ``K R^T (A − C e3^T)`` (Hartley & Zisserman, *Multiple View Geometry*, 2nd ed.,
-Sec. 8.1.1, the plane-induced homography). Each frame is warped with ``cv2.warpPerspective``
-(``WARP_INVERSE_MAP``) into the canvas region its footprint covers.
-
-Where frames overlap (the paper's o_p, (P3), is there for stitching) each canvas pixel takes the
-frame that sees it nearest to its image centre (a seam along the middle of every overlap, no
-blending, so a crack is never doubled or blurred by a small pose error). A defect mask per frame
-goes through the same warps and the same seams, so the mosaic's defect mask is consistent with its
-image: a crack seen by two frames is one component in the mosaic.
+Design notes: docs/report.md (services/inspection/mosaic.py).
 """
 
 from __future__ import annotations
@@ -177,7 +162,7 @@ MAX_CANVAS_PX = 80_000_000
 
 
 def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | None = None) -> Mosaic:
-    """Warp every frame onto ``plane`` (see the module docstring).
+    """Warp every frame onto ``plane`` (docs/report.md).
 
     Parameters
     ----------

@@ -1,17 +1,6 @@
 """Views of the mosaic a person can read: orientation, a gridded overview with a scale bar, zoomable tiles.
 
-Pure (numpy, OpenCV, matplotlib through its object API and the Agg canvas), no bus code.
-
-- :func:`orientation`: where the wall is and which way it runs, for the reader who stands in front
-  of it: the geodetic position of its two ends (u = 0 and u = width), the compass bearing of the
-  +u axis and of the direction its inspected face looks (the plane's normal), from the ENU axes
-  (bearing = atan2(east, north), clockwise from true north);
-- :func:`overview_figure`: the annotated mosaic cut into panels of at most :data:`PANEL_M` metres
-  along u, stacked, each with a 1 m grid, u/v axes in metres, a 1 m scale bar and the defects'
-  numbers in boxes that stay legible at page width;
-- :func:`write_tiles`: a tile pyramid of the full-resolution annotated mosaic (256 px JPEG tiles,
-  level ``z`` at ``2^(z - zmax)`` of full size, the slippy-map layout ``z/x_y.jpg``) for the HTML
-  report's zoomable view (:mod:`services.inspection.html`), which works offline from one folder.
+Design notes: docs/report.md (services/inspection/views.py).
 """
 
 from __future__ import annotations
@@ -45,7 +34,7 @@ def compass(enu_dir: Sequence[float]) -> tuple[float, str]:
 
 
 def orientation(plane: Plane, origin: Sequence[float] | None = None) -> dict[str, Any]:
-    """The wall's ends and bearings (see the module docstring); geodetic ends only with an ``origin``."""
+    """The wall's ends and bearings (docs/report.md); geodetic ends only with an ``origin``."""
     from edge.geometry.waypoint_mission import enu_to_geodetic
 
     ub, uname = compass(plane.u_axis)
@@ -74,7 +63,7 @@ def orientation_text(o: dict[str, Any]) -> str:
 
 def overview_figure(bgr: np.ndarray, mos: Mosaic, labels: Sequence[tuple[int, float, float]], path: str | Path,
                     title: str = "", panel_m: float = PANEL_M, width_px: int = 1600) -> None:
-    """Write the gridded overview of the annotated mosaic ``bgr`` (see the module docstring).
+    """Write the gridded overview of the annotated mosaic ``bgr`` (docs/report.md).
 
     ``labels`` are ``(id, u, v)`` of each defect (surface metres), drawn in boxes beside the crack.
     """

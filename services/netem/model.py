@@ -1,12 +1,6 @@
 """What a link does to packets: the impairment description and the seeded per-packet decisions.
 
-Pure code, no sockets. :class:`Impairment` says *what* to do (delay, jitter, loss, burst loss, duplication,
-reordering, bandwidth, queue limit, outages; ``Impairment.parse`` reads tc-netem's string form);
-:class:`Impairer` applies it to one direction of one link: :meth:`Impairer.decide` gives the release times of
-the copies of one datagram (empty = dropped), :meth:`Impairer.decide_stream` the release time of one chunk of a
-byte stream (TCP never loses or reorders bytes; loss becomes retransmission delay). The semantics follow Linux
-``tc-netem(8)`` and its loss models (Salsano et al., 2010); each rule, where it differs from netem and the
-string form: docs/experiments.md, "The impairment model".
+Design notes: docs/experiments.md (services/netem/model.py).
 """
 
 from __future__ import annotations
@@ -77,7 +71,7 @@ class Impairment(BaseModel):
     """What one direction of a link does to traffic; validated, immutable.
 
     Times in milliseconds, probabilities as fractions in [0, 1], rate in kilobits per second
-    (1 kbit = 1000 bit; 0 = unlimited). See the module docstring for the exact semantics and
+    (1 kbit = 1000 bit; 0 = unlimited). See docs/experiments.md for the exact semantics and
     :meth:`parse` for the netem-like string form.
     """
 
@@ -453,7 +447,7 @@ class Impairer:
         """Apply ``impairment`` from the next decision on; returns it (validated).
 
         Keeps the random stream, counters, origin, FIFO floor, rate queue, loss-chain state and
-        the live cuts (see the module docstring, "Live changes"). Bad input raises
+        the live cuts (docs/experiments.md, "Live changes"). Bad input raises
         :class:`ValueError` and changes nothing.
         """
         imp = Impairment.coerce(impairment)

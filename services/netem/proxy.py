@@ -1,49 +1,6 @@
 """User-space impairment proxies on real sockets: :class:`UdpProxy` and :class:`TcpProxy`.
 
-A node connects to the proxy's listen address instead of the router's; the proxy forwards to
-the router and applies an :class:`~services.netem.model.Impairment` to the chosen directions
-(``up`` = client → target, ``down`` = target → client, or ``both``). Zenoh's multilink setup
-opens one TCP link (reliable) and one UDP link (best-effort) per session (ZENOH.md, "One link
-per reliability class"), so a link class of DESIGN.md is impaired by putting one proxy of each
-kind in front of the router's ``tcp/...?rel=1`` and ``udp/...?rel=0`` endpoints.
-
-* :class:`UdpProxy` — one upstream socket per client address (a datagram association, as a
-  NAT keeps one), idle associations closed after ``idle_timeout_s``. One receive thread
-  (``selectors``) asks the direction's :class:`~services.netem.model.Impairer` for the release
-  times of each datagram; one scheduler thread (a heap) sends them when due. Datagrams due at
-  once with nothing queued are sent by the receive thread directly.
-* :class:`TcpProxy` — a relay with, per connection and direction, a reader thread (receive,
-  decide the release time with :meth:`~services.netem.model.Impairer.decide_stream`, queue) and
-  a writer thread (send each chunk when due, in order). Bytes are never lost or reordered: an
-  outage stalls the stream, loss becomes retransmission delay (``rto``), and a reader stops
-  reading while ``max_pending_bytes`` wait, so TCP flow control pushes back on the sender.
-  With a rate limit chunks are cut into pieces of about 1 ms of link time so that the rate
-  spreads them smoothly. Both directions share one impairer per direction across connections:
-  the proxy models *a link*, whose bandwidth the connections share.
-
-Both proxies: ``start()``, ``stop()`` (joins every thread, closes every socket; queued data is
-discarded), ``stats()``, ``with`` blocks, port 0 (read :attr:`address` after ``start``).
-
-Conditions change while a proxy runs, from any thread:
-
-* ``update(spec, direction="both")`` — a new impairment from now on (None or "" = clean link);
-  packets already decided keep their release times; seeds, counters and the outage origin (the
-  proxy start) carry over (:meth:`~services.netem.model.Impairer.update`).
-* ``cut(duration_s=None)`` / ``restore()`` — the link goes down now in both directions, for
-  ``duration_s`` or until restored. UDP: datagrams arriving meanwhile are dropped (reason
-  ``outage``), those already queued still go out. TCP: the writers send nothing, in either
-  direction, while the link is down (a cut or an outage window) and nothing is lost; a client
-  that connects meanwhile is accepted (the kernel completes its handshake) but held, not
-  connected to the target, until the link is back — as behind a cut link, where the client's
-  first bytes go unanswered until its own timeouts act. We hold rather than refuse because a
-  refused connection (RST) is what a *reachable* host without a listener does, not a cut link.
-* ``apply(command)`` — one command of :mod:`services.netem.schedule` (``set``, ``cut``,
-  ``restore``, ``clear``, ``stats``); ``play(steps)`` runs a schedule on a thread of its own.
-* ``impairment(direction)`` — what is applied now; ``stats()`` shows it (``impairment``, per
-  direction too), the number of ``changes``, and ``cut`` / ``cut_remaining_s``.
-
-:mod:`services.netem.control` puts ``apply`` on a loopback UDP text channel
-(``skynet netem --control``, client ``skynet netem ctl``).
+Design notes: docs/experiments.md (services/netem/proxy.py).
 """
 
 from __future__ import annotations
@@ -113,6 +70,12 @@ class _ProxyBase:
     live changes (:meth:`update`, :meth:`cut`, :meth:`restore`, :meth:`apply`, :meth:`play`)."""
 
     kind = "?"
+    # made by the subclass's start()
+    _lsock: socket.socket
+    _wake_r: socket.socket
+    _wake_w: socket.socket
+    _thread: threading.Thread
+    _sent: dict[str, dict[str, int]]
 
     def __init__(self, listen: Address | str, target: Address | str,
                  impairment: Impairment | str | dict[str, Any] | None, seed: int | None,
@@ -302,6 +265,9 @@ class _ProxyBase:
             s.close()
 
     def _release(self) -> None:
+        raise NotImplementedError
+
+    def stats(self) -> dict[str, Any]:
         raise NotImplementedError
 
     def __enter__(self) -> _ProxyBase:

@@ -1,44 +1,6 @@
 """Changing a link's conditions while it runs: the command grammar and the schedule file (pure).
 
-Conditions can change while a proxy runs (a control command or a schedule file). One small grammar serves both, so a schedule line is a control command with a
-time in front of it. :func:`parse_command` reads one command, :func:`parse_schedule` a whole
-schedule; the proxy (:meth:`services.netem.proxy.UdpProxy.apply`, ``play``) carries them out.
-
-Commands
---------
-``set [up|down|both] SPEC``
-    Replace the impairment (of both directions unless one is named) with ``SPEC``, a netem-like
-    string as in :meth:`~services.netem.model.Impairment.parse`, quoted or not:
-    ``set "delay 200ms jitter 20ms loss 20%"``. ``set none`` (or an empty ``""``) is a clean
-    link. A line whose first word is no command word is read as ``set SPEC``:
-    ``"delay 50ms loss 2%"`` alone means ``set both "delay 50ms loss 2%"``.
-``cut [DURATION]``
-    Cut the link now, in both directions, for ``DURATION`` (e.g. ``5s``), or until ``restore``.
-``restore``
-    End any cut (the impairment stays).
-``clear``
-    A clean link: no impairment in either direction and no cut (``set none`` + ``restore``).
-``stats``
-    The proxy's counters (control channel only; a schedule refuses it).
-
-Times need a unit (``us``, ``ms``, ``s``) as in the impairment strings.
-
-Schedule file
--------------
-One step per line, ``at TIME COMMAND``; ``#`` starts a comment (outside quotes), blank lines
-are skipped. TIME counts from the proxy's start; steps run in time order, steps at the same
-time in file order. Example::
-
-    # the link gets worse, drops out, and recovers
-    at 0s    "delay 50ms loss 2%"
-    at 10s   "delay 200ms jitter 20ms loss 20%"
-    at 25s   cut 5s
-    at 40s   clear
-
-Every spec is parsed when the file is read; an error is a :class:`ScheduleError` (a
-:class:`ValueError`) that names the file and the line, e.g. ``sched.txt:3: bad time '5'``.
-Outage windows and ``after`` inside a step's spec count from the proxy start too (see
-:meth:`services.netem.model.Impairer.update`), not from the step's time.
+Design notes: docs/experiments.md (services/netem/schedule.py).
 """
 
 from __future__ import annotations
@@ -82,8 +44,8 @@ class Command(BaseModel):
         return self
 
     def to_text(self) -> str:
-        """The command in the grammar above; ``parse_command(c.to_text()) == c``."""
-        if self.action == "set":
+        """The command in the control grammar (docs/experiments.md); ``parse_command(c.to_text()) == c``."""
+        if self.action == "set" and self.impairment is not None:
             head = "set" if self.direction == "both" else f"set {self.direction}"
             return f"{head} {shlex.quote(self.impairment.to_text())}"
         if self.action == "cut" and self.duration_s is not None:
@@ -161,7 +123,7 @@ def parse_command(text: str) -> Command:
 
 
 def parse_schedule(text: str, where: str = "<schedule>") -> list[Step]:
-    """The steps of a schedule (see the module docstring), sorted by time then by line.
+    """The steps of a schedule (docs/experiments.md), sorted by time then by line.
 
     Raises :class:`ScheduleError` naming ``where`` and the line of the first error.
     """

@@ -1,19 +1,6 @@
 """The impairment side-car of docker compose's ``netem`` profile: proxies on one named link, or a loud failure.
 
-    python -m services.netem.sidecar --link uav2 --tcp 0.0.0.0:7447=gateway:7447 \\
-        --udp 0.0.0.0:7448=gateway:7448 --impair "delay 100ms after 8s" --expect 40
-
-One container stands on one link (an edge's uplink to the gateway): a TCP and a UDP
-:mod:`services.netem.proxy` (the multilink pair, README "Multilink") listen where the node is told to
-dial and forward to the real target. It works on any kernel (no netem qdisc needed, unlike
-``tc qdisc ... netem``; see ../shared/DOCKER.md).
-
-A side-car that cannot apply its impairment must fail the run, not let it pass unimpaired:
-it exits non-zero when the impairment does not parse (2), when a target never resolves (3), and when
-no packet has crossed one of its proxies ``--expect`` seconds after the start (4: the node was not
-pointed at the side-car, e.g. ``SKYNET_UAV2_UPLINK`` was not set), which ends ``docker compose up
---exit-code-from gcs`` with a failure. While it runs, it prints each proxy's counters every
-``--interval`` seconds and at the end (SIGTERM from ``docker compose down``).
+Design notes: docs/experiments.md (services/netem/sidecar.py).
 """
 
 from __future__ import annotations

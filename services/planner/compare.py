@@ -1,13 +1,6 @@
 """Algorithm comparison reproducing Table I, the convergence plot, and the planner benchmark.
 
-:func:`compare` runs θ-PSO, PSO, GA and TLBO on the same scenario, with the same initial
-population per seed and the same budget of cost evaluations, and reports per algorithm: initial
-cost, final cost (mean, std, median, best), iteration of convergence (first iteration whose best
-cost is within 0.1 % of the final one; an "iteration" is ``particles`` evaluations), wall time
-and the share of collision-free results (exact dense check of the formation along the path).
-:func:`convergence_plot` draws the mean best-cost curves like the paper's Fig. "Convergence
-comparison". :func:`bench` adds the wall time of θ-PSO against pyswarms' ``GlobalBestPSO`` on
-the same cost and budget.
+Design notes: docs/planner.md (services/planner/compare.py).
 """
 
 from __future__ import annotations

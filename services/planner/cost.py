@@ -1,46 +1,12 @@
 """Path cost of the formation (P5), vectorised over a whole swarm, and a dense collision check.
 
-A candidate is ``n`` free waypoints of the formation centroid; the path is the polyline
-``start -> free[:split] -> via points -> free[split:] -> goal`` where the via points are the fixed
-entry and exit of the inspection pass (:func:`services.planner.task.formation_pass`), or none.
-The formation keeps its offsets ΔT_n (P9) rotated to each segment's heading (P7, yaw only), so
-UAV n flies the segment ``(a + R ΔT_n, b + R ΔT_n)``.
-
-``J_F = β1 J1 + β2 J2 + β3 J3`` (P5), our reading of the paper's three terms:
-
-- J1, path length: the length of the centroid polyline, metres.
-- J2, collision violation: for every UAV, segment and cylinder, the clearance ``c`` between
-  the UAV segment and the cylinder minus the UAV radius; ``((D - c) / D)^2`` inside the danger
-  band ``0 <= c < D`` (0 at its edge, 1 at contact), and ``1 + K (1 + depth)`` inside an
-  obstacle (``K`` the collision penalty, ``depth = -c`` metres), so that deeper violations cost
-  more and swarms are pushed out of obstacles rather than trapped in them by a flat penalty.
-  Crossing the inspected wall costs ``K (1 + depth)`` too (depth: distance of the crossing point
-  from the wall's nearest edge). Inter-UAV term: ``K`` per segment times the relative shortfall
-  of every pair closer than the minimum separation (rigid formation: constant per segment).
-  Manoeuvrability (the paper lists it among the constraints folded into (P5)): ``K/10`` per
-  radian by which the horizontal turn at a waypoint exceeds ``max_turn_deg`` (a formation
-  reversing on itself swings its outer UAVs through the obstacles the centroid path avoids).
-- J3, flying altitude / stand-off: ``K/10`` per metre that a UAV's waypoint altitude leaves the
-  allowed band, plus, at 8 samples per UAV segment, the relative shortfall ``(k - dist) / k`` of
-  the distance to the wall below ``k = 0.9 d_f`` (keep the (P2) distance from the surface).
-
-Segment-cylinder clearance: the horizontal point-to-segment distance ρ from the axis to the
-segment (exact, :func:`point_segment_distance`) at the closest parameter ``t*``; if the segment
-is below the cylinder top there, ``c = ρ - r``, otherwise ``c = hypot(max(ρ - r, 0), z* - h)``.
-This is exact for cylinders taller than the segment and an approximation for segments passing
-over a cylinder's top; :func:`clearance` on densely sampled points gives the exact answer and is
-what decides ``collision_free``.
-
-Every result is finite for finite input. :class:`Cost` evaluates all terms for all particles,
-UAVs, segments and obstacles with a fixed sequence of whole-array float64 operations and no
-data-dependent shortcuts, so its time per call depends on the array shapes only (about 0.9 ms
-for 150 paths of 13 segments, 3 UAVs and 10 cylinders on one core), not on where the swarm is;
-tests/services/planner check it against a loop-by-loop reference of these definitions.
+Design notes: docs/planner.md (services/planner/cost.py).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -228,7 +194,7 @@ class Cost:
         self._h_oz = (self.cyl[:, 3].reshape(1, C, 1, 1) - self._oz).copy()  # top minus UAV's z offset
         if sc.surface is not None and problem.inspection is not None:
             p0, u, n = sc.surface.frame
-            self.wall = (p0, u, n, sc.surface.length, *sc.surface.z_range)
+            self.wall: tuple[Any, ...] | None = (p0, u, n, sc.surface.length, *sc.surface.z_range)
             self.keep = 0.9 * problem.inspection.standoff
             # sample parameters along a UAV segment, centred on its midpoint: (k + 1/2) / K - 1/2
             K = self.SAMPLES

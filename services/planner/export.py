@@ -1,38 +1,6 @@
 """Mission export: QGroundControl .plan, QGC WPL 110 waypoint files, KML and GeoJSON, and their readers.
 
-The paper uploads the paths to the UAVs with Mission Planner (PAPER.md Section 4). Each UAV's
-trajectory becomes one list of mission items (:func:`mission_items`), written as a plain-text
-"QGC WPL 110" file (one item per line, tab-separated: ``INDEX CURRENT FRAME COMMAND P1..P4
-LAT/X LON/Y ALT/Z AUTOCONTINUE``) or inside a QGroundControl ``.plan`` file:
-
-- item 0: home, ``MAV_CMD_NAV_WAYPOINT`` (16) in ``MAV_FRAME_GLOBAL`` (0), absolute altitude
-  (a .plan has it as ``plannedHomePosition`` instead);
-- item 1: ``MAV_CMD_NAV_TAKEOFF`` (22) to the first waypoint's altitude;
-- waypoints: ``MAV_CMD_NAV_WAYPOINT`` (16) in ``MAV_FRAME_GLOBAL_RELATIVE_ALT`` (3), altitude
-  above home, P4 = yaw as a compass heading in degrees (0 north, clockwise), P1 = hold time
-  where the trajectory hovers (a leg shorter than 1 cm);
-- ``MAV_CMD_CONDITION_YAW`` (115) after a waypoint whose heading differs from the last one by
-  more than 0.5 degree (ArduCopter turns in AUTO by this item; P1 heading, P4 = 0 absolute);
-- ``MAV_CMD_DO_CHANGE_SPEED`` (178) after a waypoint when the next leg's planned ground speed
-  (its length over its duration) differs from the one in force by more than 1 cm/s (P1 = 1
-  ground speed, P2 m/s, P3 = −1 throttle unchanged): an autopilot flying the file in AUTO keeps
-  the plan's timing, so the formation holds;
-- after each capture waypoint: ``MAV_CMD_DO_DIGICAM_CONTROL`` (203), P5 = 1 (shoot) and
-  **P6 = the capture id** (MAVLink's "Command Identity"; P7 is the test-shot flag and stays 0).
-  This is the one capture-id convention of the project (:mod:`edge.geometry.ardupilot_items`), shared
-  with the MAVLink driver and the sim autopilot;
-- last item: ``MAV_CMD_NAV_RETURN_TO_LAUNCH`` (20).
-
-A ``.plan`` (QGroundControl's documented JSON: ``fileType`` "Plan", ``mission`` version 2 with
-``SimpleItem`` items, ``geoFence`` version 2 with inclusion polygons, ``rallyPoints`` version 2)
-also carries the operation box as an inclusion fence and the launch point at the return
-altitude as a rally point. KML (OGC KML 2.2) holds each UAV's path as a LineString, the capture
-points as Points and the inspected surface as a Polygon, altitudes absolute.
-
-Local ENU metres are converted to WGS-84 with :func:`pymap3d.enu2geodetic` about the scenario's
-geodetic origin; latitudes/longitudes are written with 9 decimals (0.1 mm), altitudes with 3.
-The paths also go out as a GeoJSON FeatureCollection (RFC 7946: ``[lon, lat, alt]``): one
-LineString per UAV and for the centroid, a Point per capture, and the geofence as a Polygon.
+Design notes: docs/planner.md (services/planner/export.py).
 """
 
 from __future__ import annotations
@@ -102,7 +70,7 @@ def _fmt(x: float, digits: int) -> str:
 
 
 def qgc_wpl(trajectory: Trajectory, origin: ArrayLike) -> str:
-    """The QGC WPL 110 text of one UAV's trajectory (see the module docstring)."""
+    """The QGC WPL 110 text of one UAV's trajectory (docs/planner.md)."""
     lines = [HEADER]
     for it in mission_items(trajectory, origin):
         p = it.params
@@ -148,7 +116,8 @@ def waypoints_enu(items: list[MissionItem]) -> tuple[NDArray[np.float64], list[i
     if not items or items[0].command != MAV_CMD_NAV_WAYPOINT:
         raise ValueError("the first item must be the home waypoint")
     origin = items[0].params[4:7]
-    pts, caps = [], []
+    pts: list[tuple[float, float, float]] = []
+    caps: list[int | None] = []
     for it in items[1:]:
         if it.command == MAV_CMD_NAV_WAYPOINT:
             lat, lon, alt = it.params[4:7]

@@ -1,20 +1,6 @@
 """Bounded work for the planner: limits checked before any work, and a time budget per request.
 
-The cost (P5, :class:`services.planner.cost.Cost`) evaluates every particle, UAV, segment and
-obstacle in whole-array numpy operations, so one evaluation of a swarm holds arrays of
-``M x max(C, K) x S x P`` float64 (M UAVs, C obstacles, K = 8 wall samples, S = waypoints + 1
-segments, P particles), and a whole run costs about that times the iterations. The schema's
-largest request (10,000 particles x 100,000 iterations, 200 waypoints) is valid but would hold
-the planner for hours and take gigabytes, so before planning:
-
-- :data:`MAX_CELLS` bounds the largest cost array (4 M elements, 32 MB): the paper's budget
-  (150 particles, 10 waypoints, 3 UAVs, 10 cylinders) needs 49,500;
-- :data:`MAX_WORK` bounds cells x iterations (5e8, about 50 s here; the paper's is 1.5e7, 1.6 s);
-
-and a request over either is refused at once (:class:`TooLarge`, the reply says which limit and
-by how much). While planning, :class:`Deadline` wraps the cost and ends the optimiser when the
-request's time budget (:data:`TIME_BUDGET_S`, ``skynet planner --time-budget``) is spent
-(:class:`TimeBudgetExceeded`), so a worker is never held past it.
+Design notes: docs/planner.md (services/planner/limits.py).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The planner's library entry point: scenario -> mission plan (PAPER.md Sections 2-4).
+"""The planner's library entry point: scenario -> mission plan (the paper's Sections 2-4).
 
 :func:`plan_mission` runs the whole pipeline: task assessment (P1)-(P3) and the inspection
 pass (:mod:`.task`), the centroid path by θ-PSO (P4) or a baseline on the cost (P5)
@@ -79,7 +79,7 @@ def optimise(
     try:
         result = ALGORITHMS[algorithm](cost, x0, I, np.random.default_rng([s, 1]))
     except TimeBudgetExceeded:
-        if not anytime or getattr(cost, "best_x", None) is None:
+        if not anytime or not isinstance(cost, Deadline) or cost.best_x is None:
             raise
         result = OptResult(algorithm=algorithm, x=cost.best_x, cost=cost.best_cost, history=np.asarray(cost.history),
                            evaluations=cost.evaluations, wall_time_s=time.perf_counter() - t0)

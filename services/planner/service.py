@@ -1,14 +1,6 @@
 """The planner RCU service: answers plan requests on ``skynet/<fleet>/rcu/planner/plan``.
 
-A :class:`PlanRequest` (command class, request/reply) carries the (typed) scenario and the
-algorithm, seed and budget; the reply is the :class:`MissionPlan` of
-:func:`services.planner.mission.plan_mission`, bound to its request (id, nonce, scenario digest)
-and, with ``--keys``, signed with the planner's key (:mod:`protocol.planauth`). A malformed
-scenario or an infeasible request is answered with an error reply that says why (``reply_err`` +
-:class:`ErrorReply`). Planning runs on the queryable's own worker thread, so a long plan never
-blocks Zenoh's callback thread.
-
-    skynet planner -m client -e tcp/127.0.0.1:7447?rel=1 --multilink
+Design notes: docs/planner.md (services/planner/service.py).
 """
 
 from __future__ import annotations

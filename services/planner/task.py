@@ -1,25 +1,6 @@
-"""Task assessment: camera configurations that image a surface (PAPER.md Section 2, (P1)-(P3)).
+"""Task assessment: camera configurations that image a surface (the paper's Section 2, (P1)-(P3)).
 
-Shots must look perpendicular to the surface, resolve the smallest feature ``s_f`` with two
-pixels, and overlap by ``o_p``:
-
-- (P1) footprint ``a_fov = 1/2 r_c s_f`` per image axis (``r_c`` pixels along that axis);
-- (P2) stand-off distance ``d_f = a_fov f / s_s`` (``f`` focal length, ``s_s`` sensor size along
-  the same axis, same unit as ``f``);
-- (P3) spacing between neighbouring shots ``g = (1 - o_p) a_fov``.
-
-:func:`camera_grid` lays the shots of a general regular grid over a planar patch.
-:func:`formation_pass` does the same for a formation (P9) that flies once along a vertical wall:
-the rows of shots are the heights of the UAVs in the formation (the formation frame's z does not
-change with heading), the columns are spaced at most ``g`` apart, and every shot is a point that
-the UAV taking it passes through, so the capture points lie on the UAVs' trajectories.
-
-Choices where the paper is silent (documented in ``protocol/scenarios/monorail.toml``): the paper's
-34.4 mm focal length is read as a 35 mm-equivalent focal length with an equivalent 36 mm x 27 mm
-sensor for the 4:3 frame (square pixels); when the two axes give different stand-offs the
-smaller one is used, so that ``s_f`` is resolved on both axes. Columns are spread evenly from
-half a footprint inside one end of the patch to half a footprint inside the other end (the
-footprints of the end shots touch the patch's edges).
+Design notes: docs/planner.md (services/planner/task.py).
 """
 
 from __future__ import annotations
@@ -253,7 +234,7 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
     L = surf.length
     e = float(np.max(np.abs(off[:, 0]))) + insp.lead_in
     start, goal = np.asarray(scenario.start, float), np.asarray(scenario.goal, float)
-    best = None
+    candidates = []
     for sign in (1.0, -1.0):
         t = sign * u
         left = np.cross([0.0, 0.0, 1.0], t)
@@ -263,9 +244,8 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
         s_in, s_out = (-e, L + e) if sign > 0 else (L + e, -e)
         entry, exit_ = base + s_in * u, base + s_out * u
         total = np.linalg.norm(entry - start) + np.linalg.norm(goal - exit_)
-        if best is None or total < best[0]:
-            best = (total, sign, t, entry, exit_, s_in)
-    _, sign, t, entry, exit_, s_in = best
+        candidates.append((total, sign, t, entry, exit_, s_in))
+    _, sign, t, entry, exit_, s_in = min(candidates, key=lambda c: c[0])  # the first of equals
     cols = grid_stations(L, a_w, g_w)
     uav, leg_s, pos, stations = [], [], [], []
     for h in heights:

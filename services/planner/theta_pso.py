@@ -1,36 +1,6 @@
-"""Angle-encoded particle swarm optimisation, θ-PSO (P4) (Hoang et al. 2018, PAPER.md Section 3).
+"""Angle-encoded particle swarm optimisation, θ-PSO (P4) (Hoang et al. 2018, the paper's Section 3).
 
-Each particle carries phase angles θ and increments Δθ in ``[-π/2, π/2]``; per iteration k::
-
-    Δθ_ij ← w Δθ_ij + c1 r1 (λ_ij − θ_ij) + c2 r2 (λ_gj − θ_ij)     (clipped to [−Δθ_max, Δθ_max])
-    θ_ij  ← θ_ij + Δθ_ij                                            (clipped to [−π/2, π/2])
-    x_ij  = 1/2 [ (x_max − x_min) sin θ_ij + x_max + x_min ]
-
-with λ_i the personal and λ_g the global best (in θ), ``r1, r2 ~ U(0, 1)``.
-
-The paper gives no values. Ours (defaults of :func:`theta_pso`), chosen on the monorail
-scenario at the paper's budget (150 particles, 10 waypoints, 300 iterations) on tuning seeds
-100-139, disjoint from the benchmark's seeds 0-19:
-
-- ``r1, r2`` drawn per particle *and dimension* (``r1_ij``), as in the standard PSO of Kennedy
-  & Eberhart and Shi & Eberhart (PAPER.md only says "uniform random"). One scalar per particle
-  moves each particle within the plane of its two attractors, so the swarm loses diversity in
-  the 30-dimensional space (Wilke et al. 2007).
-- ``|Δθ| <= Δθ_max = 0.1`` rad, a subset of the paper's ``[−π/2, π/2]``: near the middle of
-  the box one step moves a waypoint at most about 5 m east, 7 m north, 2 m up.
-- inertia ``w`` linear from 0.7 to 0.3 (Shi & Eberhart 1998's decreasing schedule, shifted
-  down because the clamp already limits the steps), ``c1 = c2 = 2.0``.
-- Δθ starts at zero and θ at the inverse sine map of the shared initial population, which is
-  evaluated as given, so θ-PSO starts exactly where the other algorithms start.
-
-Median final cost over seeds 100-119 (the Table I setting): previous settings (r per
-particle, Δθ_max = π/2, w 0.9→0.4) 117.8; r per dimension with those w and clamp 148 (too
-agitated to converge in 300 iterations), with Δθ_max 0.3 / 0.2 / 0.1 / 0.05: 122 / 115.5 /
-113.6 / 113.6; the chosen setting 113.5, and 115.0 with r per particle instead. Other
-schedules near it (w 0.9→0.4, 0.7→0.4, 0.7→0.1, 0.6→0.2 or constant 0.729 with
-c = 1.49445; c1/c2 of 1.5/1.5, 2/1.5, 2.5/1.0) were within noise in median (113.45-113.65;
-c2 = 1.0 with w 0.7→0.2 reached 113.9); the chosen one had the smallest spread over seeds
-120-139 (median 113.48, std 1.4).
+Design notes: docs/planner.md (services/planner/theta_pso.py).
 """
 
 from __future__ import annotations

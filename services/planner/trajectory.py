@@ -1,24 +1,6 @@
 """Formation trajectories (P6)-(P9): one time-parametrised trajectory per UAV from the centroid path.
 
-Steps, all vectorised over the samples:
-
-1. **Resample** the centroid polyline every ``ds`` metres of arc length (vertices kept), plus one
-   sample at every centroid station where a shot of the inspection pass is taken
-   (:class:`~services.planner.task.InspectionPass`), so that each capture point *is* a waypoint.
-2. **Smooth corners**: a Gaussian moving average over arc length (σ = 1 m) rounds the polyline's
-   corners for a quadcopter; the blend fades out at the start and goal (they stay put) and the
-   straight inspection pass is kept exact (its interior is further than 3σ from any corner).
-3. **Formation slots** (P9): the formation heading ψ (P7, yaw only; x along travel) comes from
-   :func:`edge.geometry.formation.headings`, unwrapped and smoothed with the same kernel so that the
-   UAVs ±3 m along the track swing smoothly at turns, and ``P_n = P_F + R_OF(ψ) ΔT_n`` from
-   :func:`edge.geometry.formation.uav_positions`; their mean is the centroid (P6).
-4. **Speed profile**: the inspection speed on the pass, the cruise speed elsewhere, at most
-   ``sqrt(a_lat / κ)`` on curves, accelerating and braking at most ``accel`` (forward/backward
-   passes), from rest and to rest; the time step between samples is stretched wherever a UAV
-   (the outer one on a turn) would exceed the maximum speed.
-5. **Body yaw**: each UAV points its camera (fixed forward, pitch-only gimbal as on the paper's
-   3DR Solo) along its direction of travel, and turns to face the wall for the pass (blended over
-   2 m before and after it), so shots look along the inverse wall normal.
+Design notes: docs/planner.md (services/planner/trajectory.py).
 """
 
 from __future__ import annotations

@@ -1,21 +1,6 @@
 """The mission's record from its log alone: the one loader every consumer uses.
 
-:func:`load_record` reads a mission log (:class:`services.recording.recorder.MissionLogWriter` wrote it) in
-log-time order into a :class:`~services.recording.record.MissionRecord`:
-
-- the header and the footer (:data:`~services.recording.recorder.HEADER_TOPIC`, ``FOOTER_TOPIC``) give the
-  fields that are not lists (scenario, plan, phases, verdict, counters);
-- the ground station's own entries (commands, faults, incidents, its events) come from their channels;
-- the received lists (states, events, defect reports, gateway and detector statistics) are the bus samples of
-  the log, held to the rules the ground station's subscribers apply (:mod:`protocol.binding`: a body that speaks
-  for another node than its key's is not taken), in receive order;
-- every list is bounded like the live record (:func:`services.recording.record.keep`, :data:`~services.recording.record.CAPS`).
-
-A message that does not validate is counted and skipped; a log without a footer (the run did not finish
-writing it) gives what it holds and says so in ``recording_errors``. ``ground=`` takes the header, footer and
-the ground station's entries from another log: a replay recorded on a live network holds only bus samples.
-A log written before the ground station's entries had channels of their own (one summary message at the end)
-is read too, its lists being every bus sample of the log.
+Design notes: docs/recording.md (services/recording/load.py).
 """
 
 from __future__ import annotations
@@ -75,7 +60,7 @@ def list_of(topic: str, msg) -> str | None:
     if info.topic == "stats" and isinstance(msg, LinkStats) and binding.source_matches(topic, msg.source):
         if info.area == "gateway":
             return "gateway_stats"
-        if info.area == "rcu" and (info.name == "detector" or info.name.startswith("detector-")):  # or an instance
+        if info.area == "rcu" and (info.name == "detector" or (info.name or "").startswith("detector-")):  # or an instance
             return "detector_stats"
     return None
 
@@ -89,7 +74,7 @@ LEGACY_TOPIC = "/skynet/mission-record"
 
 def load_record(path: str | Path, caps: dict[str, int] | None = None,
                 ground: str | Path | None = None) -> tuple[MissionRecord, LogReadout]:
-    """The mission record of the log ``path`` and what was found (module docstring); ``caps`` default
+    """The mission record of the log ``path`` and what was found (docs/recording.md); ``caps`` default
     :data:`~services.recording.record.CAPS`. Raises :class:`NotAMissionLog` (a ValueError) for a log without a
     header, :class:`~services.recording.mcap_log.McapReadError` (a ValueError) for a damaged file."""
     caps = CAPS if caps is None else caps
@@ -122,10 +107,10 @@ def load_record(path: str | Path, caps: dict[str, int] | None = None,
                     keep(lists, kind, ITEM_MODELS[kind].model_validate_json(item.data), caps)
                 elif source == path and item.kind == "sample":
                     msg = item.message()
-                    kind = list_of(item.topic, msg) if msg is not None else None
-                    if kind is not None:
+                    listed = list_of(item.topic, msg) if msg is not None else None
+                    if listed is not None:
                         out.items += 1
-                        keep(lists, kind, _WRAP[kind](rx=item.rx, msg=msg), caps)
+                        keep(lists, listed, _WRAP[listed](rx=item.rx, msg=msg), caps)
             except ValueError:
                 out.damaged += 1
         if ground is not None and source == ground and head is None:

@@ -1,38 +1,6 @@
 """Mission logs as MCAP files (the ``mcap`` package): what goes on which channel, and how it comes back.
 
-One MCAP channel per bus key and message type (``topic`` = the Zenoh key, e.g.
-``skynet/demo/uav/1/state``), every message with its receive time (``log_time``) and, for
-typed messages, its own stamp (``publish_time``; the receive time where it has none):
-
-======================  ===================  ==========================================  ================
-what                    message_encoding     schema                                      Foxglove/Lichtblick
-======================  ===================  ==========================================  ================
-typed messages          ``json``             ``jsonschema`` of the pydantic model,       Raw Messages, Plot,
-(states, events,                             name ``skynet.<Model>``                     Table, State
-defect reports, stats,                                                                   Transitions
-heartbeats)
-imagery frames          ``x-skynet-frame``   none (RTP + metadata + JPEG,                none (opaque)
-(camera, preview)                            :mod:`protocol.imagery`)
-previews, for viewers   ``json``             ``foxglove.CompressedImage`` (topic         Image
-                                             ``<key>/jpeg``; JPEG base64 in ``data``)
-requests and replies    ``json``             the command / plan request model, and       Raw Messages
-(commands, acks, plan)                       CommandAck / MissionPlan / ErrorReply;
-                                             channel metadata ``skynet.kind`` =
-                                             ``query`` / ``reply``, topic = the key
-undecodable samples     ``x-skynet-raw``     none                                        none
-the ground station's    ``json``             ``skynet.record.<Model>`` (topics           Raw Messages
-entries (header,                             ``/skynet/record/...``:
-commands, faults,                            :mod:`services.recording.recorder`)
-incidents, its events,
-footer)
-======================  ===================  ==========================================  ================
-
-Typed messages are stored as their JSON, so viewers can read them; a replay validates the JSON
-back into the model and encodes it for the bus again (:func:`bus_bytes`): the same message, in
-the bus's msgpack envelope. Imagery and undecodable samples go back byte for byte.
-
-The writer streams: chunks of ``chunk_size`` bytes (zstd) go to disk as they fill, so memory is
-one chunk plus the index (one entry per chunk and channel), whatever the mission's length.
+Design notes: docs/recording.md (services/recording/mcap_log.py).
 """
 
 from __future__ import annotations
@@ -42,7 +10,7 @@ import heapq
 import io
 import json
 import struct
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -95,7 +63,7 @@ class McapLog:
         self._w = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._w.start(profile=PROFILE, library="skynet-inspect")
         self._schemas: dict[str, int] = {}
-        self._channels: dict[tuple[str, str, str], int] = {}
+        self._channels: dict[tuple[str, str, str, str], int] = {}
         self.previews_as_images = previews_as_images
         self.messages = 0
         self.closed = False
@@ -133,7 +101,7 @@ class McapLog:
                 self._preview_image(key, data, rx_s)
             return "frame"
         try:
-            msg = codec.decode(data)
+            msg: Message = codec.decode(data)
         except codec.CodecError:
             self._add(self._channel(key, RAW_ENCODING), rx_s, data)
             return "raw"
@@ -165,7 +133,7 @@ class McapLog:
         """One JSON document on ``topic``; ``schema`` a JSON Schema dict or a callable making one (called once)."""
         self._add(self._channel(topic, "json", schema_name, schema), t_s, doc.encode())
 
-    def metadata(self, name: str, data: dict[str, str]) -> None:
+    def metadata(self, name: str, data: Mapping[str, object]) -> None:
         self._w.add_metadata(name, {k: str(v) for k, v in data.items()})
 
     def close(self) -> None:

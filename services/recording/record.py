@@ -1,15 +1,6 @@
 """What the ground station records during a mission: the input of the mission report.
 
-Plain pydantic data (no bus code), serialisable to JSON with ``record.model_dump_json()`` and
-back with ``MissionRecord.model_validate_json``, so a report can be re-made from a saved run.
-Every ``rx`` field is the wall-clock UNIX time the ground station received the item.
-
-Bounded. The one record of a mission is its log (``mission.mcap``: :mod:`services.recording`), from which
-every consumer loads it (:func:`services.recording.load.load_record`); :class:`LiveRecord` is the ground
-station's in-memory view while it flies, bounded per kind (:data:`CAPS`; states beyond it are decimated, other
-kinds stop being kept in memory; the log has them all), and sends the ground station's own entries to the log.
-:func:`check_output_folder` refuses to start a mission whose folder is not writable or has less than
-:data:`MIN_FREE_BYTES` free.
+Design notes: docs/recording.md (services/recording/record.py).
 """
 
 from __future__ import annotations

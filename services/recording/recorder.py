@@ -1,27 +1,6 @@
 """The mission log's writer: the one record of a mission, an MCAP file streamed as the mission goes.
 
-Two kinds of entries go through one :class:`MissionLogWriter` and its own lock:
-
-- **the bus**: one subscription on ``skynet/<fleet>/**`` (states, events, defect reports, statistics, the
-  heartbeat, capture and preview frames; ``@adv`` recovery traffic and liveliness tokens are not samples of
-  the key space and are not logged) hands each sample with its receive time to a bounded drop-oldest ring (one
-  for imagery frames, one for the rest), whose threads write it (:class:`~services.recording.mcap_log.McapLog`),
-  so the Zenoh callback never waits for the disk and memory stays bounded (ring + one chunk). Before the ring,
-  each source is held to its topic's budget (:mod:`protocol.budget`, charged by the key a sample came on); samples
-  on keys outside the key space (:func:`protocol.keys.parse`) are not logged. Both are counted (``over-budget``,
-  ``unknown-key``), as is what a ring had to drop, in the file's ``skynet.recorder`` metadata. The capture frames
-  logged here are the inspection deliverable's input (:func:`services.recording.mcap_log.captures`): the detector
-  may run on any host.
-- **the ground station's own entries** (:data:`GROUND_TOPICS`): the record's header (fleet, scenario, speed,
-  start) when the mission starts, each command with its acknowledgement, fault, incident and event of the
-  ground station's own as it happens (:meth:`MissionLogWriter.add`), and at the end the footer (plan, phases,
-  verdict, counters: :meth:`MissionLogWriter.finish`). :class:`RecordingBus` logs each request the ground station
-  sends (commands, the plan request) with its answer, as Zenoh queries are seen by no subscriber.
-
-:func:`services.recording.load.load_record` reads the file back into the mission's record; every consumer
-(the mission's own report, ``skynet report``) reads it there. A write error never stops the mission: the
-writer stops writing, says once what went wrong (:attr:`MissionLogWriter.failed`), and the report is made from
-the in-memory record (:func:`services.gcs.journal.report_record`).
+Design notes: docs/recording.md (services/recording/recorder.py).
 """
 
 from __future__ import annotations

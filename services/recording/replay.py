@@ -1,17 +1,6 @@
 """``skynet replay FILE [--speed K]``: a recorded mission played back onto the bus.
 
-Every logged bus sample is put again on its key, in receive-time order, with its link class
-(:func:`protocol.links.class_of_topic`), at ``K`` times the recorded pace (``--speed 0``: as
-fast as possible). Order per key is the file's order: one thread puts every sample, and each key
-has one publisher. The samples go under the replay fleet ``FLEET-replay`` (:func:`protocol.keys.replay_fleet`;
-``--as-fleet NAME`` another name: the key's second chunk is swapped), so a past mission is watched beside a
-live one (``skynet web --fleet FLEET-replay``) and never lands on the live fleet's keys (the ``replay`` role of
-:mod:`protocol.acl` may put nothing else). Without ``-e`` it attaches to the network running here
-(:mod:`services.attach`).
-``--reliable`` sends everything reliably (best-effort telemetry
-replayed at 10x on a busy machine loses some states, as it would live). Messages keep their own stamps (a viewer's "last heard" is the receive time, not the stamp).
-Every replayed sample carries the attachment :data:`REPLAY_MARK`, so a viewer tells a replay from live data
-(the web page labels it a replay).
+Design notes: docs/recording.md (services/recording/replay.py).
 """
 
 from __future__ import annotations

@@ -1,26 +1,6 @@
 """RTP payload formats for standard players: H.264 (RFC 6184) and JPEG (RFC 2435). Pure, no I/O.
 
-Both packetisers turn one encoded picture into RTP packets (RFC 3550 fixed header from
-:mod:`protocol.rtp`) of at most ``mtu`` bytes, all with the picture's 90 kHz timestamp and the
-marker bit on the last packet of the picture (RFC 6184 section 5.1; RFC 2435 section 3).
-
-H.264, RFC 6184 (packetization-mode=1, non-interleaved)
-    The encoder's Annex B byte stream is split at its start codes into NAL units
-    (:func:`split_annexb`). A NAL unit that fits is sent alone (single NAL unit packet, section
-    5.6); a larger one is cut into FU-A fragments (section 5.8): FU indicator = the NAL header's
-    F and NRI bits with type 28, FU header = S (first), E (last), R = 0 and the NAL type; the
-    NAL header byte itself is not repeated in the fragments.
-
-JPEG, RFC 2435
-    A baseline, 8-bit, three-component JFIF whose luma is sampled 2x2 (type 1, 4:2:0) or 2x1
-    (type 0, 4:2:2) against 1x1 chroma, with the standard Huffman tables (JPEG Annex K.3, what
-    libjpeg and OpenCV write unless asked to optimise), no restart interval, and a width and
-    height that are multiples of 8 up to 2040. Every packet carries the 8-byte JPEG header
-    (type-specific 0, 24-bit fragment offset into the scan data, type, Q, width/8, height/8);
-    Q = 255 says the quantisation tables travel in-band, in the first packet only, behind a
-    quantisation-table header (section 3.1.8: MBZ, precision 0 = 8-bit, length). The payload is
-    the entropy-coded scan data between SOS and EOI. :func:`parse_jpeg` refuses anything else
-    with a :class:`PayloadError` that says why.
+Design notes: docs/operator-view.md (services/video/packetize.py).
 """
 
 from __future__ import annotations

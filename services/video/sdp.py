@@ -1,12 +1,6 @@
 """SDP files for the video streams (RFC 8866), one per stream, for players to open.
 
-``ffplay -protocol_whitelist file,udp,rtp uav1-preview.sdp``, VLC or GStreamer read them; the
-media line names the UDP port, the ``rtpmap`` the encoding (RFC 8866 section 6.6):
-
-- H.264: ``m=video P RTP/AVP 96``, ``a=rtpmap:96 H264/90000``, ``a=fmtp:96 packetization-mode=1``
-  (RFC 6184 section 8.2.1; the parameter sets travel in-band before every IDR picture, so no
-  ``sprop-parameter-sets`` is needed and a player may join at any keyframe);
-- JPEG: ``m=video P RTP/AVP 26``, ``a=rtpmap:26 JPEG/90000`` (RFC 3551 table 5, RFC 2435).
+Design notes: docs/operator-view.md (services/video/sdp.py).
 """
 
 from __future__ import annotations

@@ -1,18 +1,6 @@
 """``skynet video``: every UAV's camera as standard RTP over UDP, with an SDP file per stream.
 
-Subscribes to the fleet's live previews (``uav/*/preview``; with ``--capture`` also the capture
-frames, ``uav/*/camera``), and sends each UAV's pictures as H.264 (RFC 6184, default) or JPEG
-(RFC 2435, ``--codec mjpeg``) to ``--host`` (127.0.0.1 by default), one UDP port per stream:
-UAV n's preview on ``--port + 2 (n - 1)`` (5600, the port QGroundControl listens on, for UAV 1),
-its captures on ``--capture-port + 2 (n - 1)`` (even ports, RTCP's odd neighbour left free, RFC
-3550 section 11). ``--sdp-dir`` gets ``uav<n>-preview.sdp`` (and ``uav<n>-capture.sdp``) when a
-UAV's first frame arrives, or at start for ``--uavs N``, so a player can be opened first::
-
-    skynet video --uavs 3 -e tcp/127.0.0.1:7447
-    ffplay -protocol_whitelist file,udp,rtp sdp/uav1-preview.sdp
-
-The bus's frames are this project's own format (:mod:`protocol.imagery`, payload type 96); the
-empty announce frame of a camera's stream and frames that do not decode are skipped and counted.
+Design notes: docs/operator-view.md (services/video/service.py).
 """
 
 from __future__ import annotations
@@ -21,6 +9,7 @@ import argparse
 import os
 import threading
 from collections import Counter
+from functools import partial
 from pathlib import Path
 
 from protocol import binding, keys
@@ -70,7 +59,7 @@ class VideoService:
             if (uav, kind) not in self.streams:
                 port = self.port_of(uav, kind)
                 vs = VideoStream(self.codec, self.host, port, ssrc_for(uav, 0 if kind == "capture" else 1))
-                ring = Ring(QUEUE_PICTURES, lambda job, vs=vs: self._send(vs, *job), name=f"video-uav{uav}-{kind}")
+                ring = Ring(QUEUE_PICTURES, partial(self._send_job, vs), name=f"video-uav{uav}-{kind}")
                 path = self.sdp_path(uav, kind)
                 part = path.with_name(path.name + ".part")  # complete or absent: a player never reads half a file
                 part.write_text(sdp(self.codec, self.host, port, f"SkyNet UAV {uav} {kind}"))
@@ -100,6 +89,9 @@ class VideoService:
             return
         self.counts[f"in-{kind}"] += 1
         ring.push((bytes(jpeg), meta.stamp))
+
+    def _send_job(self, vs: VideoStream, job: tuple[bytes, float]) -> None:
+        self._send(vs, *job)
 
     def _send(self, vs: VideoStream, jpeg: bytes, stamp: float) -> None:
         try:

@@ -1,15 +1,6 @@
 """One outgoing video stream: bus JPEG -> picture -> H.264 (PyAV/libx264) or RFC 2435 JPEG -> RTP/UDP.
 
-:class:`VideoStream` is the per-camera pipeline of ``skynet video`` without any bus code: it
-takes the JPEG of one imagery frame and its capture time, and sends RTP packets to one UDP
-address. Colour is kept when the camera's JPEG has colour (a grey JPEG becomes a grey picture,
-Y only with neutral chroma, as both payload formats carry YUV).
-
-H.264: libx264 (bundled in the ``av`` wheel's FFmpeg) with preset ``ultrafast`` and tune
-``zerolatency`` (no B-frames, no look-ahead: one picture in, its access unit out at once),
-constrained baseline profile, constant quality (CRF 23), a keyframe every ``gop`` pictures with the SPS/PPS repeated in front
-of each, so a player that joins late starts at the next keyframe. Presentation times are the
-capture times on the 90 kHz clock (RFC 6184 section 5.1: the RTP timestamp is the sampling time).
+Design notes: docs/operator-view.md (services/video/stream.py).
 """
 
 from __future__ import annotations

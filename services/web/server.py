@@ -1,24 +1,6 @@
 """The web server of the fleet view (aiohttp): the page, the previews, a WebSocket pushing snapshots.
 
-Routes:
-
-- ``GET /`` the page (``static/index.html``, plain JavaScript, no build step), ``GET /app.js``;
-- ``GET /preview/<uav>.jpg`` the newest preview JPEG of a UAV (404 before the first);
-- ``GET /ws`` a WebSocket (RFC 6455): the server sends the static document on connect and when it
-  changes, then a snapshot every ``1 / rate`` s (5–10 Hz); the client sends nothing;
-- ``GET /snapshot.json`` one snapshot (for scripts and tests).
-
-Access (:class:`Access`): the page is readable by its operator only, not by another site open in the same
-browser. Every route wants the server's access token, as Jupyter does: the server prints its URL with
-``?token=...`` (random per start unless given); after that first load the token travels in a cookie
-(``HttpOnly``, ``SameSite=Strict``) so the page's own fetches and WebSocket carry it; scripts may send it
-as ``Authorization: token T``. A request whose ``Host`` is not the bound address, a loopback name or a
-name the operator allows (DNS rebinding: a hostile name resolved to 127.0.0.1), or whose ``Origin`` is
-not this server's (cross-site WebSocket hijacking, RFC 6455 Section 10.2), gets 403 before the token is
-even looked at. Responses carry a Content-Security-Policy that allows this server's own scripts only.
-
-:class:`WebServer` runs the aiohttp application on its own thread and event loop, so the ground
-station (a synchronous program) starts it with :meth:`start` and ends it with :meth:`stop`.
+Design notes: docs/operator-view.md (services/web/server.py).
 """
 
 from __future__ import annotations
@@ -29,13 +11,17 @@ import json
 import logging
 import secrets
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
 
 from .view import FleetView
+
+if TYPE_CHECKING:
+    from .tally import DefectTally
 
 STATIC = Path(__file__).with_name("static")
 log = logging.getLogger(__name__)
@@ -71,7 +57,7 @@ def page_url(host: str, port: int, token: str) -> str:
 
 
 class Access:
-    """Who may read the page (the module docstring): the ``Host``, ``Origin`` and token checks. Pure.
+    """Who may read the page (docs/operator-view.md): the ``Host``, ``Origin`` and token checks. Pure.
 
     ``host`` is the bound address; ``allowed_hosts`` more names the page answers to (a name the operator
     reaches it by, for instance through an SSH tunnel or on a LAN with a non-loopback ``host``).
@@ -110,7 +96,7 @@ class Access:
         if not given and header:
             scheme, _, value = header.partition(" ")
             given = value.strip() if scheme.lower() in ("token", "bearer") else None
-        return bool(given) and hmac.compare_digest(given.encode(), self.token.encode())
+        return given is not None and given != "" and hmac.compare_digest(given.encode(), self.token.encode())
 
     def refusal(self, host: str | None, origin: str | None, query: str | None, cookie: str | None,
                 header: str | None) -> str | None:
@@ -142,8 +128,8 @@ class WebServer:
         self.allowed_hosts = tuple(allowed_hosts)
         self.access = Access(host, self.port, self.token, self.allowed_hosts)
         self.refused = 0  # requests refused by the access checks
-        self.tally = None  # services.web.tally.DefectTally, when the page counts defects as the report does
-        self.on_stop = None  # called by stop()
+        self.tally: DefectTally | None = None  # when the page counts defects as the report does
+        self.on_stop: Callable[[], None] | None = None  # called by stop()
         self.sent = 0  # snapshots sent, all clients
         self.clients = 0
         self._loop: asyncio.AbstractEventLoop | None = None

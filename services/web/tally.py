@@ -1,13 +1,6 @@
 """The page's defect count, counted as the mission report counts it.
 
-A crack seen by three overlapping frames is three detections in the detector's reports but one
-defect in ``report.md``: the report's inspection section (:func:`services.inspection.mission.append_deliverable`)
-mosaics the detector's saved captures on the surface plane and counts each connected crack on the
-mosaic once (:func:`services.inspection.deliverable.inspect_frames`). :func:`count_defects` runs that
-same function on the same folder with the same plane, so the page and the report give one number;
-:class:`DefectTally` keeps the page's count current while the captures arrive, in a worker process
-(the mosaic is CPU work that must not hold the ground station's interpreter), at most once per
-``interval_s`` and only when the folder has new captures.
+Design notes: docs/operator-view.md (services/web/tally.py).
 """
 
 from __future__ import annotations
@@ -99,6 +92,8 @@ class DefectTally:
             if n == counted or n == 0 or (not poked and time.monotonic() - last < self.interval_s):
                 continue
             last = time.monotonic()
+            if self._pool is None:
+                return
             fut: Future = self._pool.submit(count_defects, self.frames_dir, self.corners)
             try:
                 defects, frames = fut.result()

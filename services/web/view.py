@@ -1,26 +1,6 @@
 """The live fleet view: what the web page shows, built from the fleet's messages. Pure, no I/O.
 
-:class:`FleetView` is fed typed messages (states, events, defect reports, gateway statistics,
-preview JPEGs, the plan) and answers two JSON-ready documents:
-
-- :meth:`FleetView.static` — sent once per page (and again when the plan arrives): the scenario
-  (box, cylinders, the inspected wall's corners), the planned paths of the UAVs;
-- :meth:`FleetView.snapshot` — pushed at 5–10 Hz: per UAV the position, mode, battery, telemetry
-  rate (link health, Hz against the edges' 20 Hz) and last-heard age, captures, its flown path
-  (decimated to one point per :data:`TRAIL_STEP_M`), the preview frame's number; the formation
-  error (the shape error of the report and the terminal line, :class:`edge.geometry.formation.ShapeErrorMeter`, over
-  the UAVs flying the formation) and, apart, the tracking error (RMS of each UAV's distance to its own
-  planned slot, P9, over the UAVs in MISSION: :func:`edge.geometry.formation.tracking_error`); the
-  detections (every defect of every frame's report, placed on the wall map), the defects
-  (``defect_count``: the mission report's own count, a crack seen by overlapping frames counted once,
-  set by :meth:`FleetView.set_inspection`; None until known); the timeline (the mission's phases:
-  the ground station's where it runs the page, each UAV's mode changes everywhere; captures, defect
-  reports, events and warnings); ``source``: whether the data shown is live or a
-  replay of a recorded mission (``skynet replay``).
-
-Everything from the bus is data: the page renders it as text (``static/app.js``).
-Memory is bounded: trails, events and detections keep the newest :data:`TRAIL_POINTS`,
-:data:`EVENTS`, :data:`DEFECTS` entries.
+Design notes: docs/operator-view.md (services/web/view.py).
 """
 
 from __future__ import annotations
@@ -32,6 +12,7 @@ from collections import deque
 from typing import Any
 
 from edge.geometry.formation import DEFAULT_OFFSETS, ShapeErrorMeter, tracking_error
+from protocol.checks import xyz
 from protocol.keys import DEFAULT_FLEET, REPLAY_SUFFIX
 from protocol.messages import DefectReport, Event, MissionPlan, VehicleState
 from protocol.scenario import Scenario
@@ -177,7 +158,7 @@ class FleetView:
     def offsets(self) -> dict[int, tuple[float, float, float]]:
         """The formation offsets ΔT_n by UAV (the scenario's, else the default triangle's)."""
         rows = self.scenario.formation.offsets if self.scenario is not None else DEFAULT_OFFSETS
-        return {i + 1: tuple(map(float, o)) for i, o in enumerate(rows)}
+        return {i + 1: xyz(o) for i, o in enumerate(rows)}
 
     def _formation_error(self) -> float | None:
         """The formation error of the latest states (services.gcs.progress.formation_rms's rule: the UAVs in
