@@ -78,8 +78,8 @@ def main() -> int:
     p.add_argument("--keep", default=None, help="keep the runs, table and plots in this folder")
     p.add_argument("--out", default=str(Path(__file__).parent / "results" / "impair.json"))
     a = p.parse_args()
-    argv = ["--loss", a.loss, "--delay", a.delay, "--recovery", a.recovery, "--repeat", a.repeat,
-            "--speed", a.speed, "--links", "all/udp", "--timeout", a.timeout]
+    argv = ["--loss-pct", a.loss, "--delay-ms", a.delay, "--recovery", a.recovery, "--repeat", a.repeat,
+            "--speed", a.speed, "--links", "all/udp", "--timeout-s", a.timeout]
     args = experiment.build_parser().parse_args(argv)
     try:
         cells, runs = experiment.check_options(args)

@@ -3,11 +3,11 @@
 It binds a vehicle driver (``sim`` built in), the formation keeping of :mod:`edge.geometry.formation`
 and a camera (:mod:`edge.camera`) to the bus:
 
-* publishes :class:`VehicleState` as telemetry at ``--rate`` Hz and holds a liveliness token;
-  its link lease is short (``--lease``, 2 s) so the others notice a lost UAV;
+* publishes :class:`VehicleState` as telemetry at ``--rate-hz`` and holds a liveliness token;
+  its link lease is short (``--lease-s``, 2 s) so the others notice a lost UAV;
 * subscribes to its formation neighbours' states only (SkyNet, :mod:`edge.geometry.neighbourhood`:
   formations of ``--formation-size`` UAVs, 3 by default) and corrects its own reference from them
-  (P8)-(P9), ignoring neighbours older than ``--stale`` s: when SkyNet is partitioned the
+  (P8)-(P9), ignoring neighbours older than ``--stale-s`` s: when SkyNet is partitioned the
   correction goes back to zero (at the sequencer's offset rate) and the UAV flies its planned
   slot, and it comes back with the neighbours' states. A formation member whose state goes stale
   gives a ``neighbour-stale`` event, and ``neighbour-fresh`` when heard again; its
@@ -15,9 +15,9 @@ and a camera (:mod:`edge.camera`) to the bus:
 * serves commands on ``.../uav/<id>/cmd``: validated (schema, geofence, finite numbers, sane
   speeds) and acknowledged accepted or rejected with a reason — nothing invalid reaches the
   vehicle;
-* failsafe (:mod:`edge.failsafe`): no ground-station heartbeat for ``--failsafe-timeout`` s
+* failsafe (:mod:`edge.failsafe`): no ground-station heartbeat for ``--failsafe-timeout-s`` s
   (ArduPilot's FS_GCS_TIMEOUT, 5 s) while flying -> hold / land / return-to-launch and an event;
-  a hold escalates to ``--failsafe-escalate`` (rtl) after ``--failsafe-escalate-after`` s (30 s);
+  a hold escalates to ``--failsafe-escalate`` (rtl) after ``--failsafe-escalate-after-s`` s (30 s);
   a low battery returns (``--battery-low``, 20 %), a critical one lands (10 %); ``resume`` ends a
   GCS failsafe only after a fresh heartbeat;
 * at each capture point grabs a frame, JPEG-encodes it off the control loop and publishes it

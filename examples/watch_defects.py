@@ -1,7 +1,7 @@
 """Print the detector's defect reports as they arrive: one line per analysed capture point.
 
 The detector analyses each capture frame of a mission and publishes a report. Beside `skynet up`, while a
-mission flies (`skynet gcs mission ...`; or run it beside `skynet mission`)::
+mission flies (`skynet gcs ...`; or run it beside `skynet mission`)::
 
     python examples/watch_defects.py --count 10
 

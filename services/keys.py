@@ -45,6 +45,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from protocol.cliconfig import show_defaults
 from protocol.keyset import KeySet, check_role
 from protocol.signing import key_id, load_public
 
@@ -428,7 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--days", type=int, default=NODE_DAYS, help="certificate validity")
     p = sub.add_parser("show", help="list the nodes, key ids and certificate expiry")
     p.add_argument("dir")
-    return parser
+    return show_defaults(parser)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -31,7 +31,7 @@ Statistics go out once a second on ``skynet/<fleet>/rcu/<name>/stats`` (``detect
 buffer counts them (:class:`protocol.jitter.JitterStats`), and
 
 - ``late``: frames that arrived after the jitter buffer's playout had given their sequence
-  number up (it had waited ``--playout-delay`` behind the gap and counted them lost). Each is a
+  number up (it had waited ``--playout-delay-s`` behind the gap and counted them lost). Each is a
   capture all the same, so it is still analysed (``count.late-analysed``), only out of order.
   With recovery on, Zenoh hands frames over in order, so a recovered frame is normally
   delayed rather than late;

@@ -13,7 +13,7 @@ the planner for hours and take gigabytes, so before planning:
 
 and a request over either is refused at once (:class:`TooLarge`, the reply says which limit and
 by how much). While planning, :class:`Deadline` wraps the cost and ends the optimiser when the
-request's time budget (:data:`TIME_BUDGET_S`, ``skynet planner --time-budget``) is spent
+request's time budget (:data:`TIME_BUDGET_S`, ``skynet planner --time-budget-s``) is spent
 (:class:`TimeBudgetExceeded`), so a worker is never held past it.
 """
 

@@ -1,4 +1,4 @@
-"""The live web page bound to the bus: ``skynet web`` and ``skynet gcs mission --web :8080``.
+"""The live web page bound to the bus: ``skynet web`` and ``skynet gcs --web :8080``.
 
 :func:`attach` subscribes a :class:`~services.web.view.FleetView` to the fleet's states, events,
 defect reports and live previews; :func:`follow_runner` hands it the ground station's plan when
@@ -6,7 +6,7 @@ the planner has answered, its phases and warnings for the timeline. ``skynet web
 its own (for instance beside ``skynet replay``, to watch a recorded mission: a fleet named ``F-replay``
 is shown as a replay, not as live data; the replay's mark on a sample counts only there)::
 
-    skynet web --listen-web :8080 -e tcp/127.0.0.1:7447
+    skynet web --web :8080 -e tcp/127.0.0.1:7447
 
 The page wants its access token (services.web.server): the URL to open is printed with it
 (``web page at http://127.0.0.1:8080/?token=...``); ``--token`` or the environment variable

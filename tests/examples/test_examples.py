@@ -165,11 +165,11 @@ def test_request_plan_gives_a_signed_plan_for_three_uavs_inside_the_scenario(net
 
 @pytest.mark.mission
 def test_watch_defects_and_a_hold_during_a_mission(network, tmp_path):
-    """A ground station's mission against the running network (``skynet gcs mission`` on the network's gateway,
+    """A ground station's mission against the running network (``skynet gcs`` on the network's gateway,
     with the key set's gcs identity); watch_defects prints the detector's reports as the captures arrive, and a
     hold commanded mid-flight is accepted."""
     desc = network.desc
-    argv = ["gcs", "mission", "--quiet", "--speed", "4", "--fleet", desc["fleet"], "--keys", desc["keys"],
+    argv = ["gcs", "--quiet", "--speed", "4", "--fleet", desc["fleet"], "--keys", desc["keys"],
             "--multilink", *[a for e in desc["endpoints"] for a in ("-e", e)]]
     with open(tmp_path / "gcs.log", "w") as log:
         gcs = subprocess.Popen([sys.executable, "-m", "services.cli", *argv], cwd=tmp_path, stdout=log,

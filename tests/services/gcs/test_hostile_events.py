@@ -1,5 +1,5 @@
 """An event with hostile text, published with uav2's own certificate on uav2's own event key through the
-launcher's secure network (``skynet up``), reaches the ground station's stderr (``skynet gcs mission --keys``)
+launcher's secure network (``skynet up``), reaches the ground station's stderr (``skynet gcs --keys``)
 escaped; the same UAV's event claiming to come from the ground station is refused, not shown."""
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def test_hostile_event_text_reaches_the_ground_station_stderr_escaped(dev_keys):
         assert _wait(lambda: any("network up: gateway at" in ln for ln in up_lines), 90), "".join(up_lines[-30:])
         line = next(ln for ln in up_lines if "network up: gateway at" in ln)
         endpoints = line.split("gateway at ")[1].split(";")[0].split()
-        gcs = subprocess.Popen([sys.executable, "-m", "services.cli", "gcs", "mission", "--keys", str(dev_keys),
+        gcs = subprocess.Popen([sys.executable, "-m", "services.cli", "gcs", "--keys", str(dev_keys),
                                 "--fleet", FLEET, "--uavs", "2", "--speed", "4", "--quiet", "--no-record",
                                 "--multilink", *[a for e in endpoints for a in ("-e", e)]],
                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace")
