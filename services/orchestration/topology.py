@@ -11,9 +11,9 @@ Link names
 * an uplink is named by its node: ``uav1`` .. ``uavN``, ``planner``, ``detector``, ``gcs``;
 * a SkyNet link by its two edges, lower id first: ``uav1-uav2``.
 
-``--impair NAME[/udp|/tcp]=SPEC`` (repeatable): NAME is a link name or a
-group — ``uplinks`` (every node's uplink), ``skynet`` (every SkyNet link), ``all`` (both). The
-suffix picks the reliability class: ``/udp`` the best-effort link, ``/tcp`` the reliable one,
+``--impair [NAME[/udp|/tcp]=]SPEC`` (repeatable; :func:`services.netem.model.parse_impair_arg`): NAME
+is a link name (none: ``all``) or a group — ``uplinks`` (every node's uplink), ``skynet`` (every SkyNet
+link), ``all`` (both). The suffix picks the reliability class: ``/udp`` the best-effort link, ``/tcp`` the reliable one,
 none = both (zenoh's multilink setup, ZENOH.md "One link per reliability class"). SPEC is the
 netem string of :meth:`services.netem.model.Impairment.parse`. Later items override earlier ones
 for the same link and class.

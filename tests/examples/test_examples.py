@@ -71,7 +71,7 @@ def network(tmp_path_factory, dev_keys):
 
 
 def test_fleet_states_prints_every_uavs_state(network):
-    proc = run_example("fleet_states.py", "--count", "30", "--duration", "60", cwd=network.folder)
+    proc = run_example("fleet_states.py", "--count", "30", "--duration-s", "60", cwd=network.folder)
     assert proc.returncode == 0, proc.stderr[-3000:]
     lines = proc.stdout.splitlines()
     found = [STATE_LINE.match(line) for line in lines]
@@ -96,7 +96,7 @@ def test_fleet_states_shows_neither_garbage_nor_a_state_speaking_for_another_uav
                        tls_cert=str(ks.tls_cert), tls_key=str(ks.tls_key))
     forged = VehicleState(uav=1, seq=0, t=0.0, stamp=time.time(), pos=(-77.7, -77.7, 7.7), vel=(0, 0, 0),
                           att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.HOLD, armed=True)
-    watcher = subprocess.Popen([sys.executable, str(EXAMPLES / "fleet_states.py"), "--duration", "8"],
+    watcher = subprocess.Popen([sys.executable, str(EXAMPLES / "fleet_states.py"), "--duration-s", "8"],
                                cwd=network.folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         with Bus(config, fleet, "rogue") as rogue:
@@ -175,7 +175,7 @@ def test_watch_defects_and_a_hold_during_a_mission(network, tmp_path):
         gcs = subprocess.Popen([sys.executable, "-m", "services.cli", *argv], cwd=tmp_path, stdout=log,
                                stderr=subprocess.STDOUT)
     try:
-        watch = run_example("watch_defects.py", "--count", "3", "--duration", "240", cwd=network.folder, timeout=300)
+        watch = run_example("watch_defects.py", "--count", "3", "--duration-s", "240", cwd=network.folder, timeout=300)
         said = watch.stdout + (tmp_path / "gcs.log").read_text()[-3000:]
         assert watch.returncode == 0, said
         reports = [REPORT_LINE.match(line) for line in watch.stdout.splitlines()]
