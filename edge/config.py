@@ -131,10 +131,10 @@ class EdgeConfig(BusOptions):
                                                        "land or none")
     failsafe_escalate_after: Annotated[float, Cli(flag="--failsafe-escalate-after-s", metavar="S")] = Field(
         default=_FAILSAFE.escalate_after_s, ge=0.0, description="a failsafe hold lasting this long escalates, s")
-    battery_low: float = Field(default=_FAILSAFE.battery_low, ge=0.0, le=1.0,
-                               description="battery failsafe: return to launch below")
-    battery_critical: float = Field(default=_FAILSAFE.battery_critical, ge=0.0, le=1.0,
-                                    description="battery failsafe: land below")
+    battery_low: float = Field(default=_FAILSAFE.battery_low, ge=0.0, le=1.0, description=(
+        "battery failsafe: return to launch below this charge (fraction of full, 0..1)"))
+    battery_critical: float = Field(default=_FAILSAFE.battery_critical, ge=0.0, le=1.0, description=(
+        "battery failsafe: land below this charge (fraction of full, 0..1)"))
     endurance: Annotated[float | None, Cli(flag="--endurance-s", metavar="S")] = Field(
         default=None, gt=0.0, description="simulated vehicle: hover time on a full battery, s (default 1200)")
     geofence: BoxArg | None = Field(default=None, description="x0,y0,z0,x1,y1,z1 (else from upload)")

@@ -167,6 +167,7 @@ def add_options(parser: argparse.ArgumentParser, model: type[BaseModel],
     """
     defaults = defaults or {}
     exclusive: dict[str, Any] = {}  # Cli.exclusive -> its argparse group (in the group of its first field)
+    members = exclusive_groups(model)
     for name, info in model.model_fields.items():
         cli = _cli(info)
         if cli.hidden:
@@ -198,6 +199,9 @@ def add_options(parser: argparse.ArgumentParser, model: type[BaseModel],
                 shown = ", ".join(_text(info, v, True) for v in default) if is_list else _text(info, default, False)
                 kw["help"] = f"{kw['help']} (default: {shown.replace('%', '%%')})".strip()
         container = _group(parser, cli.group)
+        others = [flag_of(n, model.model_fields[n]) for n in members.get(cli.exclusive or "", []) if n != name]
+        if others:  # the usage line brackets them together only when adjacent: the help says it always
+            kw["help"] = f"{kw['help']} (not with {', '.join(others)})".strip()
         if cli.exclusive:
             if cli.exclusive not in exclusive:
                 exclusive[cli.exclusive] = container.add_mutually_exclusive_group()

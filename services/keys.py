@@ -413,7 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="action", required=True)
     p = sub.add_parser("init", help="write a development key set (CA, per-node TLS certificates and signing keys)")
     p.add_argument("dir")
-    p.add_argument("--uavs", type=int, default=3)
+    p.add_argument("--uavs", type=int, default=3, metavar="N", help="UAVs 1..N get a certificate and a signing key")
     p.add_argument("--days", type=int, default=NODE_DAYS, help=f"node certificate validity (CA: {CA_DAYS} days)")
     p.add_argument("--host", action="append", default=[], help="extra SAN (address or name) on every certificate")
     p.add_argument("--san", action="append", default=[], metavar="ROLE=NAME[,NAME...]",

@@ -91,6 +91,9 @@ def test_one_flag_per_concept(parsers):
                for c in ("up", "mission", "video"))
     assert all("--uavs" in flags[f"skynet {c}"] for c in ("edge", "detector", "up", "mission", "gcs", "video",
                                                           "experiment", "keys init"))
+    # written the same way too
+    metavars = {a.metavar for _, _, a in _options(parsers) if "--uavs" in a.option_strings}
+    assert metavars == {"N"}, metavars
 
 
 def test_a_quantity_has_its_unit_at_the_end_of_its_flag(parsers):

@@ -45,7 +45,7 @@ class ExperimentConfig(CliModel):
     links: str = Field(default="all/udp", description="impaired links, in the launcher's --impair names (all/udp: "
                                                       "every best-effort link)")
     speed: float = Field(default=6.0, gt=0.0, lt=1000.0, description="simulation speed factor")
-    uavs: int = Field(default=3, ge=1, le=255, description="UAVs of each mission")
+    uavs: Annotated[int, Cli(metavar="N")] = Field(default=3, ge=1, le=255, description="UAVs of each mission")
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
     seed: int = Field(default=0, ge=0, description="run k of every cell uses seed + k")
     out: str | None = Field(default=None, description="results folder (default reports/experiment-<time>)")

@@ -20,7 +20,7 @@ class GcsMissionConfig(BusOptions):
 
     mode: BusMode = "client"
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
-    uavs: int = Field(default=len(_MISSION.uavs), ge=1, le=255, description="number of UAVs (ids 1..N)")
+    uavs: Annotated[int, Cli(metavar="N")] = Field(default=len(_MISSION.uavs), ge=1, le=255, description="number of UAVs (ids 1..N)")
     algorithm: str = Field(default=_MISSION.algorithm, pattern=r"^[a-z0-9+-]{1,32}$",
                            description="the planner's algorithm")
     seed: int = Field(default=_MISSION.seed, ge=0, description="the planner's seed")

@@ -48,7 +48,7 @@ def _default(model: type[BaseModel], name: str) -> Any:
 class LaunchConfig(CliModel):
     """The options of ``skynet up``: the fleet, its sites, impairments, faults, trust and extra services."""
 
-    uavs: int = Field(default=3, ge=1, le=255, description="number of UAVs")
+    uavs: Annotated[int, Cli(metavar="N")] = Field(default=3, ge=1, le=255, description="number of UAVs")
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
     speed: float = Field(default=4.0, description="simulation speed factor (1 = real time)")
     camera: str = Field(default=_default(EdgeConfig, "camera"), description="synthetic | an image folder | video:<url>")

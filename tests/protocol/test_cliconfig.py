@@ -145,6 +145,7 @@ class _Exclusive(CliModel):
 def test_exclusive_options_are_one_argparse_group_and_the_model_refuses_them_together(capsys):
     parser = add_options(argparse.ArgumentParser(prog="demo"), _Exclusive)
     assert "[--keys KEYS | --insecure]" in parser.format_usage()
+    assert "(not with --insecure)" in parser.format_help() and "(not with --keys)" in parser.format_help()
     with pytest.raises(SystemExit) as exc:
         parse(_Exclusive, ["--keys", "k", "--insecure"], prog="demo")
     assert exc.value.code == 2
