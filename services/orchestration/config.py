@@ -100,7 +100,7 @@ class LaunchConfig(CliModel):
     rcu_site: Annotated[list[str], Cli(metavar="NAME=K")] = Field(default=[], description=(
         "attach an RCU to site K's gateway (repeatable; default site 0): planner, detector (every instance) or "
         "detector-K"))
-    fleet: str = keys.DEFAULT_FLEET
+    fleet: str = Field(default=keys.DEFAULT_FLEET, description="fleet name (key space prefix)")
     seed: int = Field(default=0, description="seeds the simulation and every proxy (per link)")
     impair: Annotated[list[ImpairItem], Cli(metavar="[LINK[/udp|/tcp]=]SPEC")] = Field(default=[], description=(
         'netem impairment on a link or group of links (repeatable, later wins), e.g. uav2="delay 50ms loss 2%%"; '
