@@ -32,6 +32,8 @@ def test_help_lists_every_command():
     (["detector"], "No peer specified"),
     (["gcs", "--scenario", "/nonexistent.toml"], "cannot read scenario file"),
     (["edge", "--uav", "1", "--home", "1,2"], "expected x,y,z"),
+    (["web", "--network", "n.json", "-e", "tcp/127.0.0.1:9"], "--network: not with -e/--connect"),
+    (["video", "--network", "n.json", "-c", "zenoh.json5"], "--network: not with -e/--connect, -c/--config"),
 ])
 def test_bad_input_is_a_clear_error_not_a_traceback(args, needle):
     out = skynet(*args)
