@@ -18,7 +18,8 @@ class VideoConfig(AttachOptions):
 
     codec: VideoCodec = Field(default="h264",
                                             description="h264: RFC 6184 (libx264 via PyAV); mjpeg: RFC 2435")
-    host: str = Field(default="127.0.0.1", description="where the RTP goes (IPv4; loopback by default)")
+    host: Annotated[str, Cli(flag="--rtp-host", metavar="HOST")] = Field(
+        default="127.0.0.1", description="where the RTP goes (IPv4; loopback by default)")
     port: Annotated[int, Cli(flag="--preview-port", metavar="PORT")] = Field(
         default=5600, ge=1, le=65535, description="UAV 1's preview port; UAV n's is PORT + 2(n-1)")
     capture: bool = Field(default=False, description="also stream the capture frames")
