@@ -82,8 +82,8 @@ def main() -> int:
                 print("skynet up did not come up", file=sys.stderr)
                 return 1
             out["up_s"] = round(ready, 2)
-            for tool, argv in (("web", ["web", "--listen-web", f":{free_port()}"]),
-                               ("video", ["video", "--port", str(free_port() & ~1), "--sdp-dir", "sdp"])):
+            for tool, argv in (("web", ["web", "--web", f":{free_port()}"]),
+                               ("video", ["video", "--preview-port", str(free_port() & ~1), "--sdp-dir", "sdp"])):
                 times = []
                 for _ in range(a.runs):
                     p = start(cwd, *argv)
@@ -94,7 +94,7 @@ def main() -> int:
                 out[f"{tool}_attach"] = summary(times)
             elsewhere = cwd / "elsewhere"
             elsewhere.mkdir()
-            runs = [timed(elsewhere, "web", "--listen-web", f":{free_port()}") for _ in range(a.runs)]
+            runs = [timed(elsewhere, "web", "--web", f":{free_port()}") for _ in range(a.runs)]
             out["refused_no_network"] = {**summary([t for t, _, _ in runs]), "line": runs[-1][2]}
             assert subprocess.run([sys.executable, "-m", "services.cli", "keys", "init", str(cwd / "other"), "--uavs",
                                    "1"], env=ENV, capture_output=True).returncode == 0
@@ -103,7 +103,7 @@ def main() -> int:
         finally:
             stop(up)
         (cwd / "sdp-file").write_text("not a folder\n")
-        up = start(cwd, "up", "--uavs", "1", "--video", "h264", "--video-sdp", "sdp-file", "--video-port",
+        up = start(cwd, "up", "--uavs", "1", "--video", "h264", "--sdp-dir", "sdp-file", "--preview-port",
                    str(free_port() & ~1))
         try:
             t = until(up, "video did not start", 180)

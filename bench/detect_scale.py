@@ -64,7 +64,7 @@ class Config:
         self.instances = CONFIGS[name]
         self.procs = []
         for i, (part, workers) in enumerate(self.instances):
-            extra = [] if part is None else ["--partition", part, "--max-uav", str(args.uavs)]
+            extra = [] if part is None else ["--partition", part, "--uavs", str(args.uavs)]
             self.procs.append(group.start(f"det-{name}-{i}", [
                 "detector", "--fleet", self.fleet, "--multilink", "--workers", str(workers), *extra,
                 *[a for e in endpoints for a in ("--connect", e)]]))

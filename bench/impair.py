@@ -12,7 +12,7 @@ Writes the experiment's ``results.json`` content plus the goal verdicts to
 ``bench/results/impair.json``; the runs themselves go to a temporary folder (``--keep DIR`` to keep
 them, with the table and plots).
 
-    .venv/bin/python bench/impair.py [--speed 6] [--repeat 1] [--loss 0,20,40] [--delay 200]
+    .venv/bin/python bench/impair.py [--speed 6] [--repeat 1] [--loss-pct 0,20,40] [--delay-ms 200]
 """
 
 from __future__ import annotations
@@ -71,15 +71,15 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--speed", default="6")
     p.add_argument("--repeat", default="1")
-    p.add_argument("--loss", default="0,20,40")
-    p.add_argument("--delay", default="200")
+    p.add_argument("--loss-pct", dest="loss", default="0,20,40")
+    p.add_argument("--delay-ms", dest="delay", default="200")
     p.add_argument("--recovery", default="on,off")
-    p.add_argument("--timeout", default="300")
+    p.add_argument("--timeout-s", dest="timeout", default="300")
     p.add_argument("--keep", default=None, help="keep the runs, table and plots in this folder")
     p.add_argument("--out", default=str(Path(__file__).parent / "results" / "impair.json"))
     a = p.parse_args()
-    argv = ["--loss", a.loss, "--delay", a.delay, "--recovery", a.recovery, "--repeat", a.repeat,
-            "--speed", a.speed, "--links", "all/udp", "--timeout", a.timeout]
+    argv = ["--loss-pct", a.loss, "--delay-ms", a.delay, "--recovery", a.recovery, "--repeat", a.repeat,
+            "--speed", a.speed, "--links", "all/udp", "--timeout-s", a.timeout]
     args = experiment.build_parser().parse_args(argv)
     try:
         cells, runs = experiment.check_options(args)

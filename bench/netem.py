@@ -53,7 +53,7 @@ def start_echo(kind: str) -> tuple[subprocess.Popen, int]:
 
 def start_proxy(kind: str, target_port: int, impair: str = "") -> tuple[subprocess.Popen, int]:
     p = subprocess.Popen([sys.executable, "-m", "services.netem.cli", kind, "--target", f"127.0.0.1:{target_port}",
-                          "--impair", impair, "--seed", "0", "--interval", "3600"],
+                          "--impair", impair, "--seed", "0", "--interval-s", "3600"],
                          cwd=ROOT, stdout=subprocess.PIPE, text=True)
     line = p.stdout.readline()
     m = re.search(r"listening on 127\.0\.0\.1:(\d+)", line)

@@ -87,7 +87,7 @@ def run(codec: str, uavs: int, seconds: float, hz: float, tmp: Path, receiver: s
         assert gw.wait_for("router up", 30)
         base = free_port() & ~1
         sdp_dir = tmp / f"sdp-{codec}-{uavs}"
-        svc = group.start("video", ["video", "--fleet", "bench", "--multilink", "--codec", codec, "--port", str(base),
+        svc = group.start("video", ["video", "--fleet", "bench", "--multilink", "--codec", codec, "--preview-port", str(base),
                                     "--uavs", str(uavs), "--sdp-dir", str(sdp_dir), *[a for e in ends for a in ("--connect", e)]])
         assert svc.wait_for("video up", 30), svc.lines
         stamps: dict[int, float] = {}

@@ -93,7 +93,7 @@ def run(n: int, seconds: float) -> dict:
         port = free_port()
         token = new_token()
         group.env[TOKEN_ENV] = token
-        web = group.start("web", ["web", "--fleet", "bench", "--multilink", "--listen-web", f"127.0.0.1:{port}",
+        web = group.start("web", ["web", "--fleet", "bench", "--multilink", "--web", f"127.0.0.1:{port}",
                                   *[a for e in ends for a in ("--connect", e)]])
         assert web.wait_for("web up", 30), web.lines
         with Bus(BusConfig(mode="client", connect=ends, multilink=True), "bench", "uavs") as bus:

@@ -110,32 +110,35 @@ class EdgeConfig(BusOptions):
                                       "speed corrections")
     mavlink_video: Annotated[int | None, Cli(metavar="BASE_PORT")] = Field(
         default=None, ge=1, le=65535,
-        description="with --mavlink-gcs: announce the preview stream of skynet video --port BASE_PORT "
+        description="with --mavlink-gcs: announce the preview stream of skynet video --preview-port BASE_PORT "
                     "(this UAV's port BASE_PORT+2(uav-1)) as MAVLink VIDEO_STREAM_INFORMATION")
     home: Vec3 = Field(default=(0.0, 0.0, 0.0), description="launch point x,y,z (ENU m)")
     home_from_autopilot: bool = Field(default=False, description=(
         "--vehicle mavlink: the launch point is the autopilot's HOME_POSITION in the scenario's ENU frame (about "
         "its geodetic origin), not --home"))
-    rate: float = Field(default=_BOARD.rate_hz, gt=0.0, le=1000.0, description="state publication rate, Hz")
-    stale: float = Field(default=_BOARD.stale_s, gt=0.0, description="neighbour state considered stale after, s")
+    rate: Annotated[float, Cli(flag="--rate-hz", metavar="HZ")] = Field(
+        default=_BOARD.rate_hz, gt=0.0, le=1000.0, description="state publication rate, Hz")
+    stale: Annotated[float, Cli(flag="--stale-s", metavar="S")] = Field(
+        default=_BOARD.stale_s, gt=0.0, description="neighbour state considered stale after, s")
     formation_gain: float = Field(default=_BOARD.formation_gain, ge=0.0, le=1.0,
                                   description="share of the neighbours' mean position error corrected on board, 0..1")
     formation_size: int = Field(default=_BOARD.formation_size, ge=1,
                                 description="UAVs per formation: the board shares state with its formation only "
                                             "(SkyNet)")
-    failsafe_timeout: float = Field(default=_FAILSAFE.timeout_s, gt=0.0,
+    failsafe_timeout: Annotated[float, Cli(flag="--failsafe-timeout-s", metavar="S")] = Field(default=_FAILSAFE.timeout_s, gt=0.0,
                                     description="no ground-station heartbeat for this long while flying: failsafe, s")
     failsafe_action: Literal[ACTIONS] = Field(default=_FAILSAFE.action,  # type: ignore[valid-type]
                                               description="the link failsafe's action")
     failsafe_escalate: Literal[ESCALATIONS] = Field(  # type: ignore[valid-type]
-        default=_FAILSAFE.escalate_action, description="after a failsafe hold of --failsafe-escalate-after s: rtl, "
+        default=_FAILSAFE.escalate_action, description="after a failsafe hold of --failsafe-escalate-after-s: rtl, "
                                                        "land or none")
-    failsafe_escalate_after: Annotated[float, Cli(metavar="S")] = Field(default=_FAILSAFE.escalate_after_s, ge=0.0)
-    battery_low: float = Field(default=_FAILSAFE.battery_low, ge=0.0, le=1.0,
-                               description="battery failsafe: return to launch below")
-    battery_critical: float = Field(default=_FAILSAFE.battery_critical, ge=0.0, le=1.0,
-                                    description="battery failsafe: land below")
-    endurance: Annotated[float | None, Cli(metavar="S")] = Field(
+    failsafe_escalate_after: Annotated[float, Cli(flag="--failsafe-escalate-after-s", metavar="S")] = Field(
+        default=_FAILSAFE.escalate_after_s, ge=0.0, description="a failsafe hold lasting this long escalates, s")
+    battery_low: float = Field(default=_FAILSAFE.battery_low, ge=0.0, le=1.0, description=(
+        "battery failsafe: return to launch below this charge (fraction of full, 0..1)"))
+    battery_critical: float = Field(default=_FAILSAFE.battery_critical, ge=0.0, le=1.0, description=(
+        "battery failsafe: land below this charge (fraction of full, 0..1)"))
+    endurance: Annotated[float | None, Cli(flag="--endurance-s", metavar="S")] = Field(
         default=None, gt=0.0, description="simulated vehicle: hover time on a full battery, s (default 1200)")
     geofence: BoxArg | None = Field(default=None, description="x0,y0,z0,x1,y1,z1 (else from upload)")
     speed: float = Field(default=1.0, gt=0.0, description="simulation speed factor")
@@ -160,15 +163,16 @@ class EdgeConfig(BusOptions):
         default=IMAGERY_CACHE_FRAMES, ge=0, description="capture frames kept for retransmission to a detector that "
                                                         "lost them (0: no recovery, capture frames are best-effort "
                                                         "like previews)")
-    trust_window: Annotated[float, Cli(metavar="S", group="trust (see edge.trust)")] = Field(
-        default=10.0, gt=0.0, description="signed commands and heartbeats stamped further than this from now are stale")
-    mesh_uavs: Annotated[int | None, Cli(metavar="N", group="trust (see edge.trust)")] = Field(
+    trust_window: Annotated[float, Cli(flag="--trust-window-s", metavar="S", group="trust (see edge.trust)")] = Field(
+        default=10.0, gt=0.0, description="signed commands and heartbeats stamped further than this from now are "
+                                          "stale, s")
+    mesh_uavs: Annotated[int | None, Cli(flag="--uavs", metavar="N", group="trust (see edge.trust)")] = Field(
         default=None, ge=1, le=255, description="UAVs 1..N may link to this edge (ACL by certificate; default: those "
                                                 "of --keys)")
     replay_state: Annotated[str | None, Cli(metavar="FILE", group="trust (see edge.trust)")] = Field(
         default=None, description="where the replay window is kept (default: <keys>/uavN/replay.json; a read-only "
                                   "key set needs one)")
-    insecure: Annotated[bool, Cli(group="trust (see edge.trust)")] = Field(
+    insecure: Annotated[bool, Cli(group="trust (see edge.trust)", exclusive="keys")] = Field(
         default=False, description="accept unsigned commands and heartbeats, no TLS, no ACL (development only)")
 
     @model_validator(mode="after")

@@ -32,7 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     add_options(parser, AttachOptions)
     parser.add_argument("--uav", type=int, default=1, help="the UAV's id (default: %(default)s)")
     parser.add_argument("--command", choices=sorted(COMMANDS), default="hold", help="(default: %(default)s)")
-    parser.add_argument("--timeout", type=float, default=2.0, help="wait this long for the answer, s (default: %(default)s)")
+    parser.add_argument("--timeout-s", dest="timeout", type=float, default=2.0, help="wait this long for the answer, s (default: %(default)s)")
     args = parser.parse_args(argv)
     try:
         bus = open_bus(args, ROLE, sys.argv[1:] if argv is None else argv, name="command-uav")

@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_options(parser, AttachOptions)
     parser.add_argument("--count", type=int, default=0, help="stop after this many states (default: 0, never)")
-    parser.add_argument("--duration", type=float, default=0.0, help="stop after this many s (default: 0, never)")
+    parser.add_argument("--duration-s", dest="duration", type=float, default=0.0, help="stop after this many s (default: 0, never)")
     args = parser.parse_args(argv)
     done, lock, seen = threading.Event(), threading.Lock(), [0]
 

@@ -1,6 +1,6 @@
 """Read a mission's recording (mission.mcap) and print its channels, their message counts and the verdict.
 
-`skynet mission` (and `skynet gcs mission --out DIR`) records everything on the fleet's keys, and the
+`skynet mission` (and `skynet gcs --out DIR`) records everything on the fleet's keys, and the
 ground station's own entries, in DIR/mission.mcap; `load_record` rebuilds the mission's record from
 it alone, as `skynet report` does (services/recording/load.py). No network needed::
 

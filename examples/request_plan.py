@@ -34,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenario", default=None, metavar="FILE", help="(default: the paper's monorail bridge)")
     parser.add_argument("--uavs", type=int, default=3, help="UAVs 1..N in the formation (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="the planner's seed (default: %(default)s)")
-    parser.add_argument("--timeout", type=float, default=60.0, help="wait for the plan, s (default: %(default)s)")
+    parser.add_argument("--timeout-s", dest="timeout", type=float, default=60.0, help="wait for the plan, s (default: %(default)s)")
     args = parser.parse_args(argv)
     try:
         scenario = with_formation_size(load_scenario(args.scenario), args.uavs)

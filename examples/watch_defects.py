@@ -1,7 +1,7 @@
 """Print the detector's defect reports as they arrive: one line per analysed capture point.
 
 The detector analyses each capture frame of a mission and publishes a report. Beside `skynet up`, while a
-mission flies (`skynet gcs mission ...`; or run it beside `skynet mission`)::
+mission flies (`skynet gcs ...`; or run it beside `skynet mission`)::
 
     python examples/watch_defects.py --count 10
 
@@ -40,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_options(parser, AttachOptions)
     parser.add_argument("--count", type=int, default=0, help="stop after this many reports (default: 0, never)")
-    parser.add_argument("--duration", type=float, default=0.0, help="stop after this many s (default: 0, never)")
+    parser.add_argument("--duration-s", dest="duration", type=float, default=0.0, help="stop after this many s (default: 0, never)")
     args = parser.parse_args(argv)
     done, lock, seen = threading.Event(), threading.Lock(), [0]
 

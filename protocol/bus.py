@@ -135,8 +135,8 @@ CfgChange = Annotated[tuple[str, str], BeforeValidator(parse_cfg), PlainSerializ
 BusMode = Annotated[Mode, Cli(short="-m", group="bus")]
 
 
-#: ``--lease``; an edge redeclares the field with its own default (a short lease: a lost UAV is noticed)
-LeaseS = Annotated[float | None, Cli(metavar="S", group="bus"),
+#: ``--lease-s``; an edge redeclares the field with its own default (a short lease: a lost UAV is noticed)
+LeaseS = Annotated[float | None, Cli(flag="--lease-s", metavar="S", group="bus"),
                    Field(gt=0.0, le=3600.0, description="link lease, seconds")]
 
 
@@ -156,7 +156,7 @@ class BusOptions(CliModel):
     multilink: Annotated[bool, Cli(group="bus")] = Field(default=False, description="reliable on TCP, best-effort on UDP")
     shm: Annotated[bool, Cli(group="bus")] = Field(default=False, description="enable shared-memory transport")
     scouting: Annotated[bool, Cli(group="bus")] = Field(default=False, description="enable multicast scouting")
-    keys: Annotated[str | None, Cli(metavar="DIR", group="bus")] = Field(
+    keys: Annotated[str | None, Cli(metavar="DIR", group="bus", exclusive="keys")] = Field(
         default=None, description="fleet key set (skynet keys init): this node's TLS certificate for tls/ endpoints, "
                                   "signing and trusted keys")
 

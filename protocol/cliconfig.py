@@ -10,7 +10,14 @@ the parsed namespace, and renders a model as argv (what a launcher starts a chil
 * each value is validated as it is parsed, by the field's own type and constraints (a frame size is
   a pair of ints in the namespace already), and the whole model again at the end (cross-field rules):
   a bad value is argparse's one-line ``error:`` and exit status 2;
-* :func:`to_argv` writes only what differs from the defaults, so that ``parse(Model, to_argv(m)) == m``.
+* :func:`to_argv` writes only what differs from the defaults, so that ``parse(Model, to_argv(m)) == m``;
+* fields sharing a :attr:`Cli.exclusive` name are one argparse mutually exclusive group (and the model
+  refuses them together however it is built);
+* a parser written by hand (no model) shows its defaults too: :func:`show_defaults`.
+
+Naming (docs/cli.md; ``tests/test_cli_names.py`` checks it): one flag per concept on every command, a
+quantity's unit at the end of its flag (``--stale-s``, ``--rate-hz``, ``--delay-ms``, ``--loss-pct``,
+``--detect-max-mp``).
 
 No bus code here: the launcher imports the configs without Zenoh's or OpenCV's cost.
 """
@@ -25,7 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import BaseModel, ConfigDict, PydanticUserError, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, PydanticUserError, TypeAdapter, ValidationError, model_validator
 from pydantic.fields import FieldInfo
 
 M = TypeVar("M", bound=BaseModel)
@@ -41,6 +48,7 @@ class Cli:
     metavar: str | None = None
     group: str | None = None  # an argparse argument group's title
     hidden: bool = False  # not on the command line (set by the program, not the user)
+    exclusive: str | None = None  # fields with the same name: at most one of them given
 
 
 def _cli(info: FieldInfo) -> Cli:
@@ -114,10 +122,31 @@ def _parser_type(name: str, info: FieldInfo, item: bool) -> Callable[[str], Any]
     return arg_type(_value_type(info, item), name)
 
 
+def exclusive_groups(model: type[BaseModel]) -> dict[str, list[str]]:
+    """The model's mutually exclusive options: group name -> its fields (those with :attr:`Cli.exclusive`)."""
+    groups: dict[str, list[str]] = {}
+    for name, info in model.model_fields.items():
+        cli = _cli(info)
+        if cli.exclusive and not cli.hidden:
+            groups.setdefault(cli.exclusive, []).append(name)
+    return groups
+
+
 class CliModel(BaseModel):
-    """Base of the command-line configs: unknown fields refused, no NaN or infinity in a number."""
+    """Base of the command-line configs: unknown fields refused, no NaN or infinity in a number, at most
+    one option of each :attr:`Cli.exclusive` group away from its default."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _exclusive(self) -> Any:
+        for names in exclusive_groups(type(self)).values():
+            given = [n for n in names if getattr(self, n) != type(self).model_fields[n].get_default(
+                call_default_factory=True)]
+            if len(given) > 1:
+                flags = [flag_of(n, type(self).model_fields[n]) for n in given]
+                raise ValueError(f"{flags[0]}: not allowed with {', '.join(flags[1:])}")
+        return self
 
 
 def _group(parser: argparse.ArgumentParser, title: str | None) -> Any:
@@ -137,6 +166,8 @@ def add_options(parser: argparse.ArgumentParser, model: type[BaseModel],
     namespace holds typed values: the defaults, or what the field's type made of the text.
     """
     defaults = defaults or {}
+    exclusive: dict[str, Any] = {}  # Cli.exclusive -> its argparse group (in the group of its first field)
+    members = exclusive_groups(model)
     for name, info in model.model_fields.items():
         cli = _cli(info)
         if cli.hidden:
@@ -167,7 +198,39 @@ def add_options(parser: argparse.ArgumentParser, model: type[BaseModel],
             elif default not in (None, [], ()):
                 shown = ", ".join(_text(info, v, True) for v in default) if is_list else _text(info, default, False)
                 kw["help"] = f"{kw['help']} (default: {shown.replace('%', '%%')})".strip()
-        _group(parser, cli.group).add_argument(*flags, **kw)
+        container = _group(parser, cli.group)
+        others = [flag_of(n, model.model_fields[n]) for n in members.get(cli.exclusive or "", []) if n != name]
+        if others:  # the usage line brackets them together only when adjacent: the help says it always
+            kw["help"] = f"{kw['help']} (not with {', '.join(others)})".strip()
+        if cli.exclusive:
+            if cli.exclusive not in exclusive:
+                exclusive[cli.exclusive] = container.add_mutually_exclusive_group()
+            container = exclusive[cli.exclusive]
+        container.add_argument(*flags, **kw)
+    return parser
+
+
+def has_default(action: argparse.Action) -> bool:
+    """Whether an option has a default worth showing: not a switch's off, nothing (None) or an empty list
+    (``0`` is a default: ``False`` is not)."""
+    d = action.default
+    unset = d is None or d is False or d is argparse.SUPPRESS or (isinstance(d, (list, tuple)) and not d)
+    return bool(action.option_strings) and not unset \
+        and not isinstance(action, (argparse._HelpAction, argparse._VersionAction))
+
+
+def show_defaults(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Append ``(default: ...)`` to the help of every option of ``parser`` (and of its subcommands) that has a
+    default its help does not already name: a parser written by hand shows its defaults as
+    :func:`add_options` does."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in dict.fromkeys(action.choices.values()):  # an alias is the same parser
+                show_defaults(sub)
+        elif has_default(action) and "default" not in (action.help or ""):
+            shown = ",".join(map(str, action.default)) if isinstance(action.default, (list, tuple)) \
+                else str(action.default)
+            action.help = f"{action.help or ''} (default: {shown.replace('%', '%%')})".strip()
     return parser
 
 

@@ -144,6 +144,9 @@ def attach(args: argparse.Namespace, role: str, argv: list[str] | None = None) -
     must have the same CA). Returns the description; AttachError when the tool cannot attach.
     """
     if args.connect or args.config or args.scouting:
+        if args.network is not None:  # two answers to "where is the network": say so rather than pick one
+            raise AttachError("--network: not with -e/--connect, -c/--config or --scouting (each says where the "
+                              "network is)")
         return None
     path = network_path(args.network)
     desc = read(path)
@@ -182,7 +185,8 @@ def add_network_arg(parser: argparse.ArgumentParser) -> None:
     """``--network FILE``: the running network's description (default :data:`NETWORK_FILE`)."""
     parser.add_argument("--network", default=None, metavar="FILE",
                         help=f"the running network's description, used when no -e/--config is given "
-                             f"(default: ${NETWORK_ENV} or {NETWORK_FILE}, written by skynet up/mission)")
+                             f"(default: ${NETWORK_ENV} or {NETWORK_FILE}, written by skynet up/mission; not with "
+                             "-e/--config)")
 
 
 def explain_open_error(exc: BaseException, args: argparse.Namespace, desc: dict[str, Any] | None,
@@ -226,4 +230,5 @@ class AttachOptions(BusOptions):
     mode: BusMode = "client"
     network: Annotated[str | None, Cli(metavar="FILE")] = Field(
         default=None, description=f"the running network's description, used when no -e/--config is given "
-                                  f"(default: ${NETWORK_ENV} or {NETWORK_FILE}, written by skynet up/mission)")
+                                  f"(default: ${NETWORK_ENV} or {NETWORK_FILE}, written by skynet up/mission; not "
+                                  "with -e/--config)")

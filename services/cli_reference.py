@@ -51,7 +51,7 @@ def subcommands(text: str) -> list[str]:
     ['udp', 'tcp']
     >>> subcommands("usage: skynet plan [-h] mission|compare ...\\n")
     ['mission', 'compare']
-    >>> subcommands("usage: skynet web [-h] [--listen-web ADDR]\\n")
+    >>> subcommands("usage: skynet web [-h] [--web ADDR]\\n")
     []
     """
     found = SUBCOMMANDS.match(text)

@@ -14,6 +14,7 @@ from typing import Any
 
 from protocol import keys
 from protocol.bus import Bus, BusConfig, multilink_endpoints
+from protocol.cliconfig import show_defaults
 from protocol.links import TELEMETRY
 from protocol.messages import CommandAck, Hold, Message, Mode, VehicleState
 from services.orchestration.process import ProcessGroup, free_port_pair
@@ -21,9 +22,9 @@ from services.orchestration.process import ProcessGroup, free_port_pair
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="skynet demo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--count", type=int, default=10)
-    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET)
-    args = parser.parse_args(argv)
+    parser.add_argument("--count", type=int, default=10, help="messages each way")
+    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (key space prefix)")
+    args = show_defaults(parser).parse_args(argv)
     tcp, udp = free_port_pair()
     endpoints = multilink_endpoints("127.0.0.1", tcp, udp)
     with ProcessGroup() as group:

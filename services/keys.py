@@ -20,6 +20,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
+from protocol.cliconfig import show_defaults
 from protocol.keyset import KeySet, check_role
 from protocol.signing import key_id, load_public
 
@@ -391,7 +392,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="action", required=True)
     p = sub.add_parser("init", help="write a development key set (CA, per-node TLS certificates and signing keys)")
     p.add_argument("dir")
-    p.add_argument("--uavs", type=int, default=3)
+    p.add_argument("--uavs", type=int, default=3, metavar="N", help="UAVs 1..N get a certificate and a signing key")
     p.add_argument("--days", type=int, default=NODE_DAYS, help=f"node certificate validity (CA: {CA_DAYS} days)")
     p.add_argument("--host", action="append", default=[], help="extra SAN (address or name) on every certificate")
     p.add_argument("--san", action="append", default=[], metavar="ROLE=NAME[,NAME...]",
@@ -407,7 +408,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--days", type=int, default=NODE_DAYS, help="certificate validity")
     p = sub.add_parser("show", help="list the nodes, key ids and certificate expiry")
     p.add_argument("dir")
-    return parser
+    return show_defaults(parser)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -89,7 +89,7 @@ def gateway(group):
     endpoints = multilink_endpoints("127.0.0.1", tcp, udp)
     # no ingress limit on states (services/gateway/ingress.py, tested in tests/services/gateway/test_ingress.py):
     # the bus tests send states back to back through this router
-    svc = group.start("gateway", ["gateway", "--fleet", "test", "--multilink", "--period", "0.3",
+    svc = group.start("gateway", ["gateway", "--fleet", "test", "--multilink", "--period-s", "0.3",
                                   "--state-ingress-hz", "0",
                                   *[a for e in endpoints for a in ("--listen", e)]], ready=True)
     assert svc.wait_ready(20), "\n".join(svc.lines)  # its ready signal (protocol.readiness)

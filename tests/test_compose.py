@@ -383,7 +383,7 @@ def test_the_split_over_hosts_files_are_secure_by_default_with_the_hosts_address
         ends = _endpoints(argv)
         assert ends and all(e.startswith("tls/") for e in ends), (name, ends)
         assert {e.rsplit("?", 1)[1] for e in ends} == {"rel=1", "rel=0"} and argv[argv.index("--keys") + 1] == "/keys"
-        assert float(argv[argv.index("--lease") + 1]) == LINK_LEASE_S, name  # the edges' lease on both ends
+        assert float(argv[argv.index("--lease-s") + 1]) == LINK_LEASE_S, name  # the edges' lease on both ends
     # the anchor's read-only mount reaches every service that does not list its own volumes
     anchor = _load(ROOT / "compose/ground.yml")["x-skynet"]["volumes"]
     assert [_defaults(v) for v in anchor] == ["../.keys/split:/keys:ro"]
@@ -392,7 +392,7 @@ def test_the_split_over_hosts_files_are_secure_by_default_with_the_hosts_address
     # the edge: TLS to the gateway and its peers, the ACL by certificate, the replay window, no gossip links
     argv = _skynet_argv("edge", edge)
     assert all(e.startswith("tls/") for e in _endpoints(argv)) and argv[argv.index("--keys") + 1] == "/keys"
-    assert "--replay-state" in argv and "--mesh-uavs" in argv and float(argv[argv.index("--lease") + 1]) == LINK_LEASE_S
+    assert "--replay-state" in argv and "--uavs" in argv and float(argv[argv.index("--lease-s") + 1]) == LINK_LEASE_S
     assert "scouting/gossip/autoconnect:{router:[],peer:[]}" in argv
     assert [_defaults(v) for v in edge["volumes"]] == ["../.keys/split:/keys:ro", "edge-state:/state"]
     assert all(_defaults(p).endswith("/tcp") for p in edge["ports"])
@@ -471,7 +471,7 @@ def test_every_ground_node_has_the_edges_link_lease():
     services = _services()
     for name in ("gateway", "planner", "detector", "gcs"):
         argv = _skynet_argv(name, services[name])
-        assert float(argv[argv.index("--lease") + 1]) == LINK_LEASE_S, name
+        assert float(argv[argv.index("--lease-s") + 1]) == LINK_LEASE_S, name
 
 
 def test_the_base_files_homes_are_the_launchers():

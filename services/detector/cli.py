@@ -16,6 +16,8 @@ from pathlib import Path
 
 import cv2
 
+from protocol.cliconfig import show_defaults
+
 from .detect import METHODS, detect
 
 __all__ = ["main", "DEFAULT_METHOD"]
@@ -40,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", help="write eval.md and eval.json here")
     ap.add_argument("--sheet", help="write a contact sheet PNG here")
     ap.add_argument("--limit", type=int, help="only the first N images")
-    return parser
+    return show_defaults(parser)
 
 
 def _eval(a: argparse.Namespace) -> int:

@@ -49,11 +49,12 @@ class DetectorConfig(BusOptions):
     partition: Annotated[PartitionArg, Cli(metavar="K/N")] = Field(
         default=Partition(), description="analyse only the cameras of the UAVs with id %% N == K (one of N "
                                          "instances, named detector-K); 0/1: every camera")
-    max_uav: int = Field(default=MAX_UAV, ge=1, le=MAX_UAV,
-                         description="highest UAV id a partition subscribes to (one camera key per owned UAV)")
+    max_uav: Annotated[int, Cli(flag="--uavs", metavar="N")] = Field(
+        default=MAX_UAV, ge=1, le=MAX_UAV,
+        description="UAVs 1..N: the fleet a partition subscribes to (one camera key per owned UAV)")
     queue: int = Field(default=QUEUE_FRAMES, ge=1, le=100_000,
                        description="frames waiting for a worker before the oldest drop")
-    playout_delay: float = Field(default=0.05, ge=0.0, le=10.0, description="wait for a missing frame, s")
+    playout_delay: Annotated[float, Cli(flag="--playout-delay-s", metavar="S")] = Field(default=0.05, ge=0.0, le=10.0, description="wait for a missing frame, s")
     no_recovery: bool = Field(default=False, description="do not ask the cameras' caches for lost capture frames "
                                                          "(plain best-effort)")
     detect_max_mp: Annotated[float, Cli(metavar="MP")] = Field(

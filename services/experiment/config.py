@@ -6,7 +6,7 @@ from typing import Annotated, Any
 
 from pydantic import BeforeValidator, Field, PlainSerializer, model_validator
 
-from protocol.cliconfig import CliModel
+from protocol.cliconfig import Cli, CliModel
 
 from .grid import check_links, parse_list, parse_recovery
 
@@ -32,11 +32,11 @@ def _values_type(name: str, hi: float):
 class ExperimentConfig(CliModel):
     """The options of ``skynet experiment``."""
 
-    loss: _values_type("--loss", 100.0) = Field(  # type: ignore[valid-type]
+    loss: Annotated[_values_type("--loss-pct", 100.0), Cli(flag="--loss-pct", metavar="PCT[,PCT...]")] = Field(  # type: ignore[valid-type]
         default=(0.0, 5.0, 20.0, 40.0), description="random loss values, %%")
-    delay: _values_type("--delay", 60_000.0) = Field(  # type: ignore[valid-type]
+    delay: Annotated[_values_type("--delay-ms", 60_000.0), Cli(flag="--delay-ms", metavar="MS[,MS...]")] = Field(  # type: ignore[valid-type]
         default=(0.0, 50.0, 200.0), description="one-way delay values, ms")
-    jitter: _values_type("--jitter", 60_000.0) = Field(  # type: ignore[valid-type]
+    jitter: Annotated[_values_type("--jitter-ms", 60_000.0), Cli(flag="--jitter-ms", metavar="MS[,MS...]")] = Field(  # type: ignore[valid-type]
         default=(0.0,), description="jitter values, ms")
     recovery: Annotated[tuple[bool, ...], BeforeValidator(_recovery),
                         PlainSerializer(lambda v: ",".join("on" if x else "off" for x in v))] = Field(
@@ -45,11 +45,11 @@ class ExperimentConfig(CliModel):
     links: str = Field(default="all/udp", description="impaired links, in the launcher's --impair names (all/udp: "
                                                       "every best-effort link)")
     speed: float = Field(default=6.0, gt=0.0, lt=1000.0, description="simulation speed factor")
-    uavs: int = Field(default=3, ge=1, le=255, description="UAVs of each mission")
+    uavs: Annotated[int, Cli(metavar="N")] = Field(default=3, ge=1, le=255, description="UAVs of each mission")
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
     seed: int = Field(default=0, ge=0, description="run k of every cell uses seed + k")
     out: str | None = Field(default=None, description="results folder (default reports/experiment-<time>)")
-    timeout: float = Field(default=300.0, gt=0.0, description="wall-clock limit of one run, s (then: hung)")
+    timeout: Annotated[float, Cli(flag="--timeout-s", metavar="S")] = Field(default=300.0, gt=0.0, description="wall-clock limit of one run, s (then: hung)")
     dry_run: bool = Field(default=False, description="print the mission commands and stop")
 
     @model_validator(mode="after")

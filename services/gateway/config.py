@@ -19,7 +19,7 @@ class GatewayConfig(BusOptions):
     id: str = Field(default="1", pattern=r"^[A-Za-z0-9_-]+$", description="gateway id (key space)")
     host: str = Field(default="127.0.0.1", description="listen host when --port is used")
     port: int | None = Field(default=None, ge=1, le=65534, description="TCP port; UDP uses port+1 (multilink)")
-    period: float = Field(default=1.0, gt=0.0, le=3600.0, description="statistics period, s")
+    period: Annotated[float, Cli(flag="--period-s", metavar="S")] = Field(default=1.0, gt=0.0, le=3600.0, description="statistics period, s")
     state_ingress_hz: Annotated[float, Cli(metavar="HZ")] = Field(
         default=STATE_INGRESS_HZ, ge=0.0,
         description="states a connected session may send per UAV key through the gateway, at most one per 1/HZ "

@@ -1,6 +1,9 @@
-"""``skynet gcs mission``: run a mission over the bus and write its report.
+"""``skynet gcs``: run a mission over the bus and write its report.
 
-    skynet gcs mission --scenario FILE -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
+    skynet gcs --scenario FILE -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
+
+The mission is the ground station's one action, so it is the command itself (``skynet gcs mission ...``
+is accepted as the same command).
 
 Exit status 0 only when every UAV reached the goal and every capture point was imaged.
 """
@@ -9,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import time
 from pathlib import Path
 
@@ -126,17 +130,19 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """``skynet gcs``'s command line: ``mission`` takes the options of :class:`GcsMissionConfig`."""
-    parser = argparse.ArgumentParser(prog="skynet gcs", description="ground control station")
-    sub = parser.add_subparsers(dest="action", required=True)
-    add_options(sub.add_parser("mission", help="run a mission over the bus"), GcsMissionConfig)
-    return parser
+    """``skynet gcs``'s command line: the options of :class:`GcsMissionConfig`."""
+    parser = argparse.ArgumentParser(prog="skynet gcs",
+                                     description="ground control station: run a mission over the bus, write its report")
+    return add_options(parser, GcsMissionConfig)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``skynet gcs mission``: parse the command line, then :func:`run` the mission."""
+    """``skynet gcs [mission]``: parse the command line, then :func:`run` the mission."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if args[:1] == ["mission"]:  # the mission named as an action: the same command
+        args = args[1:]
     parser = build_parser()
-    return run(from_namespace(GcsMissionConfig, parser.parse_args(argv), parser))
+    return run(from_namespace(GcsMissionConfig, parser.parse_args(args), parser))
 
 
 def run(args: GcsMissionConfig) -> int:

@@ -1,4 +1,4 @@
-"""The ground control station's typed configuration (``skynet gcs mission``)."""
+"""The ground control station's typed configuration (``skynet gcs``)."""
 
 from __future__ import annotations
 
@@ -16,22 +16,22 @@ _MISSION = MissionOptions()
 
 
 class GcsMissionConfig(BusOptions):
-    """The options of ``skynet gcs mission``: a mission run over the bus, and its report."""
+    """The options of ``skynet gcs``: a mission run over the bus, and its report."""
 
     mode: BusMode = "client"
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
-    uavs: int = Field(default=len(_MISSION.uavs), ge=1, le=255, description="number of UAVs (ids 1..N)")
+    uavs: Annotated[int, Cli(metavar="N")] = Field(default=len(_MISSION.uavs), ge=1, le=255, description="number of UAVs (ids 1..N)")
     algorithm: str = Field(default=_MISSION.algorithm, pattern=r"^[a-z0-9+-]{1,32}$",
                            description="the planner's algorithm")
     seed: int = Field(default=_MISSION.seed, ge=0, description="the planner's seed")
     speed: float = Field(default=_MISSION.speed, gt=0.0, le=1000.0, description="the edges' simulation speed factor")
     out: str | None = Field(default=None, description="report folder")
     quiet: bool = Field(default=False, description="no live progress display")
-    appear_timeout: Annotated[float, Cli(metavar="S")] = Field(
-        default=_MISSION.appear_timeout_s, gt=0.0, description="wait this long for every UAV to appear")
-    ready_timeout: Annotated[float, Cli(metavar="S")] = Field(
+    appear_timeout: Annotated[float, Cli(flag="--appear-timeout-s", metavar="S")] = Field(
+        default=_MISSION.appear_timeout_s, gt=0.0, description="wait this long for every UAV to appear, s")
+    ready_timeout: Annotated[float, Cli(flag="--ready-timeout-s", metavar="S")] = Field(
         default=_MISSION.ready_timeout_s, gt=0.0,
-        description="wait this long for every UAV's autopilot to be ready before takeoff, then refuse")
+        description="wait this long for every UAV's autopilot to be ready before takeoff, then refuse, s")
     no_record: bool = Field(default=False, description="do not log the mission to OUT/mission.mcap")
     web: Annotated[str | None, Cli(metavar="[HOST]:PORT")] = Field(
         default=None, description="serve the live web page of the fleet there (e.g. :8080; loopback unless a host "

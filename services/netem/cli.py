@@ -40,7 +40,7 @@ nothing and never stops the proxy. The client side::
     skynet netem ctl 127.0.0.1:9100 stats
 
 prints the reply as one JSON line; exit 0 when the proxy accepted the command, 2 when it
-refused it (the error on stderr), 1 when no reply came (``--timeout``, default 3 s).
+refused it (the error on stderr), 1 when no reply came (``--timeout-s``, default 3 s).
 """
 
 from __future__ import annotations
@@ -52,9 +52,10 @@ import sys
 from typing import Any
 
 from protocol.bus import stopping_on_signals
+from protocol.cliconfig import show_defaults
 from protocol.readiness import notify_ready
 from services.netem.control import ControlServer, send_control
-from services.netem.model import Impairment
+from services.netem.model import Impairment, parse_impair_arg
 from services.netem.proxy import DIRECTIONS, TcpProxy, UdpProxy, format_address, parse_address
 from services.netem.schedule import ScheduleError, Step, load_schedule
 
@@ -68,19 +69,23 @@ def build_parser() -> argparse.ArgumentParser:
     for kind in ("udp", "tcp"):
         _proxy_arguments(commands.add_parser(kind, help=f"run a {kind.upper()} impairment proxy"))
     _ctl_arguments(commands.add_parser("ctl", help="send one command to a running proxy's control channel"))
-    return parser
+    return show_defaults(parser)
 
 
 def _proxy_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--listen", type=parse_address, default=("127.0.0.1", 0),
                         help="HOST:PORT the node connects to (port 0 = any free port)")
     parser.add_argument("--target", type=parse_address, required=True, help="HOST:PORT of the router")
-    parser.add_argument("--impair", default="", help='netem-like impairment, e.g. "delay 50ms jitter 10ms loss 2%%"')
+    parser.add_argument("--impair", default="", metavar="SPEC",
+                        help='netem-like impairment of this link, e.g. "delay 50ms jitter 10ms loss 2%%" (the '
+                             "launcher's --impair grammar without its LINK=)")
     parser.add_argument("--direction", choices=DIRECTIONS, default="both",
                         help="impair client->target (up), target->client (down) or both")
     parser.add_argument("--seed", type=int, default=None, help="random seed (reproducible decisions)")
-    parser.add_argument("--interval", type=float, default=1.0, help="seconds between counter lines")
-    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    parser.add_argument("--interval-s", type=float, default=1.0, dest="interval", metavar="S",
+                        help="seconds between counter lines")
+    parser.add_argument("--duration-s", type=float, default=None, dest="duration", metavar="S",
+                        help="stop after this many seconds")
     parser.add_argument("--json", action="store_true", help="print counters as JSON lines")
     parser.add_argument("--schedule", metavar="FILE", default=None,
                         help="play a schedule file of timed changes (at 10s cut 5s ...)")
@@ -91,13 +96,14 @@ def _proxy_arguments(parser: argparse.ArgumentParser) -> None:
 def _ctl_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("address", type=parse_address, help="HOST:PORT of the control channel")
     parser.add_argument("command", nargs="+", help='set SPEC | cut [T] | restore | clear | stats')
-    parser.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the reply")
+    parser.add_argument("--timeout-s", type=float, default=3.0, dest="timeout", metavar="S",
+                        help="seconds to wait for the reply")
 
 
 def ctl(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """``skynet netem ctl HOST:PORT COMMAND...``: print the reply; 0 accepted, 2 refused, 1 no reply."""
     if not args.timeout > 0:
-        parser.error("--timeout must be > 0")
+        parser.error("--timeout-s must be > 0")
     command = args.command[0] if len(args.command) == 1 else shlex.join(args.command)
     try:
         reply = send_control(args.address, command, timeout_s=args.timeout)
@@ -139,11 +145,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.kind == "ctl":
         return ctl(args, parser)
     if not args.interval > 0:
-        parser.error("--interval must be > 0")
+        parser.error("--interval-s must be > 0")
     try:
-        impairment = Impairment.parse(args.impair)
+        impairment = parse_impair_arg(args.impair, named=False).impairment
     except ValueError as e:
-        parser.error(f"--impair: {e}")
+        parser.error(str(e))
     steps: list[Step] = []
     if args.schedule is not None:
         try:

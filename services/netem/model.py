@@ -655,3 +655,61 @@ class Impairer:
     def stats(self) -> dict[str, Any]:
         """Counters as a plain dict (JSON-ready)."""
         return self.counters.as_dict()
+
+
+# ---------------------------------------------------------------------------- --impair
+#: the link classes an ``--impair`` value may name
+IMPAIR_CLASSES = ("udp", "tcp")
+
+
+@dataclass(frozen=True)
+class ImpairArg:
+    """One ``--impair`` value, ``[LINK[/udp|/tcp]=]SPEC``: which links (None: not named) and class (None: both)."""
+
+    link: str | None
+    cls: str | None
+    spec: str
+    impairment: Impairment
+
+
+def parse_impair_arg(text: str, *, named: bool | None = None) -> ImpairArg:
+    """Read an ``--impair`` value, the one grammar of every command that takes one: ``[LINK[/udp|/tcp]=]SPEC``
+    with SPEC as :meth:`Impairment.parse` reads it (``skynet up``/``mission``: LINK defaults to every link;
+    ``skynet netem``: one proxy is one link, so no LINK). ``named``: True requires LINK=, False refuses it.
+
+    Raises ValueError with a one-line message naming the value.
+
+    >>> parse_impair_arg("uav2/udp=delay 50ms loss 2%").cls
+    'udp'
+    >>> parse_impair_arg("delay 50ms").link is None
+    True
+    >>> parse_impair_arg("uav2=", named=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: --impair 'uav2=': no SPEC after '=' (e.g. uav2="delay 50ms loss 2%")
+    """
+    if not isinstance(text, str):
+        raise ValueError(f"--impair: expected text, got {type(text).__name__}")
+    head, sep, spec = text.partition("=")
+    link = cls = None
+    if sep:
+        link, slash, cls_text = head.strip().partition("/")
+        if not link:
+            raise ValueError(f"--impair {text!r}: no LINK before '=' (LINK[/udp|/tcp]=SPEC)")
+        if slash:
+            if cls_text not in IMPAIR_CLASSES:
+                raise ValueError(f"--impair {text!r}: class {cls_text!r} is not udp or tcp")
+            cls = cls_text
+        if not spec.strip():
+            raise ValueError(f"--impair {text!r}: no SPEC after '=' (e.g. {link}=\"delay 50ms loss 2%\")")
+    else:
+        spec = head
+    if named and link is None:
+        raise ValueError(f"--impair {text!r}: name the link, LINK[/udp|/tcp]=SPEC (e.g. all=\"{text.strip()}\")")
+    if named is False and link is not None:
+        raise ValueError(f"--impair {text!r}: this proxy is one link; give SPEC alone (e.g. \"{spec.strip()}\")")
+    try:
+        impairment = Impairment.parse(spec)
+    except ValueError as e:
+        raise ValueError(f"--impair {text!r}: {e}") from None
+    return ImpairArg(link, cls, spec.strip(), impairment)

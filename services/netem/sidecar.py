@@ -11,9 +11,10 @@ import sys
 import time
 from dataclasses import dataclass
 
+from protocol.cliconfig import show_defaults
 from protocol.signals import stop_event_on_signals
 from services.netem.cli import summary
-from services.netem.model import Impairment
+from services.netem.model import parse_impair_arg
 from services.netem.proxy import Address, TcpProxy, UdpProxy, format_address, parse_address
 
 __all__ = ["LinkSpec", "parse_link", "idle_proxies", "build_parser", "main"]
@@ -62,13 +63,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--link", required=True, help="the link's name, for the log (e.g. uav2)")
     p.add_argument("--tcp", action="append", default=[], metavar="LISTEN=TARGET", help="a TCP proxy (repeatable)")
     p.add_argument("--udp", action="append", default=[], metavar="LISTEN=TARGET", help="a UDP proxy (repeatable)")
-    p.add_argument("--impair", default="", help='netem-like impairment, e.g. "delay 100ms loss 2%% after 8s"')
+    p.add_argument("--impair", default="", metavar="SPEC",
+                   help='netem-like impairment, e.g. "delay 100ms loss 2%% after 8s" (skynet netem --impair)')
     p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--expect", type=float, default=60.0,
+    p.add_argument("--expect-s", type=float, default=60.0, dest="expect", metavar="S",
                    help="fail (exit 4) when a proxy has seen no packet this long after the start, s; 0: never")
-    p.add_argument("--resolve-timeout", type=float, default=30.0, help="how long to wait for a target's name, s")
-    p.add_argument("--interval", type=float, default=10.0, help="seconds between counter lines")
-    return p
+    p.add_argument("--resolve-timeout-s", type=float, default=30.0, dest="resolve_timeout", metavar="S",
+                   help="how long to wait for a target's name, s")
+    p.add_argument("--interval-s", type=float, default=10.0, dest="interval", metavar="S",
+                   help="seconds between counter lines")
+    return show_defaults(p)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         links = [parse_link("tcp", t) for t in args.tcp] + [parse_link("udp", t) for t in args.udp]
-        impairment = Impairment.parse(args.impair)
+        impairment = parse_impair_arg(args.impair, named=False).impairment
     except ValueError as e:
         print(f"netem side-car {args.link}: {e}", file=sys.stderr, flush=True)
         return EXIT_USAGE

@@ -10,7 +10,7 @@ the certificate's name check) runs end to end: the bridges carry ciphertext.
 Each accepted connection opens one to the target and copies both ways until either side closes; a
 target that refuses is logged and the accepted connection closed. Bounded: at most ``--max-conns``
 connections at once, 64 KiB reads, and no connection stays idle: one that carries no byte either way for
-``--idle-timeout`` seconds is closed, and a new connection at the limit takes the place of the one idle the
+``--idle-timeout-s`` seconds is closed, and a new connection at the limit takes the place of the one idle the
 longest when that one has been idle :data:`EVICT_IDLE_S` or more (otherwise it is closed at once); all
 counted. A Zenoh link is never that quiet: it sends a keep-alive every lease/4 (2.5 s with the default
 10 s lease, ``transport/link/tx/lease``), so only a dead or hostile connection is closed, and a local process
@@ -27,11 +27,12 @@ import signal
 import time
 from dataclasses import dataclass
 
+from protocol.cliconfig import show_defaults
 from protocol.readiness import notify_ready
 
 log = logging.getLogger("skynet.bridge")
 CHUNK = 1 << 16
-#: default --idle-timeout, s: six Zenoh leases (10 s), 24 keep-alive periods
+#: default --idle-timeout-s, s: six Zenoh leases (10 s), 24 keep-alive periods
 IDLE_TIMEOUT_S = 60.0
 #: a connection idle this long gives its place to a new one at --max-conns: four keep-alive periods of the
 #: default lease, so a live Zenoh link is never taken for an idle one
@@ -187,11 +188,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", type=address, required=True, help="tcp:HOST:PORT or unix:PATH to accept on")
     p.add_argument("--target", type=address, required=True, help="tcp:HOST:PORT or unix:PATH to forward to")
     p.add_argument("--max-conns", type=int, default=64, help="connections at once (more are closed, counted)")
-    p.add_argument("--idle-timeout", type=float, default=IDLE_TIMEOUT_S, metavar="S",
+    p.add_argument("--idle-timeout-s", type=float, default=IDLE_TIMEOUT_S, metavar="S", dest="idle_timeout",
                    help=f"close a connection that carries no byte either way for S seconds (default "
                         f"{IDLE_TIMEOUT_S:g}; keep it above the Zenoh keep-alive period, lease/4, of the links "
                         "it carries)")
-    return p
+    return show_defaults(p)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -199,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.max_conns < 1:
         raise SystemExit("skynet bridge: --max-conns must be at least 1")
     if not 0.1 <= args.idle_timeout <= 86400:
-        raise SystemExit("skynet bridge: --idle-timeout must be within 0.1..86400 s")
+        raise SystemExit("skynet bridge: --idle-timeout-s must be within 0.1..86400 s")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     bridge = Bridge(args.listen, args.target, args.max_conns, args.idle_timeout)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field, model_validator
+from pydantic import AfterValidator, BaseModel, Field, model_validator
 
 from edge.config import CAPTURE_LINKS, FRAME_SIZE, EdgeConfig, Flight, FrameSize, Niceness, RateHz, Vehicle
 from protocol import keys
@@ -29,6 +29,18 @@ from .fleet_load import EDGE_NICE, GCS_STATE_BUDGET, NICE_ABOVE, PREVIEW_BUDGET
 FAULT = '"AT ACTION TARGET [for D]"'
 
 
+def _impair(text: str) -> str:
+    """An ``--impair`` value read by the one grammar (its link names are checked against the fleet in the plan)."""
+    from services.netem.model import parse_impair_arg
+
+    parse_impair_arg(text)
+    return text
+
+
+#: one ``--impair [LINK[/udp|/tcp]=]SPEC``
+ImpairItem = Annotated[str, AfterValidator(_impair)]
+
+
 def _default(model: type[BaseModel], name: str) -> Any:
     """A service's own default for one of its options (one place for each value)."""
     return model.model_fields[name].get_default(call_default_factory=True)
@@ -37,7 +49,7 @@ def _default(model: type[BaseModel], name: str) -> Any:
 class LaunchConfig(CliModel):
     """The options of ``skynet up``: the fleet, its sites, impairments, faults, trust and extra services."""
 
-    uavs: int = Field(default=3, ge=1, le=255, description="number of UAVs")
+    uavs: Annotated[int, Cli(metavar="N")] = Field(default=3, ge=1, le=255, description="number of UAVs")
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
     speed: float = Field(default=4.0, description="simulation speed factor (1 = real time)")
     camera: str = Field(default=_default(EdgeConfig, "camera"), description="synthetic | an image folder | video:<url>")
@@ -88,9 +100,9 @@ class LaunchConfig(CliModel):
     sim_rc_centred: bool = Field(default=False, description=(
         "--vehicle mavlink: the sim autopilots have a pilot's RC on with centred sticks (LOITER holds; without "
         "RC it descends, as ArduCopter does)"))
-    ready_timeout: Annotated[float, Cli(metavar="S")] = Field(
+    ready_timeout: Annotated[float, Cli(flag="--ready-timeout-s", metavar="S")] = Field(
         default=_default(GcsMissionConfig, "ready_timeout"), gt=0.0,
-        description="the ground station waits this long for every UAV's autopilot to be ready, then refuses")
+        description="the ground station waits this long for every UAV's autopilot to be ready, then refuses, s")
     flight: Flight = Field(default=_default(EdgeConfig, "flight"), description=(
         "--vehicle mavlink: guided (position targets) or auto (a waypoint mission flown in AUTO)"))
     method: Method = Field(default=_default(DetectorConfig, "method"), description="the detector's method")
@@ -102,11 +114,11 @@ class LaunchConfig(CliModel):
     rcu_site: Annotated[list[str], Cli(metavar="NAME=K")] = Field(default=[], description=(
         "attach an RCU to site K's gateway (repeatable; default site 0): planner, detector (every instance) or "
         "detector-K"))
-    fleet: str = keys.DEFAULT_FLEET
+    fleet: str = Field(default=keys.DEFAULT_FLEET, description="fleet name (key space prefix)")
     seed: int = Field(default=0, description="seeds the simulation and every proxy (per link)")
-    impair: Annotated[list[str], Cli(metavar="NAME[/udp|/tcp]=SPEC")] = Field(default=[], description=(
+    impair: Annotated[list[ImpairItem], Cli(metavar="[LINK[/udp|/tcp]=]SPEC")] = Field(default=[], description=(
         'netem impairment on a link or group of links (repeatable, later wins), e.g. uav2="delay 50ms loss 2%%"; '
-        "SPEC as in skynet netem"))
+        "no LINK: every link; SPEC as in skynet netem --impair"))
     mesh: Literal["direct", "proxied"] | None = Field(default=None, description=(
         "direct: edges dial each other straight; proxied: through a proxy pair per SkyNet link (default: proxied when "
         "a SkyNet link is impaired or faulted)"))
@@ -115,18 +127,19 @@ class LaunchConfig(CliModel):
     fault: Annotated[list[str], Cli(metavar=FAULT)] = Field(default=[], description=(
         "scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|detector, "
         "partition uavI-uavJ|uavN|skynet; AT from the network start"))
-    keys: Annotated[str | None, Cli(metavar="DIR")] = Field(default=None, description=(
+    keys: Annotated[str | None, Cli(metavar="DIR", exclusive="keys")] = Field(default=None, description=(
         f"fleet key set (skynet keys init); default: a development set in ${trustmode.KEYS_ENV} or "
         f"{trustmode.DEFAULT_KEYS}"))
     accept_guard: bool = Field(default=False, description=(
         "the gateways accept TLS connections through a guard that drops those not starting a TLS handshake "
         "(connect-and-close or silent floods; services/gateway/guard.py, bench/accept.py)"))
-    insecure: bool = Field(default=False, description="no TLS, no access control, unsigned commands: development only")
+    insecure: Annotated[bool, Cli(exclusive="keys")] = Field(
+        default=False, description="no TLS, no access control, unsigned commands: development only")
     video: VideoCodec | None = Field(default=None, description=(
-        "also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:PORT+2(n-1) (--video-port)"))
-    video_sdp: str = Field(default=_default(VideoConfig, "sdp_dir"),
+        "also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:PORT+2(n-1) (--preview-port)"))
+    video_sdp: Annotated[str, Cli(flag="--sdp-dir", metavar="DIR")] = Field(default=_default(VideoConfig, "sdp_dir"),
                            description="folder of the video streams' SDP files (with --video)")
-    video_port: Annotated[int, Cli(metavar="PORT")] = Field(default=_default(VideoConfig, "port"), description=(
+    video_port: Annotated[int, Cli(flag="--preview-port", metavar="PORT")] = Field(default=_default(VideoConfig, "port"), description=(
         "UAV 1's preview port (with --video); UAV n's is PORT + 2(n-1)"))
     web: Annotated[str | None, Cli(metavar="[HOST]:PORT")] = Field(default=None, description=(
         "serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)"))

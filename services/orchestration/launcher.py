@@ -9,7 +9,7 @@ this process (a Zenoh client, with the live progress display) and writes the rep
 status is the mission's.
 
 Impairment experiments (link names and grammar in :mod:`services.orchestration.topology`):
-``--impair NAME[/udp|/tcp]=SPEC`` puts user-space netem proxies (:mod:`services.netem`, a TCP and
+``--impair [NAME[/udp|/tcp]=]SPEC`` puts user-space netem proxies (:mod:`services.netem`, a TCP and
 a UDP one per link) on the named links: ``uavN``, ``planner``, ``detector``, ``gcs`` (that node's
 uplink to the gateway — for an edge, the paper's 4G hop), ``uavI-uavJ`` (a SkyNet link between
 two edges), ``uplinks``, ``skynet``, ``all``; ``/udp`` or ``/tcp`` impairs only the best-effort

@@ -415,7 +415,7 @@ def web_config(o: LaunchConfig, bus: dict[str, Any]):
 
 
 def netem_link_argv(local: int, target: str) -> list[str]:
-    return ["netem", "tcp", "--listen", f"{HOST}:{local}", "--target", target, "--interval", "60"]
+    return ["netem", "tcp", "--listen", f"{HOST}:{local}", "--target", target, "--interval-s", "60"]
 
 
 def bridge_argv(listen: str, target: str) -> list[str]:

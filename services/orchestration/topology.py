@@ -11,9 +11,9 @@ Link names
 * an uplink is named by its node: ``uav1`` .. ``uavN``, ``planner``, ``detector``, ``gcs``;
 * a SkyNet link by its two edges, lower id first: ``uav1-uav2``.
 
-``--impair NAME[/udp|/tcp]=SPEC`` (repeatable): NAME is a link name or a
-group — ``uplinks`` (every node's uplink), ``skynet`` (every SkyNet link), ``all`` (both). The
-suffix picks the reliability class: ``/udp`` the best-effort link, ``/tcp`` the reliable one,
+``--impair [NAME[/udp|/tcp]=]SPEC`` (repeatable; :func:`services.netem.model.parse_impair_arg`): NAME
+is a link name (none: ``all``) or a group — ``uplinks`` (every node's uplink), ``skynet`` (every SkyNet
+link), ``all`` (both). The suffix picks the reliability class: ``/udp`` the best-effort link, ``/tcp`` the reliable one,
 none = both (zenoh's multilink setup, ZENOH.md "One link per reliability class"). SPEC is the
 netem string of :meth:`services.netem.model.Impairment.parse`. Later items override earlier ones
 for the same link and class.
@@ -140,30 +140,24 @@ class Impairments:
 
 
 def parse_impair(items: Iterable[str], links: Links) -> Impairments:
-    """Read ``--impair NAME[/udp|/tcp]=SPEC`` items (later ones override earlier ones).
+    """Read ``--impair [NAME[/udp|/tcp]=]SPEC`` items (:func:`services.netem.model.parse_impair_arg`; no NAME:
+    every link, ``all``); later ones override earlier ones.
 
     Raises ValueError with a one-line message naming the bad item (unknown link, unknown class,
-    an empty or invalid SPEC — checked with :meth:`Impairment.parse`).
+    an empty or invalid SPEC).
     """
-    from services.netem.model import Impairment
+    from services.netem.model import parse_impair_arg
 
     out = Impairments()
     for item in items:
-        name, sep, spec = item.partition("=")
-        name, spec = name.strip(), spec.strip()
-        if not sep or not name or not spec:
-            raise ValueError(f"--impair wants NAME=SPEC (NAME[/udp|/tcp]), got {item!r}")
-        base, slash, cls = name.partition("/")
-        if slash and cls not in CLASSES:
-            raise ValueError(f"--impair {item!r}: class {cls!r} is not udp or tcp")
+        arg = parse_impair_arg(item)
         try:
-            Impairment.parse(spec)
+            targets = links.resolve(arg.link or "all")
         except ValueError as e:
             raise ValueError(f"--impair {item!r}: {e}") from None
-        targets = links.resolve(base)
         for link in targets:
-            for c in ([cls] if slash else CLASSES):
-                out.specs.setdefault(link, {})[c] = spec
+            for c in ([arg.cls] if arg.cls else CLASSES):
+                out.specs.setdefault(link, {})[c] = arg.spec
     return out
 
 

@@ -17,6 +17,8 @@ import json
 import sys
 from pathlib import Path
 
+from protocol.cliconfig import show_defaults
+
 __all__ = ["main"]
 
 
@@ -49,7 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(ap)
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--out", default="bench/results/plan.json")
-    return parser
+    return show_defaults(parser)
 
 
 def _plan(a: argparse.Namespace) -> int:

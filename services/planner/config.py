@@ -16,7 +16,7 @@ class PlannerConfig(BusOptions):
     """The options of the planner RCU."""
 
     mode: BusMode = "client"
-    time_budget: Annotated[float, Cli(metavar="S")] = Field(
+    time_budget: Annotated[float, Cli(flag="--time-budget-s", metavar="S")] = Field(
         default=TIME_BUDGET_S, gt=0.0, le=86400.0,
         description="longest a plan request may take, s; then it is answered 'timeout' (services.planner.limits)")
     anytime: bool = Field(default=False, description="when the time budget runs out, answer with the best "

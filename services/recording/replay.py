@@ -12,6 +12,7 @@ from pathlib import Path
 
 from protocol import keys
 from protocol.bus import Bus, Publisher, add_bus_args, setup_logging, stop_event_on_signals
+from protocol.cliconfig import show_defaults
 from protocol.links import COMMAND, class_of_topic
 from services.attach import add_network_arg, open_bus
 
@@ -82,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "identity may put nothing on the live fleet's keys)")
     parser.add_argument("--reliable", action="store_true",
                         help="every sample reliable and blocking (nothing dropped), not on its own link class")
-    return parser
+    return show_defaults(parser)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,8 +15,10 @@ from .server import TOKEN_ENV, parse_listen
 class WebConfig(AttachOptions):
     """The options of the live web page."""
 
-    listen_web: str = Field(default=":8080", description="[HOST]:PORT of the page (loopback by default)")
-    rate: float = Field(default=10.0, ge=1.0, le=30.0, description="snapshots per second on the WebSocket")
+    listen_web: Annotated[str, Cli(flag="--web", metavar="[HOST]:PORT")] = Field(
+        default=":8080", description="[HOST]:PORT of the page (loopback by default)")
+    rate: Annotated[float, Cli(flag="--rate-hz", metavar="HZ")] = Field(
+        default=10.0, ge=1.0, le=30.0, description="snapshots per second on the WebSocket, Hz")
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
     token: str | None = Field(default=None, min_length=16, repr=False,
                               description=f"the page's access token (default: ${TOKEN_ENV}, else random per start; "

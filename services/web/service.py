@@ -1,4 +1,4 @@
-"""The live web page bound to the bus: ``skynet web`` and ``skynet gcs mission --web :8080``.
+"""The live web page bound to the bus: ``skynet web`` and ``skynet gcs --web :8080``.
 
 Design notes: docs/operator-view.md (services/web/service.py).
 """

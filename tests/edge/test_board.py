@@ -64,7 +64,7 @@ def fleet(group, gateway):
         edges[uav] = group.start(f"uav{uav}", [
             "edge", "--uav", str(uav), "--fleet", FLEET, "--multilink", "--camera", "none",
             *[a for e in gateway for a in ("--connect", e)], "--listen", "tcp/127.0.0.1:0",
-            "--home", home, "--speed", "4", "--failsafe-timeout", "2", "--geofence", "0,0,0,100,100,40"])
+            "--home", home, "--speed", "4", "--failsafe-timeout-s", "2", "--geofence", "0,0,0,100,100,40"])
     for svc in edges.values():
         assert svc.wait_ready(30), "\n".join(svc.lines)
     return edges
@@ -135,13 +135,13 @@ def test_imagery_cache_option_defaults_to_the_runtime_cache_and_refuses_negative
 def test_failsafe_escalates_to_rtl_refuses_a_stale_resume_and_the_battery_failsafe_returns(group, gateway):
     """with the ground station killed a UAV used to hold for ever, and a Resume that overtook the
     first heartbeat resumed a UAV that failed safe again at once. Now the hold escalates to RTL after
-    --failsafe-escalate-after (here 2 s) and the UAV comes down; a Resume with no fresh heartbeat is refused.
-    A second UAV with a short battery (--endurance) returns to launch when it runs low."""
+    --failsafe-escalate-after-s (here 2 s) and the UAV comes down; a Resume with no fresh heartbeat is refused.
+    A second UAV with a short battery (--endurance-s) returns to launch when it runs low."""
     common = ["--fleet", FLEET, "--multilink", "--camera", "none", *[a for e in gateway for a in ("--connect", e)],
               "--listen", "tcp/127.0.0.1:0", "--speed", "4", "--geofence", "0,0,0,100,100,40"]
-    e1 = group.start("uav1", ["edge", "--uav", "1", "--home", "10,10,0", "--failsafe-timeout", "1",
-                              "--failsafe-escalate-after", "2", *common])
-    e2 = group.start("uav2", ["edge", "--uav", "2", "--home", "20,10,0", "--endurance", "60",
+    e1 = group.start("uav1", ["edge", "--uav", "1", "--home", "10,10,0", "--failsafe-timeout-s", "1",
+                              "--failsafe-escalate-after-s", "2", *common])
+    e2 = group.start("uav2", ["edge", "--uav", "2", "--home", "20,10,0", "--endurance-s", "60",
                               "--battery-low", "0.8", *common])
     for svc in (e1, e2):
         assert svc.wait_ready(30), "\n".join(svc.lines)

@@ -44,10 +44,10 @@ def secure_fleet(group, keyset):
     gw = [f"tls/127.0.0.1:{gw_port}"]
     edge1 = f"tls/127.0.0.1:{edge_port}"
     g = group.start("gateway", ["gateway", "--fleet", FLEET, "--keys", str(keyset), "--listen", gw[0],
-                                "--period", "0.3"])
+                                "--period-s", "0.3"])
     assert g.wait_ready(20), "\n".join(g.lines)
     common = ["--fleet", FLEET, "--keys", str(keyset), "--camera", "none", "--speed", "4",
-              "--failsafe-timeout", "2", "--geofence", "0,0,0,100,100,40", "--connect", gw[0]]
+              "--failsafe-timeout-s", "2", "--geofence", "0,0,0,100,100,40", "--connect", gw[0]]
     edges = {1: group.start("uav1", ["edge", "--uav", "1", "--home", "10,10,0", "--listen", edge1, *common])}
     assert edges[1].wait_ready(30), "\n".join(edges[1].lines)
     edges[2] = group.start("uav2", ["edge", "--uav", "2", "--home", "14,10,0", "--connect", edge1,
@@ -173,7 +173,7 @@ def test_every_attack_of_the_issue_fails(secure_fleet, keyset, tmp_path, group):
     edge.proc.kill()
     edge.proc.wait()
     # (a long stale window, so that only the persisted sequence can refuse it)
-    restarted = group.start("uav1-again", [*edge.args, "--trust-window", "600"])
+    restarted = group.start("uav1-again", [*edge.args, "--trust-window-s", "600"])
     assert restarted.wait_ready(30), "\n".join(restarted.lines)
     with Bus(tls(gcs_ks, "client", gw), FLEET, "gcs2") as gcs:
         assert wait_until(lambda: (gcs.request(cmd1, good, expect=CommandAck, timeout=1.0)).ok, 30)

@@ -52,7 +52,7 @@ def network(tmp_path_factory, dev_keys):
 
 
 def test_fleet_states_prints_every_uavs_state(network):
-    proc = run_example("fleet_states.py", "--count", "30", "--duration", "60", cwd=network.folder)
+    proc = run_example("fleet_states.py", "--count", "30", "--duration-s", "60", cwd=network.folder)
     assert proc.returncode == 0, proc.stderr[-3000:]
     lines = proc.stdout.splitlines()
     found = [STATE_LINE.match(line) for line in lines]
@@ -77,7 +77,7 @@ def test_fleet_states_shows_neither_garbage_nor_a_state_speaking_for_another_uav
                        tls_cert=str(ks.tls_cert), tls_key=str(ks.tls_key))
     forged = VehicleState(uav=1, seq=0, t=0.0, stamp=time.time(), pos=(-77.7, -77.7, 7.7), vel=(0, 0, 0),
                           att=(0, 0, 0), rates=(0, 0, 0), mode=Mode.HOLD, armed=True)
-    watcher = subprocess.Popen([sys.executable, str(EXAMPLES / "fleet_states.py"), "--duration", "8"],
+    watcher = subprocess.Popen([sys.executable, str(EXAMPLES / "fleet_states.py"), "--duration-s", "8"],
                                cwd=network.folder, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         with Bus(config, fleet, "rogue") as rogue:
@@ -146,17 +146,17 @@ def test_request_plan_gives_a_signed_plan_for_three_uavs_inside_the_scenario(net
 
 @pytest.mark.mission
 def test_watch_defects_and_a_hold_during_a_mission(network, tmp_path):
-    """A ground station's mission against the running network (``skynet gcs mission`` on the network's gateway,
+    """A ground station's mission against the running network (``skynet gcs`` on the network's gateway,
     with the key set's gcs identity); watch_defects prints the detector's reports as the captures arrive, and a
     hold commanded mid-flight is accepted."""
     desc = network.desc
-    argv = ["gcs", "mission", "--quiet", "--speed", "4", "--fleet", desc["fleet"], "--keys", desc["keys"],
+    argv = ["gcs", "--quiet", "--speed", "4", "--fleet", desc["fleet"], "--keys", desc["keys"],
             "--multilink", *[a for e in desc["endpoints"] for a in ("-e", e)]]
     with open(tmp_path / "gcs.log", "w") as log:
         gcs = subprocess.Popen([sys.executable, "-m", "services.cli", *argv], cwd=tmp_path, stdout=log,
                                stderr=subprocess.STDOUT)
     try:
-        watch = run_example("watch_defects.py", "--count", "3", "--duration", "240", cwd=network.folder, timeout=300)
+        watch = run_example("watch_defects.py", "--count", "3", "--duration-s", "240", cwd=network.folder, timeout=300)
         said = watch.stdout + (tmp_path / "gcs.log").read_text()[-3000:]
         assert watch.returncode == 0, said
         reports = [REPORT_LINE.match(line) for line in watch.stdout.splitlines()]

@@ -219,10 +219,10 @@ def test_cfg_changes_reach_the_zenoh_config_and_bad_ones_are_clear_errors():
 
     parser = argparse.ArgumentParser()
     add_bus_args(parser)
-    args = parser.parse_args(["--lease", "2", "--cfg", "transport/link/tx/lease:3000",
+    args = parser.parse_args(["--lease-s", "2", "--cfg", "transport/link/tx/lease:3000",
                               "--cfg", "scouting/gossip/enabled:false"])
     conf = config_from_args(args).to_zenoh()
-    assert json.loads(conf.get_json("transport/link/tx/lease")) == 3000  # --cfg wins over --lease
+    assert json.loads(conf.get_json("transport/link/tx/lease")) == 3000  # --cfg wins over --lease-s
     assert json.loads(conf.get_json("scouting/gossip/enabled")) is False
     with pytest.raises(SystemExit):
         parser.parse_args(["--cfg", "no-colon"])

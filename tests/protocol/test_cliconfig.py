@@ -43,7 +43,7 @@ def _services():
             home=(-1.5, 2.0, 0.0), rate=10.0, failsafe_action="rtl", failsafe_escalate="none", battery_low=0.3,
             geofence=Box(lo=(-10, -10, 0), hi=(10, 10, 20)), speed=4.0, epoch=1.7e9, seed=3, wind="calm",
             camera="none", scenario="s.toml", frame_size=(4000, 3000), capture_link="reliable", preview_hz=0.0,
-            nice=5, imagery_cache=0, mesh_uavs=6, insecure=True, mode="client", **bus)),
+            nice=5, imagery_cache=0, mesh_uavs=6, mode="client", **bus)),
         (gateway.build_parser, [], GatewayConfig(id="g2", port=7500, period=0.5, state_ingress_hz=0.0,
                                                  accept_guard=True, listen=["tls/0.0.0.0:7447"], **bus)),
         (planner.build_parser, [], PlannerConfig(time_budget=3.0, anytime=True, **bus)),
@@ -54,7 +54,7 @@ def _services():
                                              **bus)),
         (web.build_parser, [], WebConfig(listen_web="0.0.0.0:8081", rate=5.0, token="t" * 20,
                                          allow_host=["a.example", "b.example"], frames="f", **bus)),
-        (gcs.build_parser, ["mission"], GcsMissionConfig(scenario="s.toml", uavs=6, seed=2, speed=8.0, out="r",
+        (gcs.build_parser, [], GcsMissionConfig(scenario="s.toml", uavs=6, seed=2, speed=8.0, out="r",
                                                          quiet=True, no_record=True, web=":8080",
                                                          no_ground_truth=True, **bus)),
         (experiment.build_parser, [], ExperimentConfig(loss=(1.0, 2.5), delay=(10.0,), jitter=(0.0, 5.0),
@@ -122,8 +122,8 @@ def test_a_switch_must_default_to_off():
 
 def test_a_bad_service_option_is_one_line_and_exit_2():
     for argv in (["edge", "--uav", "1", "--battery-low", "0.05"], ["edge", "--uav", "1", "--frame-size", "1x1"],
-                 ["gateway", "--fleet", "a/b"], ["detector", "--partition", "3/2"], ["planner", "--lease", "-1"],
-                 ["experiment", "--links", "uav9"], ["web", "--listen-web", "nowhere"]):
+                 ["gateway", "--fleet", "a/b"], ["detector", "--partition", "3/2"], ["planner", "--lease-s", "-1"],
+                 ["experiment", "--links", "uav9"], ["web", "--web", "nowhere"]):
         p = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
         lines = p.stderr.strip().splitlines()
         assert p.returncode == 2 and "error:" in lines[-1] and "Traceback" not in p.stderr, (argv, p.stderr)
@@ -134,3 +134,59 @@ def test_the_launcher_imports_no_opencv():
     code = "import sys, services.orchestration.launcher; print(sorted(m for m in sys.modules if m.split('.')[0] == 'cv2'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout.strip() == "[]", out.stdout + out.stderr
+
+
+class _Exclusive(CliModel):
+    keys: Annotated[str | None, Cli(exclusive="trust")] = None
+    insecure: Annotated[bool, Cli(exclusive="trust")] = False
+    other: int = 0
+
+
+def test_exclusive_options_are_one_argparse_group_and_the_model_refuses_them_together(capsys):
+    parser = add_options(argparse.ArgumentParser(prog="demo"), _Exclusive)
+    assert "[--keys KEYS | --insecure]" in parser.format_usage()
+    assert "(not with --insecure)" in parser.format_help() and "(not with --keys)" in parser.format_help()
+    with pytest.raises(SystemExit) as exc:
+        parse(_Exclusive, ["--keys", "k", "--insecure"], prog="demo")
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == \
+        "demo: error: argument --insecure: not allowed with argument --keys"
+    assert parse(_Exclusive, ["--insecure", "--other", "1"]) == _Exclusive(insecure=True, other=1)
+    with pytest.raises(ValueError, match="--keys: not allowed with --insecure"):
+        _Exclusive(keys="k", insecure=True)
+
+
+@pytest.mark.parametrize("argv", [["edge", "--uav", "1", "--keys", "k", "--insecure"],
+                                  ["up", "--keys", "k", "--insecure", "--dry-run"],
+                                  ["mission", "--insecure", "--keys", "k", "--dry-run"]])
+def test_keys_and_insecure_are_mutually_exclusive_on_every_command_having_both(argv):
+    p = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and p.stderr.strip().splitlines()[-1].endswith("not allowed with argument --keys") \
+        or p.stderr.strip().splitlines()[-1].endswith("not allowed with argument --insecure"), p.stderr
+
+
+def test_show_defaults_names_the_default_of_a_hand_written_parser_and_its_subcommands():
+    from protocol.cliconfig import show_defaults
+
+    parser = argparse.ArgumentParser(prog="demo")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=None, help="a folder")
+    parser.add_argument("--speed", type=float, default=1.0, help="factor (default: real time)")
+    sub = parser.add_subparsers(dest="cmd").add_parser("run")
+    sub.add_argument("--loss-pct", default="5%", help="loss")
+    show_defaults(parser)
+    text = parser.format_help()
+    assert "(default: 0)" in text and "a folder\n" in text and "(default: real time)" in text
+    assert text.count("default") == 2  # --out has none; --speed's own wording is kept
+    assert "loss (default: 5%)" in sub.format_help()
+
+
+def test_gcs_is_the_mission_and_gcs_mission_is_the_same_command():
+    from services.gcs import cli as gcs
+    from services.gcs.config import GcsMissionConfig
+
+    parser = gcs.build_parser()
+    assert from_namespace(GcsMissionConfig, parser.parse_args(["--uavs", "6"])).uavs == 6
+    for argv in (["gcs", "--scenario", "/nonexistent.toml"], ["gcs", "mission", "--scenario", "/nonexistent.toml"]):
+        p = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
+        assert p.returncode == 2 and "cannot read scenario file" in p.stderr.strip().splitlines()[-1], p.stderr

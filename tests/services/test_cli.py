@@ -24,10 +24,16 @@ def test_help_lists_every_command():
     (["teleport"], "unknown command"),
     (["edge", "--uav", "300", "--camera", "none"], "argument --uav: Input should be less than or equal to 255"),
     (["gateway", "--listen", "garbage"], "Endpoints must be of the form"),
-    (["mission", "--impair", "foo"], "NAME=SPEC"),
+    (["mission", "--impair", "foo"], "--impair 'foo': unknown keyword 'foo'"),
+    (["mission", "--impair", "uav2/sctp=delay 5ms"], "class 'sctp' is not udp or tcp"),
+    (["mission", "--impair", "uav9=delay 5ms", "--dry-run"], "--impair 'uav9=delay 5ms': link 'uav9'"),
+    (["netem", "udp", "--target", "127.0.0.1:9", "--impair", "uav2=delay 5ms"], "this proxy is one link"),
+    (["netem", "udp", "--target", "127.0.0.1:9", "--impair", "delay 5xs"], "--impair 'delay 5xs': bad time unit"),
     (["detector"], "No peer specified"),
-    (["gcs", "mission", "--scenario", "/nonexistent.toml"], "cannot read scenario file"),
+    (["gcs", "--scenario", "/nonexistent.toml"], "cannot read scenario file"),
     (["edge", "--uav", "1", "--home", "1,2"], "expected x,y,z"),
+    (["web", "--network", "n.json", "-e", "tcp/127.0.0.1:9"], "--network: not with -e/--connect"),
+    (["video", "--network", "n.json", "-c", "zenoh.json5"], "--network: not with -e/--connect, -c/--config"),
 ])
 def test_bad_input_is_a_clear_error_not_a_traceback(args, needle):
     out = skynet(*args)

@@ -21,7 +21,7 @@ def test_video_help_shows_its_defaults():
     out = subprocess.run([sys.executable, "-m", "services.cli", "video", "--help"], capture_output=True, text=True,
                          cwd=ROOT, timeout=60).stdout
     flat = " ".join(out.split())
-    for option, default in [("--port", "5600"), ("--codec", "h264"), ("--sdp-dir", "sdp"), ("--host", "127.0.0.1"),
+    for option, default in [("--preview-port", "5600"), ("--codec", "h264"), ("--sdp-dir", "sdp"), ("--rtp-host", "127.0.0.1"),
                             ("--capture-port", "5700")]:
         assert option in flat and f"(default: {default})" in flat, (option, out)
 

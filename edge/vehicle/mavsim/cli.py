@@ -25,6 +25,7 @@ from edge.vehicle.apm.params import DEFAULT_SCHEME, SCHEMES
 from edge.vehicle.driver import check_vec3
 from edge.vehicle.quadrotor import DisturbanceParams
 from edge.vehicle.sim import SimParams
+from protocol.cliconfig import show_defaults
 from protocol.signals import stop_event_on_signals
 
 from .vehicle import DEFAULT_ORIGIN, MavlinkSimVehicle, Vec3
@@ -88,7 +89,7 @@ def build_parser(prog: str = "skynet sim-autopilot") -> argparse.ArgumentParser:
     p.add_argument("--rc-centred", action="store_true",
                    help="a pilot's RC transmitter is on with its sticks centred: LOITER holds position and altitude "
                         "(without RC input, the default, LOITER descends at the throttle-down rate as ArduCopter does)")
-    return p
+    return show_defaults(p)
 
 
 def main(argv: list[str] | None = None, prog: str = "skynet sim-autopilot") -> int:

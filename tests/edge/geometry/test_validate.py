@@ -51,7 +51,7 @@ def test_a_running_edge_keeps_its_first_signed_fence_over_mutual_tls(group, tmp_
     fleet = "fence"
     root = init(tmp_path / "keys", uavs=1)
     gw = f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
-    g = group.start("gateway", ["gateway", "--fleet", fleet, "--keys", str(root), "--listen", gw, "--period", "0.3"])
+    g = group.start("gateway", ["gateway", "--fleet", fleet, "--keys", str(root), "--listen", gw, "--period-s", "0.3"])
     assert g.wait_ready(20), "\n".join(g.lines)
     e = group.start("uav1", ["edge", "--uav", "1", "--fleet", fleet, "--keys", str(root), "--camera", "none",
                              "--speed", "4", "--home", "10,10,0", "--connect", gw, "--listen", "tls/127.0.0.1:0"])

@@ -235,7 +235,7 @@ def test_two_partitioned_detectors_analyse_every_frame_of_four_uavs_exactly_once
     uavs, per_uav = (1, 2, 3, 4), 5
     for k in (0, 1):
         svc = group.start(f"detector-{k}", ["detector", "--fleet", FLEET, "--multilink", "--partition", f"{k}/2",
-                                            "--max-uav", "8", *[a for e in gateway for a in ("--connect", e)]])
+                                            "--uavs", "8", *[a for e in gateway for a in ("--connect", e)]])
         assert svc.wait_ready(30), "\n".join(svc.lines)
     reports: list[DefectReport] = []
     stats: dict[str, LinkStats] = {}

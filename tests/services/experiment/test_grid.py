@@ -19,12 +19,12 @@ from services.experiment.table import markdown
 
 
 def test_lists_parse_and_bad_lists_say_why():
-    assert parse_list("0, 5,20,40", "--loss", hi=100) == (0.0, 5.0, 20.0, 40.0)
+    assert parse_list("0, 5,20,40", "--loss-pct", hi=100) == (0.0, 5.0, 20.0, 40.0)
     assert parse_recovery("on,off") == (True, False) and parse_recovery("OFF") == (False,)
     for text, what in [("", "comma-separated"), ("5,x", "'x' is not a number"), ("-1", "in 0..100"),
                        ("101", "in 0..100"), ("nan", "finite"), ("5,5", "twice"), ("1,,2", "'' is not")]:
         with pytest.raises(ValueError, match=what):
-            parse_list(text, "--loss", hi=100)
+            parse_list(text, "--loss-pct", hi=100)
     for bad in ("", "yes", "on,on", "on;off"):
         with pytest.raises(ValueError, match="--recovery"):
             parse_recovery(bad)

@@ -73,8 +73,8 @@ def test_descendants_lists_children_and_grandchildren():
 
 
 def test_bad_options_exit_2(capsys):
-    for argv in (["--loss", "5,abc"], ["--delay", "-5"], ["--recovery", "sometimes"], ["--links", "uav9"],
-                 ["--repeat", "0"], ["--timeout", "0"]):
+    for argv in (["--loss-pct", "5,abc"], ["--delay-ms", "-5"], ["--recovery", "sometimes"], ["--links", "uav9"],
+                 ["--repeat", "0"], ["--timeout-s", "0"]):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2, argv
@@ -83,7 +83,7 @@ def test_bad_options_exit_2(capsys):
 
 
 def test_dry_run_prints_one_command_per_run(capsys):
-    assert main(["--dry-run", "--loss", "0,20", "--delay", "200", "--recovery", "on,off", "--repeat", "2",
+    assert main(["--dry-run", "--loss-pct", "0,20", "--delay-ms", "200", "--recovery", "on,off", "--repeat", "2",
                  "--out", "/tmp/nowhere"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 8 and sum("--no-recovery" in line for line in lines) == 4
@@ -95,8 +95,8 @@ def test_dry_run_prints_one_command_per_run(capsys):
 def test_one_cell_experiment_end_to_end(tmp_path, capsys):
     """Slow (one whole mission, ~35 s wall at the default speed 6): the real thing, one tiny cell."""
     out = tmp_path / "exp"
-    code = main(["--loss", "10", "--delay", "20", "--repeat", "1", "--seed", "3",
-                 "--out", str(out), "--timeout", "240"])
+    code = main(["--loss-pct", "10", "--delay-ms", "20", "--repeat", "1", "--seed", "3",
+                 "--out", str(out), "--timeout-s", "240"])
     printed = capsys.readouterr().out
     assert code == 0, printed
     for name in ("results.json", "results.md", "coverage.png", "imagery.png", "telemetry.png", "commands.png"):

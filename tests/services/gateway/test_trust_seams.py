@@ -153,7 +153,7 @@ def _network(group, ks_dir, tag: str) -> tuple[list[str], list[str], object]:
                                         "--state-ingress-hz", "0"])
     assert g.wait_ready(20), "\n".join(g.lines)
     e = group.start(f"uav1-{tag}", ["edge", "--uav", "1", "--home", "10,10,0", "--fleet", FLEET, "--keys",
-                                    str(ks_dir), "--camera", "none", "--speed", "4", "--failsafe-timeout", "60",
+                                    str(ks_dir), "--camera", "none", "--speed", "4", "--failsafe-timeout-s", "60",
                                     "--geofence", "0,0,0,100,100,40", "--connect", gw[0], "--listen", edge1[0]])
     assert e.wait_ready(30), "\n".join(e.lines)
     return gw, edge1, e

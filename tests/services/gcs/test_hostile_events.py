@@ -1,5 +1,5 @@
 """An event with hostile text, published with uav2's own certificate on uav2's own event key through the
-launcher's secure network (``skynet up``), reaches the ground station's stderr (``skynet gcs mission --keys``)
+launcher's secure network (``skynet up``), reaches the ground station's stderr (``skynet gcs --keys``)
 escaped; the same UAV's event claiming to come from the ground station is refused, not shown."""
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def test_hostile_event_text_reaches_the_ground_station_stderr_escaped(dev_keys, 
     gcs_lines: list[str] = []
     with launched(["up", "--uavs", "2", "--speed", "4", "--fleet", FLEET, "--camera", "none"], cwd=tmp_path):
         endpoints = json.loads((tmp_path / ".skynet" / "network.json").read_text())["endpoints"]
-        gcs = subprocess.Popen([sys.executable, "-m", "services.cli", "gcs", "mission", "--keys", str(dev_keys),
+        gcs = subprocess.Popen([sys.executable, "-m", "services.cli", "gcs", "--keys", str(dev_keys),
                                 "--fleet", FLEET, "--uavs", "2", "--speed", "4", "--quiet", "--no-record",
                                 "--multilink", *[a for e in endpoints for a in ("-e", e)]],
                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace")

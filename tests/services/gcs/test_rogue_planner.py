@@ -1,7 +1,7 @@
 """A second session holding the planner's identity answers the ground station's plan request late.
 
 The network is ``skynet up`` in its default secure mode (mutual TLS, the certificate ACL, signed commands
-and plans, the development key set); the ground station is ``skynet gcs mission --keys``. The rogue is a
+and plans, the development key set); the ground station is ``skynet gcs --keys``. The rogue is a
 real process that opens a session with the planner's certificate, declares the planner's queryable and
 answers 5 s after receiving the request with the attack's plan (a 6 km geofence, every trajectory drifting
 420 m east and climbing to 120 m), bound to the request's nonce and scenario:
@@ -89,7 +89,7 @@ def start_rogue(endpoints: list[str], mode: str, args: list[str] | None = None) 
 
 
 def fly(endpoints: list[str], out: Path) -> tuple[subprocess.CompletedProcess, dict]:
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "gcs", "mission", *bus_args(endpoints),
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "gcs", *bus_args(endpoints),
                            "--speed", "8", "--uavs", "3", "--quiet", "--out", str(out)],
                           cwd=ROOT, capture_output=True, text=True, timeout=400)
     assert (out / "record.json").exists(), proc.stdout[-3000:] + proc.stderr[-3000:]

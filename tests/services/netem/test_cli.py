@@ -25,8 +25,8 @@ def test_bad_impairment_is_a_usage_error(capsys):
 
 
 def test_runs_for_a_duration_and_prints_counters(capsys):
-    assert main(["tcp", "--target", "127.0.0.1:9", "--impair", "delay 5ms", "--duration", "0.2",
-                 "--interval", "0.1", "--json"]) == 0
+    assert main(["tcp", "--target", "127.0.0.1:9", "--impair", "delay 5ms", "--duration-s", "0.2",
+                 "--interval-s", "0.1", "--json"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert re.match(r"netem tcp listening on 127\.0\.0\.1:\d+ -> 127\.0\.0\.1:9 \[both: delay 5\.0ms\]", lines[0])
     final = json.loads(lines[-1])
@@ -89,7 +89,7 @@ def test_schedule_and_control_from_another_process(tmp_path):
     schedule.write_text('at 0s "loss 100%"\n')
     proc = subprocess.Popen([sys.executable, "-m", "services.netem.cli", "udp", "--target",
                              "127.0.0.1:%d" % echo.getsockname()[1], "--schedule", str(schedule),
-                             "--control", "127.0.0.1:0", "--json", "--interval", "60"],
+                             "--control", "127.0.0.1:0", "--json", "--interval-s", "60"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     client.settimeout(10)
@@ -128,4 +128,4 @@ def test_schedule_and_control_from_another_process(tmp_path):
             proc.wait()
         client.close()
         echo.close()
-    assert _ctl(ctl_port, "stats", "--timeout", "0.2").returncode == 1  # nobody answers now
+    assert _ctl(ctl_port, "stats", "--timeout-s", "0.2").returncode == 1  # nobody answers now

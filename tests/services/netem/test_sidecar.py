@@ -39,7 +39,7 @@ def test_no_impairment_or_a_bad_one_is_refused(capsys):
 def test_a_link_nobody_uses_fails_the_run(capsys):
     """The node was not pointed at the side-car: the impairment is not applied, so exit non-zero."""
     code = main(["--link", "uav2", "--tcp", "127.0.0.1:0=127.0.0.1:9", "--udp", "127.0.0.1:0=127.0.0.1:9",
-                 "--impair", "delay 50ms", "--expect", "0.6"])
+                 "--impair", "delay 50ms", "--expect-s", "0.6"])
     assert code == EXIT_NO_TRAFFIC
     err = capsys.readouterr().err
     assert "FAILED: no traffic through tcp:0, udp:0" in err and "not applied" in err
@@ -52,7 +52,7 @@ def test_forwards_delayed_and_stops_on_sigterm():
     target = echo.getsockname()[1]
     proc = subprocess.Popen([sys.executable, "-m", "services.netem.sidecar", "--link", "uav2",
                              "--udp", f"127.0.0.1:0=127.0.0.1:{target}", "--impair", "delay 200ms",
-                             "--expect", "2", "--interval", "0.2"],
+                             "--expect-s", "2", "--interval-s", "0.2"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()
@@ -64,7 +64,7 @@ def test_forwards_delayed_and_stops_on_sigterm():
         data, _ = echo.recvfrom(100)
         assert data == b"state"
         assert time.monotonic() - sent >= 0.19  # the impairment is applied (not a speed measurement)
-        time.sleep(2.5)  # past --expect: traffic was seen, so the side-car keeps running
+        time.sleep(2.5)  # past --expect-s: traffic was seen, so the side-car keeps running
         assert proc.poll() is None
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=10)

@@ -34,7 +34,7 @@ def test_the_ground_station_waits_for_autopilots_still_starting_and_the_mission_
 
 def test_an_autopilot_that_never_becomes_ready_is_refused_before_any_takeoff_naming_the_uav_and_reason(tmp_path):
     # past BOOT after 40 simulated s (5 wall s at x8), no home before 400 s: never ready within the 8 s wait
-    proc, report, text = mission(tmp_path, "--sim-boot-scale", "20", "--ready-timeout", "8")
+    proc, report, text = mission(tmp_path, "--sim-boot-scale", "20", "--ready-timeout-s", "8")
     assert proc.returncode != 0
     (failure,) = [f for f in report["failures"] if "refused before takeoff" in f]
     assert "autopilot not ready" in failure and all(f"UAV {u}:" in failure for u in (1, 2, 3)), failure

@@ -116,14 +116,14 @@ def _closed_by_peer(c: socket.socket, timeout: float) -> bool:
 
 def test_64_idle_connections_are_closed_after_the_idle_timeout_and_a_real_one_flows():
     """The issue's lock-out: 64 idle connections (the default --max-conns) held by another local process.
-    The bridge closes each after --idle-timeout, and a connection that carries bytes then flows."""
+    The bridge closes each after --idle-timeout-s, and a connection that carries bytes then flows."""
     srv, port = _echo_server()
     front = free_port()
     group = ServiceGroup(echo=None)
     idle: list[socket.socket] = []
     try:
         b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"tcp:127.0.0.1:{port}",
-                              "--idle-timeout", "2"])
+                              "--idle-timeout-s", "2"])
         assert b.wait_ready(30), b.lines
         idle = _hold_idle(front, 64)
         assert all(_closed_by_peer(c, 30) for c in idle)  # each one closed by the bridge, none left hanging
@@ -147,7 +147,7 @@ def test_at_the_limit_a_new_connection_takes_the_place_of_one_idle_for_long():
     idle: list[socket.socket] = []
     try:
         b = group.start("b", ["bridge", "--listen", f"tcp:127.0.0.1:{front}", "--target", f"tcp:127.0.0.1:{port}",
-                              "--idle-timeout", "600"])
+                              "--idle-timeout-s", "600"])
         assert b.wait_ready(30), b.lines
         idle = _hold_idle(front, 64)
         with socket.create_connection(("127.0.0.1", front), timeout=10) as early:  # all 64 fresh: refused

@@ -1,7 +1,7 @@
 """The product as a user composes it, in the default secure mode (mutual TLS, certificate ACL; no --insecure):
 
 ``skynet up --video h264 --web :PORT`` serves decodable H.264 streams (FFmpeg through PyAV from the SDP files
-``--video-sdp`` wrote; GStreamer's ``rtph264depay``) and a page with live data; ``skynet video``, ``skynet web``
+``--sdp-dir`` wrote; GStreamer's ``rtph264depay``) and a page with live data; ``skynet video``, ``skynet web``
 and ``skynet replay`` started beside it with no bus options attach to it through ``.skynet/network.json``
 (each with its own identity: JPEG video decoded by FFmpeg and GStreamer, the page live, a replay seen under
 the replay fleet and never on the live one); what cannot attach says why in one line. The network runs in a
@@ -100,7 +100,7 @@ class Network:
 def network(tmp_path_factory):
     cwd = tmp_path_factory.mktemp("composed")
     web_port, video_port = free_port(), free_port() & ~1
-    tool = Tool(cwd, "up", "--uavs", "3", "--video", "h264", "--video-sdp", "sdp", "--video-port", str(video_port),
+    tool = Tool(cwd, "up", "--uavs", "3", "--video", "h264", "--sdp-dir", "sdp", "--preview-port", str(video_port),
                 "--web", f":{web_port}")
     net = Network(cwd, tool, web_port, video_port)
     try:
@@ -226,7 +226,7 @@ def test_up_serves_the_page_with_live_data(network) -> None:
 
 def test_video_attaches_with_no_options_and_streams_jpeg_that_ffmpeg_and_gstreamer_decode(network) -> None:
     port = free_port() & ~1
-    tool = Tool(network.cwd, "video", "--codec", "mjpeg", "--port", str(port), "--sdp-dir", "sdp-jpeg",
+    tool = Tool(network.cwd, "video", "--codec", "mjpeg", "--preview-port", str(port), "--sdp-dir", "sdp-jpeg",
                 "--uavs", "3")
     try:
         assert tool.wait_ready(60) == ("video", "video"), tool.text()
@@ -256,8 +256,8 @@ def _recording(path: Path, uav: int = 9, n: int = 40) -> Path:
 
 def test_web_and_replay_attach_and_a_replay_never_reaches_the_live_fleet(network, tmp_path: Path) -> None:
     live_port, replay_port = free_port(), free_port()
-    live = Tool(network.cwd, "web", "--listen-web", f":{live_port}")
-    shown = Tool(network.cwd, "web", "--listen-web", f":{replay_port}", "--fleet", keys.replay_fleet(FLEET))
+    live = Tool(network.cwd, "web", "--web", f":{live_port}")
+    shown = Tool(network.cwd, "web", "--web", f":{replay_port}", "--fleet", keys.replay_fleet(FLEET))
     mcap = _recording(tmp_path / "mission.mcap")
     try:
         assert live.wait_ready(60) == shown.wait_ready(60) == ("web", "web"), live.text() + shown.text()
@@ -288,7 +288,7 @@ def _one_line_error(proc: subprocess.CompletedProcess, *words: str) -> None:
 
 def test_what_cannot_attach_says_why_in_one_line(network, tmp_path: Path) -> None:
     # no network in this folder
-    _one_line_error(skynet(tmp_path, "web", "--listen-web", f":{free_port()}"), "no network running here")
+    _one_line_error(skynet(tmp_path, "web", "--web", f":{free_port()}"), "no network running here")
     # a description whose launcher has ended
     stale = tmp_path / "stale.json"
     desc = network.description()
@@ -305,14 +305,14 @@ def test_what_cannot_attach_says_why_in_one_line(network, tmp_path: Path) -> Non
                     "not the running network's key set")
     # the right endpoints, the wrong identity: Zenoh's refusal turned into a sentence
     eps = [a for e in desc["endpoints"] for a in ("-e", e)]
-    _one_line_error(skynet(tmp_path, "web", "--listen-web", f":{free_port()}", "--multilink", *eps, "--keys",
+    _one_line_error(skynet(tmp_path, "web", "--web", f":{free_port()}", "--multilink", *eps, "--keys",
                            str(other), timeout=120), "no gateway answered", "is it this network's key set")
 
 
 def test_up_tells_a_service_that_cannot_start_and_stops_restarting_it(tmp_path: Path) -> None:
     (tmp_path / "sdp-file").write_text("a file where the SDP folder should be\n")
-    tool = Tool(tmp_path, "up", "--uavs", "1", "--video", "h264", "--video-sdp", "sdp-file",
-                "--video-port", str(free_port() & ~1))
+    tool = Tool(tmp_path, "up", "--uavs", "1", "--video", "h264", "--sdp-dir", "sdp-file",
+                "--preview-port", str(free_port() & ~1))
     try:
         assert tool.wait_for("video did not start", 120), tool.text()
         line = next(ln for ln in tool.lines if "video did not start" in ln)
@@ -328,8 +328,8 @@ def test_a_mission_whose_video_cannot_start_fails_and_says_why(tmp_path: Path) -
     from tests.conftest import fly_mission
 
     (tmp_path / "sdp-file").write_text("a file where the SDP folder should be\n")
-    run = fly_mission(tmp_path / "report", "--speed", "8", "--video", "h264", "--video-sdp",
-                      str(tmp_path / "sdp-file"), "--video-port", str(free_port() & ~1), timeout=400)
+    run = fly_mission(tmp_path / "report", "--speed", "8", "--video", "h264", "--sdp-dir",
+                      str(tmp_path / "sdp-file"), "--preview-port", str(free_port() & ~1), timeout=400)
     assert run.proc.returncode != 0, run.failure()
     terminal = run.proc.stdout + run.proc.stderr
     assert "video did not start" in terminal and "mission failed: video did not start" in terminal, run.failure()
@@ -345,10 +345,10 @@ def test_a_mission_whose_video_cannot_start_fails_and_says_why(tmp_path: Path) -
 
 
 def test_a_secure_mission_with_video_streams_jpeg_that_ffmpeg_and_gstreamer_decode(tmp_path: Path) -> None:
-    """README's operator recipe, ``skynet mission --video mjpeg --video-sdp DIR``, in the default secure mode."""
+    """README's operator recipe, ``skynet mission --video mjpeg --sdp-dir DIR``, in the default secure mode."""
     port = free_port() & ~1
     mission = Tool(tmp_path, "mission", "--quiet", "--speed", "8", "--out", str(tmp_path / "report"), "--video",
-                   "mjpeg", "--video-sdp", "sdp", "--video-port", str(port))
+                   "mjpeg", "--sdp-dir", "sdp", "--preview-port", str(port))
     try:
         sdp = tmp_path / "sdp" / "uav2-preview.sdp"
         assert wait_until(sdp.exists, 120), mission.text()

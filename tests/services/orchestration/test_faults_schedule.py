@@ -28,12 +28,27 @@ def test_impair_names_groups_and_classes():
     assert imp.spec("uav2", "tcp") == "delay 50ms" and imp.spec("uav2", "udp") == "delay 50ms"  # later wins
     assert imp.spec("uav1", "tcp") == "delay 10ms" and imp.spec("uav1", "udp") is None
     assert set(parse_impair(["skynet=loss 1%"], L3).specs) == {"uav1-uav2", "uav1-uav3", "uav2-uav3"}
+    # no NAME: every link, as all=SPEC
+    assert parse_impair(["delay 5ms"], L3).specs == parse_impair(["all=delay 5ms"], L3).specs
+
+
+def test_one_impair_grammar_for_the_launcher_and_a_proxy():
+    from services.netem.model import parse_impair_arg
+
+    arg = parse_impair_arg("uplinks/tcp=delay 10ms loss 2%")
+    assert (arg.link, arg.cls, arg.spec, arg.impairment.delay_ms) == ("uplinks", "tcp", "delay 10ms loss 2%", 10.0)
+    assert parse_impair_arg("delay 10ms", named=False).link is None
+    with pytest.raises(ValueError, match="this proxy is one link"):
+        parse_impair_arg("uav2=delay 10ms", named=False)
+    with pytest.raises(ValueError, match="name the link"):
+        parse_impair_arg("delay 10ms", named=True)
 
 
 @pytest.mark.parametrize("item, needle", [
     ("uav4=loss 1%", "uav4"), ("uav0=loss 1%", "uav0"), ("uav1-uav1=loss 1%", "two different"),
     ("uav1-uav7=loss 1%", "uav7"), ("rover=loss 1%", "rover"), ("uav1/sctp=loss 1%", "sctp"),
-    ("uav1=", "NAME"), ("uav1", "NAME"), ("uav1=loss 120%", "uav1=loss 120%"), ("uav1=delay 5", "unit"),
+    ("uav1=", "no SPEC"), ("uav1", "unknown keyword 'uav1'"), ("=loss 1%", "no LINK"),
+    ("uav1=loss 120%", "uav1=loss 120%"), ("uav1=delay 5", "unit"),
 ])
 def test_bad_impair_items_are_named(item, needle):
     with pytest.raises(ValueError, match=None) as e:

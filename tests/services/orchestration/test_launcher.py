@@ -282,7 +282,7 @@ def test_detectors_option_starts_partitioned_instances():
         net.start()
         for k in (0, 1):
             svc = net.group.get(f"detector-{k}")
-            assert f"--partition={k}/2" in svc.args and "--max-uav=4" in svc.args
+            assert f"--partition={k}/2" in svc.args and "--uavs=4" in svc.args
             assert wait_ready(svc, 60).ready_as == ("detector", f"detector-{k}")
         assert net.check_alive() == []
     finally:

@@ -47,7 +47,7 @@ def test_two_gateways_across_namespaces_route_states_commands_and_plans(tmp_path
                                   ready=True)
             gw0_addr = router_endpoint(ns.address(0, 1)).removeprefix("tcp/")
             proxy = groups[1].start("netem", ["netem", "tcp", "--listen", f"127.0.0.1:{PROXY_PORT}", "--target",
-                                              gw0_addr, "--impair", f"delay {DELAY_MS}ms", "--interval", "1"],
+                                              gw0_addr, "--impair", f"delay {DELAY_MS}ms", "--interval-s", "1"],
                                      ready=True)
             wait_ready(proxy)
             gw1 = groups[1].start("gw1", ["gateway", "--id", "gw1", "--fleet", FLEET, "--listen",

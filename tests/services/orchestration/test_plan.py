@@ -132,7 +132,7 @@ def test_impair_puts_proxies_on_the_named_link_only():
     for name in ("planner", "detector"):
         config = plan.get(name).config
         assert config.lease == LINK_LEASE_S and config.cfg[0][0] == "transport/unicast/open_timeout"
-    assert "--lease" not in " ".join(plan.get("uav1").argv)  # the edges' own default is that constant
+    assert "--lease-s" not in " ".join(plan.get("uav1").argv)  # the edges' own default is that constant
     assert edge_parser().get_default("lease") == LINK_LEASE_S  # (the edge config's default is that constant)
     ports = [*px.ports, *(e for p in plan.processes for e in p.listens)]
     assert len(set(ports)) == len(ports)
@@ -324,7 +324,7 @@ CHILD_PARSERS = {"gateway": "services.gateway.service", "edge": "edge.board", "p
     ("mission", ("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1", "--vehicle",
                  "mavlink", "--flight", "auto", "--no-recovery", "--frame-size", "1280x960", "--preview-hz", "0.5",
                  "--gcs-state-hz", "5", "--state-ingress-hz", "150", "--detect-max-mp", "1.5", "--accept-guard",
-                 "--impair", "uav4=delay 5ms", "--video", "mjpeg", "--video-port", "6000", "--seed", "7",
+                 "--impair", "uav4=delay 5ms", "--video", "mjpeg", "--preview-port", "6000", "--seed", "7",
                  "--speed", "2.5")),
     ("up", ("--uavs", "30", "--insecure", "--web", "0.0.0.0:8081", "--impair", "uav1-uav2=loss 5%")),
     ("mission", ("--autopilot", "uav1=/dev/ttyUSB0,57600", "--autopilot", "uav3=tcp:127.0.0.1:5770",
@@ -363,7 +363,7 @@ def test_every_process_config_round_trips_through_its_own_command_line(prog, arg
 @pytest.mark.parametrize("argv, needle", [
     (("--speed", "0"), "uav1 would refuse its options: speed"),
     (("--detect-max-mp", "-1"), "detector would refuse its options: detect_max_mp"),
-    (("--video", "h264", "--video-port", "70000"), "video would refuse its options: port"),
+    (("--video", "h264", "--preview-port", "70000"), "video would refuse its options: port"),
     (("--web", "no-port-here"), "web would refuse its options: listen_web"),
     (("--fleet", "a/b"), "fleet"),
 ])

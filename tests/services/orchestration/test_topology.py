@@ -21,7 +21,7 @@ from protocol.messages import Hold, VehicleState
 from services.orchestration.launcher import Network, parse
 from tests.conftest import wait_until
 
-#: the edges' link lease (edge.board: --lease defaults to it)
+#: the edges' link lease (edge.board: --lease-s defaults to it)
 EDGE_LEASE_S = LINK_LEASE_S
 
 

@@ -47,7 +47,7 @@ def test_oversized_and_overlong_plan_requests_are_refused_and_free_the_worker(gr
     """the schema's largest request (10,000 particles x 100,000 iterations) would hold the planner for
     hours and 200 waypoints took gigabytes; both are now refused before any work ("too large"). A request within
     the limits that outlasts the time budget (here 1 s) is answered "timeout" and the next request is served."""
-    svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink", "--time-budget", "1",
+    svc = group.start("planner", ["planner", "--fleet", FLEET, "--multilink", "--time-budget-s", "1",
                                   *[a for e in gateway for a in ("--connect", e)]])
     assert svc.wait_ready(30), "\n".join(svc.lines)
     doc = load_scenario().model_dump(mode="json")

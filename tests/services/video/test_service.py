@@ -54,7 +54,7 @@ def _meta(i: int, stamp: float) -> ImageMeta:
 def test_video_service_streams_a_uav_preview_to_a_real_decoder(group, gateway, tmp_path: Path, codec: str) -> None:
     base = free_port() & ~1  # even; UAV 2's preview goes to base + 2
     sdp_dir = tmp_path / "sdp"
-    svc = group.start("video", ["video", "--fleet", FLEET, "--multilink", "--codec", codec, "--port", str(base),
+    svc = group.start("video", ["video", "--fleet", FLEET, "--multilink", "--codec", codec, "--preview-port", str(base),
                                 "--uavs", "2", "--sdp-dir", str(sdp_dir),
                                 *[a for e in gateway for a in ("--connect", e)]])
     assert svc.wait_ready(30), "\n".join(svc.lines)

@@ -105,7 +105,7 @@ def test_mission_page_timeline_defect_count_and_its_replay(group, gateway, tmp_p
 
     # the recording replayed and watched: labelled a replay, not live
     fleet, wport = keys.replay_fleet("watch"), free_port()  # the replay mark counts on a replay fleet only
-    web = group.start("web", ["web", "--fleet", fleet, "--multilink", "--listen-web", f"127.0.0.1:{wport}",
+    web = group.start("web", ["web", "--fleet", fleet, "--multilink", "--web", f"127.0.0.1:{wport}",
                               *[a for e in gateway for a in ("--connect", e)]])
     assert web.wait_ready(30), "\n".join(web.lines)
     wurl = printed_url(web.lines)

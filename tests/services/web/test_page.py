@@ -90,7 +90,7 @@ def test_page_shows_moving_uavs_a_preview_the_defects_and_hostile_text_as_text(g
     from selenium.webdriver.support.ui import WebDriverWait
 
     port = free_port()
-    svc = group.start("web", ["web", "--fleet", FLEET, "--multilink", "--listen-web", f"127.0.0.1:{port}",
+    svc = group.start("web", ["web", "--fleet", FLEET, "--multilink", "--web", f"127.0.0.1:{port}",
                               *[a for e in gateway for a in ("--connect", e)]])
     assert svc.wait_ready(30), "\n".join(svc.lines)
     printed = [m.group(1) for line in svc.lines if (m := re.search(r"web page at (\S+)", line))]
