@@ -105,6 +105,8 @@ class AutoFlight:
             self._captures = _capture_points(traj, plan)
             self._fired = set()
         self.plan, self._traj = plan, traj
+        log.info("UAV %d: trajectory uploaded to the autopilot as a mission of %d items (%d waypoints, %d captures)",
+                 drv.uav, len(plan.items), len(set(plan.waypoint_seq)), len(plan.capture_seq))
 
     def _await_mission_total(self, n: int, timeout_s: float = 3.0) -> None:
         """PX4 may refuse or ignore a mission started right after its upload: wait until MISSION_CURRENT reports
@@ -119,8 +121,6 @@ class AutoFlight:
                                 self.drv.uav, n, tel.mission_total)
                     return
                 tel.cv.wait(min(left, 0.1))
-        log.info("UAV %d: trajectory uploaded to the autopilot as a mission of %d items (%d waypoints, %d captures)",
-                 drv.uav, len(plan.items), len(set(plan.waypoint_seq)), len(plan.capture_seq))
 
     def _wait_home(self, timeout_s: float = 5.0) -> tuple[float, float, float]:
         """The autopilot's HOME_POSITION (asked for with MAV_CMD_REQUEST_MESSAGE until it comes)."""

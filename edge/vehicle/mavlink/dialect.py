@@ -111,7 +111,8 @@ class ArduCopter:
 
 ARDUCOPTER: Dialect = ArduCopter()
 
-_PHASE_PX4 = {Phase.TAKEOFF: frozenset({PXM.TAKEOFF, PXM.LOITER}), Phase.HOLD: frozenset({PXM.OFFBOARD, PXM.LOITER}),
+_PHASE_PX4 = {Phase.TAKEOFF: frozenset({PXM.TAKEOFF, PXM.LOITER}),
+              Phase.HOLD: frozenset({PXM.OFFBOARD, PXM.LOITER, PXM.TAKEOFF}),  # the climb settles in TAKEOFF
               Phase.MISSION: frozenset({PXM.OFFBOARD}), Phase.LAND: frozenset({PXM.LAND}),
               Phase.RTL: frozenset({PXM.RTL, PXM.LAND}), Phase.AUTO: frozenset({PXM.MISSION, PXM.LOITER})}
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -206,6 +207,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             interpolation=params.interpolation)
         self.targets = TargetStream(self.rate_hz, self.home)
         self._priming = False  # a switch to a setpoint-stream guided mode (OFFBOARD) is being prepared
+        self._confirming = 0  # mode switches awaiting their HEARTBEAT
+        self._switcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"mavlink-uav{uav}-mode")
         self._preflight_done = False
         #: the AUTO flight strategy (None when flying GUIDED)
         self.auto = AutoFlight(self) if params.flight == "auto" else None
@@ -377,21 +380,19 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         if err is not None:
             raise err
         with self._lock:
-            saved, self._cmd_rx = self._cmd_rx, 1 << 62  # no HEARTBEAT overrules the phase meanwhile
+            self._confirming += 1  # no HEARTBEAT overrules the phase meanwhile (it may still show the old mode)
         try:
             if d.setpoint_stream and mode == d.guided:
                 self._prime_setpoints()
             rx = self.commands.call(M.MAV_CMD_DO_SET_MODE, d.set_mode_params(mode), what)
             hb_rx = self._confirm_mode(mode, rx, what)
-        except BaseException:
             with self._lock:
-                self._cmd_rx = saved
-            raise
+                self._cmd_rx = max(self._cmd_rx, hb_rx)
         finally:
             with self._lock:
-                self._priming = False
-        with self._lock:
-            self._cmd_rx = max(saved, hb_rx)
+                self._confirming -= 1
+                if not self._confirming:
+                    self._priming = False
 
     def _prime_setpoints(self, lead_s: float = 0.5) -> None:
         """Start the setpoint stream ``lead_s`` before a switch to OFFBOARD (PX4 refuses it without > 2 Hz of
@@ -429,6 +430,22 @@ class MavlinkDriver(ParamClient, VehicleDriver):
                     raise VehicleLinkError(f"{what}: accepted, but no HEARTBEAT in that mode within {timeout_s:g} s")
                 tel.cv.wait(min(left, 0.1))
 
+    def _switch_soon(self, mode: int, expect: Phase) -> None:
+        """Switch to ``mode`` on the driver's mode thread (``step`` never waits), if still in phase ``expect``."""
+        def run() -> None:
+            with self._lock:
+                if self.phase is not expect or self._closed:
+                    return
+            try:
+                self.set_mode(mode)
+            except ValueError as exc:
+                log.warning("UAV %d: switch to %s failed: %s", self.uav, self.dialect.mode_name(mode), exc)
+
+        try:
+            self._switcher.submit(run)
+        except RuntimeError:  # closed meanwhile
+            pass
+
     def _preflight(self) -> None:
         """The dialect's parameters set once before the first takeoff (PX4: NAV_DLL_ACT = 2, Return on a
         data-link loss, which is off by default); best effort, a warning when refused."""
@@ -457,6 +474,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         with self._lock:
             hb = self.tel.hb
             fresh = hb is not None and hb.rx > self._cmd_rx
+            if self.dialect.confirm_mode:  # its HEARTBEAT shows every mode the driver set: it decides
+                fresh = hb is not None
             if self.phase in (Phase.HOLD, Phase.MISSION, Phase.TAKEOFF) and not (fresh and hb.custom_mode != guided):
                 return
         self.set_mode(guided)
@@ -465,7 +484,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
     def _update_phase(self) -> None:
         """Let a HEARTBEAT newer than the last accepted command overrule the driver's phase."""
         hb = self.tel.hb
-        if hb is None or hb.rx <= self._cmd_rx:
+        if hb is None or hb.rx <= self._cmd_rx or self._confirming:
             return
         pending = self.auto.pending if self.auto is not None else ()
         o = overrule(self.phase, armed=hb.armed, guided=hb.custom_mode == self.dialect.guided,
@@ -619,6 +638,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         if self._closed:
             return
         self._closed = True
+        self._switcher.shutdown(wait=False, cancel_futures=True)
         if self.auto is not None:
             self.auto.close()
         self.link.close()
@@ -690,6 +710,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
                 self.phase = phase = Phase.HOLD
                 self._hold = ((tel.pos[0], tel.pos[1], self._takeoff_z), self._takeoff_yaw)
                 self.targets.restart()
+                if self.dialect.setpoint_stream:  # PX4 holds in AUTO.LOITER: hold in OFFBOARD, ready to start
+                    self._switch_soon(self.dialect.guided, Phase.HOLD)
             if phase is Phase.MISSION:
                 target = self._mission_reference(until_t, dt, events)
                 if auto is not None and self.mission.phase == "track":

@@ -144,23 +144,23 @@ def base_mode(custom: int, *, armed: bool) -> int:
 
 def check_mode_change(custom: int, *, rc: bool, offboard_signal: bool, mission_items: int, home: bool,
                       armed: bool, airborne: bool) -> tuple[bool, str]:
-    """``(True, "")`` when PX4 would switch to ``custom`` now, else ``(False, reason)`` (the STATUSTEXT PX4 sends
-    when it refuses: "Switching to Offboard is currently not available", ...)."""
+    """``(True, "")`` when PX4 would switch to ``custom`` now, else ``(False, reason)`` (a STATUSTEXT shorter than
+    PX4's "Switching to Offboard is currently not available", which arrives in chunks)."""
     if not _known(custom):
         return False, "unknown mode"
     main, sub = split(custom)
     name = mode_name(custom)
     if main in RC_MODES and not rc:
-        return False, f"Switching to {name} is currently not available: no RC"
+        return False, f"{name} not available: no RC"
     if main == Main.OFFBOARD and not offboard_signal:
-        return False, "Switching to Offboard is currently not available: no setpoints"
+        return False, "Offboard not available: no setpoints"
     if main == Main.AUTO:
         if sub in (AutoSub.FOLLOW_TARGET, AutoSub.PRECLAND, AutoSub.READY):
-            return False, f"Switching to {name} is currently not available"
+            return False, f"{name} not available"
         if not home:
-            return False, f"Switching to {name} is currently not available: no home position"
+            return False, f"{name} not available: no home position"
         if sub == AutoSub.MISSION and mission_items < 1:
-            return False, "Switching to Mission is currently not available: no valid mission"
+            return False, "Mission not available: no valid mission"
         if sub == AutoSub.RTL and not (armed and airborne):
-            return False, "Switching to Return is currently not available: landed"
+            return False, "Return not available: landed"
     return True, ""
