@@ -74,6 +74,9 @@ class LaunchConfig(CliModel):
     autopilot_firmware: Literal["4.6", "4.7"] = Field(default="4.6", description=(
         "--vehicle mavlink: the sim autopilots' parameter names and units: 4.6 (stable 4.5/4.6: WPNAV_SPEED cm/s, "
         "RTL_ALT cm, ...) or 4.7 (4.7+: WP_SPD m/s, RTL_ALT_M m, ...)"))
+    sim_autopilot: Literal["arducopter", "px4"] = Field(default="arducopter", description=(
+        "--vehicle mavlink: the firmware the sim autopilots present, ArduCopter or PX4 (the edges pick the "
+        "dialect from its HEARTBEAT)"))
     ready_timeout: Annotated[float, Cli(metavar="S")] = Field(
         default=_default(GcsMissionConfig, "ready_timeout"), gt=0.0,
         description="the ground station waits this long for every UAV's autopilot to be ready, then refuses")

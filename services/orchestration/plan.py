@@ -331,7 +331,8 @@ def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float,
     """The sim autopilot's command line (its parser is the edge's vehicle package's, not a config model)."""
     return ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1), "--home", ",".join(map(str, home)),
             "--speed", str(o.speed), "--epoch", str(epoch), "--seed", str(o.seed + i), "--wind", "moderate",
-            "--boot-scale", f"{o.autopilot_boot_scale:g}", "--firmware-version", o.autopilot_firmware]
+            "--boot-scale", f"{o.autopilot_boot_scale:g}", "--firmware-version", o.autopilot_firmware,
+            "--autopilot", o.sim_autopilot]
 
 
 def capture_size(o: LaunchConfig, scenario: Scenario) -> tuple[int, int]:

@@ -50,7 +50,7 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_OF_LOSS_T", 1.0, 0.0, 60.0, F),
     ParamSpec("COM_DISARM_PRFLT", 10.0, -1.0, 20.0, F),
     ParamSpec("COM_DISARM_LAND", 2.0, -1.0, 20.0, F),
-    ParamSpec("MPC_XY_CRUISE", 5.0, 3.0, 20.0, F),
+    ParamSpec("MPC_XY_CRUISE", 5.0, 0.5, 20.0, F),  # metadata says 3 m/s at least; the firmware stores less
     ParamSpec("MPC_LAND_SPEED", 0.7, 0.6, 3.0, F),
     ParamSpec("MIS_TAKEOFF_ALT", 2.5, 0.0, 100.0, F),
     ParamSpec("NAV_ACC_RAD", 10.0, 0.05, 200.0, F),
