@@ -17,7 +17,7 @@ COM_DISARM_LAND    FLOAT   2.0        disarm this long after landing, s (< 0: ne
 MPC_XY_CRUISE      FLOAT   5.0        default horizontal speed in AUTO (missions), m/s
 MPC_LAND_SPEED     FLOAT   0.7        landing descent rate, m/s
 MIS_TAKEOFF_ALT    FLOAT   2.5        takeoff altitude above home when NAV_TAKEOFF's param7 is NaN, m
-NAV_ACC_RAD        FLOAT   10.0       waypoint acceptance radius, m (multicopters use the smaller of it and 2 m)
+NAV_ACC_RAD        FLOAT   2.0        waypoint acceptance radius, m (PX4's multicopter default; 10 m generic)
 RTL_RETURN_ALT     FLOAT   60.0       Return climbs to this altitude above home first, m
 RTL_DESCEND_ALT    FLOAT   30.0       Return descends to this altitude above home before landing, m
 =================  ======  =========  ===========================================================
@@ -53,7 +53,7 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_XY_CRUISE", 5.0, 0.5, 20.0, F),  # metadata says 3 m/s at least; the firmware stores less
     ParamSpec("MPC_LAND_SPEED", 0.7, 0.6, 3.0, F),
     ParamSpec("MIS_TAKEOFF_ALT", 2.5, 0.0, 100.0, F),
-    ParamSpec("NAV_ACC_RAD", 10.0, 0.05, 200.0, F),
+    ParamSpec("NAV_ACC_RAD", 2.0, 0.05, 200.0, F),  # a multicopter's (rc.mc_defaults); 10 m in the generic table
     ParamSpec("RTL_RETURN_ALT", 60.0, 0.0, 150.0, F),
     ParamSpec("RTL_DESCEND_ALT", 30.0, 2.0, 100.0, F),
 )

@@ -302,3 +302,67 @@ def test_driver_flies_px4s_auto_mission_to_its_end_and_captures_at_the_points(px
         drv.step(veh.clock.now())
         time.sleep(0.01)
     assert veh.px4_mode == PX.OFFBOARD and drv.state().mode == Mode.HOLD
+
+
+# ------------------------------------------------------------------ MAVSDK flies the sim as it would PX4
+def test_mavsdk_flies_the_px4_sim_as_px4_without_rate_requests():
+    """MAVSDK (its C++ library through the ``mavsdk`` wheel) as a ground station: it recognises PX4, gets its
+    telemetry unasked (no ``set_rate_*``), arms, takes off (MIS_TAKEOFF_ALT, written by MAVSDK), flies a short
+    mission in PX4's numbering and lands."""
+    pytest.importorskip("mavsdk", reason="the MAVSDK tests need the 'mavsdk' wheel (test extra)")
+    import asyncio
+
+    import mavsdk
+    import pymap3d
+    from mavsdk import ComponentType
+    from mavsdk.asyncio import Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.action import ActionAsync
+    from mavsdk.asyncio.plugins.mission_raw import MissionItem, MissionRawAsync
+    from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+    from tests.edge.vehicle.test_mavsim import first
+
+    port = free_udp_port()
+    veh = Px4SimVehicle(f"udpout:127.0.0.1:{port}", 1, speed=6.0).start()
+
+    def latlon(e: float, n: float) -> tuple[int, int]:
+        lat, lon, _ = pymap3d.enu2geodetic(e, n, 0.0, *veh.origin)
+        return round(lat * 1e7), round(lon * 1e7)
+
+    async def go():
+        sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        try:
+            await sdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+            system = await sdk.first_autopilot(10.0)
+            assert system is not None, "MAVSDK discovered no autopilot"
+            assert int(await system.autopilot_type()) == int(mavsdk.Autopilot.PX4)
+            tel, act, mis = TelemetryAsync(system), ActionAsync(system), MissionRawAsync(system)
+            await first(tel.subscribe_health_all_ok(), lambda ok: ok, 30)  # streamed unasked, as PX4 does
+            await act.set_takeoff_altitude(6.0)
+            assert veh.params["MIS_TAKEOFF_ALT"] == pytest.approx(6.0)
+            await act.arm()  # MAVSDK sends NaN for the unused params
+            await act.takeoff()
+            await first(tel.subscribe_position(), lambda p: p.relative_altitude_m > 5.6, 60)
+            assert PX.TAKEOFF in veh.modes_flown
+            x1, y1 = latlon(12.0, 0.0)
+            x2, y2 = latlon(12.0, 8.0)
+            items = [MissionItem(0, 6, 16, 1, 1, 0, 0, 0, math.nan, x1, y1, 6.0, 0),  # item 0: a real waypoint
+                     MissionItem(1, 6, 16, 0, 1, 0, 0, 0, math.nan, x2, y2, 6.0, 0)]
+            await mis.upload_mission(items)
+            assert len(veh.missions.mission()) == 3  # stored behind PX4's numbering: home + 2
+            await mis.start_mission()
+            done = await first(mis.subscribe_mission_progress(), lambda p: p.total == 2 and p.current == 2, 120)
+            assert done.total == 2 and PX.MISSION in veh.modes_flown
+            p = veh.sim.state().pos
+            assert math.hypot(p[0] - 12.0, p[1] - 8.0) < 3.0  # reached within NAV_ACC_RAD (2 m)
+            await act.land()
+            assert int(await first(tel.subscribe_landed_state(), lambda st: int(st) == 1, 120)) == 1
+            assert await first(tel.subscribe_armed(), lambda a: not a, 60) is False  # COM_DISARM_LAND
+            assert veh.px4_mode == PX.LAND and not veh.errors
+        finally:
+            sdk.destroy()
+
+    try:
+        asyncio.run(asyncio.wait_for(go(), 240))
+    finally:
+        veh.close()
