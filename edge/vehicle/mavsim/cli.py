@@ -58,6 +58,16 @@ def _param(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}") from None
 
 
+def _hostport(text: str) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    try:
+        if host and 1 <= int(port) <= 65535:
+            return host, int(port)
+    except ValueError:
+        pass
+    raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
+
+
 def build_parser(prog: str = "skynet sim-autopilot") -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     p.add_argument("--uav", type=int, action="append", required=True, help="system id (repeatable)")
@@ -92,6 +102,9 @@ def build_parser(prog: str = "skynet sim-autopilot") -> argparse.ArgumentParser:
                    help="the firmware to present: ArduCopter (the default) or PX4 (HEARTBEAT autopilot 12, PX4's "
                         "custom modes, OFFBOARD, missions without a home item, PX4's parameter names; "
                         "--firmware-version, --stream-all and --legacy-mission-request then do not apply)")
+    p.add_argument("--remote", type=_hostport, default=None, metavar="HOST:PORT",
+                   help="--autopilot px4 with a udpin --connection: send to HOST:PORT until a ground station's packet "
+                        "arrives, then to it (PX4's SITL: udpin:0.0.0.0:18570 with 127.0.0.1:14550)")
     p.add_argument("--rc-centred", action="store_true",
                    help="a pilot's RC transmitter is on with its sticks centred: LOITER holds position and altitude "
                         "(without RC input, the default, LOITER descends at the throttle-down rate as ArduCopter does)")
@@ -103,6 +116,9 @@ def main(argv: list[str] | None = None, prog: str = "skynet sim-autopilot") -> i
     if len(set(args.uav)) != len(args.uav):
         print("sim-autopilot: every --uav must be a distinct system id", file=sys.stderr)
         return 2
+    if args.remote is not None and args.autopilot != "px4":
+        print("sim-autopilot: --remote applies to --autopilot px4", file=sys.stderr)
+        return 2
     if args.home and len(args.home) != len(args.uav):
         print("sim-autopilot: give one --home per --uav (or none)", file=sys.stderr)
         return 2
@@ -111,8 +127,9 @@ def main(argv: list[str] | None = None, prog: str = "skynet sim-autopilot") -> i
     try:
         for k, uav in enumerate(args.uav):
             conn = connection_for(args.connection, uav, args.port_base)
+            px4 = {"remote": args.remote} if args.autopilot == "px4" else {}
             cls = Px4SimVehicle if args.autopilot == "px4" else MavlinkSimVehicle
-            vehicles.append(cls(conn, uav, home=args.home[k] if args.home else (0.0, 0.0, 0.0),
+            vehicles.append(cls(conn, uav, **px4, home=args.home[k] if args.home else (0.0, 0.0, 0.0),
                                               speed=args.speed, epoch=args.epoch, params=SimParams(disturbance=wind),
                                               seed=args.seed + uav, telemetry_hz=args.telemetry_hz,
                                               refuse_arming=args.refuse_arming, origin=args.origin,

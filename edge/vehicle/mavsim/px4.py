@@ -29,6 +29,8 @@ this persona changes what travels on the link, message by message, as PX4's firm
 - Parameters: PX4's names (:mod:`edge.vehicle.px4.params`), integers byte-wise in the float field.
 - Data-link loss: no GCS HEARTBEAT for COM_DL_LOSS_T while flying acts as NAV_DLL_ACT says (0 nothing,
   the default; 1 Hold, 2 Return, 3 Land).
+- The GCS link on UDP as PX4's: listening on its own port (``udpin``) with ``remote``, it sends to ``remote``
+  (PX4: 14550) until a ground station's packet arrives, then to that station.
 """
 
 from __future__ import annotations
@@ -73,7 +75,7 @@ class Px4SimVehicle(MavlinkSimVehicle):
     apply; ``param_overrides`` take PX4's names)."""
 
     def __init__(self, connection: str, uav: int, *args: Any, param_overrides: dict[str, float] | None = None,
-                 boot_scale: float = 0.0, **kw: Any):
+                 boot_scale: float = 0.0, remote: tuple[str, int] | None = None, **kw: Any):
         kw.pop("firmware", None)
         kw.pop("stream_all", None)
         super().__init__(connection, uav, *args, boot_scale=boot_scale, **kw)
@@ -94,6 +96,15 @@ class Px4SimVehicle(MavlinkSimVehicle):
         self._dl_mono: float | None = None  # last GCS HEARTBEAT
         self.link_lost = False
         self.offboard_losses = 0
+        #: PX4's GCS link: on a listening (udpin) connection, send to ``remote`` (PX4: 14550) until a ground
+        #: station's packet arrives, then to that station
+        self.remote = remote
+        if remote is not None:
+            conn = self._conn
+            if not getattr(conn, "udp_server", False):
+                raise ValueError("a remote address needs a listening udpin connection")
+            conn.clients.add(remote)
+            conn.clients_last_alive[remote] = float("inf")
 
     # ------------------------------------------------------------------ modes
     @property
@@ -158,6 +169,8 @@ class Px4SimVehicle(MavlinkSimVehicle):
             if r != _ACCEPTED:
                 self.errors.append(f"pilot mode change refused: {why}")
             self.send_heartbeat()
+        if self.remote is not None and len(self._conn.clients) > 1 and self.remote in self._conn.clients:
+            self._conn.clients.discard(self.remote)  # a ground station answered: talk to it from now on
         verdicts, self._mode_verdicts = self._mode_verdicts, []
         for custom, src in verdicts:  # PX4's second acknowledgement: the commander's verdict
             r, why = self._px4_switch(custom)

@@ -366,3 +366,43 @@ def test_mavsdk_flies_the_px4_sim_as_px4_without_rate_requests():
         asyncio.run(asyncio.wait_for(go(), 240))
     finally:
         veh.close()
+
+
+def test_px4_gcs_link_sends_to_14550_until_a_ground_station_answers_on_its_own_port():
+    own, remote = free_udp_port(), free_udp_port()
+    default_gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{remote}", source_system=254)
+    veh = Px4SimVehicle(f"udpin:127.0.0.1:{own}", 1, remote=("127.0.0.1", remote)).start()
+    gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{own}", source_system=255)
+    try:
+        assert default_gcs.wait_heartbeat(timeout=5).autopilot == M.MAV_AUTOPILOT_PX4  # before anyone spoke
+        end = time.monotonic() + 5.0
+        hb = None
+        while hb is None and time.monotonic() < end:  # a ground station on the vehicle's own port
+            gcs.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            hb = gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
+        assert hb is not None and hb.autopilot == M.MAV_AUTOPILOT_PX4  # answered there
+        time.sleep(0.3)
+        while default_gcs.recv_match(blocking=False) is not None:  # what was in flight before the switch
+            pass
+        time.sleep(1.5)
+        assert default_gcs.recv_match(type="HEARTBEAT", blocking=False) is None  # no longer to the default
+        assert veh.gcs_heartbeats >= 1
+    finally:
+        veh.close()
+        gcs.close()
+        default_gcs.close()
+    with pytest.raises(ValueError, match="udpin"):
+        Px4SimVehicle(f"udpout:127.0.0.1:{own}", 1, remote=("127.0.0.1", remote))
+
+
+def test_the_command_line_chooses_px4_and_refuses_remote_without_it(capsys):
+    from edge.vehicle.mavsim.cli import build_parser, main
+
+    args = build_parser().parse_args(["--uav", "1", "--autopilot", "px4", "--connection", "udpin:0.0.0.0:18570",
+                                      "--remote", "127.0.0.1:14550"])
+    assert (args.autopilot, args.remote) == ("px4", ("127.0.0.1", 14550))
+    assert build_parser().parse_args(["--uav", "1"]).autopilot == "arducopter"
+    assert main(["--uav", "1", "--remote", "127.0.0.1:14550"]) == 2
+    assert "--remote applies to --autopilot px4" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["--uav", "1", "--autopilot", "px4", "--remote", "nowhere"])
