@@ -18,7 +18,7 @@ from protocol.messages import AutopilotReadiness, Mode, Trajectory
 
 from .auto import AutoFlight
 from .commands import CommandAwaiter, CommandRefused, VehicleLinkError, await_reply
-from .dialect import ARDUCOPTER, PX4, Dialect, dialect_for
+from .dialect import ARDUCOPTER, Dialect, dialect_for
 from .guided import Target, TargetStream
 from .handlers import Telemetry, dispatch, stream_requests
 from .link import Link

@@ -38,11 +38,15 @@ class ParamClient:
     tel: Telemetry
     link: Link
     commands: CommandAwaiter
-    dialect: Dialect
     #: the autopilot's parameter naming scheme (the dialect's ``schemes``); None until learnt
     param_scheme: str | None = None
 
     def _link_error(self) -> VehicleLinkError | None:
+        raise NotImplementedError
+
+    @property
+    def dialect(self) -> Dialect:
+        """The autopilot family (the driver's: given, or from the HEARTBEAT)."""
         raise NotImplementedError
 
     def _param_exchange(self, name: str, send: Any, timeout_s: float, retries: int) -> float | None:
