@@ -181,8 +181,8 @@ class AutoFlight:
             log.warning("UAV %d: the autopilot's waypoint speed was not set: %s", drv.uav, exc)
             return
         scheme = drv.param_scheme or drv.dialect.schemes[0]
-        log.info("UAV %d: waypoint speed %.2f m/s set as %s (ArduCopter %s parameter names)", drv.uav, got,
-                 drv.dialect.param_name("wp_speed", scheme), drv.param_scheme)
+        log.info("UAV %d: waypoint speed %.2f m/s set as %s (%s %s parameter names)", drv.uav, got,
+                 drv.dialect.param_name("wp_speed", scheme), drv.dialect.name, drv.param_scheme)
 
     # ------------------------------------------------------------------ mode switches (under the driver's lock)
     def enter(self, t: float) -> None:
