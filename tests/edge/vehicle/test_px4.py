@@ -406,3 +406,16 @@ def test_the_command_line_chooses_px4_and_refuses_remote_without_it(capsys):
     assert "--remote applies to --autopilot px4" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         build_parser().parse_args(["--uav", "1", "--autopilot", "px4", "--remote", "nowhere"])
+
+
+def test_the_launcher_passes_its_sim_autopilot_choice_to_the_sim_autopilots_command_line():
+    from edge.vehicle.mavsim.cli import build_parser
+    from services.orchestration.config import LaunchConfig
+    from services.orchestration.plan import autopilot_argv
+
+    for choice in ("arducopter", "px4"):
+        argv = autopilot_argv(LaunchConfig(vehicle="mavlink", sim_autopilot=choice), 2, 14551, (1.0, 2.0, 0.0), 0.0)
+        assert argv[0] == "sim-autopilot" and build_parser().parse_args(argv[1:]).autopilot == choice
+    assert LaunchConfig().sim_autopilot == "arducopter"
+    with pytest.raises(ValueError):
+        LaunchConfig(sim_autopilot="inav")
