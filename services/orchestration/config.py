@@ -100,6 +100,9 @@ class LaunchConfig(CliModel):
     sim_rc_centred: bool = Field(default=False, description=(
         "--vehicle mavlink: the sim autopilots have a pilot's RC on with centred sticks (LOITER holds; without "
         "RC it descends, as ArduCopter does)"))
+    sim_autopilot: Literal["arducopter", "px4"] = Field(default="arducopter", description=(
+        "--vehicle mavlink: the firmware the sim autopilots present, ArduCopter or PX4 (the edges pick the "
+        "dialect from its HEARTBEAT)"))
     ready_timeout: Annotated[float, Cli(flag="--ready-timeout-s", metavar="S")] = Field(
         default=_default(GcsMissionConfig, "ready_timeout"), gt=0.0,
         description="the ground station waits this long for every UAV's autopilot to be ready, then refuses, s")

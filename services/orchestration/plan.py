@@ -361,6 +361,7 @@ def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float,
             "--boot-scale", f"{o.sim_boot_scale:g}", "--firmware-version", o.sim_firmware,
             *(["--legacy-mission-request"] if o.sim_legacy_mission_request else []),
             *(["--rc-centred"] if o.sim_rc_centred else []),
+            "--autopilot", o.sim_autopilot,
             *(["--origin=" + ",".join(f"{v:.9g}" for v in origin)] if origin is not None else [])]
 
 

@@ -33,6 +33,7 @@ from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.geometry import ardupilot_items as AI
 from edge.vehicle.auto_flight import AutoMissionPlan, autopilot_mission, resume_item, speed_correction
+from edge.vehicle.px4.missions import without_home
 from protocol.messages import Trajectory
 
 from .commands import CommandRefused, VehicleLinkError, await_reply
@@ -63,6 +64,10 @@ class AutoFlight:
         self._speed_sent: tuple[float, float] | None = None  # (speed, monotonic) of the last DO_CHANGE_SPEED
         self._fractions: tuple[float, ...] = ()  # per trajectory waypoint: its fraction of the duration
         self.from_seq: int | None = None  # the item AUTO was last entered at (None: not flown since the start)
+        #: per capture point of the trajectory: (capture id, ENU position, the NAV item it follows); fired ids
+        self._captures: tuple[tuple[int, tuple[float, float, float], int], ...] = ()
+        self._fired: set[int] = set()
+        self._progress_seen: tuple[int, int, float] = (-1, -1, 0.0)  # (current, reached, monotonic of change)
         #: DO_CHANGE_SPEED corrections sent; mode switches to AUTO that failed (with why)
         self.speed_commands = 0
         self.errors: list[str] = []
@@ -83,16 +88,39 @@ class AutoFlight:
     def _upload_plan(self, traj: Trajectory) -> None:
         drv = self.drv
         plan = autopilot_mission(traj, drv.home, self._wait_home())
+        if not drv.dialect.home_item:
+            plan = without_home(plan)  # PX4: item 0 is the first real item
+        with drv.tel.lock:
+            drv.tel.mission_total = -1
         self._upload(plan.items)
+        if not drv.dialect.home_item:
+            self._await_mission_total(len(plan.items))
         self._default_speed(plan.items)
         times = [w.t for w in traj.waypoints]
         span = times[-1] - times[0]
         with drv.tel.lock:
             drv.tel.reached_seq = drv.tel.current_seq = -1
+            drv.tel.mission_count = len(plan.items)
             self._fractions = tuple((t - times[0]) / span if span > 0 else 1.0 for t in times)
+            self._captures = _capture_points(traj, plan)
+            self._fired = set()
         self.plan, self._traj = plan, traj
         log.info("UAV %d: trajectory uploaded to the autopilot as a mission of %d items (%d waypoints, %d captures)",
                  drv.uav, len(plan.items), len(set(plan.waypoint_seq)), len(plan.capture_seq))
+
+    def _await_mission_total(self, n: int, timeout_s: float = 3.0) -> None:
+        """PX4 may refuse or ignore a mission started right after its upload: wait until MISSION_CURRENT reports
+        the new mission (``total`` == its item count), at most ``timeout_s`` (then a warning)."""
+        tel = self.drv.tel
+        deadline = time.monotonic() + timeout_s
+        with tel.cv:
+            while tel.mission_total != n:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    log.warning("UAV %d: MISSION_CURRENT does not report the %d uploaded items yet (total %d)",
+                                self.drv.uav, n, tel.mission_total)
+                    return
+                tel.cv.wait(min(left, 0.1))
 
     def _wait_home(self, timeout_s: float = 5.0) -> tuple[float, float, float]:
         """The autopilot's HOME_POSITION (asked for with MAV_CMD_REQUEST_MESSAGE until it comes)."""
@@ -153,8 +181,8 @@ class AutoFlight:
             log.warning("UAV %d: the autopilot's waypoint speed was not set: %s", drv.uav, exc)
             return
         scheme = drv.param_scheme or drv.dialect.schemes[0]
-        log.info("UAV %d: waypoint speed %.2f m/s set as %s (ArduCopter %s parameter names)", drv.uav, got,
-                 drv.dialect.param_name("wp_speed", scheme), drv.param_scheme)
+        log.info("UAV %d: waypoint speed %.2f m/s set as %s (%s %s parameter names)", drv.uav, got,
+                 drv.dialect.param_name("wp_speed", scheme), drv.dialect.name, drv.param_scheme)
 
     # ------------------------------------------------------------------ mode switches (under the driver's lock)
     def enter(self, t: float) -> None:
@@ -164,9 +192,11 @@ class AutoFlight:
             self.switch(self.drv.dialect.auto, resume_item(self.plan, wp), Phase.MISSION)
 
     def ended(self) -> None:
-        """The trajectory's clock ran out in AUTO: hold there, in GUIDED once the autopilot finished."""
-        self._end_switch, self._end_mono = True, time.monotonic()
-        self.pending = {int(self.drv.dialect.auto)}
+        """The trajectory's clock ran out in AUTO: the autopilot flies on (the edge's mode stays MISSION) until it
+        finished (:meth:`finished`); then the driver holds in the guided mode."""
+        if not self._end_switch:
+            self._end_switch, self._end_mono = True, time.monotonic()
+            self.pending = {int(self.drv.dialect.auto)}
 
     def hold_tick(self) -> None:
         """In HOLD: the switch back to GUIDED once the AUTO mission finished."""
@@ -174,13 +204,22 @@ class AutoFlight:
             self._end_switch = False
             self.switch(self.drv.dialect.guided, None, Phase.HOLD)
 
+    def finished(self) -> bool:
+        """The autopilot reached the mission's last waypoint (its capture items ran), or its mission progress
+        has not moved for ``auto_end_wait_s`` since the trajectory's clock ran out (it stopped short)."""
+        return self._finished()
+
     def _finished(self) -> bool:
-        """The autopilot reached the mission's last waypoint (its capture items ran), or
-        ``auto_end_wait_s`` passed since the trajectory's clock ran out."""
-        plan = self.plan
+        plan, tel = self.plan, self.drv.tel
         last = max(plan.waypoint_seq) if plan is not None and plan.waypoint_seq else -1
-        return (self.drv.tel.reached_seq >= last
-                or time.monotonic() - self._end_mono > self.drv.params.auto_end_wait_s)
+        if tel.reached_seq >= last:
+            return True
+        now = time.monotonic()
+        cur, reached, since = self._progress_seen
+        if (tel.current_seq, tel.reached_seq) != (cur, reached):
+            self._progress_seen = (tel.current_seq, tel.reached_seq, now)
+            since = now
+        return now - max(since, self._end_mono) > self.drv.params.auto_end_wait_s
 
     def switch(self, mode: int, seq: int | None, expect: Phase) -> None:
         """Queue DO_SET_MISSION_CURRENT (``seq``) and DO_SET_MODE ``mode`` on the worker while the driver stays
@@ -241,6 +280,20 @@ class AutoFlight:
         p = self.progress()
         return (wp, progress) if p is None else bounded(progress, (p.lo, p.hi), self._fractions)
 
+    # ------------------------------------------------------------------ captures in AUTO (under the driver's lock)
+    def captures_due(self, pos: tuple[float, float, float]) -> list[int]:
+        """The capture ids to fire now: those whose capture point the vehicle is within ``capture_radius`` of, or
+        whose waypoint the autopilot reported reached (MISSION_ITEM_REACHED), each once; not the edge's clock."""
+        radius, reached = self.drv.params.capture_radius, self.drv.tel.reached_seq
+        out = []
+        for cid, p, nav in self._captures:
+            if cid in self._fired:
+                continue
+            if reached >= nav or math.dist(pos, p) <= radius:
+                self._fired.add(cid)
+                out.append(cid)
+        return out
+
     # ------------------------------------------------------------------ formation keeping in AUTO
     def speed_message(self, target: Target) -> Any | None:
         """One AUTO tick: the formation-keeping DO_CHANGE_SPEED to send (fire and forget), or None."""
@@ -261,3 +314,16 @@ class AutoFlight:
 
     def close(self) -> None:
         self._worker.shutdown(wait=False, cancel_futures=True)
+
+
+def _capture_points(traj: Trajectory, plan: AutoMissionPlan) -> tuple[tuple[int, tuple[float, float, float], int], ...]:
+    """(capture id, ENU point, the NAV_WAYPOINT item before its DO_DIGICAM_CONTROL) per capture waypoint."""
+    out = []
+    for i, w in enumerate(traj.waypoints):
+        cid = getattr(w, "capture_id", None)
+        if cid is None or cid not in plan.capture_seq:
+            continue
+        seq = plan.capture_seq[cid]
+        nav = max((s for s in plan.waypoint_seq if s < seq), default=plan.waypoint_seq[min(i, len(plan.waypoint_seq) - 1)])
+        out.append((int(cid), (float(w.pos[0]), float(w.pos[1]), float(w.pos[2])), nav))
+    return tuple(out)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -16,8 +17,8 @@ from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import AutopilotReadiness, Mode, Trajectory
 
 from .auto import AutoFlight
-from .commands import CommandAwaiter, VehicleLinkError
-from .dialect import ARDUCOPTER, Dialect
+from .commands import CommandAwaiter, CommandRefused, VehicleLinkError, await_reply
+from .dialect import ARDUCOPTER, Dialect, dialect_for
 from .guided import Target, TargetStream
 from .handlers import Telemetry, dispatch, stream_requests
 from .link import Link
@@ -25,13 +26,20 @@ from .params import ParamClient
 from .phase import GROUNDED, Phase, overrule
 from .progress import MissionProgress
 
-__all__ = ["MavlinkParams", "MavlinkDriver"]
+__all__ = ["MavlinkParams", "MavlinkDriver", "safe_mode_name"]
 
 log = logging.getLogger("skynet.mavlink")
 Vec3 = tuple[float, float, float]
 
 _GROUNDED = (Mode.IDLE, Mode.LANDED)
 _AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL, Mode.FAILSAFE, Mode.PILOT)
+
+
+def safe_mode_name(name: object, limit: int = 32) -> str:
+    """A mode name fit to publish: letters, digits and ``_ . -`` kept, anything else (control characters, markup,
+    non-ASCII) as ``?``, at most ``limit`` characters."""
+    text = str(name)[: limit * 4]
+    return "".join(c if c.isascii() and (c.isalnum() or c in "_.-") else "?" for c in text)[:limit]
 
 
 @dataclass(frozen=True)
@@ -60,9 +68,12 @@ class MavlinkParams:
     auto_speed_gain : along-track error to ground-speed gain in AUTO, 1/s.
     auto_speed_period_s : at most one DO_CHANGE_SPEED per this many wall seconds (unless the
         speed changes by more than 0.5 m/s).
-    auto_end_wait_s : when the trajectory's clock runs out in AUTO, the switch to GUIDED waits for
-        the autopilot to reach the mission's last waypoint (MISSION_ITEM_REACHED) at most this
-        long, wall s, so that its last capture items run.
+    auto_end_wait_s : when the trajectory's clock runs out in AUTO, the edge keeps following the
+        autopilot's mission (mode MISSION) until it reports the last waypoint reached
+        (MISSION_ITEM_REACHED), or until its mission progress (MISSION_CURRENT, MISSION_ITEM_REACHED)
+        has not moved for this long, wall s; then it holds in the guided mode.
+    capture_radius : in AUTO a capture fires when the vehicle is this close to its capture point, m (or
+        when the autopilot reports the capture's waypoint reached), not on the edge's clock.
     """
 
     transit_speed: float = 4.0
@@ -81,10 +92,11 @@ class MavlinkParams:
     auto_speed_gain: float = 0.6
     auto_speed_period_s: float = 0.1
     auto_end_wait_s: float = 5.0
+    capture_radius: float = 1.0
 
     def __post_init__(self) -> None:
         for k in ("transit_speed", "start_radius", "arrive_radius", "offset_rate", "takeoff_tolerance",
-                  "heartbeat_timeout_s"):
+                  "heartbeat_timeout_s", "capture_radius"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{k} must be finite and > 0")
@@ -155,8 +167,9 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         speaks as the companion computer (system id ``uav`` unless ``source_system`` is given,
         HEARTBEAT type MAV_TYPE_ONBOARD_CONTROLLER), so the autopilot's GCS failsafe watches the
         operator's ground station, not the edge.
-    dialect : Dialect
-        The autopilot family (:mod:`.dialect`).
+    dialect : Dialect or None
+        The autopilot family (:mod:`.dialect`); None (the default) takes it from the autopilot's HEARTBEAT
+        (``autopilot``: ArduPilot or PX4, :func:`.dialect.dialect_for`).
     home_origin : (lat, lon, alt) or None
         The mission frame's geodetic origin: the launch point is then the autopilot's first HOME_POSITION
         in that frame (:func:`home_in_frame`), adopted on the ground before any flight, and the autopilot is
@@ -178,7 +191,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         signing_key: str | None = None,
         gcs_endpoint: str | None = None,
         gcs_video: Any = None,
-        dialect: Dialect = ARDUCOPTER,
+        dialect: Dialect | None = None,
         home_origin: Vec3 | None = None,
     ):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
@@ -191,7 +204,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             raise ValueError("sysid must be None or an int in 1..255")
         if not isinstance(params, MavlinkParams):
             raise ValueError("params must be a MavlinkParams")
-        self.uav, self.connection, self.params, self.dialect = uav, connection, params, dialect
+        self.uav, self.connection, self.params, self._dialect = uav, connection, params, dialect
         self.home = check_vec3(home, "home")
         self._home_origin = None if home_origin is None else check_vec3(home_origin, "home_origin")
         #: the autopilot's home adopted as the launch point (``home_origin``), and why one was not
@@ -223,6 +236,10 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             arrive_radius=params.arrive_radius, max_offset=params.max_offset, offset_rate=params.offset_rate,
             interpolation=params.interpolation)
         self.targets = TargetStream(self.rate_hz, self.home)
+        self._priming = False  # a switch to a setpoint-stream guided mode (OFFBOARD) is being prepared
+        self._confirming = 0  # mode switches awaiting their HEARTBEAT
+        self._switcher = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"mavlink-uav{uav}-mode")
+        self._preflight_done = False
         #: the AUTO flight strategy (None when flying GUIDED)
         self.auto = AutoFlight(self) if params.flight == "auto" else None
         self.bridge = None
@@ -267,11 +284,33 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         log.info("UAV %d: home from the autopilot: %.6f, %.6f, %.1f m = (%.2f, %.2f, %.2f) in the mission frame",
                  self.uav, *lla, *home)
 
+    @property
+    def dialect(self) -> Dialect:
+        """The autopilot family: the one given, else the one its HEARTBEAT names (ArduCopter until heard)."""
+        if self._dialect is not None:
+            return self._dialect
+        return dialect_for(self.tel.autopilot) or ARDUCOPTER
+
     def _on_tick(self, now: float) -> None:
         if self.tel.hb is not None and now - self._last_req >= 2.0:
             self._last_req = now
             for msg in stream_requests(self.tel, now):
                 self.link.send(msg)
+        self._keep_stream(now)
+
+    def _keep_stream(self, now: float) -> None:
+        """OFFBOARD's setpoint stream (a dialect with ``setpoint_stream``): while the driver streams (hold, mission)
+        or prepares a switch, the last target again when the board has not sent one for 0.2 s (PX4 leaves
+        OFFBOARD after COM_OF_LOSS_T, 1 s, without one; it needs > 2 Hz), e.g. while a command blocks the board."""
+        if not self.dialect.setpoint_stream:
+            return
+        with self._lock:
+            streaming = self._priming or (self.phase in (Phase.HOLD, Phase.MISSION) and not self._closed)
+            msg = self.targets.last_msg
+            if not streaming or msg is None or now - self.targets.last_mono < 0.2 or not self.link_ok:
+                return
+            self.targets.last_mono = now
+        self.link.send(msg)
 
     def _send_command(self, command: int, confirmation: int, p: tuple[float, ...], frame: int | None) -> None:
         sysid, compid = self.tel.sysid or 0, self.tel.compid
@@ -329,7 +368,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             external = self.phase is Phase.EXTERNAL
         return AutopilotReadiness(ready=ready, heartbeat=heard, status=status, home=home is not None,
                                   position=position, armable=armable, reason=why[:256],
-                                  mode=self.dialect.mode_name(hb.custom_mode)[:32] if hb is not None else "",
+                                  mode=safe_mode_name(self.dialect.mode_name(hb.custom_mode)) if hb is not None else "",
                                   external=external)
 
     def heartbeat_age(self) -> float | None:
@@ -358,8 +397,9 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             return VehicleLinkError(f"autopilot link lost: last HEARTBEAT {age:.1f} s ago on {self.connection}")
         if self.tel.autopilot != self.dialect.autopilot:
             e = M.enums["MAV_AUTOPILOT"].get(self.tel.autopilot)
+            speaks = self.dialect.name if self._dialect is not None else "ArduCopter's and PX4"
             return VehicleLinkError(f"the autopilot is {e.name if e else self.tel.autopilot}: this driver speaks "
-                                    f"{self.dialect.name}'s modes only")
+                                    f"{speaks}'s modes only")
         return None
 
     def wait_heartbeat(self, timeout_s: float = 5.0) -> None:
@@ -386,8 +426,104 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             self._cmd_rx = max(self._cmd_rx, rx)
 
     def set_mode(self, mode: int) -> None:
-        self.command(M.MAV_CMD_DO_SET_MODE, self.dialect.set_mode_params(mode),
-                     f"set mode {self.dialect.mode_name(mode)}")
+        """DO_SET_MODE; for a setpoint-stream guided mode (PX4's OFFBOARD) the stream runs first; for a dialect
+        that acknowledges twice (PX4: ACCEPTED, then the verdict) the mode is confirmed by a HEARTBEAT."""
+        d = self.dialect
+        what = f"set mode {d.mode_name(mode)}"
+        if not d.confirm_mode:
+            self.command(M.MAV_CMD_DO_SET_MODE, d.set_mode_params(mode), what)
+            return
+        err = self._link_error()
+        if err is not None:
+            raise err
+        with self._lock:
+            self._confirming += 1  # no HEARTBEAT overrules the phase meanwhile (it may still show the old mode)
+        try:
+            if d.setpoint_stream and mode == d.guided:
+                self._prime_setpoints()
+            rx = self.commands.call(M.MAV_CMD_DO_SET_MODE, d.set_mode_params(mode), what)
+            hb_rx = self._confirm_mode(mode, rx, what)
+            with self._lock:
+                self._cmd_rx = max(self._cmd_rx, hb_rx)
+        finally:
+            with self._lock:
+                self._confirming -= 1
+                if not self._confirming:
+                    self._priming = False
+
+    def _prime_setpoints(self, lead_s: float = 0.5) -> None:
+        """Start the setpoint stream ``lead_s`` before a switch to OFFBOARD (PX4 refuses it without > 2 Hz of
+        setpoints): the target being streamed, else a hold at the vehicle's position."""
+        tel = self.tel
+        with self._lock:
+            self._priming = True
+            if not (self.phase in (Phase.HOLD, Phase.MISSION) and self.targets.last_msg is not None):
+                msg = self.targets.message((tel.pos, None, None, tel.att[2]), tel.sysid or 0, tel.compid)
+            else:
+                msg = self.targets.last_msg
+            self.targets.last_mono = time.monotonic()
+        self.link.send(msg)
+        time.sleep(lead_s)  # the link's tick repeats it (:meth:`_keep_stream`)
+
+    def _confirm_mode(self, mode: int, ack_rx: int, what: str, timeout_s: float = 3.0) -> int:
+        """After DO_SET_MODE's first ACCEPTED: the receive index of a HEARTBEAT in ``mode``; CommandRefused when a
+        second COMMAND_ACK refuses it, VehicleLinkError when no HEARTBEAT shows it within ``timeout_s``."""
+        tel, cmd = self.tel, M.MAV_CMD_DO_SET_MODE
+        deadline = time.monotonic() + timeout_s
+        with tel.cv:
+            while True:
+                ack = tel.acks.get(cmd)
+                if ack is not None and ack[1] > ack_rx and ack[0] not in (M.MAV_RESULT_ACCEPTED,
+                                                                         M.MAV_RESULT_IN_PROGRESS):
+                    tel.acks.pop(cmd, None)
+                    texts = tuple(t for _, _, t in list(tel.texts)[-3:])
+                    raise CommandRefused(what, cmd, ack[0], texts)
+                hb = tel.hb
+                if hb is not None and hb.rx > ack_rx and hb.custom_mode == int(mode):
+                    tel.acks.pop(cmd, None)
+                    return hb.rx
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise VehicleLinkError(f"{what}: accepted, but no HEARTBEAT in that mode within {timeout_s:g} s")
+                tel.cv.wait(min(left, 0.1))
+
+    def _switch_soon(self, mode: int, expect: Phase) -> None:
+        """Switch to ``mode`` on the driver's mode thread (``step`` never waits), if still in phase ``expect``."""
+        def run() -> None:
+            with self._lock:
+                if self.phase is not expect or self._closed:
+                    return
+            try:
+                self.set_mode(mode)
+            except ValueError as exc:
+                log.warning("UAV %d: switch to %s failed: %s", self.uav, self.dialect.mode_name(mode), exc)
+
+        try:
+            self._switcher.submit(run)
+        except RuntimeError:  # closed meanwhile
+            pass
+
+    def _preflight(self) -> None:
+        """The dialect's parameters set once before the first takeoff (PX4: NAV_DLL_ACT = 2, Return on a
+        data-link loss, which is off by default); best effort, a warning when refused."""
+        if self._preflight_done:
+            return
+        self._preflight_done = True
+        for key, value in self.dialect.preflight_params:
+            try:
+                self.set_param_si(key, value)
+            except ValueError as exc:
+                log.warning("UAV %d: could not set %s: %s", self.uav, key, exc)
+
+    def _home_amsl(self, timeout_s: float = 3.0) -> float | None:
+        """The autopilot's home altitude above sea level (HOME_POSITION, asked for when not heard yet)."""
+        tel = self.tel
+        if tel.home_lla is None:
+            ask = M.MAVLink_command_long_message(tel.sysid or 0, tel.compid, M.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                 M.MAVLINK_MSG_ID_HOME_POSITION, 0, 0, 0, 0, 0, 0)
+            await_reply(tel.cv, lambda _: self.link.send(ask), lambda: tel.home_lla, 1.0, max(0, int(timeout_s) - 1))
+        home = tel.home_lla
+        return None if home is None else home[2]
 
     def _ensure_guided(self) -> None:
         """Switch to the guided mode unless the driver already flies in it (and no newer HEARTBEAT disagrees)."""
@@ -395,6 +531,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         with self._lock:
             hb = self.tel.hb
             fresh = hb is not None and hb.rx > self._cmd_rx
+            if self.dialect.confirm_mode:  # its HEARTBEAT shows every mode the driver set: it decides
+                fresh = hb is not None
             if self.phase in (Phase.HOLD, Phase.MISSION, Phase.TAKEOFF) and not (fresh and hb.custom_mode != guided):
                 return
         self.set_mode(guided)
@@ -403,11 +541,11 @@ class MavlinkDriver(ParamClient, VehicleDriver):
     def _update_phase(self) -> None:
         """Let a HEARTBEAT newer than the last accepted command overrule the driver's phase."""
         hb = self.tel.hb
-        if hb is None or hb.rx <= self._cmd_rx:
+        if hb is None or hb.rx <= self._cmd_rx or self._confirming:
             return
         pending = self.auto.pending if self.auto is not None else ()
         o = overrule(self.phase, armed=hb.armed, guided=hb.custom_mode == self.dialect.guided,
-                     expected=hb.custom_mode == self.dialect.phase_mode(self.phase) or hb.custom_mode in pending)
+                     expected=hb.custom_mode in self.dialect.phase_modes(self.phase) or hb.custom_mode in pending)
         if o.noticed:
             name = self.dialect.mode_name(hb.custom_mode)
             self.external_modes.append(name)
@@ -481,10 +619,14 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         altitude = float(altitude)
         if not (math.isfinite(altitude) and 0.5 <= altitude <= 500.0):
             raise ValueError("takeoff altitude must be in [0.5, 500] m")
-        self.set_mode(self.dialect.guided)
+        d = self.dialect
+        self._preflight()
+        param7 = d.takeoff_altitude(altitude, self._home_amsl() if not d.home_item else None)
+        latlon = (0, 0) if d.home_item else (math.nan, math.nan)  # PX4: NaN = where it is
+        self.set_mode(d.arm_mode)
         self.command(M.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "arm")
         try:
-            self.command(M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, 0, 0, altitude), f"take off to {altitude:g} m")
+            self.command(M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, *latlon, param7), f"take off to {altitude:g} m")
         except ValueError:
             try:  # do not leave the motors armed on the ground
                 self.command(M.MAV_CMD_COMPONENT_ARM_DISARM, (0.0,), "disarm")
@@ -553,6 +695,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         if self._closed:
             return
         self._closed = True
+        self._switcher.shutdown(wait=False, cancel_futures=True)
         if self.auto is not None:
             self.auto.close()
         self.link.close()
@@ -571,15 +714,25 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         self._hold = (self.tel.pos, self.tel.att[2])
         self.targets.restart()
 
-    def _mission_reference(self, t: float, dt: float, events: list[CaptureEvent]) -> Target:
+    def _mission_reference(self, t: float, dt: float, events: list[CaptureEvent], in_auto: bool = False) -> Target:
         """The mission's target at time t (the sequencer's reference, as this driver streams it).
 
         Waiting at the first waypoint and holding at the end: position and yaw; transit:
         position, velocity and yaw; tracking: also the acceleration (``accel_feedforward``).
+        In AUTO (``in_auto``) the captures are not the clock's (:meth:`.auto.AutoFlight.captures_due`) and the
+        trajectory's end does not end the phase (the autopilot's mission does).
         """
-        m, tel = self.mission, self.tel
+        m, tel, auto = self.mission, self.tel, self.auto
         p, v, a, yaw = m.reference(t, tel.pos, dt)
-        events.extend(CaptureEvent(w.capture_id, t, tel.pos, tel.att) for w in m.due(t))
+        due = m.due(t)
+        if in_auto and auto is not None:
+            m.captures -= len(due)  # counted when fired by position or MISSION_ITEM_REACHED instead
+            if m.done:
+                return p, None, None, yaw
+        else:
+            if auto is not None:
+                auto._fired.update(w.capture_id for w in due)
+            events.extend(CaptureEvent(w.capture_id, t, tel.pos, tel.att) for w in due)
         if m.done:
             self.phase = Phase.HOLD
             self._hold = (p, yaw)
@@ -614,16 +767,23 @@ class MavlinkDriver(ParamClient, VehicleDriver):
                 self.phase = phase = Phase.HOLD
                 self._hold = ((tel.pos[0], tel.pos[1], self._takeoff_z), self._takeoff_yaw)
                 self.targets.restart()
+                if self.dialect.setpoint_stream:  # PX4 holds in AUTO.LOITER: hold in OFFBOARD, ready to start
+                    self._switch_soon(self.dialect.guided, Phase.HOLD)
             if phase is Phase.MISSION:
                 target = self._mission_reference(until_t, dt, events)
                 if auto is not None and self.mission.phase == "track":
                     auto.enter(until_t)
             elif phase is Phase.AUTO and auto is not None:
-                ref = self._mission_reference(until_t, dt, events)
-                if self.phase is Phase.HOLD:  # the trajectory's end: hold there in GUIDED once AUTO finished
+                ref = None if self.mission.done else self._mission_reference(until_t, dt, events, in_auto=True)
+                fired = auto.captures_due(tel.pos)
+                self.mission.captures += len(fired)
+                events.extend(CaptureEvent(cid, until_t, tel.pos, tel.att) for cid in fired)
+                if self.mission.done:  # the clock ran out: follow the autopilot's mission to its end, then hold
                     auto.ended()
-                    phase = Phase.HOLD
-                else:
+                    if auto.finished():
+                        self._hold_here()
+                        phase = Phase.HOLD
+                elif ref is not None:
                     speed = auto.speed_message(ref)
             if phase is Phase.HOLD:
                 if auto is not None:

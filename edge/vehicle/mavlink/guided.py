@@ -56,6 +56,9 @@ class TargetStream:
         #: targets sent (count) and the last one (NED x, y, z, yaw), for inspection
         self.sent = 0
         self.last: tuple[float, float, float, float] | None = None
+        #: the last message and when it went out (time.monotonic()), for a stream kept alive between steps
+        self.last_msg: Any = None
+        self.last_mono = -math.inf
 
     def restart(self) -> None:
         """Send the next target at once (a new phase)."""
@@ -84,5 +87,7 @@ class TargetStream:
         ms = int((time.monotonic() - self._mono0) * 1000) & 0xFFFFFFFF
         self.sent += 1
         self.last = (x, y, z, yaw)
-        return M.MAVLink_set_position_target_local_ned_message(ms, sysid, compid, M.MAV_FRAME_LOCAL_NED, mask,
-                                                               x, y, z, vx, vy, vz, ax, ay, az, yaw, 0)
+        self.last_mono = time.monotonic()
+        self.last_msg = M.MAVLink_set_position_target_local_ned_message(ms, sysid, compid, M.MAV_FRAME_LOCAL_NED, mask,
+                                                                        x, y, z, vx, vy, vz, ax, ay, az, yaw, 0)
+        return self.last_msg

@@ -5,7 +5,9 @@ HEARTBEAT (the first autopilot heard becomes the target unless ``sysid`` names o
 custom mode, system status), LOCAL_POSITION_NED and ATTITUDE (converted to ENU/FLU,
 below), SYS_STATUS (``battery_remaining``, the pre-arm bit), EKF_STATUS_REPORT,
 HOME_POSITION, STATUSTEXT (the latest "PreArm:", "Arm:" or mode-refusal text is the reason the
-autopilot is not ready), MISSION_ITEM_REACHED and MISSION_CURRENT (the mission progress), the parameter protocol's PARAM_VALUE / PARAM_ERROR,
+autopilot is not ready), MISSION_ITEM_REACHED and MISSION_CURRENT (the mission progress, checked against
+the uploaded mission: :func:`_mission_current`), the parameter protocol's PARAM_VALUE / PARAM_ERROR (PX4's
+integers decoded byte-wise),
 the mission protocol's MISSION_REQUEST(_INT) / MISSION_ACK, and COMMAND_ACK (matched by
 :mod:`.commands`). Messages from other systems are ignored; undecodable or non-finite values are
 counted in ``errors``.
@@ -42,6 +44,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.vehicle.angles import wrap_angle
+from edge.vehicle.px4.params import decode
 
 __all__ = ["Heartbeat", "Telemetry", "HANDLERS", "dispatch", "stream_requests", "STREAMS", "LEGACY_STREAMS", "ned_to_enu",
            "enu_to_ned", "yaw_ned_to_enu", "yaw_enu_to_ned", "attitude_ned_to_enu", "rates_frd_to_flu"]
@@ -153,6 +156,9 @@ class Telemetry:
         self.mission_rx: deque[Any] = deque(maxlen=64)
         self.reached_seq = -1  # the autopilot's latest MISSION_ITEM_REACHED
         self.current_seq = -1  # the autopilot's current mission item (MISSION_CURRENT)
+        self.mission_total = -1  # MISSION_CURRENT's ``total`` (the autopilot's item count; −1 before one)
+        self.mission_count = -1  # items the driver uploaded (−1: none): progress beyond them is refused
+        self.progress_rejected = 0  # MISSION_CURRENT / MISSION_ITEM_REACHED ignored (see :func:`_mission_current`)
         self.param_rx: dict[str, tuple[float, int]] = {}  # name -> (value, rx)
         self.param_err: dict[str, int] = {}  # name -> rx of its PARAM_ERROR
         self.errors = 0  # undecodable datagrams and malformed values
@@ -223,8 +229,11 @@ def _home_position(t: Telemetry, msg: Any, now: float) -> None:
 
 def _param_value(t: Telemetry, msg: Any, now: float) -> None:
     name = _param_id(msg.param_id)
-    if name and math.isfinite(msg.param_value) and len(t.param_rx) < 4096:
-        t.param_rx[name] = (float(msg.param_value), t.next_rx())
+    value = float(msg.param_value)
+    if t.autopilot == M.MAV_AUTOPILOT_PX4:  # PX4 sends an integer parameter's bytes in the float field
+        value = decode(value, int(msg.param_type))
+    if name and math.isfinite(value) and len(t.param_rx) < 4096:
+        t.param_rx[name] = (value, t.next_rx())
     elif name:
         t.errors += 1
 
@@ -241,6 +250,34 @@ def _mission(t: Telemetry, msg: Any, now: float) -> None:
         t.cv.notify_all()
 
 
+def _mission_current(t: Telemetry, msg: Any, now: float) -> None:
+    """MISSION_CURRENT: the item the autopilot flies to. Ignored (counted in ``progress_rejected``) when outside the
+    uploaded mission, or before an item it already reported reached (progress never moves back)."""
+    seq, total = int(msg.seq), int(getattr(msg, "total", 0) or 0)
+    if 0 <= total < 65535:
+        t.mission_total = total
+    n = t.mission_count
+    if seq < 0 or (n >= 0 and seq >= n) or seq < t.reached_seq:
+        t.progress_rejected += 1
+        return
+    t.current_seq = seq
+    t.cv.notify_all()
+
+
+def _mission_item_reached(t: Telemetry, msg: Any, now: float) -> None:
+    """MISSION_ITEM_REACHED: ignored (counted) outside the uploaded mission or beyond the item after the current
+    one (an autopilot reaches the item it flies to: a report far ahead would jump the edge's progress); a
+    repeat (PX4 repeats it about once a second) or an older item changes nothing."""
+    seq, n = int(msg.seq), t.mission_count
+    if seq < 0 or (n >= 0 and seq >= n) or seq > t.current_seq + 1:
+        t.progress_rejected += 1
+        return
+    if seq > t.reached_seq:
+        t.reached_seq = seq
+        t.current_seq = max(t.current_seq, seq)
+        t.cv.notify_all()
+
+
 def _command_ack(t: Telemetry, msg: Any, now: float) -> None:
     if (msg.command == M.MAV_CMD_SET_MESSAGE_INTERVAL and not t.legacy_streams
             and msg.result in (M.MAV_RESULT_UNSUPPORTED, M.MAV_RESULT_FAILED)):
@@ -253,8 +290,7 @@ HANDLERS: dict[str, Callable[[Telemetry, Any, float], None]] = {
     "HEARTBEAT": _heartbeat, "LOCAL_POSITION_NED": _local_position, "ATTITUDE": _attitude,
     "SYS_STATUS": _sys_status, "STATUSTEXT": _statustext, "HOME_POSITION": _home_position,
     "EKF_STATUS_REPORT": lambda t, m, now: setattr(t, "ekf_flags", int(m.flags)),
-    "MISSION_ITEM_REACHED": lambda t, m, now: setattr(t, "reached_seq", max(t.reached_seq, int(m.seq))), "PARAM_VALUE": _param_value,
-    "MISSION_CURRENT": lambda t, m, now: setattr(t, "current_seq", int(m.seq)),
+    "MISSION_ITEM_REACHED": _mission_item_reached, "PARAM_VALUE": _param_value, "MISSION_CURRENT": _mission_current,
     "PARAM_ERROR": _param_error, "MISSION_REQUEST_INT": _mission, "MISSION_REQUEST": _mission,
     "MISSION_ACK": _mission, "COMMAND_ACK": _command_ack,
 }

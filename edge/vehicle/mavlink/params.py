@@ -6,7 +6,9 @@ project uses and moved them to SI units (:mod:`edge.vehicle.apm.params`):
 :meth:`~ParamClient.learn_param_scheme` reads 4.7's WP_SPD and falls back on 4.6's WPNAV_SPEED on
 PARAM_ERROR (or silence), and :meth:`~ParamClient.set_param_si` / :meth:`~ParamClient.read_param_si`
 use the learnt name and unit, else the other scheme's (WPNAV_SPEED cm/s or WP_SPD m/s, RTL_ALT cm or
-RTL_ALT_M m, LAND_SPEED cm/s or LAND_SPD_MS m/s).
+RTL_ALT_M m, LAND_SPEED cm/s or LAND_SPD_MS m/s). PX4 has one scheme (MPC_XY_CRUISE m/s, RTL_RETURN_ALT m,
+..., :mod:`edge.vehicle.px4.params`) and carries integer parameters byte-wise: PARAM_SET encodes them so
+(:func:`edge.vehicle.px4.params.encode`) and the PARAM_VALUE handler decodes them by ``param_type``.
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ import math
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as M
+
+from edge.vehicle.px4.params import encode
 
 from .commands import CommandAwaiter, VehicleLinkError, await_reply
 from .dialect import Dialect
@@ -34,11 +38,15 @@ class ParamClient:
     tel: Telemetry
     link: Link
     commands: CommandAwaiter
-    dialect: Dialect
     #: the autopilot's parameter naming scheme (the dialect's ``schemes``); None until learnt
     param_scheme: str | None = None
 
     def _link_error(self) -> VehicleLinkError | None:
+        raise NotImplementedError
+
+    @property
+    def dialect(self) -> Dialect:
+        """The autopilot family (the driver's: given, or from the HEARTBEAT)."""
         raise NotImplementedError
 
     def _param_exchange(self, name: str, send: Any, timeout_s: float, retries: int) -> float | None:
@@ -84,7 +92,10 @@ class ParamClient:
         if not math.isfinite(value):
             raise ValueError(f"parameter {name}: value must be finite")
         raw = name.encode("ascii", "replace")
-        msg = M.MAVLink_param_set_message(self.tel.sysid or 0, self.tel.compid, raw, value, param_type)
+        wire = value
+        if self.dialect.param_bitcast and param_type != M.MAV_PARAM_TYPE_REAL32:
+            wire = encode(round(value), param_type)  # PX4: an integer's bytes in the float field
+        msg = M.MAVLink_param_set_message(self.tel.sysid or 0, self.tel.compid, raw, wire, param_type)
         got = self._param_exchange(name, msg, timeout_s, retries)
         if got is None:
             raise ValueError(f"parameter {name} does not exist on the autopilot")

@@ -274,11 +274,16 @@ def _ok(done: bool) -> int:
     return ACCEPTED if done else DENIED
 
 
+def _int(v: float) -> int:
+    """A command parameter as an integer (−1 for NaN or infinity: clients send NaN for "unused")."""
+    return int(v) if math.isfinite(v) else -1
+
+
 #: MAV_CMD -> handler(vehicle, command, is COMMAND_INT) -> MAV_RESULT; any other command is UNSUPPORTED
 COMMANDS: dict[int, Callable[[Any, Any, bool], int]] = {
-    M.MAV_CMD_DO_SET_MODE: lambda v, c, i: (v._set_mode(c.param2) if int(c.param1) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-                                            else UNSUPPORTED),
-    M.MAV_CMD_COMPONENT_ARM_DISARM: lambda v, c, i: v._arm(c.param1 > 0.5, int(c.param2) == FORCE_CODE),
+    M.MAV_CMD_DO_SET_MODE: lambda v, c, i: (v._set_mode(c.param2) if _int(c.param1) > 0
+                                            and _int(c.param1) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED else UNSUPPORTED),
+    M.MAV_CMD_COMPONENT_ARM_DISARM: lambda v, c, i: v._arm(c.param1 > 0.5, _int(c.param2) == FORCE_CODE),
     M.MAV_CMD_NAV_TAKEOFF: lambda v, c, i: v._takeoff(c.param7),
     M.MAV_CMD_NAV_LAND: lambda v, c, i: v._set_mode(CopterMode.LAND),
     M.MAV_CMD_NAV_RETURN_TO_LAUNCH: lambda v, c, i: v._set_mode(CopterMode.RTL),

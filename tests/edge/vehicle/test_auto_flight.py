@@ -286,3 +286,29 @@ def test_auto_progress_follows_a_slow_autopilot_not_the_edges_clock(monkeypatch)
     finally:
         drv.close()
         veh.close()
+
+
+def test_auto_follows_a_slow_autopilot_to_the_end_and_captures_at_the_points(auto_link, monkeypatch):
+    """The autopilot flies slower than the plan (0.5 m/s legs, as ArduCopter flies dense missions): when the edge's
+    trajectory clock runs out the edge's mode stays MISSION until the autopilot reports its last waypoint reached,
+    and the captures fire where the vehicle is at their points, not when the clock says."""
+    leg_speed = AutoMission._leg_speed
+    monkeypatch.setattr(AutoMission, "_leg_speed", lambda self: min(leg_speed(self), 0.5))
+    drv, veh = auto_link
+    drv.takeoff(5.0)
+    fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
+    traj = trajectory(HOME[2] + 5.0)
+    drv.upload(traj)
+    drv.start(veh.clock.now() + 1.0)
+    last = max(drv.auto.plan.waypoint_seq)
+    seen = []
+    events = fly(drv, veh, lambda s: s.mode == Mode.HOLD, 90.0,
+                 lambda s: seen.append((drv.mission.done, s.mode, drv.tel.reached_seq)))
+    after_clock = [(mode, reached) for done, mode, reached in seen if done]
+    assert any(mode == Mode.MISSION and reached < last for mode, reached in after_clock)  # the autopilot still flew
+    assert all(mode == Mode.MISSION for mode, reached in after_clock if reached < last)  # never "hold" meanwhile
+    assert drv.tel.reached_seq == last and not drv.external_modes
+    assert sorted(e.capture_id for e in events) == [11, 12, 13]
+    for e in events:  # at their points (the clock would have fired them ~half way there)
+        w = next(w for w in traj.waypoints if w.capture_id == e.capture_id)
+        assert math.dist(e.pos, w.pos) < 2.1  # within the capture radius or ArduCopter's 2 m waypoint radius
