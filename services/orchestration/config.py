@@ -91,7 +91,7 @@ class LaunchConfig(CliModel):
     sim_boot_scale: Annotated[float, Cli(metavar="F")] = Field(default=1.0, ge=0.0, description=(
         "--vehicle mavlink: the sim autopilots' start-up times as a fraction of ArduCopter's (1: GUIDED/AUTO after 42 "
         "simulated s; 0.1 ten times faster; 0 at once)"))
-    sim_firmware: Literal["4.6", "4.7"] = Field(default="4.6", description=(
+    sim_firmware_version: Literal["4.6", "4.7"] = Field(default="4.6", description=(
         "--vehicle mavlink: the sim autopilots' parameter names and units: 4.6 (stable 4.5/4.6: WPNAV_SPEED cm/s, "
         "RTL_ALT cm, ...) or 4.7 (4.7+: WP_SPD m/s, RTL_ALT_M m, ...)"))
     sim_legacy_mission_request: bool = Field(default=False, description=(
@@ -100,7 +100,7 @@ class LaunchConfig(CliModel):
     sim_rc_centred: bool = Field(default=False, description=(
         "--vehicle mavlink: the sim autopilots have a pilot's RC on with centred sticks (LOITER holds; without "
         "RC it descends, as ArduCopter does)"))
-    sim_autopilot: Literal["arducopter", "px4"] = Field(default="arducopter", description=(
+    sim_firmware: Literal["arducopter", "px4"] = Field(default="arducopter", description=(
         "--vehicle mavlink: the firmware the sim autopilots present, ArduCopter or PX4 (the edges pick the "
         "dialect from its HEARTBEAT)"))
     ready_timeout: Annotated[float, Cli(flag="--ready-timeout-s", metavar="S")] = Field(

@@ -358,10 +358,10 @@ def autopilot_argv(o: LaunchConfig, i: int, port: int, home: tuple[float, float,
     ``origin``: the scenario's geodetic origin, where its HOME_POSITION is reckoned from."""
     return ["sim-autopilot", "--uav", str(i), "--port-base", str(port - i + 1), "--home=" + ",".join(map(str, home)),
             "--speed", str(o.speed), "--epoch", str(epoch), "--seed", str(o.seed + i), "--wind", "moderate",
-            "--boot-scale", f"{o.sim_boot_scale:g}", "--firmware-version", o.sim_firmware,
+            "--boot-scale", f"{o.sim_boot_scale:g}", "--firmware-version", o.sim_firmware_version,
             *(["--legacy-mission-request"] if o.sim_legacy_mission_request else []),
             *(["--rc-centred"] if o.sim_rc_centred else []),
-            "--autopilot", o.sim_autopilot,
+            "--firmware", o.sim_firmware,
             *(["--origin=" + ",".join(f"{v:.9g}" for v in origin)] if origin is not None else [])]
 
 

@@ -14,7 +14,7 @@ until asked for telemetry (``--stream-all``: everything unasked) and takes ArduC
 times (~42 s until GUIDED and AUTO are allowed; ``--boot-scale 0.1`` ten times faster, 0 at once).
 ``--firmware-version 4.7`` presents ArduCopter 4.7's parameter names and units (MAV_SYSID, WP_SPD
 m/s, RTL_ALT_M m, ...) instead of stable 4.6's (the default: what released firmware runs).
-``--autopilot px4`` presents PX4 instead (:mod:`.px4`: its HEARTBEAT, custom modes, OFFBOARD, missions
+``--firmware px4`` presents PX4 instead (:mod:`.px4`: its HEARTBEAT, custom modes, OFFBOARD, missions
 without a home item, parameters; ~4 s start-up scaled by ``--boot-scale``; telemetry streamed unasked).
 """
 
@@ -99,12 +99,12 @@ def build_parser(prog: str = "skynet sim-autopilot") -> argparse.ArgumentParser:
     p.add_argument("--legacy-mission-request", action="store_true",
                    help="ask for uploaded mission items with MISSION_REQUEST (as ArduCopter's firmware may) "
                         "instead of MISSION_REQUEST_INT")
-    p.add_argument("--autopilot", choices=["arducopter", "px4"], default="arducopter",
+    p.add_argument("--firmware", choices=["arducopter", "px4"], default="arducopter",
                    help="the firmware to present: ArduCopter (the default) or PX4 (HEARTBEAT autopilot 12, PX4's "
                         "custom modes, OFFBOARD, missions without a home item, PX4's parameter names; "
                         "--firmware-version, --stream-all and --legacy-mission-request then do not apply)")
     p.add_argument("--remote", type=_hostport, default=None, metavar="HOST:PORT",
-                   help="--autopilot px4 with a udpin --connection: send to HOST:PORT until a ground station's packet "
+                   help="--firmware px4 with a udpin --connection: send to HOST:PORT until a ground station's packet "
                         "arrives, then to it (PX4's SITL: udpin:0.0.0.0:18570 with 127.0.0.1:14550)")
     p.add_argument("--rc-centred", action="store_true",
                    help="a pilot's RC transmitter is on with its sticks centred: LOITER holds position and altitude "
@@ -117,8 +117,8 @@ def main(argv: list[str] | None = None, prog: str = "skynet sim-autopilot") -> i
     if len(set(args.uav)) != len(args.uav):
         print("sim-autopilot: every --uav must be a distinct system id", file=sys.stderr)
         return 2
-    if args.remote is not None and args.autopilot != "px4":
-        print("sim-autopilot: --remote applies to --autopilot px4", file=sys.stderr)
+    if args.remote is not None and args.firmware != "px4":
+        print("sim-autopilot: --remote applies to --firmware px4", file=sys.stderr)
         return 2
     if args.home and len(args.home) != len(args.uav):
         print("sim-autopilot: give one --home per --uav (or none)", file=sys.stderr)
@@ -128,8 +128,8 @@ def main(argv: list[str] | None = None, prog: str = "skynet sim-autopilot") -> i
     try:
         for k, uav in enumerate(args.uav):
             conn = connection_for(args.connection, uav, args.port_base)
-            px4 = {"remote": args.remote} if args.autopilot == "px4" else {}
-            cls = Px4SimVehicle if args.autopilot == "px4" else MavlinkSimVehicle
+            px4 = {"remote": args.remote} if args.firmware == "px4" else {}
+            cls = Px4SimVehicle if args.firmware == "px4" else MavlinkSimVehicle
             vehicles.append(cls(conn, uav, **px4, home=args.home[k] if args.home else (0.0, 0.0, 0.0),
                                               speed=args.speed, epoch=args.epoch, params=SimParams(disturbance=wind),
                                               seed=args.seed + uav, telemetry_hz=args.telemetry_hz,
@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None, prog: str = "skynet sim-autopilot") -> i
                                               firmware=args.firmware_version,
                                               legacy_mission_request=args.legacy_mission_request,
                                               rc_centred=args.rc_centred))
-            print(f"sim-autopilot: uav {uav} (system id {uav}) as {args.autopilot} on {conn}, speed x{args.speed:g}",
+            print(f"sim-autopilot: uav {uav} (system id {uav}) as {args.firmware} on {conn}, speed x{args.speed:g}",
                   flush=True)
     except ValueError as exc:
         for v in vehicles:

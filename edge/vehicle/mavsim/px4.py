@@ -1,4 +1,4 @@
-"""The sim autopilot presenting itself as PX4 (``skynet sim-autopilot --autopilot px4``).
+"""The sim autopilot presenting itself as PX4 (``skynet sim-autopilot --firmware px4``).
 
 The simulated vehicle and its ArduCopter machinery stay underneath (:class:`.vehicle.MavlinkSimVehicle`);
 this persona changes what travels on the link, message by message, as PX4's firmware does it

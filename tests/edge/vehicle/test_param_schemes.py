@@ -266,14 +266,14 @@ def test_driver_survives_hostile_param_messages():
 # ---------------------------------------------------------------------------------- through the launcher
 @pytest.mark.mission
 def test_auto_mission_through_the_launcher_on_4_7_autopilots(tmp_path):
-    """``skynet mission --vehicle mavlink --flight auto --sim-firmware 4.7``: the edges set the plan's
+    """``skynet mission --vehicle mavlink --flight auto --sim-firmware-version 4.7``: the edges set the plan's
     speed as WP_SPD (m/s) on every autopilot and fly the mission to success."""
     import json
 
     out = tmp_path / "report"
     root = Path(__file__).resolve().parents[3]
     proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--vehicle", "mavlink", "--speed", "8",
-                           "--flight", "auto", "--sim-boot-scale", "0.1", "--sim-firmware", "4.7",
+                           "--flight", "auto", "--sim-boot-scale", "0.1", "--sim-firmware-version", "4.7",
                            "--quiet", "--out", str(out)], cwd=root, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     report = json.loads((out / "report.json").read_text())

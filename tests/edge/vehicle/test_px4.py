@@ -398,14 +398,14 @@ def test_px4_gcs_link_sends_to_14550_until_a_ground_station_answers_on_its_own_p
 def test_the_command_line_chooses_px4_and_refuses_remote_without_it(capsys):
     from edge.vehicle.mavsim.cli import build_parser, main
 
-    args = build_parser().parse_args(["--uav", "1", "--autopilot", "px4", "--connection", "udpin:0.0.0.0:18570",
+    args = build_parser().parse_args(["--uav", "1", "--firmware", "px4", "--connection", "udpin:0.0.0.0:18570",
                                       "--remote", "127.0.0.1:14550"])
     assert (args.autopilot, args.remote) == ("px4", ("127.0.0.1", 14550))
     assert build_parser().parse_args(["--uav", "1"]).autopilot == "arducopter"
     assert main(["--uav", "1", "--remote", "127.0.0.1:14550"]) == 2
-    assert "--remote applies to --autopilot px4" in capsys.readouterr().err
+    assert "--remote applies to --firmware px4" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        build_parser().parse_args(["--uav", "1", "--autopilot", "px4", "--remote", "nowhere"])
+        build_parser().parse_args(["--uav", "1", "--firmware", "px4", "--remote", "nowhere"])
 
 
 def test_the_launcher_passes_its_sim_autopilot_choice_to_the_sim_autopilots_command_line():
@@ -414,8 +414,8 @@ def test_the_launcher_passes_its_sim_autopilot_choice_to_the_sim_autopilots_comm
     from services.orchestration.plan import autopilot_argv
 
     for choice in ("arducopter", "px4"):
-        argv = autopilot_argv(LaunchConfig(vehicle="mavlink", sim_autopilot=choice), 2, 14551, (1.0, 2.0, 0.0), 0.0)
+        argv = autopilot_argv(LaunchConfig(vehicle="mavlink", sim_firmware=choice), 2, 14551, (1.0, 2.0, 0.0), 0.0)
         assert argv[0] == "sim-autopilot" and build_parser().parse_args(argv[1:]).autopilot == choice
-    assert LaunchConfig().sim_autopilot == "arducopter"
+    assert LaunchConfig().sim_firmware == "arducopter"
     with pytest.raises(ValueError):
-        LaunchConfig(sim_autopilot="inav")
+        LaunchConfig(sim_firmware="inav")

@@ -181,7 +181,7 @@ def test_the_sim_autopilots_options_come_from_the_launcher():
     """``--sim-*``: each sim autopilot's command line carries them, and its own parser reads them back."""
     from edge.vehicle.mavsim.cli import build_parser as sim_parser
 
-    plan = plan_of("--vehicle", "mavlink", "--sim-boot-scale", "0.5", "--sim-firmware", "4.7",
+    plan = plan_of("--vehicle", "mavlink", "--sim-boot-scale", "0.5", "--sim-firmware-version", "4.7",
                    "--sim-legacy-mission-request", "--sim-rc-centred")
     for i in (1, 2, 3):
         args = sim_parser().parse_args(list(plan.get(f"ap{i}").argv[1:]))

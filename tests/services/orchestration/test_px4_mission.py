@@ -1,4 +1,4 @@
-"""The whole 3-UAV mission through the launcher with ``--vehicle mavlink --sim-autopilot px4``: every edge picks the
+"""The whole 3-UAV mission through the launcher with ``--vehicle mavlink --sim-firmware px4``: every edge picks the
 PX4 dialect from its sim autopilot's HEARTBEAT and flies it in OFFBOARD (guided) and in AUTO.MISSION (auto), in the
 default secure mode. Same bounds as the ArduCopter missions (tests/services/orchestration/test_mavlink_mission.py)."""
 
@@ -19,7 +19,7 @@ FORMATION_RMS_BOUND_M = 1.0
 def test_mission_with_px4_sim_autopilots(tmp_path, flight):
     out = tmp_path / "report"
     proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--vehicle", "mavlink", "--speed", "8",
-                           "--flight", flight, "--sim-autopilot", "px4", "--sim-boot-scale", "0.1", "--quiet",
+                           "--flight", flight, "--sim-firmware", "px4", "--sim-boot-scale", "0.1", "--quiet",
                            "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     report = json.loads((out / "report.json").read_text())
