@@ -80,7 +80,7 @@ class Px4SimVehicle(MavlinkSimVehicle):
         kw.pop("stream_all", None)
         super().__init__(connection, uav, *args, boot_scale=boot_scale, **kw)
         self.boot = BootTimeline(scale=boot_scale, **PX4_BOOT)
-        self.params = Px4ParamTable(**{"MAV_SYS_ID": uav, **(param_overrides or {})})
+        self.params: Px4ParamTable = Px4ParamTable(**{"MAV_SYS_ID": uav, **(param_overrides or {})})
         self.flight_sw_version = PX4_FLIGHT_SW_VERSION
         rates = {k: v for k, v in DEFAULT_RATES.items() if k != "EKF_STATUS_REPORT"}
         self.streams = StreamScheduler(STREAM_IDS, rates)

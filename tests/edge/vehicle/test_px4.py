@@ -400,8 +400,8 @@ def test_the_command_line_chooses_px4_and_refuses_remote_without_it(capsys):
 
     args = build_parser().parse_args(["--uav", "1", "--firmware", "px4", "--connection", "udpin:0.0.0.0:18570",
                                       "--remote", "127.0.0.1:14550"])
-    assert (args.autopilot, args.remote) == ("px4", ("127.0.0.1", 14550))
-    assert build_parser().parse_args(["--uav", "1"]).autopilot == "arducopter"
+    assert (args.firmware, args.remote) == ("px4", ("127.0.0.1", 14550))
+    assert build_parser().parse_args(["--uav", "1"]).firmware == "arducopter"
     assert main(["--uav", "1", "--remote", "127.0.0.1:14550"]) == 2
     assert "--remote applies to --firmware px4" in capsys.readouterr().err
     with pytest.raises(SystemExit):
@@ -415,7 +415,7 @@ def test_the_launcher_passes_its_sim_autopilot_choice_to_the_sim_autopilots_comm
 
     for choice in ("arducopter", "px4"):
         argv = autopilot_argv(LaunchConfig(vehicle="mavlink", sim_firmware=choice), 2, 14551, (1.0, 2.0, 0.0), 0.0)
-        assert argv[0] == "sim-autopilot" and build_parser().parse_args(argv[1:]).autopilot == choice
+        assert argv[0] == "sim-autopilot" and build_parser().parse_args(argv[1:]).firmware == choice
     assert LaunchConfig().sim_firmware == "arducopter"
     with pytest.raises(ValueError):
         LaunchConfig(sim_firmware="inav")
