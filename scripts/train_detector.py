@@ -47,7 +47,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 from services.detector.learned import splits  # noqa: E402  (the split is the shipped model's contract)
 
@@ -466,9 +467,19 @@ def evaluate_held_out(a: argparse.Namespace) -> int:
 
     if a.model:
         os.environ["SKYNET_DETECTOR_MODEL"] = str(Path(a.model).resolve())
+    import platform
+    import subprocess
+
     from services.detector.evaluate import Sample, evaluate, write_results
 
-    summary = {}
+    model = Path(os.environ.get("SKYNET_DETECTOR_MODEL") or ROOT / "services" / "detector" / "models" / "crack_unet.onnx")
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT,
+                          check=False).stdout.strip()
+    summary: dict[str, object] = {"meta": {
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": head or "?",
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared), load average {os.getloadavg()[0]:.1f}",
+        "command": "scripts/train_detector.py " + " ".join(sys.argv[1:]), "model": model.name,
+        "model_bytes": model.stat().st_size if model.is_file() else None}}
     for d in DATASETS:
         samples = [Sample(n, g, np.where(m, 255, 0).astype(np.uint8)) for n, g, m in load_pairs(Path(a.data), d, "test")]
         ev = evaluate(samples, a.methods, dataset=f"{d} (held-out test fold)")
