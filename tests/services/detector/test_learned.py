@@ -252,3 +252,27 @@ def test_mission_with_the_learned_detector(tmp_path):
     assert report["defects"]["n_truth"] > 0 and report["defects"]["recall"] >= 0.7, report["defects"]
     services = (run.out / "services.log").read_text()
     assert "method learned" in services and "INSECURE" not in services
+
+
+def test_contrast_filter_keeps_valleys_and_drops_a_one_sided_step():
+    from services.detector.learned import contrast_filter
+
+    rng = np.random.default_rng(4)
+    h, w = 120, 200
+    grey = 140 + rng.normal(0, 4, (h, w))
+    grey[:20] = 205  # a bright band beyond the wall's edge
+    mask = np.zeros((h, w), np.uint8)
+    mask[20:23, 10:190] = 255  # the wall's first rows along the band: as dark as the wall below them
+    grey[60:63, 20:180] -= 45  # a crack: a valley, brighter on both sides
+    mask[60:63, 20:180] = 255
+    grey[95:97, 30:120] -= 12  # a faint crack, a fifth of the strong one's contrast
+    mask[95:97, 30:120] = 255
+    grey = np.clip(grey, 0, 255).astype(np.uint8)
+    kept = contrast_filter(grey, mask) > 0
+    assert kept[61, 100] and not kept[21, 100]
+    assert not kept[96, 60]  # below the floor relative to the frame's strongest crack
+    alone = mask.copy()
+    alone[55:70] = 0
+    kept = contrast_filter(grey, alone) > 0
+    assert kept[96, 60] and not kept[21, 100]  # a frame of faint cracks keeps them; the step still goes
+    assert not contrast_filter(grey, np.zeros_like(mask)).any()
