@@ -43,7 +43,7 @@ def row(method: str, rnd: int, r: dict) -> dict:
     return {"method": method, "round": rnd, "exit": r["exit"], "success": rep.get("success"), "wall_s": r["wall_s"],
             "capture_to_report_ms": lat, "recall": d.get("recall"), "precision": d.get("precision"),
             "truth": d.get("n_truth"), "found": d.get("n_found"), "reported": d.get("n_reported"),
-            "true": d.get("n_true")}
+            "true": d.get("n_true"), "failures": rep.get("failures"), "tail": r["tail"][-600:] if r["exit"] else ""}
 
 
 def main() -> int:

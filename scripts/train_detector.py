@@ -478,7 +478,8 @@ def evaluate_held_out(a: argparse.Namespace) -> int:
     summary: dict[str, object] = {"meta": {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": head or "?",
         "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared), load average {os.getloadavg()[0]:.1f}",
-        "command": "scripts/train_detector.py " + " ".join(sys.argv[1:]), "model": model.name,
+        "command": "scripts/train_detector.py evaluate --data DATA" + (" --model MODEL" if a.model else "")
+                   + (" --out OUT" if a.out else "") + " --methods " + " ".join(a.methods), "model": model.name,
         "model_bytes": model.stat().st_size if model.is_file() else None}}
     for d in DATASETS:
         samples = [Sample(n, g, np.where(m, 255, 0).astype(np.uint8)) for n, g, m in load_pairs(Path(a.data), d, "test")]
