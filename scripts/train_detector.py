@@ -4,14 +4,18 @@
 Usage (the ``train`` extra: ``pip install -e '.[train]'``)::
 
     nice -n 19 python scripts/train_detector.py train --data DIR --out services/detector/models \
-        [--epochs N] [--minutes M] [--seed S]
+        [--epochs N] [--minutes M] [--seed S] [--widths C C C C] [--norm batch] [--pos-weight W]
+        [--dice-weight W] [--crop PX] [--crops-per-image K] [--walls SEED ...] [--init MODEL.onnx]
     python scripts/train_detector.py evaluate --data DIR --model services/detector/models/crack_unet.onnx --out DIR
 
 ``DIR`` holds ``crackforest/`` and ``deepcrack-train/`` (each ``images/`` and ``masks/``). The splits are
 fixed by name before any training (:func:`services.detector.learned.splits`): CrackForest's even-numbered
 half (the odd sorted indices) and every fifth DeepCrack-train image are held out for testing and never seen
 by training or model selection; of the rest, every eighth image is the validation set (choice of epoch and
-threshold), the others are trained on.
+threshold), the others are trained on. ``--walls`` adds the mission's kind of surface to the training set:
+the planned captures of the monorail scenario's synthetic wall made with other texture seeds than the
+mission's own (which is refused), with their exact crack masks. ``--init`` starts from an exported model
+(fine-tuning: its weights, the folded threshold taken out) instead of a random initialisation.
 
 Why JAX: its CPU wheels are ~100 MB (PyTorch's registry wheels pull ~3 GB of CUDA libraries), XLA compiles
 the whole training step for the CPU, and the network is a dozen convolutions, so no layer library is
@@ -20,9 +24,12 @@ needed: the parameters are a dict of arrays that :func:`export_onnx` writes as a
 
 Network (U-Net, Ronneberger et al. 2015, narrowed): widths 8-16-32-64 over four scales, two 3x3
 convolutions per encoder scale, one per decoder scale after nearest upsampling and concatenation with the
-skip, a 1x1 head. No normalisation layers: the input is standardised per image (zero mean, unit variance),
-which also makes the model indifferent to exposure. Loss: binary cross-entropy plus soft Dice (the Dice
-term targets the F-measure directly under the ~3 % crack share). The decision threshold chosen on
+skip, a 1x1 head (``--widths`` changes the widths). The input is standardised per image (zero mean, unit
+variance), which also makes the model indifferent to exposure; ``--norm batch`` adds batch normalisation
+after every convolution but the head (Ioffe & Szegedy 2015), folded into the convolutions on export, so
+the ONNX graph is the same either way. Loss: binary cross-entropy (crack pixels weighted ``--pos-weight``)
+plus ``--dice-weight`` times the soft Dice loss (the Dice term targets the F-measure directly under the
+~3 % crack share). The decision threshold chosen on
 validation is folded into the head's bias, so the exported model's probability 0.5 is the cut.
 """
 
@@ -32,6 +39,7 @@ import argparse
 import json
 import logging
 import math
+import re
 import sys
 import time
 from pathlib import Path
@@ -39,7 +47,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
 from services.detector.learned import splits  # noqa: E402  (the split is the shipped model's contract)
 
@@ -47,7 +56,7 @@ log = logging.getLogger("train_detector")
 
 WIDTHS = (8, 16, 32, 64)
 DATASETS = ("crackforest", "deepcrack-train")
-THRESHOLDS = np.round(np.arange(0.20, 0.86, 0.05), 2)
+THRESHOLDS = np.round(np.arange(0.10, 0.91, 0.05), 2)
 
 
 # ---------------------------------------------------------------- data
@@ -66,6 +75,47 @@ def load_pairs(root: Path, dataset: str, part: str, limit: int | None = None) ->
             raise SystemExit(f"train_detector: cannot read {img} or its mask")
         out.append((n, g, m > 127))
     return out
+
+
+def wall_pairs(seeds: list[int], scenario: str = "monorail") -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(name, grey, truth) of every planned 640 x 480 capture of ``scenario``'s synthetic wall made with each
+    texture seed (:func:`edge.world.wall.synthetic_surface`): the mission's kind of surface, whose texture
+    (stains, grain lines) is unlike the photographs' and is not a crack. Never the mission's own seed."""
+    from edge.world.wall import SURFACE_SEED, synthetic_surface
+    from protocol.scenario import load_scenario
+    from services.inspection.captures import decode, synthetic_captures
+
+    if SURFACE_SEED in seeds:
+        raise SystemExit(f"train_detector: wall seed {SURFACE_SEED} is the mission's own wall; choose others")
+    sc = load_scenario(scenario)
+    out = []
+    for seed in seeds:
+        for k, c in enumerate(synthetic_captures(sc, synthetic_surface(sc, seed=seed))):
+            out.append((f"wall{seed}-{k:02d}", decode(c), c.truth > 127))
+    return out
+
+
+def onnx_params(path: Path) -> tuple[dict[str, dict[str, np.ndarray]], tuple[int, ...]]:
+    """The parameters (HWIO kernels, biases) and widths of a model this script exported, the head's folded
+    threshold taken out again (a warm start: ``train --init``)."""
+    import onnx
+    from onnx import numpy_helper
+
+    m = onnx.load(str(path))
+    t = re.search(r"threshold ([0-9.]+)", m.doc_string or "")
+    if t is None:
+        raise SystemExit(f"train_detector: {path} is not a model this script exported (no threshold in its doc string)")
+    arrs = {i.name: numpy_helper.to_array(i) for i in m.graph.initializer}
+    params = {}
+    for name in layer_shapes():
+        w, b = arrs[f"{name}.w"], arrs[f"{name}.b"].astype(np.float32)
+        if name == "head":
+            th = float(t.group(1))
+            b = b + np.float32(math.log(th / (1 - th)))
+        params[name] = {"w": np.ascontiguousarray(w.transpose(2, 3, 1, 0)).astype(np.float32), "b": b}
+    c = params
+    widths = (c["e1a"]["w"].shape[3], c["e2a"]["w"].shape[3], c["e3a"]["w"].shape[3], c["e4a"]["w"].shape[3])
+    return params, widths
 
 
 def standardise(g: np.ndarray) -> np.ndarray:
@@ -109,9 +159,9 @@ def augment(rng: np.random.Generator, g: np.ndarray, m: np.ndarray, crop: int) -
 
 
 # ---------------------------------------------------------------- model (JAX)
-def layer_shapes() -> dict[str, tuple[int, int, int, int]]:
+def layer_shapes(widths: tuple[int, ...] = WIDTHS) -> dict[str, tuple[int, int, int, int]]:
     """Name -> HWIO kernel shape of every convolution."""
-    c1, c2, c3, c4 = WIDTHS
+    c1, c2, c3, c4 = widths
     return {
         "e1a": (3, 3, 1, c1), "e1b": (3, 3, c1, c1),
         "e2a": (3, 3, c1, c2), "e2b": (3, 3, c2, c2),
@@ -122,11 +172,12 @@ def layer_shapes() -> dict[str, tuple[int, int, int, int]]:
     }
 
 
-def init_params(seed: int) -> dict[str, dict[str, np.ndarray]]:
-    """He-normal kernels, zero biases (the head's bias at the crack prior, logit(0.03))."""
+def init_params(seed: int, widths: tuple[int, ...] = WIDTHS, norm: bool = False) -> dict[str, dict[str, np.ndarray]]:
+    """He-normal kernels, zero biases (the head's bias at the crack prior, logit(0.03)); with ``norm`` every
+    convolution but the head also gets a batch-norm scale ``g`` (ones) and shift ``beta`` (zeros)."""
     rng = np.random.default_rng(seed)
     out = {}
-    for name, shp in layer_shapes().items():
+    for name, shp in layer_shapes(widths).items():
         fan_in = shp[0] * shp[1] * shp[2]
         w = rng.normal(0, math.sqrt(2.0 / fan_in), shp).astype(np.float32)
         b = np.zeros(shp[3], np.float32)
@@ -134,19 +185,43 @@ def init_params(seed: int) -> dict[str, dict[str, np.ndarray]]:
             w *= 0.1
             b[:] = math.log(0.03 / 0.97)
         out[name] = {"w": w, "b": b}
+        if norm and name != "head":
+            out[name].update(g=np.ones(shp[3], np.float32), beta=np.zeros(shp[3], np.float32))
     return out
 
 
-def forward(params, x):  # noqa: ANN001, ANN201 - JAX pytrees
-    """Logits (N, H, W, 1) of NHWC input; H and W multiples of 8."""
+#: batch norm's variance floor (Ioffe & Szegedy 2015, eq. in Alg. 1) and running-average momentum
+BN_EPS = 1e-5
+BN_MOMENTUM = 0.9
+
+
+def init_stats(params) -> dict[str, dict[str, np.ndarray]]:  # noqa: ANN001
+    """Running batch-norm statistics (mean 0, variance 1) of every normalised layer of ``params``."""
+    return {k: {"mean": np.zeros_like(v["g"]), "var": np.ones_like(v["g"])} for k, v in params.items() if "g" in v}
+
+
+def forward(params, x, stats=None, batch_stats=None):  # noqa: ANN001, ANN201 - JAX pytrees
+    """Logits (N, H, W, 1) of NHWC input; H and W multiples of 8.
+
+    Layers with batch norm (``g``/``beta`` in ``params``) use the running ``stats`` when given (inference),
+    else the batch's own statistics (training), which are stored into the dict ``batch_stats`` if given."""
     import jax
     import jax.numpy as jnp
     from jax import lax
 
     def conv(name, h):  # noqa: ANN001, ANN202
         p = params[name]
-        return lax.conv_general_dilated(h, p["w"], (1, 1), "SAME",
-                                        dimension_numbers=("NHWC", "HWIO", "NHWC")) + p["b"]
+        h = lax.conv_general_dilated(h, p["w"], (1, 1), "SAME",
+                                     dimension_numbers=("NHWC", "HWIO", "NHWC")) + p["b"]
+        if "g" not in p:
+            return h
+        if stats is not None:
+            mu, var = stats[name]["mean"], stats[name]["var"]
+        else:
+            mu, var = jnp.mean(h, axis=(0, 1, 2)), jnp.var(h, axis=(0, 1, 2))
+            if batch_stats is not None:
+                batch_stats[name] = {"mean": mu, "var": var}
+        return (h - mu) * (p["g"] * lax.rsqrt(var + BN_EPS)) + p["beta"]
 
     def pool(h):  # noqa: ANN001, ANN202
         return lax.reduce_window(h, -jnp.inf, lax.max, (1, 2, 2, 1), (1, 2, 2, 1), "VALID")
@@ -165,16 +240,21 @@ def forward(params, x):  # noqa: ANN001, ANN201 - JAX pytrees
     return conv("head", d1)
 
 
-def loss_fn(params, x, y):  # noqa: ANN001, ANN201
-    """Mean binary cross-entropy plus soft Dice loss (1 - 2|P∩Y| / (|P| + |Y|)) over the batch."""
+def loss_fn(params, x, y, pos_weight: float = 1.0, dice_weight: float = 1.0):  # noqa: ANN001, ANN201
+    """Mean binary cross-entropy (crack pixels weighted ``pos_weight``) plus ``dice_weight`` times the soft
+    Dice loss (1 - 2|P∩Y| / (|P| + |Y|), i.e. one minus a soft F-measure) over the batch; also the batch's
+    normalisation statistics (empty without batch norm)."""
     import jax
     import jax.numpy as jnp
 
-    z = forward(params, x)[..., 0]
-    bce = jnp.mean(jnp.maximum(z, 0) - z * y + jnp.log1p(jnp.exp(-jnp.abs(z))))
+    batch_stats: dict = {}
+    z = forward(params, x, batch_stats=batch_stats)[..., 0]
+    sp_neg = jnp.log1p(jnp.exp(-jnp.abs(z)))  # log(1 + e^-|z|)
+    # -log sigmoid(z) = max(-z, 0) + sp_neg; -log(1 - sigmoid(z)) = max(z, 0) + sp_neg
+    bce = jnp.mean(pos_weight * y * (jnp.maximum(-z, 0) + sp_neg) + (1 - y) * (jnp.maximum(z, 0) + sp_neg))
     p = jax.nn.sigmoid(z)
     dice = 1 - (2 * jnp.sum(p * y) + 1) / (jnp.sum(p) + jnp.sum(y) + 1)
-    return bce + dice
+    return bce + dice_weight * dice, batch_stats
 
 
 def pad8(x: np.ndarray) -> tuple[np.ndarray, int, int]:
@@ -206,35 +286,51 @@ def train(a: argparse.Namespace) -> int:
     root, out = Path(a.data), Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(a.seed)
+    widths = tuple(a.widths)
     tr = [s for d in DATASETS for s in load_pairs(root, d, "train", a.limit)]
     val = [s for d in DATASETS for s in load_pairs(root, d, "val", a.limit)]
-    log.info("train %d images, validation %d images", len(tr), len(val))
-    params = jax.tree_util.tree_map(jnp.asarray, init_params(a.seed))
+    walls = wall_pairs(a.walls) if a.walls else []
+    tr += walls
+    log.info("train %d images (%d of synthetic walls), validation %d images", len(tr), len(walls), len(val))
+    if a.init:
+        if a.norm != "none":
+            raise SystemExit("train_detector: --init starts from an exported model, which has no batch norm to train")
+        p0, widths = onnx_params(Path(a.init))
+    else:
+        p0 = init_params(a.seed, widths, a.norm == "batch")
+    params = jax.tree_util.tree_map(jnp.asarray, p0)
+    stats = jax.tree_util.tree_map(jnp.asarray, init_stats(params))
     steps_per_epoch = max(1, (len(tr) * a.crops_per_image) // a.batch)
     sched = optax.cosine_onecycle_schedule(a.epochs * steps_per_epoch, a.lr, pct_start=0.1)
     opt = optax.adamw(sched, weight_decay=1e-4)
     state = opt.init(params)
 
     @jax.jit
-    def step(params, state, x, y):  # noqa: ANN001, ANN202
-        loss, g = jax.value_and_grad(loss_fn)(params, x, y)
+    def step(params, state, stats, x, y):  # noqa: ANN001, ANN202
+        (loss, bs), g = jax.value_and_grad(loss_fn, has_aux=True)(params, x, y, a.pos_weight, a.dice_weight)
         upd, state = opt.update(g, state, params)
-        return optax.apply_updates(params, upd), state, loss
+        stats = jax.tree_util.tree_map(lambda r, b: BN_MOMENTUM * r + (1 - BN_MOMENTUM) * b, stats, bs)
+        return optax.apply_updates(params, upd), state, stats, loss
 
-    fwd = jax.jit(lambda p, x: jax.nn.sigmoid(forward(p, x)))
+    fwd = jax.jit(lambda p, s, x: jax.nn.sigmoid(forward(p, x, stats=s)))
 
-    def predict_with(p):  # noqa: ANN001, ANN202
+    def predict_with(p, s, flip: bool = False):  # noqa: ANN001, ANN202
         def predict(g: np.ndarray) -> np.ndarray:
             x, h, w = pad8(standardise(g))
-            return np.asarray(fwd(p, x[None, :, :, None]))[0, :h, :w, 0]
+            y = np.asarray(fwd(p, s, x[None, :, :, None]))[0, :, :, 0]
+            if flip:  # test-time horizontal flip: the mean of the two probability maps
+                y = 0.5 * (y + np.asarray(fwd(p, s, np.ascontiguousarray(x[:, ::-1])[None, :, :, None]))[0, :, ::-1, 0])
+            return y[:h, :w]
         return predict
 
     run: dict[str, object] = {
-        "seed": a.seed, "widths": WIDTHS, "crop": a.crop, "batch": a.batch, "lr": a.lr,
-        "epochs_planned": a.epochs, "crops_per_image": a.crops_per_image,
+        "seed": a.seed, "widths": widths, "norm": a.norm, "crop": a.crop, "batch": a.batch, "lr": a.lr,
+        "pos_weight": a.pos_weight, "dice_weight": a.dice_weight, "init": Path(a.init).name if a.init else None,
+        "walls": {"scenario": "monorail", "seeds": a.walls, "images": len(walls)},
+        "epochs_planned": a.epochs, "crops_per_image": a.crops_per_image, "minutes_budget": a.minutes,
         "split": {"rule": splits.__doc__, "train": len(tr), "val": len(val)}, "epochs": [],
     }
-    best = (-1.0, None, None, -1)
+    best = (-1.0, None, None, -1, None)
     t0 = time.monotonic()
     for ep in range(a.epochs):
         order = rng.permutation(np.repeat(np.arange(len(tr)), a.crops_per_image))
@@ -242,9 +338,10 @@ def train(a: argparse.Namespace) -> int:
         for i in range(steps_per_epoch):
             idx = order[i * a.batch:(i + 1) * a.batch]
             xs, ys = zip(*(augment(rng, tr[k][1], tr[k][2], a.crop) for k in idx))
-            params, state, loss = step(params, state, jnp.asarray(np.stack(xs)[..., None]), jnp.asarray(np.stack(ys)))
+            params, state, stats, loss = step(params, state, stats, jnp.asarray(np.stack(xs)[..., None]),
+                                              jnp.asarray(np.stack(ys)))
             losses.append(float(loss))
-        fs = validate(predict_with(params), val)
+        fs = validate(predict_with(params, stats), val)
         t_best = max(fs, key=fs.get)
         row = {"epoch": ep + 1, "loss": float(np.mean(losses)), "val_f": fs[t_best], "val_threshold": float(t_best),
                "minutes": (time.monotonic() - t0) / 60}
@@ -252,27 +349,50 @@ def train(a: argparse.Namespace) -> int:
         log.info("epoch %d: loss %.4f, validation exact F %.4f at %s (%.1f min)", ep + 1, row["loss"], fs[t_best],
                  t_best, row["minutes"])
         if fs[t_best] > best[0]:
-            best = (fs[t_best], jax.tree_util.tree_map(np.asarray, params), float(t_best), ep + 1)
-            np.savez(out / "crack_unet_best.npz", **{f"{k}.{j}": v for k, d in best[1].items() for j, v in d.items()})
+            best = (fs[t_best], jax.tree_util.tree_map(np.asarray, params), float(t_best), ep + 1,
+                    jax.tree_util.tree_map(np.asarray, stats))
+            np.savez(out / "crack_unet_best.npz", **{f"{k}.{j}": v for k, d in best[1].items() for j, v in d.items()},
+                     **{f"{k}.bn_{j}": v for k, d in best[4].items() for j, v in d.items()})
         (out / "train_run.json").write_text(json.dumps(run, indent=1))
         if a.minutes and row["minutes"] > a.minutes:
             log.info("time budget of %.0f min reached", a.minutes)
             break
     run["best"] = {"epoch": best[3], "val_f": best[0], "threshold": best[2]}
-    path = export_onnx(best[1], best[2], out / a.name)
+    pb, sb = (jax.tree_util.tree_map(jnp.asarray, t) for t in (best[1], best[4]))
+    fs_flip = validate(predict_with(pb, sb, flip=True), val)
+    run["best"]["val_f_flip"] = max(fs_flip.values())  # test-time flip, measured on validation, not shipped
+    folded = fold_batch_norm(best[1], best[4])
+    path = export_onnx(folded, best[2], out / a.name, widths)
     x = np.random.default_rng(1).normal(size=(1, 64, 96, 1)).astype(np.float32)
-    ref = np.asarray(fwd(jax.tree_util.tree_map(jnp.asarray, best[1]), x))[0, :, :, 0]
+    ref = np.asarray(fwd(pb, sb, x))[0, :, :, 0]
     got = onnx_probe(path, x[0, :, :, 0], best[2])
     run["export_max_abs_diff"] = float(np.max(np.abs(ref - got)))
     run["onnx"] = {"file": path.name, "bytes": path.stat().st_size}
     (out / "train_run.json").write_text(json.dumps(run, indent=1))
-    log.info("wrote %s (%d bytes; cv2.dnn vs JAX max |diff| %.2e) and %s", path, path.stat().st_size,
-             run["export_max_abs_diff"], out / "train_run.json")
+    log.info("wrote %s (%d bytes; cv2.dnn vs JAX max |diff| %.2e; validation F %.4f, with test-time flip %.4f) and %s",
+             path, path.stat().st_size, run["export_max_abs_diff"], best[0], run["best"]["val_f_flip"],
+             out / "train_run.json")
     return 0
 
 
+def fold_batch_norm(params: dict[str, dict[str, np.ndarray]],
+                    stats: dict[str, dict[str, np.ndarray]]) -> dict[str, dict[str, np.ndarray]]:
+    """Plain convolutions equal to conv + batch norm at inference: ``w' = w s``, ``b' = (b - mean) s + beta``
+    with ``s = g / sqrt(var + eps)`` per output channel (Ioffe & Szegedy 2015, Sec. 3.2)."""
+    out = {}
+    for k, p in params.items():
+        if "g" not in p:
+            out[k] = {"w": np.asarray(p["w"], np.float32), "b": np.asarray(p["b"], np.float32)}
+            continue
+        s = np.asarray(p["g"], np.float64) / np.sqrt(np.asarray(stats[k]["var"], np.float64) + BN_EPS)
+        out[k] = {"w": (np.asarray(p["w"], np.float64) * s).astype(np.float32),
+                  "b": ((np.asarray(p["b"], np.float64) - stats[k]["mean"]) * s + p["beta"]).astype(np.float32)}
+    return out
+
+
 # ---------------------------------------------------------------- export (onnx helper API)
-def export_onnx(params: dict[str, dict[str, np.ndarray]], threshold: float, path: Path) -> Path:
+def export_onnx(params: dict[str, dict[str, np.ndarray]], threshold: float, path: Path,
+                widths: tuple[int, ...] = WIDTHS) -> Path:
     """The network as an ONNX graph (opset 13, NCHW, input ``x`` (1, 1, H, W) standardised grey, output ``p``
     (1, 1, H, W) crack probability with ``threshold`` folded into the head so that ``p > 0.5`` is the cut)."""
     import onnx
@@ -323,7 +443,7 @@ def export_onnx(params: dict[str, dict[str, np.ndarray]], threshold: float, path
         [helper.make_tensor_value_info("p", TensorProto.FLOAT, [1, 1, "H", "W"])], inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)], producer_name="skynet-train")
     model.ir_version = 8
-    model.doc_string = f"crack U-Net {'-'.join(map(str, WIDTHS))}; p > 0.5 is a crack pixel (threshold {threshold:.2f})"
+    model.doc_string = f"crack U-Net {'-'.join(map(str, widths))}; p > 0.5 is a crack pixel (threshold {threshold:.2f})"
     onnx.checker.check_model(model)
     path.parent.mkdir(parents=True, exist_ok=True)
     onnx.save(model, str(path))
@@ -347,9 +467,20 @@ def evaluate_held_out(a: argparse.Namespace) -> int:
 
     if a.model:
         os.environ["SKYNET_DETECTOR_MODEL"] = str(Path(a.model).resolve())
+    import platform
+    import subprocess
+
     from services.detector.evaluate import Sample, evaluate, write_results
 
-    summary = {}
+    model = Path(os.environ.get("SKYNET_DETECTOR_MODEL") or ROOT / "services" / "detector" / "models" / "crack_unet.onnx")
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT,
+                          check=False).stdout.strip()
+    summary: dict[str, object] = {"meta": {
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": head or "?",
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores (shared), load average {os.getloadavg()[0]:.1f}",
+        "command": "scripts/train_detector.py evaluate --data DATA" + (" --model MODEL" if a.model else "")
+                   + (" --out OUT" if a.out else "") + " --methods " + " ".join(a.methods), "model": model.name,
+        "model_bytes": model.stat().st_size if model.is_file() else None}}
     for d in DATASETS:
         samples = [Sample(n, g, np.where(m, 255, 0).astype(np.uint8)) for n, g, m in load_pairs(Path(a.data), d, "test")]
         ev = evaluate(samples, a.methods, dataset=f"{d} (held-out test fold)")
@@ -378,6 +509,15 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--batch", type=int, default=16)
     t.add_argument("--crops-per-image", type=int, default=2)
     t.add_argument("--lr", type=float, default=3e-3)
+    t.add_argument("--widths", type=int, nargs=4, default=list(WIDTHS), metavar="C",
+                   help="channels of the four scales (default %(default)s)")
+    t.add_argument("--norm", choices=("none", "batch"), default="none",
+                   help="batch norm after every convolution but the head (folded into it on export)")
+    t.add_argument("--init", help="start from this exported ONNX model (fine-tuning) instead of a random one")
+    t.add_argument("--walls", type=int, nargs="*", default=[], metavar="SEED",
+                   help="also train on the monorail scenario's synthetic wall made with these texture seeds")
+    t.add_argument("--pos-weight", type=float, default=1.0, help="weight of crack pixels in the cross-entropy")
+    t.add_argument("--dice-weight", type=float, default=1.0, help="weight of the soft Dice term")
     t.add_argument("--limit", type=int, help="only the first N images of each split (a smoke run)")
     e = sub.add_parser("evaluate", help="score the model and it+r on the held-out test folds")
     e.add_argument("--data", required=True)

@@ -128,22 +128,68 @@ def _synthetic_set(root: Path, n: int, seed: int) -> None:
         cv2.imwrite(str(root / "masks" / f"{i:03d}.png"), truth)
 
 
+def _train_script():
+    spec = importlib.util.spec_from_file_location("train_detector", ROOT / "scripts" / "train_detector.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)  # the training framework is imported only by the functions that train
+    return mod
+
+
+def test_training_walls_are_the_missions_kind_of_surface_but_never_its_own_seed():
+    from edge.world.wall import SURFACE_SEED
+
+    t = _train_script()
+    with pytest.raises(SystemExit, match=f"wall seed {SURFACE_SEED} is the mission's own wall"):
+        t.wall_pairs([7, SURFACE_SEED])
+    walls = t.wall_pairs([7])
+    assert len(walls) > 10 and len({n for n, _, _ in walls}) == len(walls)
+    name, grey, truth = walls[0]
+    assert name.startswith("wall7-") and grey.dtype == np.uint8 and truth.dtype == bool and grey.shape == truth.shape
+    assert 0 < sum(int(m.sum()) for _, _, m in walls) < 0.1 * sum(m.size for _, _, m in walls)
+
+
+TRAIN_EXTRA = all(importlib.util.find_spec(m) for m in ("jax", "optax", "onnx"))
+
+
 @pytest.mark.slow
-@pytest.mark.skipif(not all(importlib.util.find_spec(m) for m in ("jax", "optax", "onnx")),
-                    reason="the train extra (jax, optax, onnx) is not installed: pip install -e '.[train]'")
-def test_training_script_runs_one_short_epoch_and_exports_a_model_the_detector_loads(tmp_path):
+@pytest.mark.skipif(not TRAIN_EXTRA, reason="the train extra (jax, optax, onnx) is not installed: pip install -e '.[train]'")
+def test_a_warm_start_reads_back_the_shipped_models_weights():
+    t = _train_script()
+    params, widths = t.onnx_params(MODEL_PATH)
+    assert widths == tuple(learned_widths()) and set(params) == set(t.layer_shapes())
+    import jax
+
+    x = np.random.default_rng(3).normal(size=(40, 56)).astype(np.float32)
+    thr = float(json.loads(MODEL_PATH.with_suffix(".train.json").read_text())["best"]["threshold"])
+    got = t.onnx_probe(MODEL_PATH, x, thr)  # the shipped graph's probability, its folded threshold taken out
+    ref = np.asarray(jax.nn.sigmoid(t.forward(params, x[None, :, :, None])))[0, :, :, 0]
+    assert np.max(np.abs(ref - got)) < 1e-4
+
+
+def learned_widths() -> list[int]:
+    return json.loads(MODEL_PATH.with_suffix(".train.json").read_text())["widths"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not TRAIN_EXTRA, reason="the train extra (jax, optax, onnx) is not installed: pip install -e '.[train]'")
+@pytest.mark.parametrize("options", [[], ["--norm", "batch", "--pos-weight", "2", "--dice-weight", "0.5"],
+                                     ["--init", str(MODEL_PATH), "--walls", "7"]],
+                         ids=["plain", "batch-norm-weighted-loss", "fine-tune-on-walls"])
+def test_training_script_runs_one_short_epoch_and_exports_a_model_the_detector_loads(tmp_path, options):
     data = tmp_path / "data"
     _synthetic_set(data / "crackforest", 10, 100)
     _synthetic_set(data / "deepcrack-train", 12, 200)
     out = tmp_path / "out"
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / "train_detector.py"), "train", "--data", str(data),
-                        "--out", str(out), "--epochs", "1", "--crop", "64", "--batch", "4"],
+                        "--out", str(out), "--epochs", "1", "--crop", "64", "--batch", "4", *options],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     run = json.loads((out / "train_run.json").read_text())
     assert len(run["epochs"]) == 1 and np.isfinite(run["epochs"][0]["loss"])
     assert run["split"]["train"] > 0 and run["split"]["val"] > 0
-    assert run["export_max_abs_diff"] < 1e-4  # cv2.dnn runs the exported graph as JAX does
+    assert run["export_max_abs_diff"] < 1e-4  # cv2.dnn runs the exported graph as JAX does (batch norm folded)
+    assert (run["walls"]["images"] > 0) == ("--walls" in options) and run["init"] == ("crack_unet.onnx" if "--init" in options else None)
+    assert 0 <= run["best"]["val_f_flip"] <= 1
     net = load_model(out / "crack_unet.onnx")
     assert net is not load_model()
     grey, _ = planted_crack()
@@ -206,3 +252,27 @@ def test_mission_with_the_learned_detector(tmp_path):
     assert report["defects"]["n_truth"] > 0 and report["defects"]["recall"] >= 0.7, report["defects"]
     services = (run.out / "services.log").read_text()
     assert "method learned" in services and "INSECURE" not in services
+
+
+def test_contrast_filter_keeps_valleys_and_drops_a_one_sided_step():
+    from services.detector.learned import contrast_filter
+
+    rng = np.random.default_rng(4)
+    h, w = 120, 200
+    grey = 140 + rng.normal(0, 4, (h, w))
+    grey[:20] = 205  # a bright band beyond the wall's edge
+    mask = np.zeros((h, w), np.uint8)
+    mask[20:23, 10:190] = 255  # the wall's first rows along the band: as dark as the wall below them
+    grey[60:63, 20:180] -= 45  # a crack: a valley, brighter on both sides
+    mask[60:63, 20:180] = 255
+    grey[95:97, 30:120] -= 12  # a faint crack, a fifth of the strong one's contrast
+    mask[95:97, 30:120] = 255
+    grey = np.clip(grey, 0, 255).astype(np.uint8)
+    kept = contrast_filter(grey, mask) > 0
+    assert kept[61, 100] and not kept[21, 100]
+    assert not kept[96, 60]  # below the floor relative to the frame's strongest crack
+    alone = mask.copy()
+    alone[55:70] = 0
+    kept = contrast_filter(grey, alone) > 0
+    assert kept[96, 60] and not kept[21, 100]  # a frame of faint cracks keeps them; the step still goes
+    assert not contrast_filter(grey, np.zeros_like(mask)).any()
