@@ -120,7 +120,7 @@ def run_variant(keys: Path, name: str, cfg: dict, attack: str, args: argparse.Na
     extra = [a for k, v in cfg.items() for a in ("--cfg", f"{k}:{json.dumps(v)}")]
     try:
         gw = group.start(f"gateway-{name}-{attack}", ["gateway", "--fleet", FLEET, "--keys", str(keys), "--listen",
-                                                      where, *extra, *(["--accept-guard"] if name == "accept guard" else [])])
+                                                      where, *extra, *([] if name == "accept guard" else ["--no-accept-guard"])])
         if not gw.wait_for("router up", 30):
             raise RuntimeError("gateway did not start:\n" + "\n".join(gw.lines[-10:]))
         ks = KeySet(keys, "gcs")

@@ -19,7 +19,7 @@ import selectors
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 log = logging.getLogger("skynet.gateway.guard")
 
@@ -78,6 +78,8 @@ class Guard:
         self.per_source = per_source
         self.counts: collections.Counter[str] = collections.Counter()
         self._buckets: dict[str, TokenBucket] = {}
+        self._relays: dict[int, tuple[socket.socket, socket.socket]] = {}  # relay socket's local port -> (client, relay)
+        self._lock = threading.Lock()
         self._stop = threading.Event()
         self._sock = socket.create_server(listen, backlog=4096, reuse_port=False)
         self._sock.setblocking(False)
@@ -108,19 +110,40 @@ class Guard:
             return
         conn.setblocking(True)
         up.settimeout(None)
+        port = up.getsockname()[1]
+        with self._lock:
+            self._relays[port] = (conn, up)
         for s in (conn, up):
             s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         threading.Thread(target=_pipe, args=(conn, up), daemon=True).start()
         t = threading.Thread(target=_pipe, args=(up, conn), daemon=True)
         t.start()
-        threading.Thread(target=self._close_after, args=((conn, up), t), daemon=True).start()
+        threading.Thread(target=self._close_after, args=((conn, up), t, port), daemon=True).start()
 
-    @staticmethod
-    def _close_after(socks, t: threading.Thread) -> None:
+    def _close_after(self, socks, t: threading.Thread, port: int) -> None:
         t.join()
+        with self._lock:
+            if self._relays.get(port, (None, None))[1] is socks[1]:
+                del self._relays[port]
         time.sleep(0.1)
         for s in socks:
             s.close()
+
+    def cut(self, ports: Iterable[int]) -> int:
+        """Close the relayed connections whose relay socket (zenoh's view of the remote end) has one of these
+        local ports; how many were cut. Zenoh then sees the link closed and drops the session's declarations."""
+        n = 0
+        with self._lock:
+            found = [self._relays.pop(p) for p in set(ports) if p in self._relays]
+        for socks in found:
+            for s in socks:
+                try:
+                    s.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+            n += 1
+        self.counts["cut"] += n
+        return n
 
     def _run(self) -> None:
         sel = selectors.DefaultSelector()

@@ -38,7 +38,7 @@ def test_a_flooded_guarded_gateway_still_admits_a_session(tmp_path, group):
     port = free_port(socket.SOCK_STREAM)
     where = f"tls/127.0.0.1:{port}"
     gw = group.start("gateway", ["gateway", "--fleet", "guard", "--keys", str(ks_dir), "--listen", where,
-                                 "--accept-guard", "--period", "0.3"])
+                                 "--period", "0.3"])
     assert gw.wait_for("router up", 20), "\n".join(gw.lines)
     stop = threading.Event()
     held: list[socket.socket] = []
