@@ -75,3 +75,25 @@ def test_a_flooded_guarded_gateway_still_admits_a_session(tmp_path, group):
             t.join()
         for s in held:
             s.close()
+
+
+def _gateway_of_plan(*argv: str) -> dict:
+    import subprocess
+    import sys
+
+    from tests.conftest import ROOT
+
+    out = subprocess.run([sys.executable, "-m", "services.cli", "up", "--dry-run", "--json", *argv], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return next(p for p in json.loads(out.stdout)["processes"] if p["role"] == "gateway")
+
+
+def test_the_launchers_gateway_runs_the_accept_guard_and_the_declaration_cap_by_default():
+    """``skynet up --dry-run --json`` (default secure mode): the gateway's TLS listeners sit behind the guard and
+    its declaration cap is on; ``--no-accept-guard`` turns the guard off and says so on the gateway's argv."""
+    gw = _gateway_of_plan()
+    assert gw["config"]["no_accept_guard"] is False and gw["config"]["declaration_cap"] > 0
+    assert "--no-accept-guard" not in gw["argv"] and all(e.startswith("tls/") for e in gw["listens"])
+    off = _gateway_of_plan("--no-accept-guard")
+    assert off["config"]["no_accept_guard"] is True and "--no-accept-guard" in off["argv"]
