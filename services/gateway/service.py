@@ -112,11 +112,19 @@ class CapWatch:
         over = self.policy.check(declared, links)
         if over:
             ports = {link.port for link in over if link.port is not None}
-            cut = sum(g.cut(ports) for g in self.guards)
-            if cut < len(over):
-                self.uncut += len(over) - cut
-                self.log.warning("%d link(s) over the declaration cap not cut: not behind the accept guard",
-                                 len(over) - cut)
+            # refuse its next connections too, by address, where no other identity shares that address: a client
+            # that reconnects re-declares everything it holds in one burst, before the next look could cut it
+            others = {link.port for link in links if link.port is not None} - ports
+            shared = {a for g in self.guards for a in g.peers(others).values()}
+            for address in {a for g in self.guards for a in g.peers(ports).values()} - shared:
+                if [g.ban(address, self.policy.ban_s) for g in self.guards][0]:
+                    self.log.warning("connections from %s refused for %g s (an identity over its declaration cap)",
+                                     address, self.policy.ban_s)
+            for g in self.guards:
+                g.cut(ports)
+            if not self.guards:
+                self.uncut += len(over)
+                self.log.warning("%d link(s) over the declaration cap not cut: no accept guard", len(over))
 
     def counts(self) -> dict[str, int]:
         return {**self.policy.counts(), **({"decl-cap-uncut": self.uncut} if self.uncut else {})}
