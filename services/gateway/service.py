@@ -87,6 +87,10 @@ def session_counts(bus: Bus) -> dict[str, int]:
     return dict(counts)
 
 
+#: the admin-space replies one look may hold (one per declared key expression in the router)
+REPLIES_MAX = 10_000_000
+
+
 class CapWatch:
     """Binds :class:`caps.DeclarationCaps` to the router: reads its admin space, cuts through the accept guards."""
 
@@ -97,17 +101,12 @@ class CapWatch:
 
     def poll(self, timeout_s: float = 2.0) -> None:
         replies: list[tuple[str, bytes]] = []
-
-        def take(r: Any) -> None:
-            if r.ok is not None:
-                replies.append((str(r.ok.key_expr), bytes(r.ok.payload.to_bytes())))
-
         for sel in self.selectors:
-            # a callback, not the default 256-reply channel: the admin space answers inline, so a full channel
-            # that nobody reads until get() returns would block the router
-            done = threading.Event()
-            self.bus.session.get(sel, zenoh.handlers.Callback(take, done.set), timeout=timeout_s)
-            done.wait(timeout_s + 1.0)
+            # a channel far larger than any admin answer, read after get() returns: the admin space answers inline
+            # (a full channel, or a Python callback needing the GIL, would stall the router mid-answer)
+            for r in self.bus.session.get(sel, zenoh.handlers.FifoChannel(REPLIES_MAX), timeout=timeout_s):
+                if r.ok is not None:
+                    replies.append((str(r.ok.key_expr), bytes(r.ok.payload.to_bytes())))
         declared, links = caps.parse(replies)
         over = self.policy.check(declared, links)
         if over:
