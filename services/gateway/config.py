@@ -9,7 +9,6 @@ from pydantic import Field
 from protocol.bus import BusMode, BusOptions
 from protocol.cliconfig import Cli
 
-from .caps import DEFAULT_BAN_S, DEFAULT_CAP
 from .ingress import STATE_INGRESS_HZ
 
 
@@ -28,15 +27,7 @@ class GatewayConfig(BusOptions):
     no_accept_guard: bool = Field(
         default=False, description="tls/ listeners without the accept guard (services/gateway/guard.py: it passes "
                                    "on only connections that start a TLS handshake, so connect-and-close or silent "
-                                   "floods never reach zenoh, and it cuts the sessions of an identity over its "
-                                   "declaration cap)")
-    declaration_cap: Annotated[int, Cli(metavar="N")] = Field(
-        default=DEFAULT_CAP, ge=0, le=10_000_000,
-        description="distinct key expressions one identity (certificate common name) may declare at once over all "
-                    "its sessions; above it its sessions are cut and it is banned for --declaration-ban-s "
-                    "(services/gateway/caps.py; with --keys, cut through the accept guard); 0: off")
-    declaration_ban_s: float = Field(default=DEFAULT_BAN_S, gt=0.0, le=86400.0,
-                                     description="how long an identity over its declaration cap is cut on sight, s")
+                                   "floods never reach zenoh)")
 
     @property
     def accept_guard(self) -> bool:

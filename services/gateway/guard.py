@@ -19,7 +19,7 @@ import selectors
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 
 log = logging.getLogger("skynet.gateway.guard")
 
@@ -78,10 +78,6 @@ class Guard:
         self.per_source = per_source
         self.counts: collections.Counter[str] = collections.Counter()
         self._buckets: dict[str, TokenBucket] = {}
-        self._relays: dict[int, tuple[socket.socket, socket.socket]] = {}  # relay socket's local port -> (client, relay)
-        self._peers: dict[int, str] = {}  # relay socket's local port -> the client's address
-        self._banned: dict[str, float] = {}  # client address -> until (monotonic)
-        self._lock = threading.Lock()
         self._stop = threading.Event()
         self._sock = socket.create_server(listen, backlog=4096, reuse_port=False)
         self._sock.setblocking(False)
@@ -112,64 +108,19 @@ class Guard:
             return
         conn.setblocking(True)
         up.settimeout(None)
-        port = up.getsockname()[1]
-        with self._lock:
-            self._relays[port] = (conn, up)
-            try:
-                self._peers[port] = conn.getpeername()[0]
-            except OSError:
-                pass
         for s in (conn, up):
             s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         threading.Thread(target=_pipe, args=(conn, up), daemon=True).start()
         t = threading.Thread(target=_pipe, args=(up, conn), daemon=True)
         t.start()
-        threading.Thread(target=self._close_after, args=((conn, up), t, port), daemon=True).start()
+        threading.Thread(target=self._close_after, args=((conn, up), t), daemon=True).start()
 
-    def _close_after(self, socks, t: threading.Thread, port: int) -> None:
+    @staticmethod
+    def _close_after(socks, t: threading.Thread) -> None:
         t.join()
-        with self._lock:
-            if self._relays.get(port, (None, None))[1] is socks[1]:
-                del self._relays[port]
-                self._peers.pop(port, None)
         time.sleep(0.1)
         for s in socks:
             s.close()
-
-    def cut(self, ports: Iterable[int]) -> int:
-        """Close the relayed connections whose relay socket (zenoh's view of the remote end) has one of these
-        local ports; how many were cut. Zenoh then sees the link closed and drops the session's declarations."""
-        n = 0
-        with self._lock:
-            found = [self._relays.pop(p) for p in set(ports) if p in self._relays]
-        for socks in found:
-            for s in socks:
-                try:
-                    s.shutdown(socket.SHUT_RDWR)
-                except OSError:
-                    pass
-            n += 1
-        self.counts["cut"] += n
-        return n
-
-    def peers(self, ports: Iterable[int]) -> dict[int, str]:
-        """The client address of each relayed connection with one of these relay ports."""
-        with self._lock:
-            return {p: self._peers[p] for p in ports if p in self._peers}
-
-    def ban(self, address: str, seconds: float) -> bool:
-        """Refuse every new connection from ``address`` for ``seconds`` (counted as ``banned``); whether it was
-        not banned already."""
-        now = time.monotonic()
-        with self._lock:
-            fresh = self._banned.get(address, 0.0) <= now
-            self._banned[address] = now + seconds
-        return fresh
-
-    def _is_banned(self, address: str, now: float) -> bool:
-        with self._lock:
-            self._banned = {a: t for a, t in self._banned.items() if t > now}
-            return address in self._banned
 
     def _run(self) -> None:
         sel = selectors.DefaultSelector()
@@ -187,10 +138,6 @@ class Guard:
                         except OSError:
                             self.counts["accept-error"] += 1
                             break
-                        if self._banned and self._is_banned(addr[0], now):
-                            conn.close()
-                            self.counts["banned"] += 1
-                            continue
                         conn.setblocking(False)
                         pending[conn] = (now + self.first_byte_s, addr[0])
                         sel.register(conn, selectors.EVENT_READ, "conn")

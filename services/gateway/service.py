@@ -10,15 +10,13 @@ connected sessions by kind and samples/bytes per link class seen on the fleet's 
 
 With ``--keys DIR`` every listener is mutual TLS and access control goes by certificate common
 name (:func:`protocol.acl.cert_access_control`, default deny). Each ``tls/`` listener sits behind the accept
-guard (:mod:`services.gateway.guard`; ``--no-accept-guard``), through which the gateway cuts the sessions of an
-identity holding more declarations than ``--declaration-cap`` (:mod:`services.gateway.caps`).
+guard (:mod:`services.gateway.guard`) unless ``--no-accept-guard``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import threading
 import time
 from collections import Counter
 from typing import Any
@@ -40,7 +38,7 @@ from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
 from protocol.messages import ClassCounters, LinkStats
 from protocol.readiness import notify_ready
 
-from . import caps, ingress
+from . import ingress
 from .config import GatewayConfig
 
 
@@ -85,48 +83,6 @@ def session_counts(bus: Bus) -> dict[str, int]:
     for tr in bus.session.info.transports():
         counts[str(tr.whatami).split(".")[-1].lower()] += 1
     return dict(counts)
-
-
-#: the admin-space replies one look may hold (one per declared key expression in the router)
-REPLIES_MAX = 10_000_000
-
-
-class CapWatch:
-    """Binds :class:`caps.DeclarationCaps` to the router: reads its admin space, cuts through the accept guards."""
-
-    def __init__(self, bus: Bus, policy: caps.DeclarationCaps, guards: list[Any], log) -> None:
-        self.bus, self.policy, self.guards, self.log = bus, policy, guards, log
-        self.selectors = caps.selectors(str(bus.session.zid()))
-        self.uncut = 0  # links over the cap that no guard relays (a listener without the guard)
-
-    def poll(self, timeout_s: float = 2.0) -> None:
-        replies: list[tuple[str, bytes]] = []
-        for sel in self.selectors:
-            # a channel far larger than any admin answer, read after get() returns: the admin space answers inline
-            # (a full channel, or a Python callback needing the GIL, would stall the router mid-answer)
-            for r in self.bus.session.get(sel, zenoh.handlers.FifoChannel(REPLIES_MAX), timeout=timeout_s):
-                if r.ok is not None:
-                    replies.append((str(r.ok.key_expr), bytes(r.ok.payload.to_bytes())))
-        declared, links = caps.parse(replies)
-        over = self.policy.check(declared, links)
-        if over:
-            ports = {link.port for link in over if link.port is not None}
-            # refuse its next connections too, by address, where no other identity shares that address: a client
-            # that reconnects re-declares everything it holds in one burst, before the next look could cut it
-            others = {link.port for link in links if link.port is not None} - ports
-            shared = {a for g in self.guards for a in g.peers(others).values()}
-            for address in {a for g in self.guards for a in g.peers(ports).values()} - shared:
-                if [g.ban(address, self.policy.ban_s) for g in self.guards][0]:
-                    self.log.warning("connections from %s refused for %g s (an identity over its declaration cap)",
-                                     address, self.policy.ban_s)
-            for g in self.guards:
-                g.cut(ports)
-            if not self.guards:
-                self.uncut += len(over)
-                self.log.warning("%d link(s) over the declaration cap not cut: no accept guard", len(over))
-
-    def counts(self) -> dict[str, int]:
-        return {**self.policy.counts(), **({"decl-cap-uncut": self.uncut} if self.uncut else {})}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -186,10 +142,7 @@ def run(args: GatewayConfig) -> int:
         # certificate, so what arrives there matches no subject and is denied everything (default deny)
         from protocol.keyset import KeySet
         names = KeySet(args.keys, "gateway").admitted()
-        update: dict[str, Any] = {"access_control": acl.cert_access_control(args.fleet, names)}
-        if args.declaration_cap:  # the admin space (read by this process; the ACL denies it to every remote)
-            update["cfg"] = [("adminspace/enabled", "true"), *config.cfg]
-        config = config.model_copy(update=update)
+        config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
         log.info("ACL by certificate common name for %s", ", ".join(names))
         plain = [e for e in listen if not e.startswith("tls/")]
         if plain:
@@ -203,19 +156,11 @@ def run(args: GatewayConfig) -> int:
             bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
         stats_key = keys.gateway_stats(args.fleet, args.id)
         pub = bus.publisher(stats_key, TELEMETRY)
-        watch = CapWatch(bus, caps.DeclarationCaps(args.declaration_cap, args.declaration_ban_s), guards, log) \
-            if args.keys and args.declaration_cap else None
         t0 = time.time()
         while not stop.wait(args.period):
-            if watch is not None:
-                try:
-                    watch.poll()
-                except zenoh.ZError as exc:
-                    log.warning("admin space not read: %s", exc)
             snap = bus.counters.snapshot()
             rejected = {"unknown-key": meter.unknown, **{k: v for k, v in snap["rejected"].items()},
-                        **{f"guard-{k}": v for g in guards for k, v in g.counts.items() if k != "pass"},
-                        **(watch.counts() if watch is not None else {})}
+                        **{f"guard-{k}": v for g in guards for k, v in g.counts.items() if k != "pass"}}
             pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - t0,
                               sessions=session_counts(bus), classes=meter.classes(), rejected=rejected))
         log.info("shutting down")

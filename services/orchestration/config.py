@@ -106,8 +106,7 @@ class LaunchConfig(CliModel):
         f"{trustmode.DEFAULT_KEYS}"))
     no_accept_guard: bool = Field(default=False, description=(
         "the gateways accept TLS connections without the guard that drops those not starting a TLS handshake "
-        "(connect-and-close or silent floods) and cuts an identity over its declaration cap "
-        "(services/gateway/guard.py, bench/accept.py)"))
+        "(connect-and-close or silent floods; services/gateway/guard.py, bench/accept.py)"))
     insecure: bool = Field(default=False, description="no TLS, no access control, unsigned commands: development only")
     video: VideoCodec | None = Field(default=None, description=(
         "also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:PORT+2(n-1) (--video-port)"))
