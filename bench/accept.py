@@ -9,7 +9,7 @@ the admission time of each session (median, p90, max) and how many did not open 
 
 Variants: zenoh alone (its defaults); zenoh with ``transport/unicast/accept_timeout`` 500 ms and
 ``accept_pending`` 10000 (how long an incoming link may take to finish its handshake, how many may be
-unfinished at once); and the gateway's accept guard (``--accept-guard``, :mod:`services.gateway.guard`).
+unfinished at once); and the gateway's accept guard (on by default, ``--no-accept-guard`` turns it off; :mod:`services.gateway.guard`).
 
     .venv/bin/python bench/accept.py [--seconds 10] [--rate 1000] [--out bench/results/accept.json]
 """
@@ -120,7 +120,7 @@ def run_variant(keys: Path, name: str, cfg: dict, attack: str, args: argparse.Na
     extra = [a for k, v in cfg.items() for a in ("--cfg", f"{k}:{json.dumps(v)}")]
     try:
         gw = group.start(f"gateway-{name}-{attack}", ["gateway", "--fleet", FLEET, "--keys", str(keys), "--listen",
-                                                      where, *extra, *(["--accept-guard"] if name == "accept guard" else [])])
+                                                      where, *extra, *([] if name == "accept guard" else ["--no-accept-guard"])])
         if not gw.wait_for("router up", 30):
             raise RuntimeError("gateway did not start:\n" + "\n".join(gw.lines[-10:]))
         ks = KeySet(keys, "gcs")

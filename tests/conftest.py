@@ -167,12 +167,12 @@ def nominal_mission(tmp_path_factory) -> MissionRun:
 @pytest.fixture(scope="session")
 def impaired_secure_mission(tmp_path_factory) -> MissionRun:
     """The mission with 200 ms each way on every link (reliable ones too, from 4 s on, once the sessions are
-    open), the accept guard in front of the gateway and a key set of its own, at 8x, flown once per session:
+    open), the accept guard in front of the gateway (the default) and a key set of its own, at 8x, flown once per session:
     the test of the plan under delay (tests/services/orchestration/test_launcher.py) and the test of the
     proxied links' TLS and ACL (tests/services/gateway/test_trust_seams.py) read this one run (CI time)."""
     root = tmp_path_factory.mktemp("impaired")
     return fly_mission(root / "report", "--speed", "8", "--keys", str(root / "keys"),
-                       "--impair", "all=after 4s delay 200ms", "--accept-guard", timeout=300)
+                       "--impair", "all=after 4s delay 200ms", timeout=300)
 
 
 def wait_until(pred, timeout: float = 20.0, poll: float = 0.02) -> bool:

@@ -24,7 +24,12 @@ class GatewayConfig(BusOptions):
         default=STATE_INGRESS_HZ, ge=0.0,
         description="states a connected session may send per UAV key through the gateway, at most one per 1/HZ "
                     "(Zenoh ingress downsampling per face; services/gateway/ingress.py); 0: off")
-    accept_guard: bool = Field(
-        default=False, description="accept tls/ connections in a guard that passes on only those starting a TLS "
-                                   "handshake (services/gateway/guard.py): connect-and-close or silent floods never "
-                                   "reach zenoh")
+    no_accept_guard: bool = Field(
+        default=False, description="tls/ listeners without the accept guard (services/gateway/guard.py: it passes "
+                                   "on only connections that start a TLS handshake, so connect-and-close or silent "
+                                   "floods never reach zenoh)")
+
+    @property
+    def accept_guard(self) -> bool:
+        """Whether tls/ listeners sit behind the accept guard (the default)."""
+        return not self.no_accept_guard

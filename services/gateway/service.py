@@ -9,7 +9,8 @@ connected sessions by kind and samples/bytes per link class seen on the fleet's 
     skynet gateway --port 7447           # the same, TCP on 7447 and UDP on 7448
 
 With ``--keys DIR`` every listener is mutual TLS and access control goes by certificate common
-name (:func:`protocol.acl.cert_access_control`, default deny).
+name (:func:`protocol.acl.cert_access_control`, default deny). Each ``tls/`` listener sits behind the accept
+guard (:mod:`services.gateway.guard`) unless ``--no-accept-guard``.
 """
 
 from __future__ import annotations

@@ -133,8 +133,8 @@ class LaunchConfig(CliModel):
     keys: Annotated[str | None, Cli(metavar="DIR", exclusive="keys")] = Field(default=None, description=(
         f"fleet key set (skynet keys init); default: a development set in ${trustmode.KEYS_ENV} or "
         f"{trustmode.DEFAULT_KEYS}"))
-    accept_guard: bool = Field(default=False, description=(
-        "the gateways accept TLS connections through a guard that drops those not starting a TLS handshake "
+    no_accept_guard: bool = Field(default=False, description=(
+        "the gateways accept TLS connections without the guard that drops those not starting a TLS handshake "
         "(connect-and-close or silent floods; services/gateway/guard.py, bench/accept.py)"))
     insecure: Annotated[bool, Cli(exclusive="keys")] = Field(
         default=False, description="no TLS, no access control, unsigned commands: development only")

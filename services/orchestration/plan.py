@@ -522,7 +522,7 @@ def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports
             listen = [e.replace(f"/{HOST}:", "/0.0.0.0:") for e in listen]
         dials = [trustmode.dial_with_ca(e, trust.router_ca) for e in targets]
         gw = child(name, GatewayConfig, **session(o, trust, dials, lease), **thin, listen=listen,
-                   accept_guard=o.accept_guard, **({} if len(site_endpoints) == 1 else {"id": site.gateway}))
+                   no_accept_guard=o.no_accept_guard, **({} if len(site_endpoints) == 1 else {"id": site.gateway}))
         procs.append(spec(name, "gateway", site.index, ident, gw, listens=tuple(listen), connects=tuple(dials),
                           wait=True, namespace=site.index if netns else None))
         if netns and site.index == 0:  # site 0's gateway reached from the machine's own namespace

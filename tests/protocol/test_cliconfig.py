@@ -45,7 +45,7 @@ def _services():
             camera="none", scenario="s.toml", frame_size=(4000, 3000), capture_link="reliable", preview_hz=0.0,
             nice=5, imagery_cache=0, mesh_uavs=6, mode="client", **bus)),
         (gateway.build_parser, [], GatewayConfig(id="g2", port=7500, period=0.5, state_ingress_hz=0.0,
-                                                 accept_guard=True, listen=["tls/0.0.0.0:7447"], **bus)),
+                                                 no_accept_guard=True, listen=["tls/0.0.0.0:7447"], **bus)),
         (planner.build_parser, [], PlannerConfig(time_budget=3.0, anytime=True, **bus)),
         (detector.build_parser, [], DetectorConfig(method="it", workers=1, start_method="forkserver",
                                                    partition=Partition(1, 2), max_uav=12, no_recovery=True,

@@ -38,8 +38,9 @@ def test_a_flooded_guarded_gateway_still_admits_a_session(tmp_path, group):
     port = free_port(socket.SOCK_STREAM)
     where = f"tls/127.0.0.1:{port}"
     gw = group.start("gateway", ["gateway", "--fleet", "guard", "--keys", str(ks_dir), "--listen", where,
-                                 "--accept-guard", "--period-s", "0.3"])
-    assert gw.wait_ready(20), "\n".join(gw.lines)
+                                 "--period-s", "0.3"])
+    assert gw.wait_ready(20), "
+".join(gw.lines)
     stop = threading.Event()
     held: list[socket.socket] = []
 
@@ -75,3 +76,26 @@ def test_a_flooded_guarded_gateway_still_admits_a_session(tmp_path, group):
             t.join()
         for s in held:
             s.close()
+
+
+def _gateway_of_plan(*argv: str) -> dict:
+    import subprocess
+    import sys
+
+    from tests.conftest import ROOT
+
+    out = subprocess.run([sys.executable, "-m", "services.cli", "up", "--dry-run", "--json", *argv], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return next(p for p in json.loads(out.stdout)["processes"] if p["role"] == "gateway")
+
+
+def test_the_launchers_gateway_runs_the_accept_guard_by_default():
+    """``skynet up --dry-run --json`` (default secure mode): the gateway's TLS listeners sit behind the guard;
+    ``--no-accept-guard`` turns it off and says so on the gateway's argv."""
+    gw = _gateway_of_plan()
+    assert gw["config"]["no_accept_guard"] is False
+    assert "--no-accept-guard" not in gw["argv"] and all(e.startswith("tls/") for e in gw["listens"])
+    off = _gateway_of_plan("--no-accept-guard")
+    assert off["config"]["no_accept_guard"] is True and "--no-accept-guard" in off["argv"]
+

@@ -251,7 +251,7 @@ def test_a_router_presenting_a_node_certificate_is_refused_by_a_client(tmp_path,
 
 @pytest.mark.mission
 def test_an_impaired_mission_behind_the_accept_guard_succeeds_with_tls_and_the_acl(impaired_secure_mission):
-    """``skynet mission --impair all="after 4s delay 200ms" --accept-guard``, default secure mode, a key set of its
+    """``skynet mission --impair all="after 4s delay 200ms"`` (the accept guard on by default), default secure mode, a key set of its
     own (tests/conftest.py, shared with the launcher's test of the plan under delay): the proxied links keep
     mutual TLS and the ACL on the gateway and on every edge, and the mission succeeds."""
     run = impaired_secure_mission

@@ -323,7 +323,7 @@ CHILD_PARSERS = {"gateway": "services.gateway.service", "edge": "edge.board", "p
     ("up", ()),
     ("mission", ("--uavs", "6", "--sites", "2", "--detectors", "2", "--rcu-site", "detector-1=1", "--vehicle",
                  "mavlink", "--flight", "auto", "--no-recovery", "--frame-size", "1280x960", "--preview-hz", "0.5",
-                 "--gcs-state-hz", "5", "--state-ingress-hz", "150", "--detect-max-mp", "1.5", "--accept-guard",
+                 "--gcs-state-hz", "5", "--state-ingress-hz", "150", "--detect-max-mp", "1.5", "--no-accept-guard",
                  "--impair", "uav4=delay 5ms", "--video", "mjpeg", "--preview-port", "6000", "--seed", "7",
                  "--speed", "2.5")),
     ("up", ("--uavs", "30", "--insecure", "--web", "0.0.0.0:8081", "--impair", "uav1-uav2=loss 5%")),
@@ -356,7 +356,7 @@ def test_every_process_config_round_trips_through_its_own_command_line(prog, arg
             ((1280, 960), plan.load.preview_hz, 0, "mavlink", 11, 2.5)
         assert plan.get("detector-0").config.detect_max_mp == 1.5 and plan.get("detector-1").config.no_recovery
         gw = plan.get("gateway").config
-        assert gw.state_ingress_hz == 150.0 and gw.accept_guard and gw.cfg[0][0] == "downsampling"
+        assert gw.state_ingress_hz == 150.0 and not gw.accept_guard and gw.cfg[0][0] == "downsampling"
         assert plan.get("video").config.port == 6000
 
 
