@@ -39,8 +39,7 @@ def test_a_flooded_guarded_gateway_still_admits_a_session(tmp_path, group):
     where = f"tls/127.0.0.1:{port}"
     gw = group.start("gateway", ["gateway", "--fleet", "guard", "--keys", str(ks_dir), "--listen", where,
                                  "--period-s", "0.3"])
-    assert gw.wait_ready(20), "
-".join(gw.lines)
+    assert gw.wait_ready(20), "\n".join(gw.lines)
     stop = threading.Event()
     held: list[socket.socket] = []
 
