@@ -102,8 +102,8 @@ def guarded(listen: list[str], log=None) -> tuple[list[str], list[Any]]:
 
     out, guards = [], []
     for e in listen:
-        host, _, port = endpoint_address(e).rpartition(":")
-        if not e.startswith("tls/") or port == "0":
+        host, _, port = endpoint_address(e).rpartition(":") if e.startswith("tls/") else ("", "", "")
+        if not host or not port.isdigit() or port == "0":  # not a TLS listener on a fixed port: zenoh judges it
             out.append(e)
             continue
         inner = free_port(socket.SOCK_STREAM)

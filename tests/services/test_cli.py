@@ -24,6 +24,8 @@ def test_help_lists_every_command():
     (["teleport"], "unknown command"),
     (["edge", "--uav", "300", "--camera", "none"], "argument --uav: Input should be less than or equal to 255"),
     (["gateway", "--listen", "garbage"], "Endpoints must be of the form"),
+    (["gateway", "--listen", "tls/127.0.0.1:abc"], "invalid port value"),  # the accept guard, on by default, passes it on
+    (["gateway", "--listen", "tls/nohost"], "invalid socket address"),
     (["mission", "--impair", "foo"], "--impair 'foo': unknown keyword 'foo'"),
     (["mission", "--impair", "uav2/sctp=delay 5ms"], "class 'sctp' is not udp or tcp"),
     (["mission", "--impair", "uav9=delay 5ms", "--dry-run"], "--impair 'uav9=delay 5ms': link 'uav9'"),
