@@ -107,6 +107,8 @@ def guarded(listen: list[str], log=None) -> tuple[list[str], list[Any]]:
             out.append(e)
             continue
         inner = free_port(socket.SOCK_STREAM)
+        while inner == int(port):  # the outer port is not bound yet: the kernel may offer it again
+            inner = free_port(socket.SOCK_STREAM)
         guards.append(Guard((host.strip("[]"), int(port)), ("127.0.0.1", inner)).start())
         out.append(e.replace(f"{host}:{port}", f"127.0.0.1:{inner}", 1))
         if log:
