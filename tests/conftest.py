@@ -113,6 +113,17 @@ class MissionRun:
         """What to print when an assertion on this run fails."""
         return self.proc.stdout[-3000:] + self.proc.stderr[-3000:]
 
+    def flown(self, uavs: int = 3, rms_bound_m: float = 1.0) -> dict:
+        """The report of a mission that flew as planned (exit 0, success, every UAV at the goal, every capture point
+        imaged, formation RMS under ``rms_bound_m``); AssertionError with the output otherwise."""
+        assert self.proc.returncode == 0, self.failure()
+        report = self.report()
+        assert report["success"] and not report["failures"], report["failures"]
+        assert len(report["uavs"]) == uavs and all(fig["reached_goal"] for fig in report["uavs"].values()), report["uavs"]
+        assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
+        assert report["formation"]["rms_m"] < rms_bound_m, report["formation"]
+        return report
+
 
 #: the optional extras' packages (pyproject.toml): the main job (scripts/run.sh) installs none of them
 EXTRA_PACKAGES = frozenset({"pymavlink", "mavsdk", "selenium"})

@@ -5,13 +5,11 @@ kept in formation by speed corrections). Same bounds as the built-in vehicle's m
 (tests/services/orchestration/test_launcher.py): every UAV at the goal, every capture imaged, formation RMS under 1 m.
 """
 
-import json
-import subprocess
-import sys
-
 import pytest
 
 pytest.importorskip("pymavlink", reason="--vehicle mavlink needs the 'mavlink' extra")
+
+from tests.conftest import fly_mission
 
 pytestmark = pytest.mark.mission  # whole missions: one at a time under xdist (tests/conftest.py)
 
@@ -20,17 +18,10 @@ FORMATION_RMS_BOUND_M = 1.0
 
 @pytest.mark.parametrize("flight", ["guided", "auto"])
 def test_mission_with_mavlink_vehicles(tmp_path, flight):
-    out = tmp_path / "report"
-    proc = subprocess.run([sys.executable, "-m", "services.cli", "mission", "--vehicle", "mavlink", "--speed", "8",
-                           "--flight", flight, "--sim-boot-scale", "0.1", "--quiet", "--out", str(out)], capture_output=True, text=True,
-                          timeout=300)
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    report = json.loads((out / "report.json").read_text())
-    assert report["success"] and not report["failures"]
-    assert all(fig["reached_goal"] for fig in report["uavs"].values()) and len(report["uavs"]) == 3
-    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
-    assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M
-    log = (out / "services.log").read_text()
+    run = fly_mission(tmp_path / "report", "--vehicle", "mavlink", "--speed", "8", "--flight", flight,
+                      "--sim-boot-scale", "0.1", timeout=300)
+    run.flown(rms_bound_m=FORMATION_RMS_BOUND_M)
+    log = (run.out / "services.log").read_text()
     assert all(f"sim-autopilot: uav {i} (system id {i})" in log for i in (1, 2, 3))
     flown = [f"UAV {i}: flying AUTO from mission item" in log for i in (1, 2, 3)]
     assert flown == [flight == "auto"] * 3  # in AUTO the autopilots flew the uploaded missions

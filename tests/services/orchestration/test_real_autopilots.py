@@ -23,6 +23,7 @@ from protocol.scenario import load_scenario  # noqa: E402
 from services.orchestration.plan import homes  # noqa: E402
 from services.orchestration.process import free_port  # noqa: E402
 from services.recording.load import load_record  # noqa: E402
+from tests.conftest import fly_mission  # noqa: E402
 
 pytestmark = pytest.mark.mission  # whole missions: one at a time under xdist (tests/conftest.py)
 
@@ -44,11 +45,9 @@ def test_mission_flies_the_users_own_autopilots_from_their_homes(tmp_path):
                  str(port - i + 1), "--home=" + ",".join(map(str, home)), "--speed", str(SPEED), "--boot-scale", "0.1",
                  "--wind", "moderate", "--seed", str(i)],
                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True))
-        out = tmp_path / "report"
-        argv = [sys.executable, "-m", "services.cli", "mission", "--speed", str(SPEED), "--home-from-autopilot",
-                *(x for i, port in enumerate(ports, start=1) for x in ("--autopilot", f"uav{i}=udpin:127.0.0.1:{port}")),
-                "--quiet", "--out", str(out)]
-        proc = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+        run = fly_mission(tmp_path / "report", "--speed", str(SPEED), "--home-from-autopilot",
+                          *(x for i, port in enumerate(ports, start=1)
+                            for x in ("--autopilot", f"uav{i}=udpin:127.0.0.1:{port}")), timeout=300)
     finally:
         texts = []
         for ap in autopilots:
@@ -58,13 +57,9 @@ def test_mission_flies_the_users_own_autopilots_from_their_homes(tmp_path):
             except subprocess.TimeoutExpired:
                 ap.kill()
                 texts.append(ap.communicate()[0])
-    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    run.flown(rms_bound_m=FORMATION_RMS_BOUND_M)
     assert all(f"sim-autopilot: uav {i} (system id {i})" in t for i, t in enumerate(texts, start=1))
-    report = json.loads((out / "report.json").read_text())
-    assert report["success"] and not report["failures"]
-    assert all(fig["reached_goal"] for fig in report["uavs"].values()) and len(report["uavs"]) == 3
-    assert report["captures"]["planned"] > 0 and report["captures"]["imaged"] == report["captures"]["planned"]
-    assert report["formation"]["rms_m"] < FORMATION_RMS_BOUND_M
+    out = run.out
     log = (out / "services.log").read_text()
     assert "sim-autopilot" not in log  # the launcher started no autopilot of its own
     # the default secure mode: mutual TLS, ACL by certificate, every edge as its own identity
