@@ -24,7 +24,7 @@ from edge.vehicle.follower import Follower  # noqa: E402
 from edge.vehicle.mavlink import CopterMode, MavlinkDriver, MavlinkParams  # noqa: E402
 from edge.vehicle.mavsim import MavlinkSimVehicle  # noqa: E402
 from protocol.messages import Mode, Trajectory, Waypoint  # noqa: E402
-from tests.edge.vehicle.test_mavlink import HOME, fly, free_udp_port, trajectory  # noqa: E402
+from tests.edge.vehicle.test_mavlink import HOME, driven, fly, free_udp_port, trajectory  # noqa: E402
 
 HOME_LLA = (21.0278, 105.8342, 12.0)
 
@@ -68,16 +68,9 @@ def test_speed_law_closes_the_along_track_error_only():
 
 @pytest.fixture
 def auto_link():
-    port = free_udp_port()
-    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME,
-                        params=MavlinkParams(flight="auto", heartbeat_timeout_s=1.5))
-    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=4.0).start()  # 4x, not 8x: a loaded CI machine lags the 8x clock
-    try:
-        drv.wait_heartbeat(5.0)
-        yield drv, veh
-    finally:
-        drv.close()
-        veh.close()
+    # 4x, not 8x: a loaded CI machine lags the 8x clock
+    with driven(MavlinkSimVehicle, MavlinkParams(flight="auto", heartbeat_timeout_s=1.5), speed=4.0) as pair:
+        yield pair
 
 
 def test_auto_flies_the_trajectory_in_time_with_every_capture(auto_link):

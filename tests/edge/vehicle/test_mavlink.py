@@ -11,6 +11,8 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -54,20 +56,27 @@ def free_udp_port() -> int:
     return free_port(socket.SOCK_DGRAM)
 
 
-@pytest.fixture
-def link(request):
-    """A driver listening on loopback and a simulated ArduCopter sending to it (speed x8)."""
-    opts = getattr(request, "param", {})
+@contextmanager
+def driven(vehicle: type, params: MavlinkParams, speed: float, **opts) -> Iterator[tuple[MavlinkDriver, object]]:
+    """A driver (system 1, ``params``) listening on loopback and a simulated autopilot of class ``vehicle`` at HOME
+    sending to it, once the driver has heard its HEARTBEAT; both closed after."""
     port = free_udp_port()
-    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME,
-                        params=MavlinkParams(trigger_camera=True, heartbeat_timeout_s=1.5))
-    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=8.0, **opts).start()
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME, params=params)
+    veh = vehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=speed, **opts).start()
     try:
         drv.wait_heartbeat(5.0)
         yield drv, veh
     finally:
         drv.close()
         veh.close()
+
+
+@pytest.fixture
+def link(request):
+    """A driver listening on loopback and a simulated ArduCopter sending to it (speed x8)."""
+    with driven(MavlinkSimVehicle, MavlinkParams(trigger_camera=True, heartbeat_timeout_s=1.5), speed=8.0,
+                **getattr(request, "param", {})) as pair:
+        yield pair
 
 
 def fly(drv, veh, done, limit_s: float, watch=None) -> list:

@@ -17,14 +17,14 @@ from pymavlink.dialects.v20 import ardupilotmega as M  # noqa: E402
 from edge.vehicle.apm.params import MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32  # noqa: E402
 from edge.vehicle.auto_flight import autopilot_mission  # noqa: E402
 from edge.vehicle.follower import Follower  # noqa: E402
-from edge.vehicle.mavlink import MavlinkDriver, MavlinkParams  # noqa: E402
+from edge.vehicle.mavlink import MavlinkParams  # noqa: E402
 from edge.vehicle.mavlink.dialect import ARDUCOPTER, PX4, dialect_for  # noqa: E402
 from edge.vehicle.mavsim.px4 import Px4SimVehicle  # noqa: E402
 from edge.vehicle.px4 import modes as PX  # noqa: E402
 from edge.vehicle.px4 import params as PP  # noqa: E402
 from edge.vehicle.px4.missions import without_home  # noqa: E402
 from protocol.messages import Mode  # noqa: E402
-from tests.edge.vehicle.test_mavlink import HOME, fly, free_udp_port, trajectory  # noqa: E402
+from tests.edge.vehicle.test_mavlink import HOME, driven, fly, free_udp_port, trajectory  # noqa: E402
 
 HOME_LLA = (21.0278, 105.8342, 12.0)
 
@@ -232,16 +232,8 @@ def test_px4_mission_has_no_home_item_and_reports_progress_in_its_numbering(gcs)
 @pytest.fixture
 def px4_link(request):
     flight = getattr(request, "param", "guided")
-    port = free_udp_port()
-    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME,
-                        params=MavlinkParams(flight=flight, heartbeat_timeout_s=1.5))
-    veh = Px4SimVehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=4.0).start()
-    try:
-        drv.wait_heartbeat(5.0)
-        yield drv, veh
-    finally:
-        drv.close()
-        veh.close()
+    with driven(Px4SimVehicle, MavlinkParams(flight=flight, heartbeat_timeout_s=1.5), speed=4.0) as pair:
+        yield pair
 
 
 def test_driver_picks_px4_and_flies_offboard_with_every_capture_then_lands(px4_link):
