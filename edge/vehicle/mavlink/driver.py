@@ -12,6 +12,7 @@ from typing import Any, Literal
 from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.geometry.ardupilot_items import capture_params
+from edge.geometry.waypoint_mission import geodetic_to_enu
 from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
 from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import AutopilotReadiness, Mode, Trajectory
@@ -123,14 +124,12 @@ MAX_HOME_DISTANCE_M = 20_000.0
 def home_in_frame(home_lla: tuple[float, float, float], origin: Vec3,
                   max_distance_m: float = MAX_HOME_DISTANCE_M) -> Vec3:
     """An autopilot's HOME_POSITION (degrees, degrees, m above sea level) in the mission's ENU frame about its
-    geodetic ``origin`` (WGS84, pymap3d's geodetic2enu); ValueError when it is not a geodetic point or lies
-    farther than ``max_distance_m`` from the origin."""
-    import pymap3d
-
+    geodetic ``origin`` (WGS84, :func:`edge.geometry.waypoint_mission.geodetic_to_enu`); ValueError when it is
+    not a geodetic point or lies farther than ``max_distance_m`` from the origin."""
     lat, lon, alt = (float(v) for v in home_lla)
     if not (abs(lat) <= 90 and abs(lon) <= 180 and math.isfinite(alt)):
         raise ValueError(f"the autopilot's home {home_lla!r} is not a geodetic point")
-    e, n, u = pymap3d.geodetic2enu(lat, lon, alt, *origin)
+    e, n, u = (float(v) for v in geodetic_to_enu((lat, lon, alt), origin))
     if not math.hypot(e, n) <= max_distance_m:
         raise ValueError(f"the autopilot's home ({lat:.6f}, {lon:.6f}) is {math.hypot(e, n) / 1000:.1f} km from the "
                          f"scenario's origin ({origin[0]:.6f}, {origin[1]:.6f}): another site's scenario?")
