@@ -149,3 +149,17 @@ def test_a_hostile_mode_name_is_sanitised_and_bounded(heartbeats):
     assert all(c.isascii() and (c.isalnum() or c in "_.-?") for c in name)
     assert safe_mode_name("AUTO.MISSION") == "AUTO.MISSION" and safe_mode_name(None) == "None"
     assert safe_mode_name("x" * 10_000) == "x" * 32
+
+
+def test_a_px4_parameter_value_that_cannot_be_one_is_counted_not_stored(tel):
+    """PX4 sends an integer parameter's bytes in PARAM_VALUE's float field (decoded by its type); a REAL32 that is
+    NaN or infinite is an error counted, never a stored value."""
+    t = tel
+    ok = M.MAVLink_param_value_message(b"NAV_DLL_ACT", 2.8e-45, M.MAV_PARAM_TYPE_INT32, 20, 1)  # the bytes of 2
+    dispatch(t, wire(ok), 1.0)
+    assert t.param_rx["NAV_DLL_ACT"][0] == 2.0
+    errors = t.errors
+    for value, kind in ((math.nan, M.MAV_PARAM_TYPE_REAL32), (math.inf, M.MAV_PARAM_TYPE_REAL32),
+                        (-math.inf, M.MAV_PARAM_TYPE_REAL32)):
+        dispatch(t, wire(M.MAVLink_param_value_message(b"MPC_XY_CRUISE", value, kind, 20, 2)), 1.0)
+    assert "MPC_XY_CRUISE" not in t.param_rx and t.errors == errors + 3
