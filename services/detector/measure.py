@@ -126,7 +126,11 @@ def _endpoints(skel: np.ndarray) -> np.ndarray:
 def prune_spurs(skel: np.ndarray, n: int) -> np.ndarray:
     """Remove skeleton branches shorter than ``n`` pixels (the spurs thinning grows from a rough
     edge): strip end pixels ``n`` times, then regrow the surviving ends ``n`` steps along the
-    original skeleton (Gonzalez & Woods, *Digital Image Processing*, pruning)."""
+    original skeleton (Gonzalez & Woods, *Digital Image Processing*, pruning).
+
+    A spur hangs off a junction: a skeleton piece of at least ``n`` pixels that stripping removes
+    whole (a segment of a crack whose half-depth mask broke in two, :func:`half_depth_mask`) is
+    crack, and is kept; a shorter one is a speck."""
     s = np.asarray(skel, bool)
     if n <= 0 or not s.any():
         return s
@@ -142,7 +146,10 @@ def prune_spurs(skel: np.ndarray, n: int) -> np.ndarray:
     k = np.ones((3, 3), np.uint8)
     for _ in range(n):
         grown = (cv2.dilate(grown.astype(np.uint8), k) > 0) & s & ~x | grown
-    return x | (grown & s)
+    _, pieces = cv2.connectedComponents(s.astype(np.uint8), connectivity=8)
+    size = np.bincount(pieces[s])
+    gone = np.setdiff1d(np.flatnonzero(size >= n), np.unique(pieces[x]))
+    return x | (grown & s) | np.isin(pieces, gone)
 
 
 def measure_component(mask: np.ndarray, m_per_px: float, grey: np.ndarray | None = None) -> CrackMeasure:

@@ -57,6 +57,16 @@ def test_spurs_are_pruned_but_the_crack_is_kept():
     assert p[30, 10:110].all() and not p[25:29, 60].any()
 
 
+def test_a_short_piece_of_a_broken_crack_is_kept_whole_not_pruned_as_a_spur():
+    # a faint stretch breaks the half-depth mask: the 12 px piece past the gap has no junction, so it is
+    # crack, not a spur of a rough edge, and pruning at 8 px (which strips up to 16 px of it) keeps it all
+    s = np.zeros((40, 120), bool)
+    s[20, 10:80] = True
+    s[20, 84:96] = True
+    s[15:20, 40] = True  # a 5 px spur on the long piece still goes
+    p = prune_spurs(s, 8)
+    assert p[20, 10:80].all() and p[20, 84:96].all() and not p[15:19, 40].any()
+
 def test_half_depth_mask_narrows_a_loose_mask_to_the_crack():
     g = np.full((80, 200), 150, np.uint8)
     g[38:42, 10:190] = 60  # 4 px crack
