@@ -328,8 +328,6 @@ class Quadrotor:
         #: applied (lagged, saturated) thrust and torques
         self.thrust = 0.0
         self.torque = (0.0, 0.0, 0.0)
-        #: last disturbance sample (d_φ, d_θ, d_ψ, w_x, w_y, w_z)
-        self.last_disturbance: tuple[float, ...] = self.disturbance._zero
         self.on_ground = self.ground_z is not None and pos[2] <= self.ground_z + 1e-9
 
     # ------------------------------------------------------------------ accessors
@@ -348,10 +346,6 @@ class Quadrotor:
     @property
     def rates(self) -> tuple[float, float, float]:
         return self.s[9:12]
-
-    def euler_rates(self) -> tuple[float, float, float]:
-        """Θ̇ from the body rates (inverse of (P10))."""
-        return euler_rates_from_body_rates(self.s[6:9], self.s[9:12])
 
     def rest_on_ground(self) -> None:
         """Put the vehicle at rest, level, on the ground below it (keeps x, y, yaw)."""
@@ -388,7 +382,6 @@ class Quadrotor:
         self.thrust = T
         self.torque = (tx, ty, tz)
         d = self.disturbance.sample()
-        self.last_disturbance = d
         gz = self.ground_z
         s = self.s
         if self.on_ground and T <= self._weight:

@@ -112,7 +112,3 @@ class BootTimeline:
             if t0 < self._at(base) <= t1:
                 out.append(text)
         return out
-
-    def ready_in(self, t: float) -> float:
-        """Seconds from t until every step is done (0 when done)."""
-        return max(0.0, self._at(self.position_s) - t)

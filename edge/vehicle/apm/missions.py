@@ -183,7 +183,6 @@ class MissionServer:
         self.item_timeout_s = float(item_timeout_s)
         self.retries = int(retries)
         self._up: _Upload | None = None
-        self.uploads = 0  # completed uploads (any type)
         self.rejected = 0
 
     @staticmethod
@@ -211,7 +210,6 @@ class MissionServer:
         if count <= 0:
             self._up = None
             self.stores[mission_type] = []
-            self.uploads += 1
             return [self._ack(src, MAV_MISSION_ACCEPTED, mission_type)]
         if count > 10_000:
             self.rejected += 1
@@ -241,7 +239,6 @@ class MissionServer:
             return [self._request(up)]
         self.stores[up.mission_type] = up.items
         self._up = None
-        self.uploads += 1
         return [self._ack(src, MAV_MISSION_ACCEPTED, up.mission_type)]
 
     def tick(self, now: float) -> list[Out]:
