@@ -28,14 +28,7 @@ __all__ = [
     "textured_background",
 ]
 
-#: Default texture resolution of :class:`SyntheticSurface`: 100 px/m, i.e. 1 cm per texture
-#: pixel. A 60 m x 20 m wall is then 6000 x 2000 px = 12 MP (12 MB for the texture, 12 MB for
-#: the mask), and cracks drawn 2..5 px wide (the surface's default) are 2..5 cm wide (the drawn
-#: rectangle of a segment is about one pixel wider than its nominal thickness): wide, structural
-#: cracks, resolvable in the default 640 x 480 frames (7.8 mm per frame pixel at the stand-off),
-#: where a real 0.3 mm crack would need the full 4000 x 3000 sensor. A camera frame of 640 px across at the (P2) inspection
-#: distance for a 1 cm feature (footprint 3.2 m) samples the texture at about 1:2; at the
-#: default scenario's stand-off (5 m footprint) about 1:0.8.
+#: Default texture resolution: 1 cm per texture pixel (docs/edge.md, edge/world/surface.py)
 DEFAULT_PX_PER_M = 100.0
 
 RngLike = np.random.Generator | int | None
@@ -97,42 +90,9 @@ def textured_background(
     gradient: float = 0.12,
     grain: float = 4.0,
 ) -> NDArray[np.uint8]:
-    """Concrete-like grey texture.
-
-    The intensity is ``mean`` times an illumination ramp, plus value noise at four scales
-    (2, 6, 24 and 96 px cells, amplitudes falling with scale), plus a few soft blotches (stains
-    and patches, darker or lighter), plus per-pixel grain. Everything is made from small noise
-    fields enlarged with ``cv2.resize`` and blurred with ``cv2.GaussianBlur``, so a 12 MP
-    texture takes well under a second.
-
-    Parameters
-    ----------
-    shape : (int, int)
-        ``(height, width)`` in pixels.
-    rng : numpy.random.Generator, int or None
-        Source of randomness (an int is a seed; None is unseeded).
-    mean : float
-        Mean grey level, 0..255. Default 140 (mid-grey concrete; CrackForest's pavement
-        backgrounds measure 128..140).
-    roughness : float
-        Standard deviation, in grey levels, of the multi-scale noise. Default 14.
-    blotches : float
-        Density of blotches relative to one per 200 x 200 px; 0 disables them.
-    gradient : float
-        Peak-to-peak illumination change across the image, as a fraction of ``mean``
-        (direction random). Default 0.12.
-    grain : float
-        Standard deviation of the per-pixel grain, in grey levels. Default 4.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``uint8`` array of ``shape``.
-
-    Raises
-    ------
-    ValueError
-        On a bad shape or a non-finite/negative parameter.
+    """Concrete-like grey ``uint8`` texture of ``shape`` ``(height, width)``: ``mean`` grey level times an
+    illumination ramp (``gradient``: peak-to-peak fraction of ``mean``), multi-scale value noise of std
+    ``roughness``, soft blotches (``blotches`` per 200 x 200 px) and per-pixel ``grain`` (std, grey levels).
     """
     h, w = _shape(shape)
     for name, val in (("mean", mean), ("roughness", roughness), ("blotches", blotches),
@@ -237,34 +197,8 @@ def draw_cracks(
     width_px: tuple[float, float] = (1.0, 5.0),
     branch_prob: float = 0.015,
 ) -> NDArray[np.uint8]:
-    """Procedural crack mask: random-walk polylines with occasional branches.
-
-    Each crack starts at a random point with a random heading and walks in 3 px steps; its
-    heading changes smoothly (curvature follows an AR(1) process, plus a little jitter for a
-    jagged edge), its width varies smoothly within ``width_px`` and tapers at both ends. At each
-    step a crack may fork (probability ``branch_prob``) into a shorter, thinner branch leaving
-    at 20..57 degrees; branches fork again at half the rate, two levels deep at most. Segments
-    are drawn with ``cv2.line`` (8-connected, no anti-aliasing), so the mask is exactly binary.
-
-    Parameters
-    ----------
-    shape : (int, int)
-        ``(height, width)`` in pixels.
-    rng : numpy.random.Generator, int or None
-        Source of randomness.
-    n_cracks : int
-        Number of main cracks (branches come on top). 0 gives an empty mask.
-    length_px : (float, float) or None
-        Range of main-crack lengths in pixels; default ``(0.25, 0.75) * hypot(h, w)``.
-    width_px : (float, float)
-        Range of crack widths in pixels, ``1 <= min <= max``. Default ``(1, 5)``.
-    branch_prob : float
-        Probability, per 3 px step, that a crack forks. Default 0.015.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``uint8`` mask of ``shape``, 255 on cracks and 0 elsewhere.
+    """Binary crack mask (255 on cracks) of ``shape``: ``n_cracks`` random-walk polylines of ``length_px``
+    (default ``(0.25, 0.75) * hypot(h, w)``) and ``width_px``, forking with ``branch_prob`` per 3 px step.
     """
     h, w = _shape(shape)
     if isinstance(n_cracks, bool) or not isinstance(n_cracks, (int, np.integer)) or n_cracks < 0:
@@ -301,45 +235,12 @@ def crack_image(
     width_px: tuple[float, float] = (1.0, 5.0),
     background: dict[str, float] | None = None,
 ) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
-    """Grey image of a cracked concrete-like surface and its ground-truth mask.
+    """Grey image of a cracked concrete-like surface and its ground-truth mask (255 on cracks).
 
-    The background (:func:`textured_background`) is darkened under the crack mask
-    (:func:`draw_cracks`) by a relative depth that varies smoothly along the cracks within
-    ``contrast`` -- a crack pixel is ``(1 - depth)`` times the background there, e.g. 25-55 %
-    darker. (CrackForest's cracks, for comparison, are about 20-25 % darker than their
-    surroundings with a background std of 9-14 grey levels.) Pixels next to a crack are
-    darkened a little by a one-pixel feather, so edges are not perfectly crisp, but the mask
-    stays the set of pixels drawn as crack. Finally Gaussian sensor noise is added.
+    The background is darkened under the mask by a relative depth within ``contrast`` plus Gaussian
+    noise of ``noise_sigma``: the paper's defect model, darker pixel groups on a repetitive background
+    ((P18)-(P19)). ``background`` holds keyword arguments of :func:`textured_background`.
 
-    Cracks are therefore "abnormal, darker pixel groups on a repetitive background", the
-    defect model of the paper's detector ((P18)-(P19)).
-
-    Parameters
-    ----------
-    shape : (int, int)
-        ``(height, width)`` in pixels. Default ``(480, 640)``.
-    rng : numpy.random.Generator, int or None
-        Source of randomness; the same seed gives the same image and mask.
-    n_cracks : int
-        Number of main cracks.
-    contrast : (float, float)
-        Range of the relative darkening of crack pixels, ``0 <= min <= max <= 1``.
-    noise_sigma : float
-        Standard deviation of the additive noise, grey levels.
-    length_px, width_px
-        Passed to :func:`draw_cracks`.
-    background : dict, optional
-        Keyword arguments for :func:`textured_background`.
-
-    Returns
-    -------
-    grey : numpy.ndarray
-        ``uint8`` image of ``shape``.
-    mask : numpy.ndarray
-        ``uint8`` mask of ``shape``, 255 on cracks, 0 elsewhere.
-
-    Examples
-    --------
     >>> grey, mask = crack_image((320, 480), rng=1)
     >>> bool(grey[mask > 0].mean() < grey[mask == 0].mean())
     True
@@ -424,26 +325,8 @@ def surface_options(spec: Any) -> dict[str, Any]:
 # ============================================================================ the wall in the world
 @dataclass(frozen=True)
 class SurfaceDefect:
-    """One ground-truth crack of a :class:`SyntheticSurface`: an 8-connected component of its mask.
-
-    A component is a crack with its branches, or several cracks that cross.
-
-    Attributes
-    ----------
-    id : int
-        0-based index in :meth:`SyntheticSurface.defects`, stable for a given surface.
-    centroid_uv : (float, float)
-        Centroid of the crack pixels in surface coordinates, metres.
-    centroid_world : (float, float, float)
-        The same point in the world, local ENU metres.
-    bbox_uv : (float, float, float, float)
-        ``(u0, v0, u1, v1)``, the bounding box in surface coordinates (pixel edges), metres.
-    area_px : int
-        Number of crack pixels in the texture.
-    area_m2 : float
-        Crack area, square metres.
-    bbox_px : (int, int, int, int)
-        ``(x, y, w, h)``, the bounding box in texture pixels (column, row).
+    """One ground-truth crack of a :class:`SyntheticSurface`: an 8-connected component of its mask
+    (``id`` stable per surface; ``*_uv`` in surface metres, ``bbox_px`` ``(x, y, w, h)`` in texture pixels).
     """
 
     id: int
@@ -460,52 +343,8 @@ Defect = SurfaceDefect
 
 
 class SyntheticSurface:
-    """A planar, textured, cracked rectangle in the world (local ENU metres), with its ground truth.
-
-    Surface coordinates ``(u, v)`` in metres: the rectangle is ``origin + u u_axis + v v_axis``
-    for ``0 <= u <= width_m``, ``0 <= v <= height_m``; ``u_axis`` and ``v_axis`` are orthonormal.
-    For a wall, ``u`` runs along the bottom edge (corner p0 towards p1) and ``v`` up the wall (p0
-    towards p3), the convention of the scenario's ``surface.corners`` and of the mission report
-    (:mod:`services.gcs.scoring`). :attr:`normal` ``= u_axis x v_axis`` points to the side the
-    surface is inspected from, its *front*.
-
-    The texture is an image seen upright from the front: column ``c`` is at
-    ``u = (c + 0.5) / px_per_m`` and row ``r`` at ``v = height_m - (r + 0.5) / px_per_m`` (row 0 is
-    the top edge; pixel centres at integer coordinates, as in OpenCV). A camera in front of the
-    surface with its x axis along ``u_axis`` and its y axis along ``-v_axis`` (OpenCV axes: z into
-    the surface) sees the texture unmirrored.
-
-    Parameters
-    ----------
-    origin, u_axis, v_axis : array_like, shape (3,)
-        Corner p0 and the two in-plane axes (normalised here; they must be orthogonal to within
-        0.1 degree).
-    width_m, height_m : float
-        Extent along ``u_axis`` and ``v_axis``, metres (at least one texture pixel).
-    px_per_m : float
-        Texture resolution; default :data:`DEFAULT_PX_PER_M` = 100 px/m (1 cm per pixel). The
-        texture may not exceed :attr:`MAX_PIXELS` (100 MP); a 60 m x 20 m wall is 12 MP.
-    seed : int
-        Seed of the texture and the cracks: the same seed and geometry give the same surface, so
-        the ground station rebuilds the edges' wall to score a mission.
-    cracks_per_m2 : float
-        Main cracks per square metre (at least one crack). Default 1/12: a crack in every
-        3.5 m x 3.5 m patch, i.e. a few per camera footprint at the inspection distance.
-    crack_length_m : (float, float)
-        Range of main-crack lengths, metres. Default 0.8..3 m.
-    crack_width_px : (float, float)
-        Range of crack widths in texture pixels. Default 2..5 px (2..5 cm at 100 px/m): the
-        frames sample the texture at about 1:1 to 1:2, where 1 px cracks would fade out.
-    contrast : (float, float)
-        Relative darkening of crack pixels, see :func:`crack_image`. Default 0.35..0.6.
-    n_cracks : int, optional
-        Number of main cracks, overriding ``cracks_per_m2``.
-    crack_width_ranges_px : sequence of (float, float), optional
-        A width range (texture pixels) per main crack, taken in turn (:func:`graded_crack_image`):
-        real-size cracks of every class on one wall (the scenario's ``surface.crack_widths_mm``).
-    texture, mask : numpy.ndarray, optional
-        A ready texture and mask (uint8, ``(round(height_m px_per_m), round(width_m px_per_m))``)
-        instead of generated ones, e.g. a photograph of a real wall with a hand-made mask.
+    """A planar, textured, cracked rectangle ``origin + u u_axis + v v_axis`` in the world (local ENU
+    metres), with its ground truth; the coordinates and options are in docs/edge.md (edge/world/surface.py).
     """
 
     MAX_PIXELS = 100_000_000
@@ -584,25 +423,9 @@ class SyntheticSurface:
     @classmethod
     def from_corners(cls, corners: ArrayLike, px_per_m: float = DEFAULT_PX_PER_M, seed: int = 0,
                      **kwargs: Any) -> SyntheticSurface:
-        """Build a surface on 2, 3 or 4 corner points (rows of an array, ENU metres).
-
-        - **4 points** ``p0, p1, p2, p3`` in order around the rectangle: ``u`` along ``p1 - p0``
-          (the bottom edge of a wall), ``v`` along ``p3 - p0`` (up); ``p2`` must close the
-          rectangle to 1 % of its size. This is the scenario's ``surface.corners``.
-        - **3 points** ``p0, p1, p3``: the same without the opposite corner.
-        - **2 points**, opposite corners ``p0`` and ``p2``. If their heights differ, a vertical
-          wall: ``u`` horizontal from ``p0`` towards ``p2``, ``v`` straight up, origin below or at
-          the lower point; its front (:attr:`normal`) is on the right of someone walking along
-          ``u``. If their heights are equal, a horizontal deck facing up, axis-aligned: ``u``
-          east, ``v`` north, origin the south-west corner.
-
-        Other keyword arguments (``cracks_per_m2``, ``crack_length_m``, ...) go to the
-        constructor.
-
-        Raises
-        ------
-        ValueError
-            Non-finite points, a wrong count, degenerate or non-rectangular corners.
+        """Build a surface on 2, 3 or 4 corner points (ENU metres): ``p0, p1, p2, p3`` around the rectangle
+        (the scenario's ``surface.corners``), ``p0, p1, p3``, or opposite corners ``p0, p2`` (a vertical wall
+        if their heights differ, else a deck facing up); the rules are in docs/edge.md.
         """
         p = np.asarray(corners, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3 or not 2 <= p.shape[0] <= 4 or not np.all(np.isfinite(p)):
@@ -721,14 +544,8 @@ class SyntheticSurface:
 
     # ------------------------------------------------------------------ ground truth
     def defects(self, min_area_px: int = 20) -> list[SurfaceDefect]:
-        """The ground-truth cracks: 8-connected components of the mask, in surface and world
-        coordinates.
-
-        Components smaller than ``min_area_px`` texture pixels (a crack tip cut off by the edge of
-        the surface) are left out: no camera could tell them from the texture. Computed with
-        ``cv2.connectedComponentsWithStats`` and cached per ``min_area_px``. The mission report
-        matches the detector's defect positions, mapped to surface coordinates, against these
-        (object-level recall and precision, the F-measure of (P20)).
+        """The ground-truth cracks: 8-connected components of the mask of at least ``min_area_px`` texture
+        pixels, cached; the report matches detections against them ((P20)).
         """
         if isinstance(min_area_px, bool) or not isinstance(min_area_px, (int, np.integer)) or min_area_px < 0:
             raise ValueError(f"min_area_px must be an integer >= 0, got {min_area_px!r}")
