@@ -55,17 +55,8 @@ ROW_PITCH_M = 2.5
 
 
 def offsets_for(n: int) -> NDArray[np.float64]:
-    """Offsets ΔT_n for a fleet of ``n`` UAVs (P9); row n-1 is UAV n.
-
-    The paper's triangle for the first three; then further slots 3 m apart along travel on the
-    same two rows (z = +2 and z = -1 m): (3, 0, 2), (-3, 0, 2), (6, 0, -1), (-6, 0, -1), (6, 0, 2),
-    (-6, 0, 2), (0, 0, -1), i.e. five columns up to :data:`MAX_ALONG_M` ahead and behind (10
-    UAVs, every pair at least 3 m apart). Larger fleets stack further rows of the same
-    five columns :data:`ROW_PITCH_M` apart *below* them (z = -3.5, -6, ...), each ordered
-    0, +3, -3, +6, -6. So the fleet's length along the track stays 12 m whatever N (a line of 24
-    was ±18 m and did not fit the monorail box at the start), the top two rows image the wall
-    (:func:`services.planner.task.imaging_rows`) and the rows below fly the same pass under them.
-    Formations of three (:mod:`edge.geometry.neighbourhood`) are consecutive ids.
+    """Offsets ΔT_n for a fleet of ``n`` UAVs (P9), row n-1 UAV n: the paper's triangle, then the slots of
+    docs/edge.md (edge/geometry/formation.py, "Fleet slots").
     """
     if not isinstance(n, (int, np.integer)) or not 1 <= n <= 255:
         raise ValueError(f"formation size must be an int in 1..255, got {n!r}")
@@ -87,12 +78,8 @@ def offsets_for(n: int) -> NDArray[np.float64]:
 
 
 def home_offsets(offsets: ArrayLike) -> NDArray[np.float64]:
-    """Ground positions of the fleet's launch points in the formation frame (x along travel, y left), m.
-
-    Under its slot, except where an earlier UAV already launches from that spot (slots stacked
-    above each other share x): such a UAV launches :data:`PITCH_M` further left per earlier one,
-    climbs there and flies level to its slot when started (the sequencer's transit). Row n-1 is
-    UAV n; ``(k, 2)``.
+    """Launch points ``(k, 2)`` in the formation frame (x along travel, y left), m: under each slot, or
+    :data:`PITCH_M` further left per earlier UAV launching from the same spot.
     """
     off = np.asarray(offsets, float).reshape(-1, 3)
     seen: dict[float, int] = {}
@@ -106,26 +93,9 @@ def home_offsets(offsets: ArrayLike) -> NDArray[np.float64]:
 
 
 def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np.float64]:
-    """Rotation ``R_OF`` from the formation frame to the inertial frame (P7), ZYX Euler angles.
+    """Rotation ``R_OF = Rz(ψ) Ry(θ) Rx(φ)`` from the formation frame to the inertial frame (P7); angles in
+    radians, broadcast: ``(3, 3)`` for scalars, ``(N, 3, 3)`` for N angles.
 
-    ``R_OF = Rz(ψ) Ry(θ) Rx(φ)``, written out as in (P7)::
-
-        [[cψcθ, cψsθsφ − sψcφ, cψsθcφ + sψsφ],
-         [sψcθ, sψsθsφ + cψcφ, sψsθcφ − cψsφ],
-         [−sθ,  cθsφ,          cθcφ         ]]
-
-    Parameters
-    ----------
-    roll, pitch, yaw : float or array_like
-        φ, θ, ψ in radians; broadcast against each other.
-
-    Returns
-    -------
-    ndarray, shape ``broadcast_shape + (3, 3)``
-        ``(3, 3)`` for scalars; ``(N, 3, 3)`` for arrays of N angles.
-
-    Examples
-    --------
     >>> R = rotation_of(0.0, 0.0, np.pi / 2)
     >>> np.round(R @ [1.0, 0.0, 0.0], 12)
     array([0., 1., 0.])
@@ -152,20 +122,7 @@ def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np
 def errors_in_formation(
     desired: ArrayLike, actual: ArrayLike, R_OF: ArrayLike
 ) -> NDArray[np.float64]:
-    """Position errors in the formation frame, ``e^F = R_OF^T (P_d − P)`` (P8).
-
-    Parameters
-    ----------
-    desired, actual : array_like, shape (..., 3)
-        Desired and actual inertial positions, metres.
-    R_OF : array_like, shape (3, 3) or (..., 3, 3)
-        Formation-to-inertial rotation (:func:`rotation_of`), broadcast against the positions.
-
-    Returns
-    -------
-    ndarray, shape (..., 3)
-        ``e^F`` in the formation frame (x along travel, y left, z up).
-    """
+    """Position errors ``e^F = R_OF^T (P_d − P)`` (P8), ``(..., 3)``, with ``R_OF`` ``(3, 3)`` or ``(..., 3, 3)``."""
     d = finite_array("desired", desired)
     a = finite_array("actual", actual)
     R = finite_array("R_OF", R_OF)
@@ -176,20 +133,7 @@ def errors_in_formation(
 
 
 def errors_to_inertial(e_F: ArrayLike, R_OF: ArrayLike) -> NDArray[np.float64]:
-    """Inverse of :func:`errors_in_formation`: ``e = R_OF e^F`` (P8).
-
-    Parameters
-    ----------
-    e_F : array_like, shape (..., 3)
-        Errors in the formation frame, metres.
-    R_OF : array_like, shape (3, 3) or (..., 3, 3)
-        Formation-to-inertial rotation.
-
-    Returns
-    -------
-    ndarray, shape (..., 3)
-        Inertial errors ``P_d − P``.
-    """
+    """Inverse of :func:`errors_in_formation`: ``e = R_OF e^F`` (P8)."""
     e = finite_array("e_F", e_F)
     R = finite_array("R_OF", R_OF)
     if e.shape[-1:] != (3,) or R.shape[-2:] != (3, 3):
@@ -204,23 +148,8 @@ def uav_positions(
     roll: ArrayLike = 0.0,
     pitch: ArrayLike = 0.0,
 ) -> NDArray[np.float64]:
-    """Slots of every UAV along a centroid path, ``P_n = P_F + R_OF ΔT_n`` (P9).
-
-    Parameters
-    ----------
-    centroid : array_like, shape (N, 3)
-        Centroid path ``P_F`` (inertial, metres). A single point ``(3,)`` is accepted as N = 1.
-    yaw : array_like, shape (N,) or scalar
-        Heading ψ of the formation at each point (see :func:`headings`), radians.
-    offsets : array_like, shape (M, 3)
-        Offsets ΔT_n in the formation frame (default :data:`DEFAULT_OFFSETS`).
-    roll, pitch : float or array_like, shape (N,)
-        Optional tilt of the shape (P7); default 0.
-
-    Returns
-    -------
-    ndarray, shape (N, M, 3)
-        ``out[i, n]`` is UAV n's position at path point i.
+    """Slots ``(N, M, 3)`` of M UAVs along a centroid path ``(N, 3)``, ``P_n = P_F + R_OF ΔT_n`` (P9); ``yaw``,
+    ``roll`` and ``pitch`` scalars or ``(N,)``.
     """
     c = np.atleast_2d(finite_array("centroid", centroid))
     if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] == 0:
@@ -240,17 +169,7 @@ def uav_positions(
 
 
 def centroid_of(positions: ArrayLike) -> NDArray[np.float64]:
-    """Formation centroid ``P_F = (1/M) Σ P_n`` (P6).
-
-    Parameters
-    ----------
-    positions : array_like, shape (M, 3)
-        Positions of the M UAVs, metres.
-
-    Returns
-    -------
-    ndarray, shape (3,)
-    """
+    """Formation centroid ``P_F = (1/M) Σ P_n`` (P6) of positions ``(M, 3)``."""
     p = np.atleast_2d(finite_array("positions", positions))
     if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
         raise ValueError(f"positions must have shape (M, 3) with M >= 1, got {p.shape}")
@@ -258,24 +177,8 @@ def centroid_of(positions: ArrayLike) -> NDArray[np.float64]:
 
 
 def headings(path: ArrayLike) -> NDArray[np.float64]:
-    """Heading ψ of the formation at each point of a path, from the path tangent.
-
-    The tangent is the central difference ``(P_{i+1} − P_{i−1}) / 2`` (one-sided at the ends,
-    :func:`numpy.gradient`), so at a corner the heading is the mean of the directions of the
-    two segments that meet there (smooth turns rather than a jump). Points whose horizontal
-    tangent vanishes (vertical climbs, repeated points) take the heading of the nearest point
-    before them that has one (or after, at the start); a path with no horizontal motion at all
-    has heading 0 (x of the formation frame pointing east).
-
-    Parameters
-    ----------
-    path : array_like, shape (N, 3)
-        Centroid path, inertial metres, N >= 1.
-
-    Returns
-    -------
-    ndarray, shape (N,)
-        ``ψ_i = atan2(dy_i, dx_i)`` in (−π, π].
+    """Heading ψ ``(N,)`` of a path ``(N, 3)`` from its central-difference tangent (:func:`numpy.gradient`);
+    points without horizontal motion take the nearest earlier (else later) heading, 0 if none.
     """
     p = finite_array("path", path)
     if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
@@ -311,49 +214,12 @@ def neighbour_correction(
     max_correction: float = MAX_CORRECTION_M,
     clock_rate: float = 1.0,
 ) -> NDArray[np.float64]:
-    """Own reference correction from the position errors the neighbours share over SkyNet (P8).
+    """Own reference correction from the neighbours' shared states (P8), zeros without a fresh neighbour.
 
-    Each neighbour j shares its position ``P_j``, its planned position ``P_j,d`` and its
-    trajectory time ``τ_j``. Its error as seen at the own trajectory time ``τ`` is the (P8) error
-    plus the part of the plan it is behind::
-
-        e_j = (P_j − P_j,d) − v_d (τ − τ_j − a_j)
-
-with ``a_j = age_j · clock_rate`` the trajectory time the neighbour has flown since it sent the
-state: ``P_j`` and ``P_j,d`` are of the same instant, so a late state still gives the right
-(P8) error, but its ``τ_j`` is ``a_j`` old. Without that term a link delay of d seconds reads
-as every neighbour lagging by ``v_d d``, and the fleet, each UAV falling back toward the
-others, drifts behind its plan (2.6 m at the goal with 50 ms of delay at 6x before the fix).
-    with ``v_d`` the own planned velocity (all slots of a rigid formation move with the
-    centroid, up to its rotation in turns). The correction is ``gain · mean_j e_j`` over the
-    fresh neighbours, bounded in norm by ``max_correction``: when one UAV lags — by a tracking
-    error or by a paused mission clock — the others fall back toward it and the triangle holds;
-    in steady state the relative lag left is ``(2 − 2g) / (2 + g)`` of it for three UAVs. No
-    heading is needed, so turns and climbs where the formation rotates add no spurious term.
-
-    Parameters
-    ----------
-    own_tau : float
-        Own trajectory time, s.
-    own_ref_vel : array_like, shape (3,)
-        Own planned velocity now, m/s.
-    neighbours : mapping int -> (position (3,), planned position (3,), tau_s, age_s)
-        Latest shared state of each other UAV and its age in seconds.
-    stale_after_s : float
-        Neighbour states older than this are ignored.
-    gain : float
-        Share of the neighbours' mean error applied, in [0, 1].
-    max_correction : float
-        Bound on the norm of the correction, metres (>= 0), so a wild neighbour cannot drag
-        the vehicle away.
-    clock_rate : float
-        Trajectory (simulated) seconds per second of ``age``: the speed factor of the sim clock,
-        1 on a real vehicle.
-
-    Returns
-    -------
-    ndarray, shape (3,)
-        The correction to add to the own planned position; zeros without a fresh neighbour.
+    ``neighbours`` maps an id to (position, planned position, trajectory time τ_j, age s); the error of
+    neighbour j is ``(P_j − P_j,d) − v_d (τ − τ_j − age_j clock_rate)``, the correction ``gain`` times their
+    mean, bounded in norm by ``max_correction``. The derivation is in docs/edge.md
+    (edge/geometry/formation.py, "Formation keeping").
     """
     if not math.isfinite(own_tau):
         raise ValueError("own_tau must be finite")
@@ -391,31 +257,8 @@ def formation_error(
     yaw: float,
     offsets: Mapping[int, ArrayLike],
 ) -> float:
-    """RMS shape error of the formation, metres.
-
-    Compares the UAVs' positions relative to their own centroid (P6) with the rotated offsets
-    ``R_OF(ψ) ΔT_n`` relative to *their* centroid, over the UAVs present in both mappings:
-    ``sqrt(mean_n |(P_n − P̄) − R_OF (ΔT_n − ΔT̄)|²)``. Translation of the whole formation does
-    not count, only its shape and orientation.
-
-    With a single UAV there is no shape; the error is then its distance to its absolute slot
-    ``centroid + R_OF ΔT_n``, which needs ``centroid`` (otherwise 0 is returned).
-
-    Parameters
-    ----------
-    positions : mapping int -> (3,)
-        Actual positions by UAV id, metres.
-    centroid : array_like, shape (3,), or None
-        Planned centroid (used only in the single-UAV case).
-    yaw : float
-        Formation heading ψ, radians.
-    offsets : mapping int -> (3,)
-        ΔT_n by UAV id.
-
-    Returns
-    -------
-    float
-        RMS error in metres.
+    """RMS shape error (P6)-(P9), metres: ``sqrt(mean_n |(P_n − P̄) − R_OF (ΔT_n − ΔT̄)|²)`` over the UAVs in both
+    mappings (translation does not count). One UAV: its distance to ``centroid + R_OF ΔT_n`` (0 without a centroid).
     """
     if not math.isfinite(yaw):
         raise ValueError("yaw must be finite")
@@ -442,16 +285,9 @@ HEADING_WINDOW_S = 1.0
 
 
 class ShapeErrorMeter:
-    """The formation error: :func:`formation_error` (P6)-(P9, the shape of the formation against its
-    offsets, translation not counted) along a stream of the fleet's positions, with the one heading rule
-    that the mission report, the terminal line and the web page share.
-
-    Heading ψ at time t: that of the centroid's horizontal velocity over ``[t − w/2, t + w/2]``
-    (:data:`HEADING_WINDOW_S`; clipped to the samples seen at the series' ends), held at its last value while
-    that speed is below :data:`HEADING_MIN_SPEED`. A sample's error is therefore known once ``w/2`` of later
-    samples arrived (a live display shows the error of half a window ago), or at :meth:`flush`. Samples before
-    the first heading have none: :meth:`add` gives None for them and :meth:`series` gives them the first
-    heading found (ψ = 0 when the fleet never moves fast enough).
+    """The formation error (:func:`formation_error`) along a stream of the fleet's positions, with the one
+    heading rule that the report, the terminal line and the web page share (docs/edge.md,
+    edge/geometry/formation.py, "Heading rule").
     """
 
     def __init__(self, offsets: Mapping[int, ArrayLike], window_s: float = HEADING_WINDOW_S,
