@@ -88,8 +88,6 @@ def ts_delta(a: int, b: int) -> int:
 def seq_add(a: int, n: int) -> int:
     """Sequence number ``a`` advanced by ``n`` (any sign), modulo 2**16 (RFC 1982, 3.1).
 
-    Examples
-    --------
     >>> seq_add(65535, 1)
     0
     >>> seq_add(0, -1)
@@ -100,13 +98,9 @@ def seq_add(a: int, n: int) -> int:
 
 
 def seq_diff(a: int, b: int) -> int:
-    """Signed distance ``a - b`` between two 16-bit sequence numbers, in [-32768, 32767].
+    """Signed distance ``a - b`` between two 16-bit sequence numbers, the short way round (RFC 1982, 3.2);
+    -32768 for both orders at exactly half the circle, where RFC 1982 leaves it undefined.
 
-    The shortest way round the circle (RFC 1982, section 3.2). At exactly half the circle the
-    comparison is undefined in RFC 1982; this function then returns -32768 for both orders.
-
-    Examples
-    --------
     >>> seq_diff(2, 65534)
     4
     >>> seq_diff(65534, 2)
@@ -134,10 +128,8 @@ def ts_add(a: int, n: int) -> int:
 
 
 def ts_diff(a: int, b: int) -> int:
-    """Signed distance ``a - b`` between two 32-bit RTP timestamps, in [-2**31, 2**31 - 1].
-
-    Used for the transit-time differences of the interarrival jitter (RFC 3550, A.8) so that a
-    timestamp wrap (every 13.25 h at 90 kHz) does not produce a spurious jump.
+    """Signed distance ``a - b`` between two 32-bit RTP timestamps, so that a wrap (every 13.25 h at
+    90 kHz) makes no jump in the interarrival jitter (RFC 3550, A.8).
     """
     _check_u(a, _TS_MASK, "timestamp")
     _check_u(b, _TS_MASK, "timestamp")
@@ -145,24 +137,9 @@ def ts_diff(a: int, b: int) -> int:
 
 
 def unwrap_sequence(seqs: np.ndarray | list[int]) -> np.ndarray:
-    """Extended (unwrapped) sequence numbers of a series of 16-bit sequence numbers.
+    """Extended sequence numbers (RFC 3550 A.1: cycles * 2**16 + seq, each step the short way round) of
+    16-bit sequence numbers in arrival order, relative to the first one's cycle 0; vectorised, for logs.
 
-    Each step is taken the short way round (RFC 1982), so the result is what RFC 3550 A.1
-    calls the extended sequence number (cycles * 2**16 + seq), relative to the first
-    element's cycle 0. Vectorised; meant for analysing captured streams and logs.
-
-    Parameters
-    ----------
-    seqs : array_like of int
-        Sequence numbers in 0..65535, in arrival order.
-
-    Returns
-    -------
-    numpy.ndarray of int64
-        Same length; ``out[0] == seqs[0]``.
-
-    Examples
-    --------
     >>> unwrap_sequence([65534, 65535, 0, 2, 1]).tolist()
     [65534, 65535, 65536, 65538, 65537]
     """
@@ -185,25 +162,9 @@ def unwrap_sequence(seqs: np.ndarray | list[int]) -> np.ndarray:
 
 
 def media_timestamp(t_seconds: float, clock_rate: int = VIDEO_CLOCK_RATE) -> int:
-    """RTP media timestamp of a time in seconds: ``round(t * clock_rate) mod 2**32``.
+    """RTP media timestamp ``round(t * clock_rate) mod 2**32`` of a capture time in seconds (RFC 3550 5.1;
+    90 kHz video clock, RFC 3551 section 5).
 
-    RFC 3550 section 5.1: the timestamp reflects the sampling instant of the first octet of
-    the payload, in units of the media clock (90 kHz for video, RFC 3551 section 5).
-
-    Parameters
-    ----------
-    t_seconds : float
-        Capture time (any epoch; negative times wrap like any other).
-    clock_rate : int
-        Media clock in Hz, > 0.
-
-    Raises
-    ------
-    ValueError
-        Non-finite time or a non-positive clock rate.
-
-    Examples
-    --------
     >>> media_timestamp(1.5)
     135000
     >>> media_timestamp(2**32 / 90000)
@@ -224,27 +185,9 @@ def media_timestamp(t_seconds: float, clock_rate: int = VIDEO_CLOCK_RATE) -> int
 
 @dataclass(frozen=True, slots=True)
 class RtpHeader:
-    """The RFC 3550 (section 5.1) fixed header of one packet.
-
-    Attributes
-    ----------
-    sequence : int
-        0..65535, +1 per packet, wraps.
-    timestamp : int
-        0..2**32-1, media clock ticks (90 kHz for our imagery).
-    ssrc : int
-        0..2**32-1, synchronisation source: one per camera (:func:`ssrc_for`).
-    marker : bool
-        M bit; for video, the last packet of a frame. Our frames are one packet each.
-    payload_type : int
-        0..127; default 96 = ``x-skynet-frame`` (dynamic, :data:`SKYNET_PAYLOAD_TYPE`).
-    version : int
-        Always 2.
-    padding, extension : bool
-        P and X bits *as seen on the wire*. :func:`unpack_frame` strips the padding and skips
-        the extension; :func:`pack_frame` emits neither and rejects a header that sets them.
-    csrc_count : int
-        CC, 0..15, as seen on the wire; the CSRC list is skipped by :func:`unpack_frame`.
+    """The RFC 3550 (section 5.1) fixed header of one packet. ``padding``, ``extension`` and ``csrc_count``
+    are the wire bits as received (:func:`unpack_frame` skips what they announce; :func:`pack_frame`
+    emits none); our frames are one packet each, so ``marker`` is set.
     """
 
     sequence: int
@@ -305,25 +248,8 @@ def _new_header(b0: int, b1: int, seq: int, ts: int, ssrc: int, _set: tuple[Any,
 
 
 def pack_frame(header: RtpHeader, payload: bytes | bytearray | memoryview) -> bytes:
-    """Serialise one frame: the 12-byte fixed header followed by the payload.
-
-    Parameters
-    ----------
-    header : RtpHeader
-        Must not set padding, extension or a CSRC count (this sender emits none of them; to
-        re-send a received header, ``dataclasses.replace`` those fields to their defaults).
-    payload : bytes-like
-        The encoded image (JPEG bytes); may be empty.
-
-    Returns
-    -------
-    bytes
-        ``len(payload) + 12`` bytes.
-
-    Raises
-    ------
-    RtpError
-        A header that is not an :class:`RtpHeader` or asks for P, X or CC.
+    """One frame's bytes: the 12-byte fixed header, then the payload; a header asking for padding,
+    extension or CSRCs is refused (``dataclasses.replace`` them to re-send a received header).
     """
     if not isinstance(header, RtpHeader):
         raise RtpError(f"header must be an RtpHeader, got {type(header).__name__}")
@@ -342,31 +268,9 @@ def pack_frame(header: RtpHeader, payload: bytes | bytearray | memoryview) -> by
 
 
 def unpack_frame(data: bytes | bytearray | memoryview) -> tuple[RtpHeader, memoryview]:
-    """Parse one packet into its header and a zero-copy view of its payload.
-
-    Validation follows RFC 3550 section 5.1 and the receiver checks of A.1: at least 12
-    bytes, version 2; the CSRC list (4 * CC bytes) and the header extension (4-byte
-    profile/length word + 4 * length bytes, section 5.3.1) are skipped and must fit; with the
-    P bit set the last octet counts the padding octets *including itself*, which must be at
-    least 1 and fit in what follows the headers.
-
-    Parameters
-    ----------
-    data : bytes-like
-        One received packet.
-
-    Returns
-    -------
-    header : RtpHeader
-        The fixed header; ``padding``, ``extension`` and ``csrc_count`` report the wire bits.
-    payload : memoryview
-        A read-only view into ``data`` (no copy of the image); ``bytes(payload)`` to keep it
-        beyond the lifetime of ``data``.
-
-    Raises
-    ------
-    RtpError
-        Anything that is not a well-formed RTP packet.
+    """Header and read-only zero-copy payload view of one packet (RFC 3550 5.1 and the receiver checks of
+    A.1): at least 12 bytes, version 2; the CSRC list and header extension (5.3.1) are skipped and must
+    fit; the padding count (P bit) counts itself, at least 1, and must fit. RtpError otherwise.
     """
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise RtpError(f"RTP packet must be bytes-like, got {type(data).__name__}")
@@ -410,17 +314,9 @@ def unpack_frame(data: bytes | bytearray | memoryview) -> tuple[RtpHeader, memor
 
 
 def ssrc_for(uav_id: int, camera: int = 0) -> int:
-    """Stable SSRC of one camera: ``0x534B0000 | uav_id << 8 | camera``.
+    """Stable SSRC ``0x534B0000 | uav_id << 8 | camera`` of one camera ("SK", UAV 1..255, camera 0..255):
+    unique in a fleet and across restarts, where RFC 3550 section 8 draws random ones.
 
-    Layout (hex digits ``534B UU CC``): the upper 16 bits are the ASCII tag "SK", then the UAV
-    id (1..255, as in the key space of ``protocol.keys``), then the camera index (0..255). So
-    UAV 1's main camera is ``0x534B0100`` and the SSRC reads back with :func:`parse_ssrc`.
-    RFC 3550 (section 8) picks SSRCs at random to avoid collisions between independent
-    sources; in a fleet the UAV ids are already unique, so this mapping is collision-free and
-    survives a restart of the edge process.
-
-    Examples
-    --------
     >>> hex(ssrc_for(3, 1))
     '0x534b0301'
     """
@@ -440,23 +336,9 @@ def parse_ssrc(ssrc: int) -> tuple[int, int]:
 
 
 class RtpSender:
-    """Stamps consecutive frames of one source with sequence number and media timestamp.
+    """Stamps consecutive frames of one source with sequence number and media timestamp; ``initial_seq``
+    None draws it at random (RFC 3550, section 5.1).
 
-    Parameters
-    ----------
-    ssrc : int
-        32-bit source id, normally ``ssrc_for(uav_id, camera)``.
-    payload_type : int
-        0..127, default 96 (``x-skynet-frame``, :data:`SKYNET_PAYLOAD_TYPE`).
-    clock_rate : int
-        Media clock in Hz, default 90 000.
-    initial_seq : int or None
-        First sequence number; None draws it at random (RFC 3550, section 5.1).
-    rng : numpy.random.Generator or None
-        Source of the random initial sequence number; None uses a fresh default generator.
-
-    Examples
-    --------
     >>> s = RtpSender(ssrc_for(1), initial_seq=65535)
     >>> [unpack_frame(s.frame(b"jpeg", t))[0].sequence for t in (0.0, 0.1)]
     [65535, 0]
@@ -502,11 +384,7 @@ class RtpSender:
         )
 
     def frame(self, payload: bytes | bytearray | memoryview, capture_time_s: float, marker: bool = True) -> bytes:
-        """Packet for one encoded image captured at ``capture_time_s`` (seconds).
-
-        Stamps the media timestamp of the capture time (:func:`media_timestamp`), the current
-        sequence number, and then advances the sequence number by one modulo 2**16.
-        """
+        """Packet for one encoded image captured at ``capture_time_s`` (s); advances the sequence number."""
         if not isinstance(payload, (bytes, bytearray, memoryview)):
             raise RtpError(f"payload must be bytes-like, got {type(payload).__name__}")
         ts = media_timestamp(capture_time_s, self.clock_rate)
