@@ -26,19 +26,8 @@ _SEQ_MASK = SEQ_MOD - 1
 
 @dataclass(frozen=True, slots=True)
 class Frame:
-    """One frame released for playout.
-
-    Attributes
-    ----------
-    header : RtpHeader
-        As received.
-    payload : bytes or memoryview
-        As pushed (the buffer keeps a reference, never a copy).
-    arrival_s : float
-        Arrival time given to :meth:`JitterBuffer.push`.
-    extended_sequence : int
-        Sequence number extended with its wrap cycles (RFC 3550 A.1); monotonic within a
-        numbering epoch (see the module notes on resync).
+    """One frame released for playout: the header and payload as pushed (a reference, never a copy), its
+    arrival time and its extended sequence number (RFC 3550 A.1; monotonic within a numbering epoch).
     """
 
     header: RtpHeader
@@ -65,36 +54,13 @@ class Frame:
 
 @dataclass(frozen=True, slots=True)
 class JitterStats:
-    """Receiver statistics of one source (RFC 3550, 6.4.1 and appendix A).
+    """Receiver statistics of one source (RFC 3550, 6.4.1 and appendix A; the classification of
+    ``duplicated``, ``late``, ``reordered`` and ``resyncs``: docs/imagery.md, "The jitter buffer").
 
-    Attributes
-    ----------
-    ssrc : int or None
-        The source, None before the first packet.
-    received : int
-        Packets pushed, including duplicates, late ones and probes (RFC 3550 A.3 "received").
-    delivered : int
-        Frames released for playout.
-    lost : int
-        Sequence numbers given up by playout (never delivered). A frame that arrives after its
-        number was given up stays counted here and is also counted ``late``.
-    duplicated, late, reordered, resyncs : int
-        See the classification in docs/imagery.md, "The jitter buffer".
-    buffered : int
-        Frames held now (including a pending probe).
-    highest_sequence : int or None
-        Extended highest sequence number stored (RFC 3550 A.1: cycles * 65536 + max_seq).
-    expected : int
-        Sequence numbers spanned by the stream, summed over numbering epochs (RFC 3550 A.3).
-    fraction_lost : float
-        ``lost / expected`` over the whole session (0.0 before anything is expected). RTCP's
-        8-bit interval fraction is a report-time detail this module does not need.
-    cumulative_lost : int
-        ``expected - received`` as in RFC 3550 A.3 (negative with duplicates).
-    jitter_ts : float
-        Interarrival jitter J in timestamp units (RFC 3550 A.8).
-    jitter_s : float
-        The same in seconds (``jitter_ts / clock_rate``).
+    ``received`` counts every packet pushed (A.3); ``lost`` the numbers playout gave up (a frame arriving
+    after that is also ``late``); ``highest_sequence`` is extended (A.1); ``expected`` sums the numbering
+    epochs (A.3); ``fraction_lost`` = ``lost / expected`` over the session; ``cumulative_lost`` =
+    ``expected - received`` (A.3, negative with duplicates); ``jitter_ts`` is J of A.8, ``jitter_s`` in seconds.
     """
 
     ssrc: int | None
@@ -142,23 +108,10 @@ def _arrival(arrival_s: float) -> float:
 class JitterBuffer:
     """Reordering playout buffer and RFC 3550 receiver statistics for one SSRC.
 
-    Parameters
-    ----------
-    capacity : int
-        Ring size in frames (1..16384): the reorder window, in sequence numbers, beyond the
-        next frame to play.
-    playout_delay_s : float
-        How long a missing frame is waited for (docs/imagery.md, "The jitter buffer"), >= 0. Zero gives
-        up every gap at the next push: no reordering, minimal latency.
-    clock_rate : int
-        Media clock of the RTP timestamps in Hz (90 000 for video), for the jitter in seconds.
-    release_late : bool
-        Also return a packet that arrives after its number was given up (counted ``late``),
-        after the frames released in order; off by default (a late frame is dropped, as in a
-        media player).
+    ``capacity`` (1..16384) is the reorder window beyond the next frame to play; ``playout_delay_s`` how
+    long a missing frame is waited for (0: no reordering); ``release_late`` also returns a packet arriving
+    after its number was given up (counted ``late``). docs/imagery.md, "The jitter buffer".
 
-    Examples
-    --------
     >>> from protocol.rtp import RtpHeader
     >>> jb = JitterBuffer(capacity=8, playout_delay_s=0.1)
     >>> [f.sequence for f in jb.push(RtpHeader(65535, 0, 7), b"a", 0.00)]
@@ -209,17 +162,8 @@ class JitterBuffer:
         return self._buffered + (self._probe is not None)
 
     def push(self, header: RtpHeader, payload: bytes | memoryview, arrival_s: float) -> list[Frame]:
-        """Take one packet; return the frames now ready for playout, in sequence order.
-
-        ``arrival_s`` is also "now": gaps whose wait has expired by then are given up as by
-        :meth:`pop_due`.
-
-        Raises
-        ------
-        ValueError
-            Not an :class:`~protocol.rtp.RtpHeader`, a payload that is not bytes-like, a
-            non-finite arrival time, or an SSRC other
-            than the one this buffer serves (use :class:`JitterBuffers` for several sources).
+        """Take one packet arriving at ``arrival_s`` ("now": expired gaps are given up as by :meth:`pop_due`);
+        return the frames ready for playout in sequence order. ValueError for another SSRC or bad input.
         """
         if not isinstance(header, RtpHeader):
             raise ValueError(f"header must be an RtpHeader, got {type(header).__name__}")
@@ -437,15 +381,8 @@ class JitterBuffer:
 
 
 class JitterBuffers:
-    """One :class:`JitterBuffer` per SSRC, created on the first packet of each source.
-
-    Parameters
-    ----------
-    capacity, playout_delay_s, clock_rate, release_late
-        Passed to every :class:`JitterBuffer`.
-    max_sources : int
-        Upper bound on distinct SSRCs (a flood of forged SSRCs must not grow memory without
-        bound); a packet of a new source beyond it raises ValueError.
+    """One :class:`JitterBuffer` per SSRC, created on a source's first packet; a new source beyond
+    ``max_sources`` raises ValueError (forged SSRCs must not grow memory without bound).
     """
 
     def __init__(
