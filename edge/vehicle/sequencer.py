@@ -58,24 +58,10 @@ MIN_CLEARANCE = 0.5
 
 
 class Mover:
-    """A reference moving from ``start`` straight toward ``target`` at constant ``speed``.
+    """A reference from ``start`` straight toward ``target`` (ENU m) at ``speed`` (m/s) from time ``t0``:
+    ``start + u · min(v (t − t0), L)``, velocity ``u v`` until it arrives (transits here; takeoff, landing
+    and return to launch in :class:`edge.vehicle.sim.SimDriver`).
 
-    Position ``start + u · min(v (t − t0), L)`` with ``u`` the unit direction and ``L`` the
-    distance; velocity ``u v`` until the target is reached, then zero. Before ``t0`` it rests at
-    ``start``. Used for the mission transits here and for takeoff, landing and return to launch
-    in :class:`edge.vehicle.sim.SimDriver`.
-
-    Parameters
-    ----------
-    start, target : (x, y, z)
-        ENU m.
-    speed : float
-        m/s, > 0.
-    t0 : float
-        Time at which the reference leaves ``start``, s.
-
-    Examples
-    --------
     >>> m = Mover((0.0, 0.0, 0.0), (4.0, 0.0, 0.0), 2.0, 10.0)
     >>> m.at(11.0)
     ((2.0, 0.0, 0.0), (2.0, 0.0, 0.0), False)
@@ -114,33 +100,10 @@ class Mover:
 class MissionSequencer:
     """The trajectory a driver flies: upload checks, start, pause/resume, offset, captures, progress.
 
-    Parameters
-    ----------
-    uav : int
-        UAV id (trajectories for another id are refused).
-    ground_z : float
-        Height of the ground at the launch point, m (waypoints must be ``MIN_CLEARANCE`` above).
-    transit_speed : float
-        Speed of the reference flying to the first waypoint / back to a paused point, m/s.
-    start_radius : float
-        ``start``/``resume`` fly there first when farther than this, m.
-    arrive_radius : float
-        A transit has arrived when the vehicle is this close to its end, m.
-    max_offset : float
-        Bound on the formation offset's norm, m.
-    offset_rate : float
-        The applied offset moves toward the commanded one at most this fast, m/s.
-    interpolation : "cubic" or "linear"
-        Trajectory interpolation (:class:`edge.vehicle.follower.Follower`).
-
-    Attributes
-    ----------
-    follower : the uploaded trajectory (None before the first upload).
-    phase : "transit", "wait", "track", "transit_resume", or "" (no mission in flight).
-    done : the trajectory's end was reached (until the next upload or start).
-    captures : capture points handed out by :meth:`due` since the upload.
-    yaw : heading of the reference while not tracking (transit, wait), rad.
-    offset_cmd, offset : commanded (bounded) and applied formation offset, m.
+    Waypoints must be ``MIN_CLEARANCE`` above ``ground_z``; ``start``/``resume`` first fly at
+    ``transit_speed`` to a point farther than ``start_radius``, arriving within ``arrive_radius``; the
+    formation offset is bounded by ``max_offset`` and slewed at ``offset_rate``. ``phase`` is "transit",
+    "wait", "track", "transit_resume" or "" (no mission in flight).
     """
 
     def __init__(
@@ -340,20 +303,9 @@ class MissionSequencer:
 
     # ------------------------------------------------------------------ reference, captures, progress
     def reference(self, t: float, pos: Vec3, dt: float) -> Reference:
-        """The reference ``(pos, vel, acc, yaw)`` at time ``t``; advances the phase.
-
-        Parameters
-        ----------
-        t : float
-            Time, s (the driver's clock; non-decreasing between calls).
-        pos : (x, y, z)
-            The vehicle's position, ENU m (decides when a transit has arrived).
-        dt : float
-            Time since the previous call, s (rate limit of the formation offset).
-
-        When the trajectory's end is reached this sets :attr:`done` and returns the end point
-        plus the applied offset at rest (the driver holds there); the capture points not yet
-        handed out then come with the next :meth:`due`. ValueError when no mission is in flight.
+        """The reference ``(pos, vel, acc, yaw)`` at time ``t`` (non-decreasing) for a vehicle at ``pos``,
+        ``dt`` after the previous call; advances the phase. At the trajectory's end it sets :attr:`done`
+        and holds the end point plus the offset. ValueError when no mission is in flight.
         """
         phase = self.phase
         if phase == "track":

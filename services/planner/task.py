@@ -31,22 +31,8 @@ __all__ = [
 
 
 def footprint(camera: Camera, smallest_feature: float) -> tuple[float, float]:
-    """Footprint ``a_fov`` (m) across and along the image, two pixels per feature (P1).
+    """Footprint ``a = 1/2 r_c s_f`` (m) across and along the image, two pixels per feature (P1).
 
-    Parameters
-    ----------
-    camera : Camera
-        Resolution ``(r_w, r_h)`` in pixels.
-    smallest_feature : float
-        ``s_f`` in metres.
-
-    Returns
-    -------
-    (a_w, a_h) : tuple of float
-        ``a = 1/2 r_c s_f`` for the width and the height axis, metres.
-
-    Examples
-    --------
     >>> from services.planner.scenario import Camera
     >>> footprint(Camera(resolution=(4000, 3000), sensor_mm=(36, 27), focal_mm=34.4), 0.0025)
     (5.0, 3.75)
@@ -98,22 +84,8 @@ def grid_stations(length: float, a_fov: float, g: float) -> NDArray[np.float64]:
 def camera_grid(
     surface: Surface, camera: Camera, smallest_feature: float, overlap: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Camera configurations covering a planar rectangle: the set G of (P1)-(P3).
-
-    Parameters
-    ----------
-    surface : Surface
-        The rectangle; shots are taken from the side its normal points to.
-    camera : Camera
-    smallest_feature, overlap : float
-        ``s_f`` (m) and ``o_p``.
-
-    Returns
-    -------
-    positions : ndarray, shape (K, 3)
-        Camera positions at the stand-off distance (P2), row-major from the bottom-left corner.
-    look : ndarray, shape (K, 3)
-        Unit optical axes (the inverse surface normal).
+    """Camera positions ``(K, 3)`` at the (P2) stand-off, row-major from the bottom-left corner, and unit
+    optical axes ``(K, 3)`` covering a planar rectangle from its front: the set G of (P1)-(P3).
     """
     a_w, a_h = footprint(camera, smallest_feature)
     d = standoff(camera, smallest_feature)
@@ -129,28 +101,11 @@ def camera_grid(
 
 @dataclass(frozen=True)
 class InspectionPass:
-    """One straight pass of the formation along a vertical wall, and the shots it takes.
+    """One straight pass of the formation along a vertical wall, and its K shots in the order taken.
 
-    Attributes
-    ----------
-    entry, exit : ndarray (3,)
-        Centroid positions where the straight pass starts and ends (fixed via-points of the path).
-    direction : ndarray (3,)
-        Unit horizontal direction of travel along the wall.
-    standoff : float
-        (P2) distance of every camera from the wall, m.
-    footprint, spacing : tuple of float
-        (P1) footprint and (P3) spacing (width, height), m.
-    uav : ndarray (K,) of int
-        Index (0-based, row of the formation offsets) of the UAV taking each shot.
-    leg_s : ndarray (K,)
-        Distance of the centroid from ``entry`` along the pass when the shot is taken, m.
-    positions, look : ndarray (K, 3)
-        Camera position (a point the UAV flies through) and unit optical axis of every shot.
-    stations : ndarray (K, 2)
-        Where the optical axis meets the wall: (distance along the bottom edge from p0, z).
-
-    Shots are sorted by ``leg_s`` (then by UAV), i.e. in the order they are taken.
+    ``entry``/``exit`` are the centroid's fixed via-points, ``standoff``, ``footprint`` and ``spacing``
+    those of (P1)-(P3); per shot: ``uav`` (row of the offsets), ``leg_s`` (centroid distance from
+    ``entry``), ``positions`` and ``look``, and ``stations`` (along the bottom edge from p0, z) on the wall.
     """
 
     entry: NDArray[np.float64]
@@ -187,21 +142,9 @@ def imaging_rows(z_offsets: ArrayLike, wall_height: float, a_h: float) -> NDArra
 
 
 def formation_pass(scenario: Scenario) -> InspectionPass | None:
-    """Plan the formation's pass along the scenario's wall (None if it has no surface).
-
-    The centroid flies a straight line parallel to the wall, at the height that centres the
-    band imaged by the UAV rows on the wall, at the distance that puts every UAV at the (P2)
-    stand-off, from ``max|ΔT_x| + lead_in`` before one end of the wall to as far past the other
-    end, in the direction that makes start -> entry -> exit -> goal shortest. Each imaging row (:func:`imaging_rows`: all
-    heights for a two-row formation) is a row of shots; a row's columns (``grid_stations`` with the (P3) spacing) are
-    shared round-robin among the UAVs flying that row.
-
-    Raises
-    ------
-    ValueError
-        If the UAVs do not share one lateral offset (they would not all be at the stand-off),
-        if the rows are further apart than the (P3) spacing, or if the wall is taller than the
-        band one pass images.
+    """Plan the formation's pass along the scenario's wall (None if it has no surface); the geometry is in
+    docs/planner.md (services/planner/task.py). ValueError if the UAVs do not share one lateral offset,
+    the rows are further apart than the (P3) spacing, or the wall is taller than one pass images.
     """
     if scenario.surface is None:
         return None
