@@ -54,24 +54,9 @@ GRAVITY = 9.81
 
 @dataclass(frozen=True)
 class QuadParams:
-    """Physical parameters of the quadcopter (3DR Solo class defaults).
-
-    Attributes
-    ----------
-    mass : float
-        kg.
-    ixx, iyy, izz : float
-        Principal moments of inertia, kg·m² (P11).
-    thrust_to_weight : float
-        Maximum total thrust over weight.
-    torque_max : tuple of 3 floats
-        Roll, pitch, yaw torque limits, N·m.
-    drag_xy, drag_z : float
-        Linear drag coefficients, N/(m/s).
-    motor_tau : float
-        First-order actuator time constant, s (0 disables the lag).
-    g : float
-        Gravity, m/s².
+    """Physical parameters of the quadcopter (3DR Solo class defaults), SI units: mass, principal moments
+    of inertia (P11), thrust-to-weight ratio, roll/pitch/yaw torque limits, linear drag coefficients,
+    first-order actuator time constant (0: no lag) and gravity.
     """
 
     mass: float = 1.47
@@ -161,17 +146,8 @@ def ar1(a: float, w: np.ndarray, zi: float = 0.0) -> tuple[np.ndarray, float]:
 
 
 class Disturbance:
-    """Seeded, bounded disturbance sequence sampled once per physics step.
-
-    Parameters
-    ----------
-    params : DisturbanceParams
-    dt : float
-        Physics step, s.
-    rng : numpy.random.Generator
-        Source of all randomness (``numpy.random.default_rng(seed)``).
-    block : int
-        Number of steps drawn at a time (the noise drawn vectorised, filtered by :func:`ar1`).
+    """Seeded, bounded disturbance sequence sampled once per physics step ``dt``, drawn ``block`` steps at a
+    time (vectorised, filtered by :func:`ar1`).
     """
 
     def __init__(self, params: DisturbanceParams, dt: float, rng: np.random.Generator, block: int = 2000):
@@ -274,19 +250,8 @@ def _deriv(s, T, ux, uy, uz, wx, wy, wz, c):
 
 
 class Quadrotor:
-    """The plant: state, actuators, disturbance and RK4 integration.
-
-    Parameters
-    ----------
-    params : QuadParams
-    dt : float
-        Physics step, s (1/200 or smaller).
-    disturbance : DisturbanceParams, optional
-    rng : numpy.random.Generator, optional
-        Seeded generator for the disturbance.
-    pos, yaw : initial position (m) and heading (rad); the vehicle starts at rest, level.
-    ground_z : float or None
-        Height of the ground (the vehicle cannot go below it), m; None for no ground.
+    """The plant: state, actuators, disturbance and RK4 integration at step ``dt`` (1/200 s or smaller),
+    starting at rest and level at ``pos``, ``yaw``; ``ground_z`` None for no ground.
     """
 
     def __init__(

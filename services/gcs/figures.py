@@ -214,21 +214,8 @@ def _clean(x: Any) -> Any:
 
 # ============================================================================ pure helpers
 def polyline_distance(points: ArrayLike, polyline: ArrayLike) -> NDArray[np.float64]:
-    """Distance from each point to the nearest point of a 3-D polyline.
+    """Distance ``(N,)`` from each point ``(N, 3)`` to the nearest point of a 3-D polyline ``(M, 3)``.
 
-    Parameters
-    ----------
-    points : array_like, shape (N, 3)
-    polyline : array_like, shape (M, 3), M >= 1
-        Vertices joined by straight segments (one vertex: a point).
-
-    Returns
-    -------
-    ndarray, shape (N,)
-        ``min_k |p − proj_k(p)|`` over the segments k, the projection clamped to the segment.
-
-    Examples
-    --------
     >>> polyline_distance([(1.0, 0.5, 0.0), (3.0, 0.0, 0.0)], [(0, 0, 0), (2, 0, 0)])
     array([0.5, 1. ])
     """
@@ -254,18 +241,8 @@ def polyline_distance(points: ArrayLike, polyline: ArrayLike) -> NDArray[np.floa
 
 
 def planned_positions(trajectory: Trajectory, tau: ArrayLike) -> NDArray[np.float64]:
-    """Planned positions at trajectory times ``tau``: linear between waypoints, clamped at the ends.
-
-    Parameters
-    ----------
-    trajectory : Trajectory
-        A per-UAV trajectory (P9).
-    tau : array_like, shape (N,)
-        Times on the trajectory's own clock (the waypoints' ``t``), seconds.
-
-    Returns
-    -------
-    ndarray, shape (N, 3)
+    """Planned positions ``(N, 3)`` of a trajectory (P9) at its own times ``tau``: linear between waypoints,
+    clamped at the ends.
     """
     tau = np.asarray(tau, dtype=float).reshape(-1)
     if not np.all(np.isfinite(tau)):
@@ -669,17 +646,7 @@ def as_record(record: MissionRecord | dict[str, Any]) -> MissionRecord:
 
 
 def analyse(record: MissionRecord) -> ReportFigures:
-    """Every figure and series of the report, in one pass over the record (docs/report.md).
-
-    Parameters
-    ----------
-    record : MissionRecord
-
-    Returns
-    -------
-    ReportFigures
-        The summary (``report.json``) and the series the plots draw.
-    """
+    """Every figure and series of the report, in one pass over the record (docs/report.md)."""
     tracks = _tracks(record)
     trajs = _trajectories(record)
     anchors = {u: a for u in sorted(tracks) if u in trajs and (a := _anchor(tracks[u], trajs[u])) is not None}
@@ -748,22 +715,8 @@ def analyse(record: MissionRecord) -> ReportFigures:
 
 
 def summarise(record: MissionRecord | dict[str, Any]) -> ReportSummary:
-    """Every figure of the mission report, without writing anything.
-
-    Parameters
-    ----------
-    record : MissionRecord
-
-    Returns
-    -------
-    ReportSummary
-        See docs/report.md for how each figure is measured.
-
-    Raises
-    ------
-    ValueError
-        When ``record`` is neither a MissionRecord nor a valid record document (a malformed
-        scenario is refused there, naming the field).
+    """Every figure of the mission report (docs/report.md), without writing anything; ValueError for
+    something that is neither a MissionRecord nor a valid record document.
     """
     return analyse(as_record(record)).summary
 
