@@ -55,19 +55,9 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class ATSMGains:
-    """Gains of the ATSM controller, per axis (roll, pitch, yaw).
-
-    Attributes
-    ----------
-    lam : Λ of (P14), 1/s: the error decays as ``exp(−Λ t)`` on the sliding surface.
-    mu : μ of (P16), in (0, 1).
-    alpha0 : initial twisting gain α (and the fixed gain of :class:`TwistingController`), N·m.
-    alpha_m : α_m of (P17), the adaptation floor, N·m.
-    alpha_max : upper clamp on α, N·m.
-    omega_bar : ω̄ of (P17), N·m per (rad/s) per s.
-    rho : ρ of (P17).
-    eps : ε of (P17).
-    eta : η of (P17), growth rate below the floor, N·m/s.
+    """Gains of the ATSM controller per axis (roll, pitch, yaw): ``lam`` Λ of (P14) (1/s), ``mu`` μ of (P16)
+    in (0, 1), ``alpha0`` the initial (or :class:`TwistingController`'s fixed) twisting gain α, ``alpha_m``
+    the floor and ``alpha_max`` the clamp of α (N·m), ``omega_bar`` ω̄, ``rho`` ρ, ``eps`` ε and ``eta`` η of (P17).
     """
 
     lam: Vec3 = (8.0, 8.0, 7.0)
@@ -92,17 +82,8 @@ class ATSMGains:
 
 
 class ATSM:
-    """Adaptive twisting sliding-mode attitude controller (P13)-(P17).
-
-    Parameters
-    ----------
-    inertia : (Ixx, Iyy, Izz)
-        The controller's model of the inertia, kg·m² (may be mismatched to the plant).
-    gains : ATSMGains
-    dt : float
-        Control period, s.
-    adaptive : bool
-        Adapt α by (P17); False gives the fixed-gain twisting controller.
+    """Adaptive twisting sliding-mode attitude controller (P13)-(P17) with a model ``inertia`` (may differ
+    from the plant's), period ``dt``; ``adaptive`` False is the fixed-gain twisting controller.
     """
 
     def __init__(self, inertia: Vec3, gains: ATSMGains = ATSMGains(), dt: float = 1 / 200, adaptive: bool = True):
@@ -132,14 +113,8 @@ class ATSM:
         dref: Vec3 = (0.0, 0.0, 0.0),
         ddref: Vec3 = (0.0, 0.0, 0.0),
     ) -> Vec3:
-        """One control period: torques ``u = u_eq + u_T`` (P13), N·m.
-
-        Parameters
-        ----------
-        att : Θ = (φ, θ, ψ), rad.
-        datt : Θ̇, rad/s.
-        rates : body rates (p, q, r), rad/s (for f(X) of (P12)).
-        ref, dref, ddref : Θ_d and its first two derivatives.
+        """One control period: torques ``u = u_eq + u_T`` (P13), N·m, from Θ, Θ̇, the body rates (for f(X) of
+        (P12)) and the reference Θ_d with its first two derivatives.
         """
         ixx, iyy, izz = self.inertia
         p, q, r = rates

@@ -39,32 +39,13 @@ class DefectMatch:
 
 @dataclass
 class DefectScore:
-    """Object-level score of the reported defects against the ground truth.
+    """Object-level score of the reported defects against the ground truth (docs/report.md):
+    ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``.
 
-    Attributes
-    ----------
-    recall, precision, f_measure : float
-        See docs/report.md; ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``.
-    n_truth : int
-        Ground-truth cracks.
-    n_found : int
-        Ground-truth cracks with at least one reported position within tolerance.
-    n_reported : int
-        Reported defect positions (defects with ``pos``, from reports with ``ok=True``).
-    n_true : int
-        Reported positions within tolerance of some crack.
-    without_pos : int
-        Reported defects that had no position (not scored).
-    tolerance_m : float
-    matches : list of DefectMatch
-        Every (position, crack) pair within tolerance (a position near two cracks counts twice
-        here but once in ``n_true``).
-    found_ids, missed_ids : list of int
-        Ground-truth ids found / missed.
-    false_positives : list of (report, defect, u, v)
-        Reported positions near no crack.
-    reported_uv : list of (report, defect, u, v)
-        Every scored position in surface coordinates (what the defect map draws).
+    ``n_found`` cracks have a reported position within tolerance, ``n_true`` of ``n_reported`` positions
+    (defects with ``pos`` of reports with ``ok=True``) are near a crack, ``without_pos`` were not scored;
+    ``matches`` holds every (position, crack) pair within tolerance, ``false_positives`` and ``reported_uv``
+    are ``(report, defect, u, v)``.
     """
 
     recall: float
@@ -84,23 +65,9 @@ class DefectScore:
 
 
 def surface_uv(points: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
-    """Surface coordinates ``(u, v)`` of ENU points: ``u = (p - p0)·û``, ``v = (p - p0)·v̂``.
+    """Surface coordinates ``(N, 2)`` of ENU points, ``u = (p - p0)·û``, ``v = (p - p0)·v̂`` (m along the
+    bottom edge and up from ``corners[0]``; off-plane points projected orthogonally).
 
-    Parameters
-    ----------
-    points : array_like, shape (N, 3) or (3,)
-        ENU positions, metres. N may be 0.
-    corners : array_like, shape (4, 3)
-        Surface corners (see :func:`surface_frame`).
-
-    Returns
-    -------
-    ndarray, shape (N, 2)
-        Metres along the bottom edge and up the surface from ``corners[0]``; points off the plane
-        are projected orthogonally onto it.
-
-    Examples
-    --------
     >>> corners = [(60, 85, 25.5), (60, 35, 25.5), (60, 35, 31.5), (60, 85, 31.5)]
     >>> surface_uv([(60.0, 80.0, 27.5)], corners)
     array([[5., 2.]])
@@ -120,18 +87,8 @@ def surface_uv(points: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
 
 
 def bbox_distance(uv: ArrayLike, bboxes: ArrayLike) -> NDArray[np.float64]:
-    """Distance from each point to each axis-aligned box in the (u, v) plane (0 inside).
-
-    Parameters
-    ----------
-    uv : array_like, shape (N, 2)
-    bboxes : array_like, shape (M, 4)
-        ``(u0, v0, u1, v1)`` per box; the corners may come in either order.
-
-    Returns
-    -------
-    ndarray, shape (N, M)
-        ``hypot(max(u0 - u, 0, u - u1), max(v0 - v, 0, v - v1))``.
+    """Distances ``(N, M)`` from points ``(N, 2)`` to boxes ``(M, 4)`` ``(u0, v0, u1, v1)`` (either corner
+    order) in the (u, v) plane: ``hypot(max(u0 - u, 0, u - u1), max(v0 - v, 0, v - v1))``, 0 inside.
     """
     p = np.asarray(uv, dtype=float).reshape(-1, 2)
     b = np.asarray(bboxes, dtype=float).reshape(-1, 4)
@@ -149,35 +106,12 @@ def score_defects(
     corners: ArrayLike,
     tolerance_m: float = 0.3,
 ) -> DefectScore:
-    """Object-level recall and precision of reported defects against the ground truth.
+    """Object-level recall ``n_found / n_truth`` and precision ``n_true / n_reported`` of reported defects
+    against the ground truth, the analogues of ``r = tp / (tp + fn)`` and ``p = tp / (tp + fp)`` of (P20).
 
-    Parameters
-    ----------
-    reports : sequence of DefectReport
-        As received from the detector; reports with ``ok=False`` and defects without ``pos``
-        are not scored.
-    ground_truth : sequence of GroundTruthDefect
-        The cracks really on the surface (``bbox_uv`` in surface coordinates, metres).
-    corners : array_like, shape (4, 3)
-        Surface corners, the frame of ``bbox_uv`` (:func:`surface_frame`). Not used (and may be
-        empty) when no report carries a position.
-    tolerance_m : float
-        Largest (u, v) distance from a reported position to a crack's bounding box that still
-        counts as seeing it, metres (finite, >= 0).
-
-    Returns
-    -------
-    DefectScore
-
-    Raises
-    ------
-    ValueError
-        Negative or non-finite tolerance, bad corners, or items of the wrong type.
-
-    Notes
-    -----
-    Recall ``= n_found / n_truth`` and precision ``= n_true / n_reported`` are the object-level
-    analogues of ``r = tp / (tp + fn)`` and ``p = tp / (tp + fp)`` of (P20).
+    A position counts when its (u, v) distance to a crack's bounding box is at most ``tolerance_m``;
+    ``corners`` (:func:`surface_frame`) may be empty when no report carries a position. ValueError on a
+    bad tolerance, bad corners or items of the wrong type.
     """
     tol = float(tolerance_m)
     if not (math.isfinite(tol) and tol >= 0.0):

@@ -45,36 +45,8 @@ def safe_mode_name(name: object, limit: int = 32) -> str:
 
 @dataclass(frozen=True)
 class MavlinkParams:
-    """Tuning of :class:`MavlinkDriver` (defaults as :class:`edge.vehicle.sim.SimParams` where shared).
-
-    Attributes
-    ----------
-    transit_speed : speed of the reference flying to the first waypoint / back to a paused point, m/s.
-    start_radius : ``start`` flies to the first waypoint first when farther than this, m.
-    arrive_radius : a transit counts as arrived when the vehicle is this close to its end, m.
-    max_offset : bound on the formation offset's norm, m.
-    offset_rate : the applied offset moves toward the commanded one at most this fast, m/s.
-    takeoff_tolerance : takeoff is complete within this height of the target, m.
-    heartbeat_timeout_s : link lost after this long without an autopilot HEARTBEAT, s.
-    retries : COMMAND_LONG resends when no COMMAND_ACK arrives.
-    trigger_camera : send MAV_CMD_DO_DIGICAM_CONTROL at each capture (not waiting for the ack).
-    interpolation : trajectory interpolation, "cubic" or "linear".
-    accel_feedforward : also send the trajectory's acceleration (ArduCopter >= 4.1 uses it);
-        False sends position, velocity and yaw only (older firmware).
-    appear_timeout_s : a command given before the autopilot's first HEARTBEAT waits this long for
-        it to appear (an autopilot still booting, a link still coming up) before failing; 0 fails
-        at once. A trajectory upload before then is stored without waiting.
-    flight : "guided" streams the reference as position targets (:mod:`.guided`); "auto" uploads the
-        trajectory as a waypoint mission and flies it in AUTO, kept in time by DO_CHANGE_SPEED (:mod:`.auto`).
-    auto_speed_gain : along-track error to ground-speed gain in AUTO, 1/s.
-    auto_speed_period_s : at most one DO_CHANGE_SPEED per this many wall seconds (unless the
-        speed changes by more than 0.5 m/s).
-    auto_end_wait_s : when the trajectory's clock runs out in AUTO, the edge keeps following the
-        autopilot's mission (mode MISSION) until it reports the last waypoint reached
-        (MISSION_ITEM_REACHED), or until its mission progress (MISSION_CURRENT, MISSION_ITEM_REACHED)
-        has not moved for this long, wall s; then it holds in the guided mode.
-    capture_radius : in AUTO a capture fires when the vehicle is this close to its capture point, m (or
-        when the autopilot reports the capture's waypoint reached), not on the edge's clock.
+    """Tuning of :class:`MavlinkDriver` (defaults as :class:`edge.vehicle.sim.SimParams` where shared), SI
+    units and wall seconds; each option's meaning: docs/hardware-mavlink.md, "Driver options".
     """
 
     transit_speed: float = 4.0
@@ -137,42 +109,12 @@ def home_in_frame(home_lla: tuple[float, float, float], origin: Vec3,
 
 
 class MavlinkDriver(ParamClient, VehicleDriver):
-    """An autopilot (ArduCopter's dialect) over MAVLink 2 behind the driver interface.
+    """An autopilot (ArduCopter's or PX4's dialect) over MAVLink 2 behind the driver interface.
 
-    Parameters
-    ----------
-    uav : int
-        UAV id (trajectories for another id are refused).
-    connection : str
-        pymavlink connection string, e.g. ``"udpin:0.0.0.0:14550"`` (listen for the autopilot).
-    home : (x, y, z)
-        Launch point in the mission's ENU frame, m: where the autopilot's local NED origin is.
-    rate_hz : float
-        Position-target stream rate (at most this many per wall second), Hz.
-    timeout_s : float
-        How long a command waits for its COMMAND_ACK per attempt, s.
-    params : MavlinkParams
-    sysid : int or None
-        The autopilot's MAVLink system id; None takes the first autopilot heard.
-    source_system, source_component : int
-        Our own MAVLink address (255 / MAV_COMP_ID_ONBOARD_COMPUTER by default: a GCS-side id).
-    signing_key : str or None
-        MAVLink 2 signing key (64 hex digits or a passphrase, :mod:`edge.vehicle.apm.signing`):
-        every packet out is signed and only correctly signed packets are accepted, the signature
-        checked before the stream's timestamp is recorded. None: unsigned.
-    gcs_endpoint : str or None
-        A MAVLink endpoint for the operator's ground station (:mod:`edge.vehicle.gcs_bridge`): the
-        autopilot's traffic is forwarded there and the GCS's to the autopilot. With it the driver
-        speaks as the companion computer (system id ``uav`` unless ``source_system`` is given,
-        HEARTBEAT type MAV_TYPE_ONBOARD_CONTROLLER), so the autopilot's GCS failsafe watches the
-        operator's ground station, not the edge.
-    dialect : Dialect or None
-        The autopilot family (:mod:`.dialect`); None (the default) takes it from the autopilot's HEARTBEAT
-        (``autopilot``: ArduPilot or PX4, :func:`.dialect.dialect_for`).
-    home_origin : (lat, lon, alt) or None
-        The mission frame's geodetic origin: the launch point is then the autopilot's first HOME_POSITION
-        in that frame (:func:`home_in_frame`), adopted on the ground before any flight, and the autopilot is
-        not ready until it is; None: ``home`` as given.
+    ``connection`` is a pymavlink connection string (e.g. ``"udpin:0.0.0.0:14550"``), ``home`` the launch
+    point in the mission's ENU frame (the autopilot's local NED origin); ``sysid`` None takes the first
+    autopilot heard, ``dialect`` None takes it from its HEARTBEAT. ``signing_key``, ``gcs_endpoint`` and
+    ``home_origin``: docs/hardware-mavlink.md, "Driver options".
     """
 
     def __init__(
