@@ -36,25 +36,10 @@ IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
 
 class FolderSource:
-    """The images of a folder in name order, looping by default; the pose is only recorded.
-
-    Parameters
-    ----------
-    path : str or path
-        Folder of images (``IMAGE_EXTENSIONS``, case-insensitive), e.g. a data set's ``images/``.
-    loop : bool
-        Start again after the last image; otherwise :meth:`grab` returns None from then on.
-    grey : bool
-        Read as grey (the detector's input, the paper's Section 6) rather than BGR. Default True.
-    mask_dir : str or path, optional
-        Folder of ground-truth masks with the same base names (``<stem>.png``), as the data sets
-        under ``/work/shared/data`` have them; a frame whose mask is missing has ``mask=None``.
-
-    Raises
-    ------
-    ValueError
-        When the folder does not exist or holds no image. An unreadable image is skipped, counted
-        in :attr:`skipped` and logged.
+    """The images (``IMAGE_EXTENSIONS``) of a folder in name order, looping unless ``loop`` is False (then
+    :meth:`grab` gives None at the end); the pose is only recorded. ``grey`` reads the detector's input
+    (the paper's Section 6); ``mask_dir`` holds ground-truth masks ``<stem>.png`` (a missing one: None).
+    ValueError for a missing or empty folder; an unreadable image is skipped, counted and logged.
     """
 
     def __init__(self, path: str | os.PathLike, loop: bool = True, grey: bool = True,
@@ -108,22 +93,9 @@ class FolderSource:
 
 
 class VideoCaptureSource:
-    """A real camera (an index such as ``0``) or a stream or file URL, through ``cv2.VideoCapture``.
-
-    :meth:`grab` reads the next frame; it returns None when there is none (end of a file, a stream
-    that stalled or dropped), so the edge logs and goes on. The pose is only recorded.
-
-    Parameters
-    ----------
-    url : str or int
-        Device index (an int, or a string of digits) or anything ``cv2.VideoCapture`` opens.
-    grey : bool
-        Convert frames to grey. Default False (frames as captured, BGR).
-
-    Raises
-    ------
-    ValueError
-        When the source cannot be opened.
+    """A real camera (an index such as ``0``) or a stream or file URL, through ``cv2.VideoCapture``; the
+    pose is only recorded. :meth:`grab` gives None when there is no frame (end of a file, a stalled or
+    dropped stream), so the edge logs and goes on. ValueError when it cannot be opened.
     """
 
     def __init__(self, url: str | int, grey: bool = False) -> None:
@@ -156,19 +128,9 @@ class VideoCaptureSource:
 def make_source(spec: str, surface: SyntheticSurface | None = None, camera: CameraModel | None = None,
                 *, loop: bool = True, grey: bool | None = None, mask: bool = True,
                 upsample: bool = False) -> FrameSource:
-    """A frame source from a spec string.
-
-    - ``"synthetic"``: :class:`SyntheticSource` of ``surface`` and ``camera`` (both required), with its
-      ``mask`` and ``upsample`` options;
-    - ``"video:<url or index>"``: :class:`VideoCaptureSource` (``grey`` default False);
-    - anything else: a folder for :class:`FolderSource` (``grey`` default True); when the folder
-      is a data set's ``images/`` with a sibling ``masks/``, the masks come along as ground truth.
-
-    Raises
-    ------
-    ValueError
-        On an empty spec, a synthetic source without surface or camera, or a source that does not
-        open.
+    """A frame source from a spec string: ``"synthetic"`` (:class:`SyntheticSource` of ``surface`` and
+    ``camera``), ``"video:<url or index>"`` (:class:`VideoCaptureSource`), else a folder
+    (:class:`FolderSource`, with a data set's sibling ``masks/`` as ground truth). ValueError otherwise.
     """
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"camera spec must be a non-empty string, got {spec!r}")
@@ -188,21 +150,10 @@ def make_source(spec: str, surface: SyntheticSurface | None = None, camera: Came
 class FrameEncoder:
     """JPEG encoding on one worker thread, fed by a bounded drop-oldest queue (a :class:`~protocol.ring.Ring`).
 
-    :meth:`submit` returns at once; the worker encodes in submission order and calls
-    ``on_encoded(item, jpeg)``, where ``item`` is the submitted :class:`Frame`, or the ``tag`` given
-    with it (the edge passes the frame's metadata as the tag). When ``capacity`` frames are already
-    waiting, the oldest waiting one is dropped and counted in :attr:`dropped`: the control loop
-    never waits for the encoder, and what goes out is the newest view. An exception in the
-    encoder or the callback is counted in :attr:`failed` and logged; the worker carries on.
-
-    Parameters
-    ----------
-    on_encoded : callable
-        ``on_encoded(item, jpeg_bytes)``, called on the worker thread.
-    capacity : int
-        Frames waiting at most (the one being encoded not included). Default 4.
-    quality : int
-        JPEG quality 1..100. Default 85.
+    :meth:`submit` returns at once; the worker calls ``on_encoded(item, jpeg)`` in submission order
+    (``item`` the frame, or the ``tag`` given with it). Beyond ``capacity`` waiting frames the oldest is
+    dropped (:attr:`dropped`): the control loop never waits and the newest view goes out. An exception
+    is counted in :attr:`failed` and logged; the worker carries on.
     """
 
     def __init__(self, on_encoded: Callable[[Any, bytes], None], capacity: int = 4, quality: int = 85) -> None:

@@ -53,23 +53,11 @@ _AIRBORNE = (Mode.TAKEOFF, Mode.HOLD, Mode.MISSION, Mode.LAND, Mode.RTL)
 
 @dataclass(frozen=True)
 class SimParams:
-    """Everything that configures a simulated vehicle.
-
-    Attributes
-    ----------
-    quad : plant parameters (3DR Solo class).
-    disturbance : torque disturbance and wind (default: none).
-    pid, atsm : controller gains.
-    controller : "atsm" (P13)-(P17) or "twisting" (fixed gain).
-    model_mismatch : the controllers' model of mass and inertia = plant value × this factor.
-    takeoff_speed, land_speed, transit_speed : m/s.
-    rtl_altitude : minimum return altitude above launch, m.
-    start_radius : ``start`` flies to the first waypoint first when farther than this, m.
-    arrive_radius : a go-to target counts as reached within this distance, m.
-    max_offset : bound on the formation offset's norm, m.
-    offset_rate : the applied offset moves toward the commanded one at most this fast, m/s.
-    endurance_s : hover time on a full battery, s (battery drains ∝ thrust / hover thrust).
-    interpolation : trajectory interpolation, "cubic" or "linear".
+    """Everything that configures a simulated vehicle: plant (3DR Solo class), disturbance (default none),
+    PID and ATSM gains, ``controller`` ("atsm" (P13)-(P17) or "twisting"), ``model_mismatch`` (the
+    controllers' mass and inertia = plant × this), speeds (m/s), ``rtl_altitude`` above launch, the
+    sequencer's radii and offset bounds (:class:`edge.vehicle.sequencer.MissionSequencer`),
+    ``endurance_s`` (hover time on a full battery; drain ∝ thrust / hover thrust) and ``interpolation``.
     """
 
     quad: QuadParams = field(default_factory=QuadParams)
@@ -102,23 +90,8 @@ class SimParams:
 
 
 class SimDriver(VehicleDriver):
-    """A simulated UAV behind the driver interface.
-
-    Parameters
-    ----------
-    uav : int
-        UAV id (trajectories for another id are refused).
-    params : SimParams
-    seed : int
-        Seed of the disturbance generator (numpy.random.default_rng).
-    home : (x, y, z)
-        Launch point, ENU m; z is the ground height there.
-    physics_hz : int
-        Physics and control rate, Hz (>= 100).
-    t0 : float
-        Simulation time at construction, s.
-    yaw : float
-        Initial heading, rad.
+    """A simulated UAV behind the driver interface: launch point ``home`` (ENU m, z the ground), physics
+    and control at ``physics_hz`` (>= 100), disturbance seeded by ``seed``, clock ``t0`` and heading ``yaw``.
     """
 
     def __init__(

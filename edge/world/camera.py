@@ -22,22 +22,9 @@ __all__ = ["Frame", "FrameSource", "SyntheticSource", "upsample_factor"]
 # ============================================================================ frames and sources
 @dataclass
 class Frame:
-    """One captured frame.
-
-    Attributes
-    ----------
-    image : numpy.ndarray
-        ``uint8``, grey (H, W) or BGR (H, W, 3).
-    t : float
-        Capture time, seconds (the caller's clock: mission time on the edge).
-    pose : CameraPose or None
-        The camera pose at capture, as given to :meth:`FrameSource.grab`.
-    mask : numpy.ndarray or None
-        Ground truth of the frame (uint8, 255 on cracks), when the source knows it.
-    seq : int
-        The source's frame counter, from 0.
-    name : str
-        Where the frame came from (file name, stream), empty for the synthetic source.
+    """One captured frame: a ``uint8`` grey or BGR image, its capture time ``t`` (the caller's clock), the
+    pose given to :meth:`FrameSource.grab`, its ground-truth ``mask`` (255 on cracks) when known, the
+    source's counter ``seq`` from 0 and its origin ``name`` (empty for the synthetic source).
     """
 
     image: NDArray[np.uint8]
@@ -62,15 +49,9 @@ class FrameSource(Protocol):
 
 
 def upsample_factor(texels_per_px: float, frame_size: tuple[int, int], limit: float = 0.5) -> int:
-    """The reduction 2^k at which :class:`SyntheticSource` warps a magnified view before resizing it
-    to the frame: the largest with at most ``limit`` texture pixels per reduced pixel (``k = 0``
-    when the frame does not magnify that much), and with a reduced frame of at least 16 pixels a
-    side. ``texels_per_px`` is the texture pixels per frame pixel (the homography's Jacobian).
-
-    Raises
-    ------
-    ValueError
-        On a non-finite or non-positive scale or limit.
+    """The reduction 2^k at which :class:`SyntheticSource` warps a magnified view (``texels_per_px``
+    texture pixels per frame pixel) before resizing it: the largest with at most ``limit`` texture
+    pixels per reduced pixel and a reduced frame of at least 16 pixels a side (docs/edge.md).
     """
     if not (math.isfinite(texels_per_px) and texels_per_px > 0):
         raise ValueError(f"texture pixels per frame pixel must be finite and > 0, got {texels_per_px!r}")
@@ -83,44 +64,8 @@ def upsample_factor(texels_per_px: float, frame_size: tuple[int, int], limit: fl
 
 
 class SyntheticSource:
-    """The view of a :class:`~edge.world.surface.SyntheticSurface` from the camera pose.
-
-    The surface plane maps to the image by the homography ``H = K R^T (A - C e3^T)`` (``A`` maps
-    texture pixels to the world, :meth:`SyntheticSurface.pixel_to_world_matrix`), applied with
-    ``cv2.warpPerspective`` -- bilinear for the texture, nearest neighbour for the mask. The cost
-    is that of the frame, not of the texture:
-
-    - only the texture region the frame can see is handed to the warp (the bounding box of the
-      view's corners mapped back onto the texture);
-    - where the frame looks at the surface from afar (more than two texture pixels per frame
-      pixel), the warp reads a 2^L-times box-filtered copy of the texture (built once per level)
-      instead of aliasing; the mask copy marks a pixel as crack if any texture pixel under it is;
-    - pixels whose rays miss the plane (above its horizon, or pointing away) are sky, as are
-      pixels off the rectangle and every pixel when the camera is behind the surface (its back
-      is not textured).
-
-    Parameters
-    ----------
-    surface : SyntheticSurface
-    camera : CameraModel
-    sky : int
-        Grey level where the surface is not seen. Default 200: bright, so that a frame edge is not
-        a dark stripe the detector would take for a defect.
-    noise_sigma : float
-        Standard deviation of Gaussian sensor noise added to each frame, grey levels. Default 0
-        (the texture already has grain).
-    seed : int or None
-        Seed of the sensor noise.
-    mask : bool
-        Render the ground-truth mask with each frame (default). False: :meth:`grab` gives
-        ``mask=None`` and saves the mask's warp (the edge's captures never send it).
-    upsample : bool
-        Where the frame magnifies the texture (fewer than :data:`MAGNIFY_LIMIT` texture pixels per
-        frame pixel, e.g. 0.125 for a 12 MP frame of the default 100 px/m wall at 4.8 m), warp at
-        1/2^k of the frame size, the smallest that keeps ``1 / MAGNIFY_LIMIT`` reduced pixels per
-        texture pixel, and resize that (bilinear) to the frame: the frame holds no detail the texture
-        has not, and the warp's cost is that of the reduced frame (12 MP captures).
-        Default False (one warp at the frame size). The mask is always warped at full size.
+    """The view of a :class:`~edge.world.surface.SyntheticSurface` from the camera pose, by the homography
+    ``H = K R^T (A - C e3^T)``; the rendering rules and options are in docs/edge.md (edge/world/camera.py).
     """
 
     #: frame pixels of texture, at most, before a coarser texture level is used
