@@ -1,33 +1,6 @@
 """Flying the formation trajectory the paper's way: a waypoint mission in AUTO, kept in time by speed.
 
-The paper uploads each UAV's path to its Pixhawk with Mission Planner and lets the autopilot fly
-it (PAPER.md Section 4); :class:`edge.vehicle.mavlink.MavlinkDriver` with ``flight="auto"`` does
-the same from the edge. This module is its pure part (no link):
-
-- :func:`autopilot_mission`: the UAV's trajectory ``T_Fn`` of (P9) as mission items, built by the
-  one item builder (:func:`services.planner.export.mission_items`: NAV_WAYPOINT per waypoint,
-  CONDITION_YAW, DO_CHANGE_SPEED per leg so the plan's timing holds, DO_DIGICAM_CONTROL with the
-  capture id at each capture point), converted to MISSION_ITEM_INT fields about the autopilot's
-  own home (HOME_POSITION: latitude, longitude, altitude; our home is its ENU position in the
-  mission frame), altitudes relative to home. The final NAV_RETURN_TO_LAUNCH is left out: at the
-  end ArduCopter's AUTO holds where the mission ended ("mission complete") and the ground station
-  decides what comes next, as with the GUIDED flight.
-- :func:`decimate`: the waypoints the mission keeps. The planner's trajectories are dense (~0.8 m
-  apart) and ArduCopter's S-curve navigation flies such legs at ~0.5 m/s whatever the speed items
-  say (a leg takes at least ~1.8 s, :data:`edge.vehicle.apm.auto.MIN_LEG_S`), while ~8 m legs fly
-  the planned speed. So consecutive waypoints are merged into one leg: always while the leg would
-  last less than ``min_leg_s`` (2 s, above ArduCopter's ~1.8 s), then while the dropped ones lie
-  within ``tolerance_m`` of it, the planned speed along it stays within ``speed_tol`` and the leg
-  lasts at most ``max_leg_s``; capture points, holds (zero-length legs) and both ends are always
-  kept (two capture points closer than ``min_leg_s`` make a leg ArduCopter flies slower).
-- :func:`resume_item`: the item AUTO continues from at trajectory time τ (the one after the last
-  waypoint passed, so that leg's speed item runs again).
-- :func:`speed_correction`: formation keeping in AUTO. The position the edge wants, ``P_d(t) + o``
-  (the trajectory reference plus the on-board formation correction ``o`` of (P8)), is compared
-  with the vehicle's; the along-track part of the error ``e = P − (P_d + o)`` is driven to zero
-  by the ground speed: ``v = |v_d| − k e·v̂_d`` (bounded), sent as MAV_CMD_DO_CHANGE_SPEED. The
-  across-track and vertical parts are the autopilot's own waypoint tracking (straight legs
-  between the plan's waypoints).
+Design notes: docs/hardware-mavlink.md (edge/vehicle/auto_flight.py).
 """
 
 from __future__ import annotations

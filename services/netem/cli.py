@@ -1,46 +1,6 @@
 """``skynet netem``: run one impairment proxy in front of a link, printing its counters.
 
-    skynet netem udp --listen 127.0.0.1:9000 --target 127.0.0.1:7448 --impair "delay 50ms loss 2%"
-    skynet netem tcp --listen 127.0.0.1:9001 --target 127.0.0.1:7447 --impair "delay 50ms rate 2mbit"
-
-Point the node at the listen address instead of the router's (``tcp/127.0.0.1:9001?rel=1``,
-``udp/127.0.0.1:9000?rel=0``). Counters are printed once a second (``--json`` for one JSON
-object per line); Ctrl-C or SIGTERM stops the proxy and prints the final counters. The first
-line, ``netem <kind> listening on HOST:PORT -> TARGET``, tells a launcher the bound port.
-
-Changing conditions while it runs
--------------------------------------------
-``--schedule FILE`` plays a schedule file, steps timed from the proxy start (format in
-:mod:`services.netem.schedule`)::
-
-    at 0s    "delay 50ms loss 2%"
-    at 10s   "delay 200ms jitter 20ms loss 20%"
-    at 25s   cut 5s
-    at 40s   clear
-
-A bad file is a usage error naming the line (exit 2); each step applied is logged on stderr
-(``netem: step at 25.0s: cut 5.0s``), so ``--json`` output stays JSON.
-
-``--control HOST:PORT`` (loopback only; port 0 = any free port) opens a control channel: UDP,
-one text command per datagram, one JSON reply per command. The second line printed,
-``netem control on HOST:PORT``, gives its port. Commands (the schedule's grammar, without ``at``):
-
-    set [up|down|both] SPEC   replace the impairment, e.g. set "delay 200ms loss 20%"; set none
-    cut [T]                   cut the link now, for T (e.g. 5s) or until restore
-    restore                   end the cut
-    clear                     no impairment and no cut
-    stats                     the counters, as printed with --json
-
-Replies are ``{"ok": true, "applied": ..., "impairment": ..., "changes": N}`` (``stats``:
-``{"ok": true, "stats": {...}}``) or ``{"ok": false, "error": "..."}``; a bad command changes
-nothing and never stops the proxy. The client side::
-
-    skynet netem ctl 127.0.0.1:9100 set "delay 200ms loss 20%"
-    skynet netem ctl 127.0.0.1:9100 cut 5s
-    skynet netem ctl 127.0.0.1:9100 stats
-
-prints the reply as one JSON line; exit 0 when the proxy accepted the command, 2 when it
-refused it (the error on stderr), 1 when no reply came (``--timeout-s``, default 3 s).
+Design notes: docs/experiments.md (services/netem/cli.py).
 """
 
 from __future__ import annotations

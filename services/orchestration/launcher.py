@@ -1,59 +1,6 @@
 """The embedded default: the whole network on one machine, as separate processes on loopback.
 
-``skynet up`` starts the gateway, N edges (SkyNet peers), the planner and the detector on free
-loopback ports, prefixes each service's log lines with its name, and stops everything cleanly
-on Ctrl-C (SIGINT to every child so sessions close, then SIGTERM/SIGKILL for stragglers).
-
-``skynet mission`` does the same, then runs the ground station's mission on the scenario in
-this process (a Zenoh client, with the live progress display) and writes the report; its exit
-status is the mission's.
-
-Impairment experiments (link names and grammar in :mod:`services.orchestration.topology`):
-``--impair [NAME[/udp|/tcp]=]SPEC`` puts user-space netem proxies (:mod:`services.netem`, a TCP and
-a UDP one per link) on the named links: ``uavN``, ``planner``, ``detector``, ``gcs`` (that node's
-uplink to the gateway — for an edge, the paper's 4G hop), ``uavI-uavJ`` (a SkyNet link between
-two edges), ``uplinks``, ``skynet``, ``all``; ``/udp`` or ``/tcp`` impairs only the best-effort
-or the reliable link. Shared memory stays off so that nothing bypasses the proxies. With
-``--mesh proxied`` (the default as soon as a SkyNet link is impaired or faulted) the edges do
-not dial each other from gossip; edge i connects to a proxy pair in front of edge j's listen
-endpoints for every j > i. ``--no-recovery`` makes capture frames unrecoverable (edges publish
-imagery without the recovery cache, the detector subscribes without recovery).
-
-Faults (:mod:`services.orchestration.faults`): ``--fault "20s kill gateway for 3s"``, ``"25s kill uav3"``,
-``"15s cut uplinks for 8s"``, ``"15s partition uav1-uav2 for 10s"``; AT counts from the
-mission phase (``skynet mission``) or the network start (``skynet up``). A killed service is
-restarted with the same command line and ports; the launcher puts clean proxies on the links a
-fault cuts.
-
-A service that exits by itself (a crash, not a fault's kill) is restarted by the supervisor
-(:meth:`Network.start_supervisor`) with the same command line, after an exponential back-off
-(:mod:`services.orchestration.restart`: 0.5 s doubling to 30 s, reset after 10 s of good run); each restart is
-logged and, in a mission, recorded as the supervisor's (``supervisor-restart``), apart from injected faults. A
-service that exits :data:`START_ATTEMPTS` times without ever signalling that it is up (a line on its ready pipe,
-:mod:`protocol.readiness`; not its log text) cannot start: it is not
-restarted again, its reason (its last error line) is logged, and ``skynet mission``, which waits for the
-services it asked for (planner, detector, video) before the flight, fails with that reason in the report's
-outcome. The network is never stopped because one service ended.
-
-Attaching (:mod:`services.attach`): while it runs, the network is described in
-``.skynet/network.json`` (``--network FILE``), where ``skynet web``, ``skynet video`` and ``skynet replay`` find
-it when given no endpoint.
-
-Several gateways (:mod:`services.orchestration.sites`): ``--sites S`` starts one gateway per
-site (``gateway``, ``gateway-1`` .. ``gateway-{S-1}``, ids ``gw0`` ..), each dialling the lower-numbered
-ones over the same kind of link as the uplinks (TLS by default: a gateway's certificate, common name
-``gateway``, passes the other's ACL as the role ``gateway``); formation g's edges attach to site ``g % S``,
-the ground station to site 0, the planner and detector instances to site 0 unless ``--rcu-site NAME=K``.
-``kill gateway`` and the restart of a gateway name site 0's; another site's is ``gateway-K`` to the supervisor.
-
-Secure by default (:mod:`services.orchestration.trustmode`): a development key set (``--keys DIR``, else
-``$SKYNET_KEYS`` or ``.keys/dev``), mutual TLS on a TLS multilink pair, access control by certificate common
-name on the gateway and on each edge, commands and heartbeats signed by the ground station, in every mode:
-proxied (impaired, fault-injected) links carry the same TLS sessions through TCP proxies; ``--insecure``
-turns everything off.
-
-The plan (:mod:`services.orchestration.plan`): every process, endpoint, identity and command line of a run is
-computed first, as data, without starting anything; ``--dry-run`` prints it (``--json``: as JSON) and exits.
+Design notes: docs/architecture.md (services/orchestration/launcher.py).
 """
 
 from __future__ import annotations

@@ -1,36 +1,6 @@
 """ArduCopter's parameter table (a subset) and the MAVLink parameter protocol.
 
-Protocol (https://mavlink.io/en/services/parameter.html), as ArduPilot answers it:
-
-- PARAM_REQUEST_LIST: every parameter as PARAM_VALUE, in index order (``param_count`` = table size);
-- PARAM_REQUEST_READ: by ``param_index``, or by ``param_id`` when the index is −1; an unknown
-  name or index is answered at once with PARAM_ERROR (common.xml, message 345) error
-  MAV_PARAM_ERROR_DOES_NOT_EXIST addressed to the requester, as current ArduCopter does (older
-  firmware stayed silent and clients retried for seconds);
-- PARAM_SET: the new value is stored and echoed as PARAM_VALUE. ArduPilot ints travel as floats
-  holding the integer value ("cast", not the bytewise C union); the declared range is enforced
-  here (ArduPilot's ground stations enforce it; a value outside it, NaN or a non-integer for an
-  integer parameter is refused, counted in :attr:`ParamTable.rejected`, and answered with the
-  unchanged value, so the sender sees that the write failed).
-
-Defaults and ranges are ArduCopter 4.5's (ardupilot.org/copter/docs/parameters.html):
-FS_GCS_ENABLE 0 (0 off, 1 RTL, 2 continue in AUTO, 3 SmartRTL or RTL, 4 SmartRTL or land, 5 land,
-6 auto DO_LAND_START or RTL, 7 brake or land), FS_GCS_TIMEOUT 5 s, WPNAV_SPEED 1000 cm/s,
-WPNAV_RADIUS 200 cm, RTL_ALT 1500 cm, FENCE_ENABLE 0, FENCE_TYPE 7 (max altitude | circle |
-polygon), FENCE_ACTION 1 (RTL or land), FENCE_ALT_MAX 100 m, FENCE_RADIUS 300 m, FENCE_MARGIN 2 m,
-DISARM_DELAY 10 s, LAND_SPEED 50 cm/s, ARMING_CHECK 1 (all checks), SYSID_THISMAV, SYSID_MYGCS 255.
-
-Two naming schemes (:data:`SCHEMES`): stable ArduCopter 4.5/4.6 use the names above; 4.7+ renamed
-those the project uses and moved them to SI units (:data:`RENAMED`; ArduPilot's "Parameter Name
-Changes" page, 4.6 -> 4.7): WPNAV_SPEED / _UP / _DN (cm/s) -> WP_SPD / WP_SPD_UP / WP_SPD_DN (m/s),
-WPNAV_RADIUS (cm) -> WP_RADIUS_M (m), RTL_ALT (cm) -> RTL_ALT_M (m), LAND_SPEED (cm/s) ->
-LAND_SPD_MS (m/s), SYSID_MYGCS -> MAV_GCS_SYSID, ARMING_CHECK (bitmask of checks to run, 1 = all)
--> ARMING_SKIPCHK (bitmask of checks to skip, 0 = none; "not a pure rename": a value is not
-converted, only the all-checks defaults correspond). SYSID_THISMAV -> MAV_SYSID is ArduPilot's GCS
-parameter group (``MAV_SYSID``, as 4.8.0-dev SITL answers); that page lists it as not renamed in
-4.7.0, so a client should look a name up in either spelling (the driver does). A name of the other scheme does not exist (PARAM_ERROR), as
-on the firmware. :func:`to_raw` / :func:`from_raw` convert a value in SI units to and from a
-scheme's parameter; :func:`scheme_of_version` maps AUTOPILOT_VERSION's ``flight_sw_version``.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/apm/params.py).
 """
 
 from __future__ import annotations

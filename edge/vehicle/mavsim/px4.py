@@ -1,36 +1,6 @@
 """The sim autopilot presenting itself as PX4 (``skynet sim-autopilot --firmware px4``).
 
-The simulated vehicle and its ArduCopter machinery stay underneath (:class:`.vehicle.MavlinkSimVehicle`);
-this persona changes what travels on the link, message by message, as PX4's firmware does it
-(docs/hardware-mavlink.md, "The sim autopilot as PX4", lists each with PX4's documentation):
-
-- HEARTBEAT: ``autopilot`` MAV_AUTOPILOT_PX4 (12), ``custom_mode`` PX4's ``(sub << 24) | (main << 16)``
-  (:mod:`edge.vehicle.px4.modes`), base_mode as PX4 computes it, system_status BOOT while starting,
-  STANDBY disarmed, ACTIVE armed, CRITICAL in a failsafe. Start-up as PX4's SITL: first HEARTBEAT and
-  BOOT ~1.3 s, home 2.3 s, armable and position modes 4 s (times scaled by ``boot_scale``).
-- Telemetry is streamed unasked (PX4's GCS link mode), no EKF_STATUS_REPORT (an ArduPilot message).
-- MAV_CMD_DO_SET_MODE (param2 main, param3 sub mode) and SET_MODE: COMMAND_ACK ACCEPTED at once, then
-  a second COMMAND_ACK with the verdict (ACCEPTED or TEMPORARILY_REJECTED with a STATUSTEXT) and a
-  HEARTBEAT in the new mode. ALTCTL/POSCTL/MANUAL/STABILIZED/ACRO are refused (no RC); OFFBOARD needs
-  SET_POSITION_TARGET_LOCAL_NED faster than 2 Hz already; AUTO.MISSION a mission.
-- OFFBOARD follows the position setpoints; when they stop for COM_OF_LOSS_T (1 s) the vehicle leaves it
-  as COM_OBL_RC_ACT says (3 Return, 4 Land; 0-2 and 5 Hold: without RC the Position/Altitude/Manual
-  choices cannot run and PX4 falls back to Hold).
-- MAV_CMD_NAV_TAKEOFF: param7 is an altitude above mean sea level (NaN: MIS_TAKEOFF_ALT above home);
-  AUTO.TAKEOFF climbs, then AUTO.LOITER holds. NAV_LAND -> AUTO.LAND, NAV_RETURN_TO_LAUNCH -> AUTO.RTL
-  (climbing to RTL_RETURN_ALT above home first).
-- Arming: in AUTO.LOITER, AUTO.TAKEOFF, AUTO.MISSION and OFFBOARD (with the setpoint stream);
-  refused with "Arming denied: ..." while starting. COM_DISARM_PRFLT disarms an armed vehicle that
-  has not taken off after that many seconds, COM_DISARM_LAND after landing.
-- Missions have no home item: item 0 is the first real item in MISSION_COUNT, MISSION_REQUEST(_INT),
-  MISSION_ITEM(_INT), MISSION_CURRENT (its ``total`` = the item count), MISSION_ITEM_REACHED (repeated
-  about once a second while in AUTO.MISSION), DO_SET_MISSION_CURRENT, MISSION_SET_CURRENT and
-  MISSION_START.
-- Parameters: PX4's names (:mod:`edge.vehicle.px4.params`), integers byte-wise in the float field.
-- Data-link loss: no GCS HEARTBEAT for COM_DL_LOSS_T while flying acts as NAV_DLL_ACT says (0 nothing,
-  the default; 1 Hold, 2 Return, 3 Land).
-- The GCS link on UDP as PX4's: listening on its own port (``udpin``) with ``remote``, it sends to ``remote``
-  (PX4: 14550) until a ground station's packet arrives, then to that station.
+Message by message: docs/hardware-mavlink.md, "The sim autopilot as PX4".
 """
 
 from __future__ import annotations
