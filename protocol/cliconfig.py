@@ -1,25 +1,6 @@
 """Command lines from typed configs: one pydantic model per service, its command line derived from it.
 
-A service declares its options once, as the fields of a pydantic model (type, default, constraints,
-description); this module builds the argparse options from those fields, builds the model back from
-the parsed namespace, and renders a model as argv (what a launcher starts a child with):
-
-* the flag is ``--field-name`` (or :attr:`Cli.flag`), the help is the field's description with its
-  default shown, ``Literal``/``Enum`` fields give ``choices``, ``list`` fields are repeatable
-  (``append``), ``bool`` fields are switches (``store_true``);
-* each value is validated as it is parsed, by the field's own type and constraints (a frame size is
-  a pair of ints in the namespace already), and the whole model again at the end (cross-field rules):
-  a bad value is argparse's one-line ``error:`` and exit status 2;
-* :func:`to_argv` writes only what differs from the defaults, so that ``parse(Model, to_argv(m)) == m``;
-* fields sharing a :attr:`Cli.exclusive` name are one argparse mutually exclusive group (and the model
-  refuses them together however it is built);
-* a parser written by hand (no model) shows its defaults too: :func:`show_defaults`.
-
-Naming (docs/cli.md; ``tests/test_cli_names.py`` checks it): one flag per concept on every command, a
-quantity's unit at the end of its flag (``--stale-s``, ``--rate-hz``, ``--delay-ms``, ``--loss-pct``,
-``--detect-max-mp``).
-
-No bus code here: the launcher imports the configs without Zenoh's or OpenCV's cost.
+Design notes: docs/architecture.md (protocol/cliconfig.py).
 """
 
 from __future__ import annotations

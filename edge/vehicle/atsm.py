@@ -1,44 +1,6 @@
 """Attitude control: adaptive twisting sliding-mode control (ATSM), PAPER.md (P13)-(P17).
 
-For each axis i of Θ = (φ, θ, ψ) with error ``e = Θ − Θ_d`` (yaw error wrapped to (−π, π]):
-
-- (P14) sliding surface ``σ = ė + Λ e``;
-- (P15) equivalent control ``u_eq = Î (Θ̈_d − Λ ė) − f̂(X)``, with the controller's *model* of the
-  inertia ``Î`` (which may differ from the plant's) and ``f̂`` of (P12) evaluated with ``Î`` and
-  the measured body rates;
-- (P16) twisting term ``u_T,i = −μ_i α_i sign(σ_i)`` if ``σ_i σ̇_i <= 0`` else ``−α_i sign(σ_i)``
-  (Levant 1993), ``0 < μ_i < 1``; σ̇ is the backward difference of σ over one control period;
-- (P17) gain adaptation (Plestan et al. 2010, in the paper's form)
-  ``α̇_i = ω̄_i |σ_i| sign(|σ_i|^ρ_i − ε_i)`` if ``α_i > α_m,i`` else ``η_i``, integrated with the
-  control period and additionally clamped to ``α_max,i`` (the torque the motors can give; our
-  addition so the gain cannot wind up while the actuators saturate);
-- (P13) ``u = u_eq + u_T``.
-
-The paper gives no gain values; :class:`ATSMGains` documents ours, tuned on the 3DR Solo class
-plant of :mod:`edge.vehicle.quadrotor` at 200 Hz with a 20 ms motor lag:
-
-- Λ = 8, 8, 7 1/s: on the surface the error has a 0.125 s (0.14 s yaw) time constant, so a step
-  settles to 2 % in about 0.5 s plus the reaching phase. Yaw used Λ = 4 with α_max = 0.3 N·m and
-  settled the step test's 45° in 1.26 s (roll/pitch 0.54/0.55 s): the slow surface cost 0.75 s
-  after a reaching phase starved of torque. With Λ = 7, α_max = 0.48 N·m (just inside the 0.5 N·m
-  the motors give in yaw) and ω̄ = 90 (the gain returns to its floor sooner after the step) it
-  settles in 0.90-0.92 s over seeds 0-2 (0.83 s with a lighter model), with less torque chatter in
-  the steady hold than before (std 0.0073 against 0.0104 N·m, ``bench/sim.py``, tests/edge/vehicle);
-- μ = 0.5; twisting converges against a disturbance ``|d| <= D`` when ``μ α > D``, so the floor
-  ``α_m = 0.06, 0.06, 0.03 N·m`` covers torque disturbances up to 0.03 / 0.03 / 0.015 N·m;
-- ``|σ|^ρ = ε`` with ρ = 0.5, ε = 0.2 puts the adaptation threshold at ``|σ| = 0.04 rad/s``: above
-  the σ ripple that the discrete-time twisting with a motor lag produces at any α up to
-  ``α_max`` (so chattering alone never raises the gain), below the drift when α is too small for
-  the disturbance. Inside the band α decays to the floor (less chattering), outside it (a
-  reference step or a disturbance pushes σ out) it grows; ω̄ = 30 makes the decay take about a
-  second after a step (ω̄ = 90 in yaw);
-- α0 = 0.15, 0.15, 0.10 N·m, α_max = 0.6, 0.6, 0.48 N·m.
-
-:class:`TwistingController` is the same law with the gain fixed at ``α0`` (no adaptation), the
-baseline of the comparison in ``bench/sim.py``.
-
-The derivative of the Euler angles is computed from the body rates (inverse of (P10)); the
-reference derivatives default to zero (piecewise-constant references from the position loop).
+Design notes: docs/edge.md (edge/vehicle/atsm.py).
 """
 
 from __future__ import annotations

@@ -1,19 +1,6 @@
 """The vehicle driver interface that the edge's board service talks to.
 
-In the style of Skybrush's driver extensions (``virtual_uavs``, ``mavlink``): the board never
-knows which kind of vehicle it commands. :class:`edge.vehicle.sim.SimDriver` is the built-in
-simulated vehicle; a MAVLink driver for a real autopilot implements the same surface.
-
-Mode machine (protocol.messages.Mode)::
-
-    IDLE --takeoff--> TAKEOFF --(altitude reached)--> HOLD --start--> MISSION
-    MISSION --(end of trajectory)--> HOLD;  MISSION --hold--> HOLD --resume--> MISSION
-    TAKEOFF/HOLD/MISSION/RTL --land--> LAND --(on the ground)--> LANDED (disarmed)
-    TAKEOFF/HOLD/MISSION/LAND --return_to_launch--> RTL --(above launch)--> LAND --> LANDED
-    LANDED --takeoff--> TAKEOFF
-
-A command that is invalid in the current mode raises :class:`ValueError` with the reason; the
-board turns it into a rejected acknowledgement.
+Design notes: docs/edge.md (edge/vehicle/driver.py).
 """
 
 from __future__ import annotations

@@ -1,22 +1,6 @@
 """Trajectory following: time-parametrised waypoints -> reference position, velocity, yaw at time t.
 
-A trajectory (protocol.messages.Trajectory, the per-UAV path of (P9)) is a list of waypoints
-``(t_k, P_k, ψ_k, speed_k, capture_id_k)`` with strictly increasing times. The follower
-interpolates it with a cubic Hermite spline in time (Catmull-Rom tangents
-``v_k = (P_{k+1} − P_{k−1}) / (t_{k+1} − t_{k−1})``, zero velocity at the first and last
-waypoint), which passes through every waypoint at its time with continuous velocity, so the
-position loop gets position, velocity and acceleration feed-forward. ``interpolation="linear"``
-gives the piecewise-linear path instead (velocity piecewise constant, no acceleration).
-
-The waypoint ``speed`` field is informational here: the times alone define the motion (the
-planner derives them from the speed). Yaw is interpolated linearly on the unwrapped yaw sequence
-(the shortest turn between consecutive waypoints).
-
-Capture points: a waypoint with a ``capture_id`` fires once when the trajectory time reaches
-its ``t`` (the reference passes it); :meth:`Follower.due_captures` returns each once.
-
-The polynomial coefficients are computed once with numpy at construction; evaluation at time t
-is plain floats (it runs at the physics rate).
+Design notes: docs/edge.md (edge/vehicle/follower.py).
 """
 
 from __future__ import annotations

@@ -1,21 +1,6 @@
 """A MAVLink endpoint for the operator's ground station on the edge: the autopilot's traffic, forwarded.
 
-QGroundControl, Mission Planner or MAVProxy pointed at the edge's ``--mavlink-gcs`` endpoint see the
-autopilot as if they were connected to it (every packet it sends, as it sent it, signature
-included), and what they send goes to the autopilot unchanged, with their own system id. So the
-operator can watch and take over (a mode change the edge did not make is reported by
-:class:`edge.vehicle.mavlink.MavlinkDriver`, which then stops commanding), and the autopilot's GCS
-failsafe (FS_GCS_*, which listens to SYSID_MYGCS) keeps meaning "the operator's ground station is
-gone": with a bridge the edge speaks as the companion computer (the vehicle's system id,
-MAV_COMP_ID_ONBOARD_COMPUTER, HEARTBEAT type MAV_TYPE_ONBOARD_CONTROLLER), never as a GCS.
-
-Packets are forwarded as raw frames: no re-encoding, so sequence numbers and signatures survive.
-A frame that does not parse is counted and dropped (a ground station cannot inject garbage).
-
-With ``video`` the bridge also speaks for the UAV's camera (:mod:`edge.vehicle.mav_camera`): a
-HEARTBEAT from component MAV_COMP_ID_CAMERA on the vehicle's system id once the autopilot has
-been heard, and the answers to the ground station's CAMERA_INFORMATION / VIDEO_STREAM_INFORMATION
-/ VIDEO_STREAM_STATUS requests; a command addressed to the camera component is not forwarded.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/gcs_bridge.py).
 """
 
 from __future__ import annotations

@@ -1,27 +1,6 @@
 """The UAV's camera as a MAVLink camera component on the edge's ground-station endpoint.
 
-QGroundControl finds a vehicle's video the MAVLink Camera Protocol way
-(https://mavlink.io/en/services/camera.html): a component with a camera id
-(MAV_COMP_ID_CAMERA = 100, on the vehicle's system id) sends HEARTBEAT (MAV_TYPE_CAMERA,
-MAV_AUTOPILOT_INVALID); the ground station asks for CAMERA_INFORMATION (MAV_CMD_REQUEST_MESSAGE
-param1 = 259, or the legacy MAV_CMD_REQUEST_CAMERA_INFORMATION), and when its ``flags`` have
-CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM, for VIDEO_STREAM_INFORMATION (REQUEST_MESSAGE param1 = 269,
-param2 = the stream id, 0 = all; or the legacy MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION) and
-VIDEO_STREAM_STATUS (270 / MAV_CMD_REQUEST_VIDEO_STREAM_STATUS). Every command is answered with a
-COMMAND_ACK (ACCEPTED before the message it asked for; UNSUPPORTED for anything else, DENIED for
-an unknown stream id).
-
-The stream is the one ``skynet video`` sends (services/video): the UAV's preview as RTP/UDP H.264
-(RFC 6184) to UDP port ``base + 2 (uav - 1)`` (5600 for UAV 1, the port QGroundControl listens on).
-VIDEO_STREAM_TYPE_RTPUDP's ``uri`` is, per MAVLink, the UDP port the ground station listens on;
-QGroundControl takes either the bare port or ``udp://0.0.0.0:PORT`` (it wraps a bare port into
-that form; older releases wrap whatever they get, newer ones keep a ``udp://`` URI as given). We
-send the full form, ``udp://0.0.0.0:5600``, which is also GStreamer's ``udpsrc uri=`` syntax.
-With ``codec="mjpeg"`` (RFC 2435) the encoding is VIDEO_STREAM_ENCODING_UNKNOWN: QGroundControl's
-RTP/UDP pipelines are H.264/H.265 only.
-
-:class:`MavCamera` is the pure part (which frames answer which request); the bridge
-(:mod:`edge.vehicle.gcs_bridge`) sends its heartbeat and its answers on the ground-station side.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mav_camera.py).
 """
 
 from __future__ import annotations

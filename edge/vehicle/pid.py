@@ -1,24 +1,6 @@
 """Position control: cascaded P-position / PID-velocity loop giving attitude and thrust references.
 
-The paper keeps the autopilot's built-in PID for position (PAPER.md Section 5) and gives no gains;
-this is the usual cascade of PX4 / ArduPilot multicopter position controllers:
-
-1. position P: ``v_cmd = v_ref + K_p (p_ref − p)``, limited to the horizontal speed
-   ``max_speed_xy`` (norm) and to ``[−max_speed_down, max_speed_up]`` vertically;
-2. velocity PID: ``a_cmd = a_ref + K_v e_v + K_i ∫e_v + K_d ė_v`` (derivative low-pass filtered)
-   plus the model's drag compensation ``(K_drag / m) v``, limited to ``max_acc_xy`` (norm) and
-   ``[−max_acc_down, max_acc_up]``. Anti-windup: the integrator is clamped to ``±i_max`` and is
-   frozen on an axis whenever that axis's acceleration is saturated in the direction of the error
-   (conditional integration);
-3. thrust vector ``F = m (a_cmd + g e3)`` with the tilt limited to ``max_tilt``; references for the
-   attitude loop (inverting the thrust direction ``R e3`` of the ZYX rotation (P7) for the
-   current yaw ψ)::
-
-       θ_d = atan2(Fx cψ + Fy sψ, Fz),   φ_d = atan2(Fx sψ − Fy cψ, sqrt((Fx cψ + Fy sψ)² + Fz²))
-
-   and the collective thrust ``T = F · R e3`` (projected on the current body z axis).
-
-All plain floats (the hot path runs at the physics rate).
+Design notes: docs/edge.md (edge/vehicle/pid.py).
 """
 
 from __future__ import annotations

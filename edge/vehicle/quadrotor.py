@@ -1,35 +1,6 @@
 """6-DoF quadcopter plant: rigid-body dynamics, actuator limits and a seeded disturbance model.
 
-State (12 floats): ENU position ``x, y, z`` (m), velocity ``vx, vy, vz`` (m/s), ZYX Euler
-angles ``φ, θ, ψ`` (rad) and body rates ``p, q, r`` (rad/s).
-
-Translational dynamics (standard quadrotor model, e.g. Mahony, Kumar & Corke, "Multirotor
-Aerial Vehicles", IEEE RAM 2012)::
-
-    m v̇ = T R_OB e3 − m g e3 − K_d (v − w)
-
-with the thrust T along body z, ``R_OB e3 = (cψsθcφ + sψsφ, sψsθcφ − cψsφ, cθcφ)`` (the third
-column of the ZYX rotation, same form as (P7)), linear drag ``K_d`` against the air velocity
-``v − w`` and wind ``w``.
-
-Rotational dynamics, PAPER.md (P11)-(P12), with the body rates ω = (p, q, r)::
-
-    I ω̇ = f(ω) + u + d,   f = ((Iyy − Izz) q r, (Izz − Ixx) p r, (Ixx − Iyy) p q)
-
-and the Euler-angle kinematics, the inverse of (P10) ``ω = W(Θ) Θ̇``::
-
-    φ̇ = p + (q sφ + r cφ) tθ,   θ̇ = q cφ − r sφ,   ψ̇ = (q sφ + r cφ) / cθ
-
-Actuators: the commanded thrust and torques pass a first-order motor lag (time constant
-``motor_tau``) and are saturated: ``0 <= T <= thrust_to_weight · m g`` and ``|u_i| <= torque_max_i``.
-
-Integration: classical fixed-step RK4 at ``1/dt`` Hz (default 200 Hz) with inputs, disturbance
-and wind held over the step. The hot path uses plain Python floats and :mod:`math` (numpy on
-3-vectors costs about a microsecond per call); the disturbance sequences are drawn in numpy
-blocks.
-
-Default parameters (:class:`QuadParams`) are of a 3DR Solo class vehicle: 1.47 kg,
-``Ixx, Iyy, Izz = 0.011, 0.015, 0.021 kg·m²``, thrust-to-weight 2, torque limits 2 / 2 / 0.5 N·m.
+Design notes: docs/edge.md (edge/vehicle/quadrotor.py).
 """
 
 from __future__ import annotations

@@ -1,42 +1,6 @@
 """Mission sequencing shared by the vehicle drivers: what to fly when, with no vehicle underneath.
 
-:class:`edge.vehicle.sim.SimDriver` (the simulated quadcopter) and
-:class:`edge.vehicle.mavlink.MavlinkDriver` (an autopilot over MAVLink) follow an uploaded
-trajectory — the per-UAV path ``T_Fn = T_F + ΔT_n`` of (P9) — plus the formation correction that
-drives the position error ``e_n`` of (P8) to zero, in the same way. :class:`MissionSequencer` is
-that common part: given the time and the vehicle's position it yields the reference
-``(pos, vel, acc, yaw)`` to fly, the mission's phase and the capture points due. It does no
-physics, sends nothing and knows no bus: each driver turns the reference into its own commands
-(the PID set point in the simulator, SET_POSITION_TARGET_LOCAL_NED on a MAVLink link) and keeps
-its own flight modes (takeoff, hold, land, return to launch).
-
-Phases of a mission (:attr:`MissionSequencer.phase`; our choices, the paper leaves the autopilot's
-mission logic implicit)::
-
-    start  --(farther than start_radius from the first waypoint)--> "transit"
-    start / "transit" --(at the first waypoint)--> "wait" (before the start time) or "track"
-    "wait" --(start time reached)--> "track"
-    "track" --(trajectory time reaches the end)--> done (hold at the end + offset), phase ""
-    pause  --> ""  (remembers the trajectory time, or that the first waypoint was not reached)
-    resume --(farther than start_radius from the paused point)--> "transit_resume" --> "track"
-    resume of a mission paused before tracking --> "transit" to the first waypoint again
-
-Trajectory clock: started at the first waypoint, trajectory time 0 is the requested start ``t0``
-even if that is in the past (the vehicle catches up, capture points already passed fire at
-once); after a transit it is the later of ``t0`` and the arrival. While tracking, trajectory time
-is ``τ = t − origin + t_0`` (``t_0`` the first waypoint's time).
-
-Transits follow a :class:`Mover`: a reference moving in a straight line at constant speed
-(``transit_speed``) that counts as arrived once it rests at its target and the vehicle is within
-``arrive_radius`` of it.
-
-Formation offset: the commanded offset is bounded to ``max_offset`` in norm (scaled down, its
-direction kept); the applied offset, added to the trajectory reference while tracking, moves
-toward the commanded one at most ``offset_rate · dt`` per reference call, so a formation
-correction never makes the reference jump.
-
-The driver calls :meth:`MissionSequencer.reference` at its control rate (the physics rate, 200 Hz,
-in the simulator): it is plain floats and tuples, no numpy.
+Design notes: docs/edge.md (edge/vehicle/sequencer.py).
 """
 
 from __future__ import annotations

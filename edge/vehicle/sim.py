@@ -1,26 +1,6 @@
 """The built-in simulated vehicle: quadrotor plant + PID position loop + ATSM attitude loop.
 
-:class:`SimDriver` implements :class:`edge.vehicle.driver.VehicleDriver` on top of
-
-- :class:`edge.vehicle.quadrotor.Quadrotor` — 6-DoF dynamics (P10)-(P12), RK4 at ``physics_hz``;
-- :class:`edge.vehicle.pid.PositionPID` — the autopilot's position loop (PAPER.md Section 5);
-- :class:`edge.vehicle.atsm.ATSM` — the attitude loop (P13)-(P17) (or the fixed-gain twisting
-  baseline, ``SimParams.controller = "twisting"``);
-- :class:`edge.vehicle.sequencer.MissionSequencer` — the uploaded trajectory (P9), its start,
-  pause and resume, the formation offset and the capture points (shared with the MAVLink driver).
-
-Control runs at the physics rate. Simulated time advances only in :meth:`SimDriver.step`, so the
-same driver runs in real time (the board steps it to the shared clock, :mod:`edge.clock`) or as
-fast as the CPU allows (tests, benchmarks).
-
-Reference generation per mode (our choices; the paper leaves the autopilot's modes implicit):
-TAKEOFF climbs vertically at ``takeoff_speed``; LAND descends at ``land_speed`` where the
-vehicle is; HOLD holds the position where it was commanded (or follows the external reference
-set with :meth:`SimDriver.set_external_reference`); MISSION is the sequencer's reference: first
-straight to the first waypoint at ``transit_speed`` when farther than ``start_radius`` from it,
-wait there for the trajectory's start time, then track the trajectory (plus the bounded,
-rate-limited formation offset); RTL climbs to ``max(altitude, rtl_altitude)`` above launch, flies
-above the launch point and lands. The straight-line legs are :class:`edge.vehicle.sequencer.Mover`.
+Design notes: docs/edge.md (edge/vehicle/sim.py).
 """
 
 from __future__ import annotations

@@ -1,20 +1,6 @@
 """The paper's attitude step test (PAPER.md Section 5) as a reusable scenario.
 
-From hover (all angles and rates zero) the attitude references step to φ = −10°, θ = 10°,
-ψ = 45° at t = 0.5 s, 1 s and 2 s; the plant has a bounded torque disturbance d of (P11) and the
-controller a mismatched inertia model. The paper's claim: with disturbances the angles reach their
-references within 2 s.
-
-Metrics per axis (our definitions):
-
-- settling time: from the step until the angle enters and *stays* within ±``band`` (2 %) of the
-  step size for the rest of the run;
-- overshoot: the largest excursion beyond the reference, in % of the step;
-- chattering: standard deviation of the applied torque over the steady hold at the end of the
-  run (``steady_s`` seconds), and its mean absolute change per control period (total
-  variation), which isolates switching from the slowly varying disturbance rejection.
-
-The collective thrust keeps the altitude: ``T = m g / (cos φ cos θ)``.
+Design notes: docs/edge.md (edge/vehicle/steptest.py).
 """
 
 from __future__ import annotations

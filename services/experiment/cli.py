@@ -1,25 +1,6 @@
 """``skynet experiment``: the mission over a grid of link conditions; a table and plots of what held up.
 
-    skynet experiment --loss-pct 0,5,20,40 --delay-ms 0,50,200 [--jitter-ms 0,20] [--repeat N] [--recovery on,off]
-                      [--links all/udp] [--speed 6] [--uavs 3] [--seed S] [--out DIR] [--timeout-s 300]
-                      [--dry-run]
-
-Every cell of the grid (:mod:`services.experiment.grid`) is flown ``--repeat`` times, each run a
-``skynet mission`` process with ``--impair "<links>=after 2s delay Dms jitter Jms loss L%"``
-(``--no-recovery`` when recovery is off) and seed ``seed + repeat`` (the same seeds in every
-cell). A run that does not end within ``--timeout-s`` seconds is stopped and recorded as hung
-(:mod:`services.experiment.runner`); the experiment goes on. Then, in ``--out``:
-
-- ``results.json``: the grid, each cell's figures (mean/min/max over its runs,
-  :func:`services.experiment.metrics.aggregate`) and every run's figures, status and command;
-- ``results.md``: the table (also printed) and the metric definitions;
-- ``coverage.png``, ``imagery.png``, ``telemetry.png``, ``commands.png``
-  (:mod:`services.experiment.plots`);
-- ``runs/<cell>-r<k>/``: each mission's own report and logs.
-
-Exit status: 0 when every run left a report (missions that failed are results, not errors), 1
-when a run hung or crashed without a report, 2 on bad options, 130 when interrupted (what ran
-is still written).
+Design notes: docs/experiments.md (services/experiment/cli.py).
 """
 
 from __future__ import annotations

@@ -1,16 +1,6 @@
 """The gateway router relay: SkyNet (UAV peers) <-> the Internet (RCU and GCS clients).
 
-A Zenoh *router* session (DESIGN.md, "The network") listening on TCP and UDP with the
-multilink setup, so reliable traffic rides TCP and best-effort traffic UDP. Once a second it
-publishes :class:`~protocol.messages.LinkStats` on ``skynet/<fleet>/gateway/<id>/stats``:
-connected sessions by kind and samples/bytes per link class seen on the fleet's keys.
-
-    skynet gateway --listen tcp/0.0.0.0:7447?rel=1 --listen udp/0.0.0.0:7448?rel=0
-    skynet gateway --port 7447           # the same, TCP on 7447 and UDP on 7448
-
-With ``--keys DIR`` every listener is mutual TLS and access control goes by certificate common
-name (:func:`protocol.acl.cert_access_control`, default deny). Each ``tls/`` listener sits behind the accept
-guard (:mod:`services.gateway.guard`) unless ``--no-accept-guard``.
+Design notes: docs/bus.md (services/gateway/service.py).
 """
 
 from __future__ import annotations

@@ -1,20 +1,6 @@
 """``skynet bridge``: a byte stream forwarder between a TCP port and a Unix socket, either way.
 
-Network namespaces share the file system, not the network: a node of the machine's own namespace (the
-ground station of ``skynet mission --netns``) reaches site 0's gateway inside its namespace through a
-Unix socket. Two bridges make that hop for a TLS link: one in the site's namespace (``--listen
-unix:PATH --target tcp:127.0.0.1:PORT``), one in the machine's (``--listen tcp:127.0.0.1:PORT --target
-unix:PATH``), so the ground station dials ``tls/127.0.0.1:PORT`` as on loopback and the TLS session (and
-the certificate's name check) runs end to end: the bridges carry ciphertext.
-
-Each accepted connection opens one to the target and copies both ways until either side closes; a
-target that refuses is logged and the accepted connection closed. Bounded: at most ``--max-conns``
-connections at once, 64 KiB reads, and no connection stays idle: one that carries no byte either way for
-``--idle-timeout-s`` seconds is closed, and a new connection at the limit takes the place of the one idle the
-longest when that one has been idle :data:`EVICT_IDLE_S` or more (otherwise it is closed at once); all
-counted. A Zenoh link is never that quiet: it sends a keep-alive every lease/4 (2.5 s with the default
-10 s lease, ``transport/link/tx/lease``), so only a dead or hostile connection is closed, and a local process
-holding ``--max-conns`` idle connections no longer locks the ground station out.
+Design notes: docs/architecture.md (services/orchestration/bridge.py).
 """
 
 from __future__ import annotations

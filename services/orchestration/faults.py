@@ -1,29 +1,6 @@
 """Scripted fault injection during a run: the ``--fault`` grammar, its schedule, and the injector.
 
-The faults: the gateway killed and restarted, one edge killed, the uplink cut for longer
-than the failsafe time, SkyNet partitioned. A fault is written ``AT ACTION TARGET [for D]``
-(``--fault``, repeatable; times with a unit: ``500ms``, ``20s``, ``2min``):
-
-=============================  =====================================================================
-``20s kill gateway for 3s``    SIGKILL the gateway; after 3 s start it again, same command line/ports
-``25s kill uav3``              SIGKILL a service (``gateway``, ``uavN``, ``planner``, ``detector``);
-                               without ``for`` it stays down
-``15s cut uplinks for 8s``     cut every edge's uplink to the gateway (the 4G hop; both the TCP and
-                               the UDP proxy) for 8 s; ``cut uavN``, ``cut planner|detector|gcs``
-                               cut one node's uplink; without ``for`` until the end
-``15s partition uav1-uav2``    cut that SkyNet link; ``partition uavN`` cuts every SkyNet link of
-``for 10s``                    uavN (isolates it), ``partition skynet`` every SkyNet link
-=============================  =====================================================================
-
-AT counts from the start of the mission phase (the ground station's ``phase("mission")``, i.e.
-after take-off) in ``skynet mission``, and from the network start in ``skynet up``.
-
-Pure parts: :func:`parse_fault`, :func:`resolve` (targets checked against the run's
-:class:`~services.orchestration.topology.Links`), :func:`schedule` (the ordered begin/end steps, with
-overlapping kills of one service refused). :class:`FaultInjector` is the thin shell: a thread
-that waits for the origin, then acts on a :class:`Target` (the launcher's network: kill/restart
-a service, the proxies of a link) and reports every action and its end to ``note``
-(``MissionRunner.note_fault``). It holds no bus session.
+Design notes: docs/experiments.md (services/orchestration/faults.py).
 """
 
 from __future__ import annotations

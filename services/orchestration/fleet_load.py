@@ -1,21 +1,6 @@
 """What the launcher gives a large simulated fleet on one machine: pure policy, no processes.
 
-Three defaults follow the fleet's size, each overridden by its own option:
-
-- **The ground station's state feed** (``--gcs-state-hz``): the edges publish 20 Hz each and their
-  formation neighbours need every state (P8); the ground station's one Python process does not. Up to
-  :data:`GCS_STATE_BUDGET` states a second for the whole fleet it takes them all (12 UAVs at 20 Hz);
-  above, the gateway thins each UAV's state to ``budget / N`` (:mod:`services.gateway.downsample`).
-  At 48 UAVs the full feed (960 states/s) left the ground station 18 s behind.
-- **Live previews** (``--preview-hz``): :data:`PREVIEW_BUDGET` frames a second for the fleet, at most the
-  edge's 2 Hz per UAV. A watched preview (the mission's recorder watches them all) is rendered and
-  encoded by the simulated camera: ~4 ms of CPU a frame, a quarter of an idle edge's cost at 2 Hz.
-- **The simulated boards' priority** (``--edge-nice``): above :data:`NICE_ABOVE` UAVs the edges run at
-  nice :data:`EDGE_NICE`, so that when the fleet asks for more than the machine has, the services (the
-  gateway, planner, detector, ground station: on real hardware other computers) keep their pace and
-  the simulated boards share what is left (the edge sets its session's autogroup nice too:
-  :func:`edge.board.yield_cpu`). At 48 UAVs with equal priority the detector's workers got a
-  50th of the CPU each: capture-to-report p50 9.9 s for a 60 ms detection.
+Design notes: docs/large-fleets.md (services/orchestration/fleet_load.py).
 """
 
 from __future__ import annotations

@@ -1,15 +1,6 @@
 """Network namespaces as stand-in hosts on one machine: one per site, veth pairs between them.
 
-Each site of a :class:`services.orchestration.sites.Mesh` gets its own namespace (its own
-loopback and port space, as a separate host would have) and every router link a veth pair with a
-/30 of ``10.18.0.0/16`` (:func:`~services.orchestration.sites.veth_addresses`) inside the two
-namespaces. Nothing is configured outside the namespaces made here, and :meth:`Namespaces.close`
-deletes them (their veths go with them). A process runs in a namespace under
-``ip netns exec NAME`` (:meth:`Namespaces.prefix`, e.g. as a :class:`.process.ProcessGroup` prefix);
-a node of the machine's own namespace (the test's ground station) reaches a gateway through a Unix
-socket endpoint (``unixsock-stream/PATH``: the file system is shared, the network is not).
-
-Needs root (CAP_NET_ADMIN) and iproute2; :func:`available` says why not otherwise.
+Design notes: docs/experiments.md (services/orchestration/netns.py).
 """
 
 from __future__ import annotations

@@ -1,16 +1,6 @@
 """The network a launcher run asks for, as data: every process, its endpoints, identity and command line.
 
-:func:`network_plan` is a pure function of the launcher's options (:class:`~.config.LaunchConfig`: fleet size, sites,
-impairments, faults, trust, autopilot, web/video/recording), the scenario, the trust decision and a source of
-port numbers: it starts no process, opens no socket and no bus session. Its result (:class:`NetworkPlan`)
-lists the processes in start order (:class:`ProcessSpec`: name, role, site, identity, the endpoints it listens
-on and connects to, the environment it needs, its ``skynet`` argv), the impairment proxies
-(:class:`ProxySpec`) and the small files the run needs (an edge's zenoh config). ``skynet up --dry-run``
-prints it (:meth:`NetworkPlan.table`, :meth:`NetworkPlan.to_json`); :class:`services.orchestration.launcher.Network`
-starts it.
-
-Each service's configuration is built by one function (``*_config``) as its own config model, which checks it
-(a value the service would refuse fails here, before anything starts); its argv is rendered from that model.
+Design notes: docs/architecture.md (services/orchestration/plan.py).
 """
 
 from __future__ import annotations

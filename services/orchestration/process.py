@@ -1,22 +1,6 @@
 """Running services as child processes: free ports, log prefixing, clean shutdown.
 
-Used by the launcher (``skynet up``), the demo and the tests, so that all of them start the
-network the same way: ``python -m services.cli <command> ...`` per service, each line of its
-output prefixed with the service's name, SIGINT then SIGTERM then SIGKILL on the way out.
-
-A service started with ``ready=True`` gets a ready pipe (:mod:`protocol.readiness`: its write end's number in
-``SKYNET_READY_FD``; the service writes one line ``ready <role> <name>`` once it is up, as systemd's
-``sd_notify`` does): the group notes when that line arrives (:attr:`Service.ready_at`, not from the log text,
-which is for humans) and whether any run of it ever came up (:attr:`Service.ever_ready`), so the launcher tells
-a service that cannot start from one that crashed after working. A pipe, not the liveliness tokens: it needs no
-session, identity or ACL grant on the launcher's side, works for the gateway (the router itself), for the
-plumbing that has no bus (proxies, bridges) and across network namespaces, and a restart gets a fresh one.
-
-Fault injection (:mod:`services.orchestration.faults`) needs two more things: :meth:`ProcessGroup.kill`
-(SIGKILL to the service's whole process group, as a crash would end it) and
-:meth:`ProcessGroup.restart` (the same command line and environment again, under the same
-name). Once :meth:`ProcessGroup.stop` has begun, a restart is refused, so that Ctrl-C during a
-fault never leaves a process behind.
+Design notes: docs/architecture.md (services/orchestration/process.py).
 """
 
 from __future__ import annotations

@@ -1,16 +1,6 @@
 """Several gateways: a router mesh of sites, and who attaches where. Pure: no sockets, no bus.
 
-The paper's system has one gateway between SkyNet and the Internet side (Section 1). A fleet
-spread over places (or over more UAVs than one 4G cell carries) has one gateway per site: each
-gateway is a Zenoh router, the gateways connect to each other (a full mesh of router links:
-gateway k dials every gateway j < k), and Zenoh's router-to-router routing carries every sample
-and query between them. A UAV attaches to the gateway of its formation's site (formation g of
-:mod:`edge.geometry.neighbourhood` flies from site ``g % S``, so a formation's SkyNet neighbourhood never
-spans sites); the RCUs (planner, detector instances) and the ground station attach to any site.
-
-:func:`mesh` names the sites and the router links; :func:`veth_addresses` gives the addresses of
-the point-to-point links between the network namespaces that stand in for hosts on one machine
-(:mod:`services.orchestration.netns`): one /30 per router link, in ``10.18.0.0/16``.
+Design notes: docs/multi-site.md (services/orchestration/sites.py).
 """
 
 from __future__ import annotations

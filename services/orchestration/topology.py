@@ -1,27 +1,6 @@
 """The links of a run and which of them carry an impairment proxy (pure: no sockets, no bus).
 
-The paper's system has two kinds of radio links (Section 1, "System and communication"): each
-UAV's **uplink** to the ground over the 4G/LTE gateway, and **SkyNet**, the UAVs' own mesh over
-which they share states for formation keeping. On one machine the launcher reproduces both on
-loopback and can put user-space netem proxies (:mod:`services.netem`) on any of them; this module
-names the links, reads the ``--impair`` grammar and derives each proxy's seed.
-
-Link names
-----------
-* an uplink is named by its node: ``uav1`` .. ``uavN``, ``planner``, ``detector``, ``gcs``;
-* a SkyNet link by its two edges, lower id first: ``uav1-uav2``.
-
-``--impair [NAME[/udp|/tcp]=]SPEC`` (repeatable; :func:`services.netem.model.parse_impair_arg`): NAME
-is a link name (none: ``all``) or a group — ``uplinks`` (every node's uplink), ``skynet`` (every SkyNet
-link), ``all`` (both). The suffix picks the reliability class: ``/udp`` the best-effort link, ``/tcp`` the reliable one,
-none = both (zenoh's multilink setup, ZENOH.md "One link per reliability class"). SPEC is the
-netem string of :meth:`services.netem.model.Impairment.parse`. Later items override earlier ones
-for the same link and class.
-
-Meshing (``--mesh``): edge i connects explicitly, for each j > i, to edge j — ``direct``:
-straight to j's listen endpoints (gossip may add the same links); ``proxied``: to a proxy pair
-in front of them, with gossip autoconnect off on the edges so that nothing bypasses the proxies
-(:func:`edge_mesh_config`).
+Design notes: docs/experiments.md (services/orchestration/topology.py).
 """
 
 from __future__ import annotations

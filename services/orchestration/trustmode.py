@@ -1,18 +1,6 @@
 """How ``skynet up`` / ``skynet mission`` secure the network: secure by default, one model in every mode.
 
-Default: a development key set (``--keys DIR``, else ``$SKYNET_KEYS``, else ``.keys/dev`` in the working folder, made by
-:func:`services.keys.ensure` on first use and reused after), mutual TLS on every link with the
-reliability classes kept on separate links (``tls/H:P?rel=1`` for commands, ``tls/H:Q?rel=0``
-for telemetry and imagery: both are TCP underneath, see README "Trust"), access control by
-certificate common name on the gateway and on each edge, commands and heartbeats signed by the
-ground station and verified by the edges.
-
-When a link is proxied (``--impair``, cut or partition faults) the TLS sessions run end to end
-through user-space TCP proxies (two per link, one per reliability class), so impaired and
-fault-injected runs keep the same identities, encryption and ACL as any other run; the best-effort
-class is a TLS stream there as everywhere in secure mode (loss on it is retransmission delay, not
-lost datagrams: the paper's UDP class with datagram loss needs ``--insecure``). ``--insecure``
-turns all of it off, loudly.
+Design notes: docs/security.md (services/orchestration/trustmode.py).
 """
 
 from __future__ import annotations

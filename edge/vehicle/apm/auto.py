@@ -1,50 +1,6 @@
 """AUTO mode: walking a mission's items as ArduCopter's mission library does (a subset).
 
-Each call of :meth:`AutoMission.update` (vehicle time ``t``, position ``pos``, ENU m) returns
-what to fly now and what happened:
-
-==========================  =====================================================================
-item                        behaviour (ArduCopter's, ardupilot.org/copter/docs/mission-command-list)
-==========================  =====================================================================
-NAV_TAKEOFF (22)            ``("takeoff", alt)``: climb to ``z`` above home where the vehicle
-                            is; reached within ``takeoff_tol`` of that altitude
-NAV_WAYPOINT (16)           a carrot moves from where the leg starts to the waypoint at the
-                            current speed (WPNAV_SPEED, or the last DO_CHANGE_SPEED), but a leg
-                            takes at least ``min_leg_s`` (1.8 s: ArduCopter's S-curve navigation
-                            flies ~0.8 m legs at ~0.45 m/s, "Reached command" every ~1.8 s,
-                            while ~8 m legs fly the planned 2.25 m/s); reached when
-                            the carrot is there and the vehicle within WPNAV_RADIUS; then waits
-                            param1 s (hold time). The next leg starts when the carrot arrived
-                            (plus the hold), not at the update that noticed it
-NAV_LAND (21)               ``("land",)``; the mission ends when the vehicle is down
-NAV_RETURN_TO_LAUNCH (20)   ``("rtl",)``
-DO_CHANGE_SPEED (178)       param2 > 0: the new ground speed, m/s (applies from the next leg on, and
-                            to the current one at once, as ArduCopter does)
-DO_DIGICAM_CONTROL (203)    param5 = 1: a shot, event ``("shot", capture id)`` (:mod:`edge.geometry.ardupilot_items`)
-DO_SET_CAM_TRIGG_DIST (206) param1 m: a shot every param1 m flown (0 stops); param3 = 1 also one now
-CONDITION_YAW (115)         param1 heading, degrees (compass); param4 = 1 relative
-SPLINE_WAYPOINT (82)        flown as NAV_WAYPOINT (straight legs: the path between the points
-                            differs from ArduCopter's spline, the points and timing do not)
-LOITER_TIME (19)            to the point, then holds param1 s
-LOITER_TURNS (18)           to the point, then holds as long as param1 turns of a circle of radius
-                            param3 (CIRCLE_RADIUS 5 m when 0) take at the current speed (the circle
-                            itself is not flown)
-LOITER_UNLIM (17)           to the point, then holds until the mode or the current item changes
-NAV_DELAY (93)              holds where it is param1 s (a time of day, param1 < 0, is not kept:
-                            no delay)
-DO_JUMP (177)               back to item param1, param2 more times (-1: for ever), then on
-CONDITION_DELAY (112), CONDITION_DISTANCE (114), DO_SET_SERVO (183), DO_LAND_START (189),
-DO_SET_ROI_LOCATION (195), DO_SET_ROI (201), IMAGE_START_CAPTURE (2000)
-                            stored and skipped: they gate or drive things other than the flight
-                            (do items, servos, the gimbal, a camera), which this vehicle has not
-==========================  =====================================================================
-
-Do items run when the sequence reaches them (right after the previous NAV item completes).
-Yaw otherwise follows WP_YAW_BEHAVIOR: 0 keeps the heading, any other value faces along each
-leg longer than 2 m. After the last item the vehicle holds where it is (ArduCopter's "mission
-complete": it stays in AUTO); :attr:`done` is then True.
-Events: ``("current", seq)`` when the current item changes (MISSION_CURRENT), ``("reached",
-seq)`` when a NAV item completes (MISSION_ITEM_REACHED), ``("shot", id)``.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/apm/auto.py).
 """
 
 from __future__ import annotations

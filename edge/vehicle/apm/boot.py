@@ -1,27 +1,6 @@
 """ArduCopter's start-up as a ground station sees it: boot, EKF origin, pre-arm, position estimate.
 
-Seen on ArduCopter's own firmware (4.8.0-dev software-in-the-loop, ``arducopter --model +``, GPS
-and a still vehicle) from its first HEARTBEAT, in seconds of its own clock:
-
-=====================  ====  ===============================================================
-step                   s     what a ground station sees
-=====================  ====  ===============================================================
-booting                0     HEARTBEAT system_status MAV_STATE_BOOT; EKF_STATUS_REPORT
-                             EKF_UNINITIALIZED
-initialised            ~2    system_status STANDBY; attitude and vertical estimate (EKF in
-                             constant-position mode); arming refused ("PreArm: AHRS: waiting
-                             for home"); no home, no LOCAL_POSITION_NED
-origin set             ~20   STATUSTEXT "EKF3 IMU0 origin set"; home known (HOME_POSITION,
-                             LOCAL_POSITION_NED relative to it)
-armable                ~24   pre-arm checks pass (SYS_STATUS pre-arm bit healthy): armable in
-                             a mode that needs no position (STABILIZE)
-using GPS              ~42   STATUSTEXT "EKF3 IMU0 is using GPS"; horizontal absolute position
-                             (EKF_STATUS_REPORT flags 831); GUIDED, AUTO, LOITER, RTL, BRAKE
-                             allowed (before: "Mode change to GUIDED failed: requires position")
-=====================  ====  ===============================================================
-
-:class:`BootTimeline` holds those times multiplied by ``scale`` (1 = as the firmware, 0 = ready at
-once, 0.1 = ten times faster for tests); its methods answer "what is true at time t".
+Design notes: docs/hardware-mavlink.md (edge/vehicle/apm/boot.py).
 """
 
 from __future__ import annotations

@@ -1,29 +1,6 @@
 """The mission protocol (https://mavlink.io/en/services/mission.html) on the vehicle side.
 
-Three stores, one per MAV_MISSION_TYPE: MISSION (0), FENCE (1), RALLY (2), each its own list
-(the protocol keeps them independent). As ArduPilot:
-
-- **upload**: MISSION_COUNT (count > 0) opens a transfer; the vehicle asks for each item in turn
-  with MISSION_REQUEST_INT (or MISSION_REQUEST when the sender used the float MISSION_ITEM),
-  re-asks on a duplicate or out-of-order item and when ``item_timeout_s`` passes without one
-  (ArduPilot re-requests after a second), gives up after ``retries`` silent re-requests with
-  MISSION_ACK OPERATION_CANCELLED, and answers the last item with MISSION_ACK ACCEPTED, when
-  the new list replaces the old one at once. MISSION_COUNT 0 clears. While one sender uploads,
-  another sender's MISSION_COUNT is MISSION_ACK DENIED; the same sender restarts.
-- **items**: ArduCopter's mission commands (:data:`SUPPORTED`; AUTO flies the NAV ones and skips
-  the DO / CONDITION ones that do not change the flight, :mod:`.auto`); any other command is
-  MISSION_ACK UNSUPPORTED (the list is kept unchanged); a NaN in a position field of a NAV item
-  or an unsupported frame is INVALID / UNSUPPORTED_FRAME; a NAV_WAYPOINT with a NaN param1 (its
-  hold time) is INVALID_PARAM1, as ArduCopter refuses it. MAV_FRAME_MISSION (2) is taken as
-  MAV_FRAME_GLOBAL (altitude above sea level), as ArduPilot's AP_Mission reads it. The mission's item 0 is home (ArduPilot overwrites it with the
-  current home on download).
-  With ``legacy_request`` the vehicle asks with MISSION_REQUEST whatever the sender used (as
-  ArduCopter's firmware may: the sender then answers with MISSION_ITEM_INT or MISSION_ITEM).
-- **download**: MISSION_REQUEST_LIST -> MISSION_COUNT, then MISSION_REQUEST_INT / MISSION_REQUEST
-  -> MISSION_ITEM_INT / MISSION_ITEM; a sequence outside the list is MISSION_ACK INVALID_SEQUENCE.
-  As the firmware sends them back: item 0 is the current home, a NaN param (the "keep the
-  heading" yaw) comes back as 0.0, and NAV_RETURN_TO_LAUNCH (no location) in MAV_FRAME_GLOBAL.
-- **clear**: MISSION_CLEAR_ALL -> MISSION_ACK ACCEPTED.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/apm/missions.py).
 """
 
 from __future__ import annotations

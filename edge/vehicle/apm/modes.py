@@ -1,19 +1,6 @@
 """ArduCopter's mode rules the sim autopilot applies (ardupilot.org/copter/docs/flight-modes.html).
 
-Custom modes (HEARTBEAT.custom_mode): 0 STABILIZE, 3 AUTO, 4 GUIDED, 5 LOITER, 6 RTL, 9 LAND,
-17 BRAKE. :func:`check_mode_change` says whether a change is allowed and why not, as the
-STATUSTEXT ArduCopter sends ("Mode change to AUTO failed: ..."):
-
-- STABILIZE in flight is refused here (the simulation has no pilot sticks to fly it);
-- RTL needs the vehicle armed and flying (ArduCopter: RTL from the ground is refused);
-- AUTO needs a mission with at least one item after home; from the ground, armed, its first
-  NAV item must be a NAV_TAKEOFF ("Missing Takeoff Cmd"). Armed on the ground in AUTO, the
-  mission starts at once, as ArduCopter with AUTO_OPTIONS bit 2 ("allow takeoff without
-  raising throttle"; this simulation has no throttle stick).
-- GUIDED, AUTO, LOITER, RTL, BRAKE, POSHOLD and SMART_RTL need a position estimate (ArduCopter's
-  ``requires_position()``): before the EKF uses GPS the change is refused with "requires position".
-- Arming is allowed in STABILIZE, GUIDED and LOITER (ArduCopter refuses arming in AUTO, RTL,
-  LAND and BRAKE unless AUTO_OPTIONS bit 0 allows AUTO).
+Design notes: docs/hardware-mavlink.md (edge/vehicle/apm/modes.py).
 """
 
 from __future__ import annotations

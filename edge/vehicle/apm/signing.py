@@ -1,20 +1,6 @@
 """MAVLink 2 message signing (https://mavlink.io/en/guide/message_signing.html) done in the safe order.
 
-A signed packet ends with link id (1 byte), a 48-bit timestamp (10 µs units since 2015-01-01)
-and the first 6 bytes of SHA-256(secret key + header + payload + CRC + link id + timestamp).
-A receiver keeps the last timestamp per stream (link id, system, component) and rejects a
-packet whose timestamp does not move forward (replay protection).
-
-pymavlink's ``MAVLink.check_signature`` records the packet's timestamp for its stream **before**
-checking the signature. So a single forged packet (any bytes, no key needed) carrying a timestamp
-far in the future, with the link id and addresses of the real stream, moves that stream's
-timestamp forward, and every genuine packet after it is rejected as a replay: one datagram locks
-the real autopilot (or ground station) out. :class:`SafeSigningMAVLink` checks the signature
-first and records the timestamp only for a packet that verifies. Unsigned packets are refused
-unless ``allow_unsigned`` (by default only RADIO_STATUS, as ArduPilot allows).
-
-Key: 32 bytes, given as 64 hex digits, or a passphrase (the key is its SHA-256, as MAVProxy's
-``signing setup`` derives it).
+Design notes: docs/hardware-mavlink.md (edge/vehicle/apm/signing.py).
 """
 
 from __future__ import annotations

@@ -1,21 +1,6 @@
 """The telemetry scheduler: which message is due when, as ArduPilot's stream rates work.
 
-- Each streamable message has a rate (Hz; 0 = off). As ArduCopter's firmware (its SRn_* stream
-  rates are 0 on a link a ground station has not configured), only HEARTBEAT is sent unasked
-  (:data:`ARDUCOPTER_RATES`); :data:`DEFAULT_RATES` is the "stream everything" alternative.
-  :meth:`StreamScheduler.due` returns the messages whose period has elapsed since they were last
-  sent (wall clock).
-- MAV_CMD_SET_MESSAGE_INTERVAL (511): param1 message id, param2 interval in µs; −1 stops it, 0
-  restores its default (common.xml). An id the vehicle cannot produce is MAV_RESULT_DENIED, as
-  ArduPilot answers. MAV_CMD_GET_MESSAGE_INTERVAL (510) answers MESSAGE_INTERVAL.
-- REQUEST_DATA_STREAM (the legacy request, still what MAVProxy and Mission Planner send): a
-  MAV_DATA_STREAM group and a rate; ArduCopter's groups (GCS_Mavlink.cpp ``STREAM_*`` lists,
-  the subset this vehicle produces): EXTENDED_STATUS (2) = SYS_STATUS, GPS_RAW_INT,
-  MISSION_CURRENT; POSITION (6) = GLOBAL_POSITION_INT, LOCAL_POSITION_NED; EXTRA1 (10) =
-  ATTITUDE; EXTRA2 (11) = VFR_HUD; EXTRA3 (12) = BATTERY_STATUS, EXTENDED_SYS_STATE,
-  EKF_STATUS_REPORT; ALL (0) = all
-  of them. ``start_stop`` 0 stops the group.
-- Rates are capped at 50 Hz.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/apm/streams.py).
 """
 
 from __future__ import annotations

@@ -1,24 +1,6 @@
 """AUTO flight (``MavlinkParams(flight="auto")``, ``skynet edge --flight auto``): the paper's way.
 
-The pure part is :mod:`edge.vehicle.auto_flight`. ``start`` asks for HOME_POSITION, uploads the
-trajectory as a waypoint mission with the MAVLink mission protocol (MISSION_COUNT,
-MISSION_REQUEST(_INT) -> MISSION_ITEM_INT, MISSION_ACK; speed items per leg, capture triggers, no
-final RTL; the plan's first leg speed also becomes the autopilot's waypoint speed), then the
-driver flies to the first waypoint and waits for the start time in GUIDED. When tracking begins
-it sends DO_SET_MISSION_CURRENT (the item after the last waypoint passed) and DO_SET_MODE AUTO,
-streaming GUIDED targets until AUTO is acknowledged. In AUTO it streams no targets: it keeps the
-sequencer's reference (trajectory plus the board's formation correction of (P8)) and sends
-DO_CHANGE_SPEED (at most every ``auto_speed_period_s``) so that the along-track error goes to
-zero; captures fire on the trajectory clock as in GUIDED. The progress the edge reports in AUTO
-follows the autopilot's (MISSION_CURRENT, MISSION_ITEM_REACHED; :mod:`.progress`): the trajectory
-clock kept between the last waypoint reached and the one flown to. At the trajectory's end it switches
-back to GUIDED and holds, once the autopilot reports the last waypoint reached
-(MISSION_ITEM_REACHED; at most ``auto_end_wait_s`` later). hold / land / RTL / resume work as in
-GUIDED (resume flies back to the paused point and re-enters AUTO from the right item).
-
-The upload and every mode switch run on ONE worker thread of this flight (:meth:`AutoFlight.switch`
-queues; ``step`` never waits for the link). While a switch is in flight, HEARTBEATs in either the
-guided or the AUTO mode are expected (``pending``); any other mode is the pilot's.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/auto.py).
 """
 
 from __future__ import annotations

@@ -1,17 +1,6 @@
 """The autopilot family behind the driver, as a small interface.
 
-:class:`Dialect` is what the driver asks of an autopilot family; :data:`ARDUCOPTER` answers for
-ArduCopter (custom modes :class:`.apm.modes.CopterMode`, the 4.6 and 4.7 parameter naming schemes
-of :mod:`.apm.params`, EKF readiness as :func:`.apm.boot.position_ok`); :data:`PX4` for PX4 (custom
-modes ``(sub_mode << 24) | (main_mode << 16)`` of :mod:`.px4.modes`, OFFBOARD as its guided mode fed
-by a setpoint stream, AUTO.TAKEOFF for the takeoff with NAV_TAKEOFF's param7 above sea level, no home
-item in missions, DO_SET_MODE confirmed by HEARTBEAT, integer parameters bit-cast, :mod:`.px4.params`).
-:func:`dialect_for` picks one from the HEARTBEAT's ``autopilot`` field (MAV_AUTOPILOT_ARDUPILOTMEGA 3,
-MAV_AUTOPILOT_PX4 12). A mode the driver did not command reads, for ArduCopter
-(:func:`copter_mode`): AUTO -> MISSION; GUIDED, BRAKE -> HOLD; RTL, SMART_RTL -> RTL; LAND -> LAND;
-any other (pilot-flown: LOITER, STABILIZE, ALT_HOLD, POSHOLD, ... which follow the RC sticks, so
-without RC input LOITER descends) -> PILOT, never HOLD; for PX4 as :func:`.px4.modes.board_mode`;
-the state's ``autopilot.mode`` names it.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/dialect.py).
 """
 
 from __future__ import annotations

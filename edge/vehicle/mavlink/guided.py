@@ -1,22 +1,6 @@
 """GUIDED flight: the trajectory reference streamed as position targets.
 
-SET_POSITION_TARGET_LOCAL_NED (``coordinate_frame = MAV_FRAME_LOCAL_NED``) at ``rate_hz`` per wall
-second on average, or once per step if the caller steps more slowly, with ``type_mask``
-(POSITION_TARGET_TYPEMASK bits set = ignored)::
-
-    TYPE_MASK_POS_VEL_ACC_YAW = YAW_RATE                   = 2048  (trajectory: p, v, a, ψ)
-    TYPE_MASK_POS_VEL_YAW     = AX|AY|AZ|YAW_RATE          = 2496  (same, accel_feedforward=False)
-    TYPE_MASK_POS_YAW         = VX|VY|VZ|AX|AY|AZ|YAW_RATE = 2552  (hold, waiting: p, ψ)
-
-The trajectory stream carries the follower's velocity and, by default, its acceleration as
-feed-forward (ArduCopter 4.1+ integrates the target between messages with them); with position
-and velocity only, the position loop lags the reference in the turns (on the test trajectory
-through :mod:`edge.vehicle.mavsim` at speed x2: 0.48 m max / 0.20 m RMS tracking error without,
-0.17 m / 0.05 m with the acceleration; the simulated vehicle alone, 0.11 m max).
-
-Hold is a position target in GUIDED rather than LOITER/BRAKE: it keeps the vehicle in the mode
-the driver streams in, so resume needs no mode change, and ArduCopter holds the last position
-target if the companion stops talking.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/guided.py).
 """
 
 from __future__ import annotations

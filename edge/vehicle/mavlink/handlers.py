@@ -1,33 +1,6 @@
 """What the driver hears from the autopilot: a table from MAVLink message type to handler.
 
-Each handler updates :class:`Telemetry` (under its lock, waking the waiters of its condition):
-HEARTBEAT (the first autopilot heard becomes the target unless ``sysid`` names one; armed flag,
-custom mode, system status), LOCAL_POSITION_NED and ATTITUDE (converted to ENU/FLU,
-below), SYS_STATUS (``battery_remaining``, the pre-arm bit), EKF_STATUS_REPORT,
-HOME_POSITION, STATUSTEXT (the latest "PreArm:", "Arm:" or mode-refusal text is the reason the
-autopilot is not ready), MISSION_ITEM_REACHED and MISSION_CURRENT (the mission progress, checked against
-the uploaded mission: :func:`_mission_current`), the parameter protocol's PARAM_VALUE / PARAM_ERROR (PX4's
-integers decoded byte-wise),
-the mission protocol's MISSION_REQUEST(_INT) / MISSION_ACK, and COMMAND_ACK (matched by
-:mod:`.commands`). Messages from other systems are ignored; undecodable or non-finite values are
-counted in ``errors``.
-
-ArduPilot sends only HEARTBEAT until asked: :func:`stream_requests` asks for every message the
-driver uses (:data:`STREAMS`: 20 Hz position and attitude, 2 Hz SYS_STATUS, 1 Hz
-EKF_STATUS_REPORT, 0.5 Hz HOME_POSITION) with MAV_CMD_SET_MESSAGE_INTERVAL, again while one is
-missing; an autopilot that answers it UNSUPPORTED or FAILED gets the legacy REQUEST_DATA_STREAM
-for the groups holding them instead (:data:`LEGACY_STREAMS`).
-
-Frames. MAVLink's local frame is NED (x north, y east, z down) about the EKF origin, and its body frame
-FRD; ours is ENU about the mission origin with a FLU body. With the launch point ``home`` (ENU
-m, where the autopilot's EKF origin is)::
-
-    x_enu = y_ned + home_x,   y_enu = x_ned + home_y,   z_enu = −z_ned + home_z
-    φ_enu = φ_ned,   θ_enu = −θ_ned,   ψ_enu = π/2 − ψ_ned  (wrapped to (−π, π])
-    (p, q, r)_flu = (p, −q, −r)_frd
-
-(the world change is the reflection that swaps x and y and flips z, the body change a half
-turn about x; e.g. the ROS REP 103 / MAVROS ``ftf`` conversions). Each formula is its own inverse.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/handlers.py).
 """
 
 from __future__ import annotations

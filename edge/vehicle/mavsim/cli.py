@@ -1,21 +1,6 @@
 """The sim autopilot's one command line: ``skynet sim-autopilot`` = ``python -m edge.vehicle.mavsim``.
 
-Each ``--uav N`` is an autopilot with MAVLink system id N, in its own thread of this process,
-sending to ``--connection`` with ``{port}`` replaced by ``--port-base + N − 1`` (and ``{uav}`` by
-N). Point QGroundControl, Mission Planner, MAVProxy or MAVSDK at those ports::
-
-    skynet sim-autopilot --uav 1 --uav 2 --uav 3            # udpout to 127.0.0.1:14550, 14551, 14552
-    mavproxy.py --master udpin:127.0.0.1:14550              # then: mode GUIDED, arm throttle, ...
-
-``--home`` (repeatable, in ``--uav`` order) sets each launch point in the scenario's ENU frame
-(default: the origin for all); ``--mavlink-key`` signs every link; ``--param NAME=VALUE`` sets
-initial parameters of every autopilot. Like ArduCopter's firmware, each sends only HEARTBEAT
-until asked for telemetry (``--stream-all``: everything unasked) and takes ArduCopter's start-up
-times (~42 s until GUIDED and AUTO are allowed; ``--boot-scale 0.1`` ten times faster, 0 at once).
-``--firmware-version 4.7`` presents ArduCopter 4.7's parameter names and units (MAV_SYSID, WP_SPD
-m/s, RTL_ALT_M m, ...) instead of stable 4.6's (the default: what released firmware runs).
-``--firmware px4`` presents PX4 instead (:mod:`.px4`: its HEARTBEAT, custom modes, OFFBOARD, missions
-without a home item, parameters; ~4 s start-up scaled by ``--boot-scale``; telemetry streamed unasked).
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavsim/cli.py).
 """
 
 from __future__ import annotations

@@ -1,19 +1,6 @@
 """PX4's flight modes as MAVLink carries them (PX4 ``src/modules/commander/px4_custom_mode.h``).
 
-HEARTBEAT.custom_mode is ``(sub_mode << 24) | (main_mode << 16)``: main modes 1 MANUAL, 2 ALTCTL,
-3 POSCTL, 4 AUTO, 5 ACRO, 6 OFFBOARD, 7 STABILIZED; AUTO's sub modes 1 READY, 2 TAKEOFF, 3 LOITER
-(shown as "Hold"), 4 MISSION, 5 RTL, 6 LAND, 8 FOLLOW_TARGET, 9 PRECLAND. MAV_CMD_DO_SET_MODE carries
-param1 = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, param2 = main mode, param3 = sub mode.
-
-The board's reading of a mode the edge did not command (:func:`board_mode`): AUTO.MISSION ->
-MISSION; OFFBOARD, AUTO.LOITER -> HOLD; AUTO.RTL -> RTL; AUTO.LAND, AUTO.PRECLAND -> LAND;
-AUTO.TAKEOFF -> TAKEOFF; any other (MANUAL, ALTCTL, POSCTL, ... flown by the pilot's sticks) -> PILOT.
-
-:func:`check_mode_change` is PX4's commander rule set as the sim autopilot applies it with no RC
-transmitter (docs.px4.io "Flight Modes", "Offboard Mode"): the RC modes (MANUAL, ALTCTL, POSCTL,
-STABILIZED, ACRO) are refused without RC; OFFBOARD needs a setpoint stream faster than 2 Hz
-already running; AUTO.MISSION needs a valid mission; AUTO.RTL and AUTO.LAND need a home / a
-position; any other main or sub mode is unknown.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/px4/modes.py).
 """
 
 from __future__ import annotations

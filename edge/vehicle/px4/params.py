@@ -1,29 +1,6 @@
 """PX4's parameters the project uses, and PX4's byte-wise encoding of integer parameters.
 
-PX4 (docs.px4.io "Parameter Reference"; MAVLink "Parameter Protocol", MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE)
-sends an INT32 parameter's four bytes in PARAM_VALUE's float field ("bit-cast", not the value cast to float as
-ArduPilot does) and reads PARAM_SET the same way: decode by ``param_type`` (:func:`decode` / :func:`encode`).
-
-=================  ======  =========  ===========================================================
-name               type    default    meaning
-=================  ======  =========  ===========================================================
-MAV_SYS_ID         INT32   1          MAVLink system id
-NAV_DLL_ACT        INT32   0          data-link loss action: 0 off, 1 Hold, 2 Return, 3 Land, 5 Terminate, 6 Disarm
-COM_DL_LOSS_T      INT32   10         data-link loss time-out, s
-COM_OBL_RC_ACT     INT32   0          offboard loss action: 0 Position, 1 Altitude, 2 Manual, 3 Return, 4 Land, 5 Hold
-COM_OF_LOSS_T      FLOAT   1.0        offboard setpoint loss time-out, s
-COM_DISARM_PRFLT   FLOAT   10.0       disarm this long after arming without taking off, s (< 0: never)
-COM_DISARM_LAND    FLOAT   2.0        disarm this long after landing, s (< 0: never)
-MPC_XY_CRUISE      FLOAT   5.0        default horizontal speed in AUTO (missions), m/s
-MPC_LAND_SPEED     FLOAT   0.7        landing descent rate, m/s
-MIS_TAKEOFF_ALT    FLOAT   2.5        takeoff altitude above home when NAV_TAKEOFF's param7 is NaN, m
-NAV_ACC_RAD        FLOAT   2.0        waypoint acceptance radius, m (PX4's multicopter default; 10 m generic)
-RTL_RETURN_ALT     FLOAT   60.0       Return climbs to this altitude above home first, m
-RTL_DESCEND_ALT    FLOAT   30.0       Return descends to this altitude above home before landing, m
-=================  ======  =========  ===========================================================
-
-The driver's keys (:data:`KEYS`: "wp_speed" -> MPC_XY_CRUISE, "rtl_alt" -> RTL_RETURN_ALT, ...) are in SI
-units already (one naming scheme, "px4").
+Design notes: docs/hardware-mavlink.md (edge/vehicle/px4/params.py).
 """
 
 from __future__ import annotations
