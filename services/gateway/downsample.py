@@ -1,14 +1,6 @@
 """The ground station's view of a large fleet as a downsampled feed.
 
-Every edge publishes its state at 20 Hz; its formation neighbours need every one of them (P8),
-the ground station does not: its map, progress and report are fine with a few states a second
-per UAV. The gateway thins the states it forwards to its clients with Zenoh's own downsampling
-(the ``downsampling`` section of a Zenoh config: per key expression, at most ``freq`` messages a
-second per flow), so the feed to the ground station grows as ``hz * N`` instead of ``20 * N``
-while the edges keep their full-rate SkyNet. Only the gateway's egress is thinned: SkyNet links
-do not pass through it (the router does not relay between peers).
-
-Pure: builds the config document, no bus code.
+Design notes: docs/bus.md (services/gateway/downsample.py).
 """
 
 from __future__ import annotations

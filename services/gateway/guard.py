@@ -1,14 +1,6 @@
 """A guard in front of the gateway's TLS acceptor: only connections that start a TLS handshake reach zenoh.
 
-Zenoh's TLS listener pauses its accept loop after every failed handshake (about 100 ms), so a few hundred
-TCP connect-and-close cycles, or connections opened and left silent, keep every new session out for tens of
-seconds (bench/accept.py measures it). The guard accepts on the public port instead, waits up to
-``first_byte_s`` for the first byte of each connection and passes on only those whose first byte opens a
-TLS handshake record (``0x16``, RFC 8446 section 5.1): closed, silent and non-TLS connections are dropped
-here, counted, and never reach the acceptor. What passes is relayed byte for byte to zenoh's listener on
-a loopback port, so mutual TLS still runs end to end. At most ``max_pending`` connections wait for their
-first byte (the oldest dropped beyond), and each source address may pass at most ``per_source`` (a
-token bucket, :class:`TokenBucket`) connections a second, so a flood of fake ClientHellos is bounded too.
+Design notes: docs/security.md (services/gateway/guard.py).
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
 """``skynet gcs``: run a mission over the bus and write its report.
 
-    skynet gcs --scenario FILE -e tcp/127.0.0.1:7447?rel=1 -e udp/127.0.0.1:7448?rel=0 --multilink
-
-The mission is the ground station's one action, so it is the command itself (``skynet gcs mission ...``
-is accepted as the same command).
-
-Exit status 0 only when every UAV reached the goal and every capture point was imaged.
+Design notes: docs/ground-station.md (services/gcs/cli.py).
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
 """When the launcher restarts a service that exited on its own: exponential back-off, reset after a good run.
 
-Pure policy, no processes (the launcher's supervisor, :meth:`services.orchestration.launcher.Network.supervise`,
-applies it). It follows Docker's restart policy ("An increasing delay (double the previous delay,
-starting at 100 milliseconds) is added before each restart"; the delay goes back to its start value
-once the container ran at least 10 seconds), with a longer first delay and a cap, as systemd's
-``RestartSec`` / ``RestartMaxDelaySec`` give one: a service that crashes at once is retried at
-0.5, 1, 2, 4 ... 30 s, never in a tight loop, and one that ran for a while is back within 0.5 s.
+Design notes: docs/architecture.md (services/orchestration/restart.py).
 """
 
 from __future__ import annotations

@@ -1,13 +1,6 @@
 """``skynet plan``: plan offline, compare the algorithms (Table I), benchmark.
 
-Usage::
-
-    skynet plan mission [--scenario F] [--algorithm A] [--seed N] [--particles P] [--iterations I]
-                [--waypoints W] [--out DIR]         plan, write the mission files (WPL, .plan, KML, GeoJSON)
-    skynet plan compare [--scenario F] [--seeds 20] [--particles 150] [--iterations 300] [--out DIR]
-                                                    Table I + convergence.png + compare.json
-    skynet plan bench [--scenario F] [--seeds 20] [--out FILE]
-                                                    θ-PSO vs pyswarms time, quality over seeds
+Design notes: docs/planner.md (services/planner/cli.py).
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
 """One command sent and its COMMAND_ACK awaited (the MAVLink command protocol,
 https://mavlink.io/en/services/command.html).
 
-:meth:`CommandAwaiter.call` sends a COMMAND_LONG (or a COMMAND_INT with ``frame``) and waits for
-the COMMAND_ACK of the same command: ``timeout_s`` per attempt, ``retries`` resends with the
-``confirmation`` field incremented, MAV_RESULT_IN_PROGRESS keeps it waiting. No answer raises
-:class:`VehicleLinkError`; any result but MAV_RESULT_ACCEPTED raises :class:`CommandRefused`,
-which carries the MAV_RESULT and the autopilot's STATUSTEXTs since the command (e.g. a PreArm
-failure). Both are ValueErrors: the board turns them into a rejected acknowledgement.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/commands.py).
 """
 
 from __future__ import annotations

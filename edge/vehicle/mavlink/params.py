@@ -1,14 +1,6 @@
 """The parameter protocol (https://mavlink.io/en/services/parameter.html) and the dialect's naming schemes.
 
-:meth:`ParamClient.read_param` / :meth:`~ParamClient.set_param` send PARAM_REQUEST_READ /
-PARAM_SET, answered by PARAM_VALUE or PARAM_ERROR. ArduCopter 4.7 renamed the parameters the
-project uses and moved them to SI units (:mod:`edge.vehicle.apm.params`):
-:meth:`~ParamClient.learn_param_scheme` reads 4.7's WP_SPD and falls back on 4.6's WPNAV_SPEED on
-PARAM_ERROR (or silence), and :meth:`~ParamClient.set_param_si` / :meth:`~ParamClient.read_param_si`
-use the learnt name and unit, else the other scheme's (WPNAV_SPEED cm/s or WP_SPD m/s, RTL_ALT cm or
-RTL_ALT_M m, LAND_SPEED cm/s or LAND_SPD_MS m/s). PX4 has one scheme (MPC_XY_CRUISE m/s, RTL_RETURN_ALT m,
-..., :mod:`edge.vehicle.px4.params`) and carries integer parameters byte-wise: PARAM_SET encodes them so
-(:func:`edge.vehicle.px4.params.encode`) and the PARAM_VALUE handler decodes them by ``param_type``.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/params.py).
 """
 
 from __future__ import annotations

@@ -1,12 +1,6 @@
 """The driver's phase: what it last commanded the vehicle to do, and how a HEARTBEAT overrules it.
 
-The driver keeps what it asked for (its phase) and reports it while the autopilot agrees:
-TAKEOFF / HOLD / MISSION in the dialect's guided mode, LAND, RTL, and AUTO (the uploaded mission,
-reported as MISSION); disarmed is IDLE before the first flight and LANDED after. A HEARTBEAT
-received after the last accepted command that disagrees (the pilot's remote control or the
-autopilot's own failsafe took over, as the paper allows in an emergency) wins (:func:`overrule`):
-the mission pauses and the phase becomes EXTERNAL, whose board mode is the dialect's reading of
-the autopilot's mode, or HOLD when the autopilot is in its guided mode.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/phase.py).
 """
 
 from __future__ import annotations

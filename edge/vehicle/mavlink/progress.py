@@ -1,12 +1,6 @@
 """Where in the trajectory an autopilot flying the uploaded mission in AUTO is, from what it reports.
 
-MAVLink's mission protocol (https://mavlink.io/en/services/mission.html#monitor-progress) reports
-progress with MISSION_CURRENT (the item being executed: the waypoint it flies to) and
-MISSION_ITEM_REACHED (the last NAV item reached). With the plan's map from trajectory waypoints to
-mission items (:class:`edge.vehicle.auto_flight.AutoMissionPlan`, ``waypoint_seq``) these bound the
-trajectory fraction flown: at least the last reached waypoint's, at most the one of the waypoint
-it flies to. The edge's own trajectory clock is kept inside those bounds (:func:`bounded`), so its
-progress follows the autopilot's when the autopilot is slower or faster than the plan.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/progress.py).
 """
 
 from __future__ import annotations
