@@ -22,13 +22,7 @@ from .geometry.optics import CameraModel, CameraPose
 from .world.camera import Frame, FrameSource, SyntheticSource
 from .world.surface import SyntheticSurface
 
-__all__ = [
-    "IMAGE_EXTENSIONS",
-    "FolderSource",
-    "FrameEncoder",
-    "VideoCaptureSource",
-    "make_source",
-]
+__all__ = ["IMAGE_EXTENSIONS", "FolderSource", "FrameEncoder", "VideoCaptureSource", "make_source"]
 
 log = logging.getLogger(__name__)
 

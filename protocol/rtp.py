@@ -13,29 +13,10 @@ from typing import Any
 import numpy as np
 
 __all__ = [
-    "JPEG_PAYLOAD_TYPE",
-    "SKYNET_ENCODING_NAME",
-    "SKYNET_PAYLOAD_TYPE",
-    "RTP_HEADER_LENGTH",
-    "RTP_VERSION",
-    "VIDEO_CLOCK_RATE",
-    "RtpError",
-    "RtpHeader",
-    "RtpSender",
-    "media_timestamp",
-    "pack_frame",
-    "parse_ssrc",
-    "seq_add",
-    "seq_delta",
-    "seq_diff",
-    "seq_gt",
-    "seq_lt",
-    "ssrc_for",
-    "ts_add",
-    "ts_delta",
-    "ts_diff",
-    "unpack_frame",
-    "unwrap_sequence",
+    "JPEG_PAYLOAD_TYPE", "SKYNET_ENCODING_NAME", "SKYNET_PAYLOAD_TYPE", "RTP_HEADER_LENGTH", "RTP_VERSION",
+    "VIDEO_CLOCK_RATE", "RtpError", "RtpHeader", "RtpSender", "media_timestamp", "pack_frame", "parse_ssrc",
+    "seq_add", "seq_delta", "seq_diff", "seq_gt", "seq_lt", "ssrc_for", "ts_add", "ts_delta", "ts_diff",
+    "unpack_frame", "unwrap_sequence"
 ]
 
 RTP_VERSION = 2

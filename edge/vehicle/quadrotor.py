@@ -11,13 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
-    "GRAVITY",
-    "QuadParams",
-    "DisturbanceParams",
-    "Disturbance",
-    "Quadrotor",
-    "body_rates_from_euler_rates",
-    "euler_rates_from_body_rates",
+    "GRAVITY", "QuadParams", "DisturbanceParams", "Disturbance", "Quadrotor", "body_rates_from_euler_rates",
+    "euler_rates_from_body_rates"
 ]
 
 GRAVITY = 9.81

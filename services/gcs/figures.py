@@ -23,29 +23,10 @@ from services.gcs.verdict import GoalCheck, goal_check, imaged_captures, planned
 from services.recording.record import GOAL_RADIUS_M, MissionRecord
 
 __all__ = [
-    "GOAL_RADIUS_M",
-    "DEFECT_TOLERANCE_M",
-    "LATENCY_NAMES",
-    "Latency",
-    "UavFigures",
-    "FormationFigures",
-    "CaptureFigures",
-    "LinkFigures",
-    "PlannerFigures",
-    "ReportSummary",
-    "Track",
-    "PathSeries",
-    "FormationSeries",
-    "LinkSamples",
-    "ReportFigures",
-    "polyline_distance",
-    "planned_positions",
-    "latency_figures",
-    "convergence_iteration",
-    "shape_errors",
-    "as_record",
-    "analyse",
-    "summarise",
+    "GOAL_RADIUS_M", "DEFECT_TOLERANCE_M", "LATENCY_NAMES", "Latency", "UavFigures", "FormationFigures",
+    "CaptureFigures", "LinkFigures", "PlannerFigures", "ReportSummary", "Track", "PathSeries", "FormationSeries",
+    "LinkSamples", "ReportFigures", "polyline_distance", "planned_positions", "latency_figures",
+    "convergence_iteration", "shape_errors", "as_record", "analyse", "summarise"
 ]
 
 #: events listed in report.json and report.md (the record keeps more, the journal all of them)

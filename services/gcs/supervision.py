@@ -12,14 +12,8 @@ from protocol.messages import Mode, VehicleState
 from services.recording.record import CommandRecord, Incident
 
 __all__ = [
-    "SUPERVISE_PERIOD_S",
-    "FRESH_STATE_S",
-    "START_SETTLE_S",
-    "RESUME_PAUSE_OK_S",
-    "RESUME_PAUSE_FAILED_S",
-    "Decisions",
-    "Supervisor",
-    "mission_time",
+    "SUPERVISE_PERIOD_S", "FRESH_STATE_S", "START_SETTLE_S", "RESUME_PAUSE_OK_S", "RESUME_PAUSE_FAILED_S",
+    "Decisions", "Supervisor", "mission_time"
 ]
 
 #: How often the supervisor looks at liveliness, the own link and failsafe holds, s.

@@ -15,15 +15,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-__all__ = [
-    "DROP_REASONS",
-    "GilbertElliott",
-    "Impairment",
-    "Counters",
-    "Impairer",
-    "DEFAULT_MSS",
-    "parse_time_s",
-]
+__all__ = ["DROP_REASONS", "GilbertElliott", "Impairment", "Counters", "Impairer", "DEFAULT_MSS", "parse_time_s"]
 
 #: Reasons a datagram is dropped, the keys of :attr:`Counters.dropped`.
 DROP_REASONS = ("loss", "outage", "queue")

@@ -15,14 +15,8 @@ from .scenario import Scenario
 from .task import InspectionPass, formation_pass
 
 __all__ = [
-    "point_segment_distance",
-    "PathProblem",
-    "Cost",
-    "cost_offsets",
-    "clearance",
-    "formation_points",
-    "path_collision_free",
-    "crosses_wall_free",
+    "point_segment_distance", "PathProblem", "Cost", "cost_offsets", "clearance", "formation_points",
+    "path_collision_free", "crosses_wall_free"
 ]
 
 

@@ -17,16 +17,8 @@ from protocol.checks import positive as _positive
 from .scenario import Camera, Scenario, Surface
 
 __all__ = [
-    "footprint",
-    "standoff",
-    "spacing",
-    "footprint_at",
-    "grid_stations",
-    "camera_grid",
-    "InspectionPass",
-    "imaging_rows",
-    "formation_pass",
-    "coverage",
+    "footprint", "standoff", "spacing", "footprint_at", "grid_stations", "camera_grid", "InspectionPass",
+    "imaging_rows", "formation_pass", "coverage"
 ]
 
 
