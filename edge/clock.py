@@ -23,17 +23,8 @@ def new_epoch(delay_s: float = 0.0, *, time_fn: Callable[[], float] = time.time)
 
 
 class SimClock:
-    """``sim = (wall − epoch) × speed``.
-
-    Parameters
-    ----------
-    epoch : float or None
-        Wall-clock UNIX time of simulated time 0, s (shared by all processes of a run); None
-        takes the current wall time (a single process on its own).
-    speed : float
-        Simulated seconds per wall second (> 0).
-    time_fn, sleep_fn : callables
-        Wall-clock source and sleep (defaults :func:`time.time`, :func:`time.sleep`).
+    """``sim = (wall − epoch) × speed``: ``epoch`` the UNIX time of simulated time 0 shared by a run's
+    processes (None: now), ``speed`` > 0; ``time_fn``/``sleep_fn`` default to :func:`time.time`/:func:`time.sleep`.
     """
 
     def __init__(

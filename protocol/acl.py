@@ -183,26 +183,10 @@ def attached_grants(fleet: str, role: str) -> list[Grant]:
 
 
 def access_control(fleet: str, principals: Iterable[Principal], by: str = "usernames") -> dict[str, Any]:
-    """The router's ``access_control`` object: default deny, one subject per UAV id and per role.
+    """The router's ``access_control`` object (JSON-ready): default deny, one subject per UAV id and per role
+    of ``principals`` (:func:`assign_roles`; a user without one gets the default, deny), named ``by``
+    ``usernames`` or ``cert_common_names`` (mutual TLS: the certificate's common name names the role).
 
-    Parameters
-    ----------
-    fleet : str
-        The fleet whose key space the rules name.
-    principals : iterable of Principal
-        The users and their roles (:func:`assign_roles`). Users without a principal get no
-        subject: the default (deny) applies to them.
-    by : str
-        What names a subject: ``usernames`` (user/password authentication) or
-        ``cert_common_names`` (mutual TLS: the certificate's common name names the role).
-
-    Returns
-    -------
-    dict
-        ``{"enabled", "default_permission", "rules", "subjects", "policies"}``, JSON-ready.
-
-    Examples
-    --------
     >>> acl = access_control("demo", [role_of("uav1"), role_of("gcs")])
     >>> [s["id"] for s in acl["subjects"]]
     ['uav1', 'gcs']

@@ -71,22 +71,9 @@ class Cylinder(_Model):
 
 
 def surface_frame(corners: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Origin and unit axes ``(p0, u, v)`` of the surface frame.
-
-    Parameters
-    ----------
-    corners : array_like, shape (4, 3)
-        Surface corners p0, p1, p2, p3 (p0-p1 the bottom edge, p3 above p0), ENU metres.
-
-    Returns
-    -------
-    p0, u, v : ndarray, shape (3,)
-        ``u = (p1 - p0) / |p1 - p0|``; ``v`` the unit part of ``p3 - p0`` orthogonal to ``u``.
-
-    Raises
-    ------
-    ValueError
-        Wrong shape, non-finite values, or degenerate (zero-length or parallel) edges.
+    """Origin and unit axes ``(p0, u, v)`` of the surface frame of corners ``(4, 3)`` (p0-p1 the bottom edge,
+    p3 above p0): ``u`` along ``p1 - p0``, ``v`` the unit part of ``p3 - p0`` orthogonal to ``u``.
+    ValueError for a wrong shape, non-finite values or degenerate edges.
     """
     c = np.asarray(corners, dtype=float)
     if c.shape != (4, 3):

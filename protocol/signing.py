@@ -184,18 +184,9 @@ class Verified:
 
 
 class Verifier:
-    """Verifies :class:`Signed` envelopes against trusted keys, revocations and a replay window.
-
-    Parameters
-    ----------
-    trusted : mapping of signer name -> iterable of Ed25519 public keys
-        Whose signatures count (an edge trusts the ground station's keys only).
-    revoked : iterable of key ids
-        Keys refused even when trusted (:func:`key_id`).
-    replay : ReplayStore
-        The per-stream last sequence (persist it on an edge).
-    stale_s : float
-        Largest accepted distance between the stamp and the verifier's clock, s.
+    """Verifies :class:`Signed` envelopes against the ``trusted`` Ed25519 keys per signer (an edge trusts the
+    ground station's only), the ``revoked`` key ids, a per-stream ``replay`` store (persisted on an edge)
+    and a clock distance of at most ``stale_s``.
     """
 
     def __init__(self, trusted: Mapping[str, Iterable[Ed25519PublicKey]], revoked: Iterable[str] = (),

@@ -29,21 +29,9 @@ def overlap_spacing(a_fov: float, overlap: float) -> float:
 # ============================================================================ camera model
 @dataclass(frozen=True)
 class CameraModel:
-    """Pinhole camera: delivered frame size (px), sensor size (mm) and focal length (mm).
-
-    The defaults are the paper's camera as the planner reads it (``services/planner/task.py``):
-    the GoPro's 34.4 mm is taken as a 35 mm-equivalent focal length with an equivalent
-    36 mm x 27 mm sensor for the 4:3 frame, here delivering 640 x 480 frames (the same field of
-    view as the 4000 x 3000 stills, fewer pixels).
-
-    Parameters
-    ----------
-    resolution : (int, int)
-        ``(width, height)`` of the delivered frame, pixels.
-    sensor_mm : (float, float)
-        ``(s_w, s_h)``, sensor size in the unit of ``focal_mm``.
-    focal_mm : float
-        Focal length ``f``.
+    """Pinhole camera: delivered frame ``(width, height)`` (px), sensor ``(s_w, s_h)`` and focal length ``f``
+    (mm). The defaults are the paper's camera as the planner reads it (docs/planner.md): 34.4 mm
+    35 mm-equivalent on 36 mm x 27 mm, delivering 640 x 480 frames (the stills' field of view).
     """
 
     resolution: tuple[int, int] = (640, 480)
@@ -134,15 +122,8 @@ class CameraModel:
 # ============================================================================ pose
 @dataclass(frozen=True)
 class CameraPose:
-    """Where the camera is and where it looks.
-
-    Attributes
-    ----------
-    position : numpy.ndarray
-        Camera centre ``C``, ENU metres, shape (3,).
-    rotation : numpy.ndarray
-        World-from-camera rotation ``R`` (3, 3), OpenCV camera axes (x right, y down, z the optical
-        axis): the columns are the camera axes in ENU. Must be a proper rotation (to 1e-6).
+    """Where the camera is and where it looks: centre ``C`` (ENU m) and the world-from-camera rotation ``R``
+    (a proper rotation to 1e-6) whose columns are the OpenCV camera axes (x right, y down, z forward) in ENU.
     """
 
     position: NDArray[np.float64]

@@ -18,20 +18,9 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class DriverState:
-    """Snapshot of the vehicle.
-
-    Attributes
-    ----------
-    t : simulation/mission time, s.
-    pos, vel : ENU position (m) and velocity (m/s).
-    att : (roll, pitch, yaw), rad, ZYX Euler; yaw wrapped to (−π, π].
-    rates : body rates (p, q, r), rad/s (P10).
-    mode : flight mode.
-    armed : motors armed.
-    battery : remaining charge, 0..1.
-    wp_index : index of the last trajectory waypoint passed (−1 before the first / no mission).
-    progress : fraction of the trajectory's duration flown, 0..1.
-    captures : capture events fired since the trajectory was uploaded.
+    """Snapshot of the vehicle: mission time ``t`` (s), ENU ``pos``/``vel``, ZYX ``att`` (yaw in (−π, π]),
+    body ``rates`` (P10), ``mode``, ``armed``, ``battery`` (0..1), ``wp_index`` (last waypoint passed, −1
+    before), ``progress`` (fraction of the trajectory flown) and ``captures`` fired since the upload.
     """
 
     t: float
@@ -58,14 +47,8 @@ class DriverState:
 
 @dataclass(frozen=True)
 class CaptureEvent:
-    """The follower passed a waypoint with a capture id: take the picture now.
-
-    Attributes
-    ----------
-    capture_id : the waypoint's capture id.
-    t : simulation time of the event, s.
-    pos : vehicle ENU position at that time, m.
-    att : vehicle (roll, pitch, yaw) at that time, rad.
+    """The follower passed a waypoint with a capture id: take the picture now (time, ENU position and
+    attitude of the vehicle then).
     """
 
     capture_id: int

@@ -53,19 +53,8 @@ class PIDGains:
 
 
 class PositionPID:
-    """Cascaded position/velocity controller producing (roll_d, pitch_d, yaw_d) and thrust.
-
-    Parameters
-    ----------
-    mass : float
-        The controller's model of the mass, kg.
-    gains : PIDGains
-    dt : float
-        Control period, s.
-    drag : (drag_xy, drag_z)
-        The controller's model of the linear drag, N/(m/s), for the feed-forward.
-    thrust_max : float
-        Upper bound on the thrust command, N.
+    """Cascaded position/velocity controller producing (roll_d, pitch_d, yaw_d) and thrust (at most
+    ``thrust_max``), every ``dt``, from its own model of the ``mass`` and the linear ``drag`` (feed-forward).
     """
 
     def __init__(

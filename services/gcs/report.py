@@ -21,28 +21,10 @@ __all__ = ["write_report"]
 # ============================================================================ entry point
 def write_report(record: MissionRecord | dict[str, Any], folder: str | Path,
                  frames: str | Path | None = None) -> ReportSummary:
-    """Write the mission report of ``record`` into ``folder`` (created if needed).
-
-    Files: ``record.json``, ``report.json``, ``report.md`` and the plots :data:`PLOTS` (a plot
-    with nothing to show says so on its canvas, so the set of files is always the same).
-
-    Parameters
-    ----------
-    record : MissionRecord
-    folder : str or Path
-    frames : str or Path, optional
-        The captures the detector kept, for the inspection deliverable (default ``folder/frames``: a
-        report rebuilt elsewhere, ``skynet report --out``, names the mission's own).
-
-    Returns
-    -------
-    ReportSummary
-        The figures written to ``report.json``; ``files`` lists the names written.
-
-    Raises
-    ------
-    ValueError
-        See :func:`services.gcs.figures.summarise`; also when ``folder`` exists and is not a directory.
+    """Write the mission report of ``record`` into ``folder`` (created if needed): ``record.json``,
+    ``report.json``, ``report.md`` and the plots :data:`PLOTS` (always the same set: an empty plot says so),
+    returning the summary. ``frames``: the captures for the deliverable (default ``folder/frames``).
+    ValueError as :func:`services.gcs.figures.summarise`, or when ``folder`` is not a directory.
     """
     record = as_record(record)
     figs = analyse(record)

@@ -52,18 +52,9 @@ class Decisions:
 
 
 class Supervisor:
-    """The supervision policy's state (docs/ground-station.md); every wall time is given by the caller.
-
-    Parameters
-    ----------
-    uavs : iterable of int
-        The mission's UAVs (others are ignored).
-    now : float
-        Wall time the supervision begins; the own link counts as up since then.
-    lost_grace_s, lost_wait_s : float
-        :class:`services.gcs.mission.MissionOptions` ``lost_grace_s`` and ``lost_wait_s``.
-    describe : callable, optional
-        Wall time -> text for the incidents (the runner's :func:`mission_time`).
+    """The supervision policy's state (docs/ground-station.md) for the mission's ``uavs``; every wall time is
+    given by the caller, the own link up since ``now``; ``lost_grace_s`` and ``lost_wait_s`` as
+    :class:`services.gcs.mission.MissionOptions`; ``describe`` words a wall time for the incidents.
     """
 
     def __init__(self, uavs: Iterable[int], now: float, lost_grace_s: float = 3.0, lost_wait_s: float = 10.0,

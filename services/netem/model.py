@@ -27,18 +27,8 @@ Probability = Field(default=0.0, ge=0.0, le=1.0, allow_inf_nan=False)
 
 
 class GilbertElliott(BaseModel):
-    """Gilbert–Elliott burst loss in netem's ``gemodel`` parameters (Salsano et al. 2010).
-
-    Parameters
-    ----------
-    p : float
-        Probability Good → Bad per packet.
-    r : float
-        Probability Bad → Good per packet.
-    loss_bad : float
-        Loss probability in the Bad state (netem's ``1-h``), default 1.
-    loss_good : float
-        Loss probability in the Good state (netem's ``1-k``), default 0.
+    """Gilbert–Elliott burst loss in netem's ``gemodel`` parameters (Salsano et al. 2010): per packet
+    ``p`` Good → Bad, ``r`` Bad → Good; loss ``loss_bad`` (netem's ``1-h``) and ``loss_good`` (``1-k``).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -384,23 +374,10 @@ def _window_end(windows: tuple[tuple[float, float], ...], t: float) -> float | N
 class Impairer:
     """Seeded decisions for one direction of one link.
 
-    Threads: :meth:`decide` / :meth:`decide_stream` from one caller at a time (they advance the
-    random stream and the queue state); :meth:`update`, :meth:`cut`, :meth:`restore` and
-    :meth:`outage_end` from any thread at any time (a change is one swap of an immutable
-    snapshot, which a decision reads once).
-
-    Parameters
-    ----------
-    impairment : Impairment | str | dict | None
-        What to apply (see :meth:`Impairment.coerce`).
-    rng : numpy.random.Generator | int | None
-        Random source, or a seed. Uniform and normal variates are drawn in vectorised blocks
-        of :attr:`BLOCK` and consumed one per decision, so a seed gives the same decisions for
-        the same sequence of calls (and changes).
-    origin_s : float
-        The caller's clock reading at which outages are counted from (the proxy start).
-    mss : int
-        Segment size for counting lost segments in :meth:`decide_stream`.
+    :meth:`decide` / :meth:`decide_stream` from one caller at a time; :meth:`update`, :meth:`cut`,
+    :meth:`restore` and :meth:`outage_end` from any thread (one swap of an immutable snapshot). Variates
+    are drawn in blocks of :attr:`BLOCK`, so a seed gives the same decisions for the same calls; outages
+    count from ``origin_s``; ``mss`` sizes the lost segments of :meth:`decide_stream`.
     """
 
     BLOCK = 4096

@@ -417,18 +417,9 @@ class _Association:
 
 
 class UdpProxy(_ProxyBase):
-    """Impairing UDP forwarder, one upstream socket per client address.
-
-    Parameters
-    ----------
-    listen, target : (host, port) or "host:port"
-        Where clients send (port 0 = any free port) and where datagrams go.
-    impairment : Impairment | str | dict | None
-        Applied to ``direction`` (``"both"``, ``"up"`` client → target, ``"down"``).
-    seed : int | None
-        Seeds both directions' random streams (independent children of one SeedSequence).
-    idle_timeout_s : float
-        An association with no traffic for this long is closed (a NAT's UDP timeout).
+    """Impairing UDP forwarder from ``listen`` (port 0: any) to ``target``, one upstream socket per client
+    address, closed after ``idle_timeout_s`` without traffic (a NAT's UDP timeout); ``seed`` seeds both
+    directions (independent children of one SeedSequence).
     """
 
     kind = "udp"
@@ -749,21 +740,10 @@ class _TcpConnection:
 
 
 class TcpProxy(_ProxyBase):
-    """Impairing TCP relay: delay, jitter, rate and outage on the byte stream, per direction.
-
-    Parameters
-    ----------
-    listen, target : (host, port) or "host:port"
-        Where clients connect (port 0 = any free port) and where the relay connects to.
-    impairment : Impairment | str | dict | None
-        Applied to ``direction`` (``"both"``, ``"up"`` client → target, ``"down"``). Duplicate
-        and reorder do not apply to a stream; loss is retransmission delay (``rto``).
-    seed : int | None
-        Seeds both directions' random streams.
-    connect_timeout_s : float
-        How long to try the target for each accepted client before dropping the client.
-    max_pending_bytes : int
-        Bytes queued per connection and direction before the reader stops reading.
+    """Impairing TCP relay from ``listen`` (port 0: any) to ``target``: delay, jitter, rate and outage on the
+    byte stream of ``direction`` ("both", "up" client → target, "down"); loss is retransmission delay
+    (``rto``), duplicate and reorder do not apply. A client is dropped when the target does not answer
+    within ``connect_timeout_s``; a reader stops beyond ``max_pending_bytes`` queued.
     """
 
     kind = "tcp"

@@ -141,30 +141,11 @@ def plan_mission(
     time_budget_s: float | None = None,
     anytime: bool = False,
 ) -> MissionPlan:
-    """Plan a formation inspection mission.
-
-    Parameters
-    ----------
-    scenario : Scenario or dict
-        A scenario (or its document, as carried by a ``PlanRequest``).
-    algorithm : {"theta-pso", "pso", "ga", "tlbo"}
-    seed : int
-        Seed of ``numpy.random.default_rng``; the same seed gives the same plan.
-    particles, iterations, waypoints : int, optional
-        Budget; default from the scenario's ``[planner]`` section (the paper's 150 / 300 / 10).
-
-    Returns
-    -------
-    MissionPlan
-        Centroid path, one trajectory per UAV, capture points (each a waypoint of its UAV's
-        trajectory), convergence history, cost, ``collision_free`` (exact dense check of every
-        UAV's trajectory), geofence, geodetic origin and the (P2) stand-off.
-
-    Raises
-    ------
-    ValueError
-        For a malformed scenario (naming the field), an unknown algorithm, a bad budget, or a
-        surface the formation cannot image in one pass.
+    """Plan a formation inspection mission from a scenario (or its document) with ``algorithm``
+    ("theta-pso", "pso", "ga", "tlbo"), the same ``seed`` giving the same plan; the budget defaults to the
+    scenario's ``[planner]`` section (the paper's 150 / 300 / 10). ``collision_free`` is an exact dense check
+    of every UAV's trajectory. ValueError for a malformed scenario (naming the field), an unknown algorithm,
+    a bad budget, or a surface the formation cannot image in one pass.
     """
     return plan_details(scenario, algorithm, seed, particles, iterations, waypoints,
                         time_budget_s=time_budget_s, anytime=anytime)[0]

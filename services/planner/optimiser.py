@@ -20,20 +20,9 @@ __all__ = ["OptResult", "Tracker", "check_budget"]
 
 @dataclass
 class OptResult:
-    """Outcome of one optimiser run.
-
-    Attributes
-    ----------
-    x : ndarray (3n,)
-        Best decision vector (free waypoints, flattened).
-    cost : float
-        Its cost (P5).
-    history : ndarray (iterations + 1,)
-        Best cost so far after the initial population and after each further ``particles``
-        evaluations.
-    evaluations : int
-        Cost evaluations used.
-    wall_time_s : float
+    """Outcome of one optimiser run: the best decision vector ``x`` (free waypoints, flattened), its cost (P5),
+    the best cost after the initial population and each further ``particles`` evaluations, the
+    evaluations used and the wall time.
     """
 
     algorithm: str

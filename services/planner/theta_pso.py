@@ -40,25 +40,9 @@ def theta_pso(
     per_dimension: bool = True,
     dtheta_max: float = 0.1,
 ) -> OptResult:
-    """Minimise ``cost`` with θ-PSO (P4) from the initial population ``x0 (P, D)``.
-
-    Parameters
-    ----------
-    cost : Cost
-        Vectorised cost; its problem's box gives ``x_min``/``x_max``.
-    x0 : array_like (P, D)
-        Initial positions (shared by all algorithms); θ starts at their inverse sine map, Δθ at 0.
-    iterations : int
-        Swarm iterations; budget ``P (iterations + 1)`` evaluations.
-    rng : numpy.random.Generator
-    w : (w_start, w_end)
-        Inertia weight, linear from ``w_start`` at the first iteration to ``w_end`` at the last.
-    c1, c2 : float
-        Cognitive and social gains.
-    per_dimension : bool
-        Draw ``r1, r2`` per particle and dimension (``r1_ij``); False draws one per particle.
-    dtheta_max : float
-        Clamp of the increments, ``|Δθ| <= dtheta_max <= π/2``.
+    """Minimise ``cost`` with θ-PSO (P4) from the initial population ``x0 (P, D)`` (θ from its inverse sine
+    map, Δθ 0); budget ``P (iterations + 1)``. Inertia ``w`` linear from start to end, gains ``c1``, ``c2``,
+    ``r1, r2`` per particle and dimension unless ``per_dimension`` is False, ``|Δθ| <= dtheta_max <= π/2``.
     """
     if not 0.0 < dtheta_max <= HALF_PI:
         raise ValueError(f"dtheta_max must be in (0, π/2], got {dtheta_max!r}")

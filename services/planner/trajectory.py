@@ -103,24 +103,9 @@ def build_trajectories(
     inspection: InspectionPass | None,
     ds: float = 1.0,
 ) -> FormationTrajectories:
-    """Per-UAV trajectories and capture points from a centroid polyline (P6)-(P9).
-
-    Parameters
-    ----------
-    scenario : Scenario
-        Offsets, speeds, obstacles (for the clearance report).
-    centroid_path : array_like (V, 3)
-        Centroid polyline from start to goal; if ``inspection`` is given it must contain the
-        pass's entry and exit as consecutive vertices.
-    inspection : InspectionPass or None
-        The pass and its shots (:func:`~services.planner.task.formation_pass`).
-    ds : float
-        Resampling step, metres.
-
-    Raises
-    ------
-    ValueError
-        For a malformed path, or one that does not contain the inspection pass.
+    """Per-UAV trajectories and capture points (P6)-(P9) from a centroid polyline ``(V, 3)`` resampled every
+    ``ds`` m; with an ``inspection`` pass the polyline must hold its entry and exit as consecutive vertices
+    (ValueError otherwise).
     """
     V = np.asarray(centroid_path, float)
     if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] < 2 or not np.all(np.isfinite(V)):
