@@ -40,48 +40,16 @@ _ZERO: Vec3 = (0.0, 0.0, 0.0)
 
 
 class MavlinkSimVehicle(SimTelemetry, SimCommands):
-    """A simulated ArduCopter on a MAVLink connection (see the module docstring).
+    """A simulated ArduCopter on a MAVLink connection (pymavlink string: ``udpout:host:port`` to reach a
+    listener, ``udpin:host:port`` to be dialled), system id ``uav``, launch point ``home`` (ENU m).
 
-    Parameters
-    ----------
-    connection : str
-        pymavlink connection string (``udpout:host:port`` to reach a ground station or driver
-        listening with ``udpin``; ``udpin:host:port`` to be dialled).
-    uav : int
-        UAV id = MAVLink system id (SYSID_THISMAV).
-    home : (x, y, z)
-        Launch point, ENU m (the LOCAL_POSITION_NED origin and HOME_POSITION).
-    speed : float
-        Simulation speed factor (simulated seconds per wall second).
-    epoch : float or None
-        Wall-clock UNIX time of simulated time 0 (share it with the board's clock); None = now.
-    params : SimParams
-        The simulated vehicle.
-    seed : int
-        Disturbance seed.
-    telemetry_hz : float
-        GLOBAL_POSITION_INT, LOCAL_POSITION_NED and ATTITUDE default rate with ``stream_all``, Hz (wall clock).
-    refuse_arming : bool
-        Refuse COMPONENT_ARM_DISARM(1) with a PreArm STATUSTEXT (can be changed at any time).
-    origin : (lat, lon, alt)
-        Geodetic point of the ENU frame's origin, degrees and metres.
-    mavlink_key : str or None
-        MAVLink 2 signing key (64 hex digits or a passphrase); None: unsigned.
-    param_overrides : dict
-        Initial parameter values (e.g. ``{"FS_GCS_ENABLE": 1}``).
-    boot_scale : float
-        Start-up times as a fraction of ArduCopter's (:class:`.apm.boot.BootTimeline`): 1 as the
-        firmware (the CLI's default), 0 ready at once (this class's default, for embedding).
-    stream_all : bool
-        Stream the telemetry set unasked (the old stand-in's behaviour) instead of HEARTBEAT only.
-    firmware : str
-        Parameter naming scheme (:data:`.apm.params.SCHEMES`): "4.6" (stable 4.5/4.6 names, cm and
-        cm/s) or "4.7" (4.7+ names, m and m/s); AUTOPILOT_VERSION reports a matching version.
-    rc_centred : bool
-        A pilot's RC transmitter is on with its sticks centred (throttle mid): LOITER holds its position and
-        altitude. Without it (the default, no RC input) LOITER descends as the firmware does with no RC.
-    legacy_mission_request : bool
-        Ask for upload items with MISSION_REQUEST (as ArduCopter's firmware may) instead of MISSION_REQUEST_INT.
+    The options mirror ``skynet sim-autopilot`` (docs/cli.md): ``speed`` (simulated s per wall s),
+    ``epoch`` (UNIX time of simulated time 0, shared with the board; None now), ``telemetry_hz`` (with
+    ``stream_all``, the unasked telemetry of the old stand-in), ``refuse_arming`` (PreArm refusal, changeable),
+    ``origin`` (geodetic ENU origin), ``mavlink_key`` (signing), ``param_overrides``, ``boot_scale`` (start-up
+    times as a fraction of ArduCopter's: 1 the CLI's default, 0 ready at once), ``firmware`` ("4.6" or "4.7"
+    parameter names, :data:`.apm.params.SCHEMES`), ``rc_centred`` (LOITER holds instead of descending) and
+    ``legacy_mission_request`` (MISSION_REQUEST instead of MISSION_REQUEST_INT).
     """
 
     def __init__(
