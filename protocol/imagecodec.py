@@ -15,12 +15,8 @@ __all__ = ["decode_image", "encode_jpeg"]
 
 
 def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
-    """JPEG bytes of a ``uint8`` grey (H, W) or BGR (H, W, 3) image (``cv2.imencode``).
-
-    Raises
-    ------
-    ValueError
-        On a non-image array or a quality outside 1..100.
+    """JPEG bytes of a ``uint8`` grey (H, W) or BGR (H, W, 3) image (``cv2.imencode``); ValueError on a
+    non-image array or a quality outside 1..100.
     """
     if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
         raise ValueError(f"JPEG quality must be an integer in 1..100, got {quality!r}")
@@ -46,17 +42,12 @@ _REDUCED_GREY = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2, 4: 
 
 def decode_image(data: bytes | bytearray | memoryview, grey: bool = False, reduce: int = 1) -> NDArray[np.uint8]:
     """The image of JPEG or PNG bytes (``cv2.imdecode``): grey or BGR as stored, or grey if ``grey``;
-    ``reduce`` 2, 4 or 8 decodes it grey at that fraction of its size (libjpeg scales in the DCT,
-    so a 12 MP frame decodes at 1/4 in a fraction of the full decode's time).
+    ``reduce`` 2, 4 or 8 decodes it grey at that fraction of its size (libjpeg scales in the DCT, so a
+    12 MP frame decodes at 1/4 in a fraction of the full decode's time).
 
-    The one decoder of the project (the camera's tests, the detector). JPEG must be complete
-    (ITU T.81 start- and end-of-image markers: libjpeg would otherwise half-decode a truncated
-    frame with only a warning); PNG must start with its signature.
-
-    Raises
-    ------
-    ValueError
-        When the bytes are not a complete JPEG or PNG, or the codec refuses them.
+    The one decoder of the project. JPEG must be complete (ITU T.81 start- and end-of-image markers:
+    libjpeg would half-decode a truncated frame with only a warning), PNG start with its signature;
+    ValueError otherwise, or when the codec refuses them.
     """
     try:
         buf = np.frombuffer(data, np.uint8)

@@ -297,13 +297,8 @@ def _format(err: ValidationError) -> str:
 
 
 def validate_scenario(doc: Any) -> Scenario:
-    """Validate a scenario document (a dict as read from TOML or carried by a plan request).
-
-    Raises
-    ------
-    ScenarioError
-        If the document is not a mapping or any field is missing or invalid; the message names
-        the field (``obstacles[2].radius``, ``start``, ...).
+    """Validate a scenario document (a dict as read from TOML or carried by a plan request); ScenarioError
+    naming the field (``obstacles[2].radius``, ``start``, ...) otherwise.
     """
     if isinstance(doc, Scenario):
         return doc
@@ -321,14 +316,9 @@ def default_scenario_path() -> Path:
 
 
 def load_scenario(path: str | Path | None = None) -> Scenario:
-    """Read and validate a scenario TOML file; ``None`` loads the default monorail scenario, and the name
-    of a packaged scenario (``protocol/scenarios/<name>.toml``, e.g. ``real-cracks``) loads that one.
-
-    Raises
-    ------
-    ScenarioError
-        If the file cannot be read, is not valid TOML, or does not validate (the message names
-        the file and the field).
+    """Read and validate a scenario TOML file: ``None`` the default monorail scenario, a packaged scenario's
+    name (``protocol/scenarios/<name>.toml``, e.g. ``real-cracks``) that one; ScenarioError naming the file
+    and the field otherwise.
     """
     p = default_scenario_path() if path is None else Path(path)
     packaged = default_scenario_path().parent / f"{p.name}.toml"

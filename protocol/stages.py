@@ -17,13 +17,8 @@ LOG_PREFIX = "frame path"
 
 
 class StageTimes:
-    """Durations (seconds in, milliseconds out) of named stages, the last ``capacity`` of each.
-
-    Raises
-    ------
-    ValueError
-        On a capacity below 1, an empty stage name, or a duration that is not a finite number (a
-        negative one, e.g. from clocks of two machines, is kept: it says so in the figures).
+    """Durations (seconds in, milliseconds out) of named stages, the last ``capacity`` (>= 1) of each; a
+    non-finite duration or an empty name is a ValueError, a negative duration (two machines' clocks) is kept.
     """
 
     def __init__(self, capacity: int = 1000) -> None:

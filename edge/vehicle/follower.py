@@ -20,13 +20,7 @@ Reference = tuple[Vec3, Vec3, Vec3, float]  # pos, vel, acc, yaw
 
 
 class Follower:
-    """Interpolates a trajectory; keeps track of the capture points already fired.
-
-    Parameters
-    ----------
-    trajectory : Trajectory or sequence of Waypoint
-    interpolation : "cubic" (default) or "linear"
-    """
+    """Interpolates a trajectory ("cubic" by default, or "linear"); keeps track of the capture points already fired."""
 
     def __init__(self, trajectory: Trajectory | Sequence[Waypoint], interpolation: Literal["cubic", "linear"] = "cubic"):
         wps = list(trajectory.waypoints if isinstance(trajectory, Trajectory) else trajectory)

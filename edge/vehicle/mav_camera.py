@@ -63,12 +63,8 @@ class VideoStreamSpec:
 
 
 class MavCamera:
-    """The camera component's side of the MAVLink Camera Protocol (no I/O).
-
-    Parameters
-    ----------
-    stream : the stream it announces.
-    sysid : the vehicle's system id (the camera is a component of the vehicle).
+    """The camera component's side of the MAVLink Camera Protocol (no I/O): announces ``stream`` as a
+    component of the vehicle ``sysid``.
     """
 
     def __init__(self, stream: VideoStreamSpec, sysid: int, component: int = CAMERA_COMPONENT):

@@ -93,12 +93,7 @@ class PositionPID:
         ref_acc: Vec3 = (0.0, 0.0, 0.0),
         ref_yaw: float = 0.0,
     ) -> tuple[float, float, float, float]:
-        """One control period.
-
-        Returns
-        -------
-        (roll_d, pitch_d, yaw_d, thrust) : rad, rad, rad, N
-        """
+        """One control period: ``(roll_d, pitch_d, yaw_d, thrust)`` in rad, rad, rad, N."""
         G = self.gains
         dt = self.dt
         # 1. position P -> velocity command, limited

@@ -65,14 +65,9 @@ def run_step_test(
     band: float = 0.02,
     steady_s: float = 2.0,
 ) -> StepResult:
-    """Run the step test with ``controller`` "atsm" (P13)-(P17) or "twisting" (fixed gain).
-
-    Parameters
-    ----------
-    inertia_mismatch : the controller's inertia model is the plant's times this factor.
-    disturbance : plant disturbance (default: bounded torques of 0.03/0.03/0.01 N·m).
-    duration : simulated seconds (> 2 s + ``steady_s``).
-    band : settling band, fraction of the step.
+    """Run the step test with ``controller`` "atsm" (P13)-(P17) or "twisting" (fixed gain), the controller's
+    inertia the plant's times ``inertia_mismatch``, ``disturbance`` (default bounded torques of
+    0.03/0.03/0.01 N·m), ``duration`` simulated s (> 2 s + ``steady_s``) and a settling ``band`` (fraction of the step).
     """
     if controller not in ("atsm", "twisting"):
         raise ValueError("controller must be 'atsm' or 'twisting'")

@@ -162,15 +162,8 @@ MAX_CANVAS_PX = 80_000_000
 
 
 def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | None = None) -> Mosaic:
-    """Warp every frame onto ``plane`` (docs/report.md).
-
-    Parameters
-    ----------
-    frames : sequence of PosedFrame
-    plane : Plane
-    m_per_px : float, optional
-        Canvas resolution; default the median ground sampling distance of the frames (their own
-        resolution, so nothing is lost or invented).
+    """Warp every frame onto ``plane`` (docs/report.md) at ``m_per_px``, by default the frames' median ground
+    sampling distance (their own resolution: nothing lost or invented).
     """
     import time
 

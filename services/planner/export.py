@@ -67,12 +67,8 @@ def qgc_wpl(trajectory: Trajectory, origin: ArrayLike) -> str:
 
 
 def parse_qgc_wpl(text: str) -> list[MissionItem]:
-    """Parse a QGC WPL 110 file (tabs or spaces) into its items.
-
-    Raises
-    ------
-    ValueError
-        On a missing header, a line without 12 fields or a non-numeric field (naming the line).
+    """Parse a QGC WPL 110 file (tabs or spaces) into its items; ValueError naming the line on a missing
+    header, a line without 12 fields or a non-numeric field.
     """
     lines = [ln for ln in text.splitlines() if ln.strip()]
     if not lines or lines[0].split() != HEADER.split():

@@ -43,15 +43,9 @@ def _dist(a: Vec3, b: Vec3) -> float:
 
 
 class AutoMission:
-    """The mission executor.
-
-    Parameters
-    ----------
-    items : the stored mission (item 0 = home, skipped)
-    to_enu : PlanItem -> ENU position of a positioned item (relative altitude above home)
-    home : ENU home position
-    speed : WPNAV_SPEED, m/s; radius : WPNAV_RADIUS, m; yaw_behavior : WP_YAW_BEHAVIOR
-    min_leg_s : least time a waypoint leg takes, s (0: legs at the set speed whatever their length)
+    """The mission executor of the stored ``items`` (item 0, home, skipped; ``to_enu`` places a positioned
+    item, altitude relative to ``home``), with WPNAV_SPEED ``speed`` (m/s), WPNAV_RADIUS ``radius`` (m),
+    WP_YAW_BEHAVIOR and ``min_leg_s``, the least time a waypoint leg takes (0: the set speed whatever the length).
     """
 
     def __init__(self, items: list[PlanItem], to_enu: Callable[[PlanItem], Vec3], home: Vec3, speed: float,
