@@ -5,6 +5,7 @@ Design notes: docs/edge.md (edge/camera_service.py).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import json
 import logging
@@ -51,15 +52,8 @@ def capture_link(choice: str, frame_size: tuple[int, int]) -> LinkClass:
 
 
 class CameraLink:
-    """Capture -> frame -> JPEG (off the control loop) -> imagery sample on the bus.
-
-    Parameters
-    ----------
-    cache : int
-        Capture frames kept for recovery (>= 0, checked by :class:`edge.config.EdgeConfig`; 0 = plain
-        best-effort publisher, no recovery).
-    preview : PreviewStream or None
-        The live preview stream, fed by :meth:`preview`.
+    """Capture -> frame -> JPEG (off the control loop) -> imagery sample on the bus, keeping ``cache`` capture
+    frames for recovery (0: a plain best-effort publisher) and feeding the ``preview`` stream if any.
     """
 
     def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
@@ -231,10 +225,8 @@ def release_freed_memory() -> None:
     """Hand the heap freed by start-up temporaries back to the system (glibc ``malloc_trim``):
     building the synthetic wall leaves about 24 MB free but held in every edge.
     A no-op where there is no glibc."""
-    try:
+    with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
 
 
 def make_camera(config: EdgeConfig, bus: Bus, log: logging.Logger) -> CameraLink | None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import json
 import logging
 import queue
@@ -528,10 +529,8 @@ class Bus:
                 self.counters.reject(key, "too-many-replies")
 
         def on_end() -> None:
-            try:
+            with contextlib.suppress(queue.Full):
                 inbox.put_nowait(done)
-            except queue.Full:
-                pass
 
         try:
             self.session.get(key, payload=payload, encoding=encoding_of(msg), timeout=timeout,

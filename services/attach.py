@@ -6,6 +6,7 @@ Design notes: docs/operator-view.md (services/attach.py).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import json
 import logging
@@ -82,10 +83,8 @@ def remove(path: str | Path, pid: int | None = None) -> bool:
         path.unlink()
     except (OSError, ValueError, AttributeError):
         return False
-    try:
+    with contextlib.suppress(OSError):
         path.parent.rmdir()
-    except OSError:
-        pass
     return True
 
 

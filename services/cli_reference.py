@@ -32,10 +32,8 @@ def help_text(argv: list[str]) -> str:
     os.environ["COLUMNS"] = str(WIDTH)
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-            try:
+            with contextlib.suppress(SystemExit):
                 skynet([*argv, "--help"])
-            except SystemExit:
-                pass
     finally:
         if saved is None:
             os.environ.pop("COLUMNS", None)

@@ -6,6 +6,7 @@ Design notes: docs/security.md (services/keys.py).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import ipaddress
 import os
@@ -96,10 +97,8 @@ _LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
 
 def san_name(name: str) -> x509.GeneralName:
     """``name`` as a SAN: an ``iPAddress`` for an IPv4/IPv6 address, else a ``dNSName``; ValueError otherwise."""
-    try:
+    with contextlib.suppress(ValueError):
         return x509.IPAddress(ipaddress.ip_address(name))
-    except ValueError:
-        pass
     if not (0 < len(name) <= 253 and all(_LABEL.fullmatch(label) for label in name.split("."))):
         raise ValueError(f"{name!r} is neither an IP address nor a host name")
     return x509.DNSName(name)

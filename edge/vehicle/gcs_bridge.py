@@ -5,6 +5,7 @@ Design notes: docs/hardware-mavlink.md (edge/vehicle/gcs_bridge.py).
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Callable
@@ -18,14 +19,9 @@ __all__ = ["GcsBridge"]
 
 
 class GcsBridge:
-    """Forward frames between the autopilot link (via ``to_autopilot``) and a ground-station endpoint.
-
-    Parameters
-    ----------
-    endpoint : pymavlink connection string of the ground-station side (``udpout:HOST:PORT`` to reach
-        a GCS listening there, ``udpin:HOST:PORT`` to be dialled by it).
-    to_autopilot : writes one raw frame to the autopilot link.
-    video : the stream the camera component announces (None: no camera component).
+    """Forward frames between the autopilot link (``to_autopilot`` writes one raw frame) and a ground-station
+    ``endpoint`` (``udpout:HOST:PORT`` to reach a listening GCS, ``udpin:HOST:PORT`` to be dialled), with a
+    camera component announcing ``video`` unless None.
     """
 
     def __init__(self, endpoint: str, to_autopilot: Callable[[bytes], None], video: VideoStreamSpec | None = None):
@@ -98,7 +94,5 @@ class GcsBridge:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2.0)
-        try:
+        with contextlib.suppress(OSError):
             self._conn.close()
-        except OSError:
-            pass

@@ -5,6 +5,7 @@ Design notes: docs/experiments.md (services/experiment/runner.py).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -80,10 +81,8 @@ def _stop(proc: subprocess.Popen, grace_s: float) -> None:
         proc.wait()
     for pid, started in family:
         if started is not None and _proc_start(pid) == started:  # still the same process
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
 
 
 def run_mission(run: Run, command: Sequence[str], out: Path, timeout_s: float, grace_s: float = 20.0,

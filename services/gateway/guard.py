@@ -6,6 +6,7 @@ Design notes: docs/security.md (services/gateway/guard.py).
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import selectors
 import socket
@@ -54,10 +55,8 @@ def _pipe(src: socket.socket, dst: socket.socket) -> None:
         pass
     finally:
         for s, how in ((dst, socket.SHUT_WR), (src, socket.SHUT_RD)):
-            try:
+            with contextlib.suppress(OSError):
                 s.shutdown(how)
-            except OSError:
-                pass
 
 
 class Guard:

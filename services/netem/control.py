@@ -7,6 +7,7 @@ the grammar of :mod:`services.netem.schedule` plus ``stats``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import selectors
 import socket
@@ -100,20 +101,16 @@ class ControlServer:
                         self.requests += 1
                         self.errors += 1
                         reply = {"ok": False, "error": "a command is UTF-8 text"}
-                    try:
+                    with contextlib.suppress(OSError):
                         self._sock.sendto(json.dumps(reply).encode(), peer)
-                    except OSError:
-                        pass
 
     def stop(self) -> None:
         """Join the thread and close the socket. Idempotent."""
         if self._thread is None or not self._running:
             return
         self._running = False
-        try:
+        with contextlib.suppress(OSError):
             self._wake_w.send(b"x")
-        except OSError:
-            pass
         self._thread.join()
         for s in (self._sock, self._wake_r, self._wake_w):
             s.close()

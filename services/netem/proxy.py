@@ -5,6 +5,7 @@ Design notes: docs/experiments.md (services/netem/proxy.py).
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import itertools
 import math
@@ -255,10 +256,8 @@ class _ProxyBase:
             return
         self._stopped = True
         self._running = False
-        try:
+        with contextlib.suppress(OSError):
             self._wake_w.send(b"x")
-        except OSError:
-            pass
         self._thread.join()
         self._release()
         for s in (self._lsock, self._wake_r, self._wake_w):
@@ -719,10 +718,8 @@ class _TcpConnection:
         for p in self.pumps:
             p.abort()
         for s in (self.client, self.upstream):
-            try:
+            with contextlib.suppress(OSError):
                 s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
 
     def thread_done(self) -> None:
         with self._lock:
@@ -812,10 +809,8 @@ class TcpProxy(_ProxyBase):
         for p in pumps:
             with p.cond:
                 p.cond.notify_all()
-        try:
+        with contextlib.suppress(OSError):
             self._wake_w.send(b"c")
-        except OSError:
-            pass
 
     def _release(self) -> None:
         """Reset every relayed connection and join its threads."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import os
 import signal
@@ -68,10 +69,8 @@ class _Conn:
 
     def close(self) -> None:
         for w in self.writers:
-            try:
+            with contextlib.suppress(ConnectionError, OSError, RuntimeError):
                 w.close()
-            except (ConnectionError, OSError, RuntimeError):
-                pass
 
 
 async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, conn: _Conn | None = None) -> None:
@@ -84,10 +83,8 @@ async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, conn
     except (ConnectionError, OSError):
         pass
     finally:
-        try:
+        with contextlib.suppress(ConnectionError, OSError):
             writer.close()
-        except (ConnectionError, OSError):
-            pass
 
 
 class Bridge:

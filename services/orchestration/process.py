@@ -5,6 +5,7 @@ Design notes: docs/architecture.md (services/orchestration/process.py).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import select
@@ -311,10 +312,8 @@ class ProcessGroup:
         """
         svc = self.get(name)
         svc.killed = True
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.killpg(svc.proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
         try:
             svc.proc.wait(timeout)
         except subprocess.TimeoutExpired:
@@ -347,16 +346,12 @@ class ProcessGroup:
             if not live:
                 break
             for s in live:
-                try:
+                with contextlib.suppress(ProcessLookupError):
                     os.killpg(s.proc.pid, sig)
-                except ProcessLookupError:
-                    pass
             deadline = time.monotonic() + wait
             for s in live:
-                try:
+                with contextlib.suppress(subprocess.TimeoutExpired):
                     s.proc.wait(max(0.0, deadline - time.monotonic()))
-                except subprocess.TimeoutExpired:
-                    pass
         for s in self.services:
             if s._reader:
                 s._reader.join(1.0)

@@ -8,6 +8,7 @@ send error or a closed socket is counted in ``errors``, never raised out of the 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -147,7 +148,5 @@ class Link:
         self._stop.set()
         if self._reader.is_alive():
             self._reader.join(timeout=2.0)
-        try:
+        with contextlib.suppress(OSError):
             self.conn.close()
-        except OSError:
-            pass

@@ -3,6 +3,7 @@ simulated vehicle (AUTO and reposition legs, the GCS failsafe, the fence); see t
 
 from __future__ import annotations
 
+import contextlib
 import math
 import queue
 import threading
@@ -169,10 +170,8 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
-        try:
+        with contextlib.suppress(OSError):
             self._conn.close()
-        except OSError:
-            pass
 
     def __enter__(self) -> MavlinkSimVehicle:
         return self
