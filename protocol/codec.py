@@ -1,10 +1,6 @@
 """The wire codec: msgpack envelope ``[version, type tag, body]``.
 
-``encode(msg)`` writes a :class:`~protocol.messages.Message` as a three-element msgpack array:
-the schema version (``SCHEMA_VERSION``), the message's type tag (``Message.TYPE``) and the body
-(the model's fields as a map). ``decode(data)`` reverses it and validates the body with the
-model; *every* failure raises :class:`CodecError` with a ``kind`` naming what went wrong, so a
-service can count rejections per kind and never sees another exception type.
+Design notes: docs/bus.md (protocol/codec.py).
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
 """Command validation on board: nothing invalid reaches the vehicle.
 
-The codec has already checked the schema and that every number is finite and within its
-field's range; here are the checks that need the board's context: the addressee, the geofence
-(the operation box of the mission), and speeds a multirotor can fly. Pure functions; the
-board turns a non-empty reason into a rejected acknowledgement.
+Design notes: docs/edge.md (edge/geometry/validate.py).
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
 """The mission report's Markdown page (figures -> Markdown): the paper's results section re-told.
 
-Pure code, no bus code: :func:`markdown` tells a :class:`~services.gcs.figures.ReportSummary`
-(and the scenario's name and obstacle count from the record) as ``report.md``, following
-the paper's Sections 3-6, with the plots of :data:`services.gcs.plots.PLOTS` embedded by relative
-path and tables for the numbers. Nothing is measured here.
+Design notes: docs/report.md (services/gcs/markdown.py).
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
 """The launcher's typed configuration (``skynet up`` / ``skynet mission``): each option once, with its default.
 
-Pure (pydantic, no bus, no OpenCV): :func:`services.orchestration.plan.network_plan` takes a
-:class:`LaunchConfig`; the launcher's command line is built from it (:func:`protocol.cliconfig.add_options`).
-Options passed on to a service keep that service's default (read from its config) and are checked by its config
-when the plan builds it: a value a child would refuse fails in the plan, before anything starts.
+Design notes: docs/architecture.md (services/orchestration/config.py).
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
 """Real-coded genetic algorithm, the GA baseline of Table I (cf. Pehlivanoglu 2012).
 
-Per generation: ``P`` offspring (``P`` cost evaluations) from binary tournament selection,
-BLX-α crossover (α = 0.5, probability 0.9) and Gaussian mutation (each gene with probability
-``1/D``, σ = 10 % of the box extent falling linearly to 1 %), clipped to the box; survivors
-are the best ``P`` of parents and offspring ((μ + λ) elitism). Same initial population and
-budget ``P (iterations + 1)`` as the other algorithms.
+Design notes: docs/planner.md (services/planner/ga.py).
 """
 
 from __future__ import annotations

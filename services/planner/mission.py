@@ -1,10 +1,6 @@
 """The planner's library entry point: scenario -> mission plan (the paper's Sections 2-4).
 
-:func:`plan_mission` runs the whole pipeline: task assessment (P1)-(P3) and the inspection
-pass (:mod:`.task`), the centroid path by θ-PSO (P4) or a baseline on the cost (P5)
-(:mod:`.cost`), and the formation trajectories (P6)-(P9) with the capture points
-(:mod:`.trajectory`), returned as a :class:`protocol.messages.MissionPlan`. The planner service
-(``services.planner.service``) calls it for every plan request.
+Design notes: docs/planner.md (services/planner/mission.py).
 """
 
 from __future__ import annotations

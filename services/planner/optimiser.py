@@ -1,10 +1,6 @@
 """What every path optimiser shares: the result type and the budget / convergence bookkeeping.
 
-All algorithms (θ-PSO, PSO, GA, TLBO) minimise the same :class:`~services.planner.cost.Cost`
-from the same initial population under the same budget of cost evaluations,
-``particles * (iterations + 1)`` (the initial population, then one evaluation per particle per
-iteration). Convergence is recorded after every ``particles`` evaluations (one "iteration"),
-so TLBO, which evaluates twice per learner per generation, records two points per generation.
+Design notes: docs/planner.md (services/planner/optimiser.py).
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
 """Conventional global-best PSO (Kennedy & Eberhart 1995; Shi & Eberhart 1998) on the box.
 
-The baseline of Table I, with the same settings as :func:`~services.planner.theta_pso.theta_pso`
-so that only the encoding differs: ``w`` from 0.7 to 0.3, ``c1 = c2 = 2.0``, ``r1, r2`` drawn
-per dimension, velocities starting at zero and clamped to ``vmax_fraction`` = 5 % of the box's
-extent — the counterpart of θ-PSO's |Δθ| ≤ 0.1 rad, since ``dx/dθ = (x_max − x_min)/2 · cos θ``
-is at most half the extent per radian — and positions clipped to the box.
+Design notes: docs/planner.md (services/planner/pso.py).
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
 """Teaching-learning-based optimisation, the TLBO baseline of Table I (Rao et al. 2011).
 
-Teacher phase: ``x' = x + r (x_teacher − T_F mean)``, ``T_F ∈ {1, 2}`` at random, ``r ~ U(0, 1)``
-per gene; learner phase: each learner moves towards a random better partner or away from a
-worse one, ``x' = x + r (x_j − x_i)`` or ``x + r (x_i − x_j)``; greedy acceptance in both phases,
-clipped to the box. Each generation costs 2 evaluations per learner, so within the common budget
-``P (iterations + 1)`` TLBO runs ``iterations / 2`` generations (history: one point per phase).
+Design notes: docs/planner.md (services/planner/tlbo.py).
 """
 
 from __future__ import annotations

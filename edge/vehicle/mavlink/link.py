@@ -1,9 +1,6 @@
 """The MAVLink link: a pymavlink connection speaking MAVLink 2, optionally signed, with a reader thread.
 
-:class:`Link` reads every message and hands it to ``on_message``, sends our own HEARTBEAT at 1 Hz
-(at once when the first packet arrives, so that a ``udpin`` link can answer) and calls ``on_tick``
-after every pass; :meth:`Link.send` sends one pymavlink message object. A malformed datagram, a
-send error or a closed socket is counted in ``errors``, never raised out of the reader.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/mavlink/link.py).
 """
 
 from __future__ import annotations

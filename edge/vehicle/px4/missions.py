@@ -1,9 +1,6 @@
 """PX4's mission numbering against ArduPilot's (MAVLink "Mission Protocol").
 
-ArduPilot stores home as mission item 0 and the first real item as 1; PX4 has no home item: item 0 is the
-first real item, and MISSION_CURRENT, MISSION_ITEM_REACHED, DO_SET_MISSION_CURRENT and MISSION_START's
-item numbers count from it. :func:`without_home` turns a plan built the ArduPilot way (the project's one
-item builder) into PX4's numbering.
+Design notes: docs/hardware-mavlink.md (edge/vehicle/px4/missions.py).
 """
 
 from __future__ import annotations
