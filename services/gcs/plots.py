@@ -128,9 +128,7 @@ def _plot_altitudes(figs: ReportFigures, path: Path) -> None:
         drawn = True
     if not drawn:
         _no_data(ax)
-    ax.set_xlabel("time since the first state, s (simulation)")
-    ax.set_ylabel("altitude z, m")
-    ax.set_title("Altitudes of the UAVs")
+    ax.set(xlabel="time since the first state, s (simulation)", ylabel="altitude z, m", title="Altitudes of the UAVs")
     ax.grid(alpha=0.3)
     if drawn:
         ax.legend(fontsize=7)
@@ -150,9 +148,8 @@ def _plot_path_error(figs: ReportFigures, path: Path) -> None:
         drawn = True
     if not drawn:
         _no_data(ax, "no tracking states")
-    ax.set_xlabel("time since the first state, s (simulation)")
-    ax.set_ylabel("error, m")
-    ax.set_title("Errors between the planned and flown paths")
+    ax.set(xlabel="time since the first state, s (simulation)", ylabel="error, m",
+           title="Errors between the planned and flown paths")
     ax.grid(alpha=0.3)
     if drawn:
         ax.legend(fontsize=7)
@@ -174,9 +171,8 @@ def _plot_formation(figs: ReportFigures, path: Path) -> None:
         ax.legend(fontsize=8)
     else:
         _no_data(ax, "fewer than two UAVs tracking together")
-    ax.set_xlabel("time since the first state, s (simulation)")
-    ax.set_ylabel("formation RMS shape error, m")
-    ax.set_title("Formation error during the mission")
+    ax.set(xlabel="time since the first state, s (simulation)", ylabel="formation RMS shape error, m",
+           title="Formation error during the mission")
     ax.grid(alpha=0.3)
     _save(fig, path)
 
@@ -193,9 +189,7 @@ def _plot_convergence(record: MissionRecord, summary: ReportSummary, path: Path)
         ax.legend(fontsize=8)
     else:
         _no_data(ax, "no convergence history")
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("best cost J_F (P5)")
-    ax.set_title("Planner convergence")
+    ax.set(xlabel="iteration", ylabel="best cost J_F (P5)", title="Planner convergence")
     ax.grid(alpha=0.3)
     _save(fig, path)
 
