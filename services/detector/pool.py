@@ -20,6 +20,11 @@ from protocol.messages import DefectReport, FrameEvidence, ImageMeta
 
 #: start methods that do not fork the parent's threads (Zenoh runs its own)
 CONTEXTS = ("spawn", "forkserver")
+#: OpenCV threads per worker process. OpenCV's default is one per core in every process, so two workers on
+#: two cores ran four threads, and a parallel ``cv2.dnn`` forward waits at each layer for its slowest thread:
+#: on a loaded machine that thread is often descheduled (the learned method's 640 x 480 forward took 100 ms
+#: on two threads against 77 ms CPU on one, docs/detector.md "Speed"). The pool's parallelism is its workers.
+THREADS_PER_WORKER = 1
 
 
 class WorkerCrashed(RuntimeError):
@@ -38,10 +43,14 @@ def analyse_frame(meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: in
                                                             digest=hashlib.sha256(image).hexdigest())})
 
 
-def _init_worker() -> None:
+def _init_worker(threads: int = THREADS_PER_WORKER) -> None:
     """A worker ignores Ctrl-C: the signal goes to the whole process group, and the detector that owns the
     pool shuts it down itself (:meth:`DetectorPool.close`) after draining its queue. A worker whose detector
-    dies without closing it (SIGKILL, a crash) follows it at once instead of staying behind as an orphan."""
+    dies without closing it (SIGKILL, a crash) follows it at once instead of staying behind as an orphan.
+    Its OpenCV runs ``threads`` threads (:data:`THREADS_PER_WORKER`)."""
+    import cv2
+
+    cv2.setNumThreads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent = multiprocessing.parent_process()
     if parent is not None:
@@ -75,13 +84,24 @@ def _warm(method: str = "it+r") -> int:
     return os.getpid()
 
 
+def worker_threads() -> int:
+    """OpenCV's thread count in the calling process (in a worker: :data:`THREADS_PER_WORKER` unless set)."""
+    import cv2
+
+    return int(cv2.getNumThreads())
+
+
 class DetectorPool:
     """``workers`` detection processes; :meth:`analyse` blocks its (Ring worker) thread for one frame."""
 
-    def __init__(self, workers: int = 2, context: str = "spawn", max_pixels: int | None = None):
+    def __init__(self, workers: int = 2, context: str = "spawn", max_pixels: int | None = None,
+                 threads: int = THREADS_PER_WORKER):
         self.max_pixels = max_pixels  # frames above it are detected on a reduced decode (pipeline.analyse)
         if workers < 1:
             raise ValueError("the pool needs at least one worker process")
+        if threads < 1:
+            raise ValueError("each worker needs at least one OpenCV thread")
+        self.threads = threads
         if context not in CONTEXTS:
             raise ValueError(f"start method {context!r}: choose from {CONTEXTS}")
         self.workers = workers
@@ -94,7 +114,8 @@ class DetectorPool:
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx, initializer=_init_worker)
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx, initializer=_init_worker,
+                                   initargs=(self.threads,))
 
     def warm(self, timeout: float = 60.0, method: str = "it+r") -> list[int]:
         """Start every worker process and import the detection stack (and ``method``'s model) in it; their pids."""
