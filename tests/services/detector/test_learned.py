@@ -69,6 +69,22 @@ def test_odd_sizes_colour_and_tiles_agree(monkeypatch):
     assert np.mean(whole == tiled) > 0.999
 
 
+def test_one_opencv_thread_segments_as_many_do():
+    """The detector's workers run OpenCV on one thread (services.detector.pool): the network's answer is the
+    one the figures were measured with, whatever the thread count."""
+    grey, _ = planted_crack(seed=11, size=(240, 320))
+    before = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(max(2, before))
+        many = probability(grey)
+        cv2.setNumThreads(1)
+        one = probability(grey)
+    finally:
+        cv2.setNumThreads(before)
+    assert np.abs(one - many).max() < 1e-5
+    assert np.array_equal(one > 0.5, many > 0.5) and np.count_nonzero(one > 0.5) > 0
+
+
 def test_model_is_loaded_once_per_process():
     assert load_model() is load_model() is load_model(MODEL_PATH)
 
