@@ -80,6 +80,10 @@ def _warm(method: str = "it+r") -> int:
     meta = ImageMeta(uav=1, capture_id=0, t=0.0, stamp=0.0, cam_pos=(0.0, 0.0, 0.0), cam_rot=(1, 0, 0, 0, 1, 0, 0, 0, 1),
                      intrinsics=Intrinsics(width=128, height=96, fx=100.0, fy=100.0, cx=64.0, cy=48.0), range_m=1.0)
     analyse(meta, jpeg, method)
+    if method == "learned":  # the runtime's kernels for the frame sizes the cameras send
+        from .learned import warm_up
+
+        warm_up()
     time.sleep(0.2)  # best effort: hold this worker, so that each of the pool's warm calls lands on another one
     return os.getpid()
 
