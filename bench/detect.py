@@ -365,12 +365,16 @@ def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
     DeepCrack-train image; never trained on nor used for model selection), and ms per frame (grey in, mask
     out, OpenCV limited to ``threads``) at 640x480 and on a 12 MP capture's 1/4 decode (1000x750, the
     detector's real-time input, services.detector.pipeline)."""
+    import os
+
     from protocol.imagecodec import decode_image
-    from services.detector.learned import splits
+    from services.detector.learned import RUNTIME_ENV, RUNTIMES, _has_openvino, runtime, splits
 
     cv2.setNumThreads(threads)
     methods = ["learned", "it+r"]
-    out: dict[str, object] = {"methods": methods, "cv2_threads": threads, "repeats": repeats}
+    out: dict[str, object] = {"methods": methods, "cv2_threads": threads, "repeats": repeats,
+                              "runtime (quality)": runtime()}
+    print(f"\nthe learned method's quality on runtime {runtime()} (services.detector.learned.runtime)")
     for name in SETS:
         folder = data / name
         if not folder.is_dir():
@@ -387,22 +391,38 @@ def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
     print(f"\n### Learned vs IT+r speed (OpenCV threads = {threads}; median of {repeats} interleaved runs; "
           "grey in, mask out)\n\n| frame | method | ms/frame (median) | p90 | CPU ms/frame |\n|---|---|---|---|---|")
     speed_rows: dict[str, object] = {}
-    for key, grey in frames.items():
-        times: dict[str, list[float]] = {m: [] for m in methods}
-        cpu: dict[str, list[float]] = {m: [] for m in methods}
-        for m in methods:
-            detect(grey, m, with_defects=False)  # warm-up (the model loads once)
-        for _ in range(repeats):
-            for m in methods:
-                t0, c0 = time.perf_counter(), time.process_time()
-                detect(grey, m, with_defects=False)
-                times[m].append((time.perf_counter() - t0) * 1e3)
-                cpu[m].append((time.process_time() - c0) * 1e3)
-        speed_rows[key] = {m: {"ms_median": float(np.median(times[m])), "ms_p90": float(np.percentile(times[m], 90)),
-                               "cpu_ms_median": float(np.median(cpu[m]))} for m in methods}
-        for m in methods:
-            r = speed_rows[key][m]  # type: ignore[index]
-            print(f"| {key} | {m} | {r['ms_median']:.1f} | {r['ms_p90']:.1f} | {r['cpu_ms_median']:.1f} |")
+    # the learned method on each runtime installed (services.detector.learned.runtime), beside IT+r
+    timed = [(f"learned ({r})", "learned", r) for r in RUNTIMES if r == "opencv" or _has_openvino()]
+    timed.append(("it+r", "it+r", None))
+    env0 = os.environ.get(RUNTIME_ENV)
+
+    def run(m: str, rt: str | None) -> None:
+        if rt is not None:
+            os.environ[RUNTIME_ENV] = rt
+        detect(grey, m, with_defects=False)
+
+    try:
+        for key, grey in frames.items():
+            times: dict[str, list[float]] = {k: [] for k, _, _ in timed}
+            cpu: dict[str, list[float]] = {k: [] for k, _, _ in timed}
+            for _, m, rt in timed:
+                run(m, rt)  # warm-up (the model loads once; OpenVINO builds this size's kernels)
+            for _ in range(repeats):
+                for k, m, rt in timed:
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    run(m, rt)
+                    times[k].append((time.perf_counter() - t0) * 1e3)
+                    cpu[k].append((time.process_time() - c0) * 1e3)
+            speed_rows[key] = {k: {"ms_median": float(np.median(times[k])), "ms_p90": float(np.percentile(times[k], 90)),
+                                   "cpu_ms_median": float(np.median(cpu[k]))} for k, _, _ in timed}
+            for k, _, _ in timed:
+                r = speed_rows[key][k]  # type: ignore[index]
+                print(f"| {key} | {k} | {r['ms_median']:.1f} | {r['ms_p90']:.1f} | {r['cpu_ms_median']:.1f} |")
+    finally:
+        if env0 is None:
+            os.environ.pop(RUNTIME_ENV, None)
+        else:
+            os.environ[RUNTIME_ENV] = env0
     out["speed"] = speed_rows
     return out
 
@@ -433,9 +453,12 @@ def pool(repeats: int, workers: int = 2) -> dict[str, object]:
     caps = synthetic_captures(sc, synthetic_surface(sc), frame_size=(640, 480))
     bursts = [caps[i:i + 3] for i in range(0, len(caps), 3)][:max(1, repeats)]
     cores = os.cpu_count() or 1
-    out: dict[str, object] = {"workers": workers, "bursts": len(bursts), "frames": sum(len(b) for b in bursts)}
+    from services.detector.learned import runtime
+
+    out: dict[str, object] = {"workers": workers, "bursts": len(bursts), "frames": sum(len(b) for b in bursts),
+                              "learned runtime": runtime()}
     print(f"\n### The worker pool ({workers} workers; the nominal mission's {out['frames']} captures, 640x480, in "
-          "bursts of three)\n\n| method | OpenCV threads per worker | latency p50 / p95 / max (ms) | worker CPU ms "
+          f"bursts of three; learned on {out['learned runtime']})\n\n| method | OpenCV threads per worker | latency p50 / p95 / max (ms) | worker CPU ms "
           "per frame (median) |\n|---|---|---|---|")
     for method in ("learned", "it+r"):
         for threads in (1, cores):
