@@ -396,21 +396,21 @@ def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
     timed.append(("it+r", "it+r", None))
     env0 = os.environ.get(RUNTIME_ENV)
 
-    def run(m: str, rt: str | None) -> None:
+    def run(g: np.ndarray, m: str, rt: str | None) -> None:
         if rt is not None:
             os.environ[RUNTIME_ENV] = rt
-        detect(grey, m, with_defects=False)
+        detect(g, m, with_defects=False)
 
     try:
         for key, grey in frames.items():
             times: dict[str, list[float]] = {k: [] for k, _, _ in timed}
             cpu: dict[str, list[float]] = {k: [] for k, _, _ in timed}
             for _, m, rt in timed:
-                run(m, rt)  # warm-up (the model loads once; OpenVINO builds this size's kernels)
+                run(grey, m, rt)  # warm-up (the model loads once; OpenVINO builds this size's kernels)
             for _ in range(repeats):
                 for k, m, rt in timed:
                     t0, c0 = time.perf_counter(), time.process_time()
-                    run(m, rt)
+                    run(grey, m, rt)
                     times[k].append((time.perf_counter() - t0) * 1e3)
                     cpu[k].append((time.process_time() - c0) * 1e3)
             speed_rows[key] = {k: {"ms_median": float(np.median(times[k])), "ms_p90": float(np.percentile(times[k], 90)),

@@ -10,8 +10,8 @@ it is read once per process (once per detector worker, :mod:`services.detector.p
 missing, unreadable or not this model gives :class:`ModelError` with a one-line message naming it.
 
 The network runs on OpenCV's ``cv2.dnn`` (exact float32), or on OpenVINO (the optional extra ``fast``:
-``pip install -e '.[fast]'``) in bfloat16 on a CPU that has it (AVX-512 BF16 or AMX), about 1.7 times
-faster at the same held-out F to within 0.0002: :func:`runtime` says which, ``$SKYNET_DETECTOR_RUNTIME``
+``pip install -e '.[fast]'``) in bfloat16 on a CPU that has it (AVX-512 BF16 or AMX), 1.7-1.9 times as
+fast at the same held-out F to within 0.0002: :func:`runtime` says which, ``$SKYNET_DETECTOR_RUNTIME``
 (:data:`RUNTIME_ENV`: ``opencv`` or ``openvino``) chooses, default OpenVINO when it is installed. Either
 runtime runs on OpenCV's thread count (one per detector worker, :mod:`services.detector.pool`).
 
