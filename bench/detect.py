@@ -1,6 +1,6 @@
 """Detector benchmark: parameter choice, quality table on both crack data sets, speed.
 
-    python bench/detect.py [--data DIR] [--only tune|quality|speed ...] [--repeats N]
+    python bench/detect.py [--data DIR] [--only tune|ridge|quality|speed|learned|pool ...] [--repeats N]
                            [--threads N] [--out bench/results/detect.json]
 
 * tune     C_s and the size guard min_region of IT for both background readings, and IT+'s
@@ -15,6 +15,10 @@
            OpenCV limited to ``--threads`` (default 1: "one core").
 * learned  the learned method (a small U-Net, services/detector/learned.py) beside IT+r on its
            held-out folds (quality) and at 640x480 and a 12 MP capture's 1/4 decode (speed).
+* pool     the detector's worker pool (services/detector/pool.py, two workers) analysing the nominal
+           mission's own 640x480 captures in bursts of three (three UAVs shooting together), learned
+           and IT+r, with one OpenCV thread per worker and with OpenCV's default (one per core):
+           per-frame latency (submit to report) and each worker's CPU ms per frame.
 
 Prints Markdown tables and writes all numbers as JSON (bench/results/ is git-ignored).
 """
@@ -361,12 +365,16 @@ def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
     DeepCrack-train image; never trained on nor used for model selection), and ms per frame (grey in, mask
     out, OpenCV limited to ``threads``) at 640x480 and on a 12 MP capture's 1/4 decode (1000x750, the
     detector's real-time input, services.detector.pipeline)."""
+    import os
+
     from protocol.imagecodec import decode_image
-    from services.detector.learned import splits
+    from services.detector.learned import RUNTIME_ENV, RUNTIMES, _has_openvino, runtime, splits
 
     cv2.setNumThreads(threads)
     methods = ["learned", "it+r"]
-    out: dict[str, object] = {"methods": methods, "cv2_threads": threads, "repeats": repeats}
+    out: dict[str, object] = {"methods": methods, "cv2_threads": threads, "repeats": repeats,
+                              "runtime (quality)": runtime()}
+    print(f"\nthe learned method's quality on runtime {runtime()} (services.detector.learned.runtime)")
     for name in SETS:
         folder = data / name
         if not folder.is_dir():
@@ -383,30 +391,110 @@ def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
     print(f"\n### Learned vs IT+r speed (OpenCV threads = {threads}; median of {repeats} interleaved runs; "
           "grey in, mask out)\n\n| frame | method | ms/frame (median) | p90 | CPU ms/frame |\n|---|---|---|---|---|")
     speed_rows: dict[str, object] = {}
-    for key, grey in frames.items():
-        times: dict[str, list[float]] = {m: [] for m in methods}
-        cpu: dict[str, list[float]] = {m: [] for m in methods}
-        for m in methods:
-            detect(grey, m, with_defects=False)  # warm-up (the model loads once)
-        for _ in range(repeats):
-            for m in methods:
-                t0, c0 = time.perf_counter(), time.process_time()
-                detect(grey, m, with_defects=False)
-                times[m].append((time.perf_counter() - t0) * 1e3)
-                cpu[m].append((time.process_time() - c0) * 1e3)
-        speed_rows[key] = {m: {"ms_median": float(np.median(times[m])), "ms_p90": float(np.percentile(times[m], 90)),
-                               "cpu_ms_median": float(np.median(cpu[m]))} for m in methods}
-        for m in methods:
-            r = speed_rows[key][m]  # type: ignore[index]
-            print(f"| {key} | {m} | {r['ms_median']:.1f} | {r['ms_p90']:.1f} | {r['cpu_ms_median']:.1f} |")
+    # the learned method on each runtime installed (services.detector.learned.runtime), beside IT+r
+    timed = [(f"learned ({r})", "learned", r) for r in RUNTIMES if r == "opencv" or _has_openvino()]
+    timed.append(("it+r", "it+r", None))
+    env0 = os.environ.get(RUNTIME_ENV)
+
+    def run(g: np.ndarray, m: str, rt: str | None) -> None:
+        if rt is not None:
+            os.environ[RUNTIME_ENV] = rt
+        detect(g, m, with_defects=False)
+
+    try:
+        for key, grey in frames.items():
+            times: dict[str, list[float]] = {k: [] for k, _, _ in timed}
+            cpu: dict[str, list[float]] = {k: [] for k, _, _ in timed}
+            for _, m, rt in timed:
+                run(grey, m, rt)  # warm-up (the model loads once; OpenVINO builds this size's kernels)
+            for _ in range(repeats):
+                for k, m, rt in timed:
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    run(grey, m, rt)
+                    times[k].append((time.perf_counter() - t0) * 1e3)
+                    cpu[k].append((time.process_time() - c0) * 1e3)
+            speed_rows[key] = {k: {"ms_median": float(np.median(times[k])), "ms_p90": float(np.percentile(times[k], 90)),
+                                   "cpu_ms_median": float(np.median(cpu[k]))} for k, _, _ in timed}
+            for k, _, _ in timed:
+                r = speed_rows[key][k]  # type: ignore[index]
+                print(f"| {key} | {k} | {r['ms_median']:.1f} | {r['ms_p90']:.1f} | {r['cpu_ms_median']:.1f} |")
+    finally:
+        if env0 is None:
+            os.environ.pop(RUNTIME_ENV, None)
+        else:
+            os.environ[RUNTIME_ENV] = env0
     out["speed"] = speed_rows
+    return out
+
+
+# ------------------------------------------------------------------------------------------ pool
+def _timed_analyse(meta: object, jpeg: bytes, method: str) -> tuple[float, float, int]:
+    """In a worker: :func:`services.detector.pipeline.analyse` of one frame; (wall ms, CPU ms, OpenCV threads)."""
+    from services.detector.pipeline import analyse
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    analyse(meta, jpeg, method)  # type: ignore[arg-type]
+    return (time.perf_counter() - t0) * 1e3, (time.process_time() - c0) * 1e3, cv2.getNumThreads()
+
+
+def pool(repeats: int, workers: int = 2) -> dict[str, object]:
+    """The worker pool on the nominal mission's captures (monorail, 640x480), in bursts of three frames
+    submitted together, per method and per OpenCV thread count in each worker (1, and OpenCV's default:
+    one per core)."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    from edge.world.wall import synthetic_surface
+    from protocol.scenario import load_scenario
+    from services.detector.pool import DetectorPool
+    from services.inspection.captures import synthetic_captures
+
+    sc = load_scenario("monorail")
+    caps = synthetic_captures(sc, synthetic_surface(sc), frame_size=(640, 480))
+    bursts = [caps[i:i + 3] for i in range(0, len(caps), 3)][:max(1, repeats)]
+    cores = os.cpu_count() or 1
+    from services.detector.learned import runtime
+
+    out: dict[str, object] = {"workers": workers, "bursts": len(bursts), "frames": sum(len(b) for b in bursts),
+                              "learned runtime": runtime()}
+    print(f"\n### The worker pool ({workers} workers; the nominal mission's {out['frames']} captures, 640x480, in "
+          f"bursts of three; learned on {out['learned runtime']})\n\n| method | OpenCV threads per worker | latency p50 / p95 / max (ms) | worker CPU ms "
+          "per frame (median) |\n|---|---|---|---|")
+    for method in ("learned", "it+r"):
+        for threads in (1, cores):
+            p = DetectorPool(workers, threads=threads)
+            try:
+                p.warm(method=method)
+                lat: list[float] = []
+                cpu: list[float] = []
+                seen: set[int] = set()
+
+                def one(c: object) -> None:
+                    t0 = time.perf_counter()
+                    _, c_ms, n = p.call(_timed_analyse, c.meta, c.jpeg, method)  # type: ignore[attr-defined]
+                    lat.append((time.perf_counter() - t0) * 1e3)
+                    cpu.append(c_ms)
+                    seen.add(n)
+
+                with ThreadPoolExecutor(3) as ex:
+                    for b in bursts:
+                        list(ex.map(one, b))
+            finally:
+                p.close()
+            row = {"latency_ms": {"p50": float(np.median(lat)), "p95": float(np.percentile(lat, 95)),
+                                  "max": float(max(lat))},
+                   "worker_cpu_ms_median": float(np.median(cpu)), "threads_seen": sorted(seen)}
+            out[f"{method}, {threads} threads"] = row
+            la = row["latency_ms"]
+            print(f"| {method} | {threads} | {la['p50']:.0f} / {la['p95']:.0f} / {la['max']:.0f} | "
+                  f"{row['worker_cpu_ms_median']:.0f} |", flush=True)
     return out
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder holding the data sets")
-    ap.add_argument("--only", nargs="+", choices=("tune", "ridge", "quality", "speed", "learned"),
+    ap.add_argument("--only", nargs="+", choices=("tune", "ridge", "quality", "speed", "learned", "pool"),
                     default=["tune", "ridge", "quality", "speed", "learned"])
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--threads", type=int, default=1, help="cv2.setNumThreads for the speed runs")
@@ -428,6 +516,8 @@ def main(argv: list[str] | None = None) -> int:
         res["speed"] = speed(a.data, a.repeats, a.threads)
     if "learned" in a.only:
         res["learned"] = learned(a.data, a.repeats, a.threads)
+    if "pool" in a.only:
+        res["pool"] = pool(a.repeats)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(res, indent=1))
     print(f"\nwrote {a.out}")

@@ -3,7 +3,8 @@
     .venv/bin/python bench/mission_methods.py [--methods it+r learned] [--rounds 1] [--speed 4]
                                               [--out bench/results/mission_methods.json]
 
-Each round runs ``skynet mission --method M`` (the launcher, default secure mode: TLS and the ACL, three
+The learned method runs on the runtime ``$SKYNET_DETECTOR_RUNTIME`` chooses (default OpenVINO when the
+extra ``fast`` is installed, else OpenCV's cv2.dnn), which the JSON records. Each round runs ``skynet mission --method M`` (the launcher, default secure mode: TLS and the ACL, three
 UAVs, the monorail wall at 640 x 480) once per method, interleaved so that the machine's load falls on
 both alike, and reads the mission's own report.json: capture-to-report p50 / p95 (goal: p95 < 150 ms
 for three UAVs), the detector's queue and worker times, and the object-level recall and precision of the
@@ -36,6 +37,14 @@ def commit() -> str:
         return "?"
 
 
+def learned_runtime() -> str:
+    """The learned method's runtime the missions' detector workers choose (they inherit this environment)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from services.detector.learned import runtime
+
+    return runtime()
+
+
 def row(method: str, rnd: int, r: dict) -> dict:
     rep = r["report"]
     lat = find(rep, "links", "imagery", "capture_to_report_ms", default={}) or {}
@@ -66,8 +75,9 @@ def main() -> int:
     doc = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit(),
            "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {load0[0]:.1f} at the start "
                       f"and {os.getloadavg()[0]:.1f} at the end",
-           "command": " ".join(["bench/mission_methods.py", *sys.argv[1:]]), "rows": rows}
-    print(f"\n{doc['date']}, commit {doc['commit']}, {doc['machine']}\n")
+           "command": " ".join(["bench/mission_methods.py", *sys.argv[1:]]), "learned_runtime": learned_runtime(),
+           "rows": rows}
+    print(f"\n{doc['date']}, commit {doc['commit']}, {doc['machine']}, learned on {doc['learned_runtime']}\n")
     print("| method | round | success | capture->report p50 / p95 (ms) | recall | precision (reports on a crack / reports) |")
     print("|---|---|---|---|---|---|")
     for r in rows:

@@ -92,10 +92,10 @@ def _image(a: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     if "learned" in ([a.method] if a.command == "image" else a.methods):
-        from .learned import ModelError, load_model
+        from .learned import ModelError, warm_up
 
-        try:  # a bad model file: one line naming it
-            load_model()
+        try:  # a bad model file or runtime: one line naming it
+            warm_up(shapes=((16, 24),))
         except ModelError as exc:
             print(f"skynet detect: {exc}", file=sys.stderr)
             return 2

@@ -20,6 +20,11 @@ from protocol.messages import DefectReport, FrameEvidence, ImageMeta
 
 #: start methods that do not fork the parent's threads (Zenoh runs its own)
 CONTEXTS = ("spawn", "forkserver")
+#: OpenCV threads per worker process. OpenCV's default is one per core in every process, so two workers on
+#: two cores ran four threads, and a parallel ``cv2.dnn`` forward waits at each layer for its slowest thread:
+#: on a loaded machine that thread is often descheduled (the learned method's 640 x 480 forward took 100 ms
+#: on two threads against 77 ms CPU on one, docs/detector.md "Speed"). The pool's parallelism is its workers.
+THREADS_PER_WORKER = 1
 
 
 class WorkerCrashed(RuntimeError):
@@ -38,10 +43,14 @@ def analyse_frame(meta: ImageMeta, image: bytes, method: str, ssrc: int, seq: in
                                                             digest=hashlib.sha256(image).hexdigest())})
 
 
-def _init_worker() -> None:
+def _init_worker(threads: int = THREADS_PER_WORKER) -> None:
     """A worker ignores Ctrl-C: the signal goes to the whole process group, and the detector that owns the
     pool shuts it down itself (:meth:`DetectorPool.close`) after draining its queue. A worker whose detector
-    dies without closing it (SIGKILL, a crash) follows it at once instead of staying behind as an orphan."""
+    dies without closing it (SIGKILL, a crash) follows it at once instead of staying behind as an orphan.
+    Its OpenCV runs ``threads`` threads (:data:`THREADS_PER_WORKER`)."""
+    import cv2
+
+    cv2.setNumThreads(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     parent = multiprocessing.parent_process()
     if parent is not None:
@@ -71,17 +80,32 @@ def _warm(method: str = "it+r") -> int:
     meta = ImageMeta(uav=1, capture_id=0, t=0.0, stamp=0.0, cam_pos=(0.0, 0.0, 0.0), cam_rot=(1, 0, 0, 0, 1, 0, 0, 0, 1),
                      intrinsics=Intrinsics(width=128, height=96, fx=100.0, fy=100.0, cx=64.0, cy=48.0), range_m=1.0)
     analyse(meta, jpeg, method)
+    if method == "learned":  # the runtime's kernels for the frame sizes the cameras send
+        from .learned import warm_up
+
+        warm_up()
     time.sleep(0.2)  # best effort: hold this worker, so that each of the pool's warm calls lands on another one
     return os.getpid()
+
+
+def worker_threads() -> int:
+    """OpenCV's thread count in the calling process (in a worker: :data:`THREADS_PER_WORKER` unless set)."""
+    import cv2
+
+    return int(cv2.getNumThreads())
 
 
 class DetectorPool:
     """``workers`` detection processes; :meth:`analyse` blocks its (Ring worker) thread for one frame."""
 
-    def __init__(self, workers: int = 2, context: str = "spawn", max_pixels: int | None = None):
+    def __init__(self, workers: int = 2, context: str = "spawn", max_pixels: int | None = None,
+                 threads: int = THREADS_PER_WORKER):
         self.max_pixels = max_pixels  # frames above it are detected on a reduced decode (pipeline.analyse)
         if workers < 1:
             raise ValueError("the pool needs at least one worker process")
+        if threads < 1:
+            raise ValueError("each worker needs at least one OpenCV thread")
+        self.threads = threads
         if context not in CONTEXTS:
             raise ValueError(f"start method {context!r}: choose from {CONTEXTS}")
         self.workers = workers
@@ -94,7 +118,8 @@ class DetectorPool:
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx, initializer=_init_worker)
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=self._ctx, initializer=_init_worker,
+                                   initargs=(self.threads,))
 
     def warm(self, timeout: float = 60.0, method: str = "it+r") -> list[int]:
         """Start every worker process and import the detection stack (and ``method``'s model) in it; their pids."""

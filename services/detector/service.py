@@ -254,10 +254,10 @@ def run(args: DetectorConfig) -> int:
     name = args.partition.name
     log = setup_logging(name)
     if args.method == "learned":  # a bad model file: one line naming it, before the bus and the workers start
-        from .learned import ModelError, load_model
+        from .learned import ModelError, warm_up
 
-        try:
-            load_model()
+        try:  # the model file and the runtime ($SKYNET_DETECTOR_RUNTIME) on a small frame
+            log.info("learned detector runtime: %s", warm_up(shapes=((16, 24),)))
         except ModelError as exc:
             print(f"skynet detector: {exc}", file=sys.stderr)
             return 2

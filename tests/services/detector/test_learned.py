@@ -69,6 +69,22 @@ def test_odd_sizes_colour_and_tiles_agree(monkeypatch):
     assert np.mean(whole == tiled) > 0.999
 
 
+def test_one_opencv_thread_segments_as_many_do():
+    """The detector's workers run OpenCV on one thread (services.detector.pool): the network's answer is the
+    one the figures were measured with, whatever the thread count."""
+    grey, _ = planted_crack(seed=11, size=(240, 320))
+    before = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(max(2, before))
+        many = probability(grey)
+        cv2.setNumThreads(1)
+        one = probability(grey)
+    finally:
+        cv2.setNumThreads(before)
+    assert np.abs(one - many).max() < 1e-5
+    assert np.array_equal(one > 0.5, many > 0.5) and np.count_nonzero(one > 0.5) > 0
+
+
 def test_model_is_loaded_once_per_process():
     assert load_model() is load_model() is load_model(MODEL_PATH)
 
@@ -89,12 +105,60 @@ def test_a_missing_model_file_is_named(tmp_path):
         load_model(tmp_path / "no_such_model.onnx")
 
 
+HAS_OPENVINO = importlib.util.find_spec("openvino") is not None
+
+
+def test_the_runtime_is_chosen_by_its_variable_and_a_wrong_one_is_one_line(monkeypatch):
+    monkeypatch.setenv(learned.RUNTIME_ENV, "opencv")
+    assert learned.runtime() == "opencv"
+    monkeypatch.setenv(learned.RUNTIME_ENV, "tensorflow")
+    with pytest.raises(ModelError, match="runtime 'tensorflow'.*choose from opencv, openvino") as err:
+        learned.runtime()
+    assert "\n" not in str(err.value)
+    monkeypatch.delenv(learned.RUNTIME_ENV)
+    assert learned.runtime() == ("openvino" if HAS_OPENVINO else "opencv")  # the faster one when installed
+    if not HAS_OPENVINO:
+        monkeypatch.setenv(learned.RUNTIME_ENV, "openvino")
+        with pytest.raises(ModelError, match=r"not installed \(pip install -e '\.\[fast\]'\)"):
+            learned.runtime()
+
+
+@pytest.mark.skipif(not HAS_OPENVINO, reason="the optional extra 'fast' (OpenVINO) is not installed")
+def test_openvino_segments_as_opencv_does(monkeypatch):
+    """OpenVINO (bfloat16 where the CPU has it) against cv2.dnn's float32 on planted cracks, whole and tiled."""
+    for seed, size in ((5, (240, 320)), (9, (237, 301))):
+        grey, truth = planted_crack(seed=seed, size=size)
+        monkeypatch.setenv(learned.RUNTIME_ENV, "opencv")
+        ref = probability(grey)
+        monkeypatch.setenv(learned.RUNTIME_ENV, "openvino")
+        p = probability(grey)
+        assert p.shape == grey.shape and p.dtype == np.float32
+        assert np.abs(p - ref).max() < 0.1  # bfloat16 keeps 8 bits of mantissa
+        assert np.mean((p > 0.5) == (ref > 0.5)) > 0.999
+        assert score(detect(grey, "learned").mask, truth).f >= PLANTED_F_FLOOR
+    assert learned.warm_up(shapes=((16, 24),)) == "openvino"
+
+
 def _cli(*argv: str, env_model: Path, timeout: float = 60) -> subprocess.CompletedProcess:
     import os
 
     env = {**os.environ, learned.MODEL_ENV: str(env_model)}
     return subprocess.run([sys.executable, "-m", "services.cli", *argv], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=timeout)
+
+
+def test_cli_and_detector_refuse_an_unknown_runtime_in_one_line(tmp_path):
+    img = tmp_path / "wall.png"
+    cv2.imwrite(str(img), planted_crack()[0])
+    import os
+
+    for argv, who in (((("detect", "image", str(img), "--method", "learned", "--out", str(tmp_path))), "skynet detect"),
+                      (("detector", "--method", "learned", "--fleet", "test"), "skynet detector")):
+        r = subprocess.run([sys.executable, "-m", "services.cli", *argv], cwd=ROOT, capture_output=True, text=True,
+                           env={**os.environ, learned.RUNTIME_ENV: "gpu"}, timeout=60)
+        assert r.returncode == 2, r.stdout + r.stderr
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith(who) and learned.RUNTIME_ENV in lines[0], r.stderr
 
 
 def test_cli_and_detector_refuse_a_corrupt_model_in_one_line(tmp_path):

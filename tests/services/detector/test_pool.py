@@ -11,7 +11,7 @@ from edge.world.surface import crack_image
 from protocol.messages import ImageMeta, Intrinsics
 from protocol.rtp import ssrc_for
 from services.detector.pipeline import analyse
-from services.detector.pool import DetectorPool, WorkerCrashed
+from services.detector.pool import THREADS_PER_WORKER, DetectorPool, WorkerCrashed, worker_threads
 
 
 def _frame(seed):
@@ -76,6 +76,8 @@ def test_a_worker_killed_from_outside_costs_no_frame(pool):
 def test_bad_arguments_are_refused():
     with pytest.raises(ValueError):
         DetectorPool(0)
+    with pytest.raises(ValueError, match="thread"):
+        DetectorPool(1, threads=0)
     with pytest.raises(ValueError, match="start method"):
         DetectorPool(1, "fork")
 
@@ -111,3 +113,15 @@ def _alive(pid: int) -> bool:
             return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has ended
     except FileNotFoundError:
         return False
+
+
+def test_each_worker_runs_opencv_on_one_thread_not_one_per_core(pool):
+    """Two workers each running OpenCV's default (a thread per core) oversubscribe the cores."""
+    assert THREADS_PER_WORKER == 1
+    assert pool.call(worker_threads) == 1
+    assert pool.warm() and pool.call(worker_threads) == 1  # after a frame, too
+    p = DetectorPool(1, threads=2)
+    try:
+        assert p.call(worker_threads) == 2
+    finally:
+        p.close()
