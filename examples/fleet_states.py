@@ -22,6 +22,7 @@ from protocol.budget import for_topic
 from protocol.cliconfig import add_options
 from protocol.links import TELEMETRY
 from protocol.messages import VehicleState
+from protocol.signals import stop_event_on_signals
 from services.attach import AttachOptions, open_bus
 
 ROLE = "web"  # may receive everything of the fleet, put or ask nothing (protocol/acl.py)
@@ -33,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--count", type=int, default=0, help="stop after this many states (default: 0, never)")
     parser.add_argument("--duration-s", dest="duration", type=float, default=0.0, help="stop after this many s (default: 0, never)")
     args = parser.parse_args(argv)
-    done, lock, seen = threading.Event(), threading.Lock(), [0]
+    done, lock, seen = stop_event_on_signals(), threading.Lock(), [0]  # Ctrl-C, --count or --duration-s
 
     def on_state(msg: VehicleState, sample: zenoh.Sample) -> None:
         if not binding.matches(str(sample.key_expr), msg.uav):
@@ -55,8 +56,6 @@ def main(argv: list[str] | None = None) -> int:
             done.wait(args.duration or None)
     except (ValueError, OSError) as exc:  # AttachError included: what is missing, in one line
         parser.exit(1, f"{parser.prog}: error: {exc}\n")
-    except KeyboardInterrupt:
-        pass
     return 0
 
 

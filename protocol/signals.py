@@ -5,11 +5,25 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+import time
 from collections.abc import Iterator, Sequence
 
-__all__ = ["STOP_SIGNALS", "stop_event_on_signals", "stopping_on_signals"]
+__all__ = ["STOP_SIGNALS", "StopEvent", "stop_event_on_signals", "stopping_on_signals"]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+POLL_S = 0.2  # how late a signal taken by another thread may stop a waiting main thread
+
+
+class StopEvent(threading.Event):
+    """An event whose :meth:`wait` wakes every ``POLL_S``, so a signal's Python handler runs (on the main thread
+    only, when it runs Python code) even when the kernel gave the signal to a thread of Zenoh's runtime."""
+
+    def wait(self, timeout: float | None = None) -> bool:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            left = POLL_S if deadline is None else min(POLL_S, deadline - time.monotonic())
+            if super().wait(max(left, 0.0)) or (deadline is not None and left <= 0):
+                return self.is_set()
 
 
 def stop_event_on_signals(signals: Sequence[int] = STOP_SIGNALS,
@@ -18,7 +32,7 @@ def stop_event_on_signals(signals: Sequence[int] = STOP_SIGNALS,
 
     Off the main thread (where Python cannot install handlers) the event is returned unhooked.
     """
-    stop = stop or threading.Event()
+    stop = stop or StopEvent()
     if threading.current_thread() is threading.main_thread():
         for s in signals:
             signal.signal(s, lambda signum, frame: stop.set())
