@@ -5,8 +5,6 @@ Design notes: docs/edge.md (edge/camera_service.py).
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import json
 import logging
 import threading
@@ -16,6 +14,7 @@ import numpy as np
 
 from protocol import keys
 from protocol.bus import Bus
+from protocol.heap import release_freed_memory
 from protocol.imagecodec import encode_jpeg
 from protocol.imagery import pack_image
 from protocol.links import IMAGERY, IMAGERY_RELIABLE, LinkClass
@@ -219,14 +218,6 @@ class PreviewStream:
             self._closed = True
             self._cond.notify()
         self._thread.join(timeout)
-
-
-def release_freed_memory() -> None:
-    """Hand the heap freed by start-up temporaries back to the system (glibc ``malloc_trim``):
-    building the synthetic wall leaves about 24 MB free but held in every edge.
-    A no-op where there is no glibc."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 def make_camera(config: EdgeConfig, bus: Bus, log: logging.Logger) -> CameraLink | None:

@@ -24,6 +24,7 @@ from protocol.bus import (
     stop_event_on_signals,
 )
 from protocol.cliconfig import add_options, from_namespace
+from protocol.heap import release_freed_memory
 from protocol.links import LINK_CLASSES, TELEMETRY, class_of_topic
 from protocol.messages import ClassCounters, LinkStats
 from protocol.readiness import notify_ready
@@ -148,13 +149,17 @@ def run(args: GatewayConfig) -> int:
             bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
         stats_key = keys.gateway_stats(args.fleet, args.id)
         pub = bus.publisher(stats_key, TELEMETRY)
-        t0 = time.time()
+        t0, sessions = time.time(), 0
         while not stop.wait(args.period):
+            counts = session_counts(bus)
+            if sum(counts.values()) < sessions:
+                release_freed_memory()  # what a departed session's declarations held goes back to the system
+            sessions = sum(counts.values())
             snap = bus.counters.snapshot()
             rejected = {"unknown-key": meter.unknown, **{k: v for k, v in snap["rejected"].items()},
                         **{f"guard-{k}": v for g in guards for k, v in g.counts.items() if k != "pass"}}
             pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - t0,
-                              sessions=session_counts(bus), classes=meter.classes(), rejected=rejected))
+                              sessions=counts, classes=meter.classes(), rejected=rejected))
         log.info("shutting down")
     for g in guards:
         g.stop()
