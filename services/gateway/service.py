@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
+import threading
 import time
 from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
@@ -130,40 +133,80 @@ def run(args: GatewayConfig) -> int:
     base = config_from_args(args, role="gateway", listen=listen, multilink=multilink)
     thin = ingress.state_ingress(args.fleet, args.state_ingress_hz) if args.state_ingress_hz else []
     config = RouterConfig(**dict(base), downsampling=thin)
+    names = admitted(args.keys)
     if args.keys:
         # mutual TLS: ACL by certificate common name on every listener; a tcp/ or udp/ listener admits no
         # certificate, so what arrives there matches no subject and is denied everything (default deny)
-        from protocol.keyset import KeySet
-        names = KeySet(args.keys, "gateway").admitted()
-        config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
-        log.info("ACL by certificate common name for %s", ", ".join(names))
         plain = [e for e in listen if not e.startswith("tls/")]
         if plain:
             log.warning("listeners without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
     stop = stop_event_on_signals()
-    meter = TrafficMeter()
-    with Bus(config, fleet=args.fleet, name="gateway") as bus:
-        log.info("router up, listening on %s", ", ".join(listen) or "(config file)")
-        notify_ready("gateway", args.id)
-        for key in keys.metered(args.fleet):  # not the previews: a meter would make every camera render them
-            bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
-        stats_key = keys.gateway_stats(args.fleet, args.id)
-        pub = bus.publisher(stats_key, TELEMETRY)
-        t0, sessions = time.time(), 0
-        while not stop.wait(args.period):
-            counts = session_counts(bus)
-            if sum(counts.values()) < sessions:
-                release_freed_memory()  # what a departed session's declarations held goes back to the system
-            sessions = sum(counts.values())
-            snap = bus.counters.snapshot()
-            rejected = {"unknown-key": meter.unknown, **{k: v for k, v in snap["rejected"].items()},
-                        **{f"guard-{k}": v for g in guards for k, v in g.counts.items() if k != "pass"}}
-            pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - t0,
-                              sessions=counts, classes=meter.classes(), rejected=rejected))
-        log.info("shutting down")
+    relay = Relay(args, listen, guards, stop)
+    while names is not None and not stop.is_set():
+        acl_config = config
+        if args.keys:
+            acl_config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
+            log.info("ACL by certificate common name for %s", ", ".join(names))
+        names = relay.run(acl_config, names)
     for g in guards:
         g.stop()
     return 0
+
+
+def admitted(folder: str | None) -> list[str]:
+    """The certificate common names the key set admits now (none without a key set)."""
+    from protocol.keyset import KeySet
+
+    return KeySet(folder, "gateway").admitted() if folder else []
+
+
+@dataclass
+class Relay:
+    """The router's session, reopened when the key set revokes a name it admits (so that its sessions end)."""
+
+    args: GatewayConfig
+    listen: list[str]
+    guards: list[Any]
+    stop: threading.Event
+    meter: TrafficMeter = field(default_factory=TrafficMeter)
+    t0: float = field(default_factory=time.time)
+    opened: int = 0
+
+    def run(self, config: RouterConfig, names: list[str]) -> list[str] | None:
+        """The router until ``stop`` (None) or until a name of ``names`` is revoked (the names admitted now)."""
+        args, meter, log = self.args, self.meter, logging.getLogger(f"gateway-{self.args.id}")
+        with Bus(config, fleet=args.fleet, name="gateway") as bus:
+            self.opened += 1
+            log.info("router up, listening on %s", ", ".join(self.listen) or "(config file)")
+            if self.opened == 1:
+                notify_ready("gateway", args.id)
+            for key in keys.metered(args.fleet):  # not the previews: a meter would make every camera render them
+                bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
+            pub = bus.publisher(keys.gateway_stats(args.fleet, args.id), TELEMETRY)
+            sessions, unreadable = 0, False
+            while not self.stop.wait(args.period):
+                counts = session_counts(bus)
+                if sum(counts.values()) < sessions:
+                    release_freed_memory()  # what a departed session's declarations held goes back to the system
+                sessions = sum(counts.values())
+                snap = bus.counters.snapshot()
+                rejected = {"unknown-key": meter.unknown, **{k: v for k, v in snap["rejected"].items()},
+                            **{f"guard-{k}": v for g in self.guards for k, v in g.counts.items() if k != "pass"}}
+                pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - self.t0,
+                                  sessions=counts, classes=meter.classes(), rejected=rejected))
+                try:
+                    now = admitted(args.keys)
+                except (OSError, ValueError) as exc:  # a key set being rewritten: the ACL stays as it is
+                    if not unreadable:
+                        log.warning("key set unreadable (%s): the ACL stays as it is", exc)
+                    unreadable = True
+                    continue
+                unreadable = False
+                if gone := sorted(set(names) - set(now)):
+                    log.warning("revoked: %s; reopening the router so that its sessions end", ", ".join(gone))
+                    return now
+            log.info("shutting down")
+        return None
 
 
 if __name__ == "__main__":

@@ -305,3 +305,40 @@ def test_the_memory_of_a_departed_identitys_declaration_flood_goes_back_to_the_s
     left = settled_rss_mb(pid) - base
     assert len(held) == 3000 and grown > 3.0, grown  # the flood took memory (about 3 KB a declaration)
     assert left < grown / 2, (grown, left)
+
+
+def test_a_node_revoked_while_the_gateway_runs_is_cut_off_and_the_others_come_back(tmp_path, group):
+    """``skynet keys revoke DIR uav2`` beside a running gateway: within seconds the stolen uav2 certificate's
+    session (still open, still publishing) reaches nobody, while uav1's states reach the ground station again
+    after the gateway reopened its router with the narrower ACL."""
+    from services.keys import main as keys_main
+
+    ks_dir = init(tmp_path / "keys", uavs=2)
+    tls_ep = f"tls/127.0.0.1:{free_port(socket.SOCK_STREAM)}"
+    gw = group.start("gateway", ["gateway", "--fleet", FLEET, "--keys", str(ks_dir), "--listen", tls_ep,
+                                 "--period-s", "0.5", "--state-ingress-hz", "0"])
+    assert gw.wait_ready(20), "\n".join(gw.lines)
+    gcs = Bus(tls(KeySet(ks_dir, "gcs"), "client", [tls_ep], reconnect_max_s=0.5), FLEET, "gcs")
+    uav1 = Bus(tls(KeySet(ks_dir, "uav1"), "client", [tls_ep], reconnect_max_s=0.5), FLEET, "uav1")
+    uav2 = Bus(tls(KeySet(ks_dir, "uav2"), "client", [tls_ep], reconnect_max_s=0.5), FLEET, "uav2")
+    try:
+        seen = Watch(gcs)
+        pubs = {1: uav1.publisher(keys.state(FLEET, 1), TELEMETRY), 2: uav2.publisher(keys.state(FLEET, 2), TELEMETRY)}
+
+        def speak(seconds: float) -> None:
+            for i in range(int(seconds / 0.05)):
+                for uav, pub in pubs.items():
+                    pub.put(state(uav, i))
+                time.sleep(0.05)
+
+        speak(2.0)
+        assert seen.got.get(1, 0) > 10 and seen.got.get(2, 0) > 10, seen.got  # both heard before
+        assert keys_main(["revoke", str(ks_dir), "uav2"]) == 0
+        assert wait_until(lambda: any("revoked: uav2" in ln for ln in gw.lines), 10), gw.lines[-10:]
+        speak(4.0)  # the sessions come back to the reopened router
+        seen.got.clear()
+        speak(3.0)
+        assert seen.got.get(1, 0) > 10 and 2 not in seen.got, seen.got
+    finally:
+        for bus in (gcs, uav1, uav2):
+            bus.close()
