@@ -56,10 +56,15 @@ def _is_role(name: str) -> bool:
 
 
 def _write(path: Path, data: bytes, private: bool = False) -> None:
+    """Write ``path`` whole or not at all (a temporary file renamed over it): a running gateway reads
+    ``certs.txt`` and ``revoked.txt`` while they are rewritten, and an empty read would revoke everyone."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600 if private else 0o644)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.unlink(missing_ok=True)  # a crashed writer's leftover keeps its mode: never reuse it
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600 if private else 0o644)
     with os.fdopen(fd, "wb") as f:
         f.write(data)
+    os.replace(tmp, path)
 
 
 def _pem_private(key) -> bytes:
