@@ -119,9 +119,8 @@ class VideoCaptureSource:
         self.cap.release()
 
 
-def make_source(spec: str, surface: SyntheticSurface | None = None, camera: CameraModel | None = None,
-                *, loop: bool = True, grey: bool | None = None, mask: bool = True,
-                upsample: bool = False) -> FrameSource:
+def make_source(spec: str, surface: SyntheticSurface | None = None, camera: CameraModel | None = None, *,
+                loop: bool = True, grey: bool | None = None, mask: bool = True, upsample: bool = False) -> FrameSource:
     """A frame source from a spec string: ``"synthetic"`` (:class:`SyntheticSource` of ``surface`` and
     ``camera``), ``"video:<url or index>"`` (:class:`VideoCaptureSource`), else a folder
     (:class:`FolderSource`, with a data set's sibling ``masks/`` as ground truth). ValueError otherwise.

@@ -124,10 +124,8 @@ class JitterBuffer:
     (1, 65537)
     """
 
-    def __init__(
-        self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE,
-        release_late: bool = False,
-    ) -> None:
+    def __init__(self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE,
+                 release_late: bool = False) -> None:
         self.capacity, self.playout_delay_s, self.clock_rate = _check_params(capacity, playout_delay_s, clock_rate)
         #: hand a late packet (its number already given up) out anyway, after the frames in order:
         #: for media where every frame counts whatever its order (inspection captures); counted late
@@ -385,14 +383,8 @@ class JitterBuffers:
     ``max_sources`` raises ValueError (forged SSRCs must not grow memory without bound).
     """
 
-    def __init__(
-        self,
-        capacity: int = 64,
-        playout_delay_s: float = 0.1,
-        clock_rate: int = VIDEO_CLOCK_RATE,
-        max_sources: int = 64,
-        release_late: bool = False,
-    ) -> None:
+    def __init__(self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE,
+                 max_sources: int = 64, release_late: bool = False) -> None:
         self._params = (*_check_params(capacity, playout_delay_s, clock_rate), bool(release_late))
         if isinstance(max_sources, bool) or not isinstance(max_sources, int) or max_sources < 1:
             raise ValueError(f"max_sources must be a positive int, got {max_sources!r}")

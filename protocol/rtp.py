@@ -327,14 +327,8 @@ class RtpSender:
 
     __slots__ = ("ssrc", "payload_type", "clock_rate", "_seq", "packets_sent", "octets_sent")
 
-    def __init__(
-        self,
-        ssrc: int,
-        payload_type: int = SKYNET_PAYLOAD_TYPE,
-        clock_rate: int = VIDEO_CLOCK_RATE,
-        initial_seq: int | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
+    def __init__(self, ssrc: int, payload_type: int = SKYNET_PAYLOAD_TYPE, clock_rate: int = VIDEO_CLOCK_RATE,
+                 initial_seq: int | None = None, rng: np.random.Generator | None = None) -> None:
         _check_u(ssrc, _TS_MASK, "ssrc")
         _check_u(payload_type, 0x7F, "payload_type")
         media_timestamp(0.0, clock_rate)  # validates clock_rate

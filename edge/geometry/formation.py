@@ -105,9 +105,7 @@ def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np
     return R
 
 
-def errors_in_formation(
-    desired: ArrayLike, actual: ArrayLike, R_OF: ArrayLike
-) -> NDArray[np.float64]:
+def errors_in_formation(desired: ArrayLike, actual: ArrayLike, R_OF: ArrayLike) -> NDArray[np.float64]:
     """Position errors ``e^F = R_OF^T (P_d − P)`` (P8), ``(..., 3)``, with ``R_OF`` ``(3, 3)`` or ``(..., 3, 3)``."""
     d = finite_array("desired", desired)
     a = finite_array("actual", actual)
@@ -127,13 +125,8 @@ def errors_to_inertial(e_F: ArrayLike, R_OF: ArrayLike) -> NDArray[np.float64]:
     return np.einsum("...ij,...j->...i", R, e)
 
 
-def uav_positions(
-    centroid: ArrayLike,
-    yaw: ArrayLike,
-    offsets: ArrayLike = DEFAULT_OFFSETS,
-    roll: ArrayLike = 0.0,
-    pitch: ArrayLike = 0.0,
-) -> NDArray[np.float64]:
+def uav_positions(centroid: ArrayLike, yaw: ArrayLike, offsets: ArrayLike = DEFAULT_OFFSETS, roll: ArrayLike = 0.0,
+                  pitch: ArrayLike = 0.0) -> NDArray[np.float64]:
     """Slots ``(N, M, 3)`` of M UAVs along a centroid path ``(N, 3)``, ``P_n = P_F + R_OF ΔT_n`` (P9); ``yaw``,
     ``roll`` and ``pitch`` scalars or ``(N,)``.
     """
@@ -191,15 +184,10 @@ def _offset_of(offsets: Mapping[int, ArrayLike], uav: int) -> NDArray[np.float64
     return finite_vec3(f"offset of UAV {uav}", offsets[uav])
 
 
-def neighbour_correction(
-    own_tau: float,
-    own_ref_vel: ArrayLike,
-    neighbours: Mapping[int, tuple[ArrayLike, ArrayLike, float, float]],
-    stale_after_s: float = 1.0,
-    gain: float = 0.8,
-    max_correction: float = MAX_CORRECTION_M,
-    clock_rate: float = 1.0,
-) -> NDArray[np.float64]:
+def neighbour_correction(own_tau: float, own_ref_vel: ArrayLike,
+                         neighbours: Mapping[int, tuple[ArrayLike, ArrayLike, float, float]],
+                         stale_after_s: float = 1.0, gain: float = 0.8, max_correction: float = MAX_CORRECTION_M,
+                         clock_rate: float = 1.0) -> NDArray[np.float64]:
     """Own reference correction from the neighbours' shared states (P8), zeros without a fresh neighbour.
 
     ``neighbours`` maps an id to (position, planned position, trajectory time τ_j, age s); the error of
@@ -237,12 +225,8 @@ def neighbour_correction(
     return corr
 
 
-def formation_error(
-    positions: Mapping[int, ArrayLike],
-    centroid: ArrayLike | None,
-    yaw: float,
-    offsets: Mapping[int, ArrayLike],
-) -> float:
+def formation_error(positions: Mapping[int, ArrayLike], centroid: ArrayLike | None, yaw: float,
+                    offsets: Mapping[int, ArrayLike]) -> float:
     """RMS shape error (P6)-(P9), metres: ``sqrt(mean_n |(P_n − P̄) − R_OF (ΔT_n − ΔT̄)|²)`` over the UAVs in both
     mappings (translation does not count). One UAV: its distance to ``centroid + R_OF ΔT_n`` (0 without a centroid).
     """

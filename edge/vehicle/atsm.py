@@ -66,15 +66,8 @@ class ATSM:
         self._sigma_prev: list[float] | None = None
         self.sigma: Vec3 = (0.0, 0.0, 0.0)
 
-    def update(
-        self,
-        att: Vec3,
-        datt: Vec3,
-        rates: Vec3,
-        ref: Vec3,
-        dref: Vec3 = (0.0, 0.0, 0.0),
-        ddref: Vec3 = (0.0, 0.0, 0.0),
-    ) -> Vec3:
+    def update(self, att: Vec3, datt: Vec3, rates: Vec3, ref: Vec3, dref: Vec3 = (0.0, 0.0, 0.0),
+               ddref: Vec3 = (0.0, 0.0, 0.0)) -> Vec3:
         """One control period: torques ``u = u_eq + u_T`` (P13), N·m, from Θ, Θ̇, the body rates (for f(X) of
         (P12)) and the reference Θ_d with its first two derivatives.
         """

@@ -220,16 +220,9 @@ class Quadrotor:
     starting at rest and level at ``pos``, ``yaw``; ``ground_z`` None for no ground.
     """
 
-    def __init__(
-        self,
-        params: QuadParams = QuadParams(),
-        dt: float = 1 / 200,
-        disturbance: DisturbanceParams | None = None,
-        rng: np.random.Generator | None = None,
-        pos: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        yaw: float = 0.0,
-        ground_z: float | None = 0.0,
-    ):
+    def __init__(self, params: QuadParams = QuadParams(), dt: float = 1 / 200,
+                 disturbance: DisturbanceParams | None = None, rng: np.random.Generator | None = None,
+                 pos: tuple[float, float, float] = (0.0, 0.0, 0.0), yaw: float = 0.0, ground_z: float | None = 0.0):
         if not (math.isfinite(dt) and 0 < dt <= 1 / 100):
             raise ValueError("dt must be in (0, 0.01] s (100 Hz or faster)")
         pos = tuple(float(v) for v in pos)

@@ -70,18 +70,9 @@ class MissionSequencer:
     "wait", "track", "transit_resume" or "" (no mission in flight).
     """
 
-    def __init__(
-        self,
-        uav: int,
-        ground_z: float = 0.0,
-        *,
-        transit_speed: float = 4.0,
-        start_radius: float = 1.0,
-        arrive_radius: float = 0.3,
-        max_offset: float = 3.0,
-        offset_rate: float = 1.0,
-        interpolation: Literal["cubic", "linear"] = "cubic",
-    ):
+    def __init__(self, uav: int, ground_z: float = 0.0, *, transit_speed: float = 4.0, start_radius: float = 1.0,
+                 arrive_radius: float = 0.3, max_offset: float = 3.0, offset_rate: float = 1.0,
+                 interpolation: Literal["cubic", "linear"] = "cubic"):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
         if not math.isfinite(ground_z):

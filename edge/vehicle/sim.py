@@ -74,16 +74,8 @@ class SimDriver(VehicleDriver):
     and control at ``physics_hz`` (>= 100), disturbance seeded by ``seed``, clock ``t0`` and heading ``yaw``.
     """
 
-    def __init__(
-        self,
-        uav: int,
-        params: SimParams = SimParams(),
-        seed: int = 0,
-        home: Vec3 = (0.0, 0.0, 0.0),
-        physics_hz: int = 200,
-        t0: float = 0.0,
-        yaw: float = 0.0,
-    ):
+    def __init__(self, uav: int, params: SimParams = SimParams(), seed: int = 0, home: Vec3 = (0.0, 0.0, 0.0),
+                 physics_hz: int = 200, t0: float = 0.0, yaw: float = 0.0):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
         if not (isinstance(physics_hz, int) and 100 <= physics_hz <= 10000):

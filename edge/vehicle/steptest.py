@@ -52,19 +52,10 @@ class StepResult:
         }
 
 
-def run_step_test(
-    controller: str = "atsm",
-    *,
-    inertia_mismatch: float = 1.2,
-    disturbance: DisturbanceParams = TEST_DISTURBANCE,
-    gains: ATSMGains = ATSMGains(),
-    params: QuadParams = QuadParams(),
-    seed: int = 0,
-    duration: float = 6.0,
-    physics_hz: int = 200,
-    band: float = 0.02,
-    steady_s: float = 2.0,
-) -> StepResult:
+def run_step_test(controller: str = "atsm", *, inertia_mismatch: float = 1.2,
+                  disturbance: DisturbanceParams = TEST_DISTURBANCE, gains: ATSMGains = ATSMGains(),
+                  params: QuadParams = QuadParams(), seed: int = 0, duration: float = 6.0, physics_hz: int = 200,
+                  band: float = 0.02, steady_s: float = 2.0) -> StepResult:
     """Run the step test with ``controller`` "atsm" (P13)-(P17) or "twisting" (fixed gain), the controller's
     inertia the plant's times ``inertia_mismatch``, ``disturbance`` (default bounded torques of
     0.03/0.03/0.01 N·m), ``duration`` simulated s (> 2 s + ``steady_s``) and a settling ``band`` (fraction of the step).

@@ -73,9 +73,8 @@ class SyntheticSource:
     #: with ``upsample``: texture pixels per reduced frame pixel, at most (0.5: two pixels per texel)
     MAGNIFY_LIMIT = 0.5
 
-    def __init__(self, surface: SyntheticSurface, camera: CameraModel, sky: int = 200,
-                 noise_sigma: float = 0.0, seed: int | None = None, *, mask: bool = True,
-                 upsample: bool = False) -> None:
+    def __init__(self, surface: SyntheticSurface, camera: CameraModel, sky: int = 200, noise_sigma: float = 0.0,
+                 seed: int | None = None, *, mask: bool = True, upsample: bool = False) -> None:
         if not isinstance(surface, SyntheticSurface):
             raise ValueError(f"surface must be a SyntheticSurface, got {type(surface).__name__}")
         if not isinstance(camera, CameraModel):

@@ -73,16 +73,8 @@ def _value_noise(h: int, w: int, cell: float, rng: np.random.Generator) -> NDArr
     return out.astype(np.float32, copy=False)
 
 
-def textured_background(
-    shape: tuple[int, int],
-    rng: RngLike = None,
-    *,
-    mean: float = 140.0,
-    roughness: float = 14.0,
-    blotches: float = 1.0,
-    gradient: float = 0.12,
-    grain: float = 4.0,
-) -> NDArray[np.uint8]:
+def textured_background(shape: tuple[int, int], rng: RngLike = None, *, mean: float = 140.0, roughness: float = 14.0,
+                        blotches: float = 1.0, gradient: float = 0.12, grain: float = 4.0) -> NDArray[np.uint8]:
     """Concrete-like grey ``uint8`` texture of ``shape`` ``(height, width)``: ``mean`` grey level times an
     illumination ramp (``gradient``: peak-to-peak fraction of ``mean``), multi-scale value noise of std
     ``roughness``, soft blotches (``blotches`` per 200 x 200 px) and per-pixel ``grain`` (std, grey levels).
@@ -131,16 +123,8 @@ def textured_background(
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
-def _walk_crack(
-    mask: NDArray[np.uint8],
-    g: np.random.Generator,
-    start: tuple[float, float],
-    heading: float,
-    length: float,
-    width: tuple[float, float],
-    branch_prob: float,
-    depth: int,
-) -> None:
+def _walk_crack(mask: NDArray[np.uint8], g: np.random.Generator, start: tuple[float, float], heading: float,
+                length: float, width: tuple[float, float], branch_prob: float, depth: int) -> None:
     """Draw one crack (and recursively its branches) into ``mask`` in place."""
     h, w = mask.shape
     step = 3.0
@@ -181,15 +165,9 @@ def _walk_crack(
             )
 
 
-def draw_cracks(
-    shape: tuple[int, int],
-    rng: RngLike = None,
-    n_cracks: int = 3,
-    *,
-    length_px: tuple[float, float] | None = None,
-    width_px: tuple[float, float] = (1.0, 5.0),
-    branch_prob: float = 0.015,
-) -> NDArray[np.uint8]:
+def draw_cracks(shape: tuple[int, int], rng: RngLike = None, n_cracks: int = 3, *,
+                length_px: tuple[float, float] | None = None, width_px: tuple[float, float] = (1.0, 5.0),
+                branch_prob: float = 0.015) -> NDArray[np.uint8]:
     """Binary crack mask (255 on cracks) of ``shape``: ``n_cracks`` random-walk polylines of ``length_px``
     (default ``(0.25, 0.75) * hypot(h, w)``) and ``width_px``, forking with ``branch_prob`` per 3 px step.
     """
@@ -217,17 +195,10 @@ def draw_cracks(
     return mask
 
 
-def crack_image(
-    shape: tuple[int, int] = (480, 640),
-    rng: RngLike = None,
-    n_cracks: int = 3,
-    *,
-    contrast: tuple[float, float] = (0.25, 0.55),
-    noise_sigma: float = 3.0,
-    length_px: tuple[float, float] | None = None,
-    width_px: tuple[float, float] = (1.0, 5.0),
-    background: dict[str, float] | None = None,
-) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+def crack_image(shape: tuple[int, int] = (480, 640), rng: RngLike = None, n_cracks: int = 3, *,
+                contrast: tuple[float, float] = (0.25, 0.55), noise_sigma: float = 3.0,
+                length_px: tuple[float, float] | None = None, width_px: tuple[float, float] = (1.0, 5.0),
+                background: dict[str, float] | None = None) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
     """Grey image of a cracked concrete-like surface and its ground-truth mask (255 on cracks).
 
     The background is darkened under the mask by a relative depth within ``contrast`` plus Gaussian
@@ -257,17 +228,10 @@ def crack_image(
     return np.clip(np.rint(img), 0, 255).astype(np.uint8), mask
 
 
-def graded_crack_image(
-    shape: tuple[int, int],
-    rng: RngLike = None,
-    widths_px: Any = ((1.0, 5.0),),
-    n_cracks: int | None = None,
-    *,
-    contrast: tuple[float, float] = (0.35, 0.6),
-    noise_sigma: float = 3.0,
-    length_px: tuple[float, float] | None = None,
-    background: dict[str, float] | None = None,
-) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+def graded_crack_image(shape: tuple[int, int], rng: RngLike = None, widths_px: Any = ((1.0, 5.0),),
+                       n_cracks: int | None = None, *, contrast: tuple[float, float] = (0.35, 0.6),
+                       noise_sigma: float = 3.0, length_px: tuple[float, float] | None = None,
+                       background: dict[str, float] | None = None) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
     """Like :func:`crack_image`, but main crack ``k`` takes its width range from ``widths_px[k % len]``.
 
     Real concrete cracks of a wall span classes (AASHTO MBEI: < 0.3 mm, 0.3-1.3 mm, > 1.3 mm); a
@@ -342,25 +306,12 @@ class SyntheticSurface:
 
     MAX_PIXELS = 100_000_000
 
-    def __init__(
-        self,
-        origin: ArrayLike,
-        u_axis: ArrayLike,
-        v_axis: ArrayLike,
-        width_m: float,
-        height_m: float,
-        px_per_m: float = DEFAULT_PX_PER_M,
-        texture: NDArray[np.uint8] | None = None,
-        mask: NDArray[np.uint8] | None = None,
-        seed: int = 0,
-        *,
-        cracks_per_m2: float = 1 / 12,
-        crack_length_m: tuple[float, float] = (0.8, 3.0),
-        crack_width_px: tuple[float, float] = (2.0, 5.0),
-        contrast: tuple[float, float] = (0.35, 0.6),
-        n_cracks: int | None = None,
-        crack_width_ranges_px: Any = None,
-    ) -> None:
+    def __init__(self, origin: ArrayLike, u_axis: ArrayLike, v_axis: ArrayLike, width_m: float, height_m: float,
+                 px_per_m: float = DEFAULT_PX_PER_M, texture: NDArray[np.uint8] | None = None,
+                 mask: NDArray[np.uint8] | None = None, seed: int = 0, *, cracks_per_m2: float = 1 / 12,
+                 crack_length_m: tuple[float, float] = (0.8, 3.0), crack_width_px: tuple[float, float] = (2.0, 5.0),
+                 contrast: tuple[float, float] = (0.35, 0.6), n_cracks: int | None = None,
+                 crack_width_ranges_px: Any = None) -> None:
         o = _vec3("origin", origin)
         u = _vec3("u_axis", u_axis)
         v = _vec3("v_axis", v_axis)

@@ -100,12 +100,8 @@ def bbox_distance(uv: ArrayLike, bboxes: ArrayLike) -> NDArray[np.float64]:
     return np.hypot(gap[..., 0], gap[..., 1])
 
 
-def score_defects(
-    reports: Sequence[DefectReport],
-    ground_truth: Sequence[GroundTruthDefect],
-    corners: ArrayLike,
-    tolerance_m: float = 0.3,
-) -> DefectScore:
+def score_defects(reports: Sequence[DefectReport], ground_truth: Sequence[GroundTruthDefect], corners: ArrayLike,
+                  tolerance_m: float = 0.3) -> DefectScore:
     """Object-level recall ``n_found / n_truth`` and precision ``n_true / n_reported`` of reported defects
     against the ground truth, the analogues of ``r = tp / (tp + fn)`` and ``p = tp / (tp + fp)`` of (P20).
 

@@ -116,8 +116,7 @@ def severity_rank(severity: str) -> int:
 
 
 def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, origin: Sequence[float] | None = None,
-                   method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None
-                   ) -> Deliverable:
+                   method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None) -> Deliverable:
     """Segment, mosaic and measure (steps 1-3 of docs/report.md); the defects come sorted by
     :data:`SORT_KEY` and numbered in that order (defect 1 is the worst).
 

@@ -389,8 +389,7 @@ class Impairer:
     BLOCK = 4096
 
     def __init__(self, impairment: Impairment | str | dict[str, Any] | None = None,
-                 rng: np.random.Generator | int | None = None, origin_s: float = 0.0,
-                 mss: int = DEFAULT_MSS) -> None:
+                 rng: np.random.Generator | int | None = None, origin_s: float = 0.0, mss: int = DEFAULT_MSS) -> None:
         imp = Impairment.coerce(impairment)
         if not math.isfinite(origin_s):
             raise ValueError(f"origin_s must be finite, got {origin_s}")

@@ -79,8 +79,7 @@ class _ProxyBase:
     _sent: dict[str, dict[str, int]]
 
     def __init__(self, listen: Address | str, target: Address | str,
-                 impairment: Impairment | str | dict[str, Any] | None, seed: int | None,
-                 direction: Direction) -> None:
+                 impairment: Impairment | str | dict[str, Any] | None, seed: int | None, direction: Direction) -> None:
         if direction not in DIRECTIONS:
             raise ValueError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
         self.listen = _check_address(listen, "listen")

@@ -20,15 +20,9 @@ from .theta_pso import theta_pso
 __all__ = ["compare", "format_table", "convergence_plot", "cost_call_times", "bench"]
 
 
-def compare(
-    scenario: Scenario,
-    seeds: int = 20,
-    particles: int = 150,
-    iterations: int = 300,
-    waypoints: int = 10,
-    algorithms: tuple[str, ...] = ("ga", "tlbo", "pso", "theta-pso"),
-    init: str | None = None,
-) -> dict[str, Any]:
+def compare(scenario: Scenario, seeds: int = 20, particles: int = 150, iterations: int = 300, waypoints: int = 10,
+            algorithms: tuple[str, ...] = ("ga", "tlbo", "pso", "theta-pso"),
+            init: str | None = None) -> dict[str, Any]:
     """Run every algorithm over ``seeds`` seeds; returns ``{"rows": {...}, "histories": {...}}``."""
     if int(seeds) != seeds or seeds < 1:
         raise ValueError(f"seeds must be a positive integer, got {seeds!r}")
@@ -136,15 +130,8 @@ def cost_call_times(problem: PathProblem, particles: int = 150, calls: int = 100
     return {name: 1e3 * float(np.median(t)) for name, t in ts.items()}
 
 
-def bench(
-    scenario: Scenario,
-    seeds: int = 20,
-    particles: int = 150,
-    iterations: int = 300,
-    waypoints: int = 10,
-    repeats: int = 7,
-    out: str | Path | None = None,
-) -> dict[str, Any]:
+def bench(scenario: Scenario, seeds: int = 20, particles: int = 150, iterations: int = 300, waypoints: int = 10,
+          repeats: int = 7, out: str | Path | None = None) -> dict[str, Any]:
     """θ-PSO timing against pyswarms' GlobalBestPSO (same cost and budget), plus :func:`compare`.
 
     Both minimise the same :class:`Cost` (whose time per call does not depend on the

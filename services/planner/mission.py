@@ -40,17 +40,9 @@ def _int(name: str, value: Any, lo: int, hi: int) -> int:
     return int(value)
 
 
-def optimise(
-    scenario: Scenario,
-    algorithm: str = "theta-pso",
-    seed: int = 0,
-    particles: int | None = None,
-    iterations: int | None = None,
-    waypoints: int | None = None,
-    init: str | None = None,
-    time_budget_s: float | None = None,
-    anytime: bool = False,
-) -> tuple[PathProblem, OptResult]:
+def optimise(scenario: Scenario, algorithm: str = "theta-pso", seed: int = 0, particles: int | None = None,
+             iterations: int | None = None, waypoints: int | None = None, init: str | None = None,
+             time_budget_s: float | None = None, anytime: bool = False) -> tuple[PathProblem, OptResult]:
     """Optimise the centroid path only; returns the problem and the optimiser's result.
 
     All algorithms start from the same initial population for the same seed
@@ -82,17 +74,10 @@ def optimise(
     return problem, result
 
 
-def plan_details(
-    scenario: Scenario | dict[str, Any],
-    algorithm: str = "theta-pso",
-    seed: int = 0,
-    particles: int | None = None,
-    iterations: int | None = None,
-    waypoints: int | None = None,
-    request_id: int = 0,
-    time_budget_s: float | None = None,
-    anytime: bool = False,
-) -> tuple[MissionPlan, FormationTrajectories, OptResult]:
+def plan_details(scenario: Scenario | dict[str, Any], algorithm: str = "theta-pso", seed: int = 0,
+                 particles: int | None = None, iterations: int | None = None, waypoints: int | None = None,
+                 request_id: int = 0, time_budget_s: float | None = None,
+                 anytime: bool = False) -> tuple[MissionPlan, FormationTrajectories, OptResult]:
     """:func:`plan_mission` plus the dense trajectories and the optimiser's result.
 
     With ``anytime`` (:func:`optimise`), the best path found when the time budget ran out is
@@ -127,16 +112,9 @@ def plan_details(
     return plan, ft, res
 
 
-def plan_mission(
-    scenario: Scenario | dict[str, Any],
-    algorithm: str = "theta-pso",
-    seed: int = 0,
-    particles: int | None = None,
-    iterations: int | None = None,
-    waypoints: int | None = None,
-    time_budget_s: float | None = None,
-    anytime: bool = False,
-) -> MissionPlan:
+def plan_mission(scenario: Scenario | dict[str, Any], algorithm: str = "theta-pso", seed: int = 0,
+                 particles: int | None = None, iterations: int | None = None, waypoints: int | None = None,
+                 time_budget_s: float | None = None, anytime: bool = False) -> MissionPlan:
     """Plan a formation inspection mission from a scenario (or its document) with ``algorithm``
     ("theta-pso", "pso", "ga", "tlbo"), the same ``seed`` giving the same plan; the budget defaults to the
     scenario's ``[planner]`` section (the paper's 150 / 300 / 10). ``collision_free`` is an exact dense check

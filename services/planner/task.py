@@ -73,9 +73,8 @@ def grid_stations(length: float, a_fov: float, g: float) -> NDArray[np.float64]:
     return np.linspace(0.5 * a, L - 0.5 * a, n)
 
 
-def camera_grid(
-    surface: Surface, camera: Camera, smallest_feature: float, overlap: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def camera_grid(surface: Surface, camera: Camera, smallest_feature: float,
+                overlap: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Camera positions ``(K, 3)`` at the (P2) stand-off, row-major from the bottom-left corner, and unit
     optical axes ``(K, 3)`` covering a planar rectangle from its front: the set G of (P1)-(P3).
     """
@@ -212,13 +211,7 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
     )
 
 
-def coverage(
-    surface: Surface,
-    camera: Camera,
-    positions: ArrayLike,
-    look: ArrayLike,
-    resolution: float = 0.1,
-) -> float:
+def coverage(surface: Surface, camera: Camera, positions: ArrayLike, look: ArrayLike, resolution: float = 0.1) -> float:
     """Fraction of the wall imaged by square-on shots (footprint per :func:`footprint_at`).
 
     Samples the wall on a grid ``resolution`` metres apart (cell centres) and counts the samples

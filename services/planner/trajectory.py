@@ -97,12 +97,8 @@ def _blend_angle(a: NDArray[np.float64], b: float, w: NDArray[np.float64]) -> ND
     return a + w * d
 
 
-def build_trajectories(
-    scenario: Scenario,
-    centroid_path: ArrayLike,
-    inspection: InspectionPass | None,
-    ds: float = 1.0,
-) -> FormationTrajectories:
+def build_trajectories(scenario: Scenario, centroid_path: ArrayLike, inspection: InspectionPass | None,
+                       ds: float = 1.0) -> FormationTrajectories:
     """Per-UAV trajectories and capture points (P6)-(P9) from a centroid polyline ``(V, 3)`` resampled every
     ``ds`` m; with an ``inspection`` pass the polyline must hold its entry and exit as consecutive vertices
     (ValueError otherwise).

@@ -117,24 +117,11 @@ class MavlinkDriver(ParamClient, VehicleDriver):
     ``home_origin``: docs/hardware-mavlink.md, "Driver options".
     """
 
-    def __init__(
-        self,
-        uav: int,
-        connection: str,
-        home: Vec3 = (0.0, 0.0, 0.0),
-        rate_hz: float = 20.0,
-        timeout_s: float = 1.5,
-        *,
-        params: MavlinkParams = MavlinkParams(),
-        sysid: int | None = None,
-        source_system: int = 255,
-        source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
-        signing_key: str | None = None,
-        gcs_endpoint: str | None = None,
-        gcs_video: Any = None,
-        dialect: Dialect | None = None,
-        home_origin: Vec3 | None = None,
-    ):
+    def __init__(self, uav: int, connection: str, home: Vec3 = (0.0, 0.0, 0.0), rate_hz: float = 20.0,
+                 timeout_s: float = 1.5, *, params: MavlinkParams = MavlinkParams(), sysid: int | None = None,
+                 source_system: int = 255, source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
+                 signing_key: str | None = None, gcs_endpoint: str | None = None, gcs_video: Any = None,
+                 dialect: Dialect | None = None, home_origin: Vec3 | None = None):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
         if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 100):
