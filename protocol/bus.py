@@ -181,11 +181,8 @@ def config_from_args(args: BusOptions | argparse.Namespace, role: str | None = N
 
         ks = KeySet(Path(opts.keys), role)
         overrides = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key), **overrides}
-    values = dict(
-        mode=opts.mode, connect=opts.connect, listen=opts.listen, config_file=opts.config,
-        lease_s=opts.lease, multilink=opts.multilink, shared_memory=opts.shm,
-        multicast_scouting=opts.scouting, cfg=opts.cfg,
-    )
+    values = dict(mode=opts.mode, connect=opts.connect, listen=opts.listen, config_file=opts.config, lease_s=opts.lease,
+                  multilink=opts.multilink, shared_memory=opts.shm, multicast_scouting=opts.scouting, cfg=opts.cfg)
     values.update({k: v for k, v in overrides.items() if v is not None})
     return BusConfig(**values)
 

@@ -218,23 +218,12 @@ class JitterBuffer:
         """Current statistics (a snapshot)."""
         started = self._started
         expected = self._expected_prior + (self._max - self._base + 1 if started else 0)
-        return JitterStats(
-            ssrc=self._ssrc,
-            received=self.received,
-            delivered=self.delivered,
-            lost=self.lost,
-            duplicated=self.duplicated,
-            late=self.late,
-            reordered=self.reordered,
-            resyncs=self.resyncs,
-            buffered=len(self),
-            highest_sequence=self._max if started else None,
-            expected=expected,
-            fraction_lost=self.lost / expected if expected else 0.0,
-            cumulative_lost=expected - self.received,
-            jitter_ts=self._jitter,
-            jitter_s=self._jitter / self.clock_rate,
-        )
+        return JitterStats(ssrc=self._ssrc, received=self.received, delivered=self.delivered, lost=self.lost,
+                           duplicated=self.duplicated, late=self.late, reordered=self.reordered, resyncs=self.resyncs,
+                           buffered=len(self), highest_sequence=self._max if started else None, expected=expected,
+                           fraction_lost=self.lost / expected if expected else 0.0,
+                           cumulative_lost=expected - self.received, jitter_ts=self._jitter,
+                           jitter_s=self._jitter / self.clock_rate)
 
     # ---------------------------------------------------------------- internals
 

@@ -350,13 +350,8 @@ class RtpSender:
 
     def header(self, capture_time_s: float, marker: bool = True) -> RtpHeader:
         """Header of the next frame without consuming its sequence number."""
-        return RtpHeader(
-            sequence=self._seq,
-            timestamp=media_timestamp(capture_time_s, self.clock_rate),
-            ssrc=self.ssrc,
-            marker=bool(marker),
-            payload_type=self.payload_type,
-        )
+        return RtpHeader(sequence=self._seq, timestamp=media_timestamp(capture_time_s, self.clock_rate), ssrc=self.ssrc,
+                         marker=bool(marker), payload_type=self.payload_type)
 
     def frame(self, payload: bytes | bytearray | memoryview, capture_time_s: float, marker: bool = True) -> bytes:
         """Packet for one encoded image captured at ``capture_time_s`` (s); advances the sequence number."""

@@ -120,9 +120,7 @@ class Surface(_Model):
         if abs(float(u @ v)) > 1e-3 * lu * lv:
             raise ValueError("surface.corners: edges p0-p1 and p0-p3 must be perpendicular")
         if abs(u[2]) > 0.01 or np.hypot(v[0], v[1]) > 0.01 or v[2] <= 0:
-            raise ValueError(
-                "surface.corners: only vertical walls are supported (p0-p1 horizontal, p3 above p0)"
-            )
+            raise ValueError("surface.corners: only vertical walls are supported (p0-p1 horizontal, p3 above p0)")
         for lo, hi in self.crack_widths_mm or ():
             if lo > hi:
                 raise ValueError(f"surface.crack_widths_mm: ({lo}, {hi}) is not a (min, max) pair")
@@ -172,9 +170,8 @@ class Inspection(_Model):
 class FormationSpec(_Model):
     """Formation offsets ΔT_n (formation frame: x along travel, y left, z up) (P9)."""
 
-    offsets: list[Vec3] = Field(
-        default=[(0.0, 0.0, 2.0), (3.0, 0.0, -1.0), (-3.0, 0.0, -1.0)], min_length=1, max_length=255
-    )
+    offsets: list[Vec3] = Field(default=[(0.0, 0.0, 2.0), (3.0, 0.0, -1.0), (-3.0, 0.0, -1.0)], min_length=1,
+                                max_length=255)
     min_separation: NonNeg = 2.0
 
 

@@ -21,9 +21,7 @@ __all__ = [
 ]
 
 #: Desired offsets ΔT_n of UAVs 1, 2, 3 in the formation frame, metres (P9); row n-1 is UAV n.
-DEFAULT_OFFSETS: NDArray[np.float64] = np.array(
-    [[0.0, 0.0, 2.0], [3.0, 0.0, -1.0], [-3.0, 0.0, -1.0]], dtype=float
-)
+DEFAULT_OFFSETS: NDArray[np.float64] = np.array([[0.0, 0.0, 2.0], [3.0, 0.0, -1.0], [-3.0, 0.0, -1.0]], dtype=float)
 DEFAULT_OFFSETS.setflags(write=False)
 
 #: Default bound on the on-board formation correction, metres (our choice; the paper is silent).
@@ -86,9 +84,8 @@ def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np
     >>> np.round(R @ [1.0, 0.0, 0.0], 12)
     array([0., 1., 0.])
     """
-    phi, theta, psi = np.broadcast_arrays(
-        finite_array("roll", roll), finite_array("pitch", pitch), finite_array("yaw", yaw)
-    )
+    phi, theta, psi = np.broadcast_arrays(finite_array("roll", roll), finite_array("pitch", pitch),
+                                          finite_array("yaw", yaw))
     cf, sf = np.cos(phi), np.sin(phi)
     ct, st = np.cos(theta), np.sin(theta)
     cp, sp = np.cos(psi), np.sin(psi)
@@ -138,9 +135,7 @@ def uav_positions(centroid: ArrayLike, yaw: ArrayLike, offsets: ArrayLike = DEFA
         raise ValueError(f"offsets must have shape (M, 3) with M >= 1, got {off.shape}")
     n = c.shape[0]
     try:
-        angles = np.broadcast_arrays(
-            *(np.broadcast_to(np.asarray(a, float), (n,)) for a in (roll, pitch, yaw))
-        )
+        angles = np.broadcast_arrays(*(np.broadcast_to(np.asarray(a, float), (n,)) for a in (roll, pitch, yaw)))
     except ValueError:
         raise ValueError(f"roll, pitch and yaw must be scalars or have shape ({n},)") from None
     R = rotation_of(*angles)  # (N, 3, 3)

@@ -37,12 +37,10 @@ class DriverState:
 
     def to_message(self, uav: int, seq: int, stamp: float) -> VehicleState:
         """The wire message (protocol.messages.VehicleState) for this snapshot."""
-        return VehicleState(
-            uav=uav, seq=seq, t=max(0.0, self.t), stamp=stamp, pos=self.pos, vel=self.vel,
-            att=self.att, rates=self.rates, mode=self.mode, armed=self.armed,
-            battery=min(1.0, max(0.0, self.battery)), wp_index=self.wp_index,
-            progress=self.progress, captures=self.captures,
-        )
+        return VehicleState(uav=uav, seq=seq, t=max(0.0, self.t), stamp=stamp, pos=self.pos, vel=self.vel, att=self.att,
+                            rates=self.rates, mode=self.mode, armed=self.armed,
+                            battery=min(1.0, max(0.0, self.battery)), wp_index=self.wp_index, progress=self.progress,
+                            captures=self.captures)
 
 
 @dataclass(frozen=True)

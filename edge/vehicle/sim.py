@@ -132,12 +132,9 @@ class SimDriver(VehicleDriver):
     def state(self) -> DriverState:
         q = self.quad.s
         wp, prog = self.mission.progress(self.t)
-        return DriverState(
-            t=self.t, pos=(q[0], q[1], q[2]), vel=(q[3], q[4], q[5]),
-            att=(q[6], q[7], wrap_angle(q[8])), rates=(q[9], q[10], q[11]),
-            mode=self.mode, armed=self.armed, battery=self.battery,
-            wp_index=wp, progress=prog, captures=self.mission.captures,
-        )
+        return DriverState(t=self.t, pos=(q[0], q[1], q[2]), vel=(q[3], q[4], q[5]), att=(q[6], q[7], wrap_angle(q[8])),
+                           rates=(q[9], q[10], q[11]), mode=self.mode, armed=self.armed, battery=self.battery,
+                           wp_index=wp, progress=prog, captures=self.mission.captures)
 
     # ------------------------------------------------------------------ commands
     def _check_open(self) -> None:

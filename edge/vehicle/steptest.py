@@ -107,8 +107,6 @@ def run_step_test(controller: str = "atsm", *, inertia_mismatch: float = 1.2,
     steady = t_after > duration - steady_s
     std = torque[steady].std(axis=0)
     tv = np.abs(np.diff(torque[steady], axis=0)).mean(axis=0)
-    return StepResult(
-        controller=controller, t=t_after, att=att, ref=ref, torque=torque, alpha=alpha,
-        settling_s=tuple(settling), overshoot_pct=tuple(overshoot),
-        chattering_std=tuple(float(v) for v in std), chattering_tv=tuple(float(v) for v in tv),
-    )
+    return StepResult(controller=controller, t=t_after, att=att, ref=ref, torque=torque, alpha=alpha,
+                      settling_s=tuple(settling), overshoot_pct=tuple(overshoot),
+                      chattering_std=tuple(float(v) for v in std), chattering_tv=tuple(float(v) for v in tv))

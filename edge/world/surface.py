@@ -156,13 +156,9 @@ def _walk_crack(mask: NDArray[np.uint8], g: np.random.Generator, start: tuple[fl
         cv2.line(mask, (int(x0), int(y0)), (int(ipts[k + 1, 0]), int(ipts[k + 1, 1])), 255, thick, cv2.LINE_8)
         if depth > 0 and k > n // 10 and g.random() < branch_prob:
             side = 1.0 if g.random() < 0.5 else -1.0
-            _walk_crack(
-                mask, g, (float(pts[k, 0]), float(pts[k, 1])),
-                heading_k[k] + side * g.uniform(0.35, 1.0),
-                length * g.uniform(0.15, 0.45),
-                (wmin, max(wmin, min(wmax, widths[k]))),
-                branch_prob * 0.5, depth - 1,
-            )
+            _walk_crack(mask, g, (float(pts[k, 0]), float(pts[k, 1])), heading_k[k] + side * g.uniform(0.35, 1.0),
+                        length * g.uniform(0.15, 0.45), (wmin, max(wmin, min(wmax, widths[k]))), branch_prob * 0.5,
+                        depth - 1)
 
 
 def draw_cracks(shape: tuple[int, int], rng: RngLike = None, n_cracks: int = 3, *,
@@ -349,11 +345,9 @@ class SyntheticSurface:
                     background={"blotches": min(1.0, (DEFAULT_PX_PER_M / px_per_m) ** 2)},
                 )
             else:
-                texture, mask = crack_image(
-                    (h_px, w_px), np.random.default_rng(self.seed), n_cracks,
-                    length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)),
-                    width_px=crack_width_px, contrast=contrast,
-                )
+                texture, mask = crack_image((h_px, w_px), np.random.default_rng(self.seed), n_cracks,
+                                            length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)),
+                                            width_px=crack_width_px, contrast=contrast)
         elif texture is None or mask is None:
             raise ValueError("give both texture and mask, or neither")
         for name, img in (("texture", texture), ("mask", mask)):
@@ -507,9 +501,8 @@ class SyntheticSurface:
                 out.append(SurfaceDefect(
                     id=len(out), centroid_uv=(float(cu), float(cv_)),
                     centroid_world=(float(world[0]), float(world[1]), float(world[2])),
-                    bbox_uv=(x * s, self.height_m - (y + h) * s, (x + w) * s, self.height_m - y * s),
-                    area_px=area, area_m2=area * s * s, bbox_px=(x, y, w, h),
-                ))
+                    bbox_uv=(x * s, self.height_m - (y + h) * s, (x + w) * s, self.height_m - y * s), area_px=area,
+                    area_m2=area * s * s, bbox_px=(x, y, w, h)))
             self._defects[key] = out
         return list(self._defects[key])
 

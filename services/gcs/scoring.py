@@ -151,11 +151,8 @@ def score_defects(reports: Sequence[DefectReport], ground_truth: Sequence[Ground
     precision = n_true / n_rep if n_rep else 1.0
     f = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
     rows = [(k[0], k[1], float(p[0]), float(p[1])) for k, p in zip(keys, uv)]
-    return DefectScore(
-        recall=recall, precision=precision, f_measure=f, n_truth=n_truth, n_found=n_found,
-        n_reported=n_rep, n_true=n_true, without_pos=without_pos, tolerance_m=tol, matches=matches,
-        found_ids=[g.id for g, ok in zip(ground_truth, found) if ok],
-        missed_ids=[g.id for g, ok in zip(ground_truth, found) if not ok],
-        false_positives=[row for row, ok in zip(rows, true) if not ok],
-        reported_uv=rows,
-    )
+    return DefectScore(recall=recall, precision=precision, f_measure=f, n_truth=n_truth, n_found=n_found,
+                       n_reported=n_rep, n_true=n_true, without_pos=without_pos, tolerance_m=tol, matches=matches,
+                       found_ids=[g.id for g, ok in zip(ground_truth, found) if ok],
+                       missed_ids=[g.id for g, ok in zip(ground_truth, found) if not ok],
+                       false_positives=[row for row, ok in zip(rows, true) if not ok], reported_uv=rows)

@@ -169,12 +169,10 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
                 behind = [int(i) for i in np.argsort(-share, kind="stable") if share[i] > 0]
         seers = [i for i, f in enumerate(frames) if sees(f.meta, enu)]
         geo["seen_by"] = [frame_name(frames[i].meta) for i in dict.fromkeys([*behind, *seers])]
-        rows.append(InspectionDefect(
-            id=0, u_m=float(uv[0]), v_m=float(uv[1]), enu=tuple(float(x) for x in enu), lla=lla,
-            length_m=float(d["length_m"]), width_max_mm=float(d["width_max_mm"]),
-            width_mean_mm=float(d["width_mean_mm"]), area_m2=float(d["area_m2"]), severity=str(d["severity"]),
-            resolved=bool(d["resolved"]), bbox_px=bbox, **geo,
-        ))
+        rows.append(InspectionDefect(id=0, u_m=float(uv[0]), v_m=float(uv[1]), enu=tuple(float(x) for x in enu),
+                                     lla=lla, length_m=float(d["length_m"]), width_max_mm=float(d["width_max_mm"]),
+                                     width_mean_mm=float(d["width_mean_mm"]), area_m2=float(d["area_m2"]),
+                                     severity=str(d["severity"]), resolved=bool(d["resolved"]), bbox_px=bbox, **geo))
     rows.sort(key=lambda r: (severity_rank(r.severity), -r.length_m))
     for k, r in enumerate(rows, start=1):
         r.id = k

@@ -259,11 +259,10 @@ class ProcessGroup:
         if ready:
             rfd, wfd = os.pipe()
         try:
-            proc = subprocess.Popen(
-                cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                text=True, errors="replace", bufsize=1, start_new_session=True,
-                env=env if wfd is None else {**env, READY_FD_ENV: str(wfd)}, pass_fds=() if wfd is None else (wfd,),
-            )
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                    text=True, errors="replace", bufsize=1, start_new_session=True,
+                                    env=env if wfd is None else {**env, READY_FD_ENV: str(wfd)},
+                                    pass_fds=() if wfd is None else (wfd,))
         except BaseException:
             for fd in (rfd, wfd):
                 if fd is not None:

@@ -182,14 +182,10 @@ def bench(scenario: Scenario, seeds: int = 20, particles: int = 150, iterations:
     }
     if swarm:
         sw = np.array(swarm)
-        out_doc.update({
-            "pyswarms_s": float(np.median(sw[:, 0])),
-            "pyswarms_cpu_s": float(np.median(sw[:, 1])),
-            "pyswarms_runs_s": sw[:, 0].tolist(),
-            "pyswarms_evaluations": int(sw[0, 2]),
-            "pyswarms_over_theta_pso": float(np.median(sw[:, 0]) / np.median(th[:, 0])),
-            "pyswarms_over_theta_pso_cpu": float(np.median(sw[:, 1]) / np.median(th[:, 1])),
-        })
+        out_doc.update({"pyswarms_s": float(np.median(sw[:, 0])), "pyswarms_cpu_s": float(np.median(sw[:, 1])),
+                        "pyswarms_runs_s": sw[:, 0].tolist(), "pyswarms_evaluations": int(sw[0, 2]),
+                        "pyswarms_over_theta_pso": float(np.median(sw[:, 0]) / np.median(th[:, 0])),
+                        "pyswarms_over_theta_pso_cpu": float(np.median(sw[:, 1]) / np.median(th[:, 1]))})
     out_doc["cost_call_ms"] = cost_call_times(problem, particles)
     out_doc["compare"] = compare(scenario, seeds, particles, iterations, waypoints)
     if out is not None:

@@ -94,21 +94,11 @@ def plan_details(scenario: Scenario | dict[str, Any], algorithm: str = "theta-ps
     if anytime and len(res.history) < asked + 1 and not free:
         raise TimeBudgetExceeded(f"the plan's time budget of {time_budget_s:g} s ran out after {res.evaluations:,} "
                                  "evaluations, and the best path so far is not collision free")
-    plan = MissionPlan(
-        request_id=request_id,
-        algorithm=algorithm,
-        seed=seed,
-        cost=res.cost,
-        collision_free=bool(free),
-        centroid_path=[tuple(p) for p in V.tolist()],
-        trajectories=ft.trajectories,
-        captures=ft.captures,
-        convergence=res.history.tolist(),
-        planning_time_s=time.perf_counter() - t0,
-        geofence=Box(lo=sc.box.lo, hi=sc.box.hi),
-        origin=(sc.origin.lat, sc.origin.lon, sc.origin.alt),
-        standoff_m=problem.inspection.standoff if problem.inspection is not None else 0.0,
-    )
+    plan = MissionPlan(request_id=request_id, algorithm=algorithm, seed=seed, cost=res.cost, collision_free=bool(free),
+                       centroid_path=[tuple(p) for p in V.tolist()], trajectories=ft.trajectories, captures=ft.captures,
+                       convergence=res.history.tolist(), planning_time_s=time.perf_counter() - t0,
+                       geofence=Box(lo=sc.box.lo, hi=sc.box.hi), origin=(sc.origin.lat, sc.origin.lon, sc.origin.alt),
+                       standoff_m=problem.inspection.standoff if problem.inspection is not None else 0.0)
     return plan, ft, res
 
 

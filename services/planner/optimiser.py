@@ -107,11 +107,5 @@ class Tracker:
             k = chunk.stop
 
     def result(self) -> OptResult:
-        return OptResult(
-            self.name,
-            np.asarray(self.best_x, float),
-            float(self.best_f),
-            np.asarray(self.history, float),
-            self.used,
-            time.perf_counter() - self.t0,
-        )
+        return OptResult(self.name, np.asarray(self.best_x, float), float(self.best_f), np.asarray(self.history, float),
+                         self.used, time.perf_counter() - self.t0)

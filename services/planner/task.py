@@ -160,9 +160,7 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
         )
     band = float(heights[-1] - heights[0] + a_h)
     if z1 - z0 > band + 1e-9:
-        raise ValueError(
-            f"surface: the wall is {z1 - z0:.2f} m tall but one formation pass images {band:.2f} m"
-        )
+        raise ValueError(f"surface: the wall is {z1 - z0:.2f} m tall but one formation pass images {band:.2f} m")
     zc = 0.5 * (z0 + z1) - 0.5 * (heights[0] + heights[-1])
     p0, u, n = surf.frame
     L = surf.length
@@ -196,19 +194,9 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
             stations.append([s, zc + off[m, 2]])
     order = np.lexsort((np.asarray(uav), np.asarray(leg_s)))
     pos_a = np.asarray(pos, float)[order]
-    return InspectionPass(
-        entry=entry,
-        exit=exit_,
-        direction=t,
-        standoff=d,
-        footprint=(a_w, a_h),
-        spacing=(g_w, g_h),
-        uav=np.asarray(uav, np.int64)[order],
-        leg_s=np.asarray(leg_s, float)[order],
-        positions=pos_a,
-        look=np.broadcast_to(-n, pos_a.shape).copy(),
-        stations=np.asarray(stations, float)[order],
-    )
+    return InspectionPass(entry=entry, exit=exit_, direction=t, standoff=d, footprint=(a_w, a_h), spacing=(g_w, g_h),
+                          uav=np.asarray(uav, np.int64)[order], leg_s=np.asarray(leg_s, float)[order], positions=pos_a,
+                          look=np.broadcast_to(-n, pos_a.shape).copy(), stations=np.asarray(stations, float)[order])
 
 
 def coverage(surface: Surface, camera: Camera, positions: ArrayLike, look: ArrayLike, resolution: float = 0.1) -> float:

@@ -173,18 +173,14 @@ def build_trajectories(scenario: Scenario, centroid_path: ArrayLike, inspection:
                     "off its planned camera position (lead_in too short for the corner smoothing?)"
                 )
             captures.append(
-                CapturePoint(
-                    capture_id=cid, uav=int(m) + 1, pos=tuple(pos.tolist()),
-                    look=tuple(inspection.look[cid].tolist()), t=float(t[i]),
-                )
+                CapturePoint(capture_id=cid, uav=int(m) + 1, pos=tuple(pos.tolist()),
+                             look=tuple(inspection.look[cid].tolist()), t=float(t[i]))
             )
     trajs = []
     for m in range(M):
         wps = [
-            Waypoint(
-                t=float(t[i]), pos=tuple(P[i, m].tolist()), yaw=float(yaw[i, m]),
-                speed=float(speed[i, m]), capture_id=cap_of.get((m, i)),
-            )
+            Waypoint(t=float(t[i]), pos=tuple(P[i, m].tolist()), yaw=float(yaw[i, m]), speed=float(speed[i, m]),
+                     capture_id=cap_of.get((m, i)))
             for i in range(t.size)
         ]
         trajs.append(Trajectory(uav=m + 1, waypoints=wps))

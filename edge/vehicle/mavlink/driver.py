@@ -528,11 +528,9 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             wp, prog = self.mission.progress(self._t)
             if self.auto is not None and self.phase in (Phase.AUTO, Phase.HOLD):  # AUTO: as the autopilot says
                 wp, prog = self.auto.follow(wp, prog)
-            return DriverState(
-                t=self._t, pos=tel.pos, vel=tel.vel, att=tel.att, rates=tel.rates,
-                mode=self._mode(), armed=self._armed(), battery=tel.battery,
-                wp_index=wp, progress=prog, captures=self.mission.captures,
-            )
+            return DriverState(t=self._t, pos=tel.pos, vel=tel.vel, att=tel.att, rates=tel.rates, mode=self._mode(),
+                               armed=self._armed(), battery=tel.battery, wp_index=wp, progress=prog,
+                               captures=self.mission.captures)
 
     # ------------------------------------------------------------------ commands
     def upload(self, traj: Trajectory) -> None:
