@@ -139,13 +139,10 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
             interest,
         ]
     if role == "planner":
-        return [
-            Grant("ingress", ("declare_queryable", "reply"), (keys.planner(fleet),)),
-            Grant("ingress", ("liveliness_token",), (keys.rcu_alive(fleet, "planner"),)),
-            Grant("ingress", ("put",), (keys.rcu_event(fleet, "planner"), keys.rcu_stats(fleet, "planner"))),
-            Grant("egress", ("query",), (keys.planner(fleet),)),
-            interest,
-        ]
+        return [Grant("ingress", ("declare_queryable", "reply"), (keys.planner(fleet),)),
+                Grant("ingress", ("liveliness_token",), (keys.rcu_alive(fleet, "planner"),)),
+                Grant("ingress", ("put",), (keys.rcu_event(fleet, "planner"), keys.rcu_stats(fleet, "planner"))),
+                Grant("egress", ("query",), (keys.planner(fleet),)), interest]
     if role == "detector":
         return [
             Grant("ingress", ("declare_subscriber", "query"), (cam_all, keys.advanced(cam_all))),

@@ -228,12 +228,10 @@ class Counters:
                 row = sent.setdefault(p.link.name, [0, 0])
                 row[0] += p.samples
                 row[1] += p.bytes
-            return {
-                "sent": {k: {"samples": v[0], "bytes": v[1]} for k, v in sent.items()},
-                "received": {k: {"samples": v[0], "bytes": v[1]} for k, v in self.received.items()},
-                "rejected": {f"{k}|{kind}": n for (k, kind), n in self.rejected.items()},
-                "dropped": dict(self.dropped),
-            }
+            return {"sent": {k: {"samples": v[0], "bytes": v[1]} for k, v in sent.items()},
+                    "received": {k: {"samples": v[0], "bytes": v[1]} for k, v in self.received.items()},
+                    "rejected": {f"{k}|{kind}": n for (k, kind), n in self.rejected.items()},
+                    "dropped": dict(self.dropped)}
 
 
 # ----------------------------------------------------------------------------- results

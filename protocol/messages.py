@@ -413,9 +413,7 @@ class Event(Message):
 #: every message type, by wire tag
 MESSAGE_TYPES: dict[str, type[Message]] = {
     m.TYPE: m
-    for m in (
-        VehicleState, Waypoint, Trajectory, Box, *COMMAND_TYPES, CommandAck, Heartbeat, Signed,
-        PlanRequest, CapturePoint, MissionPlan, ErrorReply, Intrinsics, ImageMeta, Defect,
-        FrameEvidence, DefectReport, ClassCounters, LinkStats, Event,
-    )
+    for m in (VehicleState, Waypoint, Trajectory, Box, *COMMAND_TYPES, CommandAck, Heartbeat, Signed, PlanRequest,
+              CapturePoint, MissionPlan, ErrorReply, Intrinsics, ImageMeta, Defect, FrameEvidence, DefectReport,
+              ClassCounters, LinkStats, Event)
 }

@@ -12,12 +12,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = [
-    "JPEG_PAYLOAD_TYPE", "SKYNET_ENCODING_NAME", "SKYNET_PAYLOAD_TYPE", "RTP_HEADER_LENGTH", "RTP_VERSION",
-    "VIDEO_CLOCK_RATE", "RtpError", "RtpHeader", "RtpSender", "media_timestamp", "pack_frame", "parse_ssrc",
-    "seq_add", "seq_delta", "seq_diff", "seq_gt", "seq_lt", "ssrc_for", "ts_add", "ts_delta", "ts_diff",
-    "unpack_frame", "unwrap_sequence"
-]
+__all__ = ["JPEG_PAYLOAD_TYPE", "SKYNET_ENCODING_NAME", "SKYNET_PAYLOAD_TYPE", "RTP_HEADER_LENGTH", "RTP_VERSION",
+           "VIDEO_CLOCK_RATE", "RtpError", "RtpHeader", "RtpSender", "media_timestamp", "pack_frame", "parse_ssrc",
+           "seq_add", "seq_delta", "seq_diff", "seq_gt", "seq_lt", "ssrc_for", "ts_add", "ts_delta", "ts_diff",
+           "unpack_frame", "unwrap_sequence"]
 
 RTP_VERSION = 2
 RTP_HEADER_LENGTH = 12
@@ -187,13 +185,8 @@ class RtpHeader:
         for name in ("marker", "padding", "extension"):
             if not isinstance(getattr(self, name), bool):
                 raise RtpError(f"{name} must be a bool, got {getattr(self, name)!r}")
-        for name, mask in (
-            ("sequence", _SEQ_MASK),
-            ("timestamp", _TS_MASK),
-            ("ssrc", _TS_MASK),
-            ("payload_type", 0x7F),
-            ("csrc_count", 0x0F),
-        ):
+        for name, mask in (("sequence", _SEQ_MASK), ("timestamp", _TS_MASK), ("ssrc", _TS_MASK), ("payload_type", 0x7F),
+                           ("csrc_count", 0x0F)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise RtpError(f"{name} must be an int, got {value!r}")
@@ -205,9 +198,8 @@ class RtpHeader:
 
 _FIELD_SETTERS = tuple(
     getattr(RtpHeader, name).__set__
-    for name in (
-        "sequence", "timestamp", "ssrc", "marker", "payload_type", "version", "padding", "extension", "csrc_count"
-    )
+    for name in ("sequence", "timestamp", "ssrc", "marker", "payload_type", "version", "padding", "extension",
+                 "csrc_count")
 )
 
 

@@ -15,11 +15,9 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-__all__ = [
-    "ScenarioError", "Origin", "Bounds", "Cylinder", "Surface", "surface_frame", "Camera", "Inspection",
-    "FormationSpec", "CostSpec", "Speeds", "PlannerSpec", "Scenario", "validate_scenario", "load_scenario",
-    "default_scenario_path"
-]
+__all__ = ["ScenarioError", "Origin", "Bounds", "Cylinder", "Surface", "surface_frame", "Camera", "Inspection",
+           "FormationSpec", "CostSpec", "Speeds", "PlannerSpec", "Scenario", "validate_scenario", "load_scenario",
+           "default_scenario_path"]
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]

@@ -13,12 +13,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from protocol.checks import finite_array, finite_vec3, xyz
 
-__all__ = [
-    "DEFAULT_OFFSETS", "offsets_for", "home_offsets", "MAX_ALONG_M", "ROW_PITCH_M", "MAX_CORRECTION_M",
-    "rotation_of", "errors_in_formation", "errors_to_inertial", "uav_positions", "centroid_of", "headings",
-    "neighbour_correction", "formation_error", "HEADING_MIN_SPEED", "HEADING_WINDOW_S", "ShapeErrorMeter",
-    "tracking_error"
-]
+__all__ = ["DEFAULT_OFFSETS", "offsets_for", "home_offsets", "MAX_ALONG_M", "ROW_PITCH_M", "MAX_CORRECTION_M",
+           "rotation_of", "errors_in_formation", "errors_to_inertial", "uav_positions", "centroid_of", "headings",
+           "neighbour_correction", "formation_error", "HEADING_MIN_SPEED", "HEADING_WINDOW_S", "ShapeErrorMeter",
+           "tracking_error"]
 
 #: Desired offsets ΔT_n of UAVs 1, 2, 3 in the formation frame, metres (P9); row n-1 is UAV n.
 DEFAULT_OFFSETS: NDArray[np.float64] = np.array([[0.0, 0.0, 2.0], [3.0, 0.0, -1.0], [-3.0, 0.0, -1.0]], dtype=float)

@@ -16,11 +16,8 @@ from edge.vehicle.quadrotor import DisturbanceParams, QuadParams, Quadrotor, eul
 __all__ = ["STEPS", "StepResult", "run_step_test"]
 
 #: (axis, time of the step s, reference rad) of the paper's test
-STEPS: tuple[tuple[int, float, float], ...] = (
-    (0, 0.5, math.radians(-10.0)),
-    (1, 1.0, math.radians(10.0)),
-    (2, 2.0, math.radians(45.0)),
-)
+STEPS: tuple[tuple[int, float, float], ...] = ((0, 0.5, math.radians(-10.0)), (1, 1.0, math.radians(10.0)),
+                                               (2, 2.0, math.radians(45.0)))
 
 #: torque disturbance of the test: |d| <= 0.03, 0.03, 0.01 N·m
 TEST_DISTURBANCE = DisturbanceParams(torque_amp=(0.03, 0.03, 0.01))
@@ -42,14 +39,9 @@ class StepResult:
     chattering_tv: tuple[float, float, float]
 
     def as_dict(self) -> dict:
-        return {
-            "controller": self.controller,
-            "settling_s": list(self.settling_s),
-            "overshoot_pct": list(self.overshoot_pct),
-            "chattering_std_Nm": list(self.chattering_std),
-            "chattering_tv_Nm": list(self.chattering_tv),
-            "final_alpha_Nm": self.alpha[-1].tolist(),
-        }
+        return {"controller": self.controller, "settling_s": list(self.settling_s),
+                "overshoot_pct": list(self.overshoot_pct), "chattering_std_Nm": list(self.chattering_std),
+                "chattering_tv_Nm": list(self.chattering_tv), "final_alpha_Nm": self.alpha[-1].tolist()}
 
 
 def run_step_test(controller: str = "atsm", *, inertia_mismatch: float = 1.2,

@@ -16,10 +16,8 @@ from numpy.typing import ArrayLike, NDArray
 from protocol.checks import finite_vec3 as _vec3
 from protocol.checks import positive as _positive
 
-__all__ = [
-    "DEFAULT_PX_PER_M", "Defect", "SurfaceDefect", "SyntheticSurface", "crack_image", "draw_cracks",
-    "graded_crack_image", "surface_options", "textured_background"
-]
+__all__ = ["DEFAULT_PX_PER_M", "Defect", "SurfaceDefect", "SyntheticSurface", "crack_image", "draw_cracks",
+           "graded_crack_image", "surface_options", "textured_background"]
 
 #: Default texture resolution: 1 cm per texture pixel (docs/edge.md, edge/world/surface.py)
 DEFAULT_PX_PER_M = 100.0

@@ -22,12 +22,10 @@ from services.gcs.scoring import DefectScore, score_defects
 from services.gcs.verdict import GoalCheck, goal_check, imaged_captures, planned_captures
 from services.recording.record import GOAL_RADIUS_M, MissionRecord
 
-__all__ = [
-    "GOAL_RADIUS_M", "DEFECT_TOLERANCE_M", "LATENCY_NAMES", "Latency", "UavFigures", "FormationFigures",
-    "CaptureFigures", "LinkFigures", "PlannerFigures", "ReportSummary", "Track", "PathSeries", "FormationSeries",
-    "LinkSamples", "ReportFigures", "polyline_distance", "planned_positions", "latency_figures",
-    "convergence_iteration", "shape_errors", "as_record", "analyse", "summarise"
-]
+__all__ = ["GOAL_RADIUS_M", "DEFECT_TOLERANCE_M", "LATENCY_NAMES", "Latency", "UavFigures", "FormationFigures",
+           "CaptureFigures", "LinkFigures", "PlannerFigures", "ReportSummary", "Track", "PathSeries", "FormationSeries",
+           "LinkSamples", "ReportFigures", "polyline_distance", "planned_positions", "latency_figures",
+           "convergence_iteration", "shape_errors", "as_record", "analyse", "summarise"]
 
 #: events listed in report.json and report.md (the record keeps more, the journal all of them)
 MAX_REPORT_EVENTS = 500

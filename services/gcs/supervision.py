@@ -11,10 +11,8 @@ from dataclasses import dataclass, field
 from protocol.messages import Mode, VehicleState
 from services.recording.record import CommandRecord, Incident
 
-__all__ = [
-    "SUPERVISE_PERIOD_S", "FRESH_STATE_S", "START_SETTLE_S", "RESUME_PAUSE_OK_S", "RESUME_PAUSE_FAILED_S",
-    "Decisions", "Supervisor", "mission_time"
-]
+__all__ = ["SUPERVISE_PERIOD_S", "FRESH_STATE_S", "START_SETTLE_S", "RESUME_PAUSE_OK_S", "RESUME_PAUSE_FAILED_S",
+           "Decisions", "Supervisor", "mission_time"]
 
 #: How often the supervisor looks at liveliness, the own link and failsafe holds, s.
 SUPERVISE_PERIOD_S = 0.2

@@ -43,26 +43,13 @@ def compare(scenario: Scenario, seeds: int = 20, particles: int = 150, iteration
     rows = {}
     for a, r in runs.items():
         arr = np.array([x[:4] for x in r], float)
-        rows[a] = {
-            "initial_cost": float(np.mean(arr[:, 0])),
-            "final_mean": float(np.mean(arr[:, 1])),
-            "final_std": float(np.std(arr[:, 1])),
-            "final_median": float(np.median(arr[:, 1])),
-            "final_best": float(np.min(arr[:, 1])),
-            "convergence_iteration": float(np.mean(arr[:, 2])),
-            "wall_time_s": float(np.mean(arr[:, 3])),
-            "collision_free": float(np.mean([x[4] for x in r])),
-        }
-    return {
-        "scenario": scenario.name,
-        "seeds": int(seeds),
-        "particles": particles,
-        "iterations": iterations,
-        "waypoints": waypoints,
-        "evaluations": particles * (iterations + 1),
-        "rows": rows,
-        "histories": {a: np.mean(h, axis=0).tolist() for a, h in hist.items()},
-    }
+        rows[a] = {"initial_cost": float(np.mean(arr[:, 0])), "final_mean": float(np.mean(arr[:, 1])),
+                   "final_std": float(np.std(arr[:, 1])), "final_median": float(np.median(arr[:, 1])),
+                   "final_best": float(np.min(arr[:, 1])), "convergence_iteration": float(np.mean(arr[:, 2])),
+                   "wall_time_s": float(np.mean(arr[:, 3])), "collision_free": float(np.mean([x[4] for x in r]))}
+    return {"scenario": scenario.name, "seeds": int(seeds), "particles": particles, "iterations": iterations,
+            "waypoints": waypoints, "evaluations": particles * (iterations + 1), "rows": rows,
+            "histories": {a: np.mean(h, axis=0).tolist() for a, h in hist.items()}}
 
 
 def format_table(result: dict[str, Any]) -> str:
@@ -112,11 +99,9 @@ def cost_call_times(problem: PathProblem, particles: int = 150, calls: int = 100
     show that the cost's work does not depend on where the swarm is.
     """
     rng = np.random.default_rng(0)
-    swarms = {
-        "corridor": problem.initial_population(particles, rng),
-        "box": problem.initial_population(particles, rng, "box"),
-        "clear": np.tile(problem.lo + [5.0, 5.0, 20.0], (particles, problem.n_free)),
-    }
+    swarms = {"corridor": problem.initial_population(particles, rng),
+              "box": problem.initial_population(particles, rng, "box"),
+              "clear": np.tile(problem.lo + [5.0, 5.0, 20.0], (particles, problem.n_free))}
     cost = Cost(problem)
     for X in swarms.values():  # warm up (buffers, caches, clock)
         for _ in range(10):
@@ -171,15 +156,10 @@ def bench(scenario: Scenario, seeds: int = 20, particles: int = 150, iterations:
                                           bounds=bounds, init_pos=x0.copy())
             swarm.append(timed(lambda c: opt.optimize(c, iters=iterations + 1, verbose=False)))
     th = np.array(theta)
-    out_doc: dict[str, Any] = {
-        "budget_evaluations": budget,
-        "repeats": repeats,
-        "theta_pso_s": float(np.median(th[:, 0])),
-        "theta_pso_cpu_s": float(np.median(th[:, 1])),
-        "theta_pso_runs_s": th[:, 0].tolist(),
-        "theta_pso_evaluations": int(th[0, 2]),
-        "pyswarms_s": None,
-    }
+    out_doc: dict[str, Any] = {"budget_evaluations": budget, "repeats": repeats,
+                               "theta_pso_s": float(np.median(th[:, 0])), "theta_pso_cpu_s": float(np.median(th[:, 1])),
+                               "theta_pso_runs_s": th[:, 0].tolist(), "theta_pso_evaluations": int(th[0, 2]),
+                               "pyswarms_s": None}
     if swarm:
         sw = np.array(swarm)
         out_doc.update({"pyswarms_s": float(np.median(sw[:, 0])), "pyswarms_cpu_s": float(np.median(sw[:, 1])),

@@ -14,10 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 from .scenario import Scenario
 from .task import InspectionPass, formation_pass
 
-__all__ = [
-    "point_segment_distance", "PathProblem", "Cost", "cost_offsets", "clearance", "formation_points",
-    "path_collision_free", "crosses_wall_free"
-]
+__all__ = ["point_segment_distance", "PathProblem", "Cost", "cost_offsets", "clearance", "formation_points",
+           "path_collision_free", "crosses_wall_free"]
 
 
 def point_segment_distance(p: ArrayLike, a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:

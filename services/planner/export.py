@@ -35,12 +35,10 @@ from protocol import codec
 from protocol.messages import MissionPlan, Trajectory
 from protocol.textsafe import xml_text
 
-__all__ = [
-    "MAV_CMD_NAV_WAYPOINT", "MAV_CMD_NAV_TAKEOFF", "MAV_CMD_NAV_RETURN_TO_LAUNCH", "MAV_CMD_DO_DIGICAM_CONTROL",
-    "MissionItem", "enu_to_geodetic", "geodetic_to_enu", "mission_items", "leg_speeds", "qgc_wpl", "parse_qgc_wpl",
-    "qgc_plan", "parse_qgc_plan", "mission_kml", "parse_kml", "waypoints_enu", "mission_geojson", "parse_geojson",
-    "write_mission"
-]
+__all__ = ["MAV_CMD_NAV_WAYPOINT", "MAV_CMD_NAV_TAKEOFF", "MAV_CMD_NAV_RETURN_TO_LAUNCH", "MAV_CMD_DO_DIGICAM_CONTROL",
+           "MissionItem", "enu_to_geodetic", "geodetic_to_enu", "mission_items", "leg_speeds", "qgc_wpl",
+           "parse_qgc_wpl", "qgc_plan", "parse_qgc_plan", "mission_kml", "parse_kml", "waypoints_enu",
+           "mission_geojson", "parse_geojson", "write_mission"]
 
 MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION = AI.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
 MAV_CMD_NAV_RALLY_POINT = AI.MAV_CMD_NAV_RALLY_POINT

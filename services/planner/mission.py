@@ -26,12 +26,7 @@ from .trajectory import FormationTrajectories, build_trajectories
 __all__ = ["ALGORITHMS", "optimise", "plan_mission", "plan_details"]
 
 #: algorithm name -> optimiser(cost, x0, iterations, rng) -> OptResult
-ALGORITHMS: dict[str, Callable[..., OptResult]] = {
-    "theta-pso": theta_pso,
-    "pso": pso,
-    "ga": ga,
-    "tlbo": tlbo,
-}
+ALGORITHMS: dict[str, Callable[..., OptResult]] = {"theta-pso": theta_pso, "pso": pso, "ga": ga, "tlbo": tlbo}
 
 
 def _int(name: str, value: Any, lo: int, hi: int) -> int:

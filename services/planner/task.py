@@ -16,10 +16,8 @@ from protocol.checks import positive as _positive
 
 from .scenario import Camera, Scenario, Surface
 
-__all__ = [
-    "footprint", "standoff", "spacing", "footprint_at", "grid_stations", "camera_grid", "InspectionPass",
-    "imaging_rows", "formation_pass", "coverage"
-]
+__all__ = ["footprint", "standoff", "spacing", "footprint_at", "grid_stations", "camera_grid", "InspectionPass",
+           "imaging_rows", "formation_pass", "coverage"]
 
 
 def footprint(camera: Camera, smallest_feature: float) -> tuple[float, float]:
