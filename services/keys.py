@@ -346,10 +346,8 @@ def ensure(folder: str | Path, uavs: int) -> Path:
     lacks node roles, :func:`enlarge`), else make a new one."""
     folder = Path(folder)
     if (folder / "router-ca.pem").exists() and (folder / "ca" / "ca.key").exists() and not expiring(folder):
-        try:
+        with contextlib.suppress(ValueError):  # not enlargeable: a new set below
             enlarge(folder, uavs)
-        except ValueError:
-            pass  # not enlargeable: a new set below
     if usable(folder, uavs):
         return folder
     return init(folder, uavs, force=True)

@@ -5,6 +5,7 @@ Design notes: docs/ground-station.md (services/gcs/mission.py).
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Callable
@@ -464,10 +465,8 @@ class MissionRunner:
                           "every UAV to finish its trajectory")
             self._in_mission.clear()
             self.phase("reports")
-            try:
+            with contextlib.suppress(MissionFailed):  # judge() names the captures that were not imaged
                 self.wait_for(lambda: not self.missing_captures(), self.opt.report_wait_s, "the last defect reports")
-            except MissionFailed:
-                pass  # judge() names the captures that were not imaged
         except MissionFailed as exc:
             self.record.failures.append(str(exc))
         finally:

@@ -667,10 +667,8 @@ class _Pump:
                         elif self.queue and not self.inflight:
                             self.cond.wait(self.queue[0][0] - now)
                         elif not self.queue and not self.inflight and self.eof:
-                            try:  # pass the half-close on once everything before it is out
+                            with contextlib.suppress(OSError):  # the half-close, once everything before it is out
                                 self.dst.shutdown(socket.SHUT_WR)
-                            except OSError:
-                                pass
                             return
                         else:
                             self.cond.wait()
@@ -842,11 +840,9 @@ class TcpProxy(_ProxyBase):
                         if not self._running:
                             return
                         if key.data == "wake":
-                            try:
+                            with contextlib.suppress(OSError):
                                 while self._wake_r.recv(64):
                                     pass
-                            except OSError:
-                                pass
                             continue
                         try:
                             client, _ = self._lsock.accept()

@@ -231,11 +231,9 @@ class ProcessGroup:
                 first = self.echo_errors == 1
             if first:
                 where = getattr(self.echo, "name", "the log")
-                try:
+                with contextlib.suppress(OSError, ValueError):
                     print(f"services' log {where} failed ({exc}); their output is still read, the last lines "
                           f"of each are kept in memory only", file=sys.stderr, flush=True)
-                except (OSError, ValueError):
-                    pass
 
     def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None,
               prefix: list[str] | None = None, ready: bool = False, env: dict[str, str] | None = None) -> Service:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
@@ -426,10 +427,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             except ValueError as exc:
                 log.warning("UAV %d: switch to %s failed: %s", self.uav, self.dialect.mode_name(mode), exc)
 
-        try:
+        with contextlib.suppress(RuntimeError):  # closed meanwhile
             self._switcher.submit(run)
-        except RuntimeError:  # closed meanwhile
-            pass
 
     def _preflight(self) -> None:
         """The dialect's parameters set once before the first takeoff (PX4: NAV_DLL_ACT = 2, Return on a
@@ -498,10 +497,9 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         if self._closed:
             raise ValueError("driver is closed")
         if self.heartbeat_age() is None and self.params.appear_timeout_s > 0:
-            try:  # not heard yet: give the autopilot time to appear instead of a fixed window
+            # not heard yet: give the autopilot time to appear instead of a fixed window (a failure is reported below)
+            with contextlib.suppress(VehicleLinkError):
                 self.wait_heartbeat(self.params.appear_timeout_s)
-            except VehicleLinkError:
-                pass  # reported below
         err = self._link_error()
         if err is not None:
             raise err
@@ -554,10 +552,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         try:
             self.command(M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, *latlon, param7), f"take off to {altitude:g} m")
         except ValueError:
-            try:  # do not leave the motors armed on the ground
+            with contextlib.suppress(ValueError):  # do not leave the motors armed on the ground
                 self.command(M.MAV_CMD_COMPONENT_ARM_DISARM, (0.0,), "disarm")
-            except ValueError:
-                pass
             raise
         with self._lock:
             self.phase = Phase.TAKEOFF
