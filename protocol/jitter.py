@@ -27,8 +27,7 @@ _SEQ_MASK = SEQ_MOD - 1
 @dataclass(frozen=True, slots=True)
 class Frame:
     """One frame released for playout: the header and payload as pushed (a reference, never a copy), its
-    arrival time and its extended sequence number (RFC 3550 A.1; monotonic within a numbering epoch).
-    """
+    arrival time and its extended sequence number (RFC 3550 A.1; monotonic within a numbering epoch)."""
 
     header: RtpHeader
     payload: bytes | memoryview
@@ -161,8 +160,7 @@ class JitterBuffer:
 
     def push(self, header: RtpHeader, payload: bytes | memoryview, arrival_s: float) -> list[Frame]:
         """Take one packet arriving at ``arrival_s`` ("now": expired gaps are given up as by :meth:`pop_due`);
-        return the frames ready for playout in sequence order. ValueError for another SSRC or bad input.
-        """
+        return the frames ready for playout in sequence order. ValueError for another SSRC or bad input."""
         if not isinstance(header, RtpHeader):
             raise ValueError(f"header must be an RtpHeader, got {type(header).__name__}")
         if not isinstance(payload, (bytes, bytearray, memoryview)):
@@ -369,8 +367,7 @@ class JitterBuffer:
 
 class JitterBuffers:
     """One :class:`JitterBuffer` per SSRC, created on a source's first packet; a new source beyond
-    ``max_sources`` raises ValueError (forged SSRCs must not grow memory without bound).
-    """
+    ``max_sources`` raises ValueError (forged SSRCs must not grow memory without bound)."""
 
     def __init__(self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE,
                  max_sources: int = 64, release_late: bool = False) -> None:

@@ -108,8 +108,7 @@ def ts_add(a: int, n: int) -> int:
 
 def ts_diff(a: int, b: int) -> int:
     """Signed distance ``a - b`` between two 32-bit RTP timestamps, so that a wrap (every 13.25 h at
-    90 kHz) makes no jump in the interarrival jitter (RFC 3550, A.8).
-    """
+    90 kHz) makes no jump in the interarrival jitter (RFC 3550, A.8)."""
     _check_u(a, _TS_MASK, "timestamp")
     _check_u(b, _TS_MASK, "timestamp")
     return ts_delta(a, b)
@@ -166,8 +165,7 @@ def media_timestamp(t_seconds: float, clock_rate: int = VIDEO_CLOCK_RATE) -> int
 class RtpHeader:
     """The RFC 3550 (section 5.1) fixed header of one packet. ``padding``, ``extension`` and ``csrc_count``
     are the wire bits as received (:func:`unpack_frame` skips what they announce; :func:`pack_frame`
-    emits none); our frames are one packet each, so ``marker`` is set.
-    """
+    emits none); our frames are one packet each, so ``marker`` is set."""
 
     sequence: int
     timestamp: int
@@ -222,8 +220,7 @@ def _new_header(b0: int, b1: int, seq: int, ts: int, ssrc: int, _set: tuple[Any,
 
 def pack_frame(header: RtpHeader, payload: bytes | bytearray | memoryview) -> bytes:
     """One frame's bytes: the 12-byte fixed header, then the payload; a header asking for padding,
-    extension or CSRCs is refused (``dataclasses.replace`` them to re-send a received header).
-    """
+    extension or CSRCs is refused (``dataclasses.replace`` them to re-send a received header)."""
     if not isinstance(header, RtpHeader):
         raise RtpError(f"header must be an RtpHeader, got {type(header).__name__}")
     if header.padding or header.extension or header.csrc_count:
@@ -243,8 +240,7 @@ def pack_frame(header: RtpHeader, payload: bytes | bytearray | memoryview) -> by
 def unpack_frame(data: bytes | bytearray | memoryview) -> tuple[RtpHeader, memoryview]:
     """Header and read-only zero-copy payload view of one packet (RFC 3550 5.1 and the receiver checks of
     A.1): at least 12 bytes, version 2; the CSRC list and header extension (5.3.1) are skipped and must
-    fit; the padding count (P bit) counts itself, at least 1, and must fit. RtpError otherwise.
-    """
+    fit; the padding count (P bit) counts itself, at least 1, and must fit. RtpError otherwise."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise RtpError(f"RTP packet must be bytes-like, got {type(data).__name__}")
     view = memoryview(data)

@@ -71,8 +71,7 @@ class Cylinder(_Model):
 def surface_frame(corners: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Origin and unit axes ``(p0, u, v)`` of the surface frame of corners ``(4, 3)`` (p0-p1 the bottom edge,
     p3 above p0): ``u`` along ``p1 - p0``, ``v`` the unit part of ``p3 - p0`` orthogonal to ``u``.
-    ValueError for a wrong shape, non-finite values or degenerate edges.
-    """
+    ValueError for a wrong shape, non-finite values or degenerate edges."""
     c = np.asarray(corners, dtype=float)
     if c.shape != (4, 3):
         raise ValueError(f"corners must have shape (4, 3), got {c.shape}")
@@ -293,8 +292,7 @@ def _format(err: ValidationError) -> str:
 
 def validate_scenario(doc: Any) -> Scenario:
     """Validate a scenario document (a dict as read from TOML or carried by a plan request); ScenarioError
-    naming the field (``obstacles[2].radius``, ``start``, ...) otherwise.
-    """
+    naming the field (``obstacles[2].radius``, ``start``, ...) otherwise."""
     if isinstance(doc, Scenario):
         return doc
     if not isinstance(doc, dict):
@@ -313,8 +311,7 @@ def default_scenario_path() -> Path:
 def load_scenario(path: str | Path | None = None) -> Scenario:
     """Read and validate a scenario TOML file: ``None`` the default monorail scenario, a packaged scenario's
     name (``protocol/scenarios/<name>.toml``, e.g. ``real-cracks``) that one; ScenarioError naming the file
-    and the field otherwise.
-    """
+    and the field otherwise."""
     p = default_scenario_path() if path is None else Path(path)
     packaged = default_scenario_path().parent / f"{p.name}.toml"
     if path is not None and not p.exists() and p.name == str(path) and packaged.is_file():

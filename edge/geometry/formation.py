@@ -38,8 +38,7 @@ ROW_PITCH_M = 2.5
 
 def offsets_for(n: int) -> NDArray[np.float64]:
     """Offsets ΔT_n for a fleet of ``n`` UAVs (P9), row n-1 UAV n: the paper's triangle, then the slots of
-    docs/edge.md (edge/geometry/formation.py, "Fleet slots").
-    """
+    docs/edge.md (edge/geometry/formation.py, "Fleet slots")."""
     if not isinstance(n, (int, np.integer)) or not 1 <= n <= 255:
         raise ValueError(f"formation size must be an int in 1..255, got {n!r}")
     cols = [0.0]
@@ -61,8 +60,7 @@ def offsets_for(n: int) -> NDArray[np.float64]:
 
 def home_offsets(offsets: ArrayLike) -> NDArray[np.float64]:
     """Launch points ``(k, 2)`` in the formation frame (x along travel, y left), m: under each slot, or
-    :data:`PITCH_M` further left per earlier UAV launching from the same spot.
-    """
+    :data:`PITCH_M` further left per earlier UAV launching from the same spot."""
     off = np.asarray(offsets, float).reshape(-1, 3)
     seen: dict[float, int] = {}
     out = np.zeros((off.shape[0], 2))
@@ -123,8 +121,7 @@ def errors_to_inertial(e_F: ArrayLike, R_OF: ArrayLike) -> NDArray[np.float64]:
 def uav_positions(centroid: ArrayLike, yaw: ArrayLike, offsets: ArrayLike = DEFAULT_OFFSETS, roll: ArrayLike = 0.0,
                   pitch: ArrayLike = 0.0) -> NDArray[np.float64]:
     """Slots ``(N, M, 3)`` of M UAVs along a centroid path ``(N, 3)``, ``P_n = P_F + R_OF ΔT_n`` (P9); ``yaw``,
-    ``roll`` and ``pitch`` scalars or ``(N,)``.
-    """
+    ``roll`` and ``pitch`` scalars or ``(N,)``."""
     c = np.atleast_2d(finite_array("centroid", centroid))
     if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] == 0:
         raise ValueError(f"centroid must have shape (N, 3) with N >= 1, got {c.shape}")
@@ -150,8 +147,7 @@ def centroid_of(positions: ArrayLike) -> NDArray[np.float64]:
 
 def headings(path: ArrayLike) -> NDArray[np.float64]:
     """Heading ψ ``(N,)`` of a path ``(N, 3)`` from its central-difference tangent (:func:`numpy.gradient`);
-    points without horizontal motion take the nearest earlier (else later) heading, 0 if none.
-    """
+    points without horizontal motion take the nearest earlier (else later) heading, 0 if none."""
     p = finite_array("path", path)
     if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
         raise ValueError(f"path must have shape (N, 3) with N >= 1, got {p.shape}")
@@ -221,8 +217,7 @@ def neighbour_correction(own_tau: float, own_ref_vel: ArrayLike,
 def formation_error(positions: Mapping[int, ArrayLike], centroid: ArrayLike | None, yaw: float,
                     offsets: Mapping[int, ArrayLike]) -> float:
     """RMS shape error (P6)-(P9), metres: ``sqrt(mean_n |(P_n − P̄) − R_OF (ΔT_n − ΔT̄)|²)`` over the UAVs in both
-    mappings (translation does not count). One UAV: its distance to ``centroid + R_OF ΔT_n`` (0 without a centroid).
-    """
+    mappings (translation does not count). One UAV: its distance to ``centroid + R_OF ΔT_n`` (0 without a centroid)."""
     if not math.isfinite(yaw):
         raise ValueError("yaw must be finite")
     ids = sorted(i for i in positions if i in offsets)
@@ -250,8 +245,7 @@ HEADING_WINDOW_S = 1.0
 class ShapeErrorMeter:
     """The formation error (:func:`formation_error`) along a stream of the fleet's positions, with the one
     heading rule that the report, the terminal line and the web page share (docs/edge.md,
-    edge/geometry/formation.py, "Heading rule").
-    """
+    edge/geometry/formation.py, "Heading rule")."""
 
     def __init__(self, offsets: Mapping[int, ArrayLike], window_s: float = HEADING_WINDOW_S,
                  min_speed: float = HEADING_MIN_SPEED) -> None:

@@ -20,8 +20,7 @@ Vec3 = tuple[float, float, float]
 class DriverState:
     """Snapshot of the vehicle: mission time ``t`` (s), ENU ``pos``/``vel``, ZYX ``att`` (yaw in (−π, π]),
     body ``rates`` (P10), ``mode``, ``armed``, ``battery`` (0..1), ``wp_index`` (last waypoint passed, −1
-    before), ``progress`` (fraction of the trajectory flown) and ``captures`` fired since the upload.
-    """
+    before), ``progress`` (fraction of the trajectory flown) and ``captures`` fired since the upload."""
 
     t: float
     pos: Vec3
@@ -46,8 +45,7 @@ class DriverState:
 @dataclass(frozen=True)
 class CaptureEvent:
     """The follower passed a waypoint with a capture id: take the picture now (time, ENU position and
-    attitude of the vehicle then).
-    """
+    attitude of the vehicle then)."""
 
     capture_id: int
     t: float

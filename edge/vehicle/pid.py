@@ -54,8 +54,7 @@ class PIDGains:
 
 class PositionPID:
     """Cascaded position/velocity controller producing (roll_d, pitch_d, yaw_d) and thrust (at most
-    ``thrust_max``), every ``dt``, from its own model of the ``mass`` and the linear ``drag`` (feed-forward).
-    """
+    ``thrust_max``), every ``dt``, from its own model of the ``mass`` and the linear ``drag`` (feed-forward)."""
 
     def __init__(self, mass: float, gains: PIDGains = PIDGains(), dt: float = 1 / 200,
                  drag: tuple[float, float] = (0.0, 0.0), thrust_max: float = math.inf, g: float = GRAVITY):

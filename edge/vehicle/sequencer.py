@@ -260,8 +260,7 @@ class MissionSequencer:
     def reference(self, t: float, pos: Vec3, dt: float) -> Reference:
         """The reference ``(pos, vel, acc, yaw)`` at time ``t`` (non-decreasing) for a vehicle at ``pos``,
         ``dt`` after the previous call; advances the phase. At the trajectory's end it sets :attr:`done`
-        and holds the end point plus the offset. ValueError when no mission is in flight.
-        """
+        and holds the end point plus the offset. ValueError when no mission is in flight."""
         phase = self.phase
         if phase == "track":
             f = self.follower

@@ -37,8 +37,7 @@ class SimParams:
     PID and ATSM gains, ``controller`` ("atsm" (P13)-(P17) or "twisting"), ``model_mismatch`` (the
     controllers' mass and inertia = plant × this), speeds (m/s), ``rtl_altitude`` above launch, the
     sequencer's radii and offset bounds (:class:`edge.vehicle.sequencer.MissionSequencer`),
-    ``endurance_s`` (hover time on a full battery; drain ∝ thrust / hover thrust) and ``interpolation``.
-    """
+    ``endurance_s`` (hover time on a full battery; drain ∝ thrust / hover thrust) and ``interpolation``."""
 
     quad: QuadParams = field(default_factory=QuadParams)
     disturbance: DisturbanceParams = field(default_factory=DisturbanceParams)
@@ -71,8 +70,7 @@ class SimParams:
 
 class SimDriver(VehicleDriver):
     """A simulated UAV behind the driver interface: launch point ``home`` (ENU m, z the ground), physics
-    and control at ``physics_hz`` (>= 100), disturbance seeded by ``seed``, clock ``t0`` and heading ``yaw``.
-    """
+    and control at ``physics_hz`` (>= 100), disturbance seeded by ``seed``, clock ``t0`` and heading ``yaw``."""
 
     def __init__(self, uav: int, params: SimParams = SimParams(), seed: int = 0, home: Vec3 = (0.0, 0.0, 0.0),
                  physics_hz: int = 200, t0: float = 0.0, yaw: float = 0.0):

@@ -75,8 +75,7 @@ def textured_background(shape: tuple[int, int], rng: RngLike = None, *, mean: fl
                         blotches: float = 1.0, gradient: float = 0.12, grain: float = 4.0) -> NDArray[np.uint8]:
     """Concrete-like grey ``uint8`` texture of ``shape`` ``(height, width)``: ``mean`` grey level times an
     illumination ramp (``gradient``: peak-to-peak fraction of ``mean``), multi-scale value noise of std
-    ``roughness``, soft blotches (``blotches`` per 200 x 200 px) and per-pixel ``grain`` (std, grey levels).
-    """
+    ``roughness``, soft blotches (``blotches`` per 200 x 200 px) and per-pixel ``grain`` (std, grey levels)."""
     h, w = _shape(shape)
     for name, val in (("mean", mean), ("roughness", roughness), ("blotches", blotches),
                       ("gradient", gradient), ("grain", grain)):
@@ -163,8 +162,7 @@ def draw_cracks(shape: tuple[int, int], rng: RngLike = None, n_cracks: int = 3, 
                 length_px: tuple[float, float] | None = None, width_px: tuple[float, float] = (1.0, 5.0),
                 branch_prob: float = 0.015) -> NDArray[np.uint8]:
     """Binary crack mask (255 on cracks) of ``shape``: ``n_cracks`` random-walk polylines of ``length_px``
-    (default ``(0.25, 0.75) * hypot(h, w)``) and ``width_px``, forking with ``branch_prob`` per 3 px step.
-    """
+    (default ``(0.25, 0.75) * hypot(h, w)``) and ``width_px``, forking with ``branch_prob`` per 3 px step."""
     h, w = _shape(shape)
     if isinstance(n_cracks, bool) or not isinstance(n_cracks, (int, np.integer)) or n_cracks < 0:
         raise ValueError(f"n_cracks must be an integer >= 0, got {n_cracks!r}")
@@ -277,8 +275,7 @@ def surface_options(spec: Any) -> dict[str, Any]:
 @dataclass(frozen=True)
 class SurfaceDefect:
     """One ground-truth crack of a :class:`SyntheticSurface`: an 8-connected component of its mask
-    (``id`` stable per surface; ``*_uv`` in surface metres, ``bbox_px`` ``(x, y, w, h)`` in texture pixels).
-    """
+    (``id`` stable per surface; ``*_uv`` in surface metres, ``bbox_px`` ``(x, y, w, h)`` in texture pixels)."""
 
     id: int
     centroid_uv: tuple[float, float]
@@ -295,8 +292,7 @@ Defect = SurfaceDefect
 
 class SyntheticSurface:
     """A planar, textured, cracked rectangle ``origin + u u_axis + v v_axis`` in the world (local ENU
-    metres), with its ground truth; the coordinates and options are in docs/edge.md (edge/world/surface.py).
-    """
+    metres), with its ground truth; the coordinates and options are in docs/edge.md (edge/world/surface.py)."""
 
     MAX_PIXELS = 100_000_000
 
@@ -361,8 +357,7 @@ class SyntheticSurface:
                      **kwargs: Any) -> SyntheticSurface:
         """Build a surface on 2, 3 or 4 corner points (ENU metres): ``p0, p1, p2, p3`` around the rectangle
         (the scenario's ``surface.corners``), ``p0, p1, p3``, or opposite corners ``p0, p2`` (a vertical wall
-        if their heights differ, else a deck facing up); the rules are in docs/edge.md.
-        """
+        if their heights differ, else a deck facing up); the rules are in docs/edge.md."""
         p = np.asarray(corners, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3 or not 2 <= p.shape[0] <= 4 or not np.all(np.isfinite(p)):
             raise ValueError(f"corners must be 2 to 4 finite [x, y, z] points, got shape {p.shape}")
@@ -481,8 +476,7 @@ class SyntheticSurface:
     # ------------------------------------------------------------------ ground truth
     def defects(self, min_area_px: int = 20) -> list[SurfaceDefect]:
         """The ground-truth cracks: 8-connected components of the mask of at least ``min_area_px`` texture
-        pixels, cached; the report matches detections against them ((P20)).
-        """
+        pixels, cached; the report matches detections against them ((P20))."""
         if isinstance(min_area_px, bool) or not isinstance(min_area_px, (int, np.integer)) or min_area_px < 0:
             raise ValueError(f"min_area_px must be an integer >= 0, got {min_area_px!r}")
         key = int(min_area_px)

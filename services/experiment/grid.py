@@ -19,8 +19,7 @@ ONSET_S = 2.0
 def parse_list(text: str, name: str, *, lo: float = 0.0, hi: float | None = None, integer: bool = False
                ) -> tuple[float, ...]:
     """``"0,5,20"`` -> ``(0.0, 5.0, 20.0)``: finite numbers in ``[lo, hi]``, no duplicates, at least one;
-    ValueError with a one-line message naming ``name`` (the option).
-    """
+    ValueError with a one-line message naming ``name`` (the option)."""
     if not isinstance(text, str) or not text.strip():
         raise ValueError(f"{name}: expected a comma-separated list of numbers, got {text!r}")
     out: list[float] = []

@@ -221,8 +221,7 @@ def polyline_distance(points: ArrayLike, polyline: ArrayLike) -> NDArray[np.floa
 
 def planned_positions(trajectory: Trajectory, tau: ArrayLike) -> NDArray[np.float64]:
     """Planned positions ``(N, 3)`` of a trajectory (P9) at its own times ``tau``: linear between waypoints,
-    clamped at the ends.
-    """
+    clamped at the ends."""
     tau = np.asarray(tau, dtype=float).reshape(-1)
     if not np.all(np.isfinite(tau)):
         raise ValueError("tau must be finite")
@@ -690,7 +689,6 @@ def analyse(record: MissionRecord) -> ReportFigures:
 
 def summarise(record: MissionRecord | dict[str, Any]) -> ReportSummary:
     """Every figure of the mission report (docs/report.md), without writing anything; ValueError for
-    something that is neither a MissionRecord nor a valid record document.
-    """
+    something that is neither a MissionRecord nor a valid record document."""
     return analyse(as_record(record)).summary
 

@@ -88,8 +88,7 @@ def surface_uv(points: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
 
 def bbox_distance(uv: ArrayLike, bboxes: ArrayLike) -> NDArray[np.float64]:
     """Distances ``(N, M)`` from points ``(N, 2)`` to boxes ``(M, 4)`` ``(u0, v0, u1, v1)`` (either corner
-    order) in the (u, v) plane: ``hypot(max(u0 - u, 0, u - u1), max(v0 - v, 0, v - v1))``, 0 inside.
-    """
+    order) in the (u, v) plane: ``hypot(max(u0 - u, 0, u - u1), max(v0 - v, 0, v - v1))``, 0 inside."""
     p = np.asarray(uv, dtype=float).reshape(-1, 2)
     b = np.asarray(bboxes, dtype=float).reshape(-1, 4)
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(b))):

@@ -28,8 +28,7 @@ Probability = Field(default=0.0, ge=0.0, le=1.0, allow_inf_nan=False)
 
 class GilbertElliott(BaseModel):
     """Gilbert–Elliott burst loss in netem's ``gemodel`` parameters (Salsano et al. 2010): per packet
-    ``p`` Good → Bad, ``r`` Bad → Good; loss ``loss_bad`` (netem's ``1-h``) and ``loss_good`` (``1-k``).
-    """
+    ``p`` Good → Bad, ``r`` Bad → Good; loss ``loss_bad`` (netem's ``1-h``) and ``loss_good`` (``1-k``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     p: float = Field(ge=0.0, le=1.0, allow_inf_nan=False)

@@ -441,8 +441,7 @@ class _Association:
 class UdpProxy(_ProxyBase):
     """Impairing UDP forwarder from ``listen`` (port 0: any) to ``target``, one upstream socket per client
     address, closed after ``idle_timeout_s`` without traffic (a NAT's UDP timeout); ``seed`` seeds both
-    directions (independent children of one SeedSequence).
-    """
+    directions (independent children of one SeedSequence)."""
 
     kind = "udp"
 
@@ -734,8 +733,7 @@ class TcpProxy(_ProxyBase):
     """Impairing TCP relay from ``listen`` (port 0: any) to ``target``: delay, jitter, rate and outage on the
     byte stream of ``direction`` ("both", "up" client → target, "down"); loss is retransmission delay
     (``rto``), duplicate and reorder do not apply. A client is dropped when the target does not answer
-    within ``connect_timeout_s``; a reader stops beyond ``max_pending_bytes`` queued.
-    """
+    within ``connect_timeout_s``; a reader stops beyond ``max_pending_bytes`` queued."""
 
     kind = "tcp"
 

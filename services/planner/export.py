@@ -66,8 +66,7 @@ def qgc_wpl(trajectory: Trajectory, origin: ArrayLike) -> str:
 
 def parse_qgc_wpl(text: str) -> list[MissionItem]:
     """Parse a QGC WPL 110 file (tabs or spaces) into its items; ValueError naming the line on a missing
-    header, a line without 12 fields or a non-numeric field.
-    """
+    header, a line without 12 fields or a non-numeric field."""
     lines = [ln for ln in text.splitlines() if ln.strip()]
     if not lines or lines[0].split() != HEADER.split():
         raise ValueError(f"not a waypoint file: the first line must be {HEADER!r}")

@@ -104,7 +104,6 @@ def plan_mission(scenario: Scenario | dict[str, Any], algorithm: str = "theta-ps
     ("theta-pso", "pso", "ga", "tlbo"), the same ``seed`` giving the same plan; the budget defaults to the
     scenario's ``[planner]`` section (the paper's 150 / 300 / 10). ``collision_free`` is an exact dense check
     of every UAV's trajectory. ValueError for a malformed scenario (naming the field), an unknown algorithm,
-    a bad budget, or a surface the formation cannot image in one pass.
-    """
+    a bad budget, or a surface the formation cannot image in one pass."""
     return plan_details(scenario, algorithm, seed, particles, iterations, waypoints,
                         time_budget_s=time_budget_s, anytime=anytime)[0]

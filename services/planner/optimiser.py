@@ -18,8 +18,7 @@ __all__ = ["OptResult", "Tracker", "check_budget"]
 class OptResult:
     """Outcome of one optimiser run: the best decision vector ``x`` (free waypoints, flattened), its cost (P5),
     the best cost after the initial population and each further ``particles`` evaluations, the
-    evaluations used and the wall time.
-    """
+    evaluations used and the wall time."""
 
     algorithm: str
     x: NDArray[np.float64]

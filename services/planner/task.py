@@ -74,8 +74,7 @@ def grid_stations(length: float, a_fov: float, g: float) -> NDArray[np.float64]:
 def camera_grid(surface: Surface, camera: Camera, smallest_feature: float,
                 overlap: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Camera positions ``(K, 3)`` at the (P2) stand-off, row-major from the bottom-left corner, and unit
-    optical axes ``(K, 3)`` covering a planar rectangle from its front: the set G of (P1)-(P3).
-    """
+    optical axes ``(K, 3)`` covering a planar rectangle from its front: the set G of (P1)-(P3)."""
     a_w, a_h = footprint(camera, smallest_feature)
     d = standoff(camera, smallest_feature)
     p0, u, n = surface.frame
@@ -133,8 +132,7 @@ def imaging_rows(z_offsets: ArrayLike, wall_height: float, a_h: float) -> NDArra
 def formation_pass(scenario: Scenario) -> InspectionPass | None:
     """Plan the formation's pass along the scenario's wall (None if it has no surface); the geometry is in
     docs/planner.md (services/planner/task.py). ValueError if the UAVs do not share one lateral offset,
-    the rows are further apart than the (P3) spacing, or the wall is taller than one pass images.
-    """
+    the rows are further apart than the (P3) spacing, or the wall is taller than one pass images."""
     if scenario.surface is None:
         return None
     surf, cam, insp = scenario.surface, scenario.camera, scenario.inspection

@@ -101,8 +101,7 @@ def build_trajectories(scenario: Scenario, centroid_path: ArrayLike, inspection:
                        ds: float = 1.0) -> FormationTrajectories:
     """Per-UAV trajectories and capture points (P6)-(P9) from a centroid polyline ``(V, 3)`` resampled every
     ``ds`` m; with an ``inspection`` pass the polyline must hold its entry and exit as consecutive vertices
-    (ValueError otherwise).
-    """
+    (ValueError otherwise)."""
     V = np.asarray(centroid_path, float)
     if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] < 2 or not np.all(np.isfinite(V)):
         raise ValueError("centroid_path must be a finite (V >= 2, 3) polyline")

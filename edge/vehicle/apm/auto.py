@@ -45,8 +45,7 @@ def _dist(a: Vec3, b: Vec3) -> float:
 class AutoMission:
     """The mission executor of the stored ``items`` (item 0, home, skipped; ``to_enu`` places a positioned
     item, altitude relative to ``home``), with WPNAV_SPEED ``speed`` (m/s), WPNAV_RADIUS ``radius`` (m),
-    WP_YAW_BEHAVIOR and ``min_leg_s``, the least time a waypoint leg takes (0: the set speed whatever the length).
-    """
+    WP_YAW_BEHAVIOR and ``min_leg_s``, the least time a waypoint leg takes (0: the set speed whatever the length)."""
 
     def __init__(self, items: list[PlanItem], to_enu: Callable[[PlanItem], Vec3], home: Vec3, speed: float,
                  radius: float = 2.0, yaw_behavior: int = 2, takeoff_tol: float = 0.3, start: int = 1,

@@ -47,8 +47,7 @@ def safe_mode_name(name: object, limit: int = 32) -> str:
 @dataclass(frozen=True)
 class MavlinkParams:
     """Tuning of :class:`MavlinkDriver` (defaults as :class:`edge.vehicle.sim.SimParams` where shared), SI
-    units and wall seconds; each option's meaning: docs/hardware-mavlink.md, "Driver options".
-    """
+    units and wall seconds; each option's meaning: docs/hardware-mavlink.md, "Driver options"."""
 
     transit_speed: float = 4.0
     start_radius: float = 1.0
