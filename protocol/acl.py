@@ -211,8 +211,7 @@ def access_control(fleet: str, principals: Iterable[Principal], by: str = "usern
         usernames = sorted({p.user for p in ps})
         subjects.append({"id": subject, by: usernames})
         policies.append({"id": f"{subject}-policy", "rules": ids, "subjects": [subject]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def cert_access_control(fleet: str, names: Iterable[str]) -> dict[str, Any]:

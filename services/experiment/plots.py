@@ -99,8 +99,7 @@ def write_plots(cells: Sequence[Mapping[str, Any]], folder: str | Path) -> list[
     """Write :data:`PLOTS` into ``folder``; returns the file names."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    varying = [k for k in ("loss_pct", "delay_ms", "jitter_ms", "recovery")
-               if len({c["cell"][k] for c in cells}) > 1]
+    varying = [k for k in ("loss_pct", "delay_ms", "jitter_ms", "recovery") if len({c["cell"][k] for c in cells}) > 1]
     for name, panels in FIGURES:
         fig, axes = _figure(len(panels))
         for ax, (metric, x, group, ylabel, xlabel, scale, title) in zip(axes, panels):

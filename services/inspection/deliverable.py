@@ -192,8 +192,7 @@ def annotated(mos: Mosaic, defects: Sequence[InspectionDefect]) -> np.ndarray:
     for d in defects:
         x, y, w, h = d.bbox_px
         cv2.rectangle(bgr, (x - 3, y - 3), (x + w + 2, y + h + 2), (0, 200, 255), 1)
-        cv2.putText(bgr, str(d.id), (x, max(10, y - 5)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 255, 255), 1,
-                    cv2.LINE_AA)
+        cv2.putText(bgr, str(d.id), (x, max(10, y - 5)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 255, 255), 1, cv2.LINE_AA)
     return bgr
 
 

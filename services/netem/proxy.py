@@ -100,8 +100,7 @@ class _ProxyBase:
         self._t0 = time.monotonic()
         rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(self.seed).spawn(2)]
         with self._change_lock:
-            self._imp = {d: Impairer(self._initial[d], rng, origin_s=self._t0)
-                         for d, rng in zip(("up", "down"), rngs)}
+            self._imp = {d: Impairer(self._initial[d], rng, origin_s=self._t0) for d, rng in zip(("up", "down"), rngs)}
             self._live = True
         return self._imp
 
@@ -207,8 +206,7 @@ class _ProxyBase:
         op, args = {"set": (self._update, (cmd.impairment, cmd.direction)), "cut": (self._cut, (cmd.duration_s,)),
                     "restore": (self._restore, ()), "clear": (self._clear, ())}[cmd.action]
         self._change(op, *args)
-        return {"ok": True, "applied": cmd.to_text(), "impairment": self._impairment_text(),
-                "changes": self.changes}
+        return {"ok": True, "applied": cmd.to_text(), "impairment": self._impairment_text(), "changes": self.changes}
 
     def play(self, steps: list[Step] | str, on_step: Callable[[Step, str | None], None] | None = None) -> None:
         """Run a schedule (steps, or schedule text) relative to the proxy start, on a thread of its
@@ -609,8 +607,7 @@ class _Pump:
                         if self.aborted:
                             return
                         now = time.monotonic()
-                        direct = (not self.queue and not self.inflight and t <= now
-                                  and imp.outage_end(now) is None)
+                        direct = (not self.queue and not self.inflight and t <= now and imp.outage_end(now) is None)
                         if direct:
                             self.inflight = True
                         else:

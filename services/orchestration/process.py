@@ -271,8 +271,7 @@ class ProcessGroup:
         svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts, prefix=list(prefix or []),
                       ready=ready, was_ready=was_ready)
         if rfd is not None:
-            svc._ready_reader = threading.Thread(target=_read_ready, args=(svc, rfd), name=f"ready:{name}",
-                                                 daemon=True)
+            svc._ready_reader = threading.Thread(target=_read_ready, args=(svc, rfd), name=f"ready:{name}", daemon=True)
             svc._ready_reader.start()
 
         def pump() -> None:
