@@ -135,12 +135,9 @@ def qgc_plan(trajectory: Trajectory, plan: MissionPlan) -> dict[str, Any]:
     """
     items = mission_items(trajectory, plan.origin)
     home = items[0].params
-    out_items = []
-    for it in items[1:]:
-        p = list(it.params)
-        out_items.append({"type": "SimpleItem", "autoContinue": bool(it.autocontinue), "command": it.command,
-                          "doJumpId": it.index, "frame": it.frame, "params": [_nan_to_none(v) for v in p],
-                          "Altitude": p[6], "AltitudeMode": 1, "AMSLAltAboveTerrain": None})
+    out_items = [{"type": "SimpleItem", "autoContinue": bool(it.autocontinue), "command": it.command,
+                  "doJumpId": it.index, "frame": it.frame, "params": [_nan_to_none(v) for v in it.params],
+                  "Altitude": it.params[6], "AltitudeMode": 1, "AMSLAltAboveTerrain": None} for it in items[1:]]
     lo, hi = plan.geofence.lo, plan.geofence.hi
     ring = enu_to_geodetic([(lo[0], lo[1], 0.0), (hi[0], lo[1], 0.0), (hi[0], hi[1], 0.0), (lo[0], hi[1], 0.0)],
                            plan.origin)
@@ -198,13 +195,11 @@ def mission_kml(plan: MissionPlan, surface: ArrayLike | None = None) -> str:
         g = enu_to_geodetic(np.asarray(p, float).reshape(-1, 3), o)
         return " ".join(f"{lon:.9f},{lat:.9f},{h:.3f}" for lat, lon, h in g)
 
-    marks = []
-    for tr in plan.trajectories:
-        marks.append(f"<Placemark><name>uav{tr.uav}</name><LineString><altitudeMode>absolute</altitudeMode>"
-                     f"<coordinates>{coords([w.pos for w in tr.waypoints])}</coordinates></LineString></Placemark>")
-    for c in plan.captures:
-        marks.append(f"<Placemark><name>capture {c.capture_id} (uav{c.uav})</name><Point><altitudeMode>absolute"
-                     f"</altitudeMode><coordinates>{coords(c.pos)}</coordinates></Point></Placemark>")
+    marks = [f"<Placemark><name>uav{tr.uav}</name><LineString><altitudeMode>absolute</altitudeMode>"
+             f"<coordinates>{coords([w.pos for w in tr.waypoints])}</coordinates></LineString></Placemark>"
+             for tr in plan.trajectories]
+    marks += [f"<Placemark><name>capture {c.capture_id} (uav{c.uav})</name><Point><altitudeMode>absolute"
+              f"</altitudeMode><coordinates>{coords(c.pos)}</coordinates></Point></Placemark>" for c in plan.captures]
     if surface is not None:
         corners = np.asarray(surface, float).reshape(-1, 3)
         ring = np.vstack([corners, corners[:1]])
@@ -286,18 +281,15 @@ def write_mission(plan: MissionPlan, out_dir: str | Path, surface: ArrayLike | N
     """Write ``uav<N>.waypoints`` and ``uav<N>.plan`` per UAV, ``mission.geojson`` and ``mission.kml``."""
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
-    paths = []
+    paths: list[Path] = []
+
+    def put(name: str, text: str) -> None:
+        (d / name).write_text(text)
+        paths.append(d / name)
+
     for tr in plan.trajectories:
-        p = d / f"uav{tr.uav}.waypoints"
-        p.write_text(qgc_wpl(tr, plan.origin))
-        paths.append(p)
-        p = d / f"uav{tr.uav}.plan"
-        p.write_text(json.dumps(qgc_plan(tr, plan), indent=1))
-        paths.append(p)
-    p = d / "mission.geojson"
-    p.write_text(json.dumps(mission_geojson(plan), indent=1))
-    paths.append(p)
-    p = d / "mission.kml"
-    p.write_text(mission_kml(plan, surface))
-    paths.append(p)
+        put(f"uav{tr.uav}.waypoints", qgc_wpl(tr, plan.origin))
+        put(f"uav{tr.uav}.plan", json.dumps(qgc_plan(tr, plan), indent=1))
+    put("mission.geojson", json.dumps(mission_geojson(plan), indent=1))
+    put("mission.kml", mission_kml(plan, surface))
     return paths
