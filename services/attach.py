@@ -221,7 +221,6 @@ def open_bus(args: argparse.Namespace, role: str, argv: list[str] | None, name: 
         raise AttachError(explain_open_error(exc, args, desc, role)) from None
 
 
-
 class AttachOptions(BusOptions):
     """The session options of a tool that attaches to a running network (:func:`open_bus`): video, web."""
 

@@ -12,7 +12,6 @@ from typing import Any
 __all__ = ["PLOTS", "write_plots"]
 
 
-
 def _figure(n: int = 1):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -115,7 +115,6 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
         self._thread: threading.Thread | None = None
         self._closed = False
 
-
     # ------------------------------------------------------------------ geodesy
     def enu_to_lla(self, p: Vec3) -> Vec3:
         lat, lon, h = pymap3d.enu2geodetic(p[0], p[1], p[2], *self.origin)
