@@ -168,13 +168,8 @@ class FrameEncoder:
         return self._ring.failed
 
     def submit(self, frame: Frame | NDArray[np.uint8], tag: Any = None) -> bool:
-        """Queue a frame (or a bare image) for encoding; returns False if an older one was dropped.
-
-        Raises
-        ------
-        ValueError
-            After :meth:`close`, or when ``frame`` is neither a Frame nor a numpy image.
-        """
+        """Queue a frame (or a bare image) for encoding; returns False if an older one was dropped. ValueError
+        after :meth:`close`, or when ``frame`` is neither a Frame nor a numpy image."""
         if isinstance(frame, Frame):
             image, item = frame.image, frame if tag is None else tag
         elif isinstance(frame, np.ndarray):

@@ -96,8 +96,6 @@ class Impairment(BaseModel):
         An empty string (or ``"none"``) is the null impairment. Errors are :class:`ValueError`
         naming the offending token.
 
-        Examples
-        --------
         >>> Impairment.parse("delay 50ms 10ms loss 2%").jitter_ms
         10.0
         >>> Impairment.parse("rate 2mbit").rate_kbps

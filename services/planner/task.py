@@ -36,8 +36,6 @@ def standoff(camera: Camera, smallest_feature: float) -> float:
     Computed for both image axes; the smaller distance is returned (it resolves ``s_f`` on
     both). For square pixels the two are equal.
 
-    Examples
-    --------
     >>> from services.planner.scenario import Camera
     >>> round(standoff(Camera(resolution=(4000, 3000), sensor_mm=(36, 27), focal_mm=34.4), 0.0025), 4)
     4.7778
