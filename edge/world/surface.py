@@ -333,7 +333,7 @@ class SyntheticSurface:
             if crack_width_ranges_px:  # real-size cracks: a width range per crack (graded_crack_image)
                 texture, mask = graded_crack_image(
                     (h_px, w_px), np.random.default_rng(self.seed), crack_width_ranges_px,
-                    n_cracks if n_cracks is not None else None,
+                    n_cracks,
                     length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)), contrast=contrast,
                     # stains per square metre as on the default wall, not per texture pixel
                     background={"blotches": min(1.0, (DEFAULT_PX_PER_M / px_per_m) ** 2)},
@@ -370,9 +370,7 @@ class SyntheticSurface:
                 if w < 1e-9:
                     raise ValueError("the two corners of a wall must differ horizontally")
                 u = np.array([horiz[0] / w, horiz[1] / w, 0.0])
-                origin = np.array([p0[0], p0[1], min(p0[2], p2[2])])
-                if dz < 0:  # p0 is the top corner: the bottom edge starts below it
-                    origin[2] = p2[2]
+                origin = np.array([p0[0], p0[1], min(p0[2], p2[2])])  # the bottom edge, whichever corner is lower
                 return cls(origin, u, (0.0, 0.0, 1.0), w, abs(dz), px_per_m, seed=seed, **kwargs)
             lo, hi = np.minimum(p0, p2), np.maximum(p0, p2)
             w, h = float(hi[0] - lo[0]), float(hi[1] - lo[1])
