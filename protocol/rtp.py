@@ -41,9 +41,7 @@ class RtpError(ValueError):
     """A packet or header that is not valid RTP (RFC 3550, section 5.1)."""
 
 
-# --------------------------------------------------------------------------------------------
-# Serial-number arithmetic (RFC 1982) on 16-bit sequence numbers and 32-bit timestamps
-# --------------------------------------------------------------------------------------------
+# ------------------------------------------------- serial-number arithmetic (RFC 1982): sequence numbers and timestamps
 
 
 def _check_u(value: int, mask: int, what: str) -> None:
@@ -156,9 +154,7 @@ def media_timestamp(t_seconds: float, clock_rate: int = VIDEO_CLOCK_RATE) -> int
     return math.floor(t * int(clock_rate) + 0.5) & _TS_MASK
 
 
-# --------------------------------------------------------------------------------------------
-# Header, pack, unpack
-# --------------------------------------------------------------------------------------------
+# ----------------------------------------------------------------------------- header, pack, unpack
 
 
 @dataclass(frozen=True, slots=True)
@@ -277,9 +273,7 @@ def unpack_frame(data: bytes | bytearray | memoryview) -> tuple[RtpHeader, memor
     return _new_header(b0, b1, seq, ts, ssrc), view[pos:end].toreadonly()
 
 
-# --------------------------------------------------------------------------------------------
-# Sender side
-# --------------------------------------------------------------------------------------------
+# ----------------------------------------------------------------------------- sender side
 
 
 def ssrc_for(uav_id: int, camera: int = 0) -> int:
