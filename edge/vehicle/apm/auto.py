@@ -205,16 +205,11 @@ class AutoMission:
             here = self._last_target or pos
             self._last_target = here
             return self._goto(t, pos, here, hold_s=self._hold_s(it))
-        if c == I.MAV_CMD_NAV_LAND:
+        if c in (I.MAV_CMD_NAV_LAND, I.MAV_CMD_NAV_RETURN_TO_LAUNCH):  # done once down again
             if not airborne and self.current in self._started:
                 return Flight("hold", pos), True
             self._started.add(self.current)
-            return Flight("land"), False
-        if c == I.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            if not airborne and self.current in self._started:
-                return Flight("hold", pos), True
-            self._started.add(self.current)
-            return Flight("rtl"), False
+            return Flight("land" if c == I.MAV_CMD_NAV_LAND else "rtl"), False
         return Flight("hold", pos), True  # a command the store let through but AUTO does not fly
 
     def _hold_s(self, it: PlanItem) -> float:
