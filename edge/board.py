@@ -81,8 +81,6 @@ class BoardOptions:
         default_factory=lambda: {i + 1: xyz(o) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
 
-
-
 class Board:
     """The board's logic, bound to a bus and a driver; :meth:`tick` is one control-loop pass."""
 

@@ -33,8 +33,7 @@ class FolderSource:
     """The images (``IMAGE_EXTENSIONS``) of a folder in name order, looping unless ``loop`` is False (then
     :meth:`grab` gives None at the end); the pose is only recorded. ``grey`` reads the detector's input
     (the paper's Section 6); ``mask_dir`` holds ground-truth masks ``<stem>.png`` (a missing one: None).
-    ValueError for a missing or empty folder; an unreadable image is skipped, counted and logged.
-    """
+    ValueError for a missing or empty folder; an unreadable image is skipped, counted and logged."""
 
     def __init__(self, path: str | os.PathLike, loop: bool = True, grey: bool = True,
                  mask_dir: str | os.PathLike | None = None) -> None:
@@ -89,8 +88,7 @@ class FolderSource:
 class VideoCaptureSource:
     """A real camera (an index such as ``0``) or a stream or file URL, through ``cv2.VideoCapture``; the
     pose is only recorded. :meth:`grab` gives None when there is no frame (end of a file, a stalled or
-    dropped stream), so the edge logs and goes on. ValueError when it cannot be opened.
-    """
+    dropped stream), so the edge logs and goes on. ValueError when it cannot be opened."""
 
     def __init__(self, url: str | int, grey: bool = False) -> None:
         if isinstance(url, str) and not url.strip():
@@ -119,13 +117,11 @@ class VideoCaptureSource:
         self.cap.release()
 
 
-def make_source(spec: str, surface: SyntheticSurface | None = None, camera: CameraModel | None = None,
-                *, loop: bool = True, grey: bool | None = None, mask: bool = True,
-                upsample: bool = False) -> FrameSource:
+def make_source(spec: str, surface: SyntheticSurface | None = None, camera: CameraModel | None = None, *,
+                loop: bool = True, grey: bool | None = None, mask: bool = True, upsample: bool = False) -> FrameSource:
     """A frame source from a spec string: ``"synthetic"`` (:class:`SyntheticSource` of ``surface`` and
     ``camera``), ``"video:<url or index>"`` (:class:`VideoCaptureSource`), else a folder
-    (:class:`FolderSource`, with a data set's sibling ``masks/`` as ground truth). ValueError otherwise.
-    """
+    (:class:`FolderSource`, with a data set's sibling ``masks/`` as ground truth). ValueError otherwise."""
     if not isinstance(spec, str) or not spec.strip():
         raise ValueError(f"camera spec must be a non-empty string, got {spec!r}")
     if spec == "synthetic":
@@ -172,13 +168,8 @@ class FrameEncoder:
         return self._ring.failed
 
     def submit(self, frame: Frame | NDArray[np.uint8], tag: Any = None) -> bool:
-        """Queue a frame (or a bare image) for encoding; returns False if an older one was dropped.
-
-        Raises
-        ------
-        ValueError
-            After :meth:`close`, or when ``frame`` is neither a Frame nor a numpy image.
-        """
+        """Queue a frame (or a bare image) for encoding; returns False if an older one was dropped. ValueError
+        after :meth:`close`, or when ``frame`` is neither a Frame nor a numpy image."""
         if isinstance(frame, Frame):
             image, item = frame.image, frame if tag is None else tag
         elif isinstance(frame, np.ndarray):

@@ -52,8 +52,7 @@ def capture_link(choice: str, frame_size: tuple[int, int]) -> LinkClass:
 
 class CameraLink:
     """Capture -> frame -> JPEG (off the control loop) -> imagery sample on the bus, keeping ``cache`` capture
-    frames for recovery (0: a plain best-effort publisher) and feeding the ``preview`` stream if any.
-    """
+    frames for recovery (0: a plain best-effort publisher) and feeding the ``preview`` stream if any."""
 
     def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
                  quality: int = 85, cache: int = IMAGERY_CACHE_FRAMES, preview: PreviewStream | None = None,

@@ -24,17 +24,10 @@ def new_epoch(delay_s: float = 0.0, *, time_fn: Callable[[], float] = time.time)
 
 class SimClock:
     """``sim = (wall − epoch) × speed``: ``epoch`` the UNIX time of simulated time 0 shared by a run's
-    processes (None: now), ``speed`` > 0; ``time_fn``/``sleep_fn`` default to :func:`time.time`/:func:`time.sleep`.
-    """
+    processes (None: now), ``speed`` > 0; ``time_fn``/``sleep_fn`` default to :func:`time.time`/:func:`time.sleep`."""
 
-    def __init__(
-        self,
-        epoch: float | None = None,
-        speed: float = 1.0,
-        *,
-        time_fn: Callable[[], float] = time.time,
-        sleep_fn: Callable[[float], None] = time.sleep,
-    ):
+    def __init__(self, epoch: float | None = None, speed: float = 1.0, *, time_fn: Callable[[], float] = time.time,
+                 sleep_fn: Callable[[float], None] = time.sleep):
         epoch = float(time_fn() if epoch is None else epoch)
         speed = float(speed)
         if not (math.isfinite(epoch) and epoch >= 0):

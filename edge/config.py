@@ -147,8 +147,7 @@ class EdgeConfig(BusOptions):
     wind: Literal["calm", "moderate"] = Field(
         default="moderate", description="disturbance model of the simulated vehicle (seeded gusts and torques)")
     camera: str = Field(default="synthetic", description="synthetic | image folder | video:<url or index> | none")
-    scenario: str | None = Field(default=None,
-                                 description="scenario file (surface and camera of the synthetic source)")
+    scenario: str | None = Field(default=None, description="scenario file (surface and camera of the synthetic source)")
     frame_size: FrameSize = Field(default=FRAME_SIZE, description="delivered frame size WxH")
     capture_link: Literal[CAPTURE_LINKS] = Field(  # type: ignore[valid-type]
         default="auto", description="link of capture frames: best-effort (UDP), reliable (TCP), or auto: reliable "

@@ -139,13 +139,10 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
             interest,
         ]
     if role == "planner":
-        return [
-            Grant("ingress", ("declare_queryable", "reply"), (keys.planner(fleet),)),
-            Grant("ingress", ("liveliness_token",), (keys.rcu_alive(fleet, "planner"),)),
-            Grant("ingress", ("put",), (keys.rcu_event(fleet, "planner"), keys.rcu_stats(fleet, "planner"))),
-            Grant("egress", ("query",), (keys.planner(fleet),)),
-            interest,
-        ]
+        return [Grant("ingress", ("declare_queryable", "reply"), (keys.planner(fleet),)),
+                Grant("ingress", ("liveliness_token",), (keys.rcu_alive(fleet, "planner"),)),
+                Grant("ingress", ("put",), (keys.rcu_event(fleet, "planner"), keys.rcu_stats(fleet, "planner"))),
+                Grant("egress", ("query",), (keys.planner(fleet),)), interest]
     if role == "detector":
         return [
             Grant("ingress", ("declare_subscriber", "query"), (cam_all, keys.advanced(cam_all))),
@@ -214,8 +211,7 @@ def access_control(fleet: str, principals: Iterable[Principal], by: str = "usern
         usernames = sorted({p.user for p in ps})
         subjects.append({"id": subject, by: usernames})
         policies.append({"id": f"{subject}-policy", "rules": ids, "subjects": [subject]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def cert_access_control(fleet: str, names: Iterable[str]) -> dict[str, Any]:

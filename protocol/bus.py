@@ -181,11 +181,8 @@ def config_from_args(args: BusOptions | argparse.Namespace, role: str | None = N
 
         ks = KeySet(Path(opts.keys), role)
         overrides = {"tls_ca": str(ks.tls_ca), "tls_cert": str(ks.tls_cert), "tls_key": str(ks.tls_key), **overrides}
-    values = dict(
-        mode=opts.mode, connect=opts.connect, listen=opts.listen, config_file=opts.config,
-        lease_s=opts.lease, multilink=opts.multilink, shared_memory=opts.shm,
-        multicast_scouting=opts.scouting, cfg=opts.cfg,
-    )
+    values = dict(mode=opts.mode, connect=opts.connect, listen=opts.listen, config_file=opts.config, lease_s=opts.lease,
+                  multilink=opts.multilink, shared_memory=opts.shm, multicast_scouting=opts.scouting, cfg=opts.cfg)
     values.update({k: v for k, v in overrides.items() if v is not None})
     return BusConfig(**values)
 
@@ -231,12 +228,10 @@ class Counters:
                 row = sent.setdefault(p.link.name, [0, 0])
                 row[0] += p.samples
                 row[1] += p.bytes
-            return {
-                "sent": {k: {"samples": v[0], "bytes": v[1]} for k, v in sent.items()},
-                "received": {k: {"samples": v[0], "bytes": v[1]} for k, v in self.received.items()},
-                "rejected": {f"{k}|{kind}": n for (k, kind), n in self.rejected.items()},
-                "dropped": dict(self.dropped),
-            }
+            return {"sent": {k: {"samples": v[0], "bytes": v[1]} for k, v in sent.items()},
+                    "received": {k: {"samples": v[0], "bytes": v[1]} for k, v in self.received.items()},
+                    "rejected": {f"{k}|{kind}": n for (k, kind), n in self.rejected.items()},
+                    "dropped": dict(self.dropped)}
 
 
 # ----------------------------------------------------------------------------- results
@@ -374,15 +369,9 @@ class Bus:
                             self.name, key, exc)
             return None
 
-    def subscribe(
-        self,
-        key: str,
-        callback: Callable[[Message, zenoh.Sample], None],
-        expect: type[Message] | tuple[type[Message], ...] | None = None,
-        link: LinkClass | None = None,
-        ring: int | None = None,
-        budget: Budget | None = None,
-    ) -> Any:
+    def subscribe(self, key: str, callback: Callable[[Message, zenoh.Sample], None],
+                  expect: type[Message] | tuple[type[Message], ...] | None = None, link: LinkClass | None = None,
+                  ring: int | None = None, budget: Budget | None = None) -> Any:
         """Subscribe with decoding; ``ring=N`` hands samples to a worker through a drop-oldest ring;
         ``budget`` drops (and counts) what a source sends beyond its rate or size (:mod:`protocol.budget`)."""
         counters = self.counters
@@ -426,9 +415,8 @@ class Bus:
             log.warning("%s: %s over its budget (%s); further ones are only counted", self.name, source, reason)
         return False
 
-    def subscribe_raw(
-        self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None, recover: bool = False,
-    ) -> Any:
+    def subscribe_raw(self, key: str, callback: Callable[[zenoh.Sample], None], ring: int | None = None,
+                      recover: bool = False) -> Any:
         """Subscribe to raw samples (e.g. RTP frames); the callback must not raise for bad input.
 
         ``recover=True`` asks publishers that keep a cache (``publisher(..., cache=N)``) to
@@ -471,14 +459,8 @@ class Bus:
         return {r.name: {"dropped": r.dropped, "processed": r.processed, "queued": len(r)} for r in self._rings}
 
     # -- request / reply
-    def request(
-        self,
-        key: str,
-        msg: Message,
-        expect: type[Message] | tuple[type[Message], ...] | None = None,
-        timeout: float = 2.0,
-        link: LinkClass = COMMAND,
-    ) -> Reply:
+    def request(self, key: str, msg: Message, expect: type[Message] | tuple[type[Message], ...] | None = None,
+                timeout: float = 2.0, link: LinkClass = COMMAND) -> Reply:
         """Send a query; acknowledged (``ok``) only by an ok reply that decodes as ``expect``.
 
         Nobody listening, a crashed queryable, a timeout or an error reply all give ``ok=False``
@@ -496,17 +478,9 @@ class Bus:
             return Reply(False, None, f"query failed: {exc}", time.perf_counter() - t0)
         return Reply(False, None, f"no reply from {key} (nobody listening)", time.perf_counter() - t0)
 
-    def request_all(
-        self,
-        key: str,
-        msg: Message,
-        expect: type[Message] | tuple[type[Message], ...] | None = None,
-        timeout: float = 2.0,
-        settle_s: float = 10.0,
-        link: LinkClass = COMMAND,
-        max_replies: int = 16,
-        settles: Callable[[Message], bool] | None = None,
-    ) -> list[Reply]:
+    def request_all(self, key: str, msg: Message, expect: type[Message] | tuple[type[Message], ...] | None = None,
+                    timeout: float = 2.0, settle_s: float = 10.0, link: LinkClass = COMMAND, max_replies: int = 16,
+                    settles: Callable[[Message], bool] | None = None) -> list[Reply]:
         """Send a query to *every* matching queryable and gather every answer, unconsolidated.
 
         Where several sessions may answer the same key (any holder of one identity), the caller
@@ -574,13 +548,8 @@ class Bus:
             reason = text.decode("utf-8", "replace")[:500] or "error reply"
         return Reply(False, None, reason, time.perf_counter() - t0)
 
-    def serve(
-        self,
-        key: str,
-        handler: Callable[[Message], Message],
-        expect: type[Message] | tuple[type[Message], ...] | None = None,
-        ring: int | None = None,
-    ) -> Any:
+    def serve(self, key: str, handler: Callable[[Message], Message],
+              expect: type[Message] | tuple[type[Message], ...] | None = None, ring: int | None = None) -> Any:
         """Declare a queryable: decode, call ``handler``, reply ok with its answer.
 
         Decoding failures and :class:`Rejected` answer with ``reply_err`` and an

@@ -79,9 +79,7 @@ def _unpack(data: bytes | bytearray | memoryview) -> tuple[int, str, Any]:
     if size > MAX_MESSAGE_BYTES:
         raise CodecError("oversize", f"{size} bytes > {MAX_MESSAGE_BYTES}")
     try:
-        obj = msgpack.unpackb(
-            data, raw=False, strict_map_key=True, use_list=True
-        )
+        obj = msgpack.unpackb(data, raw=False, strict_map_key=True, use_list=True)
     except msgpack.StackError:  # deeper than the C unpacker's stack (1024 levels): refused, no recursion
         raise CodecError("bad-bytes", "msgpack nested too deeply") from None
     except Exception as exc:  # msgpack raises several unrelated types on garbage

@@ -16,8 +16,7 @@ __all__ = ["decode_image", "encode_jpeg"]
 
 def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
     """JPEG bytes of a ``uint8`` grey (H, W) or BGR (H, W, 3) image (``cv2.imencode``); ValueError on a
-    non-image array or a quality outside 1..100.
-    """
+    non-image array or a quality outside 1..100."""
     if isinstance(quality, bool) or not isinstance(quality, (int, np.integer)) or not 1 <= quality <= 100:
         raise ValueError(f"JPEG quality must be an integer in 1..100, got {quality!r}")
     if not isinstance(image, np.ndarray) or image.dtype != np.uint8:

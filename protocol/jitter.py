@@ -27,8 +27,7 @@ _SEQ_MASK = SEQ_MOD - 1
 @dataclass(frozen=True, slots=True)
 class Frame:
     """One frame released for playout: the header and payload as pushed (a reference, never a copy), its
-    arrival time and its extended sequence number (RFC 3550 A.1; monotonic within a numbering epoch).
-    """
+    arrival time and its extended sequence number (RFC 3550 A.1; monotonic within a numbering epoch)."""
 
     header: RtpHeader
     payload: bytes | memoryview
@@ -124,10 +123,8 @@ class JitterBuffer:
     (1, 65537)
     """
 
-    def __init__(
-        self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE,
-        release_late: bool = False,
-    ) -> None:
+    def __init__(self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE,
+                 release_late: bool = False) -> None:
         self.capacity, self.playout_delay_s, self.clock_rate = _check_params(capacity, playout_delay_s, clock_rate)
         #: hand a late packet (its number already given up) out anyway, after the frames in order:
         #: for media where every frame counts whatever its order (inspection captures); counted late
@@ -163,8 +160,7 @@ class JitterBuffer:
 
     def push(self, header: RtpHeader, payload: bytes | memoryview, arrival_s: float) -> list[Frame]:
         """Take one packet arriving at ``arrival_s`` ("now": expired gaps are given up as by :meth:`pop_due`);
-        return the frames ready for playout in sequence order. ValueError for another SSRC or bad input.
-        """
+        return the frames ready for playout in sequence order. ValueError for another SSRC or bad input."""
         if not isinstance(header, RtpHeader):
             raise ValueError(f"header must be an RtpHeader, got {type(header).__name__}")
         if not isinstance(payload, (bytes, bytearray, memoryview)):
@@ -220,23 +216,12 @@ class JitterBuffer:
         """Current statistics (a snapshot)."""
         started = self._started
         expected = self._expected_prior + (self._max - self._base + 1 if started else 0)
-        return JitterStats(
-            ssrc=self._ssrc,
-            received=self.received,
-            delivered=self.delivered,
-            lost=self.lost,
-            duplicated=self.duplicated,
-            late=self.late,
-            reordered=self.reordered,
-            resyncs=self.resyncs,
-            buffered=len(self),
-            highest_sequence=self._max if started else None,
-            expected=expected,
-            fraction_lost=self.lost / expected if expected else 0.0,
-            cumulative_lost=expected - self.received,
-            jitter_ts=self._jitter,
-            jitter_s=self._jitter / self.clock_rate,
-        )
+        return JitterStats(ssrc=self._ssrc, received=self.received, delivered=self.delivered, lost=self.lost,
+                           duplicated=self.duplicated, late=self.late, reordered=self.reordered, resyncs=self.resyncs,
+                           buffered=len(self), highest_sequence=self._max if started else None, expected=expected,
+                           fraction_lost=self.lost / expected if expected else 0.0,
+                           cumulative_lost=expected - self.received, jitter_ts=self._jitter,
+                           jitter_s=self._jitter / self.clock_rate)
 
     # ---------------------------------------------------------------- internals
 
@@ -382,17 +367,10 @@ class JitterBuffer:
 
 class JitterBuffers:
     """One :class:`JitterBuffer` per SSRC, created on a source's first packet; a new source beyond
-    ``max_sources`` raises ValueError (forged SSRCs must not grow memory without bound).
-    """
+    ``max_sources`` raises ValueError (forged SSRCs must not grow memory without bound)."""
 
-    def __init__(
-        self,
-        capacity: int = 64,
-        playout_delay_s: float = 0.1,
-        clock_rate: int = VIDEO_CLOCK_RATE,
-        max_sources: int = 64,
-        release_late: bool = False,
-    ) -> None:
+    def __init__(self, capacity: int = 64, playout_delay_s: float = 0.1, clock_rate: int = VIDEO_CLOCK_RATE,
+                 max_sources: int = 64, release_late: bool = False) -> None:
         self._params = (*_check_params(capacity, playout_delay_s, clock_rate), bool(release_late))
         if isinstance(max_sources, bool) or not isinstance(max_sources, int) or max_sources < 1:
             raise ValueError(f"max_sources must be a positive int, got {max_sources!r}")

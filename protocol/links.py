@@ -31,27 +31,18 @@ class LinkClass:
 
     def publisher_qos(self) -> dict[str, Any]:
         """Keyword arguments for ``Session.declare_publisher``."""
-        return {
-            "reliability": zenoh.Reliability.RELIABLE if self.reliable else zenoh.Reliability.BEST_EFFORT,
-            "congestion_control": _CONGESTION[self.congestion],
-            "priority": getattr(zenoh.Priority, self.priority),
-            "express": self.express,
-        }
+        return {"reliability": zenoh.Reliability.RELIABLE if self.reliable else zenoh.Reliability.BEST_EFFORT,
+                "congestion_control": _CONGESTION[self.congestion], "priority": getattr(zenoh.Priority, self.priority),
+                "express": self.express}
 
     def request_qos(self) -> dict[str, Any]:
         """Keyword arguments for ``Session.get`` (queries have no reliability knob)."""
-        return {
-            "congestion_control": _CONGESTION[self.congestion],
-            "priority": getattr(zenoh.Priority, self.priority),
-            "express": self.express,
-        }
+        return {"congestion_control": _CONGESTION[self.congestion], "priority": getattr(zenoh.Priority, self.priority),
+                "express": self.express}
 
 
-_CONGESTION = {
-    "block": zenoh.CongestionControl.BLOCK,
-    "drop": zenoh.CongestionControl.DROP,
-    "block_first": zenoh.CongestionControl.BLOCK_FIRST,
-}
+_CONGESTION = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionControl.DROP,
+               "block_first": zenoh.CongestionControl.BLOCK_FIRST}
 
 COMMAND = LinkClass("command", reliable=True, congestion="block", priority="INTERACTIVE_HIGH", express=False)
 TELEMETRY = LinkClass("telemetry", reliable=False, congestion="drop", priority="DATA_HIGH", express=True)

@@ -9,7 +9,6 @@ Design notes: docs/bus.md (protocol/membus.py).
 
 from __future__ import annotations
 
-import logging
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -20,8 +19,6 @@ import zenoh
 from . import keys
 from .bus import Bus, BusConfig, Counters, Publisher
 from .links import LinkClass
-
-log = logging.getLogger("skynet.membus")
 
 
 class _Payload:

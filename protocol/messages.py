@@ -91,8 +91,7 @@ class VehicleState(Message):
     progress: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
     captures: Annotated[int, Field(ge=0)] = 0
     neighbours: Annotated[int, Field(ge=0, le=255)] = Field(
-        default=0, description="other UAVs whose state was heard over SkyNet within the stale limit"
-    )
+        default=0, description="other UAVs whose state was heard over SkyNet within the stale limit")
     ref: Vec3 | None = Field(default=None, description="planned position (own slot, P9) now, ENU m; in MISSION")
     tau: Seconds | None = Field(default=None, description="trajectory time now, s; in MISSION")
     autopilot: AutopilotReadiness | None = Field(
@@ -107,8 +106,7 @@ class Waypoint(Message):
     yaw: Angle = 0.0
     speed: Annotated[float, Field(ge=0.0, le=MAX_SPEED_MS, allow_inf_nan=False)] = 0.0
     capture_id: Annotated[int, Field(ge=0)] | None = Field(
-        default=None, description="fire the camera here, with this capture id"
-    )
+        default=None, description="fire the camera here, with this capture id")
 
 
 class Trajectory(Message):
@@ -313,13 +311,11 @@ class ImageMeta(Message):
     stamp: Seconds = Field(description="wall-clock capture time, UNIX s")
     cam_pos: Vec3 = Field(description="camera position, ENU m")
     cam_rot: tuple[Finite, Finite, Finite, Finite, Finite, Finite, Finite, Finite, Finite] = Field(
-        description="world-from-camera rotation, row-major 3x3 (OpenCV camera axes: x right, y down, z forward)"
-    )
+        description="world-from-camera rotation, row-major 3x3 (OpenCV camera axes: x right, y down, z forward)")
     intrinsics: Intrinsics
     encoding: Literal["jpeg", "png"] = "jpeg"
     range_m: Annotated[float, Field(gt=0.0, le=1000.0, allow_inf_nan=False)] | None = Field(
-        default=None, description="distance to the surface along the optical axis, m (rangefinder or plan)"
-    )
+        default=None, description="distance to the surface along the optical axis, m (rangefinder or plan)")
 
 
 class Defect(Message):
@@ -417,9 +413,7 @@ class Event(Message):
 #: every message type, by wire tag
 MESSAGE_TYPES: dict[str, type[Message]] = {
     m.TYPE: m
-    for m in (
-        VehicleState, Waypoint, Trajectory, Box, *COMMAND_TYPES, CommandAck, Heartbeat, Signed,
-        PlanRequest, CapturePoint, MissionPlan, ErrorReply, Intrinsics, ImageMeta, Defect,
-        FrameEvidence, DefectReport, ClassCounters, LinkStats, Event,
-    )
+    for m in (VehicleState, Waypoint, Trajectory, Box, *COMMAND_TYPES, CommandAck, Heartbeat, Signed, PlanRequest,
+              CapturePoint, MissionPlan, ErrorReply, Intrinsics, ImageMeta, Defect, FrameEvidence, DefectReport,
+              ClassCounters, LinkStats, Event)
 }

@@ -12,12 +12,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = [
-    "JPEG_PAYLOAD_TYPE", "SKYNET_ENCODING_NAME", "SKYNET_PAYLOAD_TYPE", "RTP_HEADER_LENGTH", "RTP_VERSION",
-    "VIDEO_CLOCK_RATE", "RtpError", "RtpHeader", "RtpSender", "media_timestamp", "pack_frame", "parse_ssrc",
-    "seq_add", "seq_delta", "seq_diff", "seq_gt", "seq_lt", "ssrc_for", "ts_add", "ts_delta", "ts_diff",
-    "unpack_frame", "unwrap_sequence"
-]
+__all__ = ["JPEG_PAYLOAD_TYPE", "SKYNET_ENCODING_NAME", "SKYNET_PAYLOAD_TYPE", "RTP_HEADER_LENGTH", "RTP_VERSION",
+           "VIDEO_CLOCK_RATE", "RtpError", "RtpHeader", "RtpSender", "media_timestamp", "pack_frame", "parse_ssrc",
+           "seq_add", "seq_delta", "seq_diff", "seq_gt", "seq_lt", "ssrc_for", "ts_add", "ts_delta", "ts_diff",
+           "unpack_frame", "unwrap_sequence"]
 
 RTP_VERSION = 2
 RTP_HEADER_LENGTH = 12
@@ -43,9 +41,7 @@ class RtpError(ValueError):
     """A packet or header that is not valid RTP (RFC 3550, section 5.1)."""
 
 
-# --------------------------------------------------------------------------------------------
-# Serial-number arithmetic (RFC 1982) on 16-bit sequence numbers and 32-bit timestamps
-# --------------------------------------------------------------------------------------------
+# ------------------------------------------------- serial-number arithmetic (RFC 1982): sequence numbers and timestamps
 
 
 def _check_u(value: int, mask: int, what: str) -> None:
@@ -110,8 +106,7 @@ def ts_add(a: int, n: int) -> int:
 
 def ts_diff(a: int, b: int) -> int:
     """Signed distance ``a - b`` between two 32-bit RTP timestamps, so that a wrap (every 13.25 h at
-    90 kHz) makes no jump in the interarrival jitter (RFC 3550, A.8).
-    """
+    90 kHz) makes no jump in the interarrival jitter (RFC 3550, A.8)."""
     _check_u(a, _TS_MASK, "timestamp")
     _check_u(b, _TS_MASK, "timestamp")
     return ts_delta(a, b)
@@ -159,17 +154,14 @@ def media_timestamp(t_seconds: float, clock_rate: int = VIDEO_CLOCK_RATE) -> int
     return math.floor(t * int(clock_rate) + 0.5) & _TS_MASK
 
 
-# --------------------------------------------------------------------------------------------
-# Header, pack, unpack
-# --------------------------------------------------------------------------------------------
+# ----------------------------------------------------------------------------- header, pack, unpack
 
 
 @dataclass(frozen=True, slots=True)
 class RtpHeader:
     """The RFC 3550 (section 5.1) fixed header of one packet. ``padding``, ``extension`` and ``csrc_count``
     are the wire bits as received (:func:`unpack_frame` skips what they announce; :func:`pack_frame`
-    emits none); our frames are one packet each, so ``marker`` is set.
-    """
+    emits none); our frames are one packet each, so ``marker`` is set."""
 
     sequence: int
     timestamp: int
@@ -187,13 +179,8 @@ class RtpHeader:
         for name in ("marker", "padding", "extension"):
             if not isinstance(getattr(self, name), bool):
                 raise RtpError(f"{name} must be a bool, got {getattr(self, name)!r}")
-        for name, mask in (
-            ("sequence", _SEQ_MASK),
-            ("timestamp", _TS_MASK),
-            ("ssrc", _TS_MASK),
-            ("payload_type", 0x7F),
-            ("csrc_count", 0x0F),
-        ):
+        for name, mask in (("sequence", _SEQ_MASK), ("timestamp", _TS_MASK), ("ssrc", _TS_MASK), ("payload_type", 0x7F),
+                           ("csrc_count", 0x0F)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise RtpError(f"{name} must be an int, got {value!r}")
@@ -205,9 +192,8 @@ class RtpHeader:
 
 _FIELD_SETTERS = tuple(
     getattr(RtpHeader, name).__set__
-    for name in (
-        "sequence", "timestamp", "ssrc", "marker", "payload_type", "version", "padding", "extension", "csrc_count"
-    )
+    for name in ("sequence", "timestamp", "ssrc", "marker", "payload_type", "version", "padding", "extension",
+                 "csrc_count")
 )
 
 
@@ -230,8 +216,7 @@ def _new_header(b0: int, b1: int, seq: int, ts: int, ssrc: int, _set: tuple[Any,
 
 def pack_frame(header: RtpHeader, payload: bytes | bytearray | memoryview) -> bytes:
     """One frame's bytes: the 12-byte fixed header, then the payload; a header asking for padding,
-    extension or CSRCs is refused (``dataclasses.replace`` them to re-send a received header).
-    """
+    extension or CSRCs is refused (``dataclasses.replace`` them to re-send a received header)."""
     if not isinstance(header, RtpHeader):
         raise RtpError(f"header must be an RtpHeader, got {type(header).__name__}")
     if header.padding or header.extension or header.csrc_count:
@@ -251,8 +236,7 @@ def pack_frame(header: RtpHeader, payload: bytes | bytearray | memoryview) -> by
 def unpack_frame(data: bytes | bytearray | memoryview) -> tuple[RtpHeader, memoryview]:
     """Header and read-only zero-copy payload view of one packet (RFC 3550 5.1 and the receiver checks of
     A.1): at least 12 bytes, version 2; the CSRC list and header extension (5.3.1) are skipped and must
-    fit; the padding count (P bit) counts itself, at least 1, and must fit. RtpError otherwise.
-    """
+    fit; the padding count (P bit) counts itself, at least 1, and must fit. RtpError otherwise."""
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise RtpError(f"RTP packet must be bytes-like, got {type(data).__name__}")
     view = memoryview(data)
@@ -289,9 +273,7 @@ def unpack_frame(data: bytes | bytearray | memoryview) -> tuple[RtpHeader, memor
     return _new_header(b0, b1, seq, ts, ssrc), view[pos:end].toreadonly()
 
 
-# --------------------------------------------------------------------------------------------
-# Sender side
-# --------------------------------------------------------------------------------------------
+# ----------------------------------------------------------------------------- sender side
 
 
 def ssrc_for(uav_id: int, camera: int = 0) -> int:
@@ -327,14 +309,8 @@ class RtpSender:
 
     __slots__ = ("ssrc", "payload_type", "clock_rate", "_seq", "packets_sent", "octets_sent")
 
-    def __init__(
-        self,
-        ssrc: int,
-        payload_type: int = SKYNET_PAYLOAD_TYPE,
-        clock_rate: int = VIDEO_CLOCK_RATE,
-        initial_seq: int | None = None,
-        rng: np.random.Generator | None = None,
-    ) -> None:
+    def __init__(self, ssrc: int, payload_type: int = SKYNET_PAYLOAD_TYPE, clock_rate: int = VIDEO_CLOCK_RATE,
+                 initial_seq: int | None = None, rng: np.random.Generator | None = None) -> None:
         _check_u(ssrc, _TS_MASK, "ssrc")
         _check_u(payload_type, 0x7F, "payload_type")
         media_timestamp(0.0, clock_rate)  # validates clock_rate
@@ -356,13 +332,8 @@ class RtpSender:
 
     def header(self, capture_time_s: float, marker: bool = True) -> RtpHeader:
         """Header of the next frame without consuming its sequence number."""
-        return RtpHeader(
-            sequence=self._seq,
-            timestamp=media_timestamp(capture_time_s, self.clock_rate),
-            ssrc=self.ssrc,
-            marker=bool(marker),
-            payload_type=self.payload_type,
-        )
+        return RtpHeader(sequence=self._seq, timestamp=media_timestamp(capture_time_s, self.clock_rate), ssrc=self.ssrc,
+                         marker=bool(marker), payload_type=self.payload_type)
 
     def frame(self, payload: bytes | bytearray | memoryview, capture_time_s: float, marker: bool = True) -> bytes:
         """Packet for one encoded image captured at ``capture_time_s`` (s); advances the sequence number."""

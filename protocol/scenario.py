@@ -15,11 +15,9 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-__all__ = [
-    "ScenarioError", "Origin", "Bounds", "Cylinder", "Surface", "surface_frame", "Camera", "Inspection",
-    "FormationSpec", "CostSpec", "Speeds", "PlannerSpec", "Scenario", "validate_scenario", "load_scenario",
-    "default_scenario_path"
-]
+__all__ = ["ScenarioError", "Origin", "Bounds", "Cylinder", "Surface", "surface_frame", "Camera", "Inspection",
+           "FormationSpec", "CostSpec", "Speeds", "PlannerSpec", "Scenario", "validate_scenario", "load_scenario",
+           "default_scenario_path"]
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Positive = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
@@ -73,8 +71,7 @@ class Cylinder(_Model):
 def surface_frame(corners: Any) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Origin and unit axes ``(p0, u, v)`` of the surface frame of corners ``(4, 3)`` (p0-p1 the bottom edge,
     p3 above p0): ``u`` along ``p1 - p0``, ``v`` the unit part of ``p3 - p0`` orthogonal to ``u``.
-    ValueError for a wrong shape, non-finite values or degenerate edges.
-    """
+    ValueError for a wrong shape, non-finite values or degenerate edges."""
     c = np.asarray(corners, dtype=float)
     if c.shape != (4, 3):
         raise ValueError(f"corners must have shape (4, 3), got {c.shape}")
@@ -120,9 +117,7 @@ class Surface(_Model):
         if abs(float(u @ v)) > 1e-3 * lu * lv:
             raise ValueError("surface.corners: edges p0-p1 and p0-p3 must be perpendicular")
         if abs(u[2]) > 0.01 or np.hypot(v[0], v[1]) > 0.01 or v[2] <= 0:
-            raise ValueError(
-                "surface.corners: only vertical walls are supported (p0-p1 horizontal, p3 above p0)"
-            )
+            raise ValueError("surface.corners: only vertical walls are supported (p0-p1 horizontal, p3 above p0)")
         for lo, hi in self.crack_widths_mm or ():
             if lo > hi:
                 raise ValueError(f"surface.crack_widths_mm: ({lo}, {hi}) is not a (min, max) pair")
@@ -172,9 +167,8 @@ class Inspection(_Model):
 class FormationSpec(_Model):
     """Formation offsets ΔT_n (formation frame: x along travel, y left, z up) (P9)."""
 
-    offsets: list[Vec3] = Field(
-        default=[(0.0, 0.0, 2.0), (3.0, 0.0, -1.0), (-3.0, 0.0, -1.0)], min_length=1, max_length=255
-    )
+    offsets: list[Vec3] = Field(default=[(0.0, 0.0, 2.0), (3.0, 0.0, -1.0), (-3.0, 0.0, -1.0)], min_length=1,
+                                max_length=255)
     min_separation: NonNeg = 2.0
 
 
@@ -298,8 +292,7 @@ def _format(err: ValidationError) -> str:
 
 def validate_scenario(doc: Any) -> Scenario:
     """Validate a scenario document (a dict as read from TOML or carried by a plan request); ScenarioError
-    naming the field (``obstacles[2].radius``, ``start``, ...) otherwise.
-    """
+    naming the field (``obstacles[2].radius``, ``start``, ...) otherwise."""
     if isinstance(doc, Scenario):
         return doc
     if not isinstance(doc, dict):
@@ -318,8 +311,7 @@ def default_scenario_path() -> Path:
 def load_scenario(path: str | Path | None = None) -> Scenario:
     """Read and validate a scenario TOML file: ``None`` the default monorail scenario, a packaged scenario's
     name (``protocol/scenarios/<name>.toml``, e.g. ``real-cracks``) that one; ScenarioError naming the file
-    and the field otherwise.
-    """
+    and the field otherwise."""
     p = default_scenario_path() if path is None else Path(path)
     packaged = default_scenario_path().parent / f"{p.name}.toml"
     if path is not None and not p.exists() and p.name == str(path) and packaged.is_file():

@@ -186,8 +186,7 @@ class Verified:
 class Verifier:
     """Verifies :class:`Signed` envelopes against the ``trusted`` Ed25519 keys per signer (an edge trusts the
     ground station's only), the ``revoked`` key ids, a per-stream ``replay`` store (persisted on an edge)
-    and a clock distance of at most ``stale_s``.
-    """
+    and a clock distance of at most ``stale_s``."""
 
     def __init__(self, trusted: Mapping[str, Iterable[Ed25519PublicKey]], revoked: Iterable[str] = (),
                  replay: ReplayStore | None = None, stale_s: float = DEFAULT_STALE_S,

@@ -18,8 +18,7 @@ LOG_PREFIX = "frame path"
 
 class StageTimes:
     """Durations (seconds in, milliseconds out) of named stages, the last ``capacity`` (>= 1) of each; a
-    non-finite duration or an empty name is a ValueError, a negative duration (two machines' clocks) is kept.
-    """
+    non-finite duration or an empty name is a ValueError, a negative duration (two machines' clocks) is kept."""
 
     def __init__(self, capacity: int = 1000) -> None:
         if isinstance(capacity, bool) or not isinstance(capacity, int) or capacity < 1:

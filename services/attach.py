@@ -188,8 +188,7 @@ def add_network_arg(parser: argparse.ArgumentParser) -> None:
                              "-e/--config)")
 
 
-def explain_open_error(exc: BaseException, args: argparse.Namespace, desc: dict[str, Any] | None,
-                       role: str) -> str:
+def explain_open_error(exc: BaseException, args: argparse.Namespace, desc: dict[str, Any] | None, role: str) -> str:
     """One line for a session that did not open: what was tried and what is likely missing."""
     text = " ".join(str(exc).split())
     where = " ".join(args.connect) or "(no endpoint)"
@@ -220,7 +219,6 @@ def open_bus(args: argparse.Namespace, role: str, argv: list[str] | None, name: 
         if type(exc).__name__ != "ZError":
             raise
         raise AttachError(explain_open_error(exc, args, desc, role)) from None
-
 
 
 class AttachOptions(BusOptions):

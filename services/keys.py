@@ -13,6 +13,7 @@ import os
 import re
 import shutil
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 from cryptography import x509
@@ -74,6 +75,21 @@ def _pem_private(key) -> bytes:
 
 def _pem_public(key) -> bytes:
     return key.public_bytes(serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo)
+
+
+def _write_identity(node: Path, key, cert: x509.Certificate) -> Ed25519PrivateKey:
+    """Write a node's TLS key and certificate and a new signing key pair into ``node``; the signing key."""
+    _write(node / "tls.key", _pem_private(key), private=True)
+    _write(node / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
+    sk = Ed25519PrivateKey.generate()
+    _write(node / "sign.key", _pem_private(sk), private=True)
+    _write(node / "sign.pub", _pem_public(sk.public_key()))
+    return sk
+
+
+def _write_names(folder: Path, names: Iterable[str]) -> None:
+    """``certs.txt``: the common names the access control admits, one a line."""
+    _write(folder / "certs.txt", "".join(f"{n}\n" for n in names).encode())
 
 
 def _name(cn: str) -> x509.Name:
@@ -183,15 +199,10 @@ def init(folder: str | Path, uavs: int = 3, force: bool = False, days: int = VAL
            + router_cert.public_bytes(serialization.Encoding.PEM))
     for role in roles(uavs):
         issuer = (router_key, router_cert) if role in ROUTER_ROLES else (ca_key, ca_cert)
-        key, cert = make_node_cert(role, *issuer, now, days, (*hosts, *sans.get(role, ())))
-        _write(folder / role / "tls.key", _pem_private(key), private=True)
-        _write(folder / role / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
-        sk = Ed25519PrivateKey.generate()
-        _write(folder / role / "sign.key", _pem_private(sk), private=True)
-        _write(folder / role / "sign.pub", _pem_public(sk.public_key()))
+        sk = _write_identity(folder / role, *make_node_cert(role, *issuer, now, days, (*hosts, *sans.get(role, ()))))
         if role in COMMAND_SIGNERS:
             _write(folder / "trust" / f"{role}.pub", _pem_public(sk.public_key()))
-    _write(folder / "certs.txt", "".join(f"{r}\n" for r in roles(uavs)).encode())
+    _write_names(folder, roles(uavs))
     if not (folder / "revoked.txt").exists():
         _write(folder / "revoked.txt", b"# revoked signing key ids and 'cert NAME' lines (skynet keys revoke)\n")
     return folder
@@ -229,20 +240,14 @@ def enlarge(folder: str | Path, uavs: int, days: int = VALID_DAYS) -> list[str]:
     added = []
     for role in lacking:
         tmp = Path(tempfile.mkdtemp(prefix=f".{role}-", dir=folder))
-        key, cert = make_node_cert(role, ca_key, ca_cert, now, days)
-        _write(tmp / "tls.key", _pem_private(key), private=True)
-        _write(tmp / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
-        sk = Ed25519PrivateKey.generate()
-        _write(tmp / "sign.key", _pem_private(sk), private=True)
-        _write(tmp / "sign.pub", _pem_public(sk.public_key()))
+        _write_identity(tmp, *make_node_cert(role, ca_key, ca_cert, now, days))
         try:
             os.rename(tmp, folder / role)  # fails when another process installed it first
             added.append(role)
         except OSError:
             shutil.rmtree(tmp, ignore_errors=True)
     if added and (folder / "certs.txt").exists():  # the new names admitted by the access control
-        names = KeySet(folder, "gcs").admitted()
-        _write(folder / "certs.txt", "".join(f"{n}\n" for n in sorted({*names, *added})).encode())
+        _write_names(folder, sorted({*KeySet(folder, "gcs").admitted(), *added}))
     return added
 
 
@@ -270,9 +275,8 @@ def _cn(cert_path: Path) -> str:
 
 def _set_certs(folder: Path, old: str, new: str | None) -> None:
     """Replace (or, ``new`` None, drop) ``old`` in ``certs.txt``."""
-    ks = KeySet(folder, "gcs")
-    names = [n for n in ks.admitted() if n != old] + ([new] if new else [])
-    _write(folder / "certs.txt", "".join(f"{n}\n" for n in sorted(names)).encode())
+    names = [n for n in KeySet(folder, "gcs").admitted() if n != old] + ([new] if new else [])
+    _write_names(folder, sorted(names))
 
 
 def _append_revoked(folder: Path, lines: list[str]) -> None:
@@ -325,13 +329,8 @@ def reissue(folder: str | Path, role: str, days: int = NODE_DAYS) -> str:
     except x509.ExtensionNotFound:
         hosts = ()
     now = dt.datetime.now(dt.UTC)
-    key, cert = make_node_cert(role, ca_key, ca_cert, now, days, hosts, cn=new_cn)
     old_kid = key_id(load_public(node / "sign.pub"))
-    _write(node / "tls.key", _pem_private(key), private=True)
-    _write(node / "tls.pem", cert.public_bytes(serialization.Encoding.PEM))
-    sk = Ed25519PrivateKey.generate()
-    _write(node / "sign.key", _pem_private(sk), private=True)
-    _write(node / "sign.pub", _pem_public(sk.public_key()))
+    sk = _write_identity(node, *make_node_cert(role, ca_key, ca_cert, now, days, hosts, cn=new_cn))
     if role in COMMAND_SIGNERS:
         _write(folder / "trust" / f"{role}.pub", _pem_public(sk.public_key()))
     _append_revoked(folder, [f"cert {old_cn}", old_kid])
@@ -352,10 +351,8 @@ def ensure(folder: str | Path, uavs: int) -> Path:
     lacks node roles, :func:`enlarge`), else make a new one."""
     folder = Path(folder)
     if (folder / "router-ca.pem").exists() and (folder / "ca" / "ca.key").exists() and not expiring(folder):
-        try:
+        with contextlib.suppress(ValueError):  # not enlargeable: a new set below
             enlarge(folder, uavs)
-        except ValueError:
-            pass  # not enlargeable: a new set below
     if usable(folder, uavs):
         return folder
     return init(folder, uavs, force=True)

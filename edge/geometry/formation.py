@@ -13,17 +13,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from protocol.checks import finite_array, finite_vec3, xyz
 
-__all__ = [
-    "DEFAULT_OFFSETS", "offsets_for", "home_offsets", "MAX_ALONG_M", "ROW_PITCH_M", "MAX_CORRECTION_M",
-    "rotation_of", "errors_in_formation", "errors_to_inertial", "uav_positions", "centroid_of", "headings",
-    "neighbour_correction", "formation_error", "HEADING_MIN_SPEED", "HEADING_WINDOW_S", "ShapeErrorMeter",
-    "tracking_error"
-]
+__all__ = ["DEFAULT_OFFSETS", "offsets_for", "home_offsets", "MAX_ALONG_M", "ROW_PITCH_M", "MAX_CORRECTION_M",
+           "rotation_of", "errors_in_formation", "errors_to_inertial", "uav_positions", "centroid_of", "headings",
+           "neighbour_correction", "formation_error", "HEADING_MIN_SPEED", "HEADING_WINDOW_S", "ShapeErrorMeter",
+           "tracking_error"]
 
 #: Desired offsets ΔT_n of UAVs 1, 2, 3 in the formation frame, metres (P9); row n-1 is UAV n.
-DEFAULT_OFFSETS: NDArray[np.float64] = np.array(
-    [[0.0, 0.0, 2.0], [3.0, 0.0, -1.0], [-3.0, 0.0, -1.0]], dtype=float
-)
+DEFAULT_OFFSETS: NDArray[np.float64] = np.array([[0.0, 0.0, 2.0], [3.0, 0.0, -1.0], [-3.0, 0.0, -1.0]], dtype=float)
 DEFAULT_OFFSETS.setflags(write=False)
 
 #: Default bound on the on-board formation correction, metres (our choice; the paper is silent).
@@ -42,8 +38,7 @@ ROW_PITCH_M = 2.5
 
 def offsets_for(n: int) -> NDArray[np.float64]:
     """Offsets ΔT_n for a fleet of ``n`` UAVs (P9), row n-1 UAV n: the paper's triangle, then the slots of
-    docs/edge.md (edge/geometry/formation.py, "Fleet slots").
-    """
+    docs/edge.md (edge/geometry/formation.py, "Fleet slots")."""
     if not isinstance(n, (int, np.integer)) or not 1 <= n <= 255:
         raise ValueError(f"formation size must be an int in 1..255, got {n!r}")
     cols = [0.0]
@@ -65,8 +60,7 @@ def offsets_for(n: int) -> NDArray[np.float64]:
 
 def home_offsets(offsets: ArrayLike) -> NDArray[np.float64]:
     """Launch points ``(k, 2)`` in the formation frame (x along travel, y left), m: under each slot, or
-    :data:`PITCH_M` further left per earlier UAV launching from the same spot.
-    """
+    :data:`PITCH_M` further left per earlier UAV launching from the same spot."""
     off = np.asarray(offsets, float).reshape(-1, 3)
     seen: dict[float, int] = {}
     out = np.zeros((off.shape[0], 2))
@@ -86,9 +80,8 @@ def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np
     >>> np.round(R @ [1.0, 0.0, 0.0], 12)
     array([0., 1., 0.])
     """
-    phi, theta, psi = np.broadcast_arrays(
-        finite_array("roll", roll), finite_array("pitch", pitch), finite_array("yaw", yaw)
-    )
+    phi, theta, psi = np.broadcast_arrays(finite_array("roll", roll), finite_array("pitch", pitch),
+                                          finite_array("yaw", yaw))
     cf, sf = np.cos(phi), np.sin(phi)
     ct, st = np.cos(theta), np.sin(theta)
     cp, sp = np.cos(psi), np.sin(psi)
@@ -105,9 +98,7 @@ def rotation_of(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np
     return R
 
 
-def errors_in_formation(
-    desired: ArrayLike, actual: ArrayLike, R_OF: ArrayLike
-) -> NDArray[np.float64]:
+def errors_in_formation(desired: ArrayLike, actual: ArrayLike, R_OF: ArrayLike) -> NDArray[np.float64]:
     """Position errors ``e^F = R_OF^T (P_d − P)`` (P8), ``(..., 3)``, with ``R_OF`` ``(3, 3)`` or ``(..., 3, 3)``."""
     d = finite_array("desired", desired)
     a = finite_array("actual", actual)
@@ -127,16 +118,10 @@ def errors_to_inertial(e_F: ArrayLike, R_OF: ArrayLike) -> NDArray[np.float64]:
     return np.einsum("...ij,...j->...i", R, e)
 
 
-def uav_positions(
-    centroid: ArrayLike,
-    yaw: ArrayLike,
-    offsets: ArrayLike = DEFAULT_OFFSETS,
-    roll: ArrayLike = 0.0,
-    pitch: ArrayLike = 0.0,
-) -> NDArray[np.float64]:
+def uav_positions(centroid: ArrayLike, yaw: ArrayLike, offsets: ArrayLike = DEFAULT_OFFSETS, roll: ArrayLike = 0.0,
+                  pitch: ArrayLike = 0.0) -> NDArray[np.float64]:
     """Slots ``(N, M, 3)`` of M UAVs along a centroid path ``(N, 3)``, ``P_n = P_F + R_OF ΔT_n`` (P9); ``yaw``,
-    ``roll`` and ``pitch`` scalars or ``(N,)``.
-    """
+    ``roll`` and ``pitch`` scalars or ``(N,)``."""
     c = np.atleast_2d(finite_array("centroid", centroid))
     if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] == 0:
         raise ValueError(f"centroid must have shape (N, 3) with N >= 1, got {c.shape}")
@@ -145,9 +130,7 @@ def uav_positions(
         raise ValueError(f"offsets must have shape (M, 3) with M >= 1, got {off.shape}")
     n = c.shape[0]
     try:
-        angles = np.broadcast_arrays(
-            *(np.broadcast_to(np.asarray(a, float), (n,)) for a in (roll, pitch, yaw))
-        )
+        angles = np.broadcast_arrays(*(np.broadcast_to(np.asarray(a, float), (n,)) for a in (roll, pitch, yaw)))
     except ValueError:
         raise ValueError(f"roll, pitch and yaw must be scalars or have shape ({n},)") from None
     R = rotation_of(*angles)  # (N, 3, 3)
@@ -164,8 +147,7 @@ def centroid_of(positions: ArrayLike) -> NDArray[np.float64]:
 
 def headings(path: ArrayLike) -> NDArray[np.float64]:
     """Heading ψ ``(N,)`` of a path ``(N, 3)`` from its central-difference tangent (:func:`numpy.gradient`);
-    points without horizontal motion take the nearest earlier (else later) heading, 0 if none.
-    """
+    points without horizontal motion take the nearest earlier (else later) heading, 0 if none."""
     p = finite_array("path", path)
     if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
         raise ValueError(f"path must have shape (N, 3) with N >= 1, got {p.shape}")
@@ -191,15 +173,10 @@ def _offset_of(offsets: Mapping[int, ArrayLike], uav: int) -> NDArray[np.float64
     return finite_vec3(f"offset of UAV {uav}", offsets[uav])
 
 
-def neighbour_correction(
-    own_tau: float,
-    own_ref_vel: ArrayLike,
-    neighbours: Mapping[int, tuple[ArrayLike, ArrayLike, float, float]],
-    stale_after_s: float = 1.0,
-    gain: float = 0.8,
-    max_correction: float = MAX_CORRECTION_M,
-    clock_rate: float = 1.0,
-) -> NDArray[np.float64]:
+def neighbour_correction(own_tau: float, own_ref_vel: ArrayLike,
+                         neighbours: Mapping[int, tuple[ArrayLike, ArrayLike, float, float]],
+                         stale_after_s: float = 1.0, gain: float = 0.8, max_correction: float = MAX_CORRECTION_M,
+                         clock_rate: float = 1.0) -> NDArray[np.float64]:
     """Own reference correction from the neighbours' shared states (P8), zeros without a fresh neighbour.
 
     ``neighbours`` maps an id to (position, planned position, trajectory time τ_j, age s); the error of
@@ -237,15 +214,10 @@ def neighbour_correction(
     return corr
 
 
-def formation_error(
-    positions: Mapping[int, ArrayLike],
-    centroid: ArrayLike | None,
-    yaw: float,
-    offsets: Mapping[int, ArrayLike],
-) -> float:
+def formation_error(positions: Mapping[int, ArrayLike], centroid: ArrayLike | None, yaw: float,
+                    offsets: Mapping[int, ArrayLike]) -> float:
     """RMS shape error (P6)-(P9), metres: ``sqrt(mean_n |(P_n − P̄) − R_OF (ΔT_n − ΔT̄)|²)`` over the UAVs in both
-    mappings (translation does not count). One UAV: its distance to ``centroid + R_OF ΔT_n`` (0 without a centroid).
-    """
+    mappings (translation does not count). One UAV: its distance to ``centroid + R_OF ΔT_n`` (0 without a centroid)."""
     if not math.isfinite(yaw):
         raise ValueError("yaw must be finite")
     ids = sorted(i for i in positions if i in offsets)
@@ -273,8 +245,7 @@ HEADING_WINDOW_S = 1.0
 class ShapeErrorMeter:
     """The formation error (:func:`formation_error`) along a stream of the fleet's positions, with the one
     heading rule that the report, the terminal line and the web page share (docs/edge.md,
-    edge/geometry/formation.py, "Heading rule").
-    """
+    edge/geometry/formation.py, "Heading rule")."""
 
     def __init__(self, offsets: Mapping[int, ArrayLike], window_s: float = HEADING_WINDOW_S,
                  min_speed: float = HEADING_MIN_SPEED) -> None:

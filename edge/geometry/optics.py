@@ -31,8 +31,7 @@ def overlap_spacing(a_fov: float, overlap: float) -> float:
 class CameraModel:
     """Pinhole camera: delivered frame ``(width, height)`` (px), sensor ``(s_w, s_h)`` and focal length ``f``
     (mm). The defaults are the paper's camera as the planner reads it (docs/planner.md): 34.4 mm
-    35 mm-equivalent on 36 mm x 27 mm, delivering 640 x 480 frames (the stills' field of view).
-    """
+    35 mm-equivalent on 36 mm x 27 mm, delivering 640 x 480 frames (the stills' field of view)."""
 
     resolution: tuple[int, int] = (640, 480)
     sensor_mm: tuple[float, float] = (36.0, 27.0)
@@ -123,8 +122,7 @@ class CameraModel:
 @dataclass(frozen=True)
 class CameraPose:
     """Where the camera is and where it looks: centre ``C`` (ENU m) and the world-from-camera rotation ``R``
-    (a proper rotation to 1e-6) whose columns are the OpenCV camera axes (x right, y down, z forward) in ENU.
-    """
+    (a proper rotation to 1e-6) whose columns are the OpenCV camera axes (x right, y down, z forward) in ENU."""
 
     position: NDArray[np.float64]
     rotation: NDArray[np.float64]

@@ -19,8 +19,7 @@ Vec3 = tuple[float, float, float]
 class ATSMGains:
     """Gains of the ATSM controller per axis (roll, pitch, yaw): ``lam`` Λ of (P14) (1/s), ``mu`` μ of (P16)
     in (0, 1), ``alpha0`` the initial (or :class:`TwistingController`'s fixed) twisting gain α, ``alpha_m``
-    the floor and ``alpha_max`` the clamp of α (N·m), ``omega_bar`` ω̄, ``rho`` ρ, ``eps`` ε and ``eta`` η of (P17).
-    """
+    the floor and ``alpha_max`` the clamp of α (N·m), ``omega_bar`` ω̄, ``rho`` ρ, ``eps`` ε and ``eta`` η of (P17)."""
 
     lam: Vec3 = (8.0, 8.0, 7.0)
     mu: Vec3 = (0.5, 0.5, 0.5)
@@ -45,8 +44,7 @@ class ATSMGains:
 
 class ATSM:
     """Adaptive twisting sliding-mode attitude controller (P13)-(P17) with a model ``inertia`` (may differ
-    from the plant's), period ``dt``; ``adaptive`` False is the fixed-gain twisting controller.
-    """
+    from the plant's), period ``dt``; ``adaptive`` False is the fixed-gain twisting controller."""
 
     def __init__(self, inertia: Vec3, gains: ATSMGains = ATSMGains(), dt: float = 1 / 200, adaptive: bool = True):
         inertia = tuple(float(v) for v in inertia)
@@ -66,18 +64,10 @@ class ATSM:
         self._sigma_prev: list[float] | None = None
         self.sigma: Vec3 = (0.0, 0.0, 0.0)
 
-    def update(
-        self,
-        att: Vec3,
-        datt: Vec3,
-        rates: Vec3,
-        ref: Vec3,
-        dref: Vec3 = (0.0, 0.0, 0.0),
-        ddref: Vec3 = (0.0, 0.0, 0.0),
-    ) -> Vec3:
+    def update(self, att: Vec3, datt: Vec3, rates: Vec3, ref: Vec3, dref: Vec3 = (0.0, 0.0, 0.0),
+               ddref: Vec3 = (0.0, 0.0, 0.0)) -> Vec3:
         """One control period: torques ``u = u_eq + u_T`` (P13), N·m, from Θ, Θ̇, the body rates (for f(X) of
-        (P12)) and the reference Θ_d with its first two derivatives.
-        """
+        (P12)) and the reference Θ_d with its first two derivatives."""
         ixx, iyy, izz = self.inertia
         p, q, r = rates
         # f(X) of (P12) with the model inertia

@@ -20,8 +20,7 @@ Vec3 = tuple[float, float, float]
 class DriverState:
     """Snapshot of the vehicle: mission time ``t`` (s), ENU ``pos``/``vel``, ZYX ``att`` (yaw in (−π, π]),
     body ``rates`` (P10), ``mode``, ``armed``, ``battery`` (0..1), ``wp_index`` (last waypoint passed, −1
-    before), ``progress`` (fraction of the trajectory flown) and ``captures`` fired since the upload.
-    """
+    before), ``progress`` (fraction of the trajectory flown) and ``captures`` fired since the upload."""
 
     t: float
     pos: Vec3
@@ -37,19 +36,16 @@ class DriverState:
 
     def to_message(self, uav: int, seq: int, stamp: float) -> VehicleState:
         """The wire message (protocol.messages.VehicleState) for this snapshot."""
-        return VehicleState(
-            uav=uav, seq=seq, t=max(0.0, self.t), stamp=stamp, pos=self.pos, vel=self.vel,
-            att=self.att, rates=self.rates, mode=self.mode, armed=self.armed,
-            battery=min(1.0, max(0.0, self.battery)), wp_index=self.wp_index,
-            progress=self.progress, captures=self.captures,
-        )
+        return VehicleState(uav=uav, seq=seq, t=max(0.0, self.t), stamp=stamp, pos=self.pos, vel=self.vel, att=self.att,
+                            rates=self.rates, mode=self.mode, armed=self.armed,
+                            battery=min(1.0, max(0.0, self.battery)), wp_index=self.wp_index, progress=self.progress,
+                            captures=self.captures)
 
 
 @dataclass(frozen=True)
 class CaptureEvent:
     """The follower passed a waypoint with a capture id: take the picture now (time, ENU position and
-    attitude of the vehicle then).
-    """
+    attitude of the vehicle then)."""
 
     capture_id: int
     t: float

@@ -21,8 +21,7 @@ __all__ = ["GcsBridge"]
 class GcsBridge:
     """Forward frames between the autopilot link (``to_autopilot`` writes one raw frame) and a ground-station
     ``endpoint`` (``udpout:HOST:PORT`` to reach a listening GCS, ``udpin:HOST:PORT`` to be dialled), with a
-    camera component announcing ``video`` unless None.
-    """
+    camera component announcing ``video`` unless None."""
 
     def __init__(self, endpoint: str, to_autopilot: Callable[[bytes], None], video: VideoStreamSpec | None = None):
         from edge.vehicle.mavlink import open_connection  # the same codec (and signing) as the driver's link

@@ -64,8 +64,7 @@ class VideoStreamSpec:
 
 class MavCamera:
     """The camera component's side of the MAVLink Camera Protocol (no I/O): announces ``stream`` as a
-    component of the vehicle ``sysid``.
-    """
+    component of the vehicle ``sysid``."""
 
     def __init__(self, stream: VideoStreamSpec, sysid: int, component: int = CAMERA_COMPONENT):
         if not (isinstance(sysid, int) and 1 <= sysid <= 255):

@@ -54,18 +54,10 @@ class PIDGains:
 
 class PositionPID:
     """Cascaded position/velocity controller producing (roll_d, pitch_d, yaw_d) and thrust (at most
-    ``thrust_max``), every ``dt``, from its own model of the ``mass`` and the linear ``drag`` (feed-forward).
-    """
+    ``thrust_max``), every ``dt``, from its own model of the ``mass`` and the linear ``drag`` (feed-forward)."""
 
-    def __init__(
-        self,
-        mass: float,
-        gains: PIDGains = PIDGains(),
-        dt: float = 1 / 200,
-        drag: tuple[float, float] = (0.0, 0.0),
-        thrust_max: float = math.inf,
-        g: float = GRAVITY,
-    ):
+    def __init__(self, mass: float, gains: PIDGains = PIDGains(), dt: float = 1 / 200,
+                 drag: tuple[float, float] = (0.0, 0.0), thrust_max: float = math.inf, g: float = GRAVITY):
         if not (math.isfinite(mass) and mass > 0 and math.isfinite(dt) and dt > 0):
             raise ValueError("mass and dt must be finite and > 0")
         self.mass = float(mass)
@@ -83,16 +75,8 @@ class PositionPID:
         self._ev_prev: list[float] | None = None
         self._dev = [0.0, 0.0, 0.0]
 
-    def update(
-        self,
-        pos: Vec3,
-        vel: Vec3,
-        att: Vec3,
-        ref_pos: Vec3,
-        ref_vel: Vec3 = (0.0, 0.0, 0.0),
-        ref_acc: Vec3 = (0.0, 0.0, 0.0),
-        ref_yaw: float = 0.0,
-    ) -> tuple[float, float, float, float]:
+    def update(self, pos: Vec3, vel: Vec3, att: Vec3, ref_pos: Vec3, ref_vel: Vec3 = (0.0, 0.0, 0.0),
+               ref_acc: Vec3 = (0.0, 0.0, 0.0), ref_yaw: float = 0.0) -> tuple[float, float, float, float]:
         """One control period: ``(roll_d, pitch_d, yaw_d, thrust)`` in rad, rad, rad, N."""
         G = self.gains
         dt = self.dt

@@ -22,8 +22,7 @@ GRAVITY = 9.81
 class QuadParams:
     """Physical parameters of the quadcopter (3DR Solo class defaults), SI units: mass, principal moments
     of inertia (P11), thrust-to-weight ratio, roll/pitch/yaw torque limits, linear drag coefficients,
-    first-order actuator time constant (0: no lag) and gravity.
-    """
+    first-order actuator time constant (0: no lag) and gravity."""
 
     mass: float = 1.47
     ixx: float = 0.011
@@ -113,8 +112,7 @@ def ar1(a: float, w: np.ndarray, zi: float = 0.0) -> tuple[np.ndarray, float]:
 
 class Disturbance:
     """Seeded, bounded disturbance sequence sampled once per physics step ``dt``, drawn ``block`` steps at a
-    time (vectorised, filtered by :func:`ar1`).
-    """
+    time (vectorised, filtered by :func:`ar1`)."""
 
     def __init__(self, params: DisturbanceParams, dt: float, rng: np.random.Generator, block: int = 2000):
         self.params = params
@@ -217,19 +215,11 @@ def _deriv(s, T, ux, uy, uz, wx, wy, wz, c):
 
 class Quadrotor:
     """The plant: state, actuators, disturbance and RK4 integration at step ``dt`` (1/200 s or smaller),
-    starting at rest and level at ``pos``, ``yaw``; ``ground_z`` None for no ground.
-    """
+    starting at rest and level at ``pos``, ``yaw``; ``ground_z`` None for no ground."""
 
-    def __init__(
-        self,
-        params: QuadParams = QuadParams(),
-        dt: float = 1 / 200,
-        disturbance: DisturbanceParams | None = None,
-        rng: np.random.Generator | None = None,
-        pos: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        yaw: float = 0.0,
-        ground_z: float | None = 0.0,
-    ):
+    def __init__(self, params: QuadParams = QuadParams(), dt: float = 1 / 200,
+                 disturbance: DisturbanceParams | None = None, rng: np.random.Generator | None = None,
+                 pos: tuple[float, float, float] = (0.0, 0.0, 0.0), yaw: float = 0.0, ground_z: float | None = 0.0):
         if not (math.isfinite(dt) and 0 < dt <= 1 / 100):
             raise ValueError("dt must be in (0, 0.01] s (100 Hz or faster)")
         pos = tuple(float(v) for v in pos)

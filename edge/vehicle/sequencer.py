@@ -70,18 +70,9 @@ class MissionSequencer:
     "wait", "track", "transit_resume" or "" (no mission in flight).
     """
 
-    def __init__(
-        self,
-        uav: int,
-        ground_z: float = 0.0,
-        *,
-        transit_speed: float = 4.0,
-        start_radius: float = 1.0,
-        arrive_radius: float = 0.3,
-        max_offset: float = 3.0,
-        offset_rate: float = 1.0,
-        interpolation: Literal["cubic", "linear"] = "cubic",
-    ):
+    def __init__(self, uav: int, ground_z: float = 0.0, *, transit_speed: float = 4.0, start_radius: float = 1.0,
+                 arrive_radius: float = 0.3, max_offset: float = 3.0, offset_rate: float = 1.0,
+                 interpolation: Literal["cubic", "linear"] = "cubic"):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
         if not math.isfinite(ground_z):
@@ -269,8 +260,7 @@ class MissionSequencer:
     def reference(self, t: float, pos: Vec3, dt: float) -> Reference:
         """The reference ``(pos, vel, acc, yaw)`` at time ``t`` (non-decreasing) for a vehicle at ``pos``,
         ``dt`` after the previous call; advances the phase. At the trajectory's end it sets :attr:`done`
-        and holds the end point plus the offset. ValueError when no mission is in flight.
-        """
+        and holds the end point plus the offset. ValueError when no mission is in flight."""
         phase = self.phase
         if phase == "track":
             f = self.follower

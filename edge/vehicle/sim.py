@@ -37,8 +37,7 @@ class SimParams:
     PID and ATSM gains, ``controller`` ("atsm" (P13)-(P17) or "twisting"), ``model_mismatch`` (the
     controllers' mass and inertia = plant × this), speeds (m/s), ``rtl_altitude`` above launch, the
     sequencer's radii and offset bounds (:class:`edge.vehicle.sequencer.MissionSequencer`),
-    ``endurance_s`` (hover time on a full battery; drain ∝ thrust / hover thrust) and ``interpolation``.
-    """
+    ``endurance_s`` (hover time on a full battery; drain ∝ thrust / hover thrust) and ``interpolation``."""
 
     quad: QuadParams = field(default_factory=QuadParams)
     disturbance: DisturbanceParams = field(default_factory=DisturbanceParams)
@@ -71,19 +70,10 @@ class SimParams:
 
 class SimDriver(VehicleDriver):
     """A simulated UAV behind the driver interface: launch point ``home`` (ENU m, z the ground), physics
-    and control at ``physics_hz`` (>= 100), disturbance seeded by ``seed``, clock ``t0`` and heading ``yaw``.
-    """
+    and control at ``physics_hz`` (>= 100), disturbance seeded by ``seed``, clock ``t0`` and heading ``yaw``."""
 
-    def __init__(
-        self,
-        uav: int,
-        params: SimParams = SimParams(),
-        seed: int = 0,
-        home: Vec3 = (0.0, 0.0, 0.0),
-        physics_hz: int = 200,
-        t0: float = 0.0,
-        yaw: float = 0.0,
-    ):
+    def __init__(self, uav: int, params: SimParams = SimParams(), seed: int = 0, home: Vec3 = (0.0, 0.0, 0.0),
+                 physics_hz: int = 200, t0: float = 0.0, yaw: float = 0.0):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
         if not (isinstance(physics_hz, int) and 100 <= physics_hz <= 10000):
@@ -140,12 +130,9 @@ class SimDriver(VehicleDriver):
     def state(self) -> DriverState:
         q = self.quad.s
         wp, prog = self.mission.progress(self.t)
-        return DriverState(
-            t=self.t, pos=(q[0], q[1], q[2]), vel=(q[3], q[4], q[5]),
-            att=(q[6], q[7], wrap_angle(q[8])), rates=(q[9], q[10], q[11]),
-            mode=self.mode, armed=self.armed, battery=self.battery,
-            wp_index=wp, progress=prog, captures=self.mission.captures,
-        )
+        return DriverState(t=self.t, pos=(q[0], q[1], q[2]), vel=(q[3], q[4], q[5]), att=(q[6], q[7], wrap_angle(q[8])),
+                           rates=(q[9], q[10], q[11]), mode=self.mode, armed=self.armed, battery=self.battery,
+                           wp_index=wp, progress=prog, captures=self.mission.captures)
 
     # ------------------------------------------------------------------ commands
     def _check_open(self) -> None:

@@ -16,11 +16,8 @@ from edge.vehicle.quadrotor import DisturbanceParams, QuadParams, Quadrotor, eul
 __all__ = ["STEPS", "StepResult", "run_step_test"]
 
 #: (axis, time of the step s, reference rad) of the paper's test
-STEPS: tuple[tuple[int, float, float], ...] = (
-    (0, 0.5, math.radians(-10.0)),
-    (1, 1.0, math.radians(10.0)),
-    (2, 2.0, math.radians(45.0)),
-)
+STEPS: tuple[tuple[int, float, float], ...] = ((0, 0.5, math.radians(-10.0)), (1, 1.0, math.radians(10.0)),
+                                               (2, 2.0, math.radians(45.0)))
 
 #: torque disturbance of the test: |d| <= 0.03, 0.03, 0.01 N·m
 TEST_DISTURBANCE = DisturbanceParams(torque_amp=(0.03, 0.03, 0.01))
@@ -42,29 +39,15 @@ class StepResult:
     chattering_tv: tuple[float, float, float]
 
     def as_dict(self) -> dict:
-        return {
-            "controller": self.controller,
-            "settling_s": list(self.settling_s),
-            "overshoot_pct": list(self.overshoot_pct),
-            "chattering_std_Nm": list(self.chattering_std),
-            "chattering_tv_Nm": list(self.chattering_tv),
-            "final_alpha_Nm": self.alpha[-1].tolist(),
-        }
+        return {"controller": self.controller, "settling_s": list(self.settling_s),
+                "overshoot_pct": list(self.overshoot_pct), "chattering_std_Nm": list(self.chattering_std),
+                "chattering_tv_Nm": list(self.chattering_tv), "final_alpha_Nm": self.alpha[-1].tolist()}
 
 
-def run_step_test(
-    controller: str = "atsm",
-    *,
-    inertia_mismatch: float = 1.2,
-    disturbance: DisturbanceParams = TEST_DISTURBANCE,
-    gains: ATSMGains = ATSMGains(),
-    params: QuadParams = QuadParams(),
-    seed: int = 0,
-    duration: float = 6.0,
-    physics_hz: int = 200,
-    band: float = 0.02,
-    steady_s: float = 2.0,
-) -> StepResult:
+def run_step_test(controller: str = "atsm", *, inertia_mismatch: float = 1.2,
+                  disturbance: DisturbanceParams = TEST_DISTURBANCE, gains: ATSMGains = ATSMGains(),
+                  params: QuadParams = QuadParams(), seed: int = 0, duration: float = 6.0, physics_hz: int = 200,
+                  band: float = 0.02, steady_s: float = 2.0) -> StepResult:
     """Run the step test with ``controller`` "atsm" (P13)-(P17) or "twisting" (fixed gain), the controller's
     inertia the plant's times ``inertia_mismatch``, ``disturbance`` (default bounded torques of
     0.03/0.03/0.01 N·m), ``duration`` simulated s (> 2 s + ``steady_s``) and a settling ``band`` (fraction of the step).
@@ -116,8 +99,6 @@ def run_step_test(
     steady = t_after > duration - steady_s
     std = torque[steady].std(axis=0)
     tv = np.abs(np.diff(torque[steady], axis=0)).mean(axis=0)
-    return StepResult(
-        controller=controller, t=t_after, att=att, ref=ref, torque=torque, alpha=alpha,
-        settling_s=tuple(settling), overshoot_pct=tuple(overshoot),
-        chattering_std=tuple(float(v) for v in std), chattering_tv=tuple(float(v) for v in tv),
-    )
+    return StepResult(controller=controller, t=t_after, att=att, ref=ref, torque=torque, alpha=alpha,
+                      settling_s=tuple(settling), overshoot_pct=tuple(overshoot),
+                      chattering_std=tuple(float(v) for v in std), chattering_tv=tuple(float(v) for v in tv))

@@ -24,8 +24,7 @@ __all__ = ["Frame", "FrameSource", "SyntheticSource", "upsample_factor"]
 class Frame:
     """One captured frame: a ``uint8`` grey or BGR image, its capture time ``t`` (the caller's clock), the
     pose given to :meth:`FrameSource.grab`, its ground-truth ``mask`` (255 on cracks) when known, the
-    source's counter ``seq`` from 0 and its origin ``name`` (empty for the synthetic source).
-    """
+    source's counter ``seq`` from 0 and its origin ``name`` (empty for the synthetic source)."""
 
     image: NDArray[np.uint8]
     t: float
@@ -51,8 +50,7 @@ class FrameSource(Protocol):
 def upsample_factor(texels_per_px: float, frame_size: tuple[int, int], limit: float = 0.5) -> int:
     """The reduction 2^k at which :class:`SyntheticSource` warps a magnified view (``texels_per_px``
     texture pixels per frame pixel) before resizing it: the largest with at most ``limit`` texture
-    pixels per reduced pixel and a reduced frame of at least 16 pixels a side (docs/edge.md).
-    """
+    pixels per reduced pixel and a reduced frame of at least 16 pixels a side (docs/edge.md)."""
     if not (math.isfinite(texels_per_px) and texels_per_px > 0):
         raise ValueError(f"texture pixels per frame pixel must be finite and > 0, got {texels_per_px!r}")
     if not (math.isfinite(limit) and limit > 0):
@@ -65,17 +63,15 @@ def upsample_factor(texels_per_px: float, frame_size: tuple[int, int], limit: fl
 
 class SyntheticSource:
     """The view of a :class:`~edge.world.surface.SyntheticSurface` from the camera pose, by the homography
-    ``H = K R^T (A - C e3^T)``; the rendering rules and options are in docs/edge.md (edge/world/camera.py).
-    """
+    ``H = K R^T (A - C e3^T)``; the rendering rules and options are in docs/edge.md (edge/world/camera.py)."""
 
     #: frame pixels of texture, at most, before a coarser texture level is used
     MINIFY_LIMIT = 2.0
     #: with ``upsample``: texture pixels per reduced frame pixel, at most (0.5: two pixels per texel)
     MAGNIFY_LIMIT = 0.5
 
-    def __init__(self, surface: SyntheticSurface, camera: CameraModel, sky: int = 200,
-                 noise_sigma: float = 0.0, seed: int | None = None, *, mask: bool = True,
-                 upsample: bool = False) -> None:
+    def __init__(self, surface: SyntheticSurface, camera: CameraModel, sky: int = 200, noise_sigma: float = 0.0,
+                 seed: int | None = None, *, mask: bool = True, upsample: bool = False) -> None:
         if not isinstance(surface, SyntheticSurface):
             raise ValueError(f"surface must be a SyntheticSurface, got {type(surface).__name__}")
         if not isinstance(camera, CameraModel):

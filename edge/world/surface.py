@@ -16,10 +16,8 @@ from numpy.typing import ArrayLike, NDArray
 from protocol.checks import finite_vec3 as _vec3
 from protocol.checks import positive as _positive
 
-__all__ = [
-    "DEFAULT_PX_PER_M", "Defect", "SurfaceDefect", "SyntheticSurface", "crack_image", "draw_cracks",
-    "graded_crack_image", "surface_options", "textured_background"
-]
+__all__ = ["DEFAULT_PX_PER_M", "Defect", "SurfaceDefect", "SyntheticSurface", "crack_image", "draw_cracks",
+           "graded_crack_image", "surface_options", "textured_background"]
 
 #: Default texture resolution: 1 cm per texture pixel (docs/edge.md, edge/world/surface.py)
 DEFAULT_PX_PER_M = 100.0
@@ -73,20 +71,11 @@ def _value_noise(h: int, w: int, cell: float, rng: np.random.Generator) -> NDArr
     return out.astype(np.float32, copy=False)
 
 
-def textured_background(
-    shape: tuple[int, int],
-    rng: RngLike = None,
-    *,
-    mean: float = 140.0,
-    roughness: float = 14.0,
-    blotches: float = 1.0,
-    gradient: float = 0.12,
-    grain: float = 4.0,
-) -> NDArray[np.uint8]:
+def textured_background(shape: tuple[int, int], rng: RngLike = None, *, mean: float = 140.0, roughness: float = 14.0,
+                        blotches: float = 1.0, gradient: float = 0.12, grain: float = 4.0) -> NDArray[np.uint8]:
     """Concrete-like grey ``uint8`` texture of ``shape`` ``(height, width)``: ``mean`` grey level times an
     illumination ramp (``gradient``: peak-to-peak fraction of ``mean``), multi-scale value noise of std
-    ``roughness``, soft blotches (``blotches`` per 200 x 200 px) and per-pixel ``grain`` (std, grey levels).
-    """
+    ``roughness``, soft blotches (``blotches`` per 200 x 200 px) and per-pixel ``grain`` (std, grey levels)."""
     h, w = _shape(shape)
     for name, val in (("mean", mean), ("roughness", roughness), ("blotches", blotches),
                       ("gradient", gradient), ("grain", grain)):
@@ -131,16 +120,8 @@ def textured_background(
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
-def _walk_crack(
-    mask: NDArray[np.uint8],
-    g: np.random.Generator,
-    start: tuple[float, float],
-    heading: float,
-    length: float,
-    width: tuple[float, float],
-    branch_prob: float,
-    depth: int,
-) -> None:
+def _walk_crack(mask: NDArray[np.uint8], g: np.random.Generator, start: tuple[float, float], heading: float,
+                length: float, width: tuple[float, float], branch_prob: float, depth: int) -> None:
     """Draw one crack (and recursively its branches) into ``mask`` in place."""
     h, w = mask.shape
     step = 3.0
@@ -172,27 +153,16 @@ def _walk_crack(
         cv2.line(mask, (int(x0), int(y0)), (int(ipts[k + 1, 0]), int(ipts[k + 1, 1])), 255, thick, cv2.LINE_8)
         if depth > 0 and k > n // 10 and g.random() < branch_prob:
             side = 1.0 if g.random() < 0.5 else -1.0
-            _walk_crack(
-                mask, g, (float(pts[k, 0]), float(pts[k, 1])),
-                heading_k[k] + side * g.uniform(0.35, 1.0),
-                length * g.uniform(0.15, 0.45),
-                (wmin, max(wmin, min(wmax, widths[k]))),
-                branch_prob * 0.5, depth - 1,
-            )
+            _walk_crack(mask, g, (float(pts[k, 0]), float(pts[k, 1])), heading_k[k] + side * g.uniform(0.35, 1.0),
+                        length * g.uniform(0.15, 0.45), (wmin, max(wmin, min(wmax, widths[k]))), branch_prob * 0.5,
+                        depth - 1)
 
 
-def draw_cracks(
-    shape: tuple[int, int],
-    rng: RngLike = None,
-    n_cracks: int = 3,
-    *,
-    length_px: tuple[float, float] | None = None,
-    width_px: tuple[float, float] = (1.0, 5.0),
-    branch_prob: float = 0.015,
-) -> NDArray[np.uint8]:
+def draw_cracks(shape: tuple[int, int], rng: RngLike = None, n_cracks: int = 3, *,
+                length_px: tuple[float, float] | None = None, width_px: tuple[float, float] = (1.0, 5.0),
+                branch_prob: float = 0.015) -> NDArray[np.uint8]:
     """Binary crack mask (255 on cracks) of ``shape``: ``n_cracks`` random-walk polylines of ``length_px``
-    (default ``(0.25, 0.75) * hypot(h, w)``) and ``width_px``, forking with ``branch_prob`` per 3 px step.
-    """
+    (default ``(0.25, 0.75) * hypot(h, w)``) and ``width_px``, forking with ``branch_prob`` per 3 px step."""
     h, w = _shape(shape)
     if isinstance(n_cracks, bool) or not isinstance(n_cracks, (int, np.integer)) or n_cracks < 0:
         raise ValueError(f"n_cracks must be an integer >= 0, got {n_cracks!r}")
@@ -217,17 +187,10 @@ def draw_cracks(
     return mask
 
 
-def crack_image(
-    shape: tuple[int, int] = (480, 640),
-    rng: RngLike = None,
-    n_cracks: int = 3,
-    *,
-    contrast: tuple[float, float] = (0.25, 0.55),
-    noise_sigma: float = 3.0,
-    length_px: tuple[float, float] | None = None,
-    width_px: tuple[float, float] = (1.0, 5.0),
-    background: dict[str, float] | None = None,
-) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+def crack_image(shape: tuple[int, int] = (480, 640), rng: RngLike = None, n_cracks: int = 3, *,
+                contrast: tuple[float, float] = (0.25, 0.55), noise_sigma: float = 3.0,
+                length_px: tuple[float, float] | None = None, width_px: tuple[float, float] = (1.0, 5.0),
+                background: dict[str, float] | None = None) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
     """Grey image of a cracked concrete-like surface and its ground-truth mask (255 on cracks).
 
     The background is darkened under the mask by a relative depth within ``contrast`` plus Gaussian
@@ -257,17 +220,10 @@ def crack_image(
     return np.clip(np.rint(img), 0, 255).astype(np.uint8), mask
 
 
-def graded_crack_image(
-    shape: tuple[int, int],
-    rng: RngLike = None,
-    widths_px: Any = ((1.0, 5.0),),
-    n_cracks: int | None = None,
-    *,
-    contrast: tuple[float, float] = (0.35, 0.6),
-    noise_sigma: float = 3.0,
-    length_px: tuple[float, float] | None = None,
-    background: dict[str, float] | None = None,
-) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
+def graded_crack_image(shape: tuple[int, int], rng: RngLike = None, widths_px: Any = ((1.0, 5.0),),
+                       n_cracks: int | None = None, *, contrast: tuple[float, float] = (0.35, 0.6),
+                       noise_sigma: float = 3.0, length_px: tuple[float, float] | None = None,
+                       background: dict[str, float] | None = None) -> tuple[NDArray[np.uint8], NDArray[np.uint8]]:
     """Like :func:`crack_image`, but main crack ``k`` takes its width range from ``widths_px[k % len]``.
 
     Real concrete cracks of a wall span classes (AASHTO MBEI: < 0.3 mm, 0.3-1.3 mm, > 1.3 mm); a
@@ -319,8 +275,7 @@ def surface_options(spec: Any) -> dict[str, Any]:
 @dataclass(frozen=True)
 class SurfaceDefect:
     """One ground-truth crack of a :class:`SyntheticSurface`: an 8-connected component of its mask
-    (``id`` stable per surface; ``*_uv`` in surface metres, ``bbox_px`` ``(x, y, w, h)`` in texture pixels).
-    """
+    (``id`` stable per surface; ``*_uv`` in surface metres, ``bbox_px`` ``(x, y, w, h)`` in texture pixels)."""
 
     id: int
     centroid_uv: tuple[float, float]
@@ -337,30 +292,16 @@ Defect = SurfaceDefect
 
 class SyntheticSurface:
     """A planar, textured, cracked rectangle ``origin + u u_axis + v v_axis`` in the world (local ENU
-    metres), with its ground truth; the coordinates and options are in docs/edge.md (edge/world/surface.py).
-    """
+    metres), with its ground truth; the coordinates and options are in docs/edge.md (edge/world/surface.py)."""
 
     MAX_PIXELS = 100_000_000
 
-    def __init__(
-        self,
-        origin: ArrayLike,
-        u_axis: ArrayLike,
-        v_axis: ArrayLike,
-        width_m: float,
-        height_m: float,
-        px_per_m: float = DEFAULT_PX_PER_M,
-        texture: NDArray[np.uint8] | None = None,
-        mask: NDArray[np.uint8] | None = None,
-        seed: int = 0,
-        *,
-        cracks_per_m2: float = 1 / 12,
-        crack_length_m: tuple[float, float] = (0.8, 3.0),
-        crack_width_px: tuple[float, float] = (2.0, 5.0),
-        contrast: tuple[float, float] = (0.35, 0.6),
-        n_cracks: int | None = None,
-        crack_width_ranges_px: Any = None,
-    ) -> None:
+    def __init__(self, origin: ArrayLike, u_axis: ArrayLike, v_axis: ArrayLike, width_m: float, height_m: float,
+                 px_per_m: float = DEFAULT_PX_PER_M, texture: NDArray[np.uint8] | None = None,
+                 mask: NDArray[np.uint8] | None = None, seed: int = 0, *, cracks_per_m2: float = 1 / 12,
+                 crack_length_m: tuple[float, float] = (0.8, 3.0), crack_width_px: tuple[float, float] = (2.0, 5.0),
+                 contrast: tuple[float, float] = (0.35, 0.6), n_cracks: int | None = None,
+                 crack_width_ranges_px: Any = None) -> None:
         o = _vec3("origin", origin)
         u = _vec3("u_axis", u_axis)
         v = _vec3("v_axis", v_axis)
@@ -392,17 +333,15 @@ class SyntheticSurface:
             if crack_width_ranges_px:  # real-size cracks: a width range per crack (graded_crack_image)
                 texture, mask = graded_crack_image(
                     (h_px, w_px), np.random.default_rng(self.seed), crack_width_ranges_px,
-                    n_cracks if n_cracks is not None else None,
+                    n_cracks,
                     length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)), contrast=contrast,
                     # stains per square metre as on the default wall, not per texture pixel
                     background={"blotches": min(1.0, (DEFAULT_PX_PER_M / px_per_m) ** 2)},
                 )
             else:
-                texture, mask = crack_image(
-                    (h_px, w_px), np.random.default_rng(self.seed), n_cracks,
-                    length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)),
-                    width_px=crack_width_px, contrast=contrast,
-                )
+                texture, mask = crack_image((h_px, w_px), np.random.default_rng(self.seed), n_cracks,
+                                            length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)),
+                                            width_px=crack_width_px, contrast=contrast)
         elif texture is None or mask is None:
             raise ValueError("give both texture and mask, or neither")
         for name, img in (("texture", texture), ("mask", mask)):
@@ -418,8 +357,7 @@ class SyntheticSurface:
                      **kwargs: Any) -> SyntheticSurface:
         """Build a surface on 2, 3 or 4 corner points (ENU metres): ``p0, p1, p2, p3`` around the rectangle
         (the scenario's ``surface.corners``), ``p0, p1, p3``, or opposite corners ``p0, p2`` (a vertical wall
-        if their heights differ, else a deck facing up); the rules are in docs/edge.md.
-        """
+        if their heights differ, else a deck facing up); the rules are in docs/edge.md."""
         p = np.asarray(corners, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 3 or not 2 <= p.shape[0] <= 4 or not np.all(np.isfinite(p)):
             raise ValueError(f"corners must be 2 to 4 finite [x, y, z] points, got shape {p.shape}")
@@ -432,9 +370,7 @@ class SyntheticSurface:
                 if w < 1e-9:
                     raise ValueError("the two corners of a wall must differ horizontally")
                 u = np.array([horiz[0] / w, horiz[1] / w, 0.0])
-                origin = np.array([p0[0], p0[1], min(p0[2], p2[2])])
-                if dz < 0:  # p0 is the top corner: the bottom edge starts below it
-                    origin[2] = p2[2]
+                origin = np.array([p0[0], p0[1], min(p0[2], p2[2])])  # the bottom edge, whichever corner is lower
                 return cls(origin, u, (0.0, 0.0, 1.0), w, abs(dz), px_per_m, seed=seed, **kwargs)
             lo, hi = np.minimum(p0, p2), np.maximum(p0, p2)
             w, h = float(hi[0] - lo[0]), float(hi[1] - lo[1])
@@ -538,8 +474,7 @@ class SyntheticSurface:
     # ------------------------------------------------------------------ ground truth
     def defects(self, min_area_px: int = 20) -> list[SurfaceDefect]:
         """The ground-truth cracks: 8-connected components of the mask of at least ``min_area_px`` texture
-        pixels, cached; the report matches detections against them ((P20)).
-        """
+        pixels, cached; the report matches detections against them ((P20))."""
         if isinstance(min_area_px, bool) or not isinstance(min_area_px, (int, np.integer)) or min_area_px < 0:
             raise ValueError(f"min_area_px must be an integer >= 0, got {min_area_px!r}")
         key = int(min_area_px)
@@ -556,9 +491,8 @@ class SyntheticSurface:
                 out.append(SurfaceDefect(
                     id=len(out), centroid_uv=(float(cu), float(cv_)),
                     centroid_world=(float(world[0]), float(world[1]), float(world[2])),
-                    bbox_uv=(x * s, self.height_m - (y + h) * s, (x + w) * s, self.height_m - y * s),
-                    area_px=area, area_m2=area * s * s, bbox_px=(x, y, w, h),
-                ))
+                    bbox_uv=(x * s, self.height_m - (y + h) * s, (x + w) * s, self.height_m - y * s), area_px=area,
+                    area_m2=area * s * s, bbox_px=(x, y, w, h)))
             self._defects[key] = out
         return list(self._defects[key])
 

@@ -38,8 +38,7 @@ def grid_of(args: ExperimentConfig) -> tuple[list[Cell], list[Run]]:
 
 def command_of(args: ExperimentConfig, run: Run, folder: Path) -> list[str]:
     """The mission command of ``run`` under the options (what is flown, and what --dry-run prints)."""
-    return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs,
-                           scenario=args.scenario)
+    return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs, scenario=args.scenario)
 
 
 def summarise(args: ExperimentConfig, cells: list[Cell], results: list[RunResult], started: float,

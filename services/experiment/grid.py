@@ -19,8 +19,7 @@ ONSET_S = 2.0
 def parse_list(text: str, name: str, *, lo: float = 0.0, hi: float | None = None, integer: bool = False
                ) -> tuple[float, ...]:
     """``"0,5,20"`` -> ``(0.0, 5.0, 20.0)``: finite numbers in ``[lo, hi]``, no duplicates, at least one;
-    ValueError with a one-line message naming ``name`` (the option).
-    """
+    ValueError with a one-line message naming ``name`` (the option)."""
     if not isinstance(text, str) or not text.strip():
         raise ValueError(f"{name}: expected a comma-separated list of numbers, got {text!r}")
     out: list[float] = []
@@ -106,8 +105,6 @@ def expand(loss: Sequence[float], delay: Sequence[float], jitter: Sequence[float
            recovery: Sequence[bool] = (True,)) -> list[Cell]:
     """Every combination, loss varying fastest after recovery (so with/without pairs sit together).
 
-    Examples
-    --------
     >>> [c.name for c in expand([0, 5], [50])]
     ['loss0-delay50-jitter0-rec', 'loss5-delay50-jitter0-rec']
     >>> len(expand([0, 5, 20, 40], [0, 50, 200], [0, 20], [True, False]))
@@ -133,8 +130,6 @@ def plan(cells: Sequence[Cell], repeat: int = 1, seed: int = 0) -> list[Run]:
 def impair_spec(cell: Cell, links: str = "all/udp", onset_s: float = ONSET_S) -> str:
     """The launcher's ``--impair`` value of a cell.
 
-    Examples
-    --------
     >>> impair_spec(Cell(20, 200, 0))
     'all/udp=after 2s delay 200ms loss 20%'
     >>> impair_spec(Cell(0, 0, 0), "uav2")

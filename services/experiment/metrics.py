@@ -127,8 +127,6 @@ def aggregate(runs: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     Returns ``{"runs", "succeeded", "hung", "failed_to_report", "metrics": {name: {mean, min, max, n}
     or None}}``; a metric's statistics cover the runs that have it.
 
-    Examples
-    --------
     >>> a = aggregate([{"status": "ok", "metrics": {"success": 1.0, "coverage": 1.0}},
     ...                {"status": "hung", "metrics": {"success": 0.0, "coverage": None}}])
     >>> a["runs"], a["succeeded"], a["hung"], a["metrics"]["success"]["mean"], a["metrics"]["coverage"]["n"]

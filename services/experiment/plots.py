@@ -12,7 +12,6 @@ from typing import Any
 __all__ = ["PLOTS", "write_plots"]
 
 
-
 def _figure(n: int = 1):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -99,8 +98,7 @@ def write_plots(cells: Sequence[Mapping[str, Any]], folder: str | Path) -> list[
     """Write :data:`PLOTS` into ``folder``; returns the file names."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    varying = [k for k in ("loss_pct", "delay_ms", "jitter_ms", "recovery")
-               if len({c["cell"][k] for c in cells}) > 1]
+    varying = [k for k in ("loss_pct", "delay_ms", "jitter_ms", "recovery") if len({c["cell"][k] for c in cells}) > 1]
     for name, panels in FIGURES:
         fig, axes = _figure(len(panels))
         for ax, (metric, x, group, ylabel, xlabel, scale, title) in zip(axes, panels):

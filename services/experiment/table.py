@@ -48,8 +48,6 @@ def _defects(m: Mapping[str, Any]) -> str:
 def markdown(cells: Sequence[Mapping[str, Any]]) -> str:
     """The table of ``cells`` (each ``{"cell": {loss_pct, delay_ms, jitter_ms, recovery}, **aggregate}``).
 
-    Examples
-    --------
     >>> row = {"cell": {"loss_pct": 5.0, "delay_ms": 0.0, "jitter_ms": 0.0, "recovery": True},
     ...        "runs": 1, "succeeded": 1, "hung": 0, "failed_to_report": 0,
     ...        "metrics": {"coverage": {"mean": 1.0, "min": 1.0, "max": 1.0, "n": 1}}}

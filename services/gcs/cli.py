@@ -30,9 +30,8 @@ def plan_verifier_of(root):
     return planauth.plan_verifier(planauth.planner_public_key(root), KeySet(root, "gcs").revoked())
 
 
-def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log,
-                abort=None, ground_truth: bool = True, on_runner=None, record: bool = True, signer=None,
-                plan_verifier=None) -> int:
+def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str | None, quiet: bool, log, abort=None,
+                ground_truth: bool = True, on_runner=None, record: bool = True, signer=None, plan_verifier=None) -> int:
     """Run the mission and write its report; ``ground_truth`` when the edges image the synthetic wall.
 
     With ``out`` and ``record``, the mission is logged to ``out/mission.mcap`` (:mod:`services.recording`:

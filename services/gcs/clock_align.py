@@ -15,8 +15,7 @@ __all__ = ["estimate_epoch", "sim_time_shifts"]
 
 def estimate_epoch(t: Iterable[float], stamp: Iterable[float], speed: float) -> float | None:
     """The wall-clock epoch (UNIX s) of one UAV's simulation clock from its states' simulation times ``t`` and
-    publication times ``stamp`` at ``speed`` (> 0); None when no state tells it.
-    """
+    publication times ``stamp`` at ``speed`` (> 0); None when no state tells it."""
     if not (isinstance(speed, (int, float)) and math.isfinite(speed) and speed > 0):
         raise ValueError(f"speed must be a finite number > 0, got {speed!r}")
     t_a, s_a = np.asarray(list(t), dtype=float), np.asarray(list(stamp), dtype=float)

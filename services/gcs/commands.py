@@ -59,8 +59,7 @@ def not_sent(cmd, reason: str) -> CommandRecord:
                          reason=f"not sent: {reason}", attempts=0, elapsed_s=0.0)
 
 
-def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = time.sleep,
-         signer=None) -> CommandRecord:
+def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = time.sleep, signer=None) -> CommandRecord:
     """Send one command to ``cmd.uav`` with retries and back-off; a refusal is final (not retried).
 
     With a ``signer`` (:class:`protocol.signing.Signer`) each try is signed afresh, so it carries a

@@ -22,12 +22,10 @@ from services.gcs.scoring import DefectScore, score_defects
 from services.gcs.verdict import GoalCheck, goal_check, imaged_captures, planned_captures
 from services.recording.record import GOAL_RADIUS_M, MissionRecord
 
-__all__ = [
-    "GOAL_RADIUS_M", "DEFECT_TOLERANCE_M", "LATENCY_NAMES", "Latency", "UavFigures", "FormationFigures",
-    "CaptureFigures", "LinkFigures", "PlannerFigures", "ReportSummary", "Track", "PathSeries", "FormationSeries",
-    "LinkSamples", "ReportFigures", "polyline_distance", "planned_positions", "latency_figures",
-    "convergence_iteration", "shape_errors", "as_record", "analyse", "summarise"
-]
+__all__ = ["GOAL_RADIUS_M", "DEFECT_TOLERANCE_M", "LATENCY_NAMES", "Latency", "UavFigures", "FormationFigures",
+           "CaptureFigures", "LinkFigures", "PlannerFigures", "ReportSummary", "Track", "PathSeries", "FormationSeries",
+           "LinkSamples", "ReportFigures", "polyline_distance", "planned_positions", "latency_figures",
+           "convergence_iteration", "shape_errors", "as_record", "analyse", "summarise"]
 
 #: events listed in report.json and report.md (the record keeps more, the journal all of them)
 MAX_REPORT_EVENTS = 500
@@ -223,8 +221,7 @@ def polyline_distance(points: ArrayLike, polyline: ArrayLike) -> NDArray[np.floa
 
 def planned_positions(trajectory: Trajectory, tau: ArrayLike) -> NDArray[np.float64]:
     """Planned positions ``(N, 3)`` of a trajectory (P9) at its own times ``tau``: linear between waypoints,
-    clamped at the ends.
-    """
+    clamped at the ends."""
     tau = np.asarray(tau, dtype=float).reshape(-1)
     if not np.all(np.isfinite(tau)):
         raise ValueError("tau must be finite")
@@ -369,12 +366,11 @@ def _tracks(record: MissionRecord) -> dict[int, Track]:
         mission = np.array([x == Mode.MISSION for x in mode], dtype=bool)
         placed = np.array([x.wp_index >= 0 or x.progress > 0 for x in m], dtype=bool)
         tracking = mission & placed if np.any(mission & placed) else mission
-        out[uav] = Track(
-            uav=uav, t=np.array([x.t for x in m]) + shift.get(uav, 0.0),
-            pos=np.array([x.pos for x in m], dtype=float).reshape(-1, 3),
-            mode=mode, seq=np.array([x.seq for x in m], dtype=np.int64), stamp=np.array([x.stamp for x in m]),
-            rx=np.array([s.rx for s in items]), tracking=tracking, progress=np.array([x.progress for x in m]),
-        )
+        out[uav] = Track(uav=uav, t=np.array([x.t for x in m]) + shift.get(uav, 0.0),
+                         pos=np.array([x.pos for x in m], dtype=float).reshape(-1, 3), mode=mode,
+                         seq=np.array([x.seq for x in m], dtype=np.int64), stamp=np.array([x.stamp for x in m]),
+                         rx=np.array([s.rx for s in items]), tracking=tracking,
+                         progress=np.array([x.progress for x in m]))
     return out
 
 
@@ -660,13 +656,11 @@ def analyse(record: MissionRecord) -> ReportFigures:
     if record.plan is not None:
         p = record.plan
         planner = PlannerFigures(
-            algorithm=p.algorithm, seed=p.seed, cost=p.cost,
-            initial_cost=p.convergence[0] if p.convergence else None, iterations=max(len(p.convergence) - 1, 0),
-            convergence_iteration=convergence_iteration(p.convergence), planning_time_s=p.planning_time_s,
-            plan_request_s=record.plan_request_s, collision_free=p.collision_free,
+            algorithm=p.algorithm, seed=p.seed, cost=p.cost, initial_cost=p.convergence[0] if p.convergence else None,
+            iterations=max(len(p.convergence) - 1, 0), convergence_iteration=convergence_iteration(p.convergence),
+            planning_time_s=p.planning_time_s, plan_request_s=record.plan_request_s, collision_free=p.collision_free,
             waypoints={tr.uav: len(tr.waypoints) for tr in p.trajectories},
-            duration_s={tr.uav: tr.waypoints[-1].t - tr.waypoints[0].t for tr in p.trajectories},
-        )
+            duration_s={tr.uav: tr.waypoints[-1].t - tr.waypoints[0].t for tr in p.trajectories})
     per_source: dict[str, list[Any]] = {}
     for x in record.gateway_stats:  # one gateway per site (--sites)
         per_source.setdefault(x.msg.source, []).append(x)
@@ -685,11 +679,9 @@ def analyse(record: MissionRecord) -> ReportFigures:
         fleet=record.fleet, success=record.success, failures=list(record.failures), started=record.started,
         ended=record.ended, wall_time_s=(record.ended - record.started) if record.ended > 0 else None,
         speed=record.speed, sim_time_s=sim,
-        measured_speed=(sim / wall_states) if sim is not None and wall_states > 0 else None,
-        planner=planner, uavs=uavs, formation=formation, captures=captures, defects=defects, links=links,
-        imagery=imagery, gateway=gateway, events=events, phases=dict(record.phases), notes=notes,
-        faults=fault_figures(record), gateways=gateways,
-    )
+        measured_speed=(sim / wall_states) if sim is not None and wall_states > 0 else None, planner=planner, uavs=uavs,
+        formation=formation, captures=captures, defects=defects, links=links, imagery=imagery, gateway=gateway,
+        events=events, phases=dict(record.phases), notes=notes, faults=fault_figures(record), gateways=gateways)
     return ReportFigures(summary=summary, tracks=tracks, trajectories=trajs, anchors=anchors, paths=paths,
                          formation=formation_series, latencies=latencies, offsets=offsets, corners=corners,
                          obstacles=_obstacles(record))
@@ -697,7 +689,6 @@ def analyse(record: MissionRecord) -> ReportFigures:
 
 def summarise(record: MissionRecord | dict[str, Any]) -> ReportSummary:
     """Every figure of the mission report (docs/report.md), without writing anything; ValueError for
-    something that is neither a MissionRecord nor a valid record document.
-    """
+    something that is neither a MissionRecord nor a valid record document."""
     return analyse(as_record(record)).summary
 

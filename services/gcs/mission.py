@@ -5,6 +5,8 @@ Design notes: docs/ground-station.md (services/gcs/mission.py).
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import threading
 import time
 from collections.abc import Callable
@@ -150,10 +152,10 @@ class MissionRunner:
         bus.subscribe(keys.all_events(fleet), self._on_event, expect=Event, link=COMMAND, budget=for_topic("event"))
         bus.subscribe(keys.defects(fleet), self._on_defects, expect=DefectReport, link=COMMAND,
                       budget=for_topic("defects"))
-        bus.subscribe(keys.gateway_stats(fleet), self._on_gw_stats, expect=LinkStats, link=TELEMETRY,
-                      budget=for_topic("stats"))
-        bus.subscribe(keys.rcu_instances(fleet, "detector", "stats"), self._on_det_stats, expect=LinkStats, link=TELEMETRY,
-                      budget=for_topic("stats"))
+        for key, table in ((keys.gateway_stats(fleet), "gateway_stats"),
+                           (keys.rcu_instances(fleet, "detector", "stats"), "detector_stats")):
+            bus.subscribe(key, functools.partial(self._on_stats, table), expect=LinkStats, link=TELEMETRY,
+                          budget=for_topic("stats"))
         self._hb_pub = bus.publisher(keys.heartbeat(fleet), COMMAND)
         bus.watch_alive(keys.alive(fleet, "*"), self._on_alive)
 
@@ -187,19 +189,12 @@ class MissionRunner:
             if has_evidence(msg):  # a capture counts only on a report that names its frame (evidence.py)
                 self.reports[(msg.uav, msg.capture_id)] = msg
 
-    def _on_gw_stats(self, msg, sample) -> None:
+    def _on_stats(self, table: str, msg, sample) -> None:
         if not binding.source_matches(str(sample.key_expr), msg.source):  # statistics only for their own node
             self.bus.counters.reject(str(sample.key_expr), binding.MISMATCH)
             return
         with self._lock:
-            self.recorder.add("gateway_stats", StatsRx(rx=time.time(), msg=msg))
-
-    def _on_det_stats(self, msg, sample) -> None:
-        if not binding.source_matches(str(sample.key_expr), msg.source):  # statistics only for their own node
-            self.bus.counters.reject(str(sample.key_expr), binding.MISMATCH)
-            return
-        with self._lock:
-            self.recorder.add("detector_stats", StatsRx(rx=time.time(), msg=msg))
+            self.recorder.add(table, StatsRx(rx=time.time(), msg=msg))
 
     def _on_alive(self, key: str, alive: bool) -> None:
         try:
@@ -464,10 +459,8 @@ class MissionRunner:
                           "every UAV to finish its trajectory")
             self._in_mission.clear()
             self.phase("reports")
-            try:
+            with contextlib.suppress(MissionFailed):  # judge() names the captures that were not imaged
                 self.wait_for(lambda: not self.missing_captures(), self.opt.report_wait_s, "the last defect reports")
-            except MissionFailed:
-                pass  # judge() names the captures that were not imaged
         except MissionFailed as exc:
             self.record.failures.append(str(exc))
         finally:

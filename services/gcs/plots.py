@@ -241,12 +241,8 @@ def _plot_links(figs: ReportFigures, path: Path) -> None:
     fig = _figure(7.0, 4.0)
     ax = fig.add_subplot()
     lat = figs.latencies
-    data = {
-        "telemetry\nstate age": lat.telemetry,
-        "imagery\ncapture to report": lat.imagery,
-        "defect report\ndelivery": lat.defect_reports,
-        "command\nack": lat.command,
-    }
+    data = {"telemetry\nstate age": lat.telemetry, "imagery\ncapture to report": lat.imagery,
+            "defect report\ndelivery": lat.defect_reports, "command\nack": lat.command}
     data = {k: 1000.0 * v[np.isfinite(v)] for k, v in data.items() if np.size(v)}
     if data:
         ax.boxplot(list(data.values()), whis=(1, 99), showfliers=False)

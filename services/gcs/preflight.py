@@ -120,8 +120,7 @@ def margin_to_box(point: Sequence[float], box: Box) -> float:
     return min(x - box.lo[0], box.hi[0] - x, y - box.lo[1], box.hi[1] - y)
 
 
-def plan_problem(plan: MissionPlan, offsets: Sequence[Sequence[float]] | None = None,
-                 fence: Box | None = None) -> str:
+def plan_problem(plan: MissionPlan, offsets: Sequence[Sequence[float]] | None = None, fence: Box | None = None) -> str:
     """Why the plan cannot be flown inside ``fence`` (the scenario's box; the plan's own geofence
     only when none is given), or ``""``.
 

@@ -58,8 +58,7 @@ def formation_rms(states: dict[int, VehicleState], offsets: dict[int, tuple[floa
     ids = flying_formation(states, offsets)
     if not ids:
         return None
-    return (heading or HeadingHold()).error(max(states[u].t for u in ids), {u: states[u].pos for u in ids},
-                                            offsets)
+    return (heading or HeadingHold()).error(max(states[u].t for u in ids), {u: states[u].pos for u in ids}, offsets)
 
 
 def render(phase: str, states: dict[int, VehicleState], uavs: tuple[int, ...], ages_ms: list[float],

@@ -24,8 +24,7 @@ def write_report(record: MissionRecord | dict[str, Any], folder: str | Path,
     """Write the mission report of ``record`` into ``folder`` (created if needed): ``record.json``,
     ``report.json``, ``report.md`` and the plots :data:`PLOTS` (always the same set: an empty plot says so),
     returning the summary. ``frames``: the captures for the deliverable (default ``folder/frames``).
-    ValueError as :func:`services.gcs.figures.summarise`, or when ``folder`` is not a directory.
-    """
+    ValueError as :func:`services.gcs.figures.summarise`, or when ``folder`` is not a directory."""
     record = as_record(record)
     figs = analyse(record)
     summary = figs.summary

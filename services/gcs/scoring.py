@@ -88,8 +88,7 @@ def surface_uv(points: ArrayLike, corners: ArrayLike) -> NDArray[np.float64]:
 
 def bbox_distance(uv: ArrayLike, bboxes: ArrayLike) -> NDArray[np.float64]:
     """Distances ``(N, M)`` from points ``(N, 2)`` to boxes ``(M, 4)`` ``(u0, v0, u1, v1)`` (either corner
-    order) in the (u, v) plane: ``hypot(max(u0 - u, 0, u - u1), max(v0 - v, 0, v - v1))``, 0 inside.
-    """
+    order) in the (u, v) plane: ``hypot(max(u0 - u, 0, u - u1), max(v0 - v, 0, v - v1))``, 0 inside."""
     p = np.asarray(uv, dtype=float).reshape(-1, 2)
     b = np.asarray(bboxes, dtype=float).reshape(-1, 4)
     if not (np.all(np.isfinite(p)) and np.all(np.isfinite(b))):
@@ -100,12 +99,8 @@ def bbox_distance(uv: ArrayLike, bboxes: ArrayLike) -> NDArray[np.float64]:
     return np.hypot(gap[..., 0], gap[..., 1])
 
 
-def score_defects(
-    reports: Sequence[DefectReport],
-    ground_truth: Sequence[GroundTruthDefect],
-    corners: ArrayLike,
-    tolerance_m: float = 0.3,
-) -> DefectScore:
+def score_defects(reports: Sequence[DefectReport], ground_truth: Sequence[GroundTruthDefect], corners: ArrayLike,
+                  tolerance_m: float = 0.3) -> DefectScore:
     """Object-level recall ``n_found / n_truth`` and precision ``n_true / n_reported`` of reported defects
     against the ground truth, the analogues of ``r = tp / (tp + fn)`` and ``p = tp / (tp + fp)`` of (P20).
 
@@ -155,11 +150,8 @@ def score_defects(
     precision = n_true / n_rep if n_rep else 1.0
     f = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
     rows = [(k[0], k[1], float(p[0]), float(p[1])) for k, p in zip(keys, uv)]
-    return DefectScore(
-        recall=recall, precision=precision, f_measure=f, n_truth=n_truth, n_found=n_found,
-        n_reported=n_rep, n_true=n_true, without_pos=without_pos, tolerance_m=tol, matches=matches,
-        found_ids=[g.id for g, ok in zip(ground_truth, found) if ok],
-        missed_ids=[g.id for g, ok in zip(ground_truth, found) if not ok],
-        false_positives=[row for row, ok in zip(rows, true) if not ok],
-        reported_uv=rows,
-    )
+    return DefectScore(recall=recall, precision=precision, f_measure=f, n_truth=n_truth, n_found=n_found,
+                       n_reported=n_rep, n_true=n_true, without_pos=without_pos, tolerance_m=tol, matches=matches,
+                       found_ids=[g.id for g, ok in zip(ground_truth, found) if ok],
+                       missed_ids=[g.id for g, ok in zip(ground_truth, found) if not ok],
+                       false_positives=[row for row, ok in zip(rows, true) if not ok], reported_uv=rows)

@@ -11,10 +11,8 @@ from dataclasses import dataclass, field
 from protocol.messages import Mode, VehicleState
 from services.recording.record import CommandRecord, Incident
 
-__all__ = [
-    "SUPERVISE_PERIOD_S", "FRESH_STATE_S", "START_SETTLE_S", "RESUME_PAUSE_OK_S", "RESUME_PAUSE_FAILED_S",
-    "Decisions", "Supervisor", "mission_time"
-]
+__all__ = ["SUPERVISE_PERIOD_S", "FRESH_STATE_S", "START_SETTLE_S", "RESUME_PAUSE_OK_S", "RESUME_PAUSE_FAILED_S",
+           "Decisions", "Supervisor", "mission_time"]
 
 #: How often the supervisor looks at liveliness, the own link and failsafe holds, s.
 SUPERVISE_PERIOD_S = 0.2
@@ -54,8 +52,7 @@ class Decisions:
 class Supervisor:
     """The supervision policy's state (docs/ground-station.md) for the mission's ``uavs``; every wall time is
     given by the caller, the own link up since ``now``; ``lost_grace_s`` and ``lost_wait_s`` as
-    :class:`services.gcs.mission.MissionOptions`; ``describe`` words a wall time for the incidents.
-    """
+    :class:`services.gcs.mission.MissionOptions`; ``describe`` words a wall time for the incidents."""
 
     def __init__(self, uavs: Iterable[int], now: float, lost_grace_s: float = 3.0, lost_wait_s: float = 10.0,
                  describe: Callable[[float], str] | None = None, fresh_state_s: float = FRESH_STATE_S):

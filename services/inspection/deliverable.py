@@ -116,8 +116,7 @@ def severity_rank(severity: str) -> int:
 
 
 def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, origin: Sequence[float] | None = None,
-                   method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None
-                   ) -> Deliverable:
+                   method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None) -> Deliverable:
     """Segment, mosaic and measure (steps 1-3 of docs/report.md); the defects come sorted by
     :data:`SORT_KEY` and numbered in that order (defect 1 is the worst).
 
@@ -170,12 +169,10 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
                 behind = [int(i) for i in np.argsort(-share, kind="stable") if share[i] > 0]
         seers = [i for i, f in enumerate(frames) if sees(f.meta, enu)]
         geo["seen_by"] = [frame_name(frames[i].meta) for i in dict.fromkeys([*behind, *seers])]
-        rows.append(InspectionDefect(
-            id=0, u_m=float(uv[0]), v_m=float(uv[1]), enu=tuple(float(x) for x in enu), lla=lla,
-            length_m=float(d["length_m"]), width_max_mm=float(d["width_max_mm"]),
-            width_mean_mm=float(d["width_mean_mm"]), area_m2=float(d["area_m2"]), severity=str(d["severity"]),
-            resolved=bool(d["resolved"]), bbox_px=bbox, **geo,
-        ))
+        rows.append(InspectionDefect(id=0, u_m=float(uv[0]), v_m=float(uv[1]), enu=tuple(float(x) for x in enu),
+                                     lla=lla, length_m=float(d["length_m"]), width_max_mm=float(d["width_max_mm"]),
+                                     width_mean_mm=float(d["width_mean_mm"]), area_m2=float(d["area_m2"]),
+                                     severity=str(d["severity"]), resolved=bool(d["resolved"]), bbox_px=bbox, **geo))
     rows.sort(key=lambda r: (severity_rank(r.severity), -r.length_m))
     for k, r in enumerate(rows, start=1):
         r.id = k
@@ -195,8 +192,7 @@ def annotated(mos: Mosaic, defects: Sequence[InspectionDefect]) -> np.ndarray:
     for d in defects:
         x, y, w, h = d.bbox_px
         cv2.rectangle(bgr, (x - 3, y - 3), (x + w + 2, y + h + 2), (0, 200, 255), 1)
-        cv2.putText(bgr, str(d.id), (x, max(10, y - 5)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 255, 255), 1,
-                    cv2.LINE_AA)
+        cv2.putText(bgr, str(d.id), (x, max(10, y - 5)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 255, 255), 1, cv2.LINE_AA)
     return bgr
 
 

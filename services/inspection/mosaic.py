@@ -163,8 +163,7 @@ MAX_CANVAS_PX = 80_000_000
 
 def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | None = None) -> Mosaic:
     """Warp every frame onto ``plane`` (docs/report.md) at ``m_per_px``, by default the frames' median ground
-    sampling distance (their own resolution: nothing lost or invented).
-    """
+    sampling distance (their own resolution: nothing lost or invented)."""
     import time
 
     t0 = time.perf_counter()

@@ -117,8 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         except ScheduleError as e:
             parser.error(f"--schedule: {e}")
     cls = UdpProxy if args.kind == "udp" else TcpProxy
-    proxy = cls(listen=args.listen, target=args.target, impairment=impairment, seed=args.seed,
-                direction=args.direction)
+    proxy = cls(listen=args.listen, target=args.target, impairment=impairment, seed=args.seed, direction=args.direction)
     control = None
     if args.control is not None:
         try:

@@ -35,8 +35,7 @@ class ControlServer:
     (the grammar of :mod:`services.netem.schedule`: ``set SPEC``, ``cut [T]``, ``restore``,
     ``clear``, ``stats``), one JSON reply each: ``{"ok": true, ...}`` or ``{"ok": false,
     "error": "..."}``. A bad command gets an error reply and changes nothing; nothing a client
-    sends stops the proxy. Loopback only: the channel has no authentication.
-    """
+    sends stops the proxy. Loopback only: the channel has no authentication."""
 
     def __init__(self, proxy: _ProxyBase, listen: Address | str = ("127.0.0.1", 0)) -> None:
         self.proxy = proxy

@@ -9,7 +9,7 @@ import heapq
 import math
 import re
 import threading
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -28,8 +28,7 @@ Probability = Field(default=0.0, ge=0.0, le=1.0, allow_inf_nan=False)
 
 class GilbertElliott(BaseModel):
     """Gilbert–Elliott burst loss in netem's ``gemodel`` parameters (Salsano et al. 2010): per packet
-    ``p`` Good → Bad, ``r`` Bad → Good; loss ``loss_bad`` (netem's ``1-h``) and ``loss_good`` (``1-k``).
-    """
+    ``p`` Good → Bad, ``r`` Bad → Good; loss ``loss_bad`` (netem's ``1-h``) and ``loss_good`` (``1-k``)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
     p: float = Field(ge=0.0, le=1.0, allow_inf_nan=False)
@@ -97,8 +96,6 @@ class Impairment(BaseModel):
         An empty string (or ``"none"``) is the null impairment. Errors are :class:`ValueError`
         naming the offending token.
 
-        Examples
-        --------
         >>> Impairment.parse("delay 50ms 10ms loss 2%").jitter_ms
         10.0
         >>> Impairment.parse("rate 2mbit").rate_kbps
@@ -127,12 +124,13 @@ class Impairment(BaseModel):
         while i < len(tokens):
             kw = tokens[i].lower()
             i += 1
-            if kw == "delay":
+            if kw in _SINGLE:
+                name, what, read = _SINGLE[kw]
+                out[name] = read(take(what))
+            elif kw == "delay":
                 out["delay_ms"] = _time_ms(take("a time"))
                 if peek(_is_time):
                     out["jitter_ms"] = _time_ms(take("a time"))
-            elif kw == "jitter":
-                out["jitter_ms"] = _time_ms(take("a time"))
             elif kw == "distribution":
                 name = take("uniform or normal")
                 if name.lower() not in ("uniform", "normal"):
@@ -154,14 +152,10 @@ class Impairment(BaseModel):
                     out["loss"] = _percent(take("a percentage"))
                     if peek(_is_percent):
                         out["loss_correlation"] = _percent(take("a percentage"))
-            elif kw == "duplicate":
-                out["duplicate"] = _percent(take("a percentage"))
             elif kw == "reorder":
                 out["reorder"] = _percent(take("a percentage"))
                 if peek(_is_time):
                     out["reorder_ms"] = _time_ms(take("a time"))
-            elif kw == "rate":
-                out["rate_kbps"] = _rate_kbps(take("a rate"))
             elif kw == "limit":
                 tok = take("a packet count")
                 if not re.fullmatch(r"\d+", tok):
@@ -171,10 +165,6 @@ class Impairment(BaseModel):
                 start = _time_ms(take("a start time")) / 1000.0
                 duration = _time_ms(take("a duration")) / 1000.0
                 outages.append((start, duration))
-            elif kw == "rto":
-                out["rto_ms"] = _time_ms(take("a time"))
-            elif kw == "after":
-                out["after_s"] = _time_ms(take("a time")) / 1000.0
             elif kw == "unordered":
                 out["fifo"] = False
             else:
@@ -301,6 +291,12 @@ def _rate_kbps(tok: str) -> float:
     return float(m.group(1)) * _RATE_UNITS[m.group(2)] / 1000.0
 
 
+#: keywords followed by one value: keyword -> (field, what the value is, its reader)
+_SINGLE = {"jitter": ("jitter_ms", "a time", _time_ms), "duplicate": ("duplicate", "a percentage", _percent),
+           "rate": ("rate_kbps", "a rate", _rate_kbps), "rto": ("rto_ms", "a time", _time_ms),
+           "after": ("after_s", "a time", parse_time_s)}
+
+
 def _fmt_ms(ms: float) -> str:
     return f"{ms!r}ms"
 
@@ -325,11 +321,12 @@ class Counters:
     retransmitted: int = 0
 
     def as_dict(self) -> dict[str, Any]:
-        return {"packets_in": self.packets_in, "bytes_in": self.bytes_in,
-                "packets_out": self.packets_out, "bytes_out": self.bytes_out,
-                "dropped": dict(self.dropped), "duplicated": self.duplicated,
-                "reordered": self.reordered, "stalled": self.stalled,
-                "retransmitted": self.retransmitted}
+        return asdict(self)
+
+    def passed(self, copies: int, size_bytes: int) -> None:
+        """Count ``copies`` released copies of a packet of ``size_bytes``."""
+        self.packets_out += copies
+        self.bytes_out += copies * size_bytes
 
 
 # ---------------------------------------------------------------------------- the decisions
@@ -371,6 +368,12 @@ def _window_end(windows: tuple[tuple[float, float], ...], t: float) -> float | N
     return end
 
 
+def _stall(outages: tuple[tuple[float, float], ...], t: float, stalled: bool) -> tuple[float, bool]:
+    """``t`` moved to the end of the outage window containing it (and ``True``), else ``t`` and ``stalled``."""
+    end = _window_end(outages, t) if outages else None
+    return (t, stalled) if end is None else (end, True)
+
+
 class Impairer:
     """Seeded decisions for one direction of one link.
 
@@ -383,8 +386,7 @@ class Impairer:
     BLOCK = 4096
 
     def __init__(self, impairment: Impairment | str | dict[str, Any] | None = None,
-                 rng: np.random.Generator | int | None = None, origin_s: float = 0.0,
-                 mss: int = DEFAULT_MSS) -> None:
+                 rng: np.random.Generator | int | None = None, origin_s: float = 0.0, mss: int = DEFAULT_MSS) -> None:
         imp = Impairment.coerce(impairment)
         if not math.isfinite(origin_s):
             raise ValueError(f"origin_s must be finite, got {origin_s}")
@@ -511,6 +513,14 @@ class Impairer:
         self._busy_until = start + size * p.byte_time
         return self._busy_until
 
+    def _arrive(self, now_s: float, size_bytes: int) -> tuple[_Params, Counters]:
+        """Check and count one arrival; the snapshot that decides it and the counters."""
+        self._check(now_s, size_bytes)
+        c = self.counters
+        c.packets_in += 1
+        c.bytes_in += size_bytes
+        return self._p, c
+
     def _check(self, now_s: float, size_bytes: int) -> None:
         if not (isinstance(now_s, (int, float)) and math.isfinite(now_s)):
             raise ValueError(f"now_s must be a finite number, got {now_s!r}")
@@ -524,17 +534,12 @@ class Impairer:
         Empty list: dropped (counted under ``loss``, ``outage`` — outage windows and cuts — or
         ``queue``). Two entries: the packet was duplicated. Times are never before ``now_s``.
         """
-        self._check(now_s, size_bytes)
-        p = self._p
-        c = self.counters
-        c.packets_in += 1
-        c.bytes_in += size_bytes
+        p, c = self._arrive(now_s, size_bytes)
         if p.down and _window_end(p.down, now_s) is not None:
             c.dropped["outage"] += 1
             return []
         if now_s < p.onset:
-            c.packets_out += 1
-            c.bytes_out += size_bytes
+            c.passed(1, size_bytes)
             return [float(now_s)]
         imp = p.impairment
         if self._lost(imp):
@@ -565,8 +570,7 @@ class Impairer:
         if copies == 2:
             c.duplicated += 1
             out.sort()
-        c.packets_out += copies
-        c.bytes_out += copies * size_bytes
+        c.passed(copies, size_bytes)
         return out
 
     # ---------------------------------------------------------------- byte streams
@@ -578,24 +582,10 @@ class Impairer:
         ``rto_ms``; then rate, delay and jitter; release times never decrease. Live cuts are
         not applied here: the sender holds bytes while :meth:`outage_end` is not None.
         """
-        self._check(now_s, size_bytes)
-        p = self._p
-        c = self.counters
-        c.packets_in += 1
-        c.bytes_in += size_bytes
-        t = float(now_s)
-        stalled = False
-        if p.outages:
-            end = _window_end(p.outages, t)
-            if end is not None:
-                t, stalled = end, True
+        p, c = self._arrive(now_s, size_bytes)
+        t, stalled = _stall(p.outages, float(now_s), False)
         if t < p.onset:
-            t = max(t, self._last_release)
-            self._last_release = t
-            c.stalled += stalled
-            c.packets_out += 1
-            c.bytes_out += size_bytes
-            return t
+            return self._release_stream(t, stalled, size_bytes)
         imp = p.impairment
         if imp.loss > 0.0 or imp.gilbert_elliott is not None:
             segments = max(1, -(-size_bytes // self.mss))
@@ -608,17 +598,15 @@ class Impairer:
             if lost:
                 t += p.rto
                 c.retransmitted += 1
-        t = self._serialise(p, t, size_bytes) + self._latency(p)
-        if p.outages:
-            end = _window_end(p.outages, t)
-            if end is not None:
-                t, stalled = end, True
-        if t < self._last_release:
-            t = self._last_release
+        t, stalled = _stall(p.outages, self._serialise(p, t, size_bytes) + self._latency(p), stalled)
+        return self._release_stream(t, stalled, size_bytes)
+
+    def _release_stream(self, t: float, stalled: bool, size_bytes: int) -> float:
+        """Release a stream chunk at ``t`` or at the FIFO floor, whichever is later, and count it."""
+        t = max(t, self._last_release)
         self._last_release = t
-        c.stalled += stalled
-        c.packets_out += 1
-        c.bytes_out += size_bytes
+        self.counters.stalled += stalled
+        self.counters.passed(1, size_bytes)
         return t
 
     def stats(self) -> dict[str, Any]:

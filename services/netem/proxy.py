@@ -79,8 +79,7 @@ class _ProxyBase:
     _sent: dict[str, dict[str, int]]
 
     def __init__(self, listen: Address | str, target: Address | str,
-                 impairment: Impairment | str | dict[str, Any] | None, seed: int | None,
-                 direction: Direction) -> None:
+                 impairment: Impairment | str | dict[str, Any] | None, seed: int | None, direction: Direction) -> None:
         if direction not in DIRECTIONS:
             raise ValueError(f"direction must be one of {DIRECTIONS}, got {direction!r}")
         self.listen = _check_address(listen, "listen")
@@ -101,10 +100,38 @@ class _ProxyBase:
         self._t0 = time.monotonic()
         rngs = [np.random.default_rng(s) for s in np.random.SeedSequence(self.seed).spawn(2)]
         with self._change_lock:
-            self._imp = {d: Impairer(self._initial[d], rng, origin_s=self._t0)
-                         for d, rng in zip(("up", "down"), rngs)}
+            self._imp = {d: Impairer(self._initial[d], rng, origin_s=self._t0) for d, rng in zip(("up", "down"), rngs)}
             self._live = True
         return self._imp
+
+    def _bind(self, kind: int, options: tuple[tuple[int, int], ...]) -> None:
+        """Resolve both ends, bind the listening socket (socket ``options`` first; a stream socket listens), note
+        its address and make the wake-up pair of the listening thread."""
+        if self._started:
+            raise RuntimeError(f"{type(self).__name__} already started")
+        lfam, lsa = _resolve(self.listen, kind)
+        self._tfam, self._tsa = _resolve(self.target, kind)
+        self._lsock = socket.socket(lfam, kind)
+        try:
+            for opt, value in options:
+                self._lsock.setsockopt(socket.SOL_SOCKET, opt, value)
+            self._lsock.bind(lsa)
+            if kind == socket.SOCK_STREAM:
+                self._lsock.listen(64)
+        except OSError:
+            self._lsock.close()
+            raise
+        self._address = (self.listen[0], self._lsock.getsockname()[1])
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+
+    def _launch(self, run: Callable[[], None], name: str) -> None:
+        """Start the listening thread ``run``, then the runner of the schedule's later steps."""
+        self._running = True
+        self._thread = threading.Thread(target=run, name=f"netem-{self.kind}-{self.port}-{name}", daemon=True)
+        self._thread.start()
+        self._started = True
+        self._schedule_start()
 
     def _schedule_due(self) -> None:
         """In start(), before any packet: apply the steps due at once (at 0 s)."""
@@ -176,16 +203,10 @@ class _ProxyBase:
             return {"ok": True, "stats": self.stats()}
         if cmd.action != "set":
             self._require_started()
-        if cmd.action == "set":
-            self._change(self._update, cmd.impairment, cmd.direction)
-        elif cmd.action == "cut":
-            self._change(self._cut, cmd.duration_s)
-        elif cmd.action == "restore":
-            self._change(self._restore)
-        else:  # clear
-            self._change(self._clear)
-        return {"ok": True, "applied": cmd.to_text(), "impairment": self._impairment_text(),
-                "changes": self.changes}
+        op, args = {"set": (self._update, (cmd.impairment, cmd.direction)), "cut": (self._cut, (cmd.duration_s,)),
+                    "restore": (self._restore, ()), "clear": (self._clear, ())}[cmd.action]
+        self._change(op, *args)
+        return {"ok": True, "applied": cmd.to_text(), "impairment": self._impairment_text(), "changes": self.changes}
 
     def play(self, steps: list[Step] | str, on_step: Callable[[Step, str | None], None] | None = None) -> None:
         """Run a schedule (steps, or schedule text) relative to the proxy start, on a thread of its
@@ -418,8 +439,7 @@ class _Association:
 class UdpProxy(_ProxyBase):
     """Impairing UDP forwarder from ``listen`` (port 0: any) to ``target``, one upstream socket per client
     address, closed after ``idle_timeout_s`` without traffic (a NAT's UDP timeout); ``seed`` seeds both
-    directions (independent children of one SeedSequence).
-    """
+    directions (independent children of one SeedSequence)."""
 
     kind = "udp"
 
@@ -435,34 +455,16 @@ class UdpProxy(_ProxyBase):
         self._closed_assocs = 0
 
     def start(self) -> UdpProxy:
-        if self._started:
-            raise RuntimeError("UdpProxy already started")
-        lfam, lsa = _resolve(self.listen, socket.SOCK_DGRAM)
-        self._tfam, self._tsa = _resolve(self.target, socket.SOCK_DGRAM)
-        self._lsock = socket.socket(lfam, socket.SOCK_DGRAM)
-        try:
-            for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
-                self._lsock.setsockopt(socket.SOL_SOCKET, opt, _SOCKBUF)
-            self._lsock.bind(lsa)
-        except OSError:
-            self._lsock.close()
-            raise
+        self._bind(socket.SOCK_DGRAM, ((socket.SO_RCVBUF, _SOCKBUF), (socket.SO_SNDBUF, _SOCKBUF)))
         self._lsock.setblocking(False)
-        self._address = (self.listen[0], self._lsock.getsockname()[1])
         self._make_impairers()
         self._schedule_due()
-        self._wake_r, self._wake_w = socket.socketpair()
-        self._wake_r.setblocking(False)
         self._sel = selectors.DefaultSelector()
         self._sel.register(self._lsock, selectors.EVENT_READ, None)
         self._sel.register(self._wake_r, selectors.EVENT_READ, "wake")
-        self._running = True
         self._sched = _Scheduler(f"netem-udp-{self.port}-sched")
         self._sched.start()
-        self._thread = threading.Thread(target=self._run, name=f"netem-udp-{self.port}-recv", daemon=True)
-        self._thread.start()
-        self._started = True
-        self._schedule_start()
+        self._launch(self._run, "recv")
         return self
 
     def _release(self) -> None:
@@ -507,7 +509,7 @@ class UdpProxy(_ProxyBase):
                     continue
             assoc.last = now
             for t in up.decide(now, len(data)):
-                self._sched.at(t, self._send_up, assoc.sock, data)
+                self._sched.at(t, self._send, "up", assoc.sock.send, data)
 
     def _associate(self, client: tuple, now: float) -> _Association | None:
         sock = socket.socket(self._tfam, socket.SOCK_DGRAM)
@@ -537,23 +539,14 @@ class UdpProxy(_ProxyBase):
             now = time.monotonic()
             assoc.last = now
             for t in down.decide(now, len(data)):
-                self._sched.at(t, self._send_down, assoc.client, data)
+                self._sched.at(t, self._send, "down", self._lsock.sendto, data, assoc.client)
 
-    def _send_up(self, sock: socket.socket, data: bytes) -> None:
-        c = self._sent["up"]
+    def _send(self, direction: str, send: Callable[..., object], data: bytes, *to: tuple) -> None:
+        """``send(data, *to)`` (up: the association's socket; down: the listening socket to the client), counted."""
+        c = self._sent[direction]
         try:
-            sock.send(data)
+            send(data, *to)
         except OSError:  # closed association, full buffer, refused: the datagram is lost
-            c["send_errors"] += 1
-            return
-        c["sent_packets"] += 1
-        c["sent_bytes"] += len(data)
-
-    def _send_down(self, client: tuple, data: bytes) -> None:
-        c = self._sent["down"]
-        try:
-            self._lsock.sendto(data, client)
-        except OSError:
             c["send_errors"] += 1
             return
         c["sent_packets"] += 1
@@ -614,8 +607,7 @@ class _Pump:
                         if self.aborted:
                             return
                         now = time.monotonic()
-                        direct = (not self.queue and not self.inflight and t <= now
-                                  and imp.outage_end(now) is None)
+                        direct = (not self.queue and not self.inflight and t <= now and imp.outage_end(now) is None)
                         if direct:
                             self.inflight = True
                         else:
@@ -668,10 +660,8 @@ class _Pump:
                         elif self.queue and not self.inflight:
                             self.cond.wait(self.queue[0][0] - now)
                         elif not self.queue and not self.inflight and self.eof:
-                            try:  # pass the half-close on once everything before it is out
+                            with contextlib.suppress(OSError):  # the half-close, once everything before it is out
                                 self.dst.shutdown(socket.SHUT_WR)
-                            except OSError:
-                                pass
                             return
                         else:
                             self.cond.wait()
@@ -740,8 +730,7 @@ class TcpProxy(_ProxyBase):
     """Impairing TCP relay from ``listen`` (port 0: any) to ``target``: delay, jitter, rate and outage on the
     byte stream of ``direction`` ("both", "up" client → target, "down"); loss is retransmission delay
     (``rto``), duplicate and reorder do not apply. A client is dropped when the target does not answer
-    within ``connect_timeout_s``; a reader stops beyond ``max_pending_bytes`` queued.
-    """
+    within ``connect_timeout_s``; a reader stops beyond ``max_pending_bytes`` queued."""
 
     kind = "tcp"
 
@@ -763,40 +752,19 @@ class TcpProxy(_ProxyBase):
         self._held_clients: list[socket.socket] = []  # accepted while the link was down
 
     def start(self) -> TcpProxy:
-        if self._started:
-            raise RuntimeError("TcpProxy already started")
-        lfam, lsa = _resolve(self.listen, socket.SOCK_STREAM)
-        self._tfam, self._tsa = _resolve(self.target, socket.SOCK_STREAM)
-        self._lsock = socket.socket(lfam, socket.SOCK_STREAM)
-        try:
-            self._lsock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self._lsock.bind(lsa)
-            self._lsock.listen(64)
-        except OSError:
-            self._lsock.close()
-            raise
-        self._address = (self.listen[0], self._lsock.getsockname()[1])
+        self._bind(socket.SOCK_STREAM, ((socket.SO_REUSEADDR, 1),))
         self._locks = {d: threading.Lock() for d in ("up", "down")}
         self._make_impairers()
         self._set_pieces()
         self._schedule_due()
-        self._wake_r, self._wake_w = socket.socketpair()
-        self._wake_r.setblocking(False)
-        self._running = True
         self._ids = itertools.count(1)
-        self._thread = threading.Thread(target=self._accept_loop, name=f"netem-tcp-{self.port}-accept", daemon=True)
-        self._thread.start()
-        self._started = True
-        self._schedule_start()
+        self._launch(self._accept_loop, "accept")
         return self
 
     def _set_pieces(self) -> None:
         """Chunk size per direction: about 1 ms of link time, so a rate releases a smooth stream."""
-        pieces = {}
-        for d, imp in self._imp.items():
-            rate = imp.impairment.rate_kbps
-            pieces[d] = max(1448, int(rate * 1000 / 8 * 1e-3)) if rate > 0 else 0
-        self._piece_bytes = pieces
+        rates = {d: imp.impairment.rate_kbps for d, imp in self._imp.items()}
+        self._piece_bytes = {d: max(1448, int(rate * 1000 / 8 * 1e-3)) if rate > 0 else 0 for d, rate in rates.items()}
 
     def _changed(self) -> None:
         """After a change: new chunk sizes; wake every writer (a restore releases held bytes) and
@@ -843,11 +811,9 @@ class TcpProxy(_ProxyBase):
                         if not self._running:
                             return
                         if key.data == "wake":
-                            try:
+                            with contextlib.suppress(OSError):
                                 while self._wake_r.recv(64):
                                     pass
-                            except OSError:
-                                pass
                             continue
                         try:
                             client, _ = self._lsock.accept()

@@ -231,11 +231,9 @@ class ProcessGroup:
                 first = self.echo_errors == 1
             if first:
                 where = getattr(self.echo, "name", "the log")
-                try:
+                with contextlib.suppress(OSError, ValueError):
                     print(f"services' log {where} failed ({exc}); their output is still read, the last lines "
                           f"of each are kept in memory only", file=sys.stderr, flush=True)
-                except (OSError, ValueError):
-                    pass
 
     def start(self, name: str, args: list[str], on_line: Callable[[str, str], None] | None = None,
               prefix: list[str] | None = None, ready: bool = False, env: dict[str, str] | None = None) -> Service:
@@ -259,11 +257,10 @@ class ProcessGroup:
         if ready:
             rfd, wfd = os.pipe()
         try:
-            proc = subprocess.Popen(
-                cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                text=True, errors="replace", bufsize=1, start_new_session=True,
-                env=env if wfd is None else {**env, READY_FD_ENV: str(wfd)}, pass_fds=() if wfd is None else (wfd,),
-            )
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                    text=True, errors="replace", bufsize=1, start_new_session=True,
+                                    env=env if wfd is None else {**env, READY_FD_ENV: str(wfd)},
+                                    pass_fds=() if wfd is None else (wfd,))
         except BaseException:
             for fd in (rfd, wfd):
                 if fd is not None:
@@ -274,8 +271,7 @@ class ProcessGroup:
         svc = Service(name, proc, args=args, env=env, on_line=on_line, restarts=restarts, prefix=list(prefix or []),
                       ready=ready, was_ready=was_ready)
         if rfd is not None:
-            svc._ready_reader = threading.Thread(target=_read_ready, args=(svc, rfd), name=f"ready:{name}",
-                                                 daemon=True)
+            svc._ready_reader = threading.Thread(target=_read_ready, args=(svc, rfd), name=f"ready:{name}", daemon=True)
             svc._ready_reader.start()
 
         def pump() -> None:

@@ -55,8 +55,7 @@ def site_of_uav(uav: int, sites: int, formation_size: int = FORMATION_SIZE) -> i
     return formation_index(uav, formation_size) % sites
 
 
-def mesh(uavs: int, sites: int, rcus: dict[str, int] | None = None,
-         formation_size: int = FORMATION_SIZE) -> Mesh:
+def mesh(uavs: int, sites: int, rcus: dict[str, int] | None = None, formation_size: int = FORMATION_SIZE) -> Mesh:
     """Sites ``0..sites-1`` with UAVs ``1..uavs`` by formation and ``rcus`` (name -> site; default:
     every RCU at site 0), and a full mesh of router links.
 
@@ -75,8 +74,7 @@ def mesh(uavs: int, sites: int, rcus: dict[str, int] | None = None,
     members: list[list[int]] = [[] for _ in range(sites)]
     for u in range(1, uavs + 1):
         members[site_of_uav(u, sites, formation_size)].append(u)
-    out = tuple(Site(k, tuple(members[k]), tuple(sorted(n for n, s in rcus.items() if s == k)))
-                for k in range(sites))
+    out = tuple(Site(k, tuple(members[k]), tuple(sorted(n for n, s in rcus.items() if s == k))) for k in range(sites))
     links = tuple((i, j) for j in range(sites) for i in range(j))
     return Mesh(out, links)
 

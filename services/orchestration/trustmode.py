@@ -5,6 +5,7 @@ Design notes: docs/security.md (services/orchestration/trustmode.py).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -84,10 +85,8 @@ def dev_keys(folder: str | Path, uavs: int) -> Path:
         if (folder / "ca" / "ca.key").is_file() and (folder / "router-ca.pem").is_file():
             from services.keys import enlarge  # an older set lacking roles (UAVs, tools): issued by its own CA
 
-            try:
+            with contextlib.suppress(ValueError):  # not enlargeable: replaced below
                 enlarge(folder, max(uavs, 3))
-            except ValueError:
-                pass  # not enlargeable: replaced below
             if complete():
                 return folder
         tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}-new-", dir=folder.parent))

@@ -20,15 +20,9 @@ from .theta_pso import theta_pso
 __all__ = ["compare", "format_table", "convergence_plot", "cost_call_times", "bench"]
 
 
-def compare(
-    scenario: Scenario,
-    seeds: int = 20,
-    particles: int = 150,
-    iterations: int = 300,
-    waypoints: int = 10,
-    algorithms: tuple[str, ...] = ("ga", "tlbo", "pso", "theta-pso"),
-    init: str | None = None,
-) -> dict[str, Any]:
+def compare(scenario: Scenario, seeds: int = 20, particles: int = 150, iterations: int = 300, waypoints: int = 10,
+            algorithms: tuple[str, ...] = ("ga", "tlbo", "pso", "theta-pso"),
+            init: str | None = None) -> dict[str, Any]:
     """Run every algorithm over ``seeds`` seeds; returns ``{"rows": {...}, "histories": {...}}``."""
     if int(seeds) != seeds or seeds < 1:
         raise ValueError(f"seeds must be a positive integer, got {seeds!r}")
@@ -49,26 +43,13 @@ def compare(
     rows = {}
     for a, r in runs.items():
         arr = np.array([x[:4] for x in r], float)
-        rows[a] = {
-            "initial_cost": float(np.mean(arr[:, 0])),
-            "final_mean": float(np.mean(arr[:, 1])),
-            "final_std": float(np.std(arr[:, 1])),
-            "final_median": float(np.median(arr[:, 1])),
-            "final_best": float(np.min(arr[:, 1])),
-            "convergence_iteration": float(np.mean(arr[:, 2])),
-            "wall_time_s": float(np.mean(arr[:, 3])),
-            "collision_free": float(np.mean([x[4] for x in r])),
-        }
-    return {
-        "scenario": scenario.name,
-        "seeds": int(seeds),
-        "particles": particles,
-        "iterations": iterations,
-        "waypoints": waypoints,
-        "evaluations": particles * (iterations + 1),
-        "rows": rows,
-        "histories": {a: np.mean(h, axis=0).tolist() for a, h in hist.items()},
-    }
+        rows[a] = {"initial_cost": float(np.mean(arr[:, 0])), "final_mean": float(np.mean(arr[:, 1])),
+                   "final_std": float(np.std(arr[:, 1])), "final_median": float(np.median(arr[:, 1])),
+                   "final_best": float(np.min(arr[:, 1])), "convergence_iteration": float(np.mean(arr[:, 2])),
+                   "wall_time_s": float(np.mean(arr[:, 3])), "collision_free": float(np.mean([x[4] for x in r]))}
+    return {"scenario": scenario.name, "seeds": int(seeds), "particles": particles, "iterations": iterations,
+            "waypoints": waypoints, "evaluations": particles * (iterations + 1), "rows": rows,
+            "histories": {a: np.mean(h, axis=0).tolist() for a, h in hist.items()}}
 
 
 def format_table(result: dict[str, Any]) -> str:
@@ -118,11 +99,9 @@ def cost_call_times(problem: PathProblem, particles: int = 150, calls: int = 100
     show that the cost's work does not depend on where the swarm is.
     """
     rng = np.random.default_rng(0)
-    swarms = {
-        "corridor": problem.initial_population(particles, rng),
-        "box": problem.initial_population(particles, rng, "box"),
-        "clear": np.tile(problem.lo + [5.0, 5.0, 20.0], (particles, problem.n_free)),
-    }
+    swarms = {"corridor": problem.initial_population(particles, rng),
+              "box": problem.initial_population(particles, rng, "box"),
+              "clear": np.tile(problem.lo + [5.0, 5.0, 20.0], (particles, problem.n_free))}
     cost = Cost(problem)
     for X in swarms.values():  # warm up (buffers, caches, clock)
         for _ in range(10):
@@ -136,15 +115,8 @@ def cost_call_times(problem: PathProblem, particles: int = 150, calls: int = 100
     return {name: 1e3 * float(np.median(t)) for name, t in ts.items()}
 
 
-def bench(
-    scenario: Scenario,
-    seeds: int = 20,
-    particles: int = 150,
-    iterations: int = 300,
-    waypoints: int = 10,
-    repeats: int = 7,
-    out: str | Path | None = None,
-) -> dict[str, Any]:
+def bench(scenario: Scenario, seeds: int = 20, particles: int = 150, iterations: int = 300, waypoints: int = 10,
+          repeats: int = 7, out: str | Path | None = None) -> dict[str, Any]:
     """θ-PSO timing against pyswarms' GlobalBestPSO (same cost and budget), plus :func:`compare`.
 
     Both minimise the same :class:`Cost` (whose time per call does not depend on the
@@ -184,25 +156,16 @@ def bench(
                                           bounds=bounds, init_pos=x0.copy())
             swarm.append(timed(lambda c: opt.optimize(c, iters=iterations + 1, verbose=False)))
     th = np.array(theta)
-    out_doc: dict[str, Any] = {
-        "budget_evaluations": budget,
-        "repeats": repeats,
-        "theta_pso_s": float(np.median(th[:, 0])),
-        "theta_pso_cpu_s": float(np.median(th[:, 1])),
-        "theta_pso_runs_s": th[:, 0].tolist(),
-        "theta_pso_evaluations": int(th[0, 2]),
-        "pyswarms_s": None,
-    }
+    out_doc: dict[str, Any] = {"budget_evaluations": budget, "repeats": repeats,
+                               "theta_pso_s": float(np.median(th[:, 0])), "theta_pso_cpu_s": float(np.median(th[:, 1])),
+                               "theta_pso_runs_s": th[:, 0].tolist(), "theta_pso_evaluations": int(th[0, 2]),
+                               "pyswarms_s": None}
     if swarm:
         sw = np.array(swarm)
-        out_doc.update({
-            "pyswarms_s": float(np.median(sw[:, 0])),
-            "pyswarms_cpu_s": float(np.median(sw[:, 1])),
-            "pyswarms_runs_s": sw[:, 0].tolist(),
-            "pyswarms_evaluations": int(sw[0, 2]),
-            "pyswarms_over_theta_pso": float(np.median(sw[:, 0]) / np.median(th[:, 0])),
-            "pyswarms_over_theta_pso_cpu": float(np.median(sw[:, 1]) / np.median(th[:, 1])),
-        })
+        out_doc.update({"pyswarms_s": float(np.median(sw[:, 0])), "pyswarms_cpu_s": float(np.median(sw[:, 1])),
+                        "pyswarms_runs_s": sw[:, 0].tolist(), "pyswarms_evaluations": int(sw[0, 2]),
+                        "pyswarms_over_theta_pso": float(np.median(sw[:, 0]) / np.median(th[:, 0])),
+                        "pyswarms_over_theta_pso_cpu": float(np.median(sw[:, 1]) / np.median(th[:, 1]))})
     out_doc["cost_call_ms"] = cost_call_times(problem, particles)
     out_doc["compare"] = compare(scenario, seeds, particles, iterations, waypoints)
     if out is not None:

@@ -14,10 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 from .scenario import Scenario
 from .task import InspectionPass, formation_pass
 
-__all__ = [
-    "point_segment_distance", "PathProblem", "Cost", "cost_offsets", "clearance", "formation_points",
-    "path_collision_free", "crosses_wall_free"
-]
+__all__ = ["point_segment_distance", "PathProblem", "Cost", "cost_offsets", "clearance", "formation_points",
+           "path_collision_free", "crosses_wall_free"]
 
 
 def point_segment_distance(p: ArrayLike, a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
@@ -117,9 +115,8 @@ class PathProblem:
         pts = [a + (b - a) * (k / (m + 1)) for a, b, m in legs for k in range(1, m + 1)]
         return np.asarray(pts, float).reshape(self.n_free, 3)
 
-    def initial_population(
-        self, particles: int, rng: np.random.Generator, mode: str = "corridor", width: float = 15.0
-    ) -> NDArray[np.float64]:
+    def initial_population(self, particles: int, rng: np.random.Generator, mode: str = "corridor",
+                           width: float = 15.0) -> NDArray[np.float64]:
         """Initial decision vectors ``(P, 3n)`` shared by every algorithm.
 
         ``"corridor"``: the nominal waypoints (:meth:`reference`) plus uniform noise of

@@ -35,12 +35,10 @@ from protocol import codec
 from protocol.messages import MissionPlan, Trajectory
 from protocol.textsafe import xml_text
 
-__all__ = [
-    "MAV_CMD_NAV_WAYPOINT", "MAV_CMD_NAV_TAKEOFF", "MAV_CMD_NAV_RETURN_TO_LAUNCH", "MAV_CMD_DO_DIGICAM_CONTROL",
-    "MissionItem", "enu_to_geodetic", "geodetic_to_enu", "mission_items", "leg_speeds", "qgc_wpl", "parse_qgc_wpl",
-    "qgc_plan", "parse_qgc_plan", "mission_kml", "parse_kml", "waypoints_enu", "mission_geojson", "parse_geojson",
-    "write_mission"
-]
+__all__ = ["MAV_CMD_NAV_WAYPOINT", "MAV_CMD_NAV_TAKEOFF", "MAV_CMD_NAV_RETURN_TO_LAUNCH", "MAV_CMD_DO_DIGICAM_CONTROL",
+           "MissionItem", "enu_to_geodetic", "geodetic_to_enu", "mission_items", "leg_speeds", "qgc_wpl",
+           "parse_qgc_wpl", "qgc_plan", "parse_qgc_plan", "mission_kml", "parse_kml", "waypoints_enu",
+           "mission_geojson", "parse_geojson", "write_mission"]
 
 MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION = AI.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
 MAV_CMD_NAV_RALLY_POINT = AI.MAV_CMD_NAV_RALLY_POINT
@@ -68,8 +66,7 @@ def qgc_wpl(trajectory: Trajectory, origin: ArrayLike) -> str:
 
 def parse_qgc_wpl(text: str) -> list[MissionItem]:
     """Parse a QGC WPL 110 file (tabs or spaces) into its items; ValueError naming the line on a missing
-    header, a line without 12 fields or a non-numeric field.
-    """
+    header, a line without 12 fields or a non-numeric field."""
     lines = [ln for ln in text.splitlines() if ln.strip()]
     if not lines or lines[0].split() != HEADER.split():
         raise ValueError(f"not a waypoint file: the first line must be {HEADER!r}")
@@ -138,12 +135,9 @@ def qgc_plan(trajectory: Trajectory, plan: MissionPlan) -> dict[str, Any]:
     """
     items = mission_items(trajectory, plan.origin)
     home = items[0].params
-    out_items = []
-    for it in items[1:]:
-        p = list(it.params)
-        out_items.append({"type": "SimpleItem", "autoContinue": bool(it.autocontinue), "command": it.command,
-                          "doJumpId": it.index, "frame": it.frame, "params": [_nan_to_none(v) for v in p],
-                          "Altitude": p[6], "AltitudeMode": 1, "AMSLAltAboveTerrain": None})
+    out_items = [{"type": "SimpleItem", "autoContinue": bool(it.autocontinue), "command": it.command,
+                  "doJumpId": it.index, "frame": it.frame, "params": [_nan_to_none(v) for v in it.params],
+                  "Altitude": it.params[6], "AltitudeMode": 1, "AMSLAltAboveTerrain": None} for it in items[1:]]
     lo, hi = plan.geofence.lo, plan.geofence.hi
     ring = enu_to_geodetic([(lo[0], lo[1], 0.0), (hi[0], lo[1], 0.0), (hi[0], hi[1], 0.0), (lo[0], hi[1], 0.0)],
                            plan.origin)
@@ -201,13 +195,11 @@ def mission_kml(plan: MissionPlan, surface: ArrayLike | None = None) -> str:
         g = enu_to_geodetic(np.asarray(p, float).reshape(-1, 3), o)
         return " ".join(f"{lon:.9f},{lat:.9f},{h:.3f}" for lat, lon, h in g)
 
-    marks = []
-    for tr in plan.trajectories:
-        marks.append(f"<Placemark><name>uav{tr.uav}</name><LineString><altitudeMode>absolute</altitudeMode>"
-                     f"<coordinates>{coords([w.pos for w in tr.waypoints])}</coordinates></LineString></Placemark>")
-    for c in plan.captures:
-        marks.append(f"<Placemark><name>capture {c.capture_id} (uav{c.uav})</name><Point><altitudeMode>absolute"
-                     f"</altitudeMode><coordinates>{coords(c.pos)}</coordinates></Point></Placemark>")
+    marks = [f"<Placemark><name>uav{tr.uav}</name><LineString><altitudeMode>absolute</altitudeMode>"
+             f"<coordinates>{coords([w.pos for w in tr.waypoints])}</coordinates></LineString></Placemark>"
+             for tr in plan.trajectories]
+    marks += [f"<Placemark><name>capture {c.capture_id} (uav{c.uav})</name><Point><altitudeMode>absolute"
+              f"</altitudeMode><coordinates>{coords(c.pos)}</coordinates></Point></Placemark>" for c in plan.captures]
     if surface is not None:
         corners = np.asarray(surface, float).reshape(-1, 3)
         ring = np.vstack([corners, corners[:1]])
@@ -289,18 +281,15 @@ def write_mission(plan: MissionPlan, out_dir: str | Path, surface: ArrayLike | N
     """Write ``uav<N>.waypoints`` and ``uav<N>.plan`` per UAV, ``mission.geojson`` and ``mission.kml``."""
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
-    paths = []
+    paths: list[Path] = []
+
+    def put(name: str, text: str) -> None:
+        (d / name).write_text(text)
+        paths.append(d / name)
+
     for tr in plan.trajectories:
-        p = d / f"uav{tr.uav}.waypoints"
-        p.write_text(qgc_wpl(tr, plan.origin))
-        paths.append(p)
-        p = d / f"uav{tr.uav}.plan"
-        p.write_text(json.dumps(qgc_plan(tr, plan), indent=1))
-        paths.append(p)
-    p = d / "mission.geojson"
-    p.write_text(json.dumps(mission_geojson(plan), indent=1))
-    paths.append(p)
-    p = d / "mission.kml"
-    p.write_text(mission_kml(plan, surface))
-    paths.append(p)
+        put(f"uav{tr.uav}.waypoints", qgc_wpl(tr, plan.origin))
+        put(f"uav{tr.uav}.plan", json.dumps(qgc_plan(tr, plan), indent=1))
+    put("mission.geojson", json.dumps(mission_geojson(plan), indent=1))
+    put("mission.kml", mission_kml(plan, surface))
     return paths

@@ -14,15 +14,8 @@ from .optimiser import OptResult, start
 __all__ = ["ga"]
 
 
-def ga(
-    cost: Cost,
-    x0: ArrayLike,
-    iterations: int,
-    rng: np.random.Generator,
-    crossover: float = 0.9,
-    alpha: float = 0.5,
-    sigma: tuple[float, float] = (0.1, 0.01),
-) -> OptResult:
+def ga(cost: Cost, x0: ArrayLike, iterations: int, rng: np.random.Generator, crossover: float = 0.9, alpha: float = 0.5,
+       sigma: tuple[float, float] = (0.1, 0.01)) -> OptResult:
     """Minimise ``cost`` with a (μ + λ) real-coded GA from ``x0 (P, D)``."""
     st = start("ga", cost, x0, iterations)
     X, P, I, lo, hi, tr, f = st.X, st.P, st.I, st.lo, st.hi, st.tracker, st.f

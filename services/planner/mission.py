@@ -26,12 +26,7 @@ from .trajectory import FormationTrajectories, build_trajectories
 __all__ = ["ALGORITHMS", "optimise", "plan_mission", "plan_details"]
 
 #: algorithm name -> optimiser(cost, x0, iterations, rng) -> OptResult
-ALGORITHMS: dict[str, Callable[..., OptResult]] = {
-    "theta-pso": theta_pso,
-    "pso": pso,
-    "ga": ga,
-    "tlbo": tlbo,
-}
+ALGORITHMS: dict[str, Callable[..., OptResult]] = {"theta-pso": theta_pso, "pso": pso, "ga": ga, "tlbo": tlbo}
 
 
 def _int(name: str, value: Any, lo: int, hi: int) -> int:
@@ -40,17 +35,9 @@ def _int(name: str, value: Any, lo: int, hi: int) -> int:
     return int(value)
 
 
-def optimise(
-    scenario: Scenario,
-    algorithm: str = "theta-pso",
-    seed: int = 0,
-    particles: int | None = None,
-    iterations: int | None = None,
-    waypoints: int | None = None,
-    init: str | None = None,
-    time_budget_s: float | None = None,
-    anytime: bool = False,
-) -> tuple[PathProblem, OptResult]:
+def optimise(scenario: Scenario, algorithm: str = "theta-pso", seed: int = 0, particles: int | None = None,
+             iterations: int | None = None, waypoints: int | None = None, init: str | None = None,
+             time_budget_s: float | None = None, anytime: bool = False) -> tuple[PathProblem, OptResult]:
     """Optimise the centroid path only; returns the problem and the optimiser's result.
 
     All algorithms start from the same initial population for the same seed
@@ -82,17 +69,10 @@ def optimise(
     return problem, result
 
 
-def plan_details(
-    scenario: Scenario | dict[str, Any],
-    algorithm: str = "theta-pso",
-    seed: int = 0,
-    particles: int | None = None,
-    iterations: int | None = None,
-    waypoints: int | None = None,
-    request_id: int = 0,
-    time_budget_s: float | None = None,
-    anytime: bool = False,
-) -> tuple[MissionPlan, FormationTrajectories, OptResult]:
+def plan_details(scenario: Scenario | dict[str, Any], algorithm: str = "theta-pso", seed: int = 0,
+                 particles: int | None = None, iterations: int | None = None, waypoints: int | None = None,
+                 request_id: int = 0, time_budget_s: float | None = None,
+                 anytime: bool = False) -> tuple[MissionPlan, FormationTrajectories, OptResult]:
     """:func:`plan_mission` plus the dense trajectories and the optimiser's result.
 
     With ``anytime`` (:func:`optimise`), the best path found when the time budget ran out is
@@ -109,39 +89,21 @@ def plan_details(
     if anytime and len(res.history) < asked + 1 and not free:
         raise TimeBudgetExceeded(f"the plan's time budget of {time_budget_s:g} s ran out after {res.evaluations:,} "
                                  "evaluations, and the best path so far is not collision free")
-    plan = MissionPlan(
-        request_id=request_id,
-        algorithm=algorithm,
-        seed=seed,
-        cost=res.cost,
-        collision_free=bool(free),
-        centroid_path=[tuple(p) for p in V.tolist()],
-        trajectories=ft.trajectories,
-        captures=ft.captures,
-        convergence=res.history.tolist(),
-        planning_time_s=time.perf_counter() - t0,
-        geofence=Box(lo=sc.box.lo, hi=sc.box.hi),
-        origin=(sc.origin.lat, sc.origin.lon, sc.origin.alt),
-        standoff_m=problem.inspection.standoff if problem.inspection is not None else 0.0,
-    )
+    plan = MissionPlan(request_id=request_id, algorithm=algorithm, seed=seed, cost=res.cost, collision_free=bool(free),
+                       centroid_path=[tuple(p) for p in V.tolist()], trajectories=ft.trajectories, captures=ft.captures,
+                       convergence=res.history.tolist(), planning_time_s=time.perf_counter() - t0,
+                       geofence=Box(lo=sc.box.lo, hi=sc.box.hi), origin=(sc.origin.lat, sc.origin.lon, sc.origin.alt),
+                       standoff_m=problem.inspection.standoff if problem.inspection is not None else 0.0)
     return plan, ft, res
 
 
-def plan_mission(
-    scenario: Scenario | dict[str, Any],
-    algorithm: str = "theta-pso",
-    seed: int = 0,
-    particles: int | None = None,
-    iterations: int | None = None,
-    waypoints: int | None = None,
-    time_budget_s: float | None = None,
-    anytime: bool = False,
-) -> MissionPlan:
+def plan_mission(scenario: Scenario | dict[str, Any], algorithm: str = "theta-pso", seed: int = 0,
+                 particles: int | None = None, iterations: int | None = None, waypoints: int | None = None,
+                 time_budget_s: float | None = None, anytime: bool = False) -> MissionPlan:
     """Plan a formation inspection mission from a scenario (or its document) with ``algorithm``
     ("theta-pso", "pso", "ga", "tlbo"), the same ``seed`` giving the same plan; the budget defaults to the
     scenario's ``[planner]`` section (the paper's 150 / 300 / 10). ``collision_free`` is an exact dense check
     of every UAV's trajectory. ValueError for a malformed scenario (naming the field), an unknown algorithm,
-    a bad budget, or a surface the formation cannot image in one pass.
-    """
+    a bad budget, or a surface the formation cannot image in one pass."""
     return plan_details(scenario, algorithm, seed, particles, iterations, waypoints,
                         time_budget_s=time_budget_s, anytime=anytime)[0]

@@ -18,8 +18,7 @@ __all__ = ["OptResult", "Tracker", "check_budget"]
 class OptResult:
     """Outcome of one optimiser run: the best decision vector ``x`` (free waypoints, flattened), its cost (P5),
     the best cost after the initial population and each further ``particles`` evaluations, the
-    evaluations used and the wall time.
-    """
+    evaluations used and the wall time."""
 
     algorithm: str
     x: NDArray[np.float64]
@@ -107,11 +106,5 @@ class Tracker:
             k = chunk.stop
 
     def result(self) -> OptResult:
-        return OptResult(
-            self.name,
-            np.asarray(self.best_x, float),
-            float(self.best_f),
-            np.asarray(self.history, float),
-            self.used,
-            time.perf_counter() - self.t0,
-        )
+        return OptResult(self.name, np.asarray(self.best_x, float), float(self.best_f), np.asarray(self.history, float),
+                         self.used, time.perf_counter() - self.t0)

@@ -14,17 +14,8 @@ from .optimiser import OptResult, start
 __all__ = ["pso"]
 
 
-def pso(
-    cost: Cost,
-    x0: ArrayLike,
-    iterations: int,
-    rng: np.random.Generator,
-    w: tuple[float, float] = (0.7, 0.3),
-    c1: float = 2.0,
-    c2: float = 2.0,
-    per_dimension: bool = True,
-    vmax_fraction: float = 0.05,
-) -> OptResult:
+def pso(cost: Cost, x0: ArrayLike, iterations: int, rng: np.random.Generator, w: tuple[float, float] = (0.7, 0.3),
+        c1: float = 2.0, c2: float = 2.0, per_dimension: bool = True, vmax_fraction: float = 0.05) -> OptResult:
     """Minimise ``cost`` with gbest PSO from ``x0 (P, D)``; budget ``P (iterations + 1)``."""
     if not 0.0 < vmax_fraction <= 1.0:
         raise ValueError("vmax_fraction must be in (0, 1]")

@@ -16,10 +16,8 @@ from protocol.checks import positive as _positive
 
 from .scenario import Camera, Scenario, Surface
 
-__all__ = [
-    "footprint", "standoff", "spacing", "footprint_at", "grid_stations", "camera_grid", "InspectionPass",
-    "imaging_rows", "formation_pass", "coverage"
-]
+__all__ = ["footprint", "standoff", "spacing", "footprint_at", "grid_stations", "camera_grid", "InspectionPass",
+           "imaging_rows", "formation_pass", "coverage"]
 
 
 def footprint(camera: Camera, smallest_feature: float) -> tuple[float, float]:
@@ -38,8 +36,6 @@ def standoff(camera: Camera, smallest_feature: float) -> float:
     Computed for both image axes; the smaller distance is returned (it resolves ``s_f`` on
     both). For square pixels the two are equal.
 
-    Examples
-    --------
     >>> from services.planner.scenario import Camera
     >>> round(standoff(Camera(resolution=(4000, 3000), sensor_mm=(36, 27), focal_mm=34.4), 0.0025), 4)
     4.7778
@@ -73,12 +69,10 @@ def grid_stations(length: float, a_fov: float, g: float) -> NDArray[np.float64]:
     return np.linspace(0.5 * a, L - 0.5 * a, n)
 
 
-def camera_grid(
-    surface: Surface, camera: Camera, smallest_feature: float, overlap: float
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def camera_grid(surface: Surface, camera: Camera, smallest_feature: float,
+                overlap: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Camera positions ``(K, 3)`` at the (P2) stand-off, row-major from the bottom-left corner, and unit
-    optical axes ``(K, 3)`` covering a planar rectangle from its front: the set G of (P1)-(P3).
-    """
+    optical axes ``(K, 3)`` covering a planar rectangle from its front: the set G of (P1)-(P3)."""
     a_w, a_h = footprint(camera, smallest_feature)
     d = standoff(camera, smallest_feature)
     p0, u, n = surface.frame
@@ -136,8 +130,7 @@ def imaging_rows(z_offsets: ArrayLike, wall_height: float, a_h: float) -> NDArra
 def formation_pass(scenario: Scenario) -> InspectionPass | None:
     """Plan the formation's pass along the scenario's wall (None if it has no surface); the geometry is in
     docs/planner.md (services/planner/task.py). ValueError if the UAVs do not share one lateral offset,
-    the rows are further apart than the (P3) spacing, or the wall is taller than one pass images.
-    """
+    the rows are further apart than the (P3) spacing, or the wall is taller than one pass images."""
     if scenario.surface is None:
         return None
     surf, cam, insp = scenario.surface, scenario.camera, scenario.inspection
@@ -161,9 +154,7 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
         )
     band = float(heights[-1] - heights[0] + a_h)
     if z1 - z0 > band + 1e-9:
-        raise ValueError(
-            f"surface: the wall is {z1 - z0:.2f} m tall but one formation pass images {band:.2f} m"
-        )
+        raise ValueError(f"surface: the wall is {z1 - z0:.2f} m tall but one formation pass images {band:.2f} m")
     zc = 0.5 * (z0 + z1) - 0.5 * (heights[0] + heights[-1])
     p0, u, n = surf.frame
     L = surf.length
@@ -197,28 +188,12 @@ def formation_pass(scenario: Scenario) -> InspectionPass | None:
             stations.append([s, zc + off[m, 2]])
     order = np.lexsort((np.asarray(uav), np.asarray(leg_s)))
     pos_a = np.asarray(pos, float)[order]
-    return InspectionPass(
-        entry=entry,
-        exit=exit_,
-        direction=t,
-        standoff=d,
-        footprint=(a_w, a_h),
-        spacing=(g_w, g_h),
-        uav=np.asarray(uav, np.int64)[order],
-        leg_s=np.asarray(leg_s, float)[order],
-        positions=pos_a,
-        look=np.broadcast_to(-n, pos_a.shape).copy(),
-        stations=np.asarray(stations, float)[order],
-    )
+    return InspectionPass(entry=entry, exit=exit_, direction=t, standoff=d, footprint=(a_w, a_h), spacing=(g_w, g_h),
+                          uav=np.asarray(uav, np.int64)[order], leg_s=np.asarray(leg_s, float)[order], positions=pos_a,
+                          look=np.broadcast_to(-n, pos_a.shape).copy(), stations=np.asarray(stations, float)[order])
 
 
-def coverage(
-    surface: Surface,
-    camera: Camera,
-    positions: ArrayLike,
-    look: ArrayLike,
-    resolution: float = 0.1,
-) -> float:
+def coverage(surface: Surface, camera: Camera, positions: ArrayLike, look: ArrayLike, resolution: float = 0.1) -> float:
     """Fraction of the wall imaged by square-on shots (footprint per :func:`footprint_at`).
 
     Samples the wall on a grid ``resolution`` metres apart (cell centres) and counts the samples

@@ -29,21 +29,11 @@ def inverse_sine_map(x: ArrayLike, lo: ArrayLike, hi: ArrayLike) -> NDArray[np.f
     return np.arcsin(np.clip(u, -1.0, 1.0))
 
 
-def theta_pso(
-    cost: Cost,
-    x0: ArrayLike,
-    iterations: int,
-    rng: np.random.Generator,
-    w: tuple[float, float] = (0.7, 0.3),
-    c1: float = 2.0,
-    c2: float = 2.0,
-    per_dimension: bool = True,
-    dtheta_max: float = 0.1,
-) -> OptResult:
+def theta_pso(cost: Cost, x0: ArrayLike, iterations: int, rng: np.random.Generator, w: tuple[float, float] = (0.7, 0.3),
+              c1: float = 2.0, c2: float = 2.0, per_dimension: bool = True, dtheta_max: float = 0.1) -> OptResult:
     """Minimise ``cost`` with θ-PSO (P4) from the initial population ``x0 (P, D)`` (θ from its inverse sine
     map, Δθ 0); budget ``P (iterations + 1)``. Inertia ``w`` linear from start to end, gains ``c1``, ``c2``,
-    ``r1, r2`` per particle and dimension unless ``per_dimension`` is False, ``|Δθ| <= dtheta_max <= π/2``.
-    """
+    ``r1, r2`` per particle and dimension unless ``per_dimension`` is False, ``|Δθ| <= dtheta_max <= π/2``."""
     if not 0.0 < dtheta_max <= HALF_PI:
         raise ValueError(f"dtheta_max must be in (0, π/2], got {dtheta_max!r}")
     # the shared initial population is evaluated itself (sine_map(theta) equals it to rounding)

@@ -97,16 +97,11 @@ def _blend_angle(a: NDArray[np.float64], b: float, w: NDArray[np.float64]) -> ND
     return a + w * d
 
 
-def build_trajectories(
-    scenario: Scenario,
-    centroid_path: ArrayLike,
-    inspection: InspectionPass | None,
-    ds: float = 1.0,
-) -> FormationTrajectories:
+def build_trajectories(scenario: Scenario, centroid_path: ArrayLike, inspection: InspectionPass | None,
+                       ds: float = 1.0) -> FormationTrajectories:
     """Per-UAV trajectories and capture points (P6)-(P9) from a centroid polyline ``(V, 3)`` resampled every
     ``ds`` m; with an ``inspection`` pass the polyline must hold its entry and exit as consecutive vertices
-    (ValueError otherwise).
-    """
+    (ValueError otherwise)."""
     V = np.asarray(centroid_path, float)
     if V.ndim != 2 or V.shape[1] != 3 or V.shape[0] < 2 or not np.all(np.isfinite(V)):
         raise ValueError("centroid_path must be a finite (V >= 2, 3) polyline")
@@ -177,18 +172,14 @@ def build_trajectories(
                     "off its planned camera position (lead_in too short for the corner smoothing?)"
                 )
             captures.append(
-                CapturePoint(
-                    capture_id=cid, uav=int(m) + 1, pos=tuple(pos.tolist()),
-                    look=tuple(inspection.look[cid].tolist()), t=float(t[i]),
-                )
+                CapturePoint(capture_id=cid, uav=int(m) + 1, pos=tuple(pos.tolist()),
+                             look=tuple(inspection.look[cid].tolist()), t=float(t[i]))
             )
     trajs = []
     for m in range(M):
         wps = [
-            Waypoint(
-                t=float(t[i]), pos=tuple(P[i, m].tolist()), yaw=float(yaw[i, m]),
-                speed=float(speed[i, m]), capture_id=cap_of.get((m, i)),
-            )
+            Waypoint(t=float(t[i]), pos=tuple(P[i, m].tolist()), yaw=float(yaw[i, m]), speed=float(speed[i, m]),
+                     capture_id=cap_of.get((m, i)))
             for i in range(t.size)
         ]
         trajs.append(Trajectory(uav=m + 1, waypoints=wps))

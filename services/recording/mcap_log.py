@@ -315,8 +315,7 @@ def messages(path: str | Path, max_chunk_bytes: int = MAX_CHUNK_BYTES,
         raise McapReadError(f"{where}: not a readable MCAP file ({type(exc).__name__}: {exc})"[:300]) from None
 
 
-def read(path: str | Path, topics: list[str] | None = None,
-         max_chunk_bytes: int = MAX_CHUNK_BYTES) -> Iterator[Logged]:
+def read(path: str | Path, topics: list[str] | None = None, max_chunk_bytes: int = MAX_CHUNK_BYTES) -> Iterator[Logged]:
     """Every message of the file in receive-time order (streamed chunk by chunk, each chunk bounded:
     :func:`messages`)."""
     wanted = None if topics is None else set(topics)

@@ -150,10 +150,9 @@ MIN_FREE_BYTES = 64 * 1024 * 1024
 CAPS: dict[str, int] = {"states": 200_000, "defects": 20_000, "events": 2_000, "gateway_stats": 10_000,
                         "detector_stats": 10_000, "commands": 20_000, "faults": 1_000, "incidents": 10_000}
 #: the record's lists of items, and their item models
-ITEM_MODELS: dict[str, type[BaseModel]] = {
-    "states": StateRx, "defects": DefectRx, "events": EventRx, "gateway_stats": StatsRx, "detector_stats": StatsRx,
-    "commands": CommandRecord, "faults": FaultRecord, "incidents": Incident,
-}
+ITEM_MODELS: dict[str, type[BaseModel]] = {"states": StateRx, "defects": DefectRx, "events": EventRx,
+                                           "gateway_stats": StatsRx, "detector_stats": StatsRx,
+                                           "commands": CommandRecord, "faults": FaultRecord, "incidents": Incident}
 
 
 class RecordingError(OSError):

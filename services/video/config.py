@@ -16,8 +16,7 @@ VideoCodec = Literal["h264", "mjpeg"]
 class VideoConfig(AttachOptions):
     """The options of the RTP video service."""
 
-    codec: VideoCodec = Field(default="h264",
-                                            description="h264: RFC 6184 (libx264 via PyAV); mjpeg: RFC 2435")
+    codec: VideoCodec = Field(default="h264", description="h264: RFC 6184 (libx264 via PyAV); mjpeg: RFC 2435")
     host: Annotated[str, Cli(flag="--rtp-host", metavar="HOST")] = Field(
         default="127.0.0.1", description="where the RTP goes (IPv4; loopback by default)")
     port: Annotated[int, Cli(flag="--preview-port", metavar="PORT")] = Field(

@@ -69,8 +69,7 @@ class H264Packetizer:
                 first, last = k == 0, k + step >= len(body)
                 header = (0x80 if first else 0) | (0x40 if last else 0) | nal_type
                 payloads.append(bytes((indicator, header)) + body[k:k + step])
-        return [self.sender.frame(p, capture_time_s, marker=(n == len(payloads) - 1))
-                for n, p in enumerate(payloads)]
+        return [self.sender.frame(p, capture_time_s, marker=(n == len(payloads) - 1)) for n, p in enumerate(payloads)]
 
 
 @dataclass(frozen=True)

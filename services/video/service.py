@@ -110,8 +110,7 @@ class VideoService:
 
 def build_parser() -> argparse.ArgumentParser:
     """``skynet video``'s command line: the options of :class:`VideoConfig`."""
-    return add_options(argparse.ArgumentParser(prog="skynet video", description=__doc__.split("\n\n")[0]),
-                       VideoConfig)
+    return add_options(argparse.ArgumentParser(prog="skynet video", description=__doc__.split("\n\n")[0]), VideoConfig)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -132,8 +131,7 @@ def run(args: VideoConfig, argv: list[str] | None = None) -> int:
         for uav in range(1, args.uavs + 1):
             for kind in svc.ports:
                 svc.stream(uav, kind)
-        log.info("video up: %s to %s, preview from port %d, SDP in %s", args.codec, args.host, args.port,
-                 args.sdp_dir)
+        log.info("video up: %s to %s, preview from port %d, SDP in %s", args.codec, args.host, args.port, args.sdp_dir)
         notify_ready("video")
         while not stop.wait(0.2):
             pass

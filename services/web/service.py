@@ -128,9 +128,8 @@ def follow_runner(view: FleetView, runner, stop: threading.Event | None = None,
     return t
 
 
-def start_web(bus: Bus, spec: str, scenario: Scenario | None, rate_hz: float = 10.0, log=None,
-              token: str | None = None, allowed_hosts: tuple[str, ...] = (), frames: str | None = None,
-              ) -> tuple[FleetView, WebServer]:
+def start_web(bus: Bus, spec: str, scenario: Scenario | None, rate_hz: float = 10.0, log=None, token: str | None = None,
+              allowed_hosts: tuple[str, ...] = (), frames: str | None = None) -> tuple[FleetView, WebServer]:
     """The page on ``spec``; its URL (with the token: ``token`` or the environment's, else random) is logged.
     ``frames``: the detector's saved captures, for the report's deduplicated defect count
     (``server.tally``)."""

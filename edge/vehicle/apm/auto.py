@@ -45,8 +45,7 @@ def _dist(a: Vec3, b: Vec3) -> float:
 class AutoMission:
     """The mission executor of the stored ``items`` (item 0, home, skipped; ``to_enu`` places a positioned
     item, altitude relative to ``home``), with WPNAV_SPEED ``speed`` (m/s), WPNAV_RADIUS ``radius`` (m),
-    WP_YAW_BEHAVIOR and ``min_leg_s``, the least time a waypoint leg takes (0: the set speed whatever the length).
-    """
+    WP_YAW_BEHAVIOR and ``min_leg_s``, the least time a waypoint leg takes (0: the set speed whatever the length)."""
 
     def __init__(self, items: list[PlanItem], to_enu: Callable[[PlanItem], Vec3], home: Vec3, speed: float,
                  radius: float = 2.0, yaw_behavior: int = 2, takeoff_tol: float = 0.3, start: int = 1,
@@ -206,16 +205,11 @@ class AutoMission:
             here = self._last_target or pos
             self._last_target = here
             return self._goto(t, pos, here, hold_s=self._hold_s(it))
-        if c == I.MAV_CMD_NAV_LAND:
+        if c in (I.MAV_CMD_NAV_LAND, I.MAV_CMD_NAV_RETURN_TO_LAUNCH):  # done once down again
             if not airborne and self.current in self._started:
                 return Flight("hold", pos), True
             self._started.add(self.current)
-            return Flight("land"), False
-        if c == I.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            if not airborne and self.current in self._started:
-                return Flight("hold", pos), True
-            self._started.add(self.current)
-            return Flight("rtl"), False
+            return Flight("land" if c == I.MAV_CMD_NAV_LAND else "rtl"), False
         return Flight("hold", pos), True  # a command the store let through but AUTO does not fly
 
     def _hold_s(self, it: PlanItem) -> float:

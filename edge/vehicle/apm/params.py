@@ -154,8 +154,7 @@ def _name(raw: object) -> str:
 class ParamTable:
     """The vehicle's parameters: values by name, in a fixed index order (sorted by name, as ArduPilot lists)."""
 
-    def __init__(self, specs: tuple[ParamSpec, ...] | None = None, *, scheme: str = DEFAULT_SCHEME,
-                 **overrides: float):
+    def __init__(self, specs: tuple[ParamSpec, ...] | None = None, *, scheme: str = DEFAULT_SCHEME, **overrides: float):
         self.scheme = _check_scheme(scheme)
         specs = copter_params(scheme) if specs is None else specs
         self.specs = tuple(sorted(specs, key=lambda s: s.name))
@@ -209,8 +208,7 @@ class ParamTable:
                                      param_id=bytes(raw)[:16], param_index=int(param_index),
                                      error=MAV_PARAM_ERROR_DOES_NOT_EXIST))]
 
-    def request_read(self, param_id: object, param_index: int,
-                     requester: tuple[int, int] | None = None) -> list[Out]:
+    def request_read(self, param_id: object, param_index: int, requester: tuple[int, int] | None = None) -> list[Out]:
         """PARAM_REQUEST_READ: one PARAM_VALUE; for an unknown parameter PARAM_ERROR to ``requester``
         (system, component), or nothing without one."""
         if param_index >= 0:

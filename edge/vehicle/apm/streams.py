@@ -43,8 +43,7 @@ STREAM_GROUPS[0] = tuple(n for g in (2, 6, 10, 11, 12) for n in STREAM_GROUPS[g]
 
 class StreamScheduler:
     """Rates per message and the time each was last sent: ``ids`` maps the names the vehicle can produce to
-    MAVLink ids, ``defaults`` to default rates in Hz (missing: 0, on request only).
-    """
+    MAVLink ids, ``defaults`` to default rates in Hz (missing: 0, on request only)."""
 
     def __init__(self, ids: dict[str, int], defaults: dict[str, float] | None = None):
         d = DEFAULT_RATES if defaults is None else defaults

@@ -14,9 +14,7 @@ from .link import open_connection
 from .phase import Phase
 from .progress import MissionProgress
 
-__all__ = [
-    "CopterMode", "MavlinkParams", "MavlinkDriver", "VehicleLinkError", "CommandRefused", "Phase", "Dialect",
-    "ARDUCOPTER", "TYPE_MASK_POS_VEL_YAW", "TYPE_MASK_POS_VEL_ACC_YAW", "TYPE_MASK_POS_YAW", "copter_mode",
-    "copter_mode_name", "ned_to_enu", "enu_to_ned", "yaw_ned_to_enu", "yaw_enu_to_ned", "attitude_ned_to_enu",
-    "rates_frd_to_flu", "open_connection", "result_name", "command_name", "MissionProgress",
-]
+__all__ = ["CopterMode", "MavlinkParams", "MavlinkDriver", "VehicleLinkError", "CommandRefused", "Phase", "Dialect",
+           "ARDUCOPTER", "TYPE_MASK_POS_VEL_YAW", "TYPE_MASK_POS_VEL_ACC_YAW", "TYPE_MASK_POS_YAW", "copter_mode",
+           "copter_mode_name", "ned_to_enu", "enu_to_ned", "yaw_ned_to_enu", "yaw_enu_to_ned", "attitude_ned_to_enu",
+           "rates_frd_to_flu", "open_connection", "result_name", "command_name", "MissionProgress"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
@@ -46,8 +47,7 @@ def safe_mode_name(name: object, limit: int = 32) -> str:
 @dataclass(frozen=True)
 class MavlinkParams:
     """Tuning of :class:`MavlinkDriver` (defaults as :class:`edge.vehicle.sim.SimParams` where shared), SI
-    units and wall seconds; each option's meaning: docs/hardware-mavlink.md, "Driver options".
-    """
+    units and wall seconds; each option's meaning: docs/hardware-mavlink.md, "Driver options"."""
 
     transit_speed: float = 4.0
     start_radius: float = 1.0
@@ -117,24 +117,11 @@ class MavlinkDriver(ParamClient, VehicleDriver):
     ``home_origin``: docs/hardware-mavlink.md, "Driver options".
     """
 
-    def __init__(
-        self,
-        uav: int,
-        connection: str,
-        home: Vec3 = (0.0, 0.0, 0.0),
-        rate_hz: float = 20.0,
-        timeout_s: float = 1.5,
-        *,
-        params: MavlinkParams = MavlinkParams(),
-        sysid: int | None = None,
-        source_system: int = 255,
-        source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
-        signing_key: str | None = None,
-        gcs_endpoint: str | None = None,
-        gcs_video: Any = None,
-        dialect: Dialect | None = None,
-        home_origin: Vec3 | None = None,
-    ):
+    def __init__(self, uav: int, connection: str, home: Vec3 = (0.0, 0.0, 0.0), rate_hz: float = 20.0,
+                 timeout_s: float = 1.5, *, params: MavlinkParams = MavlinkParams(), sysid: int | None = None,
+                 source_system: int = 255, source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
+                 signing_key: str | None = None, gcs_endpoint: str | None = None, gcs_video: Any = None,
+                 dialect: Dialect | None = None, home_origin: Vec3 | None = None):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
         if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 100):
@@ -439,10 +426,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             except ValueError as exc:
                 log.warning("UAV %d: switch to %s failed: %s", self.uav, self.dialect.mode_name(mode), exc)
 
-        try:
+        with contextlib.suppress(RuntimeError):  # closed meanwhile
             self._switcher.submit(run)
-        except RuntimeError:  # closed meanwhile
-            pass
 
     def _preflight(self) -> None:
         """The dialect's parameters set once before the first takeoff (PX4: NAV_DLL_ACT = 2, Return on a
@@ -511,10 +496,9 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         if self._closed:
             raise ValueError("driver is closed")
         if self.heartbeat_age() is None and self.params.appear_timeout_s > 0:
-            try:  # not heard yet: give the autopilot time to appear instead of a fixed window
+            # not heard yet: give the autopilot time to appear instead of a fixed window (a failure is reported below)
+            with contextlib.suppress(VehicleLinkError):
                 self.wait_heartbeat(self.params.appear_timeout_s)
-            except VehicleLinkError:
-                pass  # reported below
         err = self._link_error()
         if err is not None:
             raise err
@@ -541,11 +525,9 @@ class MavlinkDriver(ParamClient, VehicleDriver):
             wp, prog = self.mission.progress(self._t)
             if self.auto is not None and self.phase in (Phase.AUTO, Phase.HOLD):  # AUTO: as the autopilot says
                 wp, prog = self.auto.follow(wp, prog)
-            return DriverState(
-                t=self._t, pos=tel.pos, vel=tel.vel, att=tel.att, rates=tel.rates,
-                mode=self._mode(), armed=self._armed(), battery=tel.battery,
-                wp_index=wp, progress=prog, captures=self.mission.captures,
-            )
+            return DriverState(t=self._t, pos=tel.pos, vel=tel.vel, att=tel.att, rates=tel.rates, mode=self._mode(),
+                               armed=self._armed(), battery=tel.battery, wp_index=wp, progress=prog,
+                               captures=self.mission.captures)
 
     # ------------------------------------------------------------------ commands
     def upload(self, traj: Trajectory) -> None:
@@ -569,10 +551,8 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         try:
             self.command(M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, *latlon, param7), f"take off to {altitude:g} m")
         except ValueError:
-            try:  # do not leave the motors armed on the ground
+            with contextlib.suppress(ValueError):  # do not leave the motors armed on the ground
                 self.command(M.MAV_CMD_COMPONENT_ARM_DISARM, (0.0,), "disarm")
-            except ValueError:
-                pass
             raise
         with self._lock:
             self.phase = Phase.TAKEOFF

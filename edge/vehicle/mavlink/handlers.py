@@ -45,8 +45,6 @@ def ned_to_enu(v: Any) -> np.ndarray:
 
     Positions get the home offset added by the caller (the NED origin is the launch point).
 
-    Examples
-    --------
     >>> ned_to_enu([1.0, 2.0, -3.0]).tolist()
     [2.0, 1.0, 3.0]
     """

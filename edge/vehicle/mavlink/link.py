@@ -70,8 +70,7 @@ def open_connection(connection: str, source_system: int, source_component: int) 
         if not (isinstance(v, int) and 0 <= v <= 255):
             raise ValueError(f"{name} must be an int in 0..255")
     try:
-        conn = mavutil.mavlink_connection(connection, source_system=source_system,
-                                          source_component=source_component)
+        conn = mavutil.mavlink_connection(connection, source_system=source_system, source_component=source_component)
     except Exception as exc:  # pymavlink raises OSError, ValueError, serial errors, ...
         raise ValueError(f"cannot open MAVLink connection {connection!r}: {exc}") from exc
     conn.mav = SafeSigningMAVLink(conn, srcSystem=source_system, srcComponent=source_component)

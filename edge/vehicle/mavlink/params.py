@@ -105,8 +105,7 @@ class ParamClient:
         scheme = None
         for candidate in reversed(schemes):
             try:
-                value = self.read_param(self.dialect.param_name("wp_speed", candidate), timeout_s=timeout_s,
-                                        retries=1)
+                value = self.read_param(self.dialect.param_name("wp_speed", candidate), timeout_s=timeout_s, retries=1)
             except VehicleLinkError:
                 if candidate == schemes[0]:
                     raise

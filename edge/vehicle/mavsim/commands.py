@@ -69,7 +69,6 @@ class GuidedTarget:
         return pos, (v[0] + a[0] * k, v[1] + a[1] * k, v[2] + a[2] * k), a, self.yaw
 
 
-
 class SimCommands:
     """The obeying half of :class:`.vehicle.MavlinkSimVehicle` (a mixin: it uses the vehicle's state)."""
 
@@ -90,7 +89,6 @@ class SimCommands:
     def _new_auto(self, start: int = 1) -> AutoMission:
         return AutoMission(self.missions.mission(), self.item_enu, self.home, self.params.si("wp_speed"),
                            radius=self.params.si("wp_radius"), yaw_behavior=0, start=start)
-
 
     def _command(self, msg: Any, is_int: bool) -> int:
         """A COMMAND_LONG (or a COMMAND_INT seen as one): the MAV_RESULT of its handler in :data:`COMMANDS`."""

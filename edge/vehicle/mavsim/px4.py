@@ -191,8 +191,7 @@ class Px4SimVehicle(MavlinkSimVehicle):
         if msg.command != M.MAV_CMD_DO_SET_MODE:
             super()._on_command(msg, src, is_int)
             return
-        custom = PX.from_set_mode(msg.param2, msg.param3) if math.isfinite(msg.param1) and int(msg.param1) & 1 \
-            else None
+        custom = PX.from_set_mode(msg.param2, msg.param3) if math.isfinite(msg.param1) and int(msg.param1) & 1 else None
         if custom is None:
             self.commands.append((int(msg.command), _DENIED))
             self._send(M.MAVLink_command_ack_message(msg.command, _DENIED, 0, 0, src[0], src[1]))

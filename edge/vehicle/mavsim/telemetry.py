@@ -63,7 +63,6 @@ class SimTelemetry:
             self._prearm_sent = t
             self._text(M.MAV_SEVERITY_CRITICAL, f"PreArm: {why}")
 
-
     def _shot(self, capture_id: int, st: Any) -> None:
         self.shots.append(capture_id)
         lat, lon, h = self.enu_to_lla(st.pos)
@@ -71,7 +70,6 @@ class SimTelemetry:
         self._send(M.MAVLink_camera_feedback_message(int(time.time() * 1e6), 0, 0, len(self.shots) - 1,
                    round(lat * 1e7), round(lon * 1e7), h, st.pos[2] - self.home[2], math.degrees(r[0]),
                    -math.degrees(r[1]), math.degrees(wrap_angle(math.pi / 2 - r[2])) % 360.0, 0.0, 1, len(self.shots)))
-
 
     def _boot_ms(self) -> int:
         return int(max(0.0, self.clock.now() - self._t_boot) * 1000) & 0xFFFFFFFF

@@ -53,27 +53,11 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
     ``legacy_mission_request`` (MISSION_REQUEST instead of MISSION_REQUEST_INT).
     """
 
-    def __init__(
-        self,
-        connection: str,
-        uav: int,
-        home: Vec3 = (0.0, 0.0, 0.0),
-        speed: float = 1.0,
-        *,
-        epoch: float | None = None,
-        params: SimParams = SimParams(),
-        seed: int = 0,
-        telemetry_hz: float = 20.0,
-        refuse_arming: bool = False,
-        origin: Vec3 = DEFAULT_ORIGIN,
-        mavlink_key: str | None = None,
-        param_overrides: dict[str, float] | None = None,
-        boot_scale: float = 0.0,
-        stream_all: bool = False,
-        firmware: str = DEFAULT_SCHEME,
-        legacy_mission_request: bool = False,
-        rc_centred: bool = False,
-    ):
+    def __init__(self, connection: str, uav: int, home: Vec3 = (0.0, 0.0, 0.0), speed: float = 1.0, *,
+                 epoch: float | None = None, params: SimParams = SimParams(), seed: int = 0, telemetry_hz: float = 20.0,
+                 refuse_arming: bool = False, origin: Vec3 = DEFAULT_ORIGIN, mavlink_key: str | None = None,
+                 param_overrides: dict[str, float] | None = None, boot_scale: float = 0.0, stream_all: bool = False,
+                 firmware: str = DEFAULT_SCHEME, legacy_mission_request: bool = False, rc_centred: bool = False):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
         if not (isinstance(telemetry_hz, (int, float)) and math.isfinite(telemetry_hz) and 0 < telemetry_hz <= 100):
@@ -130,7 +114,6 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
-
 
     # ------------------------------------------------------------------ geodesy
     def enu_to_lla(self, p: Vec3) -> Vec3:
