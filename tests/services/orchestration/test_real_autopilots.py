@@ -30,7 +30,7 @@ pytestmark = pytest.mark.mission  # whole missions: one at a time under xdist (t
 FORMATION_RMS_BOUND_M = 1.0
 #: where the vehicles really stand: the scenario's slots moved 6 m west and 3 m south
 SHIFT = (-6.0, -3.0, 0.0)
-SPEED = 8.0
+SPEED = 4.0  # at 8x a loaded CI machine once placed captures 5-8.5 m off their points (tolerance 5 m)
 
 
 def test_mission_flies_the_users_own_autopilots_from_their_homes(tmp_path):
