@@ -369,7 +369,7 @@ def revoke(folder: str | Path, what: str) -> str:
     KeySet(folder, "gcs")  # validates the folder
     path = Path(folder) / "revoked.txt"
     text = path.read_text() if path.exists() else ""
-    path.write_text(text + f"{kid}\n")
+    _write(path, (text + f"{kid}\n").encode())
     return kid
 
 

@@ -162,7 +162,7 @@ def admitted(folder: str | None) -> list[str]:
 
 @dataclass
 class Relay:
-    """The router's session, reopened when the key set revokes a name it admits (so that its sessions end)."""
+    """The router's session, reopened when the key set's admitted names change (so a revoked one's sessions end)."""
 
     args: GatewayConfig
     listen: list[str]
@@ -173,7 +173,7 @@ class Relay:
     opened: int = 0
 
     def run(self, config: RouterConfig, names: list[str]) -> list[str] | None:
-        """The router until ``stop`` (None) or until a name of ``names`` is revoked (the names admitted now)."""
+        """The router until ``stop`` (None) or until the admitted names change (the names admitted now)."""
         args, meter, log = self.args, self.meter, logging.getLogger(f"gateway-{self.args.id}")
         with Bus(config, fleet=args.fleet, name="gateway") as bus:
             self.opened += 1
@@ -184,6 +184,7 @@ class Relay:
                 bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
             pub = bus.publisher(keys.gateway_stats(args.fleet, args.id), TELEMETRY)
             sessions, unreadable = 0, False
+            pending: list[str] | None = None
             while not self.stop.wait(args.period):
                 counts = session_counts(bus)
                 if sum(counts.values()) < sessions:
@@ -202,8 +203,14 @@ class Relay:
                     unreadable = True
                     continue
                 unreadable = False
-                if gone := sorted(set(names) - set(now)):
-                    log.warning("revoked: %s; reopening the router so that its sessions end", ", ".join(gone))
+                if now == names:
+                    pending = None
+                elif now != pending:  # a change is applied once two reads a period apart agree on it
+                    pending = now
+                else:
+                    gone, new = sorted(set(names) - set(now)), sorted(set(now) - set(names))
+                    log.warning("key set changed (revoked: %s; admitted: %s); reopening the router so that its "
+                                "sessions end", ", ".join(gone) or "none", ", ".join(new) or "none")
                     return now
             log.info("shutting down")
         return None

@@ -334,7 +334,7 @@ def test_a_node_revoked_while_the_gateway_runs_is_cut_off_and_the_others_come_ba
         speak(2.0)
         assert seen.got.get(1, 0) > 10 and seen.got.get(2, 0) > 10, seen.got  # both heard before
         assert keys_main(["revoke", str(ks_dir), "uav2"]) == 0
-        assert wait_until(lambda: any("revoked: uav2" in ln for ln in gw.lines), 10), gw.lines[-10:]
+        assert wait_until(lambda: any("revoked: uav2" in ln and "reopening" in ln for ln in gw.lines), 10), gw.lines[-10:]
         speak(4.0)  # the sessions come back to the reopened router
         seen.got.clear()
         speak(3.0)
