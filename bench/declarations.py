@@ -30,30 +30,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from protocol import keys  # noqa: E402
 from protocol.bus import Bus, BusConfig  # noqa: E402
+from protocol.heap import settled_resident_mb  # noqa: E402
 from protocol.keyset import KeySet  # noqa: E402
 from services.orchestration.process import ProcessGroup, free_port  # noqa: E402
 from services.orchestration.trustmode import dev_keys, tls_endpoints  # noqa: E402
 
 FLEET = "bench"
-
-
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
-
-
-def settled_rss(pid: int, wait_s: float = 8.0) -> float:
-    """The gateway's RSS once it stops moving (declarations are processed asynchronously)."""
-    last, t_end = rss_mb(pid), time.monotonic() + wait_s
-    while time.monotonic() < t_end:
-        time.sleep(1.0)
-        now = rss_mb(pid)
-        if abs(now - last) < 0.2:
-            return now
-        last = now
-    return last
 
 
 ROUNDS = ("state_subs", "adv", "same_key", "denied")
@@ -95,21 +77,21 @@ def variant(ks: Path, a: argparse.Namespace, env: dict) -> dict:
         k = KeySet(ks, "uav2")
         cfg = BusConfig(mode="client", connect=ends, multilink=True, tls_ca=str(k.ca), tls_cert=str(k.tls_cert),
                         tls_key=str(k.tls_key))
-        out["rss_start_mb"] = settled_rss(pid)
+        out["rss_start_mb"] = settled_resident_mb(pid, 8.0)
         for label in a.rounds.split(","):
-            rss0 = settled_rss(pid)
+            rss0 = settled_resident_mb(pid, 8.0)
             with connect(cfg) as bus:
                 t0 = time.perf_counter()
                 held = [declare(bus, label, i) for i in range(a.n)]
                 out[f"{label}_declare_s"] = round(time.perf_counter() - t0, 2)
-                out[f"{label}_held_mb"] = round(settled_rss(pid) - rss0, 1)
+                out[f"{label}_held_mb"] = round(settled_resident_mb(pid, 8.0) - rss0, 1)
                 for q in held:
                     q.undeclare()  # type: ignore[attr-defined]
-                out[f"{label}_undeclared_mb"] = round(settled_rss(pid) - rss0, 1)
+                out[f"{label}_undeclared_mb"] = round(settled_resident_mb(pid, 8.0) - rss0, 1)
             time.sleep(2.0)
-            out[f"{label}_after_disconnect_mb"] = round(settled_rss(pid) - rss0, 1)
+            out[f"{label}_after_disconnect_mb"] = round(settled_resident_mb(pid, 8.0) - rss0, 1)
             print(label, {k_: v for k_, v in out.items() if k_.startswith(label)}, flush=True)
-        out["rss_end_mb"] = settled_rss(pid)
+        out["rss_end_mb"] = settled_resident_mb(pid, 8.0)
     finally:
         group.stop()
     return out

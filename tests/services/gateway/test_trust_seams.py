@@ -14,6 +14,7 @@ import zenoh
 
 from protocol import keys
 from protocol.bus import Bus, BusConfig
+from protocol.heap import settled_resident_mb
 from protocol.keyset import KeySet
 from protocol.links import TELEMETRY
 from protocol.messages import Hold, Mode, VehicleState
@@ -265,25 +266,6 @@ def test_an_impaired_mission_behind_the_accept_guard_succeeds_with_tls_and_the_a
     assert report["success"] and not report["failures"], report["failures"]
 
 
-def rss_mb(pid: int) -> float:
-    for line in open(f"/proc/{pid}/status"):
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise AssertionError(f"no VmRSS for {pid}")
-
-
-def settled_rss_mb(pid: int, within_s: float = 15.0) -> float:
-    """The process's RSS once two readings a second apart agree within 0.2 MB (declarations are asynchronous)."""
-    last, end = rss_mb(pid), time.monotonic() + within_s
-    while time.monotonic() < end:
-        time.sleep(1.0)
-        now = rss_mb(pid)
-        if abs(now - last) < 0.2:
-            return now
-        last = now
-    return last
-
-
 def test_the_memory_of_a_departed_identitys_declaration_flood_goes_back_to_the_system(tmp_path, group):
     """uav2's certificate declares 3,000 subscribers on new keys its grant admits, then leaves: the gateway's
     resident memory comes back down (Zenoh frees the entries; the allocator kept the pages)."""
@@ -293,16 +275,16 @@ def test_the_memory_of_a_departed_identitys_declaration_flood_goes_back_to_the_s
                                  "--period-s", "0.5"])
     assert gw.wait_ready(20), "\n".join(gw.lines)
     pid = gw.proc.pid
-    base = settled_rss_mb(pid)
+    base = settled_resident_mb(pid)
     uav2 = Bus(tls(KeySet(ks_dir, "uav2"), "client", [tls_ep]), FLEET, "uav2")
     try:
         held = [uav2.session.declare_subscriber(f"{keys.fleet_root(FLEET)}/uav/x{i}/state", lambda s: None)
                 for i in range(3000)]
-        grown = settled_rss_mb(pid) - base
+        grown = settled_resident_mb(pid) - base
     finally:
         uav2.close()
     time.sleep(2.0)  # the gateway notices the departure at its next period
-    left = settled_rss_mb(pid) - base
+    left = settled_resident_mb(pid) - base
     assert len(held) == 3000 and grown > 3.0, grown  # the flood took memory (about 3 KB a declaration)
     assert left < grown / 2, (grown, left)
 
