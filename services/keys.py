@@ -13,6 +13,7 @@ import os
 import re
 import shutil
 import sys
+import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -60,11 +61,15 @@ def _write(path: Path, data: bytes, private: bool = False) -> None:
     """Write ``path`` whole or not at all (a temporary file renamed over it): a running gateway reads
     ``certs.txt`` and ``revoked.txt`` while they are rewritten, and an empty read would revoke everyone."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.unlink(missing_ok=True)  # a crashed writer's leftover keeps its mode: never reuse it
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600 if private else 0o644)
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)  # mode 0600, name unique
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        if not private:
+            os.chmod(tmp, 0o644)
+    except BaseException:
+        os.unlink(tmp)
+        raise
     os.replace(tmp, path)
 
 
@@ -427,10 +432,12 @@ def main(argv: list[str] | None = None) -> int:
     elif args.action in ("revoke", "reissue"):
         try:
             if args.action == "revoke":
-                print(f"revoked {revoke(args.dir, args.key)} (restart the gateway and the edges to apply)")
+                print(f"revoked {revoke(args.dir, args.key)} (a running gateway applies it within two periods, "
+                      f"an edge at its next start)")
             else:
                 print(f"{args.node}: new certificate {reissue(args.dir, args.node, args.days)}; give the node its "
-                      f"folder, every node certs.txt and revoked.txt, and restart them")
+                      f"folder (it restarts with it) and every node certs.txt and revoked.txt (a running gateway "
+                      f"applies them within two periods, an edge at its next start)")
         except (ValueError, OSError) as exc:
             print(f"skynet keys: {exc}", file=sys.stderr)
             return 2

@@ -142,14 +142,22 @@ def run(args: GatewayConfig) -> int:
             log.warning("listeners without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
     stop = stop_event_on_signals()
     relay = Relay(args, listen, guards, stop)
-    while names is not None and not stop.is_set():
-        acl_config = config
-        if args.keys:
-            acl_config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
-            log.info("ACL by certificate common name for %s", ", ".join(names))
-        names = relay.run(acl_config, names)
-    for g in guards:
-        g.stop()
+    try:
+        while names is not None and not stop.is_set():
+            acl_config = config
+            if args.keys:
+                acl_config = config.model_copy(update={"access_control": acl.cert_access_control(args.fleet, names)})
+                log.info("ACL by certificate common name for %s", ", ".join(names))
+            try:
+                names = relay.run(acl_config, names)
+            except zenoh.ZError as exc:  # a reopen that cannot bind (the old listener not yet released): retry
+                if not relay.opened:
+                    raise
+                log.warning("router did not reopen (%s); retrying in %s s", exc, args.period)
+                stop.wait(args.period)
+    finally:
+        for g in guards:
+            g.stop()
     return 0
 
 
@@ -171,48 +179,58 @@ class Relay:
     meter: TrafficMeter = field(default_factory=TrafficMeter)
     t0: float = field(default_factory=time.time)
     opened: int = 0
+    #: rejections counted by the routers closed so far (a reopen keeps the totals)
+    carried: Counter[str] = field(default_factory=Counter)
 
     def run(self, config: RouterConfig, names: list[str]) -> list[str] | None:
         """The router until ``stop`` (None) or until the admitted names change (the names admitted now)."""
+        with Bus(config, fleet=self.args.fleet, name="gateway") as bus:
+            try:
+                now = self._serve(bus, names)
+            finally:
+                self.carried.update(bus.counters.snapshot()["rejected"])
+        release_freed_memory()  # what the closed router held goes back to the system
+        return now
+
+    def _serve(self, bus: Bus, names: list[str]) -> list[str] | None:
         args, meter, log = self.args, self.meter, logging.getLogger(f"gateway-{self.args.id}")
-        with Bus(config, fleet=args.fleet, name="gateway") as bus:
-            self.opened += 1
-            log.info("router up, listening on %s", ", ".join(self.listen) or "(config file)")
-            if self.opened == 1:
-                notify_ready("gateway", args.id)
-            for key in keys.metered(args.fleet):  # not the previews: a meter would make every camera render them
-                bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
-            pub = bus.publisher(keys.gateway_stats(args.fleet, args.id), TELEMETRY)
-            sessions, unreadable = 0, False
-            pending: list[str] | None = None
-            while not self.stop.wait(args.period):
-                counts = session_counts(bus)
-                if sum(counts.values()) < sessions:
-                    release_freed_memory()  # what a departed session's declarations held goes back to the system
-                sessions = sum(counts.values())
-                snap = bus.counters.snapshot()
-                rejected = {"unknown-key": meter.unknown, **{k: v for k, v in snap["rejected"].items()},
-                            **{f"guard-{k}": v for g in self.guards for k, v in g.counts.items() if k != "pass"}}
-                pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - self.t0,
-                                  sessions=counts, classes=meter.classes(), rejected=rejected))
-                try:
-                    now = admitted(args.keys)
-                except (OSError, ValueError) as exc:  # a key set being rewritten: the ACL stays as it is
-                    if not unreadable:
-                        log.warning("key set unreadable (%s): the ACL stays as it is", exc)
-                    unreadable = True
-                    continue
-                unreadable = False
-                if now == names:
-                    pending = None
-                elif now != pending:  # a change is applied once two reads a period apart agree on it
-                    pending = now
-                else:
-                    gone, new = sorted(set(names) - set(now)), sorted(set(now) - set(names))
-                    log.warning("key set changed (revoked: %s; admitted: %s); reopening the router so that its "
-                                "sessions end", ", ".join(gone) or "none", ", ".join(new) or "none")
-                    return now
-            log.info("shutting down")
+        self.opened += 1
+        log.info("router up, listening on %s", ", ".join(self.listen) or "(config file)")
+        if self.opened == 1:
+            notify_ready("gateway", args.id)
+        for key in keys.metered(args.fleet):  # not the previews: a meter would make every camera render them
+            bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
+        pub = bus.publisher(keys.gateway_stats(args.fleet, args.id), TELEMETRY)
+        sessions, unreadable = 0, False
+        pending: list[str] | None = None
+        while not self.stop.wait(args.period):
+            counts = session_counts(bus)
+            if sum(counts.values()) < sessions:
+                release_freed_memory()  # what a departed session's declarations held goes back to the system
+            sessions = sum(counts.values())
+            snap = bus.counters.snapshot()
+            rejected = {"unknown-key": meter.unknown, **(self.carried + Counter(snap["rejected"])),
+                        **{f"guard-{k}": v for g in self.guards for k, v in g.counts.items() if k != "pass"}}
+            pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - self.t0,
+                              sessions=counts, classes=meter.classes(), rejected=rejected))
+            try:
+                now = admitted(args.keys)
+            except (OSError, ValueError) as exc:  # a key set being rewritten: the ACL stays as it is
+                if not unreadable:
+                    log.warning("key set unreadable (%s): the ACL stays as it is", exc)
+                unreadable = True
+                continue
+            unreadable = False
+            if now == names:
+                pending = None
+            elif now != pending:  # a change is applied once two reads a period apart agree on it
+                pending = now
+            else:
+                gone, new = sorted(set(names) - set(now)), sorted(set(now) - set(names))
+                log.warning("key set changed (revoked: %s; admitted: %s); reopening the router so that its "
+                            "sessions end", ", ".join(gone) or "none", ", ".join(new) or "none")
+                return now
+        log.info("shutting down")
         return None
 
 

@@ -292,7 +292,8 @@ def test_the_memory_of_a_departed_identitys_declaration_flood_goes_back_to_the_s
 def test_a_node_revoked_while_the_gateway_runs_is_cut_off_and_the_others_come_back(tmp_path, group):
     """``skynet keys revoke DIR uav2`` beside a running gateway: within seconds the stolen uav2 certificate's
     session (still open, still publishing) reaches nobody, while uav1's states reach the ground station again
-    after the gateway reopened its router with the narrower ACL."""
+    after the gateway reopened its router with the narrower ACL. A key set broken in between is logged once
+    and changes nothing (no reopen, both still heard)."""
     from services.keys import main as keys_main
 
     ks_dir = init(tmp_path / "keys", uavs=2)
@@ -315,6 +316,15 @@ def test_a_node_revoked_while_the_gateway_runs_is_cut_off_and_the_others_come_ba
 
         speak(2.0)
         assert seen.got.get(1, 0) > 10 and seen.got.get(2, 0) > 10, seen.got  # both heard before
+        certs = ks_dir / "certs.txt"
+        good = certs.read_text()
+        certs.write_text(good + "not a node\n")  # a key set the operator broke: the ACL stays as it is
+        assert wait_until(lambda: any("key set unreadable" in ln and "not a node" in ln for ln in gw.lines), 10)
+        seen.got.clear()
+        speak(1.5)
+        certs.write_text(good)
+        assert seen.got.get(1, 0) > 10 and seen.got.get(2, 0) > 10, seen.got
+        assert not any("reopening" in ln for ln in gw.lines), gw.lines[-10:]
         assert keys_main(["revoke", str(ks_dir), "uav2"]) == 0
         assert wait_until(lambda: any("revoked: uav2" in ln and "reopening" in ln for ln in gw.lines), 10), gw.lines[-10:]
         speak(4.0)  # the sessions come back to the reopened router
