@@ -49,3 +49,19 @@ def test_a_wait_with_a_timeout_still_times_out_and_stops_on_a_signal():
     assert run_child(signal.SIGINT, "600") == "stopped\n"
     proc = subprocess.run([sys.executable, "-c", CHILD, "0.3"], cwd=ROOT, capture_output=True, text=True, timeout=20)
     assert proc.stdout == "waiting\ntimed out\n", proc.stderr
+
+
+def test_a_signal_arriving_while_the_main_thread_holds_the_events_lock_does_not_deadlock():
+    """The handler may interrupt the main thread inside ``Event.wait`` while it holds the event's (not
+    re-entrant) lock: a handler that took that lock again would hang the process for good."""
+    child = textwrap.dedent("""
+        import signal
+        from protocol.signals import stop_event_on_signals
+
+        stop = stop_event_on_signals()
+        with stop._cond:  # where Event.wait and Event.set hold it
+            signal.raise_signal(signal.SIGINT)  # the handler runs here, on this thread
+        print("stopped" if stop.wait(5) else "timed out", flush=True)
+    """)
+    proc = subprocess.run([sys.executable, "-c", child], cwd=ROOT, capture_output=True, text=True, timeout=20)
+    assert (proc.stdout, proc.stderr) == ("stopped\n", "")
