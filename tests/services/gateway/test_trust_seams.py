@@ -92,7 +92,9 @@ def test_a_gateway_with_keys_applies_its_acl_to_a_plaintext_listener_too(tmp_pat
 def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
     """``skynet up --impair uav2="delay 1ms"`` through the launcher, default secure mode: the links run through the
     netem proxies and still carry mutual TLS, so an anonymous client (plaintext, or TLS without a certificate) opens
-    no session on the gateway, on an edge or on a proxy, while the ground station sees the fleet and commands it."""
+    no session on the gateway, on an edge or on a proxy, while the ground station sees the fleet and commands it.
+    Then ``skynet keys revoke DIR uav2`` beside it: the gateway cuts uav2 off while the others stay in view."""
+    from services.keys import main as keys_main
     from services.orchestration.launcher import Network, parse
     from tests.services.orchestration.test_topology import Probe
 
@@ -124,6 +126,13 @@ def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
                     finally:
                         bus.close()
         assert all(probe.fresh(u) for u in (1, 2, 3)), probe.last
+        # revocation beside the running network, live at the launcher's gateway (an edge applies it at its start)
+        assert keys_main(["revoke", str(tmp_path / "keys"), "uav2"]) == 0
+        assert wait_until(lambda: not probe.fresh(2, within=2.0), 20), probe.last
+        assert wait_until(lambda: probe.fresh(1) and probe.fresh(3), 20), probe.last
+        assert not probe.answered(2) and probe.answered(1)
+        time.sleep(2.0)
+        assert not probe.fresh(2, within=2.0) and probe.fresh(1) and probe.fresh(3), probe.last
     finally:
         if probe is not None:
             probe.close()
