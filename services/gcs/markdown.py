@@ -148,8 +148,8 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
     if not f:
         return md + ["No record of faults.", ""]
     cmds = f["commands"]
-    supervision = f.get("supervision") or []
-    quiet = not (f["faults"] or supervision or f["uavs_lost"] or f["failsafes"] or f["resumes"] or f["gcs_link"] or cmds["failed"]
+    supervision, missed = f.get("supervision") or [], f.get("not_injected") or []
+    quiet = not (f["faults"] or supervision or missed or f["uavs_lost"] or f["failsafes"] or f["resumes"] or f["gcs_link"] or cmds["failed"]
                  or f["skynet"])
     if quiet:
         return md + [f"No fault injected or seen; {cmds['acknowledged']} of {cmds['sent']} commands acknowledged.", ""]
@@ -160,6 +160,8 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
                                               for x in f["faults"]]), ""]
     else:
         md += ["No fault injected.", ""]
+    if missed:
+        md += ["Scheduled and never injected (the mission ended first): " + "; ".join(md_text(x) for x in missed) + ".", ""]
     if supervision:
         md += ["The launcher's supervisor (not injected faults):", "",
                _table(["t", "what", "service", "detail"],

@@ -145,6 +145,8 @@ class MissionRunner:
         self._land_state: dict[int, tuple[bool, float]] = {}  # UAV -> (Land accepted, last try)
         self._in_mission = threading.Event()
         self._sup_stop = threading.Event()
+        #: called (in order, on the runner's thread) when the flight is over, before the "done" phase
+        self.closing: list[Callable[[], None]] = []
         fleet = bus.fleet
         # per-source budgets (protocol.budget): a flood on one key is dropped and counted, never recorded
         bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY,
@@ -475,6 +477,8 @@ class MissionRunner:
             for t in (hb, sup):
                 if t.is_alive():
                     t.join(2.0)
+            for hook in self.closing:
+                hook()
             self.record.ended = time.time()
             self.record.rejected = self.bus.counters.snapshot()["rejected"]
             self.phase("done")

@@ -12,7 +12,7 @@ from typing import Any
 from protocol.messages import EventKind
 from services.recording.record import MissionRecord
 
-__all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "SUPERVISION_ACTIONS", "fault_figures", "reception_gaps"]
+__all__ = ["GAP_S", "NEIGHBOUR_EVENTS", "NOT_INJECTED", "SUPERVISION_ACTIONS", "fault_figures", "reception_gaps"]
 
 #: A pause in a UAV's state reception longer than this is listed as a gap, s (states come at 20 Hz).
 GAP_S = 1.0
@@ -22,6 +22,8 @@ NEIGHBOUR_EVENTS = (EventKind.NEIGHBOUR_LOST, EventKind.NEIGHBOUR_UP, EventKind.
 #: by itself, one that could not start. Nobody injected them: they are listed apart from the faults, with no
 #: recovery figures (a restart of a service that never came up interrupts nothing).
 SUPERVISION_ACTIONS = ("supervisor-restart", "start-failed")
+#: A scheduled fault the run ended before (services.orchestration.faults): listed apart, it did not happen.
+NOT_INJECTED = "not-injected"
 #: Fault ends after which the ground station's reception of the fleet is measured -> their beginnings.
 _BEGIN_OF = {"restart": ("kill",), "restore": ("cut",)}
 
@@ -58,10 +60,10 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
     def t(x: float) -> float:
         return round(x - t0, 3)
 
-    faults = [{"t_s": t(f.at), "action": f.action, "target": f.target, "text": f.text}
-              for f in sorted(record.faults, key=lambda f: f.at) if f.action not in SUPERVISION_ACTIONS]
-    supervision = [{"t_s": t(f.at), "action": f.action, "target": f.target, "text": f.text}
-                   for f in sorted(record.faults, key=lambda f: f.at) if f.action in SUPERVISION_ACTIONS]
+    rows = [{"t_s": t(f.at), "action": f.action, "target": f.target, "text": f.text}
+            for f in sorted(record.faults, key=lambda f: f.at)]
+    faults = [x for x in rows if x["action"] not in (*SUPERVISION_ACTIONS, NOT_INJECTED)]
+    supervision = [x for x in rows if x["action"] in SUPERVISION_ACTIONS]
     incidents = sorted(record.incidents, key=lambda i: i.at)
 
     # UAVs: token gone -> (lost) -> back
@@ -153,6 +155,7 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
         "origin": "mission phase start" if "mission" in record.phases else "record start",
         "faults": faults,
         "supervision": supervision,
+        "not_injected": [x["text"] for x in rows if x["action"] == NOT_INJECTED],
         "uavs_lost": episodes,
         "still_lost": sorted(u for u in open_ep if open_ep[u]["lost_s"] is not None),
         "gcs_link": links,

@@ -126,7 +126,8 @@ class LaunchConfig(CliModel):
         "capture frames not recoverable: no imagery cache on the edges, no recovery in the detector"))
     fault: Annotated[list[str], Cli(metavar=FAULT)] = Field(default=[], description=(
         "scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|detector, "
-        "partition uavI-uavJ|uavN|skynet; AT from the network start"))
+        "partition uavI-uavJ|uavN|skynet; AT from the network start (skynet mission: from its mission phase's "
+        "start; a fault the mission ends before fails it)"))
     keys: Annotated[str | None, Cli(metavar="DIR", exclusive="keys")] = Field(default=None, description=(
         f"fleet key set (skynet keys init); default: a development set in ${trustmode.KEYS_ENV} or "
         f"{trustmode.DEFAULT_KEYS}"))

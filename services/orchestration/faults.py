@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
+from services.gcs.resilience import NOT_INJECTED
 from services.netem.model import parse_time_s
 from services.orchestration.topology import Links, link_ends
 
@@ -196,6 +197,7 @@ class FaultInjector:
         self.runner: Any = None
         self.ledger: list[tuple[float, str, str, str]] = []
         self._origin: float | None = None
+        self._steps_run = 0
         self._cuts: dict[str, int] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="fault-injector", daemon=True)
@@ -221,6 +223,15 @@ class FaultInjector:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout)
+
+    def finish(self) -> list[str]:
+        """Stop injecting (the mission is over) and note every scheduled fault that never began as
+        ``not-injected``; their texts."""
+        self.stop()
+        missed = [s.item.fault for s in self.steps[self._steps_run:] if s.begin]
+        for f in missed:
+            self._record(NOT_INJECTED, f.target, f"{f.text}: never injected, the mission ended first")
+        return [f.text for f in missed]
 
     def done(self) -> bool:
         return not self._thread.is_alive()
@@ -255,6 +266,7 @@ class FaultInjector:
                 self.log.exception("fault %r failed", step.item.fault.text)
                 text = f"{step.item.fault.text}: failed: {e}"
             self._record(step.action, step.item.fault.target, text)
+            self._steps_run += 1
 
     def _record(self, action: str, target: str, text: str) -> None:
         self.ledger.append((time.time(), action, target, text))

@@ -536,6 +536,13 @@ def run_mission(config: MissionLaunchConfig, log: logging.Logger, stop, plan: Pl
                 injector.attach(runner)
                 injector.start()
 
+                def not_injected() -> None:  # a run that ends before a fault it was asked for is not that run
+                    if missed := injector.finish():
+                        with runner._lock:
+                            runner.record.failures.append("never injected, the mission ended first: " + "; ".join(missed))
+
+                runner.closing.append(not_injected)
+
         hooks = {"on_runner": on_runner}
         net.start_supervisor(log)
         with Bus(cfg, fleet=config.fleet, name="gcs") as bus:

@@ -83,12 +83,15 @@ def test_gateway_killed_and_restarted(tmp_path):
 
 
 def test_one_edge_killed(tmp_path):
-    proc, report, record = _mission(tmp_path, "3s kill uav3")
+    proc, report, record = _mission(tmp_path, "3s kill uav3", "900s kill planner")
     faults = report["faults"]
     assert proc.returncode == 1 and not report["success"]  # ended cleanly, did not hang (timeout above)
     assert any(f.startswith("UAV 3 lost at mission t=") and "capture points not imaged" in f
                for f in report["failures"]), report["failures"]
-    assert len(report["failures"]) == 1, report["failures"]  # the others did their part
+    # a fault the mission ended before is a failure of the run asked for, not a silent omission
+    assert "never injected, the mission ended first: 900s kill planner" in report["failures"], report["failures"]
+    assert faults["not_injected"] == ["900s kill planner: never injected, the mission ended first"], faults
+    assert len(report["failures"]) == 2, report["failures"]  # the others did their part
     (kill,) = [f for f in faults["faults"] if f["action"] == "kill"]
     # the ground station and both other edges saw it gone within its lease
     (gone,) = [x for x in faults["uavs_lost"] if x["uav"] == 3]
@@ -107,6 +110,7 @@ def test_one_edge_killed(tmp_path):
     assert failed and all(c["uav"] == 3 and "lost" in c["reason"] for c in failed), failed
     md = (tmp_path / "report" / "report.md").read_text()
     assert "## Faults and recovery" in md and "UAV 3" in md
+    assert "Scheduled and never injected (the mission ended first): 900s kill planner" in md
 
 
 def test_uplinks_cut_longer_than_the_failsafe(tmp_path):

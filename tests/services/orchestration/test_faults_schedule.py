@@ -211,6 +211,18 @@ def test_injector_waits_for_the_mission_counts_overlapping_cuts_and_stops_at_don
                                                           ("restore", "uav1/tcp"), ("restore", "uav1/udp")]
     assert ("kill", "gateway") not in target.log  # the mission ended first
     assert runner.notes[1][2].endswith("cut uav2, uav3") and runner.notes[2][2].endswith("restored uav2, uav3")
+    # ... and says so, once: the run the user asked for did not happen
+    assert inj.finish() == ["5s kill gateway"]
+    assert runner.notes[6:] == [("not-injected", "gateway", "5s kill gateway: never injected, the mission ended first")]
+
+
+def test_a_mission_that_never_reaches_its_mission_phase_injected_none_of_its_faults():
+    runner = _Runner()
+    inj = FaultInjector(_Target(), plan_faults(["0s cut uav1 for 1s", "1s kill uav2"], L3))
+    inj.attach(runner)
+    inj.start()
+    assert inj.finish() == ["0s cut uav1 for 1s", "1s kill uav2"] and inj.done()
+    assert [a for a, _, _ in runner.notes] == ["not-injected", "not-injected"]
 
 
 @pytest.mark.parametrize("text", ["1e999s kill gateway", "nans kill gateway", "10s kill gateway for 1e999s",
