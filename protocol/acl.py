@@ -134,7 +134,11 @@ def grants(fleet: str, role: str, uav: int | None = None) -> list[Grant]:
             Grant("ingress", ("query",), (keys.cmd(fleet, "*"), keys.planner(fleet))),
             Grant("ingress", ("declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"),
                   (everything,)),
+            # the mission log records every capture frame, so it recovers the lost ones as the detector does (the
+            # answers come on the camera keys themselves)
+            Grant("ingress", ("declare_subscriber", "query"), (cam_all, keys.advanced(cam_all))),
             Grant("egress", ("put", "liveliness_token"), (everything,)),
+            Grant("egress", ("put", "reply"), (cam_all, keys.advanced(cam_all))),
             Grant("egress", ("reply",), (keys.cmd(fleet, "*"), keys.planner(fleet))),
             interest,
         ]

@@ -76,7 +76,7 @@ def _table(head: Sequence[str], rows: Sequence[Sequence[Any]], raw: bool = False
 
 
 def write_html(path: str | Path, res: Deliverable, acc: Any = None, prefix: str = "inspection",
-               frames: str = "frames", figures: Sequence[str] = (), record: Any = None) -> Path:
+               frames: str = "frames", figures: Sequence[str] = (), record: Any = None, absent: str = "") -> Path:
     """Write ``report.html`` for the deliverable ``res`` (its files under ``prefix/``) and return its path."""
     from .mission import WORST, class_ranges, orientation_text_of
 
@@ -106,7 +106,8 @@ def write_html(path: str | Path, res: Deliverable, acc: Any = None, prefix: str 
         f". Coverage of the surface {m.coverage:.0%} ({m.frames_used} of {res.frames} captures); ground sampling "
         f"distance {m.m_per_px * 1e3:.2f} mm/px: a crack narrower than {note['smallest_width_mm']:.2f} mm is flagged, "
         f"not measured; classes told apart by width: {_e(', '.join(note['classes_resolved']))}"
-        + (f" (not {_e(', '.join(note['classes_unresolved']))})" if note["classes_unresolved"] else "") + ".</p>",
+        + (f" (not {_e(', '.join(note['classes_unresolved']))})" if note["classes_unresolved"] else "") + "."
+        + (f" {_e(absent)}" if absent else "") + "</p>",
         f"<p>{_e(orientation_text_of(res))}</p>",
         _table(["class (AASHTO, max width)", "defects", "longest (m)", "widest (mm)"],
                [[f"{c} ({ranges[c]})", len(by[c]), f"{max((d.length_m for d in by[c]), default=0):.2f}",

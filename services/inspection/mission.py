@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ from .deliverable import (
     width_text,
     write_deliverable,
 )
-from .mosaic import Plane
+from .mosaic import Plane, PosedFrame
 
 __all__ = ["append_deliverable", "FOLDER", "HEADING", "findings_markdown", "class_ranges", "deliverable_line"]
 
@@ -73,7 +74,20 @@ def _accuracy(record: MissionRecord, defects: list[InspectionDefect], gsd_m: flo
     return compare(defects, truth, labels, s, gsd_m=gsd_m)
 
 
-def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, frames: str = "frames") -> list[str]:
+def absent_text(record: MissionRecord, posed: Sequence[PosedFrame]) -> str:
+    """What the mosaic lacks: the planned captures whose frames are not among its input ("" when none is)."""
+    planned = {(t.uav, w.capture_id) for t in (record.plan.trajectories if record.plan else ())
+               for w in t.waypoints if w.capture_id is not None}
+    absent = sorted(planned - {(f.meta.uav, f.meta.capture_id) for f in posed})
+    if not absent:
+        return ""
+    return (f"{len(absent)} of the {len(planned)} planned captures are not in it (their frames did not reach the "
+            "ground station's log): " + ", ".join(f"uav{u}-{c:05d}" for u, c in absent[:12])
+            + (", ..." if len(absent) > 12 else "") + ".")
+
+
+def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, frames: str = "frames",
+                      absent: str = "") -> list[str]:
     """The findings section's lines (docs/report.md); file links relative to the report."""
     from .accuracy import markdown_accuracy
 
@@ -89,7 +103,7 @@ def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, f
              "is flagged, not measured; the classes told apart by width: "
              + ", ".join(note["classes_resolved"])
              + (f" (not: {', '.join(note['classes_unresolved'])}, narrower than one pixel)"
-                if note["classes_unresolved"] else "") + ".", "",
+                if note["classes_unresolved"] else "") + "." + (f" {md_text(absent)}" if absent else ""), "",
              md_text(orientation_text_of(res)), "",
              "| class (AASHTO, max width) | defects | longest (m) | widest (mm) |", "|---|---|---|---|"]
     for c in SEVERITY_ORDER:
@@ -170,11 +184,14 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
         (out / FOLDER / "accuracy.json").write_text(json.dumps(acc.to_dict(), indent=1))
         written.append(f"{FOLDER}/accuracy.json")
     rel_frames = source.name if source.parent.resolve() == out.resolve() else str(source)
-    _insert_first(out / "report.md", findings_markdown(res, acc, FOLDER, rel_frames))
+    absent = absent_text(record, posed)
+    if absent:
+        log.warning("deliverable: %s", absent)
+    _insert_first(out / "report.md", findings_markdown(res, acc, FOLDER, rel_frames, absent))
     from .html import write_html
 
     figures = [f for f in (files or []) if f.endswith(".png") and "/" not in f]
-    write_html(out / "report.html", res, acc, FOLDER, rel_frames, figures, record)
+    write_html(out / "report.html", res, acc, FOLDER, rel_frames, figures, record, absent)
     written.append("report.html")
     if files is not None:
         files.extend(written)

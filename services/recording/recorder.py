@@ -51,8 +51,9 @@ class MissionLogWriter:
         self._closed = threading.Event()
         self._budgets = {topic: Budget(limit) for topic, limit in LIMITS.items()}
         self._budget_lock = threading.Lock()  # Zenoh may call back from several threads
-        if bus is not None:
+        if bus is not None:  # capture frames through a recovering subscriber: lost ones come from the cameras' caches
             bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
+            bus.subscribe_raw(keys.camera(bus.fleet, "*"), self._on_frame, recover=True)
 
     @property
     def path(self) -> Path:
@@ -63,12 +64,15 @@ class MissionLogWriter:
         return self._ring.dropped + self._frames.dropped
 
     # -- the bus
-    def _on_sample(self, sample) -> None:
+    def _on_sample(self, sample, frames: bool = False) -> None:
         if self._closed.is_set():
             return
         key, now = str(sample.key_expr), time.time()
         try:
-            budget = self._budgets.get(keys.parse(key).topic)
+            topic = keys.parse(key).topic
+            if (topic == "camera") != frames:  # each capture frame once, from the recovering subscriber
+                return
+            budget = self._budgets.get(topic)
         except keys.KeyError_:
             with self._budget_lock:
                 self.counts["unknown-key"] += 1
@@ -79,6 +83,9 @@ class MissionLogWriter:
                     self.counts["over-budget"] += 1
                     return
         self.sample(key, sample.payload.to_bytes(), now)
+
+    def _on_frame(self, sample) -> None:
+        self._on_sample(sample, frames=True)
 
     def sample(self, key: str, data: bytes, rx: float) -> None:
         """Log one bus sample (its bytes as they came, its receive time), through the rings."""

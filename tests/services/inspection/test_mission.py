@@ -115,3 +115,22 @@ def test_no_saved_captures_no_section(tmp_path):
     (tmp_path / "frames").mkdir()
     assert append_deliverable(record, tmp_path) == []
     assert "Not built: no captures in frames" in (tmp_path / "report.md").read_text()
+
+
+def test_the_deliverable_names_the_planned_captures_its_mosaic_lacks():
+    from types import SimpleNamespace
+
+    from protocol.messages import Box, MissionPlan, Trajectory, Waypoint
+    from services.inspection.mission import absent_text
+
+    plan = MissionPlan(algorithm="test", seed=0, cost=1.0, collision_free=True, centroid_path=[(0, 0, 5), (9, 0, 5)],
+                       trajectories=[Trajectory(uav=u, waypoints=[Waypoint(t=0.0, pos=(0, 0, 5)),
+                                                                  *(Waypoint(t=float(c), pos=(c, 0, 5), capture_id=c)
+                                                                    for c in (u, u + 3))]) for u in (1, 2)],
+                       geofence=Box(lo=(0.0, 0.0, 0.0), hi=(10.0, 10.0, 10.0)), origin=(0.0, 0.0, 0.0))
+    record = MissionRecord(fleet=FLEET, speed=1.0, started=0.0, plan=plan)
+    posed = [SimpleNamespace(meta=SimpleNamespace(uav=u, capture_id=c)) for u, c in ((1, 1), (1, 4), (2, 5))]
+    assert absent_text(record, posed) == ("1 of the 4 planned captures are not in it (their frames did not reach "
+                                          "the ground station's log): uav2-00002.")
+    assert absent_text(record, [*posed, SimpleNamespace(meta=SimpleNamespace(uav=2, capture_id=2))]) == ""
+    assert absent_text(MissionRecord(fleet=FLEET, speed=1.0, started=0.0), posed) == ""  # no plan: nothing to miss
