@@ -197,25 +197,11 @@ def detect(
     min_defect_area: int = 1,
     **params: object,
 ) -> Detection:
-    """Detect dark defects in a grey (or BGR) image.
+    """Detect dark defects in a grey (or BGR, :func:`services.detector.thresholds.as_grey_u8`) image with
+    ``method`` (a key of :data:`METHODS`, given ``**params``, e.g. ``c_s=0.3`` for ``"it"``).
 
-    Parameters
-    ----------
-    grey : ndarray
-        Grey uint8 image (colour BGR is converted, see
-        :func:`services.detector.thresholds.as_grey_u8`).
-    method : str
-        A key of :data:`METHODS`.
-    with_defects : bool
-        List the connected components (skip for mask-only use).
-    min_defect_area : int
-        Leave components smaller than this out of the defect list (the mask is unchanged).
-    **params
-        Passed to the method (e.g. ``c_s=0.3`` for ``"it"``).
-
-    Returns
-    -------
-    Detection
+    ``with_defects``: list the connected components (skip for mask-only use), leaving those smaller than
+    ``min_defect_area`` out of the list (the mask is unchanged).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")

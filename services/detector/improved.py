@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from .iterative import C_S_DEFAULT, interclass_contrast, iterative_threshold
-from .thresholds import _check_hist, as_grey_u8, histogram
+from .thresholds import _hist_of, as_grey_u8, histogram
 
 __all__ = [
     "threshold_it_plus", "shape_filter", "component_filter", "it_plus_mask", "it_plus_bh_mask", "component_contrast",
@@ -37,35 +37,16 @@ def threshold_it_plus(
     guard_contrast: float = 0.0,
     **it_params: object,
 ) -> int:
-    """IT threshold (P18)-(P19) with the area guard of this module.
+    """IT threshold (P18)-(P19) with the area guard of this module; pixels ``<= T`` are defects.
 
-    Parameters
-    ----------
-    image : ndarray, optional
-        Grey image.
-    hist : ndarray, optional
-        Precomputed histogram instead of ``image``.
-    c_s : float
-        Contrast threshold of the underlying IT.
-    min_fraction : float
-        In [0, 1): the dark class keeps at least this share of the pixels (unless that would
-        need a threshold above the global Otsu step ``T_1``).
-    guard_contrast : float
-        The guard applies only when the interclass contrast (P19) of the guarded split (dark
-        class ``<= T_guard`` against the rest) reaches this value: a frame that holds no crack
-        has a dark class of texture with a low contrast, and the guard must not force a
-        threshold on it. 0 (the default) always applies it.
-    **it_params
-        Passed to :func:`services.detector.iterative.iterative_threshold`.
-
-    Returns
-    -------
-    int
-        Threshold; pixels ``<= T`` are defects.
+    Of an image or a ``hist``; ``c_s`` and ``**it_params`` go to
+    :func:`services.detector.iterative.iterative_threshold`. ``min_fraction`` in [0, 1): the dark class keeps
+    at least this share of the pixels (unless that would need a threshold above the global Otsu step ``T_1``).
+    The guard applies only when the interclass contrast (P19) of the guarded split (dark class ``<= T_guard``
+    against the rest) reaches ``guard_contrast``: a frame that holds no crack has a dark class of texture with
+    a low contrast, and the guard must not force a threshold on it; 0 (the default) always applies it.
     """
-    if (image is None) == (hist is None):
-        raise ValueError("give exactly one of image or hist")
-    h = _check_hist(histogram(image) if hist is None else hist)
+    h = _hist_of(image, hist)
     if not (np.isfinite(min_fraction) and 0.0 <= min_fraction < 1.0):
         raise ValueError(f"min_fraction must lie in [0, 1), got {min_fraction}")
     r = iterative_threshold(hist=h, c_s=c_s, **it_params)  # type: ignore[arg-type]
@@ -113,32 +94,12 @@ def shape_filter(
     image: the mask reduced by the smallest integer factor ``s`` that brings it to at most
     ``work_px`` pixels (a reduced pixel is set when any pixel of its ``s × s`` block is; the
     grey image is reduced by area averaging). For images up to ``work_px`` pixels ``s = 1`` and
-    the analysis is exact.
+    the analysis is exact. ``mask``: non-zero = defect; ``min_contrast`` in [0, 1) (ignored when ``grey`` is
+    not given); ``ring`` in full-resolution pixels. Returns a 0/255 uint8 mask of the same shape.
 
-    Parameters
-    ----------
-    mask : ndarray of uint8
-        Binary mask (non-zero = defect).
-    min_area, min_elongation, min_length, min_long_elongation : float
-        Shape limits (working-image pixels).
-    work_px : int
-        Pixel budget of the working image.
-    grey : ndarray of uint8, optional
-        The image of the mask, for the contrast floor (ignored when ``min_contrast`` is 0).
-    min_contrast : float
-        Per-component contrast floor (P19), in [0, 1).
-    ring : int
-        Width of the local background ring, full-resolution pixels.
-
-    Returns
-    -------
-    ndarray of uint8 (0/255), same shape as ``mask``
-
-    References
-    ----------
-    .. [1] Y. Shi, L. Cui, Z. Qi, F. Meng, Z. Chen, "Automatic road crack detection using random
-       structured forests", IEEE Trans. ITS 17(12), 3434-3445, 2016 (crack tokens are thin and
-       elongated; small isolated blobs are texture).
+    Crack tokens are thin and elongated, small isolated blobs are texture: Y. Shi, L. Cui, Z. Qi, F. Meng,
+    Z. Chen, "Automatic road crack detection using random structured forests", IEEE Trans. ITS 17(12),
+    3434-3445, 2016.
     """
     m = np.asarray(mask)
     if m.ndim != 2 or m.size == 0:
@@ -322,14 +283,8 @@ def it_plus_mask(
     guard_contrast: float = GUARD_CONTRAST_DEFAULT,
     **it_params: object,
 ) -> tuple[np.ndarray, int]:
-    """IT+ defect mask of a grey image: guarded IT threshold, then :func:`shape_filter`.
-
-    Returns
-    -------
-    mask : ndarray of uint8 (0/255)
-    threshold : int
-        The global threshold before shape filtering.
-    """
+    """IT+ defect mask (0/255) of a grey image and the global threshold before shape filtering: guarded IT
+    threshold, then :func:`shape_filter`."""
     grey = as_grey_u8(image)
     t = threshold_it_plus(hist=histogram(grey), c_s=c_s, min_fraction=min_fraction,
                           guard_contrast=guard_contrast, **it_params)
