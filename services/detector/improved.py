@@ -309,22 +309,9 @@ def it_plus_bh_mask(
     work_px: int = 400_000,
     **it_plus: object,
 ) -> tuple[np.ndarray, int]:
-    """IT+ with a local cue: the union of the IT+ mask and the crack-like part of a black-hat response.
-
-    The morphological black-hat ``closing(I) − I`` with an elliptical ``size × size`` element is the
-    darkness of each pixel against its own neighbourhood (Soille, *Morphological Image Analysis*,
-    2003, Sec. 4.4: the top-hat by closing), so a faint crack on a textured or unevenly lit surface
-    stands out where a global threshold cannot separate it. The ``top_fraction`` of the pixels with
-    the strongest response is kept through the same component filter as IT+ (shape, contrast
-    floor), and added to IT+'s mask. ``size`` and ``top_fraction`` were chosen on the DeepCrack
-    training split (``bench/detect.py --only tune``): exact F 0.715 -> 0.733 there; on CrackForest
-    0.367 -> 0.413 (not reaching the 0.50 a learned detector would).
-
-    Frames above ``work_px`` pixels are analysed by the black-hat on the frame reduced by the
-    integer factor of :func:`reduction_factor` (area averaging; the element scaled with it), and its
-    mask is enlarged back (nearest neighbour).
-
-    Returns ``(mask, threshold)`` with IT+'s global threshold.
+    """IT+ with a local cue: the union of the IT+ mask and the crack-like part of a black-hat response (the
+    ``top_fraction`` of the pixels with the strongest ``size × size`` black-hat, through IT+'s component filter;
+    docs/detector.md, services/detector/improved.py). Returns ``(mask, threshold)`` with IT+'s global threshold.
     """
     if not (isinstance(size, (int, np.integer)) and size >= 3):
         raise ValueError(f"size must be an integer >= 3, got {size!r}")

@@ -34,25 +34,13 @@ Background = Literal["above", "previous"]
 
 @dataclass(frozen=True)
 class ITResult:
-    """Outcome of :func:`iterative_threshold`.
+    """Outcome of :func:`iterative_threshold`. ``stop`` says why the iteration ended: ``"contrast"``
+    (``C_k > C_s``), ``"size"`` (the dark region holds less than ``min_region`` of the image), ``"region"`` (the
+    dark region could not be split further: fewer than two levels or ``min_pixels``), ``"max_iter"``."""
 
-    Attributes
-    ----------
-    threshold : int
-        Final threshold ``T_f``; pixels ``<= T_f`` are defects.
-    thresholds : tuple of int
-        ``T_1, T_2, ...`` one per step (``T_1`` is the global Otsu threshold).
-    contrasts : tuple of float
-        ``C_1, C_2, ...`` (P19), one per step.
-    stop : str
-        Why the iteration ended: ``"contrast"`` (``C_k > C_s``), ``"size"`` (the dark region
-        holds less than ``min_region`` of the image), ``"region"`` (the dark region could not be
-        split further: fewer than two levels or ``min_pixels``), ``"max_iter"``.
-    """
-
-    threshold: int
-    thresholds: tuple[int, ...]
-    contrasts: tuple[float, ...]
+    threshold: int  # final threshold T_f; pixels <= T_f are defects
+    thresholds: tuple[int, ...]  # T_1, T_2, ... one per step (T_1 is the global Otsu threshold)
+    contrasts: tuple[float, ...]  # C_1, C_2, ... (P19), one per step
     stop: str
 
     @property
