@@ -90,12 +90,9 @@ def half_depth_mask(grey: np.ndarray, mask: np.ndarray, ring: int = 4, grow: int
     """The crack's pixels at half its depth: ``grey <= (B + D) / 2`` near the detected component.
 
     ``B`` is the median grey of the background ring (``ring`` pixels around the component, outside
-    it), ``D`` the 10th percentile of the component's own pixels (its core). The detector's global
-    threshold is set for finding cracks, not for sizing them: it takes in the darker texture at a
-    crack's edges, more so on a faint crack. The half-depth level is the full width at half
-    maximum of the crack's darkness profile, which for a crack blurred by the optics and the
-    resampling is its real width. Pixels are taken within ``grow`` pixels of the component and
-    only where connected to it; a component without a ring keeps its mask.
+    it), ``D`` the 10th percentile of the component's own pixels (its core); why half depth: docs/detector.md.
+    Pixels are taken within ``grow`` pixels of the component and only where connected to it; a component
+    without a ring keeps its mask.
     """
     g = np.asarray(grey)
     m = np.asarray(mask) != 0
@@ -314,13 +311,7 @@ def outline(mask: np.ndarray, simplify_px: float = 0.5) -> np.ndarray:
     """The crack's outline: a simple closed ring around its pixels, ``(N, 2)`` pixel ``(x, y)``, first
     point repeated last, counter-clockwise once the rows point up (seen from the front of a wall, the
     (u, v) frame of :class:`services.inspection.mosaic.Plane`; RFC 7946 Sec. 3.1.6 orders exterior rings so).
-
-    The mask is doubled (each pixel a 2 x 2 block) and closed with a 3 x 3 square, so pixels that
-    touch only at a corner (8-connected) join by an edge and a one-pixel crack encloses an area; where
-    the traced border (``cv2.findContours``, Suzuki-Abe border following) still passes a pixel twice
-    (a one-pixel neck) the doubled mask grows by a pixel (a quarter of a mask pixel) until it does
-    not. The border is then simplified (``cv2.approxPolyDP``) unless that makes two edges cross, and
-    mapped back to the mask's pixel coordinates. Holes are not kept.
+    Holes are not kept; how it is traced: docs/detector.md (services/detector/measure.py).
     """
     m = np.asarray(mask) != 0
     if m.ndim != 2 or not m.any():
