@@ -1,10 +1,6 @@
-"""Receiver-side jitter buffer and reception statistics for RTP-style imagery frames.
+"""Receiver-side jitter buffer and reception statistics (RFC 3550 A.1, A.3, A.8) for RTP-style imagery frames.
 
-One :class:`JitterBuffer` per source (SSRC), or a :class:`JitterBuffers` dictionary keyed by SSRC: it reorders
-frames inside a fixed window, waits a bounded time (``playout_delay_s``) for missing ones, drops late and
-duplicate frames, resynchronises after a sequence-number jump, and keeps the receiver statistics of RFC 3550
-(A.1, A.3, A.8). Playout is arrival based and adds no delay to a healthy stream. The playout rule and how each
-arriving packet is classified: docs/imagery.md, "The jitter buffer".
+Design notes: docs/imagery.md (protocol/jitter.py).
 """
 
 from __future__ import annotations
