@@ -70,14 +70,7 @@ class CameraLink:
         self.announce()
 
     def announce(self) -> None:
-        """Open the stream with an empty RTP frame (marker 0, no payload) before the first capture.
-
-        Zenoh's recovering subscriber takes the first sample it sees from a publisher as the
-        start of the stream: were the first *capture* lost, nothing would ask for it again. This
-        frame is that first sample instead (a late subscriber gets it from the cache through the
-        publisher's periodic heartbeat), so a lost first capture is a gap like any other and is
-        recovered. The detector drops empty frames on arrival.
-        """
+        """Open the stream with an empty RTP frame (marker 0, no payload) before the first capture."""
         self.pub.put_bytes(self.sender.frame(b"", time.time(), marker=False))
 
     def range_to_surface(self, pos: np.ndarray, axis: np.ndarray) -> float | None:

@@ -255,12 +255,7 @@ class Rejected(Exception):
 
 
 class Publisher:
-    """A declared publisher bound to one key and one link class.
-
-    Its traffic counters are plain attributes updated without a lock (a publisher is normally
-    used by one thread; :meth:`Counters.snapshot` adds them up per link class), which keeps the
-    per-message cost of the bus layer to a couple of attribute updates.
-    """
+    """A declared publisher bound to one key and one link class."""
 
     def __init__(self, bus: Bus, key: str, link: LinkClass, cache: int | None = None):
         self.key = key

@@ -187,14 +187,8 @@ def probability(grey: np.ndarray, model: str | Path | None = None) -> np.ndarray
 
 def contrast_filter(grey: np.ndarray, mask: np.ndarray, rel: float = CONTRAST_REL, floor: float = CONTRAST_FLOOR,
                     ring: int = CONTRAST_RING) -> np.ndarray:
-    """The components (8-connected) of ``mask`` that are darker than their surround all round.
-
-    A component's one-sided contrast is (P19) with the background taken as the lower quartile ``q`` of
-    the non-mask pixels within ``ring`` pixels of it: ``(q - μ_D) / (q + μ_D)``. A valley (a crack) has
-    both sides brighter, so ``q`` is well above ``μ_D``; a step edge has one side as dark as itself, so
-    ``q ≈ μ_D``. A component is kept when its contrast reaches ``floor`` and ``rel`` times the largest in
-    the frame (as IT+r's floor relative to the frame's own cracks: a frame of faint cracks keeps faint
-    ones). Returns a uint8 0/255 mask."""
+    """The components (8-connected) of ``mask`` that are darker than their surround all round, as a uint8 0/255
+    mask (the one-sided contrast: docs/detector.md, services/detector/learned.py)."""
     m = mask > 0
     n, lab, st, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
     if n <= 1:

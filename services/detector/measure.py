@@ -123,11 +123,7 @@ def _endpoints(skel: np.ndarray) -> np.ndarray:
 def prune_spurs(skel: np.ndarray, n: int) -> np.ndarray:
     """Remove skeleton branches shorter than ``n`` pixels (the spurs thinning grows from a rough
     edge): strip end pixels ``n`` times, then regrow the surviving ends ``n`` steps along the
-    original skeleton (Gonzalez & Woods, *Digital Image Processing*, pruning).
-
-    A spur hangs off a junction: a skeleton piece of at least ``n`` pixels that stripping removes
-    whole (a segment of a crack whose half-depth mask broke in two, :func:`half_depth_mask`) is
-    crack, and is kept; a shorter one is a speck."""
+    original skeleton (Gonzalez & Woods, *Digital Image Processing*, pruning)."""
     s = np.asarray(skel, bool)
     if n <= 0 or not s.any():
         return s
@@ -234,14 +230,7 @@ def frame_scale(range_m: float, fx: float, fy: float) -> float:
 
 # ------------------------------------------------------------------------------------ geometry
 def centre_line(mask: np.ndarray, simplify_px: float = 0.7) -> np.ndarray:
-    """The crack's centre line: the longest path through its skeleton, ``(N, 2)`` pixel ``(x, y)``.
-
-    The skeleton (as :func:`measure_component` thins it) is a graph of 8-connected pixels; its
-    diameter is found by two breadth-first searches (the farthest pixel from any pixel is one end
-    of a longest path in a tree), then simplified with the Ramer-Douglas-Peucker algorithm
-    (``cv2.approxPolyDP``, ``simplify_px`` tolerance). Side branches are left out: a GIS line has
-    one path. A blob too small to thin is its centre pixel, returned twice (a zero-length line).
-    """
+    """The crack's centre line: the longest path through its skeleton, ``(N, 2)`` pixel ``(x, y)``."""
     m = np.asarray(mask) != 0
     if m.ndim != 2 or not m.any():
         raise ValueError("mask must be 2-D with at least one defect pixel")

@@ -241,15 +241,7 @@ class Cost:
         return b
 
     def _cyl_penalty(self, a, ex, ey, L, slope) -> NDArray[np.float64]:
-        """Σ over UAVs, segments and cylinders of the J2 obstacle term, ``(P,)``.
-
-        In the segment frame the cylinder axis is at ``(u, v)`` from the centroid's segment
-        start (``u`` along ``e``, ``v`` along ``e⊥``); UAV n's segment runs along ``e`` from
-        ``(ox_n, oy_n)`` for the horizontal length ``L``, so the closest point is at
-        ``s = clip(u - ox_n, 0, L)`` and ``ρ = hypot(u - ox_n - s, v - oy_n)`` (the exact
-        point-segment distance of :func:`point_segment_distance`), at height
-        ``a_z + oz_n + s dz / L``. ``s`` is measured from the segment's midpoint below.
-        """
+        """Σ over UAVs, segments and cylinders of the J2 obstacle term, ``(P,)``."""
         ax, ay, az = a
         S, P = ax.shape
         M, C = self._ox.shape[0], self._cx.shape[0]
