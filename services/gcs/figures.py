@@ -418,8 +418,8 @@ def _uav_figures(uav: int, track: Track | None, traj: Trajectory | None, imaged:
                  anchor: float | None, goal: GoalCheck | None) -> tuple[UavFigures, PathSeries | None]:
     f = UavFigures(uav=uav)
     series: PathSeries | None = None
+    W = None if traj is None else np.array([w.pos for w in traj.waypoints], dtype=float)
     if traj is not None:
-        W = np.array([w.pos for w in traj.waypoints], dtype=float)
         f.planned_length_m = _path_length(W)
         mine = planned_captures([traj])
         f.captures_planned = len(mine)
@@ -437,7 +437,6 @@ def _uav_figures(uav: int, track: Track | None, traj: Trajectory | None, imaged:
     f.mission_length_m = float(np.sum(np.linalg.norm(np.diff(track.pos, axis=0), axis=1)[both]))
     if traj is None:
         return f, series
-    W = np.array([w.pos for w in traj.waypoints], dtype=float)
     if goal is not None:  # services.gcs.verdict
         f.goal_distance_m = goal.distance_m
         f.reached_goal = goal.reached

@@ -143,9 +143,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
     for bbox, ctr, m in measure_mask(mos.mask, mos.m_per_px, min_area_px, mos.image):
         uv = mos.pixel_to_uv(np.array(ctr))
         enu = pl.to_world(uv)
-        lla = None
-        if origin is not None:
-            lla = tuple(float(x) for x in enu_to_geodetic(enu, origin))
+        lla = None if origin is None else tuple(float(x) for x in enu_to_geodetic(enu, origin))
         d = m.as_dict()
         x, y, w, h = bbox
         sub = labels[y:y + h, x:x + w] == label_of.get(bbox, -1)
@@ -412,7 +410,7 @@ def frames_from_log(path: str | Path) -> list[PosedFrame]:
         k = meta.intrinsics
         if g is not None and (k.width, k.height) == (g.shape[1], g.shape[0]):
             frames.append(PosedFrame(meta, g))
-    return sorted(frames, key=lambda f: f"uav{f.meta.uav}-{f.meta.capture_id:05d}")
+    return sorted(frames, key=lambda f: frame_name(f.meta))
 
 
 def main(argv: list[str] | None = None) -> int:
