@@ -150,14 +150,8 @@ def component_filter(
     reduced: tuple[np.ndarray, np.ndarray] | None = None,
     measure_contrast: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The component rules of :func:`shape_filter` on a mask already on the working grid.
-
-    ``small`` is the mask reduced by ``s`` (block "any"); ``grey`` the full-resolution image (only
-    for the contrast floor), ``reduced`` its working-grid pair (block minimum, corner pixel) when
-    the caller has it already; with ``measure_contrast`` the contrast of the shape-kept components is
-    measured even without a floor. Returns the labels (int32), the keep decision per label (bool,
-    label 0 never kept) and the contrast (P19) per label (0 where not measured).
-    """
+    """The component rules of :func:`shape_filter` on a mask already on the working grid (its arguments:
+    docs/detector.md, services/detector/improved.py)."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(small, connectivity=8, ltype=cv2.CV_32S)
     area = stats[:, cv2.CC_STAT_AREA].astype(np.float64)
     w = stats[:, cv2.CC_STAT_WIDTH].astype(np.float64)
@@ -185,20 +179,8 @@ def component_filter(
 def component_contrast(grey: np.ndarray, labels: np.ndarray, n: int, s: int = 1, ring: int = 5,
                        robust: bool = False, free: np.ndarray | None = None,
                        reduced: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """Contrast (P19) of every labelled component against the background ring around it.
-
-    ``labels`` (int32, 0 = background) may be the labels of the image reduced by ``s`` (block
-    "any", as in :func:`shape_filter`); a labelled block then counts with its darkest pixel (it
-    holds a defect pixel somewhere), a ring block with its corner pixel, and the ring is
-    ``max(1, round(ring / s))`` blocks wide. A background pixel near several components goes to the
-    highest-numbered one (a label dilation), as in :func:`services.detector.detect.defects_of`.
-    With ``robust`` the background level is the ring's median instead of its mean, so that a
-    component at the edge of the surface, whose ring is partly the much brighter scene beyond
-    it (sky), is judged against the surface around it. ``free`` (same shape as ``labels``)
-    restricts the rings to those pixels (default: the unlabelled ones). ``reduced`` is the pair
-    (block minimum, corner pixel) of the grey image on the labels' grid when the caller has made it
-    (see :func:`reduced_grey`). Components without a ring get contrast 0. Returns an array of ``n`` values (index 0 unused).
-    """
+    """Contrast (P19) of every labelled component against the background ring around it, ``n`` values (index 0
+    unused; its arguments: docs/detector.md, services/detector/improved.py)."""
     hs, ws = labels.shape
     if grey.shape == labels.shape:
         g_d = g_b = grey
@@ -239,12 +221,7 @@ def component_contrast(grey: np.ndarray, labels: np.ndarray, n: int, s: int = 1,
 
 
 def reduced_grey(grey: np.ndarray, s: int) -> tuple[np.ndarray, np.ndarray]:
-    """The grey image on the working grid of factor ``s``: (block minimum, block corner pixel).
-
-    The block minimum (an ``s x s`` erosion anchored at the corner, every ``s``-th pixel) is what a
-    block "any" mask reduction (:func:`shape_filter`) pairs with: a block holds a pixel ``<= T``
-    exactly when its minimum is ``<= T``. Partial blocks at the right and bottom edges are kept.
-    """
+    """The grey image on the working grid of factor ``s``: (block minimum, block corner pixel)."""
     if s == 1:
         return grey, grey
     box = cv2.getStructuringElement(cv2.MORPH_RECT, (s, s))

@@ -62,12 +62,7 @@ def _skeletonize(mask: np.ndarray) -> np.ndarray:
 
 
 def skeleton_length(skel: np.ndarray) -> tuple[float, np.ndarray]:
-    """Chain-code length (pixels) of a one-pixel-wide skeleton, and its end pixels (row, col).
-
-    Orthogonal neighbour pairs are links of weight 0.948; a diagonal pair is a link of weight 1.343
-    only when the two pixels have no common orthogonal neighbour in the skeleton (else the corner
-    already joins them and counting the diagonal too would double the step).
-    """
+    """Chain-code length (pixels) of a one-pixel-wide skeleton, and its end pixels (row, col)."""
     s = np.asarray(skel, dtype=bool)
     if s.ndim != 2:
         raise ValueError("skeleton must be 2-D")
