@@ -374,10 +374,6 @@ def _tracks(record: MissionRecord) -> dict[int, Track]:
     return out
 
 
-def _trajectories(record: MissionRecord) -> dict[int, Trajectory]:
-    return {tr.uav: tr for tr in record.plan.trajectories} if record.plan is not None else {}
-
-
 def _anchor(track: Track, traj: Trajectory) -> float | None:
     """Simulation time of the trajectory's first waypoint time (docs/report.md)."""
     idx = np.flatnonzero(track.tracking)
@@ -624,7 +620,7 @@ def as_record(record: MissionRecord | dict[str, Any]) -> MissionRecord:
 def analyse(record: MissionRecord) -> ReportFigures:
     """Every figure and series of the report, in one pass over the record (docs/report.md)."""
     tracks = _tracks(record)
-    trajs = _trajectories(record)
+    trajs = {tr.uav: tr for tr in record.plan.trajectories} if record.plan is not None else {}
     anchors = {u: a for u in sorted(tracks) if u in trajs and (a := _anchor(tracks[u], trajs[u])) is not None}
     captures, imaged = _captures(record, trajs)
     uavs: dict[int, UavFigures] = {}
