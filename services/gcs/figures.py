@@ -388,11 +388,6 @@ def _anchor(track: Track, traj: Trajectory) -> float | None:
     return float(track.t[first[0]])
 
 
-def _offsets(record: MissionRecord, uavs: Iterable[int]) -> dict[int, NDArray[np.float64]]:
-    table = DEFAULT_OFFSETS if record.scenario is None else record.scenario.offsets
-    return {u: np.array(table[u - 1]) for u in uavs if 1 <= u <= len(table)}
-
-
 def _corners(record: MissionRecord) -> list[tuple[float, float, float]]:
     """The inspected surface's corners: the record's, else the scenario's ``surface.corners``."""
     if record.surface_corners:
@@ -630,7 +625,8 @@ def analyse(record: MissionRecord) -> ReportFigures:
         uavs[u], path = _uav_figures(u, tracks.get(u), trajs.get(u), imaged, anchors.get(u), goals.get(u))
         if path is not None:
             paths[u] = path
-    offsets = _offsets(record, sorted(set(tracks) | set(trajs)))
+    table = DEFAULT_OFFSETS if record.scenario is None else record.scenario.offsets
+    offsets = {u: np.array(table[u - 1]) for u in sorted(set(tracks) | set(trajs)) if 1 <= u <= len(table)}
     formation, formation_series = _formation(tracks, trajs, offsets, anchors)
 
     corners = _corners(record)

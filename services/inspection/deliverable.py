@@ -349,11 +349,6 @@ def write_deliverable(res: Deliverable, out: str | Path, title: str = "", origin
 
 
 # ------------------------------------------------------------------------------------ folders
-def _meta_from(doc: dict, index: int) -> ImageMeta:
-    base = {"uav": 1, "capture_id": index, "t": 0.0, "stamp": 0.0}
-    return ImageMeta.model_validate({**base, **{k: v for k, v in doc.items() if k != "type"}})
-
-
 def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tuple[float, float, float] | None]:
     """Frames with poses from ``folder`` (docs/report.md), its plane and geodetic origin.
 
@@ -370,7 +365,8 @@ def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tup
         if not side.exists():
             raise ValueError(f"{p.name}: no pose file {side.name}")
         try:
-            meta = _meta_from(codec.loads_json(side.read_text()), i)
+            doc = {k: v for k, v in codec.loads_json(side.read_text()).items() if k != "type"}
+            meta = ImageMeta.model_validate({"uav": 1, "capture_id": i, "t": 0.0, "stamp": 0.0, **doc})
         except (json.JSONDecodeError, ValueError) as exc:
             raise ValueError(f"{side.name}: {exc}") from None
         g = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)

@@ -92,11 +92,6 @@ def _speed_profile(s, v_nom, kappa, sp) -> NDArray[np.float64]:
     return v
 
 
-def _blend_angle(a: NDArray[np.float64], b: float, w: NDArray[np.float64]) -> NDArray[np.float64]:
-    d = np.angle(np.exp(1j * (b - a)))
-    return a + w * d
-
-
 def build_trajectories(scenario: Scenario, centroid_path: ArrayLike, inspection: InspectionPass | None,
                        ds: float = 1.0) -> FormationTrajectories:
     """Per-UAV trajectories and capture points (P6)-(P9) from a centroid polyline ``(V, 3)`` resampled every
@@ -157,7 +152,8 @@ def build_trajectories(scenario: Scenario, centroid_path: ArrayLike, inspection:
         look = inspection.look[0]  # every shot looks along the inverse wall normal
         psi_look = float(np.arctan2(look[1], look[0]))
         w = np.clip(np.minimum(s - (s_in - BLEND_M), (s_out + BLEND_M) - s) / BLEND_M, 0.0, 1.0)
-        yaw = np.angle(np.exp(1j * _blend_angle(yaw_travel, psi_look, w)))[:, None].repeat(M, axis=1)
+        blended = yaw_travel + w * np.angle(np.exp(1j * (psi_look - yaw_travel)))  # along the shorter turn
+        yaw = np.angle(np.exp(1j * blended))[:, None].repeat(M, axis=1)
     # captures
     cap_of: dict[tuple[int, int], int] = {}
     captures: list[CapturePoint] = []
