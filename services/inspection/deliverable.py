@@ -122,8 +122,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
 
     ``min_area_px`` defaults to the detector's smallest reported component
     (:data:`services.detector.pipeline.MIN_REPORT_AREA_PX`, set for 640 x 480 frames) scaled by the
-    frames' pixel count over that reference: the same share of a frame's footprint, so a 12 MP
-    capture does not report texture specks a 640 x 480 one cannot see.
+    frames' pixel count over that reference (docs/report.md).
     """
     if not frames:
         raise ValueError("no frames")
