@@ -90,12 +90,10 @@ def shape_filter(
     given, its interclass contrast (P19) against its local background is at least
     ``min_contrast``: ``|μ_B − μ_D| / (μ_B + μ_D)`` with ``μ_D`` the component's mean grey and
     ``μ_B`` the mean of the non-defect pixels within ``ring`` pixels of it (the contrast
-    :func:`services.detector.detect.defects_of` reports). Sizes are in pixels of the *working*
-    image: the mask reduced by the smallest integer factor ``s`` that brings it to at most
-    ``work_px`` pixels (a reduced pixel is set when any pixel of its ``s × s`` block is; the
-    grey image is reduced by area averaging). For images up to ``work_px`` pixels ``s = 1`` and
-    the analysis is exact. ``mask``: non-zero = defect; ``min_contrast`` in [0, 1) (ignored when ``grey`` is
-    not given); ``ring`` in full-resolution pixels. Returns a 0/255 uint8 mask of the same shape.
+    :func:`services.detector.detect.defects_of` reports). Sizes are in pixels of the *working* image, the mask
+    reduced to at most ``work_px`` pixels (docs/detector.md; exact up to ``work_px``). ``mask``: non-zero = defect;
+    ``min_contrast`` in [0, 1) (ignored without ``grey``); ``ring`` in full-resolution pixels. Returns a 0/255
+    uint8 mask of the same shape.
 
     Crack tokens are thin and elongated, small isolated blobs are texture: Y. Shi, L. Cui, Z. Qi, F. Meng,
     Z. Chen, "Automatic road crack detection using random structured forests", IEEE Trans. ITS 17(12),
