@@ -142,13 +142,9 @@ def threshold_otsu(image: np.ndarray | None = None, *, hist: np.ndarray | None =
 def threshold_valley_emphasis(
     image: np.ndarray | None = None, *, hist: np.ndarray | None = None
 ) -> int:
-    """Ng's valley-emphasis threshold: Otsu weighted towards low-probability levels.
-
-    Maximises ``(1 − p_T) (ω0 μ0² + ω1 μ1²)`` where ``p_T`` is the probability of level ``T``
-    itself, so that among good Otsu splits the one in a histogram valley wins. This helps when
-    the dark (defect) class is much smaller than the background, where Otsu tends to cut the
-    background mode in two. Of an image or a ``hist``; pixels ``<= T`` are the dark class. H.-F. Ng, "Automatic
-    thresholding for defect detection", Pattern Recognition Letters 27(14), 1644-1649, 2006.
+    """Ng's valley-emphasis threshold: the level maximising ``(1 − p_T) (ω0 μ0² + ω1 μ1²)`` (Otsu weighted
+    towards low-probability levels; docs/detector.md). Of an image or a ``hist``; pixels ``<= T`` are the dark class.
+    H.-F. Ng, "Automatic thresholding for defect detection", Pattern Recognition Letters 27(14), 1644-1649, 2006.
 
     >>> threshold_valley_emphasis(hist=np.array([4, 6, 1, 0, 30, 40, 30]))  # empty level: p_T = 0
     3
@@ -179,16 +175,10 @@ def threshold_itth(
     tol: float = 1.0,
     max_iter: int = 50,
 ) -> int:
-    """Iterative triclass thresholding (ITTH) of Cai, Yang, Cao et al.
-
-    Start with Otsu (P18) on the whole histogram. At each step with threshold ``T`` on the
-    current "to-be-determined" (TBD) band, compute the two class means ``μ0`` (levels ``<= T``)
-    and ``μ1`` (levels ``> T``): levels below ``μ0`` are settled as dark, levels above ``μ1``
-    as bright, and the next band is ``[ceil(μ0), floor(μ1)]``. Otsu is run again on the band;
-    stop when the threshold changes by less than ``tol`` levels, when the band holds fewer than
-    two occupied levels, or after ``max_iter`` steps. Since every settled-dark level lies below
-    every later band, the final segmentation is the global split at the last threshold, which
-    is what is returned (pixels ``<= T`` are the dark class). Of an image or a ``hist``.
+    """Iterative triclass thresholding (ITTH) of Cai, Yang, Cao et al.: Otsu (P18) on a shrinking
+    "to-be-determined" band until the threshold moves by less than ``tol`` levels, the band holds fewer than two
+    occupied levels, or ``max_iter`` steps (docs/detector.md). Of an image or a ``hist``; pixels ``<= T`` are the
+    dark class.
 
     H. Cai, Z. Yang, X. Cao, W. Xia, X. Xu, "A new iterative triclass thresholding technique in image
     segmentation", IEEE Trans. Image Processing 23(3), 1038-1046, 2014.
@@ -235,14 +225,9 @@ def _gaussian_smooth(h: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def slope_difference(hist: np.ndarray, *, sigma: float = 3.0, n: int = 8) -> np.ndarray:
-    """Wang's slope difference distribution of a histogram.
-
-    The histogram is smoothed with a Gaussian of ``sigma`` levels. At each level ``x`` a
-    straight line is fitted by least squares to the ``n`` smoothed values on its left
-    (``x−n..x−1``) and to the ``n`` on its right (``x+1..x+n``);
-    ``SDD(x) = slope_right(x) − slope_left(x)``. Valleys of the histogram are positive maxima of
-    the SDD, peaks are negative minima. Levels without a full window on either side get 0. Wang uses a
-    Fourier low-pass where a Gaussian does the same job here. Returns ``(L,)`` float64.
+    """Wang's slope difference distribution of a histogram, ``(L,)`` float64: ``SDD(x) = slope_right(x) −
+    slope_left(x)``, least-squares slopes of ``n`` values each side of ``x`` after a Gaussian of ``sigma`` levels
+    (docs/detector.md); 0 where a window is not full.
 
     Z. Wang, "A new approach for segmentation and quantification of cells or nanoparticles", IEEE Trans.
     Industrial Informatics 12(3), 962-971, 2016 (slope difference distribution).
@@ -271,16 +256,9 @@ def threshold_sdd(
     sigma: float = 3.0,
     n: int = 8,
 ) -> int:
-    """Slope-difference-distribution threshold (Wang), on the dark side of the main mode.
-
-    Computes :func:`slope_difference` and returns the deepest valley — the largest positive
-    local maximum of the SDD — among the levels *below* the main mode (the highest peak of the
-    smoothed histogram), because defects here are darker than a dominant background. When the
-    histogram has no valley below its mode (a unimodal histogram with a dark tail) the largest
-    SDD value below the mode is used: that is where the tail bends into the mode, the "knee"
-    that Wang's method takes for one-sided histograms. If the mode is the darkest level, Otsu
-    (P18) is returned instead. Of an image or a ``hist``; ``sigma``, ``n`` as :func:`slope_difference`; pixels
-    ``<= T`` are the dark class.
+    """Slope-difference-distribution threshold (Wang), on the dark side of the main mode: the deepest valley of
+    :func:`slope_difference` below the mode, else its knee, else Otsu (P18) (docs/detector.md). Of an image or a
+    ``hist``; ``sigma``, ``n`` as :func:`slope_difference`; pixels ``<= T`` are the dark class.
 
     Z. Wang, IEEE Trans. Industrial Informatics 12(3), 962-971, 2016; Z. Wang, "Automatic segmentation and
     classification of the reflected laser dots during analytic measurement of mirror surfaces", Optics and
