@@ -286,16 +286,9 @@ def threshold_sdd(
 def threshold_sauvola(
     image: np.ndarray, window_size: int = 15, k: float = 0.2, r: float = 128.0
 ) -> np.ndarray:
-    """Sauvola's local threshold image ``T = m (1 + k (s / R − 1))``.
-
-    ``m`` and ``s`` are the mean and standard deviation of the grey levels in a
-    ``window_size × window_size`` window around each pixel, computed with box filters (integral
-    images, O(1) per pixel; borders reflected). ``k`` (default 0.2) sets how far below the
-    local mean the threshold sits on low-contrast (``s`` small) regions; ``R`` is the dynamic
-    range of the standard deviation, 128 for 8-bit images. Dark-class pixels are
-    ``image <= T``. Matches :func:`skimage.filters.threshold_sauvola` up to the border rule
-    and ``r`` (scikit-image defaults to 127.5 for uint8). ``window_size`` odd, >= 3; ``k``, ``r`` > 0. Returns
-    the threshold at every pixel (float32, the image's shape).
+    """Sauvola's local threshold image ``T = m (1 + k (s / R − 1))`` (float32, the image's shape; dark-class
+    pixels are ``image <= T``), ``m`` and ``s`` the mean and standard deviation in a ``window_size`` square
+    (odd, >= 3) around each pixel (docs/detector.md); ``k``, ``r`` > 0.
 
     J. Sauvola, M. Pietikäinen, "Adaptive document image binarization", Pattern Recognition 33(2), 225-236, 2000.
     """
