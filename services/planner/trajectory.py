@@ -25,19 +25,14 @@ BLEND_M = 2.0  # body-yaw blend before/after the pass, metres
 
 @dataclass(frozen=True)
 class FormationTrajectories:
-    """Result of :func:`build_trajectories`.
+    """Result of :func:`build_trajectories`; ``trajectories`` and ``captures`` as wire messages."""
 
-    ``t (N,)`` sample times, ``centroid (N, 3)``, ``positions (N, M, 3)`` UAV slots,
-    ``trajectories`` and ``captures`` as wire messages, ``min_clearance`` the smallest obstacle/wall
-    clearance of any UAV along the densified trajectories (negative: collision).
-    """
-
-    t: NDArray[np.float64]
-    centroid: NDArray[np.float64]
-    positions: NDArray[np.float64]
+    t: NDArray[np.float64]  # (N,) sample times
+    centroid: NDArray[np.float64]  # (N, 3)
+    positions: NDArray[np.float64]  # (N, M, 3) UAV slots
     trajectories: list[Trajectory]
     captures: list[CapturePoint]
-    min_clearance: float
+    min_clearance: float  # least obstacle/wall clearance of any UAV on the densified trajectories (< 0: collision)
 
     @property
     def duration_s(self) -> float:
