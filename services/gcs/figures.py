@@ -75,12 +75,9 @@ class UavFigures:
 
 @dataclass
 class FormationFigures:
-    """Formation shape error during the MISSION phase (RMS over time and maximum), metres.
-
-    ``plan_rms_m`` / ``plan_max_m``: the planned trajectories' own shape error measured the same
-    way over the plan's waypoint times (the heading from the centroid's motion need not be the
-    one the planner placed the slots with, e.g. in turns and climbs).
-    """
+    """Formation shape error during the MISSION phase (RMS over time and maximum), metres; ``plan_rms_m`` /
+    ``plan_max_m`` the planned trajectories' own, measured the same way over the plan's waypoint times (the heading
+    from the centroid's motion need not be the one the planner placed the slots with, e.g. in turns and climbs)."""
 
     rms_m: float | None = None
     max_m: float | None = None
@@ -323,17 +320,13 @@ class LinkSamples:
 
 @dataclass(frozen=True)
 class ReportFigures:
-    """Everything the report is made of, computed once from the record (:func:`analyse`).
+    """Everything the report is made of, computed once from the record (:func:`analyse`); besides the summary,
+    the series the plots draw."""
 
-    ``summary`` is written as ``report.json`` and told in ``report.md``; the rest are the series
-    the plots draw. ``anchors``: UAV -> simulation time of its trajectory's first waypoint time
-    (docs/report.md, *Path error*), for the UAVs that tracked their trajectory.
-    """
-
-    summary: ReportSummary
+    summary: ReportSummary  # written as report.json and told in report.md
     tracks: dict[int, Track]
     trajectories: dict[int, Trajectory]
-    anchors: dict[int, float]
+    anchors: dict[int, float]  # UAV that tracked -> sim time of its trajectory's first waypoint (docs/report.md)
     paths: dict[int, PathSeries]
     formation: FormationSeries
     latencies: LinkSamples
