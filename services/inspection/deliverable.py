@@ -44,14 +44,12 @@ SORT_KEY = "severity class (worst first), then length (longest first)"
 
 
 class InspectionDefect(BaseModel):
-    """One row of the defect table: where, how big, which class, and the capture behind it.
-
-    ``uav``, ``capture_id``, ``t`` (mission time) and ``stamp`` (UTC seconds) are those of the frame
-    that shows the defect's largest part on the mosaic; ``seen_by`` names the frames behind it: those
-    that give its pixels on the mosaic (largest share first), then any other whose view holds its centroid (``uav<N>-<capture>``, the files kept in ``frames/``). ``centre_line_uv``
-    and ``outline_uv`` are its skeleton's longest path and its outline on the surface (u, v metres),
-    ``centre_line_lla`` / ``outline_lla`` the same in WGS-84 (lat, lon deg, alt m) with an origin.
-    """
+    """One row of the defect table: where, how big, which class, and the capture behind it (``uav`` to ``stamp``:
+    the frame that shows the defect's largest part on the mosaic; ``t`` mission time, ``stamp`` UTC seconds).
+    ``seen_by`` names the frames behind it (``uav<N>-<capture>``, the files kept in ``frames/``): those that give its
+    pixels on the mosaic (largest share first), then any other whose view holds its centroid. ``centre_line_uv``
+    and ``outline_uv`` are its skeleton's longest path and its outline on the surface (u, v metres), the ``_lla``
+    ones the same in WGS-84 (lat, lon deg, alt m) with an origin."""
 
     model_config = ConfigDict(extra="forbid")
     id: int
