@@ -62,9 +62,6 @@ def not_sent(cmd, reason: str) -> CommandRecord:
 def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = time.sleep, signer=None) -> CommandRecord:
     """Send one command to ``cmd.uav`` with retries and back-off; a refusal is final (not retried).
 
-    With a ``signer`` (:class:`protocol.signing.Signer`) each try is signed afresh, so it carries a
-    new sequence number and the edge's replay window never refuses a retry.
-
     Returns the :class:`CommandRecord`: ``ok`` when a :class:`CommandAck` came back (``accepted``
     and ``reason`` are its own), else the last try's error after ``policy.attempts`` tries;
     ``ack_s`` holds the round trip of every answered try.
