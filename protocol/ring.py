@@ -1,7 +1,6 @@
 """A bounded drop-oldest queue with its own worker thread(s): the one home of "never block the caller".
 
-Used by the bus (slow subscribers and queryables, :mod:`protocol.bus`), the detector's work queue
-and the camera's JPEG encoder (:class:`edge.camera.FrameEncoder`). Pure Python, no Zenoh.
+Design notes: docs/bus.md (protocol/ring.py).
 """
 
 from __future__ import annotations
