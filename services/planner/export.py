@@ -123,12 +123,8 @@ def leg_speeds(items: list[MissionItem]) -> list[float | None]:
 
 
 def qgc_plan(trajectory: Trajectory, plan: MissionPlan) -> dict[str, Any]:
-    """QGroundControl's .plan JSON for one UAV: the mission, the box as an inclusion fence, a rally point.
-
-    Schema: QGroundControl's "Plan File Format" (fileType "Plan", version 1; mission version 2 with
-    ``SimpleItem`` items, ``plannedHomePosition``, ``firmwareType`` 3 = ArduPilot, ``vehicleType`` 2 =
-    quadrotor; geoFence version 2; rallyPoints version 2).
-    """
+    """QGroundControl's .plan JSON for one UAV: the mission, the box as an inclusion fence, a rally point
+    (QGroundControl's "Plan File Format"; the versions and fields: docs/planner.md)."""
     items = mission_items(trajectory, plan.origin)
     home = items[0].params
     out_items = [{"type": "SimpleItem", "autoContinue": bool(it.autocontinue), "command": it.command,
