@@ -70,14 +70,7 @@ class CameraLink:
         self.announce()
 
     def announce(self) -> None:
-        """Open the stream with an empty RTP frame (marker 0, no payload) before the first capture.
-
-        Zenoh's recovering subscriber takes the first sample it sees from a publisher as the
-        start of the stream: were the first *capture* lost, nothing would ask for it again. This
-        frame is that first sample instead (a late subscriber gets it from the cache through the
-        publisher's periodic heartbeat), so a lost first capture is a gap like any other and is
-        recovered. The detector drops empty frames on arrival.
-        """
+        """Open the stream with an empty RTP frame (marker 0, no payload) before the first capture."""
         self.pub.put_bytes(self.sender.frame(b"", time.time(), marker=False))
 
     def range_to_surface(self, pos: np.ndarray, axis: np.ndarray) -> float | None:
@@ -139,19 +132,8 @@ class CameraLink:
 
 
 class PreviewStream:
-    """Low-rate live preview of one camera: render + encode on its own thread, plain best-effort.
-
-    :meth:`offer` runs on the control loop: it only compares the wall clock with the next due
-    time and, when due, leaves the pose in a one-slot mailbox (a newer pose replaces one not yet
-    rendered, counted in :attr:`skipped`). The worker renders the frame with its own source (a
-    :class:`~edge.world.camera.SyntheticSource` at the preview size), encodes it and publishes it on
-    ``uav/<id>/preview`` without cache or recovery.
-
-    A frame is rendered only while somebody watches: when Zenoh's matching status says no
-    subscriber matches the preview key, a due offer is counted in :attr:`unwatched` and nothing is
-    rendered (the render and encode were a quarter of an idle edge's CPU, spent on frames
-    that nobody received).
-    """
+    """Low-rate live preview of one camera: render + encode on its own thread, plain best-effort, only while a
+    subscriber matches (docs/edge.md, edge/camera_service.py)."""
 
     def __init__(self, bus: Bus, uav: int, source, model, rate_hz: float = PREVIEW_HZ,
                  quality: int = PREVIEW_QUALITY, log: logging.Logger | None = None):

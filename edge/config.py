@@ -1,7 +1,6 @@
 """The edge's typed configuration (``skynet edge``): every option of the board, its one default, its checks.
 
-Pure (pydantic, no bus, no OpenCV): the launcher builds an edge's command line from an
-:class:`EdgeConfig` (:func:`protocol.cliconfig.to_argv`) without loading the camera's libraries.
+Design notes: docs/edge.md (edge/config.py).
 """
 
 from __future__ import annotations

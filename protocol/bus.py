@@ -255,12 +255,7 @@ class Rejected(Exception):
 
 
 class Publisher:
-    """A declared publisher bound to one key and one link class.
-
-    Its traffic counters are plain attributes updated without a lock (a publisher is normally
-    used by one thread; :meth:`Counters.snapshot` adds them up per link class), which keeps the
-    per-message cost of the bus layer to a couple of attribute updates.
-    """
+    """A declared publisher bound to one key and one link class."""
 
     def __init__(self, bus: Bus, key: str, link: LinkClass, cache: int | None = None):
         self.key = key
@@ -481,15 +476,12 @@ class Bus:
     def request_all(self, key: str, msg: Message, expect: type[Message] | tuple[type[Message], ...] | None = None,
                     timeout: float = 2.0, settle_s: float = 10.0, link: LinkClass = COMMAND, max_replies: int = 16,
                     settles: Callable[[Message], bool] | None = None) -> list[Reply]:
-        """Send a query to *every* matching queryable and gather every answer, unconsolidated.
-
-        Where several sessions may answer the same key (any holder of one identity), the caller
-        must see them all instead of Zenoh's consolidated "latest" one. Gathers until every
-        answerer finished, ``timeout`` passed, or ``settle_s`` after the first ok answer that
-        ``settles`` accepts (any ok answer without it; so a garbage answer does not start the clock),
-        a later answer is not waited for; at most ``max_replies`` (the rest counted as rejected). Each answer is a :class:`Reply` as :meth:`request` makes them; an empty list
-        means nobody answered.
-        """
+        """Send a query to *every* matching queryable and gather every answer, unconsolidated (not Zenoh's
+        consolidated "latest" one: several sessions may answer the same key). Gathers until every answerer
+        finished, ``timeout`` passed, or ``settle_s`` after the first ok answer that ``settles`` accepts (any ok
+        answer without it; so a garbage answer does not start the clock), a later answer is not waited for; at most
+        ``max_replies`` (the rest counted as rejected). Each answer is a :class:`Reply` as :meth:`request` makes
+        them; an empty list means nobody answered."""
         t0 = time.perf_counter()
         payload = codec.encode(msg)
         self.counters.add(self.counters.sent, link.name, len(payload))

@@ -99,10 +99,6 @@ def arg_type(tp: Any, name: str = "value") -> Callable[[str], Any]:
     return parse
 
 
-def _parser_type(name: str, info: FieldInfo, item: bool) -> Callable[[str], Any]:
-    return arg_type(_value_type(info, item), name)
-
-
 def exclusive_groups(model: type[BaseModel]) -> dict[str, list[str]]:
     """The model's mutually exclusive options: group name -> its fields (those with :attr:`Cli.exclusive`)."""
     groups: dict[str, list[str]] = {}
@@ -164,7 +160,7 @@ def add_options(parser: argparse.ArgumentParser, model: type[BaseModel],
             kw.update(action="store_true", default=bool(default))
         else:
             is_list = _is_list(info.annotation)
-            kw.update(type=_parser_type(name, info, is_list), default=default)
+            kw.update(type=arg_type(_value_type(info, is_list), name), default=default)
             if cli.metavar:
                 kw["metavar"] = cli.metavar
             choices = _choices(typing.get_args(tp)[0] if is_list else tp)

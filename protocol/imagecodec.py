@@ -1,8 +1,6 @@
 """The image codec of the wire's frames: JPEG encoding and JPEG/PNG decoding (OpenCV).
 
-One encoder and one decoder for the camera, the detector and the ground side. Kept apart from the
-frame layout (:mod:`protocol.imagery`) so that what only moves frames (the web page, the video
-gateway, the recorder) does not load OpenCV.
+Design notes: docs/imagery.md (protocol/imagecodec.py).
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
-"""Receiver-side jitter buffer and reception statistics for RTP-style imagery frames.
+"""Receiver-side jitter buffer and reception statistics (RFC 3550 A.1, A.3, A.8) for RTP-style imagery frames.
 
-One :class:`JitterBuffer` per source (SSRC), or a :class:`JitterBuffers` dictionary keyed by SSRC: it reorders
-frames inside a fixed window, waits a bounded time (``playout_delay_s``) for missing ones, drops late and
-duplicate frames, resynchronises after a sequence-number jump, and keeps the receiver statistics of RFC 3550
-(A.1, A.3, A.8). Playout is arrival based and adds no delay to a healthy stream. The playout rule and how each
-arriving packet is classified: docs/imagery.md, "The jitter buffer".
+Design notes: docs/imagery.md (protocol/jitter.py).
 """
 
 from __future__ import annotations
@@ -54,29 +50,23 @@ class Frame:
 @dataclass(frozen=True, slots=True)
 class JitterStats:
     """Receiver statistics of one source (RFC 3550, 6.4.1 and appendix A; the classification of
-    ``duplicated``, ``late``, ``reordered`` and ``resyncs``: docs/imagery.md, "The jitter buffer").
-
-    ``received`` counts every packet pushed (A.3); ``lost`` the numbers playout gave up (a frame arriving
-    after that is also ``late``); ``highest_sequence`` is extended (A.1); ``expected`` sums the numbering
-    epochs (A.3); ``fraction_lost`` = ``lost / expected`` over the session; ``cumulative_lost`` =
-    ``expected - received`` (A.3, negative with duplicates); ``jitter_ts`` is J of A.8, ``jitter_s`` in seconds.
-    """
+    ``duplicated``, ``late``, ``reordered`` and ``resyncs``: docs/imagery.md, "The jitter buffer")."""
 
     ssrc: int | None
-    received: int
+    received: int  # every packet pushed (A.3)
     delivered: int
-    lost: int
+    lost: int  # the numbers playout gave up (a frame arriving after that is also late)
     duplicated: int
     late: int
     reordered: int
     resyncs: int
     buffered: int
-    highest_sequence: int | None
-    expected: int
-    fraction_lost: float
-    cumulative_lost: int
-    jitter_ts: float
-    jitter_s: float
+    highest_sequence: int | None  # extended (A.1)
+    expected: int  # summed over the numbering epochs (A.3)
+    fraction_lost: float  # lost / expected over the session
+    cumulative_lost: int  # expected - received (A.3, negative with duplicates)
+    jitter_ts: float  # J of A.8, in timestamp units
+    jitter_s: float  # J in seconds
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (for messages and JSON)."""

@@ -140,12 +140,7 @@ def fleet_all(fleet: str) -> str:
 
 
 def metered(fleet: str) -> tuple[str, ...]:
-    """Every key of :func:`fleet_all` except the live previews: what the gateway's traffic meter subscribes to.
-
-    A subscription is a viewer to Zenoh: with one on ``**`` every preview publisher's matching status
-    says it is watched, and every camera renders and encodes its preview for nobody. The
-    previews are therefore not metered; every other key still is.
-    """
+    """Every key of :func:`fleet_all` except the live previews: what the gateway's traffic meter subscribes to."""
     root = fleet_root(fleet)
     uav = tuple(f"{root}/uav/*/{t}" for t in UAV_TOPICS if t != "preview")
     return (*uav, f"{root}/gcs/**", f"{root}/rcu/**", f"{root}/gateway/**")

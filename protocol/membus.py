@@ -1,8 +1,5 @@
 """An in-memory twin of the bus: :class:`MemBus` is a :class:`protocol.bus.Bus` whose Zenoh session is
-replaced by :class:`MemSession`, a stand-in that delivers in this process, synchronously, in the caller's
-thread. Everything of :class:`~protocol.bus.Bus` above the session runs unchanged (the codec, the counted
-rejections, budgets, rings, request/reply decoding, liveliness), so a unit test of a service's rules goes
-through the same decoding as the process tests, in milliseconds and deterministically.
+replaced by :class:`MemSession`, a stand-in that delivers in this process, synchronously, in the caller's thread.
 
 Design notes: docs/bus.md (protocol/membus.py).
 """

@@ -48,12 +48,7 @@ def parse_ready(data: bytes) -> tuple[str, str] | None:
 
 
 def notify_ready(role: str, name: str | None = None) -> bool:
-    """Tell the launcher this process is up (docs/bus.md); True when the line was written.
-
-    The variable is removed from the environment first, so that processes started later do not inherit a
-    descriptor number that means nothing to them. A descriptor that is not an inherited pipe's write end
-    (0-2, closed, a file, a socket) is left alone and said once in the log.
-    """
+    """Tell the launcher this process is up (docs/bus.md); True when the line was written."""
     value = os.environ.pop(READY_FD_ENV, None)
     if value is None:
         return False

@@ -1,7 +1,6 @@
 """A bounded drop-oldest queue with its own worker thread(s): the one home of "never block the caller".
 
-Used by the bus (slow subscribers and queryables, :mod:`protocol.bus`), the detector's work queue
-and the camera's JPEG encoder (:class:`edge.camera.FrameEncoder`). Pure Python, no Zenoh.
+Design notes: docs/bus.md (protocol/ring.py).
 """
 
 from __future__ import annotations
@@ -16,14 +15,9 @@ log = logging.getLogger("skynet.ring")
 
 
 class Ring:
-    """A bounded drop-oldest queue with its own consumer thread.
-
-    Zenoh runs callbacks on one thread per session fed by a bounded queue; a slow callback
-    stalls every other subscriber (Zenoh 1.10's Python runtime). Subscribers that do slow work
-    get a Ring: the Zenoh callback only appends, the ring's thread does the work, and overflow
-    drops the *oldest* item and counts it. ``workers > 1`` makes it a small pool (for work that
-    releases the GIL, such as OpenCV).
-    """
+    """A bounded drop-oldest queue with its own consumer thread (why: docs/bus.md, protocol/ring.py); overflow
+    drops the *oldest* item and counts it. ``workers > 1`` makes it a small pool (for work that releases the GIL,
+    such as OpenCV)."""
 
     def __init__(self, capacity: int, worker: Callable[[Any], None], name: str = "ring", workers: int = 1):
         if capacity < 1 or workers < 1:

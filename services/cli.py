@@ -1,8 +1,6 @@
 """The ``skynet`` command: one subcommand per service or tool.
 
-Each subcommand lives in its own module and exposes ``main(argv: list[str] | None) -> int``;
-this module only dispatches, importing the target lazily so that ``skynet gateway`` never pays
-for OpenCV or the planner's imports.
+Design notes: docs/architecture.md (services/cli.py).
 """
 
 from __future__ import annotations

@@ -1,8 +1,6 @@
 """``skynet demo``: the gateway plus a demo publisher/subscriber pair, printing what flows.
 
-Starts ``skynet gateway`` as a child process on free loopback ports, then in this process a
-SkyNet peer that publishes a few vehicle states (telemetry class) and serves its command
-queryable, and an Internet-side client that subscribes to the states and sends one command.
+Design notes: docs/architecture.md (services/demo.py).
 """
 
 from __future__ import annotations

@@ -87,13 +87,11 @@ class MavCamera:
         return self.mav.heartbeat_encode(M.MAV_TYPE_CAMERA, M.MAV_AUTOPILOT_INVALID, 0, 0,
                                          M.MAV_STATE_ACTIVE).pack(self.mav)
 
-    def _ms(self) -> int:
-        return int((time.monotonic() - self._boot) * 1000) & 0xFFFFFFFF
-
     def information(self) -> Any:
         s = self.stream
         return self.mav.camera_information_encode(
-            self._ms(), b"SkyNet".ljust(32, b"\0"), b"edge camera".ljust(32, b"\0"), 0, 0.0, 0.0, 0.0,
+            int((time.monotonic() - self._boot) * 1000) & 0xFFFFFFFF, b"SkyNet".ljust(32, b"\0"),
+            b"edge camera".ljust(32, b"\0"), 0, 0.0, 0.0, 0.0,
             s.width, s.height, 0, M.CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM, 0, b"")
 
     def stream_information(self) -> Any:

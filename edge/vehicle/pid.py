@@ -17,12 +17,9 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class PIDGains:
-    """Gains and limits of the position controller (horizontal xy / vertical z).
-
-    Attributes (units): ``kp_*`` 1/s; ``kv_*`` 1/s; ``ki_*`` 1/s²; ``kd_*`` dimensionless;
-    ``d_tau`` derivative filter time constant, s; ``i_max`` integrator bound, m/s;
-    speeds m/s; accelerations m/s²; ``max_tilt`` rad.
-    """
+    """Gains and limits of the position controller (horizontal xy / vertical z): ``kp_*``, ``kv_*`` 1/s, ``ki_*``
+    1/s², ``kd_*`` dimensionless, ``d_tau`` the derivative filter's time constant (s), ``i_max`` the integrator
+    bound (m/s), speeds m/s, accelerations m/s², ``max_tilt`` rad."""
 
     kp_xy: float = 1.0
     kp_z: float = 1.5

@@ -58,15 +58,8 @@ class QuadParams:
 
 @dataclass(frozen=True)
 class DisturbanceParams:
-    """Bounded disturbance model: torques d of (P11) and wind gusts.
-
-    Torque disturbance per axis: ``d_i(t) = A_i (0.6 sin(2π f_i t + φ_i) + 0.4 n_i(t))`` with
-    ``n_i`` a unit Ornstein-Uhlenbeck process clipped to [-1, 1], so ``|d_i| <= A_i``; the phases
-    and frequencies (``f_i`` in ``torque_freq_hz``) come from the seeded generator.
-    Wind: ``w(t) = wind_mean + g(t)``, ``g`` an Ornstein-Uhlenbeck gust (a first-order Dryden-like
-    spectrum) with standard deviation ``gust_std`` per axis and correlation time ``gust_tau``,
-    clipped to ``±gust_bound``.
-    """
+    """Bounded disturbance model: torques d of (P11) and Ornstein-Uhlenbeck wind gusts (docs/edge.md,
+    edge/vehicle/quadrotor.py)."""
 
     torque_amp: tuple[float, float, float] = (0.0, 0.0, 0.0)
     torque_freq_hz: tuple[float, float] = (0.2, 2.0)

@@ -330,18 +330,15 @@ class SyntheticSurface:
             lo, hi = _range("crack_length_m", crack_length_m, lo=0.0)
             if n_cracks is None:
                 n_cracks = max(1, int(round(width_m * height_m * cracks_per_m2)))
+            rng, length_px = np.random.default_rng(self.seed), (max(1.0, lo * px_per_m), max(1.0, hi * px_per_m))
             if crack_width_ranges_px:  # real-size cracks: a width range per crack (graded_crack_image)
-                texture, mask = graded_crack_image(
-                    (h_px, w_px), np.random.default_rng(self.seed), crack_width_ranges_px,
-                    n_cracks,
-                    length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)), contrast=contrast,
-                    # stains per square metre as on the default wall, not per texture pixel
-                    background={"blotches": min(1.0, (DEFAULT_PX_PER_M / px_per_m) ** 2)},
-                )
+                blotches = min(1.0, (DEFAULT_PX_PER_M / px_per_m) ** 2)  # stains per m² as on the default wall
+                texture, mask = graded_crack_image((h_px, w_px), rng, crack_width_ranges_px, n_cracks,
+                                                   length_px=length_px, contrast=contrast,
+                                                   background={"blotches": blotches})
             else:
-                texture, mask = crack_image((h_px, w_px), np.random.default_rng(self.seed), n_cracks,
-                                            length_px=(max(1.0, lo * px_per_m), max(1.0, hi * px_per_m)),
-                                            width_px=crack_width_px, contrast=contrast)
+                texture, mask = crack_image((h_px, w_px), rng, n_cracks, length_px=length_px, width_px=crack_width_px,
+                                            contrast=contrast)
         elif texture is None or mask is None:
             raise ValueError("give both texture and mask, or neither")
         for name, img in (("texture", texture), ("mask", mask)):

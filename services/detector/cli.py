@@ -1,11 +1,6 @@
 """``skynet detect``: detect defects in an image, or evaluate methods on a data set.
 
-Usage::
-
-    skynet detect image IMAGE [--method M] [--out DIR]
-    skynet detect eval --dataset DIR [--methods M ...] [--out DIR] [--sheet PNG] [--limit N]
-
-The detector's benchmark is a script of its own: ``python bench/detect.py``.
+Its options: docs/cli.md. The detector's benchmark is a script of its own: ``python bench/detect.py``.
 """
 
 from __future__ import annotations

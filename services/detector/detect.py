@@ -114,14 +114,8 @@ def defects_of(
     Each non-defect pixel within ``ring`` pixels (square neighbourhood) of a component is given
     to the highest-numbered nearby component (a label-image dilation); the component's
     background mean is the mean grey of its ring pixels, its defect mean that of its own pixels,
-    and its contrast ``|μ_B − μ_D| / (μ_B + μ_D)`` (P19). Vectorised with ``np.bincount``.
-
-    Frames above ``work_px`` pixels are analysed on ``s × s`` blocks (``s`` from
-    :func:`services.detector.improved.reduction_factor`; the last ``< s`` rows/columns are
-    dropped): components are those of the blocks holding any defect pixel, the area is the
-    exact defect-pixel count of those blocks, the centroid their defect-pixel-weighted mean,
-    means are exact block sums, the box and the ring are in block units scaled by ``s``. At
-    12 MP this is ~10x faster than the exact full-resolution analysis.
+    and its contrast ``|μ_B − μ_D| / (μ_B + μ_D)`` (P19). Vectorised with ``np.bincount``; frames above
+    ``work_px`` pixels are analysed on blocks (docs/detector.md, services/detector/detect.py).
 
     Components smaller than ``min_area`` pixels are left out. Sorted by area, largest first.
     """
@@ -197,25 +191,11 @@ def detect(
     min_defect_area: int = 1,
     **params: object,
 ) -> Detection:
-    """Detect dark defects in a grey (or BGR) image.
+    """Detect dark defects in a grey (or BGR, :func:`services.detector.thresholds.as_grey_u8`) image with
+    ``method`` (a key of :data:`METHODS`, given ``**params``, e.g. ``c_s=0.3`` for ``"it"``).
 
-    Parameters
-    ----------
-    grey : ndarray
-        Grey uint8 image (colour BGR is converted, see
-        :func:`services.detector.thresholds.as_grey_u8`).
-    method : str
-        A key of :data:`METHODS`.
-    with_defects : bool
-        List the connected components (skip for mask-only use).
-    min_defect_area : int
-        Leave components smaller than this out of the defect list (the mask is unchanged).
-    **params
-        Passed to the method (e.g. ``c_s=0.3`` for ``"it"``).
-
-    Returns
-    -------
-    Detection
+    ``with_defects``: list the connected components (skip for mask-only use), leaving those smaller than
+    ``min_defect_area`` out of the list (the mask is unchanged).
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose from {sorted(METHODS)}")

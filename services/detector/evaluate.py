@@ -1,10 +1,6 @@
 """Evaluate detection methods on a folder of images with pixel ground truth (Table II style).
 
-A data set folder holds ``images/`` (any format OpenCV reads) and ``masks/`` (``<base>.png``,
-255 = defect). Every image is read once as grey; every method runs on it and is scored with
-:func:`services.detector.metrics.score` (defect-class F exact and with 2-px tolerance,
-two-class mean F, precision, recall) and timed (milliseconds of the method on the grey image,
-``time.perf_counter``). Results are per image and averaged over images.
+Design notes: docs/detector.md (services/detector/evaluate.py).
 """
 
 from __future__ import annotations

@@ -1,8 +1,6 @@
 """The captures the detector keeps (``--save-frames``): each analysed frame with its pose.
 
-One capture is ``uav<N>-<capture>.jpg|png`` beside ``uav<N>-<capture>.json`` holding its
-:class:`protocol.messages.ImageMeta`: the folder of posed photos that the inspection deliverable
-reads (:func:`services.inspection.deliverable.load_folder`, the format: docs/report.md).
+Design notes: docs/detector.md (services/detector/frames.py).
 """
 
 from __future__ import annotations

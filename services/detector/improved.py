@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from .iterative import C_S_DEFAULT, interclass_contrast, iterative_threshold
-from .thresholds import _check_hist, as_grey_u8, histogram
+from .thresholds import _hist_of, as_grey_u8, histogram
 
 __all__ = [
     "threshold_it_plus", "shape_filter", "component_filter", "it_plus_mask", "it_plus_bh_mask", "component_contrast",
@@ -37,35 +37,16 @@ def threshold_it_plus(
     guard_contrast: float = 0.0,
     **it_params: object,
 ) -> int:
-    """IT threshold (P18)-(P19) with the area guard of this module.
+    """IT threshold (P18)-(P19) with the area guard of this module; pixels ``<= T`` are defects.
 
-    Parameters
-    ----------
-    image : ndarray, optional
-        Grey image.
-    hist : ndarray, optional
-        Precomputed histogram instead of ``image``.
-    c_s : float
-        Contrast threshold of the underlying IT.
-    min_fraction : float
-        In [0, 1): the dark class keeps at least this share of the pixels (unless that would
-        need a threshold above the global Otsu step ``T_1``).
-    guard_contrast : float
-        The guard applies only when the interclass contrast (P19) of the guarded split (dark
-        class ``<= T_guard`` against the rest) reaches this value: a frame that holds no crack
-        has a dark class of texture with a low contrast, and the guard must not force a
-        threshold on it. 0 (the default) always applies it.
-    **it_params
-        Passed to :func:`services.detector.iterative.iterative_threshold`.
-
-    Returns
-    -------
-    int
-        Threshold; pixels ``<= T`` are defects.
+    Of an image or a ``hist``; ``c_s`` and ``**it_params`` go to
+    :func:`services.detector.iterative.iterative_threshold`. ``min_fraction`` in [0, 1): the dark class keeps
+    at least this share of the pixels (unless that would need a threshold above the global Otsu step ``T_1``).
+    The guard applies only when the interclass contrast (P19) of the guarded split (dark class ``<= T_guard``
+    against the rest) reaches ``guard_contrast``: a frame that holds no crack has a dark class of texture with
+    a low contrast, and the guard must not force a threshold on it; 0 (the default) always applies it.
     """
-    if (image is None) == (hist is None):
-        raise ValueError("give exactly one of image or hist")
-    h = _check_hist(histogram(image) if hist is None else hist)
+    h = _hist_of(image, hist)
     if not (np.isfinite(min_fraction) and 0.0 <= min_fraction < 1.0):
         raise ValueError(f"min_fraction must lie in [0, 1), got {min_fraction}")
     r = iterative_threshold(hist=h, c_s=c_s, **it_params)  # type: ignore[arg-type]
@@ -109,36 +90,14 @@ def shape_filter(
     given, its interclass contrast (P19) against its local background is at least
     ``min_contrast``: ``|μ_B − μ_D| / (μ_B + μ_D)`` with ``μ_D`` the component's mean grey and
     ``μ_B`` the mean of the non-defect pixels within ``ring`` pixels of it (the contrast
-    :func:`services.detector.detect.defects_of` reports). Sizes are in pixels of the *working*
-    image: the mask reduced by the smallest integer factor ``s`` that brings it to at most
-    ``work_px`` pixels (a reduced pixel is set when any pixel of its ``s × s`` block is; the
-    grey image is reduced by area averaging). For images up to ``work_px`` pixels ``s = 1`` and
-    the analysis is exact.
+    :func:`services.detector.detect.defects_of` reports). Sizes are in pixels of the *working* image, the mask
+    reduced to at most ``work_px`` pixels (docs/detector.md; exact up to ``work_px``). ``mask``: non-zero = defect;
+    ``min_contrast`` in [0, 1) (ignored without ``grey``); ``ring`` in full-resolution pixels. Returns a 0/255
+    uint8 mask of the same shape.
 
-    Parameters
-    ----------
-    mask : ndarray of uint8
-        Binary mask (non-zero = defect).
-    min_area, min_elongation, min_length, min_long_elongation : float
-        Shape limits (working-image pixels).
-    work_px : int
-        Pixel budget of the working image.
-    grey : ndarray of uint8, optional
-        The image of the mask, for the contrast floor (ignored when ``min_contrast`` is 0).
-    min_contrast : float
-        Per-component contrast floor (P19), in [0, 1).
-    ring : int
-        Width of the local background ring, full-resolution pixels.
-
-    Returns
-    -------
-    ndarray of uint8 (0/255), same shape as ``mask``
-
-    References
-    ----------
-    .. [1] Y. Shi, L. Cui, Z. Qi, F. Meng, Z. Chen, "Automatic road crack detection using random
-       structured forests", IEEE Trans. ITS 17(12), 3434-3445, 2016 (crack tokens are thin and
-       elongated; small isolated blobs are texture).
+    Crack tokens are thin and elongated, small isolated blobs are texture: Y. Shi, L. Cui, Z. Qi, F. Meng,
+    Z. Chen, "Automatic road crack detection using random structured forests", IEEE Trans. ITS 17(12),
+    3434-3445, 2016.
     """
     m = np.asarray(mask)
     if m.ndim != 2 or m.size == 0:
@@ -189,14 +148,8 @@ def component_filter(
     reduced: tuple[np.ndarray, np.ndarray] | None = None,
     measure_contrast: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The component rules of :func:`shape_filter` on a mask already on the working grid.
-
-    ``small`` is the mask reduced by ``s`` (block "any"); ``grey`` the full-resolution image (only
-    for the contrast floor), ``reduced`` its working-grid pair (block minimum, corner pixel) when
-    the caller has it already; with ``measure_contrast`` the contrast of the shape-kept components is
-    measured even without a floor. Returns the labels (int32), the keep decision per label (bool,
-    label 0 never kept) and the contrast (P19) per label (0 where not measured).
-    """
+    """The component rules of :func:`shape_filter` on a mask already on the working grid (its arguments:
+    docs/detector.md, services/detector/improved.py)."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(small, connectivity=8, ltype=cv2.CV_32S)
     area = stats[:, cv2.CC_STAT_AREA].astype(np.float64)
     w = stats[:, cv2.CC_STAT_WIDTH].astype(np.float64)
@@ -224,20 +177,8 @@ def component_filter(
 def component_contrast(grey: np.ndarray, labels: np.ndarray, n: int, s: int = 1, ring: int = 5,
                        robust: bool = False, free: np.ndarray | None = None,
                        reduced: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """Contrast (P19) of every labelled component against the background ring around it.
-
-    ``labels`` (int32, 0 = background) may be the labels of the image reduced by ``s`` (block
-    "any", as in :func:`shape_filter`); a labelled block then counts with its darkest pixel (it
-    holds a defect pixel somewhere), a ring block with its corner pixel, and the ring is
-    ``max(1, round(ring / s))`` blocks wide. A background pixel near several components goes to the
-    highest-numbered one (a label dilation), as in :func:`services.detector.detect.defects_of`.
-    With ``robust`` the background level is the ring's median instead of its mean, so that a
-    component at the edge of the surface, whose ring is partly the much brighter scene beyond
-    it (sky), is judged against the surface around it. ``free`` (same shape as ``labels``)
-    restricts the rings to those pixels (default: the unlabelled ones). ``reduced`` is the pair
-    (block minimum, corner pixel) of the grey image on the labels' grid when the caller has made it
-    (see :func:`reduced_grey`). Components without a ring get contrast 0. Returns an array of ``n`` values (index 0 unused).
-    """
+    """Contrast (P19) of every labelled component against the background ring around it, ``n`` values (index 0
+    unused; its arguments: docs/detector.md, services/detector/improved.py)."""
     hs, ws = labels.shape
     if grey.shape == labels.shape:
         g_d = g_b = grey
@@ -278,12 +219,7 @@ def component_contrast(grey: np.ndarray, labels: np.ndarray, n: int, s: int = 1,
 
 
 def reduced_grey(grey: np.ndarray, s: int) -> tuple[np.ndarray, np.ndarray]:
-    """The grey image on the working grid of factor ``s``: (block minimum, block corner pixel).
-
-    The block minimum (an ``s x s`` erosion anchored at the corner, every ``s``-th pixel) is what a
-    block "any" mask reduction (:func:`shape_filter`) pairs with: a block holds a pixel ``<= T``
-    exactly when its minimum is ``<= T``. Partial blocks at the right and bottom edges are kept.
-    """
+    """The grey image on the working grid of factor ``s``: (block minimum, block corner pixel)."""
     if s == 1:
         return grey, grey
     box = cv2.getStructuringElement(cv2.MORPH_RECT, (s, s))
@@ -322,14 +258,8 @@ def it_plus_mask(
     guard_contrast: float = GUARD_CONTRAST_DEFAULT,
     **it_params: object,
 ) -> tuple[np.ndarray, int]:
-    """IT+ defect mask of a grey image: guarded IT threshold, then :func:`shape_filter`.
-
-    Returns
-    -------
-    mask : ndarray of uint8 (0/255)
-    threshold : int
-        The global threshold before shape filtering.
-    """
+    """IT+ defect mask (0/255) of a grey image and the global threshold before shape filtering: guarded IT
+    threshold, then :func:`shape_filter`."""
     grey = as_grey_u8(image)
     t = threshold_it_plus(hist=histogram(grey), c_s=c_s, min_fraction=min_fraction,
                           guard_contrast=guard_contrast, **it_params)
@@ -354,22 +284,9 @@ def it_plus_bh_mask(
     work_px: int = 400_000,
     **it_plus: object,
 ) -> tuple[np.ndarray, int]:
-    """IT+ with a local cue: the union of the IT+ mask and the crack-like part of a black-hat response.
-
-    The morphological black-hat ``closing(I) − I`` with an elliptical ``size × size`` element is the
-    darkness of each pixel against its own neighbourhood (Soille, *Morphological Image Analysis*,
-    2003, Sec. 4.4: the top-hat by closing), so a faint crack on a textured or unevenly lit surface
-    stands out where a global threshold cannot separate it. The ``top_fraction`` of the pixels with
-    the strongest response is kept through the same component filter as IT+ (shape, contrast
-    floor), and added to IT+'s mask. ``size`` and ``top_fraction`` were chosen on the DeepCrack
-    training split (``bench/detect.py --only tune``): exact F 0.715 -> 0.733 there; on CrackForest
-    0.367 -> 0.413 (not reaching the 0.50 a learned detector would).
-
-    Frames above ``work_px`` pixels are analysed by the black-hat on the frame reduced by the
-    integer factor of :func:`reduction_factor` (area averaging; the element scaled with it), and its
-    mask is enlarged back (nearest neighbour).
-
-    Returns ``(mask, threshold)`` with IT+'s global threshold.
+    """IT+ with a local cue: the union of the IT+ mask and the crack-like part of a black-hat response (the
+    ``top_fraction`` of the pixels with the strongest ``size × size`` black-hat, through IT+'s component filter;
+    docs/detector.md, services/detector/improved.py). Returns ``(mask, threshold)`` with IT+'s global threshold.
     """
     if not (isinstance(size, (int, np.integer)) and size >= 3):
         raise ValueError(f"size must be an integer >= 3, got {size!r}")

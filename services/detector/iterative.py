@@ -12,7 +12,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from .thresholds import _check_hist, histogram
+from .thresholds import _hist_of
 
 __all__ = [
     "ITResult", "iterative_threshold", "threshold_it", "interclass_contrast", "C_S_DEFAULT",
@@ -34,25 +34,13 @@ Background = Literal["above", "previous"]
 
 @dataclass(frozen=True)
 class ITResult:
-    """Outcome of :func:`iterative_threshold`.
+    """Outcome of :func:`iterative_threshold`. ``stop`` says why the iteration ended: ``"contrast"``
+    (``C_k > C_s``), ``"size"`` (the dark region holds less than ``min_region`` of the image), ``"region"`` (the
+    dark region could not be split further: fewer than two levels or ``min_pixels``), ``"max_iter"``."""
 
-    Attributes
-    ----------
-    threshold : int
-        Final threshold ``T_f``; pixels ``<= T_f`` are defects.
-    thresholds : tuple of int
-        ``T_1, T_2, ...`` one per step (``T_1`` is the global Otsu threshold).
-    contrasts : tuple of float
-        ``C_1, C_2, ...`` (P19), one per step.
-    stop : str
-        Why the iteration ended: ``"contrast"`` (``C_k > C_s``), ``"size"`` (the dark region
-        holds less than ``min_region`` of the image), ``"region"`` (the dark region could not be
-        split further: fewer than two levels or ``min_pixels``), ``"max_iter"``.
-    """
-
-    threshold: int
-    thresholds: tuple[int, ...]
-    contrasts: tuple[float, ...]
+    threshold: int  # final threshold T_f; pixels <= T_f are defects
+    thresholds: tuple[int, ...]  # T_1, T_2, ... one per step (T_1 is the global Otsu threshold)
+    contrasts: tuple[float, ...]  # C_1, C_2, ... (P19), one per step
     stop: str
 
     @property
@@ -81,39 +69,15 @@ def iterative_threshold(
     max_iter: int = 8,
     min_pixels: float = 1.0,
 ) -> ITResult:
-    """The paper's iterative thresholding (IT), equations (P18)-(P19).
+    """The paper's iterative thresholding (IT), equations (P18)-(P19), of a grey image or a ``hist``.
 
-    Parameters
-    ----------
-    image : ndarray, optional
-        Grey image (uint8). Exactly one of ``image`` and ``hist``.
-    hist : ndarray, optional
-        Precomputed histogram (counts per level).
-    c_s : float
-        Contrast threshold ``C_s`` in [0, 1): stop at the first step with ``C_k > C_s``.
-    background : {"above", "previous"}
-        Which pixels form the background mean in (P19); see docs/detector.md.
-    min_region : float
-        Size guard in [0, 1): a dark region with less than this share of all pixels is not
-        split again (0 = the paper's bare stop rule); see docs/detector.md.
-    max_iter : int
-        Cap on the number of Otsu steps (>= 1).
-    min_pixels : float
-        A dark region with fewer pixels than this is not split further.
+    Stop at the first step with ``C_k > C_s`` (``c_s`` in [0, 1)). ``background`` ("above" or "previous"):
+    which pixels form the background mean in (P19). ``min_region`` in [0, 1): a dark region with less than
+    this share of all pixels is not split again (0 = the paper's bare stop rule; both in docs/detector.md);
+    nor is one of fewer than ``min_pixels`` pixels; at most ``max_iter`` (>= 1) Otsu steps. For a histogram
+    with a single occupied level ``v`` no step is taken and the threshold is ``v − 1``: nothing is darker than
+    the rest, so nothing is a defect. ValueError on bad input or parameters.
 
-    Returns
-    -------
-    ITResult
-        For a histogram with a single occupied level ``v`` no step is taken and the threshold
-        is ``v − 1``: nothing is darker than the rest, so nothing is a defect.
-
-    Raises
-    ------
-    ValueError
-        On bad input or parameters.
-
-    Examples
-    --------
     >>> h = np.zeros(256); h[[20, 100, 110, 200, 210]] = [5, 40, 40, 400, 400]
     >>> r = iterative_threshold(hist=h, c_s=0.5)
     >>> r.thresholds, r.threshold, r.stop
@@ -121,9 +85,7 @@ def iterative_threshold(
     >>> iterative_threshold(hist=h, c_s=0.5, min_region=0.1).stop  # 85 of 885 px < 10 %
     'size'
     """
-    if (image is None) == (hist is None):
-        raise ValueError("give exactly one of image or hist")
-    h = _check_hist(histogram(image) if hist is None else hist)
+    h = _hist_of(image, hist)
     if not 0.0 <= c_s < 1.0:  # also rejects NaN
         raise ValueError(f"c_s must lie in [0, 1), got {c_s}")
     if background not in ("above", "previous"):

@@ -1,27 +1,6 @@
 """The learned crack detector: a small U-Net shipped as ONNX and run by OpenCV's ``cv2.dnn``.
 
-Pure (no bus code). The network (Ronneberger et al. 2015, narrowed to widths 8-16-32-64 over four scales;
-trained by ``scripts/train_detector.py``, figures in docs/detector.md) maps a standardised grey image
-(zero mean, unit variance over the whole frame) to a crack probability per pixel; the decision threshold
-chosen on the validation split is folded into the model, so ``p > 0.5`` is the crack mask.
-
-The model file is :data:`MODEL_PATH` unless the environment variable :data:`MODEL_ENV` names another;
-it is read once per process (once per detector worker, :mod:`services.detector.pool`). A file that is
-missing, unreadable or not this model gives :class:`ModelError` with a one-line message naming it.
-
-The network runs on OpenCV's ``cv2.dnn`` (exact float32), or on OpenVINO (the optional extra ``fast``:
-``pip install -e '.[fast]'``) in bfloat16 on a CPU that has it (AVX-512 BF16 or AMX), 1.7-1.9 times as
-fast at the same held-out F to within 0.0002: :func:`runtime` says which, ``$SKYNET_DETECTOR_RUNTIME``
-(:data:`RUNTIME_ENV`: ``opencv`` or ``openvino``) chooses, default OpenVINO when it is installed. Either
-runtime runs on OpenCV's thread count (one per detector worker, :mod:`services.detector.pool`).
-
-Frames above :data:`TILE_PX` pixels are segmented in overlapping tiles (each cut with a
-:data:`TILE_MARGIN` pixel margin that is computed and dropped), so memory stays bounded whatever the size.
-
-The mask keeps a connected component of the network's pixels only when it is darker than its surround on
-its whole outline (:func:`contrast_filter`): a crack is a valley, darker than both of its sides, while the
-network also answers to the one-sided step where a wall meets a brighter background (the mission's
-synthetic wall against the frame's empty band), which is as dark as the wall on one side.
+Design notes: docs/detector.md (services/detector/learned.py).
 """
 
 from __future__ import annotations
@@ -208,14 +187,8 @@ def probability(grey: np.ndarray, model: str | Path | None = None) -> np.ndarray
 
 def contrast_filter(grey: np.ndarray, mask: np.ndarray, rel: float = CONTRAST_REL, floor: float = CONTRAST_FLOOR,
                     ring: int = CONTRAST_RING) -> np.ndarray:
-    """The components (8-connected) of ``mask`` that are darker than their surround all round.
-
-    A component's one-sided contrast is (P19) with the background taken as the lower quartile ``q`` of
-    the non-mask pixels within ``ring`` pixels of it: ``(q - μ_D) / (q + μ_D)``. A valley (a crack) has
-    both sides brighter, so ``q`` is well above ``μ_D``; a step edge has one side as dark as itself, so
-    ``q ≈ μ_D``. A component is kept when its contrast reaches ``floor`` and ``rel`` times the largest in
-    the frame (as IT+r's floor relative to the frame's own cracks: a frame of faint cracks keeps faint
-    ones). Returns a uint8 0/255 mask."""
+    """The components (8-connected) of ``mask`` that are darker than their surround all round, as a uint8 0/255
+    mask (the one-sided contrast: docs/detector.md, services/detector/learned.py)."""
     m = mask > 0
     n, lab, st, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
     if n <= 1:

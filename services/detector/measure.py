@@ -62,12 +62,7 @@ def _skeletonize(mask: np.ndarray) -> np.ndarray:
 
 
 def skeleton_length(skel: np.ndarray) -> tuple[float, np.ndarray]:
-    """Chain-code length (pixels) of a one-pixel-wide skeleton, and its end pixels (row, col).
-
-    Orthogonal neighbour pairs are links of weight 0.948; a diagonal pair is a link of weight 1.343
-    only when the two pixels have no common orthogonal neighbour in the skeleton (else the corner
-    already joins them and counting the diagonal too would double the step).
-    """
+    """Chain-code length (pixels) of a one-pixel-wide skeleton, and its end pixels (row, col)."""
     s = np.asarray(skel, dtype=bool)
     if s.ndim != 2:
         raise ValueError("skeleton must be 2-D")
@@ -90,12 +85,9 @@ def half_depth_mask(grey: np.ndarray, mask: np.ndarray, ring: int = 4, grow: int
     """The crack's pixels at half its depth: ``grey <= (B + D) / 2`` near the detected component.
 
     ``B`` is the median grey of the background ring (``ring`` pixels around the component, outside
-    it), ``D`` the 10th percentile of the component's own pixels (its core). The detector's global
-    threshold is set for finding cracks, not for sizing them: it takes in the darker texture at a
-    crack's edges, more so on a faint crack. The half-depth level is the full width at half
-    maximum of the crack's darkness profile, which for a crack blurred by the optics and the
-    resampling is its real width. Pixels are taken within ``grow`` pixels of the component and
-    only where connected to it; a component without a ring keeps its mask.
+    it), ``D`` the 10th percentile of the component's own pixels (its core); why half depth: docs/detector.md.
+    Pixels are taken within ``grow`` pixels of the component and only where connected to it; a component
+    without a ring keeps its mask.
     """
     g = np.asarray(grey)
     m = np.asarray(mask) != 0
@@ -126,11 +118,7 @@ def _endpoints(skel: np.ndarray) -> np.ndarray:
 def prune_spurs(skel: np.ndarray, n: int) -> np.ndarray:
     """Remove skeleton branches shorter than ``n`` pixels (the spurs thinning grows from a rough
     edge): strip end pixels ``n`` times, then regrow the surviving ends ``n`` steps along the
-    original skeleton (Gonzalez & Woods, *Digital Image Processing*, pruning).
-
-    A spur hangs off a junction: a skeleton piece of at least ``n`` pixels that stripping removes
-    whole (a segment of a crack whose half-depth mask broke in two, :func:`half_depth_mask`) is
-    crack, and is kept; a shorter one is a speck."""
+    original skeleton (Gonzalez & Woods, *Digital Image Processing*, pruning)."""
     s = np.asarray(skel, bool)
     if n <= 0 or not s.any():
         return s
@@ -237,14 +225,7 @@ def frame_scale(range_m: float, fx: float, fy: float) -> float:
 
 # ------------------------------------------------------------------------------------ geometry
 def centre_line(mask: np.ndarray, simplify_px: float = 0.7) -> np.ndarray:
-    """The crack's centre line: the longest path through its skeleton, ``(N, 2)`` pixel ``(x, y)``.
-
-    The skeleton (as :func:`measure_component` thins it) is a graph of 8-connected pixels; its
-    diameter is found by two breadth-first searches (the farthest pixel from any pixel is one end
-    of a longest path in a tree), then simplified with the Ramer-Douglas-Peucker algorithm
-    (``cv2.approxPolyDP``, ``simplify_px`` tolerance). Side branches are left out: a GIS line has
-    one path. A blob too small to thin is its centre pixel, returned twice (a zero-length line).
-    """
+    """The crack's centre line: the longest path through its skeleton, ``(N, 2)`` pixel ``(x, y)``."""
     m = np.asarray(mask) != 0
     if m.ndim != 2 or not m.any():
         raise ValueError("mask must be 2-D with at least one defect pixel")
@@ -314,13 +295,7 @@ def outline(mask: np.ndarray, simplify_px: float = 0.5) -> np.ndarray:
     """The crack's outline: a simple closed ring around its pixels, ``(N, 2)`` pixel ``(x, y)``, first
     point repeated last, counter-clockwise once the rows point up (seen from the front of a wall, the
     (u, v) frame of :class:`services.inspection.mosaic.Plane`; RFC 7946 Sec. 3.1.6 orders exterior rings so).
-
-    The mask is doubled (each pixel a 2 x 2 block) and closed with a 3 x 3 square, so pixels that
-    touch only at a corner (8-connected) join by an edge and a one-pixel crack encloses an area; where
-    the traced border (``cv2.findContours``, Suzuki-Abe border following) still passes a pixel twice
-    (a one-pixel neck) the doubled mask grows by a pixel (a quarter of a mask pixel) until it does
-    not. The border is then simplified (``cv2.approxPolyDP``) unless that makes two edges cross, and
-    mapped back to the mask's pixel coordinates. Holes are not kept.
+    Holes are not kept; how it is traced: docs/detector.md (services/detector/measure.py).
     """
     m = np.asarray(mask) != 0
     if m.ndim != 2 or not m.any():

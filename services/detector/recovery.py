@@ -13,16 +13,9 @@ __all__ = ["RecoveryTracker"]
 class RecoveryTracker:
     """Counts frames delivered by recovery, per SSRC; see docs/detector.md.
 
-    Parameters
-    ----------
-    settle_s : float
-        How long after delivery a frame not seen live is declared recovered (> 0).
-    memory : int
-        Live sightings remembered per tracker (oldest forgotten first); far more than the frames
-        a recovery can hold back.
+    A frame not seen live is declared recovered ``settle_s`` (> 0) after its delivery; ``memory`` live
+    sightings are remembered (oldest forgotten first), far more than the frames a recovery can hold back.
 
-    Examples
-    --------
     >>> tr = RecoveryTracker(settle_s=1.0)
     >>> tr.live(7, 1, 0.0); tr.delivered(7, 1, 0.0)      # came the first time
     >>> tr.delivered(7, 2, 0.5)                           # lost live, recovered from the cache

@@ -20,24 +20,13 @@ __all__ = [
 ]
 
 
-# --------------------------------------------------------------------------------------------
-# input handling
-# --------------------------------------------------------------------------------------------
+# ----------------------------------------------------------------------------- input handling
 def as_grey_u8(image: np.ndarray) -> np.ndarray:
     """Return ``image`` as a 2-D ``uint8`` grey image, or raise ``ValueError``.
 
     ``uint8`` 2-D input passes through unchanged (no copy). Three-channel input is taken as BGR
     (OpenCV's order) and converted with ``cv2.cvtColor``; a four-channel image as BGRA. Other
     numeric dtypes must be finite and within [0, 255]; they are rounded.
-
-    Parameters
-    ----------
-    image : ndarray
-        Grey (H, W) or colour (H, W, 3|4) image.
-
-    Returns
-    -------
-    ndarray of uint8, shape (H, W)
     """
     a = np.asarray(image)
     if a.dtype == np.uint8 and a.ndim == 2 and a.size:  # fast path: already grey uint8
@@ -69,22 +58,9 @@ def _to_u8(a: np.ndarray) -> np.ndarray:
 
 
 def histogram(image: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """256-bin grey-level histogram of an 8-bit image, with one pass of ``cv2.calcHist``.
+    """256-bin grey-level histogram (float64, ``hist[x]`` = pixels of level ``x``) of a grey or colour image
+    (:func:`as_grey_u8`), counting only pixels where ``mask != 0`` if given, in one pass of ``cv2.calcHist``.
 
-    Parameters
-    ----------
-    image : ndarray
-        Grey or colour image (see :func:`as_grey_u8`).
-    mask : ndarray of uint8, optional
-        Only pixels where ``mask != 0`` are counted.
-
-    Returns
-    -------
-    ndarray of float64, shape (256,)
-        ``hist[x]`` = number of pixels of level ``x``.
-
-    Examples
-    --------
     >>> histogram(np.array([[0, 0, 255]], np.uint8))[[0, 255]]
     array([2., 1.])
     """
@@ -122,29 +98,14 @@ def _single_level(h: np.ndarray) -> int | None:
     return int(nz[0]) if nz.size == 1 else None
 
 
-# --------------------------------------------------------------------------------------------
-# Otsu (P18)
-# --------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------- Otsu (P18)
 def between_class_variance(hist: np.ndarray) -> np.ndarray:
     """Otsu's between-class variance ``σ²(T)`` for every split ``T`` of a histogram (P18).
 
     ``σ²(T) = ω0(T) ω1(T) (ε0(T) − ε1(T))²`` with ω the class probabilities (class 0 = levels
     ``<= T``) and ε the class mean levels. Splits that leave a class empty get ``-1`` so that
-    ``argmax`` never picks them.
-
-    Parameters
-    ----------
-    hist : ndarray, shape (L,)
-        Counts per level ``0..L-1``.
-
-    Returns
-    -------
-    ndarray of float64, shape (L,)
-
-    References
-    ----------
-    .. [1] N. Otsu, "A threshold selection method from gray-level histograms", IEEE Trans.
-       Systems, Man, and Cybernetics 9(1), 62-66, 1979.
+    ``argmax`` never picks them. ``hist``: counts per level ``0..L-1``; returns ``(L,)`` float64.
+    N. Otsu, "A threshold selection method from gray-level histograms", IEEE Trans. SMC 9(1), 62-66, 1979.
     """
     h = _check_hist(hist)
     levels = np.arange(h.size, dtype=np.float64)
@@ -161,81 +122,35 @@ def between_class_variance(hist: np.ndarray) -> np.ndarray:
 
 
 def threshold_otsu(image: np.ndarray | None = None, *, hist: np.ndarray | None = None) -> int:
-    """Otsu's threshold (P18): the level ``T*`` maximising the between-class variance.
+    """Otsu's threshold (P18): the level ``T*`` maximising the between-class variance (Otsu 1979).
 
-    Parameters
-    ----------
-    image : ndarray, optional
-        Grey image (uint8, or see :func:`as_grey_u8`).
-    hist : ndarray, optional
-        Precomputed histogram instead of ``image`` (keyword only).
+    Of a grey image (:func:`as_grey_u8`) or, keyword only, a precomputed ``hist``. Pixels ``<= T*`` form the
+    dark class; for a histogram with a single occupied level that level is returned (every pixel is in the dark
+    class, as OpenCV does). ValueError on empty, non-finite or negative input, or when both or neither input is
+    given.
 
-    Returns
-    -------
-    int
-        ``T*``; pixels ``<= T*`` form the dark class. For a histogram with a single occupied
-        level that level is returned (every pixel is in the dark class, as OpenCV does).
-
-    Raises
-    ------
-    ValueError
-        On empty, non-finite or negative input, or when both or neither input is given.
-
-    References
-    ----------
-    .. [1] N. Otsu, "A threshold selection method from gray-level histograms", IEEE Trans.
-       Systems, Man, and Cybernetics 9(1), 62-66, 1979. Paper equation (P18).
-
-    Examples
-    --------
     >>> threshold_otsu(hist=np.array([5, 5, 0, 0, 5, 5]))
     1
     """
     h = _hist_of(image, hist)
-    single = _single_level(h)
-    if single is not None:
+    if (single := _single_level(h)) is not None:
         return single
     return int(np.argmax(between_class_variance(h)))
 
 
-# --------------------------------------------------------------------------------------------
-# Valley emphasis (Ng 2006)
-# --------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------ Valley emphasis (Ng 2006)
 def threshold_valley_emphasis(
     image: np.ndarray | None = None, *, hist: np.ndarray | None = None
 ) -> int:
-    """Ng's valley-emphasis threshold: Otsu weighted towards low-probability levels.
+    """Ng's valley-emphasis threshold: the level maximising ``(1 − p_T) (ω0 μ0² + ω1 μ1²)`` (Otsu weighted
+    towards low-probability levels; docs/detector.md). Of an image or a ``hist``; pixels ``<= T`` are the dark class.
+    H.-F. Ng, "Automatic thresholding for defect detection", Pattern Recognition Letters 27(14), 1644-1649, 2006.
 
-    Maximises ``(1 − p_T) (ω0 μ0² + ω1 μ1²)`` where ``p_T`` is the probability of level ``T``
-    itself, so that among good Otsu splits the one in a histogram valley wins. This helps when
-    the dark (defect) class is much smaller than the background, where Otsu tends to cut the
-    background mode in two.
-
-    Parameters
-    ----------
-    image : ndarray, optional
-        Grey image.
-    hist : ndarray, optional
-        Precomputed histogram instead of ``image``.
-
-    Returns
-    -------
-    int
-        Threshold; pixels ``<= T`` are the dark class.
-
-    References
-    ----------
-    .. [1] H.-F. Ng, "Automatic thresholding for defect detection", Pattern Recognition
-       Letters 27(14), 1644-1649, 2006.
-
-    Examples
-    --------
     >>> threshold_valley_emphasis(hist=np.array([4, 6, 1, 0, 30, 40, 30]))  # empty level: p_T = 0
     3
     """
     h = _hist_of(image, hist)
-    single = _single_level(h)
-    if single is not None:
+    if (single := _single_level(h)) is not None:
         return single
     levels = np.arange(h.size, dtype=np.float64)
     n = h.sum()
@@ -252,9 +167,7 @@ def threshold_valley_emphasis(
     return int(np.argmax(score))
 
 
-# --------------------------------------------------------------------------------------------
-# ITTH (Cai et al. 2014)
-# --------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------- ITTH (Cai et al. 2014)
 def threshold_itth(
     image: np.ndarray | None = None,
     *,
@@ -262,43 +175,18 @@ def threshold_itth(
     tol: float = 1.0,
     max_iter: int = 50,
 ) -> int:
-    """Iterative triclass thresholding (ITTH) of Cai, Yang, Cao et al.
+    """Iterative triclass thresholding (ITTH) of Cai, Yang, Cao et al.: Otsu (P18) on a shrinking
+    "to-be-determined" band until the threshold moves by less than ``tol`` levels, the band holds fewer than two
+    occupied levels, or ``max_iter`` steps (docs/detector.md). Of an image or a ``hist``; pixels ``<= T`` are the
+    dark class.
 
-    Start with Otsu (P18) on the whole histogram. At each step with threshold ``T`` on the
-    current "to-be-determined" (TBD) band, compute the two class means ``μ0`` (levels ``<= T``)
-    and ``μ1`` (levels ``> T``): levels below ``μ0`` are settled as dark, levels above ``μ1``
-    as bright, and the next band is ``[ceil(μ0), floor(μ1)]``. Otsu is run again on the band;
-    stop when the threshold changes by less than ``tol`` levels, when the band holds fewer than
-    two occupied levels, or after ``max_iter`` steps. Since every settled-dark level lies below
-    every later band, the final segmentation is the global split at the last threshold, which
-    is what is returned.
-
-    Parameters
-    ----------
-    image : ndarray, optional
-        Grey image.
-    hist : ndarray, optional
-        Precomputed histogram instead of ``image``.
-    tol : float
-        Stop when ``|T_new − T_old| < tol`` (levels).
-    max_iter : int
-        Cap on the number of Otsu steps.
-
-    Returns
-    -------
-    int
-        Threshold; pixels ``<= T`` are the dark class.
-
-    References
-    ----------
-    .. [1] H. Cai, Z. Yang, X. Cao, W. Xia, X. Xu, "A new iterative triclass thresholding
-       technique in image segmentation", IEEE Trans. Image Processing 23(3), 1038-1046, 2014.
+    H. Cai, Z. Yang, X. Cao, W. Xia, X. Xu, "A new iterative triclass thresholding technique in image
+    segmentation", IEEE Trans. Image Processing 23(3), 1038-1046, 2014.
     """
     h = _hist_of(image, hist)
     if max_iter < 1:
         raise ValueError("max_iter must be >= 1")
-    single = _single_level(h)
-    if single is not None:
+    if (single := _single_level(h)) is not None:
         return single
     levels = np.arange(h.size, dtype=np.float64)
     lo, hi = 0, h.size - 1
@@ -325,9 +213,7 @@ def threshold_itth(
     return int(t)
 
 
-# --------------------------------------------------------------------------------------------
-# SDD (Wang)
-# --------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------- SDD (Wang)
 def _gaussian_smooth(h: np.ndarray, sigma: float) -> np.ndarray:
     if sigma <= 0:
         return h.copy()
@@ -339,31 +225,12 @@ def _gaussian_smooth(h: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def slope_difference(hist: np.ndarray, *, sigma: float = 3.0, n: int = 8) -> np.ndarray:
-    """Wang's slope difference distribution of a histogram.
+    """Wang's slope difference distribution of a histogram, ``(L,)`` float64: ``SDD(x) = slope_right(x) −
+    slope_left(x)``, least-squares slopes of ``n`` values each side of ``x`` after a Gaussian of ``sigma`` levels
+    (docs/detector.md); 0 where a window is not full.
 
-    The histogram is smoothed with a Gaussian of ``sigma`` levels. At each level ``x`` a
-    straight line is fitted by least squares to the ``n`` smoothed values on its left
-    (``x−n..x−1``) and to the ``n`` on its right (``x+1..x+n``);
-    ``SDD(x) = slope_right(x) − slope_left(x)``. Valleys of the histogram are positive maxima of
-    the SDD, peaks are negative minima. Levels without a full window on either side get 0.
-
-    Parameters
-    ----------
-    hist : ndarray, shape (L,)
-    sigma : float
-        Gaussian smoothing width in levels (Wang uses a Fourier low-pass; a Gaussian does the
-        same job here).
-    n : int
-        Half-window length of the least-squares fits.
-
-    Returns
-    -------
-    ndarray of float64, shape (L,)
-
-    References
-    ----------
-    .. [1] Z. Wang, "A new approach for segmentation and quantification of cells or nanoparticles",
-       IEEE Trans. Industrial Informatics 12(3), 962-971, 2016 (slope difference distribution).
+    Z. Wang, "A new approach for segmentation and quantification of cells or nanoparticles", IEEE Trans.
+    Industrial Informatics 12(3), 962-971, 2016 (slope difference distribution).
     """
     h = _check_hist(hist)
     if n < 2:
@@ -389,40 +256,16 @@ def threshold_sdd(
     sigma: float = 3.0,
     n: int = 8,
 ) -> int:
-    """Slope-difference-distribution threshold (Wang), on the dark side of the main mode.
+    """Slope-difference-distribution threshold (Wang), on the dark side of the main mode: the deepest valley of
+    :func:`slope_difference` below the mode, else its knee, else Otsu (P18) (docs/detector.md). Of an image or a
+    ``hist``; ``sigma``, ``n`` as :func:`slope_difference`; pixels ``<= T`` are the dark class.
 
-    Computes :func:`slope_difference` and returns the deepest valley — the largest positive
-    local maximum of the SDD — among the levels *below* the main mode (the highest peak of the
-    smoothed histogram), because defects here are darker than a dominant background. When the
-    histogram has no valley below its mode (a unimodal histogram with a dark tail) the largest
-    SDD value below the mode is used: that is where the tail bends into the mode, the "knee"
-    that Wang's method takes for one-sided histograms. If the mode is the darkest level, Otsu
-    (P18) is returned instead.
-
-    Parameters
-    ----------
-    image : ndarray, optional
-        Grey image.
-    hist : ndarray, optional
-        Precomputed histogram instead of ``image``.
-    sigma, n : see :func:`slope_difference`.
-
-    Returns
-    -------
-    int
-        Threshold; pixels ``<= T`` are the dark class.
-
-    References
-    ----------
-    .. [1] Z. Wang, "A new approach for segmentation and quantification of cells or nanoparticles",
-       IEEE Trans. Industrial Informatics 12(3), 962-971, 2016.
-    .. [2] Z. Wang, "Automatic segmentation and classification of the reflected laser dots
-       during analytic measurement of mirror surfaces", Optics and Lasers in Engineering 83,
-       10-22, 2016.
+    Z. Wang, IEEE Trans. Industrial Informatics 12(3), 962-971, 2016; Z. Wang, "Automatic segmentation and
+    classification of the reflected laser dots during analytic measurement of mirror surfaces", Optics and
+    Lasers in Engineering 83, 10-22, 2016.
     """
     h = _hist_of(image, hist)
-    single = _single_level(h)
-    if single is not None:
+    if (single := _single_level(h)) is not None:
         return single
     sdd = slope_difference(h, sigma=sigma, n=n)
     mode = int(np.argmax(_gaussian_smooth(h, sigma)))
@@ -439,42 +282,15 @@ def threshold_sdd(
     return lo + int(np.argmax(seg))
 
 
-# --------------------------------------------------------------------------------------------
-# Sauvola (local)
-# --------------------------------------------------------------------------------------------
+# ---------------------------------------------------------------------------- Sauvola (local)
 def threshold_sauvola(
     image: np.ndarray, window_size: int = 15, k: float = 0.2, r: float = 128.0
 ) -> np.ndarray:
-    """Sauvola's local threshold image ``T = m (1 + k (s / R − 1))``.
+    """Sauvola's local threshold image ``T = m (1 + k (s / R − 1))`` (float32, the image's shape; dark-class
+    pixels are ``image <= T``), ``m`` and ``s`` the mean and standard deviation in a ``window_size`` square
+    (odd, >= 3) around each pixel (docs/detector.md); ``k``, ``r`` > 0.
 
-    ``m`` and ``s`` are the mean and standard deviation of the grey levels in a
-    ``window_size × window_size`` window around each pixel, computed with box filters (integral
-    images, O(1) per pixel; borders reflected). ``k`` (default 0.2) sets how far below the
-    local mean the threshold sits on low-contrast (``s`` small) regions; ``R`` is the dynamic
-    range of the standard deviation, 128 for 8-bit images. Dark-class pixels are
-    ``image <= T``. Matches :func:`skimage.filters.threshold_sauvola` up to the border rule
-    and ``r`` (scikit-image defaults to 127.5 for uint8).
-
-    Parameters
-    ----------
-    image : ndarray
-        Grey image.
-    window_size : int
-        Odd window side in pixels (>= 3).
-    k : float
-        Sauvola's sensitivity, > 0.
-    r : float
-        Dynamic range of the standard deviation, > 0.
-
-    Returns
-    -------
-    ndarray of float32, same shape as ``image``
-        The threshold at every pixel.
-
-    References
-    ----------
-    .. [1] J. Sauvola, M. Pietikäinen, "Adaptive document image binarization", Pattern
-       Recognition 33(2), 225-236, 2000.
+    J. Sauvola, M. Pietikäinen, "Adaptive document image binarization", Pattern Recognition 33(2), 225-236, 2000.
     """
     grey = as_grey_u8(image)
     if window_size < 3 or window_size % 2 == 0:

@@ -1,8 +1,6 @@
 """The experiment's Markdown table: one row per cell, means over the repeats (pure).
 
-A figure shows its mean over the runs that have it, and ``(min-max)`` when the runs disagree;
-``-`` when no run has it. ``success`` is ``succeeded/runs`` (hung runs counted in the runs and
-flagged in the last column).
+Design notes: docs/experiments.md (services/experiment/table.py).
 """
 
 from __future__ import annotations

@@ -62,9 +62,6 @@ def not_sent(cmd, reason: str) -> CommandRecord:
 def send(bus: Bus, cmd, policy: RetryPolicy, sleep: Callable[[float], None] = time.sleep, signer=None) -> CommandRecord:
     """Send one command to ``cmd.uav`` with retries and back-off; a refusal is final (not retried).
 
-    With a ``signer`` (:class:`protocol.signing.Signer`) each try is signed afresh, so it carries a
-    new sequence number and the edge's replay window never refuses a retry.
-
     Returns the :class:`CommandRecord`: ``ok`` when a :class:`CommandAck` came back (``accepted``
     and ``reason`` are its own), else the last try's error after ``policy.attempts`` tries;
     ``ack_s`` holds the round trip of every answered try.
@@ -91,9 +88,7 @@ def start_margin(commands: Iterable[CommandRecord], least_s: float, most_s: floa
 
     The Start commands go out to all UAVs at once, and each must arrive before ``t0`` or that UAV
     begins behind the others (and formation keeping pulls them back toward it): twice the slowest
-    acknowledgement so far, at least ``least_s``, at most ``most_s``. (With 200 ms on every link a
-    round trip takes 0.8 s; sent one after another with 1 s of margin, UAV 3 began 7 s of
-    trajectory late.)
+    acknowledgement so far, at least ``least_s``, at most ``most_s`` (docs/ground-station.md).
 
     >>> start_margin([CommandRecord(uav=1, kind="takeoff", cmd_id=1, ok=True, accepted=True, elapsed_s=1.5,
     ...                             ack_s=[1.5])], least_s=2.0)

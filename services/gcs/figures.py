@@ -75,12 +75,9 @@ class UavFigures:
 
 @dataclass
 class FormationFigures:
-    """Formation shape error during the MISSION phase (RMS over time and maximum), metres.
-
-    ``plan_rms_m`` / ``plan_max_m``: the planned trajectories' own shape error measured the same
-    way over the plan's waypoint times (the heading from the centroid's motion need not be the
-    one the planner placed the slots with, e.g. in turns and climbs).
-    """
+    """Formation shape error during the MISSION phase (RMS over time and maximum), metres; ``plan_rms_m`` /
+    ``plan_max_m`` the planned trajectories' own, measured the same way over the plan's waypoint times (the heading
+    from the centroid's motion need not be the one the planner placed the slots with, e.g. in turns and climbs)."""
 
     rms_m: float | None = None
     max_m: float | None = None
@@ -323,17 +320,13 @@ class LinkSamples:
 
 @dataclass(frozen=True)
 class ReportFigures:
-    """Everything the report is made of, computed once from the record (:func:`analyse`).
+    """Everything the report is made of, computed once from the record (:func:`analyse`); besides the summary,
+    the series the plots draw."""
 
-    ``summary`` is written as ``report.json`` and told in ``report.md``; the rest are the series
-    the plots draw. ``anchors``: UAV -> simulation time of its trajectory's first waypoint time
-    (docs/report.md, *Path error*), for the UAVs that tracked their trajectory.
-    """
-
-    summary: ReportSummary
+    summary: ReportSummary  # written as report.json and told in report.md
     tracks: dict[int, Track]
     trajectories: dict[int, Trajectory]
-    anchors: dict[int, float]
+    anchors: dict[int, float]  # UAV that tracked -> sim time of its trajectory's first waypoint (docs/report.md)
     paths: dict[int, PathSeries]
     formation: FormationSeries
     latencies: LinkSamples
@@ -374,10 +367,6 @@ def _tracks(record: MissionRecord) -> dict[int, Track]:
     return out
 
 
-def _trajectories(record: MissionRecord) -> dict[int, Trajectory]:
-    return {tr.uav: tr for tr in record.plan.trajectories} if record.plan is not None else {}
-
-
 def _anchor(track: Track, traj: Trajectory) -> float | None:
     """Simulation time of the trajectory's first waypoint time (docs/report.md)."""
     idx = np.flatnonzero(track.tracking)
@@ -390,11 +379,6 @@ def _anchor(track: Track, traj: Trajectory) -> float | None:
         return float(track.t[i] - track.progress[i] * duration)
     first = np.flatnonzero(np.array([m == Mode.MISSION for m in track.mode]))
     return float(track.t[first[0]])
-
-
-def _offsets(record: MissionRecord, uavs: Iterable[int]) -> dict[int, NDArray[np.float64]]:
-    table = DEFAULT_OFFSETS if record.scenario is None else record.scenario.offsets
-    return {u: np.array(table[u - 1]) for u in uavs if 1 <= u <= len(table)}
 
 
 def _corners(record: MissionRecord) -> list[tuple[float, float, float]]:
@@ -418,8 +402,8 @@ def _uav_figures(uav: int, track: Track | None, traj: Trajectory | None, imaged:
                  anchor: float | None, goal: GoalCheck | None) -> tuple[UavFigures, PathSeries | None]:
     f = UavFigures(uav=uav)
     series: PathSeries | None = None
+    W = None if traj is None else np.array([w.pos for w in traj.waypoints], dtype=float)
     if traj is not None:
-        W = np.array([w.pos for w in traj.waypoints], dtype=float)
         f.planned_length_m = _path_length(W)
         mine = planned_captures([traj])
         f.captures_planned = len(mine)
@@ -437,7 +421,6 @@ def _uav_figures(uav: int, track: Track | None, traj: Trajectory | None, imaged:
     f.mission_length_m = float(np.sum(np.linalg.norm(np.diff(track.pos, axis=0), axis=1)[both]))
     if traj is None:
         return f, series
-    W = np.array([w.pos for w in traj.waypoints], dtype=float)
     if goal is not None:  # services.gcs.verdict
         f.goal_distance_m = goal.distance_m
         f.reached_goal = goal.reached
@@ -625,7 +608,7 @@ def as_record(record: MissionRecord | dict[str, Any]) -> MissionRecord:
 def analyse(record: MissionRecord) -> ReportFigures:
     """Every figure and series of the report, in one pass over the record (docs/report.md)."""
     tracks = _tracks(record)
-    trajs = _trajectories(record)
+    trajs = {tr.uav: tr for tr in record.plan.trajectories} if record.plan is not None else {}
     anchors = {u: a for u in sorted(tracks) if u in trajs and (a := _anchor(tracks[u], trajs[u])) is not None}
     captures, imaged = _captures(record, trajs)
     uavs: dict[int, UavFigures] = {}
@@ -635,7 +618,8 @@ def analyse(record: MissionRecord) -> ReportFigures:
         uavs[u], path = _uav_figures(u, tracks.get(u), trajs.get(u), imaged, anchors.get(u), goals.get(u))
         if path is not None:
             paths[u] = path
-    offsets = _offsets(record, sorted(set(tracks) | set(trajs)))
+    table = DEFAULT_OFFSETS if record.scenario is None else record.scenario.offsets
+    offsets = {u: np.array(table[u - 1]) for u in sorted(set(tracks) | set(trajs)) if 1 <= u <= len(table)}
     formation, formation_series = _formation(tracks, trajs, offsets, anchors)
 
     corners = _corners(record)

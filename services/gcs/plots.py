@@ -76,12 +76,10 @@ def _plot_trajectories(record: MissionRecord, figs: ReportFigures, path: Path) -
         ax.plot(cp[:, 0], cp[:, 1], cp[:, 2], ":", color="k", lw=0.8, label="centroid plan")
     start = record.scenario.start if record.scenario else (record.plan.centroid_path[0] if record.plan else None)
     goal = record.scenario.goal if record.scenario else (record.plan.centroid_path[-1] if record.plan else None)
-    if start is not None:
-        ax.scatter(*np.asarray(start, float), marker="^", s=60, color="green", label="start")
-        pts.append(np.asarray(start, float).reshape(1, 3))
-    if goal is not None:
-        ax.scatter(*np.asarray(goal, float), marker="*", s=90, color="red", label="goal")
-        pts.append(np.asarray(goal, float).reshape(1, 3))
+    for end, marker, size, colour, label in ((start, "^", 60, "green", "start"), (goal, "*", 90, "red", "goal")):
+        if end is not None:
+            ax.scatter(*np.asarray(end, float), marker=marker, s=size, color=colour, label=label)
+            pts.append(np.asarray(end, float).reshape(1, 3))
     if figs.corners:
         S = np.asarray(figs.corners, float)
         ax.add_collection3d(Poly3DCollection([S], facecolor="tab:orange", edgecolor="darkorange", alpha=0.35))
@@ -101,15 +99,21 @@ def _plot_trajectories(record: MissionRecord, figs: ReportFigures, path: Path) -
         Y = y + r * np.sin(theta)[None, :].repeat(2, 0)
         Z = np.array([[0.0], [min(h, hi[2])]]).repeat(theta.size, 1)
         ax.plot_surface(X, Y, Z, color="grey", alpha=0.3, linewidth=0)
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(lo[2], hi[2])
+    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]), xlabel="x east, m", ylabel="y north, m",
+           zlabel="z up, m", title="Trajectories of the UAVs tracking the planned paths")
     ax.set_box_aspect(tuple(np.maximum(hi - lo, 1.0)))
-    ax.set_xlabel("x east, m")
-    ax.set_ylabel("y north, m")
-    ax.set_zlabel("z up, m")
-    ax.set_title("Trajectories of the UAVs tracking the planned paths")
     ax.legend(fontsize=7, loc="upper left")
+    _save(fig, path)
+
+
+def _save_series(fig, ax, path: Path, drawn: bool, empty: str, **labels: str) -> None:
+    """Finish a plot of per-UAV lines over simulation time (or say there are none) and save it."""
+    if not drawn:
+        _no_data(ax, empty)
+    ax.set(xlabel="time since the first state, s (simulation)", **labels)
+    ax.grid(alpha=0.3)
+    if drawn:
+        ax.legend(fontsize=7)
     _save(fig, path)
 
 
@@ -117,7 +121,6 @@ def _plot_altitudes(figs: ReportFigures, path: Path) -> None:
     fig = _figure()
     ax = fig.add_subplot()
     t0 = figs.t0
-    drawn = False
     for u, tk in sorted(figs.tracks.items()):
         s = _thin(tk.n)
         ax.plot(tk.t[s] - t0, tk.pos[s, 2], "-", color=_colour(u), label=f"UAV {u} flown")
@@ -125,35 +128,20 @@ def _plot_altitudes(figs: ReportFigures, path: Path) -> None:
         if tr is not None and u in figs.anchors:
             tw = np.array([w.t for w in tr.waypoints]) - tr.waypoints[0].t + figs.anchors[u] - t0
             ax.plot(tw, [w.pos[2] for w in tr.waypoints], "--", color=_colour(u), lw=1.0, label=f"UAV {u} planned")
-        drawn = True
-    if not drawn:
-        _no_data(ax)
-    ax.set(xlabel="time since the first state, s (simulation)", ylabel="altitude z, m", title="Altitudes of the UAVs")
-    ax.grid(alpha=0.3)
-    if drawn:
-        ax.legend(fontsize=7)
-    _save(fig, path)
+    _save_series(fig, ax, path, bool(figs.tracks), "no data", ylabel="altitude z, m", title="Altitudes of the UAVs")
 
 
 def _plot_path_error(figs: ReportFigures, path: Path) -> None:
     fig = _figure()
     ax = fig.add_subplot()
     t0 = figs.t0
-    drawn = False
     for u, ser in sorted(figs.paths.items()):
         s = _thin(ser.t.size)
         ax.plot(ser.t[s] - t0, ser.geometric[s], "-", color=_colour(u), label=f"UAV {u} to planned path")
         if ser.timed is not None:
             ax.plot(ser.t[s] - t0, ser.timed[s], ":", color=_colour(u), label=f"UAV {u} time-aligned")
-        drawn = True
-    if not drawn:
-        _no_data(ax, "no tracking states")
-    ax.set(xlabel="time since the first state, s (simulation)", ylabel="error, m",
-           title="Errors between the planned and flown paths")
-    ax.grid(alpha=0.3)
-    if drawn:
-        ax.legend(fontsize=7)
-    _save(fig, path)
+    _save_series(fig, ax, path, bool(figs.paths), "no tracking states", ylabel="error, m",
+                 title="Errors between the planned and flown paths")
 
 
 def _plot_formation(figs: ReportFigures, path: Path) -> None:
@@ -204,8 +192,7 @@ def _plot_defects(record: MissionRecord, figs: ReportFigures, path: Path) -> Non
     if corners:
         L = surface_uv(np.asarray(corners, float), corners)
         ax.add_patch(Rectangle((0, 0), L[1, 0], L[3, 1], fill=False, ec="k", lw=1.0))
-        ax.set_xlim(min(0.0, L[:, 0].min()) - 1, L[:, 0].max() + 1)
-        ax.set_ylim(min(0.0, L[:, 1].min()) - 1, L[:, 1].max() + 1)
+        ax.set(xlim=(min(0.0, L[:, 0].min()) - 1, L[:, 0].max() + 1), ylim=(min(0.0, L[:, 1].min()) - 1, L[:, 1].max() + 1))
     found = set(score.found_ids) if score else set()
     for g in record.ground_truth:
         u0, v0, u1, v1 = g.bbox_uv
@@ -228,8 +215,7 @@ def _plot_defects(record: MissionRecord, figs: ReportFigures, path: Path) -> Non
     else:
         _no_data(ax, "no ground truth and no reported positions")
     ax.set_aspect("equal", adjustable="box")
-    ax.set_xlabel("u along the bottom edge, m")
-    ax.set_ylabel("v up the surface, m")
+    ax.set(xlabel="u along the bottom edge, m", ylabel="v up the surface, m")
     title = "Defects on the surface"
     if score:
         title += f": recall {score.recall:.2f}, precision {score.precision:.2f} (tolerance {score.tolerance_m:g} m)"
@@ -251,8 +237,7 @@ def _plot_links(figs: ReportFigures, path: Path) -> None:
             ax.set_yscale("log")
     else:
         _no_data(ax)
-    ax.set_ylabel("latency, ms (whiskers p1-p99)")
-    ax.set_title("Latency per link class")
+    ax.set(ylabel="latency, ms (whiskers p1-p99)", title="Latency per link class")
     ax.grid(alpha=0.3, axis="y")
     _save(fig, path)
 

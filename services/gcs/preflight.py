@@ -157,14 +157,8 @@ TRANSIT_SPEED_MS = 3.0
 
 def transit_margin_s(positions: dict[int, Sequence[float]], plan: MissionPlan, speed: float = 1.0,
                      transit_speed: float = TRANSIT_SPEED_MS) -> float:
-    """Wall seconds the farthest UAV needs from where it holds to its trajectory's first waypoint.
-
-    The common start time must leave it that long: a UAV stacked above another
-    launches beside it (:func:`edge.geometry.formation.home_offsets`) and flies level to its slot once
-    started; arriving after the start time it would begin its trajectory late, and formation
-    keeping would pull its formation back while the formations around it fly on. ``speed`` is
-    the mission clock's speed factor (simulated seconds per wall second).
-    """
+    """Wall seconds the farthest UAV needs from where it holds to its trajectory's first waypoint; ``speed`` is the
+    mission clock's speed factor (simulated seconds per wall second)."""
     if not (math.isfinite(speed) and speed > 0 and math.isfinite(transit_speed) and transit_speed > 0):
         raise ValueError("speed and transit_speed must be finite and > 0")
     far = 0.0

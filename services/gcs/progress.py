@@ -1,7 +1,6 @@
 """Live mission progress in the terminal: a bar per UAV, formation error, link figures.
 
-:func:`render` is pure (state in, lines out); :class:`LiveDisplay` redraws those lines in place
-on a terminal (ANSI cursor-up), or prints them every few seconds when the output is a pipe.
+Design notes: docs/ground-station.md (services/gcs/progress.py).
 """
 
 from __future__ import annotations

@@ -21,43 +21,33 @@ __all__ = ["DefectMatch", "DefectScore", "surface_frame", "surface_uv", "bbox_di
 
 @dataclass(frozen=True)
 class DefectMatch:
-    """One reported defect position lying within tolerance of a ground-truth crack.
+    """One reported defect position lying within tolerance of a ground-truth crack."""
 
-    ``report`` indexes the list of reports given to :func:`score_defects`, ``defect`` the
-    report's ``defects`` list; ``truth_id`` is the :attr:`GroundTruthDefect.id`; ``distance_m``
-    the (u, v) distance from the position to the crack's bounding box (0 inside it).
-    """
-
-    report: int
-    defect: int
+    report: int  # index in the list of reports given to score_defects
+    defect: int  # index in that report's defects
     uav: int
     capture_id: int
-    truth_id: int
-    distance_m: float
+    truth_id: int  # GroundTruthDefect.id
+    distance_m: float  # (u, v) distance from the position to the crack's bounding box (0 inside it)
     uv: tuple[float, float]
 
 
 @dataclass
 class DefectScore:
     """Object-level score of the reported defects against the ground truth (docs/report.md):
-    ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``.
-
-    ``n_found`` cracks have a reported position within tolerance, ``n_true`` of ``n_reported`` positions
-    (defects with ``pos`` of reports with ``ok=True``) are near a crack, ``without_pos`` were not scored;
-    ``matches`` holds every (position, crack) pair within tolerance, ``false_positives`` and ``reported_uv``
-    are ``(report, defect, u, v)``.
-    """
+    ``f_measure = 2pr / (p + r)`` (P20), 0 when ``p + r = 0``; ``false_positives`` and ``reported_uv`` are
+    ``(report, defect, u, v)``."""
 
     recall: float
     precision: float
     f_measure: float
     n_truth: int
-    n_found: int
-    n_reported: int
-    n_true: int
-    without_pos: int
+    n_found: int  # cracks with a reported position within tolerance
+    n_reported: int  # positions: defects with pos of reports with ok=True
+    n_true: int  # of those, near a crack
+    without_pos: int  # defects not scored (no position)
     tolerance_m: float
-    matches: list[DefectMatch] = field(default_factory=list)
+    matches: list[DefectMatch] = field(default_factory=list)  # every (position, crack) pair within tolerance
     found_ids: list[int] = field(default_factory=list)
     missed_ids: list[int] = field(default_factory=list)
     false_positives: list[tuple[int, int, float, float]] = field(default_factory=list)

@@ -44,14 +44,12 @@ SORT_KEY = "severity class (worst first), then length (longest first)"
 
 
 class InspectionDefect(BaseModel):
-    """One row of the defect table: where, how big, which class, and the capture behind it.
-
-    ``uav``, ``capture_id``, ``t`` (mission time) and ``stamp`` (UTC seconds) are those of the frame
-    that shows the defect's largest part on the mosaic; ``seen_by`` names the frames behind it: those
-    that give its pixels on the mosaic (largest share first), then any other whose view holds its centroid (``uav<N>-<capture>``, the files kept in ``frames/``). ``centre_line_uv``
-    and ``outline_uv`` are its skeleton's longest path and its outline on the surface (u, v metres),
-    ``centre_line_lla`` / ``outline_lla`` the same in WGS-84 (lat, lon deg, alt m) with an origin.
-    """
+    """One row of the defect table: where, how big, which class, and the capture behind it (``uav`` to ``stamp``:
+    the frame that shows the defect's largest part on the mosaic; ``t`` mission time, ``stamp`` UTC seconds).
+    ``seen_by`` names the frames behind it (``uav<N>-<capture>``, the files kept in ``frames/``): those that give its
+    pixels on the mosaic (largest share first), then any other whose view holds its centroid. ``centre_line_uv``
+    and ``outline_uv`` are its skeleton's longest path and its outline on the surface (u, v metres), the ``_lla``
+    ones the same in WGS-84 (lat, lon deg, alt m) with an origin."""
 
     model_config = ConfigDict(extra="forbid")
     id: int
@@ -122,8 +120,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
 
     ``min_area_px`` defaults to the detector's smallest reported component
     (:data:`services.detector.pipeline.MIN_REPORT_AREA_PX`, set for 640 x 480 frames) scaled by the
-    frames' pixel count over that reference: the same share of a frame's footprint, so a 12 MP
-    capture does not report texture specks a 640 x 480 one cannot see.
+    frames' pixel count over that reference (docs/report.md).
     """
     if not frames:
         raise ValueError("no frames")
@@ -143,9 +140,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
     for bbox, ctr, m in measure_mask(mos.mask, mos.m_per_px, min_area_px, mos.image):
         uv = mos.pixel_to_uv(np.array(ctr))
         enu = pl.to_world(uv)
-        lla = None
-        if origin is not None:
-            lla = tuple(float(x) for x in enu_to_geodetic(enu, origin))
+        lla = None if origin is None else tuple(float(x) for x in enu_to_geodetic(enu, origin))
         d = m.as_dict()
         x, y, w, h = bbox
         sub = labels[y:y + h, x:x + w] == label_of.get(bbox, -1)
@@ -351,11 +346,6 @@ def write_deliverable(res: Deliverable, out: str | Path, title: str = "", origin
 
 
 # ------------------------------------------------------------------------------------ folders
-def _meta_from(doc: dict, index: int) -> ImageMeta:
-    base = {"uav": 1, "capture_id": index, "t": 0.0, "stamp": 0.0}
-    return ImageMeta.model_validate({**base, **{k: v for k, v in doc.items() if k != "type"}})
-
-
 def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tuple[float, float, float] | None]:
     """Frames with poses from ``folder`` (docs/report.md), its plane and geodetic origin.
 
@@ -372,7 +362,8 @@ def load_folder(folder: str | Path) -> tuple[list[PosedFrame], Plane | None, tup
         if not side.exists():
             raise ValueError(f"{p.name}: no pose file {side.name}")
         try:
-            meta = _meta_from(codec.loads_json(side.read_text()), i)
+            doc = {k: v for k, v in codec.loads_json(side.read_text()).items() if k != "type"}
+            meta = ImageMeta.model_validate({"uav": 1, "capture_id": i, "t": 0.0, "stamp": 0.0, **doc})
         except (json.JSONDecodeError, ValueError) as exc:
             raise ValueError(f"{side.name}: {exc}") from None
         g = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
@@ -412,7 +403,7 @@ def frames_from_log(path: str | Path) -> list[PosedFrame]:
         k = meta.intrinsics
         if g is not None and (k.width, k.height) == (g.shape[1], g.shape[0]):
             frames.append(PosedFrame(meta, g))
-    return sorted(frames, key=lambda f: f"uav{f.meta.uav}-{f.meta.capture_id:05d}")
+    return sorted(frames, key=lambda f: frame_name(f.meta))
 
 
 def main(argv: list[str] | None = None) -> int:

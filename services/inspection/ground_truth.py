@@ -1,8 +1,6 @@
 """The ground truth of a simulated mission: the cracks really on the synthetic wall.
 
-The edges render their camera frames from :func:`edge.world.wall.synthetic_surface` (same scenario,
-same seed), so the ground station can rebuild the identical wall and list its cracks, which
-the report scores the system's defect reports against (recall and precision, object level).
+Design notes: docs/report.md (services/inspection/ground_truth.py).
 """
 
 from __future__ import annotations

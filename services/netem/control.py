@@ -1,8 +1,6 @@
 """The control channel of a running proxy: text commands over loopback UDP, JSON replies.
 
-:class:`ControlServer` serves one proxy (``skynet netem ... --control HOST:PORT``);
-:func:`send_control` is the client (``skynet netem ctl HOST:PORT COMMAND``). The commands are
-the grammar of :mod:`services.netem.schedule` plus ``stats``.
+Design notes: docs/experiments.md (services/netem/control.py).
 """
 
 from __future__ import annotations

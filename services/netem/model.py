@@ -203,36 +203,24 @@ class Impairment(BaseModel):
 
     def to_text(self) -> str:
         """The canonical string form; ``Impairment.parse(x.to_text())`` gives ``x`` back (to float rounding)."""
-        parts: list[str] = []
-        if self.delay_ms:
-            parts.append(f"delay {_fmt_ms(self.delay_ms)}")
-        if self.jitter_ms:
-            parts.append(f"jitter {_fmt_ms(self.jitter_ms)}")
-        if self.distribution != "uniform":
-            parts.append(f"distribution {self.distribution}")
-        if self.gilbert_elliott is not None:
-            g = self.gilbert_elliott
-            parts.append(f"loss gemodel {_fmt_pct(g.p)} {_fmt_pct(g.r)} {_fmt_pct(g.loss_bad)} {_fmt_pct(g.loss_good)}")
-        elif self.loss or self.loss_correlation:
-            parts.append(f"loss {_fmt_pct(self.loss)}"
-                         + (f" {_fmt_pct(self.loss_correlation)}" if self.loss_correlation else ""))
-        if self.duplicate:
-            parts.append(f"duplicate {_fmt_pct(self.duplicate)}")
-        if self.reorder or self.reorder_ms != 10.0:
-            parts.append(f"reorder {_fmt_pct(self.reorder)} {_fmt_ms(self.reorder_ms)}")
-        if self.rate_kbps:
-            parts.append(f"rate {self.rate_kbps * 1000.0!r}bit")
-        if self.limit != 1000:
-            parts.append(f"limit {self.limit}")
-        for start, duration in self.outages:
-            parts.append(f"outage {start!r}s {duration!r}s")
-        if self.rto_ms != 200.0:
-            parts.append(f"rto {_fmt_ms(self.rto_ms)}")
-        if self.after_s:
-            parts.append(f"after {self.after_s!r}s")
-        if not self.fifo:
-            parts.append("unordered")
-        return " ".join(parts) or "none"
+        g = self.gilbert_elliott
+        correlation = f" {_fmt_pct(self.loss_correlation)}" if self.loss_correlation else ""
+        loss = (f"loss gemodel {_fmt_pct(g.p)} {_fmt_pct(g.r)} {_fmt_pct(g.loss_bad)} {_fmt_pct(g.loss_good)}" if g
+                else f"loss {_fmt_pct(self.loss)}{correlation}")
+        reorder = f"reorder {_fmt_pct(self.reorder)} {_fmt_ms(self.reorder_ms)}"
+        parts = ((self.delay_ms, f"delay {_fmt_ms(self.delay_ms)}"),
+                 (self.jitter_ms, f"jitter {_fmt_ms(self.jitter_ms)}"),
+                 (self.distribution != "uniform", f"distribution {self.distribution}"),
+                 (g is not None or self.loss or self.loss_correlation, loss),
+                 (self.duplicate, f"duplicate {_fmt_pct(self.duplicate)}"),
+                 (self.reorder or self.reorder_ms != 10.0, reorder),
+                 (self.rate_kbps, f"rate {self.rate_kbps * 1000.0!r}bit"),
+                 (self.limit != 1000, f"limit {self.limit}"),
+                 *((True, f"outage {start!r}s {duration!r}s") for start, duration in self.outages),
+                 (self.rto_ms != 200.0, f"rto {_fmt_ms(self.rto_ms)}"),
+                 (self.after_s, f"after {self.after_s!r}s"),
+                 (not self.fifo, "unordered"))
+        return " ".join(text for wanted, text in parts if wanted) or "none"
 
     def __str__(self) -> str:
         return self.to_text()

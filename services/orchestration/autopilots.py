@@ -1,11 +1,6 @@
 """Real autopilots from the launcher: ``--autopilot uavN=ENDPOINT``, checked and normalised (pure, no I/O).
 
-An endpoint is a connection string as pymavlink's ``mavutil.mavlink_connection`` takes it (the edge's
-``--mavlink``): ``udpin:HOST:PORT`` (listen; ArduPilot SITL's ``--serial0 udpclient:...`` or a telemetry radio
-bridge sends there), ``udpout:HOST:PORT`` / ``udp:HOST:PORT`` / ``udpbcast:HOST:PORT``, ``tcp:HOST:PORT`` (dial;
-SITL's own ``tcp:5760``), ``tcpin:HOST:PORT``, or a serial device ``/dev/ttyUSB0[,BAUD]``. The common
-``serial:/dev/ttyACM0[:BAUD]`` form (MAVSDK's, QGroundControl's) is accepted and written as pymavlink's
-``/dev/ttyACM0,BAUD``. docs/hardware-mavlink.md has a worked example.
+Design notes: docs/hardware-mavlink.md (services/orchestration/autopilots.py).
 """
 
 from __future__ import annotations

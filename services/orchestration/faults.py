@@ -183,9 +183,6 @@ class FaultInjector:
     the origin is then the runner's ``record.phases["mission"]`` once it appears, and injection
     stops when ``record.phases["done"]`` appears. Each action and each end goes to ``note(action,
     target, text)`` (the runner's ``note_fault`` when attached) and to :attr:`ledger`.
-
-    Cuts are counted per link, so overlapping faults on one link restore it only when the last
-    one ends. A fault whose action fails is noted with the error (``text``) and the run goes on.
     """
 
     def __init__(self, target: Target, items: list[Resolved], log: logging.Logger | None = None,

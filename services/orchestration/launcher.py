@@ -288,12 +288,7 @@ class Network:
         self._sup.start()
 
     def supervise(self, tracker: RestartTracker, log: logging.Logger) -> None:
-        """One pass: schedule the restart of services that ended on their own, start those that are due.
-
-        A service that exits :data:`START_ATTEMPTS` times in a row without ever having come up (its ready
-        signal, :mod:`protocol.readiness`) cannot start: it is not restarted again, and :meth:`start_failed` says why
-        (:attr:`start_failures`, :attr:`on_start_failure`). One that came up once and then ended crashed
-        after working: it is restarted, and the restart is reported as the supervisor's, not as a fault."""
+        """One pass: schedule the restart of services that ended on their own, start those that are due."""
         if self.group.closed:
             return
         now = time.monotonic()

@@ -143,30 +143,23 @@ def free_ports(kind: str = "tcp") -> int:
 
 @dataclass(frozen=True)
 class ProcessSpec:
-    """One process of the network.
-
-    ``config`` is the service's typed configuration and ``argv`` (after ``python -m services.cli``) its command
-    line, rendered from it (:func:`protocol.cliconfig.to_argv`; a process without a config model: written by hand;
-    both empty for the in-process ground station of ``skynet mission``); ``identity`` is the key set's identity it
-    runs as (None: no bus, or no key set);
-    ``namespace`` the site whose network namespace it runs in (``--netns``; None: the machine's own);
-    ``ready``: it signals when it is up (:mod:`protocol.readiness`) and is supervised as a service;
-    ``wait``: the launcher waits for that signal before starting the next process.
-    """
+    """One process of the network. ``argv`` (after ``python -m services.cli``) is rendered from ``config``
+    (:func:`protocol.cliconfig.to_argv`), by hand for a process without a config model, both empty for the
+    in-process ground station of ``skynet mission``."""
 
     name: str
     role: str
     site: int
-    identity: str | None
+    identity: str | None  # the key set's identity it runs as (None: no bus, or no key set)
     listens: tuple[str, ...] = ()
     connects: tuple[str, ...] = ()
     env: dict[str, str] = field(default_factory=dict)
     argv: tuple[str, ...] = ()
-    ready: bool = True
-    wait: bool = False
-    namespace: int | None = None
+    ready: bool = True  # it signals when it is up (protocol.readiness) and is supervised as a service
+    wait: bool = False  # the launcher waits for that signal before starting the next process
+    namespace: int | None = None  # the site whose network namespace it runs in (--netns; None: the machine's own)
     in_process: bool = False
-    config: BaseModel | None = None
+    config: BaseModel | None = None  # the service's typed configuration
 
 
 @dataclass(frozen=True)

@@ -69,16 +69,9 @@ _cursor = _PortCursor()
 
 
 def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
-    """A port for a service to listen on, free now, outside the kernel's ephemeral range.
-
-    Binding port 0 gives an ephemeral port, which any outgoing connection (a Zenoh client's, a
-    browser's) may take between this call and the service's own bind: then the service fails with
-    "Address already in use" and, restarted on the same port, never comes up (seen with 15 processes
-    on a loaded machine). Ports come from a cursor (:class:`_PortCursor`): never the same one twice in a
-    process, as random draws were (a launcher's ~20 ports collided about once in a hundred launches), and
-    from a random start, so two launchers (two test workers) are far apart. Falls back to port 0 when no
-    port of the ranges is free.
-    """
+    """A port for a service to listen on, free now, outside the kernel's ephemeral range, from a cursor
+    (:class:`_PortCursor`; docs/architecture.md, services/orchestration/process.py); port 0 when no port of the
+    ranges is free."""
     for _ in range(64):
         port = _cursor.next()
         if port is None:

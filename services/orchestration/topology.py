@@ -164,17 +164,10 @@ def open_timeout_ms(worst_delay_ms: float) -> int:
 
 
 def edge_mesh_config(mesh: MeshMode, base: dict | None = None, open_timeout: int = OPEN_TIMEOUT_MS) -> dict:
-    """The zenoh config of an edge whose links must all go where the launcher points them.
-
-    Gossip stays on (the nodes still tell each other what they have), but *autoconnect* —
-    dialling a node learned by gossip, which would bypass a proxy — is restricted: never to the
-    router (each edge connects to the gateway through its ``--connect`` endpoints; with a cut
-    uplink it must not find the gateway's real address by gossip), and to other peers only with
-    the ``direct`` mesh. ``scouting/gossip/autoconnect`` lists the kinds of node a peer dials
-    (zenoh's DEFAULT_CONFIG.json5: ``{ router: [], peer: ["router", "peer"] }``). ``base`` (e.g.
-    a config file of the user's) is merged in.
-    The open timeout is shortened (:data:`OPEN_TIMEOUT_MS`, more on slow links: :func:`open_timeout_ms`).
-    """
+    """The zenoh config of an edge whose links must all go where the launcher points them: gossip's autoconnect
+    never to the router and to peers only with the ``direct`` mesh (docs/experiments.md,
+    services/orchestration/topology.py); ``base`` (e.g. a config file of the user's) merged in; the open timeout
+    shortened (:data:`OPEN_TIMEOUT_MS`, more on slow links: :func:`open_timeout_ms`)."""
     doc = copy.deepcopy(base or {})
     peer = ["peer"] if mesh == "direct" else []
     return _merge(doc, {"scouting": {"gossip": {"autoconnect": {"router": [], "peer": peer}}},

@@ -119,13 +119,9 @@ def bench(scenario: Scenario, seeds: int = 20, particles: int = 150, iterations:
           repeats: int = 7, out: str | Path | None = None) -> dict[str, Any]:
     """θ-PSO timing against pyswarms' GlobalBestPSO (same cost and budget), plus :func:`compare`.
 
-    Both minimise the same :class:`Cost` (whose time per call does not depend on the
-    positions) for ``particles * (iterations + 1)`` evaluations from the same initial
-    population, on one thread. The runs alternate (θ-PSO, pyswarms, θ-PSO, ...) so that load
-    from other processes hits both alike; reported are the medians over ``repeats`` pairs of
-    the wall time and of the process CPU time, and ``pyswarms_over_theta_pso`` = pyswarms'
-    median wall time / θ-PSO's (> 1: θ-PSO is faster). Writes JSON to ``out`` if given.
-    pyswarms is optional; without it the ratio is omitted.
+    Medians over ``repeats`` alternating pairs (docs/planner.md, services/planner/compare.py);
+    ``pyswarms_over_theta_pso`` > 1: θ-PSO is faster. Writes JSON to ``out`` if given; without pyswarms (optional)
+    the ratio is omitted.
     """
     problem = PathProblem.from_scenario(scenario, waypoints)
     x0 = problem.initial_population(particles, np.random.default_rng([0, 0]))

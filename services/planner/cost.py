@@ -37,16 +37,7 @@ def cost_offsets(offsets: ArrayLike, wall_height: float | None = None) -> NDArra
     """The UAVs the cost needs to look at: for a fleet stacked in columns
     (:func:`edge.geometry.formation.offsets_for`) the top and bottom UAV of each column and, between them,
     as few as keep consecutive ones at most ``wall_height`` apart; every UAV of a fleet without
-    stacked UAVs (the paper's three: unchanged).
-
-    For the scenario's vertical cylinders standing on the ground, a column's lowest UAV is the
-    closest to every obstacle below its top, so the J2 obstacle terms are zero (clear of the
-    danger band) for the column exactly when they are for its kept UAVs, and so are the J3
-    altitude-band terms (its top and bottom); a column crosses the wall (height ``wall_height``)
-    exactly when a kept UAV does, since no two kept ones are farther apart than the wall is tall.
-    The magnitudes differ (fewer terms), the zero set does not; the plan's exact dense check
-    (``collision_free``) still looks at every UAV. The inter-UAV term uses all pairs (it is
-    constant for a rigid formation). Planning 48 UAVs then costs what 30 did.
+    stacked UAVs (the paper's three: unchanged). Why the zero set of the cost is unchanged: docs/planner.md.
     """
     off = np.asarray(offsets, float).reshape(-1, 3)
     gap = np.inf if wall_height is None or not wall_height > 0 else float(wall_height)
@@ -142,16 +133,8 @@ class PathProblem:
 class Cost:
     """The cost (P5) of decision vectors, vectorised: ``cost(X) -> (P,)`` for ``X (P, 3n)``.
 
-    ``evaluations`` counts the candidate paths evaluated so far (the algorithms' budget).
-
-    Implementation: every term is evaluated for every particle, UAV, segment and obstacle in
-    a fixed sequence of whole-array numpy operations (no data-dependent shortcuts), so the time
-    of a call depends only on the array shapes, not on where the swarm is. Arrays are float64
-    with the particle axis last (contiguous): ``(S, P)`` per segment, ``(C, S, P)`` per
-    obstacle and ``(M, C, S, P)`` per UAV and obstacle. Distances use the segment's frame: the
-    horizontal unit heading ``e`` and its left normal ``e⊥``, in which the formation offsets
-    ΔT_n (P7, P9: yaw only) are constants, so UAV n's segment starts at
-    ``a + ox_n e + oy_n e⊥ + oz_n z`` and has the centroid's direction ``b - a``.
+    ``evaluations`` counts the candidate paths evaluated so far (the algorithms' budget). The array layout and
+    the segment frame: docs/planner.md (services/planner/cost.py).
     """
 
     SAMPLES = 8  # per UAV segment, for the wall stand-off term
@@ -258,15 +241,7 @@ class Cost:
         return b
 
     def _cyl_penalty(self, a, ex, ey, L, slope) -> NDArray[np.float64]:
-        """Σ over UAVs, segments and cylinders of the J2 obstacle term, ``(P,)``.
-
-        In the segment frame the cylinder axis is at ``(u, v)`` from the centroid's segment
-        start (``u`` along ``e``, ``v`` along ``e⊥``); UAV n's segment runs along ``e`` from
-        ``(ox_n, oy_n)`` for the horizontal length ``L``, so the closest point is at
-        ``s = clip(u - ox_n, 0, L)`` and ``ρ = hypot(u - ox_n - s, v - oy_n)`` (the exact
-        point-segment distance of :func:`point_segment_distance`), at height
-        ``a_z + oz_n + s dz / L``. ``s`` is measured from the segment's midpoint below.
-        """
+        """Σ over UAVs, segments and cylinders of the J2 obstacle term, ``(P,)``."""
         ax, ay, az = a
         S, P = ax.shape
         M, C = self._ox.shape[0], self._cx.shape[0]

@@ -122,22 +122,15 @@ def leg_speeds(items: list[MissionItem]) -> list[float | None]:
     return out
 
 
-def _nan_to_none(v: float) -> float | None:
-    return None if not math.isfinite(v) else v
-
-
 def qgc_plan(trajectory: Trajectory, plan: MissionPlan) -> dict[str, Any]:
-    """QGroundControl's .plan JSON for one UAV: the mission, the box as an inclusion fence, a rally point.
-
-    Schema: QGroundControl's "Plan File Format" (fileType "Plan", version 1; mission version 2 with
-    ``SimpleItem`` items, ``plannedHomePosition``, ``firmwareType`` 3 = ArduPilot, ``vehicleType`` 2 =
-    quadrotor; geoFence version 2; rallyPoints version 2).
-    """
+    """QGroundControl's .plan JSON for one UAV: the mission, the box as an inclusion fence, a rally point
+    (QGroundControl's "Plan File Format"; the versions and fields: docs/planner.md)."""
     items = mission_items(trajectory, plan.origin)
     home = items[0].params
     out_items = [{"type": "SimpleItem", "autoContinue": bool(it.autocontinue), "command": it.command,
-                  "doJumpId": it.index, "frame": it.frame, "params": [_nan_to_none(v) for v in it.params],
-                  "Altitude": it.params[6], "AltitudeMode": 1, "AMSLAltAboveTerrain": None} for it in items[1:]]
+                  "doJumpId": it.index, "frame": it.frame,
+                  "params": [v if math.isfinite(v) else None for v in it.params], "Altitude": it.params[6],
+                  "AltitudeMode": 1, "AMSLAltAboveTerrain": None} for it in items[1:]]
     lo, hi = plan.geofence.lo, plan.geofence.hi
     ring = enu_to_geodetic([(lo[0], lo[1], 0.0), (hi[0], lo[1], 0.0), (hi[0], hi[1], 0.0), (lo[0], hi[1], 0.0)],
                            plan.origin)

@@ -87,24 +87,20 @@ def camera_grid(surface: Surface, camera: Camera, smallest_feature: float,
 
 @dataclass(frozen=True)
 class InspectionPass:
-    """One straight pass of the formation along a vertical wall, and its K shots in the order taken.
+    """One straight pass of the formation along a vertical wall, and its K shots in the order taken;
+    ``standoff``, ``footprint`` and ``spacing`` are those of (P1)-(P3), the arrays from ``uav`` on are per shot."""
 
-    ``entry``/``exit`` are the centroid's fixed via-points, ``standoff``, ``footprint`` and ``spacing``
-    those of (P1)-(P3); per shot: ``uav`` (row of the offsets), ``leg_s`` (centroid distance from
-    ``entry``), ``positions`` and ``look``, and ``stations`` (along the bottom edge from p0, z) on the wall.
-    """
-
-    entry: NDArray[np.float64]
+    entry: NDArray[np.float64]  # the centroid's fixed via-points
     exit: NDArray[np.float64]
     direction: NDArray[np.float64]
     standoff: float
     footprint: tuple[float, float]
     spacing: tuple[float, float]
-    uav: NDArray[np.int64]
-    leg_s: NDArray[np.float64]
+    uav: NDArray[np.int64]  # row of the offsets
+    leg_s: NDArray[np.float64]  # centroid distance from entry
     positions: NDArray[np.float64]
     look: NDArray[np.float64]
-    stations: NDArray[np.float64]
+    stations: NDArray[np.float64]  # on the wall: along the bottom edge from p0, z
 
     @property
     def length(self) -> float:

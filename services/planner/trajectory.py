@@ -25,19 +25,14 @@ BLEND_M = 2.0  # body-yaw blend before/after the pass, metres
 
 @dataclass(frozen=True)
 class FormationTrajectories:
-    """Result of :func:`build_trajectories`.
+    """Result of :func:`build_trajectories`; ``trajectories`` and ``captures`` as wire messages."""
 
-    ``t (N,)`` sample times, ``centroid (N, 3)``, ``positions (N, M, 3)`` UAV slots,
-    ``trajectories`` and ``captures`` as wire messages, ``min_clearance`` the smallest obstacle/wall
-    clearance of any UAV along the densified trajectories (negative: collision).
-    """
-
-    t: NDArray[np.float64]
-    centroid: NDArray[np.float64]
-    positions: NDArray[np.float64]
+    t: NDArray[np.float64]  # (N,) sample times
+    centroid: NDArray[np.float64]  # (N, 3)
+    positions: NDArray[np.float64]  # (N, M, 3) UAV slots
     trajectories: list[Trajectory]
     captures: list[CapturePoint]
-    min_clearance: float
+    min_clearance: float  # least obstacle/wall clearance of any UAV on the densified trajectories (< 0: collision)
 
     @property
     def duration_s(self) -> float:
@@ -90,11 +85,6 @@ def _speed_profile(s, v_nom, kappa, sp) -> NDArray[np.float64]:
     for i in range(v.size - 2, -1, -1):  # brake
         v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2 * sp.accel * ds[i]))
     return v
-
-
-def _blend_angle(a: NDArray[np.float64], b: float, w: NDArray[np.float64]) -> NDArray[np.float64]:
-    d = np.angle(np.exp(1j * (b - a)))
-    return a + w * d
 
 
 def build_trajectories(scenario: Scenario, centroid_path: ArrayLike, inspection: InspectionPass | None,
@@ -157,7 +147,8 @@ def build_trajectories(scenario: Scenario, centroid_path: ArrayLike, inspection:
         look = inspection.look[0]  # every shot looks along the inverse wall normal
         psi_look = float(np.arctan2(look[1], look[0]))
         w = np.clip(np.minimum(s - (s_in - BLEND_M), (s_out + BLEND_M) - s) / BLEND_M, 0.0, 1.0)
-        yaw = np.angle(np.exp(1j * _blend_angle(yaw_travel, psi_look, w)))[:, None].repeat(M, axis=1)
+        blended = yaw_travel + w * np.angle(np.exp(1j * (psi_look - yaw_travel)))  # along the shorter turn
+        yaw = np.angle(np.exp(1j * blended))[:, None].repeat(M, axis=1)
     # captures
     cap_of: dict[tuple[int, int], int] = {}
     captures: list[CapturePoint] = []

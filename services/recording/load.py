@@ -117,8 +117,7 @@ def load_record(path: str | Path, caps: dict[str, int] | None = None,
             break
     if head is None:
         raise NotAMissionLog(f"{own}: no mission record header (not a mission log)")
-    for name in ("events",):  # the ground station's own and the bus's, in receive order
-        getattr(lists, name).sort(key=lambda e: e.rx)
+    lists.events.sort(key=lambda e: e.rx)  # the ground station's own and the bus's, in receive order
     try:
         record = MissionRecord.model_validate({**head, **foot})
     except ValueError:  # a header or footer that parses as JSON but not as a record

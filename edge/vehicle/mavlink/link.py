@@ -21,15 +21,8 @@ __all__ = ["Link", "open_connection"]
 
 
 class _Clients(set):
-    """pymavlink's ``udpin:`` peer set, iterated over a snapshot.
-
-    ``mavudp.write`` sends to every address that has sent to it, iterating this set, while the reader
-    thread's ``recv`` adds each new sender: a datagram from a new address (anyone on the network) arriving
-    during a send raised ``RuntimeError: Set changed size during iteration`` out of the driver's command
-    (seen in CI: a forged packet from another port during a takeoff). Every change pymavlink makes (add,
-    discard, remove, ``-=``) and the snapshot take one lock (a snapshot copied without it still raised once:
-    the copy is not atomic under the GIL).
-    """
+    """pymavlink's ``udpin:`` peer set, iterated over a snapshot taken under the lock of every change (why:
+    docs/hardware-mavlink.md, edge/vehicle/mavlink/link.py)."""
 
     def __init__(self, *args) -> None:
         super().__init__(*args)

@@ -71,9 +71,6 @@ class SimTelemetry:
                    round(lat * 1e7), round(lon * 1e7), h, st.pos[2] - self.home[2], math.degrees(r[0]),
                    -math.degrees(r[1]), math.degrees(wrap_angle(math.pi / 2 - r[2])) % 360.0, 0.0, 1, len(self.shots)))
 
-    def _boot_ms(self) -> int:
-        return int(max(0.0, self.clock.now() - self._t_boot) * 1000) & 0xFFFFFFFF
-
     def _send(self, msg: Any) -> None:
         try:
             self._conn.mav.send(msg)
@@ -108,7 +105,7 @@ class SimTelemetry:
         if name not in STREAM_IDS:
             return False
         st = self.sim.state()
-        ms = self._boot_ms()
+        ms = int(max(0.0, self.clock.now() - self._t_boot) * 1000) & 0xFFFFFFFF  # time since boot
         p, v = st.pos, st.vel
         home = self.home_known
         if name in ("LOCAL_POSITION_NED", "HOME_POSITION") and not home:

@@ -42,15 +42,9 @@ _ZERO: Vec3 = (0.0, 0.0, 0.0)
 
 class MavlinkSimVehicle(SimTelemetry, SimCommands):
     """A simulated ArduCopter on a MAVLink connection (pymavlink string: ``udpout:host:port`` to reach a
-    listener, ``udpin:host:port`` to be dialled), system id ``uav``, launch point ``home`` (ENU m).
-
-    The options mirror ``skynet sim-autopilot`` (docs/cli.md): ``speed`` (simulated s per wall s),
-    ``epoch`` (UNIX time of simulated time 0, shared with the board; None now), ``telemetry_hz`` (with
-    ``stream_all``, the unasked telemetry of the old stand-in), ``refuse_arming`` (PreArm refusal, changeable),
-    ``origin`` (geodetic ENU origin), ``mavlink_key`` (signing), ``param_overrides``, ``boot_scale`` (start-up
-    times as a fraction of ArduCopter's: 1 the CLI's default, 0 ready at once), ``firmware`` ("4.6" or "4.7"
-    parameter names, :data:`.apm.params.SCHEMES`), ``rc_centred`` (LOITER holds instead of descending) and
-    ``legacy_mission_request`` (MISSION_REQUEST instead of MISSION_REQUEST_INT).
+    listener, ``udpin:host:port`` to be dialled), system id ``uav``, launch point ``home`` (ENU m); the other
+    options are those of ``skynet sim-autopilot`` (docs/cli.md; ``firmware`` is its ``--firmware-version``,
+    ``param_overrides`` its ``--param``).
     """
 
     def __init__(self, connection: str, uav: int, home: Vec3 = (0.0, 0.0, 0.0), speed: float = 1.0, *,
