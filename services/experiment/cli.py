@@ -36,9 +36,17 @@ def grid_of(args: ExperimentConfig) -> tuple[list[Cell], list[Run]]:
     return cells, plan(cells, args.repeat, args.seed)
 
 
+#: what an impairment of the best-effort class is, by mode (results.md and the run's first line)
+MODE = {False: "Secure mode (the default): every link class is a TLS stream through a TCP proxy, so loss on the "
+               "best-effort class is retransmission delay, not lost datagrams (`--insecure` for datagram loss).",
+        True: "Insecure mode (`--insecure`): the best-effort class is plain UDP, so loss on it drops datagrams; no "
+              "TLS, no access control, unsigned commands."}
+
+
 def command_of(args: ExperimentConfig, run: Run, folder: Path) -> list[str]:
     """The mission command of ``run`` under the options (what is flown, and what --dry-run prints)."""
-    return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs, scenario=args.scenario)
+    return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs, scenario=args.scenario,
+                           insecure=args.insecure)
 
 
 def summarise(args: ExperimentConfig, cells: list[Cell], results: list[RunResult], started: float,
@@ -55,6 +63,7 @@ def summarise(args: ExperimentConfig, cells: list[Cell], results: list[RunResult
                        "jitter_ms": sorted({c.jitter_ms for c in cells}),
                        "recovery": sorted({c.recovery for c in cells}, reverse=True), "repeat": args.repeat,
                        "seed": args.seed, "links": args.links, "speed": args.speed, "uavs": args.uavs,
+                       "insecure": args.insecure,
                        "scenario": args.scenario, "timeout_s": args.timeout, "started": started,
                        "ended": time.time(), "interrupted": interrupted,
                        "runs_planned": len(cells) * args.repeat, "runs_done": len(results)},
@@ -79,6 +88,7 @@ def write_results(doc: dict[str, Any], out: Path) -> str:
         (f"Impaired links: `{e['links']}` (from 2 s after each proxy starts); speed x{e['speed']:g}, "
          f"{e['uavs']} UAVs, {e['repeat']} run(s) per cell, seeds {e['seed']}..{e['seed'] + e['repeat'] - 1}; "
          f"{e['runs_done']} of {e['runs_planned']} runs done{' (interrupted)' if e['interrupted'] else ''}."), "",
+        MODE[bool(e.get("insecure"))], "",
         table, "",
         "Figures are means over the runs of a cell, with (min-max) when they differ. Definitions:", "",
         *[f"- `{k}`: {d}{f' ({u})' if u else ''}" for k, (u, d) in METRICS.items()],
@@ -137,7 +147,7 @@ def run(args: ExperimentConfig) -> int:
         for r in runs:
             print(shlex.join(command_of(args, r, out / "runs" / r.name)))
         return 0
-    print(f"{len(runs)} runs ({len(cells)} cells x {args.repeat}) into {out}", flush=True)
+    print(f"{len(runs)} runs ({len(cells)} cells x {args.repeat}) into {out}. {MODE[args.insecure]}", flush=True)
     return run_experiment(args, cells, runs, out)[1]
 
 

@@ -50,6 +50,9 @@ class ExperimentConfig(CliModel):
     seed: int = Field(default=0, ge=0, description="run k of every cell uses seed + k")
     out: str | None = Field(default=None, description="results folder (default reports/experiment-<time>)")
     timeout: Annotated[float, Cli(flag="--timeout-s", metavar="S")] = Field(default=300.0, gt=0.0, description="wall-clock limit of one run, s (then: hung)")
+    insecure: bool = Field(default=False, description=(
+        "fly the missions with --insecure: the best-effort class over plain UDP, where loss drops datagrams (the "
+        "default secure mode carries it as a TLS stream through a TCP proxy: loss there is retransmission delay)"))
     dry_run: bool = Field(default=False, description="print the mission commands and stop")
 
     @model_validator(mode="after")

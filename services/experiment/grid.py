@@ -146,7 +146,7 @@ def impair_spec(cell: Cell, links: str = "all/udp", onset_s: float = ONSET_S) ->
 
 
 def mission_command(run: Run, out: str, *, links: str = "all/udp", speed: float = 6.0, uavs: int = 3,
-                    scenario: str | None = None, python: str = sys.executable) -> list[str]:
+                    scenario: str | None = None, insecure: bool = False, python: str = sys.executable) -> list[str]:
     """The ``skynet mission`` command line of one run (``python -m services.cli mission ...``)."""
     cmd = [python, "-m", "services.cli", "mission", "--quiet", "--speed", f"{speed:g}", "--uavs", str(uavs),
            "--seed", str(run.seed), "--out", out, "--impair", impair_spec(run.cell, links)]
@@ -154,4 +154,6 @@ def mission_command(run: Run, out: str, *, links: str = "all/udp", speed: float 
         cmd.append("--no-recovery")
     if scenario:
         cmd += ["--scenario", scenario]
+    if insecure:
+        cmd.append("--insecure")
     return cmd

@@ -88,6 +88,9 @@ def test_dry_run_prints_one_command_per_run(capsys):
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 8 and sum("--no-recovery" in line for line in lines) == 4
     assert all("'all/udp=after 2s delay 200ms" in line for line in lines)
+    assert not any("--insecure" in line for line in lines)  # the default secure mode
+    assert main(["--dry-run", "--insecure", "--loss-pct", "20", "--delay-ms", "0", "--out", "/tmp/nowhere"]) == 0
+    assert capsys.readouterr().out.rstrip().endswith("--insecure")  # the paper's UDP class, datagram loss
     assert not Path("/tmp/nowhere").exists()
 
 
@@ -119,3 +122,5 @@ def test_one_cell_experiment_end_to_end(tmp_path, capsys):
     table = (out / "results.md").read_text()
     row = f"| 10 | 20 | 0 | on | {int(m['success']['mean'])}/1 | 100 | {m['img_delivered']['mean']:.0f} | 0 | 0 | 0 |"
     assert row in table and row in printed
+    # what loss means in the mode flown: the default secure mode turns it into retransmission delay
+    assert "Secure mode (the default)" in table and "retransmission delay" in printed
