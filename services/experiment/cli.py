@@ -37,8 +37,9 @@ def grid_of(args: ExperimentConfig) -> tuple[list[Cell], list[Run]]:
 
 
 #: what an impairment of the best-effort class is, by mode (results.md and the run's first line)
-MODE = {False: "Secure mode (the default): every link class is a TLS stream through a TCP proxy, so loss on the "
-               "best-effort class is retransmission delay, not lost datagrams (`--insecure` for datagram loss).",
+MODE = {False: "Secure mode (the default): every link class is a TLS stream (through a TCP proxy where impaired), so "
+               "loss on the best-effort class is retransmission delay, not lost datagrams (`--insecure` for datagram "
+               "loss).",
         True: "Insecure mode (`--insecure`): the best-effort class is plain UDP, so loss on it drops datagrams; no "
               "TLS, no access control, unsigned commands."}
 

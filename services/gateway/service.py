@@ -6,6 +6,7 @@ Design notes: docs/bus.md (services/gateway/service.py).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import threading
@@ -155,6 +156,8 @@ def run(args: GatewayConfig) -> int:
                     raise
                 log.warning("router did not reopen (%s); retrying in %s s", exc, args.period)
                 stop.wait(args.period)
+                with contextlib.suppress(OSError, ValueError):  # a key set fixed meanwhile is the one applied
+                    names = admitted(args.keys)
     finally:
         for g in guards:
             g.stop()
@@ -210,7 +213,7 @@ class Relay:
             sessions = sum(counts.values())
             snap = bus.counters.snapshot()
             rejected = {"unknown-key": meter.unknown, **(self.carried + Counter(snap["rejected"])),
-                        **{f"guard-{k}": v for g in self.guards for k, v in g.counts.items() if k != "pass"}}
+                        **{f"guard-{k}": v for g in self.guards for k, v in dict(g.counts).items() if k != "pass"}}
             pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - self.t0,
                               sessions=counts, classes=meter.classes(), rejected=rejected))
             try:

@@ -145,8 +145,9 @@ class MissionRunner:
         self._land_state: dict[int, tuple[bool, float]] = {}  # UAV -> (Land accepted, last try)
         self._in_mission = threading.Event()
         self._sup_stop = threading.Event()
-        #: called (in order, on the runner's thread) when the flight is over, before the "done" phase
-        self.closing: list[Callable[[], None]] = []
+        #: called (in order, on the runner's thread) when the flight is over, before the "done" phase; a text
+        #: one returns is a failure of the mission, added after the mission's own verdict
+        self.closing: list[Callable[[], str | None]] = []
         fleet = bus.fleet
         # per-source budgets (protocol.budget): a flood on one key is dropped and counted, never recorded
         bus.subscribe(keys.state(fleet, "*"), self._on_state, expect=VehicleState, link=TELEMETRY,
@@ -477,12 +478,18 @@ class MissionRunner:
             for t in (hb, sup):
                 if t.is_alive():
                     t.join(2.0)
+            late: list[str | None] = []
             for hook in self.closing:
-                hook()
+                try:
+                    late.append(hook())
+                except Exception:  # the mission's end goes on: its record is finished below
+                    if self.log:
+                        self.log.exception("closing hook failed")
             self.record.ended = time.time()
             self.record.rejected = self.bus.counters.snapshot()["rejected"]
             self.phase("done")
         self.judge()
+        self.record.failures.extend(f for f in late if f)
         return self.record
 
     def snapshot(self, recent: int = 60) -> Snapshot:

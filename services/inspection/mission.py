@@ -81,8 +81,8 @@ def absent_text(record: MissionRecord, posed: Sequence[PosedFrame]) -> str:
     absent = sorted(planned - {(f.meta.uav, f.meta.capture_id) for f in posed})
     if not absent:
         return ""
-    return (f"{len(absent)} of the {len(planned)} planned captures are not in it (their frames did not reach the "
-            "ground station's log): " + ", ".join(f"uav{u}-{c:05d}" for u, c in absent[:12])
+    return (f"{len(absent)} of the {len(planned)} planned captures are not among its frames (not taken, or lost "
+            "on the way to the ground station's log): " + ", ".join(f"uav{u}-{c:05d}" for u, c in absent[:12])
             + (", ..." if len(absent) > 12 else "") + ".")
 
 

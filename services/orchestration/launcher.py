@@ -531,10 +531,9 @@ def run_mission(config: MissionLaunchConfig, log: logging.Logger, stop, plan: Pl
                 injector.attach(runner)
                 injector.start()
 
-                def not_injected() -> None:  # a run that ends before a fault it was asked for is not that run
-                    if missed := injector.finish():
-                        with runner._lock:
-                            runner.record.failures.append("never injected, the mission ended first: " + "; ".join(missed))
+                def not_injected() -> str | None:  # a run that ends before a fault it was asked for is not that run
+                    missed = injector.finish()
+                    return "never injected, the mission ended first: " + "; ".join(missed) if missed else None
 
                 runner.closing.append(not_injected)
 

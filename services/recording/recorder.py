@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
 from pathlib import Path
 
 from pydantic import BaseModel
@@ -51,9 +51,12 @@ class MissionLogWriter:
         self._closed = threading.Event()
         self._budgets = {topic: Budget(limit) for topic, limit in LIMITS.items()}
         self._budget_lock = threading.Lock()  # Zenoh may call back from several threads
-        if bus is not None:  # capture frames through a recovering subscriber: lost ones come from the cameras' caches
+        self._frames_seen: OrderedDict[tuple[str, bytes], None] = OrderedDict()  # (key, RTP SSRC + sequence)
+        if bus is not None:
             bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
-            bus.subscribe_raw(keys.camera(bus.fleet, "*"), self._on_frame, recover=True)
+            # capture frames lost on the way come again from the cameras' caches; this subscription only adds
+            # frames not logged yet (its sequence tracking follows a source id any sender may claim)
+            bus.subscribe_raw(keys.camera(bus.fleet, "*"), self._on_sample, recover=True)
 
     @property
     def path(self) -> Path:
@@ -64,13 +67,13 @@ class MissionLogWriter:
         return self._ring.dropped + self._frames.dropped
 
     # -- the bus
-    def _on_sample(self, sample, frames: bool = False) -> None:
+    def _on_sample(self, sample) -> None:
         if self._closed.is_set():
             return
         key, now = str(sample.key_expr), time.time()
         try:
             topic = keys.parse(key).topic
-            if (topic == "camera") != frames:  # each capture frame once, from the recovering subscriber
+            if topic == "camera" and not self._first_time(key, sample.payload.to_bytes()[:12]):
                 return
             budget = self._budgets.get(topic)
         except keys.KeyError_:
@@ -84,8 +87,16 @@ class MissionLogWriter:
                     return
         self.sample(key, sample.payload.to_bytes(), now)
 
-    def _on_frame(self, sample) -> None:
-        self._on_sample(sample, frames=True)
+    def _first_time(self, key: str, header: bytes) -> bool:
+        """Whether a capture frame (its RTP header, RFC 3550 5.1) is new on ``key``; the last 4,096 are kept."""
+        frame = (key, header[2:4] + header[8:12])
+        with self._budget_lock:
+            if frame in self._frames_seen:
+                return False
+            self._frames_seen[frame] = None
+            if len(self._frames_seen) > 4096:
+                self._frames_seen.popitem(last=False)
+        return True
 
     def sample(self, key: str, data: bytes, rx: float) -> None:
         """Log one bus sample (its bytes as they came, its receive time), through the rings."""

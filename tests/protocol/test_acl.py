@@ -75,6 +75,11 @@ def allowed(policy, user, flow, message, key) -> bool:
     ("gcs", "ingress", "put", keys.defects(F), False),
     ("gcs", "ingress", "query", keys.cmd(F, 3), True),
     ("gcs", "ingress", "query", keys.planner(F), True),
+    ("gcs", "ingress", "query", keys.advanced(keys.camera(F, 1)), True),  # its log recovers lost capture frames
+    ("gcs", "ingress", "put", keys.camera(F, 1), False),
+    ("gcs", "ingress", "reply", keys.camera(F, 1), False),
+    ("gcs", "ingress", "reply", keys.advanced(keys.camera(F, 1)), False),
+    ("gcs", "ingress", "put", keys.advanced(keys.camera(F, 1)), False),
     ("gcs", "ingress", "declare_queryable", keys.cmd(F, 1), False),
     ("gcs", "ingress", "declare_subscriber", keys.all_events(F), True),
     ("gcs", "ingress", "liveliness_query", keys.fleet_all(F), True),

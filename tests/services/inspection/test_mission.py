@@ -130,7 +130,7 @@ def test_the_deliverable_names_the_planned_captures_its_mosaic_lacks():
                        geofence=Box(lo=(0.0, 0.0, 0.0), hi=(10.0, 10.0, 10.0)), origin=(0.0, 0.0, 0.0))
     record = MissionRecord(fleet=FLEET, speed=1.0, started=0.0, plan=plan)
     posed = [SimpleNamespace(meta=SimpleNamespace(uav=u, capture_id=c)) for u, c in ((1, 1), (1, 4), (2, 5))]
-    assert absent_text(record, posed) == ("1 of the 4 planned captures are not in it (their frames did not reach "
-                                          "the ground station's log): uav2-00002.")
+    assert absent_text(record, posed) == ("1 of the 4 planned captures are not among its frames (not taken, or lost "
+                                          "on the way to the ground station's log): uav2-00002.")
     assert absent_text(record, [*posed, SimpleNamespace(meta=SimpleNamespace(uav=2, capture_id=2))]) == ""
     assert absent_text(MissionRecord(fleet=FLEET, speed=1.0, started=0.0), posed) == ""  # no plan: nothing to miss

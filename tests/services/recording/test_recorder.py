@@ -52,3 +52,36 @@ def test_a_flood_of_one_key_is_cut_to_its_budget_and_the_other_sources_are_all_l
     with open(path, "rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["skynet.recorder"]
     assert int(meta["over-budget"]) == FLOOD - logged[keys.event(FLEET, 1)] and meta["unknown-key"] == "1"
+
+
+def test_a_uav_claiming_anothers_publisher_id_cannot_erase_its_frames_from_the_log(gateway, tmp_path: Path):
+    """Recovery tracks sequence numbers per source id, which any sender may claim: uav2 puts one sample on its
+    own camera key under uav1's camera's id, far ahead in sequence. The recovering subscription then drops
+    uav1's next frames as already seen; the log still holds every one, from the live subscription."""
+    from protocol.links import IMAGERY
+    from protocol.rtp import RtpSender, ssrc_for
+    from services.recording.mcap_log import FRAME_ENCODING
+
+    path = tmp_path / "mission.mcap"
+    cfg = BusConfig(mode="client", connect=gateway, multilink=True)
+    with Bus(cfg, FLEET, "gcs") as gcs, Bus(cfg, FLEET, "uav1") as uav1, Bus(cfg, FLEET, "uav2") as uav2:
+        rec = MissionLogWriter(gcs, path)
+        time.sleep(0.5)
+        cam = uav1.publisher(keys.camera(FLEET, 1), IMAGERY, cache=16)
+        rtp = RtpSender(ssrc_for(1, 0))
+        sent = [rtp.frame(f"frame {i}".encode(), time.time()) for i in range(12)]
+        for f in sent[:3]:
+            cam.put_bytes(f)
+            time.sleep(0.1)
+        time.sleep(0.5)
+        import zenoh
+
+        uav2.session.put(keys.camera(FLEET, 2), b"forged", source_info=zenoh.SourceInfo(cam._pub.id, 1_000_000))
+        time.sleep(1.0)
+        for f in sent[3:]:
+            cam.put_bytes(f)
+            time.sleep(0.1)
+        time.sleep(1.5)
+        rec.close()
+    logged = [i.data for i in read(path) if i.encoding == FRAME_ENCODING and i.topic == keys.camera(FLEET, 1)]
+    assert sorted(logged) == sorted(sent), (len(logged), len(sent))
