@@ -38,20 +38,21 @@ def _starts_processes(path: Path, cache: dict[Path, bool]) -> bool:
     return cache[path]
 
 
-#: whole missions that go out after the rest of the suite under xdist, each module a group of its own
-#: (:func:`pytest_collection_modifyitems`): sim-vehicle missions that share no session fixture with another module and
-#: whose checks are failure paths or wide margins, so that a second mission beside them on the other worker decides
-#: nothing; the worker done with the rest of the suite takes them instead of idling
-LATE_MISSION_MODULES = frozenset({
-    "tests/examples/test_examples.py",
-    "tests/services/detector/test_learned.py",
-    "tests/services/experiment/test_runner.py",
-    "tests/services/gcs/test_hostile_events.py",
-    "tests/services/gcs/test_mission.py",
-    "tests/services/gcs/test_rogue_planner.py",
+#: whole missions that go out after the rest of the suite under xdist, each module a group of its own, in this order
+#: (the longest first, so that the short ones even out the two workers' ends; :func:`pytest_collection_modifyitems`):
+#: sim-vehicle missions that share no session fixture with another module and whose checks are failure paths or wide
+#: margins, so that a second mission beside them on the other worker decides nothing; the worker done with the rest
+#: of the suite takes them instead of idling
+LATE_MISSION_MODULES = (
     "tests/services/orchestration/test_compose.py",
+    "tests/services/detector/test_learned.py",
+    "tests/services/gcs/test_rogue_planner.py",
     "tests/services/web/test_mission_page.py",
-})
+    "tests/services/experiment/test_runner.py",
+    "tests/services/gcs/test_mission.py",
+    "tests/examples/test_examples.py",
+    "tests/services/gcs/test_hostile_events.py",
+)
 #: the missions of the main group with the tightest clock (MAVLink sims behind it on a loaded machine, fault bounds):
 #: first, in this order, while the other worker has the rest of the suite rather than a late mission
 FIRST_MISSION_MODULES = (
@@ -100,6 +101,7 @@ def pytest_collection_modifyitems(config, items):
     if hasattr(config, "workerinput"):  # an xdist worker: its items in the order the groups go out
         rank = {m: k for k, m in enumerate(FIRST_MISSION_MODULES)}
         missions.sort(key=lambda it: rank.get(_module(it), len(rank)))  # stable: the others in collection order
+        late.sort(key=lambda it: LATE_MISSION_MODULES.index(_module(it)))
         items[:] = missions + rest + late
 
 

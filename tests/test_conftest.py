@@ -52,7 +52,7 @@ def test_late_missions_go_out_after_the_rest_to_the_worker_that_is_free(tmp_path
         import tests.conftest as suite
         from tests.conftest import pytest_collection_modifyitems, pytest_configure  # noqa: F401
 
-        suite.LATE_MISSION_MODULES = frozenset({"test_late.py"})
+        suite.LATE_MISSION_MODULES = ("test_late.py",)
     """))
     (tmp_path / "test_late.py").write_text(textwrap.dedent("""
         import time
