@@ -39,29 +39,31 @@ def _starts_processes(path: Path, cache: dict[Path, bool]) -> bool:
 
 
 #: whole missions that go out after the rest of the suite under xdist, each module a group of its own, in this order
-#: (the longest first, so that the short ones even out the two workers' ends; :func:`pytest_collection_modifyitems`):
+#: (the long ones first, so that the short ones even out the two workers' ends, but the learned detector's CPU-heavy
+#: one later; :func:`pytest_collection_modifyitems`):
 #: sim-vehicle missions that share no session fixture with another module and whose checks are failure paths or wide
 #: margins, so that a second mission beside them on the other worker decides nothing; the worker done with the rest
 #: of the suite takes them instead of idling
 LATE_MISSION_MODULES = (
     "tests/services/orchestration/test_compose.py",
-    "tests/services/detector/test_learned.py",
     "tests/services/gcs/test_rogue_planner.py",
     "tests/services/web/test_mission_page.py",
     "tests/services/experiment/test_runner.py",
+    "tests/services/detector/test_learned.py",
     "tests/services/gcs/test_mission.py",
     "tests/examples/test_examples.py",
     "tests/services/gcs/test_hostile_events.py",
 )
-#: the missions of the main group with the tightest clock (MAVLink sims behind it on a loaded machine, fault bounds):
-#: first, in this order, while the other worker has the rest of the suite rather than a late mission
+#: the missions of the main group with the tightest clock (fault bounds in seconds, MAVLink sims behind the clock on
+#: a loaded machine): first, in this order, while the other worker has the rest of the suite rather than a late
+#: mission (two missions at once once stretched a gateway restart's blackout past its bound)
 FIRST_MISSION_MODULES = (
+    "tests/services/orchestration/test_fault_missions.py",
     "tests/services/orchestration/test_real_autopilots.py",
     "tests/services/orchestration/test_mavlink_mission.py",
     "tests/services/orchestration/test_autopilot_readiness.py",
     "tests/edge/vehicle/test_param_schemes.py",
     "tests/services/orchestration/test_px4_mission.py",
-    "tests/services/orchestration/test_fault_missions.py",
 )
 
 
@@ -228,6 +230,17 @@ def nominal_mission(tmp_path_factory) -> MissionRun:
     instead of each flying their own (CI time)."""
     root = tmp_path_factory.mktemp("nominal")
     return fly_mission(root / "report", "--speed", "8", timeout=300, env=env_without(root / "no-extras"))
+
+
+@pytest.fixture(scope="session")
+def nominal_report_again(nominal_mission, tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
+    """``skynet report`` of the nominal mission's folder (the mission log read back) into a folder of its own, run
+    once per session: its process and that folder. The launcher's test (tests/services/orchestration/test_launcher.py)
+    and the report-again test of the folder (tests/services/gcs/test_report_again.py) check the same run (CI time)."""
+    again = tmp_path_factory.mktemp("nominal-again") / "again"
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "report", str(nominal_mission.out), "--out", str(again)],
+                          capture_output=True, text=True, timeout=240)
+    return proc, again
 
 
 @pytest.fixture(scope="session")
