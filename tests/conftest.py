@@ -38,23 +38,80 @@ def _starts_processes(path: Path, cache: dict[Path, bool]) -> bool:
     return cache[path]
 
 
+#: whole missions that go out after the rest of the suite under xdist, each module a group of its own, in this order
+#: (the long ones first, so that the short ones even out the two workers' ends, but the learned detector's CPU-heavy
+#: one later; :func:`pytest_collection_modifyitems`):
+#: sim-vehicle missions that share no session fixture with another module and whose checks are failure paths or wide
+#: margins, so that a second mission beside them on the other worker decides nothing; the worker done with the rest
+#: of the suite takes them instead of idling
+LATE_MISSION_MODULES = (
+    "tests/services/orchestration/test_compose.py",
+    "tests/services/gcs/test_rogue_planner.py",
+    "tests/services/web/test_mission_page.py",
+    "tests/services/experiment/test_runner.py",
+    "tests/services/detector/test_learned.py",
+    "tests/services/gcs/test_mission.py",
+    "tests/examples/test_examples.py",
+    "tests/services/gcs/test_hostile_events.py",
+)
+#: the missions of the main group with the tightest clock (fault bounds in seconds, MAVLink sims behind the clock on
+#: a loaded machine): first, in this order, while the other worker has the rest of the suite rather than a late
+#: mission (two missions at once once stretched a gateway restart's blackout past its bound)
+FIRST_MISSION_MODULES = (
+    "tests/services/orchestration/test_fault_missions.py",
+    "tests/services/orchestration/test_real_autopilots.py",
+    "tests/services/orchestration/test_mavlink_mission.py",
+    "tests/services/orchestration/test_autopilot_readiness.py",
+    "tests/edge/vehicle/test_param_schemes.py",
+    "tests/services/orchestration/test_px4_mission.py",
+)
+
+
+def _module(item: pytest.Item) -> str:
+    return item.nodeid.split("::", 1)[0]
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
 def pytest_collection_modifyitems(config, items):
-    """Whole missions (marker ``mission``) share one pytest-xdist group: under ``--dist loadgroup`` they run
-    one after another on one worker while the other worker takes the rest of the suite, so no two missions
-    compete for the two cores (scripts/test.sh). Without xdist the marker changes nothing.
+    """Whole missions (marker ``mission``) run one after another on one pytest-xdist worker (the group
+    ``mission``) while the other worker takes the rest of the suite (scripts/test.sh, ``--dist loadgroup``), the
+    missions of :data:`FIRST_MISSION_MODULES` first; those of :data:`LATE_MISSION_MODULES` (a group per module)
+    go out after the rest of the suite, to whichever worker is free. Under xdist the items are put in that order
+    (:func:`pytest_configure` keeps it); without xdist nothing is reordered.
 
     A test that starts processes or Zenoh sessions (a fixture of :data:`NETWORK_FIXTURES`, or a module whose
     source matches :data:`NETWORK_WORDS`) gets the ``network`` marker, and a mission gets it too: the fast
     loop (scripts/test-fast.sh) leaves them out."""
     seen: dict[Path, bool] = {}
+    missions: list[pytest.Item] = []
+    rest: list[pytest.Item] = []
+    late: list[pytest.Item] = []
     for item in items:
         if item.get_closest_marker("mission"):
-            item.add_marker(pytest.mark.xdist_group("mission"))
+            module = _module(item)
+            if module in LATE_MISSION_MODULES:
+                item.add_marker(pytest.mark.xdist_group(f"mission-late:{module}"))
+                late.append(item)
+            else:
+                item.add_marker(pytest.mark.xdist_group("mission"))
+                missions.append(item)
             item.add_marker(pytest.mark.network)
-        elif NETWORK_FIXTURES & set(getattr(item, "fixturenames", ())) or _starts_processes(item.path, seen):
-            item.add_marker(pytest.mark.network)
+        else:
+            if NETWORK_FIXTURES & set(getattr(item, "fixturenames", ())) or _starts_processes(item.path, seen):
+                item.add_marker(pytest.mark.network)
+            rest.append(item)
+    if hasattr(config, "workerinput"):  # an xdist worker: its items in the order the groups go out
+        rank = {m: k for k, m in enumerate(FIRST_MISSION_MODULES)}
+        missions.sort(key=lambda it: rank.get(_module(it), len(rank)))  # stable: the others in collection order
+        late.sort(key=lambda it: LATE_MISSION_MODULES.index(_module(it)))
+        items[:] = missions + rest + late
 
+
+def pytest_configure(config):
+    """xdist sends groups out largest first (``--loadscope-reorder``, its default); off, so that they go out in
+    the order :func:`pytest_collection_modifyitems` gives them."""
+    if getattr(config.option, "loadscopereorder", None):
+        config.option.loadscopereorder = False
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -176,6 +233,17 @@ def nominal_mission(tmp_path_factory) -> MissionRun:
 
 
 @pytest.fixture(scope="session")
+def nominal_report_again(nominal_mission, tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
+    """``skynet report`` of the nominal mission's folder (the mission log read back) into a folder of its own, run
+    once per session: its process and that folder. The launcher's test (tests/services/orchestration/test_launcher.py)
+    and the report-again test of the folder (tests/services/gcs/test_report_again.py) check the same run (CI time)."""
+    again = tmp_path_factory.mktemp("nominal-again") / "again"
+    proc = subprocess.run([sys.executable, "-m", "services.cli", "report", str(nominal_mission.out), "--out", str(again)],
+                          capture_output=True, text=True, timeout=240)
+    return proc, again
+
+
+@pytest.fixture(scope="session")
 def impaired_secure_mission(tmp_path_factory) -> MissionRun:
     """The mission with 200 ms each way on every link (reliable ones too, from 4 s on, once the sessions are
     open), the accept guard in front of the gateway (the default) and a key set of its own, at 8x, flown once per session:
@@ -184,6 +252,19 @@ def impaired_secure_mission(tmp_path_factory) -> MissionRun:
     root = tmp_path_factory.mktemp("impaired")
     return fly_mission(root / "report", "--speed", "8", "--keys", str(root / "keys"),
                        "--impair", "all=after 4s delay 200ms", timeout=300)
+
+
+@pytest.fixture(scope="session")
+def slow_boot_guided_mission(tmp_path_factory) -> MissionRun:
+    """The mission with ``--vehicle mavlink`` in GUIDED at 8x, secure, on sim autopilots that take three times
+    ArduCopter's start-up (GUIDED allowed 126 simulated s after power-on: ~16 wall s, later than the plan is
+    ready), flown once per session: the test of the MAVLink GUIDED mission
+    (tests/services/orchestration/test_mavlink_mission.py) and the test that the ground station waits for
+    autopilots still starting (tests/services/orchestration/test_autopilot_readiness.py) read this one run (CI time)."""
+    pytest.importorskip("pymavlink", reason="--vehicle mavlink needs the 'mavlink' extra")
+    root = tmp_path_factory.mktemp("guided-slow-boot")
+    return fly_mission(root / "report", "--vehicle", "mavlink", "--speed", "8", "--flight", "guided",
+                       "--sim-boot-scale", "3", timeout=300)
 
 
 def wait_until(pred, timeout: float = 20.0, poll: float = 0.02) -> bool:

@@ -20,7 +20,7 @@ PLOTS = ["trajectories.png", "altitudes.png", "path_error.png", "formation_error
 
 
 @pytest.mark.mission
-def test_mission_through_the_launcher(nominal_mission, tmp_path):
+def test_mission_through_the_launcher(nominal_mission, nominal_report_again):
     out, proc = nominal_mission.out, nominal_mission.proc
     assert proc.returncode == 0, nominal_mission.failure()
     report = json.loads((out / "report.json").read_text())
@@ -43,10 +43,9 @@ def test_mission_through_the_launcher(nominal_mission, tmp_path):
     # one record: the report is computed from the mission log read back, and `skynet report` makes the same
     # figures from it alone
     assert "mission.mcap read back" in md and not (out / "record.jsonl").exists()
-    again = subprocess.run([sys.executable, "-m", "services.cli", "report", str(out), "--out",
-                            str(tmp_path / "again")], capture_output=True, text=True, timeout=120)
+    again, folder = nominal_report_again  # `skynet report OUT` (tests/conftest.py)
     assert again.returncode == 0, again.stdout + again.stderr
-    rebuilt = json.loads((tmp_path / "again" / "report.json").read_text())
+    rebuilt = json.loads((folder / "report.json").read_text())
     assert {k: v for k, v in rebuilt.items() if k != "files"} == {k: v for k, v in report.items() if k != "files"}
     # the deliverable's captures came through the bus: the detector was given no folder (no --save-frames, no
     # frames/ in the report folder), and the inspection section has every capture point's frame

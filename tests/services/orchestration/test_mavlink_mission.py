@@ -17,9 +17,12 @@ FORMATION_RMS_BOUND_M = 1.0
 
 
 @pytest.mark.parametrize("flight", ["guided", "auto"])
-def test_mission_with_mavlink_vehicles(tmp_path, flight):
-    run = fly_mission(tmp_path / "report", "--vehicle", "mavlink", "--speed", "8", "--flight", flight,
-                      "--sim-boot-scale", "0.1", timeout=300)
+def test_mission_with_mavlink_vehicles(request, tmp_path, flight):
+    # GUIDED: the run on autopilots still starting when the plan is ready (tests/conftest.py), shared with
+    # tests/services/orchestration/test_autopilot_readiness.py
+    run = request.getfixturevalue("slow_boot_guided_mission") if flight == "guided" else fly_mission(
+        tmp_path / "report", "--vehicle", "mavlink", "--speed", "8", "--flight", flight, "--sim-boot-scale", "0.1",
+        timeout=300)
     run.flown(rms_bound_m=FORMATION_RMS_BOUND_M)
     log = (run.out / "services.log").read_text()
     assert all(f"sim-autopilot: uav {i} (system id {i})" in log for i in (1, 2, 3))
