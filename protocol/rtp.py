@@ -7,13 +7,14 @@ from __future__ import annotations
 
 import math
 import struct
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 __all__ = ["JPEG_PAYLOAD_TYPE", "SKYNET_ENCODING_NAME", "SKYNET_PAYLOAD_TYPE", "RTP_HEADER_LENGTH", "RTP_VERSION",
-           "VIDEO_CLOCK_RATE", "RtpError", "RtpHeader", "RtpSender", "media_timestamp", "pack_frame", "parse_ssrc",
+           "VIDEO_CLOCK_RATE", "RtpError", "RtpHeader", "RtpSender", "SeenFrames", "media_timestamp", "pack_frame", "parse_ssrc",
            "seq_add", "seq_delta", "seq_diff", "seq_gt", "seq_lt", "ssrc_for", "ts_add", "ts_delta", "ts_diff",
            "unpack_frame", "unwrap_sequence"]
 
@@ -347,3 +348,28 @@ class RtpSender:
         self.packets_sent += 1
         self.octets_sent += len(packet) - RTP_HEADER_LENGTH
         return packet
+
+
+class SeenFrames:
+    """The frames already taken, so that a frame two subscriptions deliver is taken once.
+
+    A frame is named by its key and its RTP SSRC and sequence number (RFC 3550 5.1); the last ``memory``
+    names are kept, the oldest forgotten first. Not locked: callers hold their own lock.
+
+    >>> seen = SeenFrames(memory=2)
+    >>> seen.first("k", 7, 1), seen.first("k", 7, 1), seen.first("j", 7, 1)
+    (True, False, True)
+    """
+
+    def __init__(self, memory: int = 4096) -> None:
+        self.memory = memory
+        self._names: OrderedDict[tuple[str, int, int], None] = OrderedDict()
+
+    def first(self, key: str, ssrc: int, sequence: int) -> bool:
+        name = (key, ssrc, sequence & _SEQ_MASK)
+        if name in self._names:
+            return False
+        self._names[name] = None
+        if len(self._names) > self.memory:
+            self._names.popitem(last=False)
+        return True

@@ -21,7 +21,7 @@ from protocol.jitter import Frame, JitterBuffers
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import DefectReport, LinkStats
 from protocol.readiness import notify_ready
-from protocol.rtp import RtpError, parse_ssrc, unpack_frame
+from protocol.rtp import RtpError, SeenFrames, parse_ssrc, unpack_frame
 from protocol.stages import LOG_PREFIX, StageTimes
 
 from .config import QUEUE_FRAMES, DetectorConfig
@@ -80,32 +80,40 @@ class DetectorService:
         # per-camera budget (protocol.budget), charged after the RTP header and SSRC check: frames of a
         # foreign SSRC on a camera's key are rejected without using up that camera's budget
         self._budget = for_topic("camera")
+        self._seen = SeenFrames()  # frames taken, so that one the two subscriptions both deliver is taken once
         for cams in partition.camera_keys(bus.fleet, max_uav):  # the wildcard, or this partition's UAVs
+            bus.subscribe_raw(cams, self._on_frame)
             if recover:
-                # frames lost on a lossy link are retransmitted from the cameras' caches; a plain
-                # subscriber beside it sees what the link delivered the first time (recovered = the rest)
-                bus.subscribe_raw(cams, self._on_live)
-            bus.subscribe_raw(cams, self._on_frame, recover=bool(recover))
+                # frames lost on a lossy link come again from the cameras' caches; this subscription only adds
+                # frames the live one did not deliver (its sequence tracking follows a source id any sender
+                # may claim, so it must not be the only path)
+                bus.subscribe_raw(cams, self._on_recovered, recover=True)
         bus.token(keys.rcu_alive(bus.fleet, self.name))
         self._t0 = time.time()
 
-    def _on_frame(self, sample) -> None:
+    def _on_frame(self, sample, recovered: bool = False) -> None:
         now = time.time()
         data = sample.payload.to_bytes()
         try:
             header, payload = unpack_frame(data)
         except RtpError as exc:
-            self.counts["bad-rtp"] += 1
-            if self.counts["bad-rtp"] == 1 and self.log:
-                self.log.warning("dropping a sample that is not an RTP frame: %s", exc)
+            if not recovered:  # counted once, on the live path
+                self.counts["bad-rtp"] += 1
+                if self.counts["bad-rtp"] == 1 and self.log:
+                    self.log.warning("dropping a sample that is not an RTP frame: %s", exc)
             return
         if frame_source(str(sample.key_expr), header.ssrc) is None:  # bodies bound to keys
-            self.counts["bad-ssrc"] += 1
-            if self.counts["bad-ssrc"] == 1 and self.log:
-                self.log.warning("dropping a frame with SSRC %#010x on %s: not that UAV's camera (further ones "
-                                 "are only counted)", header.ssrc, sample.key_expr)
+            if not recovered:
+                self.counts["bad-ssrc"] += 1
+                if self.counts["bad-ssrc"] == 1 and self.log:
+                    self.log.warning("dropping a frame with SSRC %#010x on %s: not that UAV's camera (further "
+                                     "ones are only counted)", header.ssrc, sample.key_expr)
             return
         with self._lock:
+            if self.recovery is not None and len(payload):  # an empty payload: an announce frame, not a capture
+                (self.recovery.delivered if recovered else self.recovery.live)(header.ssrc, header.sequence, now)
+            if not self._seen.first(str(sample.key_expr), header.ssrc, header.sequence):
+                return
             over = self._budget.admit(f"{sample.key_expr}#{header.ssrc:08x}", len(data), now)
         if over is not None:
             self.counts[over] += 1
@@ -118,8 +126,6 @@ class DetectorService:
             return
         self.counts["frames"] += 1
         with self._lock:
-            if self.recovery is not None:
-                self.recovery.delivered(header.ssrc, header.sequence, now)
             before = self._jb[header.ssrc].late_released if header.ssrc in self._jb else 0
             ready = self._jb.push(header, payload, now)
             if self._jb[header.ssrc].late_released > before:
@@ -127,19 +133,9 @@ class DetectorService:
         for f in ready:
             self.work.push(f)
 
-    def _on_live(self, sample) -> None:
-        """The live path (recovery on): note which frames the link delivered the first time."""
-        try:
-            header, payload = unpack_frame(sample.payload.to_bytes())
-        except RtpError:
-            return  # counted once, by _on_frame
-        if frame_source(str(sample.key_expr), header.ssrc) is None:
-            return  # counted once, by _on_frame
-        if len(payload) == 0:
-            return  # an announce frame: not a capture
-        with self._lock:
-            if self.recovery is not None:
-                self.recovery.live(header.ssrc, header.sequence, time.time())
+    def _on_recovered(self, sample) -> None:
+        """The recovering path (recovery on): frames the live path has not delivered."""
+        self._on_frame(sample, recovered=True)
 
     def poll(self) -> None:
         """Release frames whose wait for a missing predecessor is over."""
@@ -211,9 +207,10 @@ class DetectorService:
                                 f"{p}.recovered": self.recovery.recovered[ssrc] if self.recovery else 0,
                                 f"{p}.analysed": self.analysed[ssrc]})
         metrics["imagery.recovery"] = int(self.recovery is not None)
-        snap = self.bus.counters.snapshot()
-        missed = snap["dropped"]
-        metrics["imagery.unrecovered"] = sum(v for k, v in missed.items() if k.startswith("missed:"))
+        # frames never received, from each camera's own sequence numbers (RFC 3550 6.4.1's cumulative loss),
+        # not from the recovery's count, whose sequence tracking follows a source id any sender may claim
+        with self._lock:
+            metrics["imagery.unrecovered"] = sum(max(0, self._jb[s].stats().cumulative_lost) for s in self._jb.sources)
         metrics["queue.dropped"] = self.work.dropped
         metrics["queue.processed"] = self.work.processed
         metrics["pool.workers"] = self.pool.workers

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import Counter, OrderedDict
+from collections import Counter
 from pathlib import Path
 
 from pydantic import BaseModel
@@ -17,6 +17,7 @@ from protocol.budget import LIMITS, Budget
 from protocol.bus import Bus, Reply, Ring
 from protocol.links import COMMAND, LinkClass
 from protocol.messages import ErrorReply, Message
+from protocol.rtp import SeenFrames
 from services.recording.record import ITEM_MODELS, MissionRecord
 
 from .mcap_log import McapLog, is_imagery
@@ -51,7 +52,7 @@ class MissionLogWriter:
         self._closed = threading.Event()
         self._budgets = {topic: Budget(limit) for topic, limit in LIMITS.items()}
         self._budget_lock = threading.Lock()  # Zenoh may call back from several threads
-        self._frames_seen: OrderedDict[tuple[str, bytes], None] = OrderedDict()  # (key, RTP SSRC + sequence)
+        self._frames_seen = SeenFrames()
         if bus is not None:
             bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
             # capture frames lost on the way come again from the cameras' caches; this subscription only adds
@@ -88,15 +89,9 @@ class MissionLogWriter:
         self.sample(key, sample.payload.to_bytes(), now)
 
     def _first_time(self, key: str, header: bytes) -> bool:
-        """Whether a capture frame (its RTP header, RFC 3550 5.1) is new on ``key``; the last 4,096 are kept."""
-        frame = (key, header[2:4] + header[8:12])
+        """Whether a capture frame is new on ``key`` (by its RTP SSRC and sequence number, RFC 3550 5.1)."""
         with self._budget_lock:
-            if frame in self._frames_seen:
-                return False
-            self._frames_seen[frame] = None
-            if len(self._frames_seen) > 4096:
-                self._frames_seen.popitem(last=False)
-        return True
+            return self._frames_seen.first(key, int.from_bytes(header[8:12], "big"), int.from_bytes(header[2:4], "big"))
 
     def sample(self, key: str, data: bytes, rx: float) -> None:
         """Log one bus sample (its bytes as they came, its receive time), through the rings."""

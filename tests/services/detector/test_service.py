@@ -152,10 +152,11 @@ def test_capture_frames_lost_on_the_detectors_udp_link(group, gateway, recovery)
     if recovery:
         assert sorted(reports) == list(range(N_FRAMES))  # full coverage
         assert last["uav2.cam0.delivered"] == N_FRAMES and last["uav2.cam0.lost"] == 0
-        assert last["uav2.cam0.recovered"] > 0 and last["imagery.recovery"] == 1
+        assert last["uav2.cam0.recovered"] > 0 and last["imagery.recovery"] == 1 and last["imagery.unrecovered"] == 0
     else:
         assert len(reports) < N_FRAMES and last["uav2.cam0.lost"] > 0
         assert last["uav2.cam0.recovered"] == 0 and last["imagery.recovery"] == 0
+        assert last["imagery.unrecovered"] >= last["uav2.cam0.lost"] > 0
         assert last["uav2.cam0.delivered"] == len(reports)
 
 
@@ -275,3 +276,46 @@ def test_two_partitioned_detectors_analyse_every_frame_of_four_uavs_exactly_once
             else:
                 assert f"uav{u}.cam0.received" not in m  # never delivered to this instance
         assert m["pool.workers"] == 2 and m["pool.crashes"] == 0
+
+
+def test_a_uav_claiming_anothers_publisher_id_cannot_keep_its_frames_from_the_detector(group, gateway):
+    """Recovery tracks sequence numbers per source id, which any sender may claim: uav2 puts one sample on its
+    own camera key under uav1's camera's id, far ahead in sequence, so that the recovering subscription drops
+    uav1's next frames as already seen and reports about a million of them missed. The detector still analyses
+    every one of them (the live subscription hands them over; recovery only adds frames the link lost), counts
+    none as recovered and none as unrecovered."""
+    import zenoh
+
+    svc = group.start("detector", ["detector", "--fleet", FLEET, "--multilink",
+                                   *[a for e in gateway for a in ("--connect", e)]])
+    assert svc.wait_ready(30), "\n".join(svc.lines)
+    reports: dict[int, DefectReport] = {}
+    stats: list[LinkStats] = []
+    rng = np.random.default_rng(5)
+    cfg = BusConfig(mode="client", connect=gateway, multilink=True)
+    with Bus(cfg, FLEET, "uav1") as uav1, Bus(cfg, FLEET, "uav2") as uav2:
+        uav1.subscribe(keys.defects(FLEET), lambda m, s: reports.setdefault(m.capture_id, m), expect=DefectReport)
+        uav1.subscribe(keys.rcu_stats(FLEET, "detector"), lambda m, s: stats.append(m), expect=LinkStats)
+        assert wait_until(lambda: uav1.alive(keys.rcu_alive(FLEET, "detector")), 10)
+        time.sleep(0.5)
+        pub = uav1.publisher(keys.camera(FLEET, 1), IMAGERY, cache=16)
+        sender = RtpSender(ssrc_for(1))
+        frames = []
+        for cid in range(8):
+            grey, _ = crack_image((240, 320), rng, n_cracks=1)
+            ok, jpeg = cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_QUALITY, 90])
+            frames.append(pack_image(sender, _meta(1, cid, 320, 240), jpeg.tobytes(), time.time()))
+        for f in frames[:3]:
+            pub.put_bytes(f)
+            time.sleep(0.1)
+        assert wait_until(lambda: len(reports) == 3, 15), sorted(reports)
+        uav2.session.put(keys.camera(FLEET, 2), b"forged", source_info=zenoh.SourceInfo(pub._pub.id, 1_000_000))
+        time.sleep(1.0)
+        for f in frames[3:]:
+            pub.put_bytes(f)
+            time.sleep(0.1)
+        wait_until(lambda: len(reports) == 8 and stats and stats[-1].metrics.get("uav1.cam0.analysed", 0) == 8, 15)
+        last = stats[-1].metrics if stats else {}
+    assert sorted(reports) == list(range(8)), sorted(reports)
+    assert last.get("uav1.cam0.recovered") == 0, last
+    assert last.get("imagery.unrecovered") == 0, last  # not the million the claimed sequence number implies
