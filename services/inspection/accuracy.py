@@ -16,7 +16,8 @@ import numpy as np
 
 from services.detector.measure import measure_component
 
-__all__ = ["TruthCrack", "Comparison", "Accuracy", "truth_cracks", "compare", "markdown_accuracy"]
+__all__ = ["TruthCrack", "Comparison", "Accuracy", "truth_cracks", "unseen_cracks", "seen_pixels", "compare",
+           "markdown_accuracy"]
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,7 @@ class TruthCrack:
     width_mean_mm: float
     severity: str
     label: int  # its label in the truth label image
+    seen: float = 1.0  # share of its pixels some frame saw (what is measured is that part)
 
 
 @dataclass(frozen=True)
@@ -81,22 +83,52 @@ class Accuracy:
         return {"summary": self.summary, "unmatched": self.unmatched, "rows": rows}
 
 
-def truth_cracks(mask: np.ndarray, m_per_px: float, min_area_px: int = 20) -> tuple[list[TruthCrack], np.ndarray]:
-    """The truth cracks of a truth ``mask`` (row 0 at the top, v up; ``m_per_px`` its scale) and its label image."""
+def truth_cracks(mask: np.ndarray, m_per_px: float, min_area_px: int = 20,
+                 seen: np.ndarray | None = None) -> tuple[list[TruthCrack], np.ndarray]:
+    """The truth cracks of a truth ``mask`` (row 0 at the top, v up; ``m_per_px`` its scale) and its label image.
+
+    With ``seen`` (the pixels of the same raster some frame saw: :func:`seen_pixels`) each crack is measured
+    on its seen part, and a crack with fewer than ``min_area_px`` seen pixels is left out: the deliverable
+    is scored on what the flight imaged, its coverage is reported apart."""
     m = (np.asarray(mask) > 0).astype(np.uint8)
     n, labels, stats, cents = cv2.connectedComponentsWithStats(m, connectivity=8, ltype=cv2.CV_32S)
+    if seen is not None:
+        labels = np.where(seen, labels, 0)
     H = m.shape[0]
     out: list[TruthCrack] = []
     for i in range(1, n):
         x, y, w, h, a = (int(v) for v in stats[i])
         if a < min_area_px:
             continue
-        cm = measure_component(labels[y:y + h, x:x + w] == i, m_per_px)
-        out.append(TruthCrack(id=len(out), u_m=float((cents[i, 0] + 0.5) * m_per_px),
-                              v_m=float((H - cents[i, 1] - 0.5) * m_per_px), length_m=cm.length_m,
+        part = labels[y:y + h, x:x + w] == i
+        visible = int(np.count_nonzero(part))
+        if visible < min_area_px:
+            continue
+        cm = measure_component(part, m_per_px)
+        rows, cols = np.nonzero(part)
+        out.append(TruthCrack(id=len(out), u_m=float((x + cols.mean() + 0.5) * m_per_px),
+                              v_m=float((H - (y + rows.mean()) - 0.5) * m_per_px), length_m=cm.length_m,
                               width_max_mm=1e3 * cm.width_max_m, width_mean_mm=1e3 * cm.width_mean_m,
-                              severity=cm.severity, label=i))
+                              severity=cm.severity, label=i, seen=visible / a))
     return out, labels
+
+
+def unseen_cracks(mask: np.ndarray, seen: np.ndarray, min_area_px: int = 20) -> int:
+    """How many truth cracks of ``mask`` no frame saw (fewer than ``min_area_px`` of their pixels in ``seen``)."""
+    m = (np.asarray(mask) > 0).astype(np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8, ltype=cv2.CV_32S)
+    big = stats[1:, cv2.CC_STAT_AREA] >= min_area_px
+    shown = np.bincount(labels[seen], minlength=n)[1:] >= min_area_px
+    return int(np.count_nonzero(big & ~shown))
+
+
+def seen_pixels(owner: np.ndarray, m_per_px: float, shape: tuple[int, int], truth_m_per_px: float) -> np.ndarray:
+    """Which pixels of a truth raster (``shape`` at ``truth_m_per_px``, row 0 at the top) a frame saw, from a
+    mosaic's ``owner`` (-1 where no frame saw, at ``m_per_px``) on the same plane."""
+    H, W = shape
+    r = np.minimum(((np.arange(H) + 0.5) * truth_m_per_px / m_per_px).astype(int), owner.shape[0] - 1)
+    c = np.minimum(((np.arange(W) + 0.5) * truth_m_per_px / m_per_px).astype(int), owner.shape[1] - 1)
+    return np.asarray(owner)[np.ix_(r, c)] >= 0
 
 
 def _samples(line: Sequence[Sequence[float]], step: float) -> np.ndarray:
@@ -111,11 +143,12 @@ def _samples(line: Sequence[Sequence[float]], step: float) -> np.ndarray:
 
 
 def compare(defects: Sequence[Any], truth: Sequence[TruthCrack], labels: np.ndarray, m_per_px: float,
-            search_px: int = 3, gsd_m: float | None = None) -> Accuracy:
+            search_px: int = 3, gsd_m: float | None = None, unseen: int | None = None) -> Accuracy:
     """Match the deliverable's ``defects`` (:class:`services.inspection.deliverable.InspectionDefect`:
     ``id``, ``centre_line_uv``, ``u_m``, ``v_m``, sizes) to ``truth`` on the truth's ``labels`` (see the module
     docstring). With the flown ground sampling distance ``gsd_m``, the summary counts the true cracks
-    narrower than one of its pixels (``below_pixel``, ``below_pixel_found``): those the report cannot size."""
+    narrower than one of its pixels (``below_pixel``, ``below_pixel_found``): those the report cannot size;
+    ``unseen``, the true cracks no frame saw (:func:`unseen_cracks`), is carried into the summary."""
     H, W = labels.shape
     by_label = {t.label: t for t in truth}
     k = 2 * search_px + 1
@@ -148,6 +181,8 @@ def compare(defects: Sequence[Any], truth: Sequence[TruthCrack], labels: np.ndar
         rows.append(Comparison(truth=t, defects=tuple(d.id for d in ds), length_m=length, width_max_mm=wmax,
                                width_mean_mm=wmean, severity=worst.severity, resolved=all(d.resolved for d in ds)))
     summary = summarise(rows, unmatched, gsd_m)
+    if unseen is not None:
+        summary["unseen"] = unseen
     if gsd_m is not None:
         below = [r for r in rows if r.truth.width_max_mm < 1e3 * gsd_m]
         summary.update(gsd_mm=1e3 * gsd_m, below_pixel=len(below), below_pixel_found=sum(bool(r.defects) for r in below))
@@ -194,6 +229,8 @@ def markdown_accuracy(acc: Accuracy) -> str:
         f"{_f(s['width_mean_error_mm_worst'], '.2f')} mm; in their true class: "
         f"{_f(s['class_agreement'] and 100 * s['class_agreement'], '.0f')} % (widths and classes over the "
         f"{s['resolved']} cracks wider than one pixel)."
+        + (f" Scored on the imaged surface: {s['unseen']} more true cracks lie where no capture saw, and a crack "
+           "partly seen is measured on its seen part." if s.get("unseen") is not None else "")
         + (f" {s['below_pixel']} true cracks are narrower than one pixel at the flown {s['gsd_mm']:.2f} mm/px "
            f"({s['below_pixel_found']} of them detected): their widths cannot be measured." if s.get("below_pixel") else ""),
         "",
@@ -208,6 +245,7 @@ def markdown_accuracy(acc: Accuracy) -> str:
             f"| {t.id} | {t.length_m:.2f} / {_f(r.length_m, '.2f')} | {t.width_max_mm:.2f} / {_f(r.width_max_mm, '.2f')}"
             f" | {t.width_mean_mm:.2f} / {_f(r.width_mean_mm, '.2f')} | {t.severity} / "
             f"{(r.severity or 'missed') + ('' if r.resolved else ' (below 1 px)')}"
-            f"{' (narrower than one pixel)' if gsd_mm and t.width_max_mm < gsd_mm else ''} | "
+            f"{' (narrower than one pixel)' if gsd_mm and t.width_max_mm < gsd_mm else ''}"
+            f"{f' ({t.seen:.0%} of it seen)' if t.seen < 0.995 else ''} | "
             f"{', '.join(str(i) for i in r.defects) or '–'} |")
     return "\n".join(lines)

@@ -19,7 +19,6 @@ from .deliverable import (
     SEVERITY_ORDER,
     SORT_KEY,
     Deliverable,
-    InspectionDefect,
     frames_from_log,
     inspect_frames,
     load_folder,
@@ -61,17 +60,23 @@ def class_ranges() -> dict[str, str]:
     return out
 
 
-def _accuracy(record: MissionRecord, defects: list[InspectionDefect], gsd_m: float | None = None):
+def _accuracy(record: MissionRecord, res: Deliverable):
+    """The deliverable against the simulated wall's truth, on the part of it the captures saw (None without one)."""
     from services.inspection.ground_truth import truth_surface
 
-    from .accuracy import compare, truth_cracks
+    from .accuracy import compare, seen_pixels, truth_cracks, unseen_cracks
 
     surf = truth_surface(record)
     if surf is None:
         return None
     s = 1.0 / surf.px_per_m
-    truth, labels = truth_cracks(surf.mask, s)
-    return compare(defects, truth, labels, s, gsd_m=gsd_m)
+    (h, w), plane = surf.mask.shape, res.mosaic.plane
+    if abs(plane.width_m - w * s) > s or abs(plane.height_m - h * s) > s:  # a mosaic on another plane
+        truth, labels = truth_cracks(surf.mask, s)
+        return compare(res.defects, truth, labels, s, gsd_m=res.mosaic.m_per_px)
+    seen = seen_pixels(res.mosaic.owner, res.mosaic.m_per_px, surf.mask.shape, s)
+    truth, labels = truth_cracks(surf.mask, s, seen=seen)
+    return compare(res.defects, truth, labels, s, gsd_m=res.mosaic.m_per_px, unseen=unseen_cracks(surf.mask, seen))
 
 
 def absent_text(record: MissionRecord, posed: Sequence[PosedFrame]) -> str:
@@ -177,7 +182,7 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
         return []
     acc = None
     try:
-        acc = _accuracy(record, res.defects, res.mosaic.m_per_px)
+        acc = _accuracy(record, res)
     except ValueError as exc:  # a scenario without a simulated wall
         log.warning("no ground truth to measure against: %s", exc)
     if acc is not None:
