@@ -13,7 +13,7 @@ import numpy as np
 
 __all__ = [
     "SEVERITY_LIMITS_M", "CrackMeasure", "measure_component", "measure_mask", "severity", "skeleton_length",
-    "frame_scale", "centre_line", "outline",
+    "frame_scale", "centre_line", "outline", "fill_holes",
 ]
 
 #: upper width limits of the severity classes, metres (AASHTO MBEI, reinforced concrete cracking)
@@ -140,6 +140,34 @@ def prune_spurs(skel: np.ndarray, n: int) -> np.ndarray:
     return x | (grown & s) | np.isin(pieces, gone)
 
 
+def fill_holes(mask: np.ndarray, dist: np.ndarray) -> np.ndarray | None:
+    """``mask`` (uint8, 0/255) with its specks filled; None when it has none.
+
+    A hole is a 4-connected background region that does not reach the border (Soille, *Morphological Image
+    Analysis*, hole filling); it is a speck, filled, when its area is at most the square of the crack's
+    half-width around it (``dist``, the mask's distance transform, within 2 pixels of the hole): a gap
+    between two branches of a crack network is bounded by thin branches and stays open.
+    """
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(
+        cv2.copyMakeBorder(255 - mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=255), connectivity=4)
+    lab, stats[:, :2] = lab[1:-1, 1:-1], stats[:, :2] - 1
+    H, W = mask.shape
+    dmax = float(dist.max())
+    out = None
+    for i in np.flatnonzero(stats[:, cv2.CC_STAT_AREA] <= dmax * dmax):
+        x, y, w, h, a = (int(v) for v in stats[i])
+        if x < 0 or y < 0 or x + w > W or y + h > H:
+            continue  # the background at the border
+        y0, y1, x0, x1 = max(0, y - 2), min(H, y + h + 2), max(0, x - 2), min(W, x + w + 2)
+        hole = lab[y0:y1, x0:x1] == i
+        if not hole.any() or mask[y0:y1, x0:x1][hole].any():
+            continue
+        if a <= float(dist[y0:y1, x0:x1].max()) ** 2:
+            out = mask.copy() if out is None else out
+            out[y0:y1, x0:x1][hole] = 255
+    return out
+
+
 def measure_component(mask: np.ndarray, m_per_px: float, grey: np.ndarray | None = None) -> CrackMeasure:
     """Measure the defect pixels of ``mask`` (non-zero) as one crack at ``m_per_px`` metres per pixel.
 
@@ -158,6 +186,12 @@ def measure_component(mask: np.ndarray, m_per_px: float, grey: np.ndarray | None
     m = np.ascontiguousarray(np.where(m, 255, 0).astype(np.uint8))
     fg = cv2.copyMakeBorder(m, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     dist = cv2.distanceTransform(fg, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    m = fill_holes(m, dist)
+    if m is not None:  # specks inside the crack: the skeleton would loop around them
+        fg = cv2.copyMakeBorder(m, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+        dist = cv2.distanceTransform(fg, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
+    else:
+        m = fg[1:-1, 1:-1]
     skel = _skeletonize(m)
     if skel.any():
         skel = prune_spurs(skel, int(math.ceil(2.0 * float(dist[skel].max()))))
