@@ -9,7 +9,7 @@ import contextlib
 import functools
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
@@ -488,8 +488,7 @@ class MissionRunner:
             self.record.ended = time.time()
             self.record.rejected = self.bus.counters.snapshot()["rejected"]
             self.phase("done")
-        self.judge()
-        self.record.failures.extend(f for f in late if f)
+        self.judge(late=[f for f in late if f])
         return self.record
 
     def snapshot(self, recent: int = 60) -> Snapshot:
@@ -591,7 +590,9 @@ class MissionRunner:
             lost = set(self._sup.lost)
         return missing if include_lost else {c for c in missing if c[0] not in lost}
 
-    def judge(self) -> None:
+    def judge(self, late: Sequence[str] = ()) -> None:
+        """The verdict: the failures so far, then (when there were none) each UAV's goal and the captures,
+        then ``late``, failures of the run found at its end (a fault it never injected); success if none."""
         rec = self.record
         clean = not rec.failures
         planned, lost = self.planned_captures(), self.lost()
@@ -625,4 +626,5 @@ class MissionRunner:
         rec.imagery = ledger(self.opt.uavs, (s.msg for s in rec.states), (d.msg for d in rec.defects),
                              (s.msg for s in rec.detector_stats))
         rec.failures += corroboration_failures(rec.imagery)
+        rec.failures += late
         rec.success = not rec.failures

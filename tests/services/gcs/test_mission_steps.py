@@ -122,6 +122,26 @@ def test_takeoff_upload_and_completion_with_acknowledged_commands(net):
     assert {s.msg.mode for s in r.record.states} >= {Mode.IDLE, Mode.HOLD, Mode.LANDED}
 
 
+def test_a_failure_found_at_the_end_fails_a_mission_that_flew_well(net):
+    """A fault the run was asked for and never injected (the mission ended first) is found after the flight:
+    the verdict is a failure, and the goal checks still ran (they come first)."""
+    late = "never injected, the mission ended first: 40s cut uplinks for 2s"
+    for u in UAVS:
+        EdgeTwin(net, u)
+    r = runner_on(net)
+    fly(r)
+    r.judge(late=[late])
+    assert not r.record.success and r.record.failures == [late]  # it alone: the flight was good
+    net2 = MemNetwork()
+    short, _ = EdgeTwin(net2, 1), EdgeTwin(net2, 2)
+    r = runner_on(net2)
+    fly(r)
+    short.publish(mode=Mode.HOLD, progress=1.0, pos=(0.0, 0.0, 10.0))  # it ended far from its goal
+    r.judge(late=[late])
+    assert not r.record.success and r.record.failures[-1] == late
+    assert any("did not reach its goal" in f for f in r.record.failures), r.record.failures
+
+
 def test_a_refused_takeoff_ends_the_mission_before_any_start(net):
     edges = {1: EdgeTwin(net, 1), 2: EdgeTwin(net, 2, refuse="takeoff")}
     r = runner_on(net)
