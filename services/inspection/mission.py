@@ -19,6 +19,7 @@ from .deliverable import (
     SEVERITY_ORDER,
     SORT_KEY,
     Deliverable,
+    frame_name,
     frames_from_log,
     inspect_frames,
     load_folder,
@@ -160,6 +161,22 @@ def _insert_first(report_md: Path, lines: list[str]) -> None:
         report_md.write_text(text[:at + 1] + block + "\n" + text[at + 1:])
 
 
+def cited_captures(log_path: Path, res: Deliverable, folder: Path) -> list[str]:
+    """Write the capture frames the worst cracks cite (as the mission log holds them) into ``folder``, named as
+    the findings link them; the files written, relative to the report folder."""
+    from services.recording.mcap_log import captures
+
+    cited = {n for d in res.defects[:WORST] for n in d.seen_by}
+    written = []
+    for meta, image in captures(log_path):
+        name = frame_name(meta)
+        if name in cited:
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / f"{name}.jpg").write_bytes(image)
+            written.append(f"{FOLDER}/{folder.name}/{name}.jpg")
+    return written
+
+
 def append_deliverable(record: MissionRecord, folder: str | Path, files: list[str] | None = None,
                        frames: str | Path | None = None) -> list[str]:
     """Build the deliverable from ``frames`` (a mission log, or a folder of posed photos; default
@@ -188,7 +205,11 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
     if acc is not None:
         (out / FOLDER / "accuracy.json").write_text(json.dumps(acc.to_dict(), indent=1))
         written.append(f"{FOLDER}/accuracy.json")
-    rel_frames = source.name if source.parent.resolve() == out.resolve() else str(source)
+    if source.is_file():  # a mission log: the captures the findings cite, as files beside the deliverable
+        written += cited_captures(source, res, out / FOLDER / "captures")
+        rel_frames = f"{FOLDER}/captures"
+    else:
+        rel_frames = source.name if source.parent.resolve() == out.resolve() else str(source)
     absent = absent_text(record, posed)
     if absent:
         log.warning("deliverable: %s", absent)

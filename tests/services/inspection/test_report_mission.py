@@ -39,6 +39,9 @@ def check_report(run, tolerance: dict[str, float]) -> dict:
     assert (out / "report.html").is_file() and (out / "inspection" / "tiles" / "0" / "0_0.jpg").is_file()
     gj = json.loads((out / "inspection" / "defects.geojson").read_text())
     assert {f["geometry"]["type"] for f in gj["features"]} == {"LineString", "Polygon"}
+    # every capture the findings cite opens, in report.md and in report.html
+    links = re.findall(r"\]\(([^)]+\.jpg)\)", md) + re.findall(r"href='([^']+\.jpg)'", (out / "report.html").read_text())
+    assert links and all((out / link).is_file() for link in links), [x for x in links if not (out / x).is_file()]
     acc = json.loads((out / "inspection" / "accuracy.json").read_text())["summary"]
     for k, tol in tolerance.items():
         assert acc[k] is not None and acc[k] <= tol, (k, acc[k], tol)
