@@ -12,6 +12,7 @@ from typing import Any
 from protocol.textsafe import md_text
 from services.gcs.evidence import integrity_markdown
 from services.gcs.figures import ReportSummary
+from services.gcs.resilience import GAP_S
 from services.recording.record import MissionRecord
 
 __all__ = ["markdown"]
@@ -169,9 +170,17 @@ def _faults_markdown(f: Mapping[str, Any]) -> list[str]:
                         x["target"], x["text"]] for x in supervision]), ""]
     for x in f["seen_again"]:
         line = (f"{x['after'].capitalize()} of {x['target']} at {_fmt(x['t_s'], 1, ' s')} (down since "
-                f"{_fmt(x['began_s'], 1, ' s')}): fleet seen again at {_fmt(x['fleet_seen_s'], 2, ' s')}, "
-                f"{_fmt(x['fleet_s'], 2, ' s')} after the {x['after']}, {_fmt(x['blackout_s'], 2, ' s')} of blackout "
-                "(" + ", ".join(f"UAV {u}: {_fmt(v, 2, ' s')}" for u, v in x["uavs_s"].items()) + ")")
+                f"{_fmt(x['began_s'], 1, ' s')}): ")
+        if x["uavs_s"]:
+            line += (f"fleet seen again at {_fmt(x['fleet_seen_s'], 2, ' s')}, {_fmt(x['fleet_s'], 2, ' s')} after "
+                     f"the {x['after']}, {_fmt(x['blackout_s'], 2, ' s')} of blackout ("
+                     + ", ".join(f"UAV {u}: {_fmt(v, 2, ' s')}" for u, v in x["uavs_s"].items()) + ")")
+            if x.get("heard_throughout"):
+                line += "; heard throughout: " + ", ".join(f"UAV {u}" for u in x["heard_throughout"])
+        elif x.get("heard_throughout"):
+            line += f"the fleet was heard throughout (no gap in its states over {GAP_S:g} s)"
+        else:
+            line += "the fleet was not heard after it"
         if x["never"]:
             line += "; never heard again: " + ", ".join(f"UAV {u}" for u in x["never"])
         md += [line + ".", ""]

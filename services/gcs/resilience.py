@@ -130,20 +130,22 @@ def fault_figures(record: MissionRecord) -> dict[str, Any]:
         begins = [b for b in record.faults if b.target == f.target and b.action in _BEGIN_OF[f.action] and b.at <= f.at]
         begin = max((b.at for b in begins), default=f.at)
         per_uav: dict[int, float] = {}
+        throughout = []
         for u, times in rx.items():
-            # the first state after the gap that the fault opened (or the first after its end)
-            back = next((b for a, b in pairwise(times) if b >= begin and b - max(a, begin) > GAP_S), None)
-            if back is None:
-                back = next((x for x in times if x >= f.at), None)
+            # the first state after a gap the fault opened (one longer than GAP_S begun before the restart)
+            back = next((b for a, b in pairwise(times) if b >= begin and a <= f.at and b - max(a, begin) > GAP_S), None)
             if back is not None:
                 per_uav[u] = back
-        never = sorted(set(rx) - set(per_uav))
+            elif any(x >= f.at for x in times):
+                throughout.append(u)  # no such gap: heard through the fault, nothing to be seen again after
+        never = sorted(set(rx) - set(per_uav) - set(throughout))
         fleet = max(per_uav.values()) if per_uav else None
         seen_again.append({"after": f.action, "target": f.target, "began_s": t(begin), "t_s": t(f.at),
                            "fleet_seen_s": None if fleet is None else t(fleet),
                            "fleet_s": None if fleet is None else round(fleet - f.at, 3),
-                           "blackout_s": None if fleet is None else round(fleet - begin, 3),
-                           "uavs_s": {u: round(x - f.at, 3) for u, x in sorted(per_uav.items())}, "never": never})
+                           "blackout_s": round(fleet - begin, 3) if fleet is not None else 0.0 if not never else None,
+                           "uavs_s": {u: round(x - f.at, 3) for u, x in sorted(per_uav.items())}, "never": never,
+                           "heard_throughout": sorted(throughout)})
 
     neighbours = [{"t_s": t(e.msg.stamp), "uav": _uav_of(e.msg.source), "kind": e.msg.kind,
                    "neighbour": e.msg.data.get("neighbour")}

@@ -13,6 +13,7 @@ import pytest
 
 from protocol.messages import Event, Level, Mode, VehicleState
 from services.gcs.figures import summarise
+from services.gcs.markdown import _faults_markdown
 from services.gcs.report import write_report
 from services.gcs.resilience import fault_figures, reception_gaps
 from services.recording.record import CommandRecord, EventRx, FaultRecord, Incident, MissionRecord, StateRx
@@ -118,3 +119,17 @@ def test_supervisor_restarts_and_start_failures_are_listed_apart_from_injected_f
     only = MissionRecord(fleet="f", speed=8.0, started=M - 20, ended=M + 22, phases={"mission": M}, faults=noted)
     md = "\n".join(_faults_markdown(fault_figures(only)))
     assert "No fault injected." in md and "did not start" in md
+
+
+def test_a_restart_the_fleet_was_heard_through_claims_no_blackout():
+    """The planner killed at 5 s and restarted at 8 s while both UAVs were heard every 0.1 s: no blackout, and no
+    "seen again" time taken from the restart (the report said "3.31 s of blackout" after a planner restart)."""
+    rec = MissionRecord(fleet="f", speed=4.0, started=M - 5, ended=M + 20, phases={"mission": M},
+                        states=[state(u, round(0.1 * i, 1)) for u in (1, 2) for i in range(150)],
+                        faults=[FaultRecord(at=M + 5.0, action="kill", target="planner", text="5s kill planner for 3s"),
+                                FaultRecord(at=M + 8.0, action="restart", target="planner", text="up")])
+    (seen,) = fault_figures(rec)["seen_again"]
+    assert seen["heard_throughout"] == [1, 2] and seen["never"] == [] and seen["uavs_s"] == {}
+    assert seen["blackout_s"] == 0.0 and seen["fleet_seen_s"] is None
+    md = "\n".join(_faults_markdown(fault_figures(rec)))
+    assert "the fleet was heard throughout" in md and "of blackout" not in md
