@@ -10,7 +10,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from protocol.messages import DefectReport, Event, LinkStats, MissionPlan, VehicleState
 from protocol.scenario import Scenario
@@ -139,6 +139,13 @@ class MissionRecord(BaseModel):
                                      "count: undecodable, or over a source's budget (protocol.budget)")
     report_input: str = Field(default="", description="what the report was computed from: the mission log read "
                               "back, or the in-memory record and why (services.gcs.journal.report_record)")
+
+    @model_validator(mode="after")
+    def _no_success_with_failures(self) -> MissionRecord:
+        """A record read back with failures is not a success, whatever its ``success`` says."""
+        if self.failures:
+            self.success = False
+        return self
 
 
 # ============================================================================ streamed, bounded recording

@@ -84,3 +84,14 @@ def test_mission_on_a_full_disk_is_refused_before_anything_starts():
                               capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "MB free" in proc.stderr and "router up" not in proc.stdout
+
+
+def test_a_record_with_failures_reads_back_as_failed():
+    """A log whose footer says success beside a failure (as runs that found a failure at their end wrote it) is
+    reported as failed."""
+    from services.recording.record import MissionRecord
+
+    rec = MissionRecord.model_validate({"fleet": "f", "speed": 1.0, "started": 0.0, "success": True,
+                                        "failures": ["never injected, the mission ended first: 40s cut uplinks"]})
+    assert rec.success is False
+    assert MissionRecord(fleet="f", speed=1.0, started=0.0, success=True).success
