@@ -145,7 +145,7 @@ def run(args: GcsMissionConfig) -> int:
     scenario = load_scenario(args.scenario)
     options = MissionOptions(uavs=tuple(range(1, args.uavs + 1)), algorithm=args.algorithm, seed=args.seed,
                              speed=args.speed, appear_timeout_s=args.appear_timeout,
-                             ready_timeout_s=args.ready_timeout)
+                             ready_timeout_s=args.ready_timeout, method=args.method)
     abort = stop_event_on_signals()
     signer = plan_verifier = None
     if args.keys:  # commands and heartbeats signed end to end, plans signed by the planner

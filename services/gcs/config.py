@@ -8,6 +8,7 @@ from pydantic import Field, field_validator
 
 from protocol.bus import BusMode, BusOptions
 from protocol.cliconfig import Cli
+from services.detector.config import DetectorConfig, Method
 
 from .mission import MissionOptions
 
@@ -33,6 +34,9 @@ class GcsMissionConfig(BusOptions):
         default=_MISSION.ready_timeout_s, gt=0.0,
         description="wait this long for every UAV's autopilot to be ready before takeoff, then refuse, s")
     no_record: bool = Field(default=False, description="do not log the mission to OUT/mission.mcap")
+    method: Method = Field(default=DetectorConfig.model_fields["method"].get_default(),
+                           description="the detection method of the mission's detector (skynet detector --method): "
+                                       "the inspection deliverable segments the captures with it")
     web: Annotated[str | None, Cli(metavar="[HOST]:PORT")] = Field(
         default=None, description="serve the live web page of the fleet there (e.g. :8080; loopback unless a host "
                                   "is given)")

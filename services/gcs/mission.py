@@ -103,6 +103,7 @@ class MissionOptions:
     particles: int | None = None
     iterations: int | None = None
     waypoints: int | None = None
+    method: str | None = None  # the detector's detection method, which the inspection deliverable uses too
 
 
 @dataclass(frozen=True)
@@ -130,7 +131,8 @@ class MissionRunner:
         scenario = with_formation_size(scenario, len(options.uavs), log)
         self.on_progress = on_progress
         self.scenario = scenario
-        self.record = MissionRecord(fleet=bus.fleet, scenario=scenario, speed=options.speed, started=time.time())
+        self.record = MissionRecord(fleet=bus.fleet, scenario=scenario, speed=options.speed, started=time.time(),
+                                    method=options.method)
         #: every item goes through it: bounded in memory; the ground station's own entries also to ``sink``, the
         #: mission log's writer (services.recording.recorder), which logs the bus's samples itself
         self.recorder = LiveRecord(self.record, sink)

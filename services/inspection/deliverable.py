@@ -84,6 +84,7 @@ class Deliverable:
     seconds: dict[str, float] = field(default_factory=dict)
     files: list[str] = field(default_factory=list)
     origin: tuple[float, float, float] | None = None  # the geodetic origin of the ENU frame
+    method: str = ""  # the detection method the frames were segmented with ("": masks given with the frames)
 
 
 def segment(frames: Sequence[PosedFrame], method: str = "it+") -> list[PosedFrame]:
@@ -128,7 +129,8 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
         px = float(np.median([f.grey.shape[0] * f.grey.shape[1] for f in frames]))
         min_area_px = int(round(MIN_REPORT_AREA_PX * max(1.0, px / REFERENCE_FRAME_PX)))
     t0 = time.perf_counter()
-    seg = segment(frames, method) if any(f.mask is None for f in frames) else list(frames)
+    segmented = any(f.mask is None for f in frames)
+    seg = segment(frames, method) if segmented else list(frames)
     t1 = time.perf_counter()
     pl = plane if plane is not None else plane_from_frames([f.meta for f in frames])
     mos = build_mosaic(seg, pl, m_per_px)
@@ -172,7 +174,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
     for k, r in enumerate(rows, start=1):
         r.id = k
     t3 = time.perf_counter()
-    return Deliverable(mosaic=mos, defects=rows, frames=len(frames),
+    return Deliverable(mosaic=mos, defects=rows, frames=len(frames), method=method if segmented else "",
                        origin=None if origin is None else (float(origin[0]), float(origin[1]), float(origin[2])),
                        seconds={"segment": t1 - t0, "mosaic": t2 - t1, "measure": t3 - t2, "total": t3 - t0})
 

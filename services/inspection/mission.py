@@ -138,7 +138,8 @@ def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, f
         lines.append(f"\n({len(res.defects) - TABLE_ROWS} more in `{prefix}/defects.md`.)")
     lines += ["", f"Geometry for a GIS: `{prefix}/defects.geojson` (RFC 7946: each crack's centre line and outline, "
               f"lon, lat, altitude), `{prefix}/defects.kml` (Google Earth, absolute altitudes), `{prefix}/defects.json`. "
-              f"Segmentation {res.seconds.get('segment', 0):.2f} s, mosaic {res.seconds.get('mosaic', 0):.2f} s, "
+              + (f"Segmented with the detector's method `{res.method}`: " if res.method else "")
+              + f"segmentation {res.seconds.get('segment', 0):.2f} s, mosaic {res.seconds.get('mosaic', 0):.2f} s, "
               f"measurement {res.seconds.get('measure', 0):.2f} s; a crack seen by overlapping frames is one defect "
               "here. The mission's own figures follow.", ""]
     return lines
@@ -192,7 +193,7 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
             raise ValueError(f"no captures in {source.name}")
         plane = Plane.from_corners(record.surface_corners) if len(record.surface_corners) == 4 else None
         origin = _origin(record)
-        res = inspect_frames(posed, plane, origin)
+        res = inspect_frames(posed, plane, origin, **({"method": record.method} if record.method else {}))
         written = [f"{FOLDER}/{f}" for f in write_deliverable(res, out / FOLDER, origin=origin)]
     except ValueError as exc:
         _insert_first(out / "report.md", [HEADING, "", f"Not built: {md_text(exc)}.", ""])

@@ -507,7 +507,7 @@ def run_mission(config: MissionLaunchConfig, log: logging.Logger, stop, plan: Pl
         # every edge imports and starts at once on the same cores: 48 of them took over 30 s to appear
         options = MissionOptions(uavs=tuple(range(1, config.uavs + 1)), algorithm=config.algorithm, seed=config.seed,
                                  speed=config.speed, appear_timeout_s=max(30.0, 2.5 * config.uavs),
-                                 ready_timeout_s=config.ready_timeout)
+                                 ready_timeout_s=config.ready_timeout, method=config.method)
         injector = net.start_faults(log)
 
         def on_runner(runner) -> None:

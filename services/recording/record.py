@@ -126,6 +126,8 @@ class MissionRecord(BaseModel):
     heartbeats_sent: int = 0
     ground_truth: list[GroundTruthDefect] = []
     surface_corners: list[tuple[float, float, float]] = []
+    method: str | None = Field(default=None, description="the detection method of the mission's detector: the "
+                               "inspection deliverable segments the captures with it (None: not known)")
     success: bool = False
     failures: list[str] = []
     phases: dict[str, float] = Field(default={}, description="phase name -> wall time it began")

@@ -134,3 +134,26 @@ def test_the_deliverable_names_the_planned_captures_its_mosaic_lacks():
                                           "on the way to the ground station's log): uav2-00002.")
     assert absent_text(record, [*posed, SimpleNamespace(meta=SimpleNamespace(uav=2, capture_id=2))]) == ""
     assert absent_text(MissionRecord(fleet=FLEET, speed=1.0, started=0.0), posed) == ""  # no plan: nothing to miss
+
+
+def test_the_deliverable_segments_with_the_missions_detector_method(tmp_path):
+    """The record's method (the mission detector's, in the log's header) is the deliverable's: a mission flown with
+    the learned detector used to be reported from IT+ masks (8 defects on no true crack on the real-size wall)."""
+    from edge.world.wall import synthetic_surface
+    from protocol.scenario import load_scenario
+    from services.detector.frames import save_frame
+    from services.inspection.captures import synthetic_captures
+    from services.inspection.mission import append_deliverable
+    from services.recording.record import MissionRecord
+
+    sc = load_scenario(None)
+    surf = synthetic_surface(sc)
+    for c in synthetic_captures(sc, surf)[:4]:
+        save_frame(tmp_path / "frames", c.meta, c.jpeg)
+    for method in ("otsu", None):
+        (tmp_path / "report.md").write_text("# Mission report\n\nOutcome: **success**.\n\n## Experimental setup\n")
+        rec = MissionRecord(fleet="f", scenario=sc, speed=1.0, started=0.0, method=method,
+                            surface_corners=[tuple(map(float, p)) for p in surf.corners])
+        assert append_deliverable(rec, tmp_path)
+        md = (tmp_path / "report.md").read_text()
+        assert f"Segmented with the detector's method `{method or 'it+'}`" in md
