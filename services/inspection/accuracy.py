@@ -229,8 +229,9 @@ def markdown_accuracy(acc: Accuracy) -> str:
         f"{_f(s['width_mean_error_mm_worst'], '.2f')} mm; in their true class: "
         f"{_f(s['class_agreement'] and 100 * s['class_agreement'], '.0f')} % (widths and classes over the "
         f"{s['resolved']} cracks wider than one pixel)."
-        + (f" Scored on the imaged surface: {s['unseen']} more true cracks lie where no capture saw, and a crack "
-           "partly seen is measured on its seen part." if s.get("unseen") is not None else "")
+        + (" Scored on the imaged surface: a crack partly seen is measured on its seen part"
+           + (f"; {s['unseen']} more true cracks lie where no capture saw." if s["unseen"] else ".")
+           if s.get("unseen") is not None else "")
         + (f" {s['below_pixel']} true cracks are narrower than one pixel at the flown {s['gsd_mm']:.2f} mm/px "
            f"({s['below_pixel_found']} of them detected): their widths cannot be measured." if s.get("below_pixel") else ""),
         "",
