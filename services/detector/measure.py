@@ -186,12 +186,11 @@ def measure_component(mask: np.ndarray, m_per_px: float, grey: np.ndarray | None
     m = np.ascontiguousarray(np.where(m, 255, 0).astype(np.uint8))
     fg = cv2.copyMakeBorder(m, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
     dist = cv2.distanceTransform(fg, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-    m = fill_holes(m, dist)
-    if m is not None:  # specks inside the crack: the skeleton would loop around them
+    filled = fill_holes(m, dist)
+    if filled is not None:  # specks inside the crack: the skeleton would loop around them
+        m = filled
         fg = cv2.copyMakeBorder(m, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
         dist = cv2.distanceTransform(fg, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)[1:-1, 1:-1]
-    else:
-        m = fg[1:-1, 1:-1]
     skel = _skeletonize(m)
     if skel.any():
         skel = prune_spurs(skel, int(math.ceil(2.0 * float(dist[skel].max()))))
