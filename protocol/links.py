@@ -61,3 +61,20 @@ def class_of_topic(topic: str) -> LinkClass:
     if topic in ("camera", "preview"):
         return IMAGERY
     return COMMAND
+
+
+def transports(endpoints: list[str]) -> dict[str, str]:
+    """The protocol (``tls``, ``tcp``, ``udp``, ...) each class rides on a session connected to ``endpoints``: with
+    multilink, the reliable class on the ``rel=1`` endpoint and the best-effort class on the ``rel=0`` one; else
+    both on the first. Empty when there is no endpoint.
+
+    >>> transports(["tls/h:1?rel=1", "tls/h:2?rel=0"]), transports(["tcp/h:1?rel=1", "udp/h:2?rel=0"])
+    ({'reliable': 'tls', 'best-effort': 'tls'}, {'reliable': 'tcp', 'best-effort': 'udp'})
+    """
+    if not endpoints:
+        return {}
+
+    def scheme(rel: str) -> str:
+        return next((e for e in endpoints if f"rel={rel}" in e.partition("?")[2]), endpoints[0]).partition("/")[0]
+
+    return {"reliable": scheme("1"), "best-effort": scheme("0")}

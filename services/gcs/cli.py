@@ -9,11 +9,13 @@ import argparse
 import logging
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from edge.geometry import formation
 from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
 from protocol.cliconfig import add_options, from_namespace
+from protocol.links import transports
 from protocol.scenario import Scenario, load_scenario
 
 from .config import GcsMissionConfig
@@ -66,6 +68,8 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         from services.recording.recorder import MissionLogWriter, RecordingBus
 
         writer = MissionLogWriter(bus, Path(out) / "mission.mcap", log)
+    if options.transport is None:  # what the report's link figures rode on: this session's own links
+        options = replace(options, transport=transports(list(bus.config.connect)))
     runner = MissionRunner(bus if writer is None else RecordingBus(bus, writer), scenario, options,
                            on_progress=progress, log=log, abort=abort, sink=writer, signer=signer,
                            plan_verifier=plan_verifier)

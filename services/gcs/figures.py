@@ -532,7 +532,10 @@ def _links(record: MissionRecord, samples: LinkSamples, uav_figs: Mapping[int, U
            imagery: Mapping[str, Mapping[str, float]]) -> dict[str, LinkFigures]:
     links: dict[str, LinkFigures] = {}
     # telemetry
-    tel = LinkFigures("telemetry", "UDP: best-effort, drop", latency_kind="state age rx - stamp")
+    best, reliable = (record.transport.get(k, "") for k in ("best-effort", "reliable"))
+    stream = best not in ("", "udp")  # the best-effort class on a TLS or TCP stream: a loss is a retransmission
+    carried = f"best-effort class on {best.upper()} (a loss is a retransmission delay)" if stream else None
+    tel = LinkFigures("telemetry", carried or "UDP: best-effort, drop", latency_kind="state age rx - stamp")
     for u, f in sorted(uav_figs.items()):
         if f.states:
             tel.per_uav[u] = {"received": f.telemetry_received, "sent": f.telemetry_sent,
@@ -543,7 +546,7 @@ def _links(record: MissionRecord, samples: LinkSamples, uav_figs: Mapping[int, U
     tel.latency_ms = latency_figures(samples.telemetry)
     links["telemetry"] = tel
     # imagery
-    img = LinkFigures("imagery", "RTP: sequenced frames, best-effort",
+    img = LinkFigures("imagery", f"RTP: sequenced frames, {carried}" if carried else "RTP: sequenced frames, best-effort",
                       latency_kind="capture to report stamp_report - stamp_capture")
     for cam, m in imagery.items():
         uav = int(cam.split(".")[0][3:]) if cam.split(".")[0][3:].isdigit() else 0
@@ -572,7 +575,7 @@ def _links(record: MissionRecord, samples: LinkSamples, uav_figs: Mapping[int, U
     rep.latency_ms = latency_figures(samples.defect_reports)
     links["defect_reports"] = rep
     # commands
-    cmd = LinkFigures("command", "TCP: reliable, block", latency_kind="acknowledgement round trip ack_s",
+    cmd = LinkFigures("command", f"{reliable.upper() if reliable else 'TCP'}: reliable, block", latency_kind="acknowledgement round trip ack_s",
                       delivered=sum(c.ok for c in record.commands), sent=len(record.commands))
     cmd.ratio = _ratio(cmd.delivered, cmd.sent)
     cmd.latency_ms = latency_figures(samples.command)

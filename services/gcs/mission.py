@@ -104,6 +104,7 @@ class MissionOptions:
     iterations: int | None = None
     waypoints: int | None = None
     method: str | None = None  # the detector's detection method, which the inspection deliverable uses too
+    transport: dict[str, str] | None = None  # the session's protocol per link class (protocol.links.transports)
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,7 @@ class MissionRunner:
         self.on_progress = on_progress
         self.scenario = scenario
         self.record = MissionRecord(fleet=bus.fleet, scenario=scenario, speed=options.speed, started=time.time(),
-                                    method=options.method)
+                                    method=options.method, transport=options.transport or {})
         #: every item goes through it: bounded in memory; the ground station's own entries also to ``sink``, the
         #: mission log's writer (services.recording.recorder), which logs the bus's samples itself
         self.recorder = LiveRecord(self.record, sink)

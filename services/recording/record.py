@@ -128,6 +128,9 @@ class MissionRecord(BaseModel):
     surface_corners: list[tuple[float, float, float]] = []
     method: str | None = Field(default=None, description="the detection method of the mission's detector: the "
                                "inspection deliverable segments the captures with it (None: not known)")
+    transport: dict[str, str] = Field(default={}, description="the protocol each link class rode on the ground "
+                                      "station's session, 'reliable' / 'best-effort' -> tls, tcp, udp, ... "
+                                      "(protocol.links.transports; empty: not known)")
     success: bool = False
     failures: list[str] = []
     phases: dict[str, float] = Field(default={}, description="phase name -> wall time it began")

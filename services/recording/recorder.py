@@ -31,7 +31,7 @@ GROUND_TOPICS = {"commands": "/skynet/record/commands", "faults": "/skynet/recor
 HEADER_TOPIC = "/skynet/record/header"
 FOOTER_TOPIC = "/skynet/record/footer"
 #: the record's fields in the header; the footer has every field that is not a list of items
-HEADER_FIELDS = {"fleet", "scenario", "speed", "started", "method"}
+HEADER_FIELDS = {"fleet", "scenario", "speed", "started", "method", "transport"}
 
 
 class MissionLogWriter:

@@ -141,3 +141,15 @@ def test_every_gateway_has_its_latest_statistics_in_the_report():
     md = markdown(rec, s)
     assert "## Gateways" in md and "| gateway/gw1 | peer 3 | 20 |" in md
     assert "Gateway rejections (gateway/gw1): unknown-key: 4." in md
+
+
+def test_the_links_say_what_the_ground_stations_session_rode_on():
+    """In the default secure mode both classes ride TLS streams (no UDP socket): the report used to say
+    "UDP: best-effort, drop" for the telemetry there, and a loss on that class is a retransmission delay."""
+    secure = summarise(MissionRecord(fleet="f", speed=1.0, started=0.0,
+                                     transport={"reliable": "tls", "best-effort": "tls"})).links
+    assert "TLS" in secure["telemetry"].carried_as and "UDP" not in secure["telemetry"].carried_as
+    assert "TLS" in secure["imagery"].carried_as and secure["command"].carried_as.startswith("TLS")
+    plain = summarise(MissionRecord(fleet="f", speed=1.0, started=0.0,
+                                    transport={"reliable": "tcp", "best-effort": "udp"})).links
+    assert plain["telemetry"].carried_as.startswith("UDP") and plain["command"].carried_as.startswith("TCP")
