@@ -111,7 +111,24 @@ def resolve(config: LaunchConfig, proxied: bool = False) -> TrustPlan:
     if config.insecure:
         return TrustPlan(None, False, [INSECURE_BANNER])
     keys = dev_keys(config.keys or default_keys(), config.uavs)
-    return TrustPlan(keys.resolve(), True)
+    return TrustPlan(keys.resolve(), True, datagram_warnings(config.impair))
+
+
+def datagram_warnings(impair: list[str]) -> list[str]:
+    """What the secure mode makes of an impairment's datagram effects: the best-effort class rides a TLS stream
+    (no UDP socket), where a lost segment is sent again, so loss is a retransmission delay and duplicates or
+    reordering do not reach the receiver. One line per such ``--impair`` value."""
+    from services.netem.model import parse_impair_arg
+
+    out = []
+    for text in impair:
+        arg = parse_impair_arg(text)
+        imp = arg.impairment
+        if arg.cls != "tcp" and (imp.loss > 0 or imp.gilbert_elliott is not None or imp.duplicate > 0 or imp.reorder > 0):
+            out.append(f"--impair {text!r}: in the secure mode the best-effort class rides a TLS stream, so its loss is "
+                       "a retransmission delay and nothing is dropped, duplicated or reordered on arrival "
+                       "(--insecure for the paper's UDP class with datagram loss)")
+    return out
 
 
 def planned_keys(config: LaunchConfig) -> Path | None:
