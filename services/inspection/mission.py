@@ -178,6 +178,15 @@ def cited_captures(log_path: Path, res: Deliverable, folder: Path) -> list[str]:
     return written
 
 
+def surface_corners(record: MissionRecord) -> list | None:
+    """The inspected surface's corners: the record's (a simulated wall's), else the scenario's (the operator's
+    survey, whatever the cameras are); None without either."""
+    if len(record.surface_corners) == 4:
+        return list(record.surface_corners)
+    surface = record.scenario.surface if record.scenario is not None else None
+    return list(surface.corners) if surface is not None else None
+
+
 def append_deliverable(record: MissionRecord, folder: str | Path, files: list[str] | None = None,
                        frames: str | Path | None = None) -> list[str]:
     """Build the deliverable from ``frames`` (a mission log, or a folder of posed photos; default
@@ -191,7 +200,7 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
         posed = frames_from_log(source) if source.is_file() else load_folder(source)[0]
         if not posed:
             raise ValueError(f"no captures in {source.name}")
-        plane = Plane.from_corners(record.surface_corners) if len(record.surface_corners) == 4 else None
+        plane = Plane.from_corners(corners) if (corners := surface_corners(record)) else None
         origin = _origin(record)
         res = inspect_frames(posed, plane, origin, **({"method": record.method} if record.method else {}))
         written = [f"{FOLDER}/{f}" for f in write_deliverable(res, out / FOLDER, origin=origin)]

@@ -113,6 +113,15 @@ def frame_gsd(meta: ImageMeta) -> float | None:
     return meta.range_m / (0.5 * (k.fx + k.fy))
 
 
+def plane_gsd(meta: ImageMeta, plane: Plane) -> float | None:
+    """Metres per pixel at the frame centre where its optical axis meets ``plane`` (a camera without a rangefinder
+    over a surface the scenario gives), as :func:`frame_gsd`; None when the axis does not meet it in front."""
+    k, (_, R, C) = meta.intrinsics, _meta_arrays(meta)
+    along = float(R[:, 2] @ plane.normal)
+    d = float((plane.origin - C) @ plane.normal) / along if abs(along) > 1e-6 else -1.0
+    return d / (0.5 * (k.fx + k.fy)) if 0.0 < d <= 1000.0 else None
+
+
 def plane_from_frames(metas: Sequence[ImageMeta], margin_m: float = 0.0) -> Plane:
     """A plane for frames without a known surface: through the points where the optical axes meet
     the surface at the frames' ranges, facing the mean viewing direction, ``u`` horizontal, ``v``
@@ -168,9 +177,9 @@ def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | N
 
     t0 = time.perf_counter()
     if m_per_px is None:
-        g = [x for x in (frame_gsd(f.meta) for f in frames) if x]
+        g = [x for x in (frame_gsd(f.meta) or plane_gsd(f.meta, plane) for f in frames) if x]
         if not g:
-            raise ValueError("no frame has a range: give m_per_px")
+            raise ValueError("no frame has a range nor looks at the surface: give m_per_px")
         m_per_px = float(np.median(g))
     if not (math.isfinite(m_per_px) and m_per_px > 0):
         raise ValueError(f"m_per_px must be finite and > 0, got {m_per_px!r}")

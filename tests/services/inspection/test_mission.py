@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 import time
 
+import pytest
+
 from edge.world.wall import synthetic_surface
 from protocol import keys
 from protocol.bus import Bus, BusConfig
@@ -157,3 +159,27 @@ def test_the_deliverable_segments_with_the_missions_detector_method(tmp_path):
         assert append_deliverable(rec, tmp_path)
         md = (tmp_path / "report.md").read_text()
         assert f"Segmented with the detector's method `{method or 'it+'}`" in md
+
+
+def test_frames_without_a_range_over_the_scenarios_surface_make_a_deliverable(tmp_path):
+    """A mission flown with an image-folder camera has no ground truth, so its record has no surface corners, and
+    its frames no range (no rangefinder): the deliverable was "Not built: no frame has a range". The scenario's
+    surface gives the plane, and where each optical axis meets it the frame's scale."""
+    from edge.world.wall import synthetic_surface
+    from protocol.scenario import load_scenario
+    from services.detector.frames import save_frame
+    from services.inspection.captures import synthetic_captures
+    from services.inspection.mission import append_deliverable
+    from services.inspection.mosaic import Plane, frame_gsd, plane_gsd
+    from services.recording.record import MissionRecord
+
+    sc = load_scenario(None)
+    caps = synthetic_captures(sc, synthetic_surface(sc))[:4]
+    plane = Plane.from_corners(sc.surface.corners)
+    for c in caps:
+        assert plane_gsd(c.meta, plane) == pytest.approx(frame_gsd(c.meta), rel=1e-6)
+        save_frame(tmp_path / "frames", c.meta.model_copy(update={"range_m": None}), c.jpeg)
+    (tmp_path / "report.md").write_text("# Mission report\n\nOutcome: **success**.\n\n## Experimental setup\n")
+    assert append_deliverable(MissionRecord(fleet="f", scenario=sc, speed=1.0, started=0.0), tmp_path)
+    md = (tmp_path / "report.md").read_text()
+    assert "Not built" not in md and "found on the inspected surface" in md
