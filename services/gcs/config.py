@@ -36,7 +36,7 @@ class GcsMissionConfig(BusOptions):
     no_record: bool = Field(default=False, description="do not log the mission to OUT/mission.mcap")
     method: Method = Field(default=DetectorConfig.model_fields["method"].get_default(),
                            description="the detection method of the mission's detector (skynet detector --method): "
-                                       "the inspection deliverable segments the captures with it")
+                                       "kept in the mission log and named in the findings")
     web: Annotated[str | None, Cli(metavar="[HOST]:PORT")] = Field(
         default=None, description="serve the live web page of the fleet there (e.g. :8080; loopback unless a host "
                                   "is given)")

@@ -103,7 +103,7 @@ class MissionOptions:
     particles: int | None = None
     iterations: int | None = None
     waypoints: int | None = None
-    method: str | None = None  # the detector's detection method, which the inspection deliverable uses too
+    method: str | None = None  # the detector's detection method (the record's header, the findings name it)
     transport: dict[str, str] | None = None  # the session's protocol per link class (protocol.links.transports)
 
 

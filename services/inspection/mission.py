@@ -93,7 +93,7 @@ def absent_text(record: MissionRecord, posed: Sequence[PosedFrame]) -> str:
 
 
 def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, frames: str = "frames",
-                      absent: str = "") -> list[str]:
+                      absent: str = "", detector: str | None = None) -> list[str]:
     """The findings section's lines (docs/report.md); file links relative to the report."""
     from .accuracy import markdown_accuracy
 
@@ -138,7 +138,9 @@ def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, f
         lines.append(f"\n({len(res.defects) - TABLE_ROWS} more in `{prefix}/defects.md`.)")
     lines += ["", f"Geometry for a GIS: `{prefix}/defects.geojson` (RFC 7946: each crack's centre line and outline, "
               f"lon, lat, altitude), `{prefix}/defects.kml` (Google Earth, absolute altitudes), `{prefix}/defects.json`. "
-              + (f"Segmented with the detector's method `{res.method}`: " if res.method else "")
+              + (f"Segmented with `{res.method}`" + (f" (the mission's detector ran `{detector}`)"
+                                                   if detector and detector != res.method else "") + ": "
+                 if res.method else "")
               + f"segmentation {res.seconds.get('segment', 0):.2f} s, mosaic {res.seconds.get('mosaic', 0):.2f} s, "
               f"measurement {res.seconds.get('measure', 0):.2f} s; a crack seen by overlapping frames is one defect "
               "here. The mission's own figures follow.", ""]
@@ -202,7 +204,7 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
             raise ValueError(f"no captures in {source.name}")
         plane = Plane.from_corners(corners) if (corners := surface_corners(record)) else None
         origin = _origin(record)
-        res = inspect_frames(posed, plane, origin, **({"method": record.method} if record.method else {}))
+        res = inspect_frames(posed, plane, origin)
         written = [f"{FOLDER}/{f}" for f in write_deliverable(res, out / FOLDER, origin=origin)]
     except ValueError as exc:
         _insert_first(out / "report.md", [HEADING, "", f"Not built: {md_text(exc)}.", ""])
@@ -223,7 +225,7 @@ def append_deliverable(record: MissionRecord, folder: str | Path, files: list[st
     absent = absent_text(record, posed)
     if absent:
         log.warning("deliverable: %s", absent)
-    _insert_first(out / "report.md", findings_markdown(res, acc, FOLDER, rel_frames, absent))
+    _insert_first(out / "report.md", findings_markdown(res, acc, FOLDER, rel_frames, absent, record.method))
     from .html import write_html
 
     figures = [f for f in (files or []) if f.endswith(".png") and "/" not in f]

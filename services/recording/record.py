@@ -126,8 +126,8 @@ class MissionRecord(BaseModel):
     heartbeats_sent: int = 0
     ground_truth: list[GroundTruthDefect] = []
     surface_corners: list[tuple[float, float, float]] = []
-    method: str | None = Field(default=None, description="the detection method of the mission's detector: the "
-                               "inspection deliverable segments the captures with it (None: not known)")
+    method: str | None = Field(default=None, description="the detection method of the mission's detector, named "
+                               "in the inspection findings (None: not known)")
     transport: dict[str, str] = Field(default={}, description="the protocol each link class rode on the ground "
                                       "station's session, 'reliable' / 'best-effort' -> tls, tcp, udp, ... "
                                       "(protocol.links.transports; empty: not known)")

@@ -64,7 +64,7 @@ def test_dev_keys_reused_or_grown_and_insecure_resolves_to_nothing(tmp_path):
     assert (grown / "uav5" / "tls.pem").exists() and (grown / "ca.pem").read_bytes() == first
 
     class Args:
-        insecure, secure, keys, uavs = True, False, None, 3
+        insecure, secure, keys, uavs, impair = True, False, None, 3, []
     plan = resolve(Args, proxied=False)
     assert plan.keys is None and not plan.tls and "INSECURE" in plan.warnings[0]
     Args.insecure, Args.keys = False, str(tmp_path / "dev")
