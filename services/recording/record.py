@@ -9,8 +9,9 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, model_validator
 
 from protocol.messages import DefectReport, Event, LinkStats, MissionPlan, VehicleState
 from protocol.scenario import Scenario
@@ -126,9 +127,10 @@ class MissionRecord(BaseModel):
     heartbeats_sent: int = 0
     ground_truth: list[GroundTruthDefect] = []
     surface_corners: list[tuple[float, float, float]] = []
-    method: str | None = Field(default=None, description="the detection method of the mission's detector, named "
+    method: Annotated[str, StringConstraints(pattern=r"^[a-z0-9+-]{1,32}$")] | None = Field(default=None, description="the detection method of the mission's detector, named "
                                "in the inspection findings (None: not known)")
-    transport: dict[str, str] = Field(default={}, description="the protocol each link class rode on the ground "
+    transport: dict[Literal["reliable", "best-effort"], Annotated[str, StringConstraints(pattern=r"^[a-z0-9]{1,16}$")]] = Field(
+        default={}, description="the protocol each link class rode on the ground "
                                       "station's session, 'reliable' / 'best-effort' -> tls, tcp, udp, ... "
                                       "(protocol.links.transports; empty: not known)")
     success: bool = False

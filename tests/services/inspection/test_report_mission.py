@@ -39,6 +39,8 @@ def check_report(run, tolerance: dict[str, float]) -> dict:
     assert (out / "report.html").is_file() and (out / "inspection" / "tiles" / "0" / "0_0.jpg").is_file()
     gj = json.loads((out / "inspection" / "defects.geojson").read_text())
     assert {f["geometry"]["type"] for f in gj["features"]} == {"LineString", "Polygon"}
+    # the default secure mode's links are TLS streams, and the link table says so (it said UDP)
+    assert "best-effort class on TLS" in md and "| command | TLS: reliable, block |" in md
     # every capture the findings cite opens, in report.md and in report.html
     links = re.findall(r"\]\(([^)]+\.jpg)\)", md) + re.findall(r"href='([^']+\.jpg)'", (out / "report.html").read_text())
     assert links and all((out / link).is_file() for link in links), [x for x in links if not (out / x).is_file()]

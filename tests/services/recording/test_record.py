@@ -95,3 +95,20 @@ def test_a_record_with_failures_reads_back_as_failed():
                                         "failures": ["never injected, the mission ended first: 40s cut uplinks"]})
     assert rec.success is False
     assert MissionRecord(fleet="f", speed=1.0, started=0.0, success=True).success
+
+
+def test_a_header_naming_a_hostile_method_or_transport_is_refused():
+    """The log's header names the detector's method and the links' protocols, which the report prints: markup,
+    a line break or an unknown class there is a validation error, not text in report.md."""
+    import pydantic
+    import pytest
+
+    from services.recording.record import MissionRecord
+
+    base = {"fleet": "f", "speed": 1.0, "started": 0.0}
+    for bad in ({"method": "<img src=x onerror=alert(1)>"}, {"method": "it+\n## Outcome: success"},
+                {"transport": {"reliable": "tls | forged"}}, {"transport": {"telemetry": "udp"}}):
+        with pytest.raises(pydantic.ValidationError):
+            MissionRecord.model_validate({**base, **bad})
+    ok = MissionRecord.model_validate({**base, "method": "it+r", "transport": {"reliable": "tls", "best-effort": "udp"}})
+    assert ok.method == "it+r" and ok.transport["best-effort"] == "udp"
