@@ -72,7 +72,7 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
         options = replace(options, transport=transports(list(bus.config.connect)))
     runner = MissionRunner(bus if writer is None else RecordingBus(bus, writer), scenario, options,
                            on_progress=progress, log=log, abort=abort, sink=writer, signer=signer,
-                           plan_verifier=plan_verifier)
+                           plan_verifier=plan_verifier, witness=None if writer is None else writer.witness)
     if on_runner is not None:
         on_runner(runner)
     if ground_truth:  # before the flight, so that the log's footer carries it (skynet report)

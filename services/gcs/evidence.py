@@ -10,9 +10,7 @@ from collections.abc import Iterable
 from protocol.messages import DefectReport, LinkStats, VehicleState
 from protocol.rtp import ssrc_for
 from protocol.textsafe import md_text
-
-#: the camera whose frames are captures (edge.camera_service: previews use camera 1)
-CAPTURE_CAMERA = 0
+from services.recording.witness import CAPTURE_CAMERA, FrameWitness, Seen
 
 
 def has_evidence(report: DefectReport) -> bool:
@@ -52,27 +50,43 @@ def detector_totals(stats: Iterable[LinkStats], uavs: Iterable[int]) -> dict[int
 
 
 def ledger(uavs: Iterable[int], states: Iterable[VehicleState], reports: Iterable[DefectReport],
-           stats: Iterable[LinkStats]) -> dict[int, dict[str, int | None]]:
+           stats: Iterable[LinkStats], witness: FrameWitness | None = None) -> dict[int, dict[str, int | None]]:
     """Per UAV: ``sent`` (its capture count), ``received``/``analysed`` (the detector; None without
-    statistics), ``reported`` (distinct evidenced captures) and ``unevidenced`` (ok reports without evidence)."""
+    statistics), ``reported`` (distinct evidenced captures), ``unevidenced`` (ok reports without evidence) and,
+    checked against ``witness`` (the capture frames the ground station received itself; None: not checked,
+    every evidenced report counts), ``not_received`` and ``different`` (distinct captures whose reports name a
+    frame it never received, or one with other image bytes or of another capture: not counted)."""
     uavs = list(uavs)
     sent = dict.fromkeys(uavs, 0)
     for s in states:
         if s.uav in sent:
             sent[s.uav] = max(sent[s.uav], s.captures)
     reported: dict[int, set[int]] = {u: set() for u in uavs}
+    unheld: dict[int, dict[Seen, set[int]]] = {u: {Seen.NOT_RECEIVED: set(), Seen.DIFFERENT: set()} for u in uavs}
     unevidenced = dict.fromkeys(uavs, 0)
     for r in reports:
         if r.uav not in reported or not r.ok:
             continue
-        if has_evidence(r):
+        if not has_evidence(r):
+            unevidenced[r.uav] += 1
+            continue
+        seen = Seen.HELD if witness is None else witness.seen(r)
+        if seen is Seen.HELD:
             reported[r.uav].add(r.capture_id)
         else:
-            unevidenced[r.uav] += 1
+            unheld[r.uav][seen].add(r.capture_id)
     det = detector_totals(stats, uavs)
     return {u: {"sent": sent[u], "received": None if det is None else det[u]["received"],
                 "analysed": None if det is None else det[u]["analysed"], "reported": len(reported[u]),
-                "unevidenced": unevidenced[u]} for u in uavs}
+                "unevidenced": unevidenced[u],
+                "not_received": None if witness is None else len(unheld[u][Seen.NOT_RECEIVED] - reported[u]),
+                "different": None if witness is None else len(unheld[u][Seen.DIFFERENT] - reported[u])}
+            for u in uavs}
+
+
+def held_captures(reports: Iterable[DefectReport], witness: FrameWitness) -> set[tuple[int, int]]:
+    """``(uav, capture_id)`` of every ok report whose frame the ground station received as named."""
+    return {(r.uav, r.capture_id) for r in reports if r.ok and has_evidence(r) and witness.seen(r) is Seen.HELD}
 
 
 def corroboration_failures(book: dict[int, dict[str, int | None]]) -> list[str]:
@@ -83,6 +97,12 @@ def corroboration_failures(book: dict[int, dict[str, int | None]]) -> list[str]:
         if row["unevidenced"]:
             out.append(f"UAV {u}: {row['unevidenced']} defect report(s) name no frame of its camera (no SSRC, "
                        "sequence and digest): not counted")
+        if row.get("not_received"):
+            out.append(f"UAV {u}: {row['not_received']} capture(s) reported on a frame the ground station never "
+                       "received (its log has no frame of that camera with that sequence number): not counted")
+        if row.get("different"):
+            out.append(f"UAV {u}: {row['different']} capture(s) reported on a frame other than the one the ground "
+                       "station received (image digest or capture id differ): not counted")
         if not n:
             continue
         if row["analysed"] is None:
@@ -100,11 +120,15 @@ def integrity_markdown(record) -> list[str]:
     md = ["## Evidence and integrity", ""]
     if record.imagery:
         md += ["Frames per UAV: sent by its camera, received and analysed by the detector (its statistics), "
-               "captures reported with frame evidence, and ok reports without it (not counted).", "",
-               "| UAV | sent | received | analysed | reported | unevidenced |", "|---|---|---|---|---|---|"]
+               "captures reported on a frame the ground station received itself (same image bytes, same capture), "
+               "ok reports naming no frame, and captures reported on a frame it never received or on other bytes "
+               "(none of these three counted; '-': not checked, no mission log).", "",
+               "| UAV | sent | received | analysed | reported | unevidenced | frame not received | frame differs |",
+               "|---|---|---|---|---|---|---|---|"]
         for u, row in sorted(record.imagery.items()):
-            md.append("| " + " | ".join(str(x) for x in (u, *("-" if row[k] is None else row[k] for k in
-                      ("sent", "received", "analysed", "reported", "unevidenced")))) + " |")
+            md.append("| " + " | ".join(str(x) for x in (u, *("-" if row.get(k) is None else row[k] for k in
+                      ("sent", "received", "analysed", "reported", "unevidenced", "not_received", "different"))))
+                      + " |")
         md.append("")
     if record.rejected:
         top = sorted(record.rejected.items(), key=lambda kv: -kv[1])[:20]

@@ -100,6 +100,7 @@ class CaptureFigures:
     failed_reports: int = 0
     unplanned_reports: int = 0
     missing: list[tuple[int, int]] = field(default_factory=list)
+    checked: bool = False  # against the capture frames the ground station received itself (MissionRecord.held_captures)
 
 
 @dataclass
@@ -591,11 +592,13 @@ def _links(record: MissionRecord, samples: LinkSamples, uav_figs: Mapping[int, U
 
 def _captures(record: MissionRecord, trajs: Mapping[int, Trajectory]) -> tuple[CaptureFigures, set[tuple[int, int]]]:
     planned = planned_captures(trajs.values())
-    ok = imaged_captures(d.msg for d in record.defects)
+    ok = imaged_captures(d.msg for d in record.defects) if record.held_captures is None else \
+        {(u, c) for u, c in record.held_captures}  # checked against the frames the ground station received
     imaged = planned & ok
     c = CaptureFigures(planned=len(planned), imaged=len(imaged), ratio=_ratio(len(imaged), len(planned)),
                        failed_reports=sum(not d.msg.ok for d in record.defects),
-                       unplanned_reports=len(ok - planned), missing=sorted(planned - imaged))
+                       unplanned_reports=len(ok - planned), missing=sorted(planned - imaged),
+                       checked=record.held_captures is not None)
     return c, imaged
 
 

@@ -87,7 +87,9 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
            ""]
     md += ["## Surface inspection results", ""]
     c = s.captures
-    md += [f"Captures imaged (a report came back): {c.imaged} of {c.planned} planned"
+    how = "on a frame the ground station received itself" if c.checked else \
+        "not checked against the frames: no mission log"
+    md += [f"Captures imaged (a report came back, {how}): {c.imaged} of {c.planned} planned"
            + (f" ({100 * c.ratio:.1f} %)" if c.ratio is not None else "")
            + f"; failed reports: {c.failed_reports}; reports for unplanned captures: {c.unplanned_reports}.", ""]
     d = s.defects

@@ -50,9 +50,10 @@ from services.recording.record import (
     StateRx,
     StatsRx,
 )
+from services.recording.witness import FrameWitness
 
 from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
-from .evidence import corroboration_failures, has_evidence, ledger
+from .evidence import corroboration_failures, has_evidence, held_captures, ledger
 from .supervision import SUPERVISE_PERIOD_S, Supervisor, mission_time
 from .verdict import goal_check, planned_captures
 
@@ -122,8 +123,12 @@ class Snapshot:
 class MissionRunner:
     def __init__(self, bus: Bus, scenario: Scenario, options: MissionOptions,
                  on_progress: Callable[[MissionRunner], None] | None = None, log=None,
-                 abort: threading.Event | None = None, sink=None, signer=None, plan_verifier=None):
+                 abort: threading.Event | None = None, sink=None, signer=None, plan_verifier=None,
+                 witness: FrameWitness | None = None):
         self.bus, self.opt, self.log = bus, options, log
+        #: the capture frames this ground station received itself (the mission log's,
+        #: services.recording.witness): a capture counts only on a report naming one of them; None: not checked
+        self.witness = witness
         self.signer = signer  # protocol.signing.Signer: commands and heartbeats signed end to end
         #: protocol.signing.Verifier of the planner's key (protocol.planauth.plan_verifier); None: unsigned plans
         #: are taken (--insecure, --secure without a key set), still bound to the request and checked
@@ -586,10 +591,12 @@ class MissionRunner:
         plan = self.record.plan
         return set() if plan is None else planned_captures(plan.trajectories)
 
-    def missing_captures(self, include_lost: bool = False) -> set[tuple[int, int]]:
-        """Planned capture points without a report (of the lost UAVs too with ``include_lost``)."""
+    def missing_captures(self, include_lost: bool = False, imaged: set[tuple[int, int]] | None = None
+                         ) -> set[tuple[int, int]]:
+        """Planned capture points without a report (``imaged``: those imaged; default: every evidenced report's),
+        of the lost UAVs too with ``include_lost``."""
         with self._lock:
-            missing = self.planned_captures() - set(self.reports)
+            missing = self.planned_captures() - (set(self.reports) if imaged is None else imaged)
             lost = set(self._sup.lost)
         return missing if include_lost else {c for c in missing if c[0] not in lost}
 
@@ -599,7 +606,12 @@ class MissionRunner:
         rec = self.record
         clean = not rec.failures
         planned, lost = self.planned_captures(), self.lost()
-        missed_any = self.missing_captures(include_lost=True)
+        held = None
+        if self.witness is not None:  # a capture counts on a frame this ground station holds (evidence.py)
+            with self._lock:
+                held = held_captures([d.msg for d in rec.defects], self.witness)
+            rec.held_captures = sorted(held)
+        missed_any = self.missing_captures(include_lost=True, imaged=held)
         for u, gone in sorted(lost.items()):
             mine = {c for c in planned if c[0] == u}
             rec.failures.append(f"UAV {u} lost at {self.mission_time(gone)} (no liveliness token since); "
@@ -622,12 +634,12 @@ class MissionRunner:
                               len(ds), ds[len(ds) // 2], ds[-1], CAPTURE_TOLERANCE_M)
             if far:
                 rec.failures.append(far_text(far))
-            missing = self.missing_captures()
+            missing = self.missing_captures(imaged=held)
             if missing:
                 rec.failures.append(f"{len(missing)} of {len(self.planned_captures())} capture points were not imaged: "
                                     f"{sorted(missing)[:10]}")
         rec.imagery = ledger(self.opt.uavs, (s.msg for s in rec.states), (d.msg for d in rec.defects),
-                             (s.msg for s in rec.detector_stats))
+                             (s.msg for s in rec.detector_stats), self.witness)
         rec.failures += corroboration_failures(rec.imagery)
         rec.failures += late
         rec.success = not rec.failures

@@ -142,6 +142,9 @@ class MissionRecord(BaseModel):
                                      "(over its cap, LiveRecord); the mission log has them")
     imagery: dict[int, dict[str, int | None]] = Field(default={}, description="per UAV: frames sent, received, "
                                                       "analysed, reported (services.gcs.evidence.ledger)")
+    held_captures: list[tuple[int, int]] | None = Field(
+        default=None, description="(uav, capture) reported on a frame the ground station received itself, as "
+                                  "named (services.recording.witness); None: not checked (no mission log)")
     rejected: dict[str, int] = Field(default={}, description="samples the ground station refused, 'key|kind' -> "
                                      "count: undecodable, or over a source's budget (protocol.budget)")
     report_input: str = Field(default="", description="what the report was computed from: the mission log read "

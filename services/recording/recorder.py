@@ -19,6 +19,7 @@ from protocol.links import COMMAND, LinkClass
 from protocol.messages import ErrorReply, Message
 from protocol.rtp import SeenFrames
 from services.recording.record import ITEM_MODELS, MissionRecord
+from services.recording.witness import FrameWitness
 
 from .mcap_log import McapLog, is_imagery
 
@@ -53,6 +54,9 @@ class MissionLogWriter:
         self._budgets = {topic: Budget(limit) for topic, limit in LIMITS.items()}
         self._budget_lock = threading.Lock()  # Zenoh may call back from several threads
         self._frames_seen = SeenFrames()
+        #: the capture frames logged, by RTP source, sequence number and digest: what the verdict checks the
+        #: detector's reports against (services.gcs.evidence)
+        self.witness = FrameWitness()
         if bus is not None:
             bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
             # capture frames lost on the way come again from the cameras' caches; this subscription only adds
@@ -72,9 +76,10 @@ class MissionLogWriter:
         if self._closed.is_set():
             return
         key, now = str(sample.key_expr), time.time()
+        data = sample.payload.to_bytes()
         try:
             topic = keys.parse(key).topic
-            if topic == "camera" and not self._first_time(key, sample.payload.to_bytes()[:12]):
+            if topic == "camera" and not self._first_time(key, data[:12]):
                 return
             budget = self._budgets.get(topic)
         except keys.KeyError_:
@@ -83,10 +88,12 @@ class MissionLogWriter:
             return
         if budget is not None:
             with self._budget_lock:
-                if budget.admit(key, len(sample.payload), now) is not None:
+                if budget.admit(key, len(data), now) is not None:
                     self.counts["over-budget"] += 1
                     return
-        self.sample(key, sample.payload.to_bytes(), now)
+        if topic == "camera":
+            self.witness.add_sample(key, data)
+        self.sample(key, data, now)
 
     def _first_time(self, key: str, header: bytes) -> bool:
         """Whether a capture frame is new on ``key`` (by its RTP SSRC and sequence number, RFC 3550 5.1)."""

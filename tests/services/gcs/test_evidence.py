@@ -4,7 +4,8 @@ import time
 
 from protocol.messages import DefectReport, FrameEvidence, LinkStats, Mode, VehicleState
 from protocol.rtp import ssrc_for
-from services.gcs.evidence import corroboration_failures, detector_totals, has_evidence, ledger
+from services.gcs.evidence import corroboration_failures, detector_totals, has_evidence, held_captures, ledger
+from services.recording.witness import FrameWitness
 
 D = "ab" * 32
 
@@ -35,7 +36,8 @@ def test_only_reports_naming_a_frame_of_the_uavs_capture_camera_count():
 def test_forged_reports_without_a_detector_are_not_corroborated():
     """The issue's attack: the detector is dead, forged ok reports for every capture (with made-up evidence)."""
     book = ledger([1, 2], [_state(1, 13), _state(2, 13)], [_report(1, c) for c in range(13)], stats=[])
-    assert book[1] == {"sent": 13, "received": None, "analysed": None, "reported": 13, "unevidenced": 0}
+    assert book[1] == {"sent": 13, "received": None, "analysed": None, "reported": 13, "unevidenced": 0,
+                       "not_received": None, "different": None}
     fails = corroboration_failures(book)
     assert len(fails) == 1 and "UAV 1" in fails[0] and "no statistics were heard from the detector" in fails[0]
 
@@ -72,3 +74,23 @@ def test_partitioned_detectors_sum_over_instances_each_with_its_own_runs():
                   + [_report(2, c) for c in range(5)], stats)
     assert corroboration_failures(book) == []
     assert book[2]["analysed"] == 5 and book[1]["analysed"] == 6
+
+
+def test_captures_count_only_on_frames_the_ground_station_received_as_named():
+    """A detector's statistics corroborate its reports, but the reports name frames the ground station never
+    received (made-up sequence numbers) or other bytes than it received: not counted, and said why."""
+    w = FrameWitness()
+    for cid in range(3):
+        w.add(ssrc_for(1), cid, D, cid)  # frames 0..2 received; the report cites them by sequence = capture id
+    reports = [_report(1, c) for c in range(6)] + [_report(1, 2).model_copy(
+        update={"frame": FrameEvidence(ssrc=ssrc_for(1), seq=2, digest="cd" * 32)})]
+    stats = [_stats(1, uav1_cam0_received=6, uav1_cam0_analysed=6)]
+    book = ledger([1], [_state(1, 6)], reports, stats, witness=w)
+    assert book[1]["reported"] == 3 and book[1]["not_received"] == 3 and book[1]["different"] == 0
+    assert held_captures(reports, w) == {(1, 0), (1, 1), (1, 2)}
+    fails = corroboration_failures(book)
+    assert len(fails) == 1 and "3 capture(s) reported on a frame the ground station never received" in fails[0]
+    forged = [_report(1, 0).model_copy(update={"frame": FrameEvidence(ssrc=ssrc_for(1), seq=0, digest="cd" * 32)})]
+    book = ledger([1], [_state(1, 1)], forged, stats, witness=w)
+    assert book[1]["reported"] == 0 and book[1]["different"] == 1
+    assert "other than the one the ground station received" in corroboration_failures(book)[0]

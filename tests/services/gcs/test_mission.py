@@ -136,6 +136,71 @@ def test_forged_reports_with_a_dead_detector_fail_the_mission_and_say_why(group,
     assert record.imagery[1]["received"] is None and record.imagery[1]["sent"] > 0
 
 
+@pytest.mark.mission
+def test_a_detector_reporting_frames_the_ground_station_never_received_fails_the_mission(group, gateway, planner,
+                                                                                        tmp_path):
+    """A session holding the detector's role reported every capture ok, each naming a frame of the UAV's capture
+    camera (a sequence number, a digest) and corroborated by its own statistics, while no camera sent a frame:
+    the mission ended "success, every capture imaged" and its report counted every capture. Now a capture counts
+    only on a frame the ground station's own log received as the report names it."""
+    import logging
+    import threading
+
+    from protocol import keys
+    from protocol.links import COMMAND, TELEMETRY
+    from protocol.messages import DefectReport, FrameEvidence, LinkStats, VehicleState
+    from protocol.rtp import ssrc_for
+    from services.gcs.cli import run_mission
+    from services.recording.load import load_record
+
+    for uav in (1, 2):
+        assert _edge(group, gateway, uav).wait_ready(30)  # no camera: no frame is ever sent
+    stop = threading.Event()
+    t0 = time.time()
+
+    def forge() -> None:
+        with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "detector") as bus:
+            reports, stats = bus.publisher(keys.defects(FLEET), COMMAND), bus.publisher(
+                keys.rcu_stats(FLEET, "detector"), TELEMETRY)
+            # a UAV's state counts its captures: at its k-th, its k-th capture id either way round (the plan gives
+            # UAV 1 the odd ones of 0-25, UAV 2 the even ones), stamped then: each report is taken where planned
+            taken = {1: 0, 2: 0}
+
+            def on_state(msg, sample) -> None:
+                if msg.uav in taken and msg.captures > taken[msg.uav]:
+                    taken[msg.uav] = k = msg.captures
+                    mine = list(range(2 - msg.uav, 26, 2))
+                    for cid in {mine[(k - 1) % 13], mine[-k % 13]}:
+                        reports.put(DefectReport(uav=msg.uav, capture_id=cid, stamp_capture=msg.stamp,
+                                                 stamp_report=time.time(), method="it+", frame=FrameEvidence(
+                                                     ssrc=ssrc_for(msg.uav), seq=cid, digest=f"{cid:064x}")))
+
+            bus.subscribe(keys.state(FLEET, "*"), on_state, expect=VehicleState, link=TELEMETRY)
+            while not stop.wait(0.5):
+                now = time.time()
+                stats.put(LinkStats(source="detector", stamp=now, uptime_s=now - t0, metrics={
+                    f"uav{u}.cam0.{n}": 100.0 for u in (1, 2) for n in ("received", "analysed")}))
+
+    forger = threading.Thread(target=forge, daemon=True)
+    forger.start()
+    opts = MissionOptions(uavs=(1, 2), speed=8, appear_timeout_s=20, command_timeout_s=1.0, command_attempts=2,
+                          particles=40, iterations=40)
+    try:
+        with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "gcs") as bus:
+            rc = run_mission(bus, load_scenario(), opts, str(tmp_path), True, logging.getLogger("test"),
+                             ground_truth=False)
+    finally:
+        stop.set()
+        forger.join(10)
+    record, _ = load_record(tmp_path / "mission.mcap")
+    assert rc == 1 and not record.success
+    assert record.held_captures == []
+    assert any("never received" in f for f in record.failures), record.failures
+    assert record.imagery[1]["reported"] == 0 and record.imagery[1]["not_received"] > 0
+    md = (tmp_path / "report.md").read_text()
+    assert "Captures imaged (a report came back, on a frame the ground station received itself): 0 of" in md
+
+
 def test_snapshot_copies_the_live_figures():
     """What the live display reads, taken under the runner's lock (the CLI does not reach into it)."""
     from protocol import keys
