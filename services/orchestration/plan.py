@@ -485,14 +485,17 @@ def network_plan(o: LaunchConfig, scenario: Scenario, trust: Trust, ports: Ports
         peers = mesh_sites.peers_of(site.index)
         targets: list[str] = []
         for j in peers:
+            # one link per router link: two links between routers let a declaration overtake the link state it
+            # refers to, and the other router drops it for good (bench/router_links.py)
+            router_link = site_endpoints[j][:1]
             if not netns:
-                targets += site_endpoints[j]
+                targets += router_link
                 continue
             addresses = sitemap.veth_addresses(mesh_sites.links)
             i0, j0 = sorted((site.index, j))
             a, b = addresses[(i0, j0)]
             peer_address = (a if j == i0 else b).split("/")[0]
-            for e in site_endpoints[j]:  # through the project's TCP proxy in this site's namespace to j's veth
+            for e in router_link:  # through the project's TCP proxy in this site's namespace to j's veth
                 port = int(e.split("?")[0].rsplit(":", 1)[1])
                 local = ports("tcp")
                 procs.append(ProcessSpec(f"link-{name}-{sitemap.gateway_process(j)}-{port}", "link", site.index,

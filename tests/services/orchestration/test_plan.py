@@ -102,7 +102,8 @@ def test_two_sites():
     assert gcs.in_process and not gcs.argv and gcs.identity == "gcs" and gcs.site == 0
     gw0, gw1 = plan.site_endpoints
     g1 = plan.get("gateway-1")
-    assert g1.config.id == "gw1" and [e.split("#")[0] for e in g1.connects] == gw0  # dials site 0
+    # dials site 0 on one link (two between routers lose declarations: bench/router_links.py)
+    assert g1.config.id == "gw1" and [e.split("#")[0] for e in g1.connects] == gw0[:1]
     assert g1.config.listen == gw1
     for i in range(1, 7):
         edge = plan.get(f"uav{i}")
