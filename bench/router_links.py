@@ -50,8 +50,10 @@ def one_round(links: int, delay_s: float, wait_s: float) -> dict:
         while time.monotonic() - t0 < wait_s and not (at_a and at_b):
             time.sleep(0.02)
         seen_s = time.monotonic() - t0
-        for e in (*tokens, sub_a, sub_b):
-            e.undeclare()
+        for t in tokens:
+            t.undeclare()
+        sub_a.undeclare()
+        sub_b.undeclare()
         return {"a_to_b": bool(at_b), "b_to_a": bool(at_a), "seen_s": round(seen_s, 3)}
     finally:
         for s in reversed(sessions):
