@@ -88,7 +88,7 @@ def markdown(record: MissionRecord, s: ReportSummary) -> str:
     md += ["## Surface inspection results", ""]
     c = s.captures
     how = "on a frame the ground station received itself" if c.checked else \
-        "not checked against the frames: no mission log"
+        "not checked against the frames the ground station received (no mission log)"
     md += [f"Captures imaged (a report came back, {how}): {c.imaged} of {c.planned} planned"
            + (f" ({100 * c.ratio:.1f} %)" if c.ratio is not None else "")
            + f"; failed reports: {c.failed_reports}; reports for unplanned captures: {c.unplanned_reports}.", ""]

@@ -347,3 +347,16 @@ def test_edges_with_their_own_epochs_give_the_same_figures():
     assert skewed.formation.max_m == pytest.approx(base.formation.max_m, abs=1e-6)
     for u in (1, 2, 3):
         assert skewed.uavs[u].path_error_rms_m == pytest.approx(base.uavs[u].path_error_rms_m, abs=1e-6)
+
+
+def test_the_capture_figure_counts_only_captures_held_when_the_record_says_which(record, summary):
+    """Without ``held_captures`` (no mission log) every ok report counts and the figure says it was not checked;
+    with it, only those captures (the verdict's, checked against the frames the ground station received)."""
+    from services.gcs.markdown import markdown
+
+    assert not summary.captures.checked and summary.captures.imaged == 4
+    assert "not checked against the frames" in markdown(record, summary)
+    held = record.model_copy(update={"held_captures": [(1, 100)]})
+    checked = summarise(held)
+    assert checked.captures.checked and checked.captures.imaged == 1 and checked.uavs[1].captures_imaged == 1
+    assert "on a frame the ground station received itself): 1 of 12" in markdown(held, checked)
