@@ -356,7 +356,7 @@ def test_the_capture_figure_counts_only_captures_held_when_the_record_says_which
 
     assert not summary.captures.checked and summary.captures.imaged == 4
     assert "not checked against the frames" in markdown(record, summary)
-    held = record.model_copy(update={"held_captures": [(1, 100)]})
+    held = record.model_copy(update={"held_captures": [(1, 104)]})
     checked = summarise(held)
     assert checked.captures.checked and checked.captures.imaged == 1 and checked.uavs[1].captures_imaged == 1
     assert "on a frame the ground station received itself): 1 of 12" in markdown(held, checked)
