@@ -13,6 +13,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -67,11 +68,50 @@ class _PortCursor:
 
 _cursor = _PortCursor()
 
+#: how long a port one process handed out stays claimed against this user's other processes, s: longer than a
+#: launcher takes to start the service that listens on it
+CLAIM_S = 300.0
+
+
+def claims_dir() -> Path:
+    """Where this user's processes claim the ports they hand out (one empty file per port)."""
+    return Path(tempfile.gettempdir()) / f"skynet-ports-{os.getuid()}"
+
+
+def claim(port: int, kind: int = socket.SOCK_STREAM, now: float | None = None) -> bool:
+    """Whether this process may hand out ``port``: no other process of this user claimed it in the last
+    :data:`CLAIM_S` (a file created with ``O_EXCL``; an older claim is taken over). Two launchers whose
+    cursors meet would otherwise both find a port free before either service binds it. True when the
+    claims folder cannot be used (the bind check alone then)."""
+    folder = claims_dir()
+    try:
+        folder.mkdir(mode=0o700, exist_ok=True)
+    except OSError:
+        return True
+    path = folder / f"{'udp' if kind == socket.SOCK_DGRAM else 'tcp'}-{port}"
+    now = time.time() if now is None else now
+    for _ in range(2):
+        try:
+            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+            return True
+        except FileExistsError:
+            try:
+                if now - path.stat().st_mtime < CLAIM_S:
+                    return False
+                path.unlink()  # a stale claim: taken over (if another process takes it first, O_EXCL says so)
+            except FileNotFoundError:
+                continue
+            except OSError:
+                return False
+        except OSError:
+            return True
+    return False
+
 
 def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
     """A port for a service to listen on, free now, outside the kernel's ephemeral range, from a cursor
-    (:class:`_PortCursor`; docs/architecture.md, services/orchestration/process.py); port 0 when no port of the
-    ranges is free."""
+    (:class:`_PortCursor`; docs/architecture.md, services/orchestration/process.py) and not handed out by
+    another of this user's processes lately (:func:`claim`); port 0 when no port of the ranges is free."""
     for _ in range(64):
         port = _cursor.next()
         if port is None:
@@ -81,6 +121,7 @@ def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:
                 s.bind((host, port))
             except OSError:
                 continue
+        if claim(port, kind):
             return port
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind((host, 0))

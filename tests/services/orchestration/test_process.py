@@ -2,9 +2,25 @@
 ports are drawn where no outgoing connection takes them."""
 
 import contextlib
+import os
 import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
 
-from services.orchestration.process import LOWEST_LISTEN_PORT, ProcessGroup, ephemeral_range, free_port, listen_ports
+from services.orchestration.process import (
+    CLAIM_S,
+    LOWEST_LISTEN_PORT,
+    ProcessGroup,
+    claim,
+    claims_dir,
+    ephemeral_range,
+    free_port,
+    listen_ports,
+)
+
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_log_pump_survives_a_full_disk_and_keeps_reading(capfd):
@@ -167,3 +183,28 @@ def test_the_ready_reader_takes_only_one_well_formed_line_and_never_hangs():
     t0 = time.monotonic()
     svc = run(b"ready ed", end=True, close=False)
     assert svc.ready_at is None and time.monotonic() - t0 < 5
+
+
+def test_two_processes_whose_cursors_meet_never_hand_out_the_same_port():
+    """A fault mission's edge could not listen ("Can not create a new TLS listener", exited 3 times): two
+    launchers (two test workers' missions) whose port cursors met both found the same ports free before either
+    service bound them. Each process now claims what it hands out (a file per port, O_EXCL); this runs two
+    processes whose cursors start at the same port."""
+    code = ("import sys, services.orchestration.process as p\n"
+            "p._cursor.next(); p._cursor._at = int(sys.argv[1])\n"
+            "print(' '.join(str(p.free_port()) for _ in range(40)))\n")
+    start = 7000 + os.getpid() % 1000  # away from the other tests' cursors
+    runs = [subprocess.Popen([sys.executable, "-c", code, str(start)], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+            for _ in range(2)]
+    got = [set(map(int, r.communicate(timeout=60)[0].split())) for r in runs]
+    assert len(got[0]) == len(got[1]) == 40 and not got[0] & got[1], sorted(got[0] & got[1])
+
+
+def test_a_claim_is_held_for_its_time_then_taken_over():
+    port = 65000 + os.getpid() % 500
+    path = claims_dir() / f"udp-{port}"
+    path.unlink(missing_ok=True)
+    assert claim(port, socket.SOCK_DGRAM)
+    assert not claim(port, socket.SOCK_DGRAM)  # held (by anyone, this process included)
+    assert claim(port, socket.SOCK_DGRAM, now=time.time() + CLAIM_S + 1)  # stale: taken over
+    path.unlink(missing_ok=True)
