@@ -10,7 +10,8 @@ deliverable is built from them (:func:`services.inspection.deliverable.inspect_f
 with the wall's truth (:mod:`services.inspection.accuracy`): median and worst errors of length and
 widths, the share of cracks in their true class, the cracks narrower than one pixel and the defects on
 no true crack, and the object-level recall (true cracks found / true cracks) and precision (defects on a true
-crack / defects) of each detector method of ``--methods`` (default: the deliverable's own, ``it+``). ``--mission`` adds the ``inspection/accuracy.json`` of missions already flown
+crack / defects) of each detector method of ``--methods`` (default: the deliverable's own, ``it+``), its components
+confirmed by ``--confirm`` (default: the deliverable's, ``learned``; ``none``: all kept). ``--mission`` adds the ``inspection/accuracy.json`` of missions already flown
 (``skynet mission --out FOLDER``). Prints a table and writes JSON.
 """
 
@@ -28,7 +29,7 @@ from edge.world.wall import synthetic_surface  # noqa: E402
 from protocol.scenario import load_scenario  # noqa: E402
 from services.inspection.accuracy import compare, truth_cracks  # noqa: E402
 from services.inspection.captures import decode, synthetic_captures  # noqa: E402
-from services.inspection.deliverable import inspect_frames  # noqa: E402
+from services.inspection.deliverable import CONFIRM_METHOD, inspect_frames  # noqa: E402
 from services.inspection.mosaic import Plane, PosedFrame  # noqa: E402
 
 #: scenario -> capture frame size (the launcher's --frame-size for it)
@@ -43,18 +44,18 @@ def object_scores(summary: dict, defects: int) -> dict[str, float]:
             "precision": (defects - summary.get("unmatched_defects", 0)) / defects if defects else 1.0}
 
 
-def run(name: str, size: tuple[int, int], method: str = "it+") -> dict:
+def run(name: str, size: tuple[int, int], method: str = "it+", confirm: str | None = CONFIRM_METHOD) -> dict:
     t0 = time.perf_counter()
     sc = load_scenario(name)
     surf = synthetic_surface(sc)
     caps = synthetic_captures(sc, surf, frame_size=size)
     o = sc.origin
     res = inspect_frames([PosedFrame(c.meta, decode(c)) for c in caps], Plane.from_corners(surf.corners),
-                         (o.lat, o.lon, o.alt), method)
+                         (o.lat, o.lon, o.alt), method, confirm=confirm)
     s = 1.0 / surf.px_per_m
     truth, labels = truth_cracks(surf.mask, s)
     acc = compare(res.defects, truth, labels, s, gsd_m=res.mosaic.m_per_px)
-    return {"scenario": name, "method": method, "frame": list(size), "captures": len(caps),
+    return {"scenario": name, "method": method + (f" confirmed by {confirm}" if confirm else ""), "frame": list(size), "captures": len(caps),
             "defects": len(res.defects), "seconds": time.perf_counter() - t0, **acc.summary,
             **object_scores(acc.summary, len(res.defects)), "rows": acc.to_dict()["rows"]}
 
@@ -81,8 +82,12 @@ def main() -> int:
     ap.add_argument("--only", choices=sorted(SCENARIOS), default=None)
     ap.add_argument("--methods", nargs="+", default=["it+"], metavar="METHOD",
                     help="detector methods that segment the captures (default: the deliverable's it+)")
+    ap.add_argument("--confirm", nargs="+", default=[CONFIRM_METHOD], metavar="METHOD",
+                    help="the method confirming each component, as the deliverable does ('none': not confirmed); "
+                         "several: a row for each")
     a = ap.parse_args()
-    results = [run(n, s, m) for n, s in SCENARIOS.items() if a.only in (None, n) for m in a.methods]
+    results = [run(n, s, m, None if c == "none" else c) for n, s in SCENARIOS.items() if a.only in (None, n)
+               for m in a.methods for c in a.confirm]
     for folder in a.mission:
         path = folder / "inspection" / "accuracy.json"
         if not path.is_file():

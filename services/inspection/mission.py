@@ -138,8 +138,9 @@ def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, f
         lines.append(f"\n({len(res.defects) - TABLE_ROWS} more in `{prefix}/defects.md`.)")
     lines += ["", f"Geometry for a GIS: `{prefix}/defects.geojson` (RFC 7946: each crack's centre line and outline, "
               f"lon, lat, altitude), `{prefix}/defects.kml` (Google Earth, absolute altitudes), `{prefix}/defects.json`. "
-              + (f"Segmented with `{res.method}`" + (f" (the mission's detector ran `{detector}`)"
-                                                   if detector and detector != res.method else "") + ": "
+              + (f"Segmented with `{res.method}`" + (f", each crack confirmed by `{res.confirm}`" if res.confirm else "")
+                 + (f" ({md_text(res.unconfirmed)})" if res.unconfirmed else "")
+                 + (f" (the mission's detector ran `{detector}`)" if detector and detector != res.method else "") + ": "
                  if res.method else "")
               + f"segmentation {res.seconds.get('segment', 0):.2f} s, mosaic {res.seconds.get('mosaic', 0):.2f} s, "
               f"measurement {res.seconds.get('measure', 0):.2f} s; a crack seen by overlapping frames is one defect "

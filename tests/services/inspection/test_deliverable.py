@@ -108,3 +108,36 @@ def test_kml_and_geojson_of_defects_carry_hostile_text_as_data():
     assert root.findtext(".//k:Placemark/k:description", namespaces=ns).endswith(f"class {printable(HOSTILE)}")
     doc = geojson.loads(json.dumps(to_geojson([d])))
     assert doc.is_valid and doc["features"][0]["properties"]["severity"] == HOSTILE
+
+
+def test_a_component_stays_only_where_the_confirming_mask_touches_it_and_stays_whole():
+    from services.inspection.deliverable import confirmed
+
+    mask = np.zeros((40, 60), np.uint8)
+    mask[5:8, 5:50] = 255  # a long crack
+    mask[20:23, 5:20] = 255  # texture
+    mask[30:33, 40:55] = 255  # another crack
+    by = np.zeros_like(mask)
+    by[6, 10:14] = 255  # a short stretch of the first crack
+    by[34, 47] = 255  # two pixels below the third: within reach
+    out = confirmed(mask, by)
+    assert out.dtype == np.uint8 and set(np.unique(out)) == {0, 255}
+    assert (out[5:8, 5:50] == 255).all()  # kept whole, not cut to the confirming stretch
+    assert not out[20:23].any()
+    assert (out[30:33, 40:55] == 255).all()
+    assert not confirmed(mask, by, reach_px=1)[30:33].any()
+    assert not confirmed(mask, np.zeros_like(mask)).any()
+
+
+def test_a_confirming_model_that_cannot_run_keeps_every_component_and_says_why(monkeypatch, tmp_path):
+    """The deliverable depends on the learned model to confirm: a missing model file must not take the report
+    down (it raised out of the report's writing); every IT+ component is kept and the findings say why."""
+    monkeypatch.setenv("SKYNET_DETECTOR_MODEL", str(tmp_path / "missing.onnx"))
+    sc = load_scenario(None)
+    from edge.world.wall import synthetic_surface
+
+    surf = synthetic_surface(sc)
+    caps = synthetic_captures(sc, surf)[:2]
+    res = inspect_frames([PosedFrame(c.meta, decode(c)) for c in caps], Plane.from_corners(surf.corners))
+    assert res.confirm == "" and "not confirmed by `learned`" in res.unconfirmed and "missing.onnx" in res.unconfirmed
+    assert res.defects  # IT+'s, unconfirmed

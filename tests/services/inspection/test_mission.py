@@ -150,8 +150,9 @@ def test_the_findings_name_the_deliverables_method_and_the_detectors(tmp_path):
     surf = synthetic_surface(sc)
     for c in synthetic_captures(sc, surf)[:4]:
         save_frame(tmp_path / "frames", c.meta, c.jpeg)
-    for method, said in (("learned", "Segmented with `it+` (the mission's detector ran `learned`)"),
-                         ("it+", "Segmented with `it+`: "), (None, "Segmented with `it+`: ")):
+    confirmed = "Segmented with `it+`, each crack confirmed by `learned`"
+    for method, said in (("learned", f"{confirmed} (the mission's detector ran `learned`)"),
+                         ("it+", f"{confirmed}: "), (None, f"{confirmed}: ")):
         (tmp_path / "report.md").write_text("# Mission report\n\nOutcome: **success**.\n\n## Experimental setup\n")
         rec = MissionRecord(fleet="f", scenario=sc, speed=1.0, started=0.0, method=method,
                             surface_corners=[tuple(map(float, p)) for p in surf.corners])
