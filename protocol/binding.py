@@ -6,6 +6,7 @@ Design notes: docs/security.md (protocol/binding.py).
 from __future__ import annotations
 
 from . import keys
+from .rtp import parse_ssrc
 
 #: the rejection kind counted per key
 MISMATCH = "body-mismatch"
@@ -50,3 +51,15 @@ def matches(key: str, uav: int | None, source: str | None = None) -> bool:
     if source is not None:
         return source_matches(key, source)
     return True
+
+
+def frame_source(key: str, ssrc: int) -> tuple[int, int] | None:
+    """``(uav, camera)`` of a frame received on ``key`` with ``ssrc``, or None when the SSRC is not a SkyNet
+    camera's (RFC 3550 section 8: SSRCs are the sender's to choose, so the receiver checks them) or not one of the
+    UAV whose camera key carried it (a UAV may write only its own keys)."""
+    try:
+        uav, camera = parse_ssrc(ssrc)
+        key_uav = keys.parse(key).uav
+    except ValueError:
+        return None
+    return (uav, camera) if key_uav == uav else None

@@ -38,17 +38,10 @@ MAX_CAMERAS = 4
 
 
 def frame_source(key: str, ssrc: int) -> tuple[int, int] | None:
-    """``(uav, camera)`` of a frame received on ``key`` with ``ssrc``, or None when the SSRC is not a
-    SkyNet camera's (RFC 3550 §8: SSRCs are the sender's to choose, so the receiver checks them) or
-    not one of the UAV whose camera key carried it (a UAV may write only its own keys)."""
-    try:
-        uav, camera = parse_ssrc(ssrc)
-        key_uav = keys.parse(key).uav
-    except ValueError:
-        return None
-    if key_uav != uav or camera >= MAX_CAMERAS:
-        return None
-    return uav, camera
+    """``(uav, camera)`` of a frame on ``key`` (:func:`protocol.binding.frame_source`), None also for a camera
+    beyond :data:`MAX_CAMERAS`."""
+    src = binding.frame_source(key, ssrc)
+    return None if src is None or src[1] >= MAX_CAMERAS else src
 
 
 class DetectorService:

@@ -5,6 +5,7 @@ Design notes: docs/report.md (services/gcs/evidence.py).
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Iterable
 
 from protocol.messages import DefectReport, LinkStats, VehicleState
@@ -49,6 +50,30 @@ def detector_totals(stats: Iterable[LinkStats], uavs: Iterable[int]) -> dict[int
     return totals
 
 
+def sort_reports(reports: Iterable[DefectReport], witness: FrameWitness | None = None
+                 ) -> tuple[dict[Seen, set[tuple[int, int]]], Counter[int]]:
+    """The ok reports' ``(uav, capture_id)`` by what the ground station holds of the frame each names
+    (:class:`~services.recording.witness.Seen`; without ``witness`` every evidenced report is held), a capture
+    held by one report not listed as anything else; and per UAV the ok reports that name no frame."""
+    by: dict[Seen, set[tuple[int, int]]] = {s: set() for s in Seen}
+    unevidenced: Counter[int] = Counter()
+    for r in reports:
+        if not r.ok:
+            continue
+        if not has_evidence(r) or r.frame is None:
+            unevidenced[r.uav] += 1
+            continue
+        by[Seen.HELD if witness is None else witness.seen(r.frame, r.capture_id)].add((r.uav, r.capture_id))
+    for s in (Seen.NOT_RECEIVED, Seen.DIFFERENT):
+        by[s] -= by[Seen.HELD]
+    return by, unevidenced
+
+
+def held_captures(reports: Iterable[DefectReport], witness: FrameWitness) -> set[tuple[int, int]]:
+    """``(uav, capture_id)`` of every ok report whose frame the ground station received as named."""
+    return sort_reports(reports, witness)[0][Seen.HELD]
+
+
 def ledger(uavs: Iterable[int], states: Iterable[VehicleState], reports: Iterable[DefectReport],
            stats: Iterable[LinkStats], witness: FrameWitness | None = None) -> dict[int, dict[str, int | None]]:
     """Per UAV: ``sent`` (its capture count), ``received``/``analysed`` (the detector; None without
@@ -61,32 +86,18 @@ def ledger(uavs: Iterable[int], states: Iterable[VehicleState], reports: Iterabl
     for s in states:
         if s.uav in sent:
             sent[s.uav] = max(sent[s.uav], s.captures)
-    reported: dict[int, set[int]] = {u: set() for u in uavs}
-    unheld: dict[int, dict[Seen, set[int]]] = {u: {Seen.NOT_RECEIVED: set(), Seen.DIFFERENT: set()} for u in uavs}
-    unevidenced = dict.fromkeys(uavs, 0)
-    for r in reports:
-        if r.uav not in reported or not r.ok:
-            continue
-        if not has_evidence(r):
-            unevidenced[r.uav] += 1
-            continue
-        seen = Seen.HELD if witness is None else witness.seen(r)
-        if seen is Seen.HELD:
-            reported[r.uav].add(r.capture_id)
-        else:
-            unheld[r.uav][seen].add(r.capture_id)
+    by, unevidenced = sort_reports(reports, witness)
+
+    def count(seen: Seen, u: int) -> int:
+        return sum(1 for uav, _ in by[seen] if uav == u)
+
     det = detector_totals(stats, uavs)
     return {u: {"sent": sent[u], "received": None if det is None else det[u]["received"],
-                "analysed": None if det is None else det[u]["analysed"], "reported": len(reported[u]),
+                "analysed": None if det is None else det[u]["analysed"], "reported": count(Seen.HELD, u),
                 "unevidenced": unevidenced[u],
-                "not_received": None if witness is None else len(unheld[u][Seen.NOT_RECEIVED] - reported[u]),
-                "different": None if witness is None else len(unheld[u][Seen.DIFFERENT] - reported[u])}
+                "not_received": None if witness is None else count(Seen.NOT_RECEIVED, u),
+                "different": None if witness is None else count(Seen.DIFFERENT, u)}
             for u in uavs}
-
-
-def held_captures(reports: Iterable[DefectReport], witness: FrameWitness) -> set[tuple[int, int]]:
-    """``(uav, capture_id)`` of every ok report whose frame the ground station received as named."""
-    return {(r.uav, r.capture_id) for r in reports if r.ok and has_evidence(r) and witness.seen(r) is Seen.HELD}
 
 
 def corroboration_failures(book: dict[int, dict[str, int | None]]) -> list[str]:

@@ -593,7 +593,7 @@ def _links(record: MissionRecord, samples: LinkSamples, uav_figs: Mapping[int, U
 def _captures(record: MissionRecord, trajs: Mapping[int, Trajectory]) -> tuple[CaptureFigures, set[tuple[int, int]]]:
     planned = planned_captures(trajs.values())
     ok = imaged_captures(d.msg for d in record.defects) if record.held_captures is None else \
-        {(u, c) for u, c in record.held_captures}  # checked against the frames the ground station received
+        set(record.held_captures)  # checked against the frames the ground station received
     imaged = planned & ok
     c = CaptureFigures(planned=len(planned), imaged=len(imaged), ratio=_ratio(len(imaged), len(planned)),
                        failed_reports=sum(not d.msg.ok for d in record.defects),

@@ -7,19 +7,20 @@ from __future__ import annotations
 
 import hashlib
 import threading
+from collections import Counter
 from enum import StrEnum
 
-from protocol import keys
+from protocol.binding import frame_source
 from protocol.imagery import unpack_image
-from protocol.messages import DefectReport
-from protocol.rtp import parse_ssrc
+from protocol.messages import FrameEvidence
 
-__all__ = ["CAPTURE_CAMERA", "MAX_FRAMES", "FrameWitness", "Seen"]
+__all__ = ["CAPTURE_CAMERA", "MAX_FRAMES_PER_CAMERA", "FrameWitness", "Seen"]
 
 #: the camera whose frames are captures (edge.camera_service: previews use camera 1)
 CAPTURE_CAMERA = 0
-#: frames witnessed at most (~200 bytes each); beyond, further frames are counted, not kept
-MAX_FRAMES = 65_536
+#: frames witnessed per camera at most (~200 bytes each; a mission takes dozens of captures a UAV); beyond,
+#: that camera's further frames are counted, not kept, so one camera's flood cannot crowd out another's
+MAX_FRAMES_PER_CAMERA = 4096
 
 
 class Seen(StrEnum):
@@ -28,58 +29,50 @@ class Seen(StrEnum):
     HELD = "held"  # that frame, those image bytes, that capture
     NOT_RECEIVED = "not-received"  # no frame of that camera with that sequence number
     DIFFERENT = "different"  # a frame with that sequence number, but other image bytes or another capture
-    NO_EVIDENCE = "no-evidence"  # the report names no frame of its UAV's capture camera
 
 
 class FrameWitness:
     """Capture frames by RTP SSRC and sequence number (RFC 3550 5.1), with the SHA-256 of their image bytes and
-    their capture id, as :class:`~protocol.messages.FrameEvidence` names them. Thread-safe; bounded."""
+    their capture id, as :class:`~protocol.messages.FrameEvidence` names them. Thread-safe; bounded per camera."""
 
-    def __init__(self, max_frames: int = MAX_FRAMES) -> None:
-        self.max_frames = max_frames
-        self.not_kept = 0  # frames over the bound: a report naming one reads as not received
+    def __init__(self, max_per_camera: int = MAX_FRAMES_PER_CAMERA) -> None:
+        self.max_per_camera = max_per_camera
+        self.not_kept: Counter[int] = Counter()  # SSRC -> frames over its bound (a report naming one: not received)
         self._frames: dict[tuple[int, int], set[tuple[str, int]]] = {}
-        self._held = 0
+        self._held: Counter[int] = Counter()  # SSRC -> frames kept
         self._lock = threading.Lock()
 
     def add_sample(self, key: str, data: bytes | memoryview) -> bool:
         """Witness one sample of a camera key; False (nothing kept) unless it is an image frame of the capture
-        camera of the UAV whose key carried it (a UAV writes only its own keys)."""
+        camera of the UAV whose key carried it (:func:`protocol.binding.frame_source`)."""
         try:
             header, meta, image = unpack_image(data)
-            uav, camera = parse_ssrc(header.ssrc)
-            key_uav = keys.parse(key).uav
         except ValueError:
             return False
-        if uav != key_uav or meta.uav != uav or camera != CAPTURE_CAMERA or not len(image):
+        src = frame_source(key, header.ssrc)
+        if src is None or src != (meta.uav, CAPTURE_CAMERA) or not len(image):
             return False
-        self.add(header.ssrc, header.sequence, hashlib.sha256(image).hexdigest(), meta.capture_id)
-        return True
+        return self.add(header.ssrc, header.sequence, hashlib.sha256(image).hexdigest(), meta.capture_id)
 
-    def add(self, ssrc: int, sequence: int, digest: str, capture_id: int) -> None:
+    def add(self, ssrc: int, sequence: int, digest: str, capture_id: int) -> bool:
+        """Keep one frame; False when it was kept already or its camera is at its bound (counted)."""
         with self._lock:
-            held = self._frames.get((ssrc, sequence))
-            if held is not None and (digest, capture_id) in held:
-                return
-            if self._held >= self.max_frames:
-                self.not_kept += 1
-                return
+            if (digest, capture_id) in self._frames.get((ssrc, sequence), ()):
+                return False
+            if self._held[ssrc] >= self.max_per_camera:
+                self.not_kept[ssrc] += 1
+                return False
             self._frames.setdefault((ssrc, sequence), set()).add((digest, capture_id))
-            self._held += 1
+            self._held[ssrc] += 1
+            return True
 
     def __len__(self) -> int:
-        return self._held
+        return sum(self._held.values())
 
-    def seen(self, report: DefectReport) -> Seen:
-        """Whether the frame ``report`` names is one this ground station received, as named."""
-        ev = report.frame
-        try:
-            if ev is None or parse_ssrc(ev.ssrc) != (report.uav, CAPTURE_CAMERA):
-                return Seen.NO_EVIDENCE
-        except ValueError:
-            return Seen.NO_EVIDENCE
+    def seen(self, frame: FrameEvidence, capture_id: int) -> Seen:
+        """Whether ``frame``, named as the one of ``capture_id``, is one this ground station received as named."""
         with self._lock:
-            held = self._frames.get((ev.ssrc, ev.seq))
-            if held is None:
-                return Seen.NOT_RECEIVED
-            return Seen.HELD if (ev.digest, report.capture_id) in held else Seen.DIFFERENT
+            held = self._frames.get((frame.ssrc, frame.seq))
+        if not held:
+            return Seen.NOT_RECEIVED
+        return Seen.HELD if (frame.digest, capture_id) in held else Seen.DIFFERENT

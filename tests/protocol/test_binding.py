@@ -29,3 +29,13 @@ def test_every_role_speaks_only_for_its_own_key():
             assert not binding.matches(key, None, forged), (key, forged)  # e.g. uav/2/event claiming "gcs"
             assert not binding.source_matches(key, forged), (key, forged)
     assert binding.source_of("skynet/f/uav/2/bogus") is None and not binding.source_matches("x/y", "gcs")
+
+
+def test_a_frame_speaks_only_for_the_camera_of_the_uav_whose_key_carried_it():
+    from protocol.binding import frame_source
+    from protocol.rtp import ssrc_for
+
+    assert frame_source("skynet/demo/uav/2/camera", ssrc_for(2, 1)) == (2, 1)
+    assert frame_source("skynet/demo/uav/1/camera", ssrc_for(2)) is None  # another UAV's camera
+    assert frame_source("skynet/demo/uav/2/camera", 0x12345678) is None  # not a SkyNet SSRC
+    assert frame_source("not/a/key", ssrc_for(2)) is None
