@@ -7,6 +7,8 @@ a token and watches for the other's; a round fails when either token is not seen
 ways alternate round by round, so that both see the same machine.
 
     .venv/bin/python bench/router_links.py [--rounds 40] [--wait-s 6] [--out bench/results/router_links.json]
+
+Prints a line per way and writes the figures as JSON (``--out``).
 """
 
 from __future__ import annotations
@@ -64,7 +66,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=40, help="rounds of each way")
     ap.add_argument("--wait-s", type=float, default=6.0)
-    ap.add_argument("--out", default=None)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "router_links.json")
     a = ap.parse_args()
     runs: dict[str, list[dict]] = {"one link": [], "two links": []}
     for r in range(a.rounds):
@@ -78,9 +80,9 @@ def main() -> int:
                         "seen within p50 s": seen[len(seen) // 2] if seen else None}
         print(f"{name:9s}: a token never seen in {len(lost)} of {len(rs)} rounds"
               + (f" (the others within {seen[len(seen) // 2]:.2f} s p50)" if seen else ""))
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(json.dumps(result, indent=1))
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps(result, indent=1))
+    print(f"written {a.out}")
     return 0
 
 
