@@ -107,15 +107,14 @@ def onnx_params(path: Path) -> tuple[dict[str, dict[str, np.ndarray]], tuple[int
         raise SystemExit(f"train_detector: {path} is not a model this script exported (no threshold in its doc string)")
     arrs = {i.name: numpy_helper.to_array(i) for i in m.graph.initializer}
     params = {}
-    for name in layer_shapes():
+    n = sum(1 for k in arrs if re.fullmatch(r"e[0-9]+a\.w", k))
+    for name in layer_shapes((1,) * n):
         w, b = arrs[f"{name}.w"], arrs[f"{name}.b"].astype(np.float32)
         if name == "head":
             th = float(t.group(1))
             b = b + np.float32(math.log(th / (1 - th)))
         params[name] = {"w": np.ascontiguousarray(w.transpose(2, 3, 1, 0)).astype(np.float32), "b": b}
-    c = params
-    widths = (c["e1a"]["w"].shape[3], c["e2a"]["w"].shape[3], c["e3a"]["w"].shape[3], c["e4a"]["w"].shape[3])
-    return params, widths
+    return params, tuple(int(params[f"e{k}a"]["w"].shape[3]) for k in range(1, n + 1))
 
 
 def standardise(g: np.ndarray) -> np.ndarray:
@@ -160,16 +159,16 @@ def augment(rng: np.random.Generator, g: np.ndarray, m: np.ndarray, crop: int) -
 
 # ---------------------------------------------------------------- model (JAX)
 def layer_shapes(widths: tuple[int, ...] = WIDTHS) -> dict[str, tuple[int, int, int, int]]:
-    """Name -> HWIO kernel shape of every convolution."""
-    c1, c2, c3, c4 = widths
-    return {
-        "e1a": (3, 3, 1, c1), "e1b": (3, 3, c1, c1),
-        "e2a": (3, 3, c1, c2), "e2b": (3, 3, c2, c2),
-        "e3a": (3, 3, c2, c3), "e3b": (3, 3, c3, c3),
-        "e4a": (3, 3, c3, c4), "e4b": (3, 3, c4, c4),
-        "d3": (3, 3, c4 + c3, c3), "d2": (3, 3, c3 + c2, c2), "d1": (3, 3, c2 + c1, c1),
-        "head": (1, 1, c1, 1),
-    }
+    """Name -> HWIO kernel shape of every convolution: encoder scale ``k`` (1-based) ``e<k>a``/``e<k>b``, decoder
+    ``d<k>`` for every scale but the deepest, the 1x1 ``head``; one scale per width."""
+    c = (1, *widths)
+    out: dict[str, tuple[int, int, int, int]] = {}
+    for k in range(1, len(widths) + 1):
+        out[f"e{k}a"], out[f"e{k}b"] = (3, 3, c[k - 1], c[k]), (3, 3, c[k], c[k])
+    for k in range(len(widths) - 1, 0, -1):
+        out[f"d{k}"] = (3, 3, c[k + 1] + c[k], c[k])
+    out["head"] = (1, 1, c[1], 1)
+    return out
 
 
 def init_params(seed: int, widths: tuple[int, ...] = WIDTHS, norm: bool = False) -> dict[str, dict[str, np.ndarray]]:
@@ -193,6 +192,13 @@ def init_params(seed: int, widths: tuple[int, ...] = WIDTHS, norm: bool = False)
 #: batch norm's variance floor (Ioffe & Szegedy 2015, eq. in Alg. 1) and running-average momentum
 BN_EPS = 1e-5
 BN_MOMENTUM = 0.9
+#: training batches whose statistics the averaged weights' batch norm is recomputed on (``--ema``)
+BN_BATCHES = 16
+
+
+def scales_of(params) -> int:  # noqa: ANN001
+    """The number of encoder scales of ``params``."""
+    return sum(1 for k in params if re.fullmatch(r"e[0-9]+a", k))
 
 
 def init_stats(params) -> dict[str, dict[str, np.ndarray]]:  # noqa: ANN001
@@ -201,7 +207,7 @@ def init_stats(params) -> dict[str, dict[str, np.ndarray]]:  # noqa: ANN001
 
 
 def forward(params, x, stats=None, batch_stats=None):  # noqa: ANN001, ANN201 - JAX pytrees
-    """Logits (N, H, W, 1) of NHWC input; H and W multiples of 8.
+    """Logits (N, H, W, 1) of NHWC input; H and W multiples of 2 ** (scales - 1).
 
     Layers with batch norm (``g``/``beta`` in ``params``) use the running ``stats`` when given (inference),
     else the batch's own statistics (training), which are stored into the dict ``batch_stats`` if given."""
@@ -230,14 +236,13 @@ def forward(params, x, stats=None, batch_stats=None):  # noqa: ANN001, ANN201 - 
         return jnp.repeat(jnp.repeat(h, 2, axis=1), 2, axis=2)
 
     r = jax.nn.relu
-    e1 = r(conv("e1b", r(conv("e1a", x))))
-    e2 = r(conv("e2b", r(conv("e2a", pool(e1)))))
-    e3 = r(conv("e3b", r(conv("e3a", pool(e2)))))
-    e4 = r(conv("e4b", r(conv("e4a", pool(e3)))))
-    d3 = r(conv("d3", jnp.concatenate([up(e4), e3], axis=-1)))
-    d2 = r(conv("d2", jnp.concatenate([up(d3), e2], axis=-1)))
-    d1 = r(conv("d1", jnp.concatenate([up(d2), e1], axis=-1)))
-    return conv("head", d1)
+    skips, h = [], x
+    for k in range(1, scales_of(params) + 1):
+        h = r(conv(f"e{k}b", r(conv(f"e{k}a", pool(h) if k > 1 else h))))
+        skips.append(h)
+    for k in range(len(skips) - 1, 0, -1):
+        h = r(conv(f"d{k}", jnp.concatenate([up(h), skips[k - 1]], axis=-1)))
+    return conv("head", h)
 
 
 def loss_fn(params, x, y, pos_weight: float = 1.0, dice_weight: float = 1.0):  # noqa: ANN001, ANN201
@@ -257,9 +262,10 @@ def loss_fn(params, x, y, pos_weight: float = 1.0, dice_weight: float = 1.0):  #
     return bce + dice_weight * dice, batch_stats
 
 
-def pad8(x: np.ndarray) -> tuple[np.ndarray, int, int]:
+def pad_to(x: np.ndarray, multiple: int) -> tuple[np.ndarray, int, int]:
+    """``x`` padded (reflected) to multiples of ``multiple`` (the network's total pooling), its height and width."""
     h, w = x.shape
-    ph, pw = (-h) % 8, (-w) % 8
+    ph, pw = (-h) % multiple, (-w) % multiple
     return (np.pad(x, ((0, ph), (0, pw)), mode="reflect") if ph or pw else x), h, w
 
 
@@ -287,6 +293,9 @@ def train(a: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(a.seed)
     widths = tuple(a.widths)
+    if not 2 <= len(widths) <= 5 or min(widths) < 1 or a.crop % 2 ** (len(widths) - 1):
+        raise SystemExit(f"train_detector: --widths takes 2 to 5 positive channel counts and --crop a multiple of "
+                         f"2 ** (scales - 1), got {list(widths)} and {a.crop}")
     tr = [s for d in DATASETS for s in load_pairs(root, d, "train", a.limit)]
     val = [s for d in DATASETS for s in load_pairs(root, d, "val", a.limit)]
     walls = wall_pairs(a.walls) if a.walls else []
@@ -314,9 +323,31 @@ def train(a: argparse.Namespace) -> int:
 
     fwd = jax.jit(lambda p, s, x: jax.nn.sigmoid(forward(p, x, stats=s)))
 
+    @jax.jit
+    def ema_update(ema, params):  # noqa: ANN001, ANN202
+        return jax.tree_util.tree_map(lambda e, p: a.ema * e + (1 - a.ema) * p, ema, params)
+
+    @jax.jit
+    def batch_norm_stats(params, x):  # noqa: ANN001, ANN202
+        bs: dict = {}
+        forward(params, x, batch_stats=bs)
+        return bs
+
+    bn_rng = np.random.default_rng(a.seed + 1)  # apart from the training stream, so --ema leaves it as it was
+
+    def recomputed_stats(p):  # noqa: ANN001, ANN202
+        """Batch-norm statistics of the averaged weights: the mean of :data:`BN_BATCHES` training batches' own
+        (the running statistics belong to the weights being trained, not to their average)."""
+        got = []
+        for _ in range(BN_BATCHES):
+            idx = bn_rng.integers(len(tr), size=a.batch)
+            xs, _ = zip(*(augment(bn_rng, tr[k][1], tr[k][2], a.crop) for k in idx))
+            got.append(batch_norm_stats(p, jnp.asarray(np.stack(xs)[..., None])))
+        return jax.tree_util.tree_map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *got)
+
     def predict_with(p, s, flip: bool = False):  # noqa: ANN001, ANN202
         def predict(g: np.ndarray) -> np.ndarray:
-            x, h, w = pad8(standardise(g))
+            x, h, w = pad_to(standardise(g), 2 ** (len(widths) - 1))
             y = np.asarray(fwd(p, s, x[None, :, :, None]))[0, :, :, 0]
             if flip:  # test-time horizontal flip: the mean of the two probability maps
                 y = 0.5 * (y + np.asarray(fwd(p, s, np.ascontiguousarray(x[:, ::-1])[None, :, :, None]))[0, :, ::-1, 0])
@@ -325,12 +356,13 @@ def train(a: argparse.Namespace) -> int:
 
     run: dict[str, object] = {
         "seed": a.seed, "widths": widths, "norm": a.norm, "crop": a.crop, "batch": a.batch, "lr": a.lr,
-        "pos_weight": a.pos_weight, "dice_weight": a.dice_weight, "init": Path(a.init).name if a.init else None,
+        "pos_weight": a.pos_weight, "dice_weight": a.dice_weight, "ema": a.ema, "init": Path(a.init).name if a.init else None,
         "walls": {"scenario": "monorail", "seeds": a.walls, "images": len(walls)},
         "epochs_planned": a.epochs, "crops_per_image": a.crops_per_image, "minutes_budget": a.minutes,
         "split": {"rule": splits.__doc__, "train": len(tr), "val": len(val)}, "epochs": [],
     }
     best = (-1.0, None, None, -1, None)
+    ema = params if a.ema else None
     t0 = time.monotonic()
     for ep in range(a.epochs):
         order = rng.permutation(np.repeat(np.arange(len(tr)), a.crops_per_image))
@@ -341,7 +373,13 @@ def train(a: argparse.Namespace) -> int:
             params, state, stats, loss = step(params, state, stats, jnp.asarray(np.stack(xs)[..., None]),
                                               jnp.asarray(np.stack(ys)))
             losses.append(float(loss))
-        fs = validate(predict_with(params, stats), val)
+            if ema is not None:
+                ema = ema_update(ema, params)
+        if ema is not None:  # the weights' moving average is what is validated, chosen and exported
+            params_v, stats_v = ema, (recomputed_stats(ema) if stats else stats)
+        else:
+            params_v, stats_v = params, stats
+        fs = validate(predict_with(params_v, stats_v), val)
         t_best = max(fs, key=fs.get)
         row = {"epoch": ep + 1, "loss": float(np.mean(losses)), "val_f": fs[t_best], "val_threshold": float(t_best),
                "minutes": (time.monotonic() - t0) / 60}
@@ -349,8 +387,8 @@ def train(a: argparse.Namespace) -> int:
         log.info("epoch %d: loss %.4f, validation exact F %.4f at %s (%.1f min)", ep + 1, row["loss"], fs[t_best],
                  t_best, row["minutes"])
         if fs[t_best] > best[0]:
-            best = (fs[t_best], jax.tree_util.tree_map(np.asarray, params), float(t_best), ep + 1,
-                    jax.tree_util.tree_map(np.asarray, stats))
+            best = (fs[t_best], jax.tree_util.tree_map(np.asarray, params_v), float(t_best), ep + 1,
+                    jax.tree_util.tree_map(np.asarray, stats_v))
             np.savez(out / "crack_unet_best.npz", **{f"{k}.{j}": v for k, d in best[1].items() for j, v in d.items()},
                      **{f"{k}.bn_{j}": v for k, d in best[4].items() for j, v in d.items()})
         (out / "train_run.json").write_text(json.dumps(run, indent=1))
@@ -429,14 +467,13 @@ def export_onnx(params: dict[str, dict[str, np.ndarray]], threshold: float, path
         nodes.append(helper.make_node("Concat", [f"{x}.u", skip], [f"{x}.cat"], axis=1))
         return f"{x}.cat"
 
-    e1 = conv("e1b", conv("e1a", "x"))
-    e2 = conv("e2b", conv("e2a", pool(e1)))
-    e3 = conv("e3b", conv("e3a", pool(e2)))
-    e4 = conv("e4b", conv("e4a", pool(e3)))
-    d3 = conv("d3", up_cat(e4, e3))
-    d2 = conv("d2", up_cat(d3, e2))
-    d1 = conv("d1", up_cat(d2, e1))
-    nodes.append(helper.make_node("Sigmoid", [conv("head", d1, relu=False)], ["p"]))
+    skips, h = [], "x"
+    for k in range(1, len(widths) + 1):
+        h = conv(f"e{k}b", conv(f"e{k}a", pool(h) if k > 1 else h))
+        skips.append(h)
+    for k in range(len(widths) - 1, 0, -1):
+        h = conv(f"d{k}", up_cat(h, skips[k - 1]))
+    nodes.append(helper.make_node("Sigmoid", [conv("head", h, relu=False)], ["p"]))
     graph = helper.make_graph(
         nodes, "crack_unet",
         [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 1, "H", "W"])],
@@ -509,13 +546,16 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--batch", type=int, default=16)
     t.add_argument("--crops-per-image", type=int, default=2)
     t.add_argument("--lr", type=float, default=3e-3)
-    t.add_argument("--widths", type=int, nargs=4, default=list(WIDTHS), metavar="C",
-                   help="channels of the four scales (default %(default)s)")
+    t.add_argument("--widths", type=int, nargs="+", default=list(WIDTHS), metavar="C",
+                   help="channels per scale, one scale per value, 2 to 5 of them (default %(default)s)")
     t.add_argument("--norm", choices=("none", "batch"), default="none",
                    help="batch norm after every convolution but the head (folded into it on export)")
     t.add_argument("--init", help="start from this exported ONNX model (fine-tuning) instead of a random one")
     t.add_argument("--walls", type=int, nargs="*", default=[], metavar="SEED",
                    help="also train on the monorail scenario's synthetic wall made with these texture seeds")
+    t.add_argument("--ema", type=float, default=0.0, metavar="D",
+                   help="validate, choose and export the exponential moving average of the weights, decay D per "
+                        "step (Polyak averaging; 0: the weights themselves)")
     t.add_argument("--pos-weight", type=float, default=1.0, help="weight of crack pixels in the cross-entropy")
     t.add_argument("--dice-weight", type=float, default=1.0, help="weight of the soft Dice term")
     t.add_argument("--limit", type=int, help="only the first N images of each split (a smoke run)")

@@ -27,12 +27,12 @@ MODEL_PATH = Path(__file__).resolve().with_name("models") / "crack_unet.onnx"
 MODEL_ENV = "SKYNET_DETECTOR_MODEL"
 RUNTIME_ENV = "SKYNET_DETECTOR_RUNTIME"
 RUNTIMES = ("opencv", "openvino")
-#: padded input sizes (h, w) a detector worker's warm-up runs, so that OpenVINO's per-shape kernels are built
+#: input sizes (h, w) a detector worker's warm-up runs, so that OpenVINO's per-shape kernels are built
 #: before the first capture (0.3 s at 480 x 640, 1.4 s at 752 x 1000): the nominal 640 x 480 frame and a 12 MP
 #: capture's 1/4 decode
 WARM_SHAPES = ((480, 640), (752, 1000))
-#: the network pools three times: inputs are padded to a multiple of this
-STRIDE = 8
+#: inputs are padded to a multiple of this: a network of up to five scales (four poolings) sees whole cells
+STRIDE = 16
 #: frames above this many pixels are segmented in tiles of TILE x TILE (plus margins)
 TILE_PX = 2_000_000
 TILE = 1024
@@ -62,11 +62,12 @@ def model_path() -> Path:
 
 def _probe(net: cv2.dnn.Net, where: Path) -> None:
     """Run the net on a small frame: it must give one probability per pixel."""
-    net.setInput(np.zeros((1, 1, 16, 24), np.float32))
+    shape = (1, 1, STRIDE, 2 * STRIDE)
+    net.setInput(np.zeros(shape, np.float32))
     out = net.forward()
-    if out.shape != (1, 1, 16, 24) or not np.all(np.isfinite(out)):
+    if out.shape != shape or not np.all(np.isfinite(out)):
         raise ModelError(f"learned detector model {where}: not a crack segmentation model "
-                         f"(output {tuple(out.shape)} for a 1x1x16x24 input)")
+                         f"(output {tuple(out.shape)} for a {'x'.join(map(str, shape))} input)")
 
 
 def load_model(path: str | Path | None = None) -> cv2.dnn.Net:
