@@ -6,8 +6,10 @@ Design notes: docs/security.md (edge/trust.py).
 from __future__ import annotations
 
 import collections
+import logging
 import threading
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from protocol import keys
@@ -17,6 +19,8 @@ from protocol.signing import Refusal, TrustError, Verifier, unverified_inner
 if TYPE_CHECKING:
     from .config import EdgeConfig
 
+log = logging.getLogger("skynet.edge.trust")
+
 #: at most one event per refusal reason per this many seconds
 EVENT_PERIOD_S = 1.0
 
@@ -24,8 +28,11 @@ EVENT_PERIOD_S = 1.0
 class Gate:
     """Trust checks of one UAV's board; ``verifier=None`` is the insecure mode."""
 
-    def __init__(self, fleet: str, uav: int, verifier: Verifier | None, clock=time.monotonic):
+    def __init__(self, fleet: str, uav: int, verifier: Verifier | None, clock=time.monotonic,
+                 revocations: Callable[[], frozenset[str] | None] | None = None):
         self.fleet, self.uav, self.verifier = fleet, uav, verifier
+        #: the revoked key ids when they changed, else None (:class:`protocol.keyset.RevocationWatch`)
+        self._revocations = revocations
         self.cmd_key = keys.cmd(fleet, uav)
         self.heartbeat_key = keys.heartbeat(fleet)
         self.refused: collections.Counter[str] = collections.Counter()
@@ -37,8 +44,17 @@ class Gate:
         with self._lock:
             self.refused[what] += 1
 
+    def _refresh(self) -> None:
+        if self.verifier is None or self._revocations is None:
+            return
+        kids = self._revocations()
+        if kids is not None and kids != self.verifier.revoked:
+            log.warning("uav%d: revoked signing keys now %s", self.uav, ", ".join(sorted(kids)) or "none")
+            self.verifier.revoked = kids
+
     def command(self, msg: Message) -> Message:
         """The command to act on; raises :class:`TrustError` (counted) when it must be refused."""
+        self._refresh()
         try:
             if self.verifier is None:
                 if isinstance(msg, Signed):
@@ -53,6 +69,7 @@ class Gate:
         """None when ``msg`` is a heartbeat that may reset the failsafe timer, else why not (counted)."""
         if self.verifier is None:
             return None if isinstance(msg, Heartbeat) else TrustError(Refusal.UNKNOWN_SIGNER, "no trusted keys")
+        self._refresh()
         try:
             self.verifier.verify(msg, self.heartbeat_key, Heartbeat)
             return None
@@ -113,7 +130,7 @@ def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
                         config.uav, "" if config.insecure else " (no --keys given)")
         return Gate(config.fleet, config.uav, None), None
     from protocol.acl import cert_access_control
-    from protocol.keyset import KeySet, role_of_cn
+    from protocol.keyset import KeySet, RevocationWatch, role_of_cn
 
     ks = KeySet(config.keys, f"uav{config.uav}")
     verifier = ks.verifier(stale_s=config.trust_window, replay_file=config.replay_state)
@@ -129,4 +146,5 @@ def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
                  ", ".join(ks.trusted()) or "nobody", verifier.replay.path, config.uav, ", ".join(peers))
         if plain:
             log.warning("links without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
-    return Gate(config.fleet, config.uav, verifier), cert_access_control(config.fleet, peers)
+    return (Gate(config.fleet, config.uav, verifier, revocations=RevocationWatch(ks)),
+            cert_access_control(config.fleet, peers))

@@ -5,7 +5,10 @@ Design notes: docs/security.md (protocol/keyset.py).
 
 from __future__ import annotations
 
+import logging
 import re
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -13,6 +16,8 @@ from typing import Any
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
 
 from .signing import ReplayStore, Signer, Verifier, load_public
+
+log = logging.getLogger("skynet.keyset")
 
 _ROLE = re.compile(r"^(gateway|gcs|planner|detector|video|web|replay|uav([1-9][0-9]{0,2}))$")
 _KID = re.compile(r"^[0-9a-f]{16}$")
@@ -152,3 +157,43 @@ class KeySet:
         kw: dict[str, Any] = {} if stale_s is None else {"stale_s": stale_s}
         path = (replay_file or self.replay_file) if persist else None
         return Verifier(self.trusted(), self.revoked(), ReplayStore(path), **kw)
+
+
+class RevocationWatch:
+    """The revoked signing key ids of a key set's ``revoked.txt``, read again when the file changes, so that
+    ``skynet keys revoke`` beside a running node takes effect there at once (docs/security.md)."""
+
+    def __init__(self, keyset: KeySet, min_interval_s: float = 1.0, clock: Callable[[], float] = time.monotonic):
+        self.path = keyset.root / "revoked.txt"
+        self._keyset, self._interval, self._clock = keyset, float(min_interval_s), clock
+        self._stamp = self._stat()
+        self._checked = clock()
+        self._unreadable = False
+
+    def _stat(self) -> tuple[int, int, int] | None:
+        try:
+            st = self.path.stat()
+        except OSError:
+            return None
+        return st.st_mtime_ns, st.st_size, st.st_ino
+
+    def __call__(self) -> frozenset[str] | None:
+        """The revoked key ids when ``revoked.txt`` changed since they were last returned; None when it did not,
+        when it was looked at less than ``min_interval_s`` ago, or while it does not parse (the last good set
+        stays, and the file is read again at the next look)."""
+        now = self._clock()
+        if now - self._checked < self._interval:
+            return None
+        self._checked = now
+        stamp = self._stat()
+        if stamp == self._stamp:
+            return None
+        try:
+            kids = frozenset(self._keyset.revoked())
+        except (OSError, ValueError) as exc:
+            if not self._unreadable:
+                log.warning("revocations unreadable (%s): the revoked keys stay as they were", exc)
+            self._unreadable = True
+            return None
+        self._stamp, self._unreadable = stamp, False
+        return kids

@@ -260,3 +260,58 @@ def test_the_cmd_id_of_a_refused_envelope_is_read_without_trusting_it(body):
     good = Signed(signer="x", kid="0123456789abcdef", seq=1, stamp=1.0, to="skynet/demo/uav/1/cmd", type="cmd.land",
                   body=base64.b64encode(codec.encode(Land(uav=1, cmd_id=41))).decode(), sig="AAAA")
     assert command_id(good) == 41
+
+
+def test_a_key_revoked_beside_a_running_gate_is_refused_at_once(tmp_path):
+    """``skynet keys revoke`` while the board runs: the next command and heartbeat signed with that key are
+    refused, without a restart (the watch reads revoked.txt again when it changes)."""
+    from protocol.keyset import RevocationWatch
+    from protocol.signing import TrustError
+    from services.keys import revoke
+
+    root = init(tmp_path / "k", uavs=1)
+    ks = KeySet(root, "uav1")
+    gcs = KeySet(root, "gcs").signer()
+    gate = Gate(FLEET, 1, ks.verifier(persist=False), revocations=RevocationWatch(ks, min_interval_s=0))
+    assert gate.command(gcs.sign(Land(uav=1, cmd_id=1), keys.cmd(FLEET, 1))) == Land(uav=1, cmd_id=1)
+    assert gate.heartbeat(gcs.sign(Heartbeat(seq=1, stamp=time.time()), keys.heartbeat(FLEET))) is None
+    revoke(root, str(root / "gcs" / "sign.pub"))
+    with pytest.raises(TrustError, match="revoked"):
+        gate.command(gcs.sign(Land(uav=1, cmd_id=2), keys.cmd(FLEET, 1)))
+    refused = gate.heartbeat(gcs.sign(Heartbeat(seq=2, stamp=time.time()), keys.heartbeat(FLEET)))
+    assert refused is not None and "revoked" in str(refused)
+    assert gate.counters() == {"command.revoked": 1, "heartbeat.revoked": 1}
+
+
+def test_a_running_edge_refuses_a_key_revoked_beside_it_without_a_restart(tmp_path, group):
+    """A secure edge process, then ``skynet keys revoke DIR KEY`` of the ground station's signing key: its next
+    command is refused as revoked within seconds; the edge was not restarted."""
+    from services.keys import revoke
+
+    root = init(tmp_path / "k", uavs=1)
+    port = free_port(socket.SOCK_STREAM)
+    gw = [f"tls/127.0.0.1:{port}"]
+    g = group.start("gateway", ["gateway", "--fleet", FLEET, "--keys", str(root), "--listen", gw[0]])
+    assert g.wait_ready(20), "\n".join(g.lines)
+    edge = group.start("uav1", ["edge", "--uav", "1", "--home", "10,10,0", "--fleet", FLEET, "--keys", str(root),
+                                "--camera", "none", "--speed", "4", "--geofence", "0,0,0,100,100,40",
+                                "--connect", gw[0]])
+    assert edge.wait_ready(30), "\n".join(edge.lines)
+    gcs_ks = KeySet(root, "gcs")
+    signer, cmd1 = gcs_ks.signer(), keys.cmd(FLEET, 1)
+    with Bus(tls(gcs_ks, "client", gw), FLEET, "gcs") as gcs:
+        r = None
+
+        def ack(cmd_id: int):
+            nonlocal r
+            r = gcs.request(cmd1, signer.sign(Takeoff(uav=1, cmd_id=cmd_id, altitude=5), cmd1), expect=CommandAck,
+                            timeout=1.0)
+            return r.ok
+
+        assert wait_until(lambda: ack(1), 30), r
+        assert r.message.accepted, r
+        revoke(root, str(root / "gcs" / "sign.pub"))
+        ids = iter(range(2, 100))
+        assert wait_until(lambda: ack(next(ids)) and "revoked" in r.message.reason, 10), r
+        assert not r.message.accepted
+    assert edge.proc.poll() is None and any("revoked signing keys now" in ln for ln in edge.lines), edge.lines[-10:]
