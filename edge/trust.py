@@ -133,6 +133,7 @@ def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
     from protocol.keyset import KeySet, RevocationWatch, role_of_cn
 
     ks = KeySet(config.keys, f"uav{config.uav}")
+    watch = RevocationWatch(ks)  # before the verifier reads revoked.txt, so that no change falls between them
     verifier = ks.verifier(stale_s=config.trust_window, replay_file=config.replay_state)
     n = config.mesh_uavs or max([config.uav, *ks.uavs()])
     mesh = {"gateway", *(f"uav{i}" for i in range(1, n + 1))}
@@ -146,5 +147,4 @@ def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
                  ", ".join(ks.trusted()) or "nobody", verifier.replay.path, config.uav, ", ".join(peers))
         if plain:
             log.warning("links without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
-    return (Gate(config.fleet, config.uav, verifier, revocations=RevocationWatch(ks)),
-            cert_access_control(config.fleet, peers))
+    return Gate(config.fleet, config.uav, verifier, revocations=watch), cert_access_control(config.fleet, peers)
