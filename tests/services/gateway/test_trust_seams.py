@@ -6,6 +6,7 @@ Each key set is made in the test's own temporary folder (never the user's ``.key
 
 from __future__ import annotations
 
+import itertools
 import socket
 import time
 
@@ -17,7 +18,7 @@ from protocol.bus import Bus, BusConfig
 from protocol.heap import settled_resident_mb
 from protocol.keyset import KeySet
 from protocol.links import TELEMETRY
-from protocol.messages import Hold, Mode, VehicleState
+from protocol.messages import CommandAck, Hold, Mode, VehicleState
 from services.keys import init
 from services.orchestration.process import free_port
 from tests.conftest import wait_until
@@ -93,7 +94,8 @@ def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
     """``skynet up --impair uav2="delay 1ms"`` through the launcher, default secure mode: the links run through the
     netem proxies and still carry mutual TLS, so an anonymous client (plaintext, or TLS without a certificate) opens
     no session on the gateway, on an edge or on a proxy, while the ground station sees the fleet and commands it.
-    Then ``skynet keys revoke DIR uav2`` beside it: the gateway cuts uav2 off while the others stay in view."""
+    Then ``skynet keys revoke DIR uav2`` beside it: the gateway cuts uav2 off while the others stay in view; and
+    ``skynet keys revoke DIR gcs/sign.pub``: the running edges refuse the ground station's next signed command."""
     from services.keys import main as keys_main
     from services.orchestration.launcher import Network, parse
     from tests.services.orchestration.test_topology import Probe
@@ -133,6 +135,18 @@ def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
         assert not probe.answered(2) and probe.answered(1)
         time.sleep(2.0)
         assert not probe.fresh(2, within=2.0) and probe.fresh(1) and probe.fresh(3), probe.last
+        # the ground station's signing key revoked beside it: the running edges refuse its next command at once
+        signer, cmd1, ids = net.gcs_signer(), keys.cmd(FLEET, 1), itertools.count(100)
+
+        def reason() -> str:
+            r = probe.bus.request(cmd1, signer.sign(Hold(uav=1, cmd_id=next(ids)), cmd1), expect=CommandAck,
+                                  timeout=1.0)
+            return r.message.reason if r.ok else f"no answer: {r.error}"
+
+        assert wait_until(lambda: not reason().startswith("no answer"), 10)
+        assert "revoked" not in reason()
+        assert keys_main(["revoke", str(tmp_path / "keys"), str(tmp_path / "keys" / "gcs" / "sign.pub")]) == 0
+        assert wait_until(lambda: "revoked" in reason(), 10), reason()
     finally:
         if probe is not None:
             probe.close()
