@@ -50,7 +50,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from services.detector.learned import splits  # noqa: E402  (the split is the shipped model's contract)
+from services.detector.learned import STRIDE, splits  # noqa: E402  (the shipped model's contract: split, padding)
 
 log = logging.getLogger("train_detector")
 
@@ -107,14 +107,13 @@ def onnx_params(path: Path) -> tuple[dict[str, dict[str, np.ndarray]], tuple[int
         raise SystemExit(f"train_detector: {path} is not a model this script exported (no threshold in its doc string)")
     arrs = {i.name: numpy_helper.to_array(i) for i in m.graph.initializer}
     params = {}
-    n = sum(1 for k in arrs if re.fullmatch(r"e[0-9]+a\.w", k))
-    for name in layer_shapes((1,) * n):
+    for name in (k.removesuffix(".w") for k in arrs if k.endswith(".w")):
         w, b = arrs[f"{name}.w"], arrs[f"{name}.b"].astype(np.float32)
         if name == "head":
             th = float(t.group(1))
             b = b + np.float32(math.log(th / (1 - th)))
         params[name] = {"w": np.ascontiguousarray(w.transpose(2, 3, 1, 0)).astype(np.float32), "b": b}
-    return params, tuple(int(params[f"e{k}a"]["w"].shape[3]) for k in range(1, n + 1))
+    return params, tuple(int(params[f"e{k}a"]["w"].shape[3]) for k in range(1, scales_of(params) + 1))
 
 
 def standardise(g: np.ndarray) -> np.ndarray:
@@ -293,9 +292,10 @@ def train(a: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(a.seed)
     widths = tuple(a.widths)
-    if not 2 <= len(widths) <= 5 or min(widths) < 1 or a.crop % 2 ** (len(widths) - 1):
-        raise SystemExit(f"train_detector: --widths takes 2 to 5 positive channel counts and --crop a multiple of "
-                         f"2 ** (scales - 1), got {list(widths)} and {a.crop}")
+    most = STRIDE.bit_length()  # the runtime pads frames to STRIDE: 2 ** (scales - 1) must divide it
+    if not 2 <= len(widths) <= most or min(widths) < 1 or a.crop % 2 ** (len(widths) - 1):
+        raise SystemExit(f"train_detector: --widths takes 2 to {most} positive channel counts and --crop a multiple "
+                         f"of 2 ** (scales - 1), got {list(widths)} and {a.crop}")
     tr = [s for d in DATASETS for s in load_pairs(root, d, "train", a.limit)]
     val = [s for d in DATASETS for s in load_pairs(root, d, "val", a.limit)]
     walls = wall_pairs(a.walls) if a.walls else []
@@ -547,7 +547,8 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--crops-per-image", type=int, default=2)
     t.add_argument("--lr", type=float, default=3e-3)
     t.add_argument("--widths", type=int, nargs="+", default=list(WIDTHS), metavar="C",
-                   help="channels per scale, one scale per value, 2 to 5 of them (default %(default)s)")
+                   help=f"channels per scale, one scale per value, 2 to {STRIDE.bit_length()} of them "
+                        "(default %(default)s)")
     t.add_argument("--norm", choices=("none", "batch"), default="none",
                    help="batch norm after every convolution but the head (folded into it on export)")
     t.add_argument("--init", help="start from this exported ONNX model (fine-tuning) instead of a random one")

@@ -71,8 +71,8 @@ class FrameWitness:
 
     def seen(self, frame: FrameEvidence, capture_id: int) -> Seen:
         """Whether ``frame``, named as the one of ``capture_id``, is one this ground station received as named."""
-        with self._lock:
+        with self._lock:  # (the set may grow while another thread adds to it)
             held = self._frames.get((frame.ssrc, frame.seq))
-        if not held:
-            return Seen.NOT_RECEIVED
-        return Seen.HELD if (frame.digest, capture_id) in held else Seen.DIFFERENT
+            if not held:
+                return Seen.NOT_RECEIVED
+            return Seen.HELD if (frame.digest, capture_id) in held else Seen.DIFFERENT
