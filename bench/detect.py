@@ -1,7 +1,7 @@
 """Detector benchmark: parameter choice, quality table on both crack data sets, speed.
 
     python bench/detect.py [--data DIR] [--only tune|ridge|quality|speed|learned|pool ...] [--repeats N]
-                           [--threads N] [--out bench/results/detect.json]
+                           [--threads N] [--candidate MODEL.onnx] [--out bench/results/detect.json]
 
 * tune     C_s and the size guard min_region of IT for both background readings, and IT+'s
            area guard and shape limits, on the DeepCrack *training* split only (the numbers
@@ -359,16 +359,17 @@ def speed(data: Path, repeats: int, threads: int) -> dict[str, object]:
 
 
 # --------------------------------------------------------------------------------------- learned
-def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
+def learned(data: Path, repeats: int, threads: int, candidate: Path | None = None) -> dict[str, object]:
     """The learned method beside IT+r: exact and 2-px F, precision, recall on the shipped model's held-out
     folds (:func:`services.detector.learned.splits`: CrackForest's even-numbered half, every fifth
     DeepCrack-train image; never trained on nor used for model selection), and ms per frame (grey in, mask
     out, OpenCV limited to ``threads``) at 640x480 and on a 12 MP capture's 1/4 decode (1000x750, the
-    detector's real-time input, services.detector.pipeline)."""
+    detector's real-time input, services.detector.pipeline). A ``candidate`` model is timed beside them
+    (cv2.dnn), never scored: the held-out folds judge only a model that ships."""
     import os
 
     from protocol.imagecodec import decode_image
-    from services.detector.learned import RUNTIME_ENV, RUNTIMES, _has_openvino, runtime, splits
+    from services.detector.learned import RUNTIME_ENV, RUNTIMES, _has_openvino, learned_mask, runtime, splits
 
     cv2.setNumThreads(threads)
     methods = ["learned", "it+r"]
@@ -393,13 +394,18 @@ def learned(data: Path, repeats: int, threads: int) -> dict[str, object]:
     speed_rows: dict[str, object] = {}
     # the learned method on each runtime installed (services.detector.learned.runtime), beside IT+r
     timed = [(f"learned ({r})", "learned", r) for r in RUNTIMES if r == "opencv" or _has_openvino()]
+    if candidate is not None:
+        timed.append((f"candidate {candidate.name} (opencv)", "candidate", "opencv"))
     timed.append(("it+r", "it+r", None))
     env0 = os.environ.get(RUNTIME_ENV)
 
     def run(g: np.ndarray, m: str, rt: str | None) -> None:
         if rt is not None:
             os.environ[RUNTIME_ENV] = rt
-        detect(g, m, with_defects=False)
+        if m == "candidate":
+            learned_mask(g, model=candidate)
+        else:
+            detect(g, m, with_defects=False)
 
     try:
         for key, grey in frames.items():
@@ -498,6 +504,7 @@ def main(argv: list[str] | None = None) -> int:
                     default=["tune", "ridge", "quality", "speed", "learned"])
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--threads", type=int, default=1, help="cv2.setNumThreads for the speed runs")
+    ap.add_argument("--candidate", type=Path, help="with --only learned: also time this ONNX model (not scored)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "detect.json")
     a = ap.parse_args(argv)
     has_data = all((a.data / s).is_dir() for s in SETS)
@@ -515,7 +522,7 @@ def main(argv: list[str] | None = None) -> int:
     if "speed" in a.only:
         res["speed"] = speed(a.data, a.repeats, a.threads)
     if "learned" in a.only:
-        res["learned"] = learned(a.data, a.repeats, a.threads)
+        res["learned"] = learned(a.data, a.repeats, a.threads, a.candidate)
     if "pool" in a.only:
         res["pool"] = pool(a.repeats)
     a.out.parent.mkdir(parents=True, exist_ok=True)
