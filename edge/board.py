@@ -14,6 +14,8 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import zenoh
+
 from protocol import keys
 from protocol.budget import for_topic
 from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
@@ -99,11 +101,17 @@ class Board:
         self.failsafe = FailsafePolicy(options.failsafe)
         self.trajectory: Trajectory | None = None
         self.follower: Follower | None = None
+        # only the formation's states: the cost per edge does not grow with the fleet
+        self.neighbourhood = frozenset(neighbourhood_of(self.uav, options.formation_size))
+        self.bind(bus)
+
+    def bind(self, bus: Bus) -> None:
+        """Declare the board's publishers, subscriptions, command queryable and liveliness token on ``bus``;
+        again on a session the edge reopened (a narrower ACL), the board's state going on."""
+        self.bus = bus
         fleet = bus.fleet
         self.state_pub = bus.publisher(keys.state(fleet, self.uav), TELEMETRY)
         self.event_pub = bus.publisher(keys.event(fleet, self.uav), COMMAND)
-        # only the formation's states: the cost per edge does not grow with the fleet
-        self.neighbourhood = frozenset(neighbourhood_of(self.uav, options.formation_size))
         for j in sorted(self.neighbourhood):
             bus.subscribe(keys.state(fleet, j), functools.partial(self._on_state, j), expect=VehicleState, link=TELEMETRY,
                           budget=for_topic("state"))
@@ -359,7 +367,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(config: EdgeConfig) -> int:
-    """One UAV's board from its configuration, until SIGINT/SIGTERM."""
+    """One UAV's board from its configuration, until SIGINT/SIGTERM. With a key set, the board's session is
+    reopened when the certificates it admits change beside it (``skynet keys revoke``), so that a revoked
+    node's sessions at this edge's listener end (its state, the vehicle and the camera stream go on)."""
     log = setup_logging(f"uav{config.uav}")
     if config.nice:
         yield_cpu(config.nice)
@@ -374,34 +384,87 @@ def run(config: EdgeConfig) -> int:
     opts = BoardOptions(uav=config.uav, rate_hz=config.rate, stale_s=config.stale, failsafe=config.failsafe(),
                         geofence=config.geofence, formation_gain=config.formation_gain,
                         formation_size=config.formation_size)
-    gate, acl = secure_setup(config, log)
-    with Bus(config_from_args(config, role=f"uav{config.uav}", access_control=acl), fleet=config.fleet,
-             name=f"uav{config.uav}") as bus:
-        camera = make_camera(config, bus, log)
-        board = Board(bus, driver, clock, opts, camera=camera, log=log, gate=gate)
-        log.info("board up: uav %d, %s driver, camera %s, speed x%g", config.uav, config.vehicle, config.camera,
-                 config.speed)
-        notify_ready("edge", f"uav{config.uav}")
-        period = 1.0 / config.rate
-        next_t = time.monotonic()
-        tick_errors = 0
+    gate, admission = secure_setup(config, log)
+    watch = None
+    if admission is not None:
+        from protocol.keyset import AdmissionWatch
+
+        watch = AdmissionWatch(admission.peers, admission.peers())
+    loop = ControlLoop(config.rate, stop, log)
+    board: Board | None = None
+    camera = None
+    try:
         while not stop.is_set():
+            acl = None
+            if admission is not None and watch is not None:
+                acl = admission.access_control(watch.current)
+                log.info("mutual TLS as uav%d, ACL by certificate for %s", config.uav, ", ".join(watch.current))
             try:
-                board.tick()
-            except Exception:  # nothing a neighbour or the link sends may end the board: counted, logged once
-                tick_errors += 1
-                if tick_errors == 1:
-                    log.exception("board tick failed (further failures are only counted)")
-            next_t += period
-            delay = next_t - time.monotonic()
-            if delay < -1.0:  # fell far behind (suspended?): do not try to catch up in a burst
-                next_t = time.monotonic()
-            stop.wait(max(0.0, delay))
-        log.info("shutting down")
+                bus = Bus(config_from_args(config, role=f"uav{config.uav}", access_control=acl), fleet=config.fleet,
+                          name=f"uav{config.uav}")
+            except zenoh.ZError as exc:  # a reopen that cannot bind yet (the old listener not released): retry
+                if board is None:
+                    raise
+                log.warning("session did not reopen (%s); retrying in 0.5 s", exc)
+                stop.wait(0.5)
+                continue
+            with bus:
+                if board is None:
+                    camera = make_camera(config, bus, log)
+                    board = Board(bus, driver, clock, opts, camera=camera, log=log, gate=gate)
+                    log.info("board up: uav %d, %s driver, camera %s, speed x%g", config.uav, config.vehicle,
+                             config.camera, config.speed)
+                    notify_ready("edge", f"uav{config.uav}")
+                else:
+                    board.bind(bus)
+                    if camera is not None:
+                        camera.attach(bus)
+                changed = loop.run(board, watch)
+                if changed is not None:
+                    log.warning("key set changed (admitted now: %s); reopening the session so that a revoked "
+                                "node's sessions end", ", ".join(changed) or "none")
+                    if camera is not None:
+                        camera.detach()
+                    continue
+                log.info("shutting down")
+                if camera is not None:
+                    camera.close()
+                    camera = None
+    finally:
         if camera is not None:
             camera.close()
         driver.close()
     return 0
+
+
+class ControlLoop:
+    """The board's ticks at ``rate`` Hz until ``stop``, or until the key set's admitted certificates change."""
+
+    def __init__(self, rate: float, stop: threading.Event, log: logging.Logger):
+        self.period, self.stop, self.log = 1.0 / rate, stop, log
+        self.tick_errors = 0
+
+    def run(self, board: Board, watch) -> list[str] | None:
+        """Tick until stopped (None) or until ``watch`` (:class:`protocol.keyset.AdmissionWatch`) takes a change
+        (the names admitted now)."""
+        next_t = time.monotonic()
+        while not self.stop.is_set():
+            try:
+                board.tick()
+            except Exception:  # nothing a neighbour or the link sends may end the board: counted, logged once
+                self.tick_errors += 1
+                if self.tick_errors == 1:
+                    self.log.exception("board tick failed (further failures are only counted)")
+            if watch is not None:
+                changed = watch()
+                if changed is not None:
+                    return changed
+            next_t += self.period
+            delay = next_t - time.monotonic()
+            if delay < -1.0:  # fell far behind (suspended?): do not try to catch up in a burst
+                next_t = time.monotonic()
+            self.stop.wait(max(0.0, delay))
+        return None
 
 
 if __name__ == "__main__":

@@ -9,11 +9,12 @@ import json
 import logging
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
 from protocol import keys
-from protocol.bus import Bus
+from protocol.bus import Bus, Publisher
 from protocol.heap import release_freed_memory
 from protocol.imagecodec import encode_jpeg
 from protocol.imagery import pack_image
@@ -39,6 +40,42 @@ PREVIEW_CAMERA = 1
 RELIABLE_CAPTURE_ABOVE_PX = 1_000_000
 
 
+#: how long a frame waits for the session being reopened (edge.board) before it is counted as failed
+REBIND_WAIT_S = 10.0
+
+
+class PublisherSlot:
+    """A stream's publisher that outlives its session: :meth:`detach` before the session closes, :meth:`attach`
+    on the reopened one; a put in between waits for it (up to ``wait_s``), so no frame is sent on a closed
+    session nor lost to a reopen that the edge makes to apply a narrower ACL."""
+
+    def __init__(self, make: Callable[[Bus], Publisher], bus: Bus, wait_s: float = REBIND_WAIT_S):
+        self._make, self._wait_s = make, wait_s
+        self._cond = threading.Condition()
+        self._pub: Publisher | None = make(bus)
+
+    def put_bytes(self, data: bytes) -> int:
+        """Put ``data`` on the current session's publisher; ConnectionError when none came within ``wait_s``."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._pub is not None, self._wait_s) or self._pub is None:
+                raise ConnectionError(f"no session to publish on for {self._wait_s:g} s")
+            return self._pub.put_bytes(data)
+
+    def matching(self) -> bool | None:
+        """:meth:`protocol.bus.Publisher.matching`; False while detached."""
+        pub = self._pub
+        return False if pub is None else pub.matching()
+
+    def detach(self) -> None:
+        with self._cond:  # after a put in progress
+            self._pub = None
+
+    def attach(self, bus: Bus) -> None:
+        with self._cond:
+            self._pub = self._make(bus)
+            self._cond.notify_all()
+
+
 def capture_link(choice: str, frame_size: tuple[int, int]) -> LinkClass:
     """The link class of capture frames: ``best-effort`` (UDP, the paper's RTP), ``reliable`` (TCP),
     or ``auto``: reliable above :data:`RELIABLE_CAPTURE_ABOVE_PX` pixels, whose JPEGs span several UDP
@@ -61,13 +98,27 @@ class CameraLink:
         self.sender = RtpSender(ssrc_for(uav, 0))
         self.cache = cache
         # cache > 0 keeps the last frames for subscribers that ask (RTP retransmission-like recovery)
-        self.pub = bus.publisher(keys.camera(bus.fleet, uav), link, cache=cache or None)
+        self.pub = PublisherSlot(lambda b: b.publisher(keys.camera(b.fleet, uav), link, cache=cache or None), bus)
         self.encoder = FrameEncoder(self._publish, capacity=4, quality=quality)
         self.preview_stream = preview
         self.sent = 0
         # where a capture's time goes on the edge (protocol.stages; logged at close, bench/frame_path.py)
         self.times = StageTimes()
         self.announce()
+
+    def detach(self) -> None:
+        """Before the edge closes the session: frames encoded from now wait for :meth:`attach`."""
+        self.pub.detach()
+        if self.preview_stream is not None:
+            self.preview_stream.pub.detach()
+
+    def attach(self, bus: Bus) -> None:
+        """Publish on the edge's reopened session (the RTP stream and its sequence numbers go on)."""
+        self.bus = bus
+        self.pub.attach(bus)
+        if self.preview_stream is not None:
+            self.preview_stream.bus = bus
+            self.preview_stream.pub.attach(bus)
 
     def announce(self) -> None:
         """Open the stream with an empty RTP frame (marker 0, no payload) before the first capture."""
@@ -140,7 +191,8 @@ class PreviewStream:
         self.bus, self.uav, self.source, self.model, self.log = bus, uav, source, model, log
         self.period_s, self.quality = 1.0 / float(rate_hz), quality
         self.sender = RtpSender(ssrc_for(uav, PREVIEW_CAMERA))
-        self.pub = bus.publisher(keys.preview(bus.fleet, uav), IMAGERY)  # never a cache: best-effort only
+        # never a cache: best-effort only
+        self.pub = PublisherSlot(lambda b: b.publisher(keys.preview(b.fleet, uav), IMAGERY), bus)
         self._next_due = 0.0
         self._slot: tuple[tuple[float, ...], tuple[float, ...], float, float] | None = None
         self._cond = threading.Condition()

@@ -17,6 +17,8 @@ from protocol.messages import COMMAND_TYPES, Heartbeat, Message, Signed
 from protocol.signing import Refusal, TrustError, Verifier, unverified_inner
 
 if TYPE_CHECKING:
+    from protocol.keyset import KeySet
+
     from .config import EdgeConfig
 
 log = logging.getLogger("skynet.edge.trust")
@@ -117,8 +119,31 @@ def command_id(msg: Message) -> int:
     return 0
 
 
-def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
-    """The edge's gate and access control from its options: ``--keys DIR`` (verifier with the persisted
+class Admission:
+    """Which node certificates an edge's own sessions admit (its SkyNet peers and the gateway), read from the key
+    set: at the start and again, by :class:`protocol.keyset.AdmissionWatch`, as it changes beside the edge."""
+
+    def __init__(self, keyset: KeySet, fleet: str, mesh: set[str]):
+        self.keyset, self.fleet, self.mesh = keyset, fleet, frozenset(mesh)
+
+    def peers(self) -> list[str]:
+        """The admitted common names of the mesh's roles (``certs.txt``; a key set without it, older or a
+        vehicle's, admits the roles less the revoked ones)."""
+        from protocol.keyset import role_of_cn
+
+        ks = self.keyset
+        names = ks.admitted() if (ks.root / "certs.txt").exists() else sorted(self.mesh - ks.revoked_certs())
+        return [cn for cn in names if role_of_cn(cn) in self.mesh]
+
+    def access_control(self, peers: list[str]) -> dict:
+        """Zenoh's ACL admitting these common names (:func:`protocol.acl.cert_access_control`)."""
+        from protocol.acl import cert_access_control
+
+        return cert_access_control(self.fleet, peers)
+
+
+def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, Admission | None]:
+    """The edge's gate and certificate admission from its options: ``--keys DIR`` (verifier with the persisted
     replay window of ``DIR/uavN/replay.json``, ACL by certificate common name), or ``--insecure``.
 
     Without either the board runs insecure and says so loudly (``skynet up``/``mission`` always
@@ -129,22 +154,18 @@ def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, dict | None]:
             log.warning("INSECURE: uav%d obeys unsigned commands and heartbeats from anyone on the bus%s",
                         config.uav, "" if config.insecure else " (no --keys given)")
         return Gate(config.fleet, config.uav, None), None
-    from protocol.acl import cert_access_control
-    from protocol.keyset import KeySet, RevocationWatch, role_of_cn
+    from protocol.keyset import KeySet, RevocationWatch
 
     ks = KeySet(config.keys, f"uav{config.uav}")
     watch = RevocationWatch(ks)  # before the verifier reads revoked.txt, so that no change falls between them
     verifier = ks.verifier(stale_s=config.trust_window, replay_file=config.replay_state)
     n = config.mesh_uavs or max([config.uav, *ks.uavs()])
-    mesh = {"gateway", *(f"uav{i}" for i in range(1, n + 1))}
-    # certs.txt names the current certificates; a key set without it (older, or a vehicle's) admits the roles
-    names = ks.admitted() if (ks.root / "certs.txt").exists() else sorted(mesh - ks.revoked_certs())
-    peers = [cn for cn in names if role_of_cn(cn) in mesh]
+    admission = Admission(ks, config.fleet, {"gateway", *(f"uav{i}" for i in range(1, n + 1))})
     endpoints = [*config.listen, *config.connect]
     plain = [e for e in endpoints if not e.startswith("tls/")]
     if log:
-        log.info("trust: commands signed by %s, replay window %s; mutual TLS as uav%d, ACL by certificate for %s",
-                 ", ".join(ks.trusted()) or "nobody", verifier.replay.path, config.uav, ", ".join(peers))
+        log.info("trust: commands signed by %s, replay window %s", ", ".join(ks.trusted()) or "nobody",
+                 verifier.replay.path)
         if plain:
             log.warning("links without TLS (%s): no certificate there, so denied everything", ", ".join(plain))
-    return Gate(config.fleet, config.uav, verifier, revocations=watch), cert_access_control(config.fleet, peers)
+    return Gate(config.fleet, config.uav, verifier, revocations=watch), admission

@@ -197,3 +197,41 @@ class RevocationWatch:
             return None
         self._stamp, self._unreadable = stamp, False
         return kids
+
+
+class AdmissionWatch:
+    """The certificate common names a running node admits, read again as the key set changes beside it
+    (``skynet keys revoke|reissue``), so that the node can reopen its session with the new access control.
+
+    A change is taken once two reads ``min_interval_s`` apart agree on it (a key set being rewritten may be
+    read between its files' writes); a key set that does not read is logged once and the names stay."""
+
+    def __init__(self, read: Callable[[], list[str]], current: list[str], min_interval_s: float = 1.0,
+                 clock: Callable[[], float] = time.monotonic):
+        self._read, self.current, self._interval, self._clock = read, list(current), float(min_interval_s), clock
+        self._checked = clock()
+        self._pending: list[str] | None = None
+        self.unreadable = False
+
+    def __call__(self) -> list[str] | None:
+        """The admitted names when a change was just taken (``current`` is then those), else None."""
+        now = self._clock()
+        if now - self._checked < self._interval:
+            return None
+        self._checked = now
+        try:
+            names = list(self._read())
+        except (OSError, ValueError) as exc:
+            if not self.unreadable:
+                log.warning("key set unreadable (%s): the ACL stays as it is", exc)
+            self.unreadable = True
+            return None
+        self.unreadable = False
+        if names == self.current:
+            self._pending = None
+        elif names != self._pending:
+            self._pending = names
+        else:
+            self._pending, self.current = None, names
+            return names
+        return None

@@ -433,11 +433,11 @@ def main(argv: list[str] | None = None) -> int:
         try:
             if args.action == "revoke":
                 print(f"revoked {revoke(args.dir, args.key)} (a running gateway applies it within two periods, "
-                      f"an edge at its next start)")
+                      f"a running edge within about two seconds)")
             else:
                 print(f"{args.node}: new certificate {reissue(args.dir, args.node, args.days)}; give the node its "
                       f"folder (it restarts with it) and every node certs.txt and revoked.txt (a running gateway "
-                      f"applies them within two periods, an edge at its next start)")
+                      f"applies them within two periods, a running edge within about two seconds)")
         except (ValueError, OSError) as exc:
             print(f"skynet keys: {exc}", file=sys.stderr)
             return 2

@@ -196,6 +196,8 @@ class Relay:
         return now
 
     def _serve(self, bus: Bus, names: list[str]) -> list[str] | None:
+        from protocol.keyset import AdmissionWatch
+
         args, meter, log = self.args, self.meter, logging.getLogger(f"gateway-{self.args.id}")
         self.opened += 1
         log.info("router up, listening on %s", ", ".join(self.listen) or "(config file)")
@@ -204,8 +206,8 @@ class Relay:
         for key in keys.metered(args.fleet):  # not the previews: a meter would make every camera render them
             bus.subscribe_raw(key, lambda s: meter.observe(str(s.key_expr), len(s.payload)))
         pub = bus.publisher(keys.gateway_stats(args.fleet, args.id), TELEMETRY)
-        sessions, unreadable = 0, False
-        pending: list[str] | None = None
+        sessions = 0
+        watch = AdmissionWatch(lambda: admitted(args.keys), names, min_interval_s=0.0)
         while not self.stop.wait(args.period):
             counts = session_counts(bus)
             if sum(counts.values()) < sessions:
@@ -216,19 +218,8 @@ class Relay:
                         **{f"guard-{k}": v for g in self.guards for k, v in dict(g.counts).items() if k != "pass"}}
             pub.put(LinkStats(source=f"gateway/{args.id}", stamp=time.time(), uptime_s=time.time() - self.t0,
                               sessions=counts, classes=meter.classes(), rejected=rejected))
-            try:
-                now = admitted(args.keys)
-            except (OSError, ValueError) as exc:  # a key set being rewritten: the ACL stays as it is
-                if not unreadable:
-                    log.warning("key set unreadable (%s): the ACL stays as it is", exc)
-                unreadable = True
-                continue
-            unreadable = False
-            if now == names:
-                pending = None
-            elif now != pending:  # a change is applied once two reads a period apart agree on it
-                pending = now
-            else:
+            now = watch()
+            if now is not None:
                 gone, new = sorted(set(names) - set(now)), sorted(set(now) - set(names))
                 log.warning("key set changed (revoked: %s; admitted: %s); reopening the router so that its "
                             "sessions end", ", ".join(gone) or "none", ", ".join(new) or "none")

@@ -162,3 +162,46 @@ def test_a_burst_of_12_mp_sized_frames_on_the_reliable_imagery_link_loses_none(g
             pub.put_bytes(f)
         assert wait_until(lambda: len(got) >= len(frames), 30), f"{len(got)} of {len(frames)} frames arrived"
     assert got == frames
+
+
+class _Recorder:
+    def __init__(self, name: str) -> None:
+        self.name, self.got = name, []
+
+    def put_bytes(self, data: bytes) -> int:
+        self.got.append(data)
+        return len(data)
+
+    def matching(self) -> bool:
+        return True
+
+
+def test_a_frame_encoded_while_the_edge_reopens_its_session_goes_out_on_the_new_one():
+    """The edge reopens its session (a narrower ACL): a frame put while detached waits for the new session's
+    publisher and goes out there, never on the closed one; with no session within the wait it is an error."""
+    import threading
+
+    from edge.camera_service import PublisherSlot
+
+    made: list[_Recorder] = []
+
+    def make(bus: str) -> _Recorder:
+        made.append(_Recorder(bus))
+        return made[-1]
+
+    slot = PublisherSlot(make, "old", wait_s=5.0)  # type: ignore[arg-type]
+    slot.put_bytes(b"1")
+    slot.detach()
+    assert slot.matching() is False  # the preview does not render for a session being reopened
+    sender = threading.Thread(target=slot.put_bytes, args=(b"2",))
+    sender.start()
+    time.sleep(0.2)
+    assert sender.is_alive()  # waiting for the reopened session
+    slot.attach("new")  # type: ignore[arg-type]
+    sender.join(2.0)
+    assert [(r.name, r.got) for r in made] == [("old", [b"1"]), ("new", [b"2"])]
+    slot.detach()
+    short = PublisherSlot(make, "x", wait_s=0.05)  # type: ignore[arg-type]
+    short.detach()
+    with pytest.raises(ConnectionError, match="no session"):
+        short.put_bytes(b"3")

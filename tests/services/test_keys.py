@@ -225,6 +225,8 @@ def test_an_edge_acl_leaves_out_a_revoked_uav_and_names_a_reissued_one(tmp_path)
     pki.reissue(folder, "uav2")
     args = argparse.Namespace(uav=1, fleet="f", keys=str(folder), insecure=False, trust_window=10.0,
                               replay_state=None, mesh_uavs=3, listen=["tls/127.0.0.1:0"], connect=[])
-    _, acl = secure_setup(args)
+    _, admission = secure_setup(args)
+    assert admission is not None
+    acl = admission.access_control(admission.peers())
     names = {n for s in acl["subjects"] for n in s["cert_common_names"]}
     assert names == {"gateway", "uav1", "uav2.g2"}, names

@@ -357,3 +357,50 @@ def test_a_node_revoked_while_the_gateway_runs_is_cut_off_and_the_others_come_ba
     finally:
         for bus in (gcs, uav1, uav2):
             bus.close()
+
+
+def test_a_node_revoked_beside_a_running_edge_is_cut_off_at_the_edges_own_listener(tmp_path, group):
+    """``skynet keys revoke DIR uav2`` beside a running edge: the stolen uav2 certificate's session at uav1's own
+    listener (dialled directly, past the gateway) stops hearing uav1 within seconds and a new one hears nothing,
+    while uav1's board goes on (its states, their sequence continuing, reach the ground station again)."""
+    import shutil
+
+    from services.keys import main as keys_main
+
+    ks_dir = init(tmp_path / "keys", uavs=3)
+    stolen = tmp_path / "stolen"
+    stolen.mkdir()
+    for name in ("tls.pem", "tls.key"):
+        shutil.copy(ks_dir / "uav2" / name, stolen / name)
+    shutil.copy(ks_dir / "ca.pem", stolen / "ca.pem")
+    gw, edge1, uav1 = _network(group, ks_dir, "live")
+    thief = _as_uav2(stolen, edge1, "peer")
+    assert thief is not None
+    heard: list[int] = []
+    seqs: list[int] = []
+    try:
+        thief.subscribe(keys.state(FLEET, 1), lambda m, s: heard.append(m.seq), expect=VehicleState, link=TELEMETRY)
+        assert wait_until(lambda: len(heard) > 10, 10), "the stolen certificate did not reach uav1's listener"
+        before = heard[-1]
+        assert keys_main(["revoke", str(ks_dir), "uav2"]) == 0
+        assert wait_until(lambda: any("reopening the session" in ln for ln in uav1.lines), 15), uav1.lines[-10:]
+        time.sleep(1.0)
+        n = len(heard)
+        time.sleep(2.0)
+        assert len(heard) == n, f"the revoked certificate still hears uav1 ({len(heard) - n} states)"
+        again = _as_uav2(stolen, edge1, "peer")
+        if again is not None:  # the TLS handshake passes (same CA); the ACL then denies it everything
+            late: list[int] = []
+            again.subscribe(keys.state(FLEET, 1), lambda m, s: late.append(m.seq), expect=VehicleState,
+                            link=TELEMETRY)
+            time.sleep(2.0)
+            again.close()
+            assert not late, f"a new session of the revoked certificate heard {len(late)} states"
+        with Bus(tls(KeySet(ks_dir, "gcs"), "client", gw), FLEET, "gcs") as gcs:
+            gcs.subscribe(keys.state(FLEET, 1), lambda m, s: seqs.append(m.seq), expect=VehicleState,
+                          link=TELEMETRY)
+            assert wait_until(lambda: len(seqs) > 10, 15), uav1.lines[-10:]
+        assert min(seqs) > before, (before, seqs[:3])  # the same board: its sequence goes on
+        assert not any("Traceback" in ln for ln in uav1.lines), uav1.lines[-20:]
+    finally:
+        thief.close()
