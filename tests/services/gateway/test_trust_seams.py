@@ -128,7 +128,7 @@ def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
                     finally:
                         bus.close()
         assert all(probe.fresh(u) for u in (1, 2, 3)), probe.last
-        # revocation beside the running network, live at the launcher's gateway (an edge applies it at its start)
+        # revocation beside the running network, live at the launcher's gateway and edges (both reopen their sessions)
         assert keys_main(["revoke", str(tmp_path / "keys"), "uav2"]) == 0
         assert wait_until(lambda: not probe.fresh(2, within=2.0), 20), probe.last
         assert wait_until(lambda: probe.fresh(1) and probe.fresh(3), 20), probe.last
