@@ -11,14 +11,14 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-import zenoh
-
 from protocol import keys
 from protocol.budget import for_topic
-from protocol.bus import Bus, config_from_args, setup_logging, stop_event_on_signals
+from protocol.bus import Bus, Publisher, config_from_args, setup_logging, stop_event_on_signals
 from protocol.checks import xyz
 from protocol.links import COMMAND, TELEMETRY
 from protocol.messages import (
@@ -83,6 +83,17 @@ class BoardOptions:
         default_factory=lambda: {i + 1: xyz(o) for i, o in enumerate(formation.DEFAULT_OFFSETS)})
 
 
+class Unpublished:
+    """Where a board's messages go between two sessions: counted, then dropped."""
+
+    def __init__(self) -> None:
+        self.dropped = 0
+
+    def put(self, msg: Message) -> int:
+        self.dropped += 1
+        return 0
+
+
 class Board:
     """The board's logic, bound to a bus and a driver; :meth:`tick` is one control-loop pass."""
 
@@ -103,7 +114,20 @@ class Board:
         self.follower: Follower | None = None
         # only the formation's states: the cost per edge does not grow with the fleet
         self.neighbourhood = frozenset(neighbourhood_of(self.uav, options.formation_size))
+        self._between = Unpublished()
+        self.state_pub: Publisher | Unpublished
+        self.event_pub: Publisher | Unpublished
         self.bind(bus)
+
+    def detach(self) -> None:
+        """Before the board's session closes: until :meth:`bind` gives it the next one, its states and events
+        are counted (:attr:`dropped`) and dropped, never put on a closed session."""
+        self.state_pub = self.event_pub = self._between
+
+    @property
+    def dropped(self) -> int:
+        """States and events the board made between two sessions."""
+        return self._between.dropped
 
     def bind(self, bus: Bus) -> None:
         """Declare the board's publishers, subscriptions, command queryable and liveliness token on ``bus``;
@@ -159,8 +183,12 @@ class Board:
             self.event(EventKind.TRUST_REFUSED, text, Level.WARNING, what=what, count=n)
 
     def event(self, kind: EventKind, text: str, level: Level = Level.INFO, **data) -> None:
-        self.event_pub.put(Event(source=f"uav/{self.uav}", stamp=time.time(), kind=kind, level=level, text=text,
-                                 data=data))
+        msg = Event(source=f"uav/{self.uav}", stamp=time.time(), kind=kind, level=level, text=text, data=data)
+        try:
+            self.event_pub.put(msg)
+        except Exception as exc:  # a callback of a session closing under it (the edge reopening): dropped, counted
+            self._between.dropped += 1
+            logger.debug("event %s not sent: %s", kind, exc)
         if self.log:
             self.log.info("event %s: %s", kind, text)
 
@@ -369,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
 def run(config: EdgeConfig) -> int:
     """One UAV's board from its configuration, until SIGINT/SIGTERM. With a key set, the board's session is
     reopened when the certificates it admits change beside it (``skynet keys revoke``), so that a revoked
-    node's sessions at this edge's listener end (its state, the vehicle and the camera stream go on)."""
+    node's sessions at this edge's listener end; the board keeps ticking meanwhile (docs/security.md)."""
     log = setup_logging(f"uav{config.uav}")
     if config.nice:
         yield_cpu(config.nice)
@@ -390,24 +418,24 @@ def run(config: EdgeConfig) -> int:
         from protocol.keyset import AdmissionWatch
 
         watch = AdmissionWatch(admission.peers, admission.peers())
+    logged: list[list[str]] = []
+
+    def open_bus() -> Bus:
+        acl = None
+        if admission is not None and watch is not None:
+            acl = admission.access_control(watch.current)
+            if not logged or logged[-1] != watch.current:
+                logged.append(watch.current)
+                log.info("mutual TLS as uav%d, ACL by certificate for %s", config.uav, ", ".join(watch.current))
+        return Bus(config_from_args(config, role=f"uav{config.uav}", access_control=acl), fleet=config.fleet,
+                   name=f"uav{config.uav}")
+
     loop = ControlLoop(config.rate, stop, log)
     board: Board | None = None
     camera = None
     try:
-        while not stop.is_set():
-            acl = None
-            if admission is not None and watch is not None:
-                acl = admission.access_control(watch.current)
-                log.info("mutual TLS as uav%d, ACL by certificate for %s", config.uav, ", ".join(watch.current))
-            try:
-                bus = Bus(config_from_args(config, role=f"uav{config.uav}", access_control=acl), fleet=config.fleet,
-                          name=f"uav{config.uav}")
-            except zenoh.ZError as exc:  # a reopen that cannot bind yet (the old listener not released): retry
-                if board is None:
-                    raise
-                log.warning("session did not reopen (%s); retrying in 0.5 s", exc)
-                stop.wait(0.5)
-                continue
+        bus: Bus | None = open_bus()  # the first session: a failure ends the edge with its reason
+        while bus is not None:
             with bus:
                 if board is None:
                     camera = make_camera(config, bus, log)
@@ -420,16 +448,18 @@ def run(config: EdgeConfig) -> int:
                     if camera is not None:
                         camera.attach(bus)
                 changed = loop.run(board, watch)
-                if changed is not None:
-                    log.warning("key set changed (admitted now: %s); reopening the session so that a revoked "
-                                "node's sessions end", ", ".join(changed) or "none")
+                if changed is None:
+                    log.info("shutting down")
                     if camera is not None:
-                        camera.detach()
-                    continue
-                log.info("shutting down")
+                        camera.close()
+                        camera = None
+                    break
+                log.warning("key set changed (admitted now: %s); reopening the session so that a revoked "
+                            "node's sessions end", ", ".join(changed) or "none")
+                board.detach()  # before the session closes: what the board says meanwhile is counted, dropped
                 if camera is not None:
-                    camera.close()
-                    camera = None
+                    camera.detach()
+            bus = loop.reopen(board, open_bus)
     finally:
         if camera is not None:
             camera.close()
@@ -438,17 +468,21 @@ def run(config: EdgeConfig) -> int:
 
 
 class ControlLoop:
-    """The board's ticks at ``rate`` Hz until ``stop``, or until the key set's admitted certificates change."""
+    """The board's ticks at ``rate`` Hz until ``stop``, until the key set's admitted certificates change, or while
+    its next session opens."""
+
+    #: seconds between attempts to reopen a session that did not open
+    RETRY_S = 0.5
 
     def __init__(self, rate: float, stop: threading.Event, log: logging.Logger):
         self.period, self.stop, self.log = 1.0 / rate, stop, log
         self.tick_errors = 0
 
-    def run(self, board: Board, watch) -> list[str] | None:
-        """Tick until stopped (None) or until ``watch`` (:class:`protocol.keyset.AdmissionWatch`) takes a change
-        (the names admitted now)."""
+    def run(self, board: Board, watch=None, until: Callable[[], bool] | None = None) -> list[str] | None:
+        """Tick until stopped or ``until()`` (None), or until ``watch`` (:class:`protocol.keyset.AdmissionWatch`)
+        takes a change (the names admitted now)."""
         next_t = time.monotonic()
-        while not self.stop.is_set():
+        while not self.stop.is_set() and not (until is not None and until()):
             try:
                 board.tick()
             except Exception:  # nothing a neighbour or the link sends may end the board: counted, logged once
@@ -465,6 +499,41 @@ class ControlLoop:
                 next_t = time.monotonic()
             self.stop.wait(max(0.0, delay))
         return None
+
+    def reopen(self, board: Board, open_bus: Callable[[], Bus]) -> Bus | None:
+        """The next session, opened on a thread while the board keeps ticking (vehicle, failsafe checks,
+        captures), and tried again every :data:`RETRY_S` until it opens: without a session no heartbeat
+        arrives, so the link failsafe decides what the vehicle does. None when stopped meanwhile."""
+        failures = 0
+        while not self.stop.is_set():
+            pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="reopen")
+            opening = pool.submit(open_bus)
+            pool.shutdown(wait=False)
+            self.run(board, until=opening.done)
+            if self.stop.is_set():
+                opening.add_done_callback(_close_opened)
+                return None
+            try:
+                bus = opening.result()
+            except Exception as exc:  # the old listener not released yet, a key set mid-edit, ...
+                failures += 1
+                if failures == 1:
+                    self.log.warning("session did not reopen (%s); trying again every %g s, the board flying on",
+                                     str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__,
+                                     self.RETRY_S)
+                deadline = time.monotonic() + self.RETRY_S
+                self.run(board, until=lambda: time.monotonic() >= deadline)
+                continue
+            if failures:
+                self.log.info("session reopened after %d failed attempt(s)", failures)
+            return bus
+        return None
+
+
+def _close_opened(opening: Future) -> None:
+    """A session that opened after the edge was told to stop."""
+    if opening.exception() is None:
+        opening.result().close()
 
 
 if __name__ == "__main__":

@@ -47,19 +47,38 @@ REBIND_WAIT_S = 10.0
 class PublisherSlot:
     """A stream's publisher that outlives its session: :meth:`detach` before the session closes, :meth:`attach`
     on the reopened one; a put in between waits for it (up to ``wait_s``), so no frame is sent on a closed
-    session nor lost to a reopen that the edge makes to apply a narrower ACL."""
+    session nor lost to a reopen that the edge makes to apply a narrower ACL. A put runs outside the slot's
+    lock (a blocked reliable put never holds up :meth:`detach`); one that fails because the session closed
+    under it is tried once more on the next one."""
 
     def __init__(self, make: Callable[[Bus], Publisher], bus: Bus, wait_s: float = REBIND_WAIT_S):
         self._make, self._wait_s = make, wait_s
         self._cond = threading.Condition()
         self._pub: Publisher | None = make(bus)
+        self._closed = False
+
+    @property
+    def detached(self) -> bool:
+        return self._pub is None
+
+    def _current(self) -> Publisher:
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._pub is not None or self._closed, self._wait_s) \
+                    or self._pub is None:
+                raise ConnectionError("the camera is closed" if self._closed else
+                                      f"no session to publish on for {self._wait_s:g} s")
+            return self._pub
 
     def put_bytes(self, data: bytes) -> int:
-        """Put ``data`` on the current session's publisher; ConnectionError when none came within ``wait_s``."""
-        with self._cond:
-            if not self._cond.wait_for(lambda: self._pub is not None, self._wait_s) or self._pub is None:
-                raise ConnectionError(f"no session to publish on for {self._wait_s:g} s")
-            return self._pub.put_bytes(data)
+        """Put ``data`` on the current session's publisher; ConnectionError when none came within ``wait_s``
+        or the slot was closed meanwhile."""
+        pub = self._current()
+        try:
+            return pub.put_bytes(data)
+        except Exception:
+            if self._pub is pub:  # not a session closing under the put: the error is the put's own
+                raise
+        return self._current().put_bytes(data)
 
     def matching(self) -> bool | None:
         """:meth:`protocol.bus.Publisher.matching`; False while detached."""
@@ -67,12 +86,18 @@ class PublisherSlot:
         return False if pub is None else pub.matching()
 
     def detach(self) -> None:
-        with self._cond:  # after a put in progress
+        with self._cond:
             self._pub = None
 
     def attach(self, bus: Bus) -> None:
         with self._cond:
             self._pub = self._make(bus)
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        """Puts waiting for a session (and later ones) fail at once."""
+        with self._cond:
+            self._closed = True
             self._cond.notify_all()
 
 
@@ -174,9 +199,13 @@ class CameraLink:
         return self.preview_stream.offer(pos, att, t, now_wall)
 
     def close(self) -> None:
+        if self.pub.detached:  # stopped between two sessions: what is queued cannot go out, so do not wait for it
+            self.pub.close()
         if self.preview_stream is not None:
+            self.preview_stream.pub.close()
             self.preview_stream.close()
         self.encoder.close()
+        self.pub.close()
         self.source.close()
         if self.log and self.times.stages:
             self.log.info("%s uav%d %s", LOG_PREFIX, self.uav, json.dumps(self.times.summary()))

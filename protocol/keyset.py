@@ -208,7 +208,7 @@ class AdmissionWatch:
 
     def __init__(self, read: Callable[[], list[str]], current: list[str], min_interval_s: float = 1.0,
                  clock: Callable[[], float] = time.monotonic):
-        self._read, self.current, self._interval, self._clock = read, list(current), float(min_interval_s), clock
+        self._read, self.current, self._interval, self._clock = read, sorted(current), float(min_interval_s), clock
         self._checked = clock()
         self._pending: list[str] | None = None
         self.unreadable = False
@@ -220,7 +220,7 @@ class AdmissionWatch:
             return None
         self._checked = now
         try:
-            names = list(self._read())
+            names = sorted(self._read())  # the order of certs.txt's lines is not a change
         except (OSError, ValueError) as exc:
             if not self.unreadable:
                 log.warning("key set unreadable (%s): the ACL stays as it is", exc)

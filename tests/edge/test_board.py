@@ -231,3 +231,57 @@ def test_yield_cpu_lowers_the_priority_of_the_process_and_of_its_session_group()
     # not a session leader (run from a shell): the session's group, shared with the shell, is left alone
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout.split()[2] == "None", (out.stdout, out.stderr)
+
+
+class _Ticks:
+    """A board that only counts its control-loop passes."""
+
+    def __init__(self) -> None:
+        self.ticks = 0
+
+    def tick(self) -> None:
+        self.ticks += 1
+
+
+class _Session:
+    def __init__(self) -> None:
+        self.closed = False
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_the_board_keeps_ticking_while_its_session_reopens_and_retries(caplog):
+    """Between two sessions (the edge applying a narrower ACL) the control loop never stops: the vehicle, the
+    failsafe checks and the captures go on while the next session opens, and while a failed one is retried."""
+    import logging
+    import threading
+
+    from edge.board import ControlLoop
+
+    stop = threading.Event()
+    loop = ControlLoop(50.0, stop, logging.getLogger("test-reopen"))
+    board, attempts, opened = _Ticks(), [], _Session()
+
+    def open_bus():
+        attempts.append(board.ticks)
+        time.sleep(0.3)  # a peer's open takes a while even when it succeeds
+        if len(attempts) < 3:
+            raise OSError("address already in use")
+        return opened
+
+    with caplog.at_level(logging.WARNING, logger="test-reopen"):
+        assert loop.reopen(board, open_bus) is opened  # type: ignore[arg-type]
+    assert len(attempts) == 3 and board.ticks > 40, (attempts, board.ticks)  # ~1.5 s at 50 Hz, never paused
+    assert attempts[1] - attempts[0] >= 10 and attempts[2] - attempts[1] >= 10  # ticked through each try
+    assert sum("did not reopen" in r.message for r in caplog.records) == 1  # said once, not per retry
+
+    late = _Session()
+
+    def slow_open():
+        time.sleep(0.5)
+        return late
+
+    threading.Timer(0.1, stop.set).start()
+    assert loop.reopen(board, slow_open) is None  # type: ignore[arg-type]  # stopped while opening
+    assert _wait(lambda: late.closed, 3.0)  # the session that opened after the stop is closed

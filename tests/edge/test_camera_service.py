@@ -205,3 +205,52 @@ def test_a_frame_encoded_while_the_edge_reopens_its_session_goes_out_on_the_new_
     short.detach()
     with pytest.raises(ConnectionError, match="no session"):
         short.put_bytes(b"3")
+
+
+class _Blocking(_Recorder):
+    """A reliable put blocked by a subscriber that stopped reading; or one whose session closes under it."""
+
+    def __init__(self, name: str, release, fail: bool = False) -> None:
+        super().__init__(name)
+        self.release, self.fail = release, fail
+
+    def put_bytes(self, data: bytes) -> int:
+        self.release.wait(5.0)
+        if self.fail:
+            raise RuntimeError("session closed")
+        return super().put_bytes(data)
+
+
+def test_a_blocked_put_never_holds_up_a_reopen_and_one_whose_session_closed_goes_to_the_next():
+    import threading
+
+    from edge.camera_service import PublisherSlot
+
+    release = threading.Event()
+    made: list[_Recorder] = []
+
+    def make(bus: str) -> _Recorder:
+        made.append(_Blocking(bus, release, fail=bus == "old") if bus == "old" else _Recorder(bus))
+        return made[-1]
+
+    slot = PublisherSlot(make, "old", wait_s=5.0)  # type: ignore[arg-type]
+    sender = threading.Thread(target=slot.put_bytes, args=(b"1",))
+    sender.start()
+    time.sleep(0.1)
+    t0 = time.monotonic()
+    slot.detach()  # the put is still blocked: detach does not wait for it
+    assert time.monotonic() - t0 < 0.5
+    slot.attach("new")  # type: ignore[arg-type]
+    release.set()  # the old session closes under the put: it goes out on the new one
+    sender.join(2.0)
+    assert not sender.is_alive() and made[1].got == [b"1"]
+    slot.detach()
+    waiting = threading.Thread(target=lambda: pytest.raises(ConnectionError, slot.put_bytes, b"2"))
+    waiting.start()
+    time.sleep(0.1)
+    t0 = time.monotonic()
+    slot.close()  # the edge stopping between two sessions: no 5 s wait per queued frame
+    waiting.join(2.0)
+    assert not waiting.is_alive() and time.monotonic() - t0 < 1.0
+    with pytest.raises(ConnectionError, match="closed"):
+        slot.put_bytes(b"3")

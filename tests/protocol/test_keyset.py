@@ -80,3 +80,7 @@ def test_a_change_of_the_admitted_certificates_is_taken_once_two_reads_agree(cap
             assert watch() is None
     assert sum("key set unreadable" in r.message and "line 3" in r.message for r in caplog.records) == 1
     assert watch.current == ["gateway", "uav1", "uav2.g2"]
+    on_disk["names"] = ["uav2.g2", "gateway", "uav1"]  # the same names in another order: no change, no reopen
+    for t in (11.0, 12.0, 13.0):
+        clock.t = t
+        assert watch() is None
