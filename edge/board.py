@@ -459,7 +459,11 @@ def run(config: EdgeConfig) -> int:
                 board.detach()  # before the session closes: what the board says meanwhile is counted, dropped
                 if camera is not None:
                     camera.detach()
+            dropped = board.dropped
             bus = loop.reopen(board, open_bus)
+            if bus is not None:
+                log.info("session reopened: %d states and events made between the two sessions were dropped",
+                         board.dropped - dropped)
     finally:
         if camera is not None:
             camera.close()

@@ -384,6 +384,7 @@ def test_a_node_revoked_beside_a_running_edge_is_cut_off_at_the_edges_own_listen
         before = heard[-1]
         assert keys_main(["revoke", str(ks_dir), "uav2"]) == 0
         assert wait_until(lambda: any("reopening the session" in ln for ln in uav1.lines), 15), uav1.lines[-10:]
+        assert wait_until(lambda: any("session reopened:" in ln and "were dropped" in ln for ln in uav1.lines), 10)
         time.sleep(1.0)
         n = len(heard)
         time.sleep(2.0)
