@@ -98,7 +98,7 @@ class Board:
     """The board's logic, bound to a bus and a driver; :meth:`tick` is one control-loop pass."""
 
     def __init__(self, bus: Bus, driver, clock, options: BoardOptions, camera=None, log=None, gate: Gate | None = None):
-        self.bus, self.driver, self.clock, self.opt, self.camera = bus, driver, clock, options, camera
+        self.driver, self.clock, self.opt, self.camera = driver, clock, options, camera
         # signed commands and heartbeats, bodies bound to keys (edge.trust); no verifier = --insecure
         self.gate = gate or Gate(bus.fleet, options.uav, None)
         self.log = log
@@ -413,20 +413,12 @@ def run(config: EdgeConfig) -> int:
                         geofence=config.geofence, formation_gain=config.formation_gain,
                         formation_size=config.formation_size)
     gate, admission = secure_setup(config, log)
-    watch = None
-    if admission is not None:
-        from protocol.keyset import AdmissionWatch
-
-        watch = AdmissionWatch(admission.peers, admission.peers())
-    logged: list[list[str]] = []
+    watch = admission.watch if admission is not None else None
+    if watch is not None:  # a change is logged where it is taken (below)
+        log.info("mutual TLS as uav%d, ACL by certificate for %s", config.uav, ", ".join(watch.current))
 
     def open_bus() -> Bus:
-        acl = None
-        if admission is not None and watch is not None:
-            acl = admission.access_control(watch.current)
-            if not logged or logged[-1] != watch.current:
-                logged.append(watch.current)
-                log.info("mutual TLS as uav%d, ACL by certificate for %s", config.uav, ", ".join(watch.current))
+        acl = admission.access_control() if admission is not None else None
         return Bus(config_from_args(config, role=f"uav{config.uav}", access_control=acl), fleet=config.fleet,
                    name=f"uav{config.uav}")
 

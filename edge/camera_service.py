@@ -119,7 +119,7 @@ class CameraLink:
     def __init__(self, bus: Bus, uav: int, source, model, surface=None, log: logging.Logger | None = None,
                  quality: int = 85, cache: int = IMAGERY_CACHE_FRAMES, preview: PreviewStream | None = None,
                  link: LinkClass = IMAGERY):
-        self.bus, self.uav, self.source, self.model, self.surface, self.log = bus, uav, source, model, surface, log
+        self.uav, self.source, self.model, self.surface, self.log = uav, source, model, surface, log
         self.sender = RtpSender(ssrc_for(uav, 0))
         self.cache = cache
         # cache > 0 keeps the last frames for subscribers that ask (RTP retransmission-like recovery)
@@ -139,10 +139,8 @@ class CameraLink:
 
     def attach(self, bus: Bus) -> None:
         """Publish on the edge's reopened session (the RTP stream and its sequence numbers go on)."""
-        self.bus = bus
         self.pub.attach(bus)
         if self.preview_stream is not None:
-            self.preview_stream.bus = bus
             self.preview_stream.pub.attach(bus)
 
     def announce(self) -> None:
@@ -217,7 +215,7 @@ class PreviewStream:
 
     def __init__(self, bus: Bus, uav: int, source, model, rate_hz: float = PREVIEW_HZ,
                  quality: int = PREVIEW_QUALITY, log: logging.Logger | None = None):
-        self.bus, self.uav, self.source, self.model, self.log = bus, uav, source, model, log
+        self.uav, self.source, self.model, self.log = uav, source, model, log
         self.period_s, self.quality = 1.0 / float(rate_hz), quality
         self.sender = RtpSender(ssrc_for(uav, PREVIEW_CAMERA))
         # never a cache: best-effort only

@@ -121,10 +121,13 @@ def command_id(msg: Message) -> int:
 
 class Admission:
     """Which node certificates an edge's own sessions admit (its SkyNet peers and the gateway), read from the key
-    set: at the start and again, by :class:`protocol.keyset.AdmissionWatch`, as it changes beside the edge."""
+    set at the start and again, by :attr:`watch` (:class:`protocol.keyset.AdmissionWatch`), as it changes."""
 
     def __init__(self, keyset: KeySet, fleet: str, mesh: set[str]):
+        from protocol.keyset import AdmissionWatch
+
         self.keyset, self.fleet, self.mesh = keyset, fleet, frozenset(mesh)
+        self.watch = AdmissionWatch(self.peers, self.peers())
 
     def peers(self) -> list[str]:
         """The admitted common names of the mesh's roles (``certs.txt``; a key set without it, older or a
@@ -135,11 +138,11 @@ class Admission:
         names = ks.admitted() if (ks.root / "certs.txt").exists() else sorted(self.mesh - ks.revoked_certs())
         return [cn for cn in names if role_of_cn(cn) in self.mesh]
 
-    def access_control(self, peers: list[str]) -> dict:
-        """Zenoh's ACL admitting these common names (:func:`protocol.acl.cert_access_control`)."""
+    def access_control(self) -> dict:
+        """Zenoh's ACL admitting the names admitted now (:func:`protocol.acl.cert_access_control`)."""
         from protocol.acl import cert_access_control
 
-        return cert_access_control(self.fleet, peers)
+        return cert_access_control(self.fleet, self.watch.current)
 
 
 def secure_setup(config: EdgeConfig, log=None) -> tuple[Gate, Admission | None]:

@@ -227,6 +227,6 @@ def test_an_edge_acl_leaves_out_a_revoked_uav_and_names_a_reissued_one(tmp_path)
                               replay_state=None, mesh_uavs=3, listen=["tls/127.0.0.1:0"], connect=[])
     _, admission = secure_setup(args)
     assert admission is not None
-    acl = admission.access_control(admission.peers())
+    acl = admission.access_control()
     names = {n for s in acl["subjects"] for n in s["cert_common_names"]}
     assert names == {"gateway", "uav1", "uav2.g2"}, names

@@ -132,6 +132,9 @@ def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
         assert keys_main(["revoke", str(tmp_path / "keys"), "uav2"]) == 0
         assert wait_until(lambda: not probe.fresh(2, within=2.0), 20), probe.last
         assert wait_until(lambda: probe.fresh(1) and probe.fresh(3), 20), probe.last
+        assert wait_until(lambda: all(any("reopening the session" in ln for ln in net.group.get(f"uav{u}").lines)
+                                      for u in (1, 3)), 20)  # the launcher's edges applied it too
+        assert wait_until(lambda: probe.fresh(1) and probe.fresh(3), 20), probe.last
         assert not probe.answered(2) and probe.answered(1)
         time.sleep(2.0)
         assert not probe.fresh(2, within=2.0) and probe.fresh(1) and probe.fresh(3), probe.last
@@ -151,6 +154,17 @@ def test_an_impaired_network_keeps_identities_and_the_acl(tmp_path):
         if probe is not None:
             probe.close()
         net.stop()
+
+
+def _copy_identity(ks_dir, node: str, folder):
+    """A node's certificate, key and CA copied out of the key set (a stolen one, or a superseded one)."""
+    import shutil
+
+    folder.mkdir()
+    for name in ("tls.pem", "tls.key"):
+        shutil.copy(ks_dir / node / name, folder / name)
+    shutil.copy(ks_dir / "ca.pem", folder / "ca.pem")
+    return folder
 
 
 def _as_uav2(cert_dir, where: list[str], mode: str) -> Bus | None:
@@ -186,16 +200,10 @@ def _network(group, ks_dir, tag: str) -> tuple[list[str], list[str], object]:
 def test_a_revoked_node_is_refused_by_the_gateway_and_an_edge_and_a_reissued_one_admitted(tmp_path, group):
     """``skynet keys revoke DIR uav2``: after the restart, uav2's certificate gets nothing through the gateway and an
     edge ignores it; ``skynet keys reissue DIR uav2`` (same CA): the new certificate is admitted, the old one not."""
-    import shutil
-
     from services.keys import main as keys_main
 
     ks_dir = init(tmp_path / "keys", uavs=3)
-    stolen = tmp_path / "stolen"
-    stolen.mkdir()
-    for name in ("tls.pem", "tls.key"):
-        shutil.copy(ks_dir / "uav2" / name, stolen / name)
-    shutil.copy(ks_dir / "ca.pem", stolen / "ca.pem")
+    stolen = _copy_identity(ks_dir, "uav2", tmp_path / "stolen")
     assert keys_main(["revoke", str(ks_dir), "uav2"]) == 0
     assert "uav2" not in KeySet(ks_dir, "gcs").admitted()
 
@@ -222,11 +230,7 @@ def test_a_revoked_node_is_refused_by_the_gateway_and_an_edge_and_a_reissued_one
     admitted = KeySet(ks_dir, "gcs").admitted()
     assert "uav2.g2" in admitted and "uav2" not in admitted
     group.stop()  # restart: the nodes read the key set at start
-    new = tmp_path / "new"
-    new.mkdir()
-    for name in ("tls.pem", "tls.key"):
-        shutil.copy(ks_dir / "uav2" / name, new / name)
-    shutil.copy(ks_dir / "ca.pem", new / "ca.pem")
+    new = _copy_identity(ks_dir, "uav2", tmp_path / "new")
     again = ServiceGroup(echo=None)
     try:
         gw, edge1, uav1 = _network(again, ks_dir, "reissued")
@@ -363,16 +367,10 @@ def test_a_node_revoked_beside_a_running_edge_is_cut_off_at_the_edges_own_listen
     """``skynet keys revoke DIR uav2`` beside a running edge: the stolen uav2 certificate's session at uav1's own
     listener (dialled directly, past the gateway) stops hearing uav1 within seconds and a new one hears nothing,
     while uav1's board goes on (its states, their sequence continuing, reach the ground station again)."""
-    import shutil
-
     from services.keys import main as keys_main
 
     ks_dir = init(tmp_path / "keys", uavs=3)
-    stolen = tmp_path / "stolen"
-    stolen.mkdir()
-    for name in ("tls.pem", "tls.key"):
-        shutil.copy(ks_dir / "uav2" / name, stolen / name)
-    shutil.copy(ks_dir / "ca.pem", stolen / "ca.pem")
+    stolen = _copy_identity(ks_dir, "uav2", tmp_path / "stolen")
     gw, edge1, uav1 = _network(group, ks_dir, "live")
     thief = _as_uav2(stolen, edge1, "peer")
     assert thief is not None
