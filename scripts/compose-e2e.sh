@@ -179,6 +179,22 @@ for ep in sys.argv[1:]:
     else
       cat "$WORK/probe.log"; log "FAIL: secure: a plain client must be refused and a TLS one with the gcs certificate admitted"; failed=1
     fi
+    # a node revoked the compose way (docs/compose.md: `exec keys skynet keys revoke /keys NODE`, the keys service
+    # holds the set read-write) reaches the running gateway through its read-only mount, live
+    t=$(now)
+    local seen=""
+    if compose exec -T keys skynet keys revoke /keys planner >>"$WORK/probe.log" 2>&1; then
+      for _ in $(seq 1 40); do
+        compose logs --no-color gateway 2>/dev/null | grep -q "key set changed (revoked: planner" && { seen=1; break; }
+        sleep 0.5
+      done
+    fi
+    if [ -n "$seen" ]; then
+      log "secure: planner revoked through the keys service; the running gateway reopened without it ($(since "$t") s)"
+    else
+      cat "$WORK/probe.log"; compose logs --no-color gateway 2>/dev/null | tail -n 20
+      log "FAIL: secure: a node revoked through the keys service must reach the running gateway within 20 s"; failed=1
+    fi
   else
     cat "$WORK/probe.log"; log "FAIL: secure: could not start the gateway for the probe"; failed=1
   fi
