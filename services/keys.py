@@ -57,16 +57,34 @@ def _is_role(name: str) -> bool:
         return False
 
 
+def _owner(path: Path) -> tuple[int, int] | None:
+    """Whom a file root writes at ``path`` belongs to: the file it replaces, else its folder (None when not root).
+    Root rewriting a user's key set (``docker compose exec keys skynet keys revoke /keys uav2``) leaves it
+    theirs, private keys readable by them as before."""
+    if os.geteuid() != 0:
+        return None
+    for p in (path, path.parent):
+        try:
+            st = p.stat()
+        except FileNotFoundError:
+            continue
+        return st.st_uid, st.st_gid
+    return None
+
+
 def _write(path: Path, data: bytes, private: bool = False) -> None:
     """Write ``path`` whole or not at all (a temporary file renamed over it): a running gateway reads
     ``certs.txt`` and ``revoked.txt`` while they are rewritten, and an empty read would revoke everyone."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    owner = _owner(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)  # mode 0600, name unique
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         if not private:
             os.chmod(tmp, 0o644)
+        if owner is not None:
+            os.chown(tmp, *owner)
     except BaseException:
         os.unlink(tmp)
         raise

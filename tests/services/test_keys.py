@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import stat
 
 import pytest
@@ -198,6 +199,21 @@ def test_reissue_gives_a_new_generation_and_revokes_the_old_certificate_and_key(
     assert len(KeySet(folder, "uav1").trusted()["gcs"]) == 1 and len(ks.revoked()) == 3
     with pytest.raises(ValueError, match="no node"):
         pki.reissue(folder, "uav7")
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="changing a file's owner needs root")
+def test_root_revoking_and_reissuing_in_a_users_set_leaves_every_file_theirs(tmp_path):
+    # compose: the keys service runs as root on the user's bind-mounted set (docs/compose.md)
+    folder = pki.init(tmp_path / "k", uavs=2)
+    uid, gid = 4321, 4322
+    for p in [folder, *folder.rglob("*")]:
+        os.chown(p, uid, gid)
+    pki.revoke(folder, "uav1")
+    pki.reissue(folder, "uav2")
+    pki.reissue(folder, "gcs")
+    owners = {(p.relative_to(folder).as_posix(), p.stat().st_uid, p.stat().st_gid) for p in folder.rglob("*")}
+    assert {(o[1], o[2]) for o in owners} == {(uid, gid)}, sorted(o for o in owners if o[1:] != (uid, gid))
+    assert stat.S_IMODE((folder / "uav2" / "tls.key").stat().st_mode) == 0o600
 
 
 def test_revoked_names_and_admitted_names_are_read_and_checked(tmp_path):
