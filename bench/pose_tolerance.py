@@ -1,0 +1,81 @@
+"""How much pose error the inspection deliverable takes: the nominal wall's captures at the planned shots, each
+frame's camera position moved along the wall by a random offset, the deliverable rebuilt and scored.
+
+    .venv/bin/python bench/pose_tolerance.py [--sigmas-m 0 0.01 0.02 0.03 0.05 0.1] [--seeds 3]
+                                             [--scenario monorail] [--out bench/results/pose_tolerance.json]
+
+The mosaic places frames by their poses alone (docs/report.md, services/inspection/mosaic.py). The frames are
+segmented once (IT+, each component confirmed by the learned model: the deliverable's own), then for each
+standard deviation (metres, per axis of the wall plane) and seed every frame's ``cam_pos`` gets its own offset,
+and the deliverable is built and compared with the wall's truth (services/inspection/accuracy.py): defects, true
+cracks found, defects on no true crack, worst length error. Prints a table and writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from edge.world.wall import synthetic_surface  # noqa: E402
+from protocol.scenario import load_scenario  # noqa: E402
+from services.inspection.accuracy import compare, truth_cracks  # noqa: E402
+from services.inspection.captures import decode, synthetic_captures  # noqa: E402
+from services.inspection.deliverable import inspect_frames, segment  # noqa: E402
+from services.inspection.mosaic import Plane, PosedFrame  # noqa: E402
+
+
+def jittered(frames: list[PosedFrame], plane: Plane, sigma_m: float, seed: int) -> list[PosedFrame]:
+    """``frames`` with each camera position moved by N(0, sigma_m) along each axis of ``plane``."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for f in frames:
+        du, dv = rng.normal(0.0, sigma_m, 2)
+        pos = np.asarray(f.meta.cam_pos, float) + du * plane.u_axis + dv * plane.v_axis
+        out.append(PosedFrame(f.meta.model_copy(update={"cam_pos": tuple(float(x) for x in pos)}), f.grey, f.mask))
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenario", default="monorail")
+    ap.add_argument("--sigmas-m", type=float, nargs="+", default=[0.0, 0.01, 0.02, 0.03, 0.05, 0.1])
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "pose_tolerance.json")
+    a = ap.parse_args()
+    sc = load_scenario(a.scenario)
+    surf = synthetic_surface(sc)
+    plane = Plane.from_corners(surf.corners)
+    t0 = time.perf_counter()
+    seg = segment([PosedFrame(c.meta, decode(c)) for c in synthetic_captures(sc, surf)])
+    s = 1.0 / surf.px_per_m
+    truth, labels = truth_cracks(surf.mask, s)
+    rows = []
+    print("| sigma (cm) | seed | defects | true cracks found | defects on no crack | worst length error |")
+    print("|---|---|---|---|---|---|")
+    for sigma in a.sigmas_m:
+        for seed in range(a.seeds if sigma > 0 else 1):
+            res = inspect_frames(jittered(seg, plane, sigma, seed), plane)
+            acc = compare(res.defects, truth, labels, s, gsd_m=res.mosaic.m_per_px).summary
+            row = {"sigma_m": sigma, "seed": seed, "defects": len(res.defects), "truth": acc["truth"],
+                   "matched": acc["matched"], "unmatched_defects": acc["unmatched_defects"],
+                   "length_error_worst": acc["length_error_worst"]}
+            rows.append(row)
+            worst = "–" if row["length_error_worst"] is None else f"{100 * row['length_error_worst']:.1f} %"
+            print(f"| {100 * sigma:g} | {seed} | {row['defects']} | {row['matched']} of {row['truth']} | "
+                  f"{row['unmatched_defects']} | {worst} |", flush=True)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    a.out.write_text(json.dumps({"scenario": a.scenario, "frames": len(seg), "rows": rows,
+                                 "seconds": time.perf_counter() - t0}, indent=1))
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
