@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from protocol.messages import Mode, Trajectory, VehicleState
 
-__all__ = ["DriverState", "CaptureEvent", "VehicleDriver"]
+__all__ = ["DriverState", "CaptureEvent", "VehicleDriver", "shutter_position", "MAX_DEAD_RECKON_S"]
 
 Vec3 = tuple[float, float, float]
 
@@ -51,6 +51,24 @@ class CaptureEvent:
     t: float
     pos: Vec3
     att: Vec3
+
+
+#: the longest a position report is carried forward to the shutter (mission seconds): older telemetry is a link
+#: problem, not an age to extrapolate over
+MAX_DEAD_RECKON_S = 0.5
+
+
+def shutter_position(pos: Vec3, vel: Vec3, age_s: float, max_age_s: float = MAX_DEAD_RECKON_S) -> Vec3:
+    """Where the vehicle is at the shutter, from a position report ``age_s`` mission seconds old: the report
+    dead-reckoned at its own velocity, ``pos + vel * min(age_s, max_age_s)`` (``pos`` for a bad or negative age).
+
+    >>> shutter_position((1.0, 2.0, 3.0), (2.0, 0.0, -1.0), 0.05)
+    (1.1, 2.0, 2.95)
+    """
+    if not (math.isfinite(age_s) and age_s > 0.0):
+        return pos
+    a = min(age_s, max_age_s)
+    return (pos[0] + vel[0] * a, pos[1] + vel[1] * a, pos[2] + vel[2] * a)
 
 
 def check_vec3(v: object, name: str) -> Vec3:

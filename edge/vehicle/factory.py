@@ -31,4 +31,4 @@ def make_driver(config: EdgeConfig, t0: float) -> VehicleDriver:
         origin = (o.lat, o.lon, o.alt)
     return MavlinkDriver(config.uav, config.mavlink, home=config.home, signing_key=config.mavlink_key,
                          gcs_endpoint=config.mavlink_gcs, gcs_video=video, params=MavlinkParams(flight=config.flight),
-                         home_origin=origin)
+                         home_origin=origin, clock_rate=config.speed)

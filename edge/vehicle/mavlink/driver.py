@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.geometry.ardupilot_items import capture_params
 from edge.geometry.waypoint_mission import geodetic_to_enu
-from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3
+from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3, shutter_position
 from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import AutopilotReadiness, Mode, Trajectory
 
@@ -121,13 +121,17 @@ class MavlinkDriver(ParamClient, VehicleDriver):
                  timeout_s: float = 1.5, *, params: MavlinkParams = MavlinkParams(), sysid: int | None = None,
                  source_system: int = 255, source_component: int = M.MAV_COMP_ID_ONBOARD_COMPUTER,
                  signing_key: str | None = None, gcs_endpoint: str | None = None, gcs_video: Any = None,
-                 dialect: Dialect | None = None, home_origin: Vec3 | None = None):
+                 dialect: Dialect | None = None, home_origin: Vec3 | None = None, clock_rate: float = 1.0):
         if not (isinstance(uav, int) and 1 <= uav <= 255):
             raise ValueError("uav must be an int in 1..255")
         if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and 0 < rate_hz <= 100):
             raise ValueError("rate_hz must be in (0, 100]")
         if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and 0 < timeout_s <= 60):
             raise ValueError("timeout_s must be in (0, 60]")
+        if not (isinstance(clock_rate, (int, float)) and math.isfinite(clock_rate) and 0 < clock_rate <= 1000):
+            raise ValueError("clock_rate must be in (0, 1000]")
+        #: mission seconds per wall second (the board's --speed; the autopilot's clock runs as fast)
+        self.clock_rate = float(clock_rate)
         if sysid is not None and not (isinstance(sysid, int) and 1 <= sysid <= 255):
             raise ValueError("sysid must be None or an int in 1..255")
         if not isinstance(params, MavlinkParams):
@@ -635,6 +639,15 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         self._hold = (self.tel.pos, self.tel.att[2])
         self.targets.restart()
 
+    def _shutter(self) -> Vec3:
+        """The vehicle's position now: the last LOCAL_POSITION_NED carried forward over its age (at 20 Hz and the
+        mission's 2 m/s, up to 10 cm behind; docs/hardware-mavlink.md), the age in mission seconds."""
+        tel = self.tel
+        rx = tel.last_mono.get("LOCAL_POSITION_NED")
+        if rx is None:
+            return tel.pos
+        return shutter_position(tel.pos, tel.vel, (time.monotonic() - rx) * self.clock_rate)
+
     def _mission_reference(self, t: float, dt: float, events: list[CaptureEvent], in_auto: bool = False) -> Target:
         """The mission's target at time t (the sequencer's reference, as this driver streams it).
 
@@ -653,7 +666,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         else:
             if auto is not None:
                 auto._fired.update(w.capture_id for w in due)
-            events.extend(CaptureEvent(w.capture_id, t, tel.pos, tel.att) for w in due)
+            events.extend(CaptureEvent(w.capture_id, t, self._shutter(), tel.att) for w in due)
         if m.done:
             self.phase = Phase.HOLD
             self._hold = (p, yaw)
@@ -698,7 +711,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
                 ref = None if self.mission.done else self._mission_reference(until_t, dt, events, in_auto=True)
                 fired = auto.captures_due(tel.pos)
                 self.mission.captures += len(fired)
-                events.extend(CaptureEvent(cid, until_t, tel.pos, tel.att) for cid in fired)
+                events.extend(CaptureEvent(cid, until_t, self._shutter(), tel.att) for cid in fired)
                 if self.mission.done:  # the clock ran out: follow the autopilot's mission to its end, then hold
                     auto.ended()
                     if auto.finished():

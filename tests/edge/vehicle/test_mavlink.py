@@ -61,7 +61,7 @@ def driven(vehicle: type, params: MavlinkParams, speed: float, **opts) -> Iterat
     """A driver (system 1, ``params``) listening on loopback and a simulated autopilot of class ``vehicle`` at HOME
     sending to it, once the driver has heard its HEARTBEAT; both closed after."""
     port = free_udp_port()
-    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME, params=params)
+    drv = MavlinkDriver(1, f"udpin:127.0.0.1:{port}", home=HOME, params=params, clock_rate=speed)
     veh = vehicle(f"udpout:127.0.0.1:{port}", 1, home=HOME, speed=speed, **opts).start()
     try:
         drv.wait_heartbeat(5.0)
@@ -199,6 +199,25 @@ def test_no_heartbeat_is_a_clear_error():
 
 
 # ------------------------------------------------------------------ flights
+def test_a_capture_is_where_the_vehicle_is_not_where_its_last_report_was(link):
+    # the telemetry (LOCAL_POSITION_NED, 20 Hz of the autopilot's clock) is up to 0.4 s of mission time old at x8:
+    # at the track's 1 m/s a capture posed at the last report was 0.32-0.35 m behind the vehicle
+    drv, veh = link
+    drv.takeoff(5.0)
+    fly(drv, veh, lambda s: s.mode == Mode.HOLD, 15.0)
+    drv.upload(trajectory(HOME[2] + 5.0))
+    drv.start()
+    off: dict[int, float] = {}
+    clock, end = veh.clock, veh.clock.now() + 20.0
+    while clock.now() < end and len(off) < 3:
+        for e in drv.step(clock.now()):
+            off[e.capture_id] = math.dist(e.pos, veh.sim.state().pos)  # the simulated vehicle itself, now
+        time.sleep(0.01)
+    assert set(off) == {11, 12, 13}
+    # mid-track (11, 12); 13 ends the track, braking, where the last report's velocity overshoots
+    assert off[11] < 0.1 and off[12] < 0.1, off
+
+
 def test_takeoff_mission_captures_land_and_link_loss(link):
     drv, veh = link
     assert drv.target_system == 1
