@@ -1,13 +1,14 @@
 """How much pose error the inspection deliverable takes: the nominal wall's captures at the planned shots, each
 frame's camera position moved along the wall by a random offset, the deliverable rebuilt and scored.
 
-    .venv/bin/python bench/pose_tolerance.py [--sigmas-m 0 0.01 0.02 0.03 0.05 0.1] [--seeds 3]
+    .venv/bin/python bench/pose_tolerance.py [--sigmas-m 0 0.01 0.02 0.03 0.05 0.1 0.2] [--seeds 3] [--align-m 0 0.4]
                                              [--scenario monorail] [--out bench/results/pose_tolerance.json]
 
 The mosaic places frames by their poses alone (docs/report.md, services/inspection/mosaic.py). The frames are
 segmented once (IT+, each component confirmed by the learned model: the deliverable's own), then for each
 standard deviation (metres, per axis of the wall plane) and seed every frame's ``cam_pos`` gets its own offset,
-and the deliverable is built and compared with the wall's truth (services/inspection/accuracy.py): defects, true
+and the deliverable is built (``--align-m``: how far a frame may move to fit the others, 0 for none) and
+compared with the wall's truth (services/inspection/accuracy.py): defects, true
 cracks found, defects on no true crack, worst length error. Prints a table and writes JSON.
 """
 
@@ -27,7 +28,7 @@ from edge.world.wall import synthetic_surface  # noqa: E402
 from protocol.scenario import load_scenario  # noqa: E402
 from services.inspection.accuracy import compare, truth_cracks  # noqa: E402
 from services.inspection.captures import decode, synthetic_captures  # noqa: E402
-from services.inspection.deliverable import inspect_frames, segment  # noqa: E402
+from services.inspection.deliverable import ALIGN_M, inspect_frames, segment  # noqa: E402
 from services.inspection.mosaic import Plane, PosedFrame  # noqa: E402
 
 
@@ -45,8 +46,10 @@ def jittered(frames: list[PosedFrame], plane: Plane, sigma_m: float, seed: int) 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenario", default="monorail")
-    ap.add_argument("--sigmas-m", type=float, nargs="+", default=[0.0, 0.01, 0.02, 0.03, 0.05, 0.1])
+    ap.add_argument("--sigmas-m", type=float, nargs="+", default=[0.0, 0.01, 0.02, 0.03, 0.05, 0.1, 0.2])
     ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--align-m", type=float, nargs="+", default=[0.0, ALIGN_M],
+                    help="the deliverable's alignment limits to compare (0: frames placed by their poses alone)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "pose_tolerance.json")
     a = ap.parse_args()
     sc = load_scenario(a.scenario)
@@ -57,19 +60,21 @@ def main() -> int:
     s = 1.0 / surf.px_per_m
     truth, labels = truth_cracks(surf.mask, s)
     rows = []
-    print("| sigma (cm) | seed | defects | true cracks found | defects on no crack | worst length error |")
-    print("|---|---|---|---|---|---|")
-    for sigma in a.sigmas_m:
-        for seed in range(a.seeds if sigma > 0 else 1):
-            res = inspect_frames(jittered(seg, plane, sigma, seed), plane)
-            acc = compare(res.defects, truth, labels, s, gsd_m=res.mosaic.m_per_px).summary
-            row = {"sigma_m": sigma, "seed": seed, "defects": len(res.defects), "truth": acc["truth"],
-                   "matched": acc["matched"], "unmatched_defects": acc["unmatched_defects"],
-                   "length_error_worst": acc["length_error_worst"]}
-            rows.append(row)
-            worst = "–" if row["length_error_worst"] is None else f"{100 * row['length_error_worst']:.1f} %"
-            print(f"| {100 * sigma:g} | {seed} | {row['defects']} | {row['matched']} of {row['truth']} | "
-                  f"{row['unmatched_defects']} | {worst} |", flush=True)
+    print("| alignment (m) | sigma (cm) | seed | defects | true cracks found | defects on no crack | worst length error |")
+    print("|---|---|---|---|---|---|---|")
+    for align in a.align_m:
+        for sigma in a.sigmas_m:
+            for seed in range(a.seeds if sigma > 0 else 1):
+                res = inspect_frames(jittered(seg, plane, sigma, seed), plane, align_m=align)
+                acc = compare(res.defects, truth, labels, s, gsd_m=res.mosaic.m_per_px).summary
+                row = {"align_m": align, "sigma_m": sigma, "seed": seed, "defects": len(res.defects),
+                       "truth": acc["truth"], "matched": acc["matched"], "unmatched_defects": acc["unmatched_defects"],
+                       "length_error_worst": acc["length_error_worst"],
+                       "moved_m_max": max(res.mosaic.moved_m, default=0.0)}
+                rows.append(row)
+                worst = "–" if row["length_error_worst"] is None else f"{100 * row['length_error_worst']:.1f} %"
+                print(f"| {align:g} | {100 * sigma:g} | {seed} | {row['defects']} | {row['matched']} of {row['truth']} | "
+                      f"{row['unmatched_defects']} | {worst} |", flush=True)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps({"scenario": a.scenario, "frames": len(seg), "rows": rows,
                                  "seconds": time.perf_counter() - t0}, indent=1))

@@ -99,6 +99,9 @@ class Deliverable:
 CONFIRM_METHOD = "learned"
 #: how near (px) a confirming pixel must come to a component
 CONFIRM_REACH_PX = 2
+#: how far (m, along the surface) a frame may be moved off its pose to fit the frames before it (docs/report.md:
+#: poses off by up to about 10 cm per axis give the report of exact ones, bench/pose_tolerance.py)
+ALIGN_M = 0.4
 
 
 def confirmed(mask: np.ndarray, by: np.ndarray, reach_px: int = CONFIRM_REACH_PX) -> np.ndarray:
@@ -150,13 +153,14 @@ def severity_rank(severity: str) -> int:
 
 def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, origin: Sequence[float] | None = None,
                    method: str = "it+", m_per_px: float | None = None, min_area_px: int | None = None,
-                   confirm: str | None = CONFIRM_METHOD) -> Deliverable:
+                   confirm: str | None = CONFIRM_METHOD, align_m: float = ALIGN_M) -> Deliverable:
     """Segment, mosaic and measure (steps 1-3 of docs/report.md); the defects come sorted by
     :data:`SORT_KEY` and numbered in that order (defect 1 is the worst).
 
     ``min_area_px`` defaults to the detector's smallest reported component
     (:data:`services.detector.pipeline.MIN_REPORT_AREA_PX`, set for 640 x 480 frames) scaled by the
-    frames' pixel count over that reference (docs/report.md).
+    frames' pixel count over that reference (docs/report.md). Each frame may move up to ``align_m`` along the
+    surface to fit the frames before it (0: placed by its pose alone; :func:`~.mosaic.build_mosaic`).
     """
     if not frames:
         raise ValueError("no frames")
@@ -174,7 +178,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
         seg = segment(frames, method, None)
     t1 = time.perf_counter()
     pl = plane if plane is not None else plane_from_frames([f.meta for f in frames])
-    mos = build_mosaic(seg, pl, m_per_px)
+    mos = build_mosaic(seg, pl, m_per_px, align_m)
     t2 = time.perf_counter()
     _, labels, stats, _ = cv2.connectedComponentsWithStats((mos.mask > 0).astype(np.uint8), connectivity=8,
                                                           ltype=cv2.CV_32S)
@@ -343,6 +347,15 @@ def kml(defects: Sequence[InspectionDefect], name: str = "SkyNet Inspect defects
             f"<name>{xml_text(name)}</name>" + "".join(marks) + "</Document></kml>\n")
 
 
+def aligned_text(mos: Mosaic, at_least_m: float = 0.01) -> str:
+    """What the alignment did to the poses, for the findings ("" when no capture moved ``at_least_m``)."""
+    moved = [m for m in mos.moved_m if m >= at_least_m]
+    if not moved:
+        return ""
+    return (f"{len(moved)} of {len(mos.moved_m)} captures were moved along the surface by up to "
+            f"{100 * max(moved):.0f} cm to fit the others (their poses were off by that much).")
+
+
 def resolution_note(m_per_px: float) -> dict[str, Any]:
     """What the mosaic's scale can size: a width below one pixel's footprint is flagged, not measured;
     the AASHTO classes (:data:`services.detector.measure.SEVERITY_LIMITS_M`) it can tell apart."""
@@ -379,6 +392,8 @@ def write_deliverable(res: Deliverable, out: str | Path, title: str = "", origin
     summary = {"frames": res.frames, "frames_used": res.mosaic.frames_used, "m_per_px": res.mosaic.m_per_px,
                "mosaic_px": list(res.mosaic.image.shape[::-1]), "coverage": res.mosaic.coverage,
                "seconds": res.seconds, "skipped": res.mosaic.skipped, "sort_key": SORT_KEY,
+               "aligned_m": {"max": max(res.mosaic.moved_m, default=0.0),
+                             "median": float(np.median(res.mosaic.moved_m)) if res.mosaic.moved_m else 0.0},
                "orientation": orient, "resolution": resolution_note(res.mosaic.m_per_px), "tiles": tiles,
                "defects": [d.model_dump() for d in res.defects]}
     (o / "defects.json").write_text(json.dumps(summary, indent=1))

@@ -76,6 +76,8 @@ class Mosaic:
     seconds: float = 0.0
     frames_used: int = 0
     skipped: list[str] = field(default_factory=list)
+    #: how far each frame was moved off its pose by the alignment (metres; empty without one)
+    moved_m: list[float] = field(default_factory=list)
 
     @property
     def coverage(self) -> float:
@@ -168,11 +170,49 @@ def _centre_weight(w: int, h: int) -> NDArray[np.float32]:
 
 
 MAX_CANVAS_PX = 80_000_000
+#: the least overlap (canvas px, each side) and peak response a frame is aligned on
+ALIGN_MIN_SIDE_PX = 24
+ALIGN_MIN_RESPONSE = 0.1
+#: the least contrast (standard deviation, grey levels) of the overlap on either side
+ALIGN_MIN_CONTRAST = 2.0
 
 
-def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | None = None) -> Mosaic:
+def alignment(moving: NDArray[np.uint8], moving_in: NDArray[np.bool_], fixed: NDArray[np.uint8],
+              fixed_in: NDArray[np.bool_], max_px: float) -> tuple[float, float] | None:
+    """How far (dx, dy, canvas px) the content of ``moving`` (a frame warped by its pose) sits from where ``fixed``
+    (the mosaic so far) has it, where both have pixels: phase correlation (Kuglin & Hines 1975; ``cv2.phaseCorrelate``) over the
+    overlap's bounding box, Hann-windowed, each side's missing pixels filled with its mean. None when the overlap
+    is too small, the peak too weak or the shift beyond ``max_px``."""
+    both = moving_in & fixed_in
+    ys, xs = np.nonzero(both)
+    if ys.size == 0:
+        return None
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    if min(y1 - y0, x1 - x0) < ALIGN_MIN_SIDE_PX:
+        return None
+    inside = both[y0:y1, x0:x1]
+
+    def patch(img: NDArray[np.uint8]) -> NDArray[np.float32]:
+        p = img[y0:y1, x0:x1].astype(np.float32)
+        p[~inside] = float(p[inside].mean())
+        return p
+
+    a, b = patch(fixed), patch(moving)
+    if min(float(a[inside].std()), float(b[inside].std())) < ALIGN_MIN_CONTRAST:
+        return None  # a blank wall: nothing to align on
+    win = cv2.createHanningWindow((int(x1 - x0), int(y1 - y0)), cv2.CV_32F)
+    (dx, dy), response = cv2.phaseCorrelate(a, b, win)
+    if response < ALIGN_MIN_RESPONSE or math.hypot(dx, dy) > max_px:
+        return None
+    return float(dx), float(dy)
+
+
+def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | None = None,
+                 align_m: float = 0.0) -> Mosaic:
     """Warp every frame onto ``plane`` (docs/report.md) at ``m_per_px``, by default the frames' median ground
-    sampling distance (their own resolution: nothing lost or invented)."""
+    sampling distance (their own resolution: nothing lost or invented). With ``align_m`` > 0 the frames' poses
+    are corrected along the surface, each by up to ``align_m`` against the mosaic of the frames before it
+    (:func:`alignment`), then all by their mean correction (the mosaic sits where the poses say on average)."""
     import time
 
     t0 = time.perf_counter()
@@ -187,42 +227,63 @@ def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | N
     H = max(1, int(math.ceil(plane.height_m / m_per_px)))
     if W * H > MAX_CANVAS_PX:
         raise ValueError(f"mosaic of {W} x {H} px exceeds {MAX_CANVAS_PX / 1e6:.0f} MP: raise m_per_px")
+    shifts = None
+    if align_m > 0:
+        found = _compose(frames, plane, m_per_px, (H, W), align_px=align_m / m_per_px).shifts
+        mean = np.mean([d for d in found if d is not None], axis=0) if any(d is not None for d in found) else 0.0
+        shifts = [(np.zeros(2) if d is None else np.asarray(d)) - mean for d in found]
+    out = _compose(frames, plane, m_per_px, (H, W), shifts=shifts)
+    moved = [] if shifts is None else [float(np.hypot(*d)) * m_per_px for d in shifts]
+    return Mosaic(plane=plane, m_per_px=m_per_px, image=out.image, mask=out.mask, owner=out.owner,
+                  seconds=time.perf_counter() - t0, frames_used=out.used, skipped=out.skipped, moved_m=moved)
+
+
+@dataclass
+class _Composed:
+    image: NDArray[np.uint8]
+    mask: NDArray[np.uint8]
+    owner: NDArray[np.int32]
+    used: int
+    skipped: list[str]
+    shifts: list[tuple[float, float] | None]
+
+
+def _compose(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, shape: tuple[int, int],
+             align_px: float = 0.0, shifts: Sequence[NDArray[np.float64]] | None = None) -> _Composed:
+    """Every frame onto the canvas, nearest its centre wins; each moved by its ``shifts`` (canvas px), or aligned
+    to the canvas so far by up to ``align_px`` (the shifts found are returned, None where none was)."""
+    H, W = shape
     image = np.zeros((H, W), np.uint8)
     mask = np.zeros((H, W), np.uint8)
     owner = np.full((H, W), -1, np.int32)
     best = np.zeros((H, W), np.float32)
     skipped: list[str] = []
+    found: list[tuple[float, float] | None] = []
     used = 0
+    flags = cv2.WARP_INVERSE_MAP
     for i, f in enumerate(frames):
+        found.append(None)
         Hc = canvas_homography(f.meta, plane, m_per_px)
         if Hc is None:
             skipped.append(f"frame {i}: camera behind the surface")
             continue
-        h, w = f.grey.shape[:2]
-        # the frame's footprint on the canvas: its corners through the inverse homography
-        try:
-            Hi = np.linalg.inv(Hc)
-        except np.linalg.LinAlgError:
-            skipped.append(f"frame {i}: degenerate pose")
+        if shifts is not None:  # the frame's content moves by d: canvas pixel p takes what p - d had
+            dx, dy = (float(v) for v in shifts[i])
+            Hc = Hc @ np.array([[1.0, 0.0, -dx], [0.0, 1.0, -dy], [0.0, 0.0, 1.0]])
+        placed = _place(f, Hc, W, H)
+        if isinstance(placed, str):
+            skipped.append(f"frame {i}: {placed}")
             continue
-        q = np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [w - 0.5, h - 0.5, 1], [-0.5, h - 0.5, 1]]) @ Hi.T
-        if np.any(q[:, 2] <= 0):
-            skipped.append(f"frame {i}: sees beyond the horizon of the surface")
-            continue
-        c = q[:, :2] / q[:, 2:3]
-        x0, y0 = np.floor(np.clip(c.min(0), 0, [W, H])).astype(int)
-        x1, y1 = np.ceil(np.clip(c.max(0), 0, [W, H])).astype(int)
-        if x1 <= x0 or y1 <= y0:
-            skipped.append(f"frame {i}: off the surface")
-            continue
-        T = np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
-        Hr = Hc @ T
-        size = (int(x1 - x0), int(y1 - y0))
-        flags = cv2.WARP_INVERSE_MAP
-        img = cv2.warpPerspective(f.grey, Hr, size, flags=flags | cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        wt = cv2.warpPerspective(_centre_weight(w, h), Hr, size, flags=flags | cv2.INTER_LINEAR,
-                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        roi = (slice(y0, y1), slice(x0, x1))
+        Hr, roi, img, wt = placed
+        if align_px > 0 and used:
+            d = alignment(img, wt > 0, image[roi], best[roi] > 0, align_px)
+            if d is not None:
+                found[i] = (-d[0], -d[1])
+                moved = _place(f, Hc @ np.array([[1.0, 0.0, d[0]], [0.0, 1.0, d[1]], [0.0, 0.0, 1.0]]), W, H)
+                if isinstance(moved, str):
+                    skipped.append(f"frame {i}: {moved}")
+                    continue
+                Hr, roi, img, wt = moved
         take = wt > best[roi]
         if not take.any():
             continue
@@ -230,11 +291,36 @@ def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | N
         best[roi][take] = wt[take]
         image[roi][take] = img[take]
         owner[roi][take] = i
-        fm = f.mask if f.mask is not None else None
-        if fm is not None:
-            mw = cv2.warpPerspective(fm, Hr, size, flags=flags | cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+        if f.mask is not None:
+            mw = cv2.warpPerspective(f.mask, Hr, (img.shape[1], img.shape[0]), flags=flags | cv2.INTER_NEAREST,
+                                     borderMode=cv2.BORDER_CONSTANT)
             mask[roi][take] = mw[take]
         else:
             mask[roi][take] = 0
-    return Mosaic(plane=plane, m_per_px=m_per_px, image=image, mask=mask, owner=owner,
-                  seconds=time.perf_counter() - t0, frames_used=used, skipped=skipped)
+    return _Composed(image, mask, owner, used, skipped, found)
+
+
+def _place(f: PosedFrame, Hc: NDArray[np.float64], W: int, H: int
+           ) -> str | tuple[NDArray[np.float64], tuple[slice, slice], NDArray[np.uint8], NDArray[np.float32]]:
+    """Frame ``f`` warped by the canvas -> frame homography ``Hc`` into the canvas region its footprint covers:
+    (homography of that region, the region, image, centre weight), or why it cannot be placed."""
+    h, w = f.grey.shape[:2]
+    try:
+        Hi = np.linalg.inv(Hc)
+    except np.linalg.LinAlgError:
+        return "degenerate pose"
+    q = np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [w - 0.5, h - 0.5, 1], [-0.5, h - 0.5, 1]]) @ Hi.T
+    if np.any(q[:, 2] <= 0):
+        return "sees beyond the horizon of the surface"
+    c = q[:, :2] / q[:, 2:3]
+    x0, y0 = np.floor(np.clip(c.min(0), 0, [W, H])).astype(int)
+    x1, y1 = np.ceil(np.clip(c.max(0), 0, [W, H])).astype(int)
+    if x1 <= x0 or y1 <= y0:
+        return "off the surface"
+    Hr = Hc @ np.array([[1.0, 0.0, x0], [0.0, 1.0, y0], [0.0, 0.0, 1.0]])
+    size = (int(x1 - x0), int(y1 - y0))
+    flags = cv2.WARP_INVERSE_MAP
+    img = cv2.warpPerspective(f.grey, Hr, size, flags=flags | cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    wt = cv2.warpPerspective(_centre_weight(w, h), Hr, size, flags=flags | cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return Hr, (slice(y0, y1), slice(x0, x1)), np.asarray(img, np.uint8), np.asarray(wt, np.float32)

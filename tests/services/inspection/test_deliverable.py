@@ -141,3 +141,18 @@ def test_a_confirming_model_that_cannot_run_keeps_every_component_and_says_why(m
     res = inspect_frames([PosedFrame(c.meta, decode(c)) for c in caps], Plane.from_corners(surf.corners))
     assert res.confirm == "" and "not confirmed by `learned`" in res.unconfirmed and "missing.onnx" in res.unconfirmed
     assert res.defects  # IT+'s, unconfirmed
+
+
+def test_the_findings_say_how_far_the_alignment_moved_the_captures():
+    from services.inspection.deliverable import aligned_text
+    from services.inspection.mosaic import Mosaic
+
+    plane = Plane.from_corners([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]])
+
+    def mos(moved):
+        return Mosaic(plane, 0.01, np.zeros((1, 1), np.uint8), np.zeros((1, 1), np.uint8), np.zeros((1, 1), np.int32),
+                      moved_m=moved)
+
+    assert aligned_text(mos([0.0, 0.052, 0.004])) == (
+        "1 of 3 captures were moved along the surface by up to 5 cm to fit the others (their poses were off by that much).")
+    assert aligned_text(mos([0.0, 0.004])) == "" and aligned_text(mos([])) == ""
