@@ -175,6 +175,8 @@ ALIGN_MIN_SIDE_PX = 24
 ALIGN_MIN_RESPONSE = 0.1
 #: the least contrast (standard deviation, grey levels) of the overlap on either side
 ALIGN_MIN_CONTRAST = 2.0
+#: the most pixels an overlap is correlated at (a larger one is reduced first: 12 MP frames)
+ALIGN_MAX_PX = 1_000_000
 
 
 def alignment(moving: NDArray[np.uint8], moving_in: NDArray[np.bool_], fixed: NDArray[np.uint8],
@@ -200,8 +202,13 @@ def alignment(moving: NDArray[np.uint8], moving_in: NDArray[np.bool_], fixed: ND
     a, b = patch(fixed), patch(moving)
     if min(float(a[inside].std()), float(b[inside].std())) < ALIGN_MIN_CONTRAST:
         return None  # a blank wall: nothing to align on
-    win = cv2.createHanningWindow((int(x1 - x0), int(y1 - y0)), cv2.CV_32F)
+    k = max(1, math.ceil(math.sqrt(a.size / ALIGN_MAX_PX)))  # a large overlap is correlated at 1/k the size
+    if k > 1:
+        size = (max(1, a.shape[1] // k), max(1, a.shape[0] // k))
+        a, b = (np.asarray(cv2.resize(p, size, interpolation=cv2.INTER_AREA), np.float32) for p in (a, b))
+    win = cv2.createHanningWindow((a.shape[1], a.shape[0]), cv2.CV_32F)
     (dx, dy), response = cv2.phaseCorrelate(a, b, win)
+    dx, dy = dx * k, dy * k
     if response < ALIGN_MIN_RESPONSE or math.hypot(dx, dy) > max_px:
         return None
     return float(dx), float(dy)

@@ -29,6 +29,16 @@ def test_alignment_finds_how_far_a_frames_content_sits_from_the_mosaics():
     assert alignment(moving, part, np.where(part, fixed, 0).astype(np.uint8), part, 20) == pytest.approx((3.0, -2.0), abs=0.1)
 
 
+def test_a_large_overlap_is_aligned_at_a_reduced_size(monkeypatch):
+    import services.inspection.mosaic as mosaic
+
+    tex = cv2.resize(texture(1), (1600, 1200), interpolation=cv2.INTER_CUBIC)
+    fixed, moving = tex[100:1100, 100:1500], tex[108:1108, 88:1488]  # content 12 px right, 8 px up
+    both = np.ones(fixed.shape, bool)
+    monkeypatch.setattr(mosaic, "ALIGN_MAX_PX", 200_000)  # 1.4 MP: reduced by 3
+    assert alignment(moving, both, fixed, both, 40) == pytest.approx((12.0, -8.0), abs=1.0)
+
+
 def test_alignment_refuses_a_thin_overlap_a_blank_wall_and_a_shift_beyond_its_limit():
     tex = texture()
     fixed, moving = tex[50:250, 50:350], tex[52:252, 47:347]
