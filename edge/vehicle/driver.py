@@ -53,22 +53,21 @@ class CaptureEvent:
     att: Vec3
 
 
-#: the longest a position report is carried forward to the shutter (mission seconds): older telemetry is a link
+#: the longest a position report is carried forward to the shutter (wall seconds): an older one is a link
 #: problem, not an age to extrapolate over
-MAX_DEAD_RECKON_S = 0.5
+MAX_DEAD_RECKON_S = 0.25
 
 
-def shutter_position(pos: Vec3, vel: Vec3, age_s: float, max_age_s: float = MAX_DEAD_RECKON_S) -> Vec3:
+def shutter_position(pos: Vec3, vel: Vec3, age_s: float) -> Vec3:
     """Where the vehicle is at the shutter, from a position report ``age_s`` mission seconds old: the report
-    dead-reckoned at its own velocity, ``pos + vel * min(age_s, max_age_s)`` (``pos`` for a bad or negative age).
+    dead-reckoned at its own velocity, ``pos + vel * age_s`` (``pos`` for a bad or negative age).
 
     >>> shutter_position((1.0, 2.0, 3.0), (2.0, 0.0, -1.0), 0.05)
     (1.1, 2.0, 2.95)
     """
     if not (math.isfinite(age_s) and age_s > 0.0):
         return pos
-    a = min(age_s, max_age_s)
-    return (pos[0] + vel[0] * a, pos[1] + vel[1] * a, pos[2] + vel[2] * a)
+    return (pos[0] + vel[0] * age_s, pos[1] + vel[1] * age_s, pos[2] + vel[2] * age_s)
 
 
 def check_vec3(v: object, name: str) -> Vec3:

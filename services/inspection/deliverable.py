@@ -101,7 +101,7 @@ CONFIRM_METHOD = "learned"
 CONFIRM_REACH_PX = 2
 #: how far (m, along the surface) a frame may be moved off its pose to fit the frames before it (docs/report.md:
 #: poses off by up to about 10 cm per axis give the report of exact ones, bench/pose_tolerance.py)
-ALIGN_M = 0.4
+ALIGN_M = 0.6
 
 
 def confirmed(mask: np.ndarray, by: np.ndarray, reach_px: int = CONFIRM_REACH_PX) -> np.ndarray:
@@ -146,6 +146,15 @@ def sees(meta: ImageMeta, point: Sequence[float]) -> bool:
     return bool(-0.5 <= c <= k.width - 0.5 and -0.5 <= r <= k.height - 0.5)
 
 
+def aligned_meta(meta: ImageMeta, plane: Plane, shift_m: tuple[float, float] | None) -> ImageMeta:
+    """``meta`` with its camera where the mosaic's alignment put the frame: moved by ``shift_m`` (u, v metres)
+    along ``plane`` (a camera moved along the surface sees its content moved as much)."""
+    if not shift_m or shift_m == (0.0, 0.0):
+        return meta
+    pos = np.asarray(meta.cam_pos, float) + shift_m[0] * plane.u_axis + shift_m[1] * plane.v_axis
+    return meta.model_copy(update={"cam_pos": (float(pos[0]), float(pos[1]), float(pos[2]))})
+
+
 def severity_rank(severity: str) -> int:
     """Position of a class in :data:`SEVERITY_ORDER` (unknown classes last)."""
     return SEVERITY_ORDER.index(severity) if severity in SEVERITY_ORDER else len(SEVERITY_ORDER)
@@ -183,6 +192,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
     _, labels, stats, _ = cv2.connectedComponentsWithStats((mos.mask > 0).astype(np.uint8), connectivity=8,
                                                           ltype=cv2.CV_32S)
     label_of = {tuple(int(v) for v in st[:4]): i for i, st in enumerate(stats) if i > 0}
+    metas = [aligned_meta(f.meta, pl, d) for f, d in zip(frames, mos.shifts_m or [None] * len(frames))]
     rows = []
     for bbox, ctr, m in measure_mask(mos.mask, mos.m_per_px, min_area_px, mos.image):
         uv = mos.pixel_to_uv(np.array(ctr))
@@ -209,7 +219,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
                 meta = frames[int(share.argmax())].meta
                 geo.update(uav=meta.uav, capture_id=meta.capture_id, t=meta.t, stamp=meta.stamp)
                 behind = [int(i) for i in np.argsort(-share, kind="stable") if share[i] > 0]
-        seers = [i for i, f in enumerate(frames) if sees(f.meta, enu)]
+        seers = [i for i, meta in enumerate(metas) if sees(meta, enu)]
         geo["seen_by"] = [frame_name(frames[i].meta) for i in dict.fromkeys([*behind, *seers])]
         rows.append(InspectionDefect(id=0, u_m=float(uv[0]), v_m=float(uv[1]), enu=tuple(float(x) for x in enu),
                                      lla=lla, length_m=float(d["length_m"]), width_max_mm=float(d["width_max_mm"]),
@@ -352,8 +362,8 @@ def aligned_text(mos: Mosaic, at_least_m: float = 0.01) -> str:
     moved = [m for m in mos.moved_m if m >= at_least_m]
     if not moved:
         return ""
-    return (f"{len(moved)} of {len(mos.moved_m)} captures were moved along the surface by up to "
-            f"{100 * max(moved):.0f} cm to fit the others (their poses were off by that much).")
+    return (f"The alignment moved {len(moved)} of {len(mos.moved_m)} captures along the surface, by up to "
+            f"{100 * max(moved):.0f} cm, to fit the others.")
 
 
 def resolution_note(m_per_px: float) -> dict[str, Any]:

@@ -16,7 +16,8 @@ from numpy.typing import ArrayLike, NDArray
 from protocol.messages import ImageMeta
 from protocol.scenario import surface_frame
 
-__all__ = ["Plane", "Mosaic", "PosedFrame", "build_mosaic", "canvas_homography", "frame_gsd", "plane_from_frames"]
+__all__ = ["Plane", "Mosaic", "PosedFrame", "alignment", "build_mosaic", "canvas_homography", "frame_gsd",
+           "plane_from_frames", "registration", "solve_shifts"]
 
 
 @dataclass(frozen=True)
@@ -76,8 +77,14 @@ class Mosaic:
     seconds: float = 0.0
     frames_used: int = 0
     skipped: list[str] = field(default_factory=list)
-    #: how far each frame was moved off its pose by the alignment (metres; empty without one)
-    moved_m: list[float] = field(default_factory=list)
+    #: each frame's move off its pose by the alignment, (u, v) metres along the surface (None: not placed);
+    #: empty without an alignment
+    shifts_m: list[tuple[float, float] | None] = field(default_factory=list)
+
+    @property
+    def moved_m(self) -> list[float]:
+        """How far each placed frame was moved (metres)."""
+        return [math.hypot(*d) for d in self.shifts_m if d is not None]
 
     @property
     def coverage(self) -> float:
@@ -177,14 +184,16 @@ ALIGN_MIN_RESPONSE = 0.1
 ALIGN_MIN_CONTRAST = 2.0
 #: the most pixels an overlap is correlated at (a larger one is reduced first: 12 MP frames)
 ALIGN_MAX_PX = 1_000_000
+#: a pair of frames whose measured shift disagrees with the solved moves by more than this (canvas px) is dropped
+ALIGN_OUTLIER_PX = 2.0
 
 
 def alignment(moving: NDArray[np.uint8], moving_in: NDArray[np.bool_], fixed: NDArray[np.uint8],
-              fixed_in: NDArray[np.bool_], max_px: float) -> tuple[float, float] | None:
-    """How far (dx, dy, canvas px) the content of ``moving`` (a frame warped by its pose) sits from where ``fixed``
-    (the mosaic so far) has it, where both have pixels: phase correlation (Kuglin & Hines 1975; ``cv2.phaseCorrelate``) over the
-    overlap's bounding box, Hann-windowed, each side's missing pixels filled with its mean. None when the overlap
-    is too small, the peak too weak or the shift beyond ``max_px``."""
+              fixed_in: NDArray[np.bool_], max_px: float) -> tuple[float, float, float] | None:
+    """How far (dx, dy, canvas px) the content of ``moving`` sits from where ``fixed`` has it, where both have
+    pixels (``*_in``), and the peak's response: phase correlation (Kuglin & Hines 1975; ``cv2.phaseCorrelate``)
+    over the overlap's bounding box, Hann-windowed, each side's missing pixels filled with its mean. None when the
+    overlap is too small or blank, the peak too weak or the shift beyond ``max_px``."""
     both = moving_in & fixed_in
     ys, xs = np.nonzero(both)
     if ys.size == 0:
@@ -211,15 +220,39 @@ def alignment(moving: NDArray[np.uint8], moving_in: NDArray[np.bool_], fixed: ND
     dx, dy = dx * k, dy * k
     if response < ALIGN_MIN_RESPONSE or math.hypot(dx, dy) > max_px:
         return None
-    return float(dx), float(dy)
+    return float(dx), float(dy), float(response)
+
+
+def solve_shifts(n: int, pairs: Sequence[tuple[int, int, float, float, float]], outlier_px: float = ALIGN_OUTLIER_PX,
+                 prior: float = 1e-3) -> NDArray[np.float64]:
+    """Each of ``n`` frames' move (canvas px, n x 2) from ``pairs`` ``(a, b, dx, dy, weight)``: frame b's content
+    sits (dx, dy) from frame a's. Weighted least squares of ``c_b - c_a = -(dx, dy)`` with a weak pull of every move
+    to 0 (``prior``: the moves of a connected group of frames sum to about 0, a frame in no pair stays put); while
+    the pair that disagrees most with the solution is off by more than ``outlier_px``, it is dropped (a false
+    peak) and the rest solved again."""
+    c: NDArray[np.float64] = np.zeros((n, 2))
+    keep = list(pairs)
+    while keep:
+        A = np.zeros((len(keep) + n, n))
+        rhs = np.zeros((len(keep) + n, 2))
+        for r, (a, b, dx, dy, w) in enumerate(keep):
+            A[r, a], A[r, b] = -w, w
+            rhs[r] = (-w * dx, -w * dy)
+        A[len(keep):] = prior * np.eye(n)
+        c = np.asarray(np.linalg.lstsq(A, rhs, rcond=None)[0], np.float64)
+        res = [math.hypot(c[b, 0] - c[a, 0] + dx, c[b, 1] - c[a, 1] + dy) for a, b, dx, dy, _ in keep]
+        worst = int(np.argmax(res))
+        if res[worst] <= outlier_px:
+            break
+        del keep[worst]
+    return c
 
 
 def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | None = None,
                  align_m: float = 0.0) -> Mosaic:
     """Warp every frame onto ``plane`` (docs/report.md) at ``m_per_px``, by default the frames' median ground
-    sampling distance (their own resolution: nothing lost or invented). With ``align_m`` > 0 the frames' poses
-    are corrected along the surface, each by up to ``align_m`` against the mosaic of the frames before it
-    (:func:`alignment`), then all by their mean correction (the mosaic sits where the poses say on average)."""
+    sampling distance (their own resolution: nothing lost or invented). With ``align_m`` > 0 the frames are first
+    moved along the surface to fit each other (:func:`registration`), by at most ``align_m`` between any two."""
     import time
 
     t0 = time.perf_counter()
@@ -234,15 +267,50 @@ def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | N
     H = max(1, int(math.ceil(plane.height_m / m_per_px)))
     if W * H > MAX_CANVAS_PX:
         raise ValueError(f"mosaic of {W} x {H} px exceeds {MAX_CANVAS_PX / 1e6:.0f} MP: raise m_per_px")
-    shifts = None
-    if align_m > 0:
-        found = _compose(frames, plane, m_per_px, (H, W), align_px=align_m / m_per_px).shifts
-        mean = np.mean([d for d in found if d is not None], axis=0) if any(d is not None for d in found) else 0.0
-        shifts = [(np.zeros(2) if d is None else np.asarray(d)) - mean for d in found]
-    out = _compose(frames, plane, m_per_px, (H, W), shifts=shifts)
-    moved = [] if shifts is None else [float(np.hypot(*d)) * m_per_px for d in shifts]
+    shifts = registration(frames, plane, m_per_px, align_m) if align_m > 0 else None
+    out = _compose(frames, plane, m_per_px, (H, W), shifts)
+    shifts_m: list[tuple[float, float] | None] = []
+    if shifts is not None:
+        shifts_m = [None if d is None else (float(d[0]) * m_per_px, -float(d[1]) * m_per_px) for d in shifts]
     return Mosaic(plane=plane, m_per_px=m_per_px, image=out.image, mask=out.mask, owner=out.owner,
-                  seconds=time.perf_counter() - t0, frames_used=out.used, skipped=out.skipped, moved_m=moved)
+                  seconds=time.perf_counter() - t0, frames_used=out.used, skipped=out.skipped, shifts_m=shifts_m)
+
+
+def registration(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, align_m: float
+                 ) -> list[NDArray[np.float64] | None]:
+    """Each frame's move (canvas px at ``m_per_px``, (dx, dy); None for a frame not placed) that makes the frames
+    fit each other: every overlapping pair, warped by its poses, measured by :func:`alignment` (up to ``align_m``),
+    the moves solved together (:func:`solve_shifts`). Frames of more than :data:`ALIGN_MAX_PX` are registered on a
+    coarser canvas."""
+    px = float(np.median([f.grey.shape[0] * f.grey.shape[1] for f in frames])) if frames else 0.0
+    r = max(1, math.ceil(math.sqrt(px / ALIGN_MAX_PX)))
+    s = m_per_px * r
+    W, H = max(1, int(math.ceil(plane.width_m / s))), max(1, int(math.ceil(plane.height_m / s)))
+    placed: list[tuple[int, int, int, NDArray[np.uint8], NDArray[np.bool_]]] = []
+    for i, f in enumerate(frames):
+        Hc = canvas_homography(f.meta, plane, s)
+        p = None if Hc is None else _place(f, Hc, W, H)
+        if p is None or isinstance(p, str):
+            continue
+        _, (ys, xs), img, wt = p
+        placed.append((i, int(xs.start), int(ys.start), img, wt > 0))
+    pairs = []
+    for a, (_, xa, ya, ia, ma) in enumerate(placed):
+        for b in range(a + 1, len(placed)):
+            _, xb, yb, ib, mb = placed[b]
+            x0, y0 = max(xa, xb), max(ya, yb)
+            x1, y1 = min(xa + ia.shape[1], xb + ib.shape[1]), min(ya + ia.shape[0], yb + ib.shape[0])
+            if min(x1 - x0, y1 - y0) < ALIGN_MIN_SIDE_PX:
+                continue
+            sa, sb = np.s_[y0 - ya:y1 - ya, x0 - xa:x1 - xa], np.s_[y0 - yb:y1 - yb, x0 - xb:x1 - xb]
+            d = alignment(ib[sb], mb[sb], ia[sa], ma[sa], align_m / s)
+            if d is not None:
+                pairs.append((a, b, d[0], d[1], d[2]))
+    c = solve_shifts(len(placed), pairs) * r
+    out: list[NDArray[np.float64] | None] = [None] * len(frames)
+    for k, (i, *_) in enumerate(placed):
+        out[i] = c[k]
+    return out
 
 
 @dataclass
@@ -252,45 +320,32 @@ class _Composed:
     owner: NDArray[np.int32]
     used: int
     skipped: list[str]
-    shifts: list[tuple[float, float] | None]
 
 
 def _compose(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, shape: tuple[int, int],
-             align_px: float = 0.0, shifts: Sequence[NDArray[np.float64]] | None = None) -> _Composed:
-    """Every frame onto the canvas, nearest its centre wins; each moved by its ``shifts`` (canvas px), or aligned
-    to the canvas so far by up to ``align_px`` (the shifts found are returned, None where none was)."""
+             shifts: Sequence[NDArray[np.float64] | None] | None = None) -> _Composed:
+    """Every frame onto the canvas, nearest its centre wins, each moved by its ``shifts`` (canvas px)."""
     H, W = shape
     image = np.zeros((H, W), np.uint8)
     mask = np.zeros((H, W), np.uint8)
     owner = np.full((H, W), -1, np.int32)
     best = np.zeros((H, W), np.float32)
     skipped: list[str] = []
-    found: list[tuple[float, float] | None] = []
     used = 0
     flags = cv2.WARP_INVERSE_MAP
     for i, f in enumerate(frames):
-        found.append(None)
         Hc = canvas_homography(f.meta, plane, m_per_px)
         if Hc is None:
             skipped.append(f"frame {i}: camera behind the surface")
             continue
-        if shifts is not None:  # the frame's content moves by d: canvas pixel p takes what p - d had
-            dx, dy = (float(v) for v in shifts[i])
-            Hc = Hc @ np.array([[1.0, 0.0, -dx], [0.0, 1.0, -dy], [0.0, 0.0, 1.0]])
+        d = None if shifts is None else shifts[i]
+        if d is not None:  # the frame's content moves by d: canvas pixel p takes what p - d had
+            Hc = Hc @ np.array([[1.0, 0.0, -float(d[0])], [0.0, 1.0, -float(d[1])], [0.0, 0.0, 1.0]])
         placed = _place(f, Hc, W, H)
         if isinstance(placed, str):
             skipped.append(f"frame {i}: {placed}")
             continue
         Hr, roi, img, wt = placed
-        if align_px > 0 and used:
-            d = alignment(img, wt > 0, image[roi], best[roi] > 0, align_px)
-            if d is not None:
-                found[i] = (-d[0], -d[1])
-                moved = _place(f, Hc @ np.array([[1.0, 0.0, d[0]], [0.0, 1.0, d[1]], [0.0, 0.0, 1.0]]), W, H)
-                if isinstance(moved, str):
-                    skipped.append(f"frame {i}: {moved}")
-                    continue
-                Hr, roi, img, wt = moved
         take = wt > best[roi]
         if not take.any():
             continue
@@ -304,7 +359,7 @@ def _compose(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, shape:
             mask[roi][take] = mw[take]
         else:
             mask[roi][take] = 0
-    return _Composed(image, mask, owner, used, skipped, found)
+    return _Composed(image, mask, owner, used, skipped)
 
 
 def _place(f: PosedFrame, Hc: NDArray[np.float64], W: int, H: int

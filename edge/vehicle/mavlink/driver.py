@@ -14,7 +14,14 @@ from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.geometry.ardupilot_items import capture_params
 from edge.geometry.waypoint_mission import geodetic_to_enu
-from edge.vehicle.driver import CaptureEvent, DriverState, VehicleDriver, check_vec3, shutter_position
+from edge.vehicle.driver import (
+    MAX_DEAD_RECKON_S,
+    CaptureEvent,
+    DriverState,
+    VehicleDriver,
+    check_vec3,
+    shutter_position,
+)
 from edge.vehicle.sequencer import MissionSequencer
 from protocol.messages import AutopilotReadiness, Mode, Trajectory
 
@@ -640,13 +647,14 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         self.targets.restart()
 
     def _shutter(self) -> Vec3:
-        """The vehicle's position now: the last LOCAL_POSITION_NED carried forward over its age (at 20 Hz and the
-        mission's 2 m/s, up to 10 cm behind; docs/hardware-mavlink.md), the age in mission seconds."""
+        """The vehicle's position now: the last valid LOCAL_POSITION_NED carried forward over its age (at 20 Hz and
+        the mission's 2 m/s, up to 10 cm behind; docs/hardware-mavlink.md): at most :data:`MAX_DEAD_RECKON_S` of
+        wall time, in mission seconds (``clock_rate``)."""
         tel = self.tel
-        rx = tel.last_mono.get("LOCAL_POSITION_NED")
-        if rx is None:
+        if tel.pos_mono is None:
             return tel.pos
-        return shutter_position(tel.pos, tel.vel, (time.monotonic() - rx) * self.clock_rate)
+        age = min(time.monotonic() - tel.pos_mono, MAX_DEAD_RECKON_S)
+        return shutter_position(tel.pos, tel.vel, age * self.clock_rate)
 
     def _mission_reference(self, t: float, dt: float, events: list[CaptureEvent], in_auto: bool = False) -> Target:
         """The mission's target at time t (the sequencer's reference, as this driver streams it).
@@ -709,7 +717,7 @@ class MavlinkDriver(ParamClient, VehicleDriver):
                     auto.enter(until_t)
             elif phase is Phase.AUTO and auto is not None:
                 ref = None if self.mission.done else self._mission_reference(until_t, dt, events, in_auto=True)
-                fired = auto.captures_due(tel.pos)
+                fired = auto.captures_due(self._shutter())
                 self.mission.captures += len(fired)
                 events.extend(CaptureEvent(cid, until_t, self._shutter(), tel.att) for cid in fired)
                 if self.mission.done:  # the clock ran out: follow the autopilot's mission to its end, then hold

@@ -113,6 +113,7 @@ class Telemetry:
         self.hb: Heartbeat | None = None
         self.pos: Vec3 = home
         self.vel: Vec3 = (0.0, 0.0, 0.0)
+        self.pos_mono: float | None = None  # time.monotonic() of the report pos and vel are from (a valid one)
         self.att: Vec3 = (0.0, 0.0, 0.0)
         self.rates: Vec3 = (0.0, 0.0, 0.0)
         self.battery = 1.0
@@ -168,6 +169,7 @@ def _local_position(t: Telemetry, msg: Any, now: float) -> None:
     p = ned_to_enu((msg.x, msg.y, msg.z)) + t.home
     v = ned_to_enu((msg.vx, msg.vy, msg.vz))
     t.pos, t.vel = (float(p[0]), float(p[1]), float(p[2])), (float(v[0]), float(v[1]), float(v[2]))
+    t.pos_mono = now
 
 
 def _attitude(t: Telemetry, msg: Any, now: float) -> None:

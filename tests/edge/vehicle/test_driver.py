@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from edge.vehicle.driver import MAX_DEAD_RECKON_S, shutter_position
+from edge.vehicle.driver import shutter_position
 
 
 def test_a_report_is_carried_forward_at_its_own_velocity():
@@ -17,8 +17,3 @@ def test_a_report_is_carried_forward_at_its_own_velocity():
 @pytest.mark.parametrize("age", [-0.1, math.nan, math.inf, -math.inf])
 def test_a_bad_age_leaves_the_report_where_it_was(age):
     assert shutter_position((1.0, 2.0, 3.0), (5.0, 5.0, 5.0), age) == (1.0, 2.0, 3.0)
-
-
-def test_an_old_report_is_carried_no_further_than_the_cap():
-    far = shutter_position((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), 10.0)
-    assert far == pytest.approx((MAX_DEAD_RECKON_S, 0.0, 0.0))

@@ -149,10 +149,10 @@ def test_the_findings_say_how_far_the_alignment_moved_the_captures():
 
     plane = Plane.from_corners([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]])
 
-    def mos(moved):
+    def mos(shifts):
         return Mosaic(plane, 0.01, np.zeros((1, 1), np.uint8), np.zeros((1, 1), np.uint8), np.zeros((1, 1), np.int32),
-                      moved_m=moved)
+                      shifts_m=shifts)
 
-    assert aligned_text(mos([0.0, 0.052, 0.004])) == (
-        "1 of 3 captures were moved along the surface by up to 5 cm to fit the others (their poses were off by that much).")
-    assert aligned_text(mos([0.0, 0.004])) == "" and aligned_text(mos([])) == ""
+    assert aligned_text(mos([(0.0, 0.0), (0.03, -0.042), (0.004, 0.0), None])) == (
+        "The alignment moved 1 of 3 captures along the surface, by up to 5 cm, to fit the others.")
+    assert aligned_text(mos([(0.0, 0.0), (0.0, 0.004)])) == "" and aligned_text(mos([])) == ""

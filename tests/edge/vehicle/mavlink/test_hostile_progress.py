@@ -95,6 +95,16 @@ def test_nan_positions_are_counted_not_taken(tel):
     assert t.errors == errors + 4 and t.pos == pytest.approx((2.0, 1.0, 3.0))
 
 
+def test_a_rejected_position_does_not_make_the_last_one_look_fresh(tel):
+    # the capture's pose carries the last position forward over its age: a report that was not taken must not
+    # reset that age (edge.vehicle.mavlink.driver: the shutter)
+    t = tel
+    dispatch(t, wire(M.MAVLink_local_position_ned_message(0, 1.0, 2.0, -3.0, 0.5, 0, 0)), 100.0)
+    assert t.pos_mono == 100.0
+    dispatch(t, wire(M.MAVLink_local_position_ned_message(0, math.nan, 2.0, -3.0, 0.5, 0, 0)), 200.0)
+    assert t.pos_mono == 100.0
+
+
 @pytest.fixture
 def heartbeats():
     """A driver listening on loopback and a raw pymavlink "autopilot" (system 1) that sends what the test says."""
