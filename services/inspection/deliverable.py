@@ -483,13 +483,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--confirm", default=CONFIRM_METHOD,
                     help="the method whose mask must touch each defect ('none': every defect of --method kept)")
     ap.add_argument("--resolution-mm", type=float, default=None, help="mosaic resolution (default: the frames')")
+    ap.add_argument("--align-m", type=float, default=ALIGN_M,
+                    help="how far two photos may be moved along the surface to fit each other (0: placed by their "
+                         "poses alone; default: %(default)s)")
     a = ap.parse_args(argv)
+    if not (math.isfinite(a.align_m) and 0.0 <= a.align_m <= 10.0):
+        ap.error(f"--align-m must be in [0, 10] m, got {a.align_m}")
     try:
         frames, plane, origin = load_folder(a.folder)
         if not frames:
             raise ValueError(f"no photos in {a.folder}")
         res = inspect_frames(frames, plane, origin, a.method, None if a.resolution_mm is None else a.resolution_mm / 1e3,
-                             confirm=None if a.confirm == "none" else a.confirm)
+                             confirm=None if a.confirm == "none" else a.confirm, align_m=a.align_m)
     except ValueError as exc:
         print(f"error: {exc}")
         return 2

@@ -156,3 +156,12 @@ def test_the_findings_say_how_far_the_alignment_moved_the_captures():
     assert aligned_text(mos([(0.0, 0.0), (0.03, -0.042), (0.004, 0.0), None])) == (
         "The alignment moved 1 of 3 captures along the surface, by up to 5 cm, to fit the others.")
     assert aligned_text(mos([(0.0, 0.0), (0.0, 0.004)])) == "" and aligned_text(mos([])) == ""
+
+
+@pytest.mark.parametrize("bad", ["-1", "nan", "11"])
+def test_a_bad_alignment_limit_is_one_line(bad, tmp_path, capsys):
+    from services.inspection.deliverable import main
+
+    with pytest.raises(SystemExit) as exc:
+        main([str(tmp_path), "--out", str(tmp_path / "out"), "--align-m", bad])
+    assert exc.value.code == 2 and "--align-m must be in [0, 10] m" in capsys.readouterr().err
