@@ -6,6 +6,7 @@ Design notes: docs/architecture.md (services/orchestration/process.py).
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import random
 import select
@@ -80,32 +81,27 @@ def claims_dir() -> Path:
 
 def claim(port: int, kind: int = socket.SOCK_STREAM, now: float | None = None) -> bool:
     """Whether this process may hand out ``port``: no other process of this user claimed it in the last
-    :data:`CLAIM_S` (a file created with ``O_EXCL``; an older claim is taken over). Two launchers whose
-    cursors meet would otherwise both find a port free before either service binds it. True when the
-    claims folder cannot be used (the bind check alone then)."""
+    :data:`CLAIM_S` (a file per port, its time the claim's; an older claim is taken over). The check and the
+    claim are one step under an exclusive lock on the folder (``flock``): two launchers whose cursors meet would
+    otherwise both find a port free before either service binds it, and two taking over one stale claim could
+    each delete the other's. True when the claims folder cannot be used (the bind check alone then)."""
     folder = claims_dir()
-    try:
-        folder.mkdir(mode=0o700, exist_ok=True)
-    except OSError:
-        return True
     path = folder / f"{'udp' if kind == socket.SOCK_DGRAM else 'tcp'}-{port}"
     now = time.time() if now is None else now
-    for _ in range(2):
-        try:
-            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
-            return True
-        except FileExistsError:
+    try:
+        folder.mkdir(mode=0o700, exist_ok=True)
+        with open(folder / ".lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
             try:
                 if now - path.stat().st_mtime < CLAIM_S:
                     return False
-                path.unlink()  # a stale claim: taken over (if another process takes it first, O_EXCL says so)
             except FileNotFoundError:
-                continue
-            except OSError:
-                return False
-        except OSError:
+                pass
+            path.touch(mode=0o600)
+            os.utime(path, (now, now))
             return True
-    return False
+    except OSError:
+        return True
 
 
 def free_port(kind: int = socket.SOCK_STREAM, host: str = "127.0.0.1") -> int:

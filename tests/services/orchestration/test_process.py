@@ -13,6 +13,7 @@ from services.orchestration.process import (
     CLAIM_S,
     LOWEST_LISTEN_PORT,
     ProcessGroup,
+    _cursor,
     claim,
     claims_dir,
     ephemeral_range,
@@ -188,16 +189,23 @@ def test_the_ready_reader_takes_only_one_well_formed_line_and_never_hangs():
 def test_two_processes_whose_cursors_meet_never_hand_out_the_same_port():
     """A fault mission's edge could not listen ("Can not create a new TLS listener", exited 3 times): two
     launchers (two test workers' missions) whose port cursors met both found the same ports free before either
-    service bound them. Each process now claims what it hands out (a file per port, O_EXCL); this runs two
-    processes whose cursors start at the same port."""
+    service bound them. Each process claims what it hands out (a file per port, under a lock); this runs two
+    processes whose cursors start at the same port, over claims an earlier run left stale (a CI machine that ran
+    the suite before: two processes taking over one stale claim both won, one deleting the other's)."""
     code = ("import sys, services.orchestration.process as p\n"
             "p._cursor.next(); p._cursor._at = int(sys.argv[1])\n"
             "print(' '.join(str(p.free_port()) for _ in range(40)))\n")
-    start = 7000 + os.getpid() % 1000  # away from the other tests' cursors
-    runs = [subprocess.Popen([sys.executable, "-c", code, str(start)], stdout=subprocess.PIPE, text=True, cwd=ROOT)
-            for _ in range(2)]
-    got = [set(map(int, r.communicate(timeout=60)[0].split())) for r in runs]
-    assert len(got[0]) == len(got[1]) == 40 and not got[0] & got[1], sorted(got[0] & got[1])
+    _cursor.next()
+    for k in range(4):
+        start = 7000 + (os.getpid() * 4 + k * 97) % 1000  # away from the other tests' cursors
+        for port in _cursor._ports[start:start + 120]:
+            stale = claims_dir() / f"tcp-{port}"
+            stale.touch()
+            os.utime(stale, (time.time() - CLAIM_S - 10,) * 2)
+        runs = [subprocess.Popen([sys.executable, "-c", code, str(start)], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+                for _ in range(2)]
+        got = [set(map(int, r.communicate(timeout=60)[0].split())) for r in runs]
+        assert len(got[0]) == len(got[1]) == 40 and not got[0] & got[1], (k, sorted(got[0] & got[1]))
 
 
 def test_a_claim_is_held_for_its_time_then_taken_over():
