@@ -55,7 +55,7 @@ from services.recording.witness import FrameWitness
 from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
 from .evidence import corroboration_failures, has_evidence, held_captures, ledger
 from .supervision import SUPERVISE_PERIOD_S, Supervisor, mission_time
-from .verdict import goal_check, planned_captures
+from .verdict import GOAL_SETTLE_S, goal_check, planned_captures, short_of_goal
 
 
 def with_formation_size(scenario: Scenario, n: int, log=None) -> Scenario:
@@ -468,6 +468,9 @@ class MissionRunner:
             duration = max(t.waypoints[-1].t for t in plan.trajectories)
             self.wait_for(lambda: self.mission_done(), self.sim_timeout(duration * self.opt.mission_margin + 60.0),
                           "every UAV to finish its trajectory")
+            with contextlib.suppress(MissionFailed):  # one that fell behind its clock gets there before the landing
+                self.wait_for(lambda: not self.short_of_goal(plan), GOAL_SETTLE_S / self.opt.speed + 1.0,
+                              "every UAV at its goal")
             self._in_mission.clear()
             self.phase("reports")
             with contextlib.suppress(MissionFailed):  # judge() names the captures that were not imaged
@@ -581,6 +584,12 @@ class MissionRunner:
         first = next(t for t in plan.trajectories if t.uav == uav).waypoints[0].pos
         home_z = self.latest[uav].pos[2] if uav in self.latest else 0.0
         return max(2.0, min(first[2] - home_z, self.fence().hi[2] - home_z - 1.0))
+
+    def short_of_goal(self, plan: MissionPlan) -> list[int]:
+        """The UAVs holding at their trajectory's end but not yet at its goal (:func:`.verdict.short_of_goal`)."""
+        with self._lock:
+            latest = dict(self.latest)
+        return short_of_goal(latest, plan.trajectories)
 
     def mission_done(self) -> bool:
         """Every UAV still counted finished its trajectory (or came down on its own: not waited for)."""

@@ -13,7 +13,8 @@ import numpy as np
 from protocol.messages import DefectReport, Mode, Trajectory, VehicleState
 from services.recording.record import GOAL_RADIUS_M
 
-__all__ = ["GOAL_RADIUS_M", "GoalCheck", "goal_check", "planned_captures", "imaged_captures"]
+__all__ = ["GOAL_RADIUS_M", "GOAL_SETTLE_S", "GoalCheck", "goal_check", "short_of_goal", "planned_captures",
+           "imaged_captures"]
 
 
 def planned_captures(trajectories: Iterable[Trajectory]) -> set[tuple[int, int]]:
@@ -43,6 +44,24 @@ class GoalCheck:
     def reached(self) -> bool:
         """Within :data:`GOAL_RADIUS_M` of the goal (for the verdict, only together with ``completed``)."""
         return self.distance_m <= GOAL_RADIUS_M
+
+
+#: how long (mission seconds) the ground station waits, once every trajectory's clock has run out, for a UAV still
+#: short of its goal (a board that fell behind its clock) before it lands the fleet
+GOAL_SETTLE_S = 10.0
+
+
+def short_of_goal(latest: dict[int, VehicleState], trajectories: Iterable[Trajectory]) -> list[int]:
+    """The UAVs holding at the end of their trajectory (progress 1, HOLD) farther than :data:`GOAL_RADIUS_M` from its
+    last waypoint: still getting there. A UAV in any other mode (landing, returning, lost) is not waited for."""
+    out = []
+    for t in trajectories:
+        s = latest.get(t.uav)
+        if s is None or s.mode != Mode.HOLD or s.progress < 1.0:
+            continue
+        if float(np.linalg.norm(np.asarray(s.pos, float) - np.asarray(t.waypoints[-1].pos, float))) > GOAL_RADIUS_M:
+            out.append(t.uav)
+    return out
 
 
 def goal_check(states: Iterable[VehicleState], trajectory: Trajectory) -> GoalCheck | None:

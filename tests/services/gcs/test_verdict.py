@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from protocol.messages import DefectReport, Mode, Trajectory, VehicleState, Waypoint
-from services.gcs.verdict import GOAL_RADIUS_M, goal_check, imaged_captures, planned_captures
+from services.gcs.verdict import GOAL_RADIUS_M, goal_check, imaged_captures, planned_captures, short_of_goal
 
 TRAJ = Trajectory(uav=1, waypoints=[Waypoint(t=0.0, pos=(0, 0, 10)), Waypoint(t=5.0, pos=(10, 0, 10), capture_id=3),
                                     Waypoint(t=10.0, pos=(20, 0, 10), capture_id=4)])
@@ -41,3 +41,17 @@ def test_a_trajectory_never_completed_is_measured_from_the_last_position():
     far = goal_check([state(0, 0.0, 0.0), state(1, 5.0, 10.0)], TRAJ)
     assert not far.reached and far.distance_m == pytest.approx(10.0)
     assert goal_check([], TRAJ) is None
+
+
+def test_a_uav_holding_short_of_its_goal_is_waited_for_and_no_other():
+    # a board that fell behind its clock (a loaded machine) holds at its trajectory's end metres short of the goal:
+    # the ground station waits for it before landing the fleet (it landed it there, and the verdict failed it)
+    goal_x = TRAJ.waypoints[-1].pos[0]
+    short = state(9, 20.0, goal_x - GOAL_RADIUS_M - 0.5, Mode.HOLD, 1.0)
+    there = state(9, 20.0, goal_x - GOAL_RADIUS_M + 0.5, Mode.HOLD, 1.0)
+    assert short_of_goal({1: short}, [TRAJ]) == [1]
+    assert short_of_goal({1: there}, [TRAJ]) == []
+    for other in (state(9, 20.0, 0.0, Mode.MISSION, 0.9), state(9, 20.0, 0.0, Mode.LAND, 1.0),
+                  state(9, 20.0, 0.0, Mode.RTL, 1.0)):
+        assert short_of_goal({1: other}, [TRAJ]) == []  # still flying it, or not going there any more
+    assert short_of_goal({}, [TRAJ]) == []  # never heard
