@@ -18,6 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as M
 
 from edge.vehicle.angles import wrap_angle
 from edge.vehicle.px4.params import decode
+from protocol.messages import MAX_COORD_M, MAX_SPEED_MS
 
 __all__ = ["Heartbeat", "Telemetry", "HANDLERS", "dispatch", "stream_requests", "STREAMS", "LEGACY_STREAMS", "ned_to_enu",
            "enu_to_ned", "yaw_ned_to_enu", "yaw_enu_to_ned", "attitude_ned_to_enu", "rates_frd_to_flu"]
@@ -168,6 +169,8 @@ def _heartbeat(t: Telemetry, msg: Any, now: float) -> None:
 def _local_position(t: Telemetry, msg: Any, now: float) -> None:
     p = ned_to_enu((msg.x, msg.y, msg.z)) + t.home
     v = ned_to_enu((msg.vx, msg.vy, msg.vz))
+    if np.any(np.abs(p) > MAX_COORD_M) or np.any(np.abs(v) > MAX_SPEED_MS):  # the wire contract's sane bounds
+        raise ValueError("position or velocity beyond any flight")
     t.pos, t.vel = (float(p[0]), float(p[1]), float(p[2])), (float(v[0]), float(v[1]), float(v[2]))
     t.pos_mono = now
 
@@ -285,7 +288,7 @@ def dispatch(t: Telemetry, msg: Any, now: float) -> None:
             return
         try:
             handler(t, msg, now)
-        except ValueError:  # a non-finite position or attitude
+        except ValueError:  # a non-finite position or attitude, or one beyond any flight
             t.errors += 1
 
 

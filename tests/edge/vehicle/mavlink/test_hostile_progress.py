@@ -105,6 +105,18 @@ def test_a_rejected_position_does_not_make_the_last_one_look_fresh(tel):
     assert t.pos_mono == 100.0
 
 
+def test_a_position_or_velocity_beyond_any_flight_is_counted_not_taken(tel):
+    # finite but absurd (float32's range): taken, it would carry a capture's pose kilometres ahead and make every
+    # state the board publishes invalid on the wire (its speeds and coordinates are bounded)
+    t = tel
+    dispatch(t, wire(M.MAVLink_local_position_ned_message(0, 1.0, 2.0, -3.0, 0.5, 0, 0)), 100.0)
+    errors = t.errors
+    for x, vx in ((1.0, 3e38), (1.0, 150.0), (1e9, 0.5), (-3e38, 0.5)):
+        dispatch(t, wire(M.MAVLink_local_position_ned_message(0, x, 2.0, -3.0, vx, 0, 0)), 200.0)
+    assert t.errors == errors + 4 and t.pos_mono == 100.0
+    assert t.pos == pytest.approx((2.0, 1.0, 3.0)) and t.vel == pytest.approx((0.0, 0.5, 0.0))
+
+
 @pytest.fixture
 def heartbeats():
     """A driver listening on loopback and a raw pymavlink "autopilot" (system 1) that sends what the test says."""
