@@ -674,7 +674,9 @@ class MavlinkDriver(ParamClient, VehicleDriver):
         else:
             if auto is not None:
                 auto._fired.update(w.capture_id for w in due)
-            events.extend(CaptureEvent(w.capture_id, t, self._shutter(), tel.att) for w in due)
+            if due:
+                here = self._shutter()
+                events.extend(CaptureEvent(w.capture_id, t, here, tel.att) for w in due)
         if m.done:
             self.phase = Phase.HOLD
             self._hold = (p, yaw)
@@ -717,9 +719,10 @@ class MavlinkDriver(ParamClient, VehicleDriver):
                     auto.enter(until_t)
             elif phase is Phase.AUTO and auto is not None:
                 ref = None if self.mission.done else self._mission_reference(until_t, dt, events, in_auto=True)
-                fired = auto.captures_due(self._shutter())
+                here = self._shutter()
+                fired = auto.captures_due(here)
                 self.mission.captures += len(fired)
-                events.extend(CaptureEvent(cid, until_t, self._shutter(), tel.att) for cid in fired)
+                events.extend(CaptureEvent(cid, until_t, here, tel.att) for cid in fired)
                 if self.mission.done:  # the clock ran out: follow the autopilot's mission to its end, then hold
                     auto.ended()
                     if auto.finished():
