@@ -32,18 +32,18 @@ from protocol.scenario import load_scenario  # noqa: E402
 from services.inspection.accuracy import compare, truth_cracks  # noqa: E402
 from services.inspection.captures import decode, synthetic_captures  # noqa: E402
 from services.inspection.deliverable import ALIGN_M, inspect_frames, segment  # noqa: E402
-from services.inspection.mosaic import Plane, PosedFrame, registration  # noqa: E402
+from services.inspection.mosaic import Plane, PosedFrame, build_mosaic, moved_camera  # noqa: E402
+
+
+def offsets(n: int, sigma_m: float, seed: int) -> np.ndarray:
+    """``n`` random (du, dv) camera offsets along the wall, N(0, sigma_m) per axis."""
+    return np.random.default_rng(seed).normal(0.0, sigma_m, (n, 2))
 
 
 def jittered(frames: list[PosedFrame], plane: Plane, sigma_m: float, seed: int) -> list[PosedFrame]:
-    """``frames`` with each camera position moved by N(0, sigma_m) along each axis of ``plane``."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for f in frames:
-        du, dv = rng.normal(0.0, sigma_m, 2)
-        pos = np.asarray(f.meta.cam_pos, float) + du * plane.u_axis + dv * plane.v_axis
-        out.append(PosedFrame(f.meta.model_copy(update={"cam_pos": tuple(float(x) for x in pos)}), f.grey, f.mask))
-    return out
+    """``frames`` with each camera moved by its :func:`offsets` along ``plane``."""
+    return [PosedFrame(moved_camera(f.meta, plane, float(du), float(dv)), f.grey, f.mask)
+            for f, (du, dv) in zip(frames, offsets(len(frames), sigma_m, seed))]
 
 
 def main() -> int:
@@ -89,13 +89,9 @@ def main() -> int:
         for sigma in (x for x in a.sigmas_m if x > 0):
             worsts: list[float] = []
             for seed in range(a.placement_seeds):
-                rng = np.random.default_rng(seed)
-                offs = rng.normal(0.0, sigma, (len(seg), 2))
-                moved = [PosedFrame(f.meta.model_copy(update={"cam_pos": tuple(
-                    float(x) for x in np.asarray(f.meta.cam_pos) + du * plane.u_axis + dv * plane.v_axis)}), f.grey)
-                    for f, (du, dv) in zip(seg, offs)]
-                got = np.array([(d[0] * m_per_px, -d[1] * m_per_px) if d is not None else (np.nan, np.nan)
-                                for d in registration(moved, plane, m_per_px, align)])
+                offs = offsets(len(seg), sigma, seed)
+                shifts = build_mosaic(jittered(seg, plane, sigma, seed), plane, m_per_px, align).shifts_m
+                got = np.array([(np.nan, np.nan) if d is None else d for d in shifts])
                 want = -offs + offs.mean(0)
                 worsts.append(float(np.nanmax(np.hypot(*(got - want).T))))
             row = {"align_m": align, "sigma_m": sigma, "seeds": a.placement_seeds,

@@ -28,7 +28,7 @@ from services.detector.learned import ModelError
 from services.detector.measure import SEVERITY_LIMITS_M, centre_line, measure_mask, outline
 from services.detector.pipeline import MIN_REPORT_AREA_PX
 
-from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, plane_from_frames
+from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, moved_camera, plane_from_frames
 
 log = logging.getLogger("skynet.inspection.deliverable")
 
@@ -99,8 +99,8 @@ class Deliverable:
 CONFIRM_METHOD = "learned"
 #: how near (px) a confirming pixel must come to a component
 CONFIRM_REACH_PX = 2
-#: how far (m, along the surface) a frame may be moved off its pose to fit the frames before it (docs/report.md:
-#: poses off by up to about 10 cm per axis give the report of exact ones, bench/pose_tolerance.py)
+#: how far (m, along the surface) two frames may be moved against each other to fit (docs/report.md: poses off by
+#: up to about 10 cm per axis give the report of exact ones, bench/pose_tolerance.py)
 ALIGN_M = 0.6
 
 
@@ -146,15 +146,6 @@ def sees(meta: ImageMeta, point: Sequence[float]) -> bool:
     return bool(-0.5 <= c <= k.width - 0.5 and -0.5 <= r <= k.height - 0.5)
 
 
-def aligned_meta(meta: ImageMeta, plane: Plane, shift_m: tuple[float, float] | None) -> ImageMeta:
-    """``meta`` with its camera where the mosaic's alignment put the frame: moved by ``shift_m`` (u, v metres)
-    along ``plane`` (a camera moved along the surface sees its content moved as much)."""
-    if not shift_m or shift_m == (0.0, 0.0):
-        return meta
-    pos = np.asarray(meta.cam_pos, float) + shift_m[0] * plane.u_axis + shift_m[1] * plane.v_axis
-    return meta.model_copy(update={"cam_pos": (float(pos[0]), float(pos[1]), float(pos[2]))})
-
-
 def severity_rank(severity: str) -> int:
     """Position of a class in :data:`SEVERITY_ORDER` (unknown classes last)."""
     return SEVERITY_ORDER.index(severity) if severity in SEVERITY_ORDER else len(SEVERITY_ORDER)
@@ -168,8 +159,8 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
 
     ``min_area_px`` defaults to the detector's smallest reported component
     (:data:`services.detector.pipeline.MIN_REPORT_AREA_PX`, set for 640 x 480 frames) scaled by the
-    frames' pixel count over that reference (docs/report.md). Each frame may move up to ``align_m`` along the
-    surface to fit the frames before it (0: placed by its pose alone; :func:`~.mosaic.build_mosaic`).
+    frames' pixel count over that reference (docs/report.md). The frames are aligned to each other along the surface,
+    two by up to ``align_m`` against each other (0: each placed by its pose alone; :func:`~.mosaic.build_mosaic`).
     """
     if not frames:
         raise ValueError("no frames")
@@ -192,7 +183,8 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
     _, labels, stats, _ = cv2.connectedComponentsWithStats((mos.mask > 0).astype(np.uint8), connectivity=8,
                                                           ltype=cv2.CV_32S)
     label_of = {tuple(int(v) for v in st[:4]): i for i, st in enumerate(stats) if i > 0}
-    metas = [aligned_meta(f.meta, pl, d) for f, d in zip(frames, mos.shifts_m or [None] * len(frames))]
+    metas = [f.meta if d is None else moved_camera(f.meta, pl, *d)  # the cameras where the alignment put them
+             for f, d in zip(frames, mos.shifts_m or [None] * len(frames))]
     rows = []
     for bbox, ctr, m in measure_mask(mos.mask, mos.m_per_px, min_area_px, mos.image):
         uv = mos.pixel_to_uv(np.array(ctr))

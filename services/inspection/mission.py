@@ -110,8 +110,8 @@ def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, f
              "is flagged, not measured; the classes told apart by width: "
              + ", ".join(note["classes_resolved"])
              + (f" (not: {', '.join(note['classes_unresolved'])}, narrower than one pixel)"
-                if note["classes_unresolved"] else "") + "." + (f" {md_text(absent)}" if absent else "")
-             + (f" {aligned_text(m)}" if aligned_text(m) else ""), "",
+                if note["classes_unresolved"] else "") + "." + "".join(f" {md_text(x)}" for x in (absent, aligned_text(m)) if x),
+             "",
              md_text(orientation_text_of(res)), "",
              "| class (AASHTO, max width) | defects | longest (m) | widest (mm) |", "|---|---|---|---|"]
     for c in SEVERITY_ORDER:

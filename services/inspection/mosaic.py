@@ -17,7 +17,7 @@ from protocol.messages import ImageMeta
 from protocol.scenario import surface_frame
 
 __all__ = ["Plane", "Mosaic", "PosedFrame", "alignment", "build_mosaic", "canvas_homography", "frame_gsd",
-           "plane_from_frames", "registration", "solve_shifts"]
+           "moved_camera", "plane_from_frames", "registration", "solve_shifts"]
 
 
 @dataclass(frozen=True)
@@ -101,6 +101,15 @@ def _meta_arrays(meta: ImageMeta) -> tuple[NDArray[np.float64], NDArray[np.float
     k = meta.intrinsics
     K = np.array([[k.fx, 0.0, k.cx], [0.0, k.fy, k.cy], [0.0, 0.0, 1.0]])
     return K, np.asarray(meta.cam_rot, float).reshape(3, 3), np.asarray(meta.cam_pos, float)
+
+
+def moved_camera(meta: ImageMeta, plane: Plane, du: float, dv: float) -> ImageMeta:
+    """``meta`` with its camera moved ``du``, ``dv`` metres along ``plane``'s axes: its frame's content moves as much
+    on the surface (what the alignment does to a frame, :attr:`Mosaic.shifts_m`; a pose error along the wall)."""
+    if du == 0.0 and dv == 0.0:
+        return meta
+    pos = np.asarray(meta.cam_pos, float) + du * plane.u_axis + dv * plane.v_axis
+    return meta.model_copy(update={"cam_pos": (float(pos[0]), float(pos[1]), float(pos[2]))})
 
 
 def canvas_homography(meta: ImageMeta, plane: Plane, m_per_px: float) -> NDArray[np.float64] | None:

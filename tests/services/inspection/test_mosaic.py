@@ -9,8 +9,7 @@ import pytest
 from edge.world.wall import synthetic_surface
 from protocol.scenario import load_scenario
 from services.inspection.captures import decode, synthetic_captures
-from services.inspection.deliverable import aligned_meta
-from services.inspection.mosaic import Plane, PosedFrame, alignment, build_mosaic, solve_shifts
+from services.inspection.mosaic import Plane, PosedFrame, alignment, build_mosaic, moved_camera, solve_shifts
 
 
 def texture(seed: int = 0, shape: tuple[int, int] = (300, 400)) -> np.ndarray:
@@ -74,10 +73,9 @@ def wall():
 
 def test_a_frame_off_its_pose_is_put_back_where_the_others_see_its_content(wall):
     plane, frames = wall
-    off = 0.05 * plane.u_axis - 0.03 * plane.v_axis  # 5 cm along the wall, 3 cm down
     k = len(frames) // 2
-    moved = [*frames[:k], PosedFrame(frames[k].meta.model_copy(update={"cam_pos": tuple(
-        np.asarray(frames[k].meta.cam_pos) + off)}), frames[k].grey), *frames[k + 1:]]
+    moved = [*frames[:k], PosedFrame(moved_camera(frames[k].meta, plane, 0.05, -0.03), frames[k].grey),  # 5 cm along
+             *frames[k + 1:]]                                                                              # 3 cm down
     exact = build_mosaic(frames, plane)
     placed = build_mosaic(moved, plane)
     aligned = build_mosaic(moved, plane, align_m=0.6)
@@ -86,7 +84,7 @@ def test_a_frame_off_its_pose_is_put_back_where_the_others_see_its_content(wall)
     assert aligned.moved_m[k] == pytest.approx(np.hypot(0.05, 0.03), abs=0.01)
     assert max(m for i, m in enumerate(aligned.moved_m) if i != k) < 0.01
     # its camera, moved as the frame was, is back where it was (what the report's "seen by" uses)
-    back = aligned_meta(moved[k].meta, plane, aligned.shifts_m[k]).cam_pos
+    back = moved_camera(moved[k].meta, plane, *aligned.shifts_m[k]).cam_pos
     assert np.asarray(back) == pytest.approx(np.asarray(frames[k].meta.cam_pos), abs=0.01)
     seen = (exact.owner == k) & (aligned.owner == k)
 

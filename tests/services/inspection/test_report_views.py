@@ -24,7 +24,7 @@ from services.inspection.accuracy import compare, truth_cracks
 from services.inspection.captures import decode, synthetic_captures
 from services.inspection.deliverable import ALIGN_M, SEVERITY_ORDER, inspect_frames, segment, write_deliverable
 from services.inspection.mission import HEADING, append_deliverable, deliverable_line
-from services.inspection.mosaic import Plane, PosedFrame
+from services.inspection.mosaic import Plane, PosedFrame, moved_camera
 from services.recording.record import GroundTruthDefect, MissionRecord
 
 ORIGIN = (-33.87601, 151.191182, 120.0)
@@ -189,9 +189,8 @@ def test_frames_whose_poses_are_off_by_centimetres_give_the_report_of_exact_ones
     sc, surf, caps, res, out = built
     plane = Plane.from_corners(surf.corners)
     rng = np.random.default_rng(2)
-    off = [PosedFrame(f.meta.model_copy(update={"cam_pos": tuple(
-        np.asarray(f.meta.cam_pos) + rng.normal(0, 0.05) * plane.u_axis + rng.normal(0, 0.05) * plane.v_axis)}),
-        f.grey, f.mask) for f in segment([PosedFrame(c.meta, decode(c)) for c in caps])]
+    off = [PosedFrame(moved_camera(f.meta, plane, rng.normal(0, 0.05), rng.normal(0, 0.05)), f.grey, f.mask)
+           for f in segment([PosedFrame(c.meta, decode(c)) for c in caps])]
     truth, labels = truth_cracks(surf.mask, 1 / surf.px_per_m)
 
     def scored(align_m: float) -> tuple[dict, int]:
