@@ -55,6 +55,7 @@ from services.detector.learned import STRIDE, splits  # noqa: E402  (the shipped
 log = logging.getLogger("train_detector")
 
 WIDTHS = (8, 16, 32, 64)
+SCALE = (0.75, 1.33)  # the random scale of a training image (augment)
 DATASETS = ("crackforest", "deepcrack-train")
 THRESHOLDS = np.round(np.arange(0.10, 0.91, 0.05), 2)
 
@@ -122,10 +123,11 @@ def standardise(g: np.ndarray) -> np.ndarray:
     return (x - x.mean()) / (x.std() + 1.0)
 
 
-def augment(rng: np.random.Generator, g: np.ndarray, m: np.ndarray, crop: int) -> tuple[np.ndarray, np.ndarray]:
-    """One training crop: random scale (0.75-1.33), gamma (0.7-1.4), crop (70 % centred near a crack
-    pixel), flips and 90-degree turns, Gaussian blur or noise; standardised over the scaled image."""
-    s = math.exp(rng.uniform(math.log(0.75), math.log(1.33)))
+def augment(rng: np.random.Generator, g: np.ndarray, m: np.ndarray, crop: int,
+            scale: tuple[float, float] = SCALE) -> tuple[np.ndarray, np.ndarray]:
+    """One training crop: random scale (log-uniform over ``scale``), gamma (0.7-1.4), crop (70 % centred near
+    a crack pixel), flips and 90-degree turns, Gaussian blur or noise; standardised over the scaled image."""
+    s = math.exp(rng.uniform(math.log(scale[0]), math.log(scale[1])))
     if abs(s - 1) > 0.03:
         h, w = g.shape
         size = (max(crop, round(w * s)), max(crop, round(h * s)))
@@ -296,6 +298,8 @@ def train(a: argparse.Namespace) -> int:
     if not 2 <= len(widths) <= most or min(widths) < 1 or a.crop % 2 ** (len(widths) - 1):
         raise SystemExit(f"train_detector: --widths takes 2 to {most} positive channel counts and --crop a multiple "
                          f"of 2 ** (scales - 1), got {list(widths)} and {a.crop}")
+    if not 0.1 <= a.scale[0] <= a.scale[1] <= 4:
+        raise SystemExit(f"train_detector: --scale takes LO <= HI within 0.1-4, got {a.scale[0]} {a.scale[1]}")
     tr = [s for d in DATASETS for s in load_pairs(root, d, "train", a.limit)]
     val = [s for d in DATASETS for s in load_pairs(root, d, "val", a.limit)]
     walls = wall_pairs(a.walls) if a.walls else []
@@ -341,7 +345,7 @@ def train(a: argparse.Namespace) -> int:
         got = []
         for _ in range(BN_BATCHES):
             idx = bn_rng.integers(len(tr), size=a.batch)
-            xs, _ = zip(*(augment(bn_rng, tr[k][1], tr[k][2], a.crop) for k in idx))
+            xs, _ = zip(*(augment(bn_rng, tr[k][1], tr[k][2], a.crop, a.scale) for k in idx))
             got.append(batch_norm_stats(p, jnp.asarray(np.stack(xs)[..., None])))
         return jax.tree_util.tree_map(lambda *v: jnp.mean(jnp.stack(v), axis=0), *got)
 
@@ -355,7 +359,8 @@ def train(a: argparse.Namespace) -> int:
         return predict
 
     run: dict[str, object] = {
-        "seed": a.seed, "widths": widths, "norm": a.norm, "crop": a.crop, "batch": a.batch, "lr": a.lr,
+        "seed": a.seed, "widths": widths, "norm": a.norm, "crop": a.crop, "scale": list(a.scale), "batch": a.batch,
+        "lr": a.lr,
         "pos_weight": a.pos_weight, "dice_weight": a.dice_weight, "ema": a.ema, "init": Path(a.init).name if a.init else None,
         "walls": {"scenario": "monorail", "seeds": a.walls, "images": len(walls)},
         "epochs_planned": a.epochs, "crops_per_image": a.crops_per_image, "minutes_budget": a.minutes,
@@ -369,7 +374,7 @@ def train(a: argparse.Namespace) -> int:
         losses = []
         for i in range(steps_per_epoch):
             idx = order[i * a.batch:(i + 1) * a.batch]
-            xs, ys = zip(*(augment(rng, tr[k][1], tr[k][2], a.crop) for k in idx))
+            xs, ys = zip(*(augment(rng, tr[k][1], tr[k][2], a.crop, a.scale) for k in idx))
             params, state, stats, loss = step(params, state, stats, jnp.asarray(np.stack(xs)[..., None]),
                                               jnp.asarray(np.stack(ys)))
             losses.append(float(loss))
@@ -543,6 +548,9 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--epochs", type=int, default=36)
     t.add_argument("--minutes", type=float, default=0, help="stop after the epoch that passes this wall time")
     t.add_argument("--crop", type=int, default=128)
+    t.add_argument("--scale", type=float, nargs=2, default=list(SCALE), metavar=("LO", "HI"),
+                   help="range of the random scale a training image is drawn at (log-uniform; above 1 draws "
+                        "its cracks wider)")
     t.add_argument("--batch", type=int, default=16)
     t.add_argument("--crops-per-image", type=int, default=2)
     t.add_argument("--lr", type=float, default=3e-3)

@@ -249,7 +249,7 @@ def learned_widths() -> list[int]:
 
 @pytest.mark.slow
 @pytest.mark.skipif(not TRAIN_EXTRA, reason="the train extra (jax, optax, onnx) is not installed: pip install -e '.[train]'")
-@pytest.mark.parametrize("options", [[], ["--norm", "batch", "--pos-weight", "2", "--dice-weight", "0.5"],
+@pytest.mark.parametrize("options", [[], ["--norm", "batch", "--pos-weight", "2", "--dice-weight", "0.5", "--scale", "1", "2"],
                                      ["--init", str(MODEL_PATH), "--walls", "7"],
                                      ["--norm", "batch", "--widths", "4", "8", "8", "16", "16", "--ema", "0.9"]],
                          ids=["plain", "batch-norm-weighted-loss", "fine-tune-on-walls", "five-scales-averaged"])
@@ -268,6 +268,7 @@ def test_training_script_runs_one_short_epoch_and_exports_a_model_the_detector_l
     assert run["export_max_abs_diff"] < 1e-4  # cv2.dnn runs the exported graph as JAX does (batch norm folded)
     assert (run["walls"]["images"] > 0) == ("--walls" in options) and run["init"] == ("crack_unet.onnx" if "--init" in options else None)
     assert 0 <= run["best"]["val_f_flip"] <= 1
+    assert run["scale"] == ([1, 2] if "--scale" in options else [0.75, 1.33])
     assert run["widths"] == ([4, 8, 8, 16, 16] if "--widths" in options else learned_widths())
     net = load_model(out / "crack_unet.onnx")
     assert net is not load_model()
