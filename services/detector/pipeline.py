@@ -16,10 +16,13 @@ from services.detector.measure import frame_scale, measure_mask
 from .config import DETECT_MAX_MP  # noqa: F401  (the budget's one place: the config)
 from .detect import Defect as PixelDefect
 from .detect import Detection, detect
+from .exposure import exposure_problem
 
 #: components smaller than this are not reported (the mask is unchanged)
 MIN_REPORT_AREA_PX = 12
 MAX_REPORTED_DEFECTS = 500
+#: how a report of a frame that shows no surface begins its error
+UNUSABLE = "frame shows no surface"
 
 
 def pixels_to_world(meta: ImageMeta, px: np.ndarray) -> np.ndarray | None:
@@ -92,7 +95,8 @@ def scaled(det: Detection, f: int) -> Detection:
 
 def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", max_pixels: int | None = None,
             **params: object) -> DefectReport:
-    """Decode, detect and map one frame; a frame that does not decode gives an ``ok=False`` report.
+    """Decode, detect and map one frame; a frame that does not decode, or shows no surface
+    (:func:`~services.detector.exposure.exposure_problem`), gives an ``ok=False`` report saying why.
 
     With ``max_pixels``, a larger frame is decoded at 1/2, 1/4 or 1/8 of its size
     (:func:`detection_scale`) and its defects reported in full-frame pixels (:func:`scaled`): the
@@ -105,5 +109,10 @@ def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", max
     except ValueError as exc:
         return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
                             stamp_report=time.time(), method=method, ok=False, error=str(exc))
+    problem = exposure_problem(grey)
+    if problem is not None:
+        return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
+                            stamp_report=time.time(), method=method, ok=False,
+                            error=f"{UNUSABLE}: {problem}")
     det = detect(grey, method, min_defect_area=max(1, MIN_REPORT_AREA_PX // (f * f)), **params)
     return to_report(meta, det, grey=grey, scale=f)

@@ -55,7 +55,7 @@ from services.recording.witness import FrameWitness
 from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
 from .evidence import corroboration_failures, has_evidence, held_captures, ledger
 from .supervision import SUPERVISE_PERIOD_S, Supervisor, mission_time
-from .verdict import GOAL_SETTLE_S, goal_check, planned_captures, short_of_goal
+from .verdict import GOAL_SETTLE_S, goal_check, not_imaged_text, planned_captures, short_of_goal
 
 
 def with_formation_size(scenario: Scenario, n: int, log=None) -> Scenario:
@@ -645,8 +645,8 @@ class MissionRunner:
                 rec.failures.append(far_text(far))
             missing = self.missing_captures(imaged=held)
             if missing:
-                rec.failures.append(f"{len(missing)} of {len(self.planned_captures())} capture points were not imaged: "
-                                    f"{sorted(missing)[:10]}")
+                rec.failures.append(not_imaged_text(missing, len(self.planned_captures()),
+                                                    (d.msg for d in rec.defects)))
         rec.imagery = ledger(self.opt.uavs, (s.msg for s in rec.states), (d.msg for d in rec.defects),
                              (s.msg for s in rec.detector_stats), self.witness)
         rec.failures += corroboration_failures(rec.imagery)

@@ -27,6 +27,7 @@ from services.detector.detect import detect
 from services.detector.learned import ModelError
 from services.detector.measure import SEVERITY_LIMITS_M, centre_line, measure_mask, outline
 from services.detector.pipeline import MIN_REPORT_AREA_PX
+from services.recording.record import capture_name
 
 from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, moved_camera, plane_from_frames
 
@@ -91,6 +92,8 @@ class Deliverable:
     method: str = ""  # the detection method the frames were segmented with ("": masks given with the frames)
     confirm: str = ""  # the method whose mask confirmed each component of ``method``'s ("": none)
     unconfirmed: str = ""  # why the components were not confirmed as asked (the confirming model cannot run)
+    #: the captures that show no surface (:func:`~services.detector.exposure.exposure_problem`), by name
+    unusable: dict[str, str] = field(default_factory=dict)
 
 
 #: the method whose mask must confirm each component of the deliverable's own (docs/report.md): IT+ measures a
@@ -131,7 +134,7 @@ def segment(frames: Sequence[PosedFrame], method: str = "it+", confirm: str | No
 
 def frame_name(meta: ImageMeta) -> str:
     """A capture's name in ``frames/`` (:func:`save_frame`): ``uav<N>-<capture>``."""
-    return f"uav{meta.uav}-{meta.capture_id:05d}"
+    return capture_name(meta.uav, meta.capture_id)
 
 
 def sees(meta: ImageMeta, point: Sequence[float]) -> bool:
@@ -211,7 +214,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
                 meta = frames[int(share.argmax())].meta
                 geo.update(uav=meta.uav, capture_id=meta.capture_id, t=meta.t, stamp=meta.stamp)
                 behind = [int(i) for i in np.argsort(-share, kind="stable") if share[i] > 0]
-        seers = [i for i, meta in enumerate(metas) if sees(meta, enu)]
+        seers = [i for i, meta in enumerate(metas) if i not in mos.unusable and sees(meta, enu)]
         geo["seen_by"] = [frame_name(frames[i].meta) for i in dict.fromkeys([*behind, *seers])]
         rows.append(InspectionDefect(id=0, u_m=float(uv[0]), v_m=float(uv[1]), enu=tuple(float(x) for x in enu),
                                      lla=lla, length_m=float(d["length_m"]), width_max_mm=float(d["width_max_mm"]),
@@ -222,6 +225,7 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
         r.id = k
     t3 = time.perf_counter()
     return Deliverable(mosaic=mos, defects=rows, frames=len(frames), method=method if segmented else "",
+                       unusable={frame_name(frames[i].meta): p for i, p in mos.unusable.items()},
                        confirm=(confirm or "") if segmented else "", unconfirmed=unconfirmed,
                        origin=None if origin is None else (float(origin[0]), float(origin[1]), float(origin[2])),
                        seconds={"segment": t1 - t0, "mosaic": t2 - t1, "measure": t3 - t2, "total": t3 - t0})
@@ -358,6 +362,16 @@ def aligned_text(mos: Mosaic, at_least_m: float = 0.01) -> str:
             f"{100 * max(moved):.0f} cm, to fit the others.")
 
 
+def unusable_text(res: Deliverable, most: int = 12) -> str:
+    """Which captures show no surface and are left out, for the findings ("" when none is)."""
+    if not res.unusable:
+        return ""
+    names = [f"{n} ({p})" for n, p in sorted(res.unusable.items())]
+    verb = "shows no surface and is" if len(names) == 1 else "show no surface and are"
+    return (f"{len(names)} of the {res.frames} captures {verb} not counted: "
+            + "; ".join(names[:most]) + ("; ..." if len(names) > most else "") + ".")
+
+
 def resolution_note(m_per_px: float) -> dict[str, Any]:
     """What the mosaic's scale can size: a width below one pixel's footprint is flagged, not measured;
     the AASHTO classes (:data:`services.detector.measure.SEVERITY_LIMITS_M`) it can tell apart."""
@@ -393,7 +407,7 @@ def write_deliverable(res: Deliverable, out: str | Path, title: str = "", origin
     tiles = write_tiles(ann, o / "tiles")
     summary = {"frames": res.frames, "frames_used": res.mosaic.frames_used, "m_per_px": res.mosaic.m_per_px,
                "mosaic_px": list(res.mosaic.image.shape[::-1]), "coverage": res.mosaic.coverage,
-               "seconds": res.seconds, "skipped": res.mosaic.skipped, "sort_key": SORT_KEY,
+               "seconds": res.seconds, "skipped": res.mosaic.skipped, "unusable": res.unusable, "sort_key": SORT_KEY,
                "aligned_m": {"max": max(res.mosaic.moved_m, default=0.0),
                              "median": float(np.median(res.mosaic.moved_m)) if res.mosaic.moved_m else 0.0},
                "orientation": orient, "resolution": resolution_note(res.mosaic.m_per_px), "tiles": tiles,

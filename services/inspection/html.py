@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .deliverable import SEVERITY_ORDER, SORT_KEY, Deliverable, aligned_text, resolution_note, width_text
+from .deliverable import SEVERITY_ORDER, SORT_KEY, Deliverable, aligned_text, resolution_note, unusable_text, width_text
 
 __all__ = ["write_html", "VIEWER_JS"]
 
@@ -107,7 +107,7 @@ def write_html(path: str | Path, res: Deliverable, acc: Any = None, prefix: str 
         f"distance {m.m_per_px * 1e3:.2f} mm/px: a crack narrower than {note['smallest_width_mm']:.2f} mm is flagged, "
         f"not measured; classes told apart by width: {_e(', '.join(note['classes_resolved']))}"
         + (f" (not {_e(', '.join(note['classes_unresolved']))})" if note["classes_unresolved"] else "") + "."
-        + "".join(f" {_e(x)}" for x in (absent, aligned_text(m)) if x) + "</p>",
+        + "".join(f" {_e(x)}" for x in (absent, unusable_text(res), aligned_text(m)) if x) + "</p>",
         f"<p>{_e(orientation_text_of(res))}</p>",
         _table(["class (AASHTO, max width)", "defects", "longest (m)", "widest (mm)"],
                [[f"{c} ({ranges[c]})", len(by[c]), f"{max((d.length_m for d in by[c]), default=0):.2f}",

@@ -13,7 +13,7 @@ from typing import Any
 
 from protocol.textsafe import md_text
 from services.detector.measure import SEVERITY_LIMITS_M
-from services.recording.record import MissionRecord
+from services.recording.record import MissionRecord, capture_name
 
 from .deliverable import (
     SEVERITY_ORDER,
@@ -26,6 +26,7 @@ from .deliverable import (
     load_folder,
     markdown_table,
     resolution_note,
+    unusable_text,
     width_text,
     write_deliverable,
 )
@@ -89,7 +90,7 @@ def absent_text(record: MissionRecord, posed: Sequence[PosedFrame]) -> str:
     if not absent:
         return ""
     return (f"{len(absent)} of the {len(planned)} planned captures are not among its frames (not taken, or lost "
-            "on the way to the ground station's log): " + ", ".join(f"uav{u}-{c:05d}" for u, c in absent[:12])
+            "on the way to the ground station's log): " + ", ".join(capture_name(u, c) for u, c in absent[:12])
             + (", ..." if len(absent) > 12 else "") + ".")
 
 
@@ -110,7 +111,7 @@ def findings_markdown(res: Deliverable, acc: Any = None, prefix: str = FOLDER, f
              "is flagged, not measured; the classes told apart by width: "
              + ", ".join(note["classes_resolved"])
              + (f" (not: {', '.join(note['classes_unresolved'])}, narrower than one pixel)"
-                if note["classes_unresolved"] else "") + "." + "".join(f" {md_text(x)}" for x in (absent, aligned_text(m)) if x),
+                if note["classes_unresolved"] else "") + "." + "".join(f" {md_text(x)}" for x in (absent, unusable_text(res), aligned_text(m)) if x),
              "",
              md_text(orientation_text_of(res)), "",
              "| class (AASHTO, max width) | defects | longest (m) | widest (mm) |", "|---|---|---|---|"]

@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from protocol.messages import ImageMeta
 from protocol.scenario import surface_frame
+from services.detector.exposure import exposure_problem
 
 __all__ = ["Plane", "Mosaic", "PosedFrame", "alignment", "build_mosaic", "canvas_homography", "frame_gsd",
            "moved_camera", "plane_from_frames", "registration", "solve_shifts"]
@@ -80,6 +81,9 @@ class Mosaic:
     #: each frame's move off its pose by the alignment, (u, v) metres along the surface (None: not placed);
     #: empty without an alignment
     shifts_m: list[tuple[float, float] | None] = field(default_factory=list)
+    #: the frames that show no surface (index -> what is wrong, :func:`exposure_problem`): neither placed, nor
+    #: aligned, nor counted in the coverage
+    unusable: dict[int, str] = field(default_factory=dict)
 
     @property
     def moved_m(self) -> list[float]:
@@ -276,18 +280,21 @@ def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | N
     H = max(1, int(math.ceil(plane.height_m / m_per_px)))
     if W * H > MAX_CANVAS_PX:
         raise ValueError(f"mosaic of {W} x {H} px exceeds {MAX_CANVAS_PX / 1e6:.0f} MP: raise m_per_px")
-    shifts = registration(frames, plane, m_per_px, align_m) if align_m > 0 else None
-    out = _compose(frames, plane, m_per_px, (H, W), shifts)
+    unusable = {i: p for i, f in enumerate(frames) if (p := exposure_problem(f.grey)) is not None}
+    shifts = registration(frames, plane, m_per_px, align_m, set(unusable)) if align_m > 0 else None
+    out = _compose(frames, plane, m_per_px, (H, W), shifts, unusable)
     shifts_m: list[tuple[float, float] | None] = []
     if shifts is not None:
         shifts_m = [None if d is None else (float(d[0]) * m_per_px, -float(d[1]) * m_per_px) for d in shifts]
     return Mosaic(plane=plane, m_per_px=m_per_px, image=out.image, mask=out.mask, owner=out.owner,
-                  seconds=time.perf_counter() - t0, frames_used=out.used, skipped=out.skipped, shifts_m=shifts_m)
+                  seconds=time.perf_counter() - t0, frames_used=out.used, skipped=out.skipped, shifts_m=shifts_m,
+                  unusable=unusable)
 
 
-def registration(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, align_m: float
-                 ) -> list[NDArray[np.float64] | None]:
-    """Each frame's move (canvas px at ``m_per_px``, (dx, dy); None for a frame not placed) that makes the frames
+def registration(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, align_m: float,
+                 leave_out: set[int] | frozenset[int] = frozenset()) -> list[NDArray[np.float64] | None]:
+    """Each frame's move (canvas px at ``m_per_px``, (dx, dy); None for a frame not placed nor in
+    ``leave_out``) that makes the frames
     fit each other: every overlapping pair, warped by its poses, measured by :func:`alignment` (up to ``align_m``),
     the moves solved together (:func:`solve_shifts`). Frames of more than :data:`ALIGN_MAX_PX` are registered on a
     coarser canvas."""
@@ -297,6 +304,8 @@ def registration(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, al
     W, H = max(1, int(math.ceil(plane.width_m / s))), max(1, int(math.ceil(plane.height_m / s)))
     placed: list[tuple[int, int, int, NDArray[np.uint8], NDArray[np.bool_]]] = []
     for i, f in enumerate(frames):
+        if i in leave_out:
+            continue
         Hc = canvas_homography(f.meta, plane, s)
         p = None if Hc is None else _place(f, Hc, W, H)
         if p is None or isinstance(p, str):
@@ -332,8 +341,10 @@ class _Composed:
 
 
 def _compose(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, shape: tuple[int, int],
-             shifts: Sequence[NDArray[np.float64] | None] | None = None) -> _Composed:
-    """Every frame onto the canvas, nearest its centre wins, each moved by its ``shifts`` (canvas px)."""
+             shifts: Sequence[NDArray[np.float64] | None] | None = None,
+             unusable: dict[int, str] | None = None) -> _Composed:
+    """Every frame but the ``unusable`` onto the canvas, nearest its centre wins, each moved by its ``shifts``
+    (canvas px)."""
     H, W = shape
     image = np.zeros((H, W), np.uint8)
     mask = np.zeros((H, W), np.uint8)
@@ -343,6 +354,9 @@ def _compose(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float, shape:
     used = 0
     flags = cv2.WARP_INVERSE_MAP
     for i, f in enumerate(frames):
+        if unusable and i in unusable:
+            skipped.append(f"frame {i}: shows no surface: {unusable[i]}")
+            continue
         Hc = canvas_homography(f.meta, plane, m_per_px)
         if Hc is None:
             skipped.append(f"frame {i}: camera behind the surface")

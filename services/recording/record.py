@@ -21,6 +21,11 @@ from protocol.scenario import Scenario
 GOAL_RADIUS_M = 2.0
 
 
+def capture_name(uav: int, capture_id: int) -> str:
+    """A capture's name in the verdict, the report and the logged frames' files: ``uav<N>-<capture, 5 digits>``."""
+    return f"uav{uav}-{capture_id:05d}"
+
+
 class Received(BaseModel):
     model_config = ConfigDict(extra="forbid")
     rx: float

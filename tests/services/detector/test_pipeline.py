@@ -136,3 +136,13 @@ def test_a_12_mp_mission_frame_at_the_default_budget_is_measured_on_its_quarter_
                  and abs(d.centroid_px[1] - (y + h / 2)) < h / 2 and abs(d.bbox[2] - w) < 40]
         assert found, (bbox, [d.bbox for d in rep.defects])
         assert found[0].length_m == pytest.approx(m.length_m, rel=0.10)
+
+
+@pytest.mark.parametrize(("level", "says"), [(0, "under-exposed"), (255, "over-exposed"), (140, "blank")])
+def test_a_frame_that_shows_no_surface_is_a_failed_report_saying_why(level, says):
+    from services.detector.pipeline import UNUSABLE
+
+    meta = capture_meta(1, 7, np.zeros(3), np.eye(3), (640, 480), F, F, 320.0, 240.0, RANGE)
+    rep = analyse(meta, encode_jpeg(np.full((480, 640), level, np.uint8), 90), "it+")
+    assert not rep.ok and not rep.defects and rep.error.startswith(f"{UNUSABLE}: {says}"), rep
+    assert (rep.uav, rep.capture_id) == (1, 7)

@@ -182,3 +182,42 @@ def test_snapshot_copies_the_live_figures():
         assert set(snap.last_heard) == {1}
         snap.states.clear()
         assert runner.snapshot().states == {1: msg}  # a copy
+
+
+@pytest.mark.mission
+def test_a_camera_that_shows_no_surface_fails_the_mission_and_is_not_coverage(tmp_path):
+    """Through the launcher in the default secure mode, each UAV's camera a folder (`--camera DIR`, a stand-in for
+    a real camera) of which one frame in four is black (a covered lens) and one white (a failed exposure): the
+    detector reports those captures failed and why, the mission fails naming each, and the inspection deliverable
+    counts neither their frames in its coverage nor them as witnesses (it used to say: success, 100 %)."""
+    import json
+
+    import cv2
+    import numpy as np
+
+    from edge.world.surface import textured_background
+    from tests.conftest import fly_mission
+
+    cam = tmp_path / "camera"
+    cam.mkdir()
+    rng = np.random.default_rng(2)
+    for k in range(2):
+        g = textured_background((480, 640), rng, roughness=6.0)
+        cv2.line(g, (80, 120), (560, 360), 40, 3)
+        cv2.imwrite(str(cam / f"a{k}.png"), g)
+    cv2.imwrite(str(cam / "b-covered.png"), np.zeros((480, 640), np.uint8))
+    cv2.imwrite(str(cam / "c-overexposed.png"), np.full((480, 640), 255, np.uint8))
+    run = fly_mission(tmp_path / "report", "--speed", "8", "--camera", str(cam), timeout=300)
+    assert run.proc.returncode == 1, run.failure()
+    report = run.report()
+    blank = [f for f in report["failures"] if "capture points were not imaged" in f]
+    assert len(blank) == 1 and "frame shows no surface: under-exposed, 100% of the frame black" in blank[0] \
+        and "frame shows no surface: over-exposed, 100% of the frame white" in blank[0], report["failures"]
+    planned, imaged = report["captures"]["planned"], report["captures"]["imaged"]
+    assert 0.3 * planned <= planned - imaged <= 0.7 * planned, report["captures"]  # two frames of four, per UAV
+    assert "capture points were not imaged: uav" in run.proc.stderr, run.failure()
+    summary = json.loads((run.out / "inspection" / "defects.json").read_text())
+    assert len(summary["unusable"]) == planned - imaged and summary["frames_used"] == imaged, summary
+    assert summary["coverage"] < 0.9, summary
+    text = (run.out / "report.md").read_text()
+    assert f"{planned - imaged} of the {planned} captures show no surface and are not counted" in text

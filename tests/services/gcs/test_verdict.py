@@ -5,7 +5,14 @@ from __future__ import annotations
 import pytest
 
 from protocol.messages import DefectReport, Mode, Trajectory, VehicleState, Waypoint
-from services.gcs.verdict import GOAL_RADIUS_M, goal_check, imaged_captures, planned_captures, short_of_goal
+from services.gcs.verdict import (
+    GOAL_RADIUS_M,
+    goal_check,
+    imaged_captures,
+    not_imaged_text,
+    planned_captures,
+    short_of_goal,
+)
 
 TRAJ = Trajectory(uav=1, waypoints=[Waypoint(t=0.0, pos=(0, 0, 10)), Waypoint(t=5.0, pos=(10, 0, 10), capture_id=3),
                                     Waypoint(t=10.0, pos=(20, 0, 10), capture_id=4)])
@@ -23,6 +30,19 @@ def test_planned_and_imaged_captures():
     reports = [DefectReport(uav=1, capture_id=3, stamp_capture=1.0, stamp_report=1.1, method="m", ok=True),
                DefectReport(uav=1, capture_id=4, stamp_capture=1.0, stamp_report=1.1, method="m", ok=False)]
     assert imaged_captures(reports) == {(1, 3)}
+
+
+def test_the_captures_not_imaged_are_named_with_the_detectors_reason():
+    def failed(c: int, why: str) -> DefectReport:
+        return DefectReport(uav=2, capture_id=c, stamp_capture=1.0, stamp_report=1.1, method="m", ok=False, error=why)
+
+    reports = [failed(3, "first try"), failed(3, "frame shows no surface: blank"), failed(5, "x" * 500),
+               failed(9, "not missing")]
+    text = not_imaged_text({(2, 3), (2, 5), (1, 1)}, 26, reports, reason_chars=20)
+    assert text == ("3 of 26 capture points were not imaged: uav1-00001, uav2-00003 (frame shows no surfa), "
+                    f"uav2-00005 ({'x' * 20})")
+    many = not_imaged_text({(1, c) for c in range(15)}, 30, [], most=10)
+    assert many.startswith("15 of 30 capture points were not imaged: uav1-00000, ") and many.endswith("uav1-00009, ...")
 
 
 def test_the_goal_is_checked_where_the_trajectory_ended():

@@ -165,3 +165,25 @@ def test_a_bad_alignment_limit_is_one_line(bad, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main([str(tmp_path), "--out", str(tmp_path / "out"), "--align-m", bad])
     assert exc.value.code == 2 and "--align-m must be in [0, 10] m" in capsys.readouterr().err
+
+
+def test_a_capture_that_shows_no_surface_is_neither_coverage_nor_a_witness(wall):
+    """A black frame (a covered lens) where a capture of the wall should be: left out of the mosaic and its
+    coverage, named in the findings, and not listed as having seen a crack its pose points at."""
+    from services.inspection.deliverable import unusable_text
+
+    sc, surf, caps, _ = wall
+    frames = [PosedFrame(c.meta, decode(c)) for c in caps]
+    plane = Plane.from_corners(surf.corners)
+    whole = inspect_frames(frames, plane, confirm=None)
+    k = max(range(len(frames)), key=lambda i: sum(whole.mosaic.owner.ravel() == i))  # the frame most relied on
+    frames[k] = PosedFrame(frames[k].meta, np.zeros_like(frames[k].grey))
+    res = inspect_frames(frames, plane, confirm=None)
+    name = f"uav{frames[k].meta.uav}-{frames[k].meta.capture_id:05d}"
+    assert res.unusable == {name: "under-exposed, 100% of the frame black"}
+    assert res.mosaic.frames_used == whole.mosaic.frames_used - 1
+    assert res.mosaic.coverage < whole.mosaic.coverage - 0.01
+    assert not any(name in d.seen_by for d in res.defects)
+    assert unusable_text(res) == (f"1 of the {len(frames)} captures shows no surface and is not counted: "
+                                  f"{name} (under-exposed, 100% of the frame black).")
+    assert unusable_text(whole) == ""
