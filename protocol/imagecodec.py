@@ -9,7 +9,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["decode_image", "encode_jpeg"]
+__all__ = ["MAX_IMAGE_PIXELS", "decode_image", "encode_jpeg", "image_size"]
+
+#: the most pixels an image may declare to be decoded (a 100 MP medium-format frame; the project's captures are
+#: 0.3-12 MP): a few hundred bytes can declare 30000 x 30000, which OpenCV would fill in seconds and a gigabyte
+MAX_IMAGE_PIXELS = 100_000_000
 
 
 def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
@@ -32,19 +36,62 @@ def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"  # RFC 2083, section 3.1
 
 
+#: JPEG start-of-frame markers (ITU T.81 Table B.1: SOF0-SOF15 but DHT C4, JPG C8 and DAC CC)
+_SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+#: JPEG markers without a length (ITU T.81 B.1.1.3: TEM, RST0-7, SOI, EOI)
+_STANDALONE = frozenset({0x01, *range(0xD0, 0xDA)})
+
+
+def image_size(data: bytes | bytearray | memoryview) -> tuple[int, int]:
+    """The (width, height) a PNG (its IHDR chunk, RFC 2083 4.1.1) or a JPEG (its first start-of-frame segment,
+    ITU T.81 B.2.2) declares, read from its header without decoding; ValueError when there is none."""
+    b = bytes(data[:8]) if not isinstance(data, bytes) else data[:8]
+    if b == _PNG_SIGNATURE:
+        head = bytes(data[8:24])
+        if len(head) < 16 or head[4:8] != b"IHDR":
+            raise ValueError("PNG without an IHDR chunk")
+        return int.from_bytes(head[8:12], "big"), int.from_bytes(head[12:16], "big")
+    view = memoryview(data)
+    if len(view) < 4 or view[0] != 0xFF or view[1] != 0xD8:
+        raise ValueError("cannot decode: neither a JPEG (no start-of-image marker) nor a PNG (no signature)")
+    i, n = 2, len(view)
+    while i + 4 <= n:
+        if view[i] != 0xFF:
+            raise ValueError(f"JPEG header damaged at byte {i}")
+        marker = view[i + 1]
+        if marker == 0xFF:  # a fill byte
+            i += 1
+            continue
+        if marker in _STANDALONE:
+            i += 2
+            continue
+        length = int.from_bytes(view[i + 2:i + 4], "big")
+        if marker in _SOF:
+            if i + 9 > n or length < 8:
+                raise ValueError("JPEG start-of-frame segment truncated")
+            return int.from_bytes(view[i + 7:i + 9], "big"), int.from_bytes(view[i + 5:i + 7], "big")
+        if marker == 0xDA or length < 2:
+            break  # scan data (or a damaged length) before any frame header
+        i += 2 + length
+    raise ValueError("JPEG without a start-of-frame segment")
+
+
 #: cv2.imdecode flags of a grey image decoded at 1/2, 1/4, 1/8 of its size (JPEG: by the DCT, not a resize)
 _REDUCED_GREY = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2, 4: cv2.IMREAD_REDUCED_GRAYSCALE_4,
                  8: cv2.IMREAD_REDUCED_GRAYSCALE_8}
 
 
-def decode_image(data: bytes | bytearray | memoryview, grey: bool = False, reduce: int = 1) -> NDArray[np.uint8]:
+def decode_image(data: bytes | bytearray | memoryview, grey: bool = False, reduce: int = 1,
+                 size: tuple[int, int] | None = None, max_pixels: int = MAX_IMAGE_PIXELS) -> NDArray[np.uint8]:
     """The image of JPEG or PNG bytes (``cv2.imdecode``): grey or BGR as stored, or grey if ``grey``;
     ``reduce`` 2, 4 or 8 decodes it grey at that fraction of its size (libjpeg scales in the DCT, so a
     12 MP frame decodes at 1/4 in a fraction of the full decode's time).
 
     The one decoder of the project. JPEG must be complete (ITU T.81 start- and end-of-image markers:
-    libjpeg would half-decode a truncated frame with only a warning), PNG start with its signature;
-    ValueError otherwise, or when the codec refuses them.
+    libjpeg would half-decode a truncated frame with only a warning), PNG start with its signature; the size
+    its header declares (:func:`image_size`) must be ``size`` (width, height) when given (a frame's metadata)
+    and at most ``max_pixels``, checked before anything is decoded; ValueError otherwise, or when the codec
+    refuses them.
     """
     try:
         buf = np.frombuffer(data, np.uint8)
@@ -62,8 +109,16 @@ def decode_image(data: bytes | bytearray | memoryview, grey: bool = False, reduc
         raise ValueError("cannot decode: neither a JPEG (no start-of-image marker) nor a PNG (no signature)")
     if reduce not in _REDUCED_GREY:
         raise ValueError(f"reduce must be one of {sorted(_REDUCED_GREY)}, got {reduce!r}")
+    w, h = image_size(data)
+    if size is not None and (w, h) != tuple(size):
+        raise ValueError(f"the {kind} is {w} x {h} px, its metadata says {size[0]} x {size[1]}")
+    if w * h > max_pixels or w < 1 or h < 1:
+        raise ValueError(f"the {kind} declares {w} x {h} px, beyond the {max_pixels / 1e6:g} MP decoded at most")
     flag = _REDUCED_GREY[reduce] if grey or reduce > 1 else cv2.IMREAD_UNCHANGED
-    img = cv2.imdecode(buf, flag)
+    try:
+        img = cv2.imdecode(buf, flag)
+    except cv2.error:
+        img = None
     if img is None:
         raise ValueError(f"cannot decode a corrupt {kind}")
     return np.asarray(img, dtype=np.uint8)

@@ -105,7 +105,7 @@ def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", max
     """
     f = detection_scale(meta.intrinsics.width, meta.intrinsics.height, max_pixels)
     try:
-        grey = decode_image(image, grey=True, reduce=f)
+        grey = decode_image(image, grey=True, reduce=f, size=(meta.intrinsics.width, meta.intrinsics.height))
     except ValueError as exc:
         return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
                             stamp_report=time.time(), method=method, ok=False, error=str(exc))

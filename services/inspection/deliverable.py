@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict
 
 from edge.geometry.waypoint_mission import enu_to_geodetic
 from protocol import codec
+from protocol.imagecodec import decode_image
 from protocol.messages import ImageMeta
 from protocol.textsafe import md_text, xml_text
 from services.detector.detect import detect
@@ -474,10 +475,11 @@ def frames_from_log(path: str | Path) -> list[PosedFrame]:
 
     frames = []
     for meta, image in captures(path):
-        g = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_GRAYSCALE)
-        k = meta.intrinsics
-        if g is not None and (k.width, k.height) == (g.shape[1], g.shape[0]):
-            frames.append(PosedFrame(meta, g))
+        try:
+            frames.append(PosedFrame(meta, decode_image(image, grey=True,
+                                                        size=(meta.intrinsics.width, meta.intrinsics.height))))
+        except ValueError as exc:
+            log.warning("deliverable: capture %s left out: %s", frame_name(meta), exc)
     return sorted(frames, key=lambda f: frame_name(f.meta))
 
 

@@ -13,6 +13,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from protocol.imagecodec import decode_image
 from protocol.rtp import JPEG_PAYLOAD_TYPE, RtpSender
 
 from .packetize import DEFAULT_MTU, H264_PAYLOAD_TYPE, H264Packetizer, JpegPacketizer
@@ -22,9 +23,7 @@ Codec = Literal["h264", "mjpeg"]
 
 def decode_picture(jpeg: bytes) -> np.ndarray:
     """The BGR picture of a JPEG (grey JPEGs become three equal channels); ValueError if undecodable."""
-    img = cv2.imdecode(np.frombuffer(bytes(jpeg), np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ValueError("frame is not a decodable JPEG")
+    img: np.ndarray = decode_image(jpeg)  # its declared size bounded before it is decoded
     if img.ndim == 2:
         img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
     elif img.shape[2] == 4:

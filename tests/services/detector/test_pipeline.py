@@ -146,3 +146,13 @@ def test_a_frame_that_shows_no_surface_is_a_failed_report_saying_why(level, says
     rep = analyse(meta, encode_jpeg(np.full((480, 640), level, np.uint8), 90), "it+")
     assert not rep.ok and not rep.defects and rep.error.startswith(f"{UNUSABLE}: {says}"), rep
     assert (rep.uav, rep.capture_id) == (1, 7)
+
+
+def test_a_frame_declaring_another_size_than_its_metadata_is_refused_undecoded():
+    """A few hundred bytes declaring 30000 x 30000 px took a detector worker 9 s and a gigabyte to 'decode'."""
+    b = bytearray(encode_jpeg(np.zeros((8, 8), np.uint8)))
+    i = b.find(b"\xff\xc0")
+    b[i + 5:i + 9] = (30000).to_bytes(2, "big") + (30000).to_bytes(2, "big")
+    meta = capture_meta(1, 3, np.zeros(3), np.eye(3), (640, 480), F, F, 320.0, 240.0, RANGE)
+    rep = analyse(meta, bytes(b), "it+")
+    assert not rep.ok and rep.error == "the JPEG is 30000 x 30000 px, its metadata says 640 x 480", rep

@@ -17,7 +17,7 @@ def test_decode_picture_grey_to_bgr_and_cropped_to_blocks() -> None:
     grey = cv2.imencode(".jpg", np.full((100, 130), 77, np.uint8))[1].tobytes()
     img = decode_picture(grey)
     assert img.shape == (96, 128, 3) and abs(int(img[..., 0].mean()) - 77) <= 2
-    with pytest.raises(ValueError, match="not a decodable JPEG"):
+    with pytest.raises(ValueError, match="cannot decode a truncated JPEG"):
         decode_picture(b"\xff\xd8 not really")
 
 
