@@ -67,7 +67,9 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
     if out and record:  # before the runner subscribes, so the log holds every sample the runner gets
         from services.recording.recorder import MissionLogWriter, RecordingBus
 
-        writer = MissionLogWriter(bus, Path(out) / "mission.mcap", log)
+        from .evidence import surface_problem
+
+        writer = MissionLogWriter(bus, Path(out) / "mission.mcap", log, surface_check=surface_problem)
     if options.transport is None:  # what the report's link figures rode on: this session's own links
         options = replace(options, transport=transports(list(bus.config.connect)))
     runner = MissionRunner(bus if writer is None else RecordingBus(bus, writer), scenario, options,

@@ -8,10 +8,28 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterable
 
-from protocol.messages import DefectReport, LinkStats, VehicleState
+from protocol.imagecodec import decode_image
+from protocol.messages import DefectReport, ImageMeta, LinkStats, VehicleState
 from protocol.rtp import ssrc_for
 from protocol.textsafe import md_text
+from services.detector.config import DETECT_MAX_MP
+from services.detector.exposure import exposure_problem
+from services.detector.pipeline import detection_scale
 from services.recording.witness import CAPTURE_CAMERA, FrameWitness, Seen
+
+
+def surface_problem(meta: ImageMeta, image: bytes | memoryview) -> str | None:
+    """The ground station's own look at a capture it received: why its image shows no surface
+    (:func:`~services.detector.exposure.exposure_problem`, or why it does not decode), or None. Decoded as the
+    detector decodes it by default (:func:`~services.detector.pipeline.detection_scale`), so that both judge the
+    same pixels; a detector's ok report on such a frame does not count."""
+    k = meta.intrinsics
+    try:
+        grey = decode_image(image, grey=True, reduce=detection_scale(k.width, k.height, int(DETECT_MAX_MP * 1e6)),
+                            size=(k.width, k.height))
+    except ValueError as exc:
+        return f"does not decode: {exc}"
+    return exposure_problem(grey)
 
 
 def has_evidence(report: DefectReport) -> bool:
@@ -64,7 +82,7 @@ def sort_reports(reports: Iterable[DefectReport], witness: FrameWitness | None =
             unevidenced[r.uav] += 1
             continue
         by[Seen.HELD if witness is None else witness.seen(r.frame, r.capture_id)].add((r.uav, r.capture_id))
-    for s in (Seen.NOT_RECEIVED, Seen.DIFFERENT):
+    for s in (Seen.NOT_RECEIVED, Seen.DIFFERENT, Seen.NO_SURFACE):
         by[s] -= by[Seen.HELD]
     return by, unevidenced
 
@@ -79,8 +97,9 @@ def ledger(uavs: Iterable[int], states: Iterable[VehicleState], reports: Iterabl
     """Per UAV: ``sent`` (its capture count), ``received``/``analysed`` (the detector; None without
     statistics), ``reported`` (distinct evidenced captures), ``unevidenced`` (ok reports without evidence) and,
     checked against ``witness`` (the capture frames the ground station received itself; None: not checked,
-    every evidenced report counts), ``not_received`` and ``different`` (distinct captures whose reports name a
-    frame it never received, or one with other image bytes or of another capture: not counted)."""
+    every evidenced report counts), ``not_received``, ``different`` and ``no_surface`` (distinct captures whose
+    reports name a frame it never received, one with other image bytes or of another capture, or one its own
+    look finds no surface in: not counted)."""
     uavs = list(uavs)
     sent = dict.fromkeys(uavs, 0)
     for s in states:
@@ -96,7 +115,8 @@ def ledger(uavs: Iterable[int], states: Iterable[VehicleState], reports: Iterabl
                 "analysed": None if det is None else det[u]["analysed"], "reported": count(Seen.HELD, u),
                 "unevidenced": unevidenced[u],
                 "not_received": None if witness is None else count(Seen.NOT_RECEIVED, u),
-                "different": None if witness is None else count(Seen.DIFFERENT, u)}
+                "different": None if witness is None else count(Seen.DIFFERENT, u),
+                "no_surface": None if witness is None else count(Seen.NO_SURFACE, u)}
             for u in uavs}
 
 
@@ -114,6 +134,9 @@ def corroboration_failures(book: dict[int, dict[str, int | None]]) -> list[str]:
         if row.get("different"):
             out.append(f"UAV {u}: {row['different']} capture(s) reported on a frame other than the one the ground "
                        "station received (image digest or capture id differ): not counted")
+        if row.get("no_surface"):
+            out.append(f"UAV {u}: {row['no_surface']} capture(s) reported ok on a frame that shows no surface (black, "
+                       "white or blank to the ground station's own look): not counted")
         if not n:
             continue
         if row["analysed"] is None:
@@ -132,13 +155,15 @@ def integrity_markdown(record) -> list[str]:
     if record.imagery:
         md += ["Frames per UAV: sent by its camera, received and analysed by the detector (its statistics), "
                "captures reported on a frame the ground station received itself (same image bytes, same capture), "
-               "ok reports naming no frame, and captures reported on a frame it never received or on other bytes "
-               "(none of these three counted; '-': not checked, no mission log).", "",
-               "| UAV | sent | received | analysed | reported | unevidenced | frame not received | frame differs |",
-               "|---|---|---|---|---|---|---|---|"]
+               "ok reports naming no frame, and captures reported on a frame it never received, on other bytes or ok "
+               "on a frame that shows no surface (none of these four counted; '-': not checked, no mission log).", "",
+               "| UAV | sent | received | analysed | reported | unevidenced | frame not received | frame differs "
+               "| no surface |",
+               "|---|---|---|---|---|---|---|---|---|"]
         for u, row in sorted(record.imagery.items()):
             md.append("| " + " | ".join(str(x) for x in (u, *("-" if row.get(k) is None else row[k] for k in
-                      ("sent", "received", "analysed", "reported", "unevidenced", "not_received", "different"))))
+                      ("sent", "received", "analysed", "reported", "unevidenced", "not_received", "different",
+                       "no_surface"))))
                       + " |")
         md.append("")
     if record.rejected:

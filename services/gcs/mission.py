@@ -609,6 +609,20 @@ class MissionRunner:
             lost = set(self._sup.lost)
         return missing if include_lost else {c for c in missing if c[0] not in lost}
 
+    def _no_surface(self) -> dict[tuple[int, int], str]:
+        """The captures reported ok on a frame the ground station's own look finds no surface in, and why."""
+        if self.witness is None:
+            return {}
+        out = {}
+        with self._lock:
+            reports = [d.msg for d in self.record.defects]
+        for r in reports:
+            if r.ok and r.frame is not None:
+                why = self.witness.no_surface_reason(r.frame, r.capture_id)
+                if why is not None:
+                    out[(r.uav, r.capture_id)] = f"reported ok, but its frame shows no surface: {why}"
+        return out
+
     def judge(self, late: Sequence[str] = ()) -> None:
         """The verdict: the failures so far, then (when there were none) each UAV's goal and the captures,
         then ``late``, failures of the run found at its end (a fault it never injected); success if none."""
@@ -646,7 +660,7 @@ class MissionRunner:
             missing = self.missing_captures(imaged=held)
             if missing:
                 rec.failures.append(not_imaged_text(missing, len(self.planned_captures()),
-                                                    (d.msg for d in rec.defects)))
+                                                    (d.msg for d in rec.defects), reasons=self._no_surface()))
         rec.imagery = ledger(self.opt.uavs, (s.msg for s in rec.states), (d.msg for d in rec.defects),
                              (s.msg for s in rec.detector_stats), self.witness)
         rec.failures += corroboration_failures(rec.imagery)

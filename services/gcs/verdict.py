@@ -34,15 +34,16 @@ def imaged_captures(reports: Iterable[DefectReport]) -> set[tuple[int, int]]:
 
 
 def not_imaged_text(missing: Iterable[tuple[int, int]], planned: int, reports: Iterable[DefectReport],
-                    most: int = 10, reason_chars: int = 120) -> str:
-    """The verdict's line on the capture points not imaged, each with why when a failed report says so (the
-    detector's last error for it, cut to ``reason_chars``), at most ``most`` named.
+                    most: int = 10, reason_chars: int = 120, reasons: dict[tuple[int, int], str] | None = None) -> str:
+    """The verdict's line on the capture points not imaged, each with why when ``reasons`` (the ground station's
+    own findings) or a failed report says so (the detector's last error for it), cut to ``reason_chars``; at most
+    ``most`` named.
 
     >>> r = DefectReport(uav=1, capture_id=6, stamp_capture=0, stamp_report=0, method="it+", ok=False, error="blank")
     >>> not_imaged_text({(1, 6), (2, 3)}, 26, [r])
     '2 of 26 capture points were not imaged: uav1-00006 (blank), uav2-00003'
     """
-    why = {(r.uav, r.capture_id): r.error for r in reports if not r.ok and r.error}
+    why = {(r.uav, r.capture_id): r.error for r in reports if not r.ok and r.error} | (reasons or {})
     gone = sorted(missing)
     named = [capture_name(u, c) + (f" ({why[(u, c)][:reason_chars]})" if (u, c) in why else "") for u, c in gone[:most]]
     return (f"{len(gone)} of {planned} capture points were not imaged: " + ", ".join(named)

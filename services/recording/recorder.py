@@ -19,7 +19,7 @@ from protocol.links import COMMAND, LinkClass
 from protocol.messages import ErrorReply, Message
 from protocol.rtp import SeenFrames
 from services.recording.record import ITEM_MODELS, MissionRecord
-from services.recording.witness import FrameWitness
+from services.recording.witness import FrameWitness, SurfaceCheck
 
 from .mcap_log import McapLog, is_imagery
 
@@ -41,7 +41,7 @@ class MissionLogWriter:
     Thread-safe: every write goes through the writer's own lock; :meth:`add` never blocks on the disk."""
 
     def __init__(self, bus: Bus | None, path: str | Path, log=None, queue: int = QUEUE_SAMPLES,
-                 frames: int = QUEUE_FRAMES):
+                 frames: int = QUEUE_FRAMES, surface_check: SurfaceCheck | None = None):
         self.log = log
         self.mlog = McapLog(path)
         self.counts: Counter[str] = Counter()
@@ -56,7 +56,7 @@ class MissionLogWriter:
         self._frames_seen = SeenFrames()
         #: the capture frames logged, by RTP source, sequence number and digest: what the verdict checks the
         #: detector's reports against (services.gcs.evidence)
-        self.witness = FrameWitness()
+        self.witness = FrameWitness(surface_check=surface_check)
         if bus is not None:
             bus.subscribe_raw(keys.fleet_all(bus.fleet), self._on_sample)
             # capture frames lost on the way come again from the cameras' caches; this subscription only adds

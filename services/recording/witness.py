@@ -88,6 +88,11 @@ class FrameWitness:
     def __len__(self) -> int:
         return sum(self._held.values())
 
+    def no_surface_reason(self, frame: FrameEvidence, capture_id: int) -> str | None:
+        """Why the frame ``frame`` names shows no surface, when the ground station's own check found so."""
+        with self._lock:
+            return self.no_surface.get((frame.ssrc, frame.seq, frame.digest, capture_id))
+
     def seen(self, frame: FrameEvidence, capture_id: int) -> Seen:
         """Whether ``frame``, named as the one of ``capture_id``, is one this ground station received as named."""
         with self._lock:  # (the set may grow while another thread adds to it)

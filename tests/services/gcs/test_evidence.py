@@ -37,7 +37,7 @@ def test_forged_reports_without_a_detector_are_not_corroborated():
     """The issue's attack: the detector is dead, forged ok reports for every capture (with made-up evidence)."""
     book = ledger([1, 2], [_state(1, 13), _state(2, 13)], [_report(1, c) for c in range(13)], stats=[])
     assert book[1] == {"sent": 13, "received": None, "analysed": None, "reported": 13, "unevidenced": 0,
-                       "not_received": None, "different": None}
+                       "not_received": None, "different": None, "no_surface": None}
     fails = corroboration_failures(book)
     assert len(fails) == 1 and "UAV 1" in fails[0] and "no statistics were heard from the detector" in fails[0]
 
@@ -94,3 +94,62 @@ def test_captures_count_only_on_frames_the_ground_station_received_as_named():
     book = ledger([1], [_state(1, 1)], forged, stats, witness=w)
     assert book[1]["reported"] == 0 and book[1]["different"] == 1
     assert "other than the one the ground station received" in corroboration_failures(book)[0]
+
+
+def _capture(uav: int, cid: int, grey):
+    """A capture frame as it travels (its camera key and payload) and the evidence a report names it by."""
+    import hashlib
+
+    import numpy as np
+
+    from protocol import keys
+    from protocol.imagecodec import encode_jpeg
+    from protocol.imagery import pack_image
+    from protocol.rtp import RtpSender
+    from services.inspection.captures import capture_meta
+
+    h, w = grey.shape
+    meta = capture_meta(uav, cid, np.zeros(3), np.eye(3), (w, h), 500.0, 500.0, w / 2, h / 2, 5.0)
+    jpeg = encode_jpeg(grey, 90)
+    sender = RtpSender(ssrc_for(uav), initial_seq=cid)
+    data = pack_image(sender, meta, jpeg, time.time())
+    return keys.camera("test", uav), data, FrameEvidence(ssrc=ssrc_for(uav), seq=cid, digest=hashlib.sha256(jpeg).hexdigest())
+
+
+def test_a_detectors_ok_on_a_frame_that_shows_no_surface_does_not_count():
+    """The ground station looks at every capture it receives itself: a detector (buggy, or holding a stolen
+    identity) that calls a black frame fine does not make its capture point imaged, and the verdict says why."""
+    import numpy as np
+
+    from edge.world.surface import textured_background
+    from services.gcs.evidence import surface_problem
+    from services.recording.witness import Seen
+
+    w = FrameWitness(surface_check=surface_problem)
+    wall = textured_background((480, 640), np.random.default_rng(1), roughness=6.0)
+    frames = [_capture(1, 0, wall), _capture(1, 1, np.zeros((480, 640), np.uint8))]
+    for key, data, _ in frames:
+        assert w.add_sample(key, data)
+    reports = [_report(1, c).model_copy(update={"frame": ev}) for c, (_, _, ev) in enumerate(frames)]
+    assert [w.seen(r.frame, r.capture_id) for r in reports] == [Seen.HELD, Seen.NO_SURFACE]
+    assert w.no_surface_reason(reports[1].frame, 1) == "under-exposed, 100% of the frame black"
+    assert held_captures(reports, w) == {(1, 0)}
+    book = ledger([1], [_state(1, 2)], reports, [_stats(1, uav1_cam0_received=2, uav1_cam0_analysed=2)], witness=w)
+    assert book[1]["reported"] == 1 and book[1]["no_surface"] == 1
+    assert any("1 capture(s) reported ok on a frame that shows no surface" in f for f in corroboration_failures(book))
+    assert not w.add_sample(*frames[1][:2])  # the same frame again: kept already, not looked at again
+
+
+def test_the_ground_stations_look_decodes_as_the_detector_does():
+    import numpy as np
+
+    from services.gcs.evidence import surface_problem
+    from services.inspection.captures import capture_meta
+
+    meta = capture_meta(1, 0, np.zeros(3), np.eye(3), (640, 480), 500.0, 500.0, 320.0, 240.0, 5.0)
+    assert surface_problem(meta, b"\xff\xd8 nothing") == "does not decode: cannot decode a truncated JPEG: no end-of-image marker"
+    from protocol.imagecodec import encode_jpeg
+
+    assert surface_problem(meta, encode_jpeg(np.full((480, 640), 255, np.uint8))).startswith("over-exposed")
+    assert surface_problem(meta, encode_jpeg(np.zeros((240, 320), np.uint8))) == (
+        "does not decode: the JPEG is 320 x 240 px, its metadata says 640 x 480")

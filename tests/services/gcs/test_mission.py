@@ -95,18 +95,25 @@ def test_the_common_start_leaves_time_for_every_start_command():
 def test_a_detector_reporting_frames_the_ground_station_never_received_fails_the_mission(group, gateway, planner,
                                                                                         tmp_path):
     """A session holding the detector's role reported every capture ok, each naming a frame of the UAV's capture
-    camera (a sequence number, a digest) and corroborated by its own statistics, while no camera sent a frame:
+    camera (a sequence number, a digest) and corroborated by its own statistics, while no camera sent a frame
+    (for UAV 2 it sent black frames itself and called them fine):
     the mission ended "success, every capture imaged" and its report counted every capture. Now a capture counts
     only on a frame the ground station's own log received as the report names it. (Its reports naming no frame at
     all were already not counted; with no statistics, not corroborated: test_evidence.py.)"""
+    import hashlib
     import logging
     import threading
 
+    import numpy as np
+
     from protocol import keys
-    from protocol.links import COMMAND, TELEMETRY
+    from protocol.imagecodec import encode_jpeg
+    from protocol.imagery import pack_image
+    from protocol.links import COMMAND, IMAGERY_RELIABLE, TELEMETRY
     from protocol.messages import DefectReport, FrameEvidence, LinkStats, VehicleState
-    from protocol.rtp import ssrc_for
+    from protocol.rtp import RtpSender, ssrc_for
     from services.gcs.cli import run_mission
+    from services.inspection.captures import capture_meta
     from services.recording.load import load_record
 
     for uav in (1, 2):
@@ -118,6 +125,7 @@ def test_a_detector_reporting_frames_the_ground_station_never_received_fails_the
         with Bus(BusConfig(mode="client", connect=gateway, multilink=True), FLEET, "detector") as bus:
             reports, stats = bus.publisher(keys.defects(FLEET), COMMAND), bus.publisher(
                 keys.rcu_stats(FLEET, "detector"), TELEMETRY)
+            camera = bus.publisher(keys.camera(FLEET, 2), IMAGERY_RELIABLE)
             # a UAV's state counts its captures: at its k-th, its k-th capture id either way round (the plan gives
             # UAV 1 the odd ones of 0-25, UAV 2 the even ones), stamped then: each report is taken where planned
             taken = {1: 0, 2: 0}
@@ -129,9 +137,17 @@ def test_a_detector_reporting_frames_the_ground_station_never_received_fails_the
                     reports.put(DefectReport(uav=msg.uav, capture_id=mine[0], stamp_capture=msg.stamp,
                                              stamp_report=time.time(), method="it+"))  # no evidence at all
                     for cid in {mine[(k - 1) % 13], mine[-k % 13]}:
+                        digest = f"{cid:064x}"
+                        if msg.uav == 2:  # UAV 2's frames sent (black: a covered lens) and called fine
+                            jpeg = encode_jpeg(np.zeros((240, 320), np.uint8))
+                            meta = capture_meta(2, cid, np.asarray(msg.pos), np.eye(3), (320, 240), 300.0, 300.0,
+                                                160.0, 120.0, 5.0)
+                            camera.put_bytes(pack_image(RtpSender(ssrc_for(2), initial_seq=cid), meta, jpeg,
+                                                        time.time()))
+                            digest = hashlib.sha256(jpeg).hexdigest()
                         reports.put(DefectReport(uav=msg.uav, capture_id=cid, stamp_capture=msg.stamp,
                                                  stamp_report=time.time(), method="it+", frame=FrameEvidence(
-                                                     ssrc=ssrc_for(msg.uav), seq=cid, digest=f"{cid:064x}")))
+                                                     ssrc=ssrc_for(msg.uav), seq=cid, digest=digest)))
 
             bus.subscribe(keys.state(FLEET, "*"), on_state, expect=VehicleState, link=TELEMETRY)
             while not stop.wait(0.5):
@@ -156,6 +172,9 @@ def test_a_detector_reporting_frames_the_ground_station_never_received_fails_the
     assert any("never received" in f for f in record.failures), record.failures
     assert record.imagery[1]["reported"] == 0 and record.imagery[1]["not_received"] == 13
     assert record.imagery[1]["unevidenced"] > 0 and record.imagery[1]["analysed"] == 100
+    # UAV 2's frames reached the ground station, but its own look finds no surface in them: not counted either
+    assert record.imagery[2]["reported"] == 0 and record.imagery[2]["no_surface"] == 13, record.imagery[2]
+    assert any("UAV 2: 13 capture(s) reported ok on a frame that shows no surface" in f for f in record.failures)
     md = (tmp_path / "report.md").read_text()
     assert "Captures imaged (a report came back, on a frame the ground station received itself): 0 of" in md
 
