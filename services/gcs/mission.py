@@ -49,6 +49,7 @@ from services.recording.record import (
     MissionRecord,
     StateRx,
     StatsRx,
+    capture_name,
 )
 from services.recording.witness import FrameWitness
 
@@ -73,6 +74,10 @@ def with_formation_size(scenario: Scenario, n: int, log=None) -> Scenario:
         log.info("formation of %d UAVs: offsets %s", n, new)
     formation = FormationSpec(offsets=new, min_separation=scenario.formation.min_separation)
     return scenario.model_copy(update={"formation": formation})
+
+
+#: failed defect reports logged while flying, one per capture, at most (the record keeps every one)
+MAX_FAILED_TOLD = 50
 
 
 class MissionFailed(Exception):
@@ -143,6 +148,7 @@ class MissionRunner:
         #: mission log's writer (services.recording.recorder), which logs the bus's samples itself
         self.recorder = LiveRecord(self.record, sink)
         self.reports: dict[tuple[int, int], DefectReport] = {}
+        self._failed_told: set[tuple[int, int]] = set()  # captures whose failed report was logged (bounded)
         self._lock = threading.Lock()
         self._cmd_ids = CommandIds()
         self._retry = RetryPolicy(attempts=options.command_attempts, timeout_s=options.command_timeout_s)
@@ -195,10 +201,17 @@ class MissionRunner:
             self.log.warning("event from %s: %s %s", msg.source, msg.kind, msg.text)
 
     def _on_defects(self, msg, sample) -> None:
+        tell = False
         with self._lock:
             self.recorder.add("defects", DefectRx(rx=time.time(), msg=msg))
             if has_evidence(msg):  # a capture counts only on a report that names its frame (evidence.py)
                 self.reports[(msg.uav, msg.capture_id)] = msg
+            elif not msg.ok and len(self._failed_told) < MAX_FAILED_TOLD and \
+                    (msg.uav, msg.capture_id) not in self._failed_told:
+                self._failed_told.add((msg.uav, msg.capture_id))
+                tell = True
+        if tell and self.log:  # while flying, so that a camera showing nothing can be seen to, not only at the end
+            self.log.warning("capture %s not analysed: %s", capture_name(msg.uav, msg.capture_id), msg.error[:200])
 
     def _on_stats(self, table: str, msg, sample) -> None:
         if not binding.source_matches(str(sample.key_expr), msg.source):  # statistics only for their own node

@@ -235,8 +235,29 @@ def test_a_camera_that_shows_no_surface_fails_the_mission_and_is_not_coverage(tm
     planned, imaged = report["captures"]["planned"], report["captures"]["imaged"]
     assert 0.3 * planned <= planned - imaged <= 0.7 * planned, report["captures"]  # two frames of four, per UAV
     assert "capture points were not imaged: uav" in run.proc.stderr, run.failure()
+    assert "not analysed: frame shows no surface: under-exposed" in run.proc.stderr, run.failure()  # while flying
     summary = json.loads((run.out / "inspection" / "defects.json").read_text())
     assert len(summary["unusable"]) == planned - imaged and summary["frames_used"] == imaged, summary
     assert summary["coverage"] < 0.9, summary
     text = (run.out / "report.md").read_text()
     assert f"{planned - imaged} of the {planned} captures show no surface and are not counted" in text
+
+
+def test_failed_reports_are_told_while_flying_once_per_capture_and_bounded(caplog):
+    import logging
+
+    from protocol.messages import DefectReport
+    from services.gcs.mission import MAX_FAILED_TOLD
+
+    def failed(c: int) -> DefectReport:
+        return DefectReport(uav=2, capture_id=c, stamp_capture=1.0, stamp_report=1.1, method="it+", ok=False,
+                            error="frame shows no surface: blank\x1b[2J")
+
+    with Bus(BusConfig(mode="peer"), FLEET, "gcs") as bus:
+        runner = MissionRunner(bus, load_scenario(), MissionOptions(uavs=(1, 2)), log=logging.getLogger("t"))
+        with caplog.at_level(logging.WARNING, logger="t"):
+            for c in [0, 0, 1, *range(2, MAX_FAILED_TOLD + 20)]:
+                runner._on_defects(failed(c), None)
+    told = [r.getMessage() for r in caplog.records]
+    assert len(told) == MAX_FAILED_TOLD and told[0].startswith("capture uav2-00000 not analysed: frame shows no surface")
+    assert len(runner.record.defects) == MAX_FAILED_TOLD + 21 and runner.reports == {}  # all kept, none counted
