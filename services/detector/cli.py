@@ -12,8 +12,10 @@ from pathlib import Path
 import cv2
 
 from protocol.cliconfig import show_defaults
+from protocol.textsafe import printable
 
 from .detect import METHODS, detect
+from .exposure import exposure_problem
 
 __all__ = ["main", "DEFAULT_METHOD"]
 
@@ -63,6 +65,10 @@ def _image(a: argparse.Namespace) -> int:
     if bgr is None:
         print(f"skynet detect: cannot read {a.image}", file=sys.stderr)
         return 2
+    problem = exposure_problem(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
+    if problem is not None:  # as the detector service reports such a frame: failed, saying why
+        print(f"skynet detect: {printable(a.image)} shows no surface ({problem}): not analysed", file=sys.stderr)
+        return 1
     det = detect(bgr, a.method)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
