@@ -5,15 +5,21 @@ Design notes: docs/imagery.md (protocol/imagecodec.py).
 
 from __future__ import annotations
 
+import math
+import os
+import re
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["MAX_IMAGE_PIXELS", "decode_image", "encode_jpeg", "image_size"]
+__all__ = ["MAX_IMAGE_PIXELS", "MAX_SCANS", "decode_image", "encode_jpeg", "image_size"]
 
 #: the most pixels an image may declare to be decoded (a 100 MP medium-format frame; the project's captures are
 #: 0.3-12 MP): a few hundred bytes can declare 30000 x 30000, which OpenCV would fill in seconds and a gigabyte
 MAX_IMAGE_PIXELS = 100_000_000
+# OpenCV's own bound (2^30 by default), read once on its first decode: a backstop behind the header checks
+os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(MAX_IMAGE_PIXELS))
 
 
 def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
@@ -38,41 +44,53 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"  # RFC 2083, section 3.1
 
 #: JPEG start-of-frame markers (ITU T.81 Table B.1: SOF0-SOF15 but DHT C4, JPG C8 and DAC CC)
 _SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
-#: JPEG markers without a length (ITU T.81 B.1.1.3: TEM, RST0-7, SOI, EOI)
-_STANDALONE = frozenset({0x01, *range(0xD0, 0xDA)})
+#: the other marker segments a JPEG may hold before its frame header (ITU T.81 B.2.4, B.3.2, Table B.1: DHT,
+#: DAC, DQT, DRI, DHP, EXP, APP0-15, COM); anything else there (0x00, a reserved code) is refused, since libjpeg
+#: skips it as garbage while a parser would take it for a segment and jump over the real frame header
+_TABLES = frozenset({0xC4, 0xCC, 0xDB, 0xDD, 0xDE, 0xDF, *range(0xE0, 0xF0), 0xFE})
+_NOT_FILL = re.compile(rb"[^\xff]")
+#: the most scans (start-of-scan markers) a JPEG may hold: libjpeg walks the whole frame once per scan even when
+#: the scan is empty, so a progressive file of thousands of empty scans costs seconds (baseline: one scan per
+#: component; a progressive encoder writes about ten)
+MAX_SCANS = 32
+#: the most marker segments before the frame header (a camera writes a dozen: APPn, DQT, DHT)
+MAX_HEADER_SEGMENTS = 256
 
 
 def image_size(data: bytes | bytearray | memoryview) -> tuple[int, int]:
-    """The (width, height) a PNG (its IHDR chunk, RFC 2083 4.1.1) or a JPEG (its first start-of-frame segment,
-    ITU T.81 B.2.2) declares, read from its header without decoding; ValueError when there is none."""
-    b = bytes(data[:8]) if not isinstance(data, bytes) else data[:8]
-    if b == _PNG_SIGNATURE:
-        head = bytes(data[8:24])
-        if len(head) < 16 or head[4:8] != b"IHDR":
+    """The (width, height) a PNG (its IHDR chunk, RFC 2083 4.1.1) or a JPEG (its frame header, ITU T.81 B.2.2,
+    after only the table and application segments B.2.4 allows before it) declares, read from its header without
+    decoding; ValueError when there is none or the header holds anything else."""
+    b = bytes(data) if not isinstance(data, bytes) else data
+    if b[:8] == _PNG_SIGNATURE:
+        if len(b) < 24 or b[12:16] != b"IHDR":
             raise ValueError("PNG without an IHDR chunk")
-        return int.from_bytes(head[8:12], "big"), int.from_bytes(head[12:16], "big")
-    view = memoryview(data)
-    if len(view) < 4 or view[0] != 0xFF or view[1] != 0xD8:
+        return int.from_bytes(b[16:20], "big"), int.from_bytes(b[20:24], "big")
+    if len(b) < 4 or b[0] != 0xFF or b[1] != 0xD8:
         raise ValueError("cannot decode: neither a JPEG (no start-of-image marker) nor a PNG (no signature)")
-    i, n = 2, len(view)
-    while i + 4 <= n:
-        if view[i] != 0xFF:
+    i, n = 2, len(b)
+    for _ in range(MAX_HEADER_SEGMENTS):
+        if i + 4 > n:
+            break
+        if b[i] != 0xFF:
             raise ValueError(f"JPEG header damaged at byte {i}")
-        marker = view[i + 1]
-        if marker == 0xFF:  # a fill byte
-            i += 1
-            continue
-        if marker in _STANDALONE:
-            i += 2
-            continue
-        length = int.from_bytes(view[i + 2:i + 4], "big")
+        m = _NOT_FILL.search(b, i + 1)  # fill bytes (B.1.1.2) may precede a marker
+        if m is None:
+            break
+        i = m.start() - 1
+        marker = b[i + 1]
         if marker in _SOF:
-            if i + 9 > n or length < 8:
+            if i + 9 > n or int.from_bytes(b[i + 2:i + 4], "big") < 8:
                 raise ValueError("JPEG start-of-frame segment truncated")
-            return int.from_bytes(view[i + 7:i + 9], "big"), int.from_bytes(view[i + 5:i + 7], "big")
-        if marker == 0xDA or length < 2:
-            break  # scan data (or a damaged length) before any frame header
+            return int.from_bytes(b[i + 7:i + 9], "big"), int.from_bytes(b[i + 5:i + 7], "big")
+        if marker not in _TABLES:
+            raise ValueError(f"JPEG header damaged: marker 0x{marker:02X} before its frame header")
+        length = int.from_bytes(b[i + 2:i + 4], "big")
+        if length < 2:
+            break
         i += 2 + length
+    else:
+        raise ValueError(f"JPEG with more than {MAX_HEADER_SEGMENTS} segments before its frame header")
     raise ValueError("JPEG without a start-of-frame segment")
 
 
@@ -112,14 +130,22 @@ def decode_image(data: bytes | bytearray | memoryview, grey: bool = False, reduc
     w, h = image_size(data)
     if size is not None and (w, h) != tuple(size):
         raise ValueError(f"the {kind} is {w} x {h} px, its metadata says {size[0]} x {size[1]}")
-    if w * h > max_pixels or w < 1 or h < 1:
+    if w < 1 or h < 1:
+        raise ValueError(f"the {kind} declares an empty image ({w} x {h} px)")
+    if w * h > max_pixels:
         raise ValueError(f"the {kind} declares {w} x {h} px, beyond the {max_pixels / 1e6:g} MP decoded at most")
+    if kind == "JPEG" and buf.tobytes().count(b"\xff\xda") > MAX_SCANS:
+        raise ValueError(f"the JPEG holds more than {MAX_SCANS} scans")
     flag = _REDUCED_GREY[reduce] if grey or reduce > 1 else cv2.IMREAD_UNCHANGED
     try:
-        img = cv2.imdecode(buf, flag)
+        img = cv2.imdecode(buf, flag | cv2.IMREAD_IGNORE_ORIENTATION)  # the pixels as sent, not as EXIF turns them
     except cv2.error:
         img = None
     if img is None:
         raise ValueError(f"cannot decode a corrupt {kind}")
+    # libjpeg scales a JPEG to the size rounded up, OpenCV resizes a PNG to the size rounded down
+    want = (math.ceil(h / reduce), math.ceil(w / reduce)) if kind == "JPEG" else (h // reduce, w // reduce)
+    if img.shape[:2] != want:
+        raise ValueError(f"the {kind} decoded to {img.shape[1]} x {img.shape[0]} px, its header declares {w} x {h}")
     return np.asarray(img, dtype=np.uint8)
 

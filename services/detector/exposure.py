@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -22,19 +23,22 @@ WHITE_LEVEL = 253
 MAX_CLIPPED_SHARE = 0.5
 #: a frame whose grey levels between the 1st and the 99th percentile span fewer than this shows no texture
 MIN_SPREAD = 8
-#: at most this many pixels are looked at (a regular subsample: pixel-level noise and texture survive it)
-SAMPLE_PX = 300_000
+#: the frame is judged at this many pixels (area-averaged down to it): one resolution whatever size it was decoded
+#: at, so that the detector (at its reduced decode), the ground station and the report agree on a frame
+JUDGED_PX = 80_000
 
 
 def exposure_problem(grey: NDArray[np.uint8]) -> str | None:
     """What makes ``grey`` (a 2-D uint8 frame) show no surface, in a few words, or None for a usable frame:
     more than :data:`MAX_CLIPPED_SHARE` of it black or white (under- or over-exposed), or its 1-99 % grey
-    spread below :data:`MIN_SPREAD` (blank)."""
-    g = np.asarray(grey)
+    spread below :data:`MIN_SPREAD` (blank); judged at :data:`JUDGED_PX` pixels."""
+    g = np.ascontiguousarray(grey)
     if g.ndim != 2 or g.size == 0:
         return f"not a grey image (shape {g.shape})"
-    step = max(1, math.ceil(math.sqrt(g.size / SAMPLE_PX)))
-    s = g[::step, ::step]
+    s: np.ndarray = g
+    if g.size > JUDGED_PX:
+        k = math.sqrt(JUDGED_PX / g.size)
+        s = cv2.resize(g, (max(1, round(g.shape[1] * k)), max(1, round(g.shape[0] * k))), interpolation=cv2.INTER_AREA)
     black = float(np.count_nonzero(s <= BLACK_LEVEL)) / s.size
     white = float(np.count_nonzero(s >= WHITE_LEVEL)) / s.size
     if black > MAX_CLIPPED_SHARE:
@@ -45,3 +49,12 @@ def exposure_problem(grey: NDArray[np.uint8]) -> str | None:
     if hi - lo < MIN_SPREAD:
         return f"blank, its grey levels within {hi - lo:.0f} over 98% of the frame"
     return None
+
+
+def judged_reduction(width: int, height: int) -> int:
+    """The largest decode reduction (1, 2, 4 or 8) that leaves a ``width`` x ``height`` frame at least
+    :data:`JUDGED_PX` pixels: what a reader that only needs :func:`exposure_problem`'s verdict decodes at."""
+    for f in (8, 4, 2):
+        if (width // f) * (height // f) >= JUDGED_PX:
+            return f
+    return 1

@@ -67,7 +67,7 @@ def run_mission(bus: Bus, scenario: Scenario, options: MissionOptions, out: str 
     if out and record:  # before the runner subscribes, so the log holds every sample the runner gets
         from services.recording.recorder import MissionLogWriter, RecordingBus
 
-        from .evidence import surface_problem
+        from .surface import surface_problem
 
         writer = MissionLogWriter(bus, Path(out) / "mission.mcap", log, surface_check=surface_problem)
     if options.transport is None:  # what the report's link figures rode on: this session's own links

@@ -8,28 +8,10 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Iterable
 
-from protocol.imagecodec import decode_image
-from protocol.messages import DefectReport, ImageMeta, LinkStats, VehicleState
+from protocol.messages import DefectReport, LinkStats, VehicleState
 from protocol.rtp import ssrc_for
 from protocol.textsafe import md_text
-from services.detector.config import DETECT_MAX_MP
-from services.detector.exposure import exposure_problem
-from services.detector.pipeline import detection_scale
 from services.recording.witness import CAPTURE_CAMERA, FrameWitness, Seen
-
-
-def surface_problem(meta: ImageMeta, image: bytes | memoryview) -> str | None:
-    """The ground station's own look at a capture it received: why its image shows no surface
-    (:func:`~services.detector.exposure.exposure_problem`, or why it does not decode), or None. Decoded as the
-    detector decodes it by default (:func:`~services.detector.pipeline.detection_scale`), so that both judge the
-    same pixels; a detector's ok report on such a frame does not count."""
-    k = meta.intrinsics
-    try:
-        grey = decode_image(image, grey=True, reduce=detection_scale(k.width, k.height, int(DETECT_MAX_MP * 1e6)),
-                            size=(k.width, k.height))
-    except ValueError as exc:
-        return f"does not decode: {exc}"
-    return exposure_problem(grey)
 
 
 def has_evidence(report: DefectReport) -> bool:

@@ -630,7 +630,7 @@ class MissionRunner:
         with self._lock:
             reports = [d.msg for d in self.record.defects]
         for r in reports:
-            if r.ok and r.frame is not None:
+            if has_evidence(r) and r.frame is not None:
                 why = self.witness.no_surface_reason(r.frame, r.capture_id)
                 if why is not None:
                     out[(r.uav, r.capture_id)] = f"reported ok, but its frame shows no surface: {why}"

@@ -34,7 +34,7 @@ class Seen(StrEnum):
 
 
 #: what a frame's image shows no surface for (black, white, blank), or None: the ground station's own check of
-#: a frame a detector may call fine (services.gcs.evidence.surface_problem)
+#: a frame a detector may call fine (services.gcs.surface.surface_problem)
 SurfaceCheck = Callable[[ImageMeta, bytes | memoryview], str | None]
 
 
@@ -64,10 +64,11 @@ class FrameWitness:
         if src is None or src != (meta.uav, CAPTURE_CAMERA) or not len(image):
             return False
         digest = hashlib.sha256(image).hexdigest()
-        with self._lock:
+        with self._lock:  # kept already, or its camera at its bound: not looked at (add counts the latter)
             if (digest, meta.capture_id) in self._frames.get((header.ssrc, header.sequence), ()):
-                return False  # kept already: not looked at again
-        problem = None if self.surface_check is None else self.surface_check(meta, image)
+                return False
+            full = self._held[header.ssrc] >= self.max_per_camera
+        problem = None if self.surface_check is None or full else self.surface_check(meta, image)
         return self.add(header.ssrc, header.sequence, digest, meta.capture_id, problem)
 
     def add(self, ssrc: int, sequence: int, digest: str, capture_id: int, no_surface: str | None = None) -> bool:

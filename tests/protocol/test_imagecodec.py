@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from protocol.imagecodec import MAX_IMAGE_PIXELS, decode_image, encode_jpeg, image_size
+from protocol.imagecodec import MAX_IMAGE_PIXELS, MAX_SCANS, decode_image, encode_jpeg, image_size
 
 
 def _declaring(jpeg: bytes, w: int, h: int) -> bytes:
@@ -29,7 +29,9 @@ def test_the_declared_size_of_jpeg_png_and_progressive_jpeg():
 
 
 @pytest.mark.parametrize(("data", "says"), [
-    (b"\xff\xd8\xff\xda\x00\x08abcdef\xff\xd9", "without a start-of-frame"),
+    (b"\xff\xd8\xff\xda\x00\x08abcdef\xff\xd9", "marker 0xDA before its frame header"),
+    (b"\xff\xd8" + b"\xff\xe0\x00\x02" * 300, "more than 256 segments before its frame header"),
+    (b"\xff\xd8" + b"\xff" * 100_000, "without a start-of-frame"),
     (b"\xff\xd8\x00\x00\x00\x00", "header damaged"),
     (b"\xff\xd8\xff\xc0\x00\x11\x08", "start-of-frame segment truncated"),
     (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDX" + bytes(8), "without an IHDR"),
@@ -62,3 +64,48 @@ def test_a_frame_of_its_metadatas_size_decodes_at_every_reduction():
     jpeg = encode_jpeg(g)
     for f in (1, 2, 4, 8):
         assert decode_image(jpeg, grey=True, reduce=f, size=(640, 480)).shape == (480 // f, 640 // f)
+
+
+def test_a_header_that_hides_its_frame_header_from_a_parser_is_refused():
+    """``FF 00`` where a marker should be: libjpeg skips it as garbage and takes the real frame header (30000 x
+    30000), while a parser reading it as a segment jumped over that header to a 640 x 480 one hidden in a comment,
+    so that the bomb matched its metadata (8 s, 1.8 GB)."""
+    base = encode_jpeg(np.zeros((8, 8), np.uint8))
+    i = base.find(b"\xff\xc0")
+    n = int.from_bytes(base[i + 2:i + 4], "big")
+    sof = base[i:i + 2 + n]
+    real = sof[:5] + (30000).to_bytes(2, "big") + (30000).to_bytes(2, "big") + sof[9:]
+    fake = sof[:5] + (480).to_bytes(2, "big") + (640).to_bytes(2, "big") + sof[9:]
+    before = base[2:i] + real
+    com = b"\xff\xfe" + (2 + 1 + len(fake)).to_bytes(2, "big") + b"x" + fake
+    skip = 6 + len(before) + 4 + 1 - 4
+    data = b"\xff\xd8\xff\x00" + skip.to_bytes(2, "big") + before + com + base[i + 2 + n:]
+    with pytest.raises(ValueError, match="marker 0x00 before its frame header"):
+        decode_image(data, grey=True, size=(640, 480))
+
+
+def test_a_jpeg_of_many_empty_scans_is_refused_before_decoding():
+    """libjpeg walks the whole frame once per scan, even an empty one: 5,000 ten-byte scans in a progressive
+    4000 x 3000 file cost 4 s."""
+    g = np.zeros((64, 64), np.uint8)
+    prog = cv2.imencode(".jpg", g, [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])[1].tobytes()
+    assert decode_image(prog).shape == (64, 64)  # an encoder's progressive file: a handful of scans
+    empty = b"\xff\xda\x00\x08\x01\x01\x00\x01\x3f\x00"
+    many = prog[:-2] + empty * MAX_SCANS + b"\xff\xd9"
+    with pytest.raises(ValueError, match=f"more than {MAX_SCANS} scans"):
+        decode_image(many)
+
+
+def test_exif_orientation_does_not_turn_the_pixels_and_a_shape_unlike_the_header_is_refused():
+    """A 640 x 480 capture with an EXIF orientation of 6 decoded turned (480 x 640) under the size its metadata
+    gave: the pixels are taken as sent."""
+    import struct
+
+    jpeg = encode_jpeg(np.random.default_rng(0).integers(0, 255, (480, 640), np.uint8))
+    tiff = b"MM\x00\x2a" + struct.pack(">I", 8) + struct.pack(">H", 1) + struct.pack(">HHII", 0x0112, 3, 1, 6 << 16)
+    tiff += struct.pack(">I", 0)
+    app1 = b"\xff\xe1" + (2 + 6 + len(tiff)).to_bytes(2, "big") + b"Exif\x00\x00" + tiff
+    turned = jpeg[:2] + app1 + jpeg[2:]
+    assert image_size(turned) == (640, 480)
+    for f in (1, 2):
+        assert decode_image(turned, grey=True, reduce=f, size=(640, 480)).shape == (480 // f, 640 // f)

@@ -62,3 +62,27 @@ def test_a_large_frame_and_odd_input():
     assert exposure_problem(big).startswith("under-exposed, 7")  # 3/4 of it black, measured on a subsample
     assert exposure_problem(np.zeros((0, 5), np.uint8)) == "not a grey image (shape (0, 5))"
     assert exposure_problem(np.zeros((4, 4, 3), np.uint8)).startswith("not a grey image")
+
+
+@pytest.mark.parametrize("kind", ["wall", "grain", "low-light", "sky-band"])
+def test_one_verdict_whatever_the_frame_was_decoded_at(kind):
+    """The detector judges its reduced decode, the report the full frame, the ground station its own decode: the
+    frame is judged at one resolution, so they agree (a frame of fine grain read blank at 1/4 and fine at 1/1)."""
+    from protocol.imagecodec import decode_image, encode_jpeg
+    from services.detector.exposure import judged_reduction
+
+    rng = np.random.default_rng(5)
+    shape = (1500, 2000)
+    if kind == "wall":
+        g = textured_background(shape, rng, roughness=6.0)
+    elif kind == "grain":
+        g = _noise(120, 4, shape)
+    elif kind == "low-light":
+        g = _noise(5, 4, shape)
+    else:  # 40 % sky above a wall
+        g = textured_background(shape, rng, roughness=6.0)
+        g[: int(0.4 * shape[0])] = 255
+    jpeg = encode_jpeg(g, 90)
+    verdicts = {f: exposure_problem(decode_image(jpeg, grey=True, reduce=f)) for f in (1, 2, 4, 8)}
+    assert len({v is None for v in verdicts.values()}) == 1, verdicts
+    assert judged_reduction(2000, 1500) == 4 and judged_reduction(640, 480) == 1 and judged_reduction(4000, 3000) == 8

@@ -122,7 +122,7 @@ def test_a_detectors_ok_on_a_frame_that_shows_no_surface_does_not_count():
     import numpy as np
 
     from edge.world.surface import textured_background
-    from services.gcs.evidence import surface_problem
+    from services.gcs.surface import surface_problem
     from services.recording.witness import Seen
 
     w = FrameWitness(surface_check=surface_problem)
@@ -140,16 +140,18 @@ def test_a_detectors_ok_on_a_frame_that_shows_no_surface_does_not_count():
     assert not w.add_sample(*frames[1][:2])  # the same frame again: kept already, not looked at again
 
 
-def test_the_ground_stations_look_decodes_as_the_detector_does():
+def test_a_camera_past_its_bound_costs_no_look():
+    """A UAV flooding its own camera key beyond the witness's bound is counted, not decoded frame by frame."""
     import numpy as np
 
-    from services.gcs.evidence import surface_problem
-    from services.inspection.captures import capture_meta
+    looked = []
 
-    meta = capture_meta(1, 0, np.zeros(3), np.eye(3), (640, 480), 500.0, 500.0, 320.0, 240.0, 5.0)
-    assert surface_problem(meta, b"\xff\xd8 nothing") == "does not decode: cannot decode a truncated JPEG: no end-of-image marker"
-    from protocol.imagecodec import encode_jpeg
+    def check(meta, image):
+        looked.append(meta.capture_id)
+        return None
 
-    assert surface_problem(meta, encode_jpeg(np.full((480, 640), 255, np.uint8))).startswith("over-exposed")
-    assert surface_problem(meta, encode_jpeg(np.zeros((240, 320), np.uint8))) == (
-        "does not decode: the JPEG is 320 x 240 px, its metadata says 640 x 480")
+    w = FrameWitness(max_per_camera=2, surface_check=check)
+    for cid in range(5):
+        key, data, _ = _capture(1, cid, np.full((48, 64), 100 + cid, np.uint8))
+        w.add_sample(key, data)
+    assert looked == [0, 1] and len(w) == 2 and w.not_kept[ssrc_for(1)] == 3
