@@ -474,12 +474,16 @@ def frames_from_log(path: str | Path) -> list[PosedFrame]:
     from services.recording.mcap_log import captures
 
     frames = []
+    left_out: list[str] = []
     for meta, image in captures(path):
         try:
             frames.append(PosedFrame(meta, decode_image(image, grey=True,
                                                         size=(meta.intrinsics.width, meta.intrinsics.height))))
         except ValueError as exc:
-            log.warning("deliverable: capture %s left out: %s", frame_name(meta), exc)
+            left_out.append(f"{frame_name(meta)}: {exc}")
+    if left_out:  # one line however many (the log's frames came from the bus)
+        log.warning("deliverable: %d capture(s) in the log do not decode, left out (the first: %s)", len(left_out),
+                    left_out[0])
     return sorted(frames, key=lambda f: frame_name(f.meta))
 
 

@@ -187,3 +187,32 @@ def test_a_capture_that_shows_no_surface_is_neither_coverage_nor_a_witness(wall)
     assert unusable_text(res) == (f"1 of the {len(frames)} captures shows no surface and is not counted: "
                                   f"{name} (under-exposed, 100% of the frame black).")
     assert unusable_text(whole) == ""
+
+
+def test_the_logs_frames_that_do_not_decode_are_left_out_in_one_line(tmp_path, caplog):
+    """The mission log's frames came from the bus: one declaring another size than its metadata (a decoder bomb
+    among them) is left out undecoded, and however many there are, the report's reader says so once."""
+    import logging
+    import time
+
+    from protocol import keys
+    from protocol.imagecodec import encode_jpeg
+    from protocol.imagery import pack_image
+    from protocol.rtp import RtpSender, ssrc_for
+    from services.inspection.captures import capture_meta
+    from services.inspection.deliverable import frames_from_log
+    from services.recording.recorder import MissionLogWriter
+
+    w = MissionLogWriter(None, tmp_path / "m.mcap")
+    sender = RtpSender(ssrc_for(1))
+    for cid, (ww, hh) in enumerate([(64, 48), (32, 24), (32, 24), (64, 48)]):
+        meta = capture_meta(1, cid, np.zeros(3), np.eye(3), (64, 48), 50.0, 50.0, 32.0, 24.0, 5.0)
+        w.sample(keys.camera("f", 1), pack_image(sender, meta, encode_jpeg(np.full((hh, ww), 90, np.uint8)),
+                                                  time.time()), time.time())
+    w.close()
+    with caplog.at_level(logging.WARNING):
+        frames = frames_from_log(tmp_path / "m.mcap")
+    assert [f.meta.capture_id for f in frames] == [0, 3]
+    said = [r.getMessage() for r in caplog.records if "do not decode" in r.getMessage()]
+    assert said == ["deliverable: 2 capture(s) in the log do not decode, left out (the first: uav1-00001: the JPEG "
+                    "is 32 x 24 px, its metadata says 64 x 48)"]
