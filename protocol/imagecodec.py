@@ -111,34 +111,30 @@ def decode_image(data: bytes | bytearray | memoryview, grey: bool = False, reduc
     and at most ``max_pixels``, checked before anything is decoded; ValueError otherwise, or when the codec
     refuses them.
     """
-    try:
-        buf = np.frombuffer(data, np.uint8)
+    try:  # one copy at most, read by the header checks and the codec alike
+        raw = data if isinstance(data, bytes) else memoryview(data).tobytes()
     except TypeError:
         raise ValueError(f"image data must be bytes, got {type(data).__name__}") from None
-    if buf.size == 0:
+    if not raw:
         raise ValueError("cannot decode an empty image")
-    if buf[:8].tobytes() == _PNG_SIGNATURE:
-        kind = "PNG"
-    elif buf.size >= 4 and buf[0] == 0xFF and buf[1] == 0xD8:
-        kind = "JPEG"
-        if b"\xff\xd9" not in buf[-64:].tobytes():
-            raise ValueError("cannot decode a truncated JPEG: no end-of-image marker")
-    else:
-        raise ValueError("cannot decode: neither a JPEG (no start-of-image marker) nor a PNG (no signature)")
+    kind = "PNG" if raw[:8] == _PNG_SIGNATURE else "JPEG"
+    if kind == "JPEG" and raw[:2] == b"\xff\xd8" and b"\xff\xd9" not in raw[-64:]:
+        raise ValueError("cannot decode a truncated JPEG: no end-of-image marker")
+    w, h = image_size(raw)  # (neither signature: ValueError)
     if reduce not in _REDUCED_GREY:
         raise ValueError(f"reduce must be one of {sorted(_REDUCED_GREY)}, got {reduce!r}")
-    w, h = image_size(data)
     if size is not None and (w, h) != tuple(size):
         raise ValueError(f"the {kind} is {w} x {h} px, its metadata says {size[0]} x {size[1]}")
     if w < 1 or h < 1:
         raise ValueError(f"the {kind} declares an empty image ({w} x {h} px)")
     if w * h > max_pixels:
         raise ValueError(f"the {kind} declares {w} x {h} px, beyond the {max_pixels / 1e6:g} MP decoded at most")
-    if kind == "JPEG" and buf.tobytes().count(b"\xff\xda") > MAX_SCANS:
+    if kind == "JPEG" and raw.count(b"\xff\xda") > MAX_SCANS:
         raise ValueError(f"the JPEG holds more than {MAX_SCANS} scans")
     flag = _REDUCED_GREY[reduce] if grey or reduce > 1 else cv2.IMREAD_UNCHANGED
     try:
-        img = cv2.imdecode(buf, flag | cv2.IMREAD_IGNORE_ORIENTATION)  # the pixels as sent, not as EXIF turns them
+        # the pixels as sent, not as EXIF turns them
+        img = cv2.imdecode(np.frombuffer(raw, np.uint8), flag | cv2.IMREAD_IGNORE_ORIENTATION)
     except cv2.error:
         img = None
     if img is None:

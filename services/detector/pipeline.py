@@ -93,6 +93,12 @@ def scaled(det: Detection, f: int) -> Detection:
     return Detection(mask=det.mask, defects=out, method=det.method, threshold=det.threshold)
 
 
+def failed_report(meta: ImageMeta, method: str, error: str) -> DefectReport:
+    """The ``ok=False`` report of a frame that could not be analysed, saying why."""
+    return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
+                        stamp_report=time.time(), method=method, ok=False, error=error)
+
+
 def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", max_pixels: int | None = None,
             **params: object) -> DefectReport:
     """Decode, detect and map one frame; a frame that does not decode, or shows no surface
@@ -107,12 +113,9 @@ def analyse(meta: ImageMeta, image: bytes | memoryview, method: str = "it+", max
     try:
         grey = decode_image(image, grey=True, reduce=f, size=(meta.intrinsics.width, meta.intrinsics.height))
     except ValueError as exc:
-        return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
-                            stamp_report=time.time(), method=method, ok=False, error=str(exc))
+        return failed_report(meta, method, str(exc))
     problem = exposure_problem(grey)
     if problem is not None:
-        return DefectReport(uav=meta.uav, capture_id=meta.capture_id, stamp_capture=meta.stamp,
-                            stamp_report=time.time(), method=method, ok=False,
-                            error=f"{UNUSABLE}: {problem}")
+        return failed_report(meta, method, f"{UNUSABLE}: {problem}")
     det = detect(grey, method, min_defect_area=max(1, MIN_REPORT_AREA_PX // (f * f)), **params)
     return to_report(meta, det, grey=grey, scale=f)

@@ -69,6 +69,18 @@ def sort_reports(reports: Iterable[DefectReport], witness: FrameWitness | None =
     return by, unevidenced
 
 
+def no_surface_reasons(reports: Iterable[DefectReport], witness: FrameWitness) -> dict[tuple[int, int], str]:
+    """``(uav, capture_id)`` -> why, of every evidenced report on a frame the ground station's own look found no
+    surface in (:attr:`~services.recording.witness.Seen.NO_SURFACE`): the verdict's reason beside the capture."""
+    out = {}
+    for r in reports:
+        if has_evidence(r) and r.frame is not None:
+            why = witness.no_surface_reason(r.frame, r.capture_id)
+            if why is not None:
+                out[(r.uav, r.capture_id)] = f"reported ok, but its frame shows no surface: {why}"
+    return out
+
+
 def held_captures(reports: Iterable[DefectReport], witness: FrameWitness) -> set[tuple[int, int]]:
     """``(uav, capture_id)`` of every ok report whose frame the ground station received as named."""
     return sort_reports(reports, witness)[0][Seen.HELD]

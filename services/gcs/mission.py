@@ -54,7 +54,7 @@ from services.recording.record import (
 from services.recording.witness import FrameWitness
 
 from .commands import CommandIds, RetryPolicy, not_sent, send, start_margin
-from .evidence import corroboration_failures, has_evidence, held_captures, ledger
+from .evidence import corroboration_failures, has_evidence, held_captures, ledger, no_surface_reasons
 from .supervision import SUPERVISE_PERIOD_S, Supervisor, mission_time
 from .verdict import GOAL_SETTLE_S, goal_check, not_imaged_text, planned_captures, short_of_goal
 
@@ -622,30 +622,18 @@ class MissionRunner:
             lost = set(self._sup.lost)
         return missing if include_lost else {c for c in missing if c[0] not in lost}
 
-    def _no_surface(self) -> dict[tuple[int, int], str]:
-        """The captures reported ok on a frame the ground station's own look finds no surface in, and why."""
-        if self.witness is None:
-            return {}
-        out = {}
-        with self._lock:
-            reports = [d.msg for d in self.record.defects]
-        for r in reports:
-            if has_evidence(r) and r.frame is not None:
-                why = self.witness.no_surface_reason(r.frame, r.capture_id)
-                if why is not None:
-                    out[(r.uav, r.capture_id)] = f"reported ok, but its frame shows no surface: {why}"
-        return out
-
     def judge(self, late: Sequence[str] = ()) -> None:
         """The verdict: the failures so far, then (when there were none) each UAV's goal and the captures,
         then ``late``, failures of the run found at its end (a fault it never injected); success if none."""
         rec = self.record
         clean = not rec.failures
         planned, lost = self.planned_captures(), self.lost()
-        held = None
+        held, no_surface = None, {}
         if self.witness is not None:  # a capture counts on a frame this ground station holds (evidence.py)
             with self._lock:
-                held = held_captures([d.msg for d in rec.defects], self.witness)
+                reports = [d.msg for d in rec.defects]
+            held = held_captures(reports, self.witness)
+            no_surface = no_surface_reasons(reports, self.witness)
             rec.held_captures = sorted(held)
         missed_any = self.missing_captures(include_lost=True, imaged=held)
         for u, gone in sorted(lost.items()):
@@ -673,7 +661,7 @@ class MissionRunner:
             missing = self.missing_captures(imaged=held)
             if missing:
                 rec.failures.append(not_imaged_text(missing, len(self.planned_captures()),
-                                                    (d.msg for d in rec.defects), reasons=self._no_surface()))
+                                                    (d.msg for d in rec.defects), reasons=no_surface))
         rec.imagery = ledger(self.opt.uavs, (s.msg for s in rec.states), (d.msg for d in rec.defects),
                              (s.msg for s in rec.detector_stats), self.witness)
         rec.failures += corroboration_failures(rec.imagery)

@@ -4,7 +4,14 @@ import time
 
 from protocol.messages import DefectReport, FrameEvidence, LinkStats, Mode, VehicleState
 from protocol.rtp import ssrc_for
-from services.gcs.evidence import corroboration_failures, detector_totals, has_evidence, held_captures, ledger
+from services.gcs.evidence import (
+    corroboration_failures,
+    detector_totals,
+    has_evidence,
+    held_captures,
+    ledger,
+    no_surface_reasons,
+)
 from services.recording.witness import FrameWitness
 
 D = "ab" * 32
@@ -134,6 +141,9 @@ def test_a_detectors_ok_on_a_frame_that_shows_no_surface_does_not_count():
     assert [w.seen(r.frame, r.capture_id) for r in reports] == [Seen.HELD, Seen.NO_SURFACE]
     assert w.no_surface_reason(reports[1].frame, 1) == "under-exposed, 100% of the frame black"
     assert held_captures(reports, w) == {(1, 0)}
+    assert no_surface_reasons(reports, w) == {(1, 1): "reported ok, but its frame shows no surface: under-exposed, "
+                                                      "100% of the frame black"}
+    assert no_surface_reasons([r.model_copy(update={"uav": 2}) for r in reports], w) == {}  # not its camera
     book = ledger([1], [_state(1, 2)], reports, [_stats(1, uav1_cam0_received=2, uav1_cam0_analysed=2)], witness=w)
     assert book[1]["reported"] == 1 and book[1]["no_surface"] == 1
     assert any("1 capture(s) reported ok on a frame that shows no surface" in f for f in corroboration_failures(book))

@@ -260,4 +260,8 @@ def test_failed_reports_are_told_while_flying_once_per_capture_and_bounded(caplo
                 runner._on_defects(failed(c), None)
     told = [r.getMessage() for r in caplog.records]
     assert len(told) == MAX_FAILED_TOLD and told[0].startswith("capture uav2-00000 not analysed: frame shows no surface")
+    from protocol.textsafe import SafeFormatter  # the detector's text as the ground station's log prints it
+
+    line = SafeFormatter("%(message)s").format(caplog.records[0])
+    assert line == "capture uav2-00000 not analysed: frame shows no surface: blank\\x1b[2J", line
     assert len(runner.record.defects) == MAX_FAILED_TOLD + 21 and runner.reports == {}  # all kept, none counted
