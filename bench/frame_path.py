@@ -7,7 +7,8 @@ Two parts, one run:
    rendered as before (one warp at the frame size, with the ground-truth mask) and as the edge does
    now (``SyntheticSource(mask=False, upsample=True)``); its JPEG encode (q85, as the edge);
    the detector's decode and the whole analysis (decode, IT+r, report) at 1/2 (the old budget,
-   3 MP) and 1/4 (the default, 1 MP) and 1/8.
+   3 MP) and 1/4 (the default, 1 MP) and 1/8; the ground station's own look at the frame (and at a 640x480
+   one), and a 333-byte JPEG declaring 30000 x 30000 px refused from its header against OpenCV's decode of it.
 2. **Missions** (``skynet mission --uavs 3 --frame-size 4000x3000``, capture frames on the reliable
    link) at each ``--speeds``, with ``--baseline`` (a checkout of the tree before these changes,
    e.g. ``git archive <commit> | tar -x -C DIR``; run with this venv, its modules first on the path)
@@ -84,6 +85,40 @@ def steps(repeat: int) -> dict[str, float]:
         rep, rows[f"analyse it+r 1/{f} (--detect-max-mp {mp})"] = timed(
             lambda mp=mp: analyse(meta, jpeg, "it+r", max_pixels=int(mp * 1e6)), repeat)
         rows[f"  longest crack 1/{f}, m"] = max((d.length_m or 0.0 for d in rep.defects), default=0.0)
+    rows.update(surface_look(meta, jpeg, repeat))
+    return rows
+
+
+def surface_look(meta, jpeg: bytes, repeat: int) -> dict[str, float]:  # noqa: ANN001
+    """The ground station's look at each capture it receives (services.gcs.surface, on its receiving thread) for
+    this frame and a 640x480 one, and a 333-byte JPEG declaring 30000 x 30000 px: refused from its header now,
+    what OpenCV made of it before (once: seconds and ~1 GB)."""
+    import cv2
+
+    from protocol.imagecodec import decode_image, encode_jpeg
+    from services.gcs.surface import surface_problem
+
+    rows: dict[str, float] = {}
+    _, rows["ground station's look, 12 MP (surface_problem)"] = timed(lambda: surface_problem(meta, jpeg), repeat)
+    vga = encode_jpeg(cv2.resize(decode_image(jpeg, grey=True, reduce=4), (640, 480), interpolation=cv2.INTER_AREA))
+    k = meta.intrinsics
+    small = meta.model_copy(update={"intrinsics": k.model_copy(update={"width": 640, "height": 480})})
+    _, rows["ground station's look, 640x480"] = timed(lambda: surface_problem(small, vga), repeat)
+    bomb = bytearray(encode_jpeg(np.zeros((8, 8), np.uint8)))
+    i = bomb.find(b"\xff\xc0")
+    bomb[i + 5:i + 9] = (30000).to_bytes(2, "big") + (30000).to_bytes(2, "big")
+    rows["30000x30000 bomb, bytes"] = float(len(bomb))
+
+    def refused() -> str:
+        try:
+            decode_image(bytes(bomb), grey=True, size=(640, 480))
+        except ValueError as exc:
+            return str(exc)
+        raise AssertionError("the bomb was decoded")
+
+    _, rows["30000x30000 bomb, refused from its header"] = timed(refused, repeat)
+    _, rows["30000x30000 bomb, cv2.imdecode as before (once)"] = timed(
+        lambda: cv2.imdecode(np.frombuffer(bytes(bomb), np.uint8), cv2.IMREAD_GRAYSCALE), 1)
     return rows
 
 

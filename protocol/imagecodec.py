@@ -6,7 +6,6 @@ Design notes: docs/imagery.md (protocol/imagecodec.py).
 from __future__ import annotations
 
 import math
-import os
 import re
 
 import cv2
@@ -18,8 +17,6 @@ __all__ = ["MAX_IMAGE_PIXELS", "MAX_SCANS", "decode_image", "encode_jpeg", "imag
 #: the most pixels an image may declare to be decoded (a 100 MP medium-format frame; the project's captures are
 #: 0.3-12 MP): a few hundred bytes can declare 30000 x 30000, which OpenCV would fill in seconds and a gigabyte
 MAX_IMAGE_PIXELS = 100_000_000
-# OpenCV's own bound (2^30 by default), read once on its first decode: a backstop behind the header checks
-os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(MAX_IMAGE_PIXELS))
 
 
 def encode_jpeg(image: NDArray[np.uint8], quality: int = 85) -> bytes:
