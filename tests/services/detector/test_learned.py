@@ -225,6 +225,25 @@ def test_training_walls_are_the_missions_kind_of_surface_but_never_its_own_seed(
     assert 0 < sum(int(m.sum()) for _, _, m in walls) < 0.1 * sum(m.size for _, _, m in walls)
 
 
+def test_a_painted_wide_crack_is_a_dark_valley_in_the_mask_as_wide_as_asked():
+    t = _train_script()
+    rng = np.random.default_rng(1)
+    x = rng.normal(0, 1, (192, 192)).astype(np.float32)
+    m = np.zeros_like(x)
+    m[10:12, 20:60] = 1  # a crack already there stays
+    for _ in range(20):
+        y, mm = t.paint_wide_crack(rng, x, m, width=(9, 9))
+        crack = mm > 0
+        assert y.shape == x.shape and y.dtype == np.float32 and np.all(np.isfinite(y))
+        assert crack[10:12, 20:60].all() and set(np.unique(mm)) <= {0.0, 1.0}
+        painted = crack & (m == 0)
+        assert painted.any() and y[painted].mean() < x[~crack].mean() - 0.5  # darker than the crop
+        # as wide as asked: the distance to the nearest pixel outside the 9 px stroke peaks at ~5 px on its ridge
+        dt = cv2.distanceTransform(painted.astype(np.uint8), cv2.DIST_L2, 5)
+        ridge = dt[(dt > 0) & (dt >= cv2.dilate(dt, np.ones((3, 3), np.uint8)))]
+        assert 4.0 <= np.median(ridge) <= 6.5 and dt.max() <= 9.0, (np.median(ridge), dt.max())
+
+
 TRAIN_EXTRA = all(importlib.util.find_spec(m) for m in ("jax", "optax", "onnx"))
 
 
@@ -249,7 +268,8 @@ def learned_widths() -> list[int]:
 
 @pytest.mark.slow
 @pytest.mark.skipif(not TRAIN_EXTRA, reason="the train extra (jax, optax, onnx) is not installed: pip install -e '.[train]'")
-@pytest.mark.parametrize("options", [[], ["--norm", "batch", "--pos-weight", "2", "--dice-weight", "0.5", "--scale", "1", "2"],
+@pytest.mark.parametrize("options", [[], ["--norm", "batch", "--pos-weight", "2", "--dice-weight", "0.5", "--scale", "1", "2",
+                                      "--wide-cracks", "0.5"],
                                      ["--init", str(MODEL_PATH), "--walls", "7"],
                                      ["--norm", "batch", "--widths", "4", "8", "8", "16", "16", "--ema", "0.9"]],
                          ids=["plain", "batch-norm-weighted-loss", "fine-tune-on-walls", "five-scales-averaged"])
@@ -269,6 +289,7 @@ def test_training_script_runs_one_short_epoch_and_exports_a_model_the_detector_l
     assert (run["walls"]["images"] > 0) == ("--walls" in options) and run["init"] == ("crack_unet.onnx" if "--init" in options else None)
     assert 0 <= run["best"]["val_f_flip"] <= 1
     assert run["scale"] == ([1, 2] if "--scale" in options else [0.75, 1.33])
+    assert run["wide_cracks"] == (0.5 if "--wide-cracks" in options else 0.0)
     assert run["widths"] == ([4, 8, 8, 16, 16] if "--widths" in options else learned_widths())
     net = load_model(out / "crack_unet.onnx")
     assert net is not load_model()
