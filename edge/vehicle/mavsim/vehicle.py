@@ -25,7 +25,7 @@ from edge.vehicle.apm.signing import enable_signing, parse_key
 from edge.vehicle.apm.streams import ARDUCOPTER_RATES, DEFAULT_RATES, StreamScheduler
 from edge.vehicle.driver import check_vec3
 from edge.vehicle.mavlink.link import open_connection
-from edge.vehicle.sim import SimDriver, SimParams
+from edge.vehicle.sim import MAX_STEP_S, SimDriver, SimParams
 from protocol.messages import Mode
 
 from .commands import GuidedTarget, SimCommands, _CommandInt
@@ -37,6 +37,10 @@ Vec3 = tuple[float, float, float]
 #: the scenario's geodetic origin (services/planner/scenarios/monorail.toml): lat, lon (deg), alt (m)
 DEFAULT_ORIGIN: Vec3 = (-33.87601, 151.191182, 0.0)
 _ON_GROUND = (Mode.IDLE, Mode.LANDED)
+#: the flight logic (AUTO's items, a GUIDED leg, the sticks) runs at least this often, simulated s: a pass that
+#: comes late (its process starved of CPU at an accelerated clock) catches up in such slices, as the firmware's
+#: scheduler runs it every loop
+FLIGHT_LOGIC_PERIOD_S = 0.05
 _ZERO: Vec3 = (0.0, 0.0, 0.0)
 
 
@@ -180,15 +184,27 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
                 self.errors.append(f"{msg.get_type()}: {exc!r}")
         now = time.monotonic()
         self._out(self.missions.tick(now))
-        self._fly()
-        try:
-            self.sim.step(self.clock.now())
-        except ValueError as exc:
-            self.errors.append(f"step: {exc}")
+        self._advance(self.clock.now())
         self._after_step(now)
         self._startup_texts()
         for name in self.streams.due(now):
             self._stream(name)
+
+    def _advance(self, until: float) -> None:
+        """The flight logic and the simulation on to simulated time ``until``, the logic at least every
+        :data:`FLIGHT_LOGIC_PERIOD_S` however late this pass is; a gap beyond the simulation's bound in one
+        step, which refuses it (a wrong clock, not a late pass)."""
+        sim = self.sim
+        while True:
+            self._fly()
+            at = until if until - sim.t > MAX_STEP_S else min(until, sim.t + FLIGHT_LOGIC_PERIOD_S)
+            try:
+                sim.step(at)
+            except ValueError as exc:
+                self.errors.append(f"step: {exc}")
+                return
+            if at >= until or sim.t <= at - FLIGHT_LOGIC_PERIOD_S:  # there, or the simulation did not move
+                return
 
     @property
     def airborne(self) -> bool:

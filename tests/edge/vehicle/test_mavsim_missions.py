@@ -340,3 +340,53 @@ def test_with_the_pilots_rc_sticks_centred_loiter_holds_its_altitude():
     finally:
         gcs.close()
         veh.close()
+
+
+def _fly_to_a_waypoint_and_land(late_s: float) -> tuple[list[float], tuple[float, float, float]]:
+    """AUTO: take off, one waypoint 10 m east, land; one pass of the sim ``late_s`` simulated s late when the
+    vehicle is 4 m short of the waypoint. The vehicle's easting from then on and where it landed."""
+    from edge.clock import SimClock
+
+    port = free_port(socket.SOCK_DGRAM)
+    gcs = Gcs(port)
+    veh = MavlinkSimVehicle(f"udpout:127.0.0.1:{port}", 1, speed=4.0)
+    ahead = [0.0]  # wall seconds the clock jumps: the next pass comes that much late
+    real = veh.clock
+    veh.clock = SimClock(real.epoch, real.speed, time_fn=lambda: time.time() + ahead[0])
+    veh.start()
+    try:
+        gcs.wait("HEARTBEAT", limit_s=10)
+        gcs.beat()
+        ack = upload(gcs, [(3, AI.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, 4.0),
+                           (3, AI.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, *_point(veh, 10.0, 0.0), 4.0),
+                           (3, AI.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, 0, 0, 0.0)])
+        assert ack.type == M.MAV_MISSION_ACCEPTED
+        assert gcs.mode(4) == M.MAV_RESULT_ACCEPTED  # GUIDED
+        assert gcs.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1) == M.MAV_RESULT_ACCEPTED
+        assert gcs.mode(3) == M.MAV_RESULT_ACCEPTED  # AUTO
+        end = time.monotonic() + 60
+        while veh.sim.state().pos[0] < 6.0:
+            assert time.monotonic() < end, veh.sim.state().pos
+            time.sleep(0.002)
+        ahead[0] = late_s / real.speed
+        east = []
+        while veh.sim.state().pos[2] > 0.5:
+            assert time.monotonic() < end, veh.sim.state().pos
+            east.append(veh.sim.state().pos[0])
+            time.sleep(0.002)
+        assert not veh.errors, veh.errors
+        return east, veh.sim.state().pos
+    finally:
+        gcs.close()
+        veh.close()
+
+
+def test_a_late_pass_flies_the_mission_as_an_on_time_one():
+    """A pass of the sim 2.5 simulated s late (its process starved of CPU at an accelerated clock) flies the
+    mission as the firmware would, whose mission logic runs every loop: the vehicle lands where it lands
+    without the late pass. Before, the late pass carried the leg's moving target on for the whole gap and
+    the vehicle landed 3 m further on."""
+    _, on_time = _fly_to_a_waypoint_and_land(0.0)
+    east, late = _fly_to_a_waypoint_and_land(2.5)
+    assert math.dist(on_time[:2], late[:2]) < 1.0, (on_time, late)
+    assert max(east) < 13.0, max(east)
