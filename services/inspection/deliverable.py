@@ -25,6 +25,7 @@ from protocol.imagecodec import decode_image
 from protocol.messages import ImageMeta
 from protocol.textsafe import md_text, xml_text
 from services.detector.detect import detect
+from services.detector.exposure import exposure_problem
 from services.detector.learned import ModelError
 from services.detector.measure import SEVERITY_LIMITS_M, centre_line, measure_mask, outline
 from services.detector.pipeline import MIN_REPORT_AREA_PX
@@ -123,9 +124,13 @@ def confirmed(mask: np.ndarray, by: np.ndarray, reach_px: int = CONFIRM_REACH_PX
 def segment(frames: Sequence[PosedFrame], method: str = "it+", confirm: str | None = CONFIRM_METHOD
             ) -> list[PosedFrame]:
     """The frames with their defect masks from the detector's ``method``, each component kept only where
-    ``confirm``'s mask of the same frame touches it (None: all kept)."""
+    ``confirm``'s mask of the same frame touches it (None: all kept); a frame that shows no surface
+    (:func:`~services.detector.exposure.exposure_problem`) is not segmented (an empty mask)."""
     out = []
     for f in frames:
+        if exposure_problem(f.grey) is not None:  # left out of the mosaic (Mosaic.unusable): nothing to look for
+            out.append(PosedFrame(f.meta, f.grey, np.zeros(f.grey.shape, np.uint8)))
+            continue
         mask = detect(f.grey, method, with_defects=False).mask
         if confirm:
             mask = confirmed(mask, detect(f.grey, confirm, with_defects=False).mask)

@@ -189,6 +189,21 @@ def test_a_capture_that_shows_no_surface_is_neither_coverage_nor_a_witness(wall)
     assert unusable_text(whole) == ""
 
 
+def test_a_frame_that_shows_no_surface_is_not_segmented(monkeypatch):
+    """The deliverable leaves such a frame out of its mosaic: the detector's methods are not run on it."""
+    from services.inspection import deliverable
+
+    calls = []
+    monkeypatch.setattr(deliverable, "detect", lambda grey, method, **kw: calls.append(method) or
+                        type("R", (), {"mask": np.full(grey.shape, 255, np.uint8)})())
+    rng = np.random.default_rng(0)
+    wall = PosedFrame(None, np.clip(120 + rng.normal(0, 20, (48, 64)), 0, 255).astype(np.uint8))
+    black = PosedFrame(None, np.zeros((48, 64), np.uint8))
+    out = deliverable.segment([wall, black], "it+", confirm="learned")
+    assert calls == ["it+", "learned"]
+    assert out[0].mask.all() and out[1].mask is not None and not out[1].mask.any()
+
+
 def test_the_logs_frames_that_do_not_decode_are_left_out_in_one_line(tmp_path, caplog):
     """The mission log's frames came from the bus: one declaring another size than its metadata (a decoder bomb
     among them) is left out undecoded, and however many there are, the report's reader says so once."""
