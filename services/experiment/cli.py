@@ -47,7 +47,13 @@ MODE = {False: "Secure mode (the default): every link class is a TLS stream (thr
 def command_of(args: ExperimentConfig, run: Run, folder: Path) -> list[str]:
     """The mission command of ``run`` under the options (what is flown, and what --dry-run prints)."""
     return mission_command(run, str(folder), links=args.links, speed=args.speed, uavs=args.uavs, scenario=args.scenario,
-                           insecure=args.insecure)
+                           insecure=args.insecure, mission=flown_with(args))
+
+
+def flown_with(args: ExperimentConfig) -> list[str]:
+    """The mission options every run shares beyond the grid's: the detector's method and the vehicle."""
+    out = ["--method", args.method, "--vehicle", args.vehicle]
+    return out + ["--flight", args.flight] if args.vehicle == "mavlink" else out
 
 
 def summarise(args: ExperimentConfig, cells: list[Cell], results: list[RunResult], started: float,
@@ -64,7 +70,8 @@ def summarise(args: ExperimentConfig, cells: list[Cell], results: list[RunResult
                        "jitter_ms": sorted({c.jitter_ms for c in cells}),
                        "recovery": sorted({c.recovery for c in cells}, reverse=True), "repeat": args.repeat,
                        "seed": args.seed, "links": args.links, "speed": args.speed, "uavs": args.uavs,
-                       "insecure": args.insecure,
+                       "insecure": args.insecure, "method": args.method, "vehicle": args.vehicle,
+                       "flight": args.flight if args.vehicle == "mavlink" else None,
                        "scenario": args.scenario, "timeout_s": args.timeout, "started": started,
                        "ended": time.time(), "interrupted": interrupted,
                        "runs_planned": len(cells) * args.repeat, "runs_done": len(results)},
@@ -84,10 +91,13 @@ def write_results(doc: dict[str, Any], out: Path) -> str:
     table = markdown(doc["cells"])
     e = doc["experiment"]
     plots = write_plots(doc["cells"], out) if doc["cells"] else []
+    flown = f"detector method `{e['method']}`, vehicle `{e['vehicle']}`" + (
+        f" in {e['flight']}" if e.get("flight") else "")
     md = [
         "# Experiment: the mission under impaired links", "",
         (f"Impaired links: `{e['links']}` (from 2 s after each proxy starts); speed x{e['speed']:g}, "
          f"{e['uavs']} UAVs, {e['repeat']} run(s) per cell, seeds {e['seed']}..{e['seed'] + e['repeat'] - 1}; "
+         f"{flown}; "
          f"{e['runs_done']} of {e['runs_planned']} runs done{' (interrupted)' if e['interrupted'] else ''}."), "",
         MODE[bool(e.get("insecure"))], "",
         table, "",

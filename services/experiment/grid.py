@@ -146,10 +146,12 @@ def impair_spec(cell: Cell, links: str = "all/udp", onset_s: float = ONSET_S) ->
 
 
 def mission_command(run: Run, out: str, *, links: str = "all/udp", speed: float = 6.0, uavs: int = 3,
-                    scenario: str | None = None, insecure: bool = False, python: str = sys.executable) -> list[str]:
-    """The ``skynet mission`` command line of one run (``python -m services.cli mission ...``)."""
+                    scenario: str | None = None, insecure: bool = False, python: str = sys.executable,
+                    mission: Sequence[str] = ()) -> list[str]:
+    """The ``skynet mission`` command line of one run (``python -m services.cli mission ...``); ``mission``: more
+    of its options, the same in every run (the detector's method, the vehicle)."""
     cmd = [python, "-m", "services.cli", "mission", "--quiet", "--speed", f"{speed:g}", "--uavs", str(uavs),
-           "--seed", str(run.seed), "--out", out, "--impair", impair_spec(run.cell, links)]
+           "--seed", str(run.seed), "--out", out, "--impair", impair_spec(run.cell, links), *mission]
     if not run.cell.recovery:
         cmd.append("--no-recovery")
     if scenario:

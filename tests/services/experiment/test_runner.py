@@ -74,7 +74,8 @@ def test_descendants_lists_children_and_grandchildren():
 
 def test_bad_options_exit_2(capsys):
     for argv in (["--loss-pct", "5,abc"], ["--delay-ms", "-5"], ["--recovery", "sometimes"], ["--links", "uav9"],
-                 ["--repeat", "0"], ["--timeout-s", "0"]):
+                 ["--repeat", "0"], ["--timeout-s", "0"], ["--method", "nope"], ["--vehicle", "plane"],
+                 ["--flight", "loiter"]):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2, argv
@@ -94,11 +95,23 @@ def test_dry_run_prints_one_command_per_run(capsys):
     assert not Path("/tmp/nowhere").exists()
 
 
+def test_every_run_flies_the_method_and_vehicle_asked_for(capsys):
+    """The grid varies the links; the detector's method and the vehicle are the user's, the same in every run."""
+    assert main(["--dry-run", "--loss-pct", "0,20", "--delay-ms", "0", "--out", "/tmp/nowhere"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 2 and all("--method it+r --vehicle sim" in line and "--flight" not in line for line in lines)
+    assert main(["--dry-run", "--loss-pct", "5", "--delay-ms", "0", "--method", "learned", "--vehicle", "mavlink",
+                 "--flight", "auto", "--out", "/tmp/nowhere"]) == 0
+    line = capsys.readouterr().out.strip()
+    assert "--method learned --vehicle mavlink --flight auto" in line and "'all/udp=after 2s loss 5%'" in line
+
+
 @pytest.mark.mission
 def test_one_cell_experiment_end_to_end(tmp_path, capsys):
-    """Slow (one whole mission, ~35 s wall at the default speed 6): the real thing, one tiny cell."""
+    """Slow (one whole mission, ~35 s wall at the default speed 6): the real thing, one tiny cell, with a detector
+    method of the user's choice (the paper's IT) reaching the run's detector."""
     out = tmp_path / "exp"
-    code = main(["--loss-pct", "10", "--delay-ms", "20", "--repeat", "1", "--seed", "3",
+    code = main(["--loss-pct", "10", "--delay-ms", "20", "--repeat", "1", "--seed", "3", "--method", "it",
                  "--out", str(out), "--timeout-s", "240"])
     printed = capsys.readouterr().out
     assert code == 0, printed
@@ -109,6 +122,9 @@ def test_one_cell_experiment_end_to_end(tmp_path, capsys):
     run = doc["runs"][0]
     assert run["status"] == "ok" and "all/udp=after 2s delay 20ms loss 10%" in run["command"]
     assert (Path(run["out"]) / "report.json").exists()
+    cmd = run["command"]
+    assert doc["experiment"]["method"] == "it" and cmd[cmd.index("--method") + 1] == "it"
+    assert ", method it, " in (Path(run["out"]) / "services.log").read_text()
     m = doc["cells"][0]["metrics"]
     # sane numbers: with recovery on every capture point is imaged, every command acknowledged. (Mission
     # success also needs every UAV within 2 m of its goal, a flight verdict this test does not judge.)
@@ -124,3 +140,4 @@ def test_one_cell_experiment_end_to_end(tmp_path, capsys):
     assert row in table and row in printed
     # what loss means in the mode flown: the default secure mode turns it into retransmission delay
     assert "Secure mode (the default)" in table and "retransmission delay" in printed
+    assert "detector method `it`, vehicle `sim`;" in table
