@@ -323,6 +323,8 @@ def train(a: argparse.Namespace) -> int:
     if not 2 <= len(widths) <= most or min(widths) < 1 or a.crop % 2 ** (len(widths) - 1):
         raise SystemExit(f"train_detector: --widths takes 2 to {most} positive channel counts and --crop a multiple "
                          f"of 2 ** (scales - 1), got {list(widths)} and {a.crop}")
+    if not 0 <= a.wide_cracks <= 1:
+        raise SystemExit(f"train_detector: --wide-cracks takes a probability in [0, 1], got {a.wide_cracks}")
     if not 0.1 <= a.scale[0] <= a.scale[1] <= 4:
         raise SystemExit(f"train_detector: --scale takes LO <= HI within 0.1-4, got {a.scale[0]} {a.scale[1]}")
     tr = [s for d in DATASETS for s in load_pairs(root, d, "train", a.limit)]

@@ -65,4 +65,6 @@ class ExperimentConfig(CliModel):
     @model_validator(mode="after")
     def _links(self) -> ExperimentConfig:
         self.links = check_links(self.links, self.uavs)  # the launcher's own grammar, for this fleet
+        if self.vehicle != "mavlink" and self.flight != EdgeConfig.model_fields["flight"].default:
+            raise ValueError("--flight is the MAVLink autopilots' (with --vehicle mavlink)")
         return self

@@ -184,16 +184,16 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
                 self.errors.append(f"{msg.get_type()}: {exc!r}")
         now = time.monotonic()
         self._out(self.missions.tick(now))
-        self._advance(self.clock.now())
-        self._after_step(now)
+        self._advance(self.clock.now(), now)
         self._startup_texts()
         for name in self.streams.due(now):
             self._stream(name)
 
-    def _advance(self, until: float) -> None:
-        """The flight logic and the simulation on to simulated time ``until``, the logic at least every
-        :data:`FLIGHT_LOGIC_PERIOD_S` however late this pass is; a gap beyond the simulation's bound in one
-        step, which refuses it (a wrong clock, not a late pass)."""
+    def _advance(self, until: float, now: float) -> None:
+        """The flight logic, the simulation and the rules after a step (landed-disarm, failsafes, fence) on to
+        simulated time ``until``, at least every :data:`FLIGHT_LOGIC_PERIOD_S` however late this pass is
+        (``now``: its monotonic time); a gap beyond the simulation's bound in one step, which refuses it (a wrong
+        clock, not a late pass)."""
         sim = self.sim
         while True:
             self._fly()
@@ -202,7 +202,8 @@ class MavlinkSimVehicle(SimTelemetry, SimCommands):
                 sim.step(at)
             except ValueError as exc:
                 self.errors.append(f"step: {exc}")
-                return
+                at = until
+            self._after_step(now)
             if at >= until or sim.t <= at - FLIGHT_LOGIC_PERIOD_S:  # there, or the simulation did not move
                 return
 

@@ -75,7 +75,7 @@ def test_descendants_lists_children_and_grandchildren():
 def test_bad_options_exit_2(capsys):
     for argv in (["--loss-pct", "5,abc"], ["--delay-ms", "-5"], ["--recovery", "sometimes"], ["--links", "uav9"],
                  ["--repeat", "0"], ["--timeout-s", "0"], ["--method", "nope"], ["--vehicle", "plane"],
-                 ["--flight", "loiter"]):
+                 ["--flight", "loiter"], ["--flight", "auto"]):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2, argv
