@@ -11,7 +11,9 @@ import collections
 import contextlib
 import json
 import logging
+import os
 import queue
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -624,7 +626,8 @@ class Bus:
 # ----------------------------------------------------------------------------- process helpers
 def setup_logging(name: str, level: str = "INFO") -> logging.Logger:
     """The process's log on stderr, one line a record, with text from other nodes escaped
-    (:class:`protocol.textsafe.SafeFormatter`)."""
+    (:class:`protocol.textsafe.SafeFormatter`); zenoh's own lines (``RUST_LOG``, default errors) without ANSI
+    colours unless stdout, where zenoh writes them, is a terminal (``NO_COLOR``, honoured by its tracing subscriber)."""
     from .textsafe import SafeFormatter
 
     root = logging.getLogger()
@@ -634,5 +637,7 @@ def setup_logging(name: str, level: str = "INFO") -> logging.Logger:
     for h in root.handlers:
         if h not in before:
             h.setFormatter(SafeFormatter(fmt, datefmt))
+    if not sys.stdout.isatty():  # zenoh writes on stdout: to a file or a pipe (services.log) without colours
+        os.environ.setdefault("NO_COLOR", "1")
     zenoh.init_log_from_env_or("error")
     return logging.getLogger(f"skynet.{name}")

@@ -1,7 +1,11 @@
 """The bus layer across real processes through a real gateway router (no mock of the bus)."""
 
 import json
+import os
 import signal
+import subprocess
+import sys
+import textwrap
 import time
 
 import pydantic
@@ -11,7 +15,7 @@ from protocol import keys
 from protocol.bus import Bus, BusConfig, endpoint_address
 from protocol.links import COMMAND, IMAGERY, TELEMETRY
 from protocol.messages import CommandAck, Hold, Land, Mode, VehicleState
-from tests.conftest import spawn_node
+from tests.conftest import ROOT, spawn_node
 from tests.conftest import wait_until as _wait
 
 FLEET = "test"
@@ -362,3 +366,26 @@ time.sleep(40)
         for node in nodes:
             node.kill()
             node.communicate()
+
+
+def test_zenohs_own_log_lines_reach_a_log_file_without_colour_codes():
+    """A service's output is the launcher's services.log, not a terminal: zenoh's lines (here a warning that a
+    client cannot reach its router) come without ANSI colour codes, as the project's own lines do."""
+    code = textwrap.dedent("""
+        import json, zenoh
+        from protocol.bus import setup_logging
+        setup_logging("probe")
+        c = zenoh.Config()
+        c.insert_json5("mode", json.dumps("client"))
+        c.insert_json5("connect/endpoints", json.dumps(["tcp/127.0.0.1:1"]))
+        c.insert_json5("connect/timeout_ms", "300")
+        try:
+            zenoh.open(c)
+        except Exception:
+            pass
+    """)
+    env = {k: v for k, v in os.environ.items() if k != "NO_COLOR"} | {"RUST_LOG": "warn"}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60, env=env)
+    printed = proc.stdout + proc.stderr  # zenoh writes its lines on stdout
+    assert "Unable to connect" in printed, printed[-2000:]
+    assert "\x1b" not in printed, printed[-2000:]
