@@ -127,7 +127,7 @@ class LaunchConfig(CliModel):
     fault: Annotated[list[str], Cli(metavar=FAULT)] = Field(default=[], description=(
         "scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|detector, "
         "partition uavI-uavJ|uavN|skynet; AT from the network start (skynet mission: from its mission phase's "
-        "start; a fault the mission ends before fails it); AT and D in wall-clock seconds"))
+        "start; a fault the mission ends before fails it); AT and D on the wall clock, not the simulation's"))
     keys: Annotated[str | None, Cli(metavar="DIR", exclusive="keys")] = Field(default=None, description=(
         f"fleet key set (skynet keys init); default: a development set in ${trustmode.KEYS_ENV} or "
         f"{trustmode.DEFAULT_KEYS}"))
@@ -183,8 +183,8 @@ class MissionLaunchConfig(LaunchConfig):
 
     fault: Annotated[list[str], Cli(metavar=FAULT)] = Field(default=[], description=(
         "scripted fault (repeatable): kill gateway|uavN|planner|detector, cut uavN|uplinks|planner|detector|gcs, "
-        "partition uavI-uavJ|uavN|skynet; AT (from the mission phase) and D in wall-clock seconds, the links' time: "
-        "at --speed 8 the mission phase lasts about 10 s"))
+        "partition uavI-uavJ|uavN|skynet; AT (from the mission phase) and D on the wall clock, the links' time, "
+        "not the simulation's: at --speed 8 the mission phase lasts an eighth of its simulated time"))
     out: str | None = Field(default=None, description="report folder (default reports/mission-<time>)")
     quiet: bool = Field(default=False, description="no live progress display")
     algorithm: str = Field(default=_default(GcsMissionConfig, "algorithm"), description="the planner's algorithm")
