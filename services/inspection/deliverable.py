@@ -10,7 +10,7 @@ import json
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,13 +25,12 @@ from protocol.imagecodec import decode_image
 from protocol.messages import ImageMeta
 from protocol.textsafe import md_text, xml_text
 from services.detector.detect import detect
-from services.detector.exposure import exposure_problem
 from services.detector.learned import ModelError
 from services.detector.measure import SEVERITY_LIMITS_M, centre_line, measure_mask, outline
 from services.detector.pipeline import MIN_REPORT_AREA_PX
 from services.recording.record import capture_name
 
-from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, moved_camera, plane_from_frames
+from .mosaic import Mosaic, Plane, PosedFrame, build_mosaic, moved_camera, plane_from_frames, unusable_frames
 
 log = logging.getLogger("skynet.inspection.deliverable")
 
@@ -121,14 +120,15 @@ def confirmed(mask: np.ndarray, by: np.ndarray, reach_px: int = CONFIRM_REACH_PX
     return np.where(keep[labels], 255, 0).astype(np.uint8)
 
 
-def segment(frames: Sequence[PosedFrame], method: str = "it+", confirm: str | None = CONFIRM_METHOD
-            ) -> list[PosedFrame]:
+def segment(frames: Sequence[PosedFrame], method: str = "it+", confirm: str | None = CONFIRM_METHOD,
+            unusable: Collection[int] | None = None) -> list[PosedFrame]:
     """The frames with their defect masks from the detector's ``method``, each component kept only where
-    ``confirm``'s mask of the same frame touches it (None: all kept); a frame that shows no surface
-    (:func:`~services.detector.exposure.exposure_problem`) is not segmented (an empty mask)."""
+    ``confirm``'s mask of the same frame touches it (None: all kept); a frame that shows no surface (``unusable``,
+    by default :func:`~.mosaic.unusable_frames`) is not segmented (an empty mask): the mosaic leaves it out."""
+    skip = unusable_frames(frames) if unusable is None else unusable
     out = []
-    for f in frames:
-        if exposure_problem(f.grey) is not None:  # left out of the mosaic (Mosaic.unusable): nothing to look for
+    for i, f in enumerate(frames):
+        if i in skip:
             out.append(PosedFrame(f.meta, f.grey, np.zeros(f.grey.shape, np.uint8)))
             continue
         mask = detect(f.grey, method, with_defects=False).mask
@@ -179,15 +179,16 @@ def inspect_frames(frames: Sequence[PosedFrame], plane: Plane | None = None, ori
     t0 = time.perf_counter()
     segmented = any(f.mask is None for f in frames)
     unconfirmed = ""
+    unusable = unusable_frames(frames)  # judged once, for the segmentation and the mosaic
     try:
-        seg = segment(frames, method, confirm) if segmented else list(frames)
+        seg = segment(frames, method, confirm, unusable) if segmented else list(frames)
     except ModelError as exc:  # the confirming model cannot run: every component kept, and the findings say why
         log.warning("deliverable: components not confirmed by %s: %s", confirm, exc)
         unconfirmed, confirm = f"not confirmed by `{confirm}`: {exc}", None
-        seg = segment(frames, method, None)
+        seg = segment(frames, method, None, unusable)
     t1 = time.perf_counter()
     pl = plane if plane is not None else plane_from_frames([f.meta for f in frames])
-    mos = build_mosaic(seg, pl, m_per_px, align_m)
+    mos = build_mosaic(seg, pl, m_per_px, align_m, unusable)
     t2 = time.perf_counter()
     _, labels, stats, _ = cv2.connectedComponentsWithStats((mos.mask > 0).astype(np.uint8), connectivity=8,
                                                           ltype=cv2.CV_32S)

@@ -18,7 +18,7 @@ from protocol.scenario import surface_frame
 from services.detector.exposure import exposure_problem
 
 __all__ = ["Plane", "Mosaic", "PosedFrame", "alignment", "build_mosaic", "canvas_homography", "frame_gsd",
-           "moved_camera", "plane_from_frames", "registration", "solve_shifts"]
+           "moved_camera", "plane_from_frames", "registration", "solve_shifts", "unusable_frames"]
 
 
 @dataclass(frozen=True)
@@ -261,11 +261,17 @@ def solve_shifts(n: int, pairs: Sequence[tuple[int, int, float, float, float]], 
     return c
 
 
+def unusable_frames(frames: Sequence[PosedFrame]) -> dict[int, str]:
+    """Index -> what is wrong, of the frames that show no surface (:func:`exposure_problem`)."""
+    return {i: p for i, f in enumerate(frames) if (p := exposure_problem(f.grey)) is not None}
+
+
 def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | None = None,
-                 align_m: float = 0.0) -> Mosaic:
+                 align_m: float = 0.0, unusable: dict[int, str] | None = None) -> Mosaic:
     """Warp every frame onto ``plane`` (docs/report.md) at ``m_per_px``, by default the frames' median ground
     sampling distance (their own resolution: nothing lost or invented). With ``align_m`` > 0 the frames are first
-    moved along the surface to fit each other (:func:`registration`), by at most ``align_m`` between any two."""
+    moved along the surface to fit each other (:func:`registration`), by at most ``align_m`` between any two.
+    ``unusable``: :func:`unusable_frames` of ``frames`` when the caller has it already."""
     import time
 
     t0 = time.perf_counter()
@@ -280,7 +286,7 @@ def build_mosaic(frames: Sequence[PosedFrame], plane: Plane, m_per_px: float | N
     H = max(1, int(math.ceil(plane.height_m / m_per_px)))
     if W * H > MAX_CANVAS_PX:
         raise ValueError(f"mosaic of {W} x {H} px exceeds {MAX_CANVAS_PX / 1e6:.0f} MP: raise m_per_px")
-    unusable = {i: p for i, f in enumerate(frames) if (p := exposure_problem(f.grey)) is not None}
+    unusable = unusable_frames(frames) if unusable is None else unusable
     shifts = registration(frames, plane, m_per_px, align_m, set(unusable)) if align_m > 0 else None
     out = _compose(frames, plane, m_per_px, (H, W), shifts, unusable)
     shifts_m: list[tuple[float, float] | None] = []
