@@ -36,6 +36,12 @@ def _cli(info: FieldInfo) -> Cli:
     return next((m for m in info.metadata if isinstance(m, Cli)), Cli())
 
 
+def default_of(model: type[BaseModel], name: str) -> Any:
+    """A configuration's own default for one of its options, for another configuration that offers the same
+    option (one place for each value)."""
+    return model.model_fields[name].get_default(call_default_factory=True)
+
+
 def flag_of(name: str, info: FieldInfo) -> str:
     return _cli(info).flag or "--" + name.replace("_", "-")
 

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 from pydantic import BeforeValidator, Field, PlainSerializer, model_validator
 
 from edge.config import EdgeConfig, Flight, Vehicle
-from protocol.cliconfig import Cli, CliModel
+from protocol.cliconfig import Cli, CliModel, default_of
 from services.detector.config import DetectorConfig, Method
 
 from .grid import check_links, parse_list, parse_recovery
@@ -49,10 +49,10 @@ class ExperimentConfig(CliModel):
     speed: float = Field(default=6.0, gt=0.0, lt=1000.0, description="simulation speed factor")
     uavs: Annotated[int, Cli(metavar="N")] = Field(default=3, ge=1, le=255, description="UAVs of each mission")
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
-    method: Method = Field(default=DetectorConfig.model_fields["method"].default, description="the detector's method")
-    vehicle: Vehicle = Field(default=EdgeConfig.model_fields["vehicle"].default, description=(
+    method: Method = Field(default=default_of(DetectorConfig, "method"), description="the detector's method")
+    vehicle: Vehicle = Field(default=default_of(EdgeConfig, "vehicle"), description=(
         "sim: the built-in vehicle; mavlink: sim autopilots over MAVLink (skynet mission --vehicle)"))
-    flight: Flight = Field(default=EdgeConfig.model_fields["flight"].default, description=(
+    flight: Flight = Field(default=default_of(EdgeConfig, "flight"), description=(
         "--vehicle mavlink: guided or auto (skynet mission --flight)"))
     seed: int = Field(default=0, ge=0, description="run k of every cell uses seed + k")
     out: str | None = Field(default=None, description="results folder (default reports/experiment-<time>)")
@@ -65,6 +65,6 @@ class ExperimentConfig(CliModel):
     @model_validator(mode="after")
     def _links(self) -> ExperimentConfig:
         self.links = check_links(self.links, self.uavs)  # the launcher's own grammar, for this fleet
-        if self.vehicle != "mavlink" and self.flight != EdgeConfig.model_fields["flight"].default:
+        if self.vehicle != "mavlink" and self.flight != default_of(EdgeConfig, "flight"):
             raise ValueError("--flight is the MAVLink autopilots' (with --vehicle mavlink)")
         return self

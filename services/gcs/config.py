@@ -7,7 +7,7 @@ from typing import Annotated
 from pydantic import Field, field_validator
 
 from protocol.bus import BusMode, BusOptions
-from protocol.cliconfig import Cli
+from protocol.cliconfig import Cli, default_of
 from services.detector.config import DetectorConfig, Method
 
 from .mission import MissionOptions
@@ -34,7 +34,7 @@ class GcsMissionConfig(BusOptions):
         default=_MISSION.ready_timeout_s, gt=0.0,
         description="wait this long for every UAV's autopilot to be ready before takeoff, then refuse, s")
     no_record: bool = Field(default=False, description="do not log the mission to OUT/mission.mcap")
-    method: Method = Field(default=DetectorConfig.model_fields["method"].get_default(),
+    method: Method = Field(default=default_of(DetectorConfig, "method"),
                            description="the detection method of the mission's detector (skynet detector --method): "
                                        "kept in the mission log and named in the findings")
     web: Annotated[str | None, Cli(metavar="[HOST]:PORT")] = Field(

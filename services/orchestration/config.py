@@ -5,13 +5,13 @@ Design notes: docs/architecture.md (services/orchestration/config.py).
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
-from pydantic import AfterValidator, BaseModel, Field, model_validator
+from pydantic import AfterValidator, Field, model_validator
 
 from edge.config import CAPTURE_LINKS, FRAME_SIZE, EdgeConfig, Flight, FrameSize, Niceness, RateHz, Vehicle
 from protocol import keys
-from protocol.cliconfig import Cli, CliModel
+from protocol.cliconfig import Cli, CliModel, default_of
 from services import attach
 from services.detector.config import DetectorConfig, Method
 from services.gateway.ingress import STATE_INGRESS_HZ
@@ -38,18 +38,13 @@ def _impair(text: str) -> str:
 ImpairItem = Annotated[str, AfterValidator(_impair)]
 
 
-def _default(model: type[BaseModel], name: str) -> Any:
-    """A service's own default for one of its options (one place for each value)."""
-    return model.model_fields[name].get_default(call_default_factory=True)
-
-
 class LaunchConfig(CliModel):
     """The options of ``skynet up``: the fleet, its sites, impairments, faults, trust and extra services."""
 
     uavs: Annotated[int, Cli(metavar="N")] = Field(default=3, ge=1, le=255, description="number of UAVs")
     scenario: str | None = Field(default=None, description="scenario file (default: the paper's monorail bridge)")
     speed: float = Field(default=4.0, description="simulation speed factor (1 = real time)")
-    camera: str = Field(default=_default(EdgeConfig, "camera"), description="synthetic | an image folder | video:<url>")
+    camera: str = Field(default=default_of(EdgeConfig, "camera"), description="synthetic | an image folder | video:<url>")
     frame_size: Annotated[FrameSize | None, Cli(metavar="WxH")] = Field(
         default=None, description=f"capture frame size WxH (default: {FRAME_SIZE[0]}x{FRAME_SIZE[1]}, or the camera's own "
                                   "resolution when the scenario asks for full frames; 4000x3000: the paper's 12 MP)")
@@ -71,11 +66,11 @@ class LaunchConfig(CliModel):
         "limit; services/gateway/ingress.py)"))
     detect_max_mp: Annotated[float | None, Cli(metavar="MP")] = Field(default=None, description=(
         f"the detector detects frames above MP megapixels on a reduced decode (its default "
-        f"{_default(DetectorConfig, 'detect_max_mp'):g}; 0: never)"))
+        f"{default_of(DetectorConfig, 'detect_max_mp'):g}; 0: never)"))
     capture_link: Literal[CAPTURE_LINKS] = Field(  # type: ignore[valid-type]
-        default=_default(EdgeConfig, "capture_link"),
+        default=default_of(EdgeConfig, "capture_link"),
         description="link of capture frames: best-effort (UDP), reliable (TCP), auto: reliable above 1 MP")
-    vehicle: Vehicle = Field(default=_default(EdgeConfig, "vehicle"), description=(
+    vehicle: Vehicle = Field(default=default_of(EdgeConfig, "vehicle"), description=(
         "sim: the built-in vehicle; mavlink: each edge flies an autopilot over MAVLink: its --autopilot endpoint, "
         "else a sim autopilot (skynet sim-autopilot) started beside it on loopback"))
     autopilot: Annotated[list[str], Cli(metavar="uavN=ENDPOINT")] = Field(default=[], description=(
@@ -101,11 +96,11 @@ class LaunchConfig(CliModel):
         "--vehicle mavlink: the firmware the sim autopilots present, ArduCopter or PX4 (the edges pick the "
         "dialect from its HEARTBEAT)"))
     ready_timeout: Annotated[float, Cli(flag="--ready-timeout-s", metavar="S")] = Field(
-        default=_default(GcsMissionConfig, "ready_timeout"), gt=0.0,
+        default=default_of(GcsMissionConfig, "ready_timeout"), gt=0.0,
         description="the ground station waits this long for every UAV's autopilot to be ready, then refuses, s")
-    flight: Flight = Field(default=_default(EdgeConfig, "flight"), description=(
+    flight: Flight = Field(default=default_of(EdgeConfig, "flight"), description=(
         "--vehicle mavlink: guided (position targets) or auto (a waypoint mission flown in AUTO)"))
-    method: Method = Field(default=_default(DetectorConfig, "method"), description="the detector's method")
+    method: Method = Field(default=default_of(DetectorConfig, "method"), description="the detector's method")
     detectors: Annotated[int, Cli(metavar="N")] = Field(default=1, description=(
         "detector instances sharing the cameras (detector-K analyses the UAVs with id %% N == K)"))
     sites: Annotated[int, Cli(metavar="S")] = Field(default=1, description=(
@@ -138,9 +133,9 @@ class LaunchConfig(CliModel):
         default=False, description="no TLS, no access control, unsigned commands: development only")
     video: VideoCodec | None = Field(default=None, description=(
         "also run skynet video: each UAV's preview as RTP/UDP to 127.0.0.1:PORT+2(n-1) (--preview-port)"))
-    video_sdp: Annotated[str, Cli(flag="--sdp-dir", metavar="DIR")] = Field(default=_default(VideoConfig, "sdp_dir"),
+    video_sdp: Annotated[str, Cli(flag="--sdp-dir", metavar="DIR")] = Field(default=default_of(VideoConfig, "sdp_dir"),
                            description="folder of the video streams' SDP files (with --video)")
-    video_port: Annotated[int, Cli(flag="--preview-port", metavar="PORT")] = Field(default=_default(VideoConfig, "port"), description=(
+    video_port: Annotated[int, Cli(flag="--preview-port", metavar="PORT")] = Field(default=default_of(VideoConfig, "port"), description=(
         "UAV 1's preview port (with --video); UAV n's is PORT + 2(n-1)"))
     web: Annotated[str | None, Cli(metavar="[HOST]:PORT")] = Field(default=None, description=(
         "serve the live web page of the fleet there, e.g. :8080 (loopback unless a host is given)"))
@@ -187,7 +182,7 @@ class MissionLaunchConfig(LaunchConfig):
         "not the simulation's: at --speed 8 the mission phase lasts an eighth of its simulated time"))
     out: str | None = Field(default=None, description="report folder (default reports/mission-<time>)")
     quiet: bool = Field(default=False, description="no live progress display")
-    algorithm: str = Field(default=_default(GcsMissionConfig, "algorithm"), description="the planner's algorithm")
+    algorithm: str = Field(default=default_of(GcsMissionConfig, "algorithm"), description="the planner's algorithm")
     no_record: bool = Field(default=False, description="do not log the mission to OUT/mission.mcap")
 
 

@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 import pytest
 from pydantic import Field
 
-from protocol.cliconfig import Cli, CliModel, add_options, from_namespace, parse, to_argv
+from protocol.cliconfig import Cli, CliModel, add_options, default_of, from_namespace, parse, to_argv
 
 
 def _services():
@@ -190,3 +190,14 @@ def test_gcs_is_the_mission_and_gcs_mission_is_the_same_command():
     for argv in (["gcs", "--scenario", "/nonexistent.toml"], ["gcs", "mission", "--scenario", "/nonexistent.toml"]):
         p = subprocess.run([sys.executable, "-m", "services.cli", *argv], capture_output=True, text=True, timeout=60)
         assert p.returncode == 2 and "cannot read scenario file" in p.stderr.strip().splitlines()[-1], p.stderr
+
+
+def test_default_of_is_the_models_own_default_factories_called():
+    from pydantic import BaseModel, Field
+
+    class Opts(BaseModel):
+        speed: float = 4.0
+        hosts: list[str] = Field(default_factory=lambda: ["a"])
+
+    assert default_of(Opts, "speed") == 4.0 and default_of(Opts, "hosts") == ["a"]
+    assert default_of(Opts, "hosts") is not default_of(Opts, "hosts")  # a fresh list each time
