@@ -55,9 +55,12 @@ def test_mission_through_the_launcher(nominal_mission, nominal_report_again):
     assert "## Inspection deliverable" in md and "inspection/mosaic.png" in md
 
 
-def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
+def test_up_starts_everything_and_ctrl_c_leaves_no_orphans(monkeypatch):
     """``skynet up`` signals it is up (its own ready pipe, as its services do to it) once every service it
-    started has signalled; Ctrl-C then ends them all."""
+    started has signalled; Ctrl-C then ends them all. Zenoh's own lines (``RUST_LOG=info`` here) come through
+    the launcher's output without colour codes."""
+    monkeypatch.setenv("RUST_LOG", "info")
+    monkeypatch.delenv("NO_COLOR", raising=False)
     with launched(["up", "--speed", "4"], timeout=90, stop_timeout=30) as up:
         pids = [int(p) for p in subprocess.run(["pgrep", "-P", str(up.proc.pid)], capture_output=True,
                                                text=True).stdout.split()]
@@ -69,6 +72,9 @@ def test_up_starts_everything_and_ctrl_c_leaves_no_orphans():
             os.kill(pid, 0)
     assert "shutting down" in rest
     assert "network up" in rest and "all services up: gateway uav1 uav2 uav3 planner detector" in rest, rest[-3000:]
+    zenoh_lines = [line for line in up.lines if "zenoh::" in line]
+    assert zenoh_lines, rest[-3000:]
+    assert not any("\x1b" in line or "\\x1b" in line for line in zenoh_lines), zenoh_lines[:3]
 
 
 def test_impairment_proxy_on_one_uav_delays_only_its_link(dev_keys, tmp_path):
