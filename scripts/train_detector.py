@@ -8,6 +8,7 @@ Usage (the ``train`` extra: ``pip install -e '.[train]'``)::
         [--dice-weight W] [--crop PX] [--crops-per-image K] [--walls SEED ...] [--init MODEL.onnx]
         [--scale LO HI] [--wide-cracks P]
     python scripts/train_detector.py evaluate --data DIR --model services/detector/models/crack_unet.onnx --out DIR
+    python scripts/train_detector.py probe --data DIR [--model MODEL.onnx] [--out FILE.json]
 
 ``DIR`` holds ``crackforest/`` and ``deepcrack-train/`` (each ``images/`` and ``masks/``). The splits are
 fixed by name before any training (:func:`services.detector.learned.splits`): CrackForest's even-numbered
@@ -568,6 +569,42 @@ def evaluate_held_out(a: argparse.Namespace) -> int:
     return 0
 
 
+#: the flat dark bands a probe model is shown (px), as the wide-crack guard of tests/services/detector/test_learned.py
+BANDS = (3, 5, 7, 9, 11)
+
+
+def probe_wide(a: argparse.Namespace) -> int:
+    """How much of a wide crack a model sees (the probes' second bar, docs/detector.md): the share of a flat dark
+    band on a noisy wall taken as crack, per width of :data:`BANDS`, and the share of the pixels of cracks 7-11 px
+    wide painted (:func:`paint_wide_crack`) on the validation photographs that are found; printed and, with
+    ``--out``, written as JSON. No training framework needed."""
+    from services.detector.learned import probability
+
+    model = str(Path(a.model).resolve()) if a.model else None
+    rng = np.random.default_rng(0)
+    wall = np.clip(170 + rng.normal(0, 8, (160, 240)), 0, 255).astype(np.uint8)
+    bands = {}
+    for w in BANDS:
+        g = wall.copy()
+        top = 80 - w // 2
+        g[top:top + w, 50:178] = 60
+        bands[str(w)] = float(np.mean(probability(g, model)[top:top + w, 60:168] > 0.5))
+    rng = np.random.default_rng(11)
+    found = []
+    for _, g, m in [s for d in DATASETS for s in load_pairs(Path(a.data), d, "val")][:a.images]:
+        x = standardise(g)
+        y, mm = paint_wide_crack(rng, x, m.astype(np.float32), width=(7, 11))
+        painted = (mm > 0) & ~m
+        shown = np.clip(float(g.mean()) + y * (float(g.std()) + 1.0), 0, 255).astype(np.uint8)
+        found.append(float(np.mean(probability(shown, model)[painted] > 0.5)))
+    doc = {"model": Path(model).name if model else "shipped", "flat_band_share_by_width_px": bands,
+           "painted_7_11px_found": float(np.mean(found)) if found else None, "painted_images": len(found)}
+    print(json.dumps(doc))
+    if a.out:
+        Path(a.out).write_text(json.dumps(doc, indent=1))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="train_detector.py", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -606,9 +643,14 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--model", help="ONNX file (default: the shipped one)")
     e.add_argument("--methods", nargs="+", default=["learned", "it+r"])
     e.add_argument("--out", help="folder for eval_<dataset>.md/.json and eval_summary.json")
+    w = sub.add_parser("probe", help="how much of a wide crack a model sees: flat bands, painted wide cracks")
+    w.add_argument("--data", required=True)
+    w.add_argument("--model", help="ONNX file (default: the shipped one)")
+    w.add_argument("--images", type=int, default=30, help="validation photographs painted on")
+    w.add_argument("--out", help="JSON file of the figures")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
-    return {"train": train, "evaluate": evaluate_held_out}[a.command](a)
+    return {"train": train, "evaluate": evaluate_held_out, "probe": probe_wide}[a.command](a)
 
 
 if __name__ == "__main__":

@@ -244,6 +244,19 @@ def test_a_painted_wide_crack_is_a_dark_valley_in_the_mask_as_wide_as_asked():
         assert 4.0 <= np.median(ridge) <= 6.5 and dt.max() <= 9.0, (np.median(ridge), dt.max())
 
 
+def test_the_wide_crack_probe_reports_the_shipped_models_flat_bands_and_painted_cracks(tmp_path):
+    """``train_detector.py probe`` (no training framework): the guard's flat bands and painted wide cracks."""
+    data = tmp_path / "data"
+    _synthetic_set(data / "crackforest", 10, 100)
+    _synthetic_set(data / "deepcrack-train", 12, 200)
+    out = tmp_path / "probe.json"
+    assert _train_script().main(["probe", "--data", str(data), "--images", "3", "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["model"] == "shipped" and 1 <= doc["painted_images"] <= 3 and 0 <= doc["painted_7_11px_found"] <= 1
+    assert set(doc["flat_band_share_by_width_px"]) == {"3", "5", "7", "9", "11"}
+    assert min(doc["flat_band_share_by_width_px"].values()) >= 0.9  # the guard's bar, on the shipped model
+
+
 TRAIN_EXTRA = all(importlib.util.find_spec(m) for m in ("jax", "optax", "onnx"))
 
 
